@@ -1,0 +1,51 @@
+# Two commands on a fresh machine: `make demo` and `make test`.
+SHELL := /bin/bash
+PYTHON ?= python3.11
+VENV := .venv
+PY := $(VENV)/bin/python
+PIP := $(PY) -m pip
+STAMP := $(VENV)/.installed
+DEMO_DIR ?= demo_out
+
+.PHONY: install system-deps demo test lint typecheck pytest bench clean
+
+install: $(STAMP)
+
+# open3d needs libusb at import time; the browser test needs Chromium. Both come from Debian.
+system-deps:
+	@if command -v apt-get >/dev/null 2>&1 && [ "$$(id -u)" = 0 ]; then \
+	  if ! dpkg -s libusb-1.0-0 >/dev/null 2>&1; then \
+	    apt-get update -qq && apt-get install -y -qq libusb-1.0-0 >/dev/null; fi; \
+	else echo "note: cannot apt-get; make sure libusb-1.0-0 is installed"; fi
+
+$(STAMP): pyproject.toml | system-deps
+	@command -v $(PYTHON) >/dev/null 2>&1 || { echo "$(PYTHON) not found"; exit 1; }
+	$(PYTHON) -m venv $(VENV)
+	$(PIP) install -q --upgrade pip wheel setuptools
+	# The CPU build of torch first: a loose requirement would pull several GB of CUDA packages.
+	$(PIP) install -q torch==2.13.0
+	$(PIP) install -q -e '.[dev]'
+	touch $(STAMP)
+
+demo: install
+	$(VENV)/bin/scenesearch demo --out $(DEMO_DIR)
+
+lint: install
+	$(VENV)/bin/ruff check .
+
+typecheck: install
+	$(VENV)/bin/mypy
+
+pytest: install
+	$(VENV)/bin/pytest
+
+test: install
+	$(VENV)/bin/ruff check .
+	$(VENV)/bin/mypy
+	$(VENV)/bin/pytest
+
+bench: install
+	$(PY) -m benchmarks.run --out benchmarks/results.json
+
+clean:
+	rm -rf $(VENV) build *.egg-info .mypy_cache .ruff_cache

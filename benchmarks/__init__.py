@@ -1,0 +1,1 @@
+"""Reproducible speed and quality benchmarks (``make bench``); not part of ``make test``."""

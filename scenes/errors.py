@@ -1,0 +1,67 @@
+"""Errors for bad input: each names the file, the row or frame, and the field."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+
+class ScenesError(Exception):
+    """Base class of every error raised by :mod:`scenes`."""
+
+
+@dataclass(frozen=True)
+class Problem:
+    """One thing wrong with an input file.
+
+    Attributes:
+        path: the file (or folder) at fault.
+        message: what is wrong, in words.
+        field: the column or key at fault, if any.
+        row: the 0-based row, line or frame at fault, if any.
+    """
+
+    path: Path
+    message: str
+    field: str | None = None
+    row: int | None = None
+
+    def __str__(self) -> str:
+        where = str(self.path)
+        if self.row is not None:
+            where += f", row {self.row}"
+        if self.field is not None:
+            where += f", field '{self.field}'"
+        return f"{where}: {self.message}"
+
+
+class LogFormatError(ScenesError):
+    """A log file is missing, unreadable, or holds values that break the log contract."""
+
+    def __init__(self, problems: list[Problem] | Problem) -> None:
+        self.problems = [problems] if isinstance(problems, Problem) else list(problems)
+        if not self.problems:
+            raise ValueError("LogFormatError needs at least one problem")
+        lines = [str(p) for p in self.problems[:20]]
+        if len(self.problems) > 20:
+            lines.append(f"... and {len(self.problems) - 20} more")
+        super().__init__("\n".join(lines))
+
+    @staticmethod
+    def single(path: Path | str, message: str, field: str | None = None, row: int | None = None) -> LogFormatError:
+        return LogFormatError(Problem(Path(path), message, field, row))
+
+
+class ImportFormatError(ScenesError):
+    """A file of a foreign format (KITTI, detections, …) cannot be converted."""
+
+    def __init__(self, path: Path | str, message: str, line: int | None = None, field: str | None = None) -> None:
+        self.path = Path(path)
+        self.line = line
+        self.field = field
+        where = str(self.path)
+        if line is not None:
+            where += f", line {line}"
+        if field is not None:
+            where += f", field '{field}'"
+        super().__init__(f"{where}: {message}")

@@ -76,7 +76,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130
-    except Exception as exc:  # noqa: BLE001 - the CLI turns known errors into one clear line
+    except Exception as exc:
         from scenes.errors import ScenesError
 
         known: tuple[type[BaseException], ...] = (ScenesError, FileNotFoundError, FileExistsError, ValueError)

@@ -215,12 +215,12 @@ class SE3:
     @staticmethod
     def from_quat(quat_wxyz: NDArray[np.floating], translation: NDArray[np.floating]) -> SE3:
         """Build from a (4,) scalar-first quaternion and a (3,) translation."""
-        return SE3(quat_to_rotmat(quat_wxyz), translation)
+        return SE3(quat_to_rotmat(quat_wxyz), np.asarray(translation, dtype=np.float64))
 
     @staticmethod
     def from_yaw(yaw_rad: float, translation: NDArray[np.floating]) -> SE3:
         """Build a rotation about +z by ``yaw_rad`` followed by a (3,) translation."""
-        return SE3(yaw_to_rotmat(yaw_rad), translation)
+        return SE3(yaw_to_rotmat(yaw_rad), np.asarray(translation, dtype=np.float64))
 
     @property
     def matrix(self) -> FloatArray:

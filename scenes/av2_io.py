@@ -1,0 +1,338 @@
+"""Read and write logs in the Argoverse 2 sensor layout.
+
+Every reader validates what it reads (see :mod:`scenes.validate`) and raises
+:class:`~scenes.errors.LogFormatError` listing each problem with its file, row and field. Every
+writer writes atomically (temp name, then rename), so a reader never sees a half file.
+
+Layout::
+
+    <log_id>/annotations.feather
+    <log_id>/city_SE3_egovehicle.feather
+    <log_id>/map/log_map_archive_<log_id>____<CITY>_city_0.json
+    <log_id>/calibration/egovehicle_SE3_sensor.feather, intrinsics.feather
+    <log_id>/sensors/lidar/<timestamp_ns>.feather
+    <log_id>/sensors/cameras/<camera>/<timestamp_ns>.jpg
+    <log_id>/log_metadata.json                      (beyond AV2; optional)
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.feather as feather
+from numpy.typing import NDArray
+
+from scenes import validate
+from scenes.atomic import atomic_path, atomic_write_bytes, atomic_write_text
+from scenes.calibration import Calibration, CameraIntrinsics
+from scenes.errors import LogFormatError, Problem
+from scenes.geometry import SE3
+from scenes.map import VectorMap
+from scenes.metadata import METADATA_FILENAME, LogMetadata
+from scenes.sensors import LidarSweep
+from scenes.tracks import Annotations, EgoTrajectory
+
+ANNOTATIONS_FILENAME = "annotations.feather"
+POSES_FILENAME = "city_SE3_egovehicle.feather"
+EXTRINSICS_PATH = Path("calibration") / "egovehicle_SE3_sensor.feather"
+INTRINSICS_PATH = Path("calibration") / "intrinsics.feather"
+LIDAR_DIR = Path("sensors") / "lidar"
+CAMERAS_DIR = Path("sensors") / "cameras"
+
+
+def _read_table(path: Path) -> pa.Table:
+    if not path.is_file():
+        raise LogFormatError.single(path, "file is missing")
+    try:
+        return feather.read_table(path)
+    except (OSError, pa.ArrowInvalid, pa.ArrowException) as exc:
+        raise LogFormatError.single(path, f"unreadable feather file (truncated or corrupt?): {exc}") from exc
+
+
+def _write_table(path: Path, table: pa.Table) -> None:
+    with atomic_path(path) as tmp:
+        feather.write_feather(table, tmp, compression="lz4")
+
+
+def _floats(table: pa.Table, names: list[str]) -> NDArray[np.float64]:
+    return np.stack([np.asarray(table.column(n).to_numpy(), dtype=np.float64) for n in names], axis=1)
+
+
+# ---------------------------------------------------------------------------------------------
+# Annotations
+
+
+def read_annotations(path: Path) -> Annotations:
+    """Read and validate ``annotations.feather``."""
+    table = _read_table(path)
+    problems = validate.check_columns(
+        path, table, validate.ANNOTATION_COLUMNS, validate.OPTIONAL_ANNOTATION_COLUMNS
+    )
+    if problems:
+        raise LogFormatError(problems)
+    if table.num_rows == 0:
+        raise LogFormatError.single(path, "table has no rows")
+    timestamps = np.asarray(table.column("timestamp_ns").to_numpy(), dtype=np.int64)
+    track_ids = np.asarray(table.column("track_uuid").to_pylist(), dtype=np.str_)
+    categories = np.asarray(table.column("category").to_pylist(), dtype=np.str_)
+    size = _floats(table, ["length_m", "width_m", "height_m"])
+    quat = _floats(table, ["qw", "qx", "qy", "qz"])
+    center = _floats(table, ["tx_m", "ty_m", "tz_m"])
+    floats = {
+        **{n: size[:, i] for i, n in enumerate(["length_m", "width_m", "height_m"])},
+        **{n: quat[:, i] for i, n in enumerate(["qw", "qx", "qy", "qz"])},
+        **{n: center[:, i] for i, n in enumerate(["tx_m", "ty_m", "tz_m"])},
+    }
+    problems = validate.check_finite(path, floats)
+    if not problems:
+        problems += validate.check_quaternions(path, quat)
+        problems += validate.check_positive_sizes(path, size)
+    problems += validate.check_increasing(path, timestamps, strict=False)
+    problems += validate.check_unique_track_per_frame(path, timestamps, track_ids)
+    if problems:
+        raise LogFormatError(problems)
+    if "num_interior_pts" in table.column_names:
+        points = np.asarray(table.column("num_interior_pts").to_numpy(), dtype=np.int64)
+    else:
+        points = np.full(table.num_rows, -1, dtype=np.int64)
+    return Annotations(timestamps, track_ids, categories, center, size, quat, points)
+
+
+def write_annotations(log_dir: Path, annotations: Annotations) -> Path:
+    """Write ``annotations.feather`` sorted by (timestamp, track id)."""
+    ann = annotations.sorted()
+    table = pa.table(
+        {
+            "timestamp_ns": pa.array(ann.timestamp_ns, pa.int64()),
+            "track_uuid": pa.array(ann.track_id.tolist(), pa.string()),
+            "category": pa.array(ann.category.tolist(), pa.string()),
+            "length_m": ann.size_lwh_m[:, 0],
+            "width_m": ann.size_lwh_m[:, 1],
+            "height_m": ann.size_lwh_m[:, 2],
+            "qw": ann.quat_wxyz[:, 0],
+            "qx": ann.quat_wxyz[:, 1],
+            "qy": ann.quat_wxyz[:, 2],
+            "qz": ann.quat_wxyz[:, 3],
+            "tx_m": ann.center_xyz_m[:, 0],
+            "ty_m": ann.center_xyz_m[:, 1],
+            "tz_m": ann.center_xyz_m[:, 2],
+            "num_interior_pts": pa.array(ann.num_interior_pts, pa.int64()),
+        }
+    )
+    path = Path(log_dir) / ANNOTATIONS_FILENAME
+    _write_table(path, table)
+    return path
+
+
+# ---------------------------------------------------------------------------------------------
+# Ego poses
+
+
+def read_ego_poses(path: Path) -> EgoTrajectory:
+    """Read and validate ``city_SE3_egovehicle.feather``."""
+    table = _read_table(path)
+    problems = validate.check_columns(path, table, validate.POSE_COLUMNS)
+    if problems:
+        raise LogFormatError(problems)
+    if table.num_rows == 0:
+        raise LogFormatError.single(path, "table has no rows")
+    timestamps = np.asarray(table.column("timestamp_ns").to_numpy(), dtype=np.int64)
+    quat = _floats(table, ["qw", "qx", "qy", "qz"])
+    trans = _floats(table, ["tx_m", "ty_m", "tz_m"])
+    floats = {n: quat[:, i] for i, n in enumerate(["qw", "qx", "qy", "qz"])}
+    floats.update({n: trans[:, i] for i, n in enumerate(["tx_m", "ty_m", "tz_m"])})
+    problems = validate.check_finite(path, floats)
+    problems += validate.check_increasing(path, timestamps, strict=True)
+    if not problems:
+        problems += validate.check_quaternions(path, quat)
+        problems += validate.check_pose_jumps(path, timestamps, trans)
+    if problems:
+        raise LogFormatError(problems)
+    return EgoTrajectory(timestamps, quat, trans)
+
+
+def write_ego_poses(log_dir: Path, ego: EgoTrajectory) -> Path:
+    table = pa.table(
+        {
+            "timestamp_ns": pa.array(ego.timestamps_ns, pa.int64()),
+            "qw": ego.quat_wxyz[:, 0],
+            "qx": ego.quat_wxyz[:, 1],
+            "qy": ego.quat_wxyz[:, 2],
+            "qz": ego.quat_wxyz[:, 3],
+            "tx_m": ego.translation_m[:, 0],
+            "ty_m": ego.translation_m[:, 1],
+            "tz_m": ego.translation_m[:, 2],
+        }
+    )
+    path = Path(log_dir) / POSES_FILENAME
+    _write_table(path, table)
+    return path
+
+
+# ---------------------------------------------------------------------------------------------
+# Map
+
+
+def find_map_file(log_dir: Path) -> Path | None:
+    """The log's ``map/log_map_archive_*.json``, or None when the log has no map."""
+    candidates = sorted((Path(log_dir) / "map").glob("log_map_archive_*.json"))
+    return candidates[0] if candidates else None
+
+
+def read_map(path: Path) -> VectorMap:
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, json.JSONDecodeError) as exc:
+        raise LogFormatError.single(path, f"unreadable map JSON: {exc}") from exc
+    try:
+        return VectorMap.from_json_dict(data)
+    except ValueError as exc:
+        raise LogFormatError.single(path, str(exc)) from exc
+
+
+def write_map(log_dir: Path, vector_map: VectorMap, log_id: str, city_name: str = "SIM") -> Path:
+    path = Path(log_dir) / "map" / f"log_map_archive_{log_id}____{city_name}_city_0.json"
+    atomic_write_text(path, json.dumps(vector_map.to_json_dict()))
+    return path
+
+
+# ---------------------------------------------------------------------------------------------
+# Calibration
+
+
+def read_calibration(log_dir: Path) -> Calibration:
+    """Extrinsics and intrinsics; an empty :class:`Calibration` when the log has none."""
+    log_dir = Path(log_dir)
+    extrinsics: dict[str, SE3] = {}
+    intrinsics: dict[str, CameraIntrinsics] = {}
+    ext_path = log_dir / EXTRINSICS_PATH
+    if ext_path.is_file():
+        table = _read_table(ext_path)
+        cols = {"sensor_name": "str", **{k: v for k, v in validate.POSE_COLUMNS.items() if k != "timestamp_ns"}}
+        problems = validate.check_columns(ext_path, table, cols)
+        if problems:
+            raise LogFormatError(problems)
+        quat = _floats(table, ["qw", "qx", "qy", "qz"])
+        trans = _floats(table, ["tx_m", "ty_m", "tz_m"])
+        problems = validate.check_quaternions(ext_path, quat)
+        if problems:
+            raise LogFormatError(problems)
+        for i, name in enumerate(table.column("sensor_name").to_pylist()):
+            extrinsics[str(name)] = SE3.from_quat(quat[i], trans[i])
+    int_path = log_dir / INTRINSICS_PATH
+    if int_path.is_file():
+        table = _read_table(int_path)
+        cols = {"sensor_name": "str", "fx_px": "float", "fy_px": "float", "cx_px": "float", "cy_px": "float",
+                "height_px": "int", "width_px": "int"}
+        problems = validate.check_columns(int_path, table, cols)
+        if problems:
+            raise LogFormatError(problems)
+        rows = table.to_pylist()
+        for i, row in enumerate(rows):
+            if row["fx_px"] <= 0 or row["fy_px"] <= 0:
+                raise LogFormatError.single(int_path, "focal length must be positive", field="fx_px", row=i)
+            intrinsics[str(row["sensor_name"])] = CameraIntrinsics(
+                sensor_name=str(row["sensor_name"]),
+                fx_px=float(row["fx_px"]),
+                fy_px=float(row["fy_px"]),
+                cx_px=float(row["cx_px"]),
+                cy_px=float(row["cy_px"]),
+                width_px=int(row["width_px"]),
+                height_px=int(row["height_px"]),
+                k1=float(row.get("k1") or 0.0),
+                k2=float(row.get("k2") or 0.0),
+                k3=float(row.get("k3") or 0.0),
+            )
+    return Calibration(extrinsics, intrinsics)
+
+
+def write_calibration(log_dir: Path, calibration: Calibration) -> None:
+    log_dir = Path(log_dir)
+    if calibration.ego_SE3_sensor:
+        names = sorted(calibration.ego_SE3_sensor)
+        quat = np.stack([calibration.ego_SE3_sensor[n].quat_wxyz for n in names])
+        trans = np.stack([calibration.ego_SE3_sensor[n].translation for n in names])
+        table = pa.table(
+            {
+                "sensor_name": names,
+                "qw": quat[:, 0], "qx": quat[:, 1], "qy": quat[:, 2], "qz": quat[:, 3],
+                "tx_m": trans[:, 0], "ty_m": trans[:, 1], "tz_m": trans[:, 2],
+            }
+        )
+        _write_table(log_dir / EXTRINSICS_PATH, table)
+    if calibration.intrinsics:
+        cams = [calibration.intrinsics[n] for n in sorted(calibration.intrinsics)]
+        table = pa.table(
+            {
+                "sensor_name": [c.sensor_name for c in cams],
+                "fx_px": [c.fx_px for c in cams],
+                "fy_px": [c.fy_px for c in cams],
+                "cx_px": [c.cx_px for c in cams],
+                "cy_px": [c.cy_px for c in cams],
+                "k1": [c.k1 for c in cams],
+                "k2": [c.k2 for c in cams],
+                "k3": [c.k3 for c in cams],
+                "height_px": pa.array([c.height_px for c in cams], pa.uint16()),
+                "width_px": pa.array([c.width_px for c in cams], pa.uint16()),
+            }
+        )
+        _write_table(log_dir / INTRINSICS_PATH, table)
+
+
+# ---------------------------------------------------------------------------------------------
+# Sensors
+
+
+def write_lidar_sweep(log_dir: Path, sweep: LidarSweep) -> Path:
+    """Write one sweep in the AV2 columns (float16 coordinates, as AV2 stores them)."""
+    xyz = np.asarray(sweep.xyz_m, dtype=np.float16)
+    table = pa.table(
+        {
+            "x": pa.array(xyz[:, 0], pa.float16()),
+            "y": pa.array(xyz[:, 1], pa.float16()),
+            "z": pa.array(xyz[:, 2], pa.float16()),
+            "intensity": pa.array(np.asarray(sweep.intensity, np.uint8), pa.uint8()),
+            "laser_number": pa.array(np.asarray(sweep.laser_number, np.uint8), pa.uint8()),
+            "offset_ns": pa.array(np.asarray(sweep.offset_ns, np.int32), pa.int32()),
+        }
+    )
+    path = Path(log_dir) / LIDAR_DIR / f"{int(sweep.timestamp_ns)}.feather"
+    _write_table(path, table)
+    return path
+
+
+def write_camera_frame(
+    log_dir: Path, camera_name: str, timestamp_ns: int, image_bgr: NDArray[np.uint8], jpeg_quality: int = 90
+) -> Path:
+    """Write one camera frame as JPEG. ``image_bgr``: (H, W, 3) uint8."""
+    import cv2
+
+    ok, encoded = cv2.imencode(".jpg", image_bgr, [cv2.IMWRITE_JPEG_QUALITY, int(jpeg_quality)])
+    if not ok:
+        raise ValueError(f"cannot encode camera frame {camera_name}/{timestamp_ns} as JPEG")
+    path = Path(log_dir) / CAMERAS_DIR / camera_name / f"{int(timestamp_ns)}.jpg"
+    atomic_write_bytes(path, encoded.tobytes())
+    return path
+
+
+# ---------------------------------------------------------------------------------------------
+# Metadata
+
+
+def read_metadata(log_dir: Path) -> LogMetadata | None:
+    path = Path(log_dir) / METADATA_FILENAME
+    if not path.is_file():
+        return None
+    try:
+        return LogMetadata.from_json_dict(json.loads(path.read_text()))
+    except (OSError, json.JSONDecodeError, KeyError) as exc:
+        raise LogFormatError(Problem(path, f"unreadable log metadata: {exc!r}")) from exc
+
+
+def write_metadata(log_dir: Path, metadata: LogMetadata) -> Path:
+    path = Path(log_dir) / METADATA_FILENAME
+    atomic_write_text(path, json.dumps(metadata.to_json_dict(), indent=2, sort_keys=True))
+    return path

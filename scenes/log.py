@@ -1,0 +1,151 @@
+"""A drive log on disk, in the Argoverse 2 sensor layout.
+
+>>> log = Log.open("path/to/<log_id>")           # validates annotations and poses
+>>> tracks = log.tracks()                         # per-track, ego and city frames
+>>> sweep = log.lidar_sweep(log.lidar_timestamps_ns[0])   # loaded on demand
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from functools import cached_property
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from scenes import av2_io
+from scenes.calibration import Calibration
+from scenes.errors import LogFormatError, Problem
+from scenes.map import VectorMap
+from scenes.metadata import LogMetadata
+from scenes.sensors import LidarSweep, read_camera_frame, read_lidar_sweep, timestamps_in
+from scenes.tracks import Annotations, DenseTracks, EgoTrajectory, ObjectTrack, dense_tracks, tracks_from_annotations
+
+
+@dataclass
+class Log:
+    """One log folder. Annotations and poses are read (and validated) on open; the map,
+    calibration and sensor data are read when first used."""
+
+    log_dir: Path
+    annotations: Annotations
+    ego: EgoTrajectory
+    #: Raw labels not in the public vocabulary, mapped to ``other``, with row counts.
+    unknown_categories: dict[str, int] = field(default_factory=dict)
+
+    @staticmethod
+    def open(log_dir: Path | str) -> Log:
+        """Open and validate a log folder.
+
+        Raises:
+            LogFormatError: naming every file, row and field at fault.
+        """
+        log_dir = Path(log_dir)
+        if not log_dir.is_dir():
+            raise LogFormatError.single(log_dir, "log folder does not exist")
+        problems: list[Problem] = []
+        annotations: Annotations | None = None
+        ego: EgoTrajectory | None = None
+        ann_path = log_dir / av2_io.ANNOTATIONS_FILENAME
+        if not ann_path.is_file():
+            problems.append(Problem(ann_path, "log has no annotations (file is missing)"))
+        else:
+            try:
+                annotations = av2_io.read_annotations(ann_path)
+            except LogFormatError as exc:
+                problems.extend(exc.problems)
+        try:
+            ego = av2_io.read_ego_poses(log_dir / av2_io.POSES_FILENAME)
+        except LogFormatError as exc:
+            problems.extend(exc.problems)
+        if annotations is not None and ego is not None:
+            problems.extend(_check_pose_coverage(log_dir, annotations, ego))
+        if problems or annotations is None or ego is None:
+            raise LogFormatError(problems)
+        return Log(log_dir, annotations, ego, annotations.unknown_labels())
+
+    @property
+    def log_id(self) -> str:
+        return self.log_dir.name
+
+    @cached_property
+    def metadata(self) -> LogMetadata:
+        """The log's metadata; for logs without ``log_metadata.json`` a default naming the log."""
+        meta = av2_io.read_metadata(self.log_dir)
+        if meta is not None:
+            return meta
+        map_path = self.map_path
+        city = "UNKNOWN"
+        if map_path is not None and "____" in map_path.stem:
+            city = map_path.stem.split("____")[-1].split("_")[0]
+        return LogMetadata(log_id=self.log_id, source="av2", city_name=city)
+
+    @property
+    def map_path(self) -> Path | None:
+        return av2_io.find_map_file(self.log_dir)
+
+    @cached_property
+    def map(self) -> VectorMap | None:
+        """The vector map, or None when the log has none."""
+        path = self.map_path
+        return None if path is None else av2_io.read_map(path)
+
+    @cached_property
+    def calibration(self) -> Calibration:
+        return av2_io.read_calibration(self.log_dir)
+
+    @cached_property
+    def timestamps_ns(self) -> NDArray[np.int64]:
+        """(T,) annotation (sweep) timestamps: the log's frame grid."""
+        return self.annotations.timestamps_ns
+
+    @cached_property
+    def lidar_timestamps_ns(self) -> NDArray[np.int64]:
+        """(S,) timestamps of the LiDAR sweeps on disk."""
+        return timestamps_in(self.log_dir / av2_io.LIDAR_DIR, ".feather")
+
+    def camera_names(self) -> list[str]:
+        folder = self.log_dir / av2_io.CAMERAS_DIR
+        return sorted(p.name for p in folder.iterdir() if p.is_dir()) if folder.is_dir() else []
+
+    def camera_timestamps_ns(self, camera_name: str) -> NDArray[np.int64]:
+        """(F,) timestamps of the frames of one camera."""
+        return timestamps_in(self.log_dir / av2_io.CAMERAS_DIR / camera_name, ".jpg")
+
+    def lidar_sweep(self, timestamp_ns: int) -> LidarSweep:
+        return read_lidar_sweep(self.log_dir / av2_io.LIDAR_DIR / f"{int(timestamp_ns)}.feather")
+
+    def camera_frame(self, camera_name: str, timestamp_ns: int) -> NDArray[np.uint8]:
+        """(H, W, 3) BGR image."""
+        return read_camera_frame(self.log_dir / av2_io.CAMERAS_DIR / camera_name / f"{int(timestamp_ns)}.jpg")
+
+    def tracks(self) -> dict[str, ObjectTrack]:
+        """Every track (the ego's own box excluded), in the ego and the city frame."""
+        return tracks_from_annotations(self.annotations, self.ego)
+
+    def dense_tracks(self) -> DenseTracks:
+        """All tracks on the frame grid, (K, T) arrays."""
+        return dense_tracks(self.annotations, self.ego)
+
+    def ego_at_frames(self) -> EgoTrajectory:
+        """Ego poses interpolated to the annotation timestamps."""
+        return self.ego.interpolate(self.timestamps_ns)
+
+
+#: Annotation timestamps may lie this far outside the pose stream (AV2 sweeps start slightly
+#: before the first pose); beyond it, poses would be extrapolated and are refused.
+POSE_COVERAGE_TOLERANCE_NS = 200_000_000
+
+
+def _check_pose_coverage(log_dir: Path, annotations: Annotations, ego: EgoTrajectory) -> list[Problem]:
+    ts = annotations.timestamps_ns
+    lo, hi = int(ego.timestamps_ns[0]), int(ego.timestamps_ns[-1])
+    outside = (ts < lo - POSE_COVERAGE_TOLERANCE_NS) | (ts > hi + POSE_COVERAGE_TOLERANCE_NS)
+    if outside.any():
+        first = int(ts[np.argmax(outside)])
+        return [
+            Problem(log_dir / av2_io.ANNOTATIONS_FILENAME,
+                    f"timestamp {first} has no ego pose (poses cover {lo}..{hi})", field="timestamp_ns")
+        ]
+    return []

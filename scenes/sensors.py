@@ -1,0 +1,101 @@
+"""LiDAR sweeps and camera frames, loaded lazily from a log folder.
+
+A sweep is ``sensors/lidar/<timestamp_ns>.feather`` with AV2 columns ``x y z`` (float16 metres,
+ego frame), ``intensity`` and ``laser_number`` (uint8), ``offset_ns`` (int32). A camera frame is
+``sensors/cameras/<name>/<timestamp_ns>.jpg``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from scenes.errors import LogFormatError
+
+LIDAR_COLUMNS: dict[str, str] = {
+    "x": "halffloat",
+    "y": "halffloat",
+    "z": "halffloat",
+    "intensity": "uint8",
+    "laser_number": "uint8",
+    "offset_ns": "int32",
+}
+
+
+@dataclass(frozen=True)
+class LidarSweep:
+    """One LiDAR sweep in the ego frame.
+
+    Attributes:
+        timestamp_ns: sweep timestamp.
+        xyz_m: (N, 3) points in the ego frame.
+        intensity: (N,) return intensity 0–255.
+        laser_number: (N,) beam index.
+        offset_ns: (N,) time of each point relative to the sweep timestamp.
+    """
+
+    timestamp_ns: int
+    xyz_m: NDArray[np.float32]
+    intensity: NDArray[np.uint8]
+    laser_number: NDArray[np.uint8]
+    offset_ns: NDArray[np.int32]
+
+    def __len__(self) -> int:
+        return int(self.xyz_m.shape[0])
+
+
+def timestamps_in(folder: Path, suffix: str) -> NDArray[np.int64]:
+    """(T,) sorted timestamps of files named ``<timestamp_ns><suffix>`` in ``folder``."""
+    if not folder.is_dir():
+        return np.zeros(0, dtype=np.int64)
+    stamps = []
+    for p in folder.iterdir():
+        if p.name.endswith(suffix) and p.name[: -len(suffix)].isdigit():
+            stamps.append(int(p.name[: -len(suffix)]))
+    return np.array(sorted(stamps), dtype=np.int64)
+
+
+def read_lidar_sweep(path: Path) -> LidarSweep:
+    """Read one sweep; raises :class:`LogFormatError` naming the file and field on bad content."""
+    import pyarrow as pa
+    import pyarrow.feather as feather
+
+    try:
+        table = feather.read_table(path)
+    except (OSError, pa.ArrowInvalid) as exc:
+        raise LogFormatError.single(path, f"unreadable feather file ({exc})") from exc
+    for name in ("x", "y", "z"):
+        if name not in table.column_names:
+            raise LogFormatError.single(path, "missing column", field=name)
+    xyz = np.stack([table.column(c).to_numpy().astype(np.float32) for c in ("x", "y", "z")], axis=1)
+    bad = ~np.isfinite(xyz).all(axis=1)
+    if bad.any():
+        raise LogFormatError.single(path, "non-finite point coordinate", field="xyz", row=int(np.argmax(bad)))
+    n = xyz.shape[0]
+
+    def col(name: str, dtype: type, default: int = 0) -> Any:
+        if name in table.column_names:
+            return np.asarray(table.column(name).to_numpy(), dtype=dtype)
+        return np.full(n, default, dtype=dtype)
+
+    return LidarSweep(
+        timestamp_ns=int(path.stem),
+        xyz_m=xyz,
+        intensity=col("intensity", np.uint8),
+        laser_number=col("laser_number", np.uint8),
+        offset_ns=col("offset_ns", np.int32),
+    )
+
+
+def read_camera_frame(path: Path) -> NDArray[np.uint8]:
+    """(H, W, 3) BGR image; raises :class:`LogFormatError` when the file cannot be decoded."""
+    import cv2
+
+    image = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    if image is None:
+        raise LogFormatError.single(path, "cannot decode image")
+    return np.asarray(image, dtype=np.uint8)

@@ -107,7 +107,10 @@ class Log:
 
     def camera_names(self) -> list[str]:
         folder = self.log_dir / av2_io.CAMERAS_DIR
-        return sorted(p.name for p in folder.iterdir() if p.is_dir()) if folder.is_dir() else []
+        if not folder.is_dir():
+            return []
+        # Instance-mask folders (``<camera>_instance``) sit beside the cameras but are not cameras.
+        return sorted(p.name for p in folder.iterdir() if p.is_dir() and not p.name.endswith(INSTANCE_SUFFIX))
 
     def camera_timestamps_ns(self, camera_name: str) -> NDArray[np.int64]:
         """(F,) timestamps of the frames of one camera."""
@@ -132,6 +135,9 @@ class Log:
         """Ego poses interpolated to the annotation timestamps."""
         return self.ego.interpolate(self.timestamps_ns)
 
+
+#: Suffix of the folders holding per-frame instance masks beside a camera's frames.
+INSTANCE_SUFFIX = "_instance"
 
 #: Annotation timestamps may lie this far outside the pose stream (AV2 sweeps start slightly
 #: before the first pose); beyond it, poses would be extrapolated and are refused.

@@ -1,0 +1,189 @@
+"""Search-time knobs (``nprobe``, ``efSearch``) and tuning them to a target recall.
+
+Tuning searches a held-out sample of the collection's own vectors: each sampled vector is a query
+whose own id is dropped from both the exact and the approximate answer, so the sample behaves like
+a query that is not in the collection (otherwise the trivial self match would inflate recall).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import asdict, dataclass
+from enum import Enum
+
+import faiss
+import numpy as np
+from faiss.contrib.evaluation import knn_intersection_measure
+
+
+class Knob(str, Enum):
+    """The parameter that trades speed for recall in a given index kind."""
+
+    NONE = "none"  # exact or fixed-cost index
+    NPROBE = "nprobe"  # IVF: lists scanned per query
+    EF_SEARCH = "efSearch"  # HNSW: candidate list length
+
+
+def unwrap(index: faiss.Index) -> faiss.Index:
+    """The innermost index that does the searching: through IDMap, PreTransform and Refine."""
+    while True:
+        if isinstance(index, faiss.IndexIDMap | faiss.IndexIDMap2 | faiss.IndexPreTransform):
+            index = faiss.downcast_index(index.index)
+        elif isinstance(index, faiss.IndexRefine):
+            index = faiss.downcast_index(index.base_index)
+        else:
+            return index
+
+
+def knob_of(index: faiss.Index) -> Knob:
+    inner = unwrap(index)
+    if faiss.try_extract_index_ivf(inner) is not None:
+        return Knob.NPROBE
+    if isinstance(inner, faiss.IndexHNSW):
+        return Knob.EF_SEARCH
+    return Knob.NONE
+
+
+def get_knob(index: faiss.Index) -> int:
+    inner = unwrap(index)
+    knob = knob_of(inner)
+    if knob is Knob.NPROBE:
+        return int(faiss.extract_index_ivf(inner).nprobe)
+    if knob is Knob.EF_SEARCH:
+        return int(inner.hnsw.efSearch)
+    return 0
+
+
+def set_knob(index: faiss.Index, value: int) -> None:
+    inner = unwrap(index)
+    knob = knob_of(inner)
+    if knob is Knob.NPROBE:
+        faiss.extract_index_ivf(inner).nprobe = int(value)
+    elif knob is Knob.EF_SEARCH:
+        inner.hnsw.efSearch = int(value)
+
+
+def knob_limit(index: faiss.Index) -> int:
+    """Largest sensible value: all lists for IVF, 4096 candidates for HNSW."""
+    inner = unwrap(index)
+    knob = knob_of(inner)
+    if knob is Knob.NPROBE:
+        return int(faiss.extract_index_ivf(inner).nlist)
+    if knob is Knob.EF_SEARCH:
+        return 4096
+    return 0
+
+
+def search_parameters(index: faiss.Index, sel: faiss.IDSelector | None,
+                      knob_value: int | None = None) -> faiss.SearchParameters:
+    """Per-call parameters of the right type for ``index``, carrying the selector and the knob.
+
+    FAISS requires the parameter object to match the searching index (``SearchParametersIVF`` for
+    IVF, …), and such an object replaces the index's own ``nprobe``/``efSearch``, so the current
+    value is copied in.
+    """
+    value = get_knob(index) if knob_value is None else knob_value
+    knob = knob_of(index)
+    params: faiss.SearchParameters
+    if knob is Knob.NPROBE:
+        params = faiss.SearchParametersIVF(nprobe=int(value))
+    elif knob is Knob.EF_SEARCH:
+        params = faiss.SearchParametersHNSW(efSearch=int(value))
+    else:
+        params = faiss.SearchParameters()
+    if sel is not None:
+        params.sel = sel
+    return params
+
+
+@dataclass(frozen=True)
+class TuningResult:
+    """Outcome of :func:`tune`; stored in the manifest.
+
+    Attributes:
+        knob: name of the tuned parameter (``none`` for exact indexes).
+        value: chosen value.
+        recall_at_k: recall@k measured on the held-out sample at that value.
+        k: the k of that recall.
+        target_recall: what was aimed for; ``recall_at_k`` may stay below it for compressed codes.
+        n_queries: sample size.
+        curve: (value, recall) pairs tried, in order.
+    """
+
+    knob: str
+    value: int
+    recall_at_k: float
+    k: int
+    target_recall: float
+    n_queries: int
+    curve: list[tuple[int, float]]
+
+    def to_dict(self) -> dict[str, object]:
+        d = asdict(self)
+        d["curve"] = [list(p) for p in self.curve]
+        return d
+
+
+SearchFn = Callable[[int, int], np.ndarray]
+
+
+def recall_excluding_self(i_exact: np.ndarray, i_found: np.ndarray, self_ids: np.ndarray, k: int) -> float:
+    """Mean recall@k after dropping each query's own id from both (nq, k + 1) id tables."""
+    return knn_intersection_measure(_drop_self(i_exact, self_ids, k), _drop_self(i_found, self_ids, k))
+
+
+def _drop_self(table: np.ndarray, self_ids: np.ndarray, k: int) -> np.ndarray:
+    """(nq, k+1) → (nq, k): remove the query's own id, or the last column when it is absent."""
+    keep = table != self_ids[:, None]
+    # Rows where the self id is missing keep only their first k entries.
+    over = keep.sum(axis=1) > k
+    keep[over, k] = False
+    return table[keep].reshape(len(table), k)
+
+
+def tune(search: SearchFn, exact_ids: np.ndarray, self_ids: np.ndarray, k: int, knob: Knob,
+         limit: int, target_recall: float, start: int = 1) -> TuningResult:
+    """Smallest knob value whose recall@k reaches ``target_recall``.
+
+    Doubles the value from ``start`` up to ``limit``, then bisects between the last two tried.
+    Stops early when recall no longer improves (compressed codes have a ceiling below 1).
+
+    Args:
+        search: ``search(k + 1, value) -> (nq, k + 1)`` ids of the held-out queries.
+        exact_ids: (nq, k + 1) ids from exact search of the same queries.
+        self_ids: (nq,) the id of the vector each query was drawn from.
+        k: recall is measured at k.
+        knob: the parameter tuned.
+        limit: the largest value tried.
+        target_recall: recall to reach.
+        start: the first value tried.
+    """
+    curve: list[tuple[int, float]] = []
+
+    def measure(value: int) -> float:
+        r = recall_excluding_self(exact_ids, search(k + 1, value), self_ids, k)
+        curve.append((value, float(r)))
+        return float(r)
+
+    value = max(1, min(start, limit))
+    prev_value, prev_recall = 0, -1.0
+    recall = measure(value)
+    while recall < target_recall and value < limit:
+        if recall <= prev_recall + 1e-4 and prev_value > 0 and value >= 4 * start:
+            break  # plateau: more effort no longer helps
+        prev_value, prev_recall = value, recall
+        value = min(2 * value, limit)
+        recall = measure(value)
+    if recall >= target_recall and prev_value > 0:
+        lo, hi, hi_recall = prev_value, value, recall
+        while hi - lo > max(1, lo // 8):
+            mid = (lo + hi) // 2
+            r = measure(mid)
+            if r >= target_recall:
+                hi, hi_recall = mid, r
+            else:
+                lo = mid
+        value, recall = hi, hi_recall
+    elif recall < target_recall and curve:
+        value, recall = max(curve, key=lambda p: (p[1], -p[0]))
+    return TuningResult(knob.value, int(value), float(recall), k, target_recall, len(self_ids), curve)

@@ -1,0 +1,513 @@
+"""``VectorIndex``: a FAISS index that keeps the caller's int64 ids, filters, removes and persists.
+
+FAISS stores vectors and int64 ids; this class owns everything around them:
+
+* ids — the caller's ids live inside the FAISS index (IVF lists natively, other kinds through
+  ``IndexIDMap2``), the set of live ids is kept sorted beside it, and removed ids are never reused;
+* the choice of index (``factory="auto"``, see :mod:`indexes.factory`) and tuning of
+  ``nprobe``/``efSearch`` to a target recall (see :mod:`indexes.tuning`);
+* filtering inside the search through FAISS ID selectors, with an exact fallback when a filter is
+  so selective that the approximate search would come back short;
+* removal: in place where FAISS supports it (Flat, IVF); for HNSW, which cannot delete, removed
+  ids become tombstones excluded by a selector on every search;
+* persistence (:mod:`indexes.persistence`).
+
+Search results follow FAISS: ``D`` and ``I`` are (nq, k); ``I`` holds the caller's ids, sorted by
+closeness; where fewer than k vectors qualify, ``I`` is −1 and ``D`` is −inf (similarity metrics) or
++inf (L2).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import faiss
+import numpy as np
+
+from indexes.errors import IdError, IndexesError, IndexFileError, InvalidKError, ManifestError, ReadOnlyIndexError
+from indexes.factory import AutoConfig, choose_factory, train_points
+from indexes.persistence import read_manifest, resolve_dir, write_manifest, writing_index_dir
+from indexes.tuning import (
+    Knob,
+    TuningResult,
+    get_knob,
+    knob_limit,
+    knob_of,
+    search_parameters,
+    set_knob,
+    tune,
+    unwrap,
+)
+from indexes.vectors import Metric, as_metric, prepare_ids, prepare_vectors
+
+KIND = "vector_index"
+INDEX_FILE = "index.faiss"
+IDS_FILE = "ids.npy"
+REMOVED_FILE = "removed.npy"
+TOMBSTONES_FILE = "tombstones.npy"
+
+# Filters passing at most this many vectors are answered by exact search over just those vectors:
+# cheaper than a selector scan and never short of results.
+EXACT_FILTER_MAX = 4096
+# Exact search over a filtered subset is also used as the last fallback, up to this many vectors.
+EXACT_FALLBACK_MAX = 262_144
+
+IdsLike = np.ndarray | Sequence[int]
+
+
+class VectorIndex:
+    """Vectors with the caller's int64 ids; see the module docstring.
+
+    Build with :meth:`build` or :meth:`load`, not the constructor.
+    """
+
+    def __init__(self, index: faiss.Index, metric: Metric, factory: str, ids: np.ndarray,
+                 removed: np.ndarray, tombstones: np.ndarray, info: dict[str, Any] | None = None,
+                 read_only: bool = False) -> None:
+        self._index = index
+        self.metric = metric
+        self.factory = factory
+        self._ids = np.sort(np.asarray(ids, dtype=np.int64))
+        self._removed = np.sort(np.asarray(removed, dtype=np.int64))
+        self._tombstones = np.sort(np.asarray(tombstones, dtype=np.int64))
+        self.info: dict[str, Any] = dict(info or {})
+        self.read_only = read_only
+        self._knob = knob_of(index)
+        inner = unwrap(index)
+        self._is_ivf = faiss.try_extract_index_ivf(inner) is not None
+        # FAISS deletes in place from IVF lists and flat code arrays; graphs (HNSW) cannot.
+        self._native_remove = self._is_ivf or isinstance(inner, faiss.IndexFlatCodes)
+
+    # ------------------------------------------------------------------ building
+
+    @classmethod
+    def build(cls, xb: np.ndarray, ids: IdsLike | None = None, metric: Metric | str = "cosine",
+              factory: str = "auto", memory_budget_bytes: int | None = None,
+              config: AutoConfig | None = None, tune_recall: bool = True) -> VectorIndex:
+        """Build an index over ``xb``.
+
+        Args:
+            xb: (N, d) vectors; copied, never modified.
+            ids: (N,) unique int64 ids ≥ 0; ``0 … N-1`` when None.
+            metric: ``cosine`` (inner product on L2-normalised vectors), ``ip`` or ``l2``.
+            factory: ``auto`` (see :func:`indexes.factory.choose_factory`) or any FAISS factory string.
+            memory_budget_bytes: memory the index may take; guides ``auto``.
+            config: thresholds of the automatic choice and of tuning.
+            tune_recall: tune ``nprobe``/``efSearch`` to ``config.target_recall`` after building.
+
+        Raises:
+            VectorError, DimensionMismatchError, IdError: bad vectors or ids (naming the row / ids).
+            ValueError: an unknown metric or a factory string FAISS rejects.
+        """
+        config = config or AutoConfig()
+        metric = as_metric(metric)
+        x = prepare_vectors(xb, None, metric, "xb")
+        n, d = x.shape
+        id_arr = prepare_ids(None if ids is None else np.asarray(ids), n)
+        info: dict[str, Any] = {}
+        if factory == "auto":
+            choice = choose_factory(n, d, memory_budget_bytes, config)
+            factory = choice.factory
+            info.update(choice_reason=choice.reason, estimated_bytes=choice.estimated_bytes)
+        index = new_faiss_index(factory, d, metric)
+        if not index.is_trained:
+            n_train = train_points(factory, n, config) or min(n, 100_000)
+            rng = np.random.default_rng(config.seed)
+            sample = np.sort(rng.choice(n, size=n_train, replace=False)) if n_train < n else slice(None)
+            try:
+                index.train(x[sample])
+            except RuntimeError as exc:
+                raise ValueError(f"factory {factory!r} cannot be trained on {n} vectors: "
+                                 f"{_faiss_message(exc)}") from None
+            info["train_points"] = int(n_train)
+        if n:
+            index.add_with_ids(x, id_arr)
+        out = cls(index, metric, factory, id_arr, np.empty(0, np.int64), np.empty(0, np.int64), info)
+        if tune_recall:
+            out._tune_on(x, id_arr, config)
+        return out
+
+    def tune(self, target_recall: float | None = None, config: AutoConfig | None = None) -> dict[str, Any]:
+        """Re-tune ``nprobe``/``efSearch`` on a sample of the vectors now in the index.
+
+        Returns the tuning record, also kept in ``info["tuning"]`` and saved in the manifest.
+        """
+        config = config or AutoConfig()
+        if target_recall is not None:
+            config = AutoConfig(**{**config.__dict__, "target_recall": target_recall})
+        rng = np.random.default_rng(config.seed)
+        n_q = min(config.tune_queries, len(self))
+        sample_ids = np.sort(rng.choice(self._ids, size=n_q, replace=False))
+        # Ground truth over the whole collection needs every vector; tune against the index's own
+        # reconstruction so that compressed codes are judged on what they can find.
+        xb = self.reconstruct(self._ids)
+        self._tune_on(xb, self._ids, config, query_ids=sample_ids)
+        return dict(self.info.get("tuning", {}))
+
+    def _tune_on(self, x: np.ndarray, ids: np.ndarray, config: AutoConfig,
+                 query_ids: np.ndarray | None = None) -> None:
+        """Tune the knob with held-out queries drawn from ``x`` (rows labelled ``ids``)."""
+        k = config.tune_k
+        if self._knob is Knob.NONE or len(ids) <= k + 1:
+            exact = unwrap(self._index).__class__.__name__ in ("IndexFlat", "IndexFlatIP", "IndexFlatL2")
+            self.info["tuning"] = TuningResult(Knob.NONE.value, 0, 1.0 if exact else float("nan"), k,
+                                               config.target_recall, 0, []).to_dict()
+            return
+        rng = np.random.default_rng(config.seed)
+        if query_ids is None:
+            rows = np.sort(rng.choice(len(ids), size=min(config.tune_queries, len(ids)), replace=False))
+        else:
+            rows = np.searchsorted(ids, query_ids)
+        xq = np.ascontiguousarray(x[rows])
+        self_ids = ids[rows]
+        _, rows_exact = faiss.knn(xq, x, k + 1, metric=self.metric.faiss_metric)
+        exact_ids = np.where(rows_exact >= 0, ids[np.maximum(rows_exact, 0)], -1)
+
+        def search(kk: int, value: int) -> np.ndarray:
+            params = search_parameters(self._index, None, value)
+            return np.asarray(self._index.search(xq, kk, params=params)[1])
+
+        start = 16 if self._knob is Knob.EF_SEARCH else 1
+        result = tune(search, exact_ids, self_ids, k, self._knob, knob_limit(self._index),
+                      config.target_recall, start=start)
+        set_knob(self._index, result.value)
+        self.info["tuning"] = result.to_dict()
+
+    # ------------------------------------------------------------------ properties
+
+    def __len__(self) -> int:
+        return int(len(self._ids))
+
+    @property
+    def dim(self) -> int:
+        return int(self._index.d)
+
+    @property
+    def ids(self) -> np.ndarray:
+        """(N,) live ids, sorted; a copy."""
+        return self._ids.copy()
+
+    @property
+    def removed_ids(self) -> np.ndarray:
+        """(M,) ids removed so far, sorted; a copy. They are never accepted again."""
+        return self._removed.copy()
+
+    @property
+    def faiss_index(self) -> faiss.Index:
+        """The underlying FAISS index (ids inside are the caller's ids; tombstones still present)."""
+        return self._index
+
+    @property
+    def search_knob(self) -> tuple[str, int]:
+        """``("nprobe" | "efSearch" | "none", value)``."""
+        return self._knob.value, get_knob(self._index)
+
+    @search_knob.setter
+    def search_knob(self, value: int) -> None:
+        set_knob(self._index, value)
+
+    @property
+    def recall_at_10(self) -> float | None:
+        """Recall@10 measured when the index was tuned, or None."""
+        tuning = self.info.get("tuning")
+        return None if tuning is None else float(tuning["recall_at_k"])
+
+    def __contains__(self, id_: object) -> bool:
+        if not isinstance(id_, int | np.integer):
+            return False
+        pos = np.searchsorted(self._ids, id_)
+        return bool(pos < len(self._ids) and self._ids[pos] == id_)
+
+    def __repr__(self) -> str:
+        knob, value = self.search_knob
+        return (f"VectorIndex(n={len(self)}, dim={self.dim}, metric={self.metric.value}, "
+                f"factory={self.factory!r}, {knob}={value})")
+
+    # ------------------------------------------------------------------ search
+
+    def search(self, xq: np.ndarray, k: int, filter: IdsLike | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """The k nearest vectors to each query.
+
+        Args:
+            xq: (nq, d) or (d,) queries.
+            k: results per query, 1 … ``len(self)``.
+            filter: (M,) ids allowed in the results, or None for all. Ids not in the index are
+                ignored. When fewer than k ids pass, rows are padded with −1.
+
+        Returns:
+            D: (nq, k) float32 scores (similarity for cosine/ip, squared distance for l2).
+            I: (nq, k) int64 ids, −1 where fewer than k results exist.
+
+        Raises:
+            InvalidKError: ``k <= 0`` or ``k > len(self)``.
+            VectorError, DimensionMismatchError: bad queries (naming the row).
+        """
+        x = prepare_vectors(xq, self.dim, self.metric, "queries")
+        _check_k(k, len(self))
+        allowed = None if filter is None else self._allowed(filter)
+        if allowed is not None and self._prefer_exact(len(allowed)):
+            return self._exact_search(x, k, allowed)
+        sel_refs = self._selector(allowed)
+        D, I = self._faiss_search(x, k, sel_refs[0] if sel_refs else None)
+        expected = min(k, len(self) if allowed is None else len(allowed))
+        short = np.flatnonzero((I >= 0).sum(axis=1) < expected)
+        if len(short) and self._knob is not Knob.NONE:
+            # Filters and tombstones can leave an approximate search short: look further.
+            value, limit = get_knob(self._index), knob_limit(self._index)
+            while len(short) and value < limit:
+                value = min(limit, value * 4)
+                sel = sel_refs[0] if sel_refs else None
+                D2, I2 = self._faiss_search(x[short], k, sel, value)
+                D[short], I[short] = D2, I2
+                short = short[(I2 >= 0).sum(axis=1) < expected]
+        if len(short):
+            subset = self._ids if allowed is None else allowed
+            if len(subset) <= EXACT_FALLBACK_MAX:
+                D[short], I[short] = self._exact_search(x[short], k, subset)
+        D[I < 0] = self.metric.missing_score
+        return D, I
+
+    def _allowed(self, filter: IdsLike) -> np.ndarray:
+        wanted = np.unique(np.asarray(filter, dtype=np.int64))
+        return np.intersect1d(wanted, self._ids, assume_unique=True)
+
+    def _prefer_exact(self, n_allowed: int) -> bool:
+        if n_allowed <= EXACT_FILTER_MAX:
+            return True
+        if self._knob is Knob.NPROBE:
+            ivf = faiss.extract_index_ivf(unwrap(self._index))
+            # Expected allowed vectors met per query in the probed lists; too few → short results.
+            return n_allowed * ivf.nprobe / max(ivf.nlist, 1) < 64
+        if self._knob is Knob.EF_SEARCH:
+            return n_allowed < 0.02 * len(self)
+        return False
+
+    def _selector(self, allowed: np.ndarray | None) -> list[faiss.IDSelector]:
+        """Selector for a search, plus every object it points to (kept alive by the list)."""
+        if allowed is not None:
+            return [faiss.IDSelectorBatch(allowed)]
+        if len(self._tombstones):
+            inner = faiss.IDSelectorBatch(self._tombstones)
+            return [faiss.IDSelectorNot(inner), inner]
+        return []
+
+    def _faiss_search(self, x: np.ndarray, k: int, sel: faiss.IDSelector | None,
+                      knob_value: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+        if sel is None and knob_value is None:
+            D, I = self._index.search(x, k)
+        else:
+            params = search_parameters(self._index, sel, knob_value)
+            D, I = self._index.search(x, k, params=params)
+        return np.asarray(D), np.asarray(I)
+
+    def _exact_search(self, x: np.ndarray, k: int, subset: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Exact k-NN of ``x`` (nq, d) among the vectors with ids ``subset`` (M,), padded with −1."""
+        nq = len(x)
+        D = np.full((nq, k), self.metric.missing_score, dtype=np.float32)
+        I = np.full((nq, k), -1, dtype=np.int64)
+        if len(subset) == 0:
+            return D, I
+        xb = self.reconstruct(subset)
+        kk = min(k, len(subset))
+        d_sub, i_sub = faiss.knn(x, xb, kk, metric=self.metric.faiss_metric)
+        D[:, :kk] = d_sub
+        I[:, :kk] = np.where(i_sub >= 0, subset[np.maximum(i_sub, 0)], -1)
+        return D, I
+
+    def reconstruct(self, ids: IdsLike) -> np.ndarray:
+        """(M, d) stored vectors (normalised under cosine; approximate for compressed codes).
+
+        Raises:
+            IdError: an id is not in the index.
+        """
+        arr = np.atleast_1d(np.asarray(ids, dtype=np.int64))
+        missing = arr[~np.isin(arr, self._ids)]
+        if len(missing):
+            raise IdError("ids not in the index", missing.tolist())
+        if len(arr) == 0:
+            return np.empty((0, self.dim), dtype=np.float32)
+        try:
+            return np.asarray(self._index.reconstruct_batch(arr), dtype=np.float32)
+        except RuntimeError as exc:
+            raise IndexesError(f"factory {self.factory!r} cannot return stored vectors: "
+                               f"{_faiss_message(exc)}") from None
+
+    # ------------------------------------------------------------------ changes
+
+    def add(self, xb: np.ndarray, ids: IdsLike | None = None) -> np.ndarray:
+        """Add vectors; returns their (N,) ids (new ones after every id ever used when None).
+
+        Raises:
+            ReadOnlyIndexError: the index was loaded memory-mapped.
+            IdError: ids already present, removed earlier, negative or duplicated.
+        """
+        self._check_writable()
+        x = prepare_vectors(xb, self.dim, self.metric, "xb")
+        id_arr = prepare_ids(None if ids is None else np.asarray(ids), len(x), start=self.next_id)
+        present = id_arr[np.isin(id_arr, self._ids)]
+        if len(present):
+            raise IdError("ids already in the index", present.tolist())
+        reused = id_arr[np.isin(id_arr, self._removed)]
+        if len(reused):
+            raise IdError("ids were removed earlier and are never reused", reused.tolist())
+        if len(x):
+            self._index.add_with_ids(x, id_arr)
+            self._ids = np.union1d(self._ids, id_arr)
+        return id_arr
+
+    def remove(self, ids: IdsLike) -> int:
+        """Remove vectors by id; returns how many were removed. Their ids are never reused.
+
+        Raises:
+            ReadOnlyIndexError: the index was loaded memory-mapped.
+            IdError: an id is not in the index (nothing is removed then).
+        """
+        self._check_writable()
+        arr = np.unique(np.atleast_1d(np.asarray(ids, dtype=np.int64)))
+        unknown = arr[~np.isin(arr, self._ids, assume_unique=True)]
+        if len(unknown):
+            raise IdError("cannot remove ids that are not in the index", unknown.tolist())
+        if len(arr) == 0:
+            return 0
+        if self._native_remove:
+            # An IVF index with a hash-table id map removes only through an explicit id array.
+            sel = faiss.IDSelectorArray(arr) if self._is_ivf else faiss.IDSelectorBatch(arr)
+            n_removed = int(self._index.remove_ids(sel))
+            if n_removed != len(arr):
+                raise IndexesError(f"FAISS removed {n_removed} vectors, expected {len(arr)}")
+        else:
+            self._tombstones = np.union1d(self._tombstones, arr)
+        self._ids = np.setdiff1d(self._ids, arr, assume_unique=True)
+        self._removed = np.union1d(self._removed, arr)
+        return int(len(arr))
+
+    @property
+    def next_id(self) -> int:
+        """The id :meth:`add` gives next: one past every id ever used."""
+        last = max(int(self._ids[-1]) if len(self._ids) else -1,
+                   int(self._removed[-1]) if len(self._removed) else -1)
+        return last + 1
+
+    def _check_writable(self) -> None:
+        if self.read_only:
+            raise ReadOnlyIndexError("this index was loaded memory-mapped and is read-only; "
+                                     "load it with mmap=False to change it")
+
+    # ------------------------------------------------------------------ persistence
+
+    def save(self, directory: Path | str, overwrite: bool = True) -> None:
+        """Write the index to ``directory`` atomically (see :mod:`indexes.persistence`)."""
+        with writing_index_dir(directory, overwrite=overwrite) as tmp:
+            extra = self.write_files(tmp)
+            write_manifest(tmp, KIND, self.dim, self.metric.value, self.factory, len(self), extra)
+
+    def write_files(self, directory: Path) -> dict[str, Any]:
+        """Write the index's files into an existing ``directory``; returns the manifest's extra fields."""
+        faiss.write_index(self._index, str(directory / INDEX_FILE))
+        np.save(directory / IDS_FILE, self._ids)
+        np.save(directory / REMOVED_FILE, self._removed)
+        np.save(directory / TOMBSTONES_FILE, self._tombstones)
+        knob, value = self.search_knob
+        return {"info": self.info, "knob": knob, "knob_value": value, "tombstones": int(len(self._tombstones))}
+
+    @classmethod
+    def load(cls, directory: Path | str, mmap: bool = False, verify: bool | None = None) -> VectorIndex:
+        """Load an index saved by :meth:`save`.
+
+        Args:
+            directory: the saved directory.
+            mmap: map IVF lists (and flat codes) from disk instead of reading them; the index is
+                then read-only and pages in on demand.
+            verify: compare file checksums; defaults to ``not mmap`` (sizes are always checked).
+
+        Raises:
+            UnsupportedFormatError: the manifest is from a newer format version.
+            ManifestError, IndexFileError: missing, truncated, corrupt or inconsistent files.
+        """
+        d = resolve_dir(directory)
+        manifest = read_manifest(d, KIND, verify=(not mmap) if verify is None else verify)
+        return cls.from_files(d, manifest.dim, manifest.metric, manifest.factory, manifest.count,
+                              manifest.extra, mmap)
+
+    @classmethod
+    def from_files(cls, d: Path, dim: int, metric_name: str, factory: str, count: int,
+                   extra: dict[str, Any], mmap: bool) -> VectorIndex:
+        """Read the files :meth:`write_files` wrote and check them against the manifest's fields."""
+        manifest_path = d / "manifest.json"
+        try:
+            metric = Metric(metric_name)
+        except ValueError:
+            raise ManifestError(manifest_path, f"unknown metric {metric_name!r}", field="metric") from None
+        index = read_faiss_index(d / INDEX_FILE, mmap)
+        ids = _load_ids(d / IDS_FILE)
+        removed = _load_ids(d / REMOVED_FILE)
+        tombstones = _load_ids(d / TOMBSTONES_FILE)
+        if index.d != dim:
+            raise ManifestError(manifest_path, f"says dimension {dim}, {INDEX_FILE} has {index.d}", field="dim")
+        if index.metric_type != metric.faiss_metric:
+            raise ManifestError(manifest_path, f"says metric {metric.value}, {INDEX_FILE} disagrees",
+                                field="metric")
+        if len(ids) != count or index.ntotal != count + len(tombstones):
+            raise ManifestError(manifest_path, f"says {count} vectors, {IDS_FILE} has {len(ids)} and "
+                                f"{INDEX_FILE} {index.ntotal} (with {len(tombstones)} tombstones)", field="count")
+        out = cls(index, metric, factory, ids, removed, tombstones, extra.get("info"), read_only=mmap)
+        if extra.get("knob") == out._knob.value and extra.get("knob_value"):
+            set_knob(index, int(extra["knob_value"]))
+        return out
+
+
+def new_faiss_index(factory: str, d: int, metric: Metric) -> faiss.Index:
+    """An empty FAISS index for ``factory`` that accepts the caller's ids and reconstructs by id."""
+    try:
+        index = faiss.index_factory(d, factory, metric.faiss_metric)
+    except RuntimeError as exc:
+        raise ValueError(f"FAISS rejects factory string {factory!r}: {_faiss_message(exc)}") from None
+    ivf = faiss.try_extract_index_ivf(index)
+    if ivf is not None and not isinstance(index, faiss.IndexIDMap | faiss.IndexIDMap2):
+        # IVF lists store ids natively; a hash-table map adds lookup (reconstruct) and removal by id.
+        ivf.set_direct_map_type(faiss.DirectMap.Hashtable)
+        return index
+    if isinstance(index, faiss.IndexIDMap | faiss.IndexIDMap2):
+        return index
+    return faiss.IndexIDMap2(index)
+
+
+def read_faiss_index(path: Path, mmap: bool) -> faiss.Index:
+    """Read a FAISS file, memory-mapped on request, turning FAISS's errors into :class:`IndexFileError`."""
+    # The returned objects are already of their concrete type; downcasting them again would create
+    # a second Python owner-less proxy and is never needed.
+    flags = (faiss.IO_FLAG_MMAP | faiss.IO_FLAG_MMAP_IFC | faiss.IO_FLAG_READ_ONLY) if mmap else 0
+    try:
+        index = faiss.read_index(str(path), flags)
+    except RuntimeError as exc:
+        if mmap:
+            # Kinds FAISS cannot map (e.g. graphs) are read into memory; they stay read-only.
+            try:
+                return faiss.read_index(str(path))
+            except RuntimeError:
+                pass
+        raise IndexFileError(path, f"FAISS cannot read it (truncated or corrupt?): {_faiss_message(exc)}") from None
+    return index
+
+
+def _load_ids(path: Path) -> np.ndarray:
+    try:
+        arr = np.load(path, allow_pickle=False)
+    except (OSError, ValueError, EOFError) as exc:
+        raise IndexFileError(path, f"unreadable: {exc}") from None
+    if arr.ndim != 1 or arr.dtype != np.int64:
+        raise IndexFileError(path, f"expected a 1-D int64 array, got {arr.dtype} {arr.shape}")
+    return np.asarray(arr)
+
+
+def _check_k(k: int, size: int) -> None:
+    if not isinstance(k, int | np.integer) or k <= 0 or k > size:
+        raise InvalidKError(int(k), size)
+
+
+def _faiss_message(exc: BaseException) -> str:
+    """The useful line of a FAISS C++ exception (they start with a long source location)."""
+    text = str(exc).strip().splitlines()[0] if str(exc).strip() else repr(exc)
+    return text.split("Error: ", 1)[-1] if "Error: " in text else text

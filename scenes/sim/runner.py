@@ -1,0 +1,297 @@
+"""Drive SUMO through libsumo and record what each ego sees during its log windows.
+
+One run serves many logs: ``num_egos`` egos drive at once and each log is one window of one ego's
+drive. Around each window a margin is recorded too, so that labels spanning a window's edge (a lane
+change that began before it) are complete; the margin is cut off when the log is written.
+
+Only objects within :data:`CONTEXT_RADIUS_M` of an ego are read back from SUMO each step (a context
+subscription), which keeps the Python side small however busy the city is.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from scenes.sim.errors import SimulationError
+
+#: Objects farther than this from an ego are not read (the annotation range is smaller).
+CONTEXT_RADIUS_M = 110.0
+#: Leaders are looked for this far ahead along the route.
+LEADER_LOOKAHEAD_M = 60.0
+#: Recorded before and after each window (longer than a lane change).
+MARGIN_S = 4.0
+#: SUMO lane changes take this long (continuous lateral motion instead of a jump between lanes).
+LANE_CHANGE_DURATION_S = 3.0
+#: Vehicles stuck this long are teleported by SUMO, which resolves rare gridlocks.
+TIME_TO_TELEPORT_S = 120.0
+
+# traci constants, copied so that importing this module does not load SUMO.
+_VAR_POSITION, _VAR_ANGLE, _VAR_SPEED, _VAR_ACCELERATION = 0x42, 0x43, 0x40, 0x72
+_VAR_LANE_ID, _VAR_LANE_INDEX, _VAR_TYPE, _VAR_STOPSTATE, _VAR_LANEPOSITION_LAT = 0x51, 0x52, 0x4F, 0xB5, 0xB8
+_CMD_GET_VEHICLE_VARIABLE, _CMD_GET_PERSON_VARIABLE = 0xA4, 0xAE
+_VEHICLE_VARS = [_VAR_POSITION, _VAR_ANGLE, _VAR_SPEED, _VAR_ACCELERATION, _VAR_LANE_ID, _VAR_LANE_INDEX,
+                 _VAR_TYPE, _VAR_STOPSTATE, _VAR_LANEPOSITION_LAT]
+_PERSON_VARS = [_VAR_POSITION, _VAR_ANGLE, _VAR_SPEED, _VAR_TYPE]
+#: Stop-state bit set while a vehicle is parked (off its lane).
+STOPSTATE_PARKING = 2
+
+
+def load_libsumo() -> Any:
+    """Import libsumo, silencing its start-up notice on stdout (a version note about pyarrow)."""
+    with contextlib.redirect_stdout(io.StringIO()):
+        import libsumo
+    return libsumo
+
+
+@dataclass
+class ObjectRows:
+    """Objects seen by one ego over one recorded span, one row per (step, object).
+
+    Attributes:
+        step: (N,) simulation step index.
+        sumo_id: (N,) SUMO vehicle or person id.
+        type_id: (N,) SUMO vType id.
+        is_person: (N,) pedestrians.
+        front_xy_m: (N, 2) front-bumper centre in the city frame (SUMO's reference point).
+        angle_deg: (N,) SUMO heading: compass degrees, clockwise from north.
+        speed_mps: (N,) speed.
+        accel_mps2: (N,) longitudinal acceleration (0 for pedestrians).
+        lane_id: (N,) SUMO lane id ("" for pedestrians).
+        lane_index: (N,) lane index on its edge, 0 = rightmost (−1 for pedestrians).
+        lateral_m: (N,) offset from the lane centre, positive to the left.
+        stop_state: (N,) SUMO stop-state bits.
+        leader_id: (N,) next vehicle ahead on the route ("" when none).
+        leader_gap_m: (N,) bumper-to-bumper gap to it (inf when none).
+        leader_speed_mps: (N,) the leader's speed (nan when none).
+        leader_accel_mps2: (N,) the leader's acceleration (nan when none).
+    """
+
+    step: NDArray[np.int64]
+    sumo_id: NDArray[np.str_]
+    type_id: NDArray[np.str_]
+    is_person: NDArray[np.bool_]
+    front_xy_m: NDArray[np.float64]
+    angle_deg: NDArray[np.float64]
+    speed_mps: NDArray[np.float64]
+    accel_mps2: NDArray[np.float64]
+    lane_id: NDArray[np.str_]
+    lane_index: NDArray[np.int64]
+    lateral_m: NDArray[np.float64]
+    stop_state: NDArray[np.int64]
+    leader_id: NDArray[np.str_]
+    leader_gap_m: NDArray[np.float64]
+    leader_speed_mps: NDArray[np.float64]
+    leader_accel_mps2: NDArray[np.float64]
+
+    def select(self, mask: NDArray[np.bool_] | NDArray[np.int64]) -> ObjectRows:
+        return ObjectRows(**{k: v[mask] for k, v in self.__dict__.items()})
+
+
+@dataclass
+class Recording:
+    """What one ego saw during one window plus its margins.
+
+    Attributes:
+        ego_id: SUMO id of the ego.
+        window: window index.
+        first_step, last_step: the log's steps (inclusive), without the margins.
+        ego: the ego's own rows (one per recorded step).
+        objects: the other objects' rows.
+    """
+
+    ego_id: str
+    window: int
+    first_step: int
+    last_step: int
+    ego: ObjectRows
+    objects: ObjectRows
+
+
+@dataclass
+class _Collector:
+    rows: list[tuple[Any, ...]] = field(default_factory=list)
+    ego_rows: list[tuple[Any, ...]] = field(default_factory=list)
+
+
+def _to_rows(rows: list[tuple[Any, ...]]) -> ObjectRows:
+    cols = list(zip(*rows)) if rows else [()] * 16
+    return ObjectRows(
+        step=np.asarray(cols[0], dtype=np.int64),
+        sumo_id=np.asarray(cols[1], dtype=np.str_),
+        type_id=np.asarray(cols[2], dtype=np.str_),
+        is_person=np.asarray(cols[3], dtype=bool),
+        front_xy_m=np.asarray(cols[4], dtype=np.float64).reshape(-1, 2),
+        angle_deg=np.asarray(cols[5], dtype=np.float64),
+        speed_mps=np.asarray(cols[6], dtype=np.float64),
+        accel_mps2=np.asarray(cols[7], dtype=np.float64),
+        lane_id=np.asarray(cols[8], dtype=np.str_),
+        lane_index=np.asarray(cols[9], dtype=np.int64),
+        lateral_m=np.asarray(cols[10], dtype=np.float64),
+        stop_state=np.asarray(cols[11], dtype=np.int64),
+        leader_id=np.asarray(cols[12], dtype=np.str_),
+        leader_gap_m=np.asarray(cols[13], dtype=np.float64),
+        leader_speed_mps=np.asarray(cols[14], dtype=np.float64),
+        leader_accel_mps2=np.asarray(cols[15], dtype=np.float64),
+    )
+
+
+@dataclass(frozen=True)
+class RunPlan:
+    """When each window runs. All egos share the windows."""
+
+    step_s: float
+    warmup_steps: int
+    window_steps: int
+    num_windows: int
+    margin_steps: int
+
+    @property
+    def total_steps(self) -> int:
+        return self.warmup_steps + self.num_windows * self.window_steps + self.margin_steps + 1
+
+    def window_span(self, w: int) -> tuple[int, int]:
+        """First and last step of window ``w`` (inclusive)."""
+        first = self.warmup_steps + w * self.window_steps
+        return first, first + self.window_steps - 1
+
+
+def run_sumo(
+    net_path: Path,
+    routes_xml: str,
+    additional_xml: str,
+    ego_ids: tuple[str, ...],
+    road_edges: tuple[str, ...],
+    plan: RunPlan,
+    seed: int,
+    work_dir: Path,
+) -> list[Recording]:
+    """Run SUMO and return one :class:`Recording` per (ego, window), ordered by window then ego.
+
+    Raises:
+        SimulationError: with SUMO's message when it fails, or when an ego leaves the city.
+    """
+    libsumo = load_libsumo()
+    routes = work_dir / "city.rou.xml"
+    additional = work_dir / "city.add.xml"
+    error_log = work_dir / "sumo-errors.log"
+    routes.write_text(routes_xml)
+    additional.write_text(additional_xml)
+    end_s = plan.total_steps * plan.step_s + 1.0
+    args = [
+        "sumo", "-n", str(net_path), "-r", str(routes), "-a", str(additional),
+        "--step-length", f"{plan.step_s}", "--seed", str(seed), "--end", f"{end_s}",
+        "--lanechange.duration", f"{LANE_CHANGE_DURATION_S}",
+        "--time-to-teleport", f"{TIME_TO_TELEPORT_S}",
+        "--ignore-route-errors", "true", "--no-step-log", "true", "--no-warnings", "true",
+        "--xml-validation", "never", "--xml-validation.net", "never", "--xml-validation.routes", "never",
+        "--error-log", str(error_log), "--duration-log.disable", "true",
+    ]
+    rng = np.random.default_rng([seed, 0xE60])
+    collectors = {(e, w): _Collector() for w in range(plan.num_windows) for e in ego_ids}
+    spans = [plan.window_span(w) for w in range(plan.num_windows)]
+    subscribed: set[str] = set()
+    os.environ.setdefault("SUMO_HOME", _sumo_home())
+    started = False
+    try:
+        libsumo.start(args)
+        started = True
+        veh = libsumo.vehicle
+        for step in range(plan.total_steps):
+            libsumo.simulationStep()
+            for ego in ego_ids:
+                if ego not in subscribed:
+                    if ego in veh.getIDList():
+                        veh.subscribe(ego, _VEHICLE_VARS)
+                        veh.subscribeContext(ego, _CMD_GET_VEHICLE_VARIABLE, CONTEXT_RADIUS_M, _VEHICLE_VARS)
+                        veh.subscribeContext(ego, _CMD_GET_PERSON_VARIABLE, CONTEXT_RADIUS_M, _PERSON_VARS)
+                        subscribed.add(ego)
+                    continue
+                _keep_driving(veh, ego, road_edges, rng)
+            active = [w for w, (a, b) in enumerate(spans) if a - plan.margin_steps <= step <= b + plan.margin_steps]
+            if not active:
+                continue
+            leaders: dict[str, tuple[str, float, float, float]] = {}
+            for ego in ego_ids:
+                own = veh.getSubscriptionResults(ego)
+                if not own:
+                    if step >= spans[0][0]:
+                        raise SimulationError(f"ego {ego} is not driving at step {step} (it could not depart "
+                                              f"or left the network); try another seed")
+                    continue
+                ego_row = _vehicle_row(veh, step, ego, own, leaders)
+                context = veh.getContextSubscriptionResults(ego)
+                rows = []
+                for sid, values in context.items():
+                    if sid == ego:
+                        continue
+                    if _VAR_LANE_INDEX in values:
+                        rows.append(_vehicle_row(veh, step, sid, values, leaders))
+                    else:
+                        x, y = values[_VAR_POSITION]
+                        rows.append((step, sid, values[_VAR_TYPE], True, (x, y), values[_VAR_ANGLE],
+                                     values[_VAR_SPEED], 0.0, "", -1, 0.0, 0, "", np.inf, np.nan, np.nan))
+                for w in active:
+                    c = collectors[(ego, w)]
+                    c.ego_rows.append(ego_row)
+                    c.rows.extend(rows)
+    except SimulationError:
+        raise
+    except Exception as exc:  # libsumo raises its own exception types; surface SUMO's message
+        detail = error_log.read_text().strip() if error_log.is_file() else ""
+        raise SimulationError(f"SUMO failed: {exc}" + (f"\n{detail}" if detail else "")) from exc
+    finally:
+        if started:
+            with contextlib.suppress(Exception):
+                libsumo.close()
+    out = []
+    for w, (first, last) in enumerate(spans):
+        for ego in ego_ids:
+            c = collectors[(ego, w)]
+            out.append(Recording(ego, w, first, last, _to_rows(c.ego_rows), _to_rows(c.rows)))
+    return out
+
+
+def _sumo_home() -> str:
+    import sumo
+
+    return str(sumo.SUMO_HOME)
+
+
+def _vehicle_row(
+    veh: Any, step: int, sid: str, values: dict[int, Any], leaders: dict[str, tuple[str, float, float, float]]
+) -> tuple[Any, ...]:
+    if sid not in leaders:
+        found = veh.getLeader(sid, LEADER_LOOKAHEAD_M)
+        if found and found[0]:
+            leaders[sid] = (found[0], float(found[1]), veh.getSpeed(found[0]), veh.getAcceleration(found[0]))
+        else:
+            leaders[sid] = ("", np.inf, np.nan, np.nan)
+    leader, gap, leader_speed, leader_accel = leaders[sid]
+    x, y = values[_VAR_POSITION]
+    return (step, sid, values[_VAR_TYPE], False, (x, y), values[_VAR_ANGLE], values[_VAR_SPEED],
+            values[_VAR_ACCELERATION], values[_VAR_LANE_ID], values[_VAR_LANE_INDEX],
+            values[_VAR_LANEPOSITION_LAT], values[_VAR_STOPSTATE], leader, gap, leader_speed, leader_accel)
+
+
+def _keep_driving(veh: Any, ego: str, road_edges: tuple[str, ...], rng: np.random.Generator) -> None:
+    """Give an ego a new destination before it arrives, so that it drives through every window."""
+    route = veh.getRoute(ego)
+    if veh.getRouteIndex(ego) < len(route) - 2:
+        return
+    for _ in range(8):
+        target = road_edges[int(rng.integers(len(road_edges)))]
+        if target == route[-1]:
+            continue
+        try:
+            veh.changeTarget(ego, target)
+            return
+        except Exception:  # noqa: BLE001 - an unreachable target; draw another
+            continue

@@ -1,1 +1,53 @@
-"""indexes package."""
+"""FAISS index choice, build, search with filters, and persistence; id ↔ clip mapping and metadata.
+
+* :class:`VectorIndex` — vectors with the caller's int64 ids (build/search/add/remove/save/load);
+* :class:`ShardedIndex` — the same API over several shards;
+* :class:`ClipIndex` — vectors plus clip metadata, searched with filters such as
+  ``category in {car, truck} and tags contains "left:approach"``.
+"""
+
+from indexes.clip_index import ClipIndex, Hit, SearchResult
+from indexes.errors import (
+    DimensionMismatchError,
+    FilterError,
+    IdError,
+    IndexesError,
+    IndexFileError,
+    InvalidKError,
+    ManifestError,
+    MemoryBudgetError,
+    MetadataError,
+    ReadOnlyIndexError,
+    UnsupportedFormatError,
+    VectorError,
+)
+from indexes.factory import AutoConfig, FactoryChoice, choose_factory
+from indexes.metadata import MetadataStore
+from indexes.sharded import ShardedIndex
+from indexes.vector_index import VectorIndex
+from indexes.vectors import Metric
+
+__all__ = [
+    "AutoConfig",
+    "ClipIndex",
+    "DimensionMismatchError",
+    "FactoryChoice",
+    "FilterError",
+    "Hit",
+    "IdError",
+    "IndexFileError",
+    "IndexesError",
+    "InvalidKError",
+    "ManifestError",
+    "MemoryBudgetError",
+    "MetadataError",
+    "MetadataStore",
+    "Metric",
+    "ReadOnlyIndexError",
+    "SearchResult",
+    "ShardedIndex",
+    "UnsupportedFormatError",
+    "VectorError",
+    "VectorIndex",
+    "choose_factory",
+]

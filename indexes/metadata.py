@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeAlias
 
 import numpy as np
 import pyarrow as pa
@@ -22,7 +22,7 @@ from indexes.filters import FilterSpec, compile_mask
 
 ID = "id"
 CLIP_ID = "clip_id"
-Rows = pa.Table | Sequence[Mapping[str, Any]]
+Rows: TypeAlias = pa.Table | Sequence[Mapping[str, Any]]
 
 
 class MetadataStore:
@@ -130,14 +130,14 @@ def rows_to_table(rows: Rows) -> pa.Table:
     """A table from dict rows (checked for ``clip_id``) or an existing table."""
     if isinstance(rows, pa.Table):
         return rows
-    rows = list(rows)
-    for i, row in enumerate(rows):
+    rows_list: list[Any] = list(rows)
+    for i, row in enumerate(rows_list):
         if not isinstance(row, Mapping):
             raise MetadataError(f"expected a dict, got {type(row).__name__}", row=i)
         if not isinstance(row.get(CLIP_ID), str) or not row.get(CLIP_ID):
             raise MetadataError("missing or empty clip id", row=i, field=CLIP_ID)
     try:
-        return pa.Table.from_pylist(rows)
+        return pa.Table.from_pylist(rows_list)
     except (pa.ArrowInvalid, pa.ArrowTypeError) as exc:
         raise MetadataError(f"rows do not form a table: {exc}") from None
 

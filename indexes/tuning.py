@@ -50,7 +50,7 @@ def get_knob(index: faiss.Index) -> int:
     if knob is Knob.NPROBE:
         return int(faiss.extract_index_ivf(inner).nprobe)
     if knob is Knob.EF_SEARCH:
-        return int(inner.hnsw.efSearch)
+        return int(inner.hnsw.efSearch)  # type: ignore[attr-defined]
     return 0
 
 
@@ -60,7 +60,7 @@ def set_knob(index: faiss.Index, value: int) -> None:
     if knob is Knob.NPROBE:
         faiss.extract_index_ivf(inner).nprobe = int(value)
     elif knob is Knob.EF_SEARCH:
-        inner.hnsw.efSearch = int(value)
+        inner.hnsw.efSearch = int(value)  # type: ignore[attr-defined]
 
 
 def knob_limit(index: faiss.Index) -> int:
@@ -86,9 +86,9 @@ def search_parameters(index: faiss.Index, sel: faiss.IDSelector | None,
     knob = knob_of(index)
     params: faiss.SearchParameters
     if knob is Knob.NPROBE:
-        params = faiss.SearchParametersIVF(nprobe=int(value))
+        params = faiss.SearchParametersIVF(nprobe=int(value))  # type: ignore[call-arg]
     elif knob is Knob.EF_SEARCH:
-        params = faiss.SearchParametersHNSW(efSearch=int(value))
+        params = faiss.SearchParametersHNSW(efSearch=int(value))  # type: ignore[attr-defined]
     else:
         params = faiss.SearchParameters()
     if sel is not None:

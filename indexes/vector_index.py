@@ -17,6 +17,9 @@ closeness; where fewer than k vectors qualify, ``I`` is −1 and ``D`` is −inf
 +inf (L2).
 """
 
+# D and I are FAISS's names for the (nq, k) score and id tables.
+# ruff: noqa: E741
+
 from __future__ import annotations
 
 from collections.abc import Sequence
@@ -112,22 +115,23 @@ class VectorIndex:
             factory = choice.factory
             info.update(choice_reason=choice.reason, estimated_bytes=choice.estimated_bytes)
         index = new_faiss_index(factory, d, metric)
-        if not index.is_trained:
-            n_train = train_points(factory, n, config) or min(n, 100_000)
-            rng = np.random.default_rng(config.seed)
-            sample = np.sort(rng.choice(n, size=n_train, replace=False)) if n_train < n else slice(None)
-            try:
-                index.train(x[sample])
-            except RuntimeError as exc:
-                raise ValueError(f"factory {factory!r} cannot be trained on {n} vectors: "
-                                 f"{_faiss_message(exc)}") from None
-            info["train_points"] = int(n_train)
+        info.update(train(index, factory, x, config))
         if n:
             index.add_with_ids(x, id_arr)
         out = cls(index, metric, factory, id_arr, np.empty(0, np.int64), np.empty(0, np.int64), info)
         if tune_recall:
-            out._tune_on(x, id_arr, config)
+            out.tune_on(x, id_arr, config)
         return out
+
+    @classmethod
+    def from_trained(cls, template: faiss.Index, metric: Metric, factory: str, x: np.ndarray,
+                     ids: np.ndarray, info: dict[str, Any] | None = None) -> VectorIndex:
+        """An index of already prepared vectors ``x`` (N, d) with ``ids`` (N,), in a copy of the
+        trained, empty ``template`` (shards share one training)."""
+        index = faiss.clone_index(template)
+        if len(x):
+            index.add_with_ids(x, ids)
+        return cls(index, metric, factory, ids, np.empty(0, np.int64), np.empty(0, np.int64), info)
 
     def tune(self, target_recall: float | None = None, config: AutoConfig | None = None) -> dict[str, Any]:
         """Re-tune ``nprobe``/``efSearch`` on a sample of the vectors now in the index.
@@ -143,10 +147,10 @@ class VectorIndex:
         # Ground truth over the whole collection needs every vector; tune against the index's own
         # reconstruction so that compressed codes are judged on what they can find.
         xb = self.reconstruct(self._ids)
-        self._tune_on(xb, self._ids, config, query_ids=sample_ids)
+        self.tune_on(xb, self._ids, config, query_ids=sample_ids)
         return dict(self.info.get("tuning", {}))
 
-    def _tune_on(self, x: np.ndarray, ids: np.ndarray, config: AutoConfig,
+    def tune_on(self, x: np.ndarray, ids: np.ndarray, config: AutoConfig,
                  query_ids: np.ndarray | None = None) -> None:
         """Tune the knob with held-out queries drawn from ``x`` (rows labelled ``ids``)."""
         k = config.tune_k
@@ -178,7 +182,7 @@ class VectorIndex:
     # ------------------------------------------------------------------ properties
 
     def __len__(self) -> int:
-        return int(len(self._ids))
+        return len(self._ids)
 
     @property
     def dim(self) -> int:
@@ -245,7 +249,7 @@ class VectorIndex:
             VectorError, DimensionMismatchError: bad queries (naming the row).
         """
         x = prepare_vectors(xq, self.dim, self.metric, "queries")
-        _check_k(k, len(self))
+        check_k(k, len(self))
         allowed = None if filter is None else self._allowed(filter)
         if allowed is not None and self._prefer_exact(len(allowed)):
             return self._exact_search(x, k, allowed)
@@ -381,7 +385,7 @@ class VectorIndex:
             self._tombstones = np.union1d(self._tombstones, arr)
         self._ids = np.setdiff1d(self._ids, arr, assume_unique=True)
         self._removed = np.union1d(self._removed, arr)
-        return int(len(arr))
+        return len(arr)
 
     @property
     def next_id(self) -> int:
@@ -410,7 +414,7 @@ class VectorIndex:
         np.save(directory / REMOVED_FILE, self._removed)
         np.save(directory / TOMBSTONES_FILE, self._tombstones)
         knob, value = self.search_knob
-        return {"info": self.info, "knob": knob, "knob_value": value, "tombstones": int(len(self._tombstones))}
+        return {"info": self.info, "knob": knob, "knob_value": value, "tombstones": len(self._tombstones)}
 
     @classmethod
     def load(cls, directory: Path | str, mmap: bool = False, verify: bool | None = None) -> VectorIndex:
@@ -458,6 +462,21 @@ class VectorIndex:
         return out
 
 
+def train(index: faiss.Index, factory: str, x: np.ndarray, config: AutoConfig) -> dict[str, Any]:
+    """Train ``index`` (if it needs it) on a seeded sample of ``x`` (N, d); returns info fields."""
+    if index.is_trained:
+        return {}
+    n = len(x)
+    n_train = train_points(factory, n, config) or min(n, 100_000)
+    rng = np.random.default_rng(config.seed)
+    sample = np.sort(rng.choice(n, size=n_train, replace=False)) if n_train < n else np.arange(n)
+    try:
+        index.train(np.ascontiguousarray(x[sample]))
+    except RuntimeError as exc:
+        raise ValueError(f"factory {factory!r} cannot be trained on {n} vectors: {_faiss_message(exc)}") from None
+    return {"train_points": len(sample)}
+
+
 def new_faiss_index(factory: str, d: int, metric: Metric) -> faiss.Index:
     """An empty FAISS index for ``factory`` that accepts the caller's ids and reconstructs by id."""
     try:
@@ -467,7 +486,7 @@ def new_faiss_index(factory: str, d: int, metric: Metric) -> faiss.Index:
     ivf = faiss.try_extract_index_ivf(index)
     if ivf is not None and not isinstance(index, faiss.IndexIDMap | faiss.IndexIDMap2):
         # IVF lists store ids natively; a hash-table map adds lookup (reconstruct) and removal by id.
-        ivf.set_direct_map_type(faiss.DirectMap.Hashtable)
+        ivf.set_direct_map_type(faiss.DirectMap.Hashtable)  # type: ignore[attr-defined]
         return index
     if isinstance(index, faiss.IndexIDMap | faiss.IndexIDMap2):
         return index
@@ -502,7 +521,7 @@ def _load_ids(path: Path) -> np.ndarray:
     return np.asarray(arr)
 
 
-def _check_k(k: int, size: int) -> None:
+def check_k(k: int, size: int) -> None:
     if not isinstance(k, int | np.integer) or k <= 0 or k > size:
         raise InvalidKError(int(k), size)
 

@@ -217,7 +217,9 @@ def read_calibration(log_dir: Path) -> Calibration:
             raise LogFormatError(problems)
         quat = _floats(table, ["qw", "qx", "qy", "qz"])
         trans = _floats(table, ["tx_m", "ty_m", "tz_m"])
-        problems = validate.check_quaternions(ext_path, quat)
+        floats = {n: quat[:, i] for i, n in enumerate(["qw", "qx", "qy", "qz"])}
+        floats.update({n: trans[:, i] for i, n in enumerate(["tx_m", "ty_m", "tz_m"])})
+        problems = validate.check_finite(ext_path, floats) or validate.check_quaternions(ext_path, quat)
         if problems:
             raise LogFormatError(problems)
         for i, name in enumerate(table.column("sensor_name").to_pylist()):
@@ -328,7 +330,7 @@ def read_metadata(log_dir: Path) -> LogMetadata | None:
         return None
     try:
         return LogMetadata.from_json_dict(json.loads(path.read_text()))
-    except (OSError, json.JSONDecodeError, KeyError) as exc:
+    except (OSError, ValueError, KeyError, TypeError, AttributeError) as exc:
         raise LogFormatError(Problem(path, f"unreadable log metadata: {exc!r}")) from exc
 
 

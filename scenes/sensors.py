@@ -64,17 +64,21 @@ def read_lidar_sweep(path: Path) -> LidarSweep:
     import pyarrow as pa
     import pyarrow.feather as feather
 
+    from scenes import validate
+
     try:
         table = feather.read_table(path)
-    except (OSError, pa.ArrowInvalid) as exc:
-        raise LogFormatError.single(path, f"unreadable feather file ({exc})") from exc
-    for name in ("x", "y", "z"):
-        if name not in table.column_names:
-            raise LogFormatError.single(path, "missing column", field=name)
+    except (OSError, pa.ArrowException) as exc:
+        raise LogFormatError.single(path, f"unreadable feather file (truncated or corrupt?): {exc}") from exc
+    problems = validate.check_columns(path, table, validate.LIDAR_REQUIRED_COLUMNS, validate.LIDAR_OPTIONAL_COLUMNS)
+    if problems:
+        raise LogFormatError(problems)
     xyz = np.stack([table.column(c).to_numpy().astype(np.float32) for c in ("x", "y", "z")], axis=1)
     bad = ~np.isfinite(xyz).all(axis=1)
     if bad.any():
-        raise LogFormatError.single(path, "non-finite point coordinate", field="xyz", row=int(np.argmax(bad)))
+        row = int(np.argmax(bad))
+        name = "xyz"[int(np.argmax(~np.isfinite(xyz[row])))]
+        raise LogFormatError.single(path, "NaN or inf value", field=name, row=row)
     n = xyz.shape[0]
 
     def col(name: str, dtype: type, default: int = 0) -> Any:

@@ -7,7 +7,9 @@ the field. Nothing is repaired: a reader either gets valid data or an error list
 from __future__ import annotations
 
 from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pyarrow as pa
@@ -162,3 +164,168 @@ def check_pose_jumps(
 
 def format_problems(problems: Iterable[Problem]) -> str:
     return "\n".join(str(p) for p in problems)
+
+
+# ---------------------------------------------------------------------------------------------
+# Whole-log validation (``scenesearch validate``)
+
+#: Columns of a LiDAR sweep file: ``x y z`` are required, the rest optional (AV2 types in
+#: :data:`scenes.sensors.LIDAR_COLUMNS`).
+LIDAR_REQUIRED_COLUMNS: dict[str, str] = {"x": "float", "y": "float", "z": "float"}
+LIDAR_OPTIONAL_COLUMNS: dict[str, str] = {"intensity": "int", "laser_number": "int", "offset_ns": "int"}
+
+_JPEG_MAGIC = b"\xff\xd8"
+
+
+@dataclass(frozen=True)
+class ValidationReport:
+    """Everything ``scenesearch validate`` found out about one log.
+
+    Attributes:
+        log_dir: the log folder.
+        problems: errors; a log with any problem fails validation.
+        warnings: things that are allowed but worth knowing (unknown categories mapped to
+            ``other``, a missing map, missing calibration).
+        facts: what the log holds when it opens: ``frames``, ``tracks``, ``duration_s``,
+            ``lidar_sweeps``, ``cameras``, ``camera_frames``, ``has_map``, ``source``.
+    """
+
+    log_dir: Path
+    problems: list[Problem] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
+    facts: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def ok(self) -> bool:
+        return not self.problems
+
+    def summary(self) -> str:
+        """One line: ``OK <log> (facts; warnings)`` or ``FAIL <log>: n problems``."""
+        if not self.ok:
+            return f"FAIL {self.log_dir}: {len(self.problems)} problem(s)"
+        facts = ", ".join(f"{k}={v}" for k, v in self.facts.items())
+        text = f"OK {self.log_dir} ({facts})"
+        if self.warnings:
+            text += "; warnings: " + "; ".join(self.warnings)
+        return text
+
+    def to_json_dict(self) -> dict[str, Any]:
+        return {
+            "log_dir": str(self.log_dir),
+            "ok": self.ok,
+            "problems": [
+                {"path": str(p.path), "row": p.row, "field": p.field, "message": p.message} for p in self.problems
+            ],
+            "warnings": list(self.warnings),
+            "facts": dict(self.facts),
+        }
+
+
+def check_lidar_sweep_file(path: Path) -> list[Problem]:
+    """Columns, types, nulls and finite coordinates of one ``sensors/lidar/<ns>.feather``."""
+    import pyarrow.feather as feather
+
+    try:
+        table = feather.read_table(path)
+    except (OSError, pa.ArrowException) as exc:
+        return [Problem(path, f"unreadable feather file (truncated or corrupt?): {exc}")]
+    problems = check_columns(path, table, LIDAR_REQUIRED_COLUMNS, LIDAR_OPTIONAL_COLUMNS)
+    if problems:
+        return problems
+    if table.num_rows == 0:
+        return [Problem(path, "sweep has no points")]
+    coords = {n: np.asarray(table.column(n).to_numpy(), dtype=np.float64) for n in ("x", "y", "z")}
+    return check_finite(path, coords)
+
+
+def check_camera_frame_file(path: Path) -> list[Problem]:
+    """A camera frame must be a non-empty JPEG (its first bytes are checked, not the whole image)."""
+    try:
+        with path.open("rb") as f:
+            head = f.read(2)
+    except OSError as exc:
+        return [Problem(path, f"unreadable image: {exc}")]
+    if head != _JPEG_MAGIC:
+        return [Problem(path, "not a JPEG file (empty or wrong format)")]
+    return []
+
+
+def validate_log(log_dir: Path | str) -> ValidationReport:
+    """Run every check of the log contract on one log folder, including the parts that
+    :meth:`scenes.log.Log.open` reads lazily (map, calibration, LiDAR sweeps, camera frames,
+    metadata). Nothing is repaired; every problem is collected, not just the first.
+    """
+    from scenes import av2_io
+    from scenes.errors import LogFormatError
+    from scenes.log import Log
+    from scenes.sensors import timestamps_in
+
+    log_dir = Path(log_dir)
+    problems: list[Problem] = []
+    warnings: list[str] = []
+    facts: dict[str, Any] = {}
+    if not log_dir.is_dir():
+        return ValidationReport(log_dir, [Problem(log_dir, "log folder does not exist")])
+
+    log: Log | None = None
+    try:
+        log = Log.open(log_dir)
+    except LogFormatError as exc:
+        problems.extend(exc.problems)
+
+    try:
+        metadata = av2_io.read_metadata(log_dir)
+    except LogFormatError as exc:
+        problems.extend(exc.problems)
+        metadata = None
+
+    map_path = av2_io.find_map_file(log_dir)
+    if map_path is None:
+        warnings.append("no map (map/log_map_archive_*.json)")
+    else:
+        try:
+            av2_io.read_map(map_path)
+        except LogFormatError as exc:
+            problems.extend(exc.problems)
+
+    calibration = None
+    try:
+        calibration = av2_io.read_calibration(log_dir)
+    except LogFormatError as exc:
+        problems.extend(exc.problems)
+
+    lidar_dir = log_dir / av2_io.LIDAR_DIR
+    lidar_ts = timestamps_in(lidar_dir, ".feather")
+    for ts in lidar_ts:
+        problems.extend(check_lidar_sweep_file(lidar_dir / f"{int(ts)}.feather"))
+    if lidar_dir.is_dir():
+        for p in sorted(lidar_dir.iterdir()):
+            if p.suffix == ".feather" and not p.stem.isdigit():
+                problems.append(Problem(p, "sweep file name is not <timestamp_ns>.feather"))
+
+    cameras_dir = log_dir / av2_io.CAMERAS_DIR
+    camera_names = sorted(p.name for p in cameras_dir.iterdir() if p.is_dir()) if cameras_dir.is_dir() else []
+    camera_frames = 0
+    for name in camera_names:
+        stamps = timestamps_in(cameras_dir / name, ".jpg")
+        camera_frames += int(stamps.shape[0])
+        for ts in stamps:
+            problems.extend(check_camera_frame_file(cameras_dir / name / f"{int(ts)}.jpg"))
+        if calibration is not None and calibration.intrinsics and name not in calibration.intrinsics:
+            warnings.append(f"camera '{name}' has no intrinsics")
+
+    if log is not None:
+        ts = log.timestamps_ns
+        facts["frames"] = int(ts.shape[0])
+        facts["tracks"] = len(log.annotations.without_ego().track_ids)
+        facts["duration_s"] = round(float(ts[-1] - ts[0]) * 1e-9, 3) if ts.shape[0] else 0.0
+        if log.unknown_categories:
+            listed = ", ".join(f"{k}={v}" for k, v in sorted(log.unknown_categories.items()))
+            warnings.append(f"unknown categories mapped to 'other': {listed}")
+    facts["lidar_sweeps"] = int(lidar_ts.shape[0])
+    facts["cameras"] = len(camera_names)
+    facts["camera_frames"] = camera_frames
+    facts["has_map"] = map_path is not None
+    if metadata is not None:
+        facts["source"] = metadata.source
+    return ValidationReport(log_dir, problems, warnings, facts)

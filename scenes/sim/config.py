@@ -105,8 +105,8 @@ class SimulationConfig:
     egos_per_run: int = 4
     step_s: float = 0.1
     range_m: float = 80.0
-    vehicles_per_s: float = 1.2
-    pedestrians_per_s: float = 0.6
+    vehicles_per_s: float = 0.8
+    pedestrians_per_s: float = 0.3
     parked_vehicles: int = 30
     tracker_noise: bool = False
     noise: TrackerNoiseConfig = field(default_factory=TrackerNoiseConfig)

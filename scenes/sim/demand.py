@@ -61,7 +61,7 @@ def _vtype_xml(t: VehicleType) -> str:
     if t.vclass == "pedestrian":
         return f"    <vType {common}/>"
     # Eager lane changing for speed gain: more lane changes and overtakes of cyclists.
-    return f'    <vType {common} lcSpeedGain="2.0" lcKeepRight="0.5" speedDev="0.1"/>'
+    return f'    <vType {common} lcSpeedGain="2.0" lcKeepRight="0.5" speedDev="0.1" impatience="0.7" jmTimegapMinor="0.5"/>'
 
 
 def _lane_length_m(shape: np.ndarray) -> float:

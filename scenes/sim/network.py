@@ -27,6 +27,7 @@ _COMMON = [
     "--crossings.guess", "true",
     "--no-turnarounds", "true",
     "--junctions.corner-detail", "5",
+    "--tls.cycle.time", "60",
     "--no-warnings", "true",
 ]
 

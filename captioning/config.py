@@ -1,0 +1,306 @@
+"""Thresholds and options of the captioning rules: one frozen dataclass, loadable from YAML.
+
+The YAML file mirrors the nesting (every key optional, defaults below)::
+
+    host:      {stationary_speed_mps: 0.5, accel_mps2: 0.5, yaw_rate_rps: 0.1}
+    neighbor:  {stationary_speed_mps: 0.5, stationary_quantile: 0.8, host_lane_half_width_m: 1.85,
+                relative_speed_mps: 1.0, oncoming_min_deg: 150.0, lateral_deg: [60.0, 120.0]}
+    smoothing: {window_frames: 9, polyorder: 2, min_run_frames: 5}
+    segments:  {min_frames: 8, max_frames: 300}
+    windows:   {strategy: host_segments, length_s: 5.0, stride_s: 2.5}
+    text:      {num_paraphrases: 3, seed: 0}
+
+Unknown keys and contradicting thresholds raise :class:`~captioning.errors.ConfigError`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from enum import Enum
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from captioning.errors import ConfigError
+from scenes.atomic import atomic_write_text
+
+
+class WindowStrategy(str, Enum):
+    """How neighbour captions are cut in time."""
+
+    #: One window per host segment, as in the paper.
+    HOST_SEGMENTS = "host_segments"
+    #: Fixed-length windows every ``stride_s``.
+    SLIDING = "sliding"
+
+    def __str__(self) -> str:
+        return self.value
+
+
+@dataclass(frozen=True)
+class HostConfig:
+    """Host (ego) motion and direction thresholds (paper eqs. 1, 2).
+
+    Attributes:
+        stationary_speed_mps: T_v. 0.5 m/s sits well above the speed noise of smoothed AV2/ORB-SLAM
+            poses (a few cm/s) and below any deliberate creeping.
+        accel_mps2: T_a. 0.5 m/s² is a quarter of a comfortable braking or acceleration (about 2 m/s²),
+            so gentle speed changes count while pose jitter after smoothing (≈0.1 m/s²) does not.
+        yaw_rate_rps: T_ω. 0.1 rad/s (≈6°/s): a 90° turn takes 3–6 s (0.25–0.5 rad/s); lane keeping on
+            curved roads and lane changes stay mostly below it.
+    """
+
+    stationary_speed_mps: float = 0.5
+    accel_mps2: float = 0.5
+    yaw_rate_rps: float = 0.1
+
+
+@dataclass(frozen=True)
+class NeighborConfig:
+    """Neighbour stationarity, lane and motion thresholds (paper eqs. 3–7).
+
+    Attributes:
+        stationary_speed_mps: T_s. A track is stationary when its host-compensated speed along each
+            axis stays below this; 0.5 m/s is above box-centre jitter of human labels and trackers
+            (±0.1 m per frame, ≈0.2 m/s after smoothing) and below a slow walk (≈1 m/s).
+        stationary_quantile: the robust statistic of eq. 3: a track is stationary when this quantile
+            of its per-frame absolute speed along each axis is below T_s. 0.8 ignores the worst 20 %
+            of frames (tracker glitches) yet keeps a car that moves for a fifth of its track.
+        host_lane_half_width_m: T_h, half of a 3.7 m lane.
+        relative_speed_mps: T_m. 1 m/s: a follower's distance fluctuates by less than that while
+            "keeping its distance"; a real approach is faster.
+        oncoming_min_deg: φ_on; headings beyond ±150° count as oncoming.
+        lateral_deg: (φ_ll, φ_lu); headings between them count as lateral (crossing).
+    """
+
+    stationary_speed_mps: float = 0.5
+    stationary_quantile: float = 0.8
+    host_lane_half_width_m: float = 1.85
+    relative_speed_mps: float = 1.0
+    oncoming_min_deg: float = 150.0
+    lateral_deg: tuple[float, float] = (60.0, 120.0)
+
+
+@dataclass(frozen=True)
+class SmoothingConfig:
+    """Derivatives and flicker suppression.
+
+    Attributes:
+        window_frames: Savitzky–Golay window (odd). 9 frames = 0.9 s at 10 Hz: long enough to average
+            out box jitter, short enough to keep a 2 s braking manoeuvre.
+        polyorder: Savitzky–Golay polynomial order (< window_frames).
+        min_run_frames: per-frame tags holding for fewer frames are replaced by their neighbours'
+            (0.5 s at 10 Hz); 1 turns suppression off.
+    """
+
+    window_frames: int = 9
+    polyorder: int = 2
+    min_run_frames: int = 5
+
+
+@dataclass(frozen=True)
+class SegmentsConfig:
+    """Host segments: runs of one host tag, ``min_frames``..``max_frames`` long (paper: 8..300).
+
+    Runs shorter than ``min_frames`` are dropped; longer than ``max_frames`` are split into equal parts,
+    which is why ``max_frames`` must be at least twice ``min_frames`` (no part may fall below the minimum).
+    """
+
+    min_frames: int = 8
+    max_frames: int = 300
+
+
+@dataclass(frozen=True)
+class WindowsConfig:
+    """Neighbour caption windows.
+
+    Attributes:
+        strategy: ``host_segments`` (paper) or ``sliding``.
+        length_s: sliding window length.
+        stride_s: sliding window step.
+    """
+
+    strategy: WindowStrategy = WindowStrategy.HOST_SEGMENTS
+    length_s: float = 5.0
+    stride_s: float = 2.5
+
+
+@dataclass(frozen=True)
+class TextConfig:
+    """Caption text.
+
+    Attributes:
+        num_paraphrases: seeded paraphrase variants per caption (besides the canonical one).
+        seed: base seed of the paraphrase choice.
+    """
+
+    num_paraphrases: int = 3
+    seed: int = 0
+
+
+@dataclass(frozen=True)
+class CaptioningConfig:
+    """All thresholds of the rules. See each part's docstring for the defaults' reasons."""
+
+    host: HostConfig = field(default_factory=HostConfig)
+    neighbor: NeighborConfig = field(default_factory=NeighborConfig)
+    smoothing: SmoothingConfig = field(default_factory=SmoothingConfig)
+    segments: SegmentsConfig = field(default_factory=SegmentsConfig)
+    windows: WindowsConfig = field(default_factory=WindowsConfig)
+    text: TextConfig = field(default_factory=TextConfig)
+
+    def __post_init__(self) -> None:
+        self.validate()
+
+    def validate(self) -> None:
+        """Raise :class:`ConfigError` listing every contradiction."""
+        problems: list[str] = []
+        non_negative = {
+            "host.stationary_speed_mps": self.host.stationary_speed_mps,
+            "host.accel_mps2": self.host.accel_mps2,
+            "host.yaw_rate_rps": self.host.yaw_rate_rps,
+            "neighbor.stationary_speed_mps": self.neighbor.stationary_speed_mps,
+            "neighbor.host_lane_half_width_m": self.neighbor.host_lane_half_width_m,
+            "neighbor.relative_speed_mps": self.neighbor.relative_speed_mps,
+        }
+        for key, value in non_negative.items():
+            if not math.isfinite(value) or value < 0:
+                problems.append(f"{key} must be a finite number >= 0, got {value}")
+        lo, hi = self.neighbor.lateral_deg
+        on = self.neighbor.oncoming_min_deg
+        if not (0 <= lo < hi <= 180):
+            problems.append(f"neighbor.lateral_deg must satisfy 0 <= lower < upper <= 180, got [{lo}, {hi}]")
+        if not (hi <= on <= 180):
+            problems.append(
+                f"neighbor.oncoming_min_deg ({on}) must lie in [lateral_deg upper ({hi}), 180] "
+                "so that the lanes do not overlap"
+            )
+        if not (0 < self.neighbor.stationary_quantile <= 1):
+            problems.append(f"neighbor.stationary_quantile must lie in (0, 1], got {self.neighbor.stationary_quantile}")
+        s = self.smoothing
+        if s.window_frames < 3 or s.window_frames % 2 == 0:
+            problems.append(f"smoothing.window_frames must be odd and >= 3, got {s.window_frames}")
+        if not (1 <= s.polyorder < s.window_frames):
+            problems.append(f"smoothing.polyorder must lie in [1, window_frames), got {s.polyorder}")
+        if s.min_run_frames < 1:
+            problems.append(f"smoothing.min_run_frames must be >= 1, got {s.min_run_frames}")
+        g = self.segments
+        if g.min_frames < 1:
+            problems.append(f"segments.min_frames must be >= 1, got {g.min_frames}")
+        if g.min_frames > g.max_frames:
+            problems.append(f"segments.min_frames ({g.min_frames}) exceeds segments.max_frames ({g.max_frames})")
+        elif g.max_frames < 2 * g.min_frames:
+            problems.append(
+                f"segments.max_frames ({g.max_frames}) must be at least twice segments.min_frames ({g.min_frames}) "
+                "so that splitting a long run never yields a part shorter than the minimum"
+            )
+        w = self.windows
+        if not isinstance(w.strategy, WindowStrategy):
+            problems.append(f"windows.strategy must be one of {[v.value for v in WindowStrategy]}, got {w.strategy!r}")
+        if not (w.length_s > 0 and w.stride_s > 0):
+            problems.append(f"windows.length_s and windows.stride_s must be > 0, got {w.length_s}, {w.stride_s}")
+        if self.text.num_paraphrases < 0:
+            problems.append(f"text.num_paraphrases must be >= 0, got {self.text.num_paraphrases}")
+        if problems:
+            raise ConfigError("invalid captioning config: " + "; ".join(problems))
+
+    # --- (de)serialisation -------------------------------------------------------------------
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain nested dict (enums as strings, tuples as lists), the YAML layout."""
+        out: dict[str, Any] = {}
+        for part in dataclasses.fields(self):
+            section = getattr(self, part.name)
+            values: dict[str, Any] = {}
+            for f in dataclasses.fields(section):
+                v = getattr(section, f.name)
+                values[f.name] = v.value if isinstance(v, Enum) else list(v) if isinstance(v, tuple) else v
+            out[part.name] = values
+        return out
+
+    @staticmethod
+    def from_dict(data: dict[str, Any] | None, source: str = "<dict>") -> CaptioningConfig:
+        """Build from a nested dict; missing keys keep defaults.
+
+        Raises:
+            ConfigError: unknown sections/keys (all listed), wrong types, contradictions.
+        """
+        data = data or {}
+        if not isinstance(data, dict):
+            raise ConfigError(f"{source}: top level must be a mapping, got {type(data).__name__}")
+        sections = {f.name: f for f in dataclasses.fields(CaptioningConfig)}
+        unknown = [k for k in data if k not in sections]
+        for name, value in data.items():
+            if name in sections and isinstance(value, dict):
+                section_cls = _SECTION_TYPES[name]
+                known = {f.name for f in dataclasses.fields(section_cls)}
+                unknown += [f"{name}.{k}" for k in value if k not in known]
+        if unknown:
+            raise ConfigError(f"{source}: unknown config keys: {', '.join(map(str, unknown))}")
+        kwargs: dict[str, Any] = {}
+        for name, value in data.items():
+            if not isinstance(value, dict):
+                raise ConfigError(f"{source}: section '{name}' must be a mapping, got {type(value).__name__}")
+            kwargs[name] = _build_section(name, value, source)
+        return CaptioningConfig(**kwargs)
+
+    @staticmethod
+    def from_yaml(path: Path | str) -> CaptioningConfig:
+        """Load a YAML file (see the module docstring for the layout)."""
+        path = Path(path)
+        try:
+            data = yaml.safe_load(path.read_text())
+        except yaml.YAMLError as exc:
+            raise ConfigError(f"{path}: not valid YAML: {exc}") from exc
+        return CaptioningConfig.from_dict(data, source=str(path))
+
+    def to_yaml_text(self) -> str:
+        return yaml.safe_dump(self.to_dict(), sort_keys=False)
+
+    def to_yaml(self, path: Path | str) -> None:
+        """Write atomically."""
+        atomic_write_text(path, self.to_yaml_text())
+
+
+_SECTION_TYPES: dict[str, type] = {
+    "host": HostConfig,
+    "neighbor": NeighborConfig,
+    "smoothing": SmoothingConfig,
+    "segments": SegmentsConfig,
+    "windows": WindowsConfig,
+    "text": TextConfig,
+}
+
+
+def _build_section(name: str, values: dict[str, Any], source: str) -> Any:
+    section_cls = _SECTION_TYPES[name]
+    defaults = section_cls()
+    kwargs: dict[str, Any] = {}
+    for key, raw in values.items():
+        default = getattr(defaults, key)
+        where = f"{source}: {name}.{key}"
+        if isinstance(default, WindowStrategy):
+            try:
+                kwargs[key] = WindowStrategy(raw)
+            except ValueError as exc:
+                raise ConfigError(f"{where} must be one of {[v.value for v in WindowStrategy]}, got {raw!r}") from exc
+        elif isinstance(default, tuple):
+            if not isinstance(raw, list | tuple) or len(raw) != len(default) or not all(_is_number(v) for v in raw):
+                raise ConfigError(f"{where} must be a list of {len(default)} numbers, got {raw!r}")
+            kwargs[key] = tuple(float(v) for v in raw)
+        elif isinstance(default, bool) or (isinstance(default, int) and not isinstance(default, float)):
+            if isinstance(raw, bool) or not isinstance(raw, int):
+                raise ConfigError(f"{where} must be an integer, got {raw!r}")
+            kwargs[key] = raw
+        else:
+            if not _is_number(raw):
+                raise ConfigError(f"{where} must be a number, got {raw!r}")
+            kwargs[key] = float(raw)
+    return section_cls(**kwargs)
+
+
+def _is_number(value: object) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool)

@@ -1,0 +1,102 @@
+"""Host (ego) tags: motion (eq. 1) and direction (eq. 2) per frame."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from captioning.config import CaptioningConfig
+from captioning.smoothing import seconds_since_first, suppress_flicker, time_derivative
+from captioning.tags import HOST_DIRECTIONS, HOST_MOTIONS, NO_TAG, HostDirection, HostMotion
+from scenes.geometry import FloatArray
+
+IntArray = NDArray[np.int64]
+
+
+@dataclass(frozen=True)
+class HostKinematics:
+    """Smoothed host kinematics on the frame grid.
+
+    Attributes:
+        speed_mps: (T,) planar speed; NaN when the log has a single frame.
+        accel_mps2: (T,) rate of change of the speed.
+        yaw_rate_rps: (T,) heading rate, positive = turning left.
+    """
+
+    speed_mps: FloatArray
+    accel_mps2: FloatArray
+    yaw_rate_rps: FloatArray
+
+
+def host_kinematics(
+    timestamps_ns: IntArray, city_SE3_ego: FloatArray, config: CaptioningConfig
+) -> HostKinematics:
+    """Speed, acceleration and yaw rate from poses (Savitzky–Golay, see :mod:`captioning.smoothing`).
+
+    Args:
+        timestamps_ns: (T,) frame timestamps.
+        city_SE3_ego: (T, 4, 4) ego poses at the frames.
+    """
+    t = timestamps_ns.shape[0]
+    yaw_rad = np.unwrap(np.arctan2(city_SE3_ego[:, 1, 0], city_SE3_ego[:, 0, 0]))
+    values = np.stack([city_SE3_ego[:, 0, 3], city_SE3_ego[:, 1, 3], yaw_rad], axis=1)[None]  # (1, T, 3)
+    valid = np.ones((1, t), dtype=bool)
+    w, p = config.smoothing.window_frames, config.smoothing.polyorder
+    t_s = seconds_since_first(timestamps_ns)
+    d = time_derivative(values, valid, t_s, w, p)[0]  # (T, 3)
+    speed = np.hypot(d[:, 0], d[:, 1])
+    accel = time_derivative(speed[None, :, None], valid, t_s, w, p)[0, :, 0]
+    return HostKinematics(speed_mps=speed, accel_mps2=accel, yaw_rate_rps=d[:, 2])
+
+
+def classify_host(kin: HostKinematics, config: CaptioningConfig) -> tuple[IntArray, IntArray]:
+    """Eqs. 1 and 2 per frame, before flicker suppression.
+
+    Returns:
+        (T,) :data:`~captioning.tags.HOST_MOTIONS` codes and (T,) :data:`~captioning.tags.HOST_DIRECTIONS`
+        codes; :data:`~captioning.tags.NO_TAG` where the kinematics are undefined.
+    """
+    h = config.host
+    v, a, w = kin.speed_mps, kin.accel_mps2, kin.yaw_rate_rps
+    motion = np.where(
+        v < h.stationary_speed_mps,
+        HOST_MOTIONS.index(HostMotion.STATIONARY),
+        np.where(
+            a > h.accel_mps2,
+            HOST_MOTIONS.index(HostMotion.ACCELERATING),
+            np.where(
+                a < -h.accel_mps2,
+                HOST_MOTIONS.index(HostMotion.DECELERATING),
+                HOST_MOTIONS.index(HostMotion.CRUISING),
+            ),
+        ),
+    )
+    direction = np.where(
+        w < -h.yaw_rate_rps,
+        HOST_DIRECTIONS.index(HostDirection.STEERING_RIGHT),
+        np.where(
+            w > h.yaw_rate_rps,
+            HOST_DIRECTIONS.index(HostDirection.STEERING_LEFT),
+            HOST_DIRECTIONS.index(HostDirection.HEADING_STRAIGHT),
+        ),
+    )
+    motion = np.where(np.isfinite(v) & np.isfinite(a), motion, NO_TAG).astype(np.int64)
+    direction = np.where(np.isfinite(w), direction, NO_TAG).astype(np.int64)
+    return motion, direction
+
+
+def host_tags(timestamps_ns: IntArray, city_SE3_ego: FloatArray, config: CaptioningConfig) -> tuple[IntArray, IntArray]:
+    """Per-frame host motion and direction codes after flicker suppression.
+
+    Args:
+        timestamps_ns: (T,) frame timestamps.
+        city_SE3_ego: (T, 4, 4) ego poses.
+
+    Returns:
+        (T,) motion codes and (T,) direction codes.
+    """
+    motion, direction = classify_host(host_kinematics(timestamps_ns, city_SE3_ego, config), config)
+    m = config.smoothing.min_run_frames
+    return suppress_flicker(motion[None], m)[0], suppress_flicker(direction[None], m)[0]

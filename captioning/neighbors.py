@@ -1,0 +1,261 @@
+"""Neighbour tags: stationarity (eq. 3), baseline lane (eq. 4), lane (eq. 5), motion (eqs. 6, 7).
+
+Stationarity (eq. 3)
+--------------------
+Each track's centre is expressed in the host's pose at the log's first frame (which removes the
+host's own motion) and differentiated along time. A track is *stationary* when the
+``neighbor.stationary_quantile`` quantile (default 0.8) of its per-frame absolute speed along the
+first-frame x axis **and** along its y axis is below ``T_s``. A quantile instead of the maximum
+makes a few tracker glitches harmless; instead of the median, it keeps a car that waits and then
+drives off. Stationary tracks get no lane and motion tags and no caption.
+
+Motion (generalised eqs. 6, 7)
+------------------------------
+The paper compares signed offsets and assumes objects ahead of the host (with sign typos).
+Here the *distance* along one axis is used: ``d = |x|`` for every lane except the lateral lanes off the
+host band (``left_lateral``, ``right_lateral``), which use ``d = |y|``; with ``ḋ = sign(p)·ṗ`` from the
+ego-frame relative velocity, ``approach`` if ``ḋ < −T_m``, ``away`` if ``ḋ > T_m``, else ``constant``.
+For objects ahead (x > 0) this is the paper's rule; for objects behind it is the correct mirror
+(a follower closing in approaches). ``stationary`` overrides these where the neighbour itself
+(host-compensated) moves slower than ``T_s`` along both axes at that frame.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from captioning.config import CaptioningConfig
+from captioning.smoothing import seconds_since_first, suppress_flicker, time_derivative
+from captioning.tags import (
+    BASELINE_CODE_OF_LANE_CODE,
+    BASELINE_LANES,
+    LANES,
+    MOTIONS,
+    NO_TAG,
+    BaselineLane,
+    Lane,
+    Motion,
+    paper_lateral_m,
+)
+from scenes.geometry import FloatArray, wrap_angle_rad
+
+IntArray = NDArray[np.int64]
+BoolArray = NDArray[np.bool_]
+
+_ONGOING, _LATERAL, _ONCOMING = (BASELINE_LANES.index(b) for b in BaselineLane)
+_L = {lane: LANES.index(lane) for lane in Lane}
+_M = {motion: MOTIONS.index(motion) for motion in Motion}
+
+
+@dataclass(frozen=True)
+class NeighborTags:
+    """Per-frame neighbour tags on the (K, T) grid.
+
+    Attributes:
+        stationary: (K,) eq. 3, for tracks with at least one differentiable frame.
+        taggable: (K,) tracks with at least one differentiable frame (not single-frame).
+        tagged: (K, T) frames that carry lane and motion tags (observed, differentiable, non-stationary track).
+        baseline_lane: (K, T) :data:`~captioning.tags.BASELINE_LANES` codes, NO_TAG elsewhere.
+        lane: (K, T) :data:`~captioning.tags.LANES` codes.
+        motion: (K, T) :data:`~captioning.tags.MOTIONS` codes.
+    """
+
+    stationary: BoolArray
+    taggable: BoolArray
+    tagged: BoolArray
+    baseline_lane: IntArray
+    lane: IntArray
+    motion: IntArray
+
+
+def host_compensated_xy(center_ego_xy_m: FloatArray, first_SE3_ego: FloatArray) -> FloatArray:
+    """Centres in the host's first-frame pose.
+
+    Args:
+        center_ego_xy_m: (K, T, 2) centres in the ego frame at each sample.
+        first_SE3_ego: (K, T, 4, 4) or (T, 4, 4) ``first_SE3_city · city_SE3_ego`` at each sample.
+
+    Returns:
+        (K, T, 2) centres in the host's first-frame pose.
+    """
+    x, y = center_ego_xy_m[..., 0], center_ego_xy_m[..., 1]
+    pose = first_SE3_ego
+    out = np.empty(center_ego_xy_m.shape)
+    out[..., 0] = pose[..., 0, 0] * x + pose[..., 0, 1] * y + pose[..., 0, 3]
+    out[..., 1] = pose[..., 1, 0] * x + pose[..., 1, 1] * y + pose[..., 1, 3]
+    return out
+
+
+@dataclass(frozen=True)
+class _Compact:
+    """Tracks re-laid from the (K, T) log grid onto (K, L) rows that start at each track's first
+    frame (L = longest span), so long logs with short tracks cost O(tracks × span), not O(K × T).
+
+    Attributes:
+        frame: (K, L) log frame index of each cell (clipped into range).
+        valid: (K, L) observed cells.
+    """
+
+    frame: IntArray
+    valid: BoolArray
+
+    @staticmethod
+    def of(valid: BoolArray) -> _Compact:
+        k, t = valid.shape
+        observed = valid.any(axis=1)
+        first = np.argmax(valid, axis=1)
+        last = t - 1 - np.argmax(valid[:, ::-1], axis=1)
+        span = np.where(observed, last - first + 1, 0)
+        length = max(int(span.max()) if k else 0, 1)
+        cols = np.arange(length)[None, :]
+        frame = np.minimum(first[:, None] + cols, t - 1)
+        rows = np.arange(k)[:, None]
+        return _Compact(frame=frame, valid=(cols < span[:, None]) & valid[rows, frame])
+
+    def gather(self, grid: NDArray[np.generic]) -> NDArray[np.generic]:
+        """(K, T, ...) → (K, L, ...)."""
+        return grid[np.arange(grid.shape[0])[:, None], self.frame]
+
+    def scatter(self, compact: IntArray, shape: tuple[int, int]) -> IntArray:
+        """(K, L) codes → (K, T), NO_TAG outside observed cells."""
+        out = np.full(shape, NO_TAG, dtype=np.int64)
+        rows, cols = np.nonzero(self.valid)
+        out[rows, self.frame[rows, cols]] = compact[rows, cols]
+        return out
+
+
+def robust_quantile(values: FloatArray, q: float) -> FloatArray:
+    """Linear-interpolated quantile of each row over its finite entries (NaN for rows without any).
+
+    Args:
+        values: (K, T) samples, NaN where missing.
+
+    Returns:
+        (K,) quantiles.
+    """
+    k, _ = values.shape
+    s = np.sort(values, axis=1)  # NaN sorts last
+    n = np.isfinite(values).sum(axis=1)
+    pos = q * np.maximum(n - 1, 0)
+    lo = np.floor(pos).astype(np.int64)
+    hi = np.minimum(lo + 1, np.maximum(n - 1, 0))
+    rows = np.arange(k)
+    v_lo, v_hi = s[rows, lo], s[rows, hi]
+    out = v_lo + (pos - lo) * (v_hi - v_lo)
+    return np.where(n > 0, out, np.nan)
+
+
+def baseline_lane_codes(yaw_ego_rad: FloatArray, config: CaptioningConfig) -> IntArray:
+    """Eq. 4 per frame.
+
+    Args:
+        yaw_ego_rad: (...) neighbour heading relative to the host heading.
+    """
+    phi_deg = np.abs(np.degrees(wrap_angle_rad(yaw_ego_rad)))
+    lo, hi = config.neighbor.lateral_deg
+    return np.where(
+        phi_deg > config.neighbor.oncoming_min_deg,
+        _ONCOMING,
+        np.where((phi_deg > lo) & (phi_deg < hi), _LATERAL, _ONGOING),
+    ).astype(np.int64)
+
+
+def lane_codes(baseline: IntArray, y_ego_m: FloatArray, config: CaptioningConfig) -> IntArray:
+    """Eq. 5 per frame, with the paper's right-positive lateral offset.
+
+    Args:
+        baseline: (...) baseline-lane codes.
+        y_ego_m: (...) lateral offsets in the ego frame (left positive).
+    """
+    y_paper_m = paper_lateral_m(y_ego_m)
+    th = config.neighbor.host_lane_half_width_m
+    left, right = y_paper_m < -th, y_paper_m > th
+    ongoing = np.where(left, _L[Lane.LEFT], np.where(right, _L[Lane.RIGHT], _L[Lane.HOST]))
+    lateral = np.where(
+        left, _L[Lane.LEFT_LATERAL], np.where(right, _L[Lane.RIGHT_LATERAL], _L[Lane.HOST_LATERAL])
+    )
+    return np.where(baseline == _ONCOMING, _L[Lane.ONCOMING], np.where(baseline == _LATERAL, lateral, ongoing)).astype(
+        np.int64
+    )
+
+
+def motion_codes(
+    lane: IntArray, rel_xy_m: FloatArray, rel_vel_xy_mps: FloatArray, moving: BoolArray, config: CaptioningConfig
+) -> IntArray:
+    """Generalised eqs. 6, 7 per frame.
+
+    Args:
+        lane: (K, T) lane codes.
+        rel_xy_m: (K, T, 2) centres in the ego frame.
+        rel_vel_xy_mps: (K, T, 2) their time derivatives.
+        moving: (K, T) whether the neighbour itself moves at the frame.
+    """
+    lateral_axis = (lane == _L[Lane.LEFT_LATERAL]) | (lane == _L[Lane.RIGHT_LATERAL])
+    pos = np.where(lateral_axis, rel_xy_m[..., 1], rel_xy_m[..., 0])
+    vel = np.where(lateral_axis, rel_vel_xy_mps[..., 1], rel_vel_xy_mps[..., 0])
+    ddist = np.sign(pos) * vel
+    tm = config.neighbor.relative_speed_mps
+    rel = np.where(ddist < -tm, _M[Motion.APPROACH], np.where(ddist > tm, _M[Motion.AWAY], _M[Motion.CONSTANT]))
+    return np.where(moving, rel, _M[Motion.STATIONARY]).astype(np.int64)
+
+
+def neighbor_tags(
+    timestamps_ns: IntArray,
+    valid: BoolArray,
+    center_ego_xy_m: FloatArray,
+    yaw_ego_rad: FloatArray,
+    city_SE3_ego: FloatArray,
+    config: CaptioningConfig,
+) -> NeighborTags:
+    """All neighbour tags, vectorised over tracks × frames.
+
+    Args:
+        timestamps_ns: (T,) frame timestamps.
+        valid: (K, T) observed mask.
+        center_ego_xy_m: (K, T, 2) centres in the ego frame (anything where not observed).
+        yaw_ego_rad: (K, T) headings in the ego frame.
+        city_SE3_ego: (T, 4, 4) ego poses.
+    """
+    k, t = valid.shape
+    w, p = config.smoothing.window_frames, config.smoothing.polyorder
+    nb = config.neighbor
+    if k == 0 or t == 0:
+        empty = np.full((k, t), NO_TAG, dtype=np.int64)
+        return NeighborTags(np.zeros(k, bool), np.zeros(k, bool), np.zeros((k, t), bool), empty, empty, empty)
+    grid = _Compact.of(valid)
+    cvalid = grid.valid
+    rel_xy = np.where(cvalid[..., None], grid.gather(center_ego_xy_m), 0.0)  # (K, L, 2)
+    yaw = grid.gather(yaw_ego_rad)
+    first_SE3_ego = np.einsum("ij,tjk->tik", np.linalg.inv(city_SE3_ego[0]), city_SE3_ego)  # (T, 4, 4)
+    first_xy = host_compensated_xy(rel_xy, first_SE3_ego[grid.frame])
+    t_s = seconds_since_first(timestamps_ns)[grid.frame]  # (K, L)
+    d = time_derivative(np.concatenate([first_xy, rel_xy], axis=2), cvalid, t_s, w, p)  # (K, L, 4)
+    abs_first_vel = np.abs(d[..., :2])
+    rel_vel = d[..., 2:]
+    differentiable: BoolArray = np.asarray(np.isfinite(d).all(axis=2), dtype=bool)
+    taggable: BoolArray = np.asarray(differentiable.any(axis=1), dtype=bool)
+    quantile_x = robust_quantile(np.where(differentiable, abs_first_vel[..., 0], np.nan), nb.stationary_quantile)
+    quantile_y = robust_quantile(np.where(differentiable, abs_first_vel[..., 1], np.nan), nb.stationary_quantile)
+    stationary = taggable & (quantile_x < nb.stationary_speed_mps) & (quantile_y < nb.stationary_speed_mps)
+    tagged = differentiable & (taggable & ~stationary)[:, None]
+    moving = (abs_first_vel[..., 0] >= nb.stationary_speed_mps) | (abs_first_vel[..., 1] >= nb.stationary_speed_mps)
+
+    m = config.smoothing.min_run_frames
+    raw_lane = lane_codes(baseline_lane_codes(yaw, config), rel_xy[..., 1], config)
+    lane = suppress_flicker(np.where(tagged, raw_lane, NO_TAG), m)
+    baseline = np.where(tagged, BASELINE_CODE_OF_LANE_CODE[np.maximum(lane, 0)], NO_TAG)
+    raw_motion = motion_codes(lane, rel_xy, rel_vel, moving, config)
+    motion = suppress_flicker(np.where(tagged, raw_motion, NO_TAG), m)
+    shape = (k, t)
+    lane_grid = grid.scatter(lane, shape)
+    return NeighborTags(
+        stationary=stationary,
+        taggable=taggable,
+        tagged=lane_grid != NO_TAG,
+        baseline_lane=grid.scatter(baseline, shape),
+        lane=lane_grid,
+        motion=grid.scatter(motion, shape),
+    )

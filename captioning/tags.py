@@ -1,0 +1,116 @@
+"""Tag vocabularies (public strings) and the one place where the paper's lateral sign is converted.
+
+Sign convention
+---------------
+The paper measures the lateral offset ``y`` positive to the **right** of the host. Our ego frame
+(av2-api) has ``y`` positive to the **left**. :func:`paper_lateral_m` converts; nothing else in
+this package flips signs. A neighbour at ego-frame ``y = +3 m`` has paper ``y = −3 m`` and is ``left``.
+"""
+
+from __future__ import annotations
+
+from enum import Enum
+
+import numpy as np
+from numpy.typing import NDArray
+
+
+class _Tag(str, Enum):
+    def __str__(self) -> str:
+        return self.value
+
+
+class HostMotion(_Tag):
+    """Eq. 1."""
+
+    STATIONARY = "stationary"
+    ACCELERATING = "accelerating"
+    DECELERATING = "decelerating"
+    CRUISING = "cruising"
+
+
+class HostDirection(_Tag):
+    """Eq. 2 (ω positive = turning left)."""
+
+    STEERING_LEFT = "steering_left"
+    STEERING_RIGHT = "steering_right"
+    HEADING_STRAIGHT = "heading_straight"
+
+
+class BaselineLane(_Tag):
+    """Eq. 4, from the neighbour's heading relative to the host."""
+
+    ONGOING = "ongoing"
+    LATERAL = "lateral"
+    ONCOMING = "oncoming"
+
+
+class Lane(_Tag):
+    """Eq. 5."""
+
+    LEFT = "left"
+    RIGHT = "right"
+    HOST = "host"
+    LEFT_LATERAL = "left_lateral"
+    RIGHT_LATERAL = "right_lateral"
+    HOST_LATERAL = "host_lateral"
+    ONCOMING = "oncoming"
+
+
+class Motion(_Tag):
+    """Eqs. 6, 7, relative to the host."""
+
+    APPROACH = "approach"
+    AWAY = "away"
+    CONSTANT = "constant"
+    STATIONARY = "stationary"
+
+
+#: Integer codes used in (K, T) arrays: the index into each enum's member list; −1 = no tag.
+NO_TAG = -1
+HOST_MOTIONS: list[HostMotion] = list(HostMotion)
+HOST_DIRECTIONS: list[HostDirection] = list(HostDirection)
+BASELINE_LANES: list[BaselineLane] = list(BaselineLane)
+LANES: list[Lane] = list(Lane)
+MOTIONS: list[Motion] = list(Motion)
+
+#: Lane → its baseline lane.
+BASELINE_OF_LANE: dict[Lane, BaselineLane] = {
+    Lane.LEFT: BaselineLane.ONGOING,
+    Lane.RIGHT: BaselineLane.ONGOING,
+    Lane.HOST: BaselineLane.ONGOING,
+    Lane.LEFT_LATERAL: BaselineLane.LATERAL,
+    Lane.RIGHT_LATERAL: BaselineLane.LATERAL,
+    Lane.HOST_LATERAL: BaselineLane.LATERAL,
+    Lane.ONCOMING: BaselineLane.ONCOMING,
+}
+#: (len(LANES),) baseline-lane code of each lane code.
+BASELINE_CODE_OF_LANE_CODE = np.array([BASELINE_LANES.index(BASELINE_OF_LANE[lane]) for lane in LANES])
+
+#: Lanes off the host band that measure motion along the lateral axis (generalised eqs. 6, 7).
+LATERAL_AXIS_LANES = (Lane.LEFT_LATERAL, Lane.RIGHT_LATERAL)
+
+
+def paper_lateral_m(y_ego_m: NDArray[np.floating]) -> NDArray[np.float64]:
+    """Ego-frame lateral offset (left positive) → the paper's lateral offset (right positive).
+
+    Args:
+        y_ego_m: (...) lateral offsets in the ego frame.
+    """
+    return -np.asarray(y_ego_m, dtype=np.float64)
+
+
+def unified_neighbor_tag(lane: Lane | str, motion: Motion | str) -> str:
+    """Eq. 8 neighbour tag ``lane:motion``."""
+    return f"{Lane(lane).value}:{Motion(motion).value}"
+
+
+def unified_host_tag(motion: HostMotion | str, direction: HostDirection | str) -> str:
+    """Eq. 8 host tag ``motion:direction``."""
+    return f"{HostMotion(motion).value}:{HostDirection(direction).value}"
+
+
+def split_tag(tag: str) -> tuple[str, str]:
+    """``"left:approach"`` → ``("left", "approach")``."""
+    first, _, second = tag.partition(":")
+    return first, second

@@ -1,0 +1,95 @@
+"""BEV tower: the universal spatio-temporal embedding E and the object's clip embedding pooled from it.
+
+After Segal et al., "Universal Embeddings for Spatio-Temporal Tagging of Self-Driving Logs" (CoRL 2020):
+
+    bev_lidar (B, T, Cl, H, W) ─ LiDAR backbone ─┐ stage features at strides 2, 4, 8, …
+    bev_map   (B, T, Cm, H, W) ─ map backbone  ──┤ each upsampled to (H/r, W/r), all concatenated
+                                                 └─ header: 1×1 conv, 3×3 conv, depthwise temporal conv,
+                                                    1×1 conv → E (B, T, D_e, H/r, W/r)
+
+:meth:`BevTower.embed_map` computes E alone: it is fully convolutional in space and in time (any H, W,
+T) and is what attribute tagging builds on. :meth:`BevTower.forward` pools E under the object's mask in
+each frame, adds the mask's geometry and the ego motion, and runs the :class:`TemporalEncoder` over
+the frames to give the object's clip embedding.
+"""
+
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from encoders.camera import conv_block, mask_geometry, masked_mean
+from encoders.config import BevConfig
+from encoders.fusion import TemporalEncoder
+
+#: Scales that bring ego_motion (x_m, y_m, yaw_rad, speed_mps) to about unit range.
+EGO_MOTION_SCALE = (50.0, 50.0, 3.14159, 20.0)
+
+
+class Backbone(nn.Module):
+    """(N, C, H, W) → list of stage features, stage i at stride 2**(i+1)."""
+
+    def __init__(self, in_channels: int, widths: tuple[int, ...]) -> None:
+        super().__init__()
+        chans = (in_channels, *widths)
+        self.stages = nn.ModuleList(
+            nn.Sequential(conv_block(a, b, 3, 2), conv_block(b, b, 3, 1)) if i == 0 else conv_block(a, b, 3, 2)
+            for i, (a, b) in enumerate(zip(chans[:-1], chans[1:]))
+        )
+
+    def forward(self, x: torch.Tensor) -> list[torch.Tensor]:
+        out = []
+        for stage in self.stages:
+            x = stage(x)
+            out.append(x)
+        return out
+
+
+class BevTower(nn.Module):
+    """BEV clip (LiDAR, map, object mask, ego motion) → E and the object's clip embedding (B, D)."""
+
+    def __init__(self, config: BevConfig, embed_dim: int) -> None:
+        super().__init__()
+        self.config = config
+        d_e = config.embed_channels
+        self.lidar = Backbone(config.lidar_channels, config.widths)
+        self.map = Backbone(config.map_channels, config.widths)
+        self.header_in = conv_block(2 * sum(config.widths), d_e, 1, 1)
+        self.header_space = conv_block(d_e, d_e, 3, 1)
+        k = config.temporal_kernel
+        self.header_time = nn.Conv3d(d_e, d_e, (k, 1, 1), padding=(k // 2, 0, 0), groups=d_e)
+        self.header_out = nn.Conv2d(d_e, d_e, 1)
+        self.temporal = TemporalEncoder(config.temporal, 2 * d_e + 4 + config.ego_features)
+        self.head = nn.Linear(config.temporal.width, embed_dim)
+        self.register_buffer("ego_scale", torch.tensor(EGO_MOTION_SCALE[: config.ego_features]), persistent=False)
+
+    def embed_map(self, bev_lidar: torch.Tensor, bev_map: torch.Tensor) -> torch.Tensor:
+        """bev_lidar: (B, T, Cl, H, W); bev_map: (B, T, Cm, H, W) → E (B, T, D_e, H/r, W/r)."""
+        b, t, _, h, w = bev_lidar.shape
+        r = self.config.downsample
+        size = (h // r, w // r)
+        feats = self.lidar(bev_lidar.flatten(0, 1)) + self.map(bev_map.flatten(0, 1))  # stages of (B*T, C, ., .)
+        up = [f if f.shape[-2:] == size else F.interpolate(f, size=size, mode="bilinear") for f in feats]
+        x = self.header_space(self.header_in(torch.cat(up, dim=1)))  # (B*T, D_e, h, w)
+        x = x.reshape(b, t, *x.shape[1:]).transpose(1, 2)  # (B, D_e, T, h, w)
+        x = x + self.header_time(x)  # (B, D_e, T, h, w)
+        x = x.transpose(1, 2).flatten(0, 1)  # (B*T, D_e, h, w)
+        return self.header_out(x).reshape(b, t, -1, *size)  # (B, T, D_e, h, w)
+
+    def frame_features(self, e: torch.Tensor, bev_object: torch.Tensor, ego_motion: torch.Tensor) -> torch.Tensor:
+        """e: (B, T, D_e, h, w); bev_object: (B, T, 1, H, W); ego_motion: (B, T, 4) → (B, T, 2 D_e + 4 + E)."""
+        b, t = e.shape[:2]
+        e_flat = e.flatten(0, 1)  # (B*T, D_e, h, w)
+        obj = bev_object.flatten(0, 1)  # (B*T, 1, H, W)
+        small = F.adaptive_avg_pool2d(obj, e.shape[-2:])  # (B*T, 1, h, w)
+        per_frame = torch.cat([masked_mean(e_flat, small), e_flat.mean(dim=(2, 3)), mask_geometry(obj)], dim=-1)
+        ego = ego_motion[..., : self.config.ego_features] / self.ego_scale  # (B, T, E)
+        return torch.cat([per_frame.reshape(b, t, -1), ego], dim=-1)  # (B, T, 2 D_e + 4 + E)
+
+    def forward(
+        self, bev_lidar: torch.Tensor, bev_map: torch.Tensor, bev_object: torch.Tensor, ego_motion: torch.Tensor
+    ) -> torch.Tensor:
+        """(B, T, Cl, H, W), (B, T, Cm, H, W), (B, T, 1, H, W), (B, T, 4) → (B, D)."""
+        e = self.embed_map(bev_lidar, bev_map)  # (B, T, D_e, h, w)
+        return self.head(self.temporal(self.frame_features(e, bev_object, ego_motion)))

@@ -1,0 +1,71 @@
+"""Camera tower: object-masked camera clips (B, T, 4, H, W) → clip embedding (B, D).
+
+A strided per-frame CNN (the stem divides the resolution by 4 at once, which keeps CPU training fast)
+reads RGB and the object mask; each frame is summarised by pooling its feature map twice, under the
+object mask (what the object looks like and where it is) and globally (its surroundings), plus the
+mask's area and centroid (where it is in the image, how large); the :class:`TemporalEncoder` then reads
+the T frame vectors with learned time positions, so the output depends on frame order.
+"""
+
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from encoders.config import CameraConfig
+from encoders.fusion import TemporalEncoder
+
+
+def conv_block(c_in: int, c_out: int, kernel: int, stride: int) -> nn.Sequential:
+    return nn.Sequential(
+        nn.Conv2d(c_in, c_out, kernel, stride=stride, padding=kernel // 2, bias=False),
+        nn.BatchNorm2d(c_out),
+        nn.ReLU(inplace=True),
+    )
+
+
+def mask_geometry(mask: torch.Tensor) -> torch.Tensor:
+    """mask: (N, 1, H, W) in [0, 1] → (N, 4): area fraction, centroid x and y in [-1, 1], visible flag."""
+    n, _, h, w = mask.shape
+    area = mask.sum(dim=(1, 2, 3))  # (N,)
+    ys = torch.linspace(-1.0, 1.0, h, device=mask.device, dtype=mask.dtype)
+    xs = torch.linspace(-1.0, 1.0, w, device=mask.device, dtype=mask.dtype)
+    cy = (mask.sum(dim=(1, 3)) * ys).sum(dim=-1) / area.clamp_min(1e-6)  # (N,)
+    cx = (mask.sum(dim=(1, 2)) * xs).sum(dim=-1) / area.clamp_min(1e-6)  # (N,)
+    visible = (area > 0).to(mask.dtype)
+    return torch.stack([area / (h * w), cx, cy, visible], dim=-1)  # (N, 4)
+
+
+def masked_mean(features: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    """features: (N, C, h, w); mask: (N, 1, h, w) weights → (N, C) mean under the mask (0 where empty)."""
+    weight = mask.sum(dim=(2, 3)).clamp_min(1e-6)  # (N, 1)
+    return (features * mask).sum(dim=(2, 3)) / weight  # (N, C)
+
+
+class CameraTower(nn.Module):
+    """(B, T, C, H, W) camera clip with object-mask channel last → (B, D)."""
+
+    def __init__(self, config: CameraConfig, embed_dim: int) -> None:
+        super().__init__()
+        self.config = config
+        widths = config.widths
+        stages = [conv_block(config.in_channels, widths[0], 5, 4)]
+        stages += [conv_block(a, b, 3, 2) for a, b in zip(widths[:-1], widths[1:])]
+        self.cnn = nn.Sequential(*stages)
+        self.temporal = TemporalEncoder(config.temporal, 2 * widths[-1] + 4)
+        self.head = nn.Linear(config.temporal.width, embed_dim)
+
+    def frame_features(self, camera: torch.Tensor) -> torch.Tensor:
+        """camera: (B, T, C, H, W) → (B, T, 2 * widths[-1] + 4) per-frame vectors."""
+        b, t, c, h, w = camera.shape
+        x = camera.reshape(b * t, c, h, w)  # (B*T, C, H, W)
+        mask = x[:, -1:]  # (B*T, 1, H, W)
+        f = self.cnn(x)  # (B*T, F, h, w)
+        small = F.adaptive_avg_pool2d(mask, f.shape[-2:])  # (B*T, 1, h, w)
+        per_frame = torch.cat([masked_mean(f, small), f.mean(dim=(2, 3)), mask_geometry(mask)], dim=-1)
+        return per_frame.reshape(b, t, -1)  # (B, T, 2F + 4)
+
+    def forward(self, camera: torch.Tensor) -> torch.Tensor:
+        """camera: (B, T, C, H, W) → (B, D)."""
+        return self.head(self.temporal(self.frame_features(camera)))

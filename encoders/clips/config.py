@@ -1,0 +1,233 @@
+"""Configuration of clip rendering: frozen dataclasses, serialised as YAML.
+
+>>> config = ClipsConfig.from_yaml(Path("clips.yaml"))     # every field optional
+>>> config.to_yaml(Path("clips.yaml"))                        # round-trips exactly
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field, fields, replace
+from enum import Enum
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from scenes.atomic import atomic_write_text
+
+
+class BevSource(str, Enum):
+    """Where a log's BEV occupancy comes from."""
+
+    LIDAR = "lidar"  # real or simulated sweeps, motion-compensated
+    BOXES = "boxes"  # rendered from the annotated cuboids (logs without sweeps)
+
+    def __str__(self) -> str:
+        return self.value
+
+
+class BevSourceChoice(str, Enum):
+    """Which BEV source to use for a log: ``auto`` picks LiDAR when sweeps cover enough frames."""
+
+    AUTO = "auto"
+    LIDAR = "lidar"
+    BOXES = "boxes"
+
+    def __str__(self) -> str:
+        return self.value
+
+
+class Split(str, Enum):
+    TRAIN = "train"
+    VAL = "val"
+    TEST = "test"
+
+    def __str__(self) -> str:
+        return self.value
+
+
+class ClipsConfigError(ValueError):
+    """A clips configuration file or value is invalid; names the file and the field."""
+
+
+@dataclass(frozen=True)
+class CameraClipConfig:
+    """The camera view.
+
+    Attributes:
+        camera_name: camera folder under ``sensors/cameras``.
+        width_px, height_px: size of the stored frames (the camera is 16:9; 160×96 keeps it).
+        frame_tolerance_ns: a frame uses the camera image nearest in time within this tolerance.
+        min_mask_px: an object counts as visible in a frame with at least this many mask pixels
+            at the camera's full resolution.
+        min_visible_fraction: a clip has a camera view when the object is visible in at least this
+            fraction of its sampled frames.
+        highlight_rgb: overlay colour of the object of interest.
+        highlight_alpha: overlay opacity over the object.
+        dim_factor: brightness kept outside the object.
+    """
+
+    camera_name: str = "ring_front_center"
+    width_px: int = 160
+    height_px: int = 96
+    frame_tolerance_ns: int = 60_000_000
+    min_mask_px: int = 20
+    min_visible_fraction: float = 0.25
+    highlight_rgb: tuple[int, int, int] = (255, 0, 255)
+    highlight_alpha: float = 0.5
+    dim_factor: float = 0.7
+
+
+@dataclass(frozen=True)
+class BevClipConfig:
+    """The LiDAR bird's-eye view, a grid in each frame's ego frame.
+
+    Attributes:
+        x_min_m, x_max_m, y_min_m, y_max_m, resolution_m: the grid; row 0 is ``x_max_m`` (forward
+            at the top), column 0 is ``y_max_m`` (left on the left).
+        z_bins_m: edges of the height bins (ego frame, z up); one occupancy channel per bin.
+        num_sweeps: sweeps aggregated per frame (the current one and the previous ones),
+            corrected for ego motion.
+        sweep_tolerance_ns: a frame uses the sweep nearest in time within this tolerance.
+        density_saturation_points: points per cell that map to the full value 255 (log scale).
+        source: ``auto`` (LiDAR when sweeps cover ``lidar_min_coverage`` of the frames), ``lidar``
+            or ``boxes``.
+        lidar_min_coverage: see ``source``.
+    """
+
+    x_min_m: float = -20.0
+    x_max_m: float = 60.0
+    y_min_m: float = -20.0
+    y_max_m: float = 20.0
+    resolution_m: float = 0.5
+    z_bins_m: tuple[float, ...] = (-0.5, 0.3, 1.0, 2.0, 4.0)
+    num_sweeps: int = 3
+    sweep_tolerance_ns: int = 60_000_000
+    density_saturation_points: int = 16
+    source: BevSourceChoice = BevSourceChoice.AUTO
+    lidar_min_coverage: float = 0.9
+
+
+@dataclass(frozen=True)
+class SplitConfig:
+    """Splits by log: a seeded hash of the log id picks train / val / test."""
+
+    seed: int = 0
+    train_fraction: float = 0.7
+    val_fraction: float = 0.15
+
+
+@dataclass(frozen=True)
+class ClipsConfig:
+    """Everything ``scenesearch clips`` needs.
+
+    Attributes:
+        frames_per_clip: T, frames sampled uniformly over each caption window.
+        window_tolerance_ns: a caption window may start/end this far outside the log's frames.
+        strict: captions naming logs or tracks that are not given raise an error; when false
+            they are skipped and reported.
+        previews: write an animated preview per clip.
+        preview_fps: frame rate of the previews.
+    """
+
+    frames_per_clip: int = 16
+    window_tolerance_ns: int = 50_000_000
+    strict: bool = True
+    previews: bool = True
+    preview_fps: float = 5.0
+    camera: CameraClipConfig = field(default_factory=CameraClipConfig)
+    bev: BevClipConfig = field(default_factory=BevClipConfig)
+    split: SplitConfig = field(default_factory=SplitConfig)
+
+    def __post_init__(self) -> None:
+        problems = []
+        if self.frames_per_clip < 1:
+            problems.append("frames_per_clip must be ≥ 1")
+        if self.camera.width_px < 8 or self.camera.height_px < 8:
+            problems.append("camera.width_px and camera.height_px must be ≥ 8")
+        b = self.bev
+        if b.resolution_m <= 0 or b.x_max_m <= b.x_min_m or b.y_max_m <= b.y_min_m:
+            problems.append("bev grid needs resolution_m > 0, x_max_m > x_min_m, y_max_m > y_min_m")
+        if len(b.z_bins_m) < 2 or any(hi <= lo for lo, hi in zip(b.z_bins_m[:-1], b.z_bins_m[1:])):
+            problems.append("bev.z_bins_m must be ≥ 2 increasing edges")
+        if b.num_sweeps < 1:
+            problems.append("bev.num_sweeps must be ≥ 1")
+        s = self.split
+        if not (0 < s.train_fraction and 0 <= s.val_fraction and s.train_fraction + s.val_fraction <= 1):
+            problems.append("split fractions must be positive and sum to ≤ 1")
+        if problems:
+            raise ClipsConfigError("; ".join(problems))
+
+    # -- serialisation ----------------------------------------------------------------------
+
+    def to_dict(self) -> dict[str, Any]:
+        def plain(value: Any) -> Any:
+            if isinstance(value, Enum):
+                return value.value
+            if isinstance(value, tuple | list):
+                return [plain(v) for v in value]
+            if isinstance(value, dict):
+                return {k: plain(v) for k, v in value.items()}
+            return value
+
+        return plain(asdict(self))  # type: ignore[no-any-return]
+
+    @staticmethod
+    def from_dict(data: dict[str, Any], source: str = "<dict>") -> ClipsConfig:
+        """Build from a (partial) dict; unknown keys raise :class:`ClipsConfigError` naming them."""
+        try:
+            sub = {
+                "camera": _build(CameraClipConfig, data.get("camera") or {}, f"{source}: camera"),
+                "bev": _build(BevClipConfig, data.get("bev") or {}, f"{source}: bev"),
+                "split": _build(SplitConfig, data.get("split") or {}, f"{source}: split"),
+            }
+            top = {k: v for k, v in data.items() if k not in sub}
+            config = _build(ClipsConfig, top, source)
+            return replace(config, **sub)
+        except (TypeError, ValueError) as exc:
+            if isinstance(exc, ClipsConfigError):
+                raise
+            raise ClipsConfigError(f"{source}: {exc}") from exc
+
+    def to_yaml(self, path: Path | str) -> None:
+        atomic_write_text(path, yaml.safe_dump(self.to_dict(), sort_keys=False))
+
+    @staticmethod
+    def from_yaml(path: Path | str) -> ClipsConfig:
+        path = Path(path)
+        try:
+            data = yaml.safe_load(path.read_text()) or {}
+        except (OSError, yaml.YAMLError) as exc:
+            raise ClipsConfigError(f"{path}: cannot read clips config ({exc})") from exc
+        if not isinstance(data, dict):
+            raise ClipsConfigError(f"{path}: expected a mapping at the top level")
+        return ClipsConfig.from_dict(data, source=str(path))
+
+
+def _build(cls: type, data: dict[str, Any], where: str) -> Any:
+    known = {f.name: f for f in fields(cls)}
+    unknown = sorted(set(data) - set(known))
+    if unknown:
+        raise ClipsConfigError(f"{where}: unknown field(s) {unknown}")
+    values: dict[str, Any] = {}
+    for name, value in data.items():
+        default = getattr(cls(), name) if name not in ("camera", "bev", "split") else None
+        if isinstance(default, Enum):
+            try:
+                value = type(default)(value)
+            except ValueError as exc:
+                allowed = [e.value for e in type(default)]
+                raise ClipsConfigError(f"{where}, field '{name}': {value!r} is not one of {allowed}") from exc
+        elif isinstance(default, tuple):
+            value = tuple(value)
+        elif isinstance(default, bool):
+            if not isinstance(value, bool):
+                raise ClipsConfigError(f"{where}, field '{name}': expected true/false, got {value!r}")
+        elif isinstance(default, int) and not isinstance(value, int):
+            raise ClipsConfigError(f"{where}, field '{name}': expected an integer, got {value!r}")
+        elif isinstance(default, float):
+            if not isinstance(value, int | float) or isinstance(value, bool):
+                raise ClipsConfigError(f"{where}, field '{name}': expected a number, got {value!r}")
+            value = float(value)
+        values[name] = value
+    return cls(**values)

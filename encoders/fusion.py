@@ -1,0 +1,74 @@
+"""Fusion over time (per-frame vectors → one clip vector) and over views (camera + BEV → one embedding).
+
+:class:`TemporalEncoder` is shared by the camera and BEV towers: learned time positions and a small
+transformer, read out by a learned query token, so its output depends on frame order (a mean over
+frames would not). :class:`ViewFusion` merges the two views' normalised embeddings and drops one view
+at random in training, so that camera-only and BEV-only inputs embed well too.
+"""
+
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from encoders.config import FusionConfig, TemporalConfig
+
+
+class TemporalEncoder(nn.Module):
+    """(B, T, C_in) per-frame vectors → (B, width) clip vector; order-aware, any T ≤ max_frames."""
+
+    def __init__(self, config: TemporalConfig, in_features: int) -> None:
+        super().__init__()
+        self.config = config
+        self.proj = nn.Linear(in_features, config.width)
+        self.time = nn.Parameter(torch.randn(config.max_frames, config.width) * 0.02)
+        self.query = nn.Parameter(torch.randn(1, 1, config.width) * 0.02)
+        layer = nn.TransformerEncoderLayer(
+            d_model=config.width,
+            nhead=config.heads,
+            dim_feedforward=2 * config.width,
+            dropout=config.dropout,
+            batch_first=True,
+            norm_first=True,
+        )
+        self.transformer = nn.TransformerEncoder(layer, config.layers, enable_nested_tensor=False)
+        self.norm = nn.LayerNorm(config.width)
+
+    def forward(self, frames: torch.Tensor) -> torch.Tensor:
+        """frames: (B, T, C_in) → (B, width)."""
+        b, t, _ = frames.shape
+        if t > self.config.max_frames:
+            raise ValueError(f"clip has {t} frames, the temporal model takes at most {self.config.max_frames}")
+        x = self.proj(frames) + self.time[:t]  # (B, T, W)
+        x = torch.cat([self.query.expand(b, 1, -1), x], dim=1)  # (B, 1 + T, W)
+        x = self.transformer(x)  # (B, 1 + T, W)
+        return self.norm(x[:, 0])  # (B, W)
+
+
+class ViewFusion(nn.Module):
+    """Camera and BEV clip embeddings (B, D) each → fused (B, D), with modality dropout in training."""
+
+    def __init__(self, config: FusionConfig, dim: int) -> None:
+        super().__init__()
+        self.config = config
+        self.mlp = nn.Sequential(nn.Linear(dim, config.hidden), nn.GELU(), nn.Linear(config.hidden, dim))
+
+    def forward(self, camera: torch.Tensor, bev: torch.Tensor, has_camera: torch.Tensor) -> torch.Tensor:
+        """camera: (B, D); bev: (B, D); has_camera: (B,) bool → (B, D).
+
+        Clips without camera use BEV only. In training, when both views are present, the camera view is
+        dropped with ``drop_camera_p`` and otherwise the BEV view with ``drop_bev_p``.
+        """
+        cam_w = has_camera.to(camera.dtype)  # (B,)
+        bev_w = torch.ones_like(cam_w)
+        if self.training:
+            u = torch.rand(cam_w.shape, device=cam_w.device)  # (B,)
+            drop_cam = (u < self.config.drop_camera_p) & has_camera
+            drop_bev = (u >= 1.0 - self.config.drop_bev_p) & has_camera
+            cam_w = cam_w * (~drop_cam).to(cam_w.dtype)
+            bev_w = bev_w * (~drop_bev).to(bev_w.dtype)
+        mixed = (cam_w[:, None] * F.normalize(camera, dim=-1) + bev_w[:, None] * F.normalize(bev, dim=-1)) / (
+            cam_w + bev_w
+        )[:, None]  # (B, D)
+        return mixed + self.mlp(mixed)

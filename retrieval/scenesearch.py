@@ -1,0 +1,388 @@
+"""``SceneSearch``: type a sentence, get the moments; pick a moment, get more like it.
+
+An index directory holds everything a search needs::
+
+    INDEX_DIR/manifest.json     format version, model hash, dimensions, views, counts, created, paths
+    INDEX_DIR/fused/            ClipIndex (indexes/) of fused camera + BEV clip embeddings
+    INDEX_DIR/camera/           ClipIndex of camera-only embeddings
+    INDEX_DIR/bev/              ClipIndex of BEV-only embeddings
+    INDEX_DIR/captions/         CaptionSearch: the clips' rule captions by the frozen sentence encoder
+    INDEX_DIR/run/config.json   the model configuration (the weights stay in RUN_DIR, checked by hash)
+
+>>> search = SceneSearch.build("run", "clips", "index")          # or SceneSearch.open("index")
+>>> search.search_text("a car in the left lane approaches", k=5, filters={"category": "car"})
+>>> search.search_clip("log:track:1700000000", k=5, view="bev")
+>>> search.search_captions("stopped car")
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import asdict, dataclass, field
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from indexes.clip_index import ClipIndex
+from indexes.errors import IndexesError
+from indexes.filters import FilterSpec
+from retrieval.captions_search import (
+    CaptionSearch,
+    Skipped,
+    TextEncoder,
+    caption_rows,
+    check_k,
+    check_query,
+    hits_to_results,
+)
+from retrieval.embedding import CONFIG_FILE, Embedder, ModelEmbedder
+from retrieval.errors import IndexDirError, ModelMismatchError, UnknownClipError, UnknownViewError
+from retrieval.records import SearchResult
+from scenes.atomic import atomic_directory
+
+FORMAT_VERSION = 1
+KIND = "scenesearch_index"
+MANIFEST = "manifest.json"
+VIEWS = ("fused", "camera", "bev")
+CAPTIONS_DIR = "captions"
+Progress = Callable[[str], None]
+
+
+@dataclass(frozen=True)
+class IndexManifest:
+    """Contents of ``INDEX_DIR/manifest.json``.
+
+    Attributes:
+        format_version: layout version; newer ones are refused.
+        kind: always ``scenesearch_index``.
+        model_sha256: SHA-256 of the ``model.safetensors`` the clip and text embeddings came from.
+        run_dir: absolute path of the training run (its model encodes text queries).
+        clips_dir: absolute path of the clips directory (previews are relative to it).
+        embed_dim: dimension of the clip embeddings.
+        views: the indexed views (subdirectories).
+        counts: clips per view, captions, and clips per split.
+        text_encoder: the sentence encoder of the caption index.
+        created: UTC time of the build, ISO 8601.
+        skipped: clips left out, with the reason.
+    """
+
+    format_version: int
+    kind: str
+    model_sha256: str
+    run_dir: str
+    clips_dir: str
+    embed_dim: int
+    views: list[str]
+    counts: dict[str, int]
+    text_encoder: str
+    created: str
+    skipped: list[dict[str, str]] = field(default_factory=list)
+
+    @staticmethod
+    def read(index_dir: Path) -> IndexManifest:
+        path = index_dir / MANIFEST
+        if not index_dir.is_dir():
+            raise IndexDirError(f"{index_dir}: no index directory here (build one with `scenesearch index`)")
+        if not path.is_file():
+            raise IndexDirError(f"{path}: missing; {index_dir} is not a scenesearch index (or its build never "
+                                "finished)")
+        try:
+            raw = json.loads(path.read_text())
+        except (OSError, json.JSONDecodeError) as exc:
+            raise IndexDirError(f"{path}: unreadable: {exc}") from None
+        if raw.get("kind") != KIND:
+            raise IndexDirError(f"{path}: holds a {raw.get('kind')!r}, not a {KIND!r}")
+        version = raw.get("format_version")
+        if not isinstance(version, int) or version > FORMAT_VERSION:
+            raise IndexDirError(f"{path}: format version {version!r} is not supported (this code reads up to "
+                                f"{FORMAT_VERSION}); upgrade scenesearch or rebuild the index")
+        names = {f for f in IndexManifest.__dataclass_fields__}
+        missing = sorted(n for n in names if n not in raw and n != "skipped")
+        if missing:
+            raise IndexDirError(f"{path}: missing fields {missing}")
+        return IndexManifest(**{k: v for k, v in raw.items() if k in names})
+
+
+class SceneSearch:
+    """Text → clip, clip → clip and caption search over one index directory."""
+
+    def __init__(self, index_dir: Path, manifest: IndexManifest, views: dict[str, ClipIndex],
+                 captions: CaptionSearch, embedder: Embedder | None = None) -> None:
+        self.index_dir = index_dir
+        self.manifest = manifest
+        self.views = views
+        self.captions = captions
+        self._embedder = embedder
+        self.clips_dir = Path(manifest.clips_dir)
+        #: Seconds spent in each step of the last ``search_text`` call (encode, search, records).
+        self.last_timings_s: dict[str, float] = {}
+
+    # ------------------------------------------------------------------ building
+
+    @classmethod
+    def build(cls, run_dir: Path | str, clips_dir: Path | str, out_dir: Path | str,
+              embedder: Embedder | None = None, text_encoder: TextEncoder | None = None,
+              progress: Progress | None = None) -> SceneSearch:
+        """Embed every clip (fused, camera-only, BEV-only) and its rule caption; write ``out_dir``.
+
+        Args:
+            run_dir: a training run (``model.safetensors`` + ``config.json``).
+            clips_dir: the clips the run was trained on (``clips.parquet`` + per-log arrays).
+            out_dir: the index directory; replaced atomically when it exists.
+            embedder: the model (default: :class:`ModelEmbedder` of ``run_dir``).
+            text_encoder: the sentence encoder of the caption index (default: all-MiniLM-L6-v2).
+            progress: called with one line per step.
+
+        Raises:
+            FileNotFoundError: no model in ``run_dir`` or no ``clips.parquet`` in ``clips_dir``.
+        """
+        say = progress or (lambda _m: None)
+        run_dir, clips_dir, out_dir = Path(run_dir).resolve(), Path(clips_dir).resolve(), Path(out_dir)
+        embedder = embedder if embedder is not None else ModelEmbedder(run_dir)
+        clip_table_path = clips_dir / "clips.parquet"
+        if not clip_table_path.is_file():
+            raise FileNotFoundError(f"{clip_table_path}: no clip table (run `scenesearch clips` first)")
+        rows, skipped = caption_rows(pq.read_table(clip_table_path))
+        clip_ids = rows.column("clip_id").to_pylist()
+        views: dict[str, ClipIndex] = {}
+        dim = 0
+        for view in VIEWS:
+            start = time.perf_counter()
+            ids, x = embedder.embed_clips(clips_dir, view=view)
+            x_view, kept = _align(clip_ids, ids, x)
+            table = rows.filter(pa.array(kept)) if not kept.all() else rows
+            if not kept.all():
+                skipped.extend(Skipped(c, f"the model gave no {view} embedding")
+                               for c, keep in zip(clip_ids, kept) if not keep)
+            views[view] = ClipIndex.build(x_view, table, metric="cosine")
+            dim = int(x_view.shape[1])
+            say(f"index: embedded {len(x_view)} clips, view {view} ({x_view.shape[1]}-D) in "
+                f"{time.perf_counter() - start:.1f} s")
+        start = time.perf_counter()
+        captions = CaptionSearch.build(rows, encoder=text_encoder, base_dir=clips_dir)
+        say(f"index: embedded {len(captions)} rule captions in {time.perf_counter() - start:.1f} s")
+        split_counts: dict[str, int] = {}
+        if "split" in rows.column_names:
+            for s in rows.column("split").to_pylist():
+                split_counts[f"split_{s}"] = split_counts.get(f"split_{s}", 0) + 1
+        manifest = IndexManifest(
+            format_version=FORMAT_VERSION, kind=KIND, model_sha256=embedder.model_id, run_dir=str(run_dir),
+            clips_dir=str(clips_dir), embed_dim=dim, views=list(VIEWS),
+            counts={**{v: len(ix) for v, ix in views.items()}, "captions": len(captions), **split_counts},
+            text_encoder=captions.encoder_name, created=datetime.now(UTC).isoformat(timespec="seconds"),
+            skipped=[{"item": s.item, "reason": s.reason} for s in skipped])
+        with atomic_directory(out_dir, overwrite=True) as tmp:
+            for view, index in views.items():
+                index.save(tmp / view)
+            captions.save(tmp / CAPTIONS_DIR)
+            (tmp / "run").mkdir()
+            if (run_dir / CONFIG_FILE).is_file():
+                shutil.copy2(run_dir / CONFIG_FILE, tmp / "run" / CONFIG_FILE)
+            (tmp / MANIFEST).write_text(json.dumps(asdict(manifest), indent=2))
+        say(f"index: wrote {out_dir} ({len(clip_ids)} clips, {len(skipped)} skipped)")
+        return cls(out_dir, manifest, views, captions, embedder)
+
+    @classmethod
+    def open(cls, index_dir: Path | str, embedder: Embedder | None = None,
+             text_encoder: TextEncoder | None = None, views: tuple[str, ...] = VIEWS) -> SceneSearch:
+        """Open an index directory written by :meth:`build`.
+
+        The model is loaded when the first text query needs it; its hash is checked then.
+
+        Raises:
+            IndexDirError: not an index directory, or an unsupported format.
+            ModelMismatchError: ``embedder`` is another model than the index was built with.
+        """
+        index_dir = Path(index_dir)
+        manifest = IndexManifest.read(index_dir)
+        if embedder is not None and embedder.model_id != manifest.model_sha256:
+            raise ModelMismatchError(
+                f"index built by another model version: {index_dir} was built with model "
+                f"{manifest.model_sha256[:12]}, the given model is {embedder.model_id[:12]}")
+        unknown = [v for v in views if v not in manifest.views]
+        if unknown:
+            raise UnknownViewError(unknown[0], manifest.views)
+        try:
+            loaded = {v: ClipIndex.load(index_dir / v, verify=False) for v in views}
+        except IndexesError as exc:
+            raise IndexDirError(f"{index_dir}: {exc}") from None
+        captions = CaptionSearch.open(index_dir / CAPTIONS_DIR, encoder=text_encoder)
+        captions.base_dir = Path(manifest.clips_dir)
+        return cls(index_dir, manifest, loaded, captions, embedder)
+
+    # ------------------------------------------------------------------ model
+
+    @property
+    def embedder(self) -> Embedder:
+        """The model that encodes queries; loaded from the run directory on first use."""
+        if self._embedder is None:
+            run_dir = Path(self.manifest.run_dir)
+            if not run_dir.is_dir():
+                raise IndexDirError(f"the run directory {run_dir} of this index is gone; text queries need its "
+                                    "model (clip → clip and caption search still work)")
+            self._embedder = ModelEmbedder(run_dir, expected_model_id=self.manifest.model_sha256)
+        return self._embedder
+
+    # ------------------------------------------------------------------ queries
+
+    def __len__(self) -> int:
+        return len(self.views[self.manifest.views[0]])
+
+    @property
+    def fields(self) -> list[str]:
+        """Metadata fields that filters may name."""
+        return [f for f in next(iter(self.views.values())).fields if f != "id"]
+
+    def _view(self, view: str) -> ClipIndex:
+        if view not in self.views:
+            raise UnknownViewError(view, list(self.views))
+        return self.views[view]
+
+    def search_text(self, query: str, k: int = 10, filters: FilterSpec = None,
+                    view: str = "fused") -> list[SearchResult]:
+        """The k clips closest to the sentence ``query``.
+
+        Args:
+            query: a sentence, e.g. ``"a car in the left lane approaches, then stops"``.
+            k: results, 1 … number of indexed clips (fewer when a filter passes fewer clips).
+            filters: ``{"category": "car"}``, ``{"category": ["car", "bus"]}`` or a filter string
+                (``"category in {car, bus} and tags contains 'left:approach'"``, see ``indexes.filters``).
+            view: ``fused``, ``camera`` or ``bev``.
+
+        Raises:
+            EmptyQueryError, InvalidKError, FilterSyntaxError, UnknownViewError: bad arguments.
+            ModelMismatchError: the run directory now holds another model.
+        """
+        index = self._view(view)
+        query = check_query(query)
+        check_k(k, len(index))
+        t0 = time.perf_counter()
+        xq = np.asarray(self.embedder.embed_texts([query]), dtype=np.float32)
+        t1 = time.perf_counter()
+        results = hits_to_results(index, xq, k, filters, view, self.clips_dir)
+        t2 = time.perf_counter()
+        self.last_timings_s = {"encode_text": t1 - t0, "search_and_records": t2 - t1}
+        return results
+
+    def search_clip(self, clip: str | Mapping[str, Any], k: int = 10, filters: FilterSpec = None,
+                    view: str = "fused") -> list[SearchResult]:
+        """The k clips most like ``clip``: an indexed clip id (left out of its own results) or clip arrays.
+
+        Args:
+            clip: a clip id, or a clip item / batch as ``encoders.data`` builds it (arrays of one clip).
+            k, filters, view: as in :meth:`search_text`.
+
+        Raises:
+            UnknownClipError: the clip id is not indexed (the message shows valid ones).
+        """
+        index = self._view(view)
+        if isinstance(clip, str):
+            if clip not in index:
+                examples = index.metadata.table.column("clip_id").slice(0, 3).to_pylist()
+                raise UnknownClipError(clip, examples)
+            check_k(k, len(index) - 1)
+            return hits_to_results(index, np.zeros((1, index.dim), np.float32), k, filters, view, self.clips_dir,
+                                   exclude_clip=clip)
+        check_k(k, len(index))
+        xq = np.asarray(self.embedder.embed_arrays(clip, view=view), dtype=np.float32)[:1]
+        return hits_to_results(index, xq, k, filters, view, self.clips_dir)
+
+    def search_captions(self, query: str, k: int = 10, filters: FilterSpec = None) -> list[SearchResult]:
+        """Track-based search over the rule captions, with the frozen sentence encoder (no trained model)."""
+        return self.captions.search(query, k, filters)
+
+    def get(self, clip_id: str) -> SearchResult:
+        """The record of one indexed clip (score 1, rank 0)."""
+        index = self.views[self.manifest.views[0]]
+        if clip_id not in index:
+            raise UnknownClipError(clip_id, index.metadata.table.column("clip_id").slice(0, 3).to_pylist())
+        row = index.get(clip_id)
+        from retrieval.captions_search import preview_of
+
+        return SearchResult.from_row(0, row, 1.0, "fused", preview_of(row, self.clips_dir))
+
+    # ------------------------------------------------------------------ export
+
+    def embeddings(self, view: str = "fused") -> tuple[pa.Table, np.ndarray]:
+        """The metadata table (without ``id``) and the (N, D) embeddings of ``view``, in id order."""
+        index = self._view(view)
+        table = index.metadata.table
+        x = index.vectors.reconstruct(np.asarray(table.column("id").to_numpy(), dtype=np.int64))
+        return table.drop_columns(["id"]), np.asarray(x, dtype=np.float32)
+
+    def export(self, path: Path | str, views: tuple[str, ...] | None = None) -> Path:
+        """Write metadata and embeddings to ``path``: ``.parquet`` (one embedding column per view:
+        ``embedding`` for the first, ``embedding_<view>`` for others) or ``.npy`` (+ ``.json`` beside it
+        with the metadata rows, the view and the model hash). Written atomically.
+        """
+        from scenes.atomic import atomic_path, atomic_write_text
+
+        path = Path(path)
+        views = views or tuple(self.views)
+        for v in views:
+            self._view(v)
+        if path.suffix == ".parquet":
+            table, _ = self.embeddings(views[0])
+            for i, v in enumerate(views):
+                meta, x = self.embeddings(v)
+                if meta.column("clip_id").to_pylist() != table.column("clip_id").to_pylist():
+                    raise IndexDirError(f"{self.index_dir}: views {views[0]} and {v} hold different clips")
+                name = "embedding" if i == 0 else f"embedding_{v}"
+                flat = pa.array(x.reshape(-1), pa.float32())
+                table = table.append_column(name, pa.FixedSizeListArray.from_arrays(flat, x.shape[1]))
+            meta_bytes = {b"scenesearch": json.dumps({"model_sha256": self.manifest.model_sha256,
+                                                       "views": list(views)}).encode()}
+            table = table.replace_schema_metadata({**(table.schema.metadata or {}), **meta_bytes})
+            with atomic_path(path) as tmp:
+                pq.write_table(table, tmp)
+            return path
+        if path.suffix == ".npy":
+            meta, x = self.embeddings(views[0])
+            with atomic_path(path) as tmp:
+                np.save(tmp, x)
+            sidecar = path.with_suffix(".json")
+            atomic_write_text(sidecar, json.dumps({"view": views[0], "model_sha256": self.manifest.model_sha256,
+                                                   "rows": meta.to_pylist()}, indent=1, default=str))
+            return path
+        raise ValueError(f"{path}: unknown export format {path.suffix!r}; use .parquet or .npy")
+
+
+def _align(clip_ids: list[str], ids: list[str], x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rows of ``x`` (labelled ``ids``) in the order of ``clip_ids``; (M, D) and the (N,) kept mask."""
+    pos = {c: i for i, c in enumerate(ids)}
+    kept = np.array([c in pos for c in clip_ids], dtype=bool)
+    order = [pos[c] for c in clip_ids if c in pos]
+    if not order:
+        raise ValueError("the model embedded none of the clips of the clip table")
+    return np.asarray(x, dtype=np.float32)[order], kept
+
+
+def parse_cli_filters(items: list[str] | None) -> FilterSpec:
+    """``["category=car", "time_of_day=night,dusk"]`` → ``{"category": "car", "time_of_day": [...]}``.
+
+    An item without a single ``=`` (e.g. ``start_ns >= 5``) is passed through in the filter language.
+    """
+    if not items:
+        return None
+    simple: dict[str, Any] = {}
+    expressions: list[str] = []
+    for item in items:
+        if "=" in item and not any(op in item for op in ("==", "!=", "<=", ">=")) and item.count("=") == 1:
+            key, value = (s.strip() for s in item.split("=", 1))
+            if not key or not value:
+                raise ValueError(f"--filter {item!r}: expected FIELD=VALUE, e.g. category=car")
+            simple[key] = value.split(",") if "," in value else value
+        else:
+            expressions.append(item)
+    if not expressions:
+        return simple
+    parts = [f"{k} in {{{', '.join(repr(x) for x in v)}}}" if isinstance(v, list) else f"{k} == {v!r}"
+             for k, v in simple.items()]
+    return " and ".join(parts + expressions)

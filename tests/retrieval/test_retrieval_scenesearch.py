@@ -1,0 +1,159 @@
+"""SceneSearch on a synthetic clips directory with a stand-in model."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pyarrow.parquet as pq
+import pytest
+from retrieval_fakes import FakeEmbedder, HashTextEncoder, caption_of
+
+from retrieval.embedding import ModelEmbedder, model_hash
+from retrieval.errors import (
+    EmptyQueryError,
+    FilterSyntaxError,
+    IndexDirError,
+    InvalidKError,
+    ModelMismatchError,
+    UnknownClipError,
+    UnknownViewError,
+)
+from retrieval.records import SearchResult, format_table
+from retrieval.scenesearch import SceneSearch, parse_cli_filters
+
+
+def _open(built: dict[str, Any]) -> SceneSearch:
+    return SceneSearch.open(built["index"], embedder=built["embedder"], text_encoder=HashTextEncoder())
+
+
+def test_layout_and_manifest(built: dict[str, Any]) -> None:
+    index_dir: Path = built["index"]
+    for name in ("fused", "camera", "bev", "captions", "run/config.json", "manifest.json"):
+        assert (index_dir / name).exists(), name
+    manifest = json.loads((index_dir / "manifest.json").read_text())
+    assert manifest["model_sha256"] == model_hash(built["run"])
+    assert manifest["views"] == ["fused", "camera", "bev"]
+    assert manifest["counts"]["fused"] == 84 and manifest["counts"]["captions"] == 84
+    assert manifest["embed_dim"] == 64
+    assert any("view bev" in line for line in built["progress"])
+
+
+def test_search_text_finds_matching_caption(built: dict[str, Any]) -> None:
+    search = _open(built)
+    query = caption_of(["left:approach", "left:cut_in"])
+    results = search.search_text(query, k=5)
+    assert [r.rank for r in results] == [1, 2, 3, 4, 5]
+    assert all(isinstance(r, SearchResult) for r in results)
+    assert all(r.caption == query for r in results)
+    assert all(a.score >= b.score for a, b in zip(results, results[1:]))
+    top = results[0]
+    assert top.preview_path is not None and top.preview_path.startswith(str(built["clips"]))
+    assert top.clip_id == f"{top.log_id}:{top.track_id}:{top.start_ns}"
+    assert set(search.last_timings_s) == {"encode_text", "search_and_records"}
+    assert "caption" in format_table(results)
+
+
+def test_search_text_filters(built: dict[str, Any]) -> None:
+    search = _open(built)
+    query = caption_of(["host:constant", "host:stop"])
+    cars = search.search_text(query, k=10, filters={"category": "car"})
+    assert cars and all(r.category == "car" for r in cars)
+    both = search.search_text(query, k=10, filters="category in {car, truck} and time_of_day == night")
+    assert both and all(r.category in ("car", "truck") for r in both)
+    cli = parse_cli_filters(["category=pedestrian", "split=test,val"])
+    assert cli == {"category": "pedestrian", "split": ["test", "val"]}
+    peds = search.search_text(query, k=10, filters=cli, view="bev")
+    assert peds and all(r.category == "pedestrian" and r.view == "bev" for r in peds)
+
+
+def test_bad_input(built: dict[str, Any]) -> None:
+    search = _open(built)
+    with pytest.raises(EmptyQueryError):
+        search.search_text("   ")
+    for bad_k in (0, -1, 10_000, 2.5):
+        with pytest.raises(InvalidKError, match="k must be an integer in 1"):
+            search.search_text("a car", k=bad_k)  # type: ignore[arg-type]
+    with pytest.raises(FilterSyntaxError, match=r"valid fields: .*category"):
+        search.search_text("a car", filters={"colour": "red"})
+    with pytest.raises(FilterSyntaxError, match="valid fields"):
+        search.search_text("a car", filters="colour == red")
+    with pytest.raises(UnknownClipError, match=r"unknown clip id 'nope'.*log00"):
+        search.search_clip("nope")
+    with pytest.raises(UnknownViewError, match="valid views: fused, camera, bev"):
+        search.search_text("a car", view="radar")
+
+
+def test_search_clip_excludes_itself_and_prefers_same_action(built: dict[str, Any]) -> None:
+    search = _open(built)
+    table = pq.read_table(built["clips"] / "clips.parquet").to_pylist()
+    query = table[0]
+    for view in ("fused", "camera", "bev"):
+        results = search.search_clip(query["clip_id"], k=5, view=view)
+        assert len(results) == 5
+        assert query["clip_id"] not in {r.clip_id for r in results}
+    fused = search.search_clip(query["clip_id"], k=5)
+    assert sum(r.caption == query["caption"] for r in fused) >= 4
+    arrays = search.search_clip({"caption": query["caption"], "camera": np.zeros((16, 4, 8, 8), np.float32)}, k=3)
+    assert arrays[0].caption == query["caption"]
+
+
+def test_search_captions(built: dict[str, Any]) -> None:
+    search = _open(built)
+    results = search.search_captions("stops ahead of the host", k=5)
+    assert len(results) == 5 and all("stops ahead" in r.caption for r in results)
+    assert all(r.view == "captions" for r in results)
+
+
+def test_model_version_mismatch(built: dict[str, Any], tmp_path: Path) -> None:
+    with pytest.raises(ModelMismatchError, match="index built by another model version"):
+        SceneSearch.open(built["index"], embedder=FakeEmbedder("another-model"), text_encoder=HashTextEncoder())
+    # The run directory's weights change after the index was built: text queries refuse.
+    index_copy = tmp_path / "index"
+    shutil.copytree(built["index"], index_copy)
+    run_copy = tmp_path / "run"
+    shutil.copytree(built["run"], run_copy)
+    manifest = json.loads((index_copy / "manifest.json").read_text())
+    manifest["run_dir"] = str(run_copy)
+    (index_copy / "manifest.json").write_text(json.dumps(manifest))
+    (run_copy / "model.safetensors").write_bytes(b"weights-v2")
+    search = SceneSearch.open(index_copy, text_encoder=HashTextEncoder())
+    with pytest.raises(ModelMismatchError, match="index built by another model version"):
+        search.search_text("a car")
+    with pytest.raises(ModelMismatchError):
+        ModelEmbedder(run_copy, expected_model_id=manifest["model_sha256"])
+    # Clip → clip still works without the model.
+    assert len(search.search_clip(search.get(manifest_first_clip(index_copy)).clip_id, k=2)) == 2
+
+
+def manifest_first_clip(index_dir: Path) -> str:
+    return str(pq.read_table(index_dir / "fused" / "metadata.parquet").column("clip_id")[0])
+
+
+def test_not_an_index(tmp_path: Path) -> None:
+    with pytest.raises(IndexDirError, match="no index directory"):
+        SceneSearch.open(tmp_path / "missing")
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(IndexDirError, match=r"manifest.json: missing"):
+        SceneSearch.open(tmp_path / "empty")
+
+
+def test_export_parquet_and_npy(built: dict[str, Any], tmp_path: Path) -> None:
+    search = _open(built)
+    out = search.export(tmp_path / "emb.parquet")
+    table = pq.read_table(out)
+    assert {"clip_id", "category", "tags", "embedding", "embedding_camera", "embedding_bev"} <= set(table.column_names)
+    x = np.asarray(table.column("embedding").to_pylist(), np.float32)
+    assert x.shape == (84, 64)
+    np.testing.assert_allclose(np.linalg.norm(x, axis=1), 1.0, rtol=1e-4)
+    _, expected = search.embeddings("fused")
+    np.testing.assert_allclose(x, expected, rtol=1e-5)
+    npy = search.export(tmp_path / "emb.npy", views=("bev",))
+    assert np.load(npy).shape == (84, 64)
+    side = json.loads((tmp_path / "emb.json").read_text())
+    assert side["view"] == "bev" and len(side["rows"]) == 84
+    with pytest.raises(ValueError, match=r"use .parquet or .npy"):
+        search.export(tmp_path / "emb.csv")

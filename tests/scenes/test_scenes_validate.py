@@ -1,0 +1,360 @@
+"""One test per validation error: each builds a bad file and checks that the error names the file,
+the row or frame, and the field, on open and in ``scenesearch validate``."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.feather as feather
+import pytest
+
+from retrieval.cli import main as cli_main
+from scenes import av2_io
+from scenes.calibration import Calibration, CameraIntrinsics
+from scenes.errors import LogFormatError, Problem
+from scenes.geometry import SE3, yaw_to_quat
+from scenes.log import Log
+from scenes.map import LaneSegment, VectorMap
+from scenes.sensors import LidarSweep, read_lidar_sweep
+from scenes.tracks import Annotations, EgoTrajectory
+from scenes.validate import validate_log
+
+T0 = 1_600_000_000_000_000_000
+ANN = av2_io.ANNOTATIONS_FILENAME
+POSES = av2_io.POSES_FILENAME
+
+
+def _write_log(log_dir: Path, categories: tuple[str, ...] = ("REGULAR_VEHICLE", "PEDESTRIAN", "BUS")) -> Path:
+    """A valid log: 5 frames × len(categories) tracks, poses at 20 Hz, a LiDAR sweep, a map, a camera."""
+    n_frames, n_tracks = 5, len(categories)
+    ts = np.repeat(T0 + np.arange(n_frames) * 100_000_000, n_tracks)
+    ids = np.tile([f"track{k}" for k in range(n_tracks)], n_frames)
+    cats = np.tile(list(categories), n_frames)
+    centers = np.tile(np.arange(n_tracks)[:, None] * [5.0, 1.0, 0.0] + [10.0, 0.0, 0.8], (n_frames, 1))
+    av2_io.write_annotations(
+        log_dir, Annotations.from_yaw(ts, ids, cats, centers, np.tile([4.0, 2.0, 1.5], (len(ts), 1)), np.zeros(len(ts)))
+    )
+    pose_ts = T0 + np.arange(0, 9) * 50_000_000
+    t_s = (pose_ts - T0) * 1e-9
+    av2_io.write_ego_poses(log_dir, EgoTrajectory(pose_ts, yaw_to_quat(0.05 * t_s), np.c_[8 * t_s, 0 * t_s, 0 * t_s]))
+    rng = np.random.default_rng(0)
+    av2_io.write_lidar_sweep(log_dir, LidarSweep(T0, rng.normal(size=(50, 3)).astype(np.float32),
+                                                 np.zeros(50, np.uint8), np.arange(50, dtype=np.uint8) % 64,
+                                                 np.zeros(50, np.int32)))
+    lane = LaneSegment(1, False, "VEHICLE", np.array([[0.0, 1.75, 0], [40, 1.75, 0]]),
+                       np.array([[0.0, -1.75, 0], [40, -1.75, 0]]))
+    av2_io.write_map(log_dir, VectorMap({1: lane}), log_dir.name)
+    cam = CameraIntrinsics("front", 500.0, 500.0, 32.0, 24.0, 64, 48)
+    av2_io.write_calibration(log_dir, Calibration({"front": SE3.identity()}, {"front": cam}))
+    av2_io.write_camera_frame(log_dir, "front", T0, np.zeros((48, 64, 3), np.uint8))
+    return log_dir
+
+
+@pytest.fixture
+def log_dir(tmp_path: Path) -> Path:
+    return _write_log(tmp_path / "log1")
+
+
+def _edit(path: Path, change: Callable[[pa.Table], pa.Table]) -> None:
+    feather.write_feather(change(feather.read_table(path)), path)
+
+
+def _set(table: pa.Table, name: str, values: object, type_: pa.DataType | None = None) -> pa.Table:
+    index = table.column_names.index(name)
+    return table.set_column(index, name, pa.array(values, type_) if type_ is not None else values)
+
+
+def _open_problems(log_dir: Path) -> list[Problem]:
+    with pytest.raises(LogFormatError) as info:
+        Log.open(log_dir)
+    report = validate_log(log_dir)
+    assert not report.ok
+    assert [str(p) for p in report.problems] == [str(p) for p in info.value.problems]
+    return info.value.problems
+
+
+def _only(problems: list[Problem]) -> Problem:
+    assert len(problems) == 1, problems
+    return problems[0]
+
+
+def test_valid_log_opens_and_validates(log_dir: Path) -> None:
+    Log.open(log_dir)
+    report = validate_log(log_dir)
+    assert report.ok, report.problems
+    assert report.warnings == []
+    assert report.facts == {"frames": 5, "tracks": 3, "duration_s": 0.4, "lidar_sweeps": 1, "cameras": 1,
+                            "camera_frames": 1, "has_map": True}
+
+
+def test_missing_annotations_is_a_clear_error(log_dir: Path) -> None:
+    (log_dir / ANN).unlink()
+    problem = _only(_open_problems(log_dir))
+    assert problem.path == log_dir / ANN
+    assert "no annotations" in problem.message
+
+
+def test_missing_poses_file(log_dir: Path) -> None:
+    (log_dir / POSES).unlink()
+    problem = _only(_open_problems(log_dir))
+    assert problem.path == log_dir / POSES and "missing" in problem.message
+
+
+def test_missing_log_folder(tmp_path: Path) -> None:
+    with pytest.raises(LogFormatError, match="does not exist"):
+        Log.open(tmp_path / "nope")
+    assert "does not exist" in str(_only(validate_log(tmp_path / "nope").problems))
+
+
+def test_wrong_column_name(log_dir: Path) -> None:
+    _edit(log_dir / ANN, lambda t: t.rename_columns(["x_m" if c == "tx_m" else c for c in t.column_names]))
+    problem = _only(_open_problems(log_dir))
+    assert (problem.path.name, problem.field, problem.message) == (ANN, "tx_m", "missing column")
+
+
+def test_wrong_column_dtype(log_dir: Path) -> None:
+    _edit(log_dir / ANN, lambda t: _set(t, "ty_m", [str(v) for v in t.column("ty_m").to_pylist()], pa.string()))
+    problem = _only(_open_problems(log_dir))
+    assert (problem.path.name, problem.field) == (ANN, "ty_m")
+    assert "wrong type" in problem.message
+
+
+def test_nan_value_names_row_and_field(log_dir: Path) -> None:
+    def change(t: pa.Table) -> pa.Table:
+        values = t.column("ty_m").to_numpy().copy()
+        values[7] = np.nan
+        return _set(t, "ty_m", values, pa.float64())
+
+    _edit(log_dir / ANN, change)
+    problem = _only(_open_problems(log_dir))
+    assert (problem.path.name, problem.row, problem.field) == (ANN, 7, "ty_m")
+    assert "NaN" in problem.message
+
+
+def test_inf_in_poses(log_dir: Path) -> None:
+    def change(t: pa.Table) -> pa.Table:
+        values = t.column("qz").to_numpy().copy()
+        values[3] = np.inf
+        return _set(t, "qz", values, pa.float64())
+
+    _edit(log_dir / POSES, change)
+    problem = _only(_open_problems(log_dir))
+    assert (problem.path.name, problem.row, problem.field) == (POSES, 3, "qz")
+
+
+def test_pose_timestamps_not_increasing(log_dir: Path) -> None:
+    def change(t: pa.Table) -> pa.Table:
+        ts = t.column("timestamp_ns").to_numpy().copy()
+        ts[4] = ts[3]
+        return _set(t, "timestamp_ns", ts, pa.int64())
+
+    _edit(log_dir / POSES, change)
+    problem = _only(_open_problems(log_dir))
+    assert (problem.path.name, problem.row, problem.field) == (POSES, 4, "timestamp_ns")
+    assert "not increasing" in problem.message
+
+
+def test_annotation_timestamps_going_backwards(log_dir: Path) -> None:
+    def change(t: pa.Table) -> pa.Table:
+        ts = t.column("timestamp_ns").to_numpy().copy()
+        ts[6] = ts[0] - 1
+        return _set(t, "timestamp_ns", ts, pa.int64())
+
+    _edit(log_dir / ANN, change)
+    problems = _open_problems(log_dir)
+    assert any(p.path.name == ANN and p.row == 6 and p.field == "timestamp_ns" for p in problems), problems
+
+
+def test_track_twice_in_one_frame(log_dir: Path) -> None:
+    def change(t: pa.Table) -> pa.Table:
+        ids = t.column("track_uuid").to_pylist()
+        ids[4] = ids[3]  # rows 3 and 4 share a timestamp
+        return _set(t, "track_uuid", ids, pa.string())
+
+    _edit(log_dir / ANN, change)
+    problem = _only(_open_problems(log_dir))
+    assert (problem.path.name, problem.row, problem.field) == (ANN, 4, "track_uuid")
+    assert "twice" in problem.message
+
+
+def test_quaternion_far_from_unit_norm(log_dir: Path) -> None:
+    _edit(log_dir / ANN, lambda t: _set(t, "qw", np.where(np.arange(t.num_rows) == 2, 1.5, 1.0), pa.float64()))
+    problem = _only(_open_problems(log_dir))
+    assert (problem.path.name, problem.row, problem.field) == (ANN, 2, "qw..qz")
+    assert "norm 1.5" in problem.message
+
+
+def test_pose_jump(log_dir: Path) -> None:
+    def change(t: pa.Table) -> pa.Table:
+        x = t.column("tx_m").to_numpy().copy()
+        x[5:] += 30.0  # 30 m in 50 ms
+        return _set(t, "tx_m", x, pa.float64())
+
+    _edit(log_dir / POSES, change)
+    problem = _only(_open_problems(log_dir))
+    assert (problem.path.name, problem.row, problem.field) == (POSES, 5, "tx_m,ty_m,tz_m")
+    assert "jumps" in problem.message
+
+
+def test_non_positive_box_size(log_dir: Path) -> None:
+    _edit(log_dir / ANN, lambda t: _set(t, "width_m", np.where(np.arange(t.num_rows) == 9, 0.0, 2.0), pa.float64()))
+    problem = _only(_open_problems(log_dir))
+    assert (problem.row, problem.field) == (9, "width_m")
+
+
+def test_empty_table(log_dir: Path) -> None:
+    _edit(log_dir / ANN, lambda t: t.slice(0, 0))
+    problem = _only(_open_problems(log_dir))
+    assert problem.path.name == ANN and "no rows" in problem.message
+
+
+def test_truncated_feather_file(log_dir: Path) -> None:
+    data = (log_dir / POSES).read_bytes()
+    (log_dir / POSES).write_bytes(data[: len(data) // 2])
+    problem = _only(_open_problems(log_dir))
+    assert problem.path.name == POSES and "unreadable" in problem.message
+
+
+def test_annotations_outside_the_pose_stream(log_dir: Path) -> None:
+    _edit(log_dir / POSES, lambda t: t.slice(0, 2))
+    problem = _only(_open_problems(log_dir))
+    assert (problem.path.name, problem.field) == (ANN, "timestamp_ns") and "no ego pose" in problem.message
+
+
+def test_unknown_category_is_mapped_to_other_and_counted(tmp_path: Path) -> None:
+    log_dir = _write_log(tmp_path / "log2", ("REGULAR_VEHICLE", "SPACESHIP", "SPACESHIP"))
+    log = Log.open(log_dir)
+    assert log.unknown_categories == {"SPACESHIP": 10}
+    assert {t.category.value for t in log.tracks().values()} == {"car", "other"}
+    report = validate_log(log_dir)
+    assert report.ok
+    assert report.warnings == ["unknown categories mapped to 'other': SPACESHIP=10"]
+
+
+def test_every_problem_is_reported_not_just_the_first(log_dir: Path) -> None:
+    _edit(log_dir / ANN, lambda t: t.drop_columns(["qx", "tz_m"]))
+    (log_dir / POSES).unlink()
+    problems = _open_problems(log_dir)
+    assert {(p.path.name, p.field) for p in problems} == {(ANN, "qx"), (ANN, "tz_m"), (POSES, None)}
+
+
+# ---- parts that Log.open reads lazily: checked by validate_log and by their readers
+
+
+def _sweep_path(log_dir: Path) -> Path:
+    return log_dir / av2_io.LIDAR_DIR / f"{T0}.feather"
+
+
+def test_lidar_sweep_wrong_dtype(log_dir: Path) -> None:
+    _edit(_sweep_path(log_dir), lambda t: _set(t, "laser_number", ["a"] * t.num_rows, pa.string()))
+    problem = _only(validate_log(log_dir).problems)
+    assert (problem.path, problem.field) == (_sweep_path(log_dir), "laser_number")
+    with pytest.raises(LogFormatError, match="laser_number"):
+        read_lidar_sweep(_sweep_path(log_dir))
+
+
+def test_lidar_sweep_missing_column_and_nan(log_dir: Path) -> None:
+    _edit(_sweep_path(log_dir), lambda t: t.drop_columns(["y"]))
+    assert _only(validate_log(log_dir).problems).field == "y"
+
+    def with_nan(t: pa.Table) -> pa.Table:
+        z = np.zeros(t.num_rows, np.float16)
+        z[11] = np.nan
+        t = t.append_column("y", pa.array(np.zeros(t.num_rows, np.float16), pa.float16()))
+        return t.set_column(t.column_names.index("z"), "z", pa.array(z, pa.float16()))
+
+    _edit(_sweep_path(log_dir), with_nan)
+    problem = _only(validate_log(log_dir).problems)
+    assert (problem.row, problem.field) == (11, "z")
+    with pytest.raises(LogFormatError, match="row 11"):
+        read_lidar_sweep(_sweep_path(log_dir))
+
+
+def test_lidar_sweep_truncated(log_dir: Path) -> None:
+    path = _sweep_path(log_dir)
+    path.write_bytes(path.read_bytes()[:100])
+    problem = _only(validate_log(log_dir).problems)
+    assert problem.path == path and "unreadable" in problem.message
+
+
+def test_map_json_unparseable(log_dir: Path) -> None:
+    map_path = av2_io.find_map_file(log_dir)
+    assert map_path is not None
+    map_path.write_text('{"lane_segments": {')
+    problem = _only(validate_log(log_dir).problems)
+    assert problem.path == map_path and "map JSON" in problem.message
+
+
+def test_map_element_missing_key(log_dir: Path) -> None:
+    map_path = av2_io.find_map_file(log_dir)
+    assert map_path is not None
+    data = json.loads(map_path.read_text())
+    del data["lane_segments"]["1"]["right_lane_boundary"]
+    map_path.write_text(json.dumps(data))
+    problem = _only(validate_log(log_dir).problems)
+    assert "lane_segments[1]" in problem.message and "right_lane_boundary" in problem.message
+
+
+def test_missing_map_is_a_warning(log_dir: Path) -> None:
+    for p in (log_dir / "map").iterdir():
+        p.unlink()
+    report = validate_log(log_dir)
+    assert report.ok and report.facts["has_map"] is False
+    assert any("no map" in w for w in report.warnings)
+
+
+def test_calibration_bad_quaternion_and_nan(log_dir: Path) -> None:
+    path = log_dir / av2_io.EXTRINSICS_PATH
+    _edit(path, lambda t: _set(t, "qw", [3.0], pa.float64()))
+    problem = _only(validate_log(log_dir).problems)
+    assert (problem.path, problem.row, problem.field) == (path, 0, "qw..qz")
+    _edit(path, lambda t: _set(t, "tx_m", [float("nan")], pa.float64()))
+    problem = _only(validate_log(log_dir).problems)
+    assert (problem.path, problem.row, problem.field) == (path, 0, "tx_m")
+
+
+def test_intrinsics_missing_column(log_dir: Path) -> None:
+    path = log_dir / av2_io.INTRINSICS_PATH
+    _edit(path, lambda t: t.drop_columns(["fy_px"]))
+    problem = _only(validate_log(log_dir).problems)
+    assert (problem.path, problem.field) == (path, "fy_px")
+
+
+def test_camera_frame_not_a_jpeg(log_dir: Path) -> None:
+    path = log_dir / av2_io.CAMERAS_DIR / "front" / f"{T0 + 100_000_000}.jpg"
+    path.write_bytes(b"")
+    problem = _only(validate_log(log_dir).problems)
+    assert problem.path == path and "JPEG" in problem.message
+
+
+def test_unreadable_metadata(log_dir: Path) -> None:
+    (log_dir / "log_metadata.json").write_text("[1, 2]")
+    problem = _only(validate_log(log_dir).problems)
+    assert problem.path.name == "log_metadata.json"
+
+
+# ---- the command
+
+
+def test_validate_command_exit_status_and_output(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    good = _write_log(tmp_path / "good")
+    bad = _write_log(tmp_path / "bad")
+    _edit(bad / ANN, lambda t: t.drop_columns(["qy"]))
+    assert cli_main(["validate", str(good)]) == 0
+    out = capsys.readouterr().out
+    assert out.startswith(f"OK {good} (frames=5, tracks=3")
+    assert cli_main(["validate", str(good), str(bad)]) == 1
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0].startswith("OK ")
+    assert lines[1] == f"FAIL {bad}: 1 problem(s)"
+    assert lines[2] == f"  {bad / ANN}, field 'qy': missing column"
+    assert lines[3] == "1 of 2 logs OK"
+    assert cli_main(["validate", "--json", str(good), str(bad)]) == 1
+    reports = [json.loads(line) for line in capsys.readouterr().out.splitlines()]
+    assert [r["ok"] for r in reports] == [True, False]
+    assert reports[1]["problems"] == [{"path": str(bad / ANN), "row": None, "field": "qy", "message": "missing column"}]
+    assert reports[0]["facts"]["lidar_sweeps"] == 1

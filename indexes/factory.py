@@ -45,7 +45,9 @@ class AutoConfig:
         ivf_hnsw_quantizer_min_lists: from this K on, the coarse quantizer is an HNSW graph.
         train_points_per_list: training vectors per list (FAISS warns below 39).
         max_train_points: cap on training vectors, bounding build time.
-        target_recall: recall@10 against exact search that tuning aims for.
+        target_recall: recall@10 against exact search that tuning must reach.
+        tune_margin: tuning aims this much higher, because its held-out queries are vectors of the
+            collection (list members, graph nodes), a little easier to find than unseen queries.
         tune_queries: held-out sample size used to tune ``nprobe``/``efSearch``.
         tune_k: the k of the recall that tuning measures.
         seed: seed of every sample drawn while building.
@@ -60,7 +62,8 @@ class AutoConfig:
     train_points_per_list: int = 39
     max_train_points: int = 256 * 65_536
     target_recall: float = 0.95
-    tune_queries: int = 500
+    tune_margin: float = 0.01
+    tune_queries: int = 1000
     tune_k: int = 10
     seed: int = 1234
 

@@ -105,7 +105,8 @@ class TuningResult:
         value: chosen value.
         recall_at_k: recall@k measured on the held-out sample at that value.
         k: the k of that recall.
-        target_recall: what was aimed for; ``recall_at_k`` may stay below it for compressed codes.
+        target_recall: what had to be reached; ``recall_at_k`` may stay below it for compressed codes.
+        margin: tuning aimed at ``target_recall + margin`` (see ``AutoConfig.tune_margin``).
         n_queries: sample size.
         curve: (value, recall) pairs tried, in order.
     """
@@ -115,6 +116,7 @@ class TuningResult:
     recall_at_k: float
     k: int
     target_recall: float
+    margin: float
     n_queries: int
     curve: list[tuple[int, float]]
 
@@ -142,7 +144,7 @@ def _drop_self(table: np.ndarray, self_ids: np.ndarray, k: int) -> np.ndarray:
 
 
 def tune(search: SearchFn, exact_ids: np.ndarray, self_ids: np.ndarray, k: int, knob: Knob,
-         limit: int, target_recall: float, start: int = 1) -> TuningResult:
+         limit: int, target_recall: float, start: int = 1, margin: float = 0.0) -> TuningResult:
     """Smallest knob value whose recall@k reaches ``target_recall``.
 
     Doubles the value from ``start`` up to ``limit``, then bisects between the last two tried.
@@ -157,7 +159,9 @@ def tune(search: SearchFn, exact_ids: np.ndarray, self_ids: np.ndarray, k: int, 
         limit: the largest value tried.
         target_recall: recall to reach.
         start: the first value tried.
+        margin: aim at ``min(1, target_recall + margin)``.
     """
+    aim = min(1.0, target_recall + margin)
     curve: list[tuple[int, float]] = []
 
     def measure(value: int) -> float:
@@ -168,22 +172,22 @@ def tune(search: SearchFn, exact_ids: np.ndarray, self_ids: np.ndarray, k: int, 
     value = max(1, min(start, limit))
     prev_value, prev_recall = 0, -1.0
     recall = measure(value)
-    while recall < target_recall and value < limit:
+    while recall < aim and value < limit:
         if recall <= prev_recall + 1e-4 and prev_value > 0 and value >= 4 * start:
             break  # plateau: more effort no longer helps
         prev_value, prev_recall = value, recall
         value = min(2 * value, limit)
         recall = measure(value)
-    if recall >= target_recall and prev_value > 0:
+    if recall >= aim and prev_value > 0:
         lo, hi, hi_recall = prev_value, value, recall
         while hi - lo > max(1, lo // 8):
             mid = (lo + hi) // 2
             r = measure(mid)
-            if r >= target_recall:
+            if r >= aim:
                 hi, hi_recall = mid, r
             else:
                 lo = mid
         value, recall = hi, hi_recall
-    elif recall < target_recall and curve:
+    elif recall < aim and curve:
         value, recall = max(curve, key=lambda p: (p[1], -p[0]))
-    return TuningResult(knob.value, int(value), float(recall), k, target_recall, len(self_ids), curve)
+    return TuningResult(knob.value, int(value), float(recall), k, target_recall, margin, len(self_ids), curve)

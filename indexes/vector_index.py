@@ -22,6 +22,7 @@ closeness; where fewer than k vectors qualify, ``I`` is −1 and ``D`` is −inf
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -140,7 +141,7 @@ class VectorIndex:
         """
         config = config or AutoConfig()
         if target_recall is not None:
-            config = AutoConfig(**{**config.__dict__, "target_recall": target_recall})
+            config = dataclasses.replace(config, target_recall=target_recall)
         rng = np.random.default_rng(config.seed)
         n_q = min(config.tune_queries, len(self))
         sample_ids = np.sort(rng.choice(self._ids, size=n_q, replace=False))
@@ -157,7 +158,7 @@ class VectorIndex:
         if self._knob is Knob.NONE or len(ids) <= k + 1:
             exact = unwrap(self._index).__class__.__name__ in ("IndexFlat", "IndexFlatIP", "IndexFlatL2")
             self.info["tuning"] = TuningResult(Knob.NONE.value, 0, 1.0 if exact else float("nan"), k,
-                                               config.target_recall, 0, []).to_dict()
+                                               config.target_recall, 0.0, 0, []).to_dict()
             return
         rng = np.random.default_rng(config.seed)
         if query_ids is None:
@@ -175,7 +176,7 @@ class VectorIndex:
 
         start = 16 if self._knob is Knob.EF_SEARCH else 1
         result = tune(search, exact_ids, self_ids, k, self._knob, knob_limit(self._index),
-                      config.target_recall, start=start)
+                      config.target_recall, start=start, margin=config.tune_margin)
         set_knob(self._index, result.value)
         self.info["tuning"] = result.to_dict()
 

@@ -196,10 +196,10 @@ def build_clips(
         from encoders.clips.preview import write_preview
 
         t2 = time.perf_counter()
-        for row in clip_rows:
-            rel = f"{PREVIEWS_DIR}/{preview_file_name(row['clip_id'])}"
-            write_preview(clips_dir, row, clips_dir / rel, config)
-            row["preview_path"] = rel
+        for clip in clip_rows:
+            rel = f"{PREVIEWS_DIR}/{preview_file_name(clip['clip_id'])}"
+            write_preview(clips_dir, clip, clips_dir / rel, config)
+            clip["preview_path"] = rel
         report.preview_s = time.perf_counter() - t2
 
     write_clip_table(clips_dir / CLIPS_FILE, clip_rows)

@@ -153,7 +153,7 @@ class ClipsConfig:
         if b.num_sweeps < 1:
             problems.append("bev.num_sweeps must be ≥ 1")
         s = self.split
-        if not (0 < s.train_fraction and 0 <= s.val_fraction and s.train_fraction + s.val_fraction <= 1):
+        if not (s.train_fraction > 0 and s.val_fraction >= 0 and s.train_fraction + s.val_fraction <= 1):
             problems.append("split fractions must be positive and sum to ≤ 1")
         if problems:
             raise ClipsConfigError("; ".join(problems))
@@ -170,7 +170,8 @@ class ClipsConfig:
                 return {k: plain(v) for k, v in value.items()}
             return value
 
-        return plain(asdict(self))  # type: ignore[no-any-return]
+        result: dict[str, Any] = plain(asdict(self))
+        return result
 
     @staticmethod
     def from_dict(data: dict[str, Any], source: str = "<dict>") -> ClipsConfig:

@@ -15,6 +15,7 @@ grid with one affine warp per frame (the map is static, only the ego moves).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import cv2
 import numpy as np
@@ -49,11 +50,11 @@ class BevGrid:
 
     @property
     def height_px(self) -> int:
-        return int(round((self.x_max_m - self.x_min_m) / self.resolution_m))
+        return round((self.x_max_m - self.x_min_m) / self.resolution_m)
 
     @property
     def width_px(self) -> int:
-        return int(round((self.y_max_m - self.y_min_m) / self.resolution_m))
+        return round((self.y_max_m - self.y_min_m) / self.resolution_m)
 
     def to_pixel(self, xy_m: NDArray[np.floating]) -> FloatArray:
         """(..., 2) ego-frame points → (..., 2) continuous pixel coordinates ``(col, row)``.
@@ -110,7 +111,7 @@ def rasterize_boxes(
     yaws: NDArray[np.floating],
     values: NDArray[np.integer] | None = None,
     dtype: type = np.uint8,
-) -> NDArray[np.generic]:
+) -> NDArray[Any]:
     """Fill box footprints into one grid; later boxes overwrite earlier ones.
 
     Args:
@@ -124,7 +125,7 @@ def rasterize_boxes(
     Returns:
         (H, W) raster.
     """
-    out = np.zeros((grid.height_px, grid.width_px), dtype=dtype)
+    out: NDArray[Any] = np.zeros((grid.height_px, grid.width_px), dtype=dtype)
     n = int(np.asarray(centers_xy).shape[0])
     if n == 0:
         return out

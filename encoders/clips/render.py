@@ -324,7 +324,9 @@ def _project_masks(
     depth = pts_cam[..., 2]
     in_front = (depth > 0.5).all(axis=-1) & dense.valid  # (K, F)
     z = np.where(depth > 0.5, depth, 1.0)
-    uv = np.stack([small.fx_px * pts_cam[..., 0] / z + small.cx_px, small.fy_px * pts_cam[..., 1] / z + small.cy_px], -1)
+    u = small.fx_px * pts_cam[..., 0] / z + small.cx_px
+    v = small.fy_px * pts_cam[..., 1] / z + small.cy_px
+    uv = np.stack([u, v], axis=-1)
     scale_area = (intr.width_px / cam.width_px) * (intr.height_px / cam.height_px)
     mean_depth = depth.mean(axis=-1)
     for fi in np.flatnonzero(frame_ok):

@@ -116,12 +116,12 @@ def cast_sweep(
     t_static = hit_s["t_hit"].numpy().astype(np.float64)
     geom = hit_s["geometry_ids"].numpy()
     prim_s = hit_s["primitive_ids"].numpy()
-    normal_s = hit_s["primitive_normals"].numpy().astype(np.float64)
+    normal_s = hit_s["primitive_normals"].numpy()
 
     mesh = build_object_mesh(objects, config.ego_box_lwh_m, config.ego_box_center_x_m)
     t_dyn = np.full(n_rays, np.inf)
     owner = np.full(n_rays, STATIC_INSTANCE - 1, dtype=np.int64)
-    normal_d = np.zeros((n_rays, 3))
+    normal_d = np.zeros((n_rays, 3), np.float32)
     if mesh.triangles.shape[0]:
         dyn = o3d.t.geometry.RaycastingScene()
         dyn.add_triangles(o3d.core.Tensor(mesh.vertices), o3d.core.Tensor(mesh.triangles))
@@ -131,7 +131,7 @@ def cast_sweep(
         t_dyn = hit_d["t_hit"].numpy().astype(np.float64)
         hit = np.isfinite(t_dyn)
         owner[hit] = mesh.owner[hit_d["primitive_ids"].numpy()[hit].astype(np.int64)]
-        normal_d = hit_d["primitive_normals"].numpy().astype(np.float64)
+        normal_d = hit_d["primitive_normals"].numpy()
 
     on_object = t_dyn < t_static
     t_hit = np.where(on_object, t_dyn, t_static)
@@ -165,9 +165,9 @@ def cast_sweep(
         bid = np.minimum(prim_s[idx[st][building]].astype(np.int64) // 12, len(world.buildings) - 1)
         st_reflect[building] = BUILDING_REFLECTIVITY * world.buildings.shade[bid]
     reflect[st] = st_reflect
-    normals = np.where(obj[:, None], normal_d[idx], normal_s[idx])
-    dirs_frame = np.where(obj[:, None], dirs_ego[idx], dirs_city[idx])
-    cos_inc = np.abs(np.sum(normals * dirs_frame, axis=1))
+    cos_inc = np.empty(idx.shape[0])
+    cos_inc[obj] = np.abs(np.einsum("ij,ij->i", normal_d[idx[obj]], dirs_ego[idx[obj]]))
+    cos_inc[st] = np.abs(np.einsum("ij,ij->i", normal_s[idx[st]], dirs_city[idx[st]]))
     intensity = reflect * (0.35 + 0.65 * cos_inc)
     if config.intensity_noise_std > 0:
         intensity = intensity + rng.normal(0.0, config.intensity_noise_std, idx.shape[0])

@@ -7,14 +7,14 @@ Modules, in the order data flows: :mod:`~scenes.sim.network` (netgenerate, cache
 :mod:`~scenes.sim.netparse` (read the network), :mod:`~scenes.sim.map_export` (AV2 map, junction
 kinds), :mod:`~scenes.sim.demand` (seeded traffic), :mod:`~scenes.sim.runner` (libsumo at 10 Hz),
 :mod:`~scenes.sim.labels` (behaviour labels), :mod:`~scenes.sim.noise` (detector and tracker
-noise), :mod:`~scenes.sim.appearance`, and :mod:`~scenes.sim.simulate` (writes the logs).
+noise), :mod:`~scenes.sim.appearance`, and :mod:`~scenes.sim.pipeline` (writes the logs).
 SUMO itself is imported only when a simulation runs.
 """
 
 from scenes.sim.config import NetworkKind, SimulationConfig, TrackerNoiseConfig
 from scenes.sim.errors import SimulationError
 from scenes.sim.noise import apply_tracker_noise
-from scenes.sim.simulate import PostLogHook, SimulationResult, simulate, simulate_tracks_and_map
+from scenes.sim.pipeline import PostLogHook, SimulationResult, simulate, simulate_tracks_and_map
 
 __all__ = [
     "NetworkKind",

@@ -100,7 +100,8 @@ class Tracker:
         self._next_id = 0
         self._last_time_ns: int | None = None
         self._frame_index = -1
-        self._history: dict[int, list[TrackedBox]] = {}
+        # Per frame, the boxes reported then: (track ids (n,), categories (n,), boxes (n, 7)).
+        self._history: list[tuple[int, NDArray[np.int64], NDArray[np.str_], FloatArray]] = []
         self._confirmed: set[int] = set()
 
     def _cost(self, predicted: FloatArray, categories: NDArray[np.str_], boxes: FloatArray,
@@ -109,7 +110,8 @@ class Tracker:
         cfg = self.config
         if cfg.association is Association.DISTANCE:
             dist = np.linalg.norm(predicted[:, None, :2] - boxes[None, :, :2], axis=2)
-            gates = np.array([cfg.gate_m(str(c)) for c in det_categories])
+            names, inverse = np.unique(det_categories, return_inverse=True)
+            gates = np.array([cfg.gate_m(str(c)) for c in names])[inverse]
             cost = dist / gates[None, :]
             cost[cost > 1.0] = _FORBIDDEN
         else:
@@ -155,8 +157,7 @@ class Tracker:
         tr.hits[updated] += 1
         tr.misses[updated] = 0
         tr.misses[~updated] += 1
-        for i in np.flatnonzero(updated):
-            self._record(int(tr.ids[i]), str(tr.categories[i]), tr.states[i, :7], int(tr.hits[i]))
+        self._record(tr.ids[updated], tr.categories[updated], tr.states[updated, :7], tr.hits[updated])
         tr.keep(tr.misses <= cfg.max_age)
         # Births from detections no track claimed.
         unmatched = np.ones(boxes_city.shape[0], dtype=bool)
@@ -172,18 +173,26 @@ class Tracker:
             tr.categories = np.concatenate([tr.categories, categories[unmatched].astype(np.str_)])
             tr.hits = np.concatenate([tr.hits, np.ones(new_boxes.shape[0], np.int64)])
             tr.misses = np.concatenate([tr.misses, np.zeros(new_boxes.shape[0], np.int64)])
-            for tid, cat, box in zip(new_ids, categories[unmatched], new_boxes):
-                self._record(int(tid), str(cat), box, 1)
+            self._record(new_ids, categories[unmatched].astype(np.str_), new_boxes,
+                         np.ones(new_boxes.shape[0], np.int64))
 
-    def _record(self, track_id: int, category: str, box: FloatArray, hits: int) -> None:
-        self._history.setdefault(track_id, []).append(TrackedBox(track_id, self._frame_index, category, box.copy()))
-        if hits >= self.config.min_hits:
-            self._confirmed.add(track_id)
+    def _record(self, ids: NDArray[np.int64], categories: NDArray[np.str_], boxes: FloatArray,
+                hits: NDArray[np.int64]) -> None:
+        """Remember the boxes reported at this frame. ``boxes``: (n, 7); the others (n,)."""
+        if ids.size:
+            self._history.append((self._frame_index, ids.copy(), categories.copy(), boxes.copy()))
+            self._confirmed.update(ids[hits >= self.config.min_hits].tolist())
 
     def finish(self) -> list[TrackedBox]:
         """Every reported box of every confirmed track, ordered by frame then track."""
-        out = [box for tid in sorted(self._confirmed) for box in self._history[tid]]
-        return sorted(out, key=lambda b: (b.frame_index, b.track_id))
+        confirmed = np.array(sorted(self._confirmed), dtype=np.int64)
+        out: list[TrackedBox] = []
+        for frame_index, ids, categories, boxes in self._history:
+            keep = np.isin(ids, confirmed)
+            order = np.argsort(ids[keep], kind="stable")
+            out.extend(TrackedBox(int(t), frame_index, str(c), b)
+                       for t, c, b in zip(ids[keep][order], categories[keep][order], boxes[keep][order]))
+        return out
 
 
 def track_detections(

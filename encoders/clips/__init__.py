@@ -1,0 +1,11 @@
+"""Clips: per-log rendered camera and BEV frames, a clip table cut from captions, splits, previews.
+
+- :mod:`encoders.clips.config`: :class:`ClipsConfig` (YAML round trip).
+- :mod:`encoders.clips.render`: :func:`render_log`, every per-frame array of one log, once.
+- :mod:`encoders.clips.table`: captions → clip rows (``clips.parquet``).
+- :mod:`encoders.clips.splits`: train / val / test by log.
+- :mod:`encoders.clips.build`: :func:`build_clips`, the ``scenesearch clips`` command's work.
+- :mod:`encoders.clips.preview`: animated GIF per clip and a still grid.
+
+The torch dataset over a clips folder is :class:`encoders.data.ClipDataset`.
+"""

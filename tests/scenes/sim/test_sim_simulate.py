@@ -1,0 +1,146 @@
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from scenes.av2_io import ANNOTATIONS_FILENAME
+from scenes.behavior import BEHAVIOR_FILENAME, EGO_TRACK_ID, read_behavior_labels, read_junctions
+from scenes.log import Log
+from scenes.sim import SimulationConfig, SimulationError, simulate
+from scenes.validate import validate_log
+
+
+
+def _config(cache: Path, **kw: object) -> SimulationConfig:
+    base = {"logs": 2, "duration_s": 4.0, "seed": 1, "warmup_s": 20.0, "egos_per_run": 2, "cache_dir": str(cache)}
+    base.update(kw)
+    return SimulationConfig(**base)  # type: ignore[arg-type]
+
+
+@pytest.fixture(scope="module")
+def cache(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return tmp_path_factory.mktemp("netcache")
+
+
+@pytest.fixture(scope="module")
+def logs(tmp_path_factory: pytest.TempPathFactory, cache: Path) -> list[Path]:
+    return simulate(_config(cache), tmp_path_factory.mktemp("sim"))
+
+
+def test_logs_open_and_validate(logs: list[Path]) -> None:
+    assert len(logs) == 2
+    for log_dir in logs:
+        log = Log.open(log_dir)
+        assert validate_log(log_dir).ok
+        assert len(log.ego) == 40
+        assert len(log.annotations) > 0
+        assert log.map is not None and len(log.map.lane_segments) > 0
+        meta = log.metadata
+        assert meta.source == "sumo"
+        assert meta.appearance["time_of_day"] in {"day", "dusk", "night"}
+        assert meta.appearance["weather"] in {"clear", "rain", "fog"}
+        assert set(log.annotations.track_id) <= set(meta.appearance["vehicle_colors"])
+        assert read_junctions(log_dir) is not None
+
+
+def test_annotations_are_realistic(logs: list[Path]) -> None:
+    log = Log.open(logs[0])
+    ann = log.annotations
+    assert np.all(np.linalg.norm(ann.center_xyz_m[:, :2], axis=1) <= 80.0 + 1e-6)
+    np.testing.assert_allclose(ann.center_xyz_m[:, 2], ann.size_lwh_m[:, 2] / 2)
+    cars = ann.category == "REGULAR_VEHICLE"
+    assert np.all((ann.size_lwh_m[cars, 0] > 3.5) & (ann.size_lwh_m[cars, 0] < 5.5))
+
+
+def test_box_heading_follows_motion_in_the_city_frame(logs: list[Path]) -> None:
+    # Checks the whole conversion chain: SUMO compass angle → yaw, front bumper → centre, city → ego.
+    checked = 0
+    for log_dir in logs:
+        for track in Log.open(log_dir).tracks().values():
+            if track.raw_category == "PEDESTRIAN" or len(track) < 10:
+                continue
+            step = np.diff(track.center_city_xyz_m[:, :2], axis=0)
+            dist = np.linalg.norm(step, axis=1)
+            fast = dist > 0.8  # > 8 m/s: lane changes and turns bend the path only slightly
+            if not fast.any():
+                continue
+            motion = np.arctan2(step[fast, 1], step[fast, 0])
+            err = np.angle(np.exp(1j * (motion - track.yaw_city_rad[1:][fast])))
+            assert np.median(np.abs(err)) < 0.15, track.track_id
+            checked += 1
+    assert checked > 0
+
+
+def test_ego_labels_match_ego_poses(logs: list[Path]) -> None:
+    log = Log.open(logs[0])
+    labels = read_behavior_labels(logs[0])
+    assert labels is not None
+    ego_rows = np.asarray(labels.column("track_id").to_pylist()) == EGO_TRACK_ID
+    assert ego_rows.sum() == len(log.ego)
+    label_speed = labels.column("speed_mps").to_numpy()[ego_rows]
+    pose_speed = log.ego.speed_mps()
+    assert np.median(np.abs(label_speed[1:-1] - pose_speed[1:-1])) < 0.5
+    # Every annotated (timestamp, track) has a label row.
+    label_keys = set(zip(labels.column("timestamp_ns").to_pylist(), labels.column("track_id").to_pylist()))
+    ann = log.annotations
+    assert set(zip(ann.timestamp_ns.tolist(), ann.track_id.tolist())) <= label_keys
+
+
+def test_same_seed_gives_identical_bytes(logs: list[Path], tmp_path: Path, cache: Path) -> None:
+    again = simulate(_config(cache), tmp_path)
+    for a, b in zip(logs, again):
+        assert a.name == b.name
+        for name in (ANNOTATIONS_FILENAME, BEHAVIOR_FILENAME, "city_SE3_egovehicle.feather", "log_metadata.json"):
+            assert (a / name).read_bytes() == (b / name).read_bytes(), name
+
+
+def test_different_seed_gives_different_traffic(logs: list[Path], tmp_path: Path, cache: Path) -> None:
+    other = simulate(_config(cache, seed=2), tmp_path)
+    assert other[0].name != logs[0].name
+    assert (other[0] / ANNOTATIONS_FILENAME).read_bytes() != (logs[0] / ANNOTATIONS_FILENAME).read_bytes()
+
+
+def test_refuses_to_overwrite_logs_unless_asked(logs: list[Path], cache: Path) -> None:
+    out = logs[0].parent
+    with pytest.raises(FileExistsError, match="overwrite"):
+        simulate(_config(cache), out)
+    before = sorted(p.name for p in out.iterdir())
+    simulate(_config(cache, logs=1), out, overwrite=True)
+    after = sorted(p.name for p in out.iterdir())
+    assert after == [logs[0].name] and set(after) <= set(before)
+
+
+def test_tracker_noise_changes_boxes_not_labels(logs: list[Path], tmp_path: Path, cache: Path) -> None:
+    noisy = simulate(_config(cache, tracker_noise=True), tmp_path)
+    clean_ann, noisy_ann = Log.open(logs[0]).annotations, Log.open(noisy[0]).annotations
+    assert len(noisy_ann) < len(clean_ann)
+    assert (noisy[0] / BEHAVIOR_FILENAME).read_bytes() == (logs[0] / BEHAVIOR_FILENAME).read_bytes()
+
+
+def test_sumo_failure_surfaces_its_message_and_leaves_no_log(
+    tmp_path: Path, cache: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    broken = tmp_path / "broken.net.xml"
+    # Parses as XML and as a network for the map, but SUMO cannot run on it (no edges to route on).
+    broken.write_text('<net version="1.20"><location netOffset="0,0" convBoundary="0,0,1,1" '
+                      'origBoundary="0,0,1,1" projParameter="!"/><edge id="e" from="a" to="b">'
+                      '<lane id="e_0" index="0" speed="1" length="5" shape="0,0 5,0"/></edge></net>')
+    monkeypatch.setattr("scenes.sim.pipeline.build_network", lambda *a, **k: broken)
+    out = tmp_path / "out"
+    with pytest.raises((SimulationError, ValueError)) as info:
+        simulate(_config(cache), out)
+    assert str(info.value)
+    assert not out.exists() or not any(out.iterdir())
+
+
+def test_post_log_hooks_run_before_the_log_appears(tmp_path: Path, cache: Path) -> None:
+    seen: list[Path] = []
+
+    def hook(log_dir: Path) -> None:
+        assert (log_dir / ANNOTATIONS_FILENAME).is_file()
+        (log_dir / "extra.txt").write_text("rendered")
+        seen.append(log_dir)
+
+    out = simulate(_config(cache, logs=1), tmp_path / "o", post_log=[hook])
+    assert len(seen) == 1 and seen[0] != out[0]
+    assert (out[0] / "extra.txt").read_text() == "rendered"

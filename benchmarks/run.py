@@ -41,7 +41,7 @@ def main(argv: list[str] | None = None) -> int:
         try:
             module = importlib.import_module(f"benchmarks.{name}")
             figures = module.run(quick=args.quick)
-        except Exception:  # noqa: BLE001 - one failing benchmark must not hide the others
+        except Exception:  # one failing benchmark must not hide the others
             traceback.print_exc()
             failed.append(name)
             continue

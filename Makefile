@@ -11,12 +11,16 @@ DEMO_DIR ?= demo_out
 
 install: $(STAMP)
 
-# open3d needs libusb at import time; the browser test needs Chromium. Both come from Debian.
+# open3d needs libusb at import time; the browser test needs Chromium and its driver. All from Debian.
+SYSTEM_PACKAGES := libusb-1.0-0 chromium chromium-driver
 system-deps:
-	@if command -v apt-get >/dev/null 2>&1 && [ "$$(id -u)" = 0 ]; then \
-	  if ! dpkg -s libusb-1.0-0 >/dev/null 2>&1; then \
-	    apt-get update -qq && apt-get install -y -qq libusb-1.0-0 >/dev/null; fi; \
-	else echo "note: cannot apt-get; make sure libusb-1.0-0 is installed"; fi
+	@missing=""; for p in $(SYSTEM_PACKAGES); do dpkg -s $$p >/dev/null 2>&1 || missing="$$missing $$p"; done; \
+	if [ -z "$$missing" ]; then exit 0; fi; \
+	if command -v apt-get >/dev/null 2>&1 && [ "$$(id -u)" = 0 ]; then \
+	  echo "installing system packages:$$missing"; \
+	  apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $$missing >/dev/null \
+	    || echo "note: could not install$$missing (the browser test will skip without Chromium)"; \
+	else echo "note: cannot apt-get; install$$missing (libusb-1.0-0 is required by open3d)"; fi
 
 $(STAMP): pyproject.toml | system-deps
 	@command -v $(PYTHON) >/dev/null 2>&1 || { echo "$(PYTHON) not found"; exit 1; }

@@ -527,12 +527,16 @@ def import_kitti_sequence(
 
     Raises:
         FileNotFoundError: an input file is missing.
-        ImportFormatError: an input file is malformed (names the line and field), or the pose file
-            has fewer frames than the labels.
+        ImportFormatError: an input file is malformed (names the line and field), the pose file
+            has fewer frames than the labels, or the pose or calibration file is named after another
+            sequence (``0002.txt`` beside labels ``0001.txt``).
         FileExistsError: the log folder exists and ``overwrite`` is false.
     """
     labels_path, poses_path, calib_path = Path(labels_path), Path(poses_path), Path(calib_path)
     seq = sequence_name(labels_path)
+    for other in (poses_path, calib_path):
+        if seq.isdigit() and other.stem.isdigit() and other.stem != seq:
+            raise ImportFormatError(other, f"belongs to sequence {other.stem}, but the labels are sequence {seq}")
     labels = read_kitti_labels(labels_path)
     world_SE3_cam = read_kitti_poses(poses_path)
     calibration = read_kitti_calibration(calib_path)

@@ -207,8 +207,9 @@ class Annotations:
     @property
     def public_category(self) -> NDArray[np.object_]:
         """(N,) :class:`Category` of each row; unknown labels map to ``other``."""
-        lookup = {label: (category_from_label(label) or Category.OTHER) for label in np.unique(self.category)}
-        return np.array([lookup[label] for label in self.category], dtype=object)
+        labels, inverse = np.unique(self.category, return_inverse=True)
+        lookup = np.array([category_from_label(str(label)) or Category.OTHER for label in labels], dtype=object)
+        return np.asarray(lookup[inverse.reshape(-1)], dtype=object)
 
     def unknown_labels(self) -> dict[str, int]:
         """Raw labels that map to no public category, with their row counts."""

@@ -158,7 +158,9 @@ def _render_bev_instances(grid: BevGrid, dense: DenseTracks) -> NDArray[np.uint1
     out = np.zeros((f, grid.height_px, grid.width_px), dtype=np.uint16)
     if k == 0:
         return out
-    corners = box_corners_xy(dense.center_ego_xyz_m[..., :2], dense.size_lwh_m[..., :2], dense.yaw_ego_rad)
+    corners = np.nan_to_num(
+        box_corners_xy(dense.center_ego_xyz_m[..., :2], dense.size_lwh_m[..., :2], dense.yaw_ego_rad), nan=-1e4
+    )
     pix = np.round((grid.to_pixel(corners) - 0.5) * 16).astype(np.int32)  # (K, F, 4, 2), 4 sub-pixel bits
     area = np.nan_to_num(dense.size_lwh_m[..., 0] * dense.size_lwh_m[..., 1])  # (K, F)
     # Cull boxes far outside the grid before drawing.
@@ -182,7 +184,9 @@ def _render_bev_boxes_occupancy(
     out = np.zeros((f, num_z, grid.height_px, grid.width_px), dtype=np.uint8)
     if k == 0:
         return out
-    corners = box_corners_xy(dense.center_ego_xyz_m[..., :2], dense.size_lwh_m[..., :2], dense.yaw_ego_rad)
+    corners = np.nan_to_num(
+        box_corners_xy(dense.center_ego_xyz_m[..., :2], dense.size_lwh_m[..., :2], dense.yaw_ego_rad), nan=-1e4
+    )
     pix = np.round((grid.to_pixel(corners) - 0.5) * 16).astype(np.int32)
     bottom = dense.center_ego_xyz_m[..., 2] - 0.5 * dense.size_lwh_m[..., 2]  # (K, F)
     top = dense.center_ego_xyz_m[..., 2] + 0.5 * dense.size_lwh_m[..., 2]

@@ -76,12 +76,25 @@ class ShapeTemplate:
         faces: convex polygons (vertex index tuples) in drawing order, for the camera.
         face_normals: (P, 3) outward unit normals of ``faces`` in unit-box coordinates (valid for
             any positive scaling since every face is axis-aligned or vertical).
+        face_part: (P,) :class:`ShapePart` of each face (how the camera colours it).
     """
 
     vertices: FloatArray
     triangles: NDArray[np.int32]
     faces: tuple[tuple[int, ...], ...]
     face_normals: FloatArray
+    face_part: NDArray[np.int64]
+
+
+class ShapePart(IntEnum):
+    """What a face of a shape is, for colouring. Lights are decals: drawn, never ray cast."""
+
+    BODY = 0
+    CABIN = 1
+    RIDER = 2
+    FRAME = 3
+    HEADLIGHT = 4
+    TAILLIGHT = 5
 
 
 _BOX_CORNERS = np.array(
@@ -97,16 +110,32 @@ def _triangulate(faces: tuple[tuple[int, ...], ...]) -> NDArray[np.int32]:
     return np.array(tris, dtype=np.int32)
 
 
-def _boxes_template(parts: list[tuple[tuple[float, float, float], tuple[float, float, float]]]) -> ShapeTemplate:
-    """Union of boxes given as ((min x, min y, min z), (max x, max y, max z)) in unit-box coordinates."""
-    verts, faces, normals = [], [], []
-    for i, (lo, hi) in enumerate(parts):
+def _boxes_template(parts: list[tuple[tuple[float, float, float], tuple[float, float, float], ShapePart]],
+                    lights_z: tuple[float, float] | None = None) -> ShapeTemplate:
+    """Union of boxes given as ((min x, y, z), (max x, y, z), part) in unit-box coordinates, with
+    optional head- and taillight decals between heights ``lights_z`` on the front and rear faces."""
+    verts, faces, normals, face_part = [], [], [], []
+    for i, (lo, hi, part) in enumerate(parts):
         lo_a, hi_a = np.array(lo), np.array(hi)
         verts.append(lo_a + (_BOX_CORNERS + 0.5) * (hi_a - lo_a))
         faces.extend(tuple(8 * i + j for j in f) for f in _BOX_FACES)
         normals.append(_BOX_NORMALS)
-    face_t = tuple(faces)
-    return ShapeTemplate(np.concatenate(verts), _triangulate(face_t), face_t, np.concatenate(normals))
+        face_part += [part] * 6
+    solid = tuple(faces)
+    offset = 8 * len(parts)
+    if lights_z is not None:
+        z0, z1 = lights_z
+        for sign, part in ((1.0, ShapePart.HEADLIGHT), (-1.0, ShapePart.TAILLIGHT)):
+            for y0, y1 in ((0.28, 0.44), (-0.44, -0.28)):
+                x = sign * 0.505
+                quad = np.array([[x, y0, z0], [x, y1, z0], [x, y1, z1], [x, y0, z1]])
+                verts.append(quad)
+                faces.append(tuple(range(offset, offset + 4)))
+                normals.append(np.array([[sign, 0.0, 0.0]]))
+                face_part.append(part)
+                offset += 4
+    return ShapeTemplate(np.concatenate(verts), _triangulate(solid), tuple(faces), np.concatenate(normals),
+                         np.array(face_part, dtype=np.int64))
 
 
 def _prism_template(sides: int = 8) -> ShapeTemplate:
@@ -122,18 +151,25 @@ def _prism_template(sides: int = 8) -> ShapeTemplate:
     side_n = np.stack([np.cos(mid), np.sin(mid), np.zeros(sides)], axis=1)
     faces = (bottom, *sides_f, top)
     normals = np.concatenate([[[0.0, 0.0, -1.0]], side_n, [[0.0, 0.0, 1.0]]])
-    return ShapeTemplate(verts, _triangulate(faces), faces, normals)
+    return ShapeTemplate(verts, _triangulate(faces), faces, normals, np.full(len(faces), ShapePart.RIDER))
 
 
-BOX_SHAPE = _boxes_template([((-0.5, -0.5, -0.5), (0.5, 0.5, 0.5))])
-CAR_SHAPE = _boxes_template([((-0.5, -0.5, -0.5), (0.5, 0.5, 0.08)), ((-0.33, -0.44, 0.08), (0.2, 0.44, 0.5))])
+_UNIT = ((-0.5, -0.5, -0.5), (0.5, 0.5, 0.5))
+BOX_SHAPE = _boxes_template([(*_UNIT, ShapePart.BODY)])
+VEHICLE_BOX_SHAPE = _boxes_template([(*_UNIT, ShapePart.BODY)], lights_z=(-0.38, -0.28))
+CAR_SHAPE = _boxes_template(
+    [((-0.5, -0.5, -0.5), (0.5, 0.5, 0.08), ShapePart.BODY), ((-0.33, -0.44, 0.08), (0.2, 0.44, 0.5), ShapePart.CABIN)],
+    lights_z=(-0.15, 0.0),
+)
 PEDESTRIAN_SHAPE = _prism_template(8)
-CYCLIST_SHAPE = _boxes_template([((-0.5, -0.2, -0.5), (0.5, 0.2, 0.05)), ((-0.25, -0.5, 0.05), (0.15, 0.5, 0.5))])
+CYCLIST_SHAPE = _boxes_template(
+    [((-0.5, -0.2, -0.5), (0.5, 0.2, 0.05), ShapePart.FRAME), ((-0.25, -0.5, 0.05), (0.15, 0.5, 0.5), ShapePart.RIDER)]
+)
 
 SHAPES: dict[str, ShapeTemplate] = {
     Category.CAR.value: CAR_SHAPE,
-    Category.TRUCK.value: BOX_SHAPE,
-    Category.BUS.value: BOX_SHAPE,
+    Category.TRUCK.value: VEHICLE_BOX_SHAPE,
+    Category.BUS.value: VEHICLE_BOX_SHAPE,
     Category.PEDESTRIAN.value: PEDESTRIAN_SHAPE,
     Category.CYCLIST.value: CYCLIST_SHAPE,
     Category.MOTORCYCLE.value: CYCLIST_SHAPE,
@@ -252,7 +288,7 @@ def build_object_mesh(objects: FrameObjects, ego_box_lwh_m: tuple[float, float, 
         v = object_vertices(template, sub)  # (n, V, 3)
         n, nv = v.shape[0], v.shape[1]
         verts.append(v.reshape(-1, 3))
-        tris.append((template.triangles[None, :, :] + (offset + nv * np.arange(n))[:, None, None]).reshape(-1, 3))
+        tris.append((template.triangles[None, :, :].astype(np.int64) + (offset + nv * np.arange(n))[:, None, None]).reshape(-1, 3))
         owners.append(np.repeat(idx, template.triangles.shape[0]))
         offset += n * nv
     if ego_box_lwh_m is not None and min(ego_box_lwh_m) > 0:
@@ -352,8 +388,8 @@ def build_ground_raster(vector_map: VectorMap | None, extent_xy_m: tuple[float, 
         polys = [_to_px(origin, res, a.area_boundary) for a in vector_map.drivable_areas.values()
                  if a.area_boundary.shape[0] >= 3]
         polys += [_to_px(origin, res, s.polygon()) for s in vector_map.lane_segments.values()]
-        if polys:
-            cv2.fillPoly(drivable, polys, 1, lineType=cv2.LINE_8, shift=_SHIFT)
+        for poly in polys:  # one call each: fillPoly with several polygons fills by the even-odd rule
+            cv2.fillPoly(drivable, [poly], 1, lineType=cv2.LINE_8, shift=_SHIFT)
     if config.sidewalk_width_m > 0:
         dist_px = cv2.distanceTransform((drivable == 0).astype(np.uint8), cv2.DIST_L2, 5)
         material[(dist_px * res <= config.sidewalk_width_m) & (drivable == 0)] = GroundMaterial.SIDEWALK
@@ -371,8 +407,8 @@ def build_ground_raster(vector_map: VectorMap | None, extent_xy_m: tuple[float, 
             b1 = e1[-1] + (frac + 0.5 / n)[:, None] * (e2[-1] - e1[-1])
             quads = np.stack([a0, b0, b1, a1], axis=1)  # (n, 4, 3)
             stripes += [_to_px(origin, res, q) for q in quads]
-        if stripes:
-            cv2.fillPoly(material, stripes, int(GroundMaterial.CROSSWALK), lineType=cv2.LINE_8, shift=_SHIFT)
+        for stripe in stripes:
+            cv2.fillConvexPoly(material, stripe, int(GroundMaterial.CROSSWALK), lineType=cv2.LINE_8, shift=_SHIFT)
         thickness = max(1, int(round(config.lane_mark_width_m / res)))
         lines: dict[int, list[NDArray[np.int32]]] = {GroundMaterial.WHITE_PAINT: [], GroundMaterial.YELLOW_PAINT: []}
         for seg in vector_map.lane_segments.values():

@@ -47,8 +47,10 @@ ALL_TYPES: dict[str, VehicleType] = {t.id: t for t in (*VEHICLE_TYPES, PEDESTRIA
 
 #: Parking bays: this far from each end of the lane, this long per vehicle.
 PARKING_MARGIN_M = 15.0
-PARKING_BAY_M = 6.5
+PARKING_BAY_M = 8.0
 MIN_PARKING_LANE_M = 50.0
+#: SUMO ids of the vehicles parked for the whole run start with this.
+PARKED_PREFIX = "parked_"
 
 
 def ego_ids(count: int) -> list[str]:
@@ -148,11 +150,15 @@ def make_demand(
                               f'startPos="{PARKING_MARGIN_M}" endPos="{length - PARKING_MARGIN_M:.2f}" '
                               f'roadsideCapacity="{capacity}"/>')
             fill = int(rng.integers(1, capacity + 1))
-            for _ in range(min(fill, parked_vehicles - parked)):
+            for bay in range(min(fill, parked_vehicles - parked)):
                 vtype = "truck" if rng.random() < 0.1 else "car"
-                entries.append((0.0, f'    <trip id="parked_{parked}" type="{vtype}" depart="0.00" '
+                # Each vehicle starts beside its own bay, inside the stop's range, a moment after the
+                # previous one: it parks at once instead of queueing behind the others for insertion.
+                depart_pos = PARKING_MARGIN_M + (bay + 1) * PARKING_BAY_M - 0.5
+                depart_s = 0.5 * bay
+                entries.append((depart_s, f'    <trip id="{PARKED_PREFIX}{parked}" type="{vtype}" depart="{depart_s:.2f}" '
                                      f'from={quoteattr(lane.edge_id)} to={quoteattr(lane.edge_id)} '
-                                     f'departPos="stop"><stop parkingArea={quoteattr(pa_id)} '
+                                     f'departPos="{depart_pos:.2f}"><stop parkingArea={quoteattr(pa_id)} '
                                      f'duration="1000000"/></trip>'))
                 parked += 1
     additional.append("</additional>")

@@ -13,6 +13,7 @@ from __future__ import annotations
 import contextlib
 import io
 import os
+import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -181,7 +182,7 @@ def run_sumo(
     libsumo = load_libsumo()
     routes = work_dir / "city.rou.xml"
     additional = work_dir / "city.add.xml"
-    error_log = work_dir / "sumo-errors.log"
+    error_log = work_dir / "sumo-stderr.log"
     routes.write_text(routes_xml)
     additional.write_text(additional_xml)
     end_s = plan.total_steps * plan.step_s + 1.0
@@ -192,7 +193,7 @@ def run_sumo(
         "--time-to-teleport", f"{TIME_TO_TELEPORT_S}",
         "--ignore-route-errors", "true", "--no-step-log", "true", "--no-warnings", "true",
         "--xml-validation", "never", "--xml-validation.net", "never", "--xml-validation.routes", "never",
-        "--error-log", str(error_log), "--duration-log.disable", "true",
+        "--duration-log.disable", "true",
     ]
     rng = np.random.default_rng([seed, 0xE60])
     collectors = {(e, w): _Collector() for w in range(plan.num_windows) for e in ego_ids}
@@ -200,7 +201,11 @@ def run_sumo(
     subscribed: set[str] = set()
     os.environ.setdefault("SUMO_HOME", _sumo_home())
     started = False
+    # SUMO writes its errors to the process's stderr (the error log is flushed only at exit):
+    # capture the file descriptor so that a failure can carry SUMO's own words.
+    capture = _StderrCapture(error_log)
     try:
+        capture.__enter__()
         libsumo.start(args)
         started = True
         veh = libsumo.vehicle
@@ -243,20 +248,65 @@ def run_sumo(
                     c.ego_rows.append(ego_row)
                     c.rows.extend(rows)
     except SimulationError:
+        _close(libsumo, started)
+        capture.__exit__()
         raise
     except Exception as exc:  # libsumo raises its own exception types; surface SUMO's message
-        detail = error_log.read_text().strip() if error_log.is_file() else ""
-        raise SimulationError(f"SUMO failed: {exc}" + (f"\n{detail}" if detail else "")) from exc
-    finally:
-        if started:
-            with contextlib.suppress(Exception):
-                libsumo.close()
+        _close(libsumo, started)
+        capture.__exit__()
+        raise SimulationError(f"SUMO failed{_sumo_errors(error_log) or f': {exc}'}") from exc
+    except BaseException:
+        _close(libsumo, started)
+        capture.__exit__()
+        raise
+    _close(libsumo, started)
+    capture.__exit__()
     out = []
     for w, (first, last) in enumerate(spans):
         for ego in ego_ids:
             c = collectors[(ego, w)]
             out.append(Recording(ego, w, first, last, _to_rows(c.ego_rows), _to_rows(c.rows)))
     return out
+
+
+class _StderrCapture:
+    """Point file descriptor 2 at a file until exit (idempotent)."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        self.saved: int | None = None
+
+    def __enter__(self) -> None:
+        sys.stderr.flush()
+        self.saved = os.dup(2)
+        fd = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
+        os.dup2(fd, 2)
+        os.close(fd)
+
+    def __exit__(self, *exc: object) -> None:
+        if self.saved is None:
+            return
+        sys.stderr.flush()
+        os.dup2(self.saved, 2)
+        os.close(self.saved)
+        self.saved = None
+
+
+def _close(libsumo: Any, started: bool) -> None:
+    if started:
+        with contextlib.suppress(Exception):
+            libsumo.close()
+
+
+def _sumo_errors(error_log: Path, max_lines: int = 5) -> str:
+    """SUMO's distinct error lines, as a suffix for an exception message."""
+    if not error_log.is_file():
+        return ""
+    lines = list(dict.fromkeys(line.strip() for line in error_log.read_text().splitlines() if line.strip()))
+    if not lines:
+        return ""
+    more = f" (+{len(lines) - max_lines} more)" if len(lines) > max_lines else ""
+    return ": " + " | ".join(lines[:max_lines]) + more
 
 
 def _sumo_home() -> str:

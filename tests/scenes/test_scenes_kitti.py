@@ -54,8 +54,8 @@ def _nominal(rotation_perturbation: np.ndarray | None = None) -> KittiCalibratio
 
 def _corners_kitti(bottom: np.ndarray, hwl: np.ndarray, ry: float) -> np.ndarray:
     """(8, 3) box corners in the camera frame, exactly as the KITTI devkit computes them."""
-    h, w, l = hwl
-    x = np.array([l, l, -l, -l, l, l, -l, -l]) / 2
+    h, w, length = hwl
+    x = np.array([length, length, -length, -length, length, length, -length, -length]) / 2
     y = np.array([0, 0, 0, 0, -h, -h, -h, -h])
     z = np.array([w, -w, -w, w, w, -w, -w, w]) / 2
     rot = np.array([[np.cos(ry), 0, np.sin(ry)], [0, 1, 0], [-np.sin(ry), 0, np.cos(ry)]])
@@ -83,14 +83,14 @@ box = st.tuples(
 @settings(max_examples=60, deadline=None, derandomize=True)
 @given(box, st.tuples(small, small, small))
 def test_camera_box_to_ego_and_back(values: tuple[float, ...], tilt: tuple[float, float, float]) -> None:
-    x, y, z, h, w, l, ry = values
+    x, y, z, h, w, length, ry = values
     perturb = SE3.from_quat(np.array([1.0, *tilt]), np.zeros(3)).rotation
     calib = _nominal(perturb)
     bottom = np.array([[x, y, z]])
     center, quat = kitti_boxes_to_ego(bottom, np.array([h]), np.array([ry]), calib.ego_SE3_cam)
     # The same physical box: the devkit's corners mapped to ego equal the AV2 cuboid's corners.
-    expect = calib.ego_SE3_cam.transform_points(_corners_kitti(bottom[0], np.array([h, w, l]), ry))
-    got = _corners_av2(center[0], np.array([l, w, h]), quat[0])
+    expect = calib.ego_SE3_cam.transform_points(_corners_kitti(bottom[0], np.array([h, w, length]), ry))
+    got = _corners_av2(center[0], np.array([length, w, h]), quat[0])
     np.testing.assert_allclose(_sorted_rows(got), _sorted_rows(expect), atol=1e-6)
     # And back.
     bottom_back, ry_back = ego_boxes_to_kitti(center, np.array([h]), quat, calib.ego_SE3_cam)
@@ -170,7 +170,7 @@ def test_synthetic_import_counts_and_maps(tmp_path: Path) -> None:
     calibration = log.calibration
     assert calibration.intrinsics["image_02"].width_px == DEFAULT_IMAGE_SIZE_PX[0]
     # P2 = K·[I | t]: camera 2 sits at −t in the reference camera, about 6 cm to its left (+y in ego).
-    t = np.linalg.solve([[700.0, 0, 600], [0, 700, 170], [0, 0, 1]], [45, 0.2, 0.003])
+    t = np.linalg.solve(np.array([[700.0, 0, 600], [0, 700, 170], [0, 0, 1]]), np.array([45, 0.2, 0.003]))
     ref = _nominal().ego_SE3_cam.translation
     np.testing.assert_allclose(calibration.ego_SE3_sensor["image_02"].translation - ref, [-t[2], t[0], t[1]],
                                atol=1e-12)
@@ -243,6 +243,14 @@ def test_bad_calibration(tmp_path: Path) -> None:
     with pytest.raises(ImportFormatError, match="expected 12 numbers, got 11") as info:
         read_kitti_calibration(paths["calib"])
     assert (info.value.line, info.value.field) == (2, "P2")
+
+
+def test_files_of_different_sequences_are_refused(tmp_path: Path) -> None:
+    paths = _inputs(tmp_path)
+    other = paths["calib"].with_name("0043.txt")
+    paths["calib"].rename(other)
+    with pytest.raises(ImportFormatError, match="belongs to sequence 0043, but the labels are sequence 0042"):
+        import_kitti_sequence(paths["labels"], paths["poses"], other, tmp_path / "out")
 
 
 def test_missing_input_file(tmp_path: Path) -> None:

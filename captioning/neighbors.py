@@ -227,8 +227,8 @@ def neighbor_tags(
         return NeighborTags(np.zeros(k, bool), np.zeros(k, bool), np.zeros((k, t), bool), empty, empty, empty)
     grid = _Compact.of(valid)
     cvalid = grid.valid
-    rel_xy = np.where(cvalid[..., None], grid.gather(center_ego_xy_m), 0.0)  # (K, L, 2)
-    yaw = grid.gather(yaw_ego_rad)
+    rel_xy: FloatArray = np.where(cvalid[..., None], grid.gather(center_ego_xy_m), 0.0)  # (K, L, 2)
+    yaw = np.asarray(grid.gather(yaw_ego_rad), dtype=np.float64)
     first_SE3_ego = np.einsum("ij,tjk->tik", np.linalg.inv(city_SE3_ego[0]), city_SE3_ego)  # (T, 4, 4)
     first_xy = host_compensated_xy(rel_xy, first_SE3_ego[grid.frame])
     t_s = seconds_since_first(timestamps_ns)[grid.frame]  # (K, L)

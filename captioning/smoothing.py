@@ -139,7 +139,8 @@ def time_derivative(
         (K, T, C) derivatives per second; NaN where untaggable.
     """
     k, t, _ = values.shape
-    stacked = np.concatenate([values, np.broadcast_to(np.asarray(t_s, dtype=np.float64).reshape(-1, t)[..., None], (k, t, 1))], axis=2)
+    clock = np.broadcast_to(np.asarray(t_s, dtype=np.float64).reshape(-1, t)[..., None], (k, t, 1))
+    stacked = np.concatenate([values, clock], axis=2)
     d = frame_derivative(stacked, valid, window_frames, polyorder)
     return d[..., :-1] / d[..., -1:]
 

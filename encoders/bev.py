@@ -4,8 +4,8 @@ After Segal et al., "Universal Embeddings for Spatio-Temporal Tagging of Self-Dr
 
     bev_lidar (B, T, Cl, H, W) ─ LiDAR backbone ─┐ stage features at strides 2, 4, 8, …
     bev_map   (B, T, Cm, H, W) ─ map backbone  ──┤ each upsampled to (H/r, W/r), all concatenated
-                                                 └─ header: 1×1 conv, 3×3 conv, depthwise temporal conv,
-                                                    1×1 conv → E (B, T, D_e, H/r, W/r)
+                                                 └─ header: 1×1 conv, depthwise 3×3 conv, depthwise
+                                                    temporal conv → E (B, T, D_e, H/r, W/r)
 
 :meth:`BevTower.embed_map` computes E alone: it is fully convolutional in space and in time (any H, W,
 T) and is what attribute tagging builds on. :meth:`BevTower.forward` pools E under the object's mask in
@@ -33,10 +33,7 @@ class Backbone(nn.Module):
     def __init__(self, in_channels: int, widths: tuple[int, ...]) -> None:
         super().__init__()
         chans = (in_channels, *widths)
-        self.stages = nn.ModuleList(
-            nn.Sequential(conv_block(a, b, 3, 2), conv_block(b, b, 3, 1)) if i == 0 else conv_block(a, b, 3, 2)
-            for i, (a, b) in enumerate(zip(chans[:-1], chans[1:]))
-        )
+        self.stages = nn.ModuleList(conv_block(a, b, 3, 2) for a, b in zip(chans[:-1], chans[1:]))
 
     def forward(self, x: torch.Tensor) -> list[torch.Tensor]:
         out = []
@@ -55,11 +52,16 @@ class BevTower(nn.Module):
         d_e = config.embed_channels
         self.lidar = Backbone(config.lidar_channels, config.widths)
         self.map = Backbone(config.map_channels, config.widths)
-        self.header_in = conv_block(2 * sum(config.widths), d_e, 1, 1)
-        self.header_space = conv_block(d_e, d_e, 3, 1)
+        # A 1×1 convolution of the concatenated upsampled features equals the sum of per-stage 1×1
+        # projections, upsampled (upsampling is linear): projecting first, at each stage's own
+        # resolution, is the same header at a fraction of the cost.
+        self.lateral = nn.ModuleList(nn.Conv2d(w, d_e, 1, bias=False) for w in (*config.widths, *config.widths))
+        self.lateral_bias = nn.Parameter(torch.zeros(d_e, 1, 1))
+        self.header_space = nn.Sequential(
+            nn.Conv2d(d_e, d_e, 3, padding=1, groups=d_e, bias=False), nn.BatchNorm2d(d_e), nn.ReLU(inplace=True)
+        )
         k = config.temporal_kernel
         self.header_time = nn.Conv3d(d_e, d_e, (k, 1, 1), padding=(k // 2, 0, 0), groups=d_e)
-        self.header_out = nn.Conv2d(d_e, d_e, 1)
         self.temporal = TemporalEncoder(config.temporal, 2 * d_e + 4 + config.ego_features)
         self.head = nn.Linear(config.temporal.width, embed_dim)
         self.register_buffer("ego_scale", torch.tensor(EGO_MOTION_SCALE[: config.ego_features]), persistent=False)
@@ -70,12 +72,15 @@ class BevTower(nn.Module):
         r = self.config.downsample
         size = (h // r, w // r)
         feats = self.lidar(bev_lidar.flatten(0, 1)) + self.map(bev_map.flatten(0, 1))  # stages of (B*T, C, ., .)
-        up = [f if f.shape[-2:] == size else F.interpolate(f, size=size, mode="bilinear") for f in feats]
-        x = self.header_space(self.header_in(torch.cat(up, dim=1)))  # (B*T, D_e, h, w)
+        x = self.lateral_bias
+        for proj, f in zip(self.lateral, feats):
+            p = proj(f)  # (B*T, D_e, h_i, w_i)
+            x = x + (p if p.shape[-2:] == size else F.interpolate(p, size=size, mode="bilinear"))
+        x = F.relu(x)  # (B*T, D_e, h, w)
+        x = x + self.header_space(x)  # (B*T, D_e, h, w)
         x = x.reshape(b, t, *x.shape[1:]).transpose(1, 2)  # (B, D_e, T, h, w)
         x = x + self.header_time(x)  # (B, D_e, T, h, w)
-        x = x.transpose(1, 2).flatten(0, 1)  # (B*T, D_e, h, w)
-        return self.header_out(x).reshape(b, t, -1, *size)  # (B, T, D_e, h, w)
+        return x.transpose(1, 2)  # (B, T, D_e, h, w)
 
     def frame_features(self, e: torch.Tensor, bev_object: torch.Tensor, ego_motion: torch.Tensor) -> torch.Tensor:
         """e: (B, T, D_e, h, w); bev_object: (B, T, 1, H, W); ego_motion: (B, T, 4) → (B, T, 2 D_e + 4 + E)."""

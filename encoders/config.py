@@ -130,7 +130,7 @@ class BevConfig:
 
     lidar_channels: int = 5
     map_channels: int = 6
-    widths: tuple[int, ...] = (16, 32, 64)
+    widths: tuple[int, ...] = (8, 16, 32)
     embed_channels: int = 64
     downsample: int = 2
     temporal_kernel: int = 3

@@ -36,7 +36,8 @@ import torch
 import torch.nn.functional as F
 from numpy.typing import NDArray
 
-from encoders.clips.views import LogArrays, ego_motion, highlight_camera, open_log_arrays
+from encoders.clips.raster import BevGrid
+from encoders.clips.views import LogArrays, ego_motion, highlight_camera, object_footprint, open_log_arrays
 
 CLIPS_FILE = "clips.parquet"
 MANIFEST_FILE = "manifest.json"
@@ -142,6 +143,7 @@ class ClipDataset(torch.utils.data.Dataset[dict[str, Any]]):
         bev = self.manifest["bev"]
         self._bev = (float(bev["x_min_m"]), float(bev["x_max_m"]), float(bev["y_min_m"]), float(bev["y_max_m"]),
                      float(bev["resolution_m"]))
+        self._grid = BevGrid(*self._bev)
         self._arrays: dict[str, LogArrays] = {}
 
     # Memory maps are opened lazily in each process, never pickled to workers.
@@ -196,7 +198,8 @@ class ClipDataset(torch.utils.data.Dataset[dict[str, Any]]):
 
         lidar = torch.from_numpy(np.asarray(arrays.bev_lidar[fi])).float().div_(255.0)  # (T, Cl, H, W)
         bev_map = torch.from_numpy(np.asarray(arrays.bev_map[fi])).float().div_(255.0)  # (T, Cm, H, W)
-        obj = torch.from_numpy(np.asarray(arrays.bev_instances[fi]) == value).float().unsqueeze(1)  # (T, 1, H, W)
+        footprint = object_footprint(arrays, self._grid, row.track_id, fi)
+        obj = torch.from_numpy(footprint).float().unsqueeze(1)  # (T, 1, H, W)
         motion = ego_motion(arrays.pose_xy_yaw, arrays.speed_mps, fi)
         if rng is not None:
             theta = float(rng.uniform(-aug.max_rotation_rad, aug.max_rotation_rad))

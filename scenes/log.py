@@ -3,6 +3,9 @@
 >>> log = Log.open("path/to/<log_id>")           # validates annotations and poses
 >>> tracks = log.tracks()                         # per-track, ego and city frames
 >>> sweep = log.lidar_sweep(log.lidar_timestamps_ns[0])   # loaded on demand
+
+The map, calibration, sensor files and metadata are validated when first read; to check all of a
+log at once (what ``scenesearch validate`` does) use :func:`scenes.validate.validate_log`.
 """
 
 from __future__ import annotations

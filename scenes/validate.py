@@ -9,13 +9,16 @@ from __future__ import annotations
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pyarrow as pa
 from numpy.typing import NDArray
 
 from scenes.errors import Problem
+
+if TYPE_CHECKING:
+    from scenes.map import VectorMap
 
 #: Columns of ``annotations.feather`` and the Arrow type family each must belong to.
 ANNOTATION_COLUMNS: dict[str, str] = {
@@ -238,6 +241,25 @@ def check_lidar_sweep_file(path: Path) -> list[Problem]:
     return check_finite(path, coords)
 
 
+def check_map_finite(path: Path, vector_map: VectorMap) -> list[Problem]:
+    """NaN or inf coordinates in map polylines; names the element and the polyline."""
+    polylines: list[tuple[str, NDArray[np.float64]]] = []
+    for lane in vector_map.lane_segments.values():
+        polylines.append((f"lane_segments[{lane.id}].left_lane_boundary", lane.left_lane_boundary))
+        polylines.append((f"lane_segments[{lane.id}].right_lane_boundary", lane.right_lane_boundary))
+    for crossing in vector_map.pedestrian_crossings.values():
+        polylines.append((f"pedestrian_crossings[{crossing.id}].edge1", crossing.edge1))
+        polylines.append((f"pedestrian_crossings[{crossing.id}].edge2", crossing.edge2))
+    for area in vector_map.drivable_areas.values():
+        polylines.append((f"drivable_areas[{area.id}].area_boundary", area.area_boundary))
+    problems = []
+    for name, points in polylines:
+        bad = ~np.isfinite(points).all(axis=1)
+        if bad.any():
+            problems.append(Problem(path, "NaN or inf coordinate", field=name, row=int(np.argmax(bad))))
+    return problems
+
+
 def check_camera_frame_file(path: Path) -> list[Problem]:
     """A camera frame must be a non-empty JPEG (its first bytes are checked, not the whole image)."""
     try:
@@ -284,9 +306,11 @@ def validate_log(log_dir: Path | str) -> ValidationReport:
         warnings.append("no map (map/log_map_archive_*.json)")
     else:
         try:
-            av2_io.read_map(map_path)
+            vector_map = av2_io.read_map(map_path)
         except LogFormatError as exc:
             problems.extend(exc.problems)
+        else:
+            problems.extend(check_map_finite(map_path, vector_map))
 
     calibration = None
     try:

@@ -27,8 +27,8 @@ import pyarrow.parquet as pq
 from numpy.typing import NDArray
 
 from encoders.clips.config import ClipsConfig
-from encoders.clips.raster import MAP_CHANNELS
-from encoders.clips.views import LogArrays, highlight_camera, open_log_arrays
+from encoders.clips.raster import MAP_CHANNELS, BevGrid
+from encoders.clips.views import LogArrays, highlight_camera, object_footprint, open_log_arrays
 from scenes.atomic import atomic_path
 
 SCALE = 2
@@ -68,7 +68,9 @@ def render_preview_frames(arrays: LogArrays, clip: Mapping[str, Any], config: Cl
     bev_map = np.asarray(arrays.bev_map[fi])  # (T, Cm, H, W)
     lidar = np.asarray(arrays.bev_lidar[fi])  # (T, Z, H, W)
     occ = (lidar[:, 1:] if lidar.shape[1] > 1 else lidar).max(axis=1)  # above the ground bin: (T, H, W)
-    obj = np.asarray(arrays.bev_instances[fi]) == value
+    b = config.bev
+    grid = BevGrid(b.x_min_m, b.x_max_m, b.y_min_m, b.y_max_m, b.resolution_m)
+    obj = object_footprint(arrays, grid, str(clip["track_id"]), fi) > 0
     hb, wb = occ.shape[1:]
     bev = np.zeros((t, hb, wb, 3), np.uint8)
 
@@ -85,7 +87,6 @@ def render_preview_frames(arrays: LogArrays, clip: Mapping[str, Any], config: Cl
     bev[lit] = np.repeat(grey[lit][:, None], 3, axis=1)
     paint(obj, (255, 0, 255))
     # The ego at the origin: 4.5 m × 2 m, rear axle at the origin.
-    b = config.bev
     r0 = int((b.x_max_m - 4.0) / b.resolution_m)
     r1 = int((b.x_max_m + 0.5) / b.resolution_m)
     c0 = int((b.y_max_m - 1.0) / b.resolution_m)

@@ -136,6 +136,28 @@ def rasterize_boxes(
     return out
 
 
+def rasterize_track(grid: BevGrid, boxes: NDArray[np.floating]) -> NDArray[np.uint8]:
+    """Footprints of one object over frames, each frame on its own.
+
+    Args:
+        grid: the grid.
+        boxes: (T, 5) ``x_m, y_m, length_m, width_m, yaw_rad`` in each frame's ego frame; NaN rows
+            (object not observed) stay empty.
+
+    Returns:
+        (T, H, W) uint8, 1 inside the footprint.
+    """
+    b = np.asarray(boxes, dtype=np.float64)
+    out = np.zeros((b.shape[0], grid.height_px, grid.width_px), dtype=np.uint8)
+    ok = np.isfinite(b).all(axis=1)
+    if not ok.any():
+        return out
+    polys = _poly_px(grid, box_corners_xy(b[ok, :2], b[ok, 2:4], b[ok, 4]))
+    for t, poly in zip(np.flatnonzero(ok), polys):
+        cv2.fillConvexPoly(out[t], poly, 1, lineType=cv2.LINE_8, shift=_SHIFT)
+    return out
+
+
 def lidar_counts(grid: BevGrid, points_xyz: NDArray[np.floating], z_bins_m: tuple[float, ...]) -> NDArray[np.int32]:
     """Points per cell and height bin.
 
@@ -208,10 +230,12 @@ def rasterize_city_map(vector_map: VectorMap, extent_xy_m: FloatArray, resolutio
     intersection = np.zeros((h, w), np.uint8)
     areas = [px(a.area_boundary) for a in vector_map.drivable_areas.values() if a.area_boundary.shape[0] >= 3]
     if areas:
-        cv2.fillPoly(drivable, areas, 255, lineType=cv2.LINE_8, shift=_SHIFT)
+        for poly in areas:  # one call each: fillPoly over several polygons drops their overlaps
+            cv2.fillPoly(drivable, [poly], 255, lineType=cv2.LINE_8, shift=_SHIFT)
     crossings = [px(c.polygon()) for c in vector_map.pedestrian_crossings.values()]
     if crossings:
-        cv2.fillPoly(crossing, crossings, 255, lineType=cv2.LINE_8, shift=_SHIFT)
+        for poly in crossings:  # one call each: fillPoly over several polygons drops their overlaps
+            cv2.fillPoly(crossing, [poly], 255, lineType=cv2.LINE_8, shift=_SHIFT)
     lines: list[NDArray[np.int32]] = []
     junction: list[NDArray[np.int32]] = []
     n_pts = 8
@@ -234,7 +258,8 @@ def rasterize_city_map(vector_map: VectorMap, extent_xy_m: FloatArray, resolutio
     if lines:
         cv2.polylines(boundary, lines, False, 255, thickness=1, lineType=cv2.LINE_8, shift=_SHIFT)
     if junction:
-        cv2.fillPoly(intersection, junction, 255, lineType=cv2.LINE_8, shift=_SHIFT)
+        for poly in junction:  # one call each: fillPoly over several polygons drops their overlaps
+            cv2.fillPoly(intersection, [poly], 255, lineType=cv2.LINE_8, shift=_SHIFT)
     layers = np.stack([drivable, boundary, dir_x, dir_y, crossing, intersection], axis=-1)
     return CityRaster(layers, origin, resolution_m)
 

@@ -11,7 +11,12 @@ camera_instances.npy    (F, Hc, Wc) uint16     instance masks: v ≥ 1 ↔ ``tra
 camera_pixel_counts.npy (F, K) int32           mask pixels of every track at the camera's full resolution
 bev_lidar.npy           (F, Z, Hb, Wb) uint8   occupancy per height bin (log-scaled point density)
 bev_map.npy             (F, Cm, Hb, Wb) uint8  map layers (:data:`~encoders.clips.raster.MAP_CHANNELS`)
-bev_instances.npy       (F, Hb, Wb) uint16     box footprints: v ≥ 1 ↔ ``track_ids[v − 1]``
+bev_instances.npy       (F, Hb, Wb) uint16     box footprints: v ≥ 1 ↔ ``track_ids[v − 1]`` (overlaps: the
+                                               smaller box wins)
+track_boxes.npy         (F, K, 5) float32      every track's ``x_m, y_m, length_m, width_m, yaw_rad`` in
+                                               the frame's ego frame, NaN when not observed; the dataset
+                                               draws the object of interest from it (never hidden by
+                                               an overlapping box)
 track_ids.json          list[str]              K track ids
 frames.parquet          F rows                 frame_index, timestamp_ns, city_SE3_ego (qw..tz_m), x_m, y_m,
                                                yaw_rad, speed_mps, has_sweep, has_camera_frame
@@ -53,14 +58,13 @@ from scenes.atomic import atomic_directory, atomic_write_text
 from scenes.errors import LogFormatError
 from scenes.geometry import FloatArray, invert_matrices, quat_to_yaw, rotmat_to_quat
 from scenes.log import INSTANCE_SUFFIX, Log
+from scenes.sensorsim.instance_masks import read_instance_mask
 from scenes.tracks import DenseTracks
 
 #: Folder of rendered logs inside CLIPS_DIR.
 LOGS_DIR = "logs"
-#: Beside the camera folders: the track ids that the instance-mask values index (v − 1).
-INSTANCE_TRACK_IDS_FILE = "instance_track_ids.json"
 #: Version of the per-log files; bump when their content changes.
-RENDER_VERSION = 1
+RENDER_VERSION = 2
 
 
 def lidar_channel_names(z_bins_m: tuple[float, ...]) -> list[str]:
@@ -174,6 +178,15 @@ def _render_bev_instances(grid: BevGrid, dense: DenseTracks) -> NDArray[np.uint1
     return out
 
 
+def _track_boxes(dense: DenseTracks) -> NDArray[np.float32]:
+    """(F, K, 5) ``x, y, length, width, yaw`` of every track in each frame's ego frame, NaN when unobserved."""
+    boxes = np.concatenate(
+        [dense.center_ego_xyz_m[..., :2], dense.size_lwh_m[..., :2], dense.yaw_ego_rad[..., None]], axis=-1
+    )  # (K, F, 5)
+    boxes[~dense.valid] = np.nan
+    return np.ascontiguousarray(np.swapaxes(boxes, 0, 1)).astype(np.float32)
+
+
 def _render_bev_boxes_occupancy(
     grid: BevGrid, dense: DenseTracks, z_bins_m: tuple[float, ...]
 ) -> NDArray[np.uint8]:
@@ -194,9 +207,9 @@ def _render_bev_boxes_occupancy(
     spans &= dense.valid[..., None]
     for fi in range(f):
         for zi in range(num_z):
-            ks = np.flatnonzero(spans[:, fi, zi])
-            if ks.size:
-                cv2.fillPoly(out[fi, zi], list(pix[ks, fi]), 255, lineType=cv2.LINE_8, shift=4)
+            for ki in np.flatnonzero(spans[:, fi, zi]):
+                # One call per box: a single fillPoly over several polygons drops their overlaps.
+                cv2.fillConvexPoly(out[fi, zi], pix[ki, fi], 255, lineType=cv2.LINE_8, shift=4)
     return out
 
 
@@ -271,30 +284,6 @@ def _render_map(log: Log, grid: BevGrid, city_SE3_ego: FloatArray) -> NDArray[np
 
 # ---------------------------------------------------------------------------------------------
 # Camera
-
-
-def read_instance_mask(log_dir: Path, camera_name: str, timestamp_ns: int) -> tuple[NDArray[np.uint16], list[str]]:
-    """(H, W) uint16 instance mask of one camera frame and the track ids its values index (v − 1).
-
-    Raises:
-        LogFormatError: the PNG or the track-id list is missing or unreadable.
-    """
-    path = log_dir / av2_io.CAMERAS_DIR / f"{camera_name}{INSTANCE_SUFFIX}" / f"{int(timestamp_ns)}.png"
-    mask = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if mask is None or mask.ndim != 2:
-        raise LogFormatError.single(path, "cannot decode 16-bit instance mask")
-    return np.asarray(mask, dtype=np.uint16), _instance_track_ids(log_dir)
-
-
-def _instance_track_ids(log_dir: Path) -> list[str]:
-    path = log_dir / av2_io.CAMERAS_DIR / INSTANCE_TRACK_IDS_FILE
-    try:
-        ids = json.loads(path.read_text())
-    except (OSError, json.JSONDecodeError) as exc:
-        raise LogFormatError.single(path, f"unreadable instance track ids ({exc})") from exc
-    if not isinstance(ids, list):
-        raise LogFormatError.single(path, "expected a JSON list of track ids")
-    return [str(i) for i in ids]
 
 
 def _project_masks(
@@ -497,6 +486,7 @@ def render_log(log: Log, config: ClipsConfig, clips_dir: Path, dense: DenseTrack
         _save_npy(tmp, "bev_lidar.npy", bev_occ)
         _save_npy(tmp, "bev_map.npy", bev_map)
         _save_npy(tmp, "bev_instances.npy", bev_inst)
+        _save_npy(tmp, "track_boxes.npy", _track_boxes(dense))
         atomic_write_text(tmp / "track_ids.json", json.dumps([str(t) for t in dense.track_ids]))
         pq.write_table(_frames_table(frame_ts, city_SE3_ego, speed, sweep_index >= 0, has_cam_frame),
                        tmp / "frames.parquet")

@@ -13,6 +13,7 @@ import numpy as np
 import pyarrow.parquet as pq
 from numpy.typing import NDArray
 
+from encoders.clips.raster import BevGrid, rasterize_track
 from encoders.clips.render import LOGS_DIR
 from scenes.geometry import wrap_angle_rad
 
@@ -32,6 +33,7 @@ class LogArrays:
     bev_lidar: NDArray[np.uint8]
     bev_map: NDArray[np.uint8]
     bev_instances: NDArray[np.uint16]
+    track_boxes: NDArray[np.float32]
     track_value: dict[str, int]
     pose_xy_yaw: NDArray[np.float64]
     speed_mps: NDArray[np.float64]
@@ -52,10 +54,19 @@ def open_log_arrays(clips_dir: Path, log_id: str) -> LogArrays:
         bev_lidar=load("bev_lidar.npy"),  # type: ignore[arg-type]
         bev_map=load("bev_map.npy"),  # type: ignore[arg-type]
         bev_instances=load("bev_instances.npy"),  # type: ignore[arg-type]
+        track_boxes=load("track_boxes.npy"),  # type: ignore[arg-type]
         track_value={str(t): i + 1 for i, t in enumerate(ids)},
         pose_xy_yaw=pose,
         speed_mps=frames.column("speed_mps").to_numpy().astype(np.float64),
     )
+
+
+def object_footprint(
+    arrays: LogArrays, grid: BevGrid, track_id: str, indices: NDArray[np.integer]
+) -> NDArray[np.uint8]:
+    """(T, Hb, Wb) uint8: the object's box footprint in each sampled frame (1 inside)."""
+    k = arrays.track_value[track_id] - 1
+    return rasterize_track(grid, np.asarray(arrays.track_boxes[indices, k]))
 
 
 def ego_motion(pose_xy_yaw: NDArray[np.float64], speed_mps: NDArray[np.float64],

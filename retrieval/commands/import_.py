@@ -50,7 +50,9 @@ def _run_kitti(args: argparse.Namespace) -> int:
             raise
         if not hasattr(tracking, "import_kitti_detections"):
             raise ValueError("tracking from detections is not available in this installation")
-        result = tracking.import_kitti_detections(args.detections, args.poses, args.calib, args.out)
+        result = tracking.import_kitti_detections(
+            args.detections, args.poses, args.calib, args.out, overwrite=args.overwrite
+        )
         print(result.summary() if hasattr(result, "summary") else result)
         return 0
     from scenes.kitti import import_kitti_sequence

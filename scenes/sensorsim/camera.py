@@ -216,7 +216,7 @@ class CameraRenderer:
         uv_fixed = np.round(np.clip(uv, -1e5, 1e5) * _SCALE).astype(np.int32)  # (N, V, 2)
         front = z >= NEAR_PLANE_M  # (N, V)
         face_front = front[:, faces.padded]  # (N, P, k)
-        all_front = face_front.all(axis=-1)
+        all_front: NDArray[np.bool_] = np.asarray(face_front.all(axis=-1))
         face_uv = uv_fixed[:, faces.padded]  # (N, P, k, 2)
         lo, hi = face_uv.min(axis=2), face_uv.max(axis=2)
         w, h = self.config.width_px * _SCALE, self.config.height_px * _SCALE
@@ -281,7 +281,8 @@ class CameraRenderer:
                                          borderMode=cv2.BORDER_CONSTANT, borderValue=self.border)
             ground[first_row:] = cv2.cvtColor(warped, cv2.COLOR_BGRA2BGR)
         keep, haze = self._background_for(a[2], max(height, 1e-3))
-        image = cv2.add(cv2.multiply(ground, keep, scale=1.0 / 255.0), haze)
+        image: NDArray[np.uint8] = np.asarray(cv2.add(cv2.multiply(ground, keep, scale=1.0 / 255.0), haze),
+                                              dtype=np.uint8)
         mask = np.zeros((h, w), np.uint16)
 
         # 2. Buildings and objects, far to near.
@@ -301,8 +302,9 @@ class CameraRenderer:
             length = rng.uniform(8, 24, size=n)
             end = start + np.stack([0.15 * length, length], axis=1)
             segments = list(np.round(np.stack([start, end], axis=1)).astype(np.int32))
-            color = tuple(float(c) for c in np.minimum(pal.sky_horizon * 1.1 + 20, 255))
-            cv2.polylines(image, segments, False, color, 1, cv2.LINE_AA)
+            streak = np.minimum(pal.sky_horizon * 1.1 + 20, 255)
+            cv2.polylines(image, segments, False, (float(streak[0]), float(streak[1]), float(streak[2])), 1,
+                          cv2.LINE_AA)
         if pal.noise_std > 0:
             k = int(rng.integers(0, _NOISE_TILES))
             cv2.add(image, self._noise_pos[k], dst=image)
@@ -368,7 +370,7 @@ class CameraRenderer:
             visible = np.einsum("npk,npk->np", face_centers - cam_ego, normals) < 0
             lam = pal.ambient + pal.diffuse * np.maximum(normals @ sun_ego, 0.0)  # (n, P)
             paint = self.track_colors[sub.track_index] * pal.light
-            base = np.broadcast_to(paint[:, None, :], lam.shape + (3,)).copy()
+            base = np.broadcast_to(paint[:, None, :], (*lam.shape, 3)).copy()
             part = template.face_part
             glass = np.array([70.0, 55.0, 45.0]) * pal.light
             side = np.abs(nt[:, 2]) < 0.5

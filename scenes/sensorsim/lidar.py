@@ -31,6 +31,7 @@ from scenes.sensorsim.scene import (
     StaticKind,
     StaticWorld,
     build_object_mesh,
+    o3d_tensor,
 )
 
 #: Instance value of points on the static world.
@@ -112,7 +113,7 @@ def cast_sweep(
     rays = np.empty((n_rays, 6), np.float32)
     rays[:, :3] = origin_city
     rays[:, 3:] = dirs_city
-    hit_s = world.scene.cast_rays(o3d.core.Tensor(rays), nthreads=nthreads)
+    hit_s = world.scene.cast_rays(o3d_tensor(rays), nthreads=nthreads)
     t_static = hit_s["t_hit"].numpy().astype(np.float64)
     geom = hit_s["geometry_ids"].numpy()
     prim_s = hit_s["primitive_ids"].numpy()
@@ -124,10 +125,10 @@ def cast_sweep(
     normal_d = np.zeros((n_rays, 3), np.float32)
     if mesh.triangles.shape[0]:
         dyn = o3d.t.geometry.RaycastingScene()
-        dyn.add_triangles(o3d.core.Tensor(mesh.vertices), o3d.core.Tensor(mesh.triangles))
+        dyn.add_triangles(o3d_tensor(mesh.vertices), o3d_tensor(mesh.triangles))
         rays[:, :3] = origin_ego
         rays[:, 3:] = dirs_ego
-        hit_d = dyn.cast_rays(o3d.core.Tensor(rays), nthreads=nthreads)
+        hit_d = dyn.cast_rays(o3d_tensor(rays), nthreads=nthreads)
         t_dyn = hit_d["t_hit"].numpy().astype(np.float64)
         hit = np.isfinite(t_dyn)
         owner[hit] = mesh.owner[hit_d["primitive_ids"].numpy()[hit].astype(np.int64)]

@@ -33,6 +33,12 @@ from scenes.map import VectorMap, resample_polyline
 from scenes.sensorsim.config import WorldConfig
 from scenes.tracks import DenseTracks
 
+
+def o3d_tensor(array: NDArray[np.generic]) -> o3d.core.Tensor:
+    """An open3d tensor sharing a contiguous copy of ``array``."""
+    return o3d.core.Tensor(np.ascontiguousarray(array))  # type: ignore[call-overload]
+
+
 #: Cells of the ground raster are capped at this many; a larger world gets coarser cells.
 MAX_RASTER_CELLS = 40_000_000
 
@@ -114,7 +120,10 @@ def _boxes_template(parts: list[tuple[tuple[float, float, float], tuple[float, f
                     lights_z: tuple[float, float] | None = None) -> ShapeTemplate:
     """Union of boxes given as ((min x, y, z), (max x, y, z), part) in unit-box coordinates, with
     optional head- and taillight decals between heights ``lights_z`` on the front and rear faces."""
-    verts, faces, normals, face_part = [], [], [], []
+    verts: list[FloatArray] = []
+    faces: list[tuple[int, ...]] = []
+    normals: list[FloatArray] = []
+    face_part: list[int] = []
     for i, (lo, hi, part) in enumerate(parts):
         lo_a, hi_a = np.array(lo), np.array(hi)
         verts.append(lo_a + (_BOX_CORNERS + 0.5) * (hi_a - lo_a))
@@ -220,6 +229,18 @@ class FrameObjects:
                             np.zeros((0, 3)))
 
     @staticmethod
+    def from_boxes(boxes: list[tuple[str, tuple[float, float, float], tuple[float, float, float], float]],
+                   ) -> FrameObjects:
+        """Objects from ``(category, centre xyz, size lwh, yaw)`` rows, track index = row index."""
+        return FrameObjects(
+            np.arange(len(boxes), dtype=np.int64),
+            np.array([b[0] for b in boxes], dtype=np.str_),
+            np.array([b[1] for b in boxes], dtype=np.float64).reshape(-1, 3),
+            np.array([b[3] for b in boxes], dtype=np.float64),
+            np.array([b[2] for b in boxes], dtype=np.float64).reshape(-1, 3),
+        )
+
+    @staticmethod
     def at_frame(dense: DenseTracks, frame: int) -> FrameObjects:
         """The tracks observed at ``frame`` of ``dense``."""
         idx = np.flatnonzero(dense.valid[:, frame])
@@ -244,7 +265,8 @@ class FrameObjects:
         local_x = c * rel[..., 0] + s * rel[..., 1]
         local_y = -s * rel[..., 0] + c * rel[..., 1]
         half = 0.5 * self.size_lwh_m[:, None, :] + margin_m
-        return (np.abs(local_x) <= half[..., 0]) & (np.abs(local_y) <= half[..., 1]) & (np.abs(rel[..., 2]) <= half[..., 2])
+        inside_xy = (np.abs(local_x) <= half[..., 0]) & (np.abs(local_y) <= half[..., 1])
+        return inside_xy & (np.abs(rel[..., 2]) <= half[..., 2])
 
 
 def object_vertices(template: ShapeTemplate, objects: FrameObjects) -> FloatArray:
@@ -288,7 +310,8 @@ def build_object_mesh(objects: FrameObjects, ego_box_lwh_m: tuple[float, float, 
         v = object_vertices(template, sub)  # (n, V, 3)
         n, nv = v.shape[0], v.shape[1]
         verts.append(v.reshape(-1, 3))
-        tris.append((template.triangles[None, :, :].astype(np.int64) + (offset + nv * np.arange(n))[:, None, None]).reshape(-1, 3))
+        first = offset + nv * np.arange(n)
+        tris.append((template.triangles[None, :, :].astype(np.int64) + first[:, None, None]).reshape(-1, 3))
         owners.append(np.repeat(idx, template.triangles.shape[0]))
         offset += n * nv
     if ego_box_lwh_m is not None and min(ego_box_lwh_m) > 0:
@@ -379,8 +402,8 @@ def build_ground_raster(vector_map: VectorMap | None, extent_xy_m: tuple[float, 
     res = config.raster_resolution_m
     area = (x_max - x_min) * (y_max - y_min)
     res = max(res, math.sqrt(area / MAX_RASTER_CELLS))
-    w = max(1, int(math.ceil((x_max - x_min) / res)))
-    h = max(1, int(math.ceil((y_max - y_min) / res)))
+    w = max(1, math.ceil((x_max - x_min) / res))
+    h = max(1, math.ceil((y_max - y_min) / res))
     origin = (x_min, y_min)
     drivable = np.zeros((h, w), np.uint8)
     material = np.full((h, w), GroundMaterial.TERRAIN, np.uint8)
@@ -409,7 +432,7 @@ def build_ground_raster(vector_map: VectorMap | None, extent_xy_m: tuple[float, 
             stripes += [_to_px(origin, res, q) for q in quads]
         for stripe in stripes:
             cv2.fillConvexPoly(material, stripe, int(GroundMaterial.CROSSWALK), lineType=cv2.LINE_8, shift=_SHIFT)
-        thickness = max(1, int(round(config.lane_mark_width_m / res)))
+        thickness = max(1, round(config.lane_mark_width_m / res))
         lines: dict[int, list[NDArray[np.int32]]] = {GroundMaterial.WHITE_PAINT: [], GroundMaterial.YELLOW_PAINT: []}
         for seg in vector_map.lane_segments.values():
             if seg.is_intersection:
@@ -418,7 +441,7 @@ def build_ground_raster(vector_map: VectorMap | None, extent_xy_m: tuple[float, 
                                    (seg.right_lane_boundary, seg.right_lane_mark_type)):
                 if mark in ("NONE", "UNKNOWN", "") or boundary.shape[0] < 2:
                     continue
-                code = GroundMaterial.YELLOW_PAINT if "YELLOW" in mark else GroundMaterial.WHITE_PAINT
+                code = int(GroundMaterial.YELLOW_PAINT if "YELLOW" in mark else GroundMaterial.WHITE_PAINT)
                 pieces = _dash_pieces(boundary, 3.0, 6.0) if "DASHED" in mark and "SOLID" not in mark else [boundary]
                 lines[code] += [_to_px(origin, res, p) for p in pieces]
         for code, polylines in lines.items():
@@ -471,9 +494,18 @@ class Buildings:
         return self.center_xyz_m[:, None, :] + _BOX_CORNERS[None] * self.size_lwh_m[:, None, :]
 
 
-def place_buildings(raster: GroundRaster, ground_z_m: float, config: WorldConfig,
-                    rng: np.random.Generator) -> Buildings:
-    """Building blocks on a jittered lattice wherever the footprint keeps clear of the drivable area."""
+def place_buildings(raster: GroundRaster, ground_z_m: float, config: WorldConfig, rng: np.random.Generator,
+                    keep_clear_xy: FloatArray | None = None) -> Buildings:
+    """Building blocks on a jittered lattice wherever the footprint keeps clear of the drivable area.
+
+    Args:
+        raster: the ground raster (its drivable cells are kept clear).
+        ground_z_m: ground height.
+        config: building sizes, spacing and setback.
+        rng: draws sizes, heights and jitter.
+        keep_clear_xy: (P, 2) further city points to keep ``building_setback_m`` clear of (the ego's
+            path, so that a log without a map is not built over).
+    """
     h, w = raster.drivable.shape
     res = raster.resolution_m
     x0, y0 = raster.origin_x_m, raster.origin_y_m
@@ -499,6 +531,11 @@ def place_buildings(raster: GroundRaster, ground_z_m: float, config: WorldConfig
     clearance[inside] = dist_m[cr[inside, 1], cr[inside, 0]]
     half_diag = 0.5 * np.linalg.norm(size_xy, axis=1)
     keep = inside & (clearance >= config.building_setback_m + half_diag)
+    if keep_clear_xy is not None and len(keep_clear_xy) and keep.any():
+        from scipy.spatial import cKDTree
+
+        path_dist, _ = cKDTree(np.asarray(keep_clear_xy)[:, :2]).query(centers[keep])
+        keep[np.flatnonzero(keep)] = path_dist >= config.building_setback_m + 2.0 + half_diag[keep]
     center_xyz = np.c_[centers[keep], ground_z_m + 0.5 * heights[keep]]
     return Buildings(center_xyz, np.c_[size_xy[keep], heights[keep]], shade[keep])
 
@@ -510,7 +547,7 @@ def _kerb_mesh(segments: FloatArray, ground_z_m: float, height_m: float) -> tupl
     z1 = np.full((s, 1), ground_z_m + height_m)
     verts = np.stack([np.c_[a, z0], np.c_[b, z0], np.c_[b, z1], np.c_[a, z1]], axis=1).reshape(-1, 3)
     base = 4 * np.arange(s)[:, None]
-    tris = np.concatenate([base + [0, 1, 2], base + [0, 2, 3]], axis=1).reshape(-1, 3)
+    tris = np.concatenate([base + np.array([0, 1, 2]), base + np.array([0, 2, 3])], axis=1).reshape(-1, 3)
     return verts, tris
 
 
@@ -552,27 +589,28 @@ class StaticWorld:
         extent = (float(xy[:, 0].min() - m), float(xy[:, 1].min() - m), float(xy[:, 0].max() + m),
                   float(xy[:, 1].max() + m))
         raster = build_ground_raster(vector_map, extent, config)
-        buildings = place_buildings(raster, ground_z, config, rng)
+        buildings = place_buildings(raster, ground_z, config, rng, keep_clear_xy=xy)
         kerbs = kerb_segments(raster) if config.kerb_height_m > 0 else np.zeros((0, 2, 2))
         scene = o3d.t.geometry.RaycastingScene()
         big = 10.0 * max(extent[2] - extent[0], extent[3] - extent[1])
         cx, cy = 0.5 * (extent[0] + extent[2]), 0.5 * (extent[1] + extent[3])
         ground_v = np.array([[cx - big, cy - big, ground_z], [cx + big, cy - big, ground_z],
                              [cx + big, cy + big, ground_z], [cx - big, cy + big, ground_z]], np.float32)
-        ground_ids = scene.add_triangles(o3d.core.Tensor(ground_v), o3d.core.Tensor(np.array([[0, 1, 2], [0, 2, 3]],
+        ground_ids = scene.add_triangles(o3d_tensor(ground_v), o3d_tensor(np.array([[0, 1, 2], [0, 2, 3]],
                                                                                              np.uint32)))
         # Keep the geometry ids equal to StaticKind even when kerbs or buildings are empty: add a
         # degenerate far-away triangle as a placeholder.
         far = np.array([[1e7, 1e7, -1e7], [1e7 + 1, 1e7, -1e7], [1e7, 1e7 + 1, -1e7]], np.float32)
-        kv, kt = _kerb_mesh(kerbs, ground_z, config.kerb_height_m) if len(kerbs) else (far, np.array([[0, 1, 2]]))
-        kerb_ids = scene.add_triangles(o3d.core.Tensor(kv.astype(np.float32)), o3d.core.Tensor(kt.astype(np.uint32)))
+        kv, kt = _kerb_mesh(kerbs, ground_z, config.kerb_height_m) if len(kerbs) else (
+            far.astype(np.float64), np.array([[0, 1, 2]]))
+        kerb_ids = scene.add_triangles(o3d_tensor(kv.astype(np.float32)), o3d_tensor(kt.astype(np.uint32)))
         if len(buildings):
             bv = buildings.corners().reshape(-1, 3)
             bt = (BOX_SHAPE.triangles[None] + 8 * np.arange(len(buildings))[:, None, None]).reshape(-1, 3)
         else:
-            bv, bt = far, np.array([[0, 1, 2]])
-        building_ids = scene.add_triangles(o3d.core.Tensor(bv.astype(np.float32)),
-                                           o3d.core.Tensor(bt.astype(np.uint32)))
+            bv, bt = far.astype(np.float64), np.array([[0, 1, 2]])
+        building_ids = scene.add_triangles(o3d_tensor(bv.astype(np.float32)),
+                                           o3d_tensor(bt.astype(np.uint32)))
         if (ground_ids, kerb_ids, building_ids) != (StaticKind.GROUND, StaticKind.KERB, StaticKind.BUILDING):
             raise RuntimeError("unexpected open3d geometry ids")
         return StaticWorld(ground_z, raster, buildings, kerbs, config.kerb_height_m, scene)

@@ -61,8 +61,9 @@ def crossroad_map() -> VectorMap:
                                          _line(jx - outer, y1, jx - outer, y0, 8), left_mark, right_mark)
             next_id += 1
     areas = {
-        1: DrivableArea(1, _line(-150.0, -h, 350.0, -h)[[0, 1]].tolist() + _line(350.0, h, -150.0, h).tolist()),
-        2: DrivableArea(2, _line(jx - h, -150.0, jx + h, -150.0).tolist() + _line(jx + h, 150.0, jx - h, 150.0).tolist()),
+        1: DrivableArea(1, np.concatenate([_line(-150.0, -h, 350.0, -h), _line(350.0, h, -150.0, h)])),
+        2: DrivableArea(2, np.concatenate([_line(jx - h, -150.0, jx + h, -150.0),
+                                           _line(jx + h, 150.0, jx - h, 150.0)])),
     }
     crossings = {}
     for i, (a, b) in enumerate(((jx - h - 4.0, jx - h - 1.0), (jx + h + 1.0, jx + h + 4.0))):

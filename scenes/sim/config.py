@@ -87,8 +87,9 @@ class SimulationConfig:
             ``i // egos_per_run``.
         step_s: simulation step and annotation period (0.1 s = 10 Hz).
         range_m: objects farther from the ego than this are not annotated.
-        vehicles_per_s: mean rate of vehicle trips entering the city.
-        pedestrians_per_s: mean rate of pedestrian walks starting.
+        vehicles_per_s_per_km: mean rate of vehicle trips starting, per km of road (each direction
+            counted), so that every layout is about as busy.
+        pedestrians_per_s_per_km: mean rate of pedestrian walks starting, per km of road.
         parked_vehicles: vehicles parked at the roadside for the whole run.
         tracker_noise: apply :class:`TrackerNoiseConfig` to the written annotations (labels stay exact).
         noise: the noise model used when ``tracker_noise`` is set.
@@ -105,8 +106,8 @@ class SimulationConfig:
     egos_per_run: int = 4
     step_s: float = 0.1
     range_m: float = 80.0
-    vehicles_per_s: float = 0.8
-    pedestrians_per_s: float = 0.3
+    vehicles_per_s_per_km: float = 0.17
+    pedestrians_per_s_per_km: float = 0.06
     parked_vehicles: int = 30
     tracker_noise: bool = False
     noise: TrackerNoiseConfig = field(default_factory=TrackerNoiseConfig)
@@ -122,7 +123,7 @@ class SimulationConfig:
         for name in ("duration_s", "step_s", "range_m"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"SimulationConfig.{name} must be > 0, got {getattr(self, name)}")
-        for name in ("warmup_s", "vehicles_per_s", "pedestrians_per_s", "parked_vehicles"):
+        for name in ("warmup_s", "vehicles_per_s_per_km", "pedestrians_per_s_per_km", "parked_vehicles"):
             if getattr(self, name) < 0:
                 raise ValueError(f"SimulationConfig.{name} must be >= 0, got {getattr(self, name)}")
         if self.egos_per_run < 1:

@@ -63,7 +63,9 @@ def _vtype_xml(t: VehicleType) -> str:
     if t.vclass == "pedestrian":
         return f"    <vType {common}/>"
     # Eager lane changing for speed gain: more lane changes and overtakes of cyclists.
-    return f'    <vType {common} lcSpeedGain="2.0" lcKeepRight="0.5" speedDev="0.1" impatience="0.7" jmTimegapMinor="0.5"/>'
+    # Some impatience: drivers accept shorter gaps after waiting, as real ones do at busy junctions.
+    behaviour = 'lcSpeedGain="2.0" lcKeepRight="0.5" speedDev="0.1" impatience="0.7" jmTimegapMinor="0.5"'
+    return f"    <vType {common} {behaviour}/>"
 
 
 def _lane_length_m(shape: np.ndarray) -> float:
@@ -91,10 +93,13 @@ def make_demand(
 ) -> Demand:
     """Trips, walks, parked vehicles and egos for a run of ``end_s`` simulated seconds."""
     rng = np.random.default_rng([seed, 0x5EED])
-    car_edges = net.road_edges("passenger")
+    # Trips start and end in the largest strongly connected part: no trip is unroutable and no
+    # vehicle (an ego least of all) ends up in a dead end.
+    car_edges = net.connected_edges("passenger")
     if len(car_edges) < 2:
-        raise ValueError("the network has fewer than two roads open to cars")
-    walk_edges = net.road_edges("pedestrian")
+        raise ValueError("the network has fewer than two connected roads open to cars")
+    reachable = set(car_edges)
+    walk_edges = [e for e in net.road_edges("pedestrian") if e in reachable]
     entries: list[tuple[float, str]] = []
 
     for k, ego in enumerate(ego_ids(num_egos)):
@@ -102,13 +107,14 @@ def make_demand(
         entries.append((0.0, f'    <trip id="{ego}" type="ego" depart="0.00" from={quoteattr(car_edges[a])} '
                              f'to={quoteattr(car_edges[b])} departLane="best" departPos="{10 + 5 * k}"/>'))
 
+    connected = {t.vclass: net.connected_edges(t.vclass) or car_edges for t in VEHICLE_TYPES}
     shares = np.array([t.share for t in VEHICLE_TYPES])
     n_veh = int(rng.poisson(vehicles_per_s * end_s))
     departs = np.sort(rng.uniform(0.0, end_s, n_veh))
     kinds = rng.choice(len(VEHICLE_TYPES), size=n_veh, p=shares / shares.sum())
     for i, (depart, kind) in enumerate(zip(departs, kinds)):
         vtype = VEHICLE_TYPES[kind]
-        edges = net.road_edges(vtype.vclass)
+        edges = connected[vtype.vclass]
         a, b = rng.choice(len(edges), size=2, replace=False)
         entries.append((float(depart), f'    <trip id="v{i}" type="{vtype.id}" depart="{depart:.2f}" '
                                        f'from={quoteattr(edges[a])} to={quoteattr(edges[b])} '
@@ -127,7 +133,7 @@ def make_demand(
     additional = ["<additional>"]
     candidates = []
     for lane in sorted(net.lanes.values(), key=lambda ln: ln.id):
-        if lane.edge_function != "" or "passenger" not in lane.allowed:
+        if lane.edge_function != "" or "passenger" not in lane.allowed or lane.edge_id not in reachable:
             continue
         same_edge = [ln for ln in net.lanes.values() if ln.edge_id == lane.edge_id and "passenger" in ln.allowed]
         if lane.index != min(ln.index for ln in same_edge):
@@ -156,10 +162,10 @@ def make_demand(
                 # previous one: it parks at once instead of queueing behind the others for insertion.
                 depart_pos = PARKING_MARGIN_M + (bay + 1) * PARKING_BAY_M - 0.5
                 depart_s = 0.5 * bay
-                entries.append((depart_s, f'    <trip id="{PARKED_PREFIX}{parked}" type="{vtype}" depart="{depart_s:.2f}" '
-                                     f'from={quoteattr(lane.edge_id)} to={quoteattr(lane.edge_id)} '
-                                     f'departPos="{depart_pos:.2f}"><stop parkingArea={quoteattr(pa_id)} '
-                                     f'duration="1000000"/></trip>'))
+                entries.append((depart_s, f'    <trip id="{PARKED_PREFIX}{parked}" type="{vtype}" '
+                                          f'depart="{depart_s:.2f}" from={quoteattr(lane.edge_id)} '
+                                          f'to={quoteattr(lane.edge_id)} departPos="{depart_pos:.2f}">'
+                                          f'<stop parkingArea={quoteattr(pa_id)} duration="1000000"/></trip>'))
                 parked += 1
     additional.append("</additional>")
 

@@ -38,8 +38,8 @@ class LaneInfo:
             # the second half of a split turn is the ``via`` of a connection leaving an internal lane.
             if c.via_lane is not None:
                 direction.setdefault(c.via_lane, c.direction)
-        junction = {lid: lane.junction_id for lid, lane in net.lanes.items() if lane.junction_id is not None}
-        return LaneInfo(direction, junction)  # type: ignore[arg-type]
+        junction = {lid: jid for lid, lane in net.lanes.items() if (jid := lane.junction_id) is not None}
+        return LaneInfo(direction, junction)
 
 
 @dataclass(frozen=True)

@@ -119,11 +119,9 @@ def export_map(net: SumoNet) -> VectorMap:
         lanes = by_edge[edge_id]
         outer = net.lanes[lanes[max(lanes)]]
         inner = net.lanes[lanes[min(lanes)]]
-        if outer.shape_xy_m.shape[0] != inner.shape_xy_m.shape[0]:
-            outer = inner = net.lanes[lanes[min(lanes)]]
-        left = offset_polyline(outer.shape_xy_m, 0.5 * outer.width_m)
-        right = offset_polyline(inner.shape_xy_m, -0.5 * inner.width_m)
-        areas[next_id] = DrivableArea(next_id, np.concatenate([left, right[::-1]], axis=0))
+        left_edge = offset_polyline(outer.shape_xy_m, 0.5 * outer.width_m)
+        right_edge = offset_polyline(inner.shape_xy_m, -0.5 * inner.width_m)
+        areas[next_id] = DrivableArea(next_id, np.concatenate([left_edge, right_edge[::-1]], axis=0))
         next_id += 1
     for jid in sorted(net.junctions):
         junction = net.junctions[jid]

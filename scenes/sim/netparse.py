@@ -107,6 +107,38 @@ class SumoNet:
             {lane.edge_id for lane in self.lanes.values() if lane.edge_function == "" and vclass in lane.allowed}
         )
 
+    def connected_edges(self, vclass: str) -> list[str]:
+        """Sorted ids of the edges open to ``vclass`` in the largest strongly connected part of the
+        network: from each, every other can be reached and left again (no dead ends, no islands)."""
+        from scipy.sparse import coo_matrix
+        from scipy.sparse.csgraph import connected_components
+
+        edges = self.road_edges(vclass)
+        index = {e: i for i, e in enumerate(edges)}
+        lane_edge = {lid: lane.edge_id for lid, lane in self.lanes.items() if vclass in lane.allowed}
+        pairs = {
+            (index[lane_edge[c.from_lane]], index[lane_edge[c.to_lane]])
+            for c in self.connections
+            if lane_edge.get(c.from_lane) in index and lane_edge.get(c.to_lane) in index
+        }
+        if not edges:
+            return []
+        rows = np.array([p[0] for p in pairs], dtype=np.int64)
+        cols = np.array([p[1] for p in pairs], dtype=np.int64)
+        graph = coo_matrix((np.ones(len(pairs)), (rows, cols)), shape=(len(edges), len(edges)))
+        _, label = connected_components(graph, directed=True, connection="strong")
+        largest = np.argmax(np.bincount(label))
+        return [e for e, lab in zip(edges, label) if lab == largest]
+
+    def road_length_m(self, vclass: str) -> float:
+        """Total length of the edges open to ``vclass`` (each direction counted)."""
+        length: dict[str, float] = {}
+        for lane in self.lanes.values():
+            if lane.edge_function == "" and vclass in lane.allowed:
+                # Lanes of one edge are about as long as each other: count the edge once.
+                length[lane.edge_id] = float(np.sum(np.linalg.norm(np.diff(lane.shape_xy_m, axis=0), axis=1)))
+        return float(sum(length.values()))
+
 
 def _allowed(lane: ET.Element) -> frozenset[str]:
     allow = lane.get("allow")

@@ -39,10 +39,11 @@ from scenes.metadata import LogMetadata
 from scenes.sim.appearance import sample_appearance
 from scenes.sim.config import SimulationConfig
 from scenes.sim.demand import ALL_TYPES, make_demand
+from scenes.sim.errors import SimulationError
 from scenes.sim.labels import LaneInfo, compute_labels
 from scenes.sim.map_export import export_map, junction_table
 from scenes.sim.netparse import read_net
-from scenes.sim.network import build_network, sumo_version
+from scenes.sim.network import build_network, demand_factor, sumo_version
 from scenes.sim.noise import apply_tracker_noise
 from scenes.sim.runner import MARGIN_S, ObjectRows, Recording, RunPlan, run_sumo
 from scenes.tracks import Annotations, EgoTrajectory
@@ -68,12 +69,16 @@ class SimulationResult:
         simulated_s: simulated seconds SUMO stepped (warm-up and margins included).
         wall_s: wall-clock seconds of the whole call.
         sumo_wall_s: wall-clock seconds spent stepping SUMO and reading its state.
+        cpu_s: CPU seconds of this process for the whole call (SUMO runs in-process).
+        sumo_cpu_s: CPU seconds spent stepping SUMO and reading its state.
     """
 
     log_dirs: list[Path]
     simulated_s: float
     wall_s: float
     sumo_wall_s: float
+    cpu_s: float = 0.0
+    sumo_cpu_s: float = 0.0
 
     @property
     def realtime_factor(self) -> float:
@@ -113,7 +118,7 @@ def simulate(config: SimulationConfig, out_dir: Path | str, overwrite: bool = Fa
 def simulate_tracks_and_map(config: SimulationConfig, out_dir: Path | str, overwrite: bool = False,
                             post_log: Sequence[PostLogHook] = ()) -> SimulationResult:
     """As :func:`simulate`, with timing figures."""
-    start = time.perf_counter()
+    start, start_cpu = time.perf_counter(), time.process_time()
     out = Path(out_dir)
     old = existing_logs(out)
     if old and not overwrite:
@@ -133,27 +138,42 @@ def simulate_tracks_and_map(config: SimulationConfig, out_dir: Path | str, overw
         num_windows=config.num_windows,
         margin_steps=round(MARGIN_S / config.step_s),
     )
+    road_km = net.road_length_m("passenger") / 1000.0 * demand_factor(config.network)
     demand = make_demand(net, config.seed, plan.total_steps * config.step_s, config.num_egos,
-                         config.vehicles_per_s, config.pedestrians_per_s, config.parked_vehicles)
-    sumo_start = time.perf_counter()
+                         config.vehicles_per_s_per_km * road_km, config.pedestrians_per_s_per_km * road_km,
+                         config.parked_vehicles)
+    sumo_start, sumo_start_cpu = time.perf_counter(), time.process_time()
     with tempfile.TemporaryDirectory(prefix="scenesearch-sumo-") as work:
         recordings = run_sumo(net_path, demand.routes_xml, demand.additional_xml, demand.ego_ids,
                               demand.road_edges, plan, config.seed, Path(work))
     sumo_wall_s = time.perf_counter() - sumo_start
+    sumo_cpu_s = time.process_time() - sumo_start_cpu
 
+    # Every log is assembled before any is written, so that a log that cannot be valid stops the
+    # run with nothing written.
+    contents = [
+        _build_log(log_id, i, recordings[i], config, step_ns, lanes)  # log i: ego i % E, window i // E
+        for i, log_id in enumerate(log_ids(config))
+    ]
+    empty = [c.log_id for c in contents if len(c.annotations) == 0]
+    if empty:
+        raise SimulationError(
+            f"{len(empty)} log(s) would have no objects within {config.range_m:g} m of the ego "
+            f"(e.g. {empty[0]}): the city is still empty; raise warmup_s (now {config.warmup_s:g} s)"
+        )
     written: list[Path] = []
-    for i, log_id in enumerate(log_ids(config)):
-        rec = recordings[i]  # ordered window-major: log i is ego i % E in window i // E
-        target = out / log_id
+    for content in contents:
+        target = out / content.log_id
         with atomic_directory(target, overwrite=overwrite) as tmp:
-            _write_log(tmp, log_id, i, rec, config, step_ns, vector_map, junctions, lanes)
+            content.write(tmp, vector_map, junctions)
             for hook in post_log:
                 hook(tmp)
         written.append(target)
     for stale in old:
         if stale not in written:
             shutil.rmtree(stale, ignore_errors=True)
-    return SimulationResult(written, plan.total_steps * config.step_s, time.perf_counter() - start, sumo_wall_s)
+    return SimulationResult(written, plan.total_steps * config.step_s, time.perf_counter() - start, sumo_wall_s,
+                            time.process_time() - start_cpu, sumo_cpu_s)
 
 
 def _heading_rad(angle_deg: np.ndarray) -> np.ndarray:
@@ -165,8 +185,25 @@ def _concat(a: ObjectRows, b: ObjectRows) -> ObjectRows:
     return ObjectRows(**{k: np.concatenate([getattr(a, k), getattr(b, k)]) for k in a.__dict__})
 
 
-def _write_log(log_dir: Path, log_id: str, index: int, rec: Recording, config: SimulationConfig, step_ns: int,
-               vector_map: VectorMap, junctions: pa.Table, lanes: LaneInfo) -> None:
+@dataclass(frozen=True)
+class _LogContent:
+    log_id: str
+    annotations: Annotations
+    ego: EgoTrajectory
+    labels: pa.Table
+    metadata: LogMetadata
+
+    def write(self, log_dir: Path, vector_map: VectorMap, junctions: pa.Table) -> None:
+        av2_io.write_annotations(log_dir, self.annotations)
+        av2_io.write_ego_poses(log_dir, self.ego)
+        av2_io.write_map(log_dir, vector_map, self.log_id, CITY_NAME)
+        write_behavior_labels(log_dir, self.labels)
+        write_junctions(log_dir, junctions)
+        av2_io.write_metadata(log_dir, self.metadata)
+
+
+def _build_log(log_id: str, index: int, rec: Recording, config: SimulationConfig, step_ns: int,
+               lanes: LaneInfo) -> _LogContent:
     # Labels need the margins (lane changes across the window's edge); everything else does not.
     all_rows = _concat(rec.ego, rec.objects)
     labels = compute_labels(all_rows, lanes)
@@ -239,12 +276,7 @@ def _write_log(log_dir: Path, log_id: str, index: int, rec: Recording, config: S
             "config": config.to_dict(),
         },
     )
-    av2_io.write_annotations(log_dir, annotations)
-    av2_io.write_ego_poses(log_dir, ego)
-    av2_io.write_map(log_dir, vector_map, log_id, CITY_NAME)
-    write_behavior_labels(log_dir, labels_table)
-    write_junctions(log_dir, junctions)
-    av2_io.write_metadata(log_dir, metadata)
+    return _LogContent(log_id, annotations, ego, labels_table, metadata)
 
 
 def _labels_table(rows: ObjectRows, flags: dict[BehaviorLabel, np.ndarray], leader_id: np.ndarray,

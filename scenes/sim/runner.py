@@ -4,8 +4,9 @@ One run serves many logs: ``num_egos`` egos drive at once and each log is one wi
 drive. Around each window a margin is recorded too, so that labels spanning a window's edge (a lane
 change that began before it) are complete; the margin is cut off when the log is written.
 
-Only objects within :data:`CONTEXT_RADIUS_M` of an ego are read back from SUMO each step (a context
-subscription), which keeps the Python side small however busy the city is.
+While windows are recorded (not during warm-up) the positions of all objects are read each step;
+only objects within :data:`CONTEXT_RADIUS_M` of an ego become rows and have their other
+variables and their leader read.
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ import io
 import os
 import sys
 from dataclasses import dataclass, field
+from itertools import chain
 from pathlib import Path
 from typing import Any
 
@@ -23,8 +25,10 @@ from numpy.typing import NDArray
 
 from scenes.sim.errors import SimulationError
 
-#: Objects farther than this from an ego are not read (the annotation range is smaller).
+#: Objects farther than this from an ego are not recorded (the annotation range is smaller).
 CONTEXT_RADIUS_M = 110.0
+#: Egos get a new destination, when near the end of their route, at most this often.
+KEEP_DRIVING_EVERY_STEPS = 10
 #: Leaders are looked for this far ahead along the route.
 LEADER_LOOKAHEAD_M = 60.0
 #: Recorded before and after each window (longer than a lane change).
@@ -34,13 +38,6 @@ LANE_CHANGE_DURATION_S = 3.0
 #: Vehicles stuck this long are teleported by SUMO, which resolves rare gridlocks.
 TIME_TO_TELEPORT_S = 120.0
 
-# traci constants, copied so that importing this module does not load SUMO.
-_VAR_POSITION, _VAR_ANGLE, _VAR_SPEED, _VAR_ACCELERATION = 0x42, 0x43, 0x40, 0x72
-_VAR_LANE_ID, _VAR_LANE_INDEX, _VAR_TYPE, _VAR_STOPSTATE, _VAR_LANEPOSITION_LAT = 0x51, 0x52, 0x4F, 0xB5, 0xB8
-_CMD_GET_VEHICLE_VARIABLE, _CMD_GET_PERSON_VARIABLE = 0xA4, 0xAE
-_VEHICLE_VARS = [_VAR_POSITION, _VAR_ANGLE, _VAR_SPEED, _VAR_ACCELERATION, _VAR_LANE_ID, _VAR_LANE_INDEX,
-                 _VAR_TYPE, _VAR_STOPSTATE, _VAR_LANEPOSITION_LAT]
-_PERSON_VARS = [_VAR_POSITION, _VAR_ANGLE, _VAR_SPEED, _VAR_TYPE]
 #: Stop-state bit set while a vehicle is parked (off its lane).
 STOPSTATE_PARKING = 2
 
@@ -198,7 +195,6 @@ def run_sumo(
     rng = np.random.default_rng([seed, 0xE60])
     collectors = {(e, w): _Collector() for w in range(plan.num_windows) for e in ego_ids}
     spans = [plan.window_span(w) for w in range(plan.num_windows)]
-    subscribed: set[str] = set()
     os.environ.setdefault("SUMO_HOME", _sumo_home())
     started = False
     # SUMO writes its errors to the process's stderr (the error log is flushed only at exit):
@@ -208,45 +204,20 @@ def run_sumo(
         capture.__enter__()
         libsumo.start(args)
         started = True
-        veh = libsumo.vehicle
+        veh, person = libsumo.vehicle, libsumo.person
+        first_recorded = max(spans[0][0] - plan.margin_steps, 0)
         for step in range(plan.total_steps):
             libsumo.simulationStep()
-            for ego in ego_ids:
-                if ego not in subscribed:
-                    if ego in veh.getIDList():
-                        veh.subscribe(ego, _VEHICLE_VARS)
-                        veh.subscribeContext(ego, _CMD_GET_VEHICLE_VARIABLE, CONTEXT_RADIUS_M, _VEHICLE_VARS)
-                        veh.subscribeContext(ego, _CMD_GET_PERSON_VARIABLE, CONTEXT_RADIUS_M, _PERSON_VARS)
-                        subscribed.add(ego)
-                    continue
-                _keep_driving(veh, ego, road_edges, rng)
+            if step % KEEP_DRIVING_EVERY_STEPS == 0:
+                present = set(veh.getIDList())
+                for ego in ego_ids:
+                    if ego in present:
+                        _keep_driving(veh, ego, road_edges, rng)
             active = [w for w, (a, b) in enumerate(spans) if a - plan.margin_steps <= step <= b + plan.margin_steps]
-            if not active:
+            if not active or step < first_recorded:
                 continue
-            leaders: dict[str, tuple[str, float, float, float]] = {}
-            for ego in ego_ids:
-                own = veh.getSubscriptionResults(ego)
-                if not own:
-                    if step >= spans[0][0]:
-                        raise SimulationError(f"ego {ego} is not driving at step {step} (it could not depart "
-                                              f"or left the network); try another seed")
-                    continue
-                ego_row = _vehicle_row(veh, step, ego, own, leaders)
-                context = veh.getContextSubscriptionResults(ego)
-                rows = []
-                for sid, values in context.items():
-                    if sid == ego:
-                        continue
-                    if _VAR_LANE_INDEX in values:
-                        rows.append(_vehicle_row(veh, step, sid, values, leaders))
-                    else:
-                        x, y = values[_VAR_POSITION]
-                        rows.append((step, sid, values[_VAR_TYPE], True, (x, y), values[_VAR_ANGLE],
-                                     values[_VAR_SPEED], 0.0, "", -1, 0.0, 0, "", np.inf, np.nan, np.nan))
-                for w in active:
-                    c = collectors[(ego, w)]
-                    c.ego_rows.append(ego_row)
-                    c.rows.extend(rows)
+            _record_step(veh, person, step, ego_ids, [collectors[(ego, w)] for ego in ego_ids for w in active],
+                         len(active), must_drive=step >= spans[0][0])
     except SimulationError:
         _close(libsumo, started)
         capture.__exit__()
@@ -292,6 +263,60 @@ class _StderrCapture:
         self.saved = None
 
 
+def _record_step(
+    veh: Any,
+    person: Any,
+    step: int,
+    ego_ids: tuple[str, ...],
+    collectors: list[_Collector],
+    windows_per_ego: int,
+    must_drive: bool,
+) -> None:
+    """Append this step's rows of the objects near each ego to the ego's collectors.
+
+    ``collectors`` holds ``windows_per_ego`` consecutive entries per ego, in ``ego_ids`` order.
+    Positions of all objects are read first; the other variables only for objects near an ego.
+    (Direct getter calls measured cheaper than libsumo subscriptions, whose results are built
+    as nested dicts every step.)
+    """
+    vehicle_ids = veh.getIDList()
+    present = set(vehicle_ids)
+    ego_xy = []
+    for ego in ego_ids:
+        if ego in present:
+            ego_xy.append(veh.getPosition(ego))
+        elif must_drive:
+            raise SimulationError(f"ego {ego} is not driving at step {step} (it could not depart "
+                                  f"or left the network); try another seed")
+        else:
+            ego_xy.append((np.inf, np.inf))
+    centers = np.asarray(ego_xy, dtype=np.float64)  # (E, 2)
+    leaders: dict[str, tuple[str, float, float, float]] = {}
+    radius2 = CONTEXT_RADIUS_M**2
+    for domain, ids, is_person in ((veh, vehicle_ids, False), (person, person.getIDList(), True)):
+        if not ids:
+            continue
+        flat = np.fromiter(chain.from_iterable(domain.getPosition(sid) for sid in ids), np.float64, 2 * len(ids))
+        xy = flat.reshape(-1, 2)  # (N, 2)
+        near = ((xy[None, :, :] - centers[:, None, :]) ** 2).sum(axis=2) <= radius2  # (E, N)
+        rows: dict[int, tuple[Any, ...]] = {}
+        for i in np.flatnonzero(near.any(axis=0)).tolist():
+            sid = ids[i]
+            if is_person:
+                rows[i] = (step, sid, domain.getTypeID(sid), True, (flat[2 * i], flat[2 * i + 1]),
+                           domain.getAngle(sid), domain.getSpeed(sid), 0.0, "", -1, 0.0, 0, "", np.inf,
+                           np.nan, np.nan)
+            else:
+                rows[i] = _vehicle_row(veh, step, sid, (flat[2 * i], flat[2 * i + 1]), leaders)
+        for e, ego in enumerate(ego_ids):
+            seen = [rows[i] for i in np.flatnonzero(near[e]).tolist() if ids[i] != ego]
+            own = rows.get(ids.index(ego)) if not is_person and ego in present else None
+            for c in collectors[e * windows_per_ego:(e + 1) * windows_per_ego]:
+                c.rows.extend(seen)
+                if own is not None:
+                    c.ego_rows.append(own)
+
+
 def _close(libsumo: Any, started: bool) -> None:
     if started:
         with contextlib.suppress(Exception):
@@ -316,7 +341,7 @@ def _sumo_home() -> str:
 
 
 def _vehicle_row(
-    veh: Any, step: int, sid: str, values: dict[int, Any], leaders: dict[str, tuple[str, float, float, float]]
+    veh: Any, step: int, sid: str, xy: tuple[float, float], leaders: dict[str, tuple[str, float, float, float]]
 ) -> tuple[Any, ...]:
     if sid not in leaders:
         found = veh.getLeader(sid, LEADER_LOOKAHEAD_M)
@@ -325,15 +350,17 @@ def _vehicle_row(
         else:
             leaders[sid] = ("", np.inf, np.nan, np.nan)
     leader, gap, leader_speed, leader_accel = leaders[sid]
-    x, y = values[_VAR_POSITION]
-    return (step, sid, values[_VAR_TYPE], False, (x, y), values[_VAR_ANGLE], values[_VAR_SPEED],
-            values[_VAR_ACCELERATION], values[_VAR_LANE_ID], values[_VAR_LANE_INDEX],
-            values[_VAR_LANEPOSITION_LAT], values[_VAR_STOPSTATE], leader, gap, leader_speed, leader_accel)
+    return (step, sid, veh.getTypeID(sid), False, xy, veh.getAngle(sid), veh.getSpeed(sid),
+            veh.getAcceleration(sid), veh.getLaneID(sid), veh.getLaneIndex(sid), veh.getLateralLanePosition(sid),
+            veh.getStopState(sid), leader, gap, leader_speed, leader_accel)
 
 
 def _keep_driving(veh: Any, ego: str, road_edges: tuple[str, ...], rng: np.random.Generator) -> None:
     """Give an ego a new destination before it arrives, so that it drives through every window."""
-    route = veh.getRoute(ego)
+    try:
+        route = veh.getRoute(ego)
+    except Exception as exc:  # libsumo's TraCIException: the vehicle is gone
+        raise SimulationError(f"ego {ego} left the network (SUMO: {exc}); try another seed") from exc
     if veh.getRouteIndex(ego) < len(route) - 2:
         return
     for _ in range(8):
@@ -343,5 +370,5 @@ def _keep_driving(veh: Any, ego: str, road_edges: tuple[str, ...], rng: np.rando
         try:
             veh.changeTarget(ego, target)
             return
-        except Exception:  # noqa: BLE001 - an unreachable target; draw another
+        except Exception:  # an unreachable target: draw another
             continue

@@ -295,8 +295,8 @@ def test_import_command_detections_hook(tmp_path: Path, monkeypatch: pytest.Monk
     calls: list[tuple[object, ...]] = []
     fake = types.ModuleType("scenes.tracking")
 
-    def import_kitti_detections(*args: object) -> str:
-        calls.append(args)
+    def import_kitti_detections(*args: object, overwrite: bool = False) -> str:
+        calls.append((*args, overwrite))
         return "tracked"
 
     fake.import_kitti_detections = import_kitti_detections  # type: ignore[attr-defined]
@@ -304,7 +304,7 @@ def test_import_command_detections_hook(tmp_path: Path, monkeypatch: pytest.Monk
     argv = ["import", "kitti", "--detections", "a.txt", "b.txt", "--poses", "p.txt", "--calib", "c.txt",
             "--out", str(tmp_path)]
     assert cli_main(argv) == 0
-    assert calls == [([Path("a.txt"), Path("b.txt")], Path("p.txt"), Path("c.txt"), tmp_path)]
+    assert calls == [([Path("a.txt"), Path("b.txt")], Path("p.txt"), Path("c.txt"), tmp_path, False)]
     assert capsys.readouterr().out.strip() == "tracked"
 
 

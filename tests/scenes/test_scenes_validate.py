@@ -299,6 +299,16 @@ def test_map_element_missing_key(log_dir: Path) -> None:
     assert "lane_segments[1]" in problem.message and "right_lane_boundary" in problem.message
 
 
+def test_map_nan_coordinate(log_dir: Path) -> None:
+    map_path = av2_io.find_map_file(log_dir)
+    assert map_path is not None
+    data = json.loads(map_path.read_text())
+    data["lane_segments"]["1"]["left_lane_boundary"][1]["y"] = float("nan")
+    map_path.write_text(json.dumps(data))
+    problem = _only(validate_log(log_dir).problems)
+    assert (problem.path, problem.row, problem.field) == (map_path, 1, "lane_segments[1].left_lane_boundary")
+
+
 def test_missing_map_is_a_warning(log_dir: Path) -> None:
     for p in (log_dir / "map").iterdir():
         p.unlink()

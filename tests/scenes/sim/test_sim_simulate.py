@@ -11,7 +11,6 @@ from scenes.sim.network import build_network
 from scenes.validate import validate_log
 
 
-
 def _config(cache: Path, **kw: object) -> SimulationConfig:
     base = {"logs": 2, "duration_s": 4.0, "seed": 1, "warmup_s": 20.0, "egos_per_run": 2, "cache_dir": str(cache)}
     base.update(kw)
@@ -145,3 +144,10 @@ def test_post_log_hooks_run_before_the_log_appears(tmp_path: Path, cache: Path) 
     out = simulate(_config(cache, logs=1), tmp_path / "o", post_log=[hook])
     assert len(seen) == 1 and seen[0] != out[0]
     assert (out[0] / "extra.txt").read_text() == "rendered"
+
+
+def test_a_log_without_objects_stops_the_run_before_writing(tmp_path: Path, cache: Path) -> None:
+    out = tmp_path / "o"
+    with pytest.raises(SimulationError, match="warmup_s"):
+        simulate(_config(cache, warmup_s=0.0, duration_s=0.5, range_m=1.0), out)
+    assert not out.exists() or not any(out.iterdir())

@@ -1,0 +1,115 @@
+"""Agreement of the rule-based tags with a simulator's behaviour labels.
+
+Two checks, per labelled *event* (a contiguous run of frames where a label holds for one track):
+
+- **Neighbour lane changes** (``left_lane_change`` / ``right_lane_change`` of a non-ego track):
+  within the event widened by ``margin_frames`` on both sides, the track's per-frame lane tags,
+  restricted to the same-direction lanes ``right < host < left``, should change at least once
+  (*transition*), and at least once in the labelled direction (*directed*: a left change of a
+  same-direction neighbour moves it toward ``left`` in the ego frame). Events where the track carries
+  fewer than two same-direction lane tags (oncoming, crossing, stationary or unseen) are not evaluable.
+- **Ego turns** (``left_turn`` / ``right_turn`` of the ego): the host direction tags inside the
+  event should include ``steering_left`` / ``steering_right``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import numpy as np
+import pyarrow as pa
+from numpy.typing import NDArray
+
+from captioning.pipeline import EGO_TRACK_ID, LogCaptions
+from captioning.tags import HOST_DIRECTIONS, LANES, NO_TAG, HostDirection, Lane
+
+#: Same-direction lanes ordered from right to left in the ego frame.
+_ORDER = {LANES.index(Lane.RIGHT): 0, LANES.index(Lane.HOST): 1, LANES.index(Lane.LEFT): 2}
+
+
+@dataclass(frozen=True)
+class AgreementReport:
+    """Counts of labelled events and how many the tags agree with."""
+
+    lane_change_events: int = 0
+    lane_change_evaluable: int = 0
+    lane_change_transition: int = 0
+    lane_change_directed: int = 0
+    ego_turn_events: int = 0
+    ego_turn_steering: int = 0
+
+    @property
+    def lane_change_rate(self) -> float:
+        """Share of evaluable lane-change events whose lane tags change (NaN if none)."""
+        return self.lane_change_transition / self.lane_change_evaluable if self.lane_change_evaluable else float("nan")
+
+    @property
+    def lane_change_directed_rate(self) -> float:
+        return self.lane_change_directed / self.lane_change_evaluable if self.lane_change_evaluable else float("nan")
+
+    @property
+    def ego_turn_rate(self) -> float:
+        """Share of ego turns whose host tags steer the labelled way (NaN if none)."""
+        return self.ego_turn_steering / self.ego_turn_events if self.ego_turn_events else float("nan")
+
+    def __add__(self, other: AgreementReport) -> AgreementReport:
+        a, b = asdict(self), asdict(other)
+        return AgreementReport(**{key: a[key] + b[key] for key in a})
+
+    def to_dict(self) -> dict[str, float]:
+        out: dict[str, float] = dict(asdict(self))
+        out.update(
+            lane_change_rate=self.lane_change_rate,
+            lane_change_directed_rate=self.lane_change_directed_rate,
+            ego_turn_rate=self.ego_turn_rate,
+        )
+        return out
+
+
+def _events(flags: NDArray[np.bool_]) -> list[tuple[int, int]]:
+    """(T,) booleans → inclusive (start, end) runs of True."""
+    padded = np.r_[False, flags, False].astype(np.int8)
+    edges = np.flatnonzero(np.diff(padded))
+    return [(int(s), int(e) - 1) for s, e in zip(edges[::2], edges[1::2])]
+
+
+def _label_grid(result: LogCaptions, labels: pa.Table, track_id: str, column: str) -> NDArray[np.bool_]:
+    """(T,) the label on the result's frame grid (False where the track has no label row)."""
+    mask = np.asarray(labels.column("track_id").to_numpy(zero_copy_only=False) == track_id)
+    ts = np.asarray(labels.column("timestamp_ns").to_numpy())[mask]
+    flag = np.asarray(labels.column(column).to_numpy(zero_copy_only=False), dtype=bool)[mask]
+    grid = np.zeros(result.timestamps_ns.shape[0], dtype=bool)
+    idx = np.searchsorted(result.timestamps_ns, ts)
+    ok = (idx < grid.shape[0]) & (result.timestamps_ns[np.minimum(idx, grid.shape[0] - 1)] == ts)
+    grid[idx[ok]] = flag[ok]
+    return grid
+
+
+def agreement(result: LogCaptions, labels: pa.Table, margin_frames: int = 10) -> AgreementReport:
+    """Compare one captioned log with its behaviour labels (``scenes.behavior`` table)."""
+    t = result.timestamps_ns.shape[0]
+    counts = dict.fromkeys(asdict(AgreementReport()), 0)
+    labelled = set(labels.column("track_id").to_pylist())
+    for k, track_id in enumerate(result.track_ids.tolist()):
+        if track_id not in labelled:
+            continue
+        for column, step in (("left_lane_change", +1), ("right_lane_change", -1)):
+            for start, end in _events(_label_grid(result, labels, track_id, column)):
+                counts["lane_change_events"] += 1
+                lo, hi = max(start - margin_frames, 0), min(end + margin_frames, t - 1)
+                lanes = [_ORDER[c] for c in result.neighbors.lane[k, lo : hi + 1].tolist() if c in _ORDER]
+                if len(lanes) < 2:
+                    continue
+                counts["lane_change_evaluable"] += 1
+                steps = np.diff(lanes)
+                counts["lane_change_transition"] += int(bool((steps != 0).any()))
+                counts["lane_change_directed"] += int(bool((np.sign(steps) == step).any()))
+    if EGO_TRACK_ID in labelled:
+        turns = (("left_turn", HostDirection.STEERING_LEFT), ("right_turn", HostDirection.STEERING_RIGHT))
+        for column, direction in turns:
+            code = HOST_DIRECTIONS.index(direction)
+            for start, end in _events(_label_grid(result, labels, EGO_TRACK_ID, column)):
+                counts["ego_turn_events"] += 1
+                window = result.host_direction[start : end + 1]
+                counts["ego_turn_steering"] += int(bool((window[window != NO_TAG] == code).any()))
+    return AgreementReport(**counts)

@@ -1,0 +1,69 @@
+"""Captioning config: YAML round trip, unknown keys, contradictions."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from captioning.config import CaptioningConfig, NeighborConfig, SegmentsConfig, WindowStrategy
+from captioning.errors import ConfigError
+
+
+def test_default_round_trips_through_yaml(tmp_path: Path) -> None:
+    config = CaptioningConfig()
+    config.to_yaml(tmp_path / "c.yaml")
+    assert CaptioningConfig.from_yaml(tmp_path / "c.yaml") == config
+
+
+def test_custom_round_trips_through_yaml(tmp_path: Path) -> None:
+    path = tmp_path / "c.yaml"
+    path.write_text(
+        "host: {yaw_rate_rps: 0.2}\nneighbor: {lateral_deg: [50, 130], oncoming_min_deg: 160}\n"
+        "windows: {strategy: sliding, length_s: 4, stride_s: 1}\nsmoothing: {window_frames: 7}\n"
+    )
+    config = CaptioningConfig.from_yaml(path)
+    assert config.host.yaw_rate_rps == 0.2
+    assert config.neighbor.lateral_deg == (50.0, 130.0)
+    assert config.windows.strategy is WindowStrategy.SLIDING
+    assert config.smoothing.window_frames == 7
+    config.to_yaml(tmp_path / "again.yaml")
+    assert CaptioningConfig.from_yaml(tmp_path / "again.yaml") == config
+
+
+def test_unknown_keys_are_all_listed(tmp_path: Path) -> None:
+    path = tmp_path / "c.yaml"
+    path.write_text("host: {speed: 1}\nneighbour: {}\n")
+    with pytest.raises(ConfigError, match=r"host\.speed.*neighbour|neighbour.*host\.speed") as info:
+        CaptioningConfig.from_yaml(path)
+    assert str(path) in str(info.value)
+
+
+@pytest.mark.parametrize(
+    ("data", "fragment"),
+    [
+        ({"neighbor": {"lateral_deg": [120, 60]}}, "lateral_deg"),
+        ({"neighbor": {"oncoming_min_deg": 100}}, "oncoming_min_deg"),
+        ({"host": {"accel_mps2": -1}}, "host.accel_mps2"),
+        ({"segments": {"min_frames": 50, "max_frames": 20}}, "exceeds"),
+        ({"smoothing": {"window_frames": 8}}, "window_frames"),
+        ({"smoothing": {"window_frames": 5, "polyorder": 5}}, "polyorder"),
+        ({"windows": {"strategy": "random"}}, "strategy"),
+        ({"host": {"yaw_rate_rps": "fast"}}, "yaw_rate_rps"),
+        ({"neighbor": {"lateral_deg": 60}}, "lateral_deg"),
+    ],
+)
+def test_contradictions_are_config_errors(data: dict, fragment: str) -> None:
+    with pytest.raises(ConfigError, match=fragment):
+        CaptioningConfig.from_dict(data)
+
+
+def test_dataclass_construction_is_validated_too() -> None:
+    with pytest.raises(ConfigError):
+        CaptioningConfig(neighbor=NeighborConfig(host_lane_half_width_m=float("nan")))
+    with pytest.raises(ConfigError, match="twice"):
+        CaptioningConfig(segments=SegmentsConfig(min_frames=10, max_frames=15))
+
+
+def test_config_error_is_a_value_error_for_the_cli() -> None:
+    assert issubclass(ConfigError, ValueError)

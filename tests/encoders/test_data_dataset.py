@@ -1,0 +1,117 @@
+"""The clip dataset: tensors, seeded augmentation that moves the BEV consistently, collate, workers."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pyarrow.parquet as pq
+import pytest
+import torch
+
+from encoders.clips.build import build_clips
+from encoders.clips.config import ClipsConfig
+from encoders.clips.raster import BevGrid
+from encoders.clips.testing import synthetic_captions, write_synthetic_log
+from encoders.data import AugmentConfig, ClipDataset, collate_clips, read_clip_table, read_manifest
+
+
+@pytest.fixture(scope="module")
+def clips_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    root = tmp_path_factory.mktemp("clips_data")
+    logs = [
+        write_synthetic_log(root / "logs", log_id=f"synthetic_{i}", num_frames=36, with_lidar=i != 1, seed=i)
+        for i in range(3)
+    ]
+    (root / "captions").mkdir()
+    pq.write_table(synthetic_captions(logs, 2, 30), root / "captions" / "captions.parquet")
+    config = replace(ClipsConfig(), previews=False, frames_per_clip=8)
+    build_clips(logs, root / "captions", root / "clips", config)
+    return root / "clips"
+
+
+def test_items_have_the_interface_shapes_and_value_ranges(clips_dir: Path) -> None:
+    manifest = read_manifest(clips_dir)
+    table = read_clip_table(clips_dir)
+    ds = ClipDataset(clips_dir)
+    assert len(ds) == table.num_rows == 9
+    item = ds[0]
+    t = manifest["frames_per_clip"]
+    hb, wb = manifest["bev"]["height_px"], manifest["bev"]["width_px"]
+    assert (hb, wb) == (160, 80)
+    assert item["camera"].shape == (t, 4, manifest["camera"]["height_px"], manifest["camera"]["width_px"])
+    assert item["bev_lidar"].shape == (t, len(manifest["bev"]["lidar_channels"]), hb, wb)
+    assert item["bev_map"].shape == (t, len(manifest["bev"]["map_channels"]), hb, wb)
+    assert item["bev_object"].shape == (t, 1, hb, wb) and item["ego_motion"].shape == (t, 4)
+    for key in ("camera", "bev_lidar", "bev_map", "bev_object"):
+        assert item[key].dtype == torch.float32 and float(item[key].min()) >= 0.0 and float(item[key].max()) <= 1.0
+    assert item["caption"] == item["canonical_caption"]
+    # The log without sweeps gets a BEV rendered from boxes, flagged in the table.
+    sources = dict(zip(table.column("log_id").to_pylist(), table.column("bev_source").to_pylist()))
+    assert sources["synthetic_1"] == "boxes" and sources["synthetic_0"] == "lidar"
+
+
+def test_splits_do_not_share_logs(clips_dir: Path) -> None:
+    seen: dict[str, set[str]] = {}
+    for split in ("train", "val", "test"):
+        ds = ClipDataset(clips_dir, split=split)
+        seen[split] = {cid.split(":")[0] for cid in ds.clip_ids}
+        assert len(ds) >= 3  # three logs → every split gets one
+    assert not (seen["train"] & seen["val"]) and not (seen["train"] & seen["test"]) and not (seen["val"] & seen["test"])
+    with pytest.raises(ValueError, match="split"):
+        ClipDataset(clips_dir, split="validation")
+
+
+def test_augmentation_is_seeded_and_moves_the_bev_consistently(clips_dir: Path) -> None:
+    plain = ClipDataset(clips_dir)
+    index = next(i for i, c in enumerate(plain.clip_ids) if c.startswith("synthetic_0:lead"))
+    aug_cfg = AugmentConfig(max_rotation_rad=0.3, max_translation_m=2.0, paraphrase_probability=1.0)
+    a = ClipDataset(clips_dir, augment=True, seed=1, augment_config=aug_cfg)
+    b = ClipDataset(clips_dir, augment=True, seed=1, augment_config=aug_cfg)
+    x, y = a[index], b[index]
+    assert x["caption"] == y["caption"] and "paraphrase" in x["caption"]
+    assert torch.equal(x["bev_map"], y["bev_map"]) and torch.equal(x["camera"], y["camera"])
+    a.set_epoch(1)
+    assert not torch.equal(a[index]["bev_map"], x["bev_map"])
+    # Recover the drawn rotation and shift, then check the object moved to R(θ)·p + shift.
+    rng = np.random.default_rng([1, 0, index])
+    rng.random()
+    rng.integers(2)
+    rng.uniform(size=3)  # colour jitter draws (brightness, contrast, saturation)
+    theta = rng.uniform(-0.3, 0.3)
+    shift = rng.uniform(-2.0, 2.0, size=2)
+    grid = BevGrid()
+    base = plain[index]["bev_object"][:, 0].numpy()
+    moved = x["bev_object"][:, 0].numpy()
+    for t in (0, base.shape[0] - 1):
+        r, c = np.nonzero(base[t])
+        p = np.stack([grid.x_max_m - (r.mean() + 0.5) * 0.5, grid.y_max_m - (c.mean() + 0.5) * 0.5])
+        rot = np.array([[np.cos(theta), -np.sin(theta)], [np.sin(theta), np.cos(theta)]])
+        expected = grid.to_pixel(rot @ p + shift)
+        r2, c2 = np.nonzero(moved[t])
+        assert abs(c2.mean() + 0.5 - expected[0]) < 1.0 and abs(r2.mean() + 0.5 - expected[1]) < 1.0
+    # Ego motion rotates with the BEV; speed is unchanged.
+    m0, m1 = plain[index]["ego_motion"].numpy(), x["ego_motion"].numpy()
+    np.testing.assert_allclose(np.linalg.norm(m1[:, :2], axis=1), np.linalg.norm(m0[:, :2], axis=1), atol=1e-4)
+    np.testing.assert_allclose(np.arctan2(m1[-1, 1], m1[-1, 0]), theta, atol=1e-4)
+    np.testing.assert_allclose(m1[:, 3], m0[:, 3])
+    # Colour jitter changes the RGB but never the mask channel.
+    assert torch.equal(x["camera"][:, 3], plain[index]["camera"][:, 3])
+    assert not torch.allclose(x["camera"][:, :3], plain[index]["camera"][:, :3])
+
+
+def test_collate_and_worker_loading(clips_dir: Path) -> None:
+    ds = ClipDataset(clips_dir, augment=True)
+    loader = torch.utils.data.DataLoader(ds, batch_size=4, num_workers=2, collate_fn=collate_clips, shuffle=False)
+    batches = list(loader)
+    assert sum(len(b["clip_id"]) for b in batches) == len(ds)
+    batch = batches[0]
+    assert batch["camera"].shape[:2] == (4, 8) and batch["bev_lidar"].dim() == 5
+    assert batch["has_camera"].dtype == torch.bool and batch["has_camera"].shape == (4,)
+    assert isinstance(batch["caption"], list) and isinstance(batch["tags"][0], list)
+    # Rows without a camera view carry zeros; rows with one carry the highlighted object.
+    cam = batch["camera"].flatten(1).abs().sum(dim=1)
+    assert bool(((cam > 0) == batch["has_camera"]).all())
+    same = ClipDataset(clips_dir, augment=True)
+    np.testing.assert_allclose(batch["bev_map"][1].numpy(), same[1]["bev_map"].numpy())

@@ -1,0 +1,99 @@
+"""BEV rasters: boxes, map layers and LiDAR occupancy, with the image convention checked."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from scenes.bev import MAP_LAYERS, BevGrid, MapRasterizer, lidar_occupancy, rasterize_boxes, rasterize_map
+from scenes.geometry import SE3
+from scenes.sensorsim.synthetic import crossroad_map
+
+GRID = BevGrid()  # x −20..60, y −20..20, 0.5 m: 160 rows × 80 columns
+
+
+def _cells(raster: np.ndarray) -> set[tuple[int, int]]:
+    return {(int(r), int(c)) for r, c in np.argwhere(raster > 0)}
+
+
+def test_grid_convention() -> None:
+    assert GRID.shape == (160, 80)
+    centers = GRID.cell_centers_xy()
+    assert np.allclose(centers[0, 0], [59.75, 19.75])  # row 0 ahead, column 0 left
+    assert np.allclose(centers[-1, -1], [-19.75, -19.75])
+    px = GRID.ego_to_pixel(np.array([[59.75, 19.75], [0.0, 0.0]]))
+    assert np.allclose(px[0], [0, 0]) and np.allclose(px[1], [39.5, 119.5])
+
+
+def test_axis_aligned_box_covers_exactly_its_cells() -> None:
+    raster = rasterize_boxes(GRID, np.array([[10.0, 5.0]]), np.array([[4.0, 2.0]]), np.array([0.0]))
+    # x in [8, 12] → rows (60 − 12)/0.5 = 96 … 99; y in [4, 6] → columns (20 − 6)/0.5 = 28 … 31.
+    expected = {(r, c) for r in range(96, 104) for c in range(28, 32)}
+    assert _cells(raster) == expected
+    assert raster.dtype == np.float32 and raster.max() == 1.0
+
+
+def test_rotated_box_matches_the_centre_test() -> None:
+    center, size, yaw = np.array([20.0, -6.0]), np.array([6.0, 2.4]), 0.6
+    raster = rasterize_boxes(GRID, center[None], size[None], np.array([yaw]))
+    xy = GRID.cell_centers_xy() - center
+    c, s = np.cos(yaw), np.sin(yaw)
+    lx, ly = c * xy[..., 0] + s * xy[..., 1], -s * xy[..., 0] + c * xy[..., 1]
+    inside = (np.abs(lx) <= size[0] / 2) & (np.abs(ly) <= size[1] / 2)
+    assert np.array_equal(raster > 0, inside)
+    turned = rasterize_boxes(GRID, center[None], size[None], np.array([yaw + np.pi / 2]))
+    assert abs(int((turned > 0).sum()) - int(inside.sum())) <= 0.1 * inside.sum()
+
+
+def test_values_and_overlap_order() -> None:
+    centers = np.array([[0.0, 0.0], [1.0, 0.0]])
+    raster = rasterize_boxes(GRID, centers, np.array([[4.0, 2.0], [4.0, 2.0]]), np.zeros(2), values=np.array([3.0, 7.0]))
+    row_of = lambda x: int((GRID.x_max_m - x) / GRID.resolution_m)  # noqa: E731
+    col0 = int((GRID.y_max_m - 0.25) / GRID.resolution_m)
+    assert raster[row_of(-1.75), col0] == 3.0  # only the first box
+    assert raster[row_of(0.25), col0] == 7.0  # overlap: the later box wins
+    assert raster[row_of(2.75), col0] == 7.0
+
+
+def test_coverage_is_fractional_and_conserves_area() -> None:
+    # A box whose edges fall on cell centres covers its border cells by half.
+    raster = rasterize_boxes(GRID, np.array([[10.25, 0.0]]), np.array([[2.0, 2.0]]), np.zeros(1), coverage=True)
+    assert set(np.unique(raster)) <= {0.0, 0.5, 1.0}
+    assert (raster == 0.5).sum() == 8 and (raster == 1.0).sum() == 12
+    rotated = rasterize_boxes(GRID, np.array([[15.3, -4.1]]), np.array([[4.6, 1.9]]), np.array([0.77]),
+                              coverage=True, supersample=8)
+    area = rotated.sum() * GRID.resolution_m**2
+    assert area == pytest.approx(4.6 * 1.9, rel=0.03)
+    assert rotated.max() == 1.0 and 0 < rotated[rotated > 0].min() < 1
+
+
+def test_map_layers_around_the_ego() -> None:
+    vmap = crossroad_map()
+    pose = SE3.from_yaw(0.0, np.array([60.0, -1.75, 0.0]))  # eastbound lane, junction 40 m ahead
+    layers = rasterize_map(GRID, vmap, pose)
+    assert tuple(layers) == MAP_LAYERS
+    at = lambda name, x, y: layers[name][int((GRID.x_max_m - x) / 0.5), int((GRID.y_max_m - y) / 0.5)]  # noqa: E731
+    assert at("drivable_area", 0.0, 0.0) == 1.0
+    assert at("drivable_area", 0.0, 12.0) == 0.0  # beside the road (its left edge is 8.75 m away)
+    assert at("lane_direction_cos", 0.0, 0.0) == pytest.approx(1.0, abs=1e-3)  # own lane: ahead
+    assert at("lane_direction_cos", 0.0, 5.0) == pytest.approx(-1.0, abs=1e-3)  # oncoming lane
+    assert at("intersections", 40.0, 0.0) == 1.0 and at("intersections", 0.0, 0.0) == 0.0
+    assert at("crosswalks", 40.0 - 7.0 - 2.5, 1.75) == 1.0  # the crossing before the junction
+    assert at("drivable_area", 40.0, 15.0) == 1.0  # the side road
+    assert layers["lane_boundaries"].sum() > 100
+    # Turn the ego to face north: the eastbound lane now runs to the ego's right (heading −π/2).
+    turned = MapRasterizer(vmap).rasterize(GRID, SE3.from_yaw(np.pi / 2, np.array([60.0, -1.75, 0.0])))
+    r, c = int((GRID.x_max_m - 0.0) / 0.5), int((GRID.y_max_m - 0.0) / 0.5)
+    assert turned["lane_direction_sin"][r, c] == pytest.approx(-1.0, abs=1e-3)
+
+
+def test_lidar_occupancy_counts_points_in_their_cells() -> None:
+    points = np.array([[10.1, 5.1, 0.5], [10.2, 5.2, 0.6], [10.1, 5.1, 2.5], [-30.0, 0.0, 0.5], [0.0, 0.0, 9.0]])
+    occ = lidar_occupancy(GRID, points, np.array([0.0, 1.0, 3.0]))
+    assert occ.shape == (2, 160, 80)
+    r, c = int((60.0 - 10.1) / 0.5), int((20.0 - 5.1) / 0.5)
+    assert occ[0, r, c] == 2.0 and occ[1, r, c] == 1.0
+    assert occ.sum() == 3.0  # the point behind the grid and the one above the bins are dropped
+    assert lidar_occupancy(GRID, points, np.array([0.0, 1.0, 3.0]), binary=True)[0, r, c] == 1.0
+    with pytest.raises(ValueError, match="increasing"):
+        lidar_occupancy(GRID, points, np.array([1.0, 0.0]))

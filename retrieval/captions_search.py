@@ -1,14 +1,26 @@
 """Search over rule captions alone: works on any log with tracks, including real logs without sensors.
 
-The rule captions of every (object, window) are embedded with the frozen sentence encoder
-(:class:`retrieval.embedding.SentenceEncoder`), not with a trained model, so no clips and no training
-are needed. A query is embedded the same way and compared by cosine similarity.
+Every caption row (an object over a time window, or the host vehicle) is described by a few texts:
+its canonical caption, captioning's paraphrases of it, and for a neighbour the same texts without
+the host's sentence (what the object itself does). Each distinct text is embedded once by the frozen
+sentence encoder (:class:`retrieval.embedding.SentenceEncoder`, no trained model), and a row scores
+the best cosine similarity of its texts to the query. Short queries such as "stopped car" thereby
+meet the paraphrase "A car in the left lane is stopped." rather than the long canonical sentence.
 
 >>> search = CaptionSearch.build("captions/captions.parquet", "captions_index")
 >>> search.search("stopped car", k=5, filters={"category": "car"})
 
-:func:`caption_logs` captions log folders end to end (``captioning.caption_log``) and returns the
-caption table, so real AV2 logs can be searched in two lines (see :func:`search_logs`).
+:func:`caption_logs` captions log folders end to end (``captioning.caption_logs``); :func:`search_logs`
+captions and searches real AV2 logs (tracks only) in one call.
+
+Directory layout (written atomically)::
+
+    manifest.json         kind caption_search, format version, text encoder, counts, skipped rows
+    metadata.parquet      one row per moment (id, clip_id, log_id, track_id, category, start_ns, …)
+    texts.parquet         the distinct texts (column ``text``)
+    text_embeddings.npy   (M, D) float32, L2-normalised, row i embeds texts[i]
+    variant_offsets.npy   (N + 1,) int64: row r's texts are variant_texts[offsets[r]:offsets[r + 1]]
+    variant_texts.npy     (V,) int64 indices into texts
 """
 
 from __future__ import annotations
@@ -21,25 +33,25 @@ from typing import Any
 
 import numpy as np
 import pyarrow as pa
-import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
-from indexes.clip_index import ClipIndex
 from indexes.errors import FilterError
-from indexes.errors import InvalidKError as IndexInvalidKError
 from indexes.filters import FilterSpec
+from indexes.metadata import MetadataStore
 from retrieval.embedding import SentenceEncoder
-from retrieval.errors import EmptyQueryError, FilterSyntaxError, IndexDirError, InvalidKError
+from retrieval.errors import FilterSyntaxError, IndexDirError
+from retrieval.querying import check_k, check_query, preview_of
 from retrieval.records import SearchResult
 from scenes.atomic import atomic_directory
 
 TextEncoder = Callable[[Sequence[str]], np.ndarray]
-INFO_FILE = "caption_search.json"
-INDEX_SUBDIR = "index"
+MANIFEST = "manifest.json"
+KIND = "caption_search"
 FORMAT_VERSION = 1
 #: Columns kept as metadata (and filterable) when present in the caption table.
 METADATA_COLUMNS = ("clip_id", "log_id", "track_id", "category", "start_ns", "end_ns", "caption", "tags",
                     "host_tags", "window", "split", "time_of_day", "weather", "has_camera", "preview_path")
+HOST_PREFIX = "The ego vehicle"
 
 
 @dataclass(frozen=True)
@@ -58,7 +70,8 @@ def clip_id_of(log_id: str, track_id: str, start_ns: int) -> str:
 def caption_rows(table: pa.Table) -> tuple[pa.Table, list[Skipped]]:
     """The metadata table of a caption (or clip) table: one row per unique moment with a caption.
 
-    Adds ``clip_id`` when absent; drops rows without a caption and repeated ids (reported).
+    Adds ``clip_id`` when absent; drops rows without a caption and repeated ids (reported). Keeps
+    ``paraphrases`` and ``canonical_caption`` for :func:`text_variants` (they are not metadata).
     """
     missing = [c for c in ("log_id", "track_id", "start_ns", "caption") if c not in table.column_names]
     if "caption" in missing and "canonical_caption" in table.column_names:
@@ -71,14 +84,12 @@ def caption_rows(table: pa.Table) -> tuple[pa.Table, list[Skipped]]:
                                                             table.column("track_id").to_pylist(),
                                                             table.column("start_ns").to_pylist())]
         table = table.append_column("clip_id", pa.array(ids, pa.string()))
-    keep = [c for c in METADATA_COLUMNS if c in table.column_names]
+    keep = [c for c in (*METADATA_COLUMNS, "canonical_caption", "paraphrases") if c in table.column_names]
     table = table.select(keep)
     skipped: list[Skipped] = []
-    captions = table.column("caption").to_pylist()
-    ids = table.column("clip_id").to_pylist()
     seen: set[str] = set()
     mask = np.zeros(table.num_rows, dtype=bool)
-    for i, (cid, cap) in enumerate(zip(ids, captions)):
+    for i, (cid, cap) in enumerate(zip(table.column("clip_id").to_pylist(), table.column("caption").to_pylist())):
         if not cap or not str(cap).strip():
             skipped.append(Skipped(str(cid), "no caption"))
         elif cid in seen:
@@ -89,30 +100,60 @@ def caption_rows(table: pa.Table) -> tuple[pa.Table, list[Skipped]]:
     return table.filter(pa.array(mask)), skipped
 
 
+def object_sentence(caption: str) -> str | None:
+    """The caption without its leading host sentence, or None when there is no second sentence."""
+    if caption.startswith(HOST_PREFIX) and ". " in caption:
+        rest = caption.split(". ", 1)[1].strip()
+        return rest or None
+    return None
+
+
+def text_variants(row: dict[str, Any]) -> list[str]:
+    """The distinct texts that describe one caption row (see the module docstring)."""
+    texts = [str(row["caption"])]
+    if row.get("canonical_caption"):
+        texts.append(str(row["canonical_caption"]))
+    texts.extend(str(p) for p in (row.get("paraphrases") or []) if p)
+    if str(row.get("track_id")) != "ego":
+        texts.extend(o for o in (object_sentence(t) for t in list(texts)) if o)
+    return list(dict.fromkeys(t.strip() for t in texts if t.strip()))
+
+
 class CaptionSearch:
     """Rule captions embedded by a frozen sentence encoder, searchable by text."""
 
-    def __init__(self, index: ClipIndex, encoder: TextEncoder | None = None, encoder_name: str | None = None,
-                 base_dir: Path | None = None, skipped: Sequence[Skipped] = ()) -> None:
-        self.index = index
+    def __init__(self, metadata: MetadataStore, texts: list[str], text_embeddings: np.ndarray,
+                 offsets: np.ndarray, variant_texts: np.ndarray, encoder: TextEncoder | None = None,
+                 encoder_name: str | None = None, base_dir: Path | None = None,
+                 skipped: Sequence[Skipped] = ()) -> None:
+        self.metadata = metadata
+        self.texts = texts
+        self.text_embeddings = np.ascontiguousarray(text_embeddings, dtype=np.float32)
+        self.offsets = np.asarray(offsets, dtype=np.int64)
+        self.variant_texts = np.asarray(variant_texts, dtype=np.int64)
         self.encoder: TextEncoder = encoder if encoder is not None else SentenceEncoder()
         self.encoder_name = str(encoder_name or getattr(self.encoder, "name", type(self.encoder).__name__))
         self.base_dir = base_dir
         self.skipped = list(skipped)
 
     def __len__(self) -> int:
-        return len(self.index)
+        return len(self.metadata)
 
     @property
     def fields(self) -> list[str]:
-        return [f for f in self.index.fields if f != "id"]
+        """Metadata fields that filters may name."""
+        return [f for f in self.metadata.fields if f != "id"]
 
     @classmethod
     def build(cls, captions: Path | str | pa.Table, out_dir: Path | str | None = None,
               encoder: TextEncoder | None = None, base_dir: Path | None = None) -> CaptionSearch:
         """Embed the captions of ``captions`` (a ``captions.parquet``, a captions directory, or a table).
 
-        Identical caption texts are embedded once. Written to ``out_dir`` atomically when given.
+        Each distinct text is embedded once. Written to ``out_dir`` atomically when given.
+
+        Raises:
+            FileNotFoundError: no caption table at the path.
+            ValueError: the table lacks the caption columns or holds no captions.
         """
         if isinstance(captions, pa.Table):
             table = captions
@@ -127,176 +168,128 @@ class CaptionSearch:
         rows, skipped = caption_rows(table)
         if rows.num_rows == 0:
             raise ValueError("no captions to index" + (f"; skipped: {skipped[:5]}" if skipped else ""))
+        variants = [text_variants(r) for r in rows.to_pylist()]
+        texts = list(dict.fromkeys(t for v in variants for t in v))
+        pos = {t: i for i, t in enumerate(texts)}
+        offsets = np.zeros(len(variants) + 1, dtype=np.int64)
+        offsets[1:] = np.cumsum([len(v) for v in variants])
+        variant_texts = np.asarray([pos[t] for v in variants for t in v], dtype=np.int64)
         encoder = encoder if encoder is not None else SentenceEncoder()
-        texts = rows.column("caption").to_pylist()
-        unique, inverse = np.unique(np.asarray(texts, dtype=object), return_inverse=True)
-        emb = np.asarray(encoder([str(u) for u in unique]), dtype=np.float32)[inverse.reshape(-1)]
-        index = ClipIndex.build(emb, rows, metric="cosine", factory="auto")
-        out = cls(index, encoder, None, base_dir, skipped)
+        embeddings = np.asarray(encoder(texts), dtype=np.float32)
+        meta = rows.select([c for c in rows.column_names if c not in ("canonical_caption", "paraphrases")])
+        store = MetadataStore.from_rows(meta, np.arange(rows.num_rows, dtype=np.int64))
+        out = cls(store, texts, embeddings, offsets, variant_texts, encoder, None, base_dir, skipped)
         if out_dir is not None:
             out.save(out_dir)
         return out
 
     def save(self, out_dir: Path | str) -> None:
-        """Write ``out_dir/index/`` (the caption index) and ``out_dir/caption_search.json``, atomically."""
+        """Write the directory described in the module docstring, atomically."""
         with atomic_directory(out_dir, overwrite=True) as tmp:
-            self.index.save(tmp / INDEX_SUBDIR)
-            info = {"format_version": FORMAT_VERSION, "kind": "caption_search", "text_encoder": self.encoder_name,
-                    "count": len(self.index), "dim": self.index.dim,
+            self.metadata.write(tmp / "metadata.parquet")
+            pq.write_table(pa.table({"text": pa.array(self.texts, pa.string())}), tmp / "texts.parquet")
+            np.save(tmp / "text_embeddings.npy", self.text_embeddings)
+            np.save(tmp / "variant_offsets.npy", self.offsets)
+            np.save(tmp / "variant_texts.npy", self.variant_texts)
+            info = {"format_version": FORMAT_VERSION, "kind": KIND, "text_encoder": self.encoder_name,
+                    "count": len(self), "texts": len(self.texts), "dim": int(self.text_embeddings.shape[1]),
                     "base_dir": None if self.base_dir is None else str(Path(self.base_dir).resolve()),
                     "skipped": [{"item": s.item, "reason": s.reason} for s in self.skipped]}
-            (tmp / INFO_FILE).write_text(json.dumps(info, indent=2))
+            (tmp / MANIFEST).write_text(json.dumps(info, indent=2))
 
     @classmethod
     def open(cls, directory: Path | str, encoder: TextEncoder | None = None) -> CaptionSearch:
+        """Open a directory written by :meth:`save`.
+
+        Raises:
+            IndexDirError: not a caption index, an unsupported format, or inconsistent files.
+        """
         directory = Path(directory)
-        info_path = directory / INFO_FILE
-        if not info_path.is_file():
-            raise IndexDirError(f"{directory}: not a caption index ({INFO_FILE} is missing; build one with "
+        path = directory / MANIFEST
+        if not path.is_file():
+            raise IndexDirError(f"{path}: missing; {directory} is not a caption index (build one with "
                                 "CaptionSearch.build or `scenesearch index`)")
-        info = json.loads(info_path.read_text())
+        info = json.loads(path.read_text())
+        if info.get("kind") != KIND:
+            raise IndexDirError(f"{path}: holds a {info.get('kind')!r}, not a {KIND!r}")
         if int(info.get("format_version", 0)) > FORMAT_VERSION:
-            raise IndexDirError(f"{info_path}: format version {info['format_version']} is newer than "
+            raise IndexDirError(f"{path}: format version {info['format_version']} is newer than "
                                 f"{FORMAT_VERSION}; upgrade scenesearch")
-        index = ClipIndex.load(directory / INDEX_SUBDIR)
+        try:
+            metadata = MetadataStore.read(directory / "metadata.parquet")
+            texts = pq.read_table(directory / "texts.parquet").column("text").to_pylist()
+            emb = np.load(directory / "text_embeddings.npy")
+            offsets = np.load(directory / "variant_offsets.npy")
+            variant_texts = np.load(directory / "variant_texts.npy")
+        except (OSError, ValueError, KeyError) as exc:
+            raise IndexDirError(f"{directory}: unreadable caption index: {exc}") from None
+        if len(offsets) != len(metadata) + 1 or emb.shape[0] != len(texts) or offsets[-1] != len(variant_texts):
+            raise IndexDirError(f"{directory}: files disagree ({len(metadata)} rows, {len(offsets)} offsets, "
+                                f"{len(texts)} texts, {emb.shape[0]} embeddings)")
         base = info.get("base_dir")
-        return cls(index, encoder, info.get("text_encoder"), Path(base) if base else None,
-                   [Skipped(s["item"], s["reason"]) for s in info.get("skipped", [])])
+        return cls(metadata, texts, emb, offsets, variant_texts, encoder, info.get("text_encoder"),
+                   Path(base) if base else None, [Skipped(s["item"], s["reason"]) for s in info.get("skipped", [])])
+
+    def scores(self, xq: np.ndarray) -> np.ndarray:
+        """(N,) score of every row for one query embedding (D,): the best of its texts."""
+        per_text = self.text_embeddings @ np.asarray(xq, dtype=np.float32).reshape(-1)
+        return np.asarray(np.maximum.reduceat(per_text[self.variant_texts], self.offsets[:-1]))
 
     def search(self, query: str, k: int = 10, filters: FilterSpec = None) -> list[SearchResult]:
-        """The k moments whose rule captions are closest to ``query``.
+        """The k moments whose captions are closest to ``query`` (fewer when a filter passes fewer).
 
         Raises:
             EmptyQueryError, InvalidKError, FilterSyntaxError: bad arguments.
         """
         query = check_query(query)
-        check_k(k, len(self.index))
-        xq = np.asarray(self.encoder([query]), dtype=np.float32)
-        return hits_to_results(self.index, xq, k, filters, "captions", self.base_dir)
+        check_k(k, len(self))
+        scores = self.scores(np.asarray(self.encoder([query]), dtype=np.float32)[0])
+        if filters is not None:
+            allowed = np.zeros(len(self), dtype=bool)
+            allowed[self._select(filters)] = True
+            scores = np.where(allowed, scores, -np.inf)
+        k_eff = min(k, int(np.isfinite(scores).sum()))
+        if k_eff == 0:
+            return []
+        top = np.argpartition(-scores, k_eff - 1)[:k_eff]
+        top = top[np.lexsort((top, -scores[top]))]
+        rows = self.metadata.rows(top)
+        return [SearchResult.from_row(rank, row, float(scores[i]), "captions", preview_of(row, self.base_dir))
+                for rank, (i, row) in enumerate(zip(top, rows), start=1)]
 
-
-def check_query(query: object) -> str:
-    if not isinstance(query, str) or not query.strip():
-        raise EmptyQueryError()
-    return query.strip()
-
-
-def check_k(k: object, size: int) -> int:
-    if isinstance(k, bool) or not isinstance(k, int | np.integer) or not 1 <= int(k) <= size:
-        raise InvalidKError(k, size)
-    return int(k)
-
-
-def check_filters(index: ClipIndex, filters: FilterSpec) -> FilterSpec:
-    """Reject unknown fields with the list of valid ones; other errors come from the filter language."""
-    if filters is None or isinstance(filters, str):
-        return filters
-    if isinstance(filters, dict):
-        valid = [f for f in index.fields if f != "id"]
-        unknown = [f for f in filters if f not in valid]
-        if unknown:
-            raise FilterSyntaxError(f"unknown filter field {unknown[0]!r}; valid fields: {', '.join(valid)}")
-    return filters
-
-
-def hits_to_results(index: ClipIndex, xq: np.ndarray, k: int, filters: FilterSpec, view: str,
-                    base_dir: Path | None, exclude_clip: str | None = None) -> list[SearchResult]:
-    """Search ``index`` with one query vector (1, D) and turn the hits into records."""
-    filters = check_filters(index, filters)
-    try:
-        if exclude_clip is not None:
-            found = index.search_clip(exclude_clip, k, filters)
-        else:
-            found = index.search(xq, k, filters)
-    except FilterError as exc:
-        valid = ", ".join(f for f in index.fields if f != "id")
-        message = str(exc)
-        raise FilterSyntaxError(message if "valid fields" in message else f"{message}; valid fields: {valid}") \
-            from None
-    except IndexInvalidKError as exc:
-        raise InvalidKError(k, exc.size) from None
-    results = []
-    for rank, hit in enumerate(found.hits[0], start=1):
-        results.append(SearchResult.from_row(rank, hit.metadata, hit.score, view,
-                                             preview_of(hit.metadata, base_dir)))
-    return results
-
-
-def preview_of(row: dict[str, Any], base_dir: Path | None) -> str | None:
-    rel = row.get("preview_path")
-    if not rel:
-        return None
-    path = Path(rel)
-    if not path.is_absolute() and base_dir is not None:
-        path = Path(base_dir) / path
-    return str(path)
+    def _select(self, filters: FilterSpec) -> np.ndarray:
+        valid = self.fields
+        if isinstance(filters, dict):
+            unknown = [f for f in filters if f not in valid]
+            if unknown:
+                raise FilterSyntaxError(f"unknown filter field {unknown[0]!r}; valid fields: {', '.join(valid)}")
+        try:
+            return self.metadata.select(filters)
+        except FilterError as exc:
+            message = str(exc)
+            raise FilterSyntaxError(message if "valid fields" in message else
+                                    f"{message}; valid fields: {', '.join(valid)}") from None
 
 
 # ---------------------------------------------------------------------- logs end to end
 
 
-def caption_logs(log_dirs: Sequence[Path | str], config: Any = None,
-                 progress: Callable[[str], None] | None = None) -> tuple[pa.Table, list[Skipped]]:
-    """Caption log folders with ``captioning.caption_log``; returns the caption table and skipped logs.
+def caption_logs(log_dirs: Sequence[Path | str], config: Any = None) -> tuple[pa.Table, list[Skipped]]:
+    """Caption log folders with ``captioning.caption_logs``; the caption table and the skipped logs.
 
-    A log that cannot be opened or captioned is skipped with its reason; the others go on.
+    Raises:
+        ValueError: no log gave a caption (the message lists why each was skipped).
     """
     import captioning
-    from scenes.errors import ScenesError
-    from scenes.log import Log
+    from captioning.pipeline import captions_to_table
 
-    tables: list[pa.Table] = []
-    skipped: list[Skipped] = []
-    for log_dir in log_dirs:
-        name = Path(log_dir).name
-        try:
-            log = Log.open(log_dir)
-            caption_log = getattr(captioning, "caption_log")  # noqa: B009 - written beside this package
-            out = caption_log(log, config) if config is not None else caption_log(log)
-            table = _as_table(out)
-        except (ScenesError, ValueError, OSError) as exc:
-            skipped.append(Skipped(name, f"{type(exc).__name__}: {exc}"))
-            continue
-        if table.num_rows == 0:
-            skipped.append(Skipped(name, "no captions (no neighbour tracks long enough for a window)"))
-            continue
-        tables.append(table)
-        if progress is not None:
-            progress(f"captioned {name}: {table.num_rows} captions")
-    if not tables:
-        raise ValueError("no log gave captions; skipped: " + "; ".join(f"{s.item}: {s.reason}" for s in skipped))
-    return pa.concat_tables(tables, promote_options="permissive"), skipped
-
-
-def _as_table(out: Any) -> pa.Table:
-    """``caption_log``'s result as a table: a table, an object with ``.captions``/``.table``, or records."""
-    if isinstance(out, pa.Table):
-        return out
-    for attr in ("captions", "table"):
-        value = getattr(out, attr, None)
-        if isinstance(value, pa.Table):
-            return value
-        if value is not None and not callable(value):
-            return _as_table(value)
-    if isinstance(out, tuple) and out and isinstance(out[0], pa.Table):
-        return out[0]
-    if hasattr(out, "to_table"):
-        return _as_table(out.to_table())
-    rows = []
-    for item in out:
-        if isinstance(item, dict):
-            rows.append(item)
-        elif hasattr(item, "to_dict"):
-            rows.append(item.to_dict())
-        else:
-            from dataclasses import asdict
-
-            rows.append(asdict(item))
-    table = pa.Table.from_pylist(rows)
-    for name in table.column_names:
-        if pa.types.is_dictionary(table.column(name).type):
-            table = table.set_column(table.column_names.index(name), name, pc.cast(table.column(name), pa.string()))
-    return table
+    batch = captioning.caption_logs([Path(d) for d in log_dirs], config)
+    skipped = [Skipped(str(k), v) for k, v in batch.skipped_logs.items()]
+    captions = [c for r in batch.results for c in r.captions]
+    if not captions:
+        reasons = "; ".join(f"{s.item}: {s.reason}" for s in skipped) or "the logs have no tracks to caption"
+        raise ValueError(f"no log gave captions ({reasons})")
+    return captions_to_table(captions), skipped
 
 
 def search_logs(log_dirs: Sequence[Path | str], query: str, k: int = 10, filters: FilterSpec = None,

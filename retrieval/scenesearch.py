@@ -33,17 +33,10 @@ import pyarrow.parquet as pq
 from indexes.clip_index import ClipIndex
 from indexes.errors import IndexesError
 from indexes.filters import FilterSpec
-from retrieval.captions_search import (
-    CaptionSearch,
-    Skipped,
-    TextEncoder,
-    caption_rows,
-    check_k,
-    check_query,
-    hits_to_results,
-)
+from retrieval.captions_search import CaptionSearch, Skipped, TextEncoder, caption_rows
 from retrieval.embedding import CONFIG_FILE, Embedder, ModelEmbedder
 from retrieval.errors import IndexDirError, ModelMismatchError, UnknownClipError, UnknownViewError
+from retrieval.querying import check_k, check_query, hits_to_results, preview_of
 from retrieval.records import SearchResult
 from scenes.atomic import atomic_directory
 
@@ -157,7 +150,8 @@ class SceneSearch:
             start = time.perf_counter()
             ids, x = embedder.embed_clips(clips_dir, view=view)
             x_view, kept = _align(clip_ids, ids, x)
-            table = rows.filter(pa.array(kept)) if not kept.all() else rows
+            meta = rows.select([c for c in rows.column_names if c not in ("canonical_caption", "paraphrases")])
+            table = meta.filter(pa.array(kept)) if not kept.all() else meta
             if not kept.all():
                 skipped.extend(Skipped(c, f"the model gave no {view} embedding")
                                for c, keep in zip(clip_ids, kept) if not keep)
@@ -304,8 +298,6 @@ class SceneSearch:
         if clip_id not in index:
             raise UnknownClipError(clip_id, index.metadata.table.column("clip_id").slice(0, 3).to_pylist())
         row = index.get(clip_id)
-        from retrieval.captions_search import preview_of
-
         return SearchResult.from_row(0, row, 1.0, "fused", preview_of(row, self.clips_dir))
 
     # ------------------------------------------------------------------ export

@@ -68,8 +68,8 @@ class BehaviorLabel(str, Enum):
     - ``stopped``: not parked and speed < :data:`STOPPED_SPEED_MPS` (queued, waiting at a light,
       a pedestrian standing).
     - ``braking``: speed ≥ :data:`STOPPED_SPEED_MPS` and acceleration ≤ :data:`BRAKING_ACCEL_MPS2`.
-    - ``keeping_lane``: a vehicle moving (speed ≥ :data:`STOPPED_SPEED_MPS`) along a road lane, neither
-      inside a junction nor changing lanes. Pedestrians never keep a lane.
+    - ``keeping_lane``: a vehicle moving (speed ≥ :data:`STOPPED_SPEED_MPS`) along a road lane or
+      straight through a junction, not changing lanes. Pedestrians never keep a lane.
     - ``left_turn`` / ``right_turn``: the vehicle is inside a junction on a connection that turns
       left / right (the simulator's connection direction, sharp or not); ``junction_id`` names the
       junction, whose kind is in ``junctions.feather``.

@@ -234,7 +234,8 @@ class MapRasterizer:
         rot2 = np.ascontiguousarray(ego_SE3_city.rotation[:2, :2].T)
         trans2 = ego_SE3_city.translation[:2]
         corners = np.array([[grid.x_min_m, grid.y_min_m], [grid.x_max_m, grid.y_max_m]])
-        center_city = city_SE3_ego.transform_points(np.c_[corners.mean(axis=0), 0.0][None])[0, :2]
+        mid = corners.mean(axis=0)
+        center_city = city_SE3_ego.transform_points(np.array([[mid[0], mid[1], 0.0]]))[0, :2]
         radius = 0.5 * float(np.linalg.norm(corners[1] - corners[0])) + grid.resolution_m
 
         def to_px(poly_city: FloatArray) -> NDArray[np.int32]:

@@ -79,7 +79,8 @@ def compute_labels(rows: ObjectRows, lanes: LaneInfo) -> Labels:
     junction_id = np.where(internal, _lookup(rows.lane_id, lanes.junction), "")
 
     left_change, right_change = _lane_changes(rows, vehicle & ~internal & ~parked)
-    keeping = vehicle & ~internal & ~parked & moving & ~left_change & ~right_change & (rows.lane_id != "")
+    straight = ~internal | (direction == "s")
+    keeping = vehicle & straight & ~parked & moving & ~left_change & ~right_change & (rows.lane_id != "")
 
     has_leader = vehicle & ~parked & (rows.leader_id != "")
     blocked = has_leader & (speed < BLOCKED_SPEED_MPS) & (rows.leader_gap_m <= BLOCKED_GAP_M)

@@ -273,7 +273,8 @@ def _build_log(log_id: str, index: int, rec: Recording, config: SimulationConfig
             "sumo_version": sumo_version(),
             "sensors": config.sensors,
             "tracker_noise": config.tracker_noise,
-            "config": config.to_dict(),
+            # Everything that shapes the log; the network cache's location does not.
+            "config": {k: v for k, v in config.to_dict().items() if k != "cache_dir"},
         },
     )
     return _LogContent(log_id, annotations, ego, labels_table, metadata)

@@ -184,7 +184,10 @@ class Tracker:
             self._confirmed.update(ids[hits >= self.config.min_hits].tolist())
 
     def finish(self) -> list[TrackedBox]:
-        """Every reported box of every confirmed track, ordered by frame then track."""
+        """Every reported box of every confirmed track, ordered by frame then track.
+
+        With ``fill_gaps``, frames a track missed between two matches are filled by interpolation.
+        """
         confirmed = np.array(sorted(self._confirmed), dtype=np.int64)
         out: list[TrackedBox] = []
         for frame_index, ids, categories, boxes in self._history:
@@ -192,7 +195,29 @@ class Tracker:
             order = np.argsort(ids[keep], kind="stable")
             out.extend(TrackedBox(int(t), frame_index, str(c), b)
                        for t, c, b in zip(ids[keep][order], categories[keep][order], boxes[keep][order]))
-        return out
+        if self.config.fill_gaps:
+            out.extend(_interpolate_gaps(out, self.config.max_age))
+        return sorted(out, key=lambda b: (b.frame_index, b.track_id))
+
+
+def _interpolate_gaps(boxes: list[TrackedBox], max_gap: int) -> list[TrackedBox]:
+    """Boxes for the frames inside each track's gaps of at most ``max_gap`` frames."""
+    by_track: dict[int, list[TrackedBox]] = {}
+    for box in boxes:
+        by_track.setdefault(box.track_id, []).append(box)
+    filled = []
+    for track in by_track.values():
+        track.sort(key=lambda b: b.frame_index)
+        for before, after in zip(track, track[1:]):
+            gap = after.frame_index - before.frame_index - 1
+            if not 0 < gap <= max_gap:
+                continue
+            for k in range(1, gap + 1):
+                w = k / (gap + 1)
+                box = (1 - w) * before.box_city + w * after.box_city
+                box[3] = before.box_city[3] + w * wrap_angle_rad(after.box_city[3] - before.box_city[3])
+                filled.append(TrackedBox(before.track_id, before.frame_index + k, before.category, box))
+    return filled
 
 
 def track_detections(

@@ -72,7 +72,8 @@ def test_turns_come_from_the_connection_direction() -> None:
     assert labels.flags[BehaviorLabel.LEFT_TURN].tolist() == [True, False, False]
     assert labels.flags[BehaviorLabel.RIGHT_TURN].tolist() == [False, True, False]
     assert labels.junction_id.tolist() == ["J", "J", "J"]
-    assert not labels.flags[BehaviorLabel.KEEPING_LANE].any()
+    # Going straight through a junction keeps the lane; turning does not.
+    assert labels.flags[BehaviorLabel.KEEPING_LANE].tolist() == [False, False, True]
 
 
 def test_blocked_by_a_close_leader() -> None:

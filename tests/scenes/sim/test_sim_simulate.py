@@ -103,12 +103,12 @@ def test_different_seed_gives_different_traffic(logs: list[Path], tmp_path: Path
 
 
 def test_refuses_to_overwrite_logs_unless_asked(tmp_path: Path, cache: Path) -> None:
-    first = simulate(_config(cache, logs=2, duration_s=1.0, warmup_s=2.0), tmp_path)
+    first = simulate(_config(cache, logs=2, duration_s=1.0, warmup_s=20.0), tmp_path)
     stamp = (first[0] / ANNOTATIONS_FILENAME).read_bytes()
     with pytest.raises(FileExistsError, match="overwrite"):
-        simulate(_config(cache, logs=2, duration_s=1.0, warmup_s=2.0, seed=5), tmp_path)
+        simulate(_config(cache, logs=2, duration_s=1.0, warmup_s=20.0, seed=5), tmp_path)
     assert (first[0] / ANNOTATIONS_FILENAME).read_bytes() == stamp  # untouched
-    again = simulate(_config(cache, logs=1, duration_s=1.0, warmup_s=2.0), tmp_path, overwrite=True)
+    again = simulate(_config(cache, logs=1, duration_s=1.0, warmup_s=20.0), tmp_path, overwrite=True)
     assert sorted(p.name for p in tmp_path.iterdir()) == [again[0].name]  # stale logs removed
 
 

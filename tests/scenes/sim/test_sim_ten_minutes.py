@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from scenes.behavior import BehaviorLabel, JunctionKind, read_behavior_labels, read_junctions
+from scenes.log import Log
 from scenes.sim import SimulationConfig, simulate
 
 
@@ -16,7 +17,9 @@ def test_ten_simulated_minutes_contain_every_action(tmp_path: Path) -> None:
     counts = dict.fromkeys(BehaviorLabel, 0)
     turns: set[tuple[str, str]] = set()
     blocked_with_leader = 0
+    categories: set[str] = set()
     for log_dir in simulate(config, tmp_path / "logs"):
+        categories |= set(Log.open(log_dir).annotations.category.tolist())
         labels = read_behavior_labels(log_dir)
         junctions = read_junctions(log_dir)
         assert labels is not None and junctions is not None
@@ -36,3 +39,4 @@ def test_ten_simulated_minutes_contain_every_action(tmp_path: Path) -> None:
         for kind in (JunctionKind.THREE_WAY, JunctionKind.FOUR_WAY):
             assert (turn, kind.value) in turns, f"no {turn} at a {kind.value} junction"
     assert blocked_with_leader == counts[BehaviorLabel.BLOCKED_BY]
+    assert categories == {"REGULAR_VEHICLE", "BOX_TRUCK", "BUS", "MOTORCYCLIST", "BICYCLIST", "PEDESTRIAN"}

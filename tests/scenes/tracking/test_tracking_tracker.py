@@ -69,12 +69,19 @@ def test_crossing_objects_keep_their_identities() -> None:
 def test_a_missed_frame_is_bridged_and_a_false_positive_dropped() -> None:
     rows = [(f, "car", 0.9, 15.0 + 0.5 * f, 3.5, 0.0) for f in range(30) if f != 12]
     rows.append((7, "car", 0.9, -8.0, -9.0, 0.0))  # one-frame ghost
-    ann = track_detections(_detections(rows), _ego(30), TrackerConfig(min_hits=3, max_age=2))
+    ego = _ego(30)
+    ann = track_detections(_detections(rows), ego, TrackerConfig(min_hits=3, max_age=2),
+                           frame_timestamps_ns=ego.timestamps_ns)
     tracks = _tracks_by_id(ann)
     assert len(tracks) == 1, "the ghost must not become a track and the gap must not split the car"
     (car,) = tracks.values()
-    assert car.shape[0] == 29  # every observed frame, none invented for the gap
-    assert 12 not in car[:, 0]
+    assert car.shape[0] == 30
+    # The missed frame is filled by interpolation between its neighbours.
+    filled = car[car[:, 0] == 12][0]
+    np.testing.assert_allclose(filled[1:], [15.0 + 0.5 * 12, 3.5], atol=0.05)
+    unfilled = track_detections(_detections(rows), ego, TrackerConfig(fill_gaps=False),
+                                frame_timestamps_ns=ego.timestamps_ns)
+    assert 12 not in _tracks_by_id(unfilled)[unfilled.track_ids[0]][:, 0]
 
 
 def test_a_long_gap_starts_a_new_track() -> None:

@@ -1,0 +1,165 @@
+"""The vocabulary of spatio-temporal tagging: attributes, their kinds, and scene regions.
+
+Attributes (:class:`Attribute`, the string values are the public vocabulary of files and queries)
+after Segal et al., "Universal Embeddings for Spatio-Temporal Tagging of Self-Driving Logs":
+
+=====================  ==========  ==================================================================
+attribute              kind        ground truth per BEV cell (rasterised from the log's boxes and
+                                   the simulator's behaviour labels, see :mod:`encoders.tagging.targets`)
+=====================  ==========  ==================================================================
+vehicle_density        continuous  fraction of the cell covered by vehicle boxes (car, truck, bus,
+                                   motorcycle), in [0, 1]
+pedestrian_density     continuous  fraction of the cell covered by pedestrian boxes, in [0, 1]
+vehicle_speed          continuous  speed (m/s) of the vehicle whose box holds the cell centre, 0 elsewhere
+parked … braking_for   discrete    1 inside the box of a vehicle with that behaviour label
+three_way, four_way    discrete    1 inside a junction of that kind (``junctions.feather``)
+=====================  ==========  ==================================================================
+
+Regions (:class:`Region`), in the ego frame (x forward, y left, metres; the ego origin is the
+rear axle, as everywhere in the project):
+
+- ``full``: the whole BEV grid.
+- ``front``: ahead of the ego, 0 m < x ≤ 50 m and |y| ≤ 10 m (about three lanes to each side).
+- ``behind``: −20 m ≤ x < 0 m and |y| ≤ 10 m.
+- ``around``: within 15 m of the ego origin (a disc).
+- ``intersection``: cells on the map's junction lanes (the ``intersection`` map channel).
+- ``crosswalk``: cells on the map's pedestrian crossings (the ``crossing`` map channel).
+
+The last two need the log's map; the ego-relative ones always work.
+"""
+
+from __future__ import annotations
+
+from enum import Enum
+
+
+class TagError(ValueError):
+    """Bad tagging input: unknown attribute or region, malformed composition, missing map or labels."""
+
+
+class AttributeKind(str, Enum):
+    """How an attribute is predicted, trained, pooled and evaluated."""
+
+    #: Regressed per cell (smooth L1), pooled with sum (densities) or max (speed), scored by L1.
+    CONTINUOUS = "continuous"
+    #: A per-cell logit (cross entropy with hard negatives), pooled with max of sigmoid, scored by F1.
+    DISCRETE = "discrete"
+
+    def __str__(self) -> str:
+        return self.value
+
+
+class Attribute(str, Enum):
+    """Tagging attributes; the values are the public vocabulary."""
+
+    VEHICLE_DENSITY = "vehicle_density"
+    PEDESTRIAN_DENSITY = "pedestrian_density"
+    VEHICLE_SPEED = "vehicle_speed"
+    PARKED = "parked"
+    STOPPED = "stopped"
+    BRAKING = "braking"
+    KEEPING_LANE = "keeping_lane"
+    LEFT_TURN = "left_turn"
+    RIGHT_TURN = "right_turn"
+    LEFT_LANE_CHANGE = "left_lane_change"
+    RIGHT_LANE_CHANGE = "right_lane_change"
+    BLOCKED_BY = "blocked_by"
+    BRAKING_FOR = "braking_for"
+    THREE_WAY = "three_way"
+    FOUR_WAY = "four_way"
+
+    def __str__(self) -> str:
+        return self.value
+
+    @property
+    def kind(self) -> AttributeKind:
+        return AttributeKind.CONTINUOUS if self in CONTINUOUS else AttributeKind.DISCRETE
+
+    @property
+    def is_density(self) -> bool:
+        return self in DENSITIES
+
+
+class Region(str, Enum):
+    """Scene regions for pooling tag tensors (metre definitions in the module docstring)."""
+
+    FULL = "full"
+    FRONT = "front"
+    BEHIND = "behind"
+    AROUND = "around"
+    INTERSECTION = "intersection"
+    CROSSWALK = "crosswalk"
+
+    def __str__(self) -> str:
+        return self.value
+
+    @property
+    def needs_map(self) -> bool:
+        return self in (Region.INTERSECTION, Region.CROSSWALK)
+
+
+CONTINUOUS: frozenset[Attribute] = frozenset(
+    {Attribute.VEHICLE_DENSITY, Attribute.PEDESTRIAN_DENSITY, Attribute.VEHICLE_SPEED}
+)
+DENSITIES: frozenset[Attribute] = frozenset({Attribute.VEHICLE_DENSITY, Attribute.PEDESTRIAN_DENSITY})
+#: Attributes taken from the behaviour-label columns of the same name.
+BEHAVIOR_ATTRIBUTES: tuple[Attribute, ...] = (
+    Attribute.PARKED,
+    Attribute.STOPPED,
+    Attribute.BRAKING,
+    Attribute.KEEPING_LANE,
+    Attribute.LEFT_TURN,
+    Attribute.RIGHT_TURN,
+    Attribute.LEFT_LANE_CHANGE,
+    Attribute.RIGHT_LANE_CHANGE,
+    Attribute.BLOCKED_BY,
+    Attribute.BRAKING_FOR,
+)
+#: All attributes in the order of the rows of A and of the target channels.
+ATTRIBUTES: tuple[Attribute, ...] = tuple(Attribute)
+
+#: Regions that are boxes in the ego frame: (x_min_m, x_max_m, y_abs_max_m); ``around`` is a disc.
+FRONT_X_M = (0.0, 50.0)
+BEHIND_X_M = (-20.0, 0.0)
+SIDE_Y_ABS_M = 10.0
+AROUND_RADIUS_M = 15.0
+
+#: Output scale of continuous attributes: the head regresses target / scale (speed in units of 10 m/s).
+OUTPUT_SCALE: dict[str, float] = {Attribute.VEHICLE_SPEED.value: 10.0}
+
+
+def attribute_kind(name: str) -> AttributeKind:
+    """Kind of a built-in attribute, or ``discrete`` for attributes added later (see :mod:`.extend`)."""
+    try:
+        return Attribute(name).kind
+    except ValueError:
+        return AttributeKind.DISCRETE
+
+
+def is_density(name: str) -> bool:
+    return name in {a.value for a in DENSITIES}
+
+
+def parse_attribute(name: str, valid: tuple[str, ...] | list[str] | None = None) -> str:
+    """Check an attribute name against ``valid`` (default: the built-in vocabulary).
+
+    Raises:
+        TagError: listing the valid attributes.
+    """
+    names = list(valid) if valid is not None else [a.value for a in Attribute]
+    key = str(name).strip()
+    if key not in names:
+        raise TagError(f"unknown attribute {name!r}; valid attributes: {', '.join(names)}")
+    return key
+
+
+def parse_region(name: str) -> Region:
+    """``Region`` from its name.
+
+    Raises:
+        TagError: listing the valid regions.
+    """
+    try:
+        return Region(str(name).strip())
+    except ValueError:
+        raise TagError(f"unknown region {name!r}; valid regions: {', '.join(r.value for r in Region)}") from None

@@ -1,0 +1,391 @@
+"""Ground-truth tag rasters of a log on the clip stage's BEV grid.
+
+For a log with F frames (its annotation timestamps, the frames of ``CLIPS_DIR/logs/<log_id>/``),
+:func:`rasterize_targets` gives ``(F, A, H, W)`` float32 targets in the order of
+:data:`~encoders.tagging.attributes.ATTRIBUTES` (definitions in :mod:`encoders.tagging.attributes`):
+box coverage for densities (4 × 4 samples per cell), the behaviour flags and speed of vehicles
+inside their box footprint (a cell belongs to a box when its centre does), and the junction kinds
+from ``junctions.feather`` inside the junction outlines.
+
+:func:`add_attribute_targets` is the step after ``scenesearch clips`` that writes, per log::
+
+    CLIPS_DIR/logs/<log_id>/bev_attributes.npy    (F, A, H, W) float16
+    CLIPS_DIR/logs/<log_id>/bev_attributes.json   {"attributes": [names], "present": (F, A) 0/1 lists}
+
+``present[f][a]`` says whether attribute ``a`` is non-zero anywhere in frame ``f`` (what the
+task-balanced sampler draws from). Both files are written atomically.
+
+Every operation is vectorised over boxes × frames; only junction outlines are drawn one by one.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+import pyarrow.parquet as pq
+from numpy.typing import NDArray
+
+from encoders.tagging.attributes import ATTRIBUTES, BEHAVIOR_ATTRIBUTES, Attribute, TagError
+from scenes.atomic import atomic_path, atomic_write_text
+from scenes.behavior import EGO_TRACK_ID, read_behavior_labels, read_junctions
+from scenes.bev import BevGrid, _box_samples
+from scenes.categories import VEHICLE_CATEGORIES, Category
+from scenes.log import Log
+from scenes.tracks import DenseTracks
+
+TARGETS_FILE = "bev_attributes.npy"
+TARGETS_META_FILE = "bev_attributes.json"
+LOGS_DIR = "logs"
+#: Frames rasterised at once (bounds the supersampled scratch memory).
+_CHUNK_FRAMES = 32
+_VEHICLES = frozenset(c.value for c in VEHICLE_CATEGORIES)
+
+
+def grid_from_manifest(manifest: dict[str, Any]) -> BevGrid:
+    """The clip stage's BEV grid from ``CLIPS_DIR/manifest.json``."""
+    bev = manifest["bev"]
+    return BevGrid(float(bev["x_min_m"]), float(bev["x_max_m"]), float(bev["y_min_m"]), float(bev["y_max_m"]),
+                   float(bev["resolution_m"]))
+
+
+def read_manifest(clips_dir: Path | str) -> dict[str, Any]:
+    path = Path(clips_dir) / "manifest.json"
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: clips manifest not found (run `scenesearch clips` first)")
+    data: dict[str, Any] = json.loads(path.read_text())
+    return data
+
+
+@dataclass(frozen=True)
+class BehaviorGrid:
+    """Behaviour labels on the dense (K, F) grid of a log.
+
+    Attributes:
+        flags: (K, F, L) bool, one channel per :data:`BEHAVIOR_ATTRIBUTES`; false where unlabelled.
+        speed_mps: (K, F) speed, NaN where unlabelled.
+        leader_index: (K, F) index into the tracks of ``leader_id``, −1 when none (or the ego).
+        ego_flags: (F, L) bool, the ego's own labels.
+        ego_leader_index: (F,) index of the ego's leader, −1 when none.
+    """
+
+    flags: NDArray[np.bool_]
+    speed_mps: NDArray[np.float64]
+    leader_index: NDArray[np.int64]
+    ego_flags: NDArray[np.bool_]
+    ego_leader_index: NDArray[np.int64]
+
+
+def behavior_grid(log_dir: Path, dense: DenseTracks) -> BehaviorGrid:
+    """Join ``behavior_labels.feather`` onto the dense tracks (vectorised).
+
+    Raises:
+        TagError: the log has no behaviour labels.
+    """
+    table = read_behavior_labels(log_dir)
+    if table is None:
+        raise TagError(f"{log_dir}: the log has no behaviour labels (behavior_labels.feather); "
+                       "tag targets need a simulated log")
+    k, f = dense.valid.shape
+    ts = table.column("timestamp_ns").to_numpy()
+    tid = np.asarray(table.column("track_id").to_numpy(zero_copy_only=False)).astype(str)
+    fi = np.searchsorted(dense.timestamps_ns, ts)
+    fi_c = np.clip(fi, 0, max(f - 1, 0))
+    on_frame = (f > 0) & (dense.timestamps_ns[fi_c] == ts) if f else np.zeros(ts.shape, bool)
+    ids = np.asarray(dense.track_ids).astype(str)
+    order = np.argsort(ids)
+    pos = np.clip(np.searchsorted(ids[order], tid), 0, max(k - 1, 0))
+    ki = order[pos] if k else np.zeros(tid.shape, np.int64)
+    is_track = (ids[ki] == tid) if k else np.zeros(tid.shape, bool)
+    is_ego = tid == EGO_TRACK_ID
+    cols = np.stack([table.column(a.value).to_numpy(zero_copy_only=False) for a in BEHAVIOR_ATTRIBUTES], axis=1)
+    cols = cols.astype(bool)
+    speed = table.column("speed_mps").to_numpy().astype(np.float64)
+    leader = np.asarray(table.column("leader_id").fill_null("").to_numpy(zero_copy_only=False)).astype(str)
+    lpos = np.clip(np.searchsorted(ids[order], leader), 0, max(k - 1, 0))
+    lk = order[lpos] if k else np.zeros(leader.shape, np.int64)
+    lfound = (ids[lk] == leader) & (leader != "") if k else np.zeros(leader.shape, bool)
+    lidx = np.where(lfound, lk, -1)
+
+    flags = np.zeros((k, f, len(BEHAVIOR_ATTRIBUTES)), bool)
+    spd = np.full((k, f), np.nan)
+    lead = np.full((k, f), -1, np.int64)
+    m = on_frame & is_track
+    flags[ki[m], fi_c[m]] = cols[m]
+    spd[ki[m], fi_c[m]] = speed[m]
+    lead[ki[m], fi_c[m]] = lidx[m]
+    ego_flags = np.zeros((f, len(BEHAVIOR_ATTRIBUTES)), bool)
+    ego_lead = np.full(f, -1, np.int64)
+    e = on_frame & is_ego
+    ego_flags[fi_c[e]] = cols[e]
+    ego_lead[fi_c[e]] = lidx[e]
+    return BehaviorGrid(flags, spd, lead, ego_flags, ego_lead)
+
+
+def _boxes(dense: DenseTracks, frames: NDArray[np.int64], keep: NDArray[np.bool_]) -> tuple[NDArray[np.int64], ...]:
+    """(track, frame) pairs of valid boxes among ``frames`` of the tracks in ``keep``."""
+    sub = dense.valid[:, frames] & keep[:, None]
+    kk, jj = np.nonzero(sub)
+    return kk, frames[jj], jj
+
+
+def _samples(grid: BevGrid, dense: DenseTracks, kk: NDArray[np.int64], ff: NDArray[np.int64],
+             s: int) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64]]:
+    """Sub-cell samples inside boxes (kk, ff): (box index, fine row, fine column)."""
+    if kk.shape[0] == 0:
+        z = np.zeros(0, np.int64)
+        return z, z, z
+    centers = dense.center_ego_xyz_m[kk, ff, :2]
+    sizes = dense.size_lwh_m[kk, ff, :2]
+    yaws = dense.yaw_ego_rad[kk, ff]
+    return _box_samples(grid, centers, sizes, yaws, s)
+
+
+def box_coverage(grid: BevGrid, dense: DenseTracks, keep: NDArray[np.bool_], frames: NDArray[np.int64],
+                 supersample: int = 4) -> NDArray[np.float32]:
+    """Fraction of each cell covered by the union of the kept tracks' boxes.
+
+    Args:
+        grid: the BEV grid.
+        dense: the log's tracks.
+        keep: (K,) which tracks count.
+        frames: (N,) frame indices.
+        supersample: samples per cell side.
+
+    Returns:
+        (N, H, W) float32 in [0, 1].
+    """
+    s = int(supersample)
+    h, w = grid.shape
+    kk, ff, jj = _boxes(dense, frames, keep)
+    fine = np.zeros((frames.shape[0], h * s, w * s), bool)
+    b, r, c = _samples(grid, dense, kk, ff, s)
+    fine[jj[b], r, c] = True
+    return np.asarray(fine.reshape(-1, h, s, w, s).mean(axis=(2, 4), dtype=np.float32), dtype=np.float32)
+
+
+def box_values(grid: BevGrid, dense: DenseTracks, keep: NDArray[np.bool_], frames: NDArray[np.int64],
+               values: NDArray[np.floating]) -> NDArray[np.float32]:
+    """Per-box values written into the cells whose centre lies in the box (max where boxes overlap).
+
+    Args:
+        grid: the BEV grid.
+        dense: the log's tracks.
+        keep: (K,) which tracks count.
+        frames: (N,) frame indices.
+        values: (K, F, C) values per (track, frame); NaN counts as 0.
+
+    Returns:
+        (N, C, H, W) float32.
+    """
+    h, w = grid.shape
+    vals = np.nan_to_num(np.asarray(values, dtype=np.float32))
+    out = np.zeros((frames.shape[0], vals.shape[2], h, w), np.float32)
+    kk, ff, jj = _boxes(dense, frames, keep)
+    b, r, c = _samples(grid, dense, kk, ff, 1)
+    if b.shape[0] == 0:
+        return out
+    v = vals[kk[b], ff[b]]  # (S, C)
+    si, ci = np.nonzero(v)
+    np.maximum.at(out, (jj[b][si], ci, r[si], c[si]), v[si, ci])
+    return out
+
+
+def junction_masks(log_dir: Path, grid: BevGrid, city_SE3_ego: NDArray[np.floating],
+                   kinds: Sequence[str]) -> NDArray[np.float32]:
+    """Junction outlines of each kind in every frame's ego grid.
+
+    Args:
+        log_dir: the log (reads ``junctions.feather``; absent → zeros).
+        grid: the BEV grid.
+        city_SE3_ego: (F, 4, 4) ego poses.
+        kinds: junction kinds, e.g. ``("three_way", "four_way")``.
+
+    Returns:
+        (F, len(kinds), H, W) float32, 1 where the cell centre is inside a junction of that kind.
+    """
+    poses = np.asarray(city_SE3_ego, dtype=np.float64)
+    f = poses.shape[0]
+    h, w = grid.shape
+    out = np.zeros((f, len(kinds), h, w), np.float32)
+    table = read_junctions(log_dir)
+    if table is None or table.num_rows == 0 or f == 0:
+        return out
+    kind_col = [str(x) for x in table.column("kind").to_pylist()]
+    xs = table.column("polygon_x_m").to_pylist()
+    ys = table.column("polygon_y_m").to_pylist()
+    polys = [np.stack([np.asarray(x, float), np.asarray(y, float)], 1) for x, y in zip(xs, ys)]
+    pts = np.concatenate([p for p in polys if p.shape[0]]) if any(p.shape[0] for p in polys) else np.zeros((0, 2))
+    if pts.shape[0] == 0:
+        return out
+    res = 0.5 * grid.resolution_m
+    origin = pts.min(axis=0) - 1.0
+    size = np.ceil((pts.max(axis=0) + 1.0 - origin) / res).astype(int) + 1
+    city = np.zeros((len(kinds), int(size[1]), int(size[0])), np.uint8)
+    for poly, kind in zip(polys, kind_col):
+        if kind in kinds and poly.shape[0] >= 3:
+            px = np.round(((poly - origin) / res - 0.5) * 16).astype(np.int32)
+            cv2.fillPoly(city[list(kinds).index(kind)], [px], 1, lineType=cv2.LINE_8, shift=4)
+    cells = grid.cell_centers_xy().reshape(-1, 2)  # (H*W, 2) ego x, y
+    for lo in range(0, f, _CHUNK_FRAMES):
+        p = poses[lo : lo + _CHUNK_FRAMES]
+        xy = np.einsum("fij,nj->fni", p[:, :2, :2], cells) + p[:, None, :2, 3]  # (n, H*W, 2) city
+        ij = np.floor((xy - origin) / res).astype(np.int64)
+        ok = (ij[..., 0] >= 0) & (ij[..., 0] < city.shape[2]) & (ij[..., 1] >= 0) & (ij[..., 1] < city.shape[1])
+        col, row = np.where(ok, ij[..., 0], 0), np.where(ok, ij[..., 1], 0)
+        vals = city[:, row, col] * ok[None]  # (kinds, n, H*W)
+        out[lo : lo + _CHUNK_FRAMES] = np.moveaxis(vals, 0, 1).reshape(-1, len(kinds), h, w)
+    return out
+
+
+def rasterize_targets(log: Log, grid: BevGrid, dense: DenseTracks | None = None,
+                      frames: NDArray[np.int64] | None = None) -> NDArray[np.float32]:
+    """Ground truth of every attribute of :data:`ATTRIBUTES` for a log's frames.
+
+    Args:
+        log: the log (needs ``behavior_labels.feather``; ``junctions.feather`` when present).
+        grid: the BEV grid (the clip stage's).
+        dense: the log's dense tracks (computed when not given).
+        frames: (N,) frame indices (default: all F).
+
+    Returns:
+        (N, A, H, W) float32.
+
+    Raises:
+        TagError: the log has no behaviour labels.
+    """
+    dense = log.dense_tracks() if dense is None else dense
+    f = dense.timestamps_ns.shape[0]
+    frames = np.arange(f, dtype=np.int64) if frames is None else np.asarray(frames, dtype=np.int64)
+    beh = behavior_grid(log.log_dir, dense)
+    cats = np.asarray(dense.categories).astype(str)
+    vehicle = np.isin(cats, list(_VEHICLES))
+    pedestrian = cats == Category.PEDESTRIAN.value
+    h, w = grid.shape
+    out = np.zeros((frames.shape[0], len(ATTRIBUTES), h, w), np.float32)
+    idx = {a: i for i, a in enumerate(ATTRIBUTES)}
+    speed_ch = idx[Attribute.VEHICLE_SPEED]
+    beh_ch = [idx[a] for a in BEHAVIOR_ATTRIBUTES]
+    per_box = np.concatenate([beh.flags.astype(np.float32), np.nan_to_num(beh.speed_mps)[..., None]], axis=2)
+    for lo in range(0, frames.shape[0], _CHUNK_FRAMES):
+        fr = frames[lo : lo + _CHUNK_FRAMES]
+        sl = slice(lo, lo + fr.shape[0])
+        out[sl, idx[Attribute.VEHICLE_DENSITY]] = box_coverage(grid, dense, vehicle, fr)
+        out[sl, idx[Attribute.PEDESTRIAN_DENSITY]] = box_coverage(grid, dense, pedestrian, fr)
+        vals = box_values(grid, dense, vehicle, fr, per_box)  # (n, L + 1, H, W)
+        out[sl, beh_ch] = vals[:, :-1]
+        out[sl, speed_ch] = vals[:, -1]
+    junctions = junction_masks(log.log_dir, grid, dense.city_SE3_ego[frames], ("three_way", "four_way"))
+    out[:, idx[Attribute.THREE_WAY]] = junctions[:, 0]
+    out[:, idx[Attribute.FOUR_WAY]] = junctions[:, 1]
+    return out
+
+
+# ---------------------------------------------------------------------------------------------
+# Per-log files in a clips folder
+
+
+@dataclass
+class TargetsReport:
+    """What :func:`add_attribute_targets` did."""
+
+    written: list[str] = field(default_factory=list)
+    reused: list[str] = field(default_factory=list)
+    skipped: list[dict[str, str]] = field(default_factory=list)
+
+
+def targets_path(clips_dir: Path | str, log_id: str) -> Path:
+    return Path(clips_dir) / LOGS_DIR / log_id / TARGETS_FILE
+
+
+def has_targets(clips_dir: Path | str, log_id: str) -> bool:
+    folder = Path(clips_dir) / LOGS_DIR / log_id
+    return (folder / TARGETS_FILE).is_file() and (folder / TARGETS_META_FILE).is_file()
+
+
+def write_targets(folder: Path, targets: NDArray[np.floating], names: Sequence[str]) -> None:
+    """Write ``bev_attributes.npy`` (float16) and its ``.json`` sidecar atomically.
+
+    Args:
+        folder: ``CLIPS_DIR/logs/<log_id>``.
+        targets: (F, A, H, W) targets.
+        names: A attribute names.
+    """
+    arr = np.ascontiguousarray(np.asarray(targets, dtype=np.float16))
+    present = (arr.reshape(arr.shape[0], arr.shape[1], -1) != 0).any(axis=2).astype(np.uint8)
+    with atomic_path(folder / TARGETS_FILE) as tmp:
+        with open(tmp, "wb") as fh:
+            np.save(fh, arr, allow_pickle=False)
+    atomic_write_text(folder / TARGETS_META_FILE, json.dumps({"attributes": list(names), "present": present.tolist()}))
+
+
+def add_attribute_targets(
+    clips_dir: Path | str,
+    log_dirs: Sequence[Path | str],
+    overwrite: bool = False,
+    progress: Callable[[str], None] | None = None,
+) -> TargetsReport:
+    """Write ``bev_attributes.npy`` for every given log that the clips folder has rendered.
+
+    Logs not rendered in ``clips_dir``, without behaviour labels, or whose frames differ from the
+    rendered ones are skipped and reported; nothing is half-written.
+    """
+    say = progress or (lambda _line: None)
+    clips_dir = Path(clips_dir)
+    grid = grid_from_manifest(read_manifest(clips_dir))
+    report = TargetsReport()
+    for log_dir in log_dirs:
+        log_dir = Path(log_dir)
+        log_id = log_dir.name
+        folder = clips_dir / LOGS_DIR / log_id
+        if not (folder / "frames.parquet").is_file():
+            report.skipped.append({"log_id": log_id, "reason": "not rendered in the clips folder"})
+            continue
+        if not overwrite and has_targets(clips_dir, log_id):
+            report.reused.append(log_id)
+            continue
+        try:
+            log = Log.open(log_dir)
+            dense = log.dense_tracks()
+            rendered = pq.read_table(folder / "frames.parquet", columns=["timestamp_ns"]).column(0).to_numpy()
+            if not np.array_equal(rendered, dense.timestamps_ns):
+                raise TagError(f"{folder / 'frames.parquet'}: frame timestamps differ from the log's annotations")
+            targets = rasterize_targets(log, grid, dense)
+        except (TagError, ValueError, OSError) as exc:
+            report.skipped.append({"log_id": log_id, "reason": str(exc)})
+            continue
+        write_targets(folder, targets, [a.value for a in ATTRIBUTES])
+        report.written.append(log_id)
+        say(f"{log_id}: tag targets for {targets.shape[0]} frames")
+    return report
+
+
+@dataclass(frozen=True)
+class LogTargets:
+    """A log's targets opened with ``mmap_mode='r'``.
+
+    Attributes:
+        targets: (F, A, H, W) float16.
+        names: A attribute names.
+        present: (F, A) bool, attribute non-zero somewhere in the frame.
+    """
+
+    targets: NDArray[np.float16]
+    names: tuple[str, ...]
+    present: NDArray[np.bool_]
+
+
+def open_targets(clips_dir: Path | str, log_id: str) -> LogTargets:
+    folder = Path(clips_dir) / LOGS_DIR / log_id
+    if not has_targets(clips_dir, log_id):
+        raise FileNotFoundError(f"{folder / TARGETS_FILE}: no tag targets (run `scenesearch eval-tags` or "
+                                "encoders.tagging.targets.add_attribute_targets first)")
+    meta = json.loads((folder / TARGETS_META_FILE).read_text())
+    arr = np.load(folder / TARGETS_FILE, mmap_mode="r")
+    present = np.asarray(meta["present"], dtype=bool).reshape(arr.shape[0], arr.shape[1])
+    return LogTargets(arr, tuple(meta["attributes"]), present)  # type: ignore[arg-type]

@@ -1,0 +1,58 @@
+"""Caption text: canonical sentence, words that must appear, seeded paraphrases."""
+
+from __future__ import annotations
+
+import pytest
+
+from captioning.tags import Lane, Motion
+from captioning.text import caption_text, host_sentence, neighbor_sentence, paraphrases
+
+
+def test_canonical_caption_reads_like_the_issue_example() -> None:
+    text = caption_text("car", ["left:approach", "host:constant"], ["cruising:heading_straight"])
+    assert text == (
+        "The ego vehicle is cruising straight. "
+        "A car in the left lane approaches, then moves into the ego lane and keeps its distance."
+    )
+
+
+def test_host_sentences() -> None:
+    assert host_sentence(["stationary:heading_straight"]) == "The ego vehicle is stationary."
+    assert host_sentence(["decelerating:heading_straight", "stationary:heading_straight"]) == (
+        "The ego vehicle is decelerating straight, then stops."
+    )
+    assert host_sentence(["accelerating:steering_left"]) == "The ego vehicle is accelerating while steering left."
+
+
+def test_motion_change_in_the_same_lane_names_only_the_motion() -> None:
+    assert neighbor_sentence("pedestrian", ["right:approach", "right:stationary"]) == (
+        "A pedestrian in the right lane approaches, then is stationary."
+    )
+    assert neighbor_sentence("other", ["oncoming:away"]) == "An object in the oncoming lane moves away."
+
+
+LANE_WORD = {
+    Lane.LEFT: "left", Lane.RIGHT: "right", Lane.HOST: "ego lane", Lane.LEFT_LATERAL: "left",
+    Lane.RIGHT_LATERAL: "right", Lane.HOST_LATERAL: "ego", Lane.ONCOMING: "oncoming",
+}
+MOTION_WORD = {Motion.APPROACH: "approaches", Motion.AWAY: "away", Motion.CONSTANT: "distance",
+               Motion.STATIONARY: "stationary"}
+
+
+@pytest.mark.parametrize("lane", list(Lane))
+@pytest.mark.parametrize("motion", list(Motion))
+def test_class_lane_and_motion_words_always_appear(lane: Lane, motion: Motion) -> None:
+    text = neighbor_sentence("truck", [f"{lane.value}:{motion.value}"])
+    assert "truck" in text and LANE_WORD[lane] in text and MOTION_WORD[motion] in text
+
+
+def test_paraphrases_are_seeded_distinct_and_keep_the_class() -> None:
+    args = ("bus", ["right:approach", "host:away"], ["cruising:heading_straight"])
+    first = paraphrases(*args, count=3, seed=7, key=("log", "t1", 0))
+    again = paraphrases(*args, count=3, seed=7, key=("log", "t1", 0))
+    other = paraphrases(*args, count=3, seed=8, key=("log", "t1", 0))
+    assert first == again
+    assert first != other
+    assert len(set(first)) == 3
+    assert caption_text(*args) not in first
+    assert all("bus" in p and "then" in p for p in first)

@@ -8,7 +8,7 @@ score threshold trades misses against false positives as with a real detector.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -36,7 +36,7 @@ class DetectorNoiseConfig:
         size_std_m: jitter of detected box sizes.
     """
 
-    tracker_noise: TrackerNoiseConfig = TrackerNoiseConfig()
+    tracker_noise: TrackerNoiseConfig = field(default_factory=TrackerNoiseConfig)
     false_positives_per_frame: float = 0.5
     true_score_beta: tuple[float, float] = (8.0, 2.0)
     false_score_beta: tuple[float, float] = (2.0, 4.0)

@@ -47,7 +47,8 @@ def test_rotated_box_matches_the_centre_test() -> None:
 
 def test_values_and_overlap_order() -> None:
     centers = np.array([[0.0, 0.0], [1.0, 0.0]])
-    raster = rasterize_boxes(GRID, centers, np.array([[4.0, 2.0], [4.0, 2.0]]), np.zeros(2), values=np.array([3.0, 7.0]))
+    sizes = np.array([[4.0, 2.0], [4.0, 2.0]])
+    raster = rasterize_boxes(GRID, centers, sizes, np.zeros(2), values=np.array([3.0, 7.0]))
     row_of = lambda x: int((GRID.x_max_m - x) / GRID.resolution_m)  # noqa: E731
     col0 = int((GRID.y_max_m - 0.25) / GRID.resolution_m)
     assert raster[row_of(-1.75), col0] == 3.0  # only the first box

@@ -24,7 +24,7 @@ def _project(camera: CameraConfig, point_ego: tuple[float, float, float]) -> tup
     cam = camera.ego_SE3_sensor.inverse().transform_points(np.array([point_ego]))
     uv, ok = camera.intrinsics.project(cam)
     assert ok[0]
-    return int(round(uv[0, 0])), int(round(uv[0, 1]))
+    return round(float(uv[0, 0])), round(float(uv[0, 1]))
 
 
 def test_nearer_object_occludes_farther_one_in_the_mask(bare_world: StaticWorld) -> None:
@@ -134,8 +134,9 @@ def test_clip_near_plane() -> None:
     y_cut = -1.0 + 2.0 * (NEAR_PLANE_M + 1.0) / 4.0
     assert np.isclose(clipped[:, 1].min(), y_cut)
     assert clipped.shape[0] == 4
-    assert clip_near_plane(square - [0, 0, 10]).shape[0] == 0
-    assert np.array_equal(clip_near_plane(square + [0, 0, 10]), square + [0, 0, 10])
+    shift = np.array([0.0, 0.0, 10.0])
+    assert clip_near_plane(square - shift).shape[0] == 0
+    assert np.array_equal(clip_near_plane(square + shift), square + shift)
 
 
 def test_mask_agrees_with_ray_casting(bare_world: StaticWorld) -> None:

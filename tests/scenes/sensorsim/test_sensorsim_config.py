@@ -9,7 +9,8 @@ import pytest
 
 from scenes.sensorsim.config import CameraConfig, LidarConfig, SensorConfig, WorldConfig
 
-AV2_LOG = Path(__file__).resolve().parents[3] / ".." / "shared" / "realdata" / "av2" / "7fab2350-7eaf-3b7e-a39d-6937a4c1bede"
+AV2_LOG = (Path(__file__).resolve().parents[3] / ".." / "shared" / "realdata" / "av2"
+           / "7fab2350-7eaf-3b7e-a39d-6937a4c1bede")
 
 
 def test_yaml_round_trip() -> None:

@@ -60,9 +60,10 @@ def test_pedestrian_shape_stays_inside_its_box(bare_world: StaticWorld, dense_li
 def test_nearer_object_occludes_farther_one(bare_world: StaticWorld, dense_lidar: LidarConfig) -> None:
     near = ("bus", (10.0, 0.0, 1.6), (3.0, 6.0, 3.2), 0.0)
     far = ("car", (25.0, 0.0, 0.75), (4.5, 1.9, 1.5), 0.0)
-    alone = cast_sweep(bare_world, FrameObjects.from_boxes([far]), SE3.identity(), dense_lidar, np.random.default_rng(0))
+    rng = np.random.default_rng(0)
+    alone = cast_sweep(bare_world, FrameObjects.from_boxes([far]), SE3.identity(), dense_lidar, rng)
     assert (alone.track_index == 0).sum() > 20
-    both = cast_sweep(bare_world, FrameObjects.from_boxes([far, near]), SE3.identity(), dense_lidar, np.random.default_rng(0))
+    both = cast_sweep(bare_world, FrameObjects.from_boxes([far, near]), SE3.identity(), dense_lidar, rng)
     assert (both.track_index == 0).sum() == 0, "the far car is hidden behind the bus"
     assert (both.track_index == 1).sum() > 100
     # The shadow of the bus holds no ground points either.

@@ -214,9 +214,9 @@ def _interpolate_gaps(boxes: list[TrackedBox], max_gap: int) -> list[TrackedBox]
                 continue
             for k in range(1, gap + 1):
                 w = k / (gap + 1)
-                box = (1 - w) * before.box_city + w * after.box_city
-                box[3] = before.box_city[3] + w * wrap_angle_rad(after.box_city[3] - before.box_city[3])
-                filled.append(TrackedBox(before.track_id, before.frame_index + k, before.category, box))
+                box_city = (1 - w) * before.box_city + w * after.box_city
+                box_city[3] = before.box_city[3] + w * wrap_angle_rad(after.box_city[3] - before.box_city[3])
+                filled.append(TrackedBox(before.track_id, before.frame_index + k, before.category, box_city))
     return filled
 
 

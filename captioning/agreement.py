@@ -8,6 +8,9 @@ Two checks, per labelled *event* (a contiguous run of frames where a label holds
   (*transition*), and at least once in the labelled direction (*directed*: a left change of a
   same-direction neighbour moves it toward ``left`` in the ego frame). Events where the track carries
   fewer than two same-direction lane tags (oncoming, crossing, stationary or unseen) are not evaluable.
+  Three lane classes cannot show a change between two lanes on the same side of the host (e.g. two
+  and one lanes to the left), so the events whose lateral offset crosses a host-band edge
+  (``±host_lane_half_width_m``) are also counted apart (*band crossing*).
 - **Ego turns** (``left_turn`` / ``right_turn`` of the ego): the host direction tags inside the
   event should include ``steering_left`` / ``steering_right``.
 """
@@ -35,6 +38,8 @@ class AgreementReport:
     lane_change_evaluable: int = 0
     lane_change_transition: int = 0
     lane_change_directed: int = 0
+    band_crossing_events: int = 0
+    band_crossing_transition: int = 0
     ego_turn_events: int = 0
     ego_turn_steering: int = 0
 
@@ -46,6 +51,11 @@ class AgreementReport:
     @property
     def lane_change_directed_rate(self) -> float:
         return self.lane_change_directed / self.lane_change_evaluable if self.lane_change_evaluable else float("nan")
+
+    @property
+    def band_crossing_rate(self) -> float:
+        """Share of band-crossing lane changes whose lane tags change (NaN if none)."""
+        return self.band_crossing_transition / self.band_crossing_events if self.band_crossing_events else float("nan")
 
     @property
     def ego_turn_rate(self) -> float:
@@ -61,6 +71,7 @@ class AgreementReport:
         out.update(
             lane_change_rate=self.lane_change_rate,
             lane_change_directed_rate=self.lane_change_directed_rate,
+            band_crossing_rate=self.band_crossing_rate,
             ego_turn_rate=self.ego_turn_rate,
         )
         return out
@@ -85,8 +96,13 @@ def _label_grid(result: LogCaptions, labels: pa.Table, track_id: str, column: st
     return grid
 
 
-def agreement(result: LogCaptions, labels: pa.Table, margin_frames: int = 10) -> AgreementReport:
-    """Compare one captioned log with its behaviour labels (``scenes.behavior`` table)."""
+def agreement(
+    result: LogCaptions, labels: pa.Table, margin_frames: int = 10, host_lane_half_width_m: float = 1.85
+) -> AgreementReport:
+    """Compare one captioned log with its behaviour labels (``scenes.behavior`` table).
+
+    ``host_lane_half_width_m`` should be the value the log was captioned with.
+    """
     t = result.timestamps_ns.shape[0]
     counts = dict.fromkeys(asdict(AgreementReport()), 0)
     labelled = set(labels.column("track_id").to_pylist())
@@ -97,12 +113,20 @@ def agreement(result: LogCaptions, labels: pa.Table, margin_frames: int = 10) ->
             for start, end in _events(_label_grid(result, labels, track_id, column)):
                 counts["lane_change_events"] += 1
                 lo, hi = max(start - margin_frames, 0), min(end + margin_frames, t - 1)
-                lanes = [_ORDER[c] for c in result.neighbors.lane[k, lo : hi + 1].tolist() if c in _ORDER]
-                if len(lanes) < 2:
+                window = result.neighbors.lane[k, lo : hi + 1].tolist()
+                same_direction = [i for i, c in enumerate(window) if c in _ORDER]
+                if len(same_direction) < 2:
                     continue
+                lanes = [_ORDER[window[i]] for i in same_direction]
                 counts["lane_change_evaluable"] += 1
                 steps = np.diff(lanes)
-                counts["lane_change_transition"] += int(bool((steps != 0).any()))
+                changed = int(bool((steps != 0).any()))
+                counts["lane_change_transition"] += changed
+                y_m = result.center_ego_xy_m[k, lo + np.array(same_direction), 1]
+                edges = (-host_lane_half_width_m, host_lane_half_width_m)
+                if any(y_m.min() < edge < y_m.max() for edge in edges):
+                    counts["band_crossing_events"] += 1
+                    counts["band_crossing_transition"] += changed
                 counts["lane_change_directed"] += int(bool((np.sign(steps) == step).any()))
     if EGO_TRACK_ID in labelled:
         turns = (("left_turn", HostDirection.STEERING_LEFT), ("right_turn", HostDirection.STEERING_RIGHT))

@@ -11,6 +11,7 @@ The YAML file mirrors the nesting (every key optional, defaults below)::
     text:      {num_paraphrases: 3, seed: 0}
 
 Unknown keys and contradicting thresholds raise :class:`~captioning.errors.ConfigError`.
+:data:`DEFAULT_CONFIG_PATH` is the annotated default file, equal to ``CaptioningConfig()``.
 """
 
 from __future__ import annotations
@@ -26,6 +27,9 @@ import yaml
 
 from captioning.errors import ConfigError
 from scenes.atomic import atomic_write_text
+
+#: The annotated default configuration shipped with the package.
+DEFAULT_CONFIG_PATH = Path(__file__).with_name("captioning.yaml")
 
 
 class WindowStrategy(str, Enum):

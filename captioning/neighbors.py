@@ -58,7 +58,7 @@ class NeighborTags:
         stationary: (K,) eq. 3, for tracks with at least one differentiable frame.
         taggable: (K,) tracks with at least one differentiable frame (not single-frame).
         tagged: (K, T) frames that carry lane and motion tags (observed, differentiable, non-stationary track).
-        baseline_lane: (K, T) :data:`~captioning.tags.BASELINE_LANES` codes, NO_TAG elsewhere.
+        baseline_lane: (K, T) :data:`~captioning.tags.BASELINE_LANES` codes (int8), NO_TAG elsewhere.
         lane: (K, T) :data:`~captioning.tags.LANES` codes.
         motion: (K, T) :data:`~captioning.tags.MOTIONS` codes.
     """
@@ -66,26 +66,27 @@ class NeighborTags:
     stationary: BoolArray
     taggable: BoolArray
     tagged: BoolArray
-    baseline_lane: IntArray
-    lane: IntArray
-    motion: IntArray
+    baseline_lane: NDArray[np.int8]
+    lane: NDArray[np.int8]
+    motion: NDArray[np.int8]
 
 
-def host_compensated_xy(center_ego_xy_m: FloatArray, first_SE3_ego: FloatArray) -> FloatArray:
+def host_compensated_xy(center_ego_xy_m: FloatArray, first_SE3_ego_planar: FloatArray) -> FloatArray:
     """Centres in the host's first-frame pose.
 
     Args:
         center_ego_xy_m: (K, T, 2) centres in the ego frame at each sample.
-        first_SE3_ego: (K, T, 4, 4) or (T, 4, 4) ``first_SE3_city · city_SE3_ego`` at each sample.
+        first_SE3_ego_planar: (K, T, 6) rows ``(r00, r01, tx, r10, r11, ty)`` of
+            ``first_SE3_city · city_SE3_ego`` at each sample.
 
     Returns:
         (K, T, 2) centres in the host's first-frame pose.
     """
     x, y = center_ego_xy_m[..., 0], center_ego_xy_m[..., 1]
-    pose = first_SE3_ego
+    p = first_SE3_ego_planar
     out = np.empty(center_ego_xy_m.shape)
-    out[..., 0] = pose[..., 0, 0] * x + pose[..., 0, 1] * y + pose[..., 0, 3]
-    out[..., 1] = pose[..., 1, 0] * x + pose[..., 1, 1] * y + pose[..., 1, 3]
+    out[..., 0] = p[..., 0] * x + p[..., 1] * y + p[..., 2]
+    out[..., 1] = p[..., 3] * x + p[..., 4] * y + p[..., 5]
     return out
 
 
@@ -97,10 +98,14 @@ class _Compact:
     Attributes:
         frame: (K, L) log frame index of each cell (clipped into range).
         valid: (K, L) observed cells.
+        rows: (N,) row of each observed cell.
+        cols: (N,) column of each observed cell.
     """
 
     frame: IntArray
     valid: BoolArray
+    rows: IntArray
+    cols: IntArray
 
     @staticmethod
     def of(valid: BoolArray) -> _Compact:
@@ -113,17 +118,18 @@ class _Compact:
         cols = np.arange(length)[None, :]
         frame = np.minimum(first[:, None] + cols, t - 1)
         rows = np.arange(k)[:, None]
-        return _Compact(frame=frame, valid=(cols < span[:, None]) & valid[rows, frame])
+        cvalid = (cols < span[:, None]) & valid[rows, frame]
+        obs_rows, obs_cols = np.nonzero(cvalid)
+        return _Compact(frame=frame, valid=cvalid, rows=obs_rows, cols=obs_cols)
 
     def gather(self, grid: NDArray[np.generic]) -> NDArray[np.generic]:
         """(K, T, ...) → (K, L, ...)."""
         return grid[np.arange(grid.shape[0])[:, None], self.frame]
 
-    def scatter(self, compact: IntArray, shape: tuple[int, int]) -> IntArray:
-        """(K, L) codes → (K, T), NO_TAG outside observed cells."""
-        out = np.full(shape, NO_TAG, dtype=np.int64)
-        rows, cols = np.nonzero(self.valid)
-        out[rows, self.frame[rows, cols]] = compact[rows, cols]
+    def scatter(self, compact: IntArray, shape: tuple[int, int]) -> NDArray[np.int8]:
+        """(K, L) codes → (K, T) int8 codes (vocabularies are tiny), NO_TAG outside observed cells."""
+        out = np.full(shape, NO_TAG, dtype=np.int8)
+        out[self.rows, self.frame[self.rows, self.cols]] = compact[self.rows, self.cols]
         return out
 
 
@@ -223,14 +229,15 @@ def neighbor_tags(
     w, p = config.smoothing.window_frames, config.smoothing.polyorder
     nb = config.neighbor
     if k == 0 or t == 0:
-        empty = np.full((k, t), NO_TAG, dtype=np.int64)
+        empty = np.full((k, t), NO_TAG, dtype=np.int8)
         return NeighborTags(np.zeros(k, bool), np.zeros(k, bool), np.zeros((k, t), bool), empty, empty, empty)
     grid = _Compact.of(valid)
     cvalid = grid.valid
     rel_xy: FloatArray = np.where(cvalid[..., None], grid.gather(center_ego_xy_m), 0.0)  # (K, L, 2)
     yaw = np.asarray(grid.gather(yaw_ego_rad), dtype=np.float64)
     first_SE3_ego = np.einsum("ij,tjk->tik", np.linalg.inv(city_SE3_ego[0]), city_SE3_ego)  # (T, 4, 4)
-    first_xy = host_compensated_xy(rel_xy, first_SE3_ego[grid.frame])
+    planar = first_SE3_ego[:, [0, 0, 0, 1, 1, 1], [0, 1, 3, 0, 1, 3]]  # (T, 6): the planar rows only
+    first_xy = host_compensated_xy(rel_xy, planar[grid.frame])
     t_s = seconds_since_first(timestamps_ns)[grid.frame]  # (K, L)
     d = time_derivative(np.concatenate([first_xy, rel_xy], axis=2), cvalid, t_s, w, p)  # (K, L, 4)
     abs_first_vel = np.abs(d[..., :2])

@@ -153,7 +153,7 @@ class LogCaptions:
     def neighbor_code(self) -> IntArray:
         """(K, T) unified neighbour codes (index into ``lane:motion`` strings), −1 = none."""
         nb = self.neighbors
-        return np.where(nb.tagged, nb.lane * len(MOTIONS) + nb.motion, NO_TAG)
+        return np.where(nb.tagged, nb.lane.astype(np.int64) * len(MOTIONS) + nb.motion, NO_TAG)
 
     def frame_tags_table(self) -> pa.Table:
         """``frame_tags.parquet`` rows of this log (ego rows first at each timestamp)."""
@@ -237,7 +237,7 @@ def check_finite(
     city_SE3_ego: FloatArray,
 ) -> None:
     """Raise :class:`TrackDataError` at the first NaN/inf pose, naming log, track, frame and field."""
-    bad_pose = ~np.isfinite(city_SE3_ego.reshape(city_SE3_ego.shape[0], -1)).all(axis=1)
+    bad_pose = ~np.isfinite(city_SE3_ego.reshape(-1, 16)).all(axis=1)
     if bad_pose.any():
         f = int(np.argmax(bad_pose))
         raise TrackDataError(log_id, EGO_TRACK_ID, f, int(timestamps_ns[f]), "city_SE3_ego", "ego pose is not finite")

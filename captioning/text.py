@@ -12,10 +12,8 @@ Example: tags ``["left:approach", "host:constant"]`` for a car, host ``["cruisin
 
 from __future__ import annotations
 
-import zlib
+import random
 from collections.abc import Sequence
-
-import numpy as np
 
 from captioning.tags import HostDirection, HostMotion, Lane, Motion, split_tag
 from scenes.categories import Category
@@ -84,8 +82,8 @@ HOST_DIRECTION_PHRASES: dict[HostDirection, tuple[str, ...]] = {
     HostDirection.STEERING_RIGHT: ("while steering right", "while turning right", "and steers to the right"),
 }
 
-def _pick(options: tuple[str, ...], rng: np.random.Generator | None) -> str:
-    return options[0] if rng is None else options[int(rng.integers(len(options)))]
+def _pick(options: tuple[str, ...], rng: random.Random | None) -> str:
+    return options[0] if rng is None else options[rng.randrange(len(options))]
 
 
 def category_noun(category: str) -> str:
@@ -94,7 +92,7 @@ def category_noun(category: str) -> str:
     return f"{'an' if word[0] in 'aeiou' else 'a'} {word}"
 
 
-def host_sentence(host_tags: Sequence[str], rng: np.random.Generator | None = None) -> str:
+def host_sentence(host_tags: Sequence[str], rng: random.Random | None = None) -> str:
     """One sentence for the host's unified tags (``motion:direction``); empty for no tags."""
     clauses: list[str] = []
     for i, tag in enumerate(host_tags):
@@ -111,7 +109,7 @@ def host_sentence(host_tags: Sequence[str], rng: np.random.Generator | None = No
     return "The ego vehicle " + ", ".join(clauses) + "."
 
 
-def neighbor_sentence(category: str, tags: Sequence[str], rng: np.random.Generator | None = None) -> str:
+def neighbor_sentence(category: str, tags: Sequence[str], rng: random.Random | None = None) -> str:
     """One sentence for a neighbour's unified tags (``lane:motion``); class, lane and motion always appear."""
     clauses: list[str] = []
     previous_lane: Lane | None = None
@@ -133,7 +131,7 @@ def neighbor_sentence(category: str, tags: Sequence[str], rng: np.random.Generat
 
 
 def caption_text(
-    category: str | None, tags: Sequence[str], host_tags: Sequence[str], rng: np.random.Generator | None = None
+    category: str | None, tags: Sequence[str], host_tags: Sequence[str], rng: random.Random | None = None
 ) -> str:
     """Host sentence, then (for a neighbour, ``category`` not None) the neighbour sentence."""
     parts = [host_sentence(host_tags, rng)]
@@ -142,10 +140,10 @@ def caption_text(
     return " ".join(p for p in parts if p)
 
 
-def paraphrase_seed(seed: int, *key: object) -> np.random.Generator:
-    """A generator seeded by ``seed`` and a stable hash of ``key`` (not Python's salted ``hash``)."""
-    digest = zlib.crc32("\x1f".join(map(str, key)).encode("utf-8"))
-    return np.random.default_rng([int(seed) & 0xFFFFFFFF, digest])
+def paraphrase_rng(seed: int, *key: object) -> random.Random:
+    """A generator seeded by ``seed`` and ``key`` (string seeds hash with SHA-512: stable across runs,
+    unlike Python's salted ``hash``)."""
+    return random.Random("\x1f".join(map(str, (seed, *key))))
 
 
 def paraphrases(
@@ -157,7 +155,7 @@ def paraphrases(
     key: tuple[object, ...],
 ) -> list[str]:
     """Up to ``count`` distinct paraphrases, different from the canonical caption when possible."""
-    rng = paraphrase_seed(seed, *key)
+    rng = paraphrase_rng(seed, *key)
     canonical = caption_text(category, tags, host_tags)
     out: list[str] = []
     for _ in range(count * 8):

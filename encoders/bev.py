@@ -53,17 +53,18 @@ class BevTower(nn.Module):
         self.lidar = Backbone(config.lidar_channels, config.widths)
         self.map = Backbone(config.map_channels, config.widths)
         # A 1×1 convolution of the concatenated upsampled features equals the sum of per-stage 1×1
-        # projections, upsampled (upsampling is linear): projecting first, at each stage's own
-        # resolution, is the same header at a fraction of the cost.
-        self.lateral = nn.ModuleList(nn.Conv2d(w, d_e, 1, bias=False) for w in (*config.widths, *config.widths))
-        self.lateral_bias = nn.Parameter(torch.zeros(d_e, 1, 1))
+        # projections, upsampled (upsampling is linear). Projecting first, at each stage's own
+        # resolution, and upsampling coarse to fine (FPN order) is the same header at a fraction of the cost.
+        self.lateral_lidar = nn.ModuleList(nn.Conv2d(w, d_e, 1, bias=False) for w in config.widths)
+        self.lateral_map = nn.ModuleList(nn.Conv2d(w, d_e, 1) for w in config.widths)
         self.header_space = nn.Sequential(
             nn.Conv2d(d_e, d_e, 3, padding=1, groups=d_e, bias=False), nn.BatchNorm2d(d_e), nn.ReLU(inplace=True)
         )
         k = config.temporal_kernel
-        self.header_time = nn.Conv3d(d_e, d_e, (k, 1, 1), padding=(k // 2, 0, 0), groups=d_e)
+        self.header_time = nn.Parameter(torch.zeros(k, d_e))  # depthwise temporal kernel, starts as identity
         self.temporal = TemporalEncoder(config.temporal, 2 * d_e + 4 + config.ego_features)
         self.head = nn.Linear(config.temporal.width, embed_dim)
+        self.ego_scale: torch.Tensor
         self.register_buffer("ego_scale", torch.tensor(EGO_MOTION_SCALE[: config.ego_features]), persistent=False)
 
     def embed_map(self, bev_lidar: torch.Tensor, bev_map: torch.Tensor) -> torch.Tensor:
@@ -71,23 +72,30 @@ class BevTower(nn.Module):
         b, t, _, h, w = bev_lidar.shape
         r = self.config.downsample
         size = (h // r, w // r)
-        feats = self.lidar(bev_lidar.flatten(0, 1)) + self.map(bev_map.flatten(0, 1))  # stages of (B*T, C, ., .)
-        x = self.lateral_bias
-        for proj, f in zip(self.lateral, feats):
-            p = proj(f)  # (B*T, D_e, h_i, w_i)
-            x = x + (p if p.shape[-2:] == size else F.interpolate(p, size=size, mode="bilinear"))
+        lidar = self.lidar(bev_lidar.flatten(0, 1))  # stages of (B*T, C_i, H / 2**(i+1), W / 2**(i+1))
+        maps = self.map(bev_map.flatten(0, 1))
+        x: torch.Tensor | None = None
+        for i in reversed(range(len(lidar))):
+            p = self.lateral_lidar[i](lidar[i]) + self.lateral_map[i](maps[i])  # (B*T, D_e, h_i, w_i)
+            x = p if x is None else p + F.interpolate(x, size=p.shape[-2:], mode="bilinear")
+        assert x is not None
+        if x.shape[-2:] != size:
+            x = F.interpolate(x, size=size, mode="bilinear")
         x = F.relu(x)  # (B*T, D_e, h, w)
         x = x + self.header_space(x)  # (B*T, D_e, h, w)
-        x = x.reshape(b, t, *x.shape[1:]).transpose(1, 2)  # (B, D_e, T, h, w)
-        x = x + self.header_time(x)  # (B, D_e, T, h, w)
-        return x.transpose(1, 2)  # (B, T, D_e, h, w)
+        x = x.reshape(b, t, *x.shape[1:])  # (B, T, D_e, h, w)
+        k = self.config.temporal_kernel
+        if k > 1:  # x + depthwise temporal convolution, zero-padded in time
+            pad = F.pad(x, (0, 0, 0, 0, 0, 0, k // 2, k // 2))  # (B, T + k - 1, D_e, h, w)
+            x = x + sum(self.header_time[j, :, None, None] * pad[:, j : j + t] for j in range(k))
+        return x  # (B, T, D_e, h, w)
 
     def frame_features(self, e: torch.Tensor, bev_object: torch.Tensor, ego_motion: torch.Tensor) -> torch.Tensor:
         """e: (B, T, D_e, h, w); bev_object: (B, T, 1, H, W); ego_motion: (B, T, 4) → (B, T, 2 D_e + 4 + E)."""
         b, t = e.shape[:2]
         e_flat = e.flatten(0, 1)  # (B*T, D_e, h, w)
         obj = bev_object.flatten(0, 1)  # (B*T, 1, H, W)
-        small = F.adaptive_avg_pool2d(obj, e.shape[-2:])  # (B*T, 1, h, w)
+        small = F.adaptive_avg_pool2d(obj, (e.shape[-2], e.shape[-1]))  # (B*T, 1, h, w)
         per_frame = torch.cat([masked_mean(e_flat, small), e_flat.mean(dim=(2, 3)), mask_geometry(obj)], dim=-1)
         ego = ego_motion[..., : self.config.ego_features] / self.ego_scale  # (B, T, E)
         return torch.cat([per_frame.reshape(b, t, -1), ego], dim=-1)  # (B, T, 2 D_e + 4 + E)

@@ -27,7 +27,7 @@ def conv_block(c_in: int, c_out: int, kernel: int, stride: int) -> nn.Sequential
 
 def mask_geometry(mask: torch.Tensor) -> torch.Tensor:
     """mask: (N, 1, H, W) in [0, 1] → (N, 4): area fraction, centroid x and y in [-1, 1], visible flag."""
-    n, _, h, w = mask.shape
+    _, _, h, w = mask.shape
     area = mask.sum(dim=(1, 2, 3))  # (N,)
     ys = torch.linspace(-1.0, 1.0, h, device=mask.device, dtype=mask.dtype)
     xs = torch.linspace(-1.0, 1.0, w, device=mask.device, dtype=mask.dtype)
@@ -62,7 +62,7 @@ class CameraTower(nn.Module):
         x = camera.reshape(b * t, c, h, w)  # (B*T, C, H, W)
         mask = x[:, -1:]  # (B*T, 1, H, W)
         f = self.cnn(x)  # (B*T, F, h, w)
-        small = F.adaptive_avg_pool2d(mask, f.shape[-2:])  # (B*T, 1, h, w)
+        small = F.adaptive_avg_pool2d(mask, (f.shape[-2], f.shape[-1]))  # (B*T, 1, h, w)
         per_frame = torch.cat([masked_mean(f, small), f.mean(dim=(2, 3)), mask_geometry(mask)], dim=-1)
         return per_frame.reshape(b, t, -1)  # (B, T, 2F + 4)
 

@@ -219,6 +219,7 @@ class TrainConfig:
         eval_every: run validation every this many epochs (and always after the last).
         max_steps_per_epoch: cap steps per epoch (0 = the whole split); for smoke runs.
         eval_batch_size: clips per forward pass in validation and embedding.
+        shuffle_frames: train on clips whose frames are shuffled in time (the bag-of-frames baseline).
     """
 
     model: DualEncoderConfig = field(default_factory=DualEncoderConfig)
@@ -239,6 +240,7 @@ class TrainConfig:
     eval_every: int = 1
     max_steps_per_epoch: int = 0
     eval_batch_size: int = 32
+    shuffle_frames: bool = False
 
     def __post_init__(self) -> None:
         for name in ("epochs", "batch_size", "eval_every", "eval_batch_size"):

@@ -3,7 +3,8 @@
 >>> ds = ClipDataset("clips", split="train", augment=True, seed=0)
 >>> loader = torch.utils.data.DataLoader(ds, batch_size=32, num_workers=2, collate_fn=collate_clips)
 
-An item is a dict:
+An item is a dict (with ``as_uint8=True`` the four image-like views stay uint8 0–255 — a quarter
+of the bytes to move — and :func:`to_float` converts a batch after the transfer):
 
 - ``clip_id``, ``log_id``, ``track_id``, ``category``: str
 - ``caption``: a seeded paraphrase when augmenting, else the canonical caption; ``canonical_caption``
@@ -29,18 +30,27 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import cv2
 import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 import torch
-import torch.nn.functional as F
 from numpy.typing import NDArray
 
 from encoders.clips.raster import BevGrid
-from encoders.clips.views import LogArrays, ego_motion, highlight_camera, object_footprint, open_log_arrays
+from encoders.clips.views import (
+    LogArrays,
+    ego_motion,
+    highlight_camera,
+    object_footprint,
+    open_log_arrays,
+    warp_bev,
+)
 
 CLIPS_FILE = "clips.parquet"
 MANIFEST_FILE = "manifest.json"
+#: The image-like views; uint8 0–255 with ``as_uint8=True``, else float32 in [0, 1].
+UINT8_VIEWS = ("camera", "bev_lidar", "bev_map", "bev_object")
 
 
 def read_clip_table(clips_dir: Path | str) -> pa.Table:
@@ -104,6 +114,7 @@ class ClipDataset(torch.utils.data.Dataset[dict[str, Any]]):
         augment: bool = False,
         seed: int = 0,
         augment_config: AugmentConfig | None = None,
+        as_uint8: bool = False,
     ) -> None:
         self.clips_dir = Path(clips_dir)
         self.manifest = read_manifest(self.clips_dir)
@@ -133,6 +144,7 @@ class ClipDataset(torch.utils.data.Dataset[dict[str, Any]]):
         self.seed = int(seed)
         self.epoch = 0
         self.augment_config = augment_config or AugmentConfig()
+        self.as_uint8 = as_uint8
         cam = self.manifest["camera"]
         self._camera_shape = (int(cam["height_px"]), int(cam["width_px"]))
         self._highlight = (
@@ -163,6 +175,11 @@ class ClipDataset(torch.utils.data.Dataset[dict[str, Any]]):
         """Change the augmentation draw (before creating the epoch's DataLoader iterator)."""
         self.epoch = int(epoch)
 
+    def _out(self, array: NDArray[np.uint8]) -> torch.Tensor:
+        """uint8 0–255 → float32 [0, 1] tensor (or the uint8 tensor with ``as_uint8``), same shape."""
+        tensor = torch.from_numpy(np.ascontiguousarray(array))
+        return tensor if self.as_uint8 else tensor.to(torch.float32).mul_(1.0 / 255.0)
+
     def _log(self, log_id: str) -> LogArrays:
         arrays = self._arrays.get(log_id)
         if arrays is None:
@@ -184,30 +201,29 @@ class ClipDataset(torch.utils.data.Dataset[dict[str, Any]]):
             caption = row.paraphrases[int(rng.integers(len(row.paraphrases)))]
 
         hc, wc = self._camera_shape
-        if row.has_camera and arrays.camera.shape[0]:
-            rgb = np.asarray(arrays.camera[fi], dtype=np.float32) * np.float32(1.0 / 255.0)  # (T, H, W, 3)
+        has_camera = bool(row.has_camera and arrays.camera.shape[0] > 0)
+        camera = np.zeros((t, 4, hc, wc), dtype=np.uint8)
+        if has_camera:
+            rgb = np.asarray(arrays.camera[fi])  # (T, H, W, 3) uint8
             mask = np.asarray(arrays.camera_instances[fi]) == value  # (T, H, W)
             if rng is not None:
                 rgb = _colour_jitter(rgb, rng, aug)
             color, alpha, dim = self._highlight
-            shown = highlight_camera(rgb, mask, color, alpha, dim)
-            camera = np.concatenate([shown, mask[..., None].astype(np.float32)], axis=-1)
-            camera_t = torch.from_numpy(camera).permute(0, 3, 1, 2).contiguous()  # (T, 4, H, W)
-        else:
-            camera_t = torch.zeros((t, 4, hc, wc), dtype=torch.float32)
+            shown = highlight_camera(rgb, mask, color, alpha, dim)  # (T, H, W, 3)
+            camera[:, :3] = shown.transpose(0, 3, 1, 2)
+            camera[:, 3] = mask * np.uint8(255)
 
-        lidar = torch.from_numpy(np.asarray(arrays.bev_lidar[fi])).float().div_(255.0)  # (T, Cl, H, W)
-        bev_map = torch.from_numpy(np.asarray(arrays.bev_map[fi])).float().div_(255.0)  # (T, Cm, H, W)
-        footprint = object_footprint(arrays, self._grid, row.track_id, fi)
-        obj = torch.from_numpy(footprint).float().unsqueeze(1)  # (T, 1, H, W)
+        lidar = np.asarray(arrays.bev_lidar[fi])  # (T, Cl, H, W) uint8
+        bev_map = np.asarray(arrays.bev_map[fi])  # (T, Cm, H, W) uint8
+        obj = object_footprint(arrays, self._grid, row.track_id, fi)[:, None]  # (T, 1, H, W), 0/1
         motion = ego_motion(arrays.pose_xy_yaw, arrays.speed_mps, fi)
         if rng is not None:
             theta = float(rng.uniform(-aug.max_rotation_rad, aug.max_rotation_rad))
             shift = rng.uniform(-aug.max_translation_m, aug.max_translation_m, size=2)
             cl, cm = lidar.shape[1], bev_map.shape[1]
-            stacked = _warp_bev(torch.cat([lidar, bev_map, obj], dim=1), theta, shift, self._bev)
+            stacked = warp_bev(np.concatenate([lidar, bev_map, obj * np.uint8(255)], axis=1), self._grid, theta, shift)
             lidar, bev_map = stacked[:, :cl], stacked[:, cl : cl + cm]
-            obj = (stacked[:, cl + cm :] > 0.5).float()
+            obj = (stacked[:, cl + cm :] > 127).astype(np.uint8)
             c, s = np.cos(theta), np.sin(theta)
             motion[:, :2] = motion[:, :2] @ np.array([[c, s], [-s, c]], dtype=np.float32)
 
@@ -220,60 +236,54 @@ class ClipDataset(torch.utils.data.Dataset[dict[str, Any]]):
             "canonical_caption": row.canonical_caption,
             "tags": list(row.tags),
             "host_tags": list(row.host_tags),
-            "camera": camera_t,
-            "has_camera": bool(row.has_camera and arrays.camera.shape[0] > 0),
-            "bev_lidar": lidar,
-            "bev_map": bev_map,
-            "bev_object": obj,
+            "camera": self._out(camera),
+            "has_camera": has_camera,
+            "bev_lidar": self._out(lidar),
+            "bev_map": self._out(bev_map),
+            "bev_object": self._out(obj * np.uint8(255)),
             "ego_motion": torch.from_numpy(motion),
         }
 
 
-def _colour_jitter(rgb: NDArray[np.float32], rng: np.random.Generator, aug: AugmentConfig) -> NDArray[np.float32]:
-    """(T, H, W, 3) → the same, with one brightness / contrast / saturation draw for the whole clip."""
+def _colour_jitter(rgb: NDArray[np.uint8], rng: np.random.Generator, aug: AugmentConfig) -> NDArray[np.uint8]:
+    """(T, H, W, 3) → the same, with one brightness / contrast / saturation draw for the whole clip.
+
+    Brightness and contrast are one lookup table; saturation blends with the luminance image.
+    """
     b = rng.uniform(1 - aug.brightness, 1 + aug.brightness)
     c = rng.uniform(1 - aug.contrast, 1 + aug.contrast)
     s = rng.uniform(1 - aug.saturation, 1 + aug.saturation)
-    out = rgb * np.float32(b)
-    mean = out.mean(dtype=np.float32)
-    out = (out - mean) * np.float32(c) + mean
-    gray = out.mean(axis=-1, keepdims=True)
-    out = (out - gray) * np.float32(s) + gray
-    return np.clip(out, 0.0, 1.0).astype(np.float32)
+    flat = np.ascontiguousarray(rgb).reshape(-1, rgb.shape[-2], 3)  # frames stacked into one image
+    mean = float(flat.mean()) * b
+    lut = np.clip((np.arange(256) * b - mean) * c + mean + 0.5, 0, 255).astype(np.uint8)
+    out = cv2.LUT(flat, lut)
+    gray = cv2.cvtColor(cv2.cvtColor(out, cv2.COLOR_RGB2GRAY), cv2.COLOR_GRAY2RGB)
+    return np.asarray(cv2.addWeighted(out, s, gray, 1.0 - s, 0.0), dtype=np.uint8).reshape(rgb.shape)
 
 
-def _warp_bev(
-    bev: torch.Tensor, theta_rad: float, shift_xy_m: NDArray[np.float64], grid: tuple[float, float, float, float, float]
-) -> torch.Tensor:
-    """Rotate every frame by ``theta_rad`` about the ego origin and shift it by ``shift_xy_m``.
+def to_float(batch: dict[str, Any]) -> dict[str, Any]:
+    """A batch (or item) loaded with ``as_uint8=True`` → the float32 [0, 1] views of the interface.
 
-    A point at ego ``p`` moves to ``R(θ)·p + shift``. ``bev``: (T, C, H, W).
+    Converting after the transfer (e.g. on the GPU) moves a quarter of the bytes.
     """
-    x_min, x_max, y_min, y_max, _res = grid
-    hh, hw = 0.5 * (x_max - x_min), 0.5 * (y_max - y_min)
-    centre = np.array([0.5 * (x_min + x_max), 0.5 * (y_min + y_max)])
-    # Normalised (u → columns, v → rows) to ego metres: x = cx − v·hh, y = cy − u·hw.
-    a = np.array([[0.0, -hh], [-hw, 0.0]])
-    a_inv = np.linalg.inv(a)
-    c, s = np.cos(theta_rad), np.sin(theta_rad)
-    rot_inv = np.array([[c, s], [-s, c]])
-    # Output q' → input q: p = R⁻¹(A q' + centre − shift); q = A⁻¹(p − centre).
-    m = a_inv @ rot_inv @ a
-    b = a_inv @ (rot_inv @ (centre - shift_xy_m) - centre)
-    affine = torch.tensor(np.concatenate([m, b[:, None]], axis=1), dtype=bev.dtype).unsqueeze(0)
-    affine = affine.expand(bev.shape[0], 2, 3)
-    sample_grid = F.affine_grid(affine, list(bev.shape), align_corners=False)
-    return F.grid_sample(bev, sample_grid, mode="bilinear", padding_mode="zeros", align_corners=False)
+    out = dict(batch)
+    for key in UINT8_VIEWS:
+        if key in out and isinstance(out[key], torch.Tensor) and out[key].dtype == torch.uint8:
+            out[key] = out[key].to(torch.float32).mul_(1.0 / 255.0)
+    return out
 
 
 def collate_clips(items: list[dict[str, Any]]) -> dict[str, Any]:
     """Stack items into a batch: tensors → (B, T, C, H, W) / (B, T, 4), ``has_camera`` → (B,) bool,
-    strings and tag lists → lists. The camera tensor holds zeros where ``has_camera`` is false."""
+    strings and tag lists → lists. The camera tensor holds zeros where ``has_camera`` is false.
+
+    In a DataLoader worker the stacked tensors are written straight into shared memory (as
+    ``default_collate`` does), saving a copy per batch."""
     out: dict[str, Any] = {}
     for key in items[0]:
         values = [item[key] for item in items]
         if isinstance(values[0], torch.Tensor):
-            out[key] = torch.stack(values)
+            out[key] = torch.utils.data.default_collate(values)
         elif key == "has_camera":
             out[key] = torch.tensor(values, dtype=torch.bool)
         else:

@@ -31,13 +31,16 @@ SPLIT_OFFSET = {"train": 0, "val": 1, "test": 2}
 
 def behaviours() -> list[tuple[tuple[str, str], ...]]:
     """All (lane, motion) step sequences: 9 one-step, 8 lane changes, 2 motion changes."""
-    one = [((lane, m),) for lane in LANES_Y_M for m in MOTIONS]
-    changes = [
+    one: list[tuple[tuple[str, str], ...]] = [((lane, m),) for lane in LANES_Y_M for m in MOTIONS]
+    changes: list[tuple[tuple[str, str], ...]] = [
         ((a, m), (b, m))
         for a, b in (("left", "host"), ("host", "left"), ("right", "host"), ("host", "right"))
         for m in ("approach", "recede")
     ]
-    motion = [(("host", "approach"), ("host", "recede")), (("host", "recede"), ("host", "approach"))]
+    motion: list[tuple[tuple[str, str], ...]] = [
+        (("host", "approach"), ("host", "recede")),
+        (("host", "recede"), ("host", "approach")),
+    ]
     return one + changes + motion
 
 

@@ -59,7 +59,7 @@ def load_sentence_encoder(name: str) -> nn.Module:
         ) from None
     try:
         return SentenceTransformer(path, device="cpu")
-    except Exception as exc:  # noqa: BLE001 - any loading failure gets the same advice
+    except Exception as exc:  # any loading failure gets the same advice
         raise TextModelUnavailableError(
             f"cannot load the sentence encoder {name!r} ({path}) offline: {exc}; set model.text.kind: scratch "
             "to train a small text transformer from scratch"
@@ -119,7 +119,8 @@ class PretrainedText(nn.Module):
         super().__init__()
         self.config = config
         self.encoder = load_sentence_encoder(config.model)
-        dim_fn = getattr(self.encoder, "get_embedding_dimension", None) or self.encoder.get_sentence_embedding_dimension
+        encoder: Any = self.encoder
+        dim_fn = getattr(encoder, "get_embedding_dimension", None) or encoder.get_sentence_embedding_dimension
         self.out_features = int(dim_fn())
         for p in self.encoder.parameters():
             p.requires_grad_(not config.freeze)
@@ -139,7 +140,8 @@ class PretrainedText(nn.Module):
         return list(layers)
 
     def _run(self, texts: list[str], device: torch.device) -> torch.Tensor:
-        features = self.encoder.preprocess(texts)  # type: ignore[operator]
+        encoder: Any = self.encoder
+        features = encoder.preprocess(texts)
         features = {k: v.to(device) if isinstance(v, torch.Tensor) else v for k, v in features.items()}
         return self.encoder(features)["sentence_embedding"].float()  # (B, F)
 

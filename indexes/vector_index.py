@@ -257,8 +257,13 @@ class VectorIndex:
         sel_refs = self._selector(allowed)
         D, I = self._faiss_search(x, k, sel_refs[0] if sel_refs else None)
         expected = min(k, len(self) if allowed is None else len(allowed))
-        short = np.flatnonzero((I >= 0).sum(axis=1) < expected)
-        if len(short) and self._knob is not Knob.NONE:
+        # FAISS puts padding last, so a row is short exactly when its expected-th result is −1.
+        if expected == 0 or I[:, expected - 1].min() >= 0:
+            if expected < k:
+                D[I < 0] = self.metric.missing_score
+            return D, I
+        short = np.flatnonzero(I[:, expected - 1] < 0)
+        if self._knob is not Knob.NONE:
             # Filters and tombstones can leave an approximate search short: look further.
             value, limit = get_knob(self._index), knob_limit(self._index)
             while len(short) and value < limit:
@@ -266,7 +271,7 @@ class VectorIndex:
                 sel = sel_refs[0] if sel_refs else None
                 D2, I2 = self._faiss_search(x[short], k, sel, value)
                 D[short], I[short] = D2, I2
-                short = short[(I2 >= 0).sum(axis=1) < expected]
+                short = short[I2[:, expected - 1] < 0]
         if len(short):
             subset = self._ids if allowed is None else allowed
             if len(subset) <= EXACT_FALLBACK_MAX:

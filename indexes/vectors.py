@@ -65,23 +65,22 @@ def prepare_vectors(x: np.ndarray, dim: int | None, metric: Metric, what: str = 
         arr = arr[None, :]
     if arr.ndim != 2:
         raise VectorError(f"{what} must be a (N, d) array, got shape {arr.shape}")
-    if not (np.issubdtype(arr.dtype, np.floating) or np.issubdtype(arr.dtype, np.integer)):
+    if arr.dtype.kind not in "fiu":
         raise VectorError(f"{what} must hold numbers, got dtype {arr.dtype}")
     if arr.shape[1] == 0:
         raise VectorError(f"{what} have dimension 0")
     if dim is not None and arr.shape[1] != dim:
         raise DimensionMismatchError(dim, arr.shape[1], what)
     out = np.array(arr, dtype=np.float32, order="C", copy=True)
-    finite = np.isfinite(out).all(axis=1)
-    if not finite.all():
-        rows = np.flatnonzero(~finite)
+    # One pass over the whole batch first; rows are located only when something is wrong.
+    if not np.isfinite(out).all():
+        rows = np.flatnonzero(~np.isfinite(out).all(axis=1))
         raise VectorError(f"{what} hold NaN or inf ({len(rows)} bad rows in all)", row=int(rows[0]))
     if metric is Metric.COSINE and len(out):
-        norms = np.linalg.norm(out, axis=1)
-        zero = norms == 0
-        if zero.any():
+        norms = np.sqrt(np.einsum("ij,ij->i", out, out))
+        if not norms.all():
             raise VectorError(f"{what} hold a zero vector, which has no direction for cosine",
-                              row=int(np.flatnonzero(zero)[0]))
+                              row=int(np.flatnonzero(norms == 0)[0]))
         out /= norms[:, None]
     return out
 

@@ -20,7 +20,7 @@ import math
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any, cast
+from typing import Any
 
 import numpy as np
 import pyarrow.parquet as pq
@@ -29,7 +29,6 @@ from retrieval.embedding import Embedder, ModelEmbedder
 
 KS = (1, 5, 10)
 CURVE_MAX_K = 50
-STEP_JOINER = ", then "
 
 
 # ---------------------------------------------------------------------- text → clip
@@ -128,48 +127,32 @@ def temporal_order_accuracy(true_scores: np.ndarray, reversed_scores: np.ndarray
     return float(np.mean((t > r) + 0.5 * (t == r)))
 
 
-def reverse_steps(tags: Sequence[str], caption: str,
-                  generate: Callable[[Sequence[str]], str] | None = None) -> str | None:
+def reverse_steps(tags: Sequence[str], caption: str, generate: Callable[[Sequence[str]], str]) -> str | None:
     """The caption of the same steps in reverse order, or None when reversing changes nothing.
 
-    Uses ``generate`` (tags → caption text) when given; otherwise reverses the caption's
-    ``", then "`` clauses.
+    Args:
+        tags: the unified tag sequence (the steps) of the caption.
+        caption: the caption of ``tags``.
+        generate: tags → caption text (captioning's generator, with the row's category and host tags bound).
     """
     if len(tags) < 2:
         return None
     reversed_tags = list(tags)[::-1]
     if reversed_tags == list(tags):
         return None
-    if generate is not None:
-        try:
-            text = generate(reversed_tags)
-        except (ValueError, KeyError):
-            text = None
-        if text and text != caption:
-            return text
-    clauses = [c for c in caption.rstrip(".").split(STEP_JOINER) if c]
-    if len(clauses) < 2:
-        clauses = [c.strip() for c in caption.rstrip(".").split(" then ") if c.strip()]
-        if len(clauses) < 2:
-            return None
-        out = " then ".join(clauses[::-1])
-    else:
-        out = STEP_JOINER.join(clauses[::-1])
-    return out if out != caption else None
-
-
-def caption_generator() -> Callable[[Sequence[str]], str] | None:
-    """captioning's tags → caption text function, when captioning provides one."""
     try:
-        from captioning import text as captioning_text
-    except ImportError:
+        text = generate(reversed_tags)
+    except (ValueError, KeyError):
         return None
-    for name in ("caption_from_tags", "tags_to_caption", "caption_for_tags", "generate_caption", "caption_text",
-                 "render_caption", "canonical_caption"):
-        fn = getattr(captioning_text, name, None)
-        if callable(fn):
-            return cast(Callable[[Sequence[str]], str], fn)
-    return None
+    return text if text and text != caption else None
+
+
+def caption_generator(category: str, host_tags: Sequence[str]) -> Callable[[Sequence[str]], str]:
+    """captioning's tags → canonical caption text for one object (host tags kept as they are)."""
+    from captioning.text import caption_text
+
+    is_host = category == "ego"
+    return lambda tags: caption_text(None if is_host else category, tags, list(tags) if is_host else list(host_tags))
 
 
 # ---------------------------------------------------------------------- clip → clip
@@ -285,9 +268,9 @@ def evaluate(run_dir: Path | str, clips_dir: Path | str, split: str = "test", em
     random_figures, random_curve = random_text_to_clip(relevant, seed=seed)
 
     # Temporal order: each clip whose caption has ≥ 2 steps against the same steps reversed.
-    generate = caption_generator()
     pairs: list[tuple[int, str, str]] = []
     for i, (row, caption) in enumerate(zip(rows, captions)):
+        generate = caption_generator(str(row.get("category", "")), list(row.get("host_tags") or []))
         rev = reverse_steps(list(row.get("tags") or []), caption, generate)
         if rev is not None:
             pairs.append((i, caption, rev))

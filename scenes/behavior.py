@@ -11,7 +11,7 @@ track id :data:`EGO_TRACK_ID`. Columns (see :data:`BEHAVIOR_SCHEMA`)::
     parked ... braking_for   bool one column per :class:`BehaviorLabel` value
     speed_mps           float64   speed along the direction of travel
     leader_id           string?   the vehicle that blocks it or that it brakes for (null otherwise)
-    junction_id         string?   the junction it is inside (null when on a road)
+    junction_id         string?   the junction it is in or about to enter (null elsewhere, see below)
 
 ``<log>/junctions.feather``: one row per junction with three or more arms, in the city frame::
 
@@ -55,6 +55,9 @@ BLOCKED_GAP_M = 10.0
 #: max(BRAKING_FOR_MIN_GAP_M, BRAKING_FOR_HEADWAY_S * speed) and the leader is slower or braking.
 BRAKING_FOR_MIN_GAP_M = 15.0
 BRAKING_FOR_HEADWAY_S = 3.0
+#: A vehicle is *at* a junction (``junction_id`` set) when inside it or on a road lane at most this far
+#: from the lane's end where it enters the junction (queues and waiting at the stop line count).
+JUNCTION_APPROACH_M = 20.0
 #: A vehicle's lateral offset from its lane's centre line above this marks a lane change in progress.
 LANE_CHANGE_OFFSET_M = 0.05
 

@@ -58,10 +58,9 @@ def render_preview_frames(arrays: LogArrays, clip: Mapping[str, Any], config: Cl
     hc, wc = cam.height_px * SCALE, cam.width_px * SCALE
     t = fi.shape[0]
     if bool(clip["has_camera"]) and arrays.camera.shape[0]:
-        rgb = np.asarray(arrays.camera[fi], dtype=np.float32) / 255.0
         mask = np.asarray(arrays.camera_instances[fi]) == value
-        shown = highlight_camera(rgb, mask, cam.highlight_rgb, cam.highlight_alpha, cam.dim_factor)
-        camera = (shown * 255.0 + 0.5).astype(np.uint8)
+        camera = highlight_camera(np.asarray(arrays.camera[fi]), mask, cam.highlight_rgb, cam.highlight_alpha,
+                                  cam.dim_factor)
         camera = np.repeat(np.repeat(camera, SCALE, axis=1), SCALE, axis=2)
     else:
         camera = np.full((t, hc, wc, 3), 60, np.uint8)

@@ -9,6 +9,7 @@ import json
 from dataclasses import dataclass
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pyarrow.parquet as pq
 from numpy.typing import NDArray
@@ -69,6 +70,41 @@ def object_footprint(
     return rasterize_track(grid, np.asarray(arrays.track_boxes[indices, k]))
 
 
+def warp_bev(
+    bev: NDArray[np.uint8], grid: BevGrid, theta_rad: float, shift_xy_m: NDArray[np.floating]
+) -> NDArray[np.uint8]:
+    """Rotate every frame by ``theta_rad`` about the ego origin, then shift it by ``shift_xy_m``.
+
+    A point at ego ``p`` moves to ``R(θ)·p + shift``; cells that come from outside the grid are 0.
+
+    Args:
+        bev: (T, C, H, W) uint8 layers.
+        grid: the grid they are on.
+        theta_rad: rotation.
+        shift_xy_m: (2,) translation in metres.
+
+    Returns:
+        (T, C, H, W) uint8, bilinear.
+    """
+    t, c, h, w = bev.shape
+    res = grid.resolution_m
+    # Destination pixel (col, row) → ego point p'; source p = R(−θ)(p' − shift) → source pixel.
+    ego_from_px = np.array([[0.0, -res, grid.x_max_m - 0.5 * res], [-res, 0.0, grid.y_max_m - 0.5 * res]])
+    cos, sin = np.cos(theta_rad), np.sin(theta_rad)
+    rot_inv = np.array([[cos, sin], [-sin, cos]])
+    src_ego = rot_inv @ ego_from_px
+    src_ego[:, 2] -= rot_inv @ np.asarray(shift_xy_m, dtype=np.float64)
+    px_from_ego = np.array([[0.0, -1.0 / res], [-1.0 / res, 0.0]])
+    affine = px_from_ego @ src_ego
+    affine[:, 2] += np.array([grid.y_max_m / res - 0.5, grid.x_max_m / res - 0.5])
+    planes = np.ascontiguousarray(bev).reshape(t * c, h, w)
+    out = np.empty_like(planes)
+    for i in range(t * c):  # one small warp per plane: cheaper than transposing to channels-last
+        cv2.warpAffine(planes[i], affine, (w, h), dst=out[i], flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+                       borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    return out.reshape(t, c, h, w)
+
+
 def ego_motion(pose_xy_yaw: NDArray[np.float64], speed_mps: NDArray[np.float64],
                indices: NDArray[np.integer]) -> NDArray[np.float32]:
     """Each sampled frame's ego pose in the clip's first ego frame, and its speed.
@@ -91,21 +127,23 @@ def ego_motion(pose_xy_yaw: NDArray[np.float64], speed_mps: NDArray[np.float64],
 
 
 def highlight_camera(
-    rgb: NDArray[np.floating], mask: NDArray[np.bool_], color_rgb: tuple[int, int, int], alpha: float, dim: float
-) -> NDArray[np.float32]:
-    """Highlight the object of interest: blend a colour over it, dim the rest.
+    rgb: NDArray[np.uint8], mask: NDArray[np.bool_], color_rgb: tuple[int, int, int], alpha: float, dim: float
+) -> NDArray[np.uint8]:
+    """Highlight the object of interest: blend a colour over it, dim the rest (integer arithmetic).
 
     Args:
-        rgb: (T, H, W, 3) colours in [0, 1].
+        rgb: (T, H, W, 3) uint8 colours.
         mask: (T, H, W) the object's pixels.
         color_rgb: overlay colour, 0–255.
         alpha: overlay opacity.
         dim: brightness kept outside the object.
 
     Returns:
-        (T, H, W, 3) float32 in [0, 1].
+        (T, H, W, 3) uint8.
     """
-    color = np.asarray(color_rgb, dtype=np.float32) / 255.0
-    m = mask[..., None]
-    out = np.where(m, (1.0 - alpha) * rgb + alpha * color, dim * rgb)
-    return out.astype(np.float32)
+    wide = rgb.astype(np.uint16)
+    keep = np.uint16(round((1.0 - alpha) * 256))
+    tint = (np.asarray(color_rgb, dtype=np.uint16) * np.uint16(round(alpha * 256))).astype(np.uint16)
+    blended = (wide * keep + tint) >> np.uint16(8)
+    dimmed = (wide * np.uint16(round(dim * 256))) >> np.uint16(8)
+    return np.where(mask[..., None], blended, dimmed).astype(np.uint8)

@@ -318,9 +318,8 @@ def write_targets(folder: Path, targets: NDArray[np.floating], names: Sequence[s
     """
     arr = np.ascontiguousarray(np.asarray(targets, dtype=np.float16))
     present = (arr.reshape(arr.shape[0], arr.shape[1], -1) != 0).any(axis=2).astype(np.uint8)
-    with atomic_path(folder / TARGETS_FILE) as tmp:
-        with open(tmp, "wb") as fh:
-            np.save(fh, arr, allow_pickle=False)
+    with atomic_path(folder / TARGETS_FILE) as tmp, open(tmp, "wb") as fh:
+        np.save(fh, arr, allow_pickle=False)
     atomic_write_text(folder / TARGETS_META_FILE, json.dumps({"attributes": list(names), "present": present.tolist()}))
 
 
@@ -388,4 +387,4 @@ def open_targets(clips_dir: Path | str, log_id: str) -> LogTargets:
     meta = json.loads((folder / TARGETS_META_FILE).read_text())
     arr = np.load(folder / TARGETS_FILE, mmap_mode="r")
     present = np.asarray(meta["present"], dtype=bool).reshape(arr.shape[0], arr.shape[1])
-    return LogTargets(arr, tuple(meta["attributes"]), present)  # type: ignore[arg-type]
+    return LogTargets(arr, tuple(meta["attributes"]), present)

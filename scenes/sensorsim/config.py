@@ -44,7 +44,8 @@ class LidarConfig:
         range_noise_std_m: standard deviation of the Gaussian range noise.
         dropout_prob: chance that a return is lost.
         intensity_noise_std: standard deviation of the intensity noise (0–255 scale).
-        ego_box_lwh_m: the ego's own body, which blocks rays (length, width, height).
+        ego_box_lwh_m: the ego's own body, which blocks rays (length, width, height of a car shape:
+            a body and a cabin); (0, 0, 0) for none.
         ego_box_center_x_m: centre of the ego's body along the ego x axis.
     """
 
@@ -59,7 +60,7 @@ class LidarConfig:
     range_noise_std_m: float = 0.02
     dropout_prob: float = 0.02
     intensity_noise_std: float = 4.0
-    ego_box_lwh_m: tuple[float, float, float] = (4.8, 2.0, 1.6)
+    ego_box_lwh_m: tuple[float, float, float] = (4.8, 1.9, 1.5)
     ego_box_center_x_m: float = 1.4
 
     def __post_init__(self) -> None:

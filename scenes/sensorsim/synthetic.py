@@ -90,6 +90,7 @@ def write_synthetic_log(
     ego_speed_mps: float = 8.0,
     time_of_day: str = "day",
     weather: str = "clear",
+    ego_start_x_m: float = 20.0,
 ) -> Path:
     """Write a crossroad log (annotations, poses, map, metadata) at 10 Hz; no sensor data.
 
@@ -103,7 +104,7 @@ def write_synthetic_log(
     log_dir.mkdir(parents=True, exist_ok=True)
     ts = 1_000_000_000_000 + FRAME_PERIOD_NS * np.arange(num_frames, dtype=np.int64)
     t_s = (ts - ts[0]) * 1e-9
-    ego_xy = np.c_[20.0 + ego_speed_mps * t_s, np.full(num_frames, -1.75)]
+    ego_xy = np.c_[ego_start_x_m + ego_speed_mps * t_s, np.full(num_frames, -1.75)]
     ego = EgoTrajectory.from_xy_yaw(ts, ego_xy, np.zeros(num_frames))
 
     pool = [Category.CAR] * 6 + [Category.TRUCK, Category.BUS] + [Category.PEDESTRIAN] * 3 + [Category.CYCLIST]

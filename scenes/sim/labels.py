@@ -13,6 +13,7 @@ from scenes.behavior import (
     BRAKING_ACCEL_MPS2,
     BRAKING_FOR_HEADWAY_S,
     BRAKING_FOR_MIN_GAP_M,
+    JUNCTION_APPROACH_M,
     LANE_CHANGE_OFFSET_M,
     STOPPED_SPEED_MPS,
     BehaviorLabel,
@@ -25,10 +26,17 @@ BoolArray = NDArray[np.bool_]
 
 @dataclass(frozen=True)
 class LaneInfo:
-    """What labelling needs to know about lanes: turn direction and junction of internal lanes."""
+    """What labelling needs to know about lanes.
+
+    Attributes:
+        direction: internal lane → direction of its connection (s, l, r, L, R, t).
+        junction: internal lane → the junction it lies in; road lane → the junction it leads to.
+        length_m: road lane → its length.
+    """
 
     direction: dict[str, str]
     junction: dict[str, str]
+    length_m: dict[str, float]
 
     @staticmethod
     def from_net(net: SumoNet) -> LaneInfo:
@@ -38,8 +46,15 @@ class LaneInfo:
             # the second half of a split turn is the ``via`` of a connection leaving an internal lane.
             if c.via_lane is not None:
                 direction.setdefault(c.via_lane, c.direction)
-        junction = {lid: jid for lid, lane in net.lanes.items() if (jid := lane.junction_id) is not None}
-        return LaneInfo(direction, junction)
+        junction: dict[str, str] = {}
+        length: dict[str, float] = {}
+        for lid, lane in net.lanes.items():
+            if lane.junction_id is not None:
+                junction[lid] = lane.junction_id
+            elif lane.edge_function == "" and lane.edge_id in net.edges:
+                junction[lid] = net.edges[lane.edge_id].to_junction
+                length[lid] = float(np.sum(np.linalg.norm(np.diff(lane.shape_xy_m, axis=0), axis=1)))
+        return LaneInfo(direction, junction, length)
 
 
 @dataclass(frozen=True)
@@ -49,7 +64,7 @@ class Labels:
     Attributes:
         flags: label → (N,) booleans, one entry per :class:`BehaviorLabel`.
         leader_id: (N,) the vehicle it is blocked by or brakes for ("" when neither).
-        junction_id: (N,) the junction it is inside ("" on roads).
+        junction_id: (N,) the junction it is inside or about to enter ("" elsewhere).
     """
 
     flags: dict[BehaviorLabel, BoolArray]
@@ -61,6 +76,12 @@ def _lookup(keys: NDArray[np.str_], table: dict[str, str]) -> NDArray[np.str_]:
     uniq, inverse = np.unique(keys, return_inverse=True)
     values = np.array([table.get(str(k), "") for k in uniq], dtype=np.str_)
     return values[inverse] if uniq.size else np.zeros(0, dtype=np.str_)
+
+
+def _lookup_float(keys: NDArray[np.str_], table: dict[str, float]) -> NDArray[np.float64]:
+    uniq, inverse = np.unique(keys, return_inverse=True)
+    values = np.array([table.get(str(k), np.inf) for k in uniq], dtype=np.float64)
+    return values[inverse] if uniq.size else np.zeros(0, dtype=np.float64)
 
 
 def compute_labels(rows: ObjectRows, lanes: LaneInfo) -> Labels:
@@ -76,7 +97,10 @@ def compute_labels(rows: ObjectRows, lanes: LaneInfo) -> Labels:
     direction = _lookup(rows.lane_id, lanes.direction)
     left_turn = internal & np.isin(direction, ["l", "L"])
     right_turn = internal & np.isin(direction, ["r", "R"])
-    junction_id = np.where(internal, _lookup(rows.lane_id, lanes.junction), "")
+    # At a junction: inside it, or on a road lane within JUNCTION_APPROACH_M of the junction it enters.
+    lane_length = _lookup_float(rows.lane_id, lanes.length_m)
+    approaching = vehicle & ~internal & (lane_length - rows.lane_pos_m <= JUNCTION_APPROACH_M)
+    junction_id = np.where(internal | approaching, _lookup(rows.lane_id, lanes.junction), "")
 
     left_change, right_change = _lane_changes(rows, vehicle & ~internal & ~parked)
     straight = ~internal | (direction == "s")

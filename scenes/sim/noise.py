@@ -72,7 +72,8 @@ def occluded_mask(center_xy_m: NDArray[np.float64], size_lw_m: NDArray[np.float6
     rel = wrap_angle_rad(np.arctan2(corners[..., 1], corners[..., 0]) - bearing[:, None])  # (N, 4)
     lo, hi = rel.min(axis=1) + bearing, rel.max(axis=1) + bearing  # (N,)
     dist = np.linalg.norm(center_xy_m, axis=1)
-    inside = np.linalg.norm(center_xy_m, axis=1) < 0.5 * np.linalg.norm(size_lw_m, axis=1)
+    # A box around the sensor itself has no meaningful angular extent; it is never hidden.
+    inside = dist < 0.5 * np.linalg.norm(size_lw_m, axis=1)
     frac = (np.arange(rays) + 0.5) / rays
     ray_angle = lo[:, None] + (hi - lo)[:, None] * frac[None]  # (N, R)
     # Angle of each ray relative to each other box's bearing, then inside that box's extent?

@@ -207,7 +207,6 @@ def _build_log(log_id: str, index: int, rec: Recording, config: SimulationConfig
     # Labels need the margins (lane changes across the window's edge); everything else does not.
     all_rows = _concat(rec.ego, rec.objects)
     labels = compute_labels(all_rows, lanes)
-    is_ego_row = np.r_[np.ones(rec.ego.step.shape[0], bool), np.zeros(rec.objects.step.shape[0], bool)]
 
     ego_in = (rec.ego.step >= rec.first_step) & (rec.ego.step <= rec.last_step)
     ego_rows = rec.ego.select(ego_in)
@@ -253,7 +252,6 @@ def _build_log(log_id: str, index: int, rec: Recording, config: SimulationConfig
     label_ids = np.r_[np.full(rec.ego.step.shape[0], EGO_TRACK_ID, dtype=object), track_ids.astype(object)]
     labels_table = _labels_table(all_rows, labels.flags, labels.leader_id, labels.junction_id, label_ids,
                                  label_keep, step_ns, config.seed)
-    assert is_ego_row.shape == label_keep.shape
 
     visible_tracks = sorted(set(annotations.track_id.tolist()))
     appearance = sample_appearance(np.random.default_rng([config.seed, index, 0xA99]),

@@ -15,6 +15,7 @@ import contextlib
 import io
 import os
 import sys
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from itertools import chain
 from pathlib import Path
@@ -70,6 +71,7 @@ class ObjectRows:
         leader_gap_m: (N,) bumper-to-bumper gap to it (inf when none).
         leader_speed_mps: (N,) the leader's speed (nan when none).
         leader_accel_mps2: (N,) the leader's acceleration (nan when none).
+        lane_pos_m: (N,) distance driven along the lane from its start (0 for pedestrians).
     """
 
     step: NDArray[np.int64]
@@ -88,6 +90,7 @@ class ObjectRows:
     leader_gap_m: NDArray[np.float64]
     leader_speed_mps: NDArray[np.float64]
     leader_accel_mps2: NDArray[np.float64]
+    lane_pos_m: NDArray[np.float64]
 
     def select(self, mask: NDArray[np.bool_] | NDArray[np.int64]) -> ObjectRows:
         return ObjectRows(**{k: v[mask] for k, v in self.__dict__.items()})
@@ -115,12 +118,15 @@ class Recording:
 
 @dataclass
 class _Collector:
-    rows: list[tuple[Any, ...]] = field(default_factory=list)
-    ego_rows: list[tuple[Any, ...]] = field(default_factory=list)
+    """Row numbers (into the run's shared row list) of one ego's window: egos see the same
+    objects, so each (step, object) row is read and stored once."""
+
+    rows: list[int] = field(default_factory=list)
+    ego_rows: list[int] = field(default_factory=list)
 
 
 def _to_rows(rows: list[tuple[Any, ...]]) -> ObjectRows:
-    cols = list(zip(*rows)) if rows else [()] * 16
+    cols = list(zip(*rows)) if rows else [()] * 17
     return ObjectRows(
         step=np.asarray(cols[0], dtype=np.int64),
         sumo_id=np.asarray(cols[1], dtype=np.str_),
@@ -138,6 +144,7 @@ def _to_rows(rows: list[tuple[Any, ...]]) -> ObjectRows:
         leader_gap_m=np.asarray(cols[13], dtype=np.float64),
         leader_speed_mps=np.asarray(cols[14], dtype=np.float64),
         leader_accel_mps2=np.asarray(cols[15], dtype=np.float64),
+        lane_pos_m=np.asarray(cols[16], dtype=np.float64),
     )
 
 
@@ -173,6 +180,9 @@ def run_sumo(
 ) -> list[Recording]:
     """Run SUMO and return one :class:`Recording` per (ego, window), ordered by window then ego.
 
+    libsumo holds one simulation per process: runs in one process happen one after another
+    (run several processes to simulate in parallel).
+
     Raises:
         SimulationError: with SUMO's message when it fails, or when an ego leaves the city.
     """
@@ -194,73 +204,64 @@ def run_sumo(
     ]
     rng = np.random.default_rng([seed, 0xE60])
     collectors = {(e, w): _Collector() for w in range(plan.num_windows) for e in ego_ids}
+    store: list[tuple[Any, ...]] = []
     spans = [plan.window_span(w) for w in range(plan.num_windows)]
-    os.environ.setdefault("SUMO_HOME", _sumo_home())
-    started = False
-    # SUMO writes its errors to the process's stderr (the error log is flushed only at exit):
-    # capture the file descriptor so that a failure can carry SUMO's own words.
-    capture = _StderrCapture(error_log)
+    first_recorded = max(spans[0][0] - plan.margin_steps, 0)
     try:
-        capture.__enter__()
-        libsumo.start(args)
-        started = True
-        veh, person = libsumo.vehicle, libsumo.person
-        first_recorded = max(spans[0][0] - plan.margin_steps, 0)
-        for step in range(plan.total_steps):
-            libsumo.simulationStep()
-            if step % KEEP_DRIVING_EVERY_STEPS == 0:
-                present = set(veh.getIDList())
-                for ego in ego_ids:
-                    if ego in present:
-                        _keep_driving(veh, ego, road_edges, rng)
-            active = [w for w, (a, b) in enumerate(spans) if a - plan.margin_steps <= step <= b + plan.margin_steps]
-            if not active or step < first_recorded:
-                continue
-            _record_step(veh, person, step, ego_ids, [collectors[(ego, w)] for ego in ego_ids for w in active],
-                         len(active), must_drive=step >= spans[0][0])
+        # SUMO writes its errors to the process's stderr (its error log is flushed only at exit):
+        # capture the file descriptor so that a failure can carry SUMO's own words.
+        with _stderr_to(error_log):
+            started = False
+            try:
+                libsumo.start(args)
+                started = True
+                veh, person = libsumo.vehicle, libsumo.person
+                for step in range(plan.total_steps):
+                    libsumo.simulationStep()
+                    if step % KEEP_DRIVING_EVERY_STEPS == 0:
+                        present = set(veh.getIDList())
+                        for ego in ego_ids:
+                            if ego in present:
+                                _keep_driving(veh, ego, road_edges, rng)
+                    active = [w for w, (a, b) in enumerate(spans)
+                              if a - plan.margin_steps <= step <= b + plan.margin_steps]
+                    if not active or step < first_recorded:
+                        continue
+                    _record_step(veh, person, step, ego_ids, store,
+                                 [collectors[(ego, w)] for ego in ego_ids for w in active], len(active),
+                                 must_drive=step >= spans[0][0])
+            finally:
+                if started:
+                    with contextlib.suppress(Exception):
+                        libsumo.close()
     except SimulationError:
-        _close(libsumo, started)
-        capture.__exit__()
         raise
     except Exception as exc:  # libsumo raises its own exception types; surface SUMO's message
-        _close(libsumo, started)
-        capture.__exit__()
         raise SimulationError(f"SUMO failed{_sumo_errors(error_log) or f': {exc}'}") from exc
-    except BaseException:
-        _close(libsumo, started)
-        capture.__exit__()
-        raise
-    _close(libsumo, started)
-    capture.__exit__()
+    table = _to_rows(store)
     out = []
     for w, (first, last) in enumerate(spans):
         for ego in ego_ids:
             c = collectors[(ego, w)]
-            out.append(Recording(ego, w, first, last, _to_rows(c.ego_rows), _to_rows(c.rows)))
+            out.append(Recording(ego, w, first, last, table.select(np.asarray(c.ego_rows, dtype=np.int64)),
+                                 table.select(np.asarray(c.rows, dtype=np.int64))))
     return out
 
 
-class _StderrCapture:
-    """Point file descriptor 2 at a file until exit (idempotent)."""
-
-    def __init__(self, path: Path) -> None:
-        self.path = path
-        self.saved: int | None = None
-
-    def __enter__(self) -> None:
-        sys.stderr.flush()
-        self.saved = os.dup(2)
-        fd = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
+@contextlib.contextmanager
+def _stderr_to(path: Path) -> Iterator[None]:
+    """Point file descriptor 2 (where SUMO's C++ code writes) at ``path`` for the duration."""
+    sys.stderr.flush()
+    saved = os.dup(2)
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
+    try:
         os.dup2(fd, 2)
-        os.close(fd)
-
-    def __exit__(self, *exc: object) -> None:
-        if self.saved is None:
-            return
+        yield
+    finally:
         sys.stderr.flush()
-        os.dup2(self.saved, 2)
-        os.close(self.saved)
-        self.saved = None
+        os.dup2(saved, 2)
+        os.close(saved)
+        os.close(fd)
 
 
 def _record_step(
@@ -268,11 +269,13 @@ def _record_step(
     person: Any,
     step: int,
     ego_ids: tuple[str, ...],
+    store: list[tuple[Any, ...]],
     collectors: list[_Collector],
     windows_per_ego: int,
     must_drive: bool,
 ) -> None:
-    """Append this step's rows of the objects near each ego to the ego's collectors.
+    """Append this step's rows of the objects near any ego to ``store``, and their row numbers to
+    the collectors of the egos they are near.
 
     ``collectors`` holds ``windows_per_ego`` consecutive entries per ego, in ``ego_ids`` order.
     Positions of all objects are read first; the other variables only for objects near an ego.
@@ -299,15 +302,16 @@ def _record_step(
         flat = np.fromiter(chain.from_iterable(domain.getPosition(sid) for sid in ids), np.float64, 2 * len(ids))
         xy = flat.reshape(-1, 2)  # (N, 2)
         near = ((xy[None, :, :] - centers[:, None, :]) ** 2).sum(axis=2) <= radius2  # (E, N)
-        rows: dict[int, tuple[Any, ...]] = {}
+        rows: dict[int, int] = {}  # object index → row number in the store
         for i in np.flatnonzero(near.any(axis=0)).tolist():
             sid = ids[i]
+            rows[i] = len(store)
             if is_person:
-                rows[i] = (step, sid, domain.getTypeID(sid), True, (flat[2 * i], flat[2 * i + 1]),
-                           domain.getAngle(sid), domain.getSpeed(sid), 0.0, "", -1, 0.0, 0, "", np.inf,
-                           np.nan, np.nan)
+                store.append((step, sid, domain.getTypeID(sid), True, (flat[2 * i], flat[2 * i + 1]),
+                              domain.getAngle(sid), domain.getSpeed(sid), 0.0, "", -1, 0.0, 0, "", np.inf,
+                              np.nan, np.nan, 0.0))
             else:
-                rows[i] = _vehicle_row(veh, step, sid, (flat[2 * i], flat[2 * i + 1]), leaders)
+                store.append(_vehicle_row(veh, step, sid, (flat[2 * i], flat[2 * i + 1]), leaders))
         for e, ego in enumerate(ego_ids):
             seen = [rows[i] for i in np.flatnonzero(near[e]).tolist() if ids[i] != ego]
             own = rows.get(ids.index(ego)) if not is_person and ego in present else None
@@ -315,12 +319,6 @@ def _record_step(
                 c.rows.extend(seen)
                 if own is not None:
                     c.ego_rows.append(own)
-
-
-def _close(libsumo: Any, started: bool) -> None:
-    if started:
-        with contextlib.suppress(Exception):
-            libsumo.close()
 
 
 def _sumo_errors(error_log: Path, max_lines: int = 5) -> str:
@@ -332,12 +330,6 @@ def _sumo_errors(error_log: Path, max_lines: int = 5) -> str:
         return ""
     more = f" (+{len(lines) - max_lines} more)" if len(lines) > max_lines else ""
     return ": " + " | ".join(lines[:max_lines]) + more
-
-
-def _sumo_home() -> str:
-    import sumo
-
-    return str(sumo.SUMO_HOME)
 
 
 def _vehicle_row(
@@ -352,7 +344,7 @@ def _vehicle_row(
     leader, gap, leader_speed, leader_accel = leaders[sid]
     return (step, sid, veh.getTypeID(sid), False, xy, veh.getAngle(sid), veh.getSpeed(sid),
             veh.getAcceleration(sid), veh.getLaneID(sid), veh.getLaneIndex(sid), veh.getLateralLanePosition(sid),
-            veh.getStopState(sid), leader, gap, leader_speed, leader_accel)
+            veh.getStopState(sid), leader, gap, leader_speed, leader_accel, veh.getLanePosition(sid))
 
 
 def _keep_driving(veh: Any, ego: str, road_edges: tuple[str, ...], rng: np.random.Generator) -> None:

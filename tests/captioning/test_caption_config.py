@@ -6,7 +6,13 @@ from pathlib import Path
 
 import pytest
 
-from captioning.config import CaptioningConfig, NeighborConfig, SegmentsConfig, WindowStrategy
+from captioning.config import (
+    DEFAULT_CONFIG_PATH,
+    CaptioningConfig,
+    NeighborConfig,
+    SegmentsConfig,
+    WindowStrategy,
+)
 from captioning.errors import ConfigError
 
 
@@ -14,6 +20,10 @@ def test_default_round_trips_through_yaml(tmp_path: Path) -> None:
     config = CaptioningConfig()
     config.to_yaml(tmp_path / "c.yaml")
     assert CaptioningConfig.from_yaml(tmp_path / "c.yaml") == config
+
+
+def test_shipped_default_file_equals_the_defaults() -> None:
+    assert CaptioningConfig.from_yaml(DEFAULT_CONFIG_PATH) == CaptioningConfig()
 
 
 def test_custom_round_trips_through_yaml(tmp_path: Path) -> None:

@@ -100,5 +100,6 @@ def test_reversing_time_swaps_steering(make_scene) -> None:  # type: ignore[no-u
     a = caption_arrays(config=config, **data)
     b = caption_arrays(config=config, **reverse(data))
     keys = {"steering_left", "steering_right"}
-    assert (names(b.host_direction, HOST_DIRECTIONS)[::-1] == swapped(names(a.host_direction, HOST_DIRECTIONS), keys)).all()
+    forward = names(a.host_direction, HOST_DIRECTIONS)
+    assert (names(b.host_direction, HOST_DIRECTIONS)[::-1] == swapped(forward, keys)).all()
     assert names(a.host_direction, HOST_DIRECTIONS)[10] == "steering_left"

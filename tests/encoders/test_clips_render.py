@@ -212,3 +212,21 @@ def test_cli_writes_clips_and_previews(built: tuple[Path, Path], tmp_path: Path,
     assert all(len(r["frame_indices"]) == 8 for r in rows)
     with Image.open(out / rows[0]["preview_path"]) as gif:
         assert gif.n_frames == 8 and gif.size[0] > gif.size[1]
+
+
+def test_camera_without_instance_masks_projects_the_boxes(tmp_path: Path) -> None:
+    import shutil
+
+    log_dir = write_synthetic_log(tmp_path / "logs", num_frames=20, with_lidar=False)
+    shutil.rmtree(log_dir / "sensors" / "cameras" / "ring_front_center_instance")
+    (tmp_path / "c").mkdir()
+    pq.write_table(synthetic_captions([log_dir], 2, 18), tmp_path / "c" / "captions.parquet")
+    report = build_clips([log_dir], tmp_path / "c", tmp_path / "clips", CONFIG)
+    assert report.logs[log_dir.name]["camera_mask_source"] == "projected_boxes"
+    assert report.logs[log_dir.name]["bev_source"] == "boxes"
+    row = next(r for r in pq.read_table(tmp_path / "clips" / "clips.parquet").to_pylist() if r["track_id"] == "lead")
+    fi = np.asarray(row["frame_indices"])
+    mask = _item(tmp_path / "clips", "lead")["camera"][:, 3].numpy() > 0.5
+    uv = _project_small(_annotation_centres(log_dir, "lead", fi), mask.shape[2], mask.shape[1])
+    assert mask[np.arange(len(fi)), uv[:, 1].astype(int), uv[:, 0].astype(int)].all()
+    assert not _item(tmp_path / "clips", "follower")["has_camera"]

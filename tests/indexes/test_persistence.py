@@ -1,3 +1,5 @@
+# D and I are FAISS's names for the (nq, k) score and id tables.
+# ruff: noqa: E741
 import json
 import os
 import signal
@@ -157,7 +159,7 @@ def test_kill_during_save_leaves_the_previous_index_loadable(tmp_path: Path, dat
 
 
 def test_kill_at_random_moments_of_repeated_saves(tmp_path: Path, data: Data) -> None:
-    xb, xq = data
+    xb, _ = data
     target = tmp_path / "idx"
     VectorIndex.build(xb, factory="Flat").save(target)
     loop = textwrap.dedent(f"""

@@ -1,3 +1,5 @@
+# D and I are FAISS's names for the (nq, k) score and id tables.
+# ruff: noqa: E741
 from pathlib import Path
 
 import numpy as np
@@ -27,7 +29,7 @@ def test_flat_shards_match_one_flat_index(data: Data) -> None:
 
 
 def test_ivf_shards_share_training_and_tuning(data: Data) -> None:
-    xb, xq = data
+    xb, _ = data
     sharded = ShardedIndex.build(xb, factory="IVF16,Flat", shard_size=1000)
     knobs = {s.search_knob for s in sharded.shards}
     assert len(knobs) == 1 and sharded.recall_at_10 is not None and sharded.recall_at_10 >= 0.95

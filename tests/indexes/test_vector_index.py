@@ -1,3 +1,5 @@
+# D and I are FAISS's names for the (nq, k) score and id tables.
+# ruff: noqa: E741
 from collections.abc import Callable
 
 import faiss
@@ -64,7 +66,7 @@ def test_auto_picks_flat_for_small_collections(data: Data) -> None:
 
 
 def test_auto_picks_hnsw_then_ivf_by_size(data: Data) -> None:
-    xb, xq = data
+    xb, _ = data
     hnsw = VectorIndex.build(xb, config=AutoConfig(flat_max_n=1000, hnsw_m=8))
     assert hnsw.factory == "HNSW8"
     ivf = VectorIndex.build(xb, config=AutoConfig(flat_max_n=1000, hnsw_max_n=2000, ivf_min_lists=8))
@@ -180,6 +182,7 @@ def test_single_query_vector(data: Data) -> None:
     D1, I1 = index.search(xq[0], 5)
     D2, I2 = index.search(xq[:1], 5)
     np.testing.assert_array_equal(I1, I2)
+    np.testing.assert_array_equal(D1, D2)
 
 
 def test_retune_after_adds(clustered: Callable[..., np.ndarray]) -> None:

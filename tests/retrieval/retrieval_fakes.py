@@ -8,7 +8,7 @@ right answer; its text encoder hashes words and word pairs, so the order of step
 from __future__ import annotations
 
 import hashlib
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -101,8 +101,34 @@ class FakeEmbedder:
         return hash_embed([str(clip["caption"])])
 
 
-def make_clips_dir(root: Path, n_logs: int = 6, clips_per_log: int = 14, seed: int = 0) -> Path:
-    """A clips directory holding only ``clips.parquet`` (enough for stand-in models)."""
+#: Tag sequences in captioning's own vocabulary (lane:motion), captioned by captioning's text generator.
+CAPTIONING_SEQUENCES = [
+    ["left:approach", "host:approach"],
+    ["host:approach", "left:approach"],
+    ["host:constant", "host:stationary"],
+    ["host:stationary", "host:constant"],
+    ["right:away"],
+    ["oncoming:approach", "oncoming:away"],
+    ["oncoming:away", "oncoming:approach"],
+]
+HOST_TAGS = ["cruising:heading_straight"]
+
+
+def captioning_caption(tags: Sequence[str], category: str) -> str:
+    from captioning.text import caption_text
+
+    return caption_text(category, list(tags), HOST_TAGS)
+
+
+def make_clips_dir(root: Path, n_logs: int = 6, clips_per_log: int = 14, seed: int = 0,
+                   sequences: Sequence[list[str]] | None = None,
+                   caption: Callable[[Sequence[str], str], str] | None = None) -> Path:
+    """A clips directory holding only ``clips.parquet`` (enough for stand-in models).
+
+    ``sequences`` and ``caption`` (tags, category → text) default to this module's small vocabulary.
+    """
+    sequences = SEQUENCES if sequences is None else sequences
+    caption = caption or (lambda tags, _category: caption_of(tags))
     rng = np.random.default_rng(seed)
     rows = []
     for li in range(n_logs):
@@ -110,15 +136,16 @@ def make_clips_dir(root: Path, n_logs: int = 6, clips_per_log: int = 14, seed: i
         split = "test" if li < 3 else ("val" if li == 3 else "train")
         tod, weather = ["day", "night"][li % 2], ["clear", "rain"][(li // 2) % 2]
         for ci in range(clips_per_log):
-            tags = SEQUENCES[int(rng.integers(len(SEQUENCES)))]
+            tags = sequences[int(rng.integers(len(sequences)))]
             track = f"t{ci:03d}"
             start = 1_000_000_000 * (ci + 1)
             cat = ["car", "truck", "pedestrian"][ci % 3]
+            text = caption(tags, cat)
             rows.append({
                 "clip_id": f"{log_id}:{track}:{start}", "log_id": log_id, "track_id": track, "category": cat,
-                "start_ns": start, "end_ns": start + 1_500_000_000, "caption": caption_of(tags),
-                "canonical_caption": caption_of(tags), "paraphrases": [caption_of(tags)], "tags": tags,
-                "host_tags": ["cruising"], "split": split, "has_camera": True, "bev_source": "lidar",
+                "start_ns": start, "end_ns": start + 1_500_000_000, "caption": text,
+                "canonical_caption": text, "paraphrases": [text], "tags": tags,
+                "host_tags": HOST_TAGS, "split": split, "has_camera": True, "bev_source": "lidar",
                 "time_of_day": tod, "weather": weather, "frame_indices": list(range(ci, ci + 16)),
                 "preview_path": f"previews/{log_id}_{track}.gif",
             })

@@ -41,8 +41,8 @@ def test_points_from_a_box_lie_on_its_surface(bare_world: StaticWorld, dense_lid
     # Everything else is ground (z = 0), outside the box.
     rest = xyz[returns.track_index == STATIC_INSTANCE]
     assert np.allclose(rest[:, 2], 0.0, atol=tol)
-    outside = np.any(np.abs(_box_local(rest, center, yaw)) > half + 0.05, axis=1)
-    assert outside.all()
+    under = np.all(np.abs(_box_local(rest, center, yaw)[:, :2]) < half[:2] - 0.02, axis=1)
+    assert not under.any(), "a ray went through the box to the ground beneath it"
 
 
 def test_pedestrian_shape_stays_inside_its_box(bare_world: StaticWorld, dense_lidar: LidarConfig) -> None:
@@ -121,3 +121,35 @@ def test_ego_pose_moves_the_world_not_the_objects(bare_world: StaticWorld, small
     on_a = moved.sweep.xyz_m[moved.track_index == 0]
     on_b = still.sweep.xyz_m[still.track_index == 0]
     assert on_a.shape == on_b.shape and np.allclose(on_a, on_b, atol=1e-4)
+
+
+def test_ray_prefilter_keeps_every_ray_that_hits_an_object() -> None:
+    import open3d as o3d
+
+    from scenes.sensorsim.lidar import _ray_pattern, rays_near_boxes
+    from scenes.sensorsim.scene import build_object_mesh
+
+    rng = np.random.default_rng(3)
+    config = LidarConfig(beams=32, azimuth_steps=512, ego_box_lwh_m=(0.0, 0.0, 0.0))
+    n = 40
+    rows = []
+    for i in range(n):
+        kind = ["car", "truck", "pedestrian", "cyclist", "bus"][i % 5]
+        size = {"car": (4.5, 1.9, 1.5), "truck": (8.0, 2.5, 3.5), "pedestrian": (0.6, 0.6, 1.8),
+                "cyclist": (1.8, 0.7, 1.7), "bus": (12.0, 2.6, 3.2)}[kind]
+        r, a = rng.uniform(4.0, 60.0), rng.uniform(-np.pi, np.pi)
+        center = (1.35 + r * np.cos(a), r * np.sin(a), rng.uniform(0.3, 3.0))
+        rows.append((kind, center, size, float(rng.uniform(-np.pi, np.pi))))
+    rows.append(("truck", (-8.0, 0.0, 1.0), (3.0, 30.0, 2.0), 0.0))  # spans the seam behind the sensor
+    objects = FrameObjects.from_boxes(rows)
+    mesh = build_object_mesh(objects)
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(o3d.core.Tensor(mesh.vertices), o3d.core.Tensor(mesh.triangles))
+    dirs = _ray_pattern(config).directions
+    origin = np.array([config.mount_x_m, 0.0, config.mount_height_m])
+    rays = np.concatenate([np.broadcast_to(origin, dirs.shape), dirs], axis=1).astype(np.float32)
+    hit = np.isfinite(scene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy())
+    near = rays_near_boxes(objects, config)
+    assert hit.sum() > 1000
+    assert not (hit & ~near).any(), "a ray that hits an object was filtered out"
+    assert near.mean() < 0.9

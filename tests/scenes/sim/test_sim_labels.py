@@ -7,7 +7,8 @@ from scenes.sim.labels import LaneInfo, compute_labels
 from scenes.sim.runner import ObjectRows
 
 LANES = LaneInfo(direction={":J_0_0": "l", ":J_1_0": "r", ":J_2_0": "s"},
-                 junction={":J_0_0": "J", ":J_1_0": "J", ":J_2_0": "J"})
+                 junction={":J_0_0": "J", ":J_1_0": "J", ":J_2_0": "J", "E_1": "K", "E_2": "K"},
+                 length_m={"E_1": 100.0, "E_2": 100.0})
 
 
 def _rows(n: int, **columns: Any) -> ObjectRows:
@@ -17,6 +18,7 @@ def _rows(n: int, **columns: Any) -> ObjectRows:
         "accel_mps2": np.zeros(n), "lane_id": ["E_1"] * n, "lane_index": np.ones(n), "lateral_m": np.zeros(n),
         "stop_state": np.zeros(n), "leader_id": [""] * n, "leader_gap_m": np.full(n, np.inf),
         "leader_speed_mps": np.full(n, np.nan), "leader_accel_mps2": np.full(n, np.nan),
+        "lane_pos_m": np.full(n, 10.0),
     }
     base.update(columns)
     return ObjectRows(
@@ -29,6 +31,7 @@ def _rows(n: int, **columns: Any) -> ObjectRows:
         leader_id=np.asarray(base["leader_id"], np.str_), leader_gap_m=np.asarray(base["leader_gap_m"], float),
         leader_speed_mps=np.asarray(base["leader_speed_mps"], float),
         leader_accel_mps2=np.asarray(base["leader_accel_mps2"], float),
+        lane_pos_m=np.asarray(base["lane_pos_m"], float),
     )
 
 
@@ -98,3 +101,8 @@ def test_parked_is_not_stopped_and_pedestrians_keep_no_lane() -> None:
     assert labels.flags[BehaviorLabel.PARKED].tolist() == [True, False]
     assert labels.flags[BehaviorLabel.STOPPED].tolist() == [False, False]
     assert not labels.flags[BehaviorLabel.KEEPING_LANE].any()
+
+
+def test_vehicles_near_the_stop_line_are_at_the_junction() -> None:
+    labels = compute_labels(_rows(3, lane_pos_m=[10.0, 85.0, 99.0], speed_mps=[10.0, 0.0, 0.0]), LANES)
+    assert labels.junction_id.tolist() == ["", "K", "K"]

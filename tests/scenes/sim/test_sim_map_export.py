@@ -72,3 +72,12 @@ def test_crossings_are_rectangles_of_the_crossing_width(grid_net: SumoNet) -> No
     crossing = next(iter(export_map(grid_net).pedestrian_crossings.values()))
     gap = np.linalg.norm(crossing.edge1[0] - crossing.edge2[0])
     assert 2.0 <= gap <= 6.0
+
+
+def test_netgenerate_failure_carries_its_message(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    from scenes.sim import SimulationError
+
+    monkeypatch.setattr("scenes.sim.network.layout_args", lambda kind, seed: ["--grid", "--no-such-option", "1"])
+    with pytest.raises(SimulationError, match="no-such-option"):
+        build_network(NetworkKind.GRID, 0, tmp_path)
+    assert not any(p.suffix == ".xml" for p in tmp_path.rglob("*"))

@@ -29,13 +29,13 @@ def test_ten_simulated_minutes_contain_every_action(tmp_path: Path) -> None:
         for label in BehaviorLabel:
             flags = labels.column(label.value).to_numpy(zero_copy_only=False)
             counts[label] += int(flags.sum())
-            if label in (BehaviorLabel.LEFT_TURN, BehaviorLabel.RIGHT_TURN):
+            if label in (BehaviorLabel.LEFT_TURN, BehaviorLabel.RIGHT_TURN, BehaviorLabel.BLOCKED_BY):
                 turns |= {(label.value, kind_of.get(j, "")) for j in junction_ids[flags]}
             if label is BehaviorLabel.BLOCKED_BY:
                 blocked_with_leader += int(sum(leader is not None for leader in leaders[flags]))
     missing = [label.value for label, n in counts.items() if n == 0]
     assert not missing, f"labels never seen: {missing}; counts {counts}"
-    for turn in ("left_turn", "right_turn"):
+    for turn in ("left_turn", "right_turn", "blocked_by"):
         for kind in (JunctionKind.THREE_WAY, JunctionKind.FOUR_WAY):
             assert (turn, kind.value) in turns, f"no {turn} at a {kind.value} junction"
     assert blocked_with_leader == counts[BehaviorLabel.BLOCKED_BY]

@@ -1,0 +1,215 @@
+"""Clips: clips/s produced, samples/s loaded by the dataset, disk per clip and per log.
+
+Logs come from the simulator with rendered sensors (``scenesearch simulate`` + the sensor
+simulation) and captions from ``scenesearch caption``; where either is unavailable the benchmark
+falls back to the synthetic logs of :mod:`encoders.clips.testing` and caption windows cut every
+2 s per track, and says so in ``log_source`` / ``caption_source``.
+
+Baseline (same run): rendering each clip's frames on its own, from the log files, as a pipeline
+without per-log arrays would (``naive_clips_per_s``). Figures:
+
+- ``clips_per_s``: clips produced per second by ``build_clips`` (rendering + table, no previews)
+- ``samples_per_s_workers2`` / ``_augmented``: dataset samples per second through a DataLoader with
+  2 workers, batch 16 (target ≥ 200 at the defaults)
+- ``*_vs_naive``: those divided by ``naive_clips_per_s``
+- disk: ``mb_per_log``, ``kb_per_frame``, ``kb_per_clip`` (rendered arrays shared by clips),
+  ``kb_per_preview``
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+WORK = Path(__file__).resolve().parent / "_work" / "clips"
+
+
+def _simulated_logs(n: int, duration_s: float, out: Path) -> list[Path]:
+    """Simulated logs with sensors, cached between runs."""
+    marker = out / f".done_{n}_{duration_s:g}"
+    if marker.is_file():
+        return sorted(p for p in out.iterdir() if p.is_dir())
+    shutil.rmtree(out, ignore_errors=True)
+    subprocess.run(
+        [sys.executable, "-m", "retrieval.cli", "simulate", "--out", str(out), "--logs", str(n),
+         "--duration-s", str(duration_s), "--seed", "0"],
+        check=True, capture_output=True, text=True,
+    )
+    from scenes.sensorsim.render import render_log_sensors
+
+    logs = sorted(p for p in out.iterdir() if p.is_dir())
+    for log_dir in logs:
+        render_log_sensors(log_dir, progress=False)
+    marker.write_text("ok")
+    return logs
+
+
+def _synthetic_logs(n: int, duration_s: float, out: Path) -> list[Path]:
+    from encoders.clips.testing import write_synthetic_log
+
+    shutil.rmtree(out, ignore_errors=True)
+    return [write_synthetic_log(out, f"synthetic_{i:04d}", num_frames=int(duration_s * 10), seed=i) for i in range(n)]
+
+
+def _window_captions(logs: list[Path], out: Path) -> None:
+    """One caption per track and 3 s window, every 2 s (the captioning stage stands in)."""
+    from scenes.log import Log
+
+    rows = []
+    for log_dir in logs:
+        dense = Log.open(log_dir).dense_tracks()
+        ts = dense.timestamps_ns
+        for k, track_id in enumerate(dense.track_ids):
+            for start in range(0, ts.shape[0] - 30, 20):
+                if dense.valid[k, start : start + 30].all():
+                    rows.append({
+                        "log_id": log_dir.name, "track_id": str(track_id), "category": str(dense.categories[k]),
+                        "start_ns": int(ts[start]), "end_ns": int(ts[start + 29]), "tags": [],
+                        "caption": "a vehicle", "canonical_caption": "a vehicle", "paraphrases": [], "host_tags": [],
+                    })
+    out.mkdir(parents=True, exist_ok=True)
+    pq.write_table(pa.Table.from_pylist(rows), out / "captions.parquet")
+
+
+def _captions(logs: list[Path], out: Path) -> str:
+    shutil.rmtree(out, ignore_errors=True)
+    try:
+        subprocess.run([sys.executable, "-m", "retrieval.cli", "caption", *map(str, logs), "--out", str(out)],
+                       check=True, capture_output=True, text=True)
+        table = pq.read_table(out / "captions.parquet")
+        if int((np.asarray(table.column("track_id").to_pylist()) != "ego").sum()) > 0:
+            return "scenesearch caption"
+    except (subprocess.CalledProcessError, FileNotFoundError, OSError):
+        pass
+    _window_captions(logs, out)
+    return "windows every 2 s per track"
+
+
+def _loader_rate(clips_dir: Path, augment: bool, workers: int, min_samples: int) -> float:
+    import torch
+
+    from encoders.data import ClipDataset, collate_clips
+
+    ds = ClipDataset(clips_dir, augment=augment)
+    loader = torch.utils.data.DataLoader(ds, batch_size=16, shuffle=True, num_workers=workers,
+                                         collate_fn=collate_clips, persistent_workers=workers > 0)
+    for _ in loader:  # warm-up epoch: workers start, pages are cached
+        break
+    seen, start, epoch = 0, time.perf_counter(), 0
+    while seen < min_samples:
+        ds.set_epoch(epoch)
+        for batch in loader:
+            seen += len(batch["clip_id"])
+        epoch += 1
+    return seen / (time.perf_counter() - start)
+
+
+def _naive_clips_per_s(logs: list[Path], clips_dir: Path, config: Any, max_clips: int) -> float:
+    """Render each clip's own frames from the log files (no per-log arrays)."""
+    from encoders.clips.render import render_log
+    from scenes.log import Log
+
+    table = pq.read_table(clips_dir / "clips.parquet").to_pylist()[:max_clips]
+    by_id = {p.name: p for p in logs}
+    opened: dict[str, Any] = {}
+    start = time.perf_counter()
+    with tempfile.TemporaryDirectory() as tmp:
+        for row in table:
+            if row["log_id"] not in opened:
+                log = Log.open(by_id[row["log_id"]])
+                opened[row["log_id"]] = (log, log.dense_tracks())
+            log, dense = opened[row["log_id"]]
+            frames = np.unique(np.asarray(row["frame_indices"]))
+            subset = replace(
+                dense, timestamps_ns=dense.timestamps_ns[frames], valid=dense.valid[:, frames],
+                center_ego_xyz_m=dense.center_ego_xyz_m[:, frames], yaw_ego_rad=dense.yaw_ego_rad[:, frames],
+                center_city_xyz_m=dense.center_city_xyz_m[:, frames], yaw_city_rad=dense.yaw_city_rad[:, frames],
+                size_lwh_m=dense.size_lwh_m[:, frames], city_SE3_ego=dense.city_SE3_ego[frames],
+            )
+            render_log(log, config, Path(tmp), subset)
+    return len(table) / (time.perf_counter() - start)
+
+
+def run(quick: bool) -> dict[str, Any]:
+    from encoders.clips.build import build_clips, preview_file_name
+    from encoders.clips.config import ClipsConfig
+    from encoders.clips.preview import write_preview
+
+    n_logs, duration_s = (2, 10.0) if quick else (4, 20.0)
+    WORK.mkdir(parents=True, exist_ok=True)
+    try:
+        logs = _simulated_logs(n_logs, duration_s, WORK / "sim_logs")
+        log_source = "scenesearch simulate + sensor simulation"
+    except Exception as exc:  # any simulator failure falls back to synthetic logs
+        print(f"simulator unavailable ({type(exc).__name__}: {str(exc)[:200]}); using synthetic logs")
+        logs = _synthetic_logs(n_logs, duration_s, WORK / "synthetic_logs")
+        log_source = "encoders.clips.testing synthetic logs"
+    caption_source = _captions(logs, WORK / "captions")
+
+    config = replace(ClipsConfig(), previews=False)
+    clips_dir = WORK / "clips"
+    shutil.rmtree(clips_dir, ignore_errors=True)
+    start = time.perf_counter()
+    report = build_clips(logs, WORK / "captions", clips_dir, config, reuse=False)
+    build_s = time.perf_counter() - start
+    num_clips = report.num_clips
+    frames = sum(int(s["frames"]) for s in report.logs.values())
+    log_bytes = sum(int(s["bytes"]) for s in report.logs.values())
+
+    rows = pq.read_table(clips_dir / "clips.parquet").to_pylist()[: 8 if quick else 24]
+    start = time.perf_counter()
+    preview_bytes = 0
+    for row in rows:
+        path = clips_dir / "previews" / preview_file_name(row["clip_id"])
+        write_preview(clips_dir, row, path, config)
+        preview_bytes += path.stat().st_size
+    preview_s = time.perf_counter() - start
+
+    naive = _naive_clips_per_s(logs, clips_dir, config, 4 if quick else 8)
+    min_samples = 160 if quick else 640
+    rate_0 = _loader_rate(clips_dir, augment=False, workers=0, min_samples=min_samples // 2)
+    rate_2 = _loader_rate(clips_dir, augment=False, workers=2, min_samples=min_samples)
+    rate_2_aug = _loader_rate(clips_dir, augment=True, workers=2, min_samples=min_samples)
+    clips_per_s = num_clips / build_s
+    return {
+        "log_source": log_source,
+        "caption_source": caption_source,
+        "logs": len(logs),
+        "frames": frames,
+        "clips": num_clips,
+        "clips_with_camera": int(sum(int(s["clips_with_camera"]) for s in report.logs.values())),
+        "bev_sources": sorted({str(s["bev_source"]) for s in report.logs.values()}),
+        "build_s": round(build_s, 2),
+        "render_s_per_log": round(report.render_s / max(len(report.logs), 1), 2),
+        "clips_per_s": round(clips_per_s, 1),
+        "naive_clips_per_s": round(naive, 2),
+        "clips_per_s_vs_naive": round(clips_per_s / naive, 1),
+        "previews_per_s": round(len(rows) / preview_s, 1),
+        "samples_per_s_workers0": round(rate_0, 1),
+        "samples_per_s_workers2": round(rate_2, 1),
+        "samples_per_s_workers2_augmented": round(rate_2_aug, 1),
+        "samples_per_s_workers2_vs_naive": round(rate_2 / naive, 1),
+        "loading_target_200_met": bool(rate_2_aug >= 200.0),
+        "mb_per_log": round(log_bytes / max(len(report.logs), 1) / 1e6, 2),
+        "kb_per_frame": round(log_bytes / max(frames, 1) / 1e3, 1),
+        "kb_per_clip": round(log_bytes / max(num_clips, 1) / 1e3, 1),
+        "kb_per_preview": round(preview_bytes / max(len(rows), 1) / 1e3, 1),
+        "cpus": len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count(),
+    }
+
+
+if __name__ == "__main__":
+    import json
+
+    print(json.dumps(run(quick="--quick" in sys.argv), indent=2))

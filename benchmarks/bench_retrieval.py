@@ -1,0 +1,177 @@
+"""Query latency of ``SceneSearch.search_text`` at 10k and 1M indexed clips, text encoding included.
+
+The text encoder is the dual encoder's real text tower (frozen all-MiniLM-L6-v2 + projection head,
+``encoders.model.DualEncoder`` with its default config; latency does not depend on trained weights).
+Every query is a distinct sentence, so the tower's per-caption cache never answers; a second pass
+over the same sentences measures the cached case. Clip embeddings are synthetic: a mixture of
+Gaussian clusters on the unit sphere (real embeddings cluster by action), D = the model's width.
+
+Reported per collection size: p50/p99 of the whole call, the share of each step (text encoding,
+FAISS search, metadata rows → records), the index chosen and its recall@10 against exact search
+(``faiss.knn``, the reference, also timed), and the build time. Target: p50 ≤ 20 ms at 1M.
+"""
+
+from __future__ import annotations
+
+import itertools
+import time
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import faiss
+import numpy as np
+import pyarrow as pa
+
+CATEGORIES = ("car", "truck", "bus", "pedestrian", "bicyclist")
+LANES = ("left lane", "right lane", "ego lane", "oncoming lane", "crossing on the left")
+MOTIONS = ("approaches", "moves away", "keeps its distance", "is stationary", "stops")
+
+
+def queries(n: int, seed: int = 0) -> list[str]:
+    """``n`` distinct query sentences."""
+    combos = list(itertools.product(CATEGORIES, LANES, MOTIONS, MOTIONS))
+    rng = np.random.default_rng(seed)
+    picks = rng.choice(len(combos), size=min(n, len(combos)), replace=False)
+    return [f"a {c} in the {lane} {m1}, then {m2}" for c, lane, m1, m2 in (combos[i] for i in picks)]
+
+
+def clustered_vectors(n: int, d: int, clusters: int = 256, spread: float = 0.6, seed: int = 0) -> np.ndarray:
+    """(n, d) unit vectors drawn around ``clusters`` random centres."""
+    rng = np.random.default_rng(seed)
+    centres = rng.standard_normal((clusters, d)).astype(np.float32)
+    centres /= np.linalg.norm(centres, axis=1, keepdims=True)
+    out = np.empty((n, d), np.float32)
+    step = 200_000
+    for s in range(0, n, step):
+        m = min(step, n - s)
+        x = centres[rng.integers(clusters, size=m)] + rng.standard_normal((m, d)).astype(np.float32) * (
+            spread / np.sqrt(d))
+        out[s:s + m] = x / np.linalg.norm(x, axis=1, keepdims=True)
+    return out
+
+
+class TowerEmbedder:
+    """The dual encoder's text tower as a retrieval Embedder (text only)."""
+
+    def __init__(self) -> None:
+        import torch
+
+        from encoders.config import DualEncoderConfig
+        from encoders.model import DualEncoder
+
+        torch.set_grad_enabled(False)
+        self.model = DualEncoder(DualEncoderConfig()).eval()
+        self.dim = int(self.model.config.embed_dim)
+
+    @property
+    def model_id(self) -> str:
+        return "bench"
+
+    def embed_texts(self, texts: Sequence[str]) -> np.ndarray:
+        import torch
+
+        with torch.inference_mode():
+            return np.asarray(self.model.encode_text(list(texts)).numpy(), dtype=np.float32)
+
+    def embed_clips(self, clips_dir: Path, view: str = "fused", split: str | None = None,
+                    shuffle_frames: bool = False) -> tuple[list[str], np.ndarray]:
+        raise NotImplementedError
+
+    def embed_arrays(self, clip: Mapping[str, Any], view: str = "fused") -> np.ndarray:
+        raise NotImplementedError
+
+
+def _pct(values: list[float], q: float) -> float:
+    return float(np.percentile(np.asarray(values) * 1e3, q))
+
+
+def measure(n: int, embedder: TowerEmbedder, texts: list[str], seed: int = 0) -> dict[str, Any]:
+    from indexes.clip_index import ClipIndex
+    from retrieval.querying import hits_to_results
+    from retrieval.scenesearch import SceneSearch
+
+    d = embedder.dim
+    xb = clustered_vectors(n, d, seed=seed)
+    meta = pa.table({
+        "clip_id": pa.array([f"log{i // 1000:05d}:t{i % 1000:03d}:0" for i in range(n)]),
+        "category": pa.array(np.asarray(CATEGORIES)[np.arange(n) % len(CATEGORIES)].tolist()),
+        "caption": pa.array(["a car in the left lane approaches"] * n),
+    })
+    t0 = time.perf_counter()
+    index = ClipIndex.build(xb, meta, metric="cosine")
+    build_s = time.perf_counter() - t0
+    search = SceneSearch.__new__(SceneSearch)
+    search.views = {"fused": index}
+    search._embedder = embedder
+    search.clips_dir = Path(".")
+    search.last_timings_s = {}
+    for q in texts[:5]:  # warm-up (also loads lazily initialised pieces)
+        search.search_text(q + " warm", k=10)
+    total, enc, fais, rec = [], [], [], []
+    for q in texts:
+        t0 = time.perf_counter()
+        search.search_text(q, k=10)
+        total.append(time.perf_counter() - t0)
+    cached = []
+    for q in texts:
+        t0 = time.perf_counter()
+        search.search_text(q, k=10)
+        cached.append(time.perf_counter() - t0)
+    # The steps one by one, on fresh sentences (so encoding is not cached).
+    xq_all = []
+    for q in texts:
+        q2 = q.replace("a ", "one ", 1)
+        t0 = time.perf_counter()
+        xq = embedder.embed_texts([q2])
+        t1 = time.perf_counter()
+        index.vectors.search(xq, 10)
+        t2 = time.perf_counter()
+        hits_to_results(index, xq, 10, None, "fused", None)
+        t3 = time.perf_counter()
+        enc.append(t1 - t0)
+        fais.append(t2 - t1)
+        rec.append(max(0.0, (t3 - t2) - (t2 - t1)))
+        xq_all.append(xq[0])
+    xq_arr = np.asarray(xq_all, np.float32)
+    t0 = time.perf_counter()
+    _, i_exact = faiss.knn(xq_arr, xb, 10, metric=faiss.METRIC_INNER_PRODUCT)
+    exact_ms = (time.perf_counter() - t0) / len(xq_arr) * 1e3
+    _, i_found = index.vectors.search(xq_arr, 10)
+    recall = float(np.mean([len(set(a) & set(b)) / 10 for a, b in zip(i_exact, i_found)]))
+    step_ms = {"encode_text": float(np.mean(enc)) * 1e3, "faiss_search": float(np.mean(fais)) * 1e3,
+               "metadata_records": float(np.mean(rec)) * 1e3}
+    step_total = sum(step_ms.values())
+    knob, value = index.vectors.search_knob
+    return {
+        "n": n, "dim": d, "factory": index.vectors.factory, "knob": f"{knob}={value}", "build_s": round(build_s, 1),
+        "queries": len(texts),
+        "p50_ms": round(_pct(total, 50), 2), "p99_ms": round(_pct(total, 99), 2),
+        "p50_ms_cached_text": round(_pct(cached, 50), 2),
+        "step_mean_ms": {k: round(v, 3) for k, v in step_ms.items()},
+        "step_share": {k: round(v / step_total, 3) for k, v in step_ms.items()},
+        "recall_at_10_vs_exact": round(recall, 4),
+        "exact_search_ms_per_query_batched": round(exact_ms, 3),
+        "meets_target_p50_20ms": bool(_pct(total, 50) <= 20.0),
+    }
+
+
+def run(quick: bool) -> dict[str, Any]:
+    import torch
+
+    torch.set_num_threads(max(1, min(2, torch.get_num_threads())))
+    embedder = TowerEmbedder()
+    sizes = (10_000, 100_000) if quick else (10_000, 1_000_000)
+    texts = queries(40 if quick else 200)
+    out: dict[str, Any] = {"text_tower": "all-MiniLM-L6-v2 (frozen) + projection head", "sizes": {}}
+    for n in sizes:
+        out["sizes"][str(n)] = measure(n, embedder, texts)
+        print(out["sizes"][str(n)], flush=True)
+    return out
+
+
+if __name__ == "__main__":
+    import json
+    import sys
+
+    print(json.dumps(run(quick="--quick" in sys.argv), indent=2))

@@ -1,0 +1,416 @@
+"""Training the attribute head (and the BEV backbone) on tag targets; loading a tagging model.
+
+Two ways to train, chosen by :attr:`TagTrainConfig.mode`:
+
+- ``joint`` (default): with the contrastive loss, inside ``scenesearch train``. The training loop
+  creates a :class:`TaggingObjective` beside the :class:`~encoders.model.DualEncoder`, adds its
+  parameters (A and b) to the optimiser, adds ``weight × objective.loss(model)`` to every step's
+  loss (the objective draws its own task-balanced batch of tag windows and calls
+  ``model.bev_embedding``), and calls ``objective.save(run_dir)`` with the weights.
+- ``alone``: :func:`train_tags` trains a :class:`~encoders.bev.BevTower` and the head on the tag
+  loss only (``scenesearch eval-tags --train`` and the benchmarks use it for the input ablation).
+
+A run folder that answers tag queries holds ``tagging.json`` (this config, the attribute names, the
+clips grid and rendering config) and ``tag_head.safetensors``; a run trained ``alone`` also holds
+``tag_backbone.safetensors`` (the BEV tower), a joint run takes the tower from ``model.safetensors``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from numpy.typing import NDArray
+from safetensors.torch import load_file, save_file
+from torch import nn
+
+from encoders.bev import BevTower
+from encoders.config import BevConfig, ConfigError, from_dict
+from encoders.tagging.ablation import Inputs, mask_inputs, parse_inputs
+from encoders.tagging.attributes import TagError, is_density
+from encoders.tagging.data import TagWindowDataset, TargetSource, collate_windows
+from encoders.tagging.head import TagHead, TagHeadConfig
+from encoders.tagging.losses import TagLossConfig, TaskBalancedSampler, downsample_targets, tag_loss
+from encoders.tagging.targets import grid_from_manifest, read_manifest
+from scenes.atomic import atomic_path, atomic_write_text
+from scenes.bev import BevGrid
+
+TAGGING_FILE = "tagging.json"
+HEAD_FILE = "tag_head.safetensors"
+BACKBONE_FILE = "tag_backbone.safetensors"
+METRICS_FILE = "tag_metrics.jsonl"
+MODES = ("joint", "alone")
+
+
+@dataclass(frozen=True)
+class TagTrainConfig:
+    """Tag training.
+
+    Attributes:
+        mode: ``joint`` (with the contrastive loss, in ``scenesearch train``) or ``alone``.
+        inputs: BEV inputs the model sees: ``none``, ``map``, ``lidar`` or ``both``.
+        bev: the BEV tower trained ``alone`` (joint runs use the dual encoder's).
+        loss: the tagging loss.
+        joint_weight: weight of the tag loss added to the contrastive loss in joint training.
+        window_frames: T frames per training window.
+        frame_stride: frames between the window's frames (the same spacing is used at query time).
+        batch_size: windows per step.
+        steps: optimiser steps (``alone``).
+        lr: peak AdamW learning rate (``alone``), linear warm-up then cosine decay.
+        warmup_steps: warm-up steps.
+        weight_decay: AdamW weight decay.
+        seed: seeds torch, numpy and the sampler.
+        device: ``auto``, ``cpu`` or ``cuda[:i]``.
+        log_every: steps between lines of ``tag_metrics.jsonl``.
+    """
+
+    mode: str = "joint"
+    inputs: str = "both"
+    bev: BevConfig = field(default_factory=BevConfig)
+    loss: TagLossConfig = field(default_factory=TagLossConfig)
+    joint_weight: float = 1.0
+    window_frames: int = 5
+    frame_stride: int = 2
+    batch_size: int = 8
+    steps: int = 400
+    lr: float = 3e-3
+    warmup_steps: int = 20
+    weight_decay: float = 1e-4
+    seed: int = 0
+    device: str = "auto"
+    log_every: int = 20
+
+    def __post_init__(self) -> None:
+        if self.mode not in MODES:
+            raise ConfigError(f"TagTrainConfig.mode must be one of {MODES}, got {self.mode!r}")
+        parse_inputs(self.inputs)
+        for name in ("window_frames", "frame_stride", "batch_size", "steps", "log_every"):
+            if getattr(self, name) < 1:
+                raise ConfigError(f"TagTrainConfig.{name} must be >= 1, got {getattr(self, name)}")
+        if self.lr <= 0 or self.weight_decay < 0 or self.joint_weight < 0 or self.warmup_steps < 0:
+            raise ConfigError("TagTrainConfig.lr must be > 0; weight_decay, joint_weight, warmup_steps >= 0")
+
+    def to_dict(self) -> dict[str, Any]:
+        return _plain(dataclasses.asdict(self))
+
+    @staticmethod
+    def from_dict(data: dict[str, Any]) -> TagTrainConfig:
+        return from_dict(TagTrainConfig, data)
+
+    def to_yaml(self) -> str:
+        import yaml
+
+        return str(yaml.safe_dump(self.to_dict(), sort_keys=True))
+
+    @staticmethod
+    def from_yaml(text: str) -> TagTrainConfig:
+        import yaml
+
+        data = yaml.safe_load(text) or {}
+        if not isinstance(data, dict):
+            raise ConfigError("TagTrainConfig YAML must be a mapping")
+        return TagTrainConfig.from_dict(data)
+
+
+def _plain(value: Any) -> Any:
+    if isinstance(value, dict):
+        return {k: _plain(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_plain(v) for v in value]
+    return value
+
+
+def resolve_device(name: str) -> torch.device:
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    return torch.device(name)
+
+
+def _area_mask(names: tuple[str, ...], device: torch.device) -> torch.Tensor:
+    return torch.tensor([is_density(a) for a in names], device=device)
+
+
+def window_loss(
+    embed: Callable[[dict[str, Any]], torch.Tensor], head: TagHead, batch: dict[str, Any], config: TagTrainConfig,
+    device: torch.device,
+) -> tuple[torch.Tensor, dict[str, float]]:
+    """Tag loss of a batch of windows: ``embed(batch)`` → E (B, T, D_e, h, w), V = head(E), targets pooled to (h, w)."""
+    batch = mask_inputs({k: (v.to(device) if isinstance(v, torch.Tensor) else v) for k, v in batch.items()},
+                        config.inputs)
+    e = embed(batch)  # (B, T, D_e, h, w)
+    v = head(e)  # (B, T, A, h, w)
+    tg = batch["targets"]  # (B, T, A, H, W)
+    b, t, a, hh, _ = tg.shape
+    r = hh // v.shape[-2]
+    small = downsample_targets(tg.flatten(0, 1), r, _area_mask(head.names, device))  # (B*T, A, h, w)
+    small = small.reshape(b, t, a, *small.shape[-2:])
+    return tag_loss(v, small, head.discrete_mask(), head.scale, config.loss)
+
+
+class TaggingObjective(nn.Module):
+    """The tagging term of joint training: owns the head and draws task-balanced windows.
+
+    >>> objective = TaggingObjective(clips_dir, TagTrainConfig(), embed_channels=64)
+    >>> loss = contrastive + objective.weight * objective.loss(model.bev_embedding)
+    """
+
+    def __init__(self, clips_dir: Path | str, config: TagTrainConfig, embed_channels: int,
+                 targets: TargetSource | None = None, head_config: TagHeadConfig | None = None) -> None:
+        super().__init__()
+        self.clips_dir = Path(clips_dir)
+        self.config = config
+        self.dataset = TagWindowDataset(self.clips_dir, "train", config.window_frames, config.frame_stride, targets)
+        hc = head_config or TagHeadConfig(attributes=self.dataset.names, embed_channels=embed_channels)
+        if hc.attributes != self.dataset.names:
+            raise TagError(f"head attributes {list(hc.attributes)} differ from the targets' {list(self.dataset.names)}")
+        self.head = TagHead(hc)
+        self.weight = config.joint_weight
+        self._epoch = 0
+        self._it: Iterator[dict[str, Any]] | None = None
+        self.last_parts: dict[str, float] = {}
+
+    def _batches(self) -> Iterator[dict[str, Any]]:
+        while True:
+            sampler = TaskBalancedSampler(self.dataset.present, 64 * self.config.batch_size, self.config.seed)
+            sampler.set_epoch(self._epoch)
+            self._epoch += 1
+            loader = torch.utils.data.DataLoader(self.dataset, batch_size=self.config.batch_size, sampler=sampler,
+                                                 collate_fn=collate_windows)
+            yield from loader
+
+    def loss(self, embed: Callable[[dict[str, Any]], torch.Tensor]) -> torch.Tensor:
+        """The tag loss of the next task-balanced batch; ``embed`` is e.g. ``model.bev_embedding``."""
+        if self._it is None:
+            self._it = self._batches()
+        device = self.head.attributes.device
+        loss, self.last_parts = window_loss(embed, self.head, next(self._it), self.config, device)
+        return loss
+
+    def save(self, run_dir: Path | str, backbone: nn.Module | None = None) -> None:
+        save_tagging(run_dir, self.head, self.config, read_manifest(self.clips_dir), backbone)
+
+
+def save_tagging(run_dir: Path | str, head: TagHead, config: TagTrainConfig, manifest: dict[str, Any],
+                 backbone: nn.Module | None = None, extra: dict[str, Any] | None = None) -> None:
+    """Write ``tagging.json``, ``tag_head.safetensors`` and (alone) ``tag_backbone.safetensors`` atomically."""
+    run = Path(run_dir)
+    run.mkdir(parents=True, exist_ok=True)
+    with atomic_path(run / HEAD_FILE) as tmp:
+        save_file({k: v.detach().cpu().contiguous() for k, v in head.state_dict().items()}, str(tmp))
+    if backbone is not None:
+        with atomic_path(run / BACKBONE_FILE) as tmp:
+            save_file({k: v.detach().cpu().contiguous() for k, v in backbone.state_dict().items()}, str(tmp))
+    meta = {
+        "format_version": 1,
+        "config": config.to_dict(),
+        "head": head.config.to_dict(),
+        "grid": manifest["bev"],
+        "clips_config": manifest.get("config", {}),
+        "backbone": BACKBONE_FILE if backbone is not None else "model.safetensors",
+        **(extra or {}),
+    }
+    atomic_write_text(run / TAGGING_FILE, json.dumps(meta, indent=2))
+
+
+def _lr_at(step: int, config: TagTrainConfig) -> float:
+    if step < config.warmup_steps:
+        return config.lr * (step + 1) / config.warmup_steps
+    frac = (step - config.warmup_steps) / max(1, config.steps - config.warmup_steps)
+    return config.lr * 0.5 * (1.0 + math.cos(math.pi * min(1.0, frac)))
+
+
+@dataclass
+class TagTrainResult:
+    """What :func:`train_tags` did."""
+
+    run_dir: Path
+    steps: int
+    final_loss: float
+    seconds: float
+    windows_per_s: float
+
+
+def train_tags(
+    clips_dir: Path | str,
+    run_dir: Path | str,
+    config: TagTrainConfig,
+    targets: TargetSource | None = None,
+    init: Tagger | None = None,
+    train_backbone: bool = True,
+    progress: Callable[[str], None] | None = None,
+) -> TagTrainResult:
+    """Train a BEV tower and the attribute head on the tag loss alone (``mode: alone``).
+
+    Args:
+        clips_dir: a clips folder whose logs have tag targets.
+        run_dir: output folder.
+        config: options.
+        targets: where targets come from (default ``bev_attributes.npy`` of each log).
+        init: start from this model's backbone (and its head rows for attributes of the same name).
+        train_backbone: train the backbone too (else only A and b).
+    """
+    say = progress or (lambda _line: None)
+    torch.manual_seed(config.seed)
+    np.random.seed(config.seed)
+    device = resolve_device(config.device)
+    manifest = read_manifest(clips_dir)
+    ds = TagWindowDataset(clips_dir, "train", config.window_frames, config.frame_stride, targets)
+    if init is None:
+        # The tower's input channels follow the clips folder.
+        config = dataclasses.replace(config, bev=dataclasses.replace(
+            config.bev, lidar_channels=len(manifest["bev"]["lidar_channels"]),
+            map_channels=len(manifest["bev"]["map_channels"])))
+    bev_config = config.bev if init is None else init.bev_config
+    bev = BevTower(bev_config, 32) if init is None else init.bev
+    head = TagHead(TagHeadConfig(attributes=ds.names, embed_channels=bev_config.embed_channels))
+    if init is not None:
+        with torch.no_grad():
+            for i, name in enumerate(ds.names):
+                if name in init.head.names:
+                    j = init.head.index(name)
+                    head.attributes[i] = init.head.attributes[j]
+                    head.bias[i] = init.head.bias[j]
+    bev.to(device)
+    head.to(device)
+    bev.train(train_backbone)
+    bev.requires_grad_(train_backbone)
+    params = [p for p in [*bev.parameters(), *head.parameters()] if p.requires_grad]
+    opt = torch.optim.AdamW(params, lr=config.lr, weight_decay=config.weight_decay)
+    sampler = TaskBalancedSampler(ds.present, config.steps * config.batch_size, config.seed)
+    loader = torch.utils.data.DataLoader(ds, batch_size=config.batch_size, sampler=sampler,
+                                         collate_fn=collate_windows)
+    run = Path(run_dir)
+    run.mkdir(parents=True, exist_ok=True)
+    lines: list[str] = []
+    start = time.perf_counter()
+    loss_avg = float("nan")
+    step = 0
+    for step, batch in enumerate(loader):
+        for g in opt.param_groups:
+            g["lr"] = _lr_at(step, config)
+        loss, parts = window_loss(lambda b: bev.embed_map(b["bev_lidar"], b["bev_map"]), head, batch, config, device)
+        if not torch.isfinite(loss):
+            raise FloatingPointError(f"tag loss is {float(loss)} at step {step} (logs {batch['log_id']})")
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        nn.utils.clip_grad_norm_(params, 1.0)
+        opt.step()
+        lv = float(loss.detach())
+        loss_avg = lv if math.isnan(loss_avg) else 0.95 * loss_avg + 0.05 * lv
+        if step % config.log_every == 0 or step == config.steps - 1:
+            rec = {"step": step, "loss": round(lv, 5), "loss_avg": round(loss_avg, 5),
+                   **{k: round(v, 5) for k, v in parts.items()}, "s": round(time.perf_counter() - start, 2)}
+            lines.append(json.dumps(rec))
+            say(f"step {step}: loss {loss_avg:.4f} ({', '.join(f'{k} {v:.4f}' for k, v in parts.items())})")
+    seconds = time.perf_counter() - start
+    bev.eval()
+    save_tagging(run, head, config, manifest, backbone=bev,
+                 extra={"train": {"steps": step + 1, "seconds": round(seconds, 2), "logs": ds.log_ids,
+                                  "train_backbone": train_backbone}})
+    atomic_write_text(run / METRICS_FILE, "\n".join(lines) + "\n")
+    return TagTrainResult(run, step + 1, loss_avg, seconds, (step + 1) * config.batch_size / max(seconds, 1e-9))
+
+
+# ---------------------------------------------------------------------------------------------
+# Loading and inference
+
+
+class Tagger:
+    """A trained tagging model: BEV tower + attribute head, and the grid and inputs it was trained on."""
+
+    def __init__(self, bev: BevTower, head: TagHead, config: TagTrainConfig, meta: dict[str, Any],
+                 device: torch.device) -> None:
+        self.bev = bev.eval().to(device)
+        self.head = head.eval().to(device)
+        self.config = config
+        self.meta = meta
+        self.device = device
+        self.grid: BevGrid = grid_from_manifest({"bev": meta["grid"]})
+        self.map_channels: list[str] = list(meta["grid"].get("map_channels", []))
+        self.downsample = int(self.bev.config.downsample)
+
+    @property
+    def bev_config(self) -> BevConfig:
+        return self.bev.config
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return self.head.names
+
+    @property
+    def inputs(self) -> Inputs:
+        return parse_inputs(self.config.inputs)
+
+    @torch.no_grad()
+    def tag_frames(self, bev_lidar: NDArray[np.uint8], bev_map: NDArray[np.uint8], chunk: int = 32,
+                   attributes: list[int] | None = None) -> NDArray[np.float32]:
+        """Tag tensors of consecutive frames of one log.
+
+        E is computed over the frames at the training spacing (``frame_stride``: one pass per phase,
+        in chunks with temporal context), so each frame sees neighbours as in training.
+
+        Args:
+            bev_lidar: (F, Cl, H, W) uint8 (the clip stage's ``bev_lidar.npy``).
+            bev_map: (F, Cm, H, W) uint8.
+            chunk: frames per forward pass.
+            attributes: rows of A to return (default all).
+
+        Returns:
+            (F, A', H/r, W/r) float32 V (logits for discrete attributes).
+        """
+        f = int(bev_lidar.shape[0])
+        sel = list(range(len(self.names))) if attributes is None else list(attributes)
+        h, w = self.grid.height // self.downsample, self.grid.width // self.downsample
+        out = np.zeros((f, len(sel), h, w), np.float32)
+        ctx = self.bev.config.temporal_kernel // 2
+        stride = self.config.frame_stride
+        for phase in range(min(stride, f)):
+            idx = np.arange(phase, f, stride)
+            for lo in range(0, idx.shape[0], chunk):
+                a, b = max(0, lo - ctx), min(idx.shape[0], lo + chunk + ctx)
+                fr = idx[a:b]
+                batch = {
+                    "bev_lidar": torch.from_numpy(np.asarray(bev_lidar[fr])).float().div_(255.0)[None],
+                    "bev_map": torch.from_numpy(np.asarray(bev_map[fr])).float().div_(255.0)[None],
+                }
+                batch = mask_inputs(batch, self.inputs)
+                e = self.bev.embed_map(batch["bev_lidar"].to(self.device), batch["bev_map"].to(self.device))
+                v = self.head(e)[0, :, sel]  # (n, A', h, w)
+                keep = slice(lo - a, lo - a + min(chunk, idx.shape[0] - lo))
+                out[idx[lo : lo + chunk]] = v[keep].float().cpu().numpy()
+        return out
+
+
+def load_tagger(run_dir: Path | str, device: str = "cpu") -> Tagger:
+    """The tagging model of a run folder (trained ``alone`` or jointly).
+
+    Raises:
+        FileNotFoundError: the run has no ``tagging.json`` (it was trained without tagging).
+    """
+    run = Path(run_dir)
+    path = run / TAGGING_FILE
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: the run has no tagging model (train with tagging, or "
+                                "`scenesearch eval-tags --train`)")
+    meta = json.loads(path.read_text())
+    config = TagTrainConfig.from_dict(meta["config"])
+    head = TagHead(TagHeadConfig.from_dict(meta["head"]))
+    head.load_state_dict(load_file(str(run / HEAD_FILE)))
+    dev = resolve_device(device)
+    if meta.get("backbone") == BACKBONE_FILE:
+        bev = BevTower(config.bev, 32)
+        bev.load_state_dict(load_file(str(run / BACKBONE_FILE)))
+    else:
+        from encoders.train import load_model  # type: ignore[import-not-found,unused-ignore]
+
+        model = load_model(run, device="cpu")
+        bev = model.bev
+    return Tagger(bev, head, config, meta, dev)

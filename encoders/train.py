@@ -1,0 +1,560 @@
+"""Contrastive training of the :class:`~encoders.model.DualEncoder`, evaluation, loading and embedding.
+
+``train(clips_dir, run_dir, config)`` writes, in ``run_dir``:
+
+    config.json           the TrainConfig (model channels resolved from the data)
+    metrics.jsonl         one line per epoch: loss, learning rate, samples/s, validation retrieval metrics
+    checkpoints/last.pt   model, optimiser, epoch and step, written atomically after every epoch
+    model.safetensors     final weights (frozen pretrained text weights are left out: they load from text.model)
+    text_cache.npz        cached frozen caption embeddings (pretrained text tower)
+    model_card.md         data, metrics and limits
+    tensorboard/          when TensorBoard is installed
+
+Determinism: the data order of epoch e is a permutation seeded by (seed, e), and before every step the
+torch generator is re-seeded from (seed, step), so modality dropout and frame shuffling depend only on
+the step. A run resumed from ``checkpoints/last.pt`` therefore continues exactly as if it had not
+stopped (on CPU; CUDA kernels may add their own non-determinism).
+
+Resuming checks that the configuration equals the checkpoint's, except for ``epochs`` (which may be
+extended; the cosine schedule then stretches to the new end), ``num_workers``, ``device`` and
+``eval_batch_size``; ``force`` skips the check.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import random
+import sys
+import time
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from torch.utils.data import DataLoader, Dataset
+
+from encoders.config import ConfigError, ConfigMismatchError, TrainConfig
+from encoders.loss import contrastive_loss, positives_matrix, tag_similarity
+from encoders.metrics import text_to_clip_metrics
+from encoders.model import DualEncoder
+from scenes.atomic import atomic_path, atomic_write_text
+
+CHECKPOINT_FORMAT = 1
+#: Config keys that may differ when resuming.
+RESUMABLE_KEYS = ("epochs", "num_workers", "device", "eval_batch_size")
+
+
+class TrainingError(RuntimeError):
+    """Training cannot start or cannot go on."""
+
+
+class NoTrainingSplitError(TrainingError, ValueError):
+    """The clips folder has no clip in the training split."""
+
+
+class NonFiniteLossError(TrainingError):
+    """The loss became NaN or infinite; the last good checkpoint is kept."""
+
+    def __init__(self, step: int, epoch: int, clip_ids: Sequence[str], value: float) -> None:
+        self.step = step
+        self.epoch = epoch
+        self.clip_ids = list(clip_ids)
+        shown = ", ".join(self.clip_ids[:8]) + (" …" if len(self.clip_ids) > 8 else "")
+        super().__init__(
+            f"loss is {value} at step {step} (epoch {epoch + 1}), batch clips: {shown}; "
+            "stopped, the last good checkpoint is kept"
+        )
+
+
+@dataclass
+class TrainResult:
+    """What a training run did."""
+
+    run_dir: Path
+    epochs: int
+    steps: int
+    val: dict[str, float]
+    history: list[dict[str, Any]] = field(default_factory=list)
+
+
+# --- setup -------------------------------------------------------------------------------------------
+def resolve_device(name: str) -> torch.device:
+    """``auto`` → CUDA when available, else CPU."""
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    if name.startswith("cuda") and not torch.cuda.is_available():
+        raise ConfigError(f"device {name!r} requested but CUDA is not available")
+    return torch.device(name)
+
+
+def seed_everything(seed: int) -> None:
+    random.seed(seed)
+    np.random.seed(seed % 2**32)
+    torch.manual_seed(seed)
+
+
+def _step_seed(seed: int, step: int, stream: int = 0) -> int:
+    """A seed that depends only on (seed, step, stream)."""
+    return int(np.random.SeedSequence([seed, stream, step]).generate_state(1)[0])
+
+
+def _seed_worker(worker_id: int) -> None:
+    s = torch.initial_seed() % 2**32
+    np.random.seed(s)
+    random.seed(s)
+
+
+def collate(items: list[dict[str, Any]]) -> dict[str, Any]:
+    """The dataset's ``collate_clips`` (``encoders.data``), or the same contract from :mod:`encoders.synthetic`."""
+    try:
+        from encoders.data import collate_clips
+    except ImportError:
+        from encoders.synthetic import collate_clips
+    return collate_clips(items)
+
+
+def open_split(clips_dir: Path, split: str, augment: bool = False, seed: int = 0) -> Dataset[dict[str, Any]]:
+    """The clips of ``split`` in ``clips_dir`` (an :class:`encoders.data.ClipDataset`)."""
+    from encoders.data import ClipDataset
+
+    return ClipDataset(clips_dir, split=split, augment=augment, seed=seed)
+
+
+def _open_datasets(
+    clips_dir: Path, config: TrainConfig, datasets: dict[str, Dataset[dict[str, Any]]] | None
+) -> tuple[Dataset[dict[str, Any]], Dataset[dict[str, Any]] | None]:
+    if datasets is not None:
+        train_set, val_set = datasets.get("train"), datasets.get("val")
+    else:
+        if not Path(clips_dir).is_dir():
+            raise FileNotFoundError(f"{clips_dir}: clips folder not found")
+        train_set = open_split(Path(clips_dir), "train", augment=config.augment, seed=config.seed)
+        val_set = open_split(Path(clips_dir), "val", seed=config.seed)
+    if train_set is None or len(train_set) == 0:  # type: ignore[arg-type]
+        raise NoTrainingSplitError(f"{clips_dir}: no clips in the 'train' split (clips.parquet column 'split')")
+    if train_set is not None and len(train_set) < 2:  # type: ignore[arg-type]
+        raise NoTrainingSplitError(f"{clips_dir}: the 'train' split needs at least 2 clips for a contrastive loss")
+    if val_set is not None and len(val_set) == 0:  # type: ignore[arg-type]
+        val_set = None
+    return train_set, val_set
+
+
+def resolve_channels(config: TrainConfig, item: dict[str, Any]) -> TrainConfig:
+    """The config with the BEV and camera channel counts of the data."""
+    bev = dataclasses.replace(
+        config.model.bev,
+        lidar_channels=int(item["bev_lidar"].shape[1]),
+        map_channels=int(item["bev_map"].shape[1]),
+    )
+    camera = dataclasses.replace(config.model.camera, in_channels=int(item["camera"].shape[1]))
+    model = dataclasses.replace(config.model, bev=bev, camera=camera)
+    return dataclasses.replace(config, model=model)
+
+
+def build_optimizer(model: DualEncoder, config: TrainConfig) -> torch.optim.Optimizer:
+    """AdamW; no weight decay on biases, norms, embeddings, time positions and the logit scale."""
+    decay: list[torch.nn.Parameter] = []
+    no_decay: list[torch.nn.Parameter] = []
+    for name, p in model.named_parameters():
+        if not p.requires_grad:
+            continue
+        plain = p.ndim < 2 or any(s in name for s in ("time", "query", "positions", "tokens", "logit_scale"))
+        (no_decay if plain else decay).append(p)
+    groups = [{"params": decay, "weight_decay": config.weight_decay}, {"params": no_decay, "weight_decay": 0.0}]
+    return torch.optim.AdamW(groups, lr=config.lr, betas=(0.9, 0.98), eps=1e-6)
+
+
+def learning_rate(config: TrainConfig, step: int, total_steps: int) -> float:
+    """Linear warm-up over ``warmup_steps``, then cosine decay to 0 at ``total_steps``."""
+    if step < config.warmup_steps:
+        return config.lr * (step + 1) / config.warmup_steps
+    span = max(1, total_steps - config.warmup_steps)
+    progress = min(1.0, (step - config.warmup_steps) / span)
+    return config.lr * 0.5 * (1.0 + math.cos(math.pi * progress))
+
+
+def shuffle_time(batch: dict[str, Any], generator: torch.Generator | None = None) -> dict[str, Any]:
+    """The batch with each clip's frames in a random order (the same order across its tensors)."""
+    out = dict(batch)
+    b, t = batch["bev_lidar"].shape[:2]
+    perms = torch.stack([torch.randperm(t, generator=generator) for _ in range(b)])  # (B, T)
+    for key, value in batch.items():
+        if isinstance(value, torch.Tensor) and value.ndim >= 2 and value.shape[:2] == (b, t):
+            idx = perms.reshape(b, t, *([1] * (value.ndim - 2))).expand_as(value)
+            out[key] = torch.gather(value, 1, idx)
+    return out
+
+
+# --- checkpoints -------------------------------------------------------------------------------------
+def _save_checkpoint(path: Path, model: DualEncoder, opt: torch.optim.Optimizer, config: TrainConfig,
+                     epoch: int, step: int) -> None:
+    state = {
+        "format": CHECKPOINT_FORMAT,
+        "epoch": epoch,
+        "step": step,
+        "config": config.to_dict(),
+        "model": model.saved_state_dict(),
+        "optimizer": opt.state_dict(),
+        "rng": {"python": random.getstate(), "numpy": np.random.get_state(), "torch": torch.get_rng_state()},
+    }
+    with atomic_path(path) as tmp:
+        torch.save(state, tmp)
+
+
+def _config_differences(a: dict[str, Any], b: dict[str, Any], prefix: str = "") -> list[str]:
+    diffs = []
+    for key in sorted(set(a) | set(b)):
+        va, vb = a.get(key), b.get(key)
+        if isinstance(va, dict) and isinstance(vb, dict):
+            diffs += _config_differences(va, vb, f"{prefix}{key}.")
+        elif va != vb:
+            diffs.append(f"{prefix}{key}: {vb!r} -> {va!r}")
+    return diffs
+
+
+def check_resume_config(new: TrainConfig, saved: dict[str, Any], done_epochs: int) -> None:
+    """Raise :class:`ConfigMismatchError` when ``new`` differs from the checkpoint's config beyond RESUMABLE_KEYS."""
+    a = {k: v for k, v in new.to_dict().items() if k not in RESUMABLE_KEYS}
+    b = {k: v for k, v in saved.items() if k not in RESUMABLE_KEYS}
+    diffs = _config_differences(a, b)
+    if diffs:
+        raise ConfigMismatchError(
+            "resuming with a different configuration (use --force to resume anyway): " + "; ".join(diffs)
+        )
+    if new.epochs < done_epochs:
+        raise ConfigMismatchError(f"the checkpoint has {done_epochs} epochs done; epochs={new.epochs} is fewer")
+
+
+def _read_metrics(path: Path) -> list[dict[str, Any]]:
+    if not path.exists():
+        return []
+    return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+
+
+def _append_metrics(path: Path, row: dict[str, Any]) -> None:
+    with open(path, "a") as fh:
+        fh.write(json.dumps(row, sort_keys=True) + "\n")
+        fh.flush()
+
+
+# --- evaluation and embedding ------------------------------------------------------------------------
+def _batches(dataset: Dataset[dict[str, Any]], batch_size: int, num_workers: int = 0) -> Iterator[dict[str, Any]]:
+    loader = DataLoader(dataset, batch_size=batch_size, shuffle=False, num_workers=num_workers, collate_fn=collate)
+    yield from loader
+
+
+@torch.no_grad()
+def embed_dataset(
+    model: DualEncoder,
+    dataset: Dataset[dict[str, Any]],
+    view: str = "fused",
+    shuffle_frames: bool = False,
+    batch_size: int = 32,
+    seed: int = 0,
+) -> tuple[list[str], np.ndarray, list[str]]:
+    """→ clip ids, (N, D) float32 normalised clip embeddings, canonical captions."""
+    was_training = model.training
+    model.eval()
+    gen = torch.Generator().manual_seed(seed)
+    ids: list[str] = []
+    captions: list[str] = []
+    chunks = []
+    for batch in _batches(dataset, batch_size):
+        if shuffle_frames:
+            batch = shuffle_time(batch, gen)
+        chunks.append(model.encode_video(batch, view=view).float().cpu().numpy())
+        ids += list(batch["clip_id"])
+        captions += list(batch["canonical_caption"])
+    model.train(was_training)
+    d = model.config.embed_dim
+    return ids, (np.concatenate(chunks) if chunks else np.zeros((0, d), np.float32)), captions
+
+
+@torch.no_grad()
+def embed_texts(model: DualEncoder, texts: Sequence[str], batch_size: int = 256) -> np.ndarray:
+    """texts: N strings → (N, D) float32 normalised embeddings."""
+    was_training = model.training
+    model.eval()
+    out = [model.encode_text(list(texts[i : i + batch_size])).float().cpu().numpy()
+           for i in range(0, len(texts), batch_size)]
+    model.train(was_training)
+    return np.concatenate(out) if out else np.zeros((0, model.config.embed_dim), np.float32)
+
+
+def embed_clips(
+    model: DualEncoder,
+    clips_dir: Path | str | Dataset[dict[str, Any]],
+    split: str | None = None,
+    view: str = "fused",
+    shuffle_frames: bool = False,
+    batch_size: int = 32,
+) -> tuple[list[str], np.ndarray]:
+    """Embed the clips of ``split`` (all when None) of a clips folder (or a dataset): → (ids, (N, D) float32)."""
+    if isinstance(clips_dir, str | Path):
+        from encoders.data import ClipDataset
+
+        dataset: Dataset[dict[str, Any]] = ClipDataset(clips_dir, split=split)
+    else:
+        dataset = clips_dir
+    ids, vectors, _ = embed_dataset(model, dataset, view=view, shuffle_frames=shuffle_frames, batch_size=batch_size)
+    return ids, vectors
+
+
+def evaluate(
+    model: DualEncoder,
+    dataset: Dataset[dict[str, Any]],
+    view: str = "fused",
+    shuffle_frames: bool = False,
+    batch_size: int = 32,
+    min_steps: int = 1,
+) -> dict[str, float]:
+    """Text → clip retrieval on ``dataset``: queries are the unique canonical captions, relevant clips share it.
+
+    ``min_steps`` keeps only queries whose tag sequence has at least that many steps.
+    """
+    _, vectors, captions = embed_dataset(model, dataset, view, shuffle_frames, batch_size)
+    tags_of: dict[str, int] = {}
+    if min_steps > 1:
+        for i in range(len(dataset)):  # type: ignore[arg-type]
+            item = dataset[i]
+            tags_of[item["canonical_caption"]] = len(item["tags"])
+    queries = sorted({c for c in captions if min_steps <= 1 or tags_of.get(c, 0) >= min_steps})
+    if not queries:
+        return {"queries": 0.0}
+    text = embed_texts(model, queries)  # (Q, D)
+    relevant = np.array(captions)[None, :] == np.array(queries)[:, None]  # (Q, N)
+    return text_to_clip_metrics(text @ vectors.T, relevant)
+
+
+# --- training ----------------------------------------------------------------------------------------
+def _tensorboard(run_dir: Path) -> Any:
+    try:
+        from torch.utils.tensorboard import SummaryWriter
+    except ImportError:
+        return None
+    return SummaryWriter(str(run_dir / "tensorboard"))
+
+
+def train(
+    clips_dir: Path | str,
+    run_dir: Path | str,
+    config: TrainConfig,
+    resume: bool = False,
+    force: bool = False,
+    datasets: dict[str, Dataset[dict[str, Any]]] | None = None,
+    on_epoch_end: Callable[[int], None] | None = None,
+    log: Callable[[str], None] | None = None,
+    progress: bool | None = None,
+) -> TrainResult:
+    """Train a DualEncoder on the 'train' split of ``clips_dir``, validating on 'val'; see the module doc.
+
+    ``datasets`` ({"train": ..., "val": ...}) replaces reading the clips folder; ``on_epoch_end(epoch)``
+    runs after each epoch's checkpoint and metrics are written; ``progress`` None shows a bar on a terminal.
+    """
+    log = log or (lambda msg: print(msg, file=sys.stderr))
+    run_dir = Path(run_dir)
+    train_set, val_set = _open_datasets(Path(clips_dir), config, datasets)
+    config = resolve_channels(config, train_set[0])
+    ckpt_path = run_dir / "checkpoints" / "last.pt"
+    metrics_path = run_dir / "metrics.jsonl"
+    if not resume and (ckpt_path.exists() or metrics_path.exists()):
+        raise FileExistsError(f"{run_dir} already holds a run; pass --resume to continue it or choose another --out")
+    run_dir.mkdir(parents=True, exist_ok=True)
+
+    device = resolve_device(config.device)
+    seed_everything(config.seed)
+    model = DualEncoder(config.model).to(device)
+    opt = build_optimizer(model, config)
+    start_epoch, step = 0, 0
+    if resume:
+        if not ckpt_path.exists():
+            raise FileNotFoundError(f"{ckpt_path}: no checkpoint to resume from")
+        state = torch.load(ckpt_path, map_location=device, weights_only=False)
+        if not force:
+            check_resume_config(config, state["config"], state["epoch"])
+        model.load_saved_state_dict(state["model"])
+        opt.load_state_dict(state["optimizer"])
+        start_epoch, step = int(state["epoch"]), int(state["step"])
+        rows = [r for r in _read_metrics(metrics_path) if r.get("epoch", 0) <= start_epoch]
+        atomic_write_text(metrics_path, "".join(json.dumps(r, sort_keys=True) + "\n" for r in rows))
+        log(f"resuming {run_dir} after epoch {start_epoch} (step {step})")
+    text_cache = model.text.cache
+    cache_path = run_dir / "text_cache.npz"
+    if text_cache is not None:
+        text_cache.load(cache_path)
+    atomic_write_text(run_dir / "config.json", config.to_json())
+
+    n = len(train_set)  # type: ignore[arg-type]
+    batches_per_epoch = n // config.batch_size if n >= config.batch_size else 1
+    if config.max_steps_per_epoch:
+        batches_per_epoch = min(batches_per_epoch, config.max_steps_per_epoch)
+    total_steps = batches_per_epoch * config.epochs
+    use_amp = config.amp and device.type == "cuda"
+    writer = _tensorboard(run_dir)
+    history = _read_metrics(metrics_path)
+    val: dict[str, float] = {}
+    log(f"training on {n} clips, {batches_per_epoch} steps/epoch, {config.epochs} epochs, device {device}")
+
+    for epoch in range(start_epoch, config.epochs):
+        model.train()
+        if hasattr(train_set, "set_epoch"):
+            train_set.set_epoch(epoch)  # the augmentation draw of this epoch
+        order = np.random.default_rng([config.seed, epoch]).permutation(n)
+        size = min(config.batch_size, n)
+        batch_ids = [order[i * size : (i + 1) * size].tolist() for i in range(batches_per_epoch)]
+        loader = DataLoader(
+            train_set,
+            batch_sampler=batch_ids,
+            collate_fn=collate,
+            num_workers=config.num_workers,
+            worker_init_fn=_seed_worker,
+            generator=torch.Generator().manual_seed(_step_seed(config.seed, epoch, stream=1)),
+            persistent_workers=False,
+        )
+        losses: list[float] = []
+        seen, t0 = 0, time.perf_counter()
+        bar = _progress(loader, total=len(batch_ids), desc=f"epoch {epoch + 1}/{config.epochs}", enable=progress)
+        for batch in bar:
+            torch.manual_seed(_step_seed(config.seed, step))
+            for group in opt.param_groups:
+                group["lr"] = learning_rate(config, step, total_steps)
+            if config.shuffle_frames:
+                batch = shuffle_time(batch)
+            keys = batch["canonical_caption"] if config.positives == "caption" else [tuple(t) for t in batch["tags"]]
+            with torch.autocast(device_type=device.type, dtype=torch.bfloat16, enabled=use_amp):
+                video, text, scale = model(batch, list(batch["caption"]))
+                positives = positives_matrix(keys, device)
+                sim = tag_similarity(batch["tags"], device) if config.tag_weight > 0 else None
+                loss = contrastive_loss(video, text, scale, positives, config.loss, sim, config.tag_weight)
+            value = float(loss.detach())
+            if not math.isfinite(value):
+                raise NonFiniteLossError(step, epoch, batch["clip_id"], value)
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            if config.grad_clip > 0:
+                torch.nn.utils.clip_grad_norm_(model.parameters(), config.grad_clip)
+            opt.step()
+            step += 1
+            seen += len(batch["clip_id"])
+            losses.append(value)
+            rate = seen / max(time.perf_counter() - t0, 1e-9)
+            if hasattr(bar, "set_postfix"):
+                bar.set_postfix(loss=f"{value:.3f}", samples_s=f"{rate:.1f}")
+        epoch_s = time.perf_counter() - t0
+        done = epoch + 1
+        if val_set is not None and (done % config.eval_every == 0 or done == config.epochs):
+            val = evaluate(model, val_set, batch_size=config.eval_batch_size)
+        row: dict[str, Any] = {
+            "epoch": done,
+            "step": step,
+            "train_loss": float(np.mean(losses)) if losses else float("nan"),
+            "lr": opt.param_groups[0]["lr"],
+            "logit_scale": float(model.logit_scale.detach()),
+            "samples_per_s": seen / max(epoch_s, 1e-9),
+            "epoch_s": epoch_s,
+        }
+        if val and (done % config.eval_every == 0 or done == config.epochs):
+            row["val"] = val
+        _save_checkpoint(ckpt_path, model, opt, config, done, step)
+        _append_metrics(metrics_path, row)
+        history.append(row)
+        if text_cache is not None:
+            text_cache.save(cache_path)
+        if writer is not None:
+            writer.add_scalar("train/loss", row["train_loss"], step)
+            writer.add_scalar("train/samples_per_s", row["samples_per_s"], step)
+            for k, v in row.get("val", {}).items():
+                writer.add_scalar(f"val/{k}", v, step)
+        log(f"epoch {done}: loss {row['train_loss']:.4f}, {row['samples_per_s']:.1f} samples/s"
+            + (f", val R@1 {val.get('R@1', float('nan')):.3f} R@5 {val.get('R@5', float('nan')):.3f}" if val else ""))
+        if on_epoch_end is not None:
+            on_epoch_end(done)
+    if writer is not None:
+        writer.close()
+    _write_final(run_dir, model, config, history, n, val_set, clips_dir)
+    return TrainResult(run_dir=run_dir, epochs=config.epochs, steps=step, val=val, history=history)
+
+
+def _progress(iterable: Any, total: int, desc: str, enable: bool | None) -> Any:
+    try:
+        from tqdm import tqdm
+    except ImportError:
+        return iterable
+    return tqdm(iterable, total=total, desc=desc, unit="batch", disable=(None if enable is None else not enable),
+                leave=False)
+
+
+def _write_final(run_dir: Path, model: DualEncoder, config: TrainConfig, history: list[dict[str, Any]],
+                 n_train: int, val_set: Dataset[dict[str, Any]] | None, clips_dir: Path | str) -> None:
+    from safetensors.torch import save_file
+
+    state = {k: v.detach().cpu().contiguous().clone() for k, v in model.saved_state_dict().items()}
+    with atomic_path(run_dir / "model.safetensors") as tmp:
+        save_file(state, str(tmp), metadata={"format": "scenesearch.DualEncoder"})
+    atomic_write_text(run_dir / "config.json", config.to_json())
+    atomic_write_text(run_dir / "model_card.md", model_card(config, history, n_train, val_set, clips_dir))
+
+
+def model_card(config: TrainConfig, history: list[dict[str, Any]], n_train: int,
+               val_set: Dataset[dict[str, Any]] | None, clips_dir: Path | str) -> str:
+    last_val: dict[str, float] = next((r["val"] for r in reversed(history) if "val" in r), {})
+    m = config.model
+    metric_lines = "\n".join(f"| {k} | {v:.4g} |" for k, v in last_val.items()) or "| (no validation split) | |"
+    text = m.text.model if m.text.kind == "pretrained" else f"scratch transformer ({m.text.scratch_layers} layers)"
+    frozen = " (frozen, cached)" if m.text.kind == "pretrained" and m.text.freeze else ""
+    n_val = len(val_set) if val_set is not None else 0  # type: ignore[arg-type]
+    return f"""# DualEncoder model card
+
+Text → clip and clip → clip retrieval of object behaviour in driving logs.
+
+## Model
+- Text tower: {text}{frozen}, projection to D = {m.embed_dim}.
+- Camera tower: strided CNN {list(m.camera.widths)} over RGB + object mask, temporal transformer over frames.
+- BEV tower: LiDAR and map backbones {list(m.bev.widths)}, universal embedding E with D_e = {m.bev.embed_channels} at
+  1/{m.bev.downsample} resolution, object-masked pooling, temporal transformer with ego motion.
+- Fusion: mean of normalised views + MLP; modality dropout camera {m.fusion.drop_camera_p}, BEV {m.fusion.drop_bev_p}.
+
+## Data
+- Clips: `{clips_dir}`; {n_train} training clips, {n_val} validation clips.
+- Supervision: rule-based canonical captions{" (paraphrases as augmentation)" if config.augment else ""};
+  positives: equal {config.positives}; loss: {config.loss}.
+
+## Training
+- {len(history)} epochs, batch {config.batch_size}, AdamW lr {config.lr}, seed {config.seed}.
+
+## Validation (text → clip, last evaluated epoch)
+| metric | value |
+|---|---|
+{metric_lines}
+
+## Limits
+- Captions come from rules over LiDAR tracks: the model knows only the behaviours those rules name, and
+  inherits their errors (tracking noise, lane assignment near junctions).
+- Trained on the clips above only; simulated clips do not cover the look of real cameras.
+- Clips without camera are embedded from BEV alone; camera-only queries are weaker where the object is small.
+"""
+
+
+# --- loading -----------------------------------------------------------------------------------------
+def load_model(run_dir: Path | str, device: str = "cpu") -> DualEncoder:
+    """The trained DualEncoder of ``run_dir`` (config.json + model.safetensors), in eval mode."""
+    from safetensors.torch import load_file
+
+    run_dir = Path(run_dir)
+    config_path, weights_path = run_dir / "config.json", run_dir / "model.safetensors"
+    for path in (config_path, weights_path):
+        if not path.exists():
+            raise FileNotFoundError(f"{path}: not found (is {run_dir} a finished training run?)")
+    try:
+        config = TrainConfig.from_dict(json.loads(config_path.read_text()))
+    except json.JSONDecodeError as exc:
+        raise ConfigError(f"{config_path}: not valid JSON ({exc})") from None
+    model = DualEncoder(config.model)
+    model.load_saved_state_dict(load_file(str(weights_path)))
+    if model.text.cache is not None:
+        model.text.cache.load(run_dir / "text_cache.npz")
+    return model.to(resolve_device(device)).eval()

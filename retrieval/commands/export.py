@@ -1,0 +1,31 @@
+"""``scenesearch export``: clip metadata and embeddings for use elsewhere."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+HELP = "export clip metadata and embeddings (.parquet with embedding columns, or .npy + .json)"
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("index_dir", type=Path, metavar="INDEX_DIR", help="index directory (`scenesearch index`)")
+    parser.add_argument("--out", type=Path, required=True, metavar="FILE",
+                        help="FILE.parquet (metadata + one embedding column per view) or FILE.npy (+ FILE.json)")
+    parser.add_argument("--view", action="append", choices=["fused", "camera", "bev"], dest="views",
+                        help="views to export (repeatable; default all for Parquet, fused for .npy)")
+
+
+def run(args: argparse.Namespace) -> int:
+    from retrieval.scenesearch import SceneSearch
+
+    views = tuple(args.views) if args.views else None
+    if views is None and args.out.suffix == ".npy":
+        views = ("fused",)
+    if args.out.suffix not in (".parquet", ".npy"):
+        raise ValueError(f"{args.out}: unknown export format {args.out.suffix!r}; use .parquet or .npy")
+    search = SceneSearch.open(args.index_dir, views=views or ("fused", "camera", "bev"))
+    path = search.export(args.out, views=views)
+    extra = f" and {path.with_suffix('.json')}" if path.suffix == ".npy" else ""
+    print(f"wrote {path}{extra}: {len(search)} clips, views {', '.join(views or tuple(search.views))}")
+    return 0

@@ -1,0 +1,35 @@
+"""``scenesearch similar``: the clips most like a given clip."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+HELP = "find the moments most like a given clip (clip → clip)"
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("index_dir", type=Path, metavar="INDEX_DIR", help="index directory (`scenesearch index`)")
+    parser.add_argument("clip_id", metavar="CLIP_ID", help="an indexed clip id, LOG_ID:TRACK_ID:START_NS")
+    parser.add_argument("-k", type=int, default=10, help="number of results (default 10)")
+    parser.add_argument("--filter", action="append", metavar="FIELD=VALUE", dest="filters",
+                        help="keep clips whose FIELD equals VALUE (repeatable)")
+    parser.add_argument("--view", choices=["fused", "camera", "bev"], default="fused",
+                        help="which clip embedding to compare (default fused)")
+    parser.add_argument("--json", action="store_true", help="print JSON for scripts instead of a table")
+
+
+def run(args: argparse.Namespace) -> int:
+    from retrieval.records import format_table
+    from retrieval.scenesearch import SceneSearch, parse_cli_filters
+
+    search = SceneSearch.open(args.index_dir, views=(args.view,))
+    results = search.search_clip(args.clip_id, k=args.k, filters=parse_cli_filters(args.filters), view=args.view)
+    if args.json:
+        print(json.dumps({"clip_id": args.clip_id, "results": [r.to_dict() for r in results]}, indent=2))
+    else:
+        query = search.get(args.clip_id)
+        print(f"query: {query.clip_id} ({query.category}): {query.caption}")
+        print(format_table(results))
+    return 0

@@ -1,0 +1,87 @@
+"""``scenesearch train CLIPS_DIR --out RUN_DIR [--config train.yaml] [--resume [--force]]``.
+
+Trains the dual text/video encoder contrastively on the 'train' split of a clips folder, validating
+text → clip retrieval on 'val' after every epoch. RUN_DIR receives config.json, metrics.jsonl,
+checkpoints/last.pt (every epoch), model.safetensors, text_cache.npz and model_card.md. ``--resume``
+continues from the last checkpoint exactly; with a different configuration it stops unless ``--force``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import sys
+from pathlib import Path
+from typing import Any
+
+HELP = "train the dual text/video encoder on a clips folder (contrastive, multi-positive)"
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("clips_dir", type=Path, metavar="CLIPS_DIR", help="clips folder (scenesearch clips)")
+    parser.add_argument("--out", type=Path, required=True, help="run folder to write")
+    parser.add_argument("--config", type=Path, help="train.yaml (TrainConfig); flags below override it")
+    parser.add_argument("--preset", choices=["default", "tiny"], help="start from a preset instead of the defaults")
+    parser.add_argument("--resume", action="store_true", help="continue the run in --out from its last checkpoint")
+    parser.add_argument("--force", action="store_true", help="with --resume: accept a different configuration")
+    parser.add_argument("--epochs", type=int)
+    parser.add_argument("--batch-size", type=int)
+    parser.add_argument("--lr", type=float)
+    parser.add_argument("--seed", type=int)
+    parser.add_argument("--device", help="auto, cpu or cuda[:i]")
+    parser.add_argument("--num-workers", type=int)
+    parser.add_argument("--max-steps-per-epoch", type=int, help="cap steps per epoch (smoke runs)")
+    parser.add_argument("--text-model", help="sentence-transformers model name or local folder")
+    parser.add_argument("--scratch-text", action="store_true", help="train a small text transformer from scratch")
+    parser.add_argument("--shuffle-frames", action="store_true", help="bag-of-frames baseline: shuffle frames in time")
+    parser.add_argument("--save-config", type=Path, help="also write the effective config as YAML")
+
+
+def build_config(args: argparse.Namespace) -> Any:
+    from encoders.config import ConfigError, TrainConfig
+
+    if args.config is not None:
+        if not args.config.is_file():
+            raise FileNotFoundError(f"{args.config}: config file not found")
+        try:
+            config = TrainConfig.from_yaml(args.config.read_text())
+        except ConfigError as exc:
+            raise ConfigError(f"{args.config}: {exc}") from None
+    else:
+        config = TrainConfig.preset(args.preset or "default")
+    flags = {
+        "epochs": args.epochs,
+        "batch_size": args.batch_size,
+        "lr": args.lr,
+        "seed": args.seed,
+        "device": args.device,
+        "num_workers": args.num_workers,
+        "max_steps_per_epoch": args.max_steps_per_epoch,
+    }
+    config = dataclasses.replace(config, **{k: v for k, v in flags.items() if v is not None})
+    if args.shuffle_frames:
+        config = dataclasses.replace(config, shuffle_frames=True)
+    text = config.model.text
+    if args.text_model:
+        text = dataclasses.replace(text, kind="pretrained", model=args.text_model)
+    if args.scratch_text:
+        text = dataclasses.replace(text, kind="scratch")
+    return dataclasses.replace(config, model=dataclasses.replace(config.model, text=text))
+
+
+def run(args: argparse.Namespace) -> int:
+    from encoders.train import TrainingError, train
+
+    config = build_config(args)
+    if args.save_config:
+        from scenes.atomic import atomic_write_text
+
+        atomic_write_text(args.save_config, config.to_yaml())
+    try:
+        result = train(args.clips_dir, args.out, config, resume=args.resume, force=args.force)
+    except TrainingError as exc:
+        print(f"scenesearch train: error: {exc}", file=sys.stderr)
+        return 2
+    val = ", ".join(f"{k} {v:.3f}" for k, v in result.val.items() if k != "queries")
+    print(f"trained {result.epochs} epochs ({result.steps} steps) → {result.run_dir}" + (f"; val {val}" if val else ""))
+    return 0

@@ -1,0 +1,269 @@
+"""The end-to-end demo: simulate → caption → clips → train → index → evaluate → report.
+
+Each stage runs one ``scenesearch`` command (in a child process, so memory is returned between
+stages) and prints its progress. A stage whose output is complete — it finished before with the same
+settings, which a marker in ``DIR/.demo/`` records — is skipped, so an interrupted demo resumes
+where it stopped. ``DIR`` then holds ``logs/``, ``captions/``, ``clips/``, ``run/``, ``index/``,
+``metrics.json`` and ``report.html``, and every later command can be pointed at them::
+
+    scenesearch search DIR/index "a car in the left lane approaches, then moves into the ego lane"
+    scenesearch serve DIR/index
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+from scenes.atomic import atomic_write_text
+
+DEFAULT_QUERIES = (
+    "a car in the left lane approaches, then moves into the ego lane",
+    "a pedestrian crossing approaches the ego vehicle",
+    "a stopped car in the ego lane",
+    "a car in the oncoming lane approaches, then moves away",
+)
+STAGES = ("simulate", "caption", "clips", "train", "index", "eval", "report")
+MARKERS = ".demo"
+
+
+@dataclass(frozen=True)
+class DemoConfig:
+    """Sizes and seeds of the demo; every field is a flag of ``scenesearch demo``.
+
+    Attributes:
+        logs: simulated logs.
+        duration_s: length of each log, seconds.
+        seed: seed of the simulation (and so of everything after it).
+        frames_per_clip: T frames per clip.
+        epochs: training epochs (None: the trainer's default).
+        sensors: render LiDAR and cameras (off: BEV clips from boxes, no camera).
+        queries: example queries shown and put in the report.
+        top_k: results shown per example query.
+    """
+
+    logs: int = 8
+    duration_s: float = 30.0
+    seed: int = 0
+    frames_per_clip: int = 16
+    epochs: int | None = None
+    sensors: bool = True
+    queries: tuple[str, ...] = DEFAULT_QUERIES
+    top_k: int = 3
+
+    def __post_init__(self) -> None:
+        for name in ("logs", "frames_per_clip", "top_k"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"DemoConfig.{name} must be at least 1, got {getattr(self, name)}")
+        if self.duration_s <= 0:
+            raise ValueError(f"DemoConfig.duration_s must be positive, got {self.duration_s}")
+        if self.epochs is not None and self.epochs < 1:
+            raise ValueError(f"DemoConfig.epochs must be at least 1, got {self.epochs}")
+
+    @staticmethod
+    def quick() -> DemoConfig:
+        """Smallest sizes that still run every stage (a smoke run, not a measurement)."""
+        return DemoConfig(logs=3, duration_s=12.0, frames_per_clip=8, epochs=1)
+
+
+@dataclass
+class StageResult:
+    name: str
+    seconds: float
+    skipped: bool
+    detail: str = ""
+
+
+@dataclass
+class Demo:
+    """Runs the stages into ``out_dir``."""
+
+    out_dir: Path
+    config: DemoConfig = field(default_factory=DemoConfig)
+    python: str = sys.executable
+    say: Callable[[str], None] = print
+    results: list[StageResult] = field(default_factory=list)
+
+    # ------------------------------------------------------------------ paths
+
+    @property
+    def logs_dir(self) -> Path:
+        return self.out_dir / "logs"
+
+    @property
+    def captions_dir(self) -> Path:
+        return self.out_dir / "captions"
+
+    @property
+    def clips_dir(self) -> Path:
+        return self.out_dir / "clips"
+
+    @property
+    def run_dir(self) -> Path:
+        return self.out_dir / "run"
+
+    @property
+    def index_dir(self) -> Path:
+        return self.out_dir / "index"
+
+    @property
+    def metrics_path(self) -> Path:
+        return self.out_dir / "metrics.json"
+
+    def log_dirs(self) -> list[Path]:
+        if not self.logs_dir.is_dir():
+            return []
+        return sorted(p for p in self.logs_dir.iterdir() if p.is_dir() and (p / "annotations.feather").is_file())
+
+    # ------------------------------------------------------------------ stages
+
+    def settings(self, stage: str) -> dict[str, Any]:
+        """The settings a stage's output depends on (a changed setting reruns the stage and those after)."""
+        c = self.config
+        sim = {"logs": c.logs, "duration_s": c.duration_s, "seed": c.seed, "sensors": c.sensors}
+        upto: dict[str, dict[str, Any]] = {"simulate": sim}
+        upto["caption"] = upto["simulate"]
+        upto["clips"] = {**upto["caption"], "frames_per_clip": c.frames_per_clip}
+        upto["train"] = {**upto["clips"], "epochs": c.epochs}
+        upto["index"] = upto["train"]
+        upto["eval"] = upto["train"]
+        upto["report"] = {**upto["train"], "queries": list(c.queries), "top_k": c.top_k}
+        return upto[stage]
+
+    def _marker(self, stage: str) -> Path:
+        return self.out_dir / MARKERS / f"{stage}.json"
+
+    def is_done(self, stage: str) -> bool:
+        marker = self._marker(stage)
+        if not marker.is_file():
+            return False
+        try:
+            return bool(json.loads(marker.read_text()).get("settings") == self.settings(stage))
+        except json.JSONDecodeError:
+            return False
+
+    def _mark(self, stage: str, seconds: float) -> None:
+        atomic_write_text(self._marker(stage), json.dumps({"settings": self.settings(stage), "seconds": seconds}))
+
+    def command(self, args: Sequence[object]) -> None:
+        """Run ``scenesearch ARGS`` in a child process; its output streams through."""
+        argv = [self.python, "-m", "retrieval.cli", *map(str, args)]
+        self.say("  $ scenesearch " + " ".join(map(str, args)))
+        completed = subprocess.run(argv, check=False)
+        if completed.returncode != 0:
+            raise RuntimeError(f"`scenesearch {args[0]}` failed with exit status {completed.returncode}; "
+                               f"rerun `scenesearch demo --out {self.out_dir}` to resume from this stage")
+
+    def run(self, stages: Sequence[str] = STAGES) -> list[StageResult]:
+        """Run (or skip, when complete) each stage in order; returns what happened to each."""
+        unknown = [s for s in stages if s not in STAGES]
+        if unknown:
+            raise ValueError(f"unknown stage {unknown[0]!r}; stages: {', '.join(STAGES)}")
+        self.out_dir.mkdir(parents=True, exist_ok=True)
+        started = time.perf_counter()
+        rerun = False
+        for i, stage in enumerate(stages, start=1):
+            head = f"[demo {i}/{len(stages)}] {stage}"
+            if not rerun and self.is_done(stage):
+                self.say(f"{head}: complete, skipped")
+                self.results.append(StageResult(stage, 0.0, True))
+                continue
+            rerun = True  # every stage after a rerun one reads new inputs
+            self.say(f"{head} ...")
+            t0 = time.perf_counter()
+            detail = getattr(self, f"stage_{stage}")()
+            seconds = time.perf_counter() - t0
+            self._mark(stage, seconds)
+            self.results.append(StageResult(stage, seconds, False, detail or ""))
+            self.say(f"{head}: done in {seconds:.0f} s{f' ({detail})' if detail else ''}")
+        total = time.perf_counter() - started
+        self.say("stage timings: " + ", ".join(f"{r.name} {'skipped' if r.skipped else f'{r.seconds:.0f} s'}"
+                                               for r in self.results) + f"; total {total / 60:.1f} min")
+        return self.results
+
+    def stage_simulate(self) -> str:
+        c = self.config
+        args: list[object] = ["simulate", "--out", self.logs_dir, "--logs", c.logs, "--duration-s", c.duration_s,
+                "--seed", c.seed, "--overwrite"]
+        if not c.sensors:
+            args.append("--no-sensors")
+        self.command(args)
+        return f"{len(self.log_dirs())} logs"
+
+    def stage_caption(self) -> str:
+        logs = self.log_dirs()
+        if not logs:
+            raise RuntimeError(f"{self.logs_dir}: no logs to caption")
+        self.command(["caption", *logs, "--out", self.captions_dir])
+        return ""
+
+    def stage_clips(self) -> str:
+        self.command(["clips", *self.log_dirs(), "--captions", self.captions_dir, "--out", self.clips_dir,
+                      "--frames-per-clip", self.config.frames_per_clip])
+        return ""
+
+    def stage_train(self) -> str:
+        args: list[object] = ["train", self.clips_dir, "--out", self.run_dir]
+        if self.config.epochs is not None:
+            args += ["--epochs", self.config.epochs]
+        self.command(args)
+        return ""
+
+    def stage_index(self) -> str:
+        self.command(["index", self.run_dir, self.clips_dir, "--out", self.index_dir])
+        return ""
+
+    def stage_eval(self) -> str:
+        self.command(["eval", self.run_dir, self.clips_dir, "--split", "test", "--out", self.metrics_path])
+        return ""
+
+    def stage_report(self) -> str:
+        from retrieval.evaluation import metrics_table
+        from retrieval.records import format_table
+        from retrieval.report import Example, write_report
+        from retrieval.scenesearch import SceneSearch
+
+        metrics = json.loads(self.metrics_path.read_text()) if self.metrics_path.is_file() else None
+        if metrics is not None:
+            self.say(metrics_table(metrics))
+        search = SceneSearch.open(self.index_dir)
+        examples = []
+        k = min(self.config.top_k, len(search))
+        for query in self.config.queries:
+            results = search.search_text(query, k=k)
+            examples.append(Example(query, results))
+            self.say(f'\ntext → clip: "{query}"\n{format_table(results)}')
+        caption_query = self.config.queries[-1]
+        caption_results = search.search_captions(caption_query, k=k)
+        examples.append(Example(caption_query, caption_results, mode="rule-caption search"))
+        meta, x = search.embeddings("fused")
+        actions = [" → ".join(tags) for tags in meta.column("tags").to_pylist()]
+        timings = {r.name: r.seconds for r in self.results if not r.skipped}
+        settings = ", ".join(f"{k}={v}" for k, v in asdict(self.config).items() if k != "queries")
+        path = write_report(self.out_dir, metrics, examples, run_dir=self.run_dir, embedding_map=(x, actions),
+                            stage_timings_s=timings, notes=[f"settings: {settings}",
+                                                            f"index: {self.index_dir} ({len(search)} clips)"])
+        self.say(f"\nwrote {path}")
+        return str(path)
+
+
+def config_from_args(args: argparse.Namespace) -> DemoConfig:
+    """``--quick`` sizes, then any size flag given."""
+    base = DemoConfig.quick() if args.quick else DemoConfig()
+    overrides: dict[str, Any] = {}
+    for name in ("logs", "duration_s", "seed", "frames_per_clip", "epochs"):
+        value = getattr(args, name, None)
+        if value is not None:
+            overrides[name] = value
+    if args.no_sensors:
+        overrides["sensors"] = False
+    if args.query:
+        overrides["queries"] = tuple(args.query)
+    return replace(base, **overrides)

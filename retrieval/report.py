@@ -1,0 +1,259 @@
+"""``report.html``: one self-contained page with the metrics, plots and example results of a run.
+
+Plots are PNG files written beside the page by matplotlib (Agg backend, no display needed); previews
+are linked relatively, so the page, the plots and the clips directory can be moved together.
+"""
+
+from __future__ import annotations
+
+import html
+import json
+import math
+import os
+from collections import Counter
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from retrieval.records import SearchResult
+from scenes.atomic import atomic_write_text
+
+MAX_ACTIONS_COLOURED = 9
+NOT_PLOTTED = ("epoch", "step", "time_s", "wall_s", "elapsed_s", "lr", "learning_rate", "seconds")
+
+
+@dataclass(frozen=True)
+class Example:
+    """One example query and its top results."""
+
+    query: str
+    results: list[SearchResult]
+    mode: str = "text → clip"
+
+
+def _pyplot() -> Any:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def read_training_log(path: Path) -> list[dict[str, Any]]:
+    """Rows of a ``metrics.jsonl`` (one JSON object per line); unreadable lines are left out."""
+    rows: list[dict[str, Any]] = []
+    if not path.is_file():
+        return rows
+    for line in path.read_text().splitlines():
+        try:
+            row = json.loads(line)
+        except json.JSONDecodeError:
+            continue
+        if isinstance(row, dict):
+            rows.append(row)
+    return rows
+
+
+def plot_training_curves(rows: Sequence[dict[str, Any]], out_png: Path) -> bool:
+    """Losses (left) and other figures (right) against the step or epoch; False when there is nothing to plot."""
+    if not rows:
+        return False
+    x_key = next((k for k in ("step", "global_step", "epoch", "iteration") if k in rows[0]), None)
+    numeric: dict[str, list[tuple[float, float]]] = {}
+    for i, row in enumerate(rows):
+        x = float(row[x_key]) if x_key and isinstance(row.get(x_key), int | float) else float(i)
+        for key, value in row.items():
+            if key == x_key or isinstance(value, bool) or not isinstance(value, int | float):
+                continue
+            if key in NOT_PLOTTED or not math.isfinite(value):
+                continue
+            numeric.setdefault(key, []).append((x, float(value)))
+    if not numeric:
+        return False
+    plt = _pyplot()
+    fig, axes = plt.subplots(1, 2, figsize=(11, 3.8))
+    for key, points in sorted(numeric.items()):
+        ax = axes[0] if "loss" in key else axes[1]
+        xs, ys = zip(*points)
+        ax.plot(xs, ys, label=key, marker="." if len(points) < 30 else None)
+    for ax, title in zip(axes, ("losses", "validation figures")):
+        ax.set_xlabel(x_key or "record")
+        ax.set_title(title)
+        if ax.lines:
+            ax.legend(fontsize=7)
+        ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(out_png, dpi=110)
+    plt.close(fig)
+    return True
+
+
+def pca_2d(x: np.ndarray) -> np.ndarray:
+    """(N, 2) projection of (N, D) rows on their first two principal components."""
+    centred = np.asarray(x, dtype=np.float64) - np.mean(x, axis=0, keepdims=True)
+    _, _, vt = np.linalg.svd(centred, full_matrices=False)
+    return np.asarray(centred @ vt[:2].T)
+
+
+def plot_embedding_map(x: np.ndarray, actions: Sequence[str], out_png: Path, title: str = "") -> bool:
+    """A 2-D map (PCA) of clip embeddings (N, D) coloured by action (the most common ones; others grey)."""
+    if len(x) < 3:
+        return False
+    xy = pca_2d(x)
+    counts = Counter(actions)
+    top = [a for a, _ in counts.most_common(MAX_ACTIONS_COLOURED)]
+    plt = _pyplot()
+    fig, ax = plt.subplots(figsize=(8, 6))
+    other = np.array([a not in top for a in actions])
+    if other.any():
+        ax.scatter(xy[other, 0], xy[other, 1], s=8, c="#cccccc", label=f"other ({int(other.sum())})")
+    cmap = plt.get_cmap("tab10")
+    for i, action in enumerate(top):
+        m = np.array([a == action for a in actions])
+        ax.scatter(xy[m, 0], xy[m, 1], s=14, color=cmap(i % 10), label=f"{_short(action, 48)} ({int(m.sum())})")
+    ax.set_title(title or "clip embeddings (PCA), coloured by action")
+    ax.set_xticks([])
+    ax.set_yticks([])
+    ax.legend(fontsize=6.5, loc="best", markerscale=1.5)
+    fig.tight_layout()
+    fig.savefig(out_png, dpi=110)
+    plt.close(fig)
+    return True
+
+
+def plot_recall_curves(curves: dict[str, Any], out_png: Path) -> bool:
+    """Recall@K of the model, the single views and the baselines."""
+    ks = curves.get("k") or []
+    if not ks:
+        return False
+    plt = _pyplot()
+    fig, ax = plt.subplots(figsize=(7, 4.2))
+    styles = {"model": ("fused model", "-", 2.2), "camera": ("camera only", "--", 1.3),
+              "bev": ("BEV only", "--", 1.3), "bag_of_frames": ("bag of frames", ":", 1.6),
+              "random": ("random", "-.", 1.3)}
+    for key, (label, style, width) in styles.items():
+        ys = curves.get(key)
+        if ys:
+            ax.plot(ks[: len(ys)], ys, style, linewidth=width, label=label)
+    ax.set_xlabel("K")
+    ax.set_ylabel("recall@K (text → clip)")
+    ax.set_ylim(0, 1.02)
+    ax.grid(alpha=0.3)
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(out_png, dpi=110)
+    plt.close(fig)
+    return True
+
+
+def _short(text: str, n: int) -> str:
+    return text if len(text) <= n else text[: n - 1] + "…"
+
+
+def _fmt(v: Any) -> str:
+    if v is None:
+        return "—"
+    return f"{v:.3f}" if isinstance(v, float) else html.escape(str(v))
+
+
+def metrics_html(metrics: dict[str, Any]) -> str:
+    base = metrics["baselines"]
+    head = ("figure", "model", "camera only", "BEV only", "bag of frames", "random")
+    rows: list[tuple[str, ...]] = []
+    for key in ("R@1", "R@5", "R@10", "median_rank", "mAP"):
+        better = "lower is better" if key == "median_rank" else ""
+        rows.append((f"text → clip {key} {better}".strip(), _fmt(metrics["text_to_clip"][key]),
+                     _fmt(metrics["views"]["camera"][key]), _fmt(metrics["views"]["bev"][key]),
+                     _fmt(base["bag_of_frames"]["text_to_clip"][key]), _fmt(base["random"]["text_to_clip"][key])))
+    rows.append(("temporal order accuracy", _fmt(metrics["temporal_order_accuracy"]["accuracy"]), "", "",
+                 _fmt(base["bag_of_frames"]["temporal_order_accuracy"]["accuracy"]),
+                 _fmt(base["random"]["temporal_order_accuracy"]["accuracy"])))
+    for key, note in (("action_precision@5", ""), ("appearance_bias", "lower is better")):
+        rows.append((f"clip → clip {key} {note}".strip(), _fmt(metrics["clip_to_clip"][key]), "", "",
+                     _fmt(base["bag_of_frames"]["clip_to_clip"][key]), _fmt(base["random"]["clip_to_clip"][key])))
+    out = ["<table class='metrics'><tr>" + "".join(f"<th>{h}</th>" for h in head) + "</tr>"]
+    out += ["<tr>" + "".join(f"<td>{c}</td>" for c in row) + "</tr>" for row in rows]
+    out.append("</table>")
+    counts = metrics.get("counts", {})
+    out.append(f"<p class='note'>{counts.get('clips')} {html.escape(str(metrics.get('split')))} clips, "
+               f"{counts.get('queries')} caption queries, {counts.get('temporal_pairs')} temporal-order pairs. "
+               "Queries are the split's unique canonical captions; a clip is relevant when its caption matches.</p>")
+    return "\n".join(out)
+
+
+def _preview_html(result: SearchResult, out_dir: Path) -> str:
+    if result.preview_path and Path(result.preview_path).is_file():
+        rel = os.path.relpath(result.preview_path, out_dir)
+        return f"<img src='{html.escape(rel)}' alt='preview of {html.escape(result.clip_id)}' loading='lazy'>"
+    return "<div class='nopreview'>no preview</div>"
+
+
+def examples_html(examples: Sequence[Example], out_dir: Path) -> str:
+    parts = []
+    for ex in examples:
+        cards = []
+        for r in ex.results:
+            cards.append(
+                "<div class='card'>" + _preview_html(r, out_dir) +
+                f"<div class='meta'><b>#{r.rank}</b> score {r.score:.3f} · {html.escape(r.category)}<br>"
+                f"<span class='cap'>{html.escape(r.caption)}</span><br>"
+                f"<code>{html.escape(r.clip_id)}</code></div></div>")
+        parts.append(f"<h3>{html.escape(ex.mode)}: “{html.escape(ex.query)}”</h3>"
+                     f"<div class='cards'>{''.join(cards) or '(no results)'}</div>")
+    return "\n".join(parts)
+
+
+CSS = """
+body{font-family:system-ui,sans-serif;margin:2em auto;max-width:1100px;color:#222}
+h1{margin-bottom:0} .sub{color:#666;margin-top:.2em}
+table{border-collapse:collapse;margin:1em 0} th,td{border:1px solid #ddd;padding:4px 10px;text-align:right}
+th:first-child,td:first-child{text-align:left} th{background:#f4f4f4}
+.cards{display:flex;gap:12px;flex-wrap:wrap} .card{width:260px;border:1px solid #ddd;border-radius:6px;padding:6px}
+.card img{width:100%;image-rendering:pixelated} .nopreview{height:120px;background:#eee;color:#888;display:flex;
+align-items:center;justify-content:center} .meta{font-size:12px} .cap{color:#333} code{font-size:10px;color:#777}
+.plots img{max-width:100%;border:1px solid #eee;margin:.5em 0} .note{color:#666;font-size:13px}
+"""
+
+
+def write_report(out_dir: Path, metrics: dict[str, Any] | None, examples: Sequence[Example],
+                 run_dir: Path | None = None, embedding_map: tuple[np.ndarray, Sequence[str]] | None = None,
+                 stage_timings_s: dict[str, float] | None = None, title: str = "scenesearch demo",
+                 notes: Sequence[str] = ()) -> Path:
+    """Write ``out_dir/report.html`` and its plots (``out_dir/plots/*.png``); returns the page's path."""
+    out_dir = Path(out_dir)
+    plots = out_dir / "plots"
+    plots.mkdir(parents=True, exist_ok=True)
+    figures: list[tuple[str, str]] = []
+    if run_dir is not None and plot_training_curves(read_training_log(Path(run_dir) / "metrics.jsonl"),
+                                                    plots / "training_curves.png"):
+        figures.append(("Training curves", "plots/training_curves.png"))
+    if embedding_map is not None and plot_embedding_map(embedding_map[0], embedding_map[1],
+                                                        plots / "embedding_map.png"):
+        figures.append(("Clip embeddings coloured by action (unified tag sequence)", "plots/embedding_map.png"))
+    if metrics is not None and plot_recall_curves(metrics.get("curves", {}), plots / "recall_at_k.png"):
+        figures.append(("Recall@K, text → clip, against baselines", "plots/recall_at_k.png"))
+    body = [f"<h1>{html.escape(title)}</h1>"]
+    if stage_timings_s:
+        total = sum(stage_timings_s.values())
+        stages = ", ".join(f"{html.escape(k)} {v:.0f} s" for k, v in stage_timings_s.items())
+        body.append(f"<p class='sub'>stages: {stages} (total {total / 60:.1f} min)</p>")
+    body.extend(f"<p class='note'>{html.escape(n)}</p>" for n in notes)
+    if metrics is not None:
+        body.append("<h2>Metrics against baselines</h2>")
+        body.append(metrics_html(metrics))
+    if examples:
+        body.append("<h2>Example queries</h2>")
+        body.append(examples_html(examples, out_dir))
+    if figures:
+        body.append("<h2>Plots</h2><div class='plots'>")
+        body.extend(f"<h3>{html.escape(t)}</h3><img src='{src}' alt='{html.escape(t)}'>" for t, src in figures)
+        body.append("</div>")
+    page = (f"<!doctype html><html><head><meta charset='utf-8'><title>{html.escape(title)}</title>"
+            f"<style>{CSS}</style></head><body>{''.join(body)}</body></html>\n")
+    path = out_dir / "report.html"
+    atomic_write_text(path, page)
+    return path

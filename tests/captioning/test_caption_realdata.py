@@ -1,0 +1,113 @@
+"""Captions of real (AV2, KITTI) and simulated logs state facts known about those logs."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pyarrow.parquet as pq
+import pytest
+
+from captioning import CaptioningConfig, caption_log
+from captioning.unify import collapse
+from retrieval.cli import main
+from scenes.log import Log
+
+REALDATA = Path(__file__).resolve().parents[2] / ".." / "shared" / "realdata"
+AV2_BRAKE = REALDATA / "av2" / "7fab2350-7eaf-3b7e-a39d-6937a4c1bede"
+AV2_WAIT = REALDATA / "av2" / "adcf7d18-0510-35b0-a2fa-b4cea13a6d76"
+KITTI = REALDATA / "kitti_tracking"
+
+
+def need(path: Path) -> Path:
+    if not path.exists():
+        pytest.skip(f"real-data fixture {path} is absent (see ../shared/realdata/README.md)")
+    return path
+
+
+def host_sequence(result) -> list[str]:  # type: ignore[no-untyped-def]
+    return collapse([c.tags[0] for c in result.captions if c.track_id == "ego"])
+
+
+def test_av2_ego_decelerates_to_a_stop_then_turns() -> None:
+    result = caption_log(Log.open(need(AV2_BRAKE)), CaptioningConfig())
+    seq = host_sequence(result)
+    i = seq.index("stationary:heading_straight")
+    assert seq[i - 1].startswith("decelerating:")
+    assert any(tag.endswith(":steering_left") for tag in seq[i + 1 :])  # pulls off through a left turn
+    neighbours = [c for c in result.captions if c.track_id != "ego"]
+    assert len(neighbours) > 30 and all(c.num_frames >= 8 for c in neighbours)
+    assert {"car", "pedestrian"} <= {c.category for c in neighbours}
+
+
+def test_av2_ego_waits_then_accelerates_straight_past_a_bus() -> None:
+    result = caption_log(Log.open(need(AV2_WAIT)), CaptioningConfig())
+    ego = [c for c in result.captions if c.track_id == "ego"]
+    assert ego[0].tags == ("stationary:heading_straight",) and ego[0].num_frames >= 40  # stands about 5 s
+    assert ego[1].tags == ("accelerating:heading_straight",)
+    assert any(c.category == "bus" for c in result.captions)
+    pedestrians = [c for c in result.captions if c.category == "pedestrian"]
+    assert len(pedestrians) >= 10
+    assert all("pedestrian" in c.caption for c in pedestrians)
+
+
+def test_cli_on_av2_logs_reports_skips(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "captions"
+    assert main(["caption", str(need(AV2_BRAKE)), str(tmp_path / "missing"), "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "skipped log" in printed and "missing" in printed and "single-frame" in printed
+    frames = pq.read_table(out / "frame_tags.parquet")
+    ego = frames.filter(frames.column("track_id").to_numpy(zero_copy_only=False) == "ego")
+    assert ego.num_rows == 156
+    captions = pq.read_table(out / "captions.parquet").to_pylist()
+    assert captions[0]["track_id"] == "ego" and len(captions[0]["paraphrases"]) == 3
+
+
+def test_cli_config_error_is_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("neighbor: {lateral_deg: [130, 60]}\n")
+    assert main(["caption", str(tmp_path), "--out", str(tmp_path / "o"), "--config", str(bad)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "lateral_deg" in err and "\n" not in err
+
+
+def import_kitti(seq: str, out: Path) -> Path:
+    need(KITTI / "label_02" / f"{seq}.txt")
+    code = main([
+        "import", "kitti", "--labels", str(KITTI / "label_02" / f"{seq}.txt"),
+        "--poses", str(KITTI / "poses_orbslam3" / f"{seq}.txt"), "--calib", str(KITTI / "calib" / f"{seq}.txt"),
+        "--out", str(out),
+    ])
+    assert code == 0
+    return out / f"kitti_{seq}"
+
+
+def test_kitti_sequences(tmp_path: Path) -> None:
+    # 0000: the ego follows a cyclist along a winding road; 0001: the ego ends by stopping.
+    curvy = caption_log(Log.open(import_kitti("0000", tmp_path)))
+    seq = host_sequence(curvy)
+    assert any(t.endswith("steering_left") for t in seq) and any(t.endswith("steering_right") for t in seq)
+    cyclist = [c for c in curvy.captions if c.category == "cyclist"]
+    assert cyclist and all("cyclist" in c.caption for c in cyclist)
+    stopping = caption_log(Log.open(import_kitti("0001", tmp_path)))
+    seq = host_sequence(stopping)
+    assert seq[-1] == "stationary:heading_straight" and seq[-2].startswith("decelerating:")
+
+
+@pytest.mark.slow
+def test_simulated_log_agrees_with_labels(tmp_path: Path) -> None:
+    from captioning.agreement import agreement
+    from scenes.behavior import read_behavior_labels
+
+    try:
+        code = main(["simulate", "--out", str(tmp_path / "sim"), "--logs", "1", "--duration-s", "40", "--seed", "1",
+                     "--no-sensors", "--cache-dir", str(tmp_path / "cache")])
+    except (ImportError, OSError) as exc:  # SUMO missing on this machine
+        pytest.skip(f"simulator unavailable: {exc}")
+    assert code == 0
+    log_dir = next(p for p in (tmp_path / "sim").iterdir() if p.is_dir())
+    result = caption_log(Log.open(log_dir))
+    labels = read_behavior_labels(log_dir)
+    assert labels is not None and result.captions
+    report = agreement(result, labels)
+    if report.ego_turn_events:
+        assert report.ego_turn_rate >= 0.75, report.to_dict()

@@ -1,0 +1,80 @@
+"""Text tower: the bundled MiniLM (offline, frozen, cached), top-layer fine-tuning, the scratch fallback."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from encoders.config import TextConfig
+from encoders.text import TextModelUnavailableError, TextTower, hash_tokens
+
+os.environ["HF_HUB_OFFLINE"] = "1"
+CAPTIONS = [
+    "a car approaches in the left lane",
+    "a truck moves away in the host lane",
+    "a car approaches in the left lane",
+]
+
+
+@pytest.fixture(scope="module")
+def pretrained() -> TextTower:
+    torch.set_num_threads(1)
+    torch.manual_seed(0)
+    return TextTower(TextConfig(), 16)
+
+
+def test_pretrained_is_frozen_with_a_trainable_head(pretrained: TextTower) -> None:
+    trainable = {n for n, p in pretrained.named_parameters() if p.requires_grad}
+    assert trainable and all(n.startswith("head.") for n in trainable)
+    assert pretrained.backbone.out_features == 384
+    assert pretrained.frozen_prefixes() == ["backbone.encoder."]
+
+
+def test_cache_serves_repeats_and_matches_the_encoder(pretrained: TextTower, tmp_path: Path) -> None:
+    cache = pretrained.cache
+    assert cache is not None
+    cache.entries.clear()
+    cache.hits = cache.misses = 0
+    first = pretrained(CAPTIONS, torch.device("cpu"))
+    assert cache.misses == 2 and cache.hits == 1 and len(cache) == 2
+    second = pretrained(CAPTIONS, torch.device("cpu"))
+    assert cache.misses == 2 and torch.equal(first, second)
+    assert torch.allclose(first[0], first[2])
+    first.sum().backward()  # the head trains through cached features
+    assert pretrained.head[0].weight.grad is not None
+    path = tmp_path / "text_cache.npz"
+    cache.save(path)
+    fresh = type(cache)(cache.model_name)
+    assert fresh.load(path) == 2
+    np.testing.assert_array_equal(fresh.get(CAPTIONS[1]), cache.get(CAPTIONS[1]))
+    assert type(cache)("another-model").load(path) == 0  # entries are keyed by the model
+
+
+def test_finetune_top_layers_trains_them_without_cache() -> None:
+    tower = TextTower(TextConfig(finetune_top_layers=1), 8)
+    assert tower.cache is None and tower.frozen_prefixes() == []
+    trainable = [n for n, p in tower.backbone.named_parameters() if p.requires_grad]
+    assert trainable and all(".layer.5." in n for n in trainable)
+    tower(CAPTIONS[:2], torch.device("cpu")).sum().backward()
+    grads = [p.grad for n, p in tower.backbone.named_parameters() if p.requires_grad]
+    assert all(g is not None for g in grads)
+
+
+def test_missing_pretrained_model_explains_the_fallback(tmp_path: Path) -> None:
+    with pytest.raises(TextModelUnavailableError, match="kind: scratch"):
+        TextTower(TextConfig(model=str(tmp_path / "no_model")), 8)
+
+
+def test_scratch_tower_reads_word_order() -> None:
+    torch.manual_seed(0)
+    tower = TextTower(TextConfig(kind="scratch", scratch_width=32, scratch_layers=1, scratch_vocab=256), 8).eval()
+    ids = hash_tokens(["Left, then HOST", "left then host"], 256, 6)
+    assert torch.equal(ids[0], ids[1]) and int((ids[0] > 0).sum()) == 3
+    with torch.no_grad():
+        out = tower(["left then host", "host then left", ""], torch.device("cpu"))
+    assert out.shape == (3, 8) and torch.isfinite(out).all()
+    assert (out[0] - out[1]).abs().max() > 1e-4

@@ -1,0 +1,113 @@
+"""Tower shapes, frame-order sensitivity, views and the logit scale of the DualEncoder (tiny config)."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import pytest
+import torch
+
+from encoders.config import tiny_model_config
+from encoders.model import DualEncoder
+from encoders.synthetic import SyntheticClipDataset, SyntheticSpec, collate_clips
+
+SPEC = SyntheticSpec(frames=8, camera_hw=(32, 48), bev_hw=(32, 16), camera_fraction=1.0)
+
+
+@pytest.fixture(scope="module")
+def batch() -> dict[str, Any]:
+    torch.set_num_threads(1)
+    ds = SyntheticClipDataset(4, spec=SPEC, seed=3)
+    return collate_clips([ds[i] for i in range(4)])
+
+
+@pytest.fixture(scope="module")
+def model() -> DualEncoder:
+    torch.manual_seed(0)
+    return DualEncoder(tiny_model_config()).eval()
+
+
+def reverse_time(batch: dict[str, Any]) -> dict[str, Any]:
+    return {k: v.flip(1) if isinstance(v, torch.Tensor) and v.ndim >= 3 else v for k, v in batch.items()}
+
+
+def test_shapes(model: DualEncoder, batch: dict[str, Any]) -> None:
+    with torch.no_grad():
+        for view in ("fused", "camera", "bev"):
+            v = model.encode_video(batch, view=view)
+            assert v.shape == (4, 32)
+            assert torch.allclose(v.norm(dim=-1), torch.ones(4), atol=1e-5)
+        raw = model.encode_video(batch, normalize=False)
+        assert not torch.allclose(raw.norm(dim=-1), torch.ones(4), atol=1e-3)
+        t = model.encode_text(batch["caption"])
+        assert t.shape == (4, 32)
+        e = model.bev_embedding(batch)
+    cfg = model.config.bev
+    assert e.shape == (4, SPEC.frames, cfg.embed_channels, 32 // cfg.downsample, 16 // cfg.downsample)
+
+
+def test_bev_embedding_is_fully_convolutional_in_time(model: DualEncoder, batch: dict[str, Any]) -> None:
+    with torch.no_grad():
+        e_full = model.bev_embedding(batch)
+        short = {k: v[:, :5] if isinstance(v, torch.Tensor) and v.ndim >= 3 else v for k, v in batch.items()}
+        e_short = model.bev_embedding(short)
+    assert e_short.shape[1] == 5
+    # Away from the cut (temporal kernel 3), frames see the same inputs and get the same E.
+    assert torch.allclose(e_full[:, :4], e_short[:, :4], atol=1e-5)
+
+
+@pytest.mark.parametrize("view", ["camera", "bev"])
+def test_towers_depend_on_frame_order(model: DualEncoder, batch: dict[str, Any], view: str) -> None:
+    with torch.no_grad():
+        forward = model.encode_video(batch, view=view)
+        backward = model.encode_video(reverse_time(batch), view=view)
+    assert (forward - backward).abs().max() > 1e-3
+
+
+def test_unknown_view_is_rejected(model: DualEncoder, batch: dict[str, Any]) -> None:
+    with pytest.raises(ValueError, match="view"):
+        model.encode_video(batch, view="lidar")
+
+
+def test_clip_without_camera_uses_bev_only(model: DualEncoder, batch: dict[str, Any]) -> None:
+    no_cam = dict(batch, has_camera=torch.zeros(4, dtype=torch.bool), camera=torch.rand_like(batch["camera"]))
+    with torch.no_grad():
+        a = model.encode_video(no_cam)
+        b = model.encode_video(dict(no_cam, camera=torch.zeros_like(batch["camera"])))
+        fused = model.encode_video(batch)
+    assert torch.allclose(a, b, atol=1e-6)  # camera pixels are ignored
+    assert not torch.allclose(a, fused, atol=1e-4)  # but used when present
+
+
+def test_modality_dropout_only_in_training(batch: dict[str, Any]) -> None:
+    torch.manual_seed(0)
+    model = DualEncoder(tiny_model_config())
+    model.fusion.train()
+    cam, bev = torch.randn(64, 32), torch.randn(64, 32)
+    has = torch.ones(64, dtype=torch.bool)
+    torch.manual_seed(1)
+    trained = model.fusion(cam, bev, has)
+    model.fusion.eval()
+    evaluated = model.fusion(cam, bev, has)
+    changed = (trained - evaluated).abs().amax(dim=1) > 1e-6
+    # drop_camera_p + drop_bev_p = 0.45 of the clips lose one view
+    assert 10 <= int(changed.sum()) <= 48
+
+
+def test_logit_scale_init_and_clamp() -> None:
+    model = DualEncoder(tiny_model_config())
+    assert math.isclose(float(model.scale().detach()), 1 / 0.07, rel_tol=1e-5)
+    with torch.no_grad():
+        model.logit_scale.fill_(10.0)
+    assert math.isclose(float(model.scale().detach()), 100.0, rel_tol=1e-5)
+
+
+def test_saved_state_dict_round_trip(model: DualEncoder, batch: dict[str, Any]) -> None:
+    torch.manual_seed(5)
+    other = DualEncoder(tiny_model_config()).eval()
+    other.load_saved_state_dict(model.saved_state_dict())
+    with torch.no_grad():
+        assert torch.allclose(other.encode_video(batch), model.encode_video(batch))
+    with pytest.raises(ValueError, match="missing"):
+        other.load_saved_state_dict({k: v for k, v in model.saved_state_dict().items() if "camera" not in k})

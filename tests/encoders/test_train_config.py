@@ -1,0 +1,54 @@
+"""TrainConfig: YAML round trip, unknown keys listed with their path, values checked."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import pytest
+
+from encoders.config import BevConfig, ConfigError, FusionConfig, TrainConfig
+
+
+@pytest.mark.parametrize("preset", ["default", "tiny"])
+def test_yaml_round_trip(preset: str) -> None:
+    config = TrainConfig.preset(preset)
+    again = TrainConfig.from_yaml(config.to_yaml())
+    assert again == config
+    assert isinstance(again.model.camera.widths, tuple)
+
+
+def test_partial_yaml_keeps_defaults() -> None:
+    config = TrainConfig.from_yaml("epochs: 3\nmodel:\n  bev:\n    embed_channels: 32\n")
+    assert config.epochs == 3 and config.model.bev.embed_channels == 32
+    assert config.model.bev.downsample == BevConfig().downsample and config.lr == TrainConfig().lr
+
+
+def test_unknown_keys_are_listed_with_their_path() -> None:
+    text = "epochz: 3\nmodel:\n  camera:\n    widht: 4\n  bev:\n    temporal:\n      layerz: 1\n"
+    with pytest.raises(ConfigError) as info:
+        TrainConfig.from_yaml(text)
+    message = str(info.value)
+    for key in ("epochz", "model.camera.widht", "model.bev.temporal.layerz"):
+        assert key in message
+
+
+@pytest.mark.parametrize(
+    ("text", "field"),
+    [("loss: hinge", "loss"), ("positives: words", "positives"), ("batch_size: 0", "batch_size"),
+     ("device: tpu", "device"), ("model:\n  bev:\n    downsample: 3", "downsample"),
+     ("model:\n  text:\n    kind: lstm", "kind")],
+)
+def test_bad_values(text: str, field: str) -> None:
+    with pytest.raises(ConfigError, match=field):
+        TrainConfig.from_yaml(text)
+
+
+def test_modality_dropout_keeps_one_view() -> None:
+    with pytest.raises(ConfigError, match="drop_camera_p"):
+        FusionConfig(drop_camera_p=0.7, drop_bev_p=0.5)
+
+
+def test_defaults_of_the_universal_embedding() -> None:
+    bev = TrainConfig().model.bev
+    assert (bev.embed_channels, bev.downsample) == (64, 2)
+    assert dataclasses.asdict(TrainConfig())["model"]["logit_scale_max"] == pytest.approx(4.60517, abs=1e-5)

@@ -1,0 +1,153 @@
+"""Training runs of a tiny model on synthetic clips: outputs, exact resume, NaN stop, bad input."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+from typing import Any
+
+import pytest
+import torch
+from safetensors.torch import load_file
+
+from encoders.config import ConfigMismatchError, TrainConfig
+from encoders.synthetic import SyntheticClipDataset, SyntheticSpec
+from encoders.train import (
+    NonFiniteLossError,
+    NoTrainingSplitError,
+    evaluate,
+    learning_rate,
+    load_model,
+    shuffle_time,
+    train,
+)
+
+SPEC = SyntheticSpec(frames=6, camera_hw=(24, 32), bev_hw=(24, 12), distractors=1)
+TIMING = {"samples_per_s", "epoch_s"}
+
+
+class Killed(Exception):
+    pass
+
+
+def datasets() -> dict[str, Any]:
+    return {
+        "train": SyntheticClipDataset(16, "train", SPEC, seed=1, augment=True),
+        "val": SyntheticClipDataset(8, "val", SPEC, seed=1),
+    }
+
+
+def config(**changes: Any) -> TrainConfig:
+    return dataclasses.replace(TrainConfig.preset("tiny"), batch_size=8, epochs=2, **changes)
+
+
+def run(out: Path, cfg: TrainConfig, **kwargs: Any) -> Any:
+    torch.set_num_threads(1)
+    return train("unused", out, cfg, datasets=datasets(), progress=False, log=lambda _m: None, **kwargs)
+
+
+def metrics(run_dir: Path) -> list[dict[str, Any]]:
+    rows = [json.loads(line) for line in (run_dir / "metrics.jsonl").read_text().splitlines()]
+    return [{k: v for k, v in r.items() if k not in TIMING} for r in rows]
+
+
+@pytest.fixture(scope="module")
+def straight(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("straight") / "run"
+    run(out, config())
+    return out
+
+
+def test_run_writes_its_files_and_loads(straight: Path) -> None:
+    for name in ("config.json", "model.safetensors", "metrics.jsonl", "checkpoints/last.pt", "model_card.md"):
+        assert (straight / name).is_file(), name
+    rows = metrics(straight)
+    assert [r["epoch"] for r in rows] == [1, 2] and [r["step"] for r in rows] == [2, 4]
+    assert {"R@1", "R@5", "R@10", "median_rank", "mAP"} <= set(rows[-1]["val"])
+    assert "R@1" in (straight / "model_card.md").read_text()
+    model = load_model(straight)
+    again = evaluate(model, datasets()["val"])
+    assert again == pytest.approx(rows[-1]["val"])
+
+
+def test_resume_after_kill_reproduces_the_straight_run(straight: Path, tmp_path: Path) -> None:
+    out = tmp_path / "run"
+
+    def kill(epoch: int) -> None:
+        if epoch == 1:
+            raise Killed
+
+    with pytest.raises(Killed):
+        run(out, config(), on_epoch_end=kill)
+    assert not (out / "model.safetensors").exists()
+    with pytest.raises(FileExistsError):
+        run(out, config())
+    run(out, config(), resume=True)
+    assert metrics(out) == metrics(straight)
+    a, b = load_file(str(out / "model.safetensors")), load_file(str(straight / "model.safetensors"))
+    assert a.keys() == b.keys() and all(torch.equal(a[k], b[k]) for k in a)
+
+
+def test_resume_with_another_config_needs_force(tmp_path: Path) -> None:
+    out = tmp_path / "run"
+    with pytest.raises(Killed):
+        run(out, config(), on_epoch_end=lambda e: (_ for _ in ()).throw(Killed()))
+    with pytest.raises(ConfigMismatchError, match=r"lr: 0\.001 -> 0\.01"):
+        run(out, config(lr=0.01), resume=True)
+    run(out, config(lr=0.01), resume=True, force=True)
+    assert [r["epoch"] for r in metrics(out)] == [1, 2]
+
+
+def test_nan_loss_stops_with_step_and_clips_and_keeps_the_checkpoint(tmp_path: Path) -> None:
+    class Poisoned(SyntheticClipDataset):
+        poisoned = False
+
+        def __getitem__(self, index: int) -> dict[str, Any]:
+            item = super().__getitem__(index)
+            if self.poisoned:
+                item["bev_lidar"] = torch.full_like(item["bev_lidar"], float("nan"))
+            return item
+
+    data = {"train": Poisoned(16, "train", SPEC), "val": SyntheticClipDataset(8, "val", SPEC)}
+
+    def poison(epoch: int) -> None:
+        data["train"].poisoned = True  # type: ignore[attr-defined]
+
+    out = tmp_path / "run"
+    with pytest.raises(NonFiniteLossError, match=r"at step 2 \(epoch 2\), batch clips: synthetic-train:") as info:
+        train("unused", out, config(), datasets=data, on_epoch_end=poison, progress=False, log=lambda _m: None)
+    assert info.value.step == 2 and len(info.value.clip_ids) == 8
+    state = torch.load(out / "checkpoints" / "last.pt", weights_only=False)
+    assert state["epoch"] == 1 and state["step"] == 2
+
+
+def test_no_training_split(tmp_path: Path) -> None:
+    with pytest.raises(NoTrainingSplitError, match="'train' split"):
+        train("clips", tmp_path / "run", config(), datasets={"train": SyntheticClipDataset(0)}, progress=False)
+    with pytest.raises(FileNotFoundError):
+        train(tmp_path / "missing", tmp_path / "run", config(), progress=False)
+
+
+def test_warmup_then_cosine() -> None:
+    cfg = config(lr=1.0, warmup_steps=4)
+    lrs = [learning_rate(cfg, s, 20) for s in range(21)]
+    assert lrs[:4] == [0.25, 0.5, 0.75, 1.0]
+    assert lrs[4] == 1.0 and lrs[12] == pytest.approx(0.5) and lrs[20] == pytest.approx(0.0)
+    assert all(a >= b for a, b in zip(lrs[4:], lrs[5:]))
+
+
+def test_shuffle_time_permutes_every_view_alike() -> None:
+    b, t = 3, 5
+    frame = torch.arange(t, dtype=torch.float32)
+    batch = {
+        "bev_lidar": frame.reshape(1, t, 1, 1, 1).expand(b, t, 2, 2, 2).clone(),
+        "camera": frame.reshape(1, t, 1, 1, 1).expand(b, t, 4, 3, 3).clone(),
+        "ego_motion": frame.reshape(1, t, 1).expand(b, t, 4).clone(),
+        "clip_id": ["a", "b", "c"],
+    }
+    out = shuffle_time(batch, torch.Generator().manual_seed(0))
+    order = out["bev_lidar"][:, :, 0, 0, 0]
+    assert torch.equal(out["camera"][:, :, 0, 0, 0], order) and torch.equal(out["ego_motion"][:, :, 0], order)
+    assert torch.equal(order.sort(dim=1).values, frame.expand(b, t)) and not torch.equal(order, frame.expand(b, t))
+    assert out["clip_id"] == batch["clip_id"]

@@ -1,0 +1,127 @@
+"""Evaluation figures: hand-checked cases, baselines, and the orchestrator on a stand-in model."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from retrieval_fakes import (
+    CAPTIONING_SEQUENCES,
+    FakeEmbedder,
+    captioning_caption,
+    make_clips_dir,
+    make_run_dir,
+)
+
+from retrieval.embedding import model_hash
+from retrieval.evaluation import (
+    average_precision,
+    caption_generator,
+    clip_to_clip_figures,
+    evaluate,
+    first_relevant_ranks,
+    metrics_table,
+    random_clip_to_clip,
+    random_text_to_clip,
+    relevance_by_caption,
+    reverse_steps,
+    temporal_order_accuracy,
+    text_to_clip_figures,
+)
+
+
+def test_ranks_and_average_precision_by_hand() -> None:
+    sim = np.array([[0.9, 0.8, 0.1, 0.5],
+                    [0.1, 0.2, 0.3, 0.4]])
+    rel = np.array([[False, True, False, True],
+                    [True, False, False, False]])
+    assert first_relevant_ranks(sim, rel).tolist() == [2, 4]
+    # Query 0: relevant at ranks 2 and 3 → AP = (1/2 + 2/3) / 2; query 1: rank 4 → 1/4.
+    np.testing.assert_allclose(average_precision(sim, rel), [(0.5 + 2 / 3) / 2, 0.25])
+    figures = text_to_clip_figures(sim, rel)
+    assert figures["R@1"] == 0.0 and figures["R@5"] == 1.0
+    assert figures["median_rank"] == 3.0
+    assert figures["mAP"] == pytest.approx(((0.5 + 2 / 3) / 2 + 0.25) / 2)
+
+
+def test_ties_count_against_the_model() -> None:
+    sim = np.zeros((1, 5))
+    rel = np.array([[False, False, True, False, False]])
+    assert first_relevant_ranks(sim, rel).tolist() == [5]
+
+
+def test_perfect_and_random_rankings() -> None:
+    captions = ["a", "b", "c", "a", "b", "c", "d", "d"] * 5
+    queries = sorted(set(captions))
+    rel = relevance_by_caption(queries, captions)
+    perfect = rel.astype(float)
+    assert text_to_clip_figures(perfect, rel)["R@1"] == 1.0
+    figures, curve = random_text_to_clip(rel, seed=0, draws=50)
+    # 10 of 40 clips relevant: P(none of the top 1) = 30/40 → R@1 ≈ 0.25.
+    assert figures["R@1"] == pytest.approx(0.25, abs=0.08)
+    assert curve == sorted(curve) and len(curve) == 40
+    with pytest.raises(ValueError, match="no relevant clip"):
+        text_to_clip_figures(np.zeros((1, 3)), np.zeros((1, 3), bool))
+
+
+def test_temporal_order_and_reversal() -> None:
+    assert temporal_order_accuracy(np.array([1.0, 0.5, 0.2]), np.array([0.5, 0.5, 0.4])) == pytest.approx(0.5)
+    assert reverse_steps(["x", "y"], "x / y", generate=lambda tags: " / ".join(tags)) == "y / x"
+    assert reverse_steps(["x"], "x", generate=lambda tags: " / ".join(tags)) is None
+    assert reverse_steps(["x", "x"], "x / x", generate=lambda tags: " / ".join(tags)) is None
+
+
+def test_reversal_uses_captioning_text() -> None:
+    host = ["cruising:heading_straight"]
+    tags = ["left:approach", "host:away"]
+    generate = caption_generator("car", host)
+    caption = generate(tags)
+    rev = reverse_steps(tags, caption, generate)
+    assert rev is not None and rev != caption and rev.startswith("The ego vehicle")
+    assert "then" in rev and rev.index("move") < rev.index("approach")
+
+
+def test_clip_to_clip_figures() -> None:
+    # Two actions, two appearances; embeddings cluster by appearance → biased, imprecise neighbours.
+    actions = ["go", "stop"] * 6
+    appearance = ["day"] * 6 + ["night"] * 6
+    x = np.array([[1.0, 0.0] if a == "day" else [0.0, 1.0] for a in appearance]) + \
+        np.random.default_rng(0).normal(0, 0.01, (12, 2))
+    x /= np.linalg.norm(x, axis=1, keepdims=True)
+    by_look = clip_to_clip_figures(x, actions, appearance, k=5)
+    assert by_look["appearance_bias"] is not None and by_look["appearance_bias"] > 1.5
+    y = np.array([[1.0, 0.0] if a == "go" else [0.0, 1.0] for a in actions]) + \
+        np.random.default_rng(1).normal(0, 0.01, (12, 2))
+    by_action = clip_to_clip_figures(y / np.linalg.norm(y, axis=1, keepdims=True), actions, appearance, k=5)
+    assert by_action["action_precision@5"] == 1.0
+    chance = random_clip_to_clip(actions, appearance, k=5)
+    assert chance["action_precision@5"] == pytest.approx(5 / 11)
+    assert chance["appearance_bias"] == 1.0
+
+
+def test_evaluate_with_stand_in_model(tmp_path: Path) -> None:
+    clips = make_clips_dir(tmp_path / "clips", sequences=CAPTIONING_SEQUENCES, caption=captioning_caption)
+    run = make_run_dir(tmp_path / "run")
+    embedder = FakeEmbedder(model_hash(run))
+    lines: list[str] = []
+    metrics = evaluate(run, clips, split="test", embedder=embedder, progress=lines.append)
+    json.dumps(metrics, allow_nan=False)  # valid JSON
+    for key in ("text_to_clip", "temporal_order_accuracy", "clip_to_clip", "views", "baselines"):
+        assert key in metrics
+    assert set(metrics["text_to_clip"]) == {"R@1", "R@5", "R@10", "median_rank", "mAP"}
+    assert set(metrics["views"]) == {"camera", "bev"}
+    assert set(metrics["baselines"]) == {"random", "bag_of_frames"}
+    assert "action_precision@5" in metrics["clip_to_clip"] and "appearance_bias" in metrics["clip_to_clip"]
+    model, rnd = metrics["text_to_clip"], metrics["baselines"]["random"]["text_to_clip"]
+    assert model["R@1"] > rnd["R@1"] + 0.3 and model["mAP"] > rnd["mAP"]
+    order = metrics["temporal_order_accuracy"]
+    assert order["num_captions"] > 0 and order["accuracy"] > 0.7
+    # Shuffled frames lose the order of steps: the stand-in then cannot tell a caption from its reverse.
+    assert metrics["baselines"]["bag_of_frames"]["temporal_order_accuracy"]["accuracy"] < order["accuracy"]
+    assert metrics["counts"]["clips"] == 42
+    table = metrics_table(metrics)
+    assert "text→clip R@1" in table and "temporal order" in table
+    with pytest.raises(ValueError, match="unknown split 'dev'; the clips have splits: test, train, val"):
+        evaluate(run, clips, split="dev", embedder=embedder)

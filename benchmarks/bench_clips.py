@@ -9,8 +9,11 @@ Baseline (same run): rendering each clip's frames on its own, from the log files
 without per-log arrays would (``naive_clips_per_s``). Figures:
 
 - ``clips_per_s``: clips produced per second by ``build_clips`` (rendering + table, no previews)
-- ``samples_per_s_workers2`` / ``_augmented``: dataset samples per second through a DataLoader with
-  2 workers, batch 16 (target ≥ 200 at the defaults)
+- ``samples_per_s_workers2`` / ``_augmented`` / ``_augmented_uint8``: dataset samples per second
+  through a DataLoader with 2 workers, batch 16 (target ≥ 200 at the defaults); ``uint8`` keeps the
+  image-like views as bytes (``ClipDataset(as_uint8=True)``, converted after the transfer)
+- ``samples_per_cpu_s_*``: item + collate per CPU-second of one process, which does not depend on
+  other load on the machine (wall-clock rates do: ``load_average_during_loading``)
 - ``*_vs_naive``: those divided by ``naive_clips_per_s``
 - disk: ``mb_per_log``, ``kb_per_frame``, ``kb_per_clip`` (rendered arrays shared by clips),
   ``kb_per_preview``
@@ -96,15 +99,16 @@ def _captions(logs: list[Path], out: Path) -> str:
     return "windows every 2 s per track"
 
 
-def _loader_rate(clips_dir: Path, augment: bool, workers: int, min_samples: int) -> float:
+def _loader_rate(clips_dir: Path, augment: bool, workers: int, min_samples: int, as_uint8: bool = False) -> float:
+    """Samples per second (wall) through a DataLoader, batch 16, after a warm-up batch."""
     import torch
 
     from encoders.data import ClipDataset, collate_clips
 
-    ds = ClipDataset(clips_dir, augment=augment)
+    ds = ClipDataset(clips_dir, augment=augment, as_uint8=as_uint8)
     loader = torch.utils.data.DataLoader(ds, batch_size=16, shuffle=True, num_workers=workers,
                                          collate_fn=collate_clips, persistent_workers=workers > 0)
-    for _ in loader:  # warm-up epoch: workers start, pages are cached
+    for _ in loader:  # warm-up: workers start, pages are cached
         break
     seen, start, epoch = 0, time.perf_counter(), 0
     while seen < min_samples:
@@ -113,6 +117,18 @@ def _loader_rate(clips_dir: Path, augment: bool, workers: int, min_samples: int)
             seen += len(batch["clip_id"])
         epoch += 1
     return seen / (time.perf_counter() - start)
+
+
+def _cpu_rate(clips_dir: Path, augment: bool, as_uint8: bool, samples: int) -> float:
+    """Samples (item + collate) per CPU-second of one process: independent of other load on the machine."""
+    from encoders.data import ClipDataset, collate_clips
+
+    ds = ClipDataset(clips_dir, augment=augment, as_uint8=as_uint8)
+    ds[0]
+    start = time.process_time()
+    for first in range(0, samples, 16):
+        collate_clips([ds[i % len(ds)] for i in range(first, first + 16)])
+    return samples / (time.process_time() - start)
 
 
 def _naive_clips_per_s(logs: list[Path], clips_dir: Path, config: Any, max_clips: int) -> float:
@@ -177,10 +193,21 @@ def run(quick: bool) -> dict[str, Any]:
     preview_s = time.perf_counter() - start
 
     naive = _naive_clips_per_s(logs, clips_dir, config, 4 if quick else 8)
+    import torch
+
+    torch.set_num_threads(1)  # the loop's own process; intra-op threads only contend with the workers
     min_samples = 160 if quick else 640
+    load_before = os.getloadavg()[0]
     rate_0 = _loader_rate(clips_dir, augment=False, workers=0, min_samples=min_samples // 2)
     rate_2 = _loader_rate(clips_dir, augment=False, workers=2, min_samples=min_samples)
     rate_2_aug = _loader_rate(clips_dir, augment=True, workers=2, min_samples=min_samples)
+    rate_2_u8 = _loader_rate(clips_dir, augment=True, workers=2, min_samples=min_samples, as_uint8=True)
+    load_after = os.getloadavg()[0]
+    cpu = {
+        f"samples_per_cpu_s_{'uint8' if u8 else 'float32'}_{'augmented' if aug else 'plain'}": round(
+            _cpu_rate(clips_dir, aug, u8, 64 if quick else 160), 1)
+        for u8 in (False, True) for aug in (False, True)
+    }
     clips_per_s = num_clips / build_s
     return {
         "log_source": log_source,
@@ -199,8 +226,11 @@ def run(quick: bool) -> dict[str, Any]:
         "samples_per_s_workers0": round(rate_0, 1),
         "samples_per_s_workers2": round(rate_2, 1),
         "samples_per_s_workers2_augmented": round(rate_2_aug, 1),
+        "samples_per_s_workers2_augmented_uint8": round(rate_2_u8, 1),
         "samples_per_s_workers2_vs_naive": round(rate_2 / naive, 1),
         "loading_target_200_met": bool(rate_2_aug >= 200.0),
+        **cpu,
+        "load_average_during_loading": [round(load_before, 2), round(load_after, 2)],
         "mb_per_log": round(log_bytes / max(len(report.logs), 1) / 1e6, 2),
         "kb_per_frame": round(log_bytes / max(frames, 1) / 1e3, 1),
         "kb_per_clip": round(log_bytes / max(num_clips, 1) / 1e3, 1),

@@ -27,27 +27,27 @@ from typing import Any
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
-import cv2  # noqa: E402
-import numpy as np  # noqa: E402
-import open3d as o3d  # noqa: E402
+import cv2
+import numpy as np
+import open3d as o3d
 
-from scenes import av2_io  # noqa: E402
-from scenes.geometry import SE3  # noqa: E402
-from scenes.log import Log  # noqa: E402
-from scenes.sensorsim.appearance import Appearance  # noqa: E402
-from scenes.sensorsim.camera import CameraRenderer  # noqa: E402
-from scenes.sensorsim.config import SensorConfig  # noqa: E402
-from scenes.sensorsim.instance_masks import write_instance_mask  # noqa: E402
-from scenes.sensorsim.lidar import _ray_pattern, cast_sweep  # noqa: E402
-from scenes.sensorsim.scene import (  # noqa: E402
+from scenes import av2_io
+from scenes.geometry import SE3
+from scenes.log import Log
+from scenes.sensorsim.appearance import Appearance
+from scenes.sensorsim.camera import CameraRenderer
+from scenes.sensorsim.config import SensorConfig
+from scenes.sensorsim.instance_masks import write_instance_mask
+from scenes.sensorsim.lidar import _ray_pattern, cast_sweep
+from scenes.sensorsim.scene import (
     BOX_SHAPE,
     FrameObjects,
-    StaticKind,
     StaticWorld,
     _kerb_mesh,
     build_object_mesh,
+    o3d_tensor,
 )
-from scenes.sensorsim.synthetic import write_synthetic_log  # noqa: E402
+from scenes.sensorsim.synthetic import write_synthetic_log
 
 
 def _static_triangles(world: StaticWorld) -> tuple[np.ndarray, np.ndarray]:
@@ -72,10 +72,10 @@ def _static_triangles(world: StaticWorld) -> tuple[np.ndarray, np.ndarray]:
 def _rebuilt_scene(static_v: np.ndarray, static_t: np.ndarray, objects: FrameObjects, pose: SE3) -> Any:
     mesh = build_object_mesh(objects)
     scene = o3d.t.geometry.RaycastingScene()
-    scene.add_triangles(o3d.core.Tensor(static_v.astype(np.float32)), o3d.core.Tensor(static_t.astype(np.uint32)))
+    scene.add_triangles(o3d_tensor(static_v.astype(np.float32)), o3d_tensor(static_t.astype(np.uint32)))
     if mesh.triangles.shape[0]:
         v_city = pose.transform_points(mesh.vertices.astype(np.float64))
-        scene.add_triangles(o3d.core.Tensor(v_city.astype(np.float32)), o3d.core.Tensor(mesh.triangles))
+        scene.add_triangles(o3d_tensor(v_city.astype(np.float32)), o3d_tensor(mesh.triangles))
     return scene
 
 
@@ -85,7 +85,7 @@ def _baseline_sweep(static_v: np.ndarray, static_t: np.ndarray, objects: FrameOb
     dirs = _ray_pattern(config.lidar).directions @ np.ascontiguousarray(pose.rotation.T)
     origin = pose.transform_points(np.array([[config.lidar.mount_x_m, 0.0, config.lidar.mount_height_m]]))[0]
     rays = np.concatenate([np.broadcast_to(origin, dirs.shape), dirs], axis=1).astype(np.float32)
-    hit = scene.cast_rays(o3d.core.Tensor(rays), nthreads=1)
+    hit = scene.cast_rays(o3d_tensor(rays), nthreads=1)
     t = hit["t_hit"].numpy()
     return int((np.isfinite(t) & (t <= config.lidar.max_range_m)).sum())
 
@@ -96,7 +96,7 @@ def _baseline_mask(static_v: np.ndarray, static_t: np.ndarray, objects: FrameObj
     city_SE3_cam = pose.compose(config.camera.ego_SE3_sensor)
     dirs = pixel_dirs_cam @ np.ascontiguousarray(city_SE3_cam.rotation.T)
     rays = np.concatenate([np.broadcast_to(city_SE3_cam.translation, dirs.shape), dirs], axis=1).astype(np.float32)
-    hit = scene.cast_rays(o3d.core.Tensor(rays), nthreads=1)
+    hit = scene.cast_rays(o3d_tensor(rays), nthreads=1)
     geometry = hit["geometry_ids"].numpy()
     return (geometry == 1).reshape(config.camera.height_px, config.camera.width_px)
 

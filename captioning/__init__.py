@@ -1,4 +1,21 @@
-"""Rule-based temporal captions from object tracks (host tags, neighbour lane/motion tags, text).
+"""Rule-based temporal captions from object tracks.
+
+The rules follow the supplementary of "Temporal Object Captioning for Street Scene Videos from
+LiDAR Tracks", vectorised over tracks × frames:
+
+- host motion (eq. 1) and direction (eq. 2) per frame: :mod:`captioning.host`;
+- neighbour stationarity (eq. 3), baseline lane (eq. 4), lane (eq. 5) and motion (eqs. 6, 7,
+  generalised to objects behind the host): :mod:`captioning.neighbors`;
+- Savitzky–Golay derivatives per contiguous run and flicker suppression: :mod:`captioning.smoothing`;
+- unified tags (eq. 8), host segments and windows: :mod:`captioning.unify`;
+- caption text and seeded paraphrases: :mod:`captioning.text`;
+- the paper's right-positive lateral axis is converted once, in :mod:`captioning.tags`;
+- all thresholds: :class:`CaptioningConfig` (:mod:`captioning.config`, ``captioning.yaml``);
+- files and the batch API: :mod:`captioning.pipeline`; simulator-label agreement:
+  :mod:`captioning.agreement`; the per-frame oracle: :mod:`captioning.reference`.
+
+Every tracked object is tagged wherever it is around the ego; restricting to what a camera sees
+is the clip stage's job.
 
 Public API::
 

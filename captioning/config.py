@@ -5,7 +5,7 @@ The YAML file mirrors the nesting (every key optional, defaults below)::
     host:      {stationary_speed_mps: 0.5, accel_mps2: 0.5, yaw_rate_rps: 0.1}
     neighbor:  {stationary_speed_mps: 0.5, stationary_quantile: 0.8, host_lane_half_width_m: 1.85,
                 relative_speed_mps: 1.0, oncoming_min_deg: 150.0, lateral_deg: [60.0, 120.0]}
-    smoothing: {window_frames: 9, polyorder: 2, min_run_frames: 5}
+    smoothing: {window_frames: 9, polyorder: 2, min_run_frames: 5, max_gap_frames: 3}
     segments:  {min_frames: 8, max_frames: 300}
     windows:   {strategy: host_segments, length_s: 5.0, stride_s: 2.5}
     text:      {num_paraphrases: 3, seed: 0}
@@ -98,11 +98,17 @@ class SmoothingConfig:
         polyorder: Savitzky–Golay polynomial order (< window_frames).
         min_run_frames: per-frame tags holding for fewer frames are replaced by their neighbours'
             (0.5 s at 10 Hz); 1 turns suppression off.
+        max_gap_frames: a track's gaps of at most this many frames (missed detections) are bridged
+            by linear interpolation in time before differentiating and suppressing flicker, so a
+            tracker's occasional miss does not cut a track into short, noisy runs; tags are still
+            reported on observed frames only. 3 frames (0.3 s) covers typical misses and occlusions
+            by a passing object; 0 differentiates each contiguous run on its own.
     """
 
     window_frames: int = 9
     polyorder: int = 2
     min_run_frames: int = 5
+    max_gap_frames: int = 3
 
 
 @dataclass(frozen=True)
@@ -189,6 +195,8 @@ class CaptioningConfig:
             problems.append(f"smoothing.window_frames must be odd and >= 3, got {s.window_frames}")
         if not (1 <= s.polyorder < s.window_frames):
             problems.append(f"smoothing.polyorder must lie in [1, window_frames), got {s.polyorder}")
+        if s.max_gap_frames < 0:
+            problems.append(f"smoothing.max_gap_frames must be >= 0, got {s.max_gap_frames}")
         if s.min_run_frames < 1:
             problems.append(f"smoothing.min_run_frames must be >= 1, got {s.min_run_frames}")
         g = self.segments

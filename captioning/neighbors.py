@@ -1,5 +1,11 @@
 """Neighbour tags: stationarity (eq. 3), baseline lane (eq. 4), lane (eq. 5), motion (eqs. 6, 7).
 
+Gaps
+----
+Gaps of up to ``smoothing.max_gap_frames`` frames inside a track (missed detections) are bridged by
+linear interpolation before differentiating and suppressing flicker; longer gaps split the track
+into runs that are differentiated separately. Tags are reported on observed frames only.
+
 Stationarity (eq. 3)
 --------------------
 Each track's centre is expressed in the host's pose at the log's first frame (which removes the
@@ -28,7 +34,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from captioning.config import CaptioningConfig
-from captioning.smoothing import seconds_since_first, suppress_flicker, time_derivative
+from captioning.smoothing import run_bounds, seconds_since_first, suppress_flicker, time_derivative
 from captioning.tags import (
     BASELINE_CODE_OF_LANE_CODE,
     BASELINE_LANES,
@@ -56,7 +62,7 @@ class NeighborTags:
 
     Attributes:
         stationary: (K,) eq. 3, for tracks with at least one differentiable frame.
-        taggable: (K,) tracks with at least one differentiable frame (not single-frame).
+        taggable: (K,) tracks with at least one differentiable observed frame (not isolated frames).
         tagged: (K, T) frames that carry lane and motion tags (observed, differentiable, non-stationary track).
         baseline_lane: (K, T) :data:`~captioning.tags.BASELINE_LANES` codes (int8), NO_TAG elsewhere.
         lane: (K, T) :data:`~captioning.tags.LANES` codes.
@@ -98,12 +104,14 @@ class _Compact:
     Attributes:
         frame: (K, L) log frame index of each cell (clipped into range).
         valid: (K, L) observed cells.
+        inside: (K, L) cells between the track's first and last observation.
         rows: (N,) row of each observed cell.
         cols: (N,) column of each observed cell.
     """
 
     frame: IntArray
     valid: BoolArray
+    inside: BoolArray
     rows: IntArray
     cols: IntArray
 
@@ -118,9 +126,10 @@ class _Compact:
         cols = np.arange(length)[None, :]
         frame = np.minimum(first[:, None] + cols, t - 1)
         rows = np.arange(k)[:, None]
-        cvalid = (cols < span[:, None]) & valid[rows, frame]
+        inside = cols < span[:, None]
+        cvalid = inside & valid[rows, frame]
         obs_rows, obs_cols = np.nonzero(cvalid)
-        return _Compact(frame=frame, valid=cvalid, rows=obs_rows, cols=obs_cols)
+        return _Compact(frame=frame, valid=cvalid, inside=inside, rows=obs_rows, cols=obs_cols)
 
     def gather(self, grid: NDArray[np.generic]) -> NDArray[np.generic]:
         """(K, T, ...) → (K, L, ...)."""
@@ -131,6 +140,41 @@ class _Compact:
         out = np.full(shape, NO_TAG, dtype=np.int8)
         out[self.rows, self.frame[self.rows, self.cols]] = compact[self.rows, self.cols]
         return out
+
+
+def bridge_gaps(
+    values: FloatArray, yaw_rad: FloatArray, valid: BoolArray, inside: BoolArray, t_s: FloatArray, max_gap_frames: int
+) -> BoolArray:
+    """Fill gaps of at most ``max_gap_frames`` inside tracks, in place.
+
+    Positions are interpolated linearly in time between the observations on either side; the
+    heading keeps the last observed value (a gap is too short for it to matter).
+
+    Args:
+        values: (K, L, C) samples, changed in place at bridged cells.
+        yaw_rad: (K, L) headings, changed in place at bridged cells.
+        valid: (K, L) observed cells.
+        inside: (K, L) cells between each track's first and last observation.
+        t_s: (K, L) sample times.
+
+    Returns:
+        (K, L) observed or bridged cells.
+    """
+    if max_gap_frames <= 0:
+        return valid
+    gap = inside & ~valid
+    gap_start, gap_end = run_bounds(gap)
+    bridge = gap & (gap_end - gap_start + 1 <= max_gap_frames)
+    rows, cols = np.nonzero(bridge)
+    if rows.size == 0:
+        return valid
+    before = gap_start[rows, cols] - 1  # observed: a gap inside a track has observations on both sides
+    after = gap_end[rows, cols] + 1
+    t0, t1 = t_s[rows, before], t_s[rows, after]
+    weight = ((t_s[rows, cols] - t0) / (t1 - t0))[:, None]
+    values[rows, cols] = values[rows, before] + weight * (values[rows, after] - values[rows, before])
+    yaw_rad[rows, cols] = yaw_rad[rows, before]
+    return valid | bridge
 
 
 def robust_quantile(values: FloatArray, q: float) -> FloatArray:
@@ -239,22 +283,26 @@ def neighbor_tags(
     planar = first_SE3_ego[:, [0, 0, 0, 1, 1, 1], [0, 1, 3, 0, 1, 3]]  # (T, 6): the planar rows only
     first_xy = host_compensated_xy(rel_xy, planar[grid.frame])
     t_s = seconds_since_first(timestamps_ns)[grid.frame]  # (K, L)
-    d = time_derivative(np.concatenate([first_xy, rel_xy], axis=2), cvalid, t_s, w, p)  # (K, L, 4)
+    positions = np.concatenate([first_xy, rel_xy], axis=2)  # (K, L, 4)
+    bridged = bridge_gaps(positions, yaw, cvalid, grid.inside, t_s, config.smoothing.max_gap_frames)
+    d = time_derivative(positions, bridged, t_s, w, p)  # (K, L, 4)
     abs_first_vel = np.abs(d[..., :2])
     rel_vel = d[..., 2:]
     differentiable: BoolArray = np.asarray(np.isfinite(d).all(axis=2), dtype=bool)
-    taggable: BoolArray = np.asarray(differentiable.any(axis=1), dtype=bool)
-    quantile_x = robust_quantile(np.where(differentiable, abs_first_vel[..., 0], np.nan), nb.stationary_quantile)
-    quantile_y = robust_quantile(np.where(differentiable, abs_first_vel[..., 1], np.nan), nb.stationary_quantile)
+    observed = differentiable & cvalid
+    taggable: BoolArray = np.asarray(observed.any(axis=1), dtype=bool)
+    quantile_x = robust_quantile(np.where(observed, abs_first_vel[..., 0], np.nan), nb.stationary_quantile)
+    quantile_y = robust_quantile(np.where(observed, abs_first_vel[..., 1], np.nan), nb.stationary_quantile)
     stationary = taggable & (quantile_x < nb.stationary_speed_mps) & (quantile_y < nb.stationary_speed_mps)
+    # Bridged frames carry tags while flicker is suppressed; only observed frames are reported.
     tagged = differentiable & (taggable & ~stationary)[:, None]
     moving = (abs_first_vel[..., 0] >= nb.stationary_speed_mps) | (abs_first_vel[..., 1] >= nb.stationary_speed_mps)
 
     m = config.smoothing.min_run_frames
-    raw_lane = lane_codes(baseline_lane_codes(yaw, config), rel_xy[..., 1], config)
+    raw_lane = lane_codes(baseline_lane_codes(yaw, config), positions[..., 3], config)
     lane = suppress_flicker(np.where(tagged, raw_lane, NO_TAG), m)
     baseline = np.where(tagged, BASELINE_CODE_OF_LANE_CODE[np.maximum(lane, 0)], NO_TAG)
-    raw_motion = motion_codes(lane, rel_xy, rel_vel, moving, config)
+    raw_motion = motion_codes(lane, positions[..., 2:], rel_vel, moving, config)
     motion = suppress_flicker(np.where(tagged, raw_motion, NO_TAG), m)
     shape = (k, t)
     lane_grid = grid.scatter(lane, shape)

@@ -2,7 +2,7 @@
 
 >>> from captioning import caption_log, CaptioningConfig
 >>> result = caption_log(Log.open("logs/7fab2350-..."), CaptioningConfig())
->>> result.captions[0].caption
+>>> [c.caption for c in result.captions if c.track_id == "ego"][1]
 'The ego vehicle is decelerating straight.'
 
 Output files (``write_outputs``), both Parquet:

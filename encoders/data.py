@@ -37,7 +37,6 @@ import pyarrow.parquet as pq
 import torch
 from numpy.typing import NDArray
 
-from encoders.clips.raster import BevGrid
 from encoders.clips.views import (
     LogArrays,
     ego_motion,
@@ -46,6 +45,7 @@ from encoders.clips.views import (
     open_log_arrays,
     warp_bev,
 )
+from scenes.bev import BevGrid
 
 CLIPS_FILE = "clips.parquet"
 MANIFEST_FILE = "manifest.json"

@@ -227,7 +227,7 @@ class SceneSearch:
     # ------------------------------------------------------------------ queries
 
     def __len__(self) -> int:
-        return len(self.views[self.manifest.views[0]])
+        return len(next(iter(self.views.values())))
 
     @property
     def fields(self) -> list[str]:
@@ -294,11 +294,11 @@ class SceneSearch:
 
     def get(self, clip_id: str) -> SearchResult:
         """The record of one indexed clip (score 1, rank 0)."""
-        index = self.views[self.manifest.views[0]]
+        index = next(iter(self.views.values()))
         if clip_id not in index:
             raise UnknownClipError(clip_id, index.metadata.table.column("clip_id").slice(0, 3).to_pylist())
         row = index.get(clip_id)
-        return SearchResult.from_row(0, row, 1.0, "fused", preview_of(row, self.clips_dir))
+        return SearchResult.from_row(0, row, 1.0, next(iter(self.views)), preview_of(row, self.clips_dir))
 
     # ------------------------------------------------------------------ export
 

@@ -104,7 +104,7 @@ def _bev_raster(log: Log, ts: int, grid: BevGrid, scale: int) -> NDArray[np.uint
                      interpolation=cv2.INTER_NEAREST)
     ego = np.round(grid.ego_to_pixel(np.array([[0.0, 0.0]]))[0] * scale + scale / 2).astype(int)
     cv2.circle(big, (int(ego[0]), int(ego[1])), 4, (0, 0, 255), -1)
-    return big
+    return np.asarray(big, dtype=np.uint8)
 
 
 def main() -> None:

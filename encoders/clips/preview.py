@@ -27,9 +27,10 @@ import pyarrow.parquet as pq
 from numpy.typing import NDArray
 
 from encoders.clips.config import ClipsConfig
-from encoders.clips.raster import MAP_CHANNELS, BevGrid
+from encoders.clips.raster import MAP_CHANNELS
 from encoders.clips.views import LogArrays, highlight_camera, object_footprint, open_log_arrays
 from scenes.atomic import atomic_path
+from scenes.bev import BevGrid
 
 SCALE = 2
 GAP_PX = 4
@@ -77,9 +78,9 @@ def render_preview_frames(arrays: LogArrays, clip: Mapping[str, Any], config: Cl
         bev[mask] = color
 
     paint(bev_map[:, MAP_CHANNELS.index("drivable_area")] > 127, (45, 45, 45))
-    paint(bev_map[:, MAP_CHANNELS.index("intersection")] > 127, (25, 35, 80))
-    paint(bev_map[:, MAP_CHANNELS.index("crossing")] > 127, (90, 90, 30))
-    paint(bev_map[:, MAP_CHANNELS.index("lane_boundary")] > 127, (110, 110, 110))
+    paint(bev_map[:, MAP_CHANNELS.index("intersections")] > 127, (25, 35, 80))
+    paint(bev_map[:, MAP_CHANNELS.index("crosswalks")] > 127, (90, 90, 30))
+    paint(bev_map[:, MAP_CHANNELS.index("lane_boundaries")] > 127, (110, 110, 110))
     level = occ.astype(np.uint16)
     lit = level > 0
     grey = np.clip(80 + level * 175 // 255, 0, 255).astype(np.uint8)

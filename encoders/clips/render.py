@@ -44,17 +44,10 @@ import pyarrow.parquet as pq
 from numpy.typing import NDArray
 
 from encoders.clips.config import BevSource, BevSourceChoice, ClipsConfig
-from encoders.clips.raster import (
-    MAP_CHANNELS,
-    BevGrid,
-    box_corners_xy,
-    density_uint8,
-    lidar_counts,
-    rasterize_city_map,
-    warp_city_map,
-)
+from encoders.clips.raster import MAP_CHANNELS, density_uint8, render_map_frames
 from scenes import av2_io
 from scenes.atomic import atomic_directory, atomic_write_text
+from scenes.bev import BevGrid, lidar_occupancy, rasterize_boxes
 from scenes.errors import LogFormatError
 from scenes.geometry import FloatArray, invert_matrices, quat_to_yaw, rotmat_to_quat
 from scenes.log import INSTANCE_SUFFIX, Log
@@ -159,22 +152,15 @@ def nearest_within(
 def _render_bev_instances(grid: BevGrid, dense: DenseTracks) -> NDArray[np.uint16]:
     """(F, Hb, Wb) footprints of every valid box; larger boxes are drawn first so small ones stay visible."""
     k, f = dense.valid.shape
-    out = np.zeros((f, grid.height_px, grid.width_px), dtype=np.uint16)
-    if k == 0:
-        return out
-    corners = np.nan_to_num(
-        box_corners_xy(dense.center_ego_xyz_m[..., :2], dense.size_lwh_m[..., :2], dense.yaw_ego_rad), nan=-1e4
-    )
-    pix = np.round((grid.to_pixel(corners) - 0.5) * 16).astype(np.int32)  # (K, F, 4, 2), 4 sub-pixel bits
+    out = np.zeros((f, *grid.shape), dtype=np.uint16)
     area = np.nan_to_num(dense.size_lwh_m[..., 0] * dense.size_lwh_m[..., 1])  # (K, F)
-    # Cull boxes far outside the grid before drawing.
-    near = dense.valid & (np.abs(np.nan_to_num(dense.center_ego_xyz_m[..., 0]) - 0.5 * (grid.x_min_m + grid.x_max_m))
-                          < (grid.x_max_m - grid.x_min_m))
-    near &= np.abs(np.nan_to_num(dense.center_ego_xyz_m[..., 1])) < (grid.y_max_m - grid.y_min_m)
     for fi in range(f):
-        ks = np.flatnonzero(near[:, fi])
-        for ki in ks[np.argsort(-area[ks, fi], kind="stable")]:
-            cv2.fillConvexPoly(out[fi], pix[ki, fi], int(ki) + 1, lineType=cv2.LINE_8, shift=4)
+        ks = np.flatnonzero(dense.valid[:, fi])
+        if ks.size == 0:
+            continue
+        ks = ks[np.argsort(-area[ks, fi], kind="stable")]  # later boxes win where they overlap
+        out[fi] = rasterize_boxes(grid, dense.center_ego_xyz_m[ks, fi, :2], dense.size_lwh_m[ks, fi, :2],
+                                  dense.yaw_ego_rad[ks, fi], values=ks + 1)
     return out
 
 
@@ -190,26 +176,24 @@ def _track_boxes(dense: DenseTracks) -> NDArray[np.float32]:
 def _render_bev_boxes_occupancy(
     grid: BevGrid, dense: DenseTracks, z_bins_m: tuple[float, ...]
 ) -> NDArray[np.uint8]:
-    """(F, Z, Hb, Wb) occupancy rendered from the boxes: a box fills the height bins it spans."""
+    """(F, Z, Hb, Wb) occupancy rendered from the boxes: a box fills the height bins it spans (255)."""
     k, f = dense.valid.shape
     z_edges = np.asarray(z_bins_m)
     num_z = z_edges.shape[0] - 1
-    out = np.zeros((f, num_z, grid.height_px, grid.width_px), dtype=np.uint8)
+    out = np.zeros((f, num_z, *grid.shape), dtype=np.uint8)
     if k == 0:
         return out
-    corners = np.nan_to_num(
-        box_corners_xy(dense.center_ego_xyz_m[..., :2], dense.size_lwh_m[..., :2], dense.yaw_ego_rad), nan=-1e4
-    )
-    pix = np.round((grid.to_pixel(corners) - 0.5) * 16).astype(np.int32)
     bottom = dense.center_ego_xyz_m[..., 2] - 0.5 * dense.size_lwh_m[..., 2]  # (K, F)
     top = dense.center_ego_xyz_m[..., 2] + 0.5 * dense.size_lwh_m[..., 2]
     spans = (bottom[..., None] < z_edges[None, None, 1:]) & (top[..., None] > z_edges[None, None, :-1])  # (K,F,Z)
     spans &= dense.valid[..., None]
     for fi in range(f):
         for zi in range(num_z):
-            for ki in np.flatnonzero(spans[:, fi, zi]):
-                # One call per box: a single fillPoly over several polygons drops their overlaps.
-                cv2.fillConvexPoly(out[fi, zi], pix[ki, fi], 255, lineType=cv2.LINE_8, shift=4)
+            ks = np.flatnonzero(spans[:, fi, zi])
+            if ks.size:
+                filled = rasterize_boxes(grid, dense.center_ego_xyz_m[ks, fi, :2], dense.size_lwh_m[ks, fi, :2],
+                                         dense.yaw_ego_rad[ks, fi])
+                out[fi, zi] = (filled > 0) * np.uint8(255)
     return out
 
 
@@ -225,7 +209,7 @@ def _render_bev_lidar(
     b = config.bev
     sweep_ts = log.lidar_timestamps_ns
     num_z = len(b.z_bins_m) - 1
-    out = np.zeros((frame_ts.shape[0], num_z, grid.height_px, grid.width_px), dtype=np.uint8)
+    out = np.zeros((frame_ts.shape[0], num_z, *grid.shape), dtype=np.uint8)
     if sweep_ts.shape[0] == 0:
         return out
     city_SE3_sweep = log.ego.interpolate(sweep_ts).matrices  # (S, 4, 4)
@@ -262,24 +246,16 @@ def _render_bev_lidar(
             parts.append(pts @ m[:3, :3].T.astype(np.float32) + m[:3, 3].astype(np.float32))
         for stale in [key for key in cache if key < j - b.num_sweeps]:
             del cache[stale]
-        counts = lidar_counts(grid, np.concatenate(parts, axis=0), b.z_bins_m)
+        counts = lidar_occupancy(grid, np.concatenate(parts, axis=0), np.asarray(b.z_bins_m))
         out[fi] = density_uint8(counts, b.density_saturation_points)
     return out
 
 
 def _render_map(log: Log, grid: BevGrid, city_SE3_ego: FloatArray) -> NDArray[np.uint8]:
-    num_frames = city_SE3_ego.shape[0]
     vector_map = log.map
-    if vector_map is None or num_frames == 0:
-        return np.zeros((num_frames, len(MAP_CHANNELS), grid.height_px, grid.width_px), dtype=np.uint8)
-    corners = np.array(
-        [[grid.x_min_m, grid.y_min_m], [grid.x_min_m, grid.y_max_m], [grid.x_max_m, grid.y_min_m],
-         [grid.x_max_m, grid.y_max_m]]
-    )
-    city = np.einsum("fij,cj->fci", city_SE3_ego[:, :2, :2], corners) + city_SE3_ego[:, None, :2, 3]
-    extent = np.stack([city.reshape(-1, 2).min(axis=0) - 2.0, city.reshape(-1, 2).max(axis=0) + 2.0])
-    raster = rasterize_city_map(vector_map, extent, grid.resolution_m)
-    return warp_city_map(raster, grid, city_SE3_ego)
+    if vector_map is None or city_SE3_ego.shape[0] == 0:
+        return np.zeros((city_SE3_ego.shape[0], len(MAP_CHANNELS), *grid.shape), dtype=np.uint8)
+    return render_map_frames(vector_map, grid, city_SE3_ego)
 
 
 # ---------------------------------------------------------------------------------------------

@@ -14,8 +14,9 @@ import numpy as np
 import pyarrow.parquet as pq
 from numpy.typing import NDArray
 
-from encoders.clips.raster import BevGrid, rasterize_track
+from encoders.clips.raster import grid_affine_from, rasterize_track
 from encoders.clips.render import LOGS_DIR
+from scenes.bev import BevGrid
 from scenes.geometry import wrap_angle_rad
 
 
@@ -87,16 +88,13 @@ def warp_bev(
         (T, C, H, W) uint8, bilinear.
     """
     t, c, h, w = bev.shape
-    res = grid.resolution_m
-    # Destination pixel (col, row) → ego point p'; source p = R(−θ)(p' − shift) → source pixel.
-    ego_from_px = np.array([[0.0, -res, grid.x_max_m - 0.5 * res], [-res, 0.0, grid.y_max_m - 0.5 * res]])
+    # Destination cell at p' comes from p = R(−θ)(p' − shift): the source-from-destination pose.
     cos, sin = np.cos(theta_rad), np.sin(theta_rad)
     rot_inv = np.array([[cos, sin], [-sin, cos]])
-    src_ego = rot_inv @ ego_from_px
-    src_ego[:, 2] -= rot_inv @ np.asarray(shift_xy_m, dtype=np.float64)
-    px_from_ego = np.array([[0.0, -1.0 / res], [-1.0 / res, 0.0]])
-    affine = px_from_ego @ src_ego
-    affine[:, 2] += np.array([grid.y_max_m / res - 0.5, grid.x_max_m / res - 0.5])
+    source_SE3_grid = np.eye(3)
+    source_SE3_grid[:2, :2] = rot_inv
+    source_SE3_grid[:2, 2] = -rot_inv @ np.asarray(shift_xy_m, dtype=np.float64)
+    affine = grid_affine_from(grid, grid, source_SE3_grid)
     planes = np.ascontiguousarray(bev).reshape(t * c, h, w)
     out = np.empty_like(planes)
     for i in range(t * c):  # one small warp per plane: cheaper than transposing to channels-last

@@ -45,6 +45,8 @@ class TrackerConfig:
         accel_noise_mps2: process noise of the constant-velocity model (random acceleration).
         initial_velocity_std_mps: prior std of a new track's velocity (unknown at birth).
         per_category: associate only detections and tracks of the same public category.
+        heading_min_speed_mps: once a confirmed track moves at least this fast, its heading is
+            turned to agree with its velocity (detectors confuse front and back; cars drive forwards).
         fill_gaps: report boxes for frames a confirmed track missed (at most ``max_age`` in a row),
             interpolated between the frames before and after the gap; logs are tracked offline, so
             the future is known.
@@ -62,6 +64,7 @@ class TrackerConfig:
     accel_noise_mps2: float = 3.0
     initial_velocity_std_mps: float = 10.0
     per_category: bool = True
+    heading_min_speed_mps: float = 2.0
     fill_gaps: bool = True
 
     def __post_init__(self) -> None:

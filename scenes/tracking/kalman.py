@@ -125,3 +125,24 @@ def update(states: FloatArray, covariances: FloatArray, measurements: FloatArray
     identity = np.eye(STATE_DIM)[None]
     new_cov = (identity - gain @ H[None]) @ covariances
     return new_states, new_cov
+
+
+def heading_from_motion(states: FloatArray, min_speed_mps: float) -> FloatArray:
+    """Flip headings by π where they point against a confident motion.
+
+    A detector cannot always tell a box's front from its back; a moving object, though, drives
+    forwards. Where the filtered planar speed is at least ``min_speed_mps`` and the heading is more
+    than 90° away from the velocity, the heading is turned round.
+
+    Args:
+        states: (N, 10) states.
+
+    Returns:
+        (N, 10) states with corrected headings (a new array).
+    """
+    out = states.copy()
+    speed = np.hypot(states[:, 7], states[:, 8])
+    motion_yaw = np.arctan2(states[:, 8], states[:, 7])
+    against = (speed >= min_speed_mps) & (np.cos(states[:, YAW] - motion_yaw) < 0)
+    out[against, YAW] = wrap_angle_rad(states[against, YAW] + np.pi)
+    return out

@@ -155,6 +155,9 @@ class Tracker:
         updated = np.zeros(len(tr.ids), dtype=bool)
         updated[matched_trk] = True
         tr.hits[updated] += 1
+        confirmed = updated & (tr.hits >= cfg.min_hits)
+        if confirmed.any():
+            tr.states[confirmed] = kalman.heading_from_motion(tr.states[confirmed], cfg.heading_min_speed_mps)
         tr.misses[updated] = 0
         tr.misses[~updated] += 1
         self._record(tr.ids[updated], tr.categories[updated], tr.states[updated, :7], tr.hits[updated])

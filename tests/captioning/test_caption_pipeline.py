@@ -110,3 +110,18 @@ def test_write_outputs_atomically(make_scene, tmp_path: Path) -> None:  # type: 
 def test_empty_log_list_writes_empty_files(tmp_path: Path) -> None:
     frames_path, captions_path = write_outputs(tmp_path, [])
     assert pq.read_table(frames_path).num_rows == 0 and pq.read_table(captions_path).schema.equals(CAPTIONS_SCHEMA)
+
+
+@pytest.mark.parametrize(("num_frames", "num_tracks"), [(0, 0), (1, 2), (3, 1), (5, 0)])
+def test_tiny_logs_give_no_captions_and_no_errors(num_frames: int, num_tracks: int) -> None:
+    poses = np.tile(np.eye(4), (num_frames, 1, 1))
+    poses[:, 0, 3] = np.arange(num_frames)
+    result = caption_arrays(
+        "tiny", (np.arange(num_frames) * 100_000_000).astype(np.int64),
+        np.array([f"t{i}" for i in range(num_tracks)], dtype=np.str_), np.array(["car"] * num_tracks, dtype=np.str_),
+        np.ones((num_tracks, num_frames), bool), np.ones((num_tracks, num_frames, 2)),
+        np.zeros((num_tracks, num_frames)), poses, CaptioningConfig(),
+    )
+    assert result.captions == []
+    assert result.frame_tags_table().num_rows == num_frames * (1 + num_tracks)
+    assert len(result.skipped_tracks) == (num_tracks if num_frames == 1 else 0)

@@ -190,3 +190,16 @@ def test_evaluation_counts_switches_and_misses() -> None:
     assert m["GT"] == 10 and m["FN"] == 1 and m["IDSW"] == 1 and m["FP"] == 0
     assert m["MOTA"] == pytest.approx(1 - (1 + 1) / 10)
     assert m["MOTP"] == pytest.approx(0.3 * np.sqrt(2), abs=1e-4)
+
+
+def test_heading_turns_to_follow_motion() -> None:
+    # A detector that reports every box of a car driving along +x backwards (yaw π): once the track
+    # is confirmed and moving, its heading must follow the velocity.
+    rows = [(f, "car", 0.9, 10.0 + 1.0 * f, 0.0, np.pi) for f in range(20)]
+    ann = track_detections(_detections(rows), _ego(20), TrackerConfig(heading_min_speed_mps=2.0))
+    late = ann.timestamp_ns >= 10 * PERIOD_NS
+    assert np.abs(wrap_angle_rad(ann.yaw_rad[late])).max() < 0.3
+    # A parked car keeps whatever heading it was detected with: there is no motion to say otherwise.
+    parked = [(f, "car", 0.9, 10.0, 0.0, np.pi) for f in range(20)]
+    ann = track_detections(_detections(parked), _ego(20), TrackerConfig())
+    assert np.abs(np.abs(wrap_angle_rad(ann.yaw_rad)) - np.pi).max() < 0.3

@@ -1,0 +1,186 @@
+"""Training speed of the dual encoder, and the text-cache speed-up, same run.
+
+Figures:
+
+- training samples/s (forward, multi-positive loss, backward, AdamW step) of the default model at the
+  default clip sizes (T = 16, camera 4 × 96 × 160, BEV 5 + 6 channels × 160 × 80) and at a small
+  resolution (camera 48 × 80, BEV 80 × 40);
+- the text side of a training step with the frozen MiniLM's embeddings cached per caption against
+  re-encoding the captions every step (ratio).
+
+Rates are given per CPU second of this process (``time.process_time``, one torch thread), so that other
+work on a shared machine does not count, and per wall second. The device is recorded.
+
+``python -m benchmarks.bench_train --acceptance`` runs the quality check instead: the default model
+trained on simulated clips against random ranking and against the same model trained and evaluated on
+clips whose frames are shuffled in time (bag of frames), on the held-out test split.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import os
+import platform
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from torch.utils.data import Dataset
+
+from encoders.config import TrainConfig
+from encoders.loss import contrastive_loss, positives_matrix
+from encoders.model import DualEncoder
+from encoders.synthetic import SyntheticClipDataset, SyntheticSpec, collate_clips
+from encoders.text import TextTower
+from encoders.train import build_optimizer, evaluate, train
+
+DEFAULT_SPEC = SyntheticSpec()
+SMALL_SPEC = SyntheticSpec(camera_hw=(48, 80), bev_hw=(80, 40))
+
+
+def _device() -> dict[str, Any]:
+    return {
+        "device": "cpu",
+        "cpu": platform.processor() or platform.machine(),
+        "torch_threads": torch.get_num_threads(),
+        "torch": torch.__version__,
+    }
+
+
+def train_rate(config: TrainConfig, spec: SyntheticSpec, batch_size: int, steps: int) -> dict[str, float]:
+    """Samples per CPU second and per wall second of full training steps on synthetic clips."""
+    torch.manual_seed(0)
+    model = DualEncoder(config.model).train()
+    opt = build_optimizer(model, config)
+    ds = SyntheticClipDataset(batch_size * (steps + 1), spec=spec, seed=0)
+    batches = [collate_clips([ds[i * batch_size + j] for j in range(batch_size)]) for i in range(steps + 1)]
+
+    def step(batch: dict[str, Any]) -> None:
+        video, text, scale = model(batch, batch["caption"])
+        loss = contrastive_loss(video, text, scale, positives_matrix(batch["canonical_caption"]))
+        opt.zero_grad()
+        loss.backward()
+        torch.nn.utils.clip_grad_norm_(model.parameters(), 1.0)
+        opt.step()
+
+    step(batches[0])  # warm-up (and caption cache fill for the first batch)
+    cpu0, wall0 = time.process_time(), time.perf_counter()
+    for batch in batches[1:]:
+        step(batch)
+    cpu, wall = time.process_time() - cpu0, time.perf_counter() - wall0
+    n = batch_size * steps
+    return {"samples_per_cpu_s": round(n / cpu, 3), "samples_per_wall_s": round(n / wall, 3), "samples": n}
+
+
+def text_cache_speedup(batch_size: int, steps: int) -> dict[str, float]:
+    """Text side of a training step (encoder + head, forward and backward) with and without the cache."""
+    from encoders.config import TextConfig
+    from encoders.synthetic import behaviours, caption_of
+
+    captions = [caption_of(c, b) for c in ("car", "truck") for b in behaviours()]
+    rng = np.random.default_rng(0)
+    batches = [[captions[i] for i in rng.integers(len(captions), size=batch_size)] for _ in range(steps)]
+    dev = torch.device("cpu")
+    figures: dict[str, float] = {}
+    for name, cache in (("cached", True), ("reencoded", False)):
+        tower = TextTower(TextConfig(cache=cache), 256).train()
+        tower(captions, dev)  # warm-up; fills the cache with every caption, as the first epoch does
+        cpu0 = time.process_time()
+        for texts in batches:
+            tower(texts, dev).sum().backward()
+        figures[f"{name}_ms_per_batch"] = round(1000 * (time.process_time() - cpu0) / steps, 3)
+    figures["speedup"] = round(figures["reencoded_ms_per_batch"] / figures["cached_ms_per_batch"], 1)
+    figures["batch_size"] = batch_size
+    return figures
+
+
+def run(quick: bool) -> dict[str, Any]:
+    os.environ.setdefault("HF_HUB_OFFLINE", "1")
+    torch.set_num_threads(1)
+    batch, steps = (8, 1) if quick else (32, 2)
+    config = TrainConfig()
+    out: dict[str, Any] = {"machine": _device(), "batch_size": batch, "steps": steps}
+    out["default_resolution"] = train_rate(config, DEFAULT_SPEC, batch, steps)
+    out["small_resolution"] = train_rate(config, SMALL_SPEC, batch, steps)
+    out["small_resolution"]["ratio_vs_default"] = round(
+        out["small_resolution"]["samples_per_cpu_s"] / out["default_resolution"]["samples_per_cpu_s"], 2
+    )
+    out["text_cache"] = text_cache_speedup(32, 3 if quick else 10)
+    return out
+
+
+# --- acceptance ---------------------------------------------------------------------------------------
+def acceptance(out_dir: Path, train_size: int, epochs: int, spec: SyntheticSpec) -> dict[str, Any]:
+    """Train the default model and its bag-of-frames twin on simulated clips; compare on the test split."""
+    torch.set_num_threads(max(1, len(os.sched_getaffinity(0))))
+    data: dict[str, Dataset[dict[str, Any]]] = {
+        "train": SyntheticClipDataset(train_size, "train", spec, seed=0, augment=True),
+        "val": SyntheticClipDataset(max(40, train_size // 8), "val", spec, seed=0),
+    }
+    test = SyntheticClipDataset(max(200, train_size // 2), "test", spec, seed=0)
+    base = dataclasses.replace(TrainConfig(), epochs=epochs, warmup_steps=20, eval_every=epochs)
+    results: dict[str, Any] = {"train_clips": train_size, "test_clips": len(test), "epochs": epochs,
+                               "spec": dataclasses.asdict(spec)}
+    for name, shuffled in (("ordered", False), ("bag_of_frames", True)):
+        run_dir = out_dir / name
+        t0 = time.perf_counter()
+        config = dataclasses.replace(base, shuffle_frames=shuffled)
+        train("synthetic", run_dir, config, datasets=data, resume=(run_dir / "checkpoints" / "last.pt").exists())
+        from encoders.train import load_model
+
+        model = load_model(run_dir)
+        results[name] = {
+            "train_s": round(time.perf_counter() - t0, 1),
+            "all": evaluate(model, test, shuffle_frames=shuffled),
+            "multi_step": evaluate(model, test, shuffle_frames=shuffled, min_steps=2),
+        }
+        if not shuffled:
+            results[name]["views"] = {v: evaluate(model, test, view=v)["R@5"] for v in ("camera", "bev")}
+    results["random"] = random_ranking(test)
+    return results
+
+
+def random_ranking(dataset: SyntheticClipDataset, trials: int = 20) -> dict[str, dict[str, float]]:
+    from encoders.metrics import text_to_clip_metrics
+
+    captions = [dataset.record(i)["canonical_caption"] for i in range(len(dataset))]
+    steps = {dataset.record(i)["canonical_caption"]: len(dataset.record(i)["tags"]) for i in range(len(dataset))}
+    rng = np.random.default_rng(0)
+    out: dict[str, dict[str, float]] = {}
+    for name, min_steps in (("all", 1), ("multi_step", 2)):
+        queries = sorted({c for c in captions if steps[c] >= min_steps})
+        relevant = np.array(captions)[None, :] == np.array(queries)[:, None]
+        runs = [text_to_clip_metrics(rng.random(relevant.shape), relevant) for _ in range(trials)]
+        out[name] = {k: float(np.mean([r[k] for r in runs])) for k in runs[0]}
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--acceptance", action="store_true", help="run the quality check instead of the speed run")
+    parser.add_argument("--out", type=Path, help="run folders of the acceptance check (default: a temp folder)")
+    parser.add_argument("--train-clips", type=int, default=400)
+    parser.add_argument("--epochs", type=int, default=8)
+    parser.add_argument("--small", action="store_true", help="acceptance at the small resolution")
+    parser.add_argument("--quick", action="store_true")
+    args = parser.parse_args(argv)
+    os.environ.setdefault("HF_HUB_OFFLINE", "1")
+    if not args.acceptance:
+        print(json.dumps(run(args.quick), indent=2))
+        return 0
+    out = args.out or Path(tempfile.mkdtemp(prefix="bench_train_"))
+    results = acceptance(out, args.train_clips, args.epochs, SMALL_SPEC if args.small else DEFAULT_SPEC)
+    text = json.dumps(results, indent=2)
+    (out / "acceptance.json").write_text(text)
+    print(text)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

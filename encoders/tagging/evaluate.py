@@ -1,0 +1,229 @@
+"""Evaluation of scene tags (Segal et al., Tables 1 and 2).
+
+For every frame of the held-out logs (the clips folder's ``test`` split), each attribute is pooled
+over each region, for the model's tag tensors and for the ground truth alike (at E's resolution:
+targets area-pooled for densities, max-pooled otherwise; map regions from the rendered map). Metrics
+per attribute × region:
+
+- continuous: **L1** between pooled prediction and pooled truth, averaged over frames (densities in
+  m² covered, ``vehicle_speed`` in m/s);
+- discrete: **F1** over frames of "the attribute occurs in the region" (truth: any positive cell;
+  prediction: pooled probability ≥ a threshold chosen per attribute × region on the ``val`` split,
+  0.5 without one).
+
+The **dataset-statistics** baseline (inputs ``none``) predicts, per attribute × region, a constant
+from the training split: the median pooled value (continuous, the L1-optimal constant) or
+"present" when the attribute occurs there in at least one training frame (discrete; F1 of always
+answering yes, the best a constant can do, else 0).
+
+Table 2's value per attribute is the mean of Table 1's metric over the regions.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from numpy.typing import NDArray
+
+from encoders.tagging.attributes import AttributeKind, Region, attribute_kind, is_density
+from encoders.tagging.data import split_logs
+from encoders.tagging.losses import downsample_targets
+from encoders.tagging.scene_tags import (
+    coarse_grid,
+    downsample_max,
+    pool_values,
+    reduction_of,
+    region_masks,
+    values_of,
+)
+from encoders.tagging.targets import LOGS_DIR, grid_from_manifest, has_targets, open_targets, read_manifest
+from encoders.tagging.training import Tagger
+
+Pooled = dict[str, dict[str, NDArray[np.float32]]]
+THRESHOLDS = np.round(np.arange(0.05, 0.96, 0.05), 2)
+
+
+def log_has_map(bev_map: NDArray[np.uint8]) -> bool:
+    """Whether a rendered log has map layers (a log rendered without a map has all-zero layers)."""
+    return bool(np.asarray(bev_map[:: max(1, bev_map.shape[0] // 8)]).any())
+
+
+def pooled_truth_and_pred(
+    clips_dir: Path, log_id: str, tagger: Tagger | None, factor: int, names: tuple[str, ...] | None = None,
+) -> tuple[Pooled, Pooled | None]:
+    """Per-frame pooled truth (and model prediction) of one rendered log.
+
+    Returns:
+        ``truth[attr][region]`` (F,) and ``pred`` of the same layout (None without ``tagger``).
+    """
+    manifest = read_manifest(clips_dir)
+    grid = coarse_grid(grid_from_manifest(manifest), factor)
+    folder = clips_dir / LOGS_DIR / log_id
+    bev_map = np.load(folder / "bev_map.npy", mmap_mode="r")
+    lt = open_targets(clips_dir, log_id)
+    attrs = names or lt.names
+    cols = [lt.names.index(a) for a in attrs]
+    tg = torch.from_numpy(np.asarray(lt.targets[:, cols], dtype=np.float32))  # (F, A, H, W)
+    area = torch.tensor([is_density(a) for a in attrs])
+    small = downsample_targets(tg, factor, area).numpy()  # (F, A, h, w)
+    map_small = downsample_max(np.asarray(bev_map, dtype=np.float32), factor) if log_has_map(bev_map) else None
+    masks = region_masks(grid, map_small, manifest["bev"]["map_channels"])
+    cell = grid.resolution_m**2
+    v = None
+    if tagger is not None:
+        lidar = np.load(folder / "bev_lidar.npy", mmap_mode="r")
+        v = tagger.tag_frames(lidar, bev_map, attributes=[tagger.names.index(a) for a in attrs])
+    truth: Pooled = {}
+    pred: Pooled = {}
+    for i, a in enumerate(attrs):
+        kind = attribute_kind(a) if tagger is None else tagger.head.config.kind(a)
+        red = reduction_of([a])
+        t = small[:, i] if kind == AttributeKind.CONTINUOUS else (small[:, i] >= 0.5).astype(np.float32)
+        truth[a] = {r.value: pool_values(t, m, red, cell) for r, m in masks.items()}
+        if v is not None:
+            x = values_of(v[:, i], a, kind)
+            pred[a] = {r.value: pool_values(x, m, red, cell) for r, m in masks.items()}
+    return truth, (pred if v is not None else None)
+
+
+def _concat(parts: list[Pooled]) -> Pooled:
+    out: Pooled = {}
+    for p in parts:
+        for a, regions in p.items():
+            for r, x in regions.items():
+                out.setdefault(a, {}).setdefault(r, [])  # type: ignore[arg-type]
+                out[a][r].append(x)  # type: ignore[attr-defined]
+    return {a: {r: np.concatenate(xs) for r, xs in regions.items()} for a, regions in out.items()}  # type: ignore[arg-type]
+
+
+def f1_score(pred: NDArray[np.bool_], truth: NDArray[np.bool_]) -> float:
+    tp = float((pred & truth).sum())
+    fp = float((pred & ~truth).sum())
+    fn = float((~pred & truth).sum())
+    return 0.0 if tp == 0 else 2 * tp / (2 * tp + fp + fn)
+
+
+def best_threshold(prob: NDArray[np.floating], truth: NDArray[np.bool_]) -> float:
+    """The threshold of :data:`THRESHOLDS` with the best F1 (0.5 when nothing is positive)."""
+    if not truth.any():
+        return 0.5
+    scores = [f1_score(prob >= t, truth) for t in THRESHOLDS]
+    return float(THRESHOLDS[int(np.argmax(scores))])
+
+
+@dataclass
+class SplitPooled:
+    """Pooled values of the logs of a split."""
+
+    truth: Pooled = field(default_factory=dict)
+    pred: Pooled | None = None
+    logs: list[str] = field(default_factory=list)
+
+
+def pool_split(clips_dir: Path, split: str, tagger: Tagger | None, factor: int,
+               names: tuple[str, ...] | None = None, progress: Callable[[str], None] | None = None) -> SplitPooled:
+    logs = [lid for lid in split_logs(read_manifest(clips_dir), split) if has_targets(clips_dir, lid)]
+    truths, preds = [], []
+    for lid in logs:
+        t, p = pooled_truth_and_pred(clips_dir, lid, tagger, factor, names)
+        truths.append(t)
+        if p is not None:
+            preds.append(p)
+        if progress:
+            progress(f"{split} {lid}: pooled")
+    return SplitPooled(_concat(truths) if truths else {}, _concat(preds) if preds else None, logs)
+
+
+def metrics_by_region(test: SplitPooled, val: SplitPooled | None) -> dict[str, dict[str, dict[str, Any]]]:
+    """Table 1 of a model: ``{attr: {region: {"metric", "value", ...}}}``."""
+    out: dict[str, dict[str, dict[str, Any]]] = {}
+    assert test.pred is not None
+    for a, regions in test.truth.items():
+        out[a] = {}
+        for r, truth in regions.items():
+            pred = test.pred[a][r]
+            if attribute_kind(a) == AttributeKind.CONTINUOUS and a in {x.value for x in _continuous()}:
+                out[a][r] = {"metric": "L1", "value": round(float(np.abs(pred - truth).mean()), 4)}
+                continue
+            thr = 0.5
+            if val is not None and val.pred is not None and a in val.pred and r in val.pred[a]:
+                thr = best_threshold(val.pred[a][r], val.truth[a][r] > 0)
+            out[a][r] = {"metric": "F1", "value": round(f1_score(pred >= thr, truth > 0), 4), "threshold": thr,
+                         "positives": int((truth > 0).sum()), "frames": int(truth.shape[0])}
+    return out
+
+
+def _continuous() -> list[Any]:
+    from encoders.tagging.attributes import CONTINUOUS
+
+    return list(CONTINUOUS)
+
+
+def statistics_by_region(train: SplitPooled, test: SplitPooled) -> dict[str, dict[str, dict[str, Any]]]:
+    """Table 1 of the dataset-statistics baseline (constants from the training split)."""
+    out: dict[str, dict[str, dict[str, Any]]] = {}
+    for a, regions in test.truth.items():
+        out[a] = {}
+        for r, truth in regions.items():
+            tr = train.truth.get(a, {}).get(r, np.zeros(1, np.float32))
+            if attribute_kind(a) == AttributeKind.CONTINUOUS:
+                const = float(np.median(tr))
+                out[a][r] = {"metric": "L1", "value": round(float(np.abs(const - truth).mean()), 4)}
+            else:
+                yes = bool((tr > 0).any())
+                pred = np.full(truth.shape, yes)
+                out[a][r] = {"metric": "F1", "value": round(f1_score(pred, truth > 0), 4),
+                             "positives": int((truth > 0).sum()), "frames": int(truth.shape[0])}
+    return out
+
+
+def table2_row(by_region: dict[str, dict[str, dict[str, Any]]]) -> dict[str, dict[str, Any]]:
+    """Mean over regions of each attribute's Table 1 metric."""
+    row = {}
+    for a, regions in by_region.items():
+        vals = [m["value"] for m in regions.values()]
+        metric = next(iter(regions.values()))["metric"] if regions else "F1"
+        row[a] = {"metric": metric, "value": round(float(np.mean(vals)), 4) if vals else float("nan")}
+    return row
+
+
+def skill(row: dict[str, dict[str, Any]], statistics: dict[str, dict[str, Any]]) -> float:
+    """One number per Table 2 row: mean over attributes of F1 (discrete) or 1 − L1 / L1_statistics (continuous)."""
+    vals = []
+    for a, m in row.items():
+        if m["metric"] == "F1":
+            vals.append(m["value"])
+        else:
+            base = statistics.get(a, {}).get("value", 0.0)
+            vals.append(1.0 - m["value"] / base if base > 0 else 0.0)
+    return round(float(np.mean(vals)), 4) if vals else float("nan")
+
+
+def markdown_tables(by_region: dict[str, dict[str, dict[str, Any]]], inputs: dict[str, dict[str, dict[str, Any]]],
+                    skills: dict[str, float]) -> str:
+    """Tables 1 and 2 as Markdown."""
+    regions = [r.value for r in Region if any(r.value in v for v in by_region.values())]
+    lines = ["## Table 1: scene tags per attribute and region (test split)", "",
+             "| attribute | metric | " + " | ".join(regions) + " |",
+             "|---|---|" + "---|" * len(regions)]
+    for a, regs in by_region.items():
+        metric = next(iter(regs.values()))["metric"] if regs else ""
+        cells = [f"{regs[r]['value']:.3f}" if r in regs else "–" for r in regions]
+        lines.append(f"| {a} | {metric} | " + " | ".join(cells) + " |")
+    rows = [k for k in ("none", "map", "lidar", "both") if k in inputs]
+    lines += ["", "L1: lower is better (densities in m² covered, speed in m/s); F1: higher is better.", "",
+              "## Table 2: inputs (mean over regions; none = dataset statistics)", "",
+              "| attribute | metric | " + " | ".join(rows) + " |", "|---|---|" + "---|" * len(rows)]
+    attrs = list(next(iter(inputs.values())).keys()) if inputs else []
+    for a in attrs:
+        metric = inputs[rows[0]][a]["metric"]
+        cells = [f"{inputs[k][a]['value']:.3f}" if a in inputs[k] else "–" for k in rows]
+        lines.append(f"| {a} | {metric} | " + " | ".join(cells) + " |")
+    lines.append("| **skill** (mean of F1 and 1 − L1/L1_none) | | " + " | ".join(
+        f"{skills.get(k, float('nan')):.3f}" for k in rows) + " |")
+    return "\n".join(lines) + "\n"

@@ -1,0 +1,105 @@
+"""Demo orchestration (stages, resuming, arguments) and the report, without running the heavy stages."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from retrieval_fakes import FakeEmbedder, HashTextEncoder
+
+from retrieval.demo import STAGES, Demo, DemoConfig, config_from_args
+from retrieval.embedding import model_hash
+from retrieval.evaluation import evaluate
+from retrieval.report import Example, write_report
+from retrieval.scenesearch import SceneSearch
+
+
+class RecordingDemo(Demo):
+    """Records the commands instead of running them; makes the outputs the next stages look for."""
+
+    def command(self, args: Any) -> None:
+        self.calls.append([str(a) for a in args])
+        if args[0] == "simulate":
+            for i in range(self.config.logs):
+                log = self.logs_dir / f"log{i}"
+                log.mkdir(parents=True, exist_ok=True)
+                (log / "annotations.feather").write_bytes(b"")
+
+    def stage_report(self) -> str:
+        self.calls.append(["report"])
+        return ""
+
+    calls: list[list[str]]
+
+
+def _demo(tmp_path: Path, config: DemoConfig) -> RecordingDemo:
+    demo = RecordingDemo(tmp_path / "demo", config, say=lambda _m: None)
+    demo.calls = []
+    return demo
+
+
+def test_stages_run_in_order_with_sizes(tmp_path: Path) -> None:
+    demo = _demo(tmp_path, DemoConfig(logs=2, duration_s=10, epochs=3, frames_per_clip=8))
+    results = demo.run()
+    assert [r.name for r in results] == list(STAGES)
+    names = [c[0] for c in demo.calls]
+    assert names == ["simulate", "caption", "clips", "train", "index", "eval", "report"]
+    sim = demo.calls[0]
+    assert sim[sim.index("--logs") + 1] == "2" and sim[sim.index("--duration-s") + 1] == "10"
+    assert demo.calls[1][1:3] == [str(demo.logs_dir / "log0"), str(demo.logs_dir / "log1")]
+    clips = demo.calls[2]
+    assert clips[clips.index("--frames-per-clip") + 1] == "8"
+    assert demo.calls[3][-2:] == ["--epochs", "3"]
+
+
+def test_resume_skips_complete_stages_and_reruns_after_a_change(tmp_path: Path) -> None:
+    demo = _demo(tmp_path, DemoConfig(logs=2, duration_s=10))
+    demo.run()
+    again = _demo(tmp_path, DemoConfig(logs=2, duration_s=10))
+    results = again.run()
+    assert all(r.skipped for r in results) and again.calls == []
+    # A new epoch count keeps the data and retrains, then redoes everything after training.
+    changed = _demo(tmp_path, DemoConfig(logs=2, duration_s=10, epochs=5))
+    changed.run()
+    assert [c[0] for c in changed.calls] == ["train", "index", "eval", "report"]
+
+
+def test_config_from_flags() -> None:
+    args = argparse.Namespace(quick=True, logs=None, duration_s=None, seed=None, frames_per_clip=None, epochs=4,
+                              no_sensors=True, query=["a bus stops"])
+    config = config_from_args(args)
+    assert config.logs == DemoConfig.quick().logs and config.epochs == 4
+    assert config.sensors is False and config.queries == ("a bus stops",)
+    with pytest.raises(ValueError, match="logs must be at least 1"):
+        DemoConfig(logs=0)
+    with pytest.raises(ValueError, match="unknown stage 'deploy'"):
+        _demo(Path("/nonexistent"), DemoConfig()).run(["deploy"])
+
+
+def test_report(built: dict[str, Any], tmp_path: Path) -> None:
+    run = built["run"]
+    (run / "metrics.jsonl").write_text("\n".join(json.dumps({"epoch": e, "train_loss": 2.0 / (e + 1),
+                                                             "val_R@1": 0.1 * e}) for e in range(5)))
+    search = SceneSearch.open(built["index"], embedder=built["embedder"], text_encoder=HashTextEncoder())
+    results = search.search_text("a car in the left lane approaches", k=3)
+    preview = Path(results[0].preview_path or "")
+    preview.parent.mkdir(parents=True, exist_ok=True)
+    preview.write_bytes(b"GIF89a")
+    metrics = evaluate(run, built["clips"], embedder=FakeEmbedder(model_hash(run)))
+    meta, x = search.embeddings("fused")
+    actions = ["|".join(t) for t in meta.column("tags").to_pylist()]
+    out = tmp_path / "report"
+    path = write_report(out, metrics, [Example("a car in the left lane approaches", results)], run_dir=run,
+                        embedding_map=(x, actions), stage_timings_s={"train": 12.0})
+    page = path.read_text()
+    for png in ("training_curves.png", "embedding_map.png", "recall_at_k.png"):
+        assert (out / "plots" / png).stat().st_size > 1000
+        assert f"plots/{png}" in page
+    assert "text → clip R@1" in page and "bag of frames" in page
+    # Previews are linked relative to the page.
+    assert "../" in page and preview.name in page
+    assert np.isfinite(x).all()

@@ -1,0 +1,85 @@
+"""The index/search/similar/export/eval commands, with the stand-in model swapped in."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import pyarrow.parquet as pq
+import pytest
+from retrieval_fakes import FakeEmbedder, HashTextEncoder, caption_of
+
+import retrieval.embedding as embedding
+import retrieval.scenesearch as scenesearch
+from retrieval.cli import main
+
+
+@pytest.fixture
+def stand_in(monkeypatch: pytest.MonkeyPatch, built: dict[str, Any]) -> dict[str, Any]:
+    """Commands load the stand-in model and the hashing sentence encoder instead of the real ones."""
+    monkeypatch.setattr(scenesearch, "ModelEmbedder",
+                        lambda run_dir, expected_model_id=None: FakeEmbedder(embedding.model_hash(run_dir)))
+    monkeypatch.setattr("retrieval.captions_search.SentenceEncoder", HashTextEncoder)
+    monkeypatch.setattr("retrieval.evaluation.ModelEmbedder",
+                        lambda run_dir: FakeEmbedder(embedding.model_hash(run_dir)))
+    return built
+
+
+def test_index_command(stand_in: dict[str, Any], tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "index"
+    assert main(["index", str(stand_in["run"]), str(stand_in["clips"]), "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "view fused" in printed and f"wrote {out}" in printed
+    assert json.loads((out / "manifest.json").read_text())["counts"]["fused"] == 84
+
+
+def test_search_table_and_json(stand_in: dict[str, Any], capsys: pytest.CaptureFixture[str]) -> None:
+    query = caption_of(["left:approach", "left:cut_in"])
+    assert main(["search", str(stand_in["index"]), query, "-k", "3", "--filter", "category=car"]) == 0
+    table = capsys.readouterr().out
+    assert table.splitlines()[0].split()[:3] == ["#", "score", "category"]
+    assert len(table.strip().splitlines()) == 5
+    assert main(["search", str(stand_in["index"]), query, "-k", "4", "--json"]) == 0
+    payload = json.loads(capsys.readouterr().out)
+    assert payload["query"] == query and len(payload["results"]) == 4
+    assert all(r["caption"] == query for r in payload["results"])
+    assert main(["search", str(stand_in["index"]), "stops ahead of the host", "--captions", "--json", "-k", "2"]) == 0
+    assert all(r["view"] == "captions" for r in json.loads(capsys.readouterr().out)["results"])
+
+
+@pytest.mark.parametrize(("argv", "message"), [
+    (["search", "{index}", "  "], "the query is empty"),
+    (["search", "{index}", "a car", "-k", "0"], "k must be an integer in 1"),
+    (["search", "{index}", "a car", "--filter", "colour=red"], "valid fields: clip_id, log_id"),
+    (["similar", "{index}", "no:such:clip"], "unknown clip id 'no:such:clip'"),
+    (["export", "{index}", "--out", "x.csv"], "use .parquet or .npy"),
+    (["eval", "{run}", "{clips}", "--split", "dev"], "unknown split 'dev'"),
+])
+def test_bad_input_exits_2(stand_in: dict[str, Any], capsys: pytest.CaptureFixture[str], argv: list[str],
+                           message: str) -> None:
+    args = [a.format(index=stand_in["index"], run=stand_in["run"], clips=stand_in["clips"]) for a in argv]
+    assert main(args) == 2
+    assert message in capsys.readouterr().err
+
+
+def test_similar_and_export(stand_in: dict[str, Any], tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    clip_id = str(pq.read_table(stand_in["clips"] / "clips.parquet").column("clip_id")[5])
+    assert main(["similar", str(stand_in["index"]), clip_id, "-k", "3", "--json"]) == 0
+    results = json.loads(capsys.readouterr().out)["results"]
+    assert len(results) == 3 and clip_id not in {r["clip_id"] for r in results}
+    assert main(["similar", str(stand_in["index"]), clip_id, "--view", "bev"]) == 0
+    assert capsys.readouterr().out.startswith(f"query: {clip_id}")
+    out = tmp_path / "emb.parquet"
+    assert main(["export", str(stand_in["index"]), "--out", str(out)]) == 0
+    assert pq.read_table(out).num_rows == 84
+    assert main(["export", str(stand_in["index"]), "--out", str(tmp_path / "emb.npy")]) == 0
+    assert (tmp_path / "emb.json").is_file()
+
+
+def test_eval_command(stand_in: dict[str, Any], tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "metrics.json"
+    assert main(["eval", str(stand_in["run"]), str(stand_in["clips"]), "--out", str(out)]) == 0
+    metrics = json.loads(out.read_text())
+    assert metrics["split"] == "test" and "baselines" in metrics
+    assert "text→clip R@1" in capsys.readouterr().out

@@ -119,10 +119,16 @@ def measure_interleaved(searches: dict[str, SearchFn], xq: np.ndarray, gt: np.nd
     return best
 
 
+def _progress(message: str) -> None:
+    print(f"  [index] {time.strftime('%H:%M:%S')} {message}", flush=True)
+
+
 def run(quick: bool) -> dict[str, Any]:
     n, nq, n_single = (100_000, 1_000, 200) if quick else (1_000_000, 2_000, 300)
     threads = faiss.omp_get_max_threads()
+    _progress(f"generating {n} x {DIM} vectors")
     xb, xq = clustered_data(n, nq)
+    _progress("exact ground truth with NumPy")
     ids = np.arange(n, dtype=np.int64)
     out: dict[str, Any] = {"n": n, "dim": DIM, "nq": nq, "k": K, "threads": threads}
 
@@ -151,13 +157,16 @@ def run(quick: bool) -> dict[str, Any]:
                        choice_reason=index.info.get("choice_reason"), train_points=index.info.get("train_points"))
         return figures, index
 
+    _progress("Flat")
     flat, flat_index = build_ours("Flat")
     flat.update(measure_interleaved({"flat": flat_index.search}, xq, gt, n_single, rounds=2)["flat"])
     del flat_index
     out["flat"] = flat
+    _progress("auto: build and tune")
     auto, auto_index = build_ours("auto")
     factory, (knob, knob_value) = auto_index.factory, auto_index.search_knob
 
+    _progress(f"raw FAISS {factory}")
     # Raw FAISS: same factory, same number of training vectors, the knob value our tuning chose.
     gc.collect()
     rss0 = rss_bytes()

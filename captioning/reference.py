@@ -184,16 +184,36 @@ def reference_tags(
                 first_y.append(0.0)
         rel_x = [float(center_ego_xy_m[k, f, 0]) if obs[f] else 0.0 for f in range(t_count)]
         rel_y = [float(center_ego_xy_m[k, f, 1]) if obs[f] else 0.0 for f in range(t_count)]
-        dfx = _time_derivatives(first_x, obs, t_s, config)
-        dfy = _time_derivatives(first_y, obs, t_s, config)
-        drx = _time_derivatives(rel_x, obs, t_s, config)
-        dry = _time_derivatives(rel_y, obs, t_s, config)
-        ok = [obs[f] and not math.isnan(dfx[f]) for f in range(t_count)]
-        if not any(ok):
+        heading = [float(yaw_ego_rad[k, f]) for f in range(t_count)]
+        # Bridge short gaps: linear in time between the observations on either side.
+        bridged = list(obs)
+        for f in range(t_count):
+            if obs[f] or config.smoothing.max_gap_frames <= 0:
+                continue
+            before = f - 1
+            while before >= 0 and not obs[before]:
+                before -= 1
+            after = f + 1
+            while after < t_count and not obs[after]:
+                after += 1
+            if before < 0 or after >= t_count or after - before - 1 > config.smoothing.max_gap_frames:
+                continue
+            w = (t_s[f] - t_s[before]) / (t_s[after] - t_s[before])
+            for channel in (first_x, first_y, rel_x, rel_y):
+                channel[f] = channel[before] + w * (channel[after] - channel[before])
+            heading[f] = heading[before]
+            bridged[f] = True
+        dfx = _time_derivatives(first_x, bridged, t_s, config)
+        dfy = _time_derivatives(first_y, bridged, t_s, config)
+        drx = _time_derivatives(rel_x, bridged, t_s, config)
+        dry = _time_derivatives(rel_y, bridged, t_s, config)
+        ok = [bridged[f] and not math.isnan(dfx[f]) for f in range(t_count)]
+        ok_observed = [ok[f] and obs[f] for f in range(t_count)]
+        if not any(ok_observed):
             continue
         taggable[k] = True
-        qx = float(np.quantile([abs(dfx[f]) for f in range(t_count) if ok[f]], nb.stationary_quantile))
-        qy = float(np.quantile([abs(dfy[f]) for f in range(t_count) if ok[f]], nb.stationary_quantile))
+        qx = float(np.quantile([abs(dfx[f]) for f in range(t_count) if ok_observed[f]], nb.stationary_quantile))
+        qy = float(np.quantile([abs(dfy[f]) for f in range(t_count) if ok_observed[f]], nb.stationary_quantile))
         if qx < nb.stationary_speed_mps and qy < nb.stationary_speed_mps:
             stationary[k] = True
             continue
@@ -202,7 +222,7 @@ def reference_tags(
             if not ok[f]:
                 raw_lane.append(NO_TAG)
                 continue
-            phi = abs(math.degrees(math.atan2(math.sin(yaw_ego_rad[k, f]), math.cos(yaw_ego_rad[k, f]))))
+            phi = abs(math.degrees(math.atan2(math.sin(heading[f]), math.cos(heading[f]))))
             y_paper = -rel_y[f]  # the paper's lateral axis points right
             if y_paper < -nb.host_lane_half_width_m:
                 side = "left"
@@ -240,7 +260,7 @@ def reference_tags(
                 raw_motion.append(MOTIONS.index(Motion.CONSTANT))
         motion_codes = _suppress(raw_motion, m)
         for f in range(t_count):
-            if ok[f]:
+            if ok_observed[f]:
                 lanes[k, f] = lane_codes[f]
                 baselines[k, f] = list(BaselineLane).index(BASELINE_OF_LANE[LANES[lane_codes[f]]])
                 motions[k, f] = motion_codes[f]

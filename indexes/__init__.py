@@ -4,6 +4,14 @@
 * :class:`ShardedIndex` — the same API over several shards;
 * :class:`ClipIndex` — vectors plus clip metadata, searched with filters such as
   ``category in {car, truck} and tags contains "left:approach"``.
+
+Typical use::
+
+    index = ClipIndex.build(embeddings, [{"clip_id": ..., "log_id": ..., "category": ..., "tags": [...]}, ...])
+    result = index.search(text_embedding, k=10, filter="category in {car, truck} and time_of_day == night")
+    for hit in result.hits[0]:
+        print(hit.clip_id, hit.score, hit.metadata["log_id"])
+    index.save("out/index")          # atomic; ClipIndex.load("out/index", mmap=True) maps IVF lists
 """
 
 from indexes.clip_index import ClipIndex, Hit, SearchResult

@@ -103,7 +103,7 @@ class TuningResult:
     Attributes:
         knob: name of the tuned parameter (``none`` for exact indexes).
         value: chosen value.
-        recall_at_k: recall@k measured on the held-out sample at that value.
+        recall_at_k: recall@k measured on the held-out sample at that value (None: not measured).
         k: the k of that recall.
         target_recall: what had to be reached; ``recall_at_k`` may stay below it for compressed codes.
         margin: tuning aimed at ``target_recall + margin`` (see ``AutoConfig.tune_margin``).
@@ -113,7 +113,7 @@ class TuningResult:
 
     knob: str
     value: int
-    recall_at_k: float
+    recall_at_k: float | None
     k: int
     target_recall: float
     margin: float

@@ -155,9 +155,10 @@ class VectorIndex:
                  query_ids: np.ndarray | None = None) -> None:
         """Tune the knob with held-out queries drawn from ``x`` (rows labelled ``ids``)."""
         k = config.tune_k
-        if self._knob is Knob.NONE or len(ids) <= k + 1:
-            exact = unwrap(self._index).__class__.__name__ in ("IndexFlat", "IndexFlatIP", "IndexFlatL2")
-            self.info["tuning"] = TuningResult(Knob.NONE.value, 0, 1.0 if exact else float("nan"), k,
+        exact = isinstance(unwrap(self._index), faiss.IndexFlat)
+        if exact or len(ids) <= k + 1:
+            # Exact search, or too few vectors to hold any out: nothing to tune or measure.
+            self.info["tuning"] = TuningResult(Knob.NONE.value, 0, 1.0 if exact else None, k,
                                                config.target_recall, 0.0, 0, []).to_dict()
             return
         rng = np.random.default_rng(config.seed)
@@ -175,8 +176,12 @@ class VectorIndex:
             return np.asarray(self._index.search(xq, kk, params=params)[1])
 
         start = 16 if self._knob is Knob.EF_SEARCH else 1
-        result = tune(search, exact_ids, self_ids, k, self._knob, knob_limit(self._index),
+        # Kinds without a knob (e.g. flat PQ codes) get their recall measured once.
+        limit = knob_limit(self._index) if self._knob is not Knob.NONE else 1
+        result = tune(search, exact_ids, self_ids, k, self._knob, limit,
                       config.target_recall, start=start, margin=config.tune_margin)
+        if self._knob is Knob.NONE:
+            result = dataclasses.replace(result, value=0)
         set_knob(self._index, result.value)
         self.info["tuning"] = result.to_dict()
 
@@ -217,7 +222,7 @@ class VectorIndex:
     def recall_at_10(self) -> float | None:
         """Recall@10 measured when the index was tuned, or None."""
         tuning = self.info.get("tuning")
-        return None if tuning is None else float(tuning["recall_at_k"])
+        return None if tuning is None or tuning["recall_at_k"] is None else float(tuning["recall_at_k"])
 
     def __contains__(self, id_: object) -> bool:
         if not isinstance(id_, int | np.integer):

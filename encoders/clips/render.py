@@ -151,7 +151,7 @@ def nearest_within(
 
 def _render_bev_instances(grid: BevGrid, dense: DenseTracks) -> NDArray[np.uint16]:
     """(F, Hb, Wb) footprints of every valid box; larger boxes are drawn first so small ones stay visible."""
-    k, f = dense.valid.shape
+    f = dense.valid.shape[1]
     out = np.zeros((f, *grid.shape), dtype=np.uint16)
     area = np.nan_to_num(dense.size_lwh_m[..., 0] * dense.size_lwh_m[..., 1])  # (K, F)
     for fi in range(f):
@@ -160,7 +160,7 @@ def _render_bev_instances(grid: BevGrid, dense: DenseTracks) -> NDArray[np.uint1
             continue
         ks = ks[np.argsort(-area[ks, fi], kind="stable")]  # later boxes win where they overlap
         out[fi] = rasterize_boxes(grid, dense.center_ego_xyz_m[ks, fi, :2], dense.size_lwh_m[ks, fi, :2],
-                                  dense.yaw_ego_rad[ks, fi], values=ks + 1)
+                                  dense.yaw_ego_rad[ks, fi], values=(ks + 1).astype(np.float64))
     return out
 
 

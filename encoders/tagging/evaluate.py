@@ -92,13 +92,12 @@ def pooled_truth_and_pred(
 
 
 def _concat(parts: list[Pooled]) -> Pooled:
-    out: Pooled = {}
+    lists: dict[str, dict[str, list[NDArray[np.float32]]]] = {}
     for p in parts:
         for a, regions in p.items():
             for r, x in regions.items():
-                out.setdefault(a, {}).setdefault(r, [])  # type: ignore[arg-type]
-                out[a][r].append(x)  # type: ignore[attr-defined]
-    return {a: {r: np.concatenate(xs) for r, xs in regions.items()} for a, regions in out.items()}  # type: ignore[arg-type]
+                lists.setdefault(a, {}).setdefault(r, []).append(x)
+    return {a: {r: np.concatenate(xs) for r, xs in regions.items()} for a, regions in lists.items()}
 
 
 def f1_score(pred: NDArray[np.bool_], truth: NDArray[np.bool_]) -> float:
@@ -147,7 +146,7 @@ def metrics_by_region(test: SplitPooled, val: SplitPooled | None) -> dict[str, d
         out[a] = {}
         for r, truth in regions.items():
             pred = test.pred[a][r]
-            if attribute_kind(a) == AttributeKind.CONTINUOUS and a in {x.value for x in _continuous()}:
+            if attribute_kind(a) == AttributeKind.CONTINUOUS:
                 out[a][r] = {"metric": "L1", "value": round(float(np.abs(pred - truth).mean()), 4)}
                 continue
             thr = 0.5
@@ -156,12 +155,6 @@ def metrics_by_region(test: SplitPooled, val: SplitPooled | None) -> dict[str, d
             out[a][r] = {"metric": "F1", "value": round(f1_score(pred >= thr, truth > 0), 4), "threshold": thr,
                          "positives": int((truth > 0).sum()), "frames": int(truth.shape[0])}
     return out
-
-
-def _continuous() -> list[Any]:
-    from encoders.tagging.attributes import CONTINUOUS
-
-    return list(CONTINUOUS)
 
 
 def statistics_by_region(train: SplitPooled, test: SplitPooled) -> dict[str, dict[str, dict[str, Any]]]:

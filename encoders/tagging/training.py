@@ -195,7 +195,8 @@ class TaggingObjective(nn.Module):
         return loss
 
     def save(self, run_dir: Path | str, backbone: nn.Module | None = None) -> None:
-        save_tagging(run_dir, self.head, self.config, read_manifest(self.clips_dir), backbone)
+        save_tagging(run_dir, self.head, self.config, read_manifest(self.clips_dir), backbone,
+                     extra={"clips_dir": str(self.clips_dir.resolve())})
 
 
 def save_tagging(run_dir: Path | str, head: TagHead, config: TagTrainConfig, manifest: dict[str, Any],
@@ -313,7 +314,8 @@ def train_tags(
     seconds = time.perf_counter() - start
     bev.eval()
     save_tagging(run, head, config, manifest, backbone=bev,
-                 extra={"train": {"steps": step + 1, "seconds": round(seconds, 2), "logs": ds.log_ids,
+                 extra={"clips_dir": str(Path(clips_dir).resolve()),
+                        "train": {"steps": step + 1, "seconds": round(seconds, 2), "logs": ds.log_ids,
                                   "train_backbone": train_backbone}})
     atomic_write_text(run / METRICS_FILE, "\n".join(lines) + "\n")
     return TagTrainResult(run, step + 1, loss_avg, seconds, (step + 1) * config.batch_size / max(seconds, 1e-9))

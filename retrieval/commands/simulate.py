@@ -30,6 +30,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="degrade boxes as a LiDAR detector and tracker would (labels stay exact)")
     parser.add_argument("--no-sensors", dest="sensors", action="store_false", default=None,
                         help="record that no sensor data is to be rendered for these logs")
+    parser.add_argument("--emit-detections", action="store_true",
+                        help="also write <log>/detections.parquet: per-frame detections without ids, simulated from "
+                             "the boxes (misses, false positives, noise), for `scenesearch track`")
     parser.add_argument("--cache-dir", help="folder for generated road networks (default: system temp)")
     parser.add_argument("--overwrite", action="store_true", help="replace logs already in --out")
 
@@ -47,14 +50,22 @@ def build_config(args: argparse.Namespace) -> SimulationConfig:
     return dataclasses.replace(base, **overrides)
 
 
-def post_log_hooks(config: SimulationConfig) -> list[PostLogHook]:
-    """Steps run on each log folder before it is renamed into place (sensor rendering plugs in here)."""
-    return []
+def post_log_hooks(config: SimulationConfig, emit_detections: bool = False) -> list[PostLogHook]:
+    """Steps run on each log folder before it is renamed into place."""
+    hooks: list[PostLogHook] = []
+    if emit_detections:
+        from scenes.tracking.simulated import write_simulated_detections
+
+        def emit(log_dir: Path) -> None:
+            write_simulated_detections(log_dir, seed=config.seed)
+
+        hooks.append(emit)
+    return hooks
 
 
 def run(args: argparse.Namespace) -> int:
     config = build_config(args)
-    result = simulate_tracks_and_map(config, args.out, overwrite=args.overwrite, post_log=post_log_hooks(config))
+    result = simulate_tracks_and_map(config, args.out, overwrite=args.overwrite, post_log=post_log_hooks(config, args.emit_detections))
     for log_dir in result.log_dirs:
         print(log_dir)
     print(f"wrote {len(result.log_dirs)} logs of {config.duration_s:g} s ({config.network.value}, seed "

@@ -420,15 +420,18 @@ def build_ground_raster(vector_map: VectorMap | None, extent_xy_m: tuple[float, 
     if vector_map is not None:
         stripes = []
         for crossing in vector_map.pedestrian_crossings.values():
-            e1, e2 = crossing.edge1[:2], crossing.edge2[:2]
-            width = float(np.linalg.norm(0.5 * (e1[0] + e1[-1]) - 0.5 * (e2[0] + e2[-1])))
-            n = max(1, int(width / 1.0))
-            frac = np.arange(n) / n
-            a0 = e1[0] + frac[:, None] * (e2[0] - e1[0])
-            b0 = e1[-1] + frac[:, None] * (e2[-1] - e1[-1])
-            a1 = e1[0] + (frac + 0.5 / n)[:, None] * (e2[0] - e1[0])
-            b1 = e1[-1] + (frac + 0.5 / n)[:, None] * (e2[-1] - e1[-1])
-            quads = np.stack([a0, b0, b1, a1], axis=1)  # (n, 4, 3)
+            # Zebra bars run along the traffic, from edge1 to edge2, spaced along the edges (which
+            # follow the walking direction across the road): 0.6 m bars, 0.6 m gaps.
+            e1, e2 = crossing.edge1[[0, -1], :2], crossing.edge2[[0, -1], :2]
+            length = float(np.linalg.norm(e1[1] - e1[0]))
+            n = max(1, int(length / 1.2))
+            f0 = (np.arange(n) + 0.25) / n
+            f1 = (np.arange(n) + 0.75) / n
+            a0 = e1[0] + f0[:, None] * (e1[1] - e1[0])
+            a1 = e1[0] + f1[:, None] * (e1[1] - e1[0])
+            b0 = e2[0] + f0[:, None] * (e2[1] - e2[0])
+            b1 = e2[0] + f1[:, None] * (e2[1] - e2[0])
+            quads = np.stack([a0, a1, b1, b0], axis=1)  # (n, 4, 2)
             stripes += [_to_px(origin, res, q) for q in quads]
         for stripe in stripes:
             cv2.fillConvexPoly(material, stripe, int(GroundMaterial.CROSSWALK), lineType=cv2.LINE_8, shift=_SHIFT)

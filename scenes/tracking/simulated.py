@@ -8,7 +8,9 @@ score threshold trades misses against false positives as with a real detector.
 
 from __future__ import annotations
 
+import hashlib
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -96,3 +98,26 @@ def simulate_detections(
     out = Detections.concatenate([true, false])
     return Detections(out.timestamp_ns, out.category, out.score, out.center_xyz_m, out.size_lwh_m, out.yaw_rad,
                       np.arange(1, len(out) + 1, dtype=np.int64))
+
+
+DETECTIONS_FILENAME = "detections.parquet"
+
+
+def write_simulated_detections(log_dir: Path, config: DetectorNoiseConfig | None = None, seed: int = 0) -> Path:
+    """Simulate detections from a log's annotations and write ``<log_dir>/detections.parquet``.
+
+    The generator is seeded from ``seed`` and the log's folder name, so each log of a run gets its
+    own, reproducible detections.
+    """
+    from scenes import av2_io
+    from scenes.tracking.detections import write_detections_table
+
+    log_dir = Path(log_dir)
+    annotations = av2_io.read_annotations(log_dir / av2_io.ANNOTATIONS_FILENAME)
+    ego = av2_io.read_ego_poses(log_dir / av2_io.POSES_FILENAME)
+    digest = hashlib.sha256(f"{seed}/{log_dir.name}/detections".encode()).digest()
+    rng = np.random.default_rng(int.from_bytes(digest[:8], "little"))
+    detections = simulate_detections(annotations, ego, config or DetectorNoiseConfig(), rng)
+    path = log_dir / DETECTIONS_FILENAME
+    write_detections_table(path, detections)
+    return path

@@ -14,11 +14,12 @@ from scipy.ndimage import binary_dilation
 
 from encoders.clips.build import build_clips
 from encoders.clips.config import BevSourceChoice, ClipsConfig
-from encoders.clips.raster import MAP_CHANNELS, BevGrid
+from encoders.clips.raster import MAP_CHANNELS
 from encoders.clips.render import render_log
 from encoders.clips.table import ClipsInputError
 from encoders.clips.testing import EGO_SE3_CAMERA, INTRINSICS, synthetic_captions, write_synthetic_log
 from encoders.data import ClipDataset
+from scenes.bev import BevGrid
 from scenes.log import Log
 
 CONFIG = replace(ClipsConfig(), previews=False)
@@ -88,12 +89,12 @@ def test_bev_marks_the_track_over_time(built: tuple[Path, Path]) -> None:
     item = _item(clips_dir, "lead")
     obj = item["bev_object"][:, 0].numpy()  # (T, H, W)
     centres = _annotation_centres(log_dir, "lead", fi)
-    expected = BevGrid().to_pixel(centres[:, :2])  # (T, 2) col, row
+    expected = BevGrid().ego_to_pixel(centres[:, :2])  # (T, 2) col, row; integers are cell centres
     for t in range(len(fi)):
         rows, cols = np.nonzero(obj[t])
         assert rows.size >= 10
-        assert abs(cols.mean() + 0.5 - expected[t, 0]) < 1.0
-        assert abs(rows.mean() + 0.5 - expected[t, 1]) < 1.0
+        assert abs(cols.mean() - expected[t, 0]) < 1.0
+        assert abs(rows.mean() - expected[t, 1]) < 1.0
     # Left lane (y = +3.5 m → column 33) into the ego lane (y = 0 → column 40).
     assert np.nonzero(obj[0])[1].mean() < 35 and np.nonzero(obj[-1])[1].mean() > 38
     # The follower is behind the ego, outside the camera: no camera view, marked below the ego.
@@ -121,14 +122,14 @@ def test_map_channels_and_clip_table(built: tuple[Path, Path]) -> None:
     drivable = bev_map[MAP_CHANNELS.index("drivable_area")] > 0.5
     # Road from y = −6 m to +8 m: columns (20 − 8)/0.5 = 24 … (20 + 6)/0.5 = 52.
     assert drivable[:, 26:50].all() and not drivable[:, :22].any() and not drivable[:, 54:].any()
-    # Lanes span y = −1.75 … 5.25 m (columns 30 … 43); their direction in the ego frame is +x:
-    # encoded x = 128 + 127, y = 128 inside lanes, 0 outside.
-    dx = bev_map[MAP_CHANNELS.index("lane_direction_x")] * 255
-    dy = bev_map[MAP_CHANNELS.index("lane_direction_y")] * 255
+    # Lanes span y = −1.75 … 5.25 m (columns 30 … 43); their heading in the ego frame is 0:
+    # cos encoded 128 + 127, sin 128 inside lanes, 0 outside.
+    dx = bev_map[MAP_CHANNELS.index("lane_direction_cos")] * 255
+    dy = bev_map[MAP_CHANNELS.index("lane_direction_sin")] * 255
     assert np.abs(dx[:, 31:43] - 255).max() <= 1.0 and np.abs(dy[:, 31:43] - 128).max() <= 1.0
     assert dx[:, :28].max() == 0 and dx[:, 46:].max() == 0
     # Crossing at city x = 40–44 m; at the first sampled frame (frame 5) the ego is at x = 2.5 m.
-    crossing = bev_map[MAP_CHANNELS.index("crossing")] > 0.5
+    crossing = bev_map[MAP_CHANNELS.index("crosswalks")] > 0.5
     rows = np.nonzero(crossing.any(axis=1))[0]
     assert abs((60.0 - rows.mean() * 0.5) - (42.0 - 2.5)) < 1.0
 

@@ -12,9 +12,9 @@ import torch
 
 from encoders.clips.build import build_clips
 from encoders.clips.config import ClipsConfig
-from encoders.clips.raster import BevGrid
 from encoders.clips.testing import synthetic_captions, write_synthetic_log
 from encoders.data import AugmentConfig, ClipDataset, collate_clips, read_clip_table, read_manifest
+from scenes.bev import BevGrid
 
 
 @pytest.fixture(scope="module")
@@ -88,9 +88,9 @@ def test_augmentation_is_seeded_and_moves_the_bev_consistently(clips_dir: Path) 
         r, c = np.nonzero(base[t])
         p = np.stack([grid.x_max_m - (r.mean() + 0.5) * 0.5, grid.y_max_m - (c.mean() + 0.5) * 0.5])
         rot = np.array([[np.cos(theta), -np.sin(theta)], [np.sin(theta), np.cos(theta)]])
-        expected = grid.to_pixel(rot @ p + shift)
+        expected = grid.ego_to_pixel(rot @ p + shift)[0]  # integers are cell centres
         r2, c2 = np.nonzero(moved[t])
-        assert abs(c2.mean() + 0.5 - expected[0]) < 1.0 and abs(r2.mean() + 0.5 - expected[1]) < 1.0
+        assert abs(c2.mean() - expected[0]) < 1.0 and abs(r2.mean() - expected[1]) < 1.0
     # Ego motion rotates with the BEV; speed is unchanged.
     m0, m1 = plain[index]["ego_motion"].numpy(), x["ego_motion"].numpy()
     np.testing.assert_allclose(np.linalg.norm(m1[:, :2], axis=1), np.linalg.norm(m0[:, :2], axis=1), atol=1e-4)

@@ -191,3 +191,11 @@ def test_retune_after_adds(clustered: Callable[..., np.ndarray]) -> None:
     index.add(x[2000:])
     tuning = index.tune(target_recall=0.99, config=AutoConfig(tune_queries=100))
     assert tuning["target_recall"] == 0.99 and tuning["recall_at_k"] >= 0.99
+
+
+def test_kinds_without_a_knob_still_measure_recall(data: Data) -> None:
+    index = VectorIndex.build(data[0], factory="PQ8x4", config=AutoConfig(tune_queries=100))
+    tuning = index.info["tuning"]
+    assert tuning["knob"] == "none" and tuning["value"] == 0
+    assert 0.0 < tuning["recall_at_k"] < 1.0  # lossy codes: measured, not assumed
+    assert index.remove([3]) == 1 and 3 not in index  # flat codes delete in place

@@ -65,7 +65,8 @@ def post_log_hooks(config: SimulationConfig, emit_detections: bool = False) -> l
 
 def run(args: argparse.Namespace) -> int:
     config = build_config(args)
-    result = simulate_tracks_and_map(config, args.out, overwrite=args.overwrite, post_log=post_log_hooks(config, args.emit_detections))
+    hooks = post_log_hooks(config, args.emit_detections)
+    result = simulate_tracks_and_map(config, args.out, overwrite=args.overwrite, post_log=hooks)
     for log_dir in result.log_dirs:
         print(log_dir)
     print(f"wrote {len(result.log_dirs)} logs of {config.duration_s:g} s ({config.network.value}, seed "

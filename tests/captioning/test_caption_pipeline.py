@@ -8,7 +8,7 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
-from captioning.config import CaptioningConfig, WindowsConfig, WindowStrategy
+from captioning.config import CaptioningConfig, SmoothingConfig, WindowsConfig, WindowStrategy
 from captioning.errors import TrackDataError
 from captioning.pipeline import CAPTIONS_SCHEMA, FRAME_TAGS_SCHEMA, caption_arrays, write_outputs
 
@@ -125,3 +125,22 @@ def test_tiny_logs_give_no_captions_and_no_errors(num_frames: int, num_tracks: i
     assert result.captions == []
     assert result.frame_tags_table().num_rows == num_frames * (1 + num_tracks)
     assert len(result.skipped_tracks) == (num_tracks if num_frames == 1 else 0)
+
+
+def test_missed_detections_are_bridged_for_derivatives_but_not_reported(make_scene) -> None:  # type: ignore[no-untyped-def]
+    # A parked car seen by a jittery tracker that misses every fourth frame: with gaps bridged the
+    # car stays stationary; cut into 3-frame runs differentiated apart it would look like it moves.
+    rng = np.random.default_rng(3)
+    xy = np.tile([25.0, -3.5], (60, 1)) + rng.normal(0, 0.15, (60, 2))
+    seen = np.arange(60) % 4 != 3
+    scene = make_scene(8.0).add("parked", "car", xy, 0.0, valid=seen)
+    assert scene.caption().neighbors.stationary.tolist() == [True]
+    unbridged = CaptioningConfig(smoothing=SmoothingConfig(max_gap_frames=0))
+    assert scene.caption(unbridged).neighbors.stationary.tolist() == [False]
+    # Two frames with one missed between them can be differentiated; frames are reported only where seen.
+    pair = np.zeros(60, bool)
+    pair[[30, 32]] = True
+    result = make_scene(0.0).add("pair", "car", np.c_[10.0 + 5.0 * np.arange(60) * 0.1, np.zeros(60)], 0.0,
+                                 valid=pair).caption()
+    assert result.neighbors.taggable.tolist() == [True] and result.skipped_tracks == {}
+    assert np.flatnonzero(result.neighbors.tagged[0]).tolist() == [30, 32]

@@ -1,0 +1,80 @@
+"""Rule-caption search: text variants, persistence, filters, and real AV2 logs (tracks only)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pyarrow as pa
+import pytest
+from retrieval_fakes import HashTextEncoder
+
+from retrieval.captions_search import CaptionSearch, object_sentence, search_logs, text_variants
+from retrieval.errors import EmptyQueryError, FilterSyntaxError, IndexDirError, InvalidKError
+
+REALDATA = Path(__file__).resolve().parents[3] / "shared" / "realdata" / "av2"
+DEV_LOGS = ("7fab2350-7eaf-3b7e-a39d-6937a4c1bede", "adcf7d18-0510-35b0-a2fa-b4cea13a6d76")
+
+
+def _table() -> pa.Table:
+    rows = [
+        ("L1", "t1", "car", "The ego vehicle is cruising straight. A car in the left lane approaches.",
+         ["A car in the left lane comes closer."]),
+        ("L1", "t2", "car", "The ego vehicle is cruising straight. A car in the ego lane is stationary.",
+         ["The ego vehicle is cruising. A car in the ego lane is stopped."]),
+        ("L2", "t3", "pedestrian", "The ego vehicle is stationary. A pedestrian crossing on the left moves away.",
+         []),
+        ("L2", "ego", "ego", "The ego vehicle is stationary.", ["The ego vehicle is stopped."]),
+        ("L2", "t4", "car", "", []),
+    ]
+    return pa.table({
+        "log_id": [r[0] for r in rows], "track_id": [r[1] for r in rows], "category": [r[2] for r in rows],
+        "start_ns": [100 * i for i in range(len(rows))], "end_ns": [100 * i + 50 for i in range(len(rows))],
+        "caption": [r[3] for r in rows], "canonical_caption": [r[3] for r in rows],
+        "paraphrases": [r[4] for r in rows], "tags": [["x:y"]] * len(rows),
+    })
+
+
+def test_text_variants() -> None:
+    row = _table().to_pylist()[1]
+    variants = text_variants(row)
+    assert variants[0] == row["caption"]
+    assert "A car in the ego lane is stationary." in variants and "A car in the ego lane is stopped." in variants
+    host = _table().to_pylist()[3]
+    assert text_variants(host) == ["The ego vehicle is stationary.", "The ego vehicle is stopped."]
+    assert object_sentence("The ego vehicle is stationary.") is None
+
+
+def test_build_search_round_trip(tmp_path: Path) -> None:
+    encoder = HashTextEncoder()
+    search = CaptionSearch.build(_table(), tmp_path / "cap", encoder=encoder)
+    assert len(search) == 4 and [s.reason for s in search.skipped] == ["no caption"]
+    assert encoder.calls == 1  # every distinct text embedded in one call
+    hits = search.search("A car in the ego lane is stopped.", k=2)
+    assert hits[0].track_id == "t2" and hits[0].score == pytest.approx(1.0, abs=1e-5)
+    assert hits[0].clip_id == "L1:t2:100" and hits[0].view == "captions"
+    reopened = CaptionSearch.open(tmp_path / "cap", encoder=HashTextEncoder())
+    again = reopened.search("A car in the ego lane is stopped.", k=2)
+    assert [h.clip_id for h in again] == [h.clip_id for h in hits]
+    assert [h.category for h in reopened.search("stopped", k=4, filters={"category": "ego"})] == ["ego"]
+    peds = reopened.search("crossing", k=4, filters="category == pedestrian")
+    assert [h.track_id for h in peds] == ["t3"]
+    with pytest.raises(EmptyQueryError):
+        reopened.search("")
+    with pytest.raises(InvalidKError, match=r"1 … 4"):
+        reopened.search("car", k=5)
+    with pytest.raises(FilterSyntaxError, match="valid fields: clip_id"):
+        reopened.search("car", filters={"lane": "left"})
+    with pytest.raises(IndexDirError, match="not a caption index"):
+        CaptionSearch.open(tmp_path)
+
+
+@pytest.mark.skipif(not all((REALDATA / d).is_dir() for d in DEV_LOGS), reason="../shared/realdata/av2 is absent")
+def test_stopped_car_on_real_av2_logs() -> None:
+    """Acceptance: a short query finds the right moments on real logs that have tracks but no sensors."""
+    results = search_logs([REALDATA / d for d in DEV_LOGS], "stopped car", k=5)
+    assert len(results) == 5
+    assert all(r.category == "car" for r in results)
+    assert all("stationary" in r.caption.split(". ", 1)[-1] for r in results)
+    assert {r.log_id for r in results} <= set(DEV_LOGS)
+    peds = search_logs([REALDATA / d for d in DEV_LOGS], "a pedestrian approaching", k=3)
+    assert all(r.category == "pedestrian" and "approaches" in r.caption for r in peds)

@@ -1,19 +1,24 @@
-"""Captioning speed: vectorised rules against the per-frame reference implementation, same run.
+"""Captioning speed and quality: vectorised rules against the per-frame reference implementation, same run.
 
 Synthetic fleet-like logs (10 Hz, tracks with random spans, rare gaps, a wandering ego). Figures:
 object-frames per second of the tag computation (host + neighbour tags) for both
 implementations, their ratio, and the throughput of the whole ``caption_arrays`` (tags, windows,
-text). The reference is timed on a subset (it is slow by design) and must give the same tags.
+text). Quality: agreement of the tags with the simulator's behaviour labels on freshly simulated
+logs (ego turns → steering tags, neighbour lane changes → lane transitions), when SUMO is
+available. The reference is timed on a subset (it is slow by design) and must give the same tags.
 Times are CPU seconds of this process (``time.process_time``), so that other work on a shared
 machine does not count; numpy's elementwise kernels run on one core.
 """
 
 from __future__ import annotations
 
+import tempfile
 import time
+from pathlib import Path
 
 import numpy as np
 
+from captioning.agreement import agreement_for_logs
 from captioning.config import CaptioningConfig
 from captioning.host import host_tags
 from captioning.neighbors import neighbor_tags
@@ -88,6 +93,7 @@ def run(quick: bool) -> dict:
     fast_rate = object_frames / fast_s
     ref_rate = subset_frames / ref_s
     return {
+        **_simulated_agreement(num_logs=2 if quick else 8, duration_s=40 if quick else 60),
         "object_frames": object_frames,
         "vectorised_object_frames_per_s": round(fast_rate),
         "reference_object_frames_per_s": round(ref_rate),
@@ -101,6 +107,24 @@ def run(quick: bool) -> dict:
         "tracks_per_log": num_tracks,
         "frames_per_log": num_frames,
     }
+
+
+def _simulated_agreement(num_logs: int, duration_s: int) -> dict:
+    """Agreement figures on simulated logs (empty with a reason when the simulator cannot run)."""
+    from retrieval.cli import main
+
+    with tempfile.TemporaryDirectory() as tmp:
+        out = Path(tmp) / "sim"
+        argv = ["simulate", "--out", str(out), "--logs", str(num_logs), "--duration-s", str(duration_s),
+                "--seed", "2", "--no-sensors", "--cache-dir", str(Path(tmp) / "cache")]
+        try:
+            if main(argv) != 0:
+                return {"agreement_error": "simulate failed"}
+        except Exception as exc:
+            return {"agreement_error": f"{type(exc).__name__}: {exc}"}
+        report = agreement_for_logs(sorted(p for p in out.iterdir() if p.is_dir()))
+    return {f"agreement_{key}": (round(value, 3) if isinstance(value, float) else value)
+            for key, value in report.to_dict().items()}
 
 
 if __name__ == "__main__":

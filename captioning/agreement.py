@@ -17,13 +17,16 @@ Two checks, per labelled *event* (a contiguous run of frames where a label holds
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import asdict, dataclass
+from pathlib import Path
 
 import numpy as np
 import pyarrow as pa
 from numpy.typing import NDArray
 
-from captioning.pipeline import EGO_TRACK_ID, LogCaptions
+from captioning.config import CaptioningConfig
+from captioning.pipeline import EGO_TRACK_ID, LogCaptions, caption_log
 from captioning.tags import HOST_DIRECTIONS, LANES, NO_TAG, HostDirection, Lane
 
 #: Same-direction lanes ordered from right to left in the ego frame.
@@ -137,3 +140,22 @@ def agreement(
                 window = result.host_direction[start : end + 1]
                 counts["ego_turn_steering"] += int(bool((window[window != NO_TAG] == code).any()))
     return AgreementReport(**counts)
+
+
+def agreement_for_logs(log_dirs: Iterable[Path | str], config: CaptioningConfig | None = None) -> AgreementReport:
+    """Caption simulated logs and sum their agreement with ``behavior_labels.feather``.
+
+    Logs without labels (real logs) add nothing.
+    """
+    from scenes.behavior import read_behavior_labels
+    from scenes.log import Log
+
+    config = config or CaptioningConfig()
+    total = AgreementReport()
+    for log_dir in log_dirs:
+        labels = read_behavior_labels(log_dir)
+        if labels is None:
+            continue
+        result = caption_log(Log.open(log_dir), config)
+        total = total + agreement(result, labels, host_lane_half_width_m=config.neighbor.host_lane_half_width_m)
+    return total

@@ -177,25 +177,31 @@ def bridge_gaps(
     return valid | bridge
 
 
-def robust_quantile(values: FloatArray, q: float) -> FloatArray:
-    """Linear-interpolated quantile of each row over its finite entries (NaN for rows without any).
+def quantile_below(values: FloatArray, q: float, threshold: float) -> BoolArray:
+    """Whether each row's ``q`` quantile (linear interpolation, over its finite entries) is below
+    ``threshold``, without sorting: counting the entries below the threshold settles it unless the
+    quantile falls between the largest entry below and the smallest at or above, which are then
+    interpolated exactly as the quantile would be.
 
     Args:
         values: (K, T) samples, NaN where missing.
 
     Returns:
-        (K,) quantiles.
+        (K,) booleans; False for rows without samples.
     """
-    k, _ = values.shape
-    s = np.sort(values, axis=1)  # NaN sorts last
-    n = np.isfinite(values).sum(axis=1)
+    finite = np.isfinite(values)
+    n = finite.sum(axis=1)
     pos = q * np.maximum(n - 1, 0)
     lo = np.floor(pos).astype(np.int64)
     hi = np.minimum(lo + 1, np.maximum(n - 1, 0))
-    rows = np.arange(k)
-    v_lo, v_hi = s[rows, lo], s[rows, hi]
-    out = v_lo + (pos - lo) * (v_hi - v_lo)
-    return np.where(n > 0, out, np.nan)
+    below = finite & (values < threshold)
+    count = below.sum(axis=1)
+    largest_below = np.where(below, values, -np.inf).max(axis=1)
+    smallest_above = np.where(finite & ~below, values, np.inf).min(axis=1)
+    between = (count == lo + 1) & (hi > lo)
+    with np.errstate(invalid="ignore"):
+        interpolated = largest_below + (pos - lo) * (smallest_above - largest_below)
+    return (n > 0) & ((count >= hi + 1) | (between & (interpolated < threshold)))
 
 
 def baseline_lane_codes(yaw_ego_rad: FloatArray, config: CaptioningConfig) -> IntArray:
@@ -291,9 +297,10 @@ def neighbor_tags(
     differentiable: BoolArray = np.asarray(np.isfinite(d).all(axis=2), dtype=bool)
     observed = differentiable & cvalid
     taggable: BoolArray = np.asarray(observed.any(axis=1), dtype=bool)
-    quantile_x = robust_quantile(np.where(observed, abs_first_vel[..., 0], np.nan), nb.stationary_quantile)
-    quantile_y = robust_quantile(np.where(observed, abs_first_vel[..., 1], np.nan), nb.stationary_quantile)
-    stationary = taggable & (quantile_x < nb.stationary_speed_mps) & (quantile_y < nb.stationary_speed_mps)
+    q, ts = nb.stationary_quantile, nb.stationary_speed_mps
+    still_x = quantile_below(np.where(observed, abs_first_vel[..., 0], np.nan), q, ts)
+    still_y = quantile_below(np.where(observed, abs_first_vel[..., 1], np.nan), q, ts)
+    stationary = taggable & still_x & still_y
     # Bridged frames carry tags while flicker is suppressed; only observed frames are reported.
     tagged = differentiable & (taggable & ~stationary)[:, None]
     moving = (abs_first_vel[..., 0] >= nb.stationary_speed_mps) | (abs_first_vel[..., 1] >= nb.stationary_speed_mps)

@@ -17,7 +17,8 @@ num_frames, tags`` (the unified sequence), ``host_tags`` (the host's over the sa
 ``caption`` (= ``canonical_caption``), ``canonical_caption, paraphrases, window``. Host captions
 have track id ``ego``, one per host segment; neighbour captions one per (moving track, window)
 where the track is tagged in at least ``segments.min_frames`` frames of the window; the
-interval is the track's first and last tagged frame inside the window.
+interval is the track's first and last tagged frame inside the window, and (log, track, start)
+is unique (of sliding windows that clip a track to the same start, the longest is kept).
 """
 
 from __future__ import annotations
@@ -47,6 +48,8 @@ EGO_TRACK_ID = "ego"
 #: Category value of the ego's rows in both files (the ego is not an object category).
 EGO_CATEGORY = "ego"
 FRAME_TAGS_FILENAME = "frame_tags.parquet"
+#: Why a track gets no tags: no two observations close enough to differentiate.
+SKIP_ISOLATED = "observed only in single frames too far apart to differentiate"
 CAPTIONS_FILENAME = "captions.parquet"
 
 FRAME_TAGS_SCHEMA = pa.schema(
@@ -289,7 +292,7 @@ def caption_arrays(
 
     host_motion, host_direction = host_tags(timestamps_ns, city_SE3_ego, config)
     nb = neighbor_tags(timestamps_ns, valid, center_ego_xy_m, yaw_ego_rad, city_SE3_ego, config)
-    skipped = {str(tid): "no two consecutive observed frames (single-frame track)" for tid in track_ids[~nb.taggable]}
+    skipped = {str(tid): SKIP_ISOLATED for tid in track_ids[~nb.taggable]}
     partial = LogCaptions(
         log_id, timestamps_ns, track_ids, categories, valid, center_ego_xy_m,
         host_motion, host_direction, nb, [], [], skipped,
@@ -297,7 +300,7 @@ def caption_arrays(
     host_code = partial.host_code
     segments, windows = caption_windows(timestamps_ns, host_code, config)
     captions = _host_captions(partial, segments, host_code, config)
-    captions += _neighbor_captions(partial, windows, host_code, config)
+    captions += _unique_starts(_neighbor_captions(partial, windows, host_code, config))
     return LogCaptions(
         log_id, timestamps_ns, track_ids, categories, valid, center_ego_xy_m,
         host_motion, host_direction, nb, segments, captions, skipped,
@@ -318,7 +321,7 @@ def _make_caption(
     canonical = caption_text(neighbor_category, tags, host)
     variants = paraphrases(
         neighbor_category, tags, host, config.text.num_paraphrases, config.text.seed,
-        (result.log_id, track_id, start_ns, end_ns),
+        (result.log_id, track_id, start_ns, end_ns), canonical,
     )
     return Caption(result.log_id, track_id, category, start_ns, end_ns, num_frames, tags, host, canonical,
                    tuple(variants), window)
@@ -352,6 +355,18 @@ def _neighbor_captions(
                               int(frames[-1]), int(counts[k]), tags, host, config.windows.strategy.value, config)
             )
     return out
+
+
+def _unique_starts(captions: list[Caption]) -> list[Caption]:
+    """One caption per (track, start): overlapping sliding windows can clip a track to the same
+    start; downstream clip ids are ``log:track:start_ns``, so keep the longest of such captions."""
+    best: dict[tuple[str, int], Caption] = {}
+    for caption in captions:
+        key = (caption.track_id, caption.start_ns)
+        if key not in best or caption.num_frames > best[key].num_frames:
+            best[key] = caption
+    keep = {id(c) for c in best.values()}
+    return [c for c in captions if id(c) in keep]
 
 
 def caption_dense(log_id: str, dense: DenseTracks, config: CaptioningConfig) -> LogCaptions:

@@ -82,7 +82,8 @@ def frame_derivative(values: FloatArray, valid: BoolArray, window_frames: int, p
     w = window_frames
     half = w // 2
     sg_coeffs = savgol_derivative_coefficients(w, polyorder)
-    flat3 = np.where(valid[..., None], values, 0.0)  # zeros never weigh: their weights are 0
+    # Unobserved samples get weight 0, but 0 × NaN is NaN: zero them unless all are finite already.
+    flat3 = values if np.isfinite(values).all() else np.where(valid[..., None], values, 0.0)
     run_start, run_end = run_bounds(valid)
     frame = np.arange(t)[None, :]
     # Bulk: frames whose centred window lies inside their run, as one correlation over the grid.
@@ -164,18 +165,25 @@ def suppress_flicker(codes: IntArray, min_run_frames: int) -> IntArray:
     k, t = codes.shape
     if min_run_frames <= 1 or k == 0 or t == 0:
         return codes.copy()
-    change = np.ones((k, t), dtype=bool)
-    change[:, 1:] = codes[:, 1:] != codes[:, :-1]
-    run_id = np.cumsum(change.ravel()) - 1
-    run_len = np.bincount(run_id)[run_id].reshape(k, t)
-    hole = (run_len < min_run_frames) & (codes != NO_TAG)
+    # Work on runs, not frames: (R,) run starts, lengths, tags and rows.
+    flat = codes.ravel()
+    change = np.empty(k * t, dtype=bool)
+    change[0] = True
+    np.not_equal(flat[1:], flat[:-1], out=change[1:])
+    change[::t] = True  # a run never spans two tracks
+    starts = np.flatnonzero(change)
+    lengths = np.diff(np.r_[starts, k * t])
+    tags = flat[starts]
+    row = starts // t
+    hole = (lengths < min_run_frames) & (tags != NO_TAG)
     if not hole.any():
         return codes.copy()
-    frame = np.broadcast_to(np.arange(t), (k, t))
-    prev_idx = np.maximum.accumulate(np.where(hole, -1, frame), axis=1)
-    next_idx = np.minimum.accumulate(np.where(hole, t, frame)[:, ::-1], axis=1)[:, ::-1]
-    row = np.arange(k)[:, None]
-    prev_val = np.where(prev_idx >= 0, codes[row, np.maximum(prev_idx, 0)], NO_TAG)
-    next_val = np.where(next_idx < t, codes[row, np.minimum(next_idx, t - 1)], NO_TAG)
-    fill = np.where(prev_val != NO_TAG, prev_val, np.where(next_val != NO_TAG, next_val, codes))
-    return np.where(hole, fill, codes)
+    r = starts.shape[0]
+    index = np.arange(r)
+    prev = np.maximum.accumulate(np.where(hole, -1, index))
+    nxt = np.minimum.accumulate(np.where(hole, r, index)[::-1])[::-1]
+    prev_c, next_c = np.clip(prev, 0, r - 1), np.clip(nxt, 0, r - 1)
+    prev_tag = np.where((prev >= 0) & (row[prev_c] == row), tags[prev_c], NO_TAG)
+    next_tag = np.where((nxt < r) & (row[next_c] == row), tags[next_c], NO_TAG)
+    fill = np.where(prev_tag != NO_TAG, prev_tag, np.where(next_tag != NO_TAG, next_tag, tags))
+    return np.repeat(np.where(hole, fill, tags), lengths).reshape(k, t)

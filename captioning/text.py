@@ -2,7 +2,7 @@
 
 The canonical caption uses the first template of every slot, so it is a pure function of the
 tags and the category. Paraphrases draw other templates with a generator seeded from the config
-seed and the caption's identity (log, track, window start), so a rerun reproduces them exactly.
+seed and the caption's identity (log, track, start and end), so a rerun reproduces them exactly.
 
 Example: tags ``["left:approach", "host:constant"]`` for a car, host ``["cruising:heading_straight"]``::
 
@@ -29,7 +29,7 @@ CATEGORY_WORDS: dict[str, str] = {
 }
 
 #: Where the neighbour is (first tag of a caption).
-LANE_PHRASES: dict[Lane, tuple[str, ...]] = {
+LANE_PHRASES: dict[str, tuple[str, ...]] = {
     Lane.LEFT: ("in the left lane", "in the lane to the left", "one lane to the left"),
     Lane.RIGHT: ("in the right lane", "in the lane to the right", "one lane to the right"),
     Lane.HOST: ("in the ego lane", "in the same lane as the ego vehicle", "in the ego vehicle's lane"),
@@ -43,7 +43,7 @@ LANE_PHRASES: dict[Lane, tuple[str, ...]] = {
     ),
 }
 #: A change of lane (later tags).
-LANE_TRANSITIONS: dict[Lane, tuple[str, ...]] = {
+LANE_TRANSITIONS: dict[str, tuple[str, ...]] = {
     Lane.LEFT: ("moves into the left lane", "changes to the left lane", "shifts into the left lane"),
     Lane.RIGHT: ("moves into the right lane", "changes to the right lane", "shifts into the right lane"),
     Lane.HOST: ("moves into the ego lane", "cuts into the ego lane", "merges into the ego lane"),
@@ -52,7 +52,7 @@ LANE_TRANSITIONS: dict[Lane, tuple[str, ...]] = {
     Lane.HOST_LATERAL: ("starts crossing the ego lane", "turns across the ego lane", "cuts across the ego lane"),
     Lane.ONCOMING: ("moves into the oncoming lane", "swerves into the oncoming lane", "turns into the oncoming lane"),
 }
-MOTION_PHRASES: dict[Motion, tuple[str, ...]] = {
+MOTION_PHRASES: dict[str, tuple[str, ...]] = {
     Motion.APPROACH: ("approaches", "approaches the ego vehicle", "comes closer", "closes in"),
     Motion.AWAY: ("moves away", "moves away from the ego vehicle", "pulls away", "drives off into the distance"),
     Motion.CONSTANT: (
@@ -64,19 +64,19 @@ MOTION_PHRASES: dict[Motion, tuple[str, ...]] = {
     Motion.STATIONARY: ("is stationary", "stands still", "is stopped", "does not move"),
 }
 #: Host motion as the first clause ("The ego vehicle ...") and after "then".
-HOST_MOTION_FIRST: dict[HostMotion, tuple[str, ...]] = {
+HOST_MOTION_FIRST: dict[str, tuple[str, ...]] = {
     HostMotion.STATIONARY: ("is stationary", "is standing still", "is stopped"),
     HostMotion.ACCELERATING: ("is accelerating", "is speeding up", "is gaining speed"),
     HostMotion.DECELERATING: ("is decelerating", "is slowing down", "is braking"),
     HostMotion.CRUISING: ("is cruising", "is driving at a steady speed", "is cruising along"),
 }
-HOST_MOTION_THEN: dict[HostMotion, tuple[str, ...]] = {
+HOST_MOTION_THEN: dict[str, tuple[str, ...]] = {
     HostMotion.STATIONARY: ("stops", "comes to a stop", "comes to a standstill"),
     HostMotion.ACCELERATING: ("accelerates", "speeds up", "gains speed"),
     HostMotion.DECELERATING: ("decelerates", "slows down", "brakes"),
     HostMotion.CRUISING: ("cruises", "keeps a steady speed", "drives on at a steady speed"),
 }
-HOST_DIRECTION_PHRASES: dict[HostDirection, tuple[str, ...]] = {
+HOST_DIRECTION_PHRASES: dict[str, tuple[str, ...]] = {
     HostDirection.HEADING_STRAIGHT: ("straight", "straight ahead", "in a straight line"),
     HostDirection.STEERING_LEFT: ("while steering left", "while turning left", "and steers to the left"),
     HostDirection.STEERING_RIGHT: ("while steering right", "while turning right", "and steers to the right"),
@@ -96,8 +96,8 @@ def host_sentence(host_tags: Sequence[str], rng: random.Random | None = None) ->
     """One sentence for the host's unified tags (``motion:direction``); empty for no tags."""
     clauses: list[str] = []
     for i, tag in enumerate(host_tags):
-        motion_s, direction_s = split_tag(tag)
-        motion, direction = HostMotion(motion_s), HostDirection(direction_s)
+        # str Enums hash and compare like their values: the tag's strings index the tables directly.
+        motion, direction = split_tag(tag)
         verb = _pick((HOST_MOTION_FIRST if i == 0 else HOST_MOTION_THEN)[motion], rng)
         clause = verb
         # A stopped vehicle heading straight needs no direction.
@@ -112,10 +112,9 @@ def host_sentence(host_tags: Sequence[str], rng: random.Random | None = None) ->
 def neighbor_sentence(category: str, tags: Sequence[str], rng: random.Random | None = None) -> str:
     """One sentence for a neighbour's unified tags (``lane:motion``); class, lane and motion always appear."""
     clauses: list[str] = []
-    previous_lane: Lane | None = None
+    previous_lane: str | None = None
     for i, tag in enumerate(tags):
-        lane_s, motion_s = split_tag(tag)
-        lane, motion = Lane(lane_s), Motion(motion_s)
+        lane, motion = split_tag(tag)
         motion_phrase = _pick(MOTION_PHRASES[motion], rng)
         if i == 0:
             clauses.append(f"{_pick(LANE_PHRASES[lane], rng)} {motion_phrase}")
@@ -153,10 +152,11 @@ def paraphrases(
     count: int,
     seed: int,
     key: tuple[object, ...],
+    canonical: str | None = None,
 ) -> list[str]:
     """Up to ``count`` distinct paraphrases, different from the canonical caption when possible."""
     rng = paraphrase_rng(seed, *key)
-    canonical = caption_text(category, tags, host_tags)
+    canonical = caption_text(category, tags, host_tags) if canonical is None else canonical
     out: list[str] = []
     for _ in range(count * 8):
         if len(out) == count:

@@ -178,7 +178,9 @@ class ClipDataset(torch.utils.data.Dataset[dict[str, Any]]):
     def _out(self, array: NDArray[np.uint8]) -> torch.Tensor:
         """uint8 0–255 → float32 [0, 1] tensor (or the uint8 tensor with ``as_uint8``), same shape."""
         tensor = torch.from_numpy(np.ascontiguousarray(array))
-        return tensor if self.as_uint8 else tensor.to(torch.float32).mul_(1.0 / 255.0)
+        if self.as_uint8:
+            return tensor
+        return torch.empty(tensor.shape, dtype=torch.float32).copy_(tensor).mul_(1.0 / 255.0)
 
     def _log(self, log_id: str) -> LogArrays:
         arrays = self._arrays.get(log_id)
@@ -188,6 +190,38 @@ class ClipDataset(torch.utils.data.Dataset[dict[str, Any]]):
         return arrays
 
     def __getitem__(self, index: int) -> dict[str, Any]:
+        raw = self._raw(index)
+        for key in UINT8_VIEWS:
+            raw[key] = self._out(raw[key])
+        raw["ego_motion"] = torch.from_numpy(raw["ego_motion"])
+        return raw
+
+    def __getitems__(self, indices: list[int]) -> dict[str, Any]:
+        """A whole batch at once (the DataLoader calls this when it exists): the uint8 views are
+        stacked and converted in one pass straight into the batch tensors (in shared memory inside a
+        worker), instead of converting each item and copying it again in the collate."""
+        raws = [self._raw(int(i)) for i in indices]
+        batch: dict[str, Any] = {}
+        for key in raws[0]:
+            values = [r[key] for r in raws]
+            if key in UINT8_VIEWS:
+                stacked = torch.from_numpy(np.stack(values))
+                if self.as_uint8:
+                    batch[key] = stacked
+                else:
+                    out = _empty_batch(tuple(stacked.shape), torch.float32)
+                    out.copy_(stacked).mul_(1.0 / 255.0)  # two in-place passes: faster than a promoting mul
+                    batch[key] = out
+            elif key == "ego_motion":
+                batch[key] = torch.from_numpy(np.stack(values))
+            elif key == "has_camera":
+                batch[key] = torch.tensor(values, dtype=torch.bool)
+            else:
+                batch[key] = values
+        return batch
+
+    def _raw(self, index: int) -> dict[str, Any]:
+        """One item with the image-like views as uint8 numpy arrays and ego motion as numpy."""
         row = self._rows[index]
         arrays = self._log(row.log_id)
         fi = row.frame_indices
@@ -236,12 +270,12 @@ class ClipDataset(torch.utils.data.Dataset[dict[str, Any]]):
             "canonical_caption": row.canonical_caption,
             "tags": list(row.tags),
             "host_tags": list(row.host_tags),
-            "camera": self._out(camera),
+            "camera": camera,
             "has_camera": has_camera,
-            "bev_lidar": self._out(lidar),
-            "bev_map": self._out(bev_map),
-            "bev_object": self._out(obj * np.uint8(255)),
-            "ego_motion": torch.from_numpy(motion),
+            "bev_lidar": lidar,
+            "bev_map": bev_map,
+            "bev_object": obj * np.uint8(255),
+            "ego_motion": motion,
         }
 
 
@@ -273,12 +307,25 @@ def to_float(batch: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
-def collate_clips(items: list[dict[str, Any]]) -> dict[str, Any]:
+def _empty_batch(shape: tuple[int, ...], dtype: torch.dtype) -> torch.Tensor:
+    """An uninitialised tensor, allocated in shared memory inside a DataLoader worker (as
+    ``default_collate`` does) so that handing it to the main process copies nothing."""
+    if torch.utils.data.get_worker_info() is None:
+        return torch.empty(shape, dtype=dtype)
+    numel = int(np.prod(shape))
+    storage = torch.empty(0, dtype=dtype)._typed_storage()._new_shared(numel, device="cpu")
+    return torch.empty(0, dtype=dtype).new(storage).resize_(*shape)
+
+
+def collate_clips(items: list[dict[str, Any]] | dict[str, Any]) -> dict[str, Any]:
     """Stack items into a batch: tensors → (B, T, C, H, W) / (B, T, 4), ``has_camera`` → (B,) bool,
     strings and tag lists → lists. The camera tensor holds zeros where ``has_camera`` is false.
 
     In a DataLoader worker the stacked tensors are written straight into shared memory (as
-    ``default_collate`` does), saving a copy per batch."""
+    ``default_collate`` does), saving a copy per batch. A batch already built by
+    :meth:`ClipDataset.__getitems__` passes through unchanged."""
+    if isinstance(items, dict):
+        return items
     out: dict[str, Any] = {}
     for key in items[0]:
         values = [item[key] for item in items]

@@ -172,6 +172,8 @@ class VectorIndex:
         exact_ids = np.where(rows_exact >= 0, ids[np.maximum(rows_exact, 0)], -1)
 
         def search(kk: int, value: int) -> np.ndarray:
+            if self._knob is Knob.NONE:
+                return np.asarray(self._index.search(xq, kk)[1])
             params = search_parameters(self._index, None, value)
             return np.asarray(self._index.search(xq, kk, params=params)[1])
 
@@ -260,7 +262,15 @@ class VectorIndex:
         if allowed is not None and self._prefer_exact(len(allowed)):
             return self._exact_search(x, k, allowed)
         sel_refs = self._selector(allowed)
-        D, I = self._faiss_search(x, k, sel_refs[0] if sel_refs else None)
+        try:
+            D, I = self._faiss_search(x, k, sel_refs[0] if sel_refs else None)
+        except RuntimeError as exc:
+            # Some kinds (e.g. flat PQ) take no search parameters, hence no selector.
+            subset = self._ids if allowed is None else allowed
+            if not sel_refs or len(subset) > EXACT_FALLBACK_MAX:
+                raise IndexesError(f"factory {self.factory!r} cannot search with a filter: "
+                                   f"{_faiss_message(exc)}") from None
+            return self._exact_search(x, k, subset)
         expected = min(k, len(self) if allowed is None else len(allowed))
         # FAISS puts padding last, so a row is short exactly when its expected-th result is −1.
         if expected == 0 or I[:, expected - 1].min() >= 0:

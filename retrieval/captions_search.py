@@ -242,7 +242,7 @@ class CaptionSearch:
             EmptyQueryError, InvalidKError, FilterSyntaxError: bad arguments.
         """
         query = check_query(query)
-        check_k(k, len(self))
+        k = check_k(k, len(self))
         scores = self.scores(np.asarray(self.encoder([query]), dtype=np.float32)[0])
         if filters is not None:
             allowed = np.zeros(len(self), dtype=bool)

@@ -21,12 +21,12 @@ class EmptyQueryError(RetrievalError):
 
 
 class InvalidKError(RetrievalError):
-    """``k`` is not in 1 … the number of indexed items."""
+    """``k`` is not an integer in 1 … the largest number of results a query may ask for."""
 
-    def __init__(self, k: object, size: int) -> None:
+    def __init__(self, k: object, limit: int) -> None:
         self.k = k
-        self.size = size
-        super().__init__(f"k must be an integer in 1 … {size} (the number of indexed items), got k={k!r}")
+        self.limit = limit
+        super().__init__(f"k must be an integer in 1 … {limit}, got k={k!r}")
 
 
 class UnknownClipError(RetrievalError):

@@ -21,10 +21,19 @@ def check_query(query: object) -> str:
     return query.strip()
 
 
+#: The most results one query may ask for.
+MAX_K = 10_000
+
+
 def check_k(k: object, size: int) -> int:
-    if isinstance(k, bool) or not isinstance(k, int | np.integer) or not 1 <= int(k) <= size:
-        raise InvalidKError(k, size)
-    return int(k)
+    """``k`` as an int, at most ``size`` (the items that can be returned).
+
+    Raises:
+        InvalidKError: ``k`` is not an integer in 1 … ``MAX_K``.
+    """
+    if isinstance(k, bool) or not isinstance(k, int | np.integer) or not 1 <= int(k) <= MAX_K:
+        raise InvalidKError(k, MAX_K)
+    return min(int(k), size)
 
 
 def check_filters(index: ClipIndex, filters: FilterSpec) -> FilterSpec:
@@ -53,8 +62,8 @@ def hits_to_results(index: ClipIndex, xq: np.ndarray, k: int, filters: FilterSpe
         message = str(exc)
         raise FilterSyntaxError(message if "valid fields" in message else f"{message}; valid fields: {valid}") \
             from None
-    except IndexInvalidKError as exc:
-        raise InvalidKError(k, exc.size) from None
+    except IndexInvalidKError:
+        raise InvalidKError(k, MAX_K) from None
     results = []
     for rank, hit in enumerate(found.hits[0], start=1):
         results.append(SearchResult.from_row(rank, hit.metadata, hit.score, view,

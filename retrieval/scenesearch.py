@@ -245,7 +245,7 @@ class SceneSearch:
 
         Args:
             query: a sentence, e.g. ``"a car in the left lane approaches, then stops"``.
-            k: results, 1 … number of indexed clips (fewer when a filter passes fewer clips).
+            k: results, 1 … 10 000 (fewer when the index or the filter holds fewer clips).
             filters: ``{"category": "car"}``, ``{"category": ["car", "bus"]}`` or a filter string
                 (``"category in {car, bus} and tags contains 'left:approach'"``, see ``indexes.filters``).
             view: ``fused``, ``camera`` or ``bev``.
@@ -256,7 +256,7 @@ class SceneSearch:
         """
         index = self._view(view)
         query = check_query(query)
-        check_k(k, len(index))
+        k = check_k(k, len(index))
         t0 = time.perf_counter()
         xq = np.asarray(self.embedder.embed_texts([query]), dtype=np.float32)
         t1 = time.perf_counter()
@@ -281,10 +281,10 @@ class SceneSearch:
             if clip not in index:
                 examples = index.metadata.table.column("clip_id").slice(0, 3).to_pylist()
                 raise UnknownClipError(clip, examples)
-            check_k(k, len(index) - 1)
+            k = check_k(k, len(index) - 1)
             return hits_to_results(index, np.zeros((1, index.dim), np.float32), k, filters, view, self.clips_dir,
                                    exclude_clip=clip)
-        check_k(k, len(index))
+        k = check_k(k, len(index))
         xq = np.asarray(self.embedder.embed_arrays(clip, view=view), dtype=np.float32)[:1]
         return hits_to_results(index, xq, k, filters, view, self.clips_dir)
 

@@ -177,7 +177,7 @@ class TagSearch:
         layers = None
         if r.needs_map and fr.has_map:
             layers = downsample_max(np.asarray(fr.bev_map), self.tagger.downsample)
-        masks = region_masks(self.grid, layers, self.tagger.map_channels or None or _default_channels())
+        masks = region_masks(self.grid, layers, self.tagger.map_channels or _default_channels())
         return region_mask(masks, r, where=f"log {fr.log_id}")
 
     # -- queries ----------------------------------------------------------------------------------
@@ -192,9 +192,7 @@ class TagSearch:
         mask = self.mask(log_dir, region)  # checks the region before any model work
         fr = self.frames(log_dir)
         tensors = [self.values(log_dir, a) for a in expr.attributes]
-        composed = compose(tensors, expr.op, h, kappa) if len(tensors) > 1 else tensors[0]
-        if h == "indicator" and len(tensors) == 1:
-            composed = compose(tensors, "and", h, kappa)
+        composed = compose(tensors, expr.op, h, kappa)
         pooled = pool_values(composed, mask, reduction_of(expr.attributes), self.grid.resolution_m**2)
         return fr.timestamps_ns, pooled
 
@@ -203,7 +201,7 @@ class TagSearch:
              kappa: float = 0.5) -> list[TagSpan]:
         """Spans of the logs where the tag holds in the region, best first (see the module docstring)."""
         expr: TagExpression = parse_tag_expression(tag, list(self.attributes))
-        parse_region(region) if isinstance(region, str) else region
+        region = parse_region(region) if isinstance(region, str) else region
         spans: list[TagSpan] = []
         for log_dir in log_dirs:
             ts, vals = self.series(log_dir, str(expr), region, h, kappa)

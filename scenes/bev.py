@@ -228,8 +228,10 @@ class MapRasterizer:
             bounds[:, 1] <= center[1] + radius) & (bounds[:, 3] >= center[1] - radius)
         return [polys[i] for i in np.flatnonzero(keep)]
 
-    def rasterize(self, grid: BevGrid, city_SE3_ego: SE3) -> dict[str, NDArray[np.float32]]:
-        """All :data:`MAP_LAYERS` around ``city_SE3_ego``."""
+    def rasterize(self, grid: BevGrid, city_SE3_ego: SE3 | NDArray[np.floating]) -> dict[str, NDArray[np.float32]]:
+        """All :data:`MAP_LAYERS` around ``city_SE3_ego`` (an :class:`SE3` or a (4, 4) matrix)."""
+        if not isinstance(city_SE3_ego, SE3):
+            city_SE3_ego = SE3.from_matrix(city_SE3_ego)
         ego_SE3_city = city_SE3_ego.inverse()
         rot2 = np.ascontiguousarray(ego_SE3_city.rotation[:2, :2].T)
         trans2 = ego_SE3_city.translation[:2]
@@ -278,7 +280,8 @@ class MapRasterizer:
         return {name: layers[name] for name in MAP_LAYERS}
 
 
-def rasterize_map(grid: BevGrid, vector_map: VectorMap, city_SE3_ego: SE3) -> dict[str, NDArray[np.float32]]:
+def rasterize_map(grid: BevGrid, vector_map: VectorMap,
+                  city_SE3_ego: SE3 | NDArray[np.floating]) -> dict[str, NDArray[np.float32]]:
     """Map layers around one pose (see :class:`MapRasterizer`; use it directly for many frames)."""
     return MapRasterizer(vector_map).rasterize(grid, city_SE3_ego)
 

@@ -100,8 +100,12 @@ class Log:
 
     @cached_property
     def timestamps_ns(self) -> NDArray[np.int64]:
-        """(T,) annotation (sweep) timestamps: the log's frame grid."""
-        return self.annotations.timestamps_ns
+        """(T,) the log's frame grid: annotation timestamps and LiDAR sweep timestamps together.
+
+        In the AV2 layout a sweep with nothing around the ego has no annotation rows; its frame
+        still belongs to the log (time keeps running for the ego's own motion).
+        """
+        return np.union1d(self.annotations.timestamps_ns, self.lidar_timestamps_ns).astype(np.int64)
 
     @cached_property
     def lidar_timestamps_ns(self) -> NDArray[np.int64]:
@@ -131,8 +135,8 @@ class Log:
         return tracks_from_annotations(self.annotations, self.ego)
 
     def dense_tracks(self) -> DenseTracks:
-        """All tracks on the frame grid, (K, T) arrays."""
-        return dense_tracks(self.annotations, self.ego)
+        """All tracks on the frame grid (:attr:`timestamps_ns`), (K, T) arrays."""
+        return dense_tracks(self.annotations, self.ego, self.timestamps_ns)
 
     def ego_at_frames(self) -> EgoTrajectory:
         """Ego poses interpolated to the annotation timestamps."""

@@ -356,15 +356,25 @@ class DenseTracks:
     city_SE3_ego: FloatArray
 
 
-def dense_tracks(annotations: Annotations, ego: EgoTrajectory) -> DenseTracks:
-    """Pack annotations onto the grid of their distinct timestamps (vectorised, no per-frame loop).
+def dense_tracks(
+    annotations: Annotations, ego: EgoTrajectory, frame_timestamps_ns: NDArray[np.integer] | None = None
+) -> DenseTracks:
+    """Pack annotations onto a frame grid (vectorised, no per-frame loop).
 
     Args:
         annotations: the log's annotations (the ego's own box is dropped).
         ego: ``city_SE3_ego`` at any rate; interpolated to the frame timestamps.
+        frame_timestamps_ns: (T,) the frame grid; it must hold every annotation timestamp. Frames
+            without any annotation (nothing around the ego) are kept. Defaults to the annotations'
+            own distinct timestamps.
     """
     ann = annotations.without_ego()
     frame_ts = ann.timestamps_ns
+    if frame_timestamps_ns is not None:
+        frame_ts = np.unique(np.asarray(frame_timestamps_ns, dtype=np.int64))
+        missing = np.setdiff1d(ann.timestamps_ns, frame_ts)
+        if missing.size:
+            raise ValueError(f"annotation timestamp {int(missing[0])} is not on the frame grid")
     ego_at = ego.interpolate(frame_ts) if len(frame_ts) else ego
     track_ids, track_index = np.unique(ann.track_id, return_inverse=True)
     frame_index = np.searchsorted(frame_ts, ann.timestamp_ns)

@@ -117,7 +117,7 @@ def main() -> None:
         logs: dict[str, Path] = {}
         for name, (tod, weather) in LOOKS.items():
             log_dir = write_synthetic_log(Path(tmp) / name, num_frames=FRAME + 1, num_objects=40, seed=4,
-                                          time_of_day=tod, weather=weather, ego_start_x_m=45.0)
+                                          time_of_day=tod, weather=weather, ego_start_x_m=62.0)
             render_log_sensors(log_dir, config if name == "day" else SensorConfig(render_lidar=False), progress=False)
             logs[name] = log_dir
         day = Log.open(logs["day"])

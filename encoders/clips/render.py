@@ -24,8 +24,8 @@ render.json             dict                   stats and the rendering config's 
 ======================  =====================  ===========================================================
 
 Every BEV grid is in its own frame's ego frame; ego motion is recoverable from ``frames.parquet``.
-Each file is written to a temporary name and renamed, and the folder itself is renamed into place
-when complete, so a reader never sees half a log.
+The folder is written under a temporary name and renamed into place when complete, so a reader
+never sees half a log.
 """
 
 from __future__ import annotations
@@ -57,7 +57,7 @@ from scenes.tracks import DenseTracks
 #: Folder of rendered logs inside CLIPS_DIR.
 LOGS_DIR = "logs"
 #: Version of the per-log files; bump when their content changes.
-RENDER_VERSION = 2
+RENDER_VERSION = 3
 
 
 def lidar_channel_names(z_bins_m: tuple[float, ...]) -> list[str]:

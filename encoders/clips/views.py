@@ -9,7 +9,6 @@ import json
 from dataclasses import dataclass
 from pathlib import Path
 
-import cv2
 import numpy as np
 import pyarrow.parquet as pq
 from numpy.typing import NDArray
@@ -85,7 +84,7 @@ def warp_bev(
         shift_xy_m: (2,) translation in metres.
 
     Returns:
-        (T, C, H, W) uint8, bilinear.
+        (T, C, H, W) uint8, nearest cell.
     """
     t, c, h, w = bev.shape
     # Destination cell at p' comes from p = R(−θ)(p' − shift): the source-from-destination pose.
@@ -95,11 +94,14 @@ def warp_bev(
     source_SE3_grid[:2, :2] = rot_inv
     source_SE3_grid[:2, 2] = -rot_inv @ np.asarray(shift_xy_m, dtype=np.float64)
     affine = grid_affine_from(grid, grid, source_SE3_grid)
-    planes = np.ascontiguousarray(bev).reshape(t * c, h, w)
-    out = np.empty_like(planes)
-    for i in range(t * c):  # one small warp per plane: cheaper than transposing to channels-last
-        cv2.warpAffine(planes[i], affine, (w, h), dst=out[i], flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
-                       borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    # Nearest source cell of every destination cell, gathered for all planes at once.
+    cols, rows = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
+    src_col = np.rint(affine[0, 0] * cols + affine[0, 1] * rows + affine[0, 2]).astype(np.int64)
+    src_row = np.rint(affine[1, 0] * cols + affine[1, 1] * rows + affine[1, 2]).astype(np.int64)
+    inside = (src_col >= 0) & (src_col < w) & (src_row >= 0) & (src_row < h)
+    index = np.where(inside, src_row * w + src_col, 0).ravel()
+    out = np.take(np.ascontiguousarray(bev).reshape(t * c, h * w), index, axis=1)  # (T·C, H·W)
+    out[:, ~inside.ravel()] = 0
     return out.reshape(t, c, h, w)
 
 

@@ -21,6 +21,8 @@ Table 2's value per attribute is the mean of Table 1's metric over the regions.
 
 from __future__ import annotations
 
+import json
+import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -43,6 +45,7 @@ from encoders.tagging.scene_tags import (
 )
 from encoders.tagging.targets import LOGS_DIR, grid_from_manifest, has_targets, open_targets, read_manifest
 from encoders.tagging.training import Tagger
+from scenes.atomic import atomic_write_text
 
 Pooled = dict[str, dict[str, NDArray[np.float32]]]
 THRESHOLDS = np.round(np.arange(0.05, 0.96, 0.05), 2)
@@ -220,3 +223,76 @@ def markdown_tables(by_region: dict[str, dict[str, dict[str, Any]]], inputs: dic
     lines.append("| **skill** (mean of F1 and 1 − L1/L1_none) | | " + " | ".join(
         f"{skills.get(k, float('nan')):.3f}" for k in rows) + " |")
     return "\n".join(lines) + "\n"
+
+
+def evaluate_runs(
+    run_dir: Path | str,
+    clips_dir: Path | str,
+    input_runs: dict[str, Path | str] | None = None,
+    split: str = "test",
+    device: str = "cpu",
+    progress: Callable[[str], None] | None = None,
+) -> dict[str, Any]:
+    """Tables 1 and 2 for a run (and the runs of the input ablation) on a clips folder's held-out logs.
+
+    Args:
+        run_dir: the full model (its ``inputs`` names its Table 2 row, normally ``both``).
+        clips_dir: a clips folder whose logs have tag targets.
+        input_runs: more Table 2 rows: ``{"map": RUN, "lidar": RUN}``.
+        split: the held-out split.
+
+    Returns:
+        ``{"by_region": ..., "inputs": ..., "skill": {row: x}, "meta": {...}}`` (the layout of ``tags.json``).
+    """
+    from encoders.tagging.training import load_tagger
+
+    clips = Path(clips_dir)
+    say = progress or (lambda _line: None)
+    main = load_tagger(run_dir, device)
+    names = tuple(n for n in main.names if has_attribute_targets(clips, n))
+    factor = main.downsample
+    train = pool_split(clips, "train", None, factor, names)
+    test_truth = pool_split(clips, split, None, factor, names)
+    if not test_truth.logs:
+        raise FileNotFoundError(f"{clips}: no {split} logs with tag targets")
+    runs: dict[str, Tagger] = {main.inputs.value: main}
+    for key, rd in (input_runs or {}).items():
+        runs[key] = load_tagger(rd, device)
+    tables: dict[str, dict[str, dict[str, dict[str, Any]]]] = {}
+    for key, tagger in runs.items():
+        t0 = time.perf_counter()
+        test = pool_split(clips, split, tagger, tagger.downsample, names)
+        val = pool_split(clips, "val", tagger, tagger.downsample, names)
+        tables[key] = metrics_by_region(test, val if val.logs else None)
+        say(f"inputs={key}: evaluated {len(test.logs)} {split} + {len(val.logs)} val logs in "
+            f"{time.perf_counter() - t0:.1f} s")
+    stats = statistics_by_region(train, test_truth)
+    inputs = {"none": table2_row(stats), **{k: table2_row(v) for k, v in tables.items()}}
+    skills = {k: skill(row, inputs["none"]) for k, row in inputs.items()}
+    return {
+        "by_region": tables[main.inputs.value],
+        "inputs": {k: inputs[k] for k in ("none", "map", "lidar", "both") if k in inputs},
+        "skill": skills,
+        "statistics_by_region": stats,
+        "meta": {"split": split, "test_logs": test_truth.logs, "train_logs": train.logs,
+                 "frames": int(next(iter(next(iter(test_truth.truth.values())).values())).shape[0]),
+                 "runs": {k: str(Path(rd)) for k, rd in {main.inputs.value: run_dir, **(input_runs or {})}.items()}},
+    }
+
+
+def has_attribute_targets(clips_dir: Path, name: str) -> bool:
+    """Whether the clips folder's targets include ``name`` (checked on its first log with targets)."""
+    for lid in split_logs(read_manifest(clips_dir), None):
+        if has_targets(clips_dir, lid):
+            return name in open_targets(clips_dir, lid).names
+    return False
+
+
+def write_report(out_dir: Path | str, result: dict[str, Any]) -> tuple[Path, Path]:
+    """``DIR/tags.json`` and ``DIR/tags.md`` (atomic)."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    md = markdown_tables(result["by_region"], result["inputs"], result["skill"])
+    atomic_write_text(out / "tags.json", json.dumps(result, indent=2))
+    atomic_write_text(out / "tags.md", "# Spatio-temporal tagging\n\n" + md)
+    return out / "tags.json", out / "tags.md"

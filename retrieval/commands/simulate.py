@@ -29,7 +29,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--tracker-noise", action="store_true", default=None,
                         help="degrade boxes as a LiDAR detector and tracker would (labels stay exact)")
     parser.add_argument("--no-sensors", dest="sensors", action="store_false", default=None,
-                        help="record that no sensor data is to be rendered for these logs")
+                        help="skip rendering LiDAR sweeps and camera frames (tracks, map and labels only)")
+    parser.add_argument("--sensor-config", type=Path,
+                        help="YAML sensor config (scenes.sensorsim.SensorConfig): beams, resolution, camera size")
     parser.add_argument("--emit-detections", action="store_true",
                         help="also write <log>/detections.parquet: per-frame detections without ids, simulated from "
                              "the boxes (misses, false positives, noise), for `scenesearch track`")
@@ -50,9 +52,23 @@ def build_config(args: argparse.Namespace) -> SimulationConfig:
     return dataclasses.replace(base, **overrides)
 
 
-def post_log_hooks(config: SimulationConfig, emit_detections: bool = False) -> list[PostLogHook]:
-    """Steps run on each log folder before it is renamed into place."""
+def post_log_hooks(config: SimulationConfig, emit_detections: bool = False,
+                   sensor_config: Path | None = None) -> list[PostLogHook]:
+    """Steps run on each log folder before it is renamed into place, so a log appears whole or not at all."""
     hooks: list[PostLogHook] = []
+    if config.sensors:
+        from dataclasses import replace
+
+        from scenes.sensorsim.config import SensorConfig
+        from scenes.sensorsim.render import render_log_sensors
+
+        base = SensorConfig.from_yaml(sensor_config.read_text()) if sensor_config else SensorConfig()
+        sensors = replace(base, seed=config.seed) if sensor_config is None else base
+
+        def render(log_dir: Path) -> None:
+            render_log_sensors(log_dir, sensors, progress=False)
+
+        hooks.append(render)
     if emit_detections:
         from scenes.tracking.simulated import write_simulated_detections
 
@@ -65,7 +81,7 @@ def post_log_hooks(config: SimulationConfig, emit_detections: bool = False) -> l
 
 def run(args: argparse.Namespace) -> int:
     config = build_config(args)
-    hooks = post_log_hooks(config, args.emit_detections)
+    hooks = post_log_hooks(config, args.emit_detections, args.sensor_config)
     result = simulate_tracks_and_map(config, args.out, overwrite=args.overwrite, post_log=hooks)
     for log_dir in result.log_dirs:
         print(log_dir)

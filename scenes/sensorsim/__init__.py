@@ -8,6 +8,13 @@ tracks, so that every later stage reads real and simulated logs through one path
   and the per-frame object meshes.
 - :mod:`scenes.sensorsim.lidar`: :func:`simulate_sweep`, a spinning multi-beam LiDAR.
 - :mod:`scenes.sensorsim.camera`: :func:`render_frame`, a pinhole camera drawn with OpenCV.
-- :mod:`scenes.sensorsim.instance_masks`: per-frame instance masks beside the camera frames.
-- :mod:`scenes.sensorsim.render`: :func:`render_log_sensors`, everything for one log folder.
+- :mod:`scenes.sensorsim.appearance`: time of day, weather and colours from the log metadata.
+- :mod:`scenes.sensorsim.instance_masks`: per-frame instance masks beside the camera frames, and
+  :func:`~scenes.sensorsim.instance_masks.read_instance_mask`.
+- :mod:`scenes.sensorsim.render`: :func:`render_log_sensors`, everything for one log folder
+  (``scenesearch render-sensors LOG_DIR``).
+- :mod:`scenes.sensorsim.synthetic`: a small hand-built crossroad log for tests, benchmarks and
+  the README images.
+
+BEV rasters of boxes and map layers live in :mod:`scenes.bev`.
 """

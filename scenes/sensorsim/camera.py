@@ -6,12 +6,13 @@ Per frame, in order:
    terrain), coloured once per log, is warped into the image by the ground plane's homography
    (one ``cv2.warpPerspective``); the sky gradient fills everything above the horizon and haze
    blends the ground toward the horizon colour with distance (fog: a short visibility).
-2. **Buildings and objects**: convex faces (back faces culled, flat-shaded by the sun) filled with
+2. **Contact shadows**: the ground under each object is darkened (its footprint, slightly grown).
+3. **Buildings and objects**: convex faces (back faces culled, flat-shaded by the sun) filled with
    ``cv2.fillConvexPoly``, object by object from far to near (painter's order by the distance to
    each box's nearest point). Faces crossing the camera's near plane are clipped before projection.
    Objects write ``1 + track index`` into the instance mask; buildings write 0, so they hide what
    is behind them in the mask too.
-3. **Effects**: rain streaks and sensor noise.
+4. **Effects**: rain streaks and sensor noise (one of a few noise tiles drawn once per log).
 
 Image convention: OpenCV pixels, (u right, v down), pixel (u, v) centred on integer coordinates.
 """
@@ -284,6 +285,7 @@ class CameraRenderer:
         image: NDArray[np.uint8] = np.asarray(cv2.add(cv2.multiply(ground, keep, scale=1.0 / 255.0), haze),
                                               dtype=np.uint8)
         mask = np.zeros((h, w), np.uint16)
+        self._draw_shadows(image, objects, cam_SE3_ego, self.world.ground_z_m - city_SE3_ego.translation[2])
 
         # 2. Buildings and objects, far to near.
         drawables: list[_Drawable] = []
@@ -310,6 +312,38 @@ class CameraRenderer:
             cv2.add(image, self._noise_pos[k], dst=image)
             cv2.subtract(image, self._noise_neg[k], dst=image)
         return image, mask
+
+    def _draw_shadows(self, image: NDArray[np.uint8], objects: FrameObjects, cam_SE3_ego: SE3,
+                      ground_ego_z_m: float) -> None:
+        """Darken the ground under every object (its footprint, a little enlarged): contact shadows."""
+        if len(objects) == 0:
+            return
+        near = np.linalg.norm(objects.center_xyz_m[:, :2], axis=1) < self.config.max_distance_m
+        if not near.any():
+            return
+        c, s = np.cos(objects.yaw_rad[near]), np.sin(objects.yaw_rad[near])
+        half = 0.5 * objects.size_lwh_m[near, :2] + 0.15
+        sign = np.array([[1.0, 1.0], [1.0, -1.0], [-1.0, -1.0], [-1.0, 1.0]])
+        lx, ly = sign[None, :, 0] * half[:, None, 0], sign[None, :, 1] * half[:, None, 1]
+        centers = objects.center_xyz_m[near]
+        corners = np.stack([centers[:, None, 0] + c[:, None] * lx - s[:, None] * ly,
+                            centers[:, None, 1] + s[:, None] * lx + c[:, None] * ly,
+                            np.full(lx.shape, ground_ego_z_m + 0.01)], axis=-1)  # (n, 4, 3)
+        cam = corners @ np.ascontiguousarray(cam_SE3_ego.rotation.T) + cam_SE3_ego.translation
+        intr = self.intrinsics
+        shade = np.zeros(image.shape[:2], np.uint8)
+        for quad in cam:
+            clipped = clip_near_plane(quad)
+            if clipped.shape[0] < 3:
+                continue
+            uv = np.stack([intr.fx_px * clipped[:, 0] / clipped[:, 2] + intr.cx_px,
+                           intr.fy_px * clipped[:, 1] / clipped[:, 2] + intr.cy_px], axis=1)
+            cv2.fillConvexPoly(shade, np.round(np.clip(uv, -1e5, 1e5) * _SCALE).astype(np.int32), 255,
+                               lineType=cv2.LINE_AA, shift=_SHIFT)
+        if shade.any():
+            soft = np.asarray(cv2.blur(shade, (3, 3)), dtype=np.uint16)
+            factor = (255 - soft * 115 // 255).astype(np.uint8)  # down to 55 % under the object
+            cv2.multiply(image, cv2.merge([factor, factor, factor]), dst=image, scale=1.0 / 255.0)
 
     def _building_drawables(self, cam_SE3_city: SE3, origin_city: FloatArray) -> list[_Drawable]:
         corners = self._building_corners

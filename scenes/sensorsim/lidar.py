@@ -6,8 +6,10 @@ of a point is the time of its firing within the revolution. The world is frozen 
 timestamp, i.e. points come out motion-compensated to that instant, as AV2 sweeps are.
 
 Two scenes are cast per sweep: the static world (built once per log, city frame) and a small scene
-of the frame's objects plus the ego's own body (rebuilt every frame, ego frame); the nearer hit wins,
-so objects occlude the world and each other for free. Rays that hit the ego's body are lost.
+of the frame's objects (rebuilt every frame, ego frame); the nearer hit wins, so objects occlude the
+world and each other for free. Two cullings keep the cost down: rays that the ego's own body blocks
+are found once per configuration (the body is fixed to the sensor) and never cast, and only rays
+inside some object's angular window are cast into the object scene.
 """
 
 from __future__ import annotations

@@ -40,7 +40,7 @@ def o3d_tensor(array: NDArray[np.generic]) -> o3d.core.Tensor:
 
 
 #: Cells of the ground raster are capped at this many; a larger world gets coarser cells.
-MAX_RASTER_CELLS = 40_000_000
+MAX_RASTER_CELLS = 20_000_000
 
 
 class GroundMaterial(IntEnum):

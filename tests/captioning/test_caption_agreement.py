@@ -44,6 +44,7 @@ def test_lane_change_and_turn_agreement(make_scene) -> None:  # type: ignore[no-
     assert report.lane_change_events == 2 and report.lane_change_evaluable == 2
     assert report.lane_change_transition == 1 and report.lane_change_directed == 1
     assert report.lane_change_rate == 0.5
+    assert report.band_crossing_events == 1 and report.band_crossing_transition == 1  # only "mover" crosses
     assert report.ego_turn_events == 1 and report.ego_turn_steering == 1
     # Labelled the wrong way round, the directed count drops.
     wrong = labels_table(result.timestamps_ns, {"mover": {"right_lane_change": change}})

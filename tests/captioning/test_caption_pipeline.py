@@ -10,7 +10,7 @@ import pytest
 
 from captioning.config import CaptioningConfig, SmoothingConfig, WindowsConfig, WindowStrategy
 from captioning.errors import TrackDataError
-from captioning.pipeline import CAPTIONS_SCHEMA, FRAME_TAGS_SCHEMA, caption_arrays, write_outputs
+from captioning.pipeline import CAPTIONS_SCHEMA, FRAME_TAGS_SCHEMA, SKIP_ISOLATED, caption_arrays, write_outputs
 
 
 def busy_scene(make_scene):  # type: ignore[no-untyped-def]
@@ -42,7 +42,7 @@ def test_frame_tags_and_captions(make_scene) -> None:  # type: ignore[no-untyped
     assert all(r["stationary"] is True and r["lane"] is None for r in parked)
     blip = [r for r in rows if r["track_id"] == "blip"]
     assert blip[0]["stationary"] is None and blip[0]["lane"] is None
-    assert result.skipped_tracks == {"blip": "no two consecutive observed frames (single-frame track)"}
+    assert result.skipped_tracks == {"blip": SKIP_ISOLATED}
     # The gap is untagged, the frames around it are tagged.
     gappy_ts = {r["timestamp_ns"] for r in rows if r["track_id"] == "gappy"}
     assert int(result.timestamps_ns[21]) not in gappy_ts

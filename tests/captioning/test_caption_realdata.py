@@ -54,12 +54,26 @@ def test_cli_on_av2_logs_reports_skips(tmp_path: Path, capsys: pytest.CaptureFix
     out = tmp_path / "captions"
     assert main(["caption", str(need(AV2_BRAKE)), str(tmp_path / "missing"), "--out", str(out)]) == 0
     printed = capsys.readouterr().out
-    assert "skipped log" in printed and "missing" in printed and "single-frame" in printed
+    assert "skipped log" in printed and "missing" in printed and "single frames" in printed
     frames = pq.read_table(out / "frame_tags.parquet")
     ego = frames.filter(frames.column("track_id").to_numpy(zero_copy_only=False) == "ego")
     assert ego.num_rows == 156
     captions = pq.read_table(out / "captions.parquet").to_pylist()
     assert captions[0]["track_id"] == "ego" and len(captions[0]["paraphrases"]) == 3
+
+
+def test_cli_flags_override_the_config_file(tmp_path: Path) -> None:
+    config = tmp_path / "c.yaml"
+    config.write_text("windows: {strategy: host_segments, length_s: 3.0, stride_s: 1.0}\ntext: {seed: 1}\n")
+    out = tmp_path / "o"
+    argv = ["caption", str(need(AV2_WAIT)), "--out", str(out), "--config", str(config), "--strategy", "sliding"]
+    assert main(argv) == 0
+    rows = pq.read_table(out / "captions.parquet").to_pylist()
+    neighbours = [r for r in rows if r["track_id"] != "ego"]
+    assert {r["window"] for r in neighbours} == {"sliding"}
+    assert max(r["end_ns"] - r["start_ns"] for r in neighbours) < 3_000_000_000
+    keys = [(r["log_id"], r["track_id"], r["start_ns"]) for r in neighbours]
+    assert len(keys) == len(set(keys))  # clip ids stay unique
 
 
 def test_cli_config_error_is_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
@@ -95,7 +109,7 @@ def test_kitti_sequences(tmp_path: Path) -> None:
 
 @pytest.mark.slow
 def test_simulated_log_agrees_with_labels(tmp_path: Path) -> None:
-    from captioning.agreement import agreement
+    from captioning.agreement import AgreementReport, agreement, agreement_for_logs
     from scenes.behavior import read_behavior_labels
 
     try:
@@ -109,5 +123,9 @@ def test_simulated_log_agrees_with_labels(tmp_path: Path) -> None:
     labels = read_behavior_labels(log_dir)
     assert labels is not None and result.captions
     report = agreement(result, labels)
+    assert agreement_for_logs([log_dir]) == report
     if report.ego_turn_events:
         assert report.ego_turn_rate >= 0.75, report.to_dict()
+    # Real logs carry no labels and add nothing.
+    if AV2_WAIT.exists():
+        assert agreement_for_logs([AV2_WAIT]) == AgreementReport()

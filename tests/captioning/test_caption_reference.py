@@ -43,7 +43,11 @@ def random_log(seed: int, k: int = 20, t: int = 90) -> dict:
 @pytest.mark.parametrize("seed", [0, 1, 2])
 @pytest.mark.parametrize(
     "smoothing",
-    [SmoothingConfig(), SmoothingConfig(window_frames=5, min_run_frames=1, max_gap_frames=0), SmoothingConfig(7, 3, 3, 1)],
+    [
+        SmoothingConfig(),
+        SmoothingConfig(window_frames=5, min_run_frames=1, max_gap_frames=0),
+        SmoothingConfig(7, 3, 3, 1),
+    ],
 )
 def test_vectorised_equals_reference(seed: int, smoothing: SmoothingConfig) -> None:
     config = CaptioningConfig(smoothing=smoothing)

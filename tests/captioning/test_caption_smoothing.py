@@ -57,3 +57,17 @@ def test_suppress_flicker(codes: list[int], min_run: int, expected: list[int]) -
 def test_suppress_flicker_keeps_rows_apart() -> None:
     codes = np.array([[0, 0, 0, 1], [2, 2, 2, 2]])
     assert suppress_flicker(codes, 2).tolist() == [[0, 0, 0, 0], [2, 2, 2, 2]]
+
+
+def test_quantile_below_matches_numpy_quantile() -> None:
+    from captioning.neighbors import quantile_below
+
+    rng = np.random.default_rng(5)
+    values = rng.exponential(0.5, (300, 23))
+    values[rng.random(values.shape) < 0.3] = np.nan
+    values[0] = np.nan  # no samples
+    for q in (0.5, 0.8, 1.0):
+        for threshold in (0.2, 0.5, 0.9):
+            got = quantile_below(values, q, threshold)
+            want = [bool(np.isfinite(r).any()) and np.quantile(r[np.isfinite(r)], q) < threshold for r in values]
+            assert got.tolist() == want

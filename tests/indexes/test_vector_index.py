@@ -193,9 +193,13 @@ def test_retune_after_adds(clustered: Callable[..., np.ndarray]) -> None:
     assert tuning["target_recall"] == 0.99 and tuning["recall_at_k"] >= 0.99
 
 
-def test_kinds_without_a_knob_still_measure_recall(data: Data) -> None:
+def test_kinds_without_a_knob_still_measure_recall(data: Data, monkeypatch: pytest.MonkeyPatch) -> None:
     index = VectorIndex.build(data[0], factory="PQ8x4", config=AutoConfig(tune_queries=100))
     tuning = index.info["tuning"]
     assert tuning["knob"] == "none" and tuning["value"] == 0
     assert 0.0 < tuning["recall_at_k"] < 1.0  # lossy codes: measured, not assumed
     assert index.remove([3]) == 1 and 3 not in index  # flat codes delete in place
+    # Flat PQ takes no selector: a filter falls back to exact search over the allowed vectors.
+    monkeypatch.setattr("indexes.vector_index.EXACT_FILTER_MAX", 0)
+    _, I = index.search(data[1], 5, filter=np.arange(0, 3000, 2))
+    assert (I % 2 == 0).all() and (I >= 0).all()

@@ -60,8 +60,9 @@ def test_build_search_round_trip(tmp_path: Path) -> None:
     assert [h.track_id for h in peds] == ["t3"]
     with pytest.raises(EmptyQueryError):
         reopened.search("")
-    with pytest.raises(InvalidKError, match=r"1 … 4"):
-        reopened.search("car", k=5)
+    with pytest.raises(InvalidKError, match=r"1 … 10000"):
+        reopened.search("car", k=0)
+    assert len(reopened.search("car", k=50)) == 4
     with pytest.raises(FilterSyntaxError, match="valid fields: clip_id"):
         reopened.search("car", filters={"lane": "left"})
     with pytest.raises(IndexDirError, match="not a caption index"):

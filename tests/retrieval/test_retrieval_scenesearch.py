@@ -47,6 +47,7 @@ def test_search_text_finds_matching_caption(built: dict[str, Any]) -> None:
     query = caption_of(["left:approach", "left:cut_in"])
     results = search.search_text(query, k=5)
     assert [r.rank for r in results] == [1, 2, 3, 4, 5]
+    assert len(search.search_text(query, k=500)) == 84  # k beyond the index: every clip once
     assert all(isinstance(r, SearchResult) for r in results)
     assert all(r.caption == query for r in results)
     assert all(a.score >= b.score for a, b in zip(results, results[1:]))
@@ -74,7 +75,7 @@ def test_bad_input(built: dict[str, Any]) -> None:
     search = _open(built)
     with pytest.raises(EmptyQueryError):
         search.search_text("   ")
-    for bad_k in (0, -1, 10_000, 2.5):
+    for bad_k in (0, -1, 10_001, 2.5):
         with pytest.raises(InvalidKError, match="k must be an integer in 1"):
             search.search_text("a car", k=bad_k)  # type: ignore[arg-type]
     with pytest.raises(FilterSyntaxError, match=r"valid fields: .*category"):

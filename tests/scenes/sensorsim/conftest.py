@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from scenes.sensorsim.config import CameraConfig, LidarConfig, SensorConfig, WorldConfig
+from scenes.sensorsim.config import LidarConfig, WorldConfig
 from scenes.sensorsim.scene import StaticWorld
 
 
@@ -19,16 +19,6 @@ def small_lidar() -> LidarConfig:
 def dense_lidar() -> LidarConfig:
     """32 beams × 1024 steps, no noise: enough points on a box to check its surface."""
     return LidarConfig(beams=32, azimuth_steps=1024, range_noise_std_m=0.0, dropout_prob=0.0, intensity_noise_std=0.0)
-
-
-@pytest.fixture(scope="session")
-def small_sensors() -> SensorConfig:
-    """16 × 256 LiDAR, 160 × 90 camera, coarse world raster."""
-    return SensorConfig(
-        lidar=LidarConfig(beams=16, azimuth_steps=256),
-        camera=CameraConfig(width_px=160, height_px=90),
-        world=WorldConfig(raster_resolution_m=0.25, margin_m=60.0),
-    )
 
 
 @pytest.fixture(scope="session")

@@ -1,0 +1,132 @@
+"""Tagging losses against naive references; task-balanced sampling; target downsampling; config round trips."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+import torch.nn.functional as F
+
+from encoders.tagging.ablation import mask_inputs
+from encoders.tagging.attributes import TagError
+from encoders.tagging.head import TagHeadConfig
+from encoders.tagging.losses import (
+    TagLossConfig,
+    TaskBalancedSampler,
+    downsample_targets,
+    hard_negative_bce,
+    smooth_l1_scene,
+    tag_loss,
+)
+from encoders.tagging.training import TagTrainConfig
+
+
+def naive_hard_negative_bce(logits: torch.Tensor, targets: torch.Tensor, k: int, min_neg: int) -> float:
+    rows = []
+    for x, t in zip(logits.tolist(), targets.tolist()):
+        pos = [i for i, v in enumerate(t) if v >= 0.5]
+        neg = sorted((i for i, v in enumerate(t) if v < 0.5), key=lambda i: -x[i])
+        keep = neg[: (k * len(pos) if pos else min_neg)]
+        sel = pos + keep
+        if not sel:
+            continue
+        bce = [math.log1p(math.exp(-x[i])) if i in pos else math.log1p(math.exp(x[i])) for i in sel]
+        rows.append(sum(bce) / len(sel))
+    return sum(rows) / len(rows)
+
+
+def test_hard_negative_bce_matches_the_naive_reference() -> None:
+    g = torch.Generator().manual_seed(0)
+    logits = torch.randn(6, 40, generator=g)
+    targets = (torch.rand(6, 40, generator=g) < 0.08).float()
+    targets[2] = 0.0  # a frame without positives keeps min_negatives hardest negatives
+    targets[3, :] = 0.0
+    targets[3, :39] = 1.0  # fewer negatives than k × positives: all negatives
+    for k, m in ((3, 4), (1, 0), (0, 2)):
+        got = float(hard_negative_bce(logits, targets, k, m))
+        assert got == pytest.approx(naive_hard_negative_bce(logits, targets, k, m), rel=1e-5)
+
+
+def test_hard_negative_mining_ignores_easy_negatives() -> None:
+    logits = torch.tensor([[5.0, -9.0, -9.0, 2.0, -9.0, -9.0, -9.0, -9.0]])
+    targets = torch.tensor([[1.0, 0, 0, 0, 0, 0, 0, 0]])
+    base = float(hard_negative_bce(logits, targets, k=1))
+    logits2 = logits.clone()
+    logits2[0, 4] = -20.0  # an easy negative changes: no effect
+    assert float(hard_negative_bce(logits2, targets, k=1)) == pytest.approx(base)
+    logits3 = logits.clone()
+    logits3[0, 3] = 0.0  # the hard negative changes: effect
+    assert float(hard_negative_bce(logits3, targets, k=1)) < base
+
+
+def test_smooth_l1_scene_compares_sums() -> None:
+    pred = torch.tensor([[1.0, 0.0, 0.0], [0.0, 0.0, 0.0]])
+    target = torch.tensor([[0.0, 0.0, 1.0], [0.0, 3.0, 0.0]])
+    # Same sum in row 0 (0 loss), sums 0 vs 3 in row 1 (|d| = 3/1 ≥ β: 3 − β/2).
+    assert float(smooth_l1_scene(pred, target, beta=1.0, norm=1.0)) == pytest.approx((0 + 2.5) / 2)
+
+
+def test_tag_loss_separates_discrete_and_continuous_terms() -> None:
+    v = torch.zeros(1, 2, 2, 4, 4, requires_grad=True)  # (B, T, A, h, w): A = [density, discrete]
+    t = torch.zeros(1, 2, 2, 4, 4)
+    t[0, :, 0, 1, 1] = 0.5
+    t[0, :, 1, 2, 2] = 1.0
+    cfg = TagLossConfig(scene_weight=0.0, continuous_weight=1.0, smooth_l1_beta=0.1)
+    loss, parts = tag_loss(v, t, torch.tensor([False, True]), torch.ones(2), cfg)
+    assert parts["pixel_l1"] == pytest.approx((0.5 - 0.05) / 16)
+    assert parts["discrete"] == pytest.approx(math.log(2.0), rel=1e-5)  # logits 0 on 1 pos + 3 negatives
+    loss.backward()
+    assert v.grad is not None and float(v.grad[0, :, 1].abs().sum()) > 0
+
+
+def test_task_balanced_sampler_is_uniform_over_attributes() -> None:
+    present = np.zeros((1000, 3), bool)
+    present[:900, 0] = True  # common
+    present[900:905, 1] = True  # rare
+    present[:, 2] = False  # never: not drawn
+    sampler = TaskBalancedSampler(present, 6000, seed=1)
+    attrs, items = sampler.draw()
+    counts = np.bincount(attrs, minlength=3)
+    assert counts[2] == 0 and abs(counts[0] - counts[1]) < 300
+    assert present[items, attrs].all()  # each drawn item has its attribute
+    assert list(sampler) == list(TaskBalancedSampler(present, 6000, seed=1))  # seeded
+    sampler.set_epoch(1)
+    assert list(sampler) != list(TaskBalancedSampler(present, 6000, seed=1))
+    with pytest.raises(TagError):
+        TaskBalancedSampler(np.zeros((4, 2), bool), 10)
+
+
+def test_downsample_targets_area_for_densities_max_otherwise() -> None:
+    t = torch.zeros(1, 2, 4, 4)
+    t[0, 0, 0, 0] = 1.0
+    t[0, 1, 0, 0] = 1.0
+    out = downsample_targets(t, 2, torch.tensor([True, False]))
+    assert out.shape == (1, 2, 2, 2)
+    assert float(out[0, 0, 0, 0]) == 0.25 and float(out[0, 1, 0, 0]) == 1.0
+    assert torch.equal(out, torch.stack([F.avg_pool2d(t, 2)[0, 0], F.max_pool2d(t, 2)[0, 1]])[None])
+
+
+def test_mask_inputs_zeroes_the_unused_view() -> None:
+    batch = {"bev_lidar": torch.ones(1, 2, 3, 4, 4), "bev_map": torch.ones(1, 2, 5, 4, 4)}
+    assert float(mask_inputs(batch, "map")["bev_lidar"].sum()) == 0 and float(mask_inputs(batch, "map")["bev_map"].sum()) > 0
+    assert float(mask_inputs(batch, "lidar")["bev_map"].sum()) == 0
+    none = mask_inputs(batch, "none")
+    assert float(none["bev_lidar"].sum() + none["bev_map"].sum()) == 0
+    assert mask_inputs(batch, "both") is batch and float(batch["bev_lidar"].sum()) > 0
+    with pytest.raises(TagError, match="valid: none, map, lidar, both"):
+        mask_inputs(batch, "camera")
+
+
+def test_configs_round_trip_yaml_and_reject_unknown_keys() -> None:
+    cfg = TagTrainConfig(mode="alone", inputs="map", steps=7, loss=TagLossConfig(hard_negatives=2))
+    assert TagTrainConfig.from_yaml(cfg.to_yaml()) == cfg
+    head = TagHeadConfig(attributes=("parked", "ego_brake_cause"), embed_channels=8, kinds={"ego_brake_cause": "discrete"})
+    assert TagHeadConfig.from_dict(head.to_dict()) == head
+    with pytest.raises(ValueError, match="unknown keys"):
+        TagTrainConfig.from_dict({"lossy": 1})
+    with pytest.raises(ValueError, match="inputs"):
+        TagTrainConfig(inputs="radar")
+    with pytest.raises(TagError, match="repeats"):
+        TagHeadConfig(attributes=("parked", "parked"))

@@ -1,0 +1,124 @@
+"""Tag tensors, region pooling and compositions on a hand-made E and A, checked exactly."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from encoders.tagging.attributes import Region, TagError
+from encoders.tagging.head import TagHead, TagHeadConfig
+from encoders.tagging.scene_tags import (
+    compose,
+    ego_region_mask,
+    parse_tag_expression,
+    pool,
+    pool_values,
+    region_mask,
+    region_masks,
+    sigmoid,
+    tag_tensor,
+)
+from scenes.bev import BevGrid
+
+# A 4 × 2 grid of 10 m cells: rows centred on x = 25, 15, 5, −5 m; columns on y = 5, −5 m.
+GRID = BevGrid(x_min_m=-10.0, x_max_m=30.0, y_min_m=-10.0, y_max_m=10.0, resolution_m=10.0)
+
+
+def hand_made() -> tuple[np.ndarray, np.ndarray]:
+    """E (T=2, D=2, H=4, W=2) and A (3, 2)."""
+    e = np.zeros((2, 2, 4, 2), np.float32)
+    e[0, 0] = [[1, 2], [3, 4], [5, 6], [7, 8]]
+    e[0, 1] = [[0, 1], [0, 1], [0, 1], [0, 1]]
+    e[1, 0] = -e[0, 0]
+    e[1, 1] = 2.0
+    a = np.array([[1.0, 0.0], [0.0, 1.0], [0.5, -1.0]], np.float32)
+    return e, a
+
+
+def test_tag_tensor_is_the_dot_product_over_channels() -> None:
+    e, a = hand_made()
+    v = tag_tensor(e, a, 2)
+    assert v.shape == (2, 4, 2)
+    expected0 = 0.5 * np.array([[1, 2], [3, 4], [5, 6], [7, 8]]) - np.array([[0, 1]] * 4)
+    np.testing.assert_array_equal(v[0], expected0)
+    np.testing.assert_array_equal(v[1], -0.5 * np.array([[1, 2], [3, 4], [5, 6], [7, 8]]) - 2.0)
+
+
+def test_head_equals_tag_tensor_plus_bias_times_scale() -> None:
+    e, a = hand_made()
+    head = TagHead(TagHeadConfig(attributes=("parked", "vehicle_speed", "stopped"), embed_channels=2))
+    with torch.no_grad():
+        head.attributes.copy_(torch.from_numpy(a))
+        head.bias.copy_(torch.tensor([0.0, 1.0, -1.0]))
+    v = head(torch.from_numpy(e)[None])[0].detach().numpy()  # (T, 3, H, W)
+    np.testing.assert_allclose(v[:, 0], tag_tensor(e, a, 0), atol=1e-6)
+    np.testing.assert_allclose(v[:, 1], 10.0 * (tag_tensor(e, a, 1) + 1.0), atol=1e-5)  # speed in m/s
+    np.testing.assert_allclose(v[:, 2], tag_tensor(e, a, 2) - 1.0, atol=1e-6)
+
+
+def test_ego_regions_in_metres() -> None:
+    # Cell centres: x = 25, 15, 5, −5 (rows); y = 5, −5 (columns).
+    np.testing.assert_array_equal(ego_region_mask(GRID, Region.FRONT), [[1, 1], [1, 1], [1, 1], [0, 0]])
+    np.testing.assert_array_equal(ego_region_mask(GRID, Region.BEHIND), [[0, 0], [0, 0], [0, 0], [1, 1]])
+    # around: within 15 m of the ego: (5, ±5) and (−5, ±5) (7.1 m), not (15, ±5) (15.8 m).
+    np.testing.assert_array_equal(ego_region_mask(GRID, Region.AROUND), [[0, 0], [0, 0], [1, 1], [1, 1]])
+    assert ego_region_mask(GRID, Region.FULL).all()
+
+
+def test_pooling_sums_densities_and_maxes_probabilities_exactly() -> None:
+    e, a = hand_made()
+    v = tag_tensor(e, a, 0)  # (2, 4, 2): frame 0 = 1..8, frame 1 = −1..−8
+    front = ego_region_mask(GRID, Region.FRONT)
+    dens = pool(v, front, "vehicle_density", cell_area_m2=100.0)
+    np.testing.assert_allclose(dens, [100.0 * (1 + 2 + 3 + 4 + 5 + 6), -100.0 * 21])
+    prob = pool(v, front, "parked")
+    np.testing.assert_allclose(prob, sigmoid(np.array([6.0, -1.0])), rtol=1e-6)
+    speed = pool(v, ego_region_mask(GRID, Region.BEHIND), "vehicle_speed")
+    np.testing.assert_allclose(speed, [8.0, -7.0])
+    # Empty region → 0 for max.
+    np.testing.assert_array_equal(pool_values(v, np.zeros((4, 2), bool), "max"), [0.0, 0.0])
+
+
+def test_map_regions_follow_the_map_layers_and_fail_without_a_map() -> None:
+    layers = np.zeros((3, 6, 4, 2), np.float32)  # (F, Cm, H, W)
+    layers[1, 5, 0, 1] = 1.0  # intersection at frame 1
+    layers[:, 4, 3, 0] = 1.0  # crossing everywhere
+    masks = region_masks(GRID, layers)
+    assert masks[Region.INTERSECTION].shape == (3, 4, 2) and masks[Region.INTERSECTION].sum() == 1
+    assert masks[Region.CROSSWALK][:, 3, 0].all()
+    no_map = region_masks(GRID, None)
+    assert region_mask(no_map, "front").shape == (4, 2)
+    with pytest.raises(TagError, match="needs the log's map"):
+        region_mask(no_map, "intersection")
+    with pytest.raises(TagError, match="valid regions: full, front, behind, around, intersection, crosswalk"):
+        region_mask(masks, "left")
+
+
+def test_compose_and_or_identity_and_indicator_exactly() -> None:
+    p = np.array([[0.2, 0.9], [0.6, 0.0]], np.float32)
+    q = np.array([[0.5, 0.5], [1.0, 0.3]], np.float32)
+    np.testing.assert_allclose(compose([p, q], "and"), p * q)
+    np.testing.assert_allclose(compose([p, q], "or"), p + q - p * q)
+    np.testing.assert_array_equal(compose([p, q], "and", "indicator", 0.5), [[0, 1], [1, 0]])
+    np.testing.assert_array_equal(compose([p, q], "or", "indicator", 0.5), [[1, 1], [1, 0]])
+    r = np.full((2, 2), 0.5, np.float32)
+    np.testing.assert_allclose(compose([p, q, r], "or"), 1 - (1 - p) * (1 - q) * (1 - r), rtol=1e-6)
+    # Composition, then pooling over a region: the best cell of the product.
+    mask = np.array([[1, 1], [0, 0]], bool)
+    assert pool_values(compose([p, q], "and"), mask, "max") == pytest.approx(0.45)
+
+
+def test_parse_tag_expressions_and_their_errors() -> None:
+    e = parse_tag_expression("blocked_by & four_way")
+    assert e.attributes == ("blocked_by", "four_way") and e.op == "and" and str(e) == "blocked_by & four_way"
+    assert parse_tag_expression("stopped or braking").op == "or"
+    assert parse_tag_expression("parked").attributes == ("parked",)
+    with pytest.raises(TagError, match="twice"):
+        parse_tag_expression("stopped & stopped")
+    with pytest.raises(TagError, match="valid attributes: vehicle_density, pedestrian_density"):
+        parse_tag_expression("stopped & flying")
+    with pytest.raises(TagError, match="mixes"):
+        parse_tag_expression("stopped & braking | parked")
+    with pytest.raises(TagError, match="empty"):
+        parse_tag_expression("  ")

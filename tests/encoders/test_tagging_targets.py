@@ -1,0 +1,103 @@
+"""Ground-truth rasters from boxes, behaviour labels and junctions of a synthetic log."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pytest
+
+from encoders.clips.testing import FRAME_PERIOD_NS, START_NS, write_synthetic_log
+from encoders.tagging.attributes import ATTRIBUTES, Attribute, TagError
+from encoders.tagging.targets import behavior_grid, rasterize_targets, write_targets
+from scenes.behavior import BEHAVIOR_SCHEMA, BehaviorLabel, write_behavior_labels, write_junctions
+from scenes.bev import BevGrid
+from scenes.log import Log
+
+NUM_FRAMES = 6
+
+
+def add_labels(log_dir: Path, num_frames: int = NUM_FRAMES) -> None:
+    """lead brakes (for the ego), parked is parked, follower keeps its lane; a 4-way junction at city x = 30 m."""
+    rows = []
+    for f in range(num_frames):
+        ts = START_NS + f * FRAME_PERIOD_NS
+        for tid in ("lead", "parked", "follower", "ego"):
+            flags = {label.value: False for label in BehaviorLabel}
+            flags["braking"] = tid == "lead"
+            flags["parked"] = tid == "parked"
+            flags["keeping_lane"] = tid in ("follower", "ego")
+            rows.append({"timestamp_ns": ts, "track_id": tid, **flags, "speed_mps": 7.0 if tid == "lead" else 0.0,
+                         "leader_id": "lead" if tid == "ego" else None, "junction_id": None})
+    write_behavior_labels(log_dir, pa.Table.from_pylist(rows, schema=BEHAVIOR_SCHEMA))
+    square_x = [25.0, 35.0, 35.0, 25.0]
+    square_y = [-5.0, -5.0, 5.0, 5.0]
+    write_junctions(log_dir, pa.table({
+        "junction_id": ["J1", "J2"], "kind": ["four_way", "three_way"], "num_arms": pa.array([4, 3], pa.int64()),
+        "center_x_m": [30.0, -100.0], "center_y_m": [0.0, 0.0],
+        "polygon_x_m": [square_x, [x - 130 for x in square_x]], "polygon_y_m": [square_y, square_y]}))
+
+
+@pytest.fixture(scope="module")
+def log(tmp_path_factory: pytest.TempPathFactory) -> Log:
+    root = tmp_path_factory.mktemp("tag_targets")
+    log_dir = write_synthetic_log(root, "synthetic_tags", num_frames=NUM_FRAMES, with_camera=False, with_lidar=False)
+    add_labels(log_dir)
+    return Log.open(log_dir)
+
+
+def test_targets_put_labels_on_boxes_and_junctions(log: Log) -> None:
+    grid = BevGrid(-20.0, 60.0, -20.0, 20.0, 0.5)
+    t = rasterize_targets(log, grid)
+    idx = {a: i for i, a in enumerate(ATTRIBUTES)}
+    assert t.shape == (NUM_FRAMES, len(ATTRIBUTES), 160, 80)
+
+    def cell(x: float, y: float) -> tuple[int, int]:
+        return int((grid.x_max_m - x) / grid.resolution_m), int((grid.y_max_m - y) / grid.resolution_m)
+
+    parked = t[0, idx[Attribute.PARKED]]
+    assert parked[cell(25.0, -4.0)] == 1.0 and parked[cell(14.0, 3.5)] == 0.0
+    assert parked.sum() == 10 * 4  # cell centres inside x ∈ [22.75, 27.25], y ∈ [−4.95, −3.05]
+    braking = t[0, idx[Attribute.BRAKING]]
+    assert braking[cell(14.0, 3.5)] == 1.0 and braking[cell(25.0, -4.0)] == 0.0
+    assert t[0, idx[Attribute.VEHICLE_SPEED]][cell(14.0, 3.5)] == pytest.approx(7.0)
+    # Densities are fractional coverage: three 4.5 × 1.9 m cars.
+    assert t[0, idx[Attribute.VEHICLE_DENSITY]].sum() * 0.25 == pytest.approx(3 * 4.5 * 1.9, rel=0.06)  # 1/8 m samples
+    assert 0.0 < t[0, idx[Attribute.VEHICLE_DENSITY]].max() <= 1.0
+    assert t[:, idx[Attribute.PEDESTRIAN_DENSITY]].sum() == 0.0
+    # The 4-way junction: city x ∈ [25, 35] m, |y| ≤ 5 m; the ego moves along +x at 5 m/s.
+    four = t[:, idx[Attribute.FOUR_WAY]]
+    assert four[0][cell(30.0, 0.0)] == 1.0 and four[0][cell(20.0, 0.0)] == 0.0
+    assert four[0].sum() * 0.25 == pytest.approx(100.0, rel=0.05)
+    x_last = 30.0 - 5.0 * (NUM_FRAMES - 1) * 0.1
+    assert four[-1][cell(x_last, 0.0)] == 1.0 and four[-1][cell(x_last + 6.0, 0.0)] == 0.0
+    assert t[:, idx[Attribute.THREE_WAY]].sum() == 0.0  # 130 m behind: off the grid
+
+
+def test_behavior_grid_joins_labels_and_leaders(log: Log) -> None:
+    dense = log.dense_tracks()
+    beh = behavior_grid(log.log_dir, dense)
+    ids = [str(t) for t in dense.track_ids]
+    lead = ids.index("lead")
+    assert beh.ego_leader_index.tolist() == [lead] * NUM_FRAMES
+    assert beh.flags[lead, :, 2].all() and not beh.flags[ids.index("parked"), :, 2].any()  # braking column
+
+
+def test_a_log_without_labels_is_refused(tmp_path: Path) -> None:
+    log_dir = write_synthetic_log(tmp_path, "unlabelled", num_frames=3, with_camera=False, with_lidar=False)
+    with pytest.raises(TagError, match="no behaviour labels"):
+        rasterize_targets(Log.open(log_dir), BevGrid())
+
+
+def test_write_targets_is_float16_with_presence(tmp_path: Path) -> None:
+    t = np.zeros((2, 3, 4, 4), np.float32)
+    t[1, 2, 0, 0] = 0.5
+    write_targets(tmp_path, t, ["a", "b", "c"])
+    arr = np.load(tmp_path / "bev_attributes.npy")
+    assert arr.dtype == np.float16 and arr.shape == (2, 3, 4, 4)
+    import json
+
+    meta = json.loads((tmp_path / "bev_attributes.json").read_text())
+    assert meta["present"] == [[0, 0, 0], [0, 0, 1]] and meta["attributes"] == ["a", "b", "c"]
+    assert not list(tmp_path.glob(".*tmp*"))

@@ -18,7 +18,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from scenes.bev import MAP_LAYERS, BevGrid, MapRasterizer, rasterize_boxes
+from scenes.bev import MAP_LAYERS, BevGrid, MapRasterizer, _box_samples
 from scenes.geometry import SE3, FloatArray
 from scenes.map import VectorMap
 
@@ -53,7 +53,8 @@ def density_uint8(counts: NDArray[np.floating], saturation_points: int) -> NDArr
 
 
 def rasterize_track(grid: BevGrid, boxes: NDArray[np.floating]) -> NDArray[np.uint8]:
-    """Footprints of one object over frames, each frame on its own.
+    """Footprints of one object over frames, each frame on its own (a cell is inside when its
+    centre is, as in :func:`scenes.bev.rasterize_boxes`), all frames in one vectorised pass.
 
     Args:
         grid: the grid.
@@ -65,8 +66,12 @@ def rasterize_track(grid: BevGrid, boxes: NDArray[np.floating]) -> NDArray[np.ui
     """
     b = np.asarray(boxes, dtype=np.float64)
     out = np.zeros((b.shape[0], *grid.shape), dtype=np.uint8)
-    for t in np.flatnonzero(np.isfinite(b).all(axis=1)):
-        out[t] = rasterize_boxes(grid, b[t : t + 1, :2], b[t : t + 1, 2:4], b[t : t + 1, 4]) > 0
+    ok = np.flatnonzero(np.isfinite(b).all(axis=1))
+    if ok.size == 0:
+        return out
+    # scenes.bev's own cell sampler, vectorised over boxes: one box per frame here.
+    frame, rows, cols = _box_samples(grid, b[ok, :2], b[ok, 2:4], b[ok, 4], 1)
+    out[ok[frame], rows, cols] = 1
     return out
 
 

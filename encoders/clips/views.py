@@ -9,6 +9,7 @@ import json
 from dataclasses import dataclass
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pyarrow.parquet as pq
 from numpy.typing import NDArray
@@ -129,7 +130,7 @@ def ego_motion(pose_xy_yaw: NDArray[np.float64], speed_mps: NDArray[np.float64],
 def highlight_camera(
     rgb: NDArray[np.uint8], mask: NDArray[np.bool_], color_rgb: tuple[int, int, int], alpha: float, dim: float
 ) -> NDArray[np.uint8]:
-    """Highlight the object of interest: blend a colour over it, dim the rest (integer arithmetic).
+    """Highlight the object of interest: blend a colour over it, dim the rest.
 
     Args:
         rgb: (T, H, W, 3) uint8 colours.
@@ -141,9 +142,11 @@ def highlight_camera(
     Returns:
         (T, H, W, 3) uint8.
     """
-    wide = rgb.astype(np.uint16)
-    keep = np.uint16(round((1.0 - alpha) * 256))
-    tint = (np.asarray(color_rgb, dtype=np.uint16) * np.uint16(round(alpha * 256))).astype(np.uint16)
-    blended = (wide * keep + tint) >> np.uint16(8)
-    dimmed = (wide * np.uint16(round(dim * 256))) >> np.uint16(8)
-    return np.where(mask[..., None], blended, dimmed).astype(np.uint8)
+    t, h, w, _ = rgb.shape
+    flat = np.ascontiguousarray(rgb).reshape(t * h, w, 3)  # frames stacked into one image for OpenCV
+    color = np.empty_like(flat)
+    color[:] = np.asarray(color_rgb, dtype=np.uint8)
+    blended = cv2.addWeighted(flat, 1.0 - alpha, color, alpha, 0.0)
+    out = cv2.convertScaleAbs(flat, alpha=dim)
+    cv2.copyTo(blended, np.ascontiguousarray(mask, dtype=np.uint8).reshape(t * h, w), out)
+    return np.asarray(out, dtype=np.uint8).reshape(t, h, w, 3)

@@ -231,3 +231,24 @@ def test_camera_without_instance_masks_projects_the_boxes(tmp_path: Path) -> Non
     uv = _project_small(_annotation_centres(log_dir, "lead", fi), mask.shape[2], mask.shape[1])
     assert mask[np.arange(len(fi)), uv[:, 1].astype(int), uv[:, 0].astype(int)].all()
     assert not _item(tmp_path / "clips", "follower")["has_camera"]
+
+
+def test_track_footprints_match_scenes_bev_and_highlight_blends() -> None:
+    from encoders.clips.raster import rasterize_track
+    from encoders.clips.views import highlight_camera
+    from scenes.bev import rasterize_boxes
+
+    grid, rng = BevGrid(), np.random.default_rng(0)
+    boxes = np.c_[rng.uniform(-15, 55, (12, 1)), rng.uniform(-15, 15, (12, 1)), rng.uniform(0.4, 12, (12, 1)),
+                  rng.uniform(0.4, 3, (12, 1)), rng.uniform(-3, 3, (12, 1))]
+    boxes[3] = np.nan
+    fast = rasterize_track(grid, boxes)
+    assert fast[3].sum() == 0 and fast.sum() > 100
+    for t in [0, 1, 2, *range(4, 12)]:
+        np.testing.assert_array_equal(fast[t], rasterize_boxes(grid, boxes[t : t + 1, :2], boxes[t : t + 1, 2:4],
+                                                               boxes[t : t + 1, 4]) > 0)
+    rgb = rng.integers(0, 256, (2, 6, 7, 3)).astype(np.uint8)
+    mask = rng.random((2, 6, 7)) > 0.5
+    shown = highlight_camera(rgb, mask, (255, 0, 255), 0.5, 0.7).astype(float)
+    expected = np.where(mask[..., None], 0.5 * rgb + 0.5 * np.array([255, 0, 255]), 0.7 * rgb)
+    assert np.abs(shown - expected).max() <= 1.0

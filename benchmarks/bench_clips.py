@@ -120,14 +120,14 @@ def _loader_rate(clips_dir: Path, augment: bool, workers: int, min_samples: int,
 
 
 def _cpu_rate(clips_dir: Path, augment: bool, as_uint8: bool, samples: int) -> float:
-    """Samples (item + collate) per CPU-second of one process: independent of other load on the machine."""
+    """Samples (batched fetch + collate) per CPU-second of one process: independent of other load on the machine."""
     from encoders.data import ClipDataset, collate_clips
 
     ds = ClipDataset(clips_dir, augment=augment, as_uint8=as_uint8)
-    ds[0]
+    ds.__getitems__([0])
     start = time.process_time()
-    for first in range(0, samples, 16):
-        collate_clips([ds[i % len(ds)] for i in range(first, first + 16)])
+    for first in range(0, samples, 16):  # the DataLoader's batched path
+        collate_clips(ds.__getitems__([i % len(ds) for i in range(first, first + 16)]))
     return samples / (time.process_time() - start)
 
 
@@ -195,19 +195,23 @@ def run(quick: bool) -> dict[str, Any]:
     naive = _naive_clips_per_s(logs, clips_dir, config, 4 if quick else 8)
     import torch
 
+    threads = torch.get_num_threads()
     torch.set_num_threads(1)  # the loop's own process; intra-op threads only contend with the workers
-    min_samples = 160 if quick else 640
-    load_before = os.getloadavg()[0]
-    rate_0 = _loader_rate(clips_dir, augment=False, workers=0, min_samples=min_samples // 2)
-    rate_2 = _loader_rate(clips_dir, augment=False, workers=2, min_samples=min_samples)
-    rate_2_aug = _loader_rate(clips_dir, augment=True, workers=2, min_samples=min_samples)
-    rate_2_u8 = _loader_rate(clips_dir, augment=True, workers=2, min_samples=min_samples, as_uint8=True)
-    load_after = os.getloadavg()[0]
-    cpu = {
-        f"samples_per_cpu_s_{'uint8' if u8 else 'float32'}_{'augmented' if aug else 'plain'}": round(
-            _cpu_rate(clips_dir, aug, u8, 64 if quick else 160), 1)
-        for u8 in (False, True) for aug in (False, True)
-    }
+    try:
+        min_samples = 160 if quick else 640
+        load_before = os.getloadavg()[0]
+        rate_0 = _loader_rate(clips_dir, augment=False, workers=0, min_samples=min_samples // 2)
+        rate_2 = _loader_rate(clips_dir, augment=False, workers=2, min_samples=min_samples)
+        rate_2_aug = _loader_rate(clips_dir, augment=True, workers=2, min_samples=min_samples)
+        rate_2_u8 = _loader_rate(clips_dir, augment=True, workers=2, min_samples=min_samples, as_uint8=True)
+        load_after = os.getloadavg()[0]
+        cpu = {
+            f"samples_per_cpu_s_{'uint8' if u8 else 'float32'}_{'augmented' if aug else 'plain'}": round(
+                _cpu_rate(clips_dir, aug, u8, 64 if quick else 160), 1)
+            for u8 in (False, True) for aug in (False, True)
+        }
+    finally:
+        torch.set_num_threads(threads)
     clips_per_s = num_clips / build_s
     return {
         "log_source": log_source,

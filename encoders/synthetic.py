@@ -7,6 +7,9 @@ reversed is a cut-out, an approach reversed is a recede), so a bag of frames can
 its reversal, while a model that reads frame order can. Distractor objects, noise and random colours
 keep the task from being trivial.
 
+Paths are centred on a random distance, so that a clip and its time reversal are equally likely to
+cover the same places.
+
 Items follow the dataset contract of :mod:`encoders.data` (``camera`` (T, 4, Hc, Wc) RGB with the
 object highlighted + mask channel, ``bev_lidar`` (T, Cl, Hb, Wb), ``bev_map`` (T, Cm, Hb, Wb),
 ``bev_object`` (T, 1, Hb, Wb), ``ego_motion`` (T, 4), captions and tags). Rendering is vectorised over
@@ -57,7 +60,12 @@ def caption_of(category: str, steps: tuple[tuple[str, str], ...], alt: bool = Fa
 
 @dataclass(frozen=True)
 class SyntheticSpec:
-    """Sizes of the synthetic clips (defaults: the demo's sizes)."""
+    """Sizes of the synthetic clips (defaults: the demo's sizes).
+
+    ``ego_speed_mps`` is the range of the ego's (constant) speed. A moving ego's odometry and the map
+    passing by count time frame by frame, which lets even a bag of frames sort itself; order tests set
+    it to (0, 0).
+    """
 
     frames: int = 16
     camera_hw: tuple[int, int] = (96, 160)
@@ -68,6 +76,7 @@ class SyntheticSpec:
     y_range_m: tuple[float, float] = (-20.0, 20.0)
     distractors: int = 3
     camera_fraction: float = 0.8
+    ego_speed_mps: tuple[float, float] = (0.0, 12.0)
 
 
 class SyntheticClipDataset(Dataset[dict[str, Any]]):
@@ -120,7 +129,7 @@ class SyntheticClipDataset(Dataset[dict[str, Any]]):
         t = s.frames
         x_m, y_m = trajectory(rec["steps"], t, rng)  # (T,), (T,)
         length_m, width_m = CATEGORIES[rec["category"]]
-        speed = float(rng.uniform(0.0, 12.0))
+        speed = float(rng.uniform(*s.ego_speed_mps))
         ego = np.zeros((t, 4), np.float32)
         ego[:, 0] = speed * 0.1 * np.arange(t)
         ego[:, 3] = speed
@@ -156,8 +165,10 @@ def trajectory(
     seg = np.minimum((np.arange(frames) * len(steps)) // frames, len(steps) - 1)  # (T,) step of each frame
     rate = {"approach": -1.0, "recede": 1.0, "constant": 0.0}
     v = np.array([rate[m] for _, m in steps])[seg] * rng.uniform(1.2, 2.0)  # (T,) metres per frame
-    x0 = rng.uniform(22.0, 30.0)
-    x = x0 + np.concatenate([[0.0], np.cumsum(v[:-1])])  # (T,)
+    x = np.concatenate([[0.0], np.cumsum(v[:-1])])  # (T,)
+    # Centre the path on a random distance: a path and its time reversal then cover the same places,
+    # so only the order of the frames tells an approach from a recede.
+    x = x - 0.5 * (x.min() + x.max()) + rng.uniform(18.0, 32.0)
     lane_y = np.array([LANES_Y_M[lane] for lane, _ in steps])[seg]  # (T,)
     kernel = np.ones(3) / 3.0
     y = np.convolve(np.pad(lane_y, 1, mode="edge"), kernel, mode="valid")  # smooth the lane change

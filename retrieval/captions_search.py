@@ -1,11 +1,14 @@
 """Search over rule captions alone: works on any log with tracks, including real logs without sensors.
 
-Every caption row (an object over a time window, or the host vehicle) is described by a few texts:
-its canonical caption, captioning's paraphrases of it, and for a neighbour the same texts without
-the host's sentence (what the object itself does). Each distinct text is embedded once by the frozen
-sentence encoder (:class:`retrieval.embedding.SentenceEncoder`, no trained model), and a row scores
-the best cosine similarity of its texts to the query. Short queries such as "stopped car" thereby
-meet the paraphrase "A car in the left lane is stopped." rather than the long canonical sentence.
+Every caption row (an object over a time window, or the host vehicle) is described by two groups
+of texts: the *full* texts — its canonical caption and captioning's paraphrases of it, host sentence
+included — and the *object* texts — for a neighbour the same texts without the host's sentence (what
+the object itself does); a host row's object texts are its full texts. Each distinct text is
+embedded once by the frozen sentence encoder (:class:`retrieval.embedding.SentenceEncoder`, no
+trained model). A row scores the mean of its best full-text and best object-text cosine similarity
+to the query, so "stopped car" meets "A car in the left lane is stopped." (a paraphrase, object
+part) ahead of "The ego vehicle is stopped. A car … approaches." (the host stopped, not the car),
+while "the ego vehicle stops" still finds the host's own rows.
 
 >>> search = CaptionSearch.build("captions/captions.parquet", "captions_index")
 >>> search.search("stopped car", k=5, filters={"category": "car"})
@@ -19,8 +22,9 @@ Directory layout (written atomically)::
     metadata.parquet      one row per moment (id, clip_id, log_id, track_id, category, start_ns, …)
     texts.parquet         the distinct texts (column ``text``)
     text_embeddings.npy   (M, D) float32, L2-normalised, row i embeds texts[i]
-    variant_offsets.npy   (N + 1,) int64: row r's texts are variant_texts[offsets[r]:offsets[r + 1]]
-    variant_texts.npy     (V,) int64 indices into texts
+    full_offsets.npy      (N + 1,) int64: row r's full texts are full_texts[offsets[r]:offsets[r + 1]]
+    full_texts.npy        (V,) int64 indices into texts
+    object_offsets.npy    (N + 1,) int64, object_texts.npy (W,): the same for the object texts
 """
 
 from __future__ import annotations
@@ -108,29 +112,49 @@ def object_sentence(caption: str) -> str | None:
     return None
 
 
-def text_variants(row: dict[str, Any]) -> list[str]:
-    """The distinct texts that describe one caption row (see the module docstring)."""
+def text_variants(row: dict[str, Any]) -> tuple[list[str], list[str]]:
+    """The full texts and the object texts that describe one caption row (see the module docstring)."""
     texts = [str(row["caption"])]
     if row.get("canonical_caption"):
         texts.append(str(row["canonical_caption"]))
     texts.extend(str(p) for p in (row.get("paraphrases") or []) if p)
+    full = list(dict.fromkeys(t.strip() for t in texts if t.strip()))
+    objects: list[str] = []
     if str(row.get("track_id")) != "ego":
-        texts.extend(o for o in (object_sentence(t) for t in list(texts)) if o)
-    return list(dict.fromkeys(t.strip() for t in texts if t.strip()))
+        objects = list(dict.fromkeys(o for o in (object_sentence(t) for t in full) if o))
+    return full, objects or full
+
+
+class _Groups:
+    """Rows → lists of text indices, as CSR arrays (offsets (N + 1,), indices (V,))."""
+
+    def __init__(self, offsets: np.ndarray, indices: np.ndarray) -> None:
+        self.offsets = np.asarray(offsets, dtype=np.int64)
+        self.indices = np.asarray(indices, dtype=np.int64)
+
+    @staticmethod
+    def of(groups: Sequence[Sequence[str]], pos: dict[str, int]) -> _Groups:
+        offsets = np.zeros(len(groups) + 1, dtype=np.int64)
+        offsets[1:] = np.cumsum([len(g) for g in groups])
+        return _Groups(offsets, np.asarray([pos[t] for g in groups for t in g], dtype=np.int64))
+
+    def best(self, per_text: np.ndarray) -> np.ndarray:
+        """(N,) the best score among each row's texts, given (M,) scores of all texts."""
+        return np.asarray(np.maximum.reduceat(per_text[self.indices], self.offsets[:-1]))
 
 
 class CaptionSearch:
     """Rule captions embedded by a frozen sentence encoder, searchable by text."""
 
     def __init__(self, metadata: MetadataStore, texts: list[str], text_embeddings: np.ndarray,
-                 offsets: np.ndarray, variant_texts: np.ndarray, encoder: TextEncoder | None = None,
+                 full: _Groups, objects: _Groups, encoder: TextEncoder | None = None,
                  encoder_name: str | None = None, base_dir: Path | None = None,
                  skipped: Sequence[Skipped] = ()) -> None:
         self.metadata = metadata
         self.texts = texts
         self.text_embeddings = np.ascontiguousarray(text_embeddings, dtype=np.float32)
-        self.offsets = np.asarray(offsets, dtype=np.int64)
-        self.variant_texts = np.asarray(variant_texts, dtype=np.int64)
+        self.full = full
+        self.objects = objects
         self.encoder: TextEncoder = encoder if encoder is not None else SentenceEncoder()
         self.encoder_name = str(encoder_name or getattr(self.encoder, "name", type(self.encoder).__name__))
         self.base_dir = base_dir
@@ -169,16 +193,15 @@ class CaptionSearch:
         if rows.num_rows == 0:
             raise ValueError("no captions to index" + (f"; skipped: {skipped[:5]}" if skipped else ""))
         variants = [text_variants(r) for r in rows.to_pylist()]
-        texts = list(dict.fromkeys(t for v in variants for t in v))
+        texts = list(dict.fromkeys(t for full, objects in variants for t in (*full, *objects)))
         pos = {t: i for i, t in enumerate(texts)}
-        offsets = np.zeros(len(variants) + 1, dtype=np.int64)
-        offsets[1:] = np.cumsum([len(v) for v in variants])
-        variant_texts = np.asarray([pos[t] for v in variants for t in v], dtype=np.int64)
+        full_groups = _Groups.of([v[0] for v in variants], pos)
+        object_groups = _Groups.of([v[1] for v in variants], pos)
         encoder = encoder if encoder is not None else SentenceEncoder()
         embeddings = np.asarray(encoder(texts), dtype=np.float32)
         meta = rows.select([c for c in rows.column_names if c not in ("canonical_caption", "paraphrases")])
         store = MetadataStore.from_rows(meta, np.arange(rows.num_rows, dtype=np.int64))
-        out = cls(store, texts, embeddings, offsets, variant_texts, encoder, None, base_dir, skipped)
+        out = cls(store, texts, embeddings, full_groups, object_groups, encoder, None, base_dir, skipped)
         if out_dir is not None:
             out.save(out_dir)
         return out
@@ -189,8 +212,9 @@ class CaptionSearch:
             self.metadata.write(tmp / "metadata.parquet")
             pq.write_table(pa.table({"text": pa.array(self.texts, pa.string())}), tmp / "texts.parquet")
             np.save(tmp / "text_embeddings.npy", self.text_embeddings)
-            np.save(tmp / "variant_offsets.npy", self.offsets)
-            np.save(tmp / "variant_texts.npy", self.variant_texts)
+            for name, groups in (("full", self.full), ("object", self.objects)):
+                np.save(tmp / f"{name}_offsets.npy", groups.offsets)
+                np.save(tmp / f"{name}_texts.npy", groups.indices)
             info = {"format_version": FORMAT_VERSION, "kind": KIND, "text_encoder": self.encoder_name,
                     "count": len(self), "texts": len(self.texts), "dim": int(self.text_embeddings.shape[1]),
                     "base_dir": None if self.base_dir is None else str(Path(self.base_dir).resolve()),
@@ -219,21 +243,23 @@ class CaptionSearch:
             metadata = MetadataStore.read(directory / "metadata.parquet")
             texts = pq.read_table(directory / "texts.parquet").column("text").to_pylist()
             emb = np.load(directory / "text_embeddings.npy")
-            offsets = np.load(directory / "variant_offsets.npy")
-            variant_texts = np.load(directory / "variant_texts.npy")
+            groups = [_Groups(np.load(directory / f"{name}_offsets.npy"), np.load(directory / f"{name}_texts.npy"))
+                      for name in ("full", "object")]
         except (OSError, ValueError, KeyError) as exc:
             raise IndexDirError(f"{directory}: unreadable caption index: {exc}") from None
-        if len(offsets) != len(metadata) + 1 or emb.shape[0] != len(texts) or offsets[-1] != len(variant_texts):
-            raise IndexDirError(f"{directory}: files disagree ({len(metadata)} rows, {len(offsets)} offsets, "
-                                f"{len(texts)} texts, {emb.shape[0]} embeddings)")
+        for g in groups:
+            if len(g.offsets) != len(metadata) + 1 or g.offsets[-1] != len(g.indices) or \
+                    (len(g.indices) and int(g.indices.max()) >= len(texts)) or emb.shape[0] != len(texts):
+                raise IndexDirError(f"{directory}: files disagree ({len(metadata)} rows, {len(g.offsets)} offsets, "
+                                    f"{len(texts)} texts, {emb.shape[0]} embeddings)")
         base = info.get("base_dir")
-        return cls(metadata, texts, emb, offsets, variant_texts, encoder, info.get("text_encoder"),
+        return cls(metadata, texts, emb, groups[0], groups[1], encoder, info.get("text_encoder"),
                    Path(base) if base else None, [Skipped(s["item"], s["reason"]) for s in info.get("skipped", [])])
 
     def scores(self, xq: np.ndarray) -> np.ndarray:
-        """(N,) score of every row for one query embedding (D,): the best of its texts."""
+        """(N,) score of every row for one query embedding (D,): mean of its best full and best object text."""
         per_text = self.text_embeddings @ np.asarray(xq, dtype=np.float32).reshape(-1)
-        return np.asarray(np.maximum.reduceat(per_text[self.variant_texts], self.offsets[:-1]))
+        return np.asarray(0.5 * (self.full.best(per_text) + self.objects.best(per_text)))
 
     def search(self, query: str, k: int = 10, filters: FilterSpec = None) -> list[SearchResult]:
         """The k moments whose captions are closest to ``query`` (fewer when a filter passes fewer).

@@ -78,9 +78,9 @@ def render_preview_frames(arrays: LogArrays, clip: Mapping[str, Any], config: Cl
         bev[mask] = color
 
     paint(bev_map[:, MAP_CHANNELS.index("drivable_area")] > 127, (45, 45, 45))
-    paint(bev_map[:, MAP_CHANNELS.index("intersections")] > 127, (25, 35, 80))
-    paint(bev_map[:, MAP_CHANNELS.index("crosswalks")] > 127, (90, 90, 30))
-    paint(bev_map[:, MAP_CHANNELS.index("lane_boundaries")] > 127, (110, 110, 110))
+    paint(bev_map[:, MAP_CHANNELS.index("intersection")] > 127, (25, 35, 80))
+    paint(bev_map[:, MAP_CHANNELS.index("crossing")] > 127, (90, 90, 30))
+    paint(bev_map[:, MAP_CHANNELS.index("lane_boundary")] > 127, (110, 110, 110))
     level = occ.astype(np.uint16)
     lit = level > 0
     grey = np.clip(80 + level * 175 // 255, 0, 255).astype(np.uint8)
@@ -124,11 +124,26 @@ def write_preview(
     return out_path
 
 
+def best_frame(arrays: LogArrays, clip: Mapping[str, Any], config: ClipsConfig) -> int:
+    """Index (0 … T − 1) of the sampled frame where the object is most visible: largest camera mask
+    when the clip has a camera view, else largest BEV footprint."""
+    fi = np.asarray(clip["frame_indices"], dtype=np.int64)
+    value = arrays.track_value[str(clip["track_id"])]
+    if bool(clip["has_camera"]) and arrays.camera.shape[0]:
+        area = (np.asarray(arrays.camera_instances[fi]) == value).sum(axis=(1, 2))
+    else:
+        b = config.bev
+        grid = BevGrid(b.x_min_m, b.x_max_m, b.y_min_m, b.y_max_m, b.resolution_m)
+        area = object_footprint(arrays, grid, str(clip["track_id"]), fi).sum(axis=(1, 2))
+    return int(np.argmax(area))
+
+
 def write_preview_grid(
     clips_dir: Path | str, clip_ids: Sequence[str], out_path: Path | str, columns: int = 2,
-    frame_fraction: float = 0.5,
+    frame_fraction: float | None = None,
 ) -> Path:
-    """A still PNG grid: one preview frame (at ``frame_fraction`` of each clip) per clip."""
+    """A still PNG grid: one preview frame per clip, at ``frame_fraction`` of the clip or, when None,
+    where the object is most visible (:func:`best_frame`)."""
     clips_dir = Path(clips_dir)
     config = _config(clips_dir)
     table = pq.read_table(clips_dir / "clips.parquet")
@@ -138,8 +153,12 @@ def write_preview_grid(
         if clip_id not in rows:
             raise KeyError(f"{clips_dir / 'clips.parquet'}: no clip with clip_id {clip_id!r}")
         row = rows[clip_id]
-        frames = render_preview_frames(open_log_arrays(clips_dir, row["log_id"]), row, config)
-        tiles.append(frames[min(int(frame_fraction * len(frames)), len(frames) - 1)])
+        arrays = open_log_arrays(clips_dir, row["log_id"])
+        frames = render_preview_frames(arrays, row, config)
+        if frame_fraction is None:
+            tiles.append(frames[best_frame(arrays, row, config)])
+        else:
+            tiles.append(frames[min(int(frame_fraction * len(frames)), len(frames) - 1)])
     if not tiles:
         raise ValueError("no clips for the preview grid")
     h, w = tiles[0].shape[:2]

@@ -3,9 +3,10 @@
 Everything here is stored as uint8 (see :mod:`encoders.clips.render`):
 
 - occupancy: log-scaled point density per height bin (:func:`density_uint8`);
-- map layers (:data:`MAP_CHANNELS`, the layers of :class:`scenes.bev.MapRasterizer`): 0/255 for
-  the binary layers; the lane direction cosine and sine (ego frame) as ``round(128 + 127·v)`` on
-  lanes and 0 elsewhere, so ``v = (255·x − 128) / 127`` where ``x > 0``.
+- map layers (:data:`MAP_CHANNELS`, the layers of :class:`scenes.bev.MapRasterizer`, see
+  :data:`CHANNEL_LAYERS`): 0/255 for the binary layers; the lane direction (unit vector of the lane
+  heading in the ego frame) as ``round(128 + 127·v)`` on lanes and 0 elsewhere, so
+  ``v = (255·x − 128) / 127`` where ``x > 0``.
 
 The map is rasterised once per log on a city-frame grid (with :class:`scenes.bev.MapRasterizer`
 at the identity pose) and warped into each frame's ego grid with one affine warp per frame: the map
@@ -22,9 +23,18 @@ from scenes.bev import MAP_LAYERS, BevGrid, MapRasterizer, _box_samples
 from scenes.geometry import SE3, FloatArray
 from scenes.map import VectorMap
 
-#: Map channels of the BEV view, in order.
-MAP_CHANNELS: tuple[str, ...] = MAP_LAYERS
-_DIRECTION = (MAP_CHANNELS.index("lane_direction_cos"), MAP_CHANNELS.index("lane_direction_sin"))
+#: Map channels of the BEV view, in order (names used in clips manifests and by the tagging stage).
+MAP_CHANNELS: tuple[str, ...] = (
+    "drivable_area",
+    "lane_boundary",
+    "lane_direction_x",
+    "lane_direction_y",
+    "crossing",
+    "intersection",
+)
+#: The :data:`scenes.bev.MAP_LAYERS` layer behind each channel (direction x, y = heading cos, sin).
+CHANNEL_LAYERS: dict[str, str] = dict(zip(MAP_CHANNELS, MAP_LAYERS))
+_DIRECTION = (MAP_CHANNELS.index("lane_direction_x"), MAP_CHANNELS.index("lane_direction_y"))
 
 
 def grid_affine_from(grid: BevGrid, source: BevGrid, source_SE3_grid: FloatArray) -> FloatArray:
@@ -100,7 +110,7 @@ def render_map_frames(
     lo, hi = city.reshape(-1, 2).min(axis=0) - 2.0, city.reshape(-1, 2).max(axis=0) + 2.0
     city_grid = BevGrid(float(lo[0]), float(hi[0]), float(lo[1]), float(hi[1]), grid.resolution_m)
     layers = MapRasterizer(vector_map).rasterize(city_grid, SE3.identity())
-    stack = np.stack([layers[name] for name in MAP_CHANNELS], axis=-1).astype(np.float32)  # (Hc, Wc, C)
+    stack = np.stack([layers[CHANNEL_LAYERS[name]] for name in MAP_CHANNELS], axis=-1).astype(np.float32)
     h, w = grid.shape
     warped = np.empty((num_frames, len(MAP_CHANNELS), h, w), dtype=np.float32)
     for f in range(num_frames):

@@ -57,7 +57,7 @@ from scenes.tracks import DenseTracks
 #: Folder of rendered logs inside CLIPS_DIR.
 LOGS_DIR = "logs"
 #: Version of the per-log files; bump when their content changes.
-RENDER_VERSION = 3
+RENDER_VERSION = 4
 
 
 def lidar_channel_names(z_bins_m: tuple[float, ...]) -> list[str]:

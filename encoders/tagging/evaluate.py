@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import json
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -43,7 +43,14 @@ from encoders.tagging.scene_tags import (
     region_masks,
     values_of,
 )
-from encoders.tagging.targets import LOGS_DIR, grid_from_manifest, has_targets, open_targets, read_manifest
+from encoders.tagging.targets import (
+    LOGS_DIR,
+    TARGETS_STEM,
+    grid_from_manifest,
+    has_targets,
+    open_targets,
+    read_manifest,
+)
 from encoders.tagging.training import Tagger
 from scenes.atomic import atomic_write_text
 
@@ -58,6 +65,7 @@ def log_has_map(bev_map: NDArray[np.uint8]) -> bool:
 
 def pooled_truth_and_pred(
     clips_dir: Path, log_id: str, tagger: Tagger | None, factor: int, names: tuple[str, ...] | None = None,
+    stem: str = TARGETS_STEM,
 ) -> tuple[Pooled, Pooled | None]:
     """Per-frame pooled truth (and model prediction) of one rendered log.
 
@@ -68,7 +76,7 @@ def pooled_truth_and_pred(
     grid = coarse_grid(grid_from_manifest(manifest), factor)
     folder = clips_dir / LOGS_DIR / log_id
     bev_map = np.load(folder / "bev_map.npy", mmap_mode="r")
-    lt = open_targets(clips_dir, log_id)
+    lt = open_targets(clips_dir, log_id, stem)
     attrs = names or lt.names
     cols = [lt.names.index(a) for a in attrs]
     tg = torch.from_numpy(np.asarray(lt.targets[:, cols], dtype=np.float32))  # (F, A, H, W)
@@ -128,11 +136,13 @@ class SplitPooled:
 
 
 def pool_split(clips_dir: Path, split: str, tagger: Tagger | None, factor: int,
-               names: tuple[str, ...] | None = None, progress: Callable[[str], None] | None = None) -> SplitPooled:
-    logs = [lid for lid in split_logs(read_manifest(clips_dir), split) if has_targets(clips_dir, lid)]
+               names: tuple[str, ...] | None = None, progress: Callable[[str], None] | None = None,
+               stem: str = TARGETS_STEM, max_logs: int | None = None) -> SplitPooled:
+    logs = [lid for lid in split_logs(read_manifest(clips_dir), split) if has_targets(clips_dir, lid, stem)]
+    logs = logs[:max_logs] if max_logs is not None else logs
     truths, preds = [], []
     for lid in logs:
-        t, p = pooled_truth_and_pred(clips_dir, lid, tagger, factor, names)
+        t, p = pooled_truth_and_pred(clips_dir, lid, tagger, factor, names, stem)
         truths.append(t)
         if p is not None:
             preds.append(p)
@@ -228,7 +238,7 @@ def markdown_tables(by_region: dict[str, dict[str, dict[str, Any]]], inputs: dic
 def evaluate_runs(
     run_dir: Path | str,
     clips_dir: Path | str,
-    input_runs: dict[str, Path | str] | None = None,
+    input_runs: Mapping[str, Path | str] | None = None,
     split: str = "test",
     device: str = "cpu",
     progress: Callable[[str], None] | None = None,

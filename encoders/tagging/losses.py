@@ -46,8 +46,8 @@ class TagLossConfig:
     hard_negatives: int = 3
     min_negatives: int = 16
     smooth_l1_beta: float = 0.1
-    scene_weight: float = 0.1
-    scene_norm: float = 50.0
+    scene_weight: float = 1.0
+    scene_norm: float = 10.0
     discrete_weight: float = 1.0
     continuous_weight: float = 5.0
 

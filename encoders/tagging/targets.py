@@ -39,8 +39,9 @@ from scenes.categories import VEHICLE_CATEGORIES, Category
 from scenes.log import Log
 from scenes.tracks import DenseTracks
 
-TARGETS_FILE = "bev_attributes.npy"
-TARGETS_META_FILE = "bev_attributes.json"
+TARGETS_STEM = "bev_attributes"
+TARGETS_FILE = f"{TARGETS_STEM}.npy"
+TARGETS_META_FILE = f"{TARGETS_STEM}.json"
 LOGS_DIR = "logs"
 #: Frames rasterised at once (bounds the supersampled scratch memory).
 _CHUNK_FRAMES = 32
@@ -163,10 +164,14 @@ def box_coverage(grid: BevGrid, dense: DenseTracks, keep: NDArray[np.bool_], fra
     s = int(supersample)
     h, w = grid.shape
     kk, ff, jj = _boxes(dense, frames, keep)
-    fine = np.zeros((frames.shape[0], h * s, w * s), bool)
     b, r, c = _samples(grid, dense, kk, ff, s)
-    fine[jj[b], r, c] = True
-    return np.asarray(fine.reshape(-1, h, s, w, s).mean(axis=(2, 4), dtype=np.float32), dtype=np.float32)
+    # Union of the boxes: each sub-cell sample counts once, however many boxes hold it.
+    fine = np.unique((jj[b] * (h * s) + r) * (w * s) + c)
+    n, rem = np.divmod(fine, (h * s) * (w * s))
+    rr, cc = np.divmod(rem, w * s)
+    cells = (n * h + rr // s) * w + cc // s
+    counts = np.bincount(cells, minlength=frames.shape[0] * h * w).astype(np.float32)
+    return np.asarray(counts.reshape(frames.shape[0], h, w) / np.float32(s * s), dtype=np.float32)
 
 
 def box_values(grid: BevGrid, dense: DenseTracks, keep: NDArray[np.bool_], frames: NDArray[np.int64],
@@ -303,24 +308,25 @@ def targets_path(clips_dir: Path | str, log_id: str) -> Path:
     return Path(clips_dir) / LOGS_DIR / log_id / TARGETS_FILE
 
 
-def has_targets(clips_dir: Path | str, log_id: str) -> bool:
+def has_targets(clips_dir: Path | str, log_id: str, stem: str = TARGETS_STEM) -> bool:
     folder = Path(clips_dir) / LOGS_DIR / log_id
-    return (folder / TARGETS_FILE).is_file() and (folder / TARGETS_META_FILE).is_file()
+    return (folder / f"{stem}.npy").is_file() and (folder / f"{stem}.json").is_file()
 
 
-def write_targets(folder: Path, targets: NDArray[np.floating], names: Sequence[str]) -> None:
-    """Write ``bev_attributes.npy`` (float16) and its ``.json`` sidecar atomically.
+def write_targets(folder: Path, targets: NDArray[np.floating], names: Sequence[str], stem: str = TARGETS_STEM) -> None:
+    """Write ``<stem>.npy`` (float16) and its ``<stem>.json`` sidecar atomically.
 
     Args:
         folder: ``CLIPS_DIR/logs/<log_id>``.
         targets: (F, A, H, W) targets.
         names: A attribute names.
+        stem: file stem (``bev_attributes``; attributes added later use their own).
     """
     arr = np.ascontiguousarray(np.asarray(targets, dtype=np.float16))
     present = (arr.reshape(arr.shape[0], arr.shape[1], -1) != 0).any(axis=2).astype(np.uint8)
-    with atomic_path(folder / TARGETS_FILE) as tmp, open(tmp, "wb") as fh:
+    with atomic_path(folder / f"{stem}.npy") as tmp, open(tmp, "wb") as fh:
         np.save(fh, arr, allow_pickle=False)
-    atomic_write_text(folder / TARGETS_META_FILE, json.dumps({"attributes": list(names), "present": present.tolist()}))
+    atomic_write_text(folder / f"{stem}.json", json.dumps({"attributes": list(names), "present": present.tolist()}))
 
 
 def add_attribute_targets(
@@ -379,12 +385,12 @@ class LogTargets:
     present: NDArray[np.bool_]
 
 
-def open_targets(clips_dir: Path | str, log_id: str) -> LogTargets:
+def open_targets(clips_dir: Path | str, log_id: str, stem: str = TARGETS_STEM) -> LogTargets:
     folder = Path(clips_dir) / LOGS_DIR / log_id
-    if not has_targets(clips_dir, log_id):
-        raise FileNotFoundError(f"{folder / TARGETS_FILE}: no tag targets (run `scenesearch eval-tags` or "
-                                "encoders.tagging.targets.add_attribute_targets first)")
-    meta = json.loads((folder / TARGETS_META_FILE).read_text())
-    arr = np.load(folder / TARGETS_FILE, mmap_mode="r")
+    if not has_targets(clips_dir, log_id, stem):
+        raise FileNotFoundError(f"{folder / (stem + '.npy')}: no tag targets (run `scenesearch eval-tags --logs` "
+                                "or encoders.tagging.targets.add_attribute_targets first)")
+    meta = json.loads((folder / f"{stem}.json").read_text())
+    arr = np.load(folder / f"{stem}.npy", mmap_mode="r")
     present = np.asarray(meta["present"], dtype=bool).reshape(arr.shape[0], arr.shape[1])
     return LogTargets(arr, tuple(meta["attributes"]), present)

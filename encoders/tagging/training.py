@@ -269,6 +269,9 @@ def train_tags(
         config = dataclasses.replace(config, bev=dataclasses.replace(
             config.bev, lidar_channels=len(manifest["bev"]["lidar_channels"]),
             map_channels=len(manifest["bev"]["map_channels"])))
+    else:
+        config = dataclasses.replace(config, bev=init.bev_config, inputs=init.config.inputs,
+                                     frame_stride=init.config.frame_stride)
     bev_config = config.bev if init is None else init.bev_config
     bev = BevTower(bev_config, 32) if init is None else init.bev
     head = TagHead(TagHeadConfig(attributes=ds.names, embed_channels=bev_config.embed_channels))
@@ -416,3 +419,40 @@ def load_tagger(run_dir: Path | str, device: str = "cpu") -> Tagger:
         model = load_model(run, device="cpu")
         bev = model.bev
     return Tagger(bev, head, config, meta, dev)
+
+
+def attach_tagging(
+    clips_dir: Path | str,
+    model: nn.Module,
+    optimizer: torch.optim.Optimizer,
+    config: TagTrainConfig | None = None,
+    log: Callable[[str], None] | None = None,
+) -> TaggingObjective | None:
+    """The joint-training hook: a :class:`TaggingObjective` for ``model`` (a DualEncoder), its A and b added
+    to ``optimizer`` as a new parameter group (no weight decay), or None when ``config.mode`` is ``alone``
+    or the clips folder's training logs have no tag targets (``log`` says why).
+    """
+    from encoders.tagging.data import split_logs
+    from encoders.tagging.targets import has_targets
+
+    say = log or (lambda _line: None)
+    config = config or TagTrainConfig()
+    if config.mode != "joint":
+        return None
+    clips = Path(clips_dir)
+    logs = split_logs(read_manifest(clips), "train")
+    missing = [lid for lid in logs if not has_targets(clips, lid)]
+    if not logs or missing:
+        say(f"tagging off: {len(missing)} of {len(logs)} training logs have no tag targets "
+            "(encoders.tagging.targets.add_attribute_targets writes them)")
+        return None
+    bev_cfg = getattr(getattr(model, "config", None), "bev", None)
+    channels = int(bev_cfg.embed_channels) if bev_cfg is not None else config.bev.embed_channels
+    objective = TaggingObjective(clips, config, channels)
+    device = next(model.parameters()).device
+    objective.to(device)
+    lr = optimizer.param_groups[0]["lr"]
+    optimizer.add_param_group({"params": list(objective.head.parameters()), "weight_decay": 0.0, "lr": lr})
+    say(f"tagging on: {len(objective.dataset)} frames of {len(logs)} logs, {len(objective.head.names)} attributes, "
+        f"weight {config.joint_weight}, inputs {config.inputs}")
+    return objective

@@ -122,14 +122,14 @@ def test_map_channels_and_clip_table(built: tuple[Path, Path]) -> None:
     drivable = bev_map[MAP_CHANNELS.index("drivable_area")] > 0.5
     # Road from y = −6 m to +8 m: columns (20 − 8)/0.5 = 24 … (20 + 6)/0.5 = 52.
     assert drivable[:, 26:50].all() and not drivable[:, :22].any() and not drivable[:, 54:].any()
-    # Lanes span y = −1.75 … 5.25 m (columns 30 … 43); their heading in the ego frame is 0:
-    # cos encoded 128 + 127, sin 128 inside lanes, 0 outside.
-    dx = bev_map[MAP_CHANNELS.index("lane_direction_cos")] * 255
-    dy = bev_map[MAP_CHANNELS.index("lane_direction_sin")] * 255
+    # Lanes span y = −1.75 … 5.25 m (columns 30 … 43); their direction in the ego frame is +x:
+    # x encoded 128 + 127, y 128 inside lanes, 0 outside.
+    dx = bev_map[MAP_CHANNELS.index("lane_direction_x")] * 255
+    dy = bev_map[MAP_CHANNELS.index("lane_direction_y")] * 255
     assert np.abs(dx[:, 31:43] - 255).max() <= 1.0 and np.abs(dy[:, 31:43] - 128).max() <= 1.0
     assert dx[:, :28].max() == 0 and dx[:, 46:].max() == 0
     # Crossing at city x = 40–44 m; at the first sampled frame (frame 5) the ego is at x = 2.5 m.
-    crossing = bev_map[MAP_CHANNELS.index("crosswalks")] > 0.5
+    crossing = bev_map[MAP_CHANNELS.index("crossing")] > 0.5
     rows = np.nonzero(crossing.any(axis=1))[0]
     assert abs((60.0 - rows.mean() * 0.5) - (42.0 - 2.5)) < 1.0
 

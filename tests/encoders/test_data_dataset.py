@@ -21,11 +21,11 @@ from scenes.bev import BevGrid
 def clips_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
     root = tmp_path_factory.mktemp("clips_data")
     logs = [
-        write_synthetic_log(root / "logs", log_id=f"synthetic_{i}", num_frames=36, with_lidar=i != 1, seed=i)
+        write_synthetic_log(root / "logs", log_id=f"synthetic_{i}", num_frames=24, with_lidar=i != 1, seed=i)
         for i in range(3)
     ]
     (root / "captions").mkdir()
-    pq.write_table(synthetic_captions(logs, 2, 30), root / "captions" / "captions.parquet")
+    pq.write_table(synthetic_captions(logs, 2, 21), root / "captions" / "captions.parquet")
     config = replace(ClipsConfig(), previews=False, frames_per_clip=8)
     build_clips(logs, root / "captions", root / "clips", config)
     return root / "clips"

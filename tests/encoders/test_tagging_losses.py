@@ -110,7 +110,8 @@ def test_downsample_targets_area_for_densities_max_otherwise() -> None:
 
 def test_mask_inputs_zeroes_the_unused_view() -> None:
     batch = {"bev_lidar": torch.ones(1, 2, 3, 4, 4), "bev_map": torch.ones(1, 2, 5, 4, 4)}
-    assert float(mask_inputs(batch, "map")["bev_lidar"].sum()) == 0 and float(mask_inputs(batch, "map")["bev_map"].sum()) > 0
+    only_map = mask_inputs(batch, "map")
+    assert float(only_map["bev_lidar"].sum()) == 0 and float(only_map["bev_map"].sum()) > 0
     assert float(mask_inputs(batch, "lidar")["bev_map"].sum()) == 0
     none = mask_inputs(batch, "none")
     assert float(none["bev_lidar"].sum() + none["bev_map"].sum()) == 0
@@ -122,7 +123,8 @@ def test_mask_inputs_zeroes_the_unused_view() -> None:
 def test_configs_round_trip_yaml_and_reject_unknown_keys() -> None:
     cfg = TagTrainConfig(mode="alone", inputs="map", steps=7, loss=TagLossConfig(hard_negatives=2))
     assert TagTrainConfig.from_yaml(cfg.to_yaml()) == cfg
-    head = TagHeadConfig(attributes=("parked", "ego_brake_cause"), embed_channels=8, kinds={"ego_brake_cause": "discrete"})
+    head = TagHeadConfig(attributes=("parked", "ego_brake_cause"), embed_channels=8,
+                         kinds={"ego_brake_cause": "discrete"})
     assert TagHeadConfig.from_dict(head.to_dict()) == head
     with pytest.raises(ValueError, match="unknown keys"):
         TagTrainConfig.from_dict({"lossy": 1})

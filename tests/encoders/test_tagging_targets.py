@@ -5,45 +5,23 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-import pyarrow as pa
 import pytest
 
-from encoders.clips.testing import FRAME_PERIOD_NS, START_NS, write_synthetic_log
+from encoders.clips.testing import write_synthetic_log
 from encoders.tagging.attributes import ATTRIBUTES, Attribute, TagError
 from encoders.tagging.targets import behavior_grid, rasterize_targets, write_targets
-from scenes.behavior import BEHAVIOR_SCHEMA, BehaviorLabel, write_behavior_labels, write_junctions
+from encoders.tagging.testing import add_synthetic_labels
 from scenes.bev import BevGrid
 from scenes.log import Log
 
 NUM_FRAMES = 6
 
 
-def add_labels(log_dir: Path, num_frames: int = NUM_FRAMES) -> None:
-    """lead brakes (for the ego), parked is parked, follower keeps its lane; a 4-way junction at city x = 30 m."""
-    rows = []
-    for f in range(num_frames):
-        ts = START_NS + f * FRAME_PERIOD_NS
-        for tid in ("lead", "parked", "follower", "ego"):
-            flags = {label.value: False for label in BehaviorLabel}
-            flags["braking"] = tid == "lead"
-            flags["parked"] = tid == "parked"
-            flags["keeping_lane"] = tid in ("follower", "ego")
-            rows.append({"timestamp_ns": ts, "track_id": tid, **flags, "speed_mps": 7.0 if tid == "lead" else 0.0,
-                         "leader_id": "lead" if tid == "ego" else None, "junction_id": None})
-    write_behavior_labels(log_dir, pa.Table.from_pylist(rows, schema=BEHAVIOR_SCHEMA))
-    square_x = [25.0, 35.0, 35.0, 25.0]
-    square_y = [-5.0, -5.0, 5.0, 5.0]
-    write_junctions(log_dir, pa.table({
-        "junction_id": ["J1", "J2"], "kind": ["four_way", "three_way"], "num_arms": pa.array([4, 3], pa.int64()),
-        "center_x_m": [30.0, -100.0], "center_y_m": [0.0, 0.0],
-        "polygon_x_m": [square_x, [x - 130 for x in square_x]], "polygon_y_m": [square_y, square_y]}))
-
-
 @pytest.fixture(scope="module")
 def log(tmp_path_factory: pytest.TempPathFactory) -> Log:
     root = tmp_path_factory.mktemp("tag_targets")
     log_dir = write_synthetic_log(root, "synthetic_tags", num_frames=NUM_FRAMES, with_camera=False, with_lidar=False)
-    add_labels(log_dir)
+    add_synthetic_labels(log_dir, NUM_FRAMES)
     return Log.open(log_dir)
 
 
@@ -59,7 +37,7 @@ def test_targets_put_labels_on_boxes_and_junctions(log: Log) -> None:
     parked = t[0, idx[Attribute.PARKED]]
     assert parked[cell(25.0, -4.0)] == 1.0 and parked[cell(14.0, 3.5)] == 0.0
     assert parked.sum() == 10 * 4  # cell centres inside x ∈ [22.75, 27.25], y ∈ [−4.95, −3.05]
-    braking = t[0, idx[Attribute.BRAKING]]
+    braking = t[0, idx[Attribute.BRAKING]]  # lead brakes (the ego too, but it has no box)
     assert braking[cell(14.0, 3.5)] == 1.0 and braking[cell(25.0, -4.0)] == 0.0
     assert t[0, idx[Attribute.VEHICLE_SPEED]][cell(14.0, 3.5)] == pytest.approx(7.0)
     # Densities are fractional coverage: three 4.5 × 1.9 m cars.

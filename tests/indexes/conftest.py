@@ -6,6 +6,7 @@ import sys
 from collections.abc import Callable
 from pathlib import Path
 
+import faiss
 import numpy as np
 import pytest
 
@@ -13,6 +14,10 @@ import pytest
 _ROOT = Path(__file__).resolve().parents[2]
 if str(_ROOT) not in sys.path:
     sys.path.insert(0, str(_ROOT))
+
+# One FAISS thread: the tests use small data, and on shared cores OpenMP barriers between busy
+# threads cost far more than they save.
+faiss.omp_set_num_threads(1)
 
 
 def make_clustered(n: int, d: int, seed: int, n_clusters: int = 40, spread: float = 0.35) -> np.ndarray:

@@ -1,0 +1,96 @@
+"""Training alone, loading, whole-log inference, the joint-training hook, new attributes, evaluation."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+import torch
+
+from encoders.tagging.attributes import ATTRIBUTES, TagError
+from encoders.tagging.evaluate import evaluate_runs, write_report
+from encoders.tagging.extend import CAUSES_EGO_BRAKING, add_attributes, ego_brake_cause_targets
+from encoders.tagging.targets import open_targets
+from encoders.tagging.testing import build_tagging_fixture
+from encoders.tagging.training import TagTrainConfig, attach_tagging, load_tagger
+
+
+@pytest.fixture(scope="module")
+def fixture(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
+    torch.manual_seed(0)
+    return build_tagging_fixture(tmp_path_factory.mktemp("tagging"))
+
+
+def test_run_folder_loads_and_tags_whole_logs_chunk_independently(fixture: dict[str, Any]) -> None:
+    tagger = load_tagger(fixture["run"])
+    assert tagger.names == tuple(a.value for a in ATTRIBUTES)
+    folder = Path(fixture["clips"]) / "logs" / "tagged_0"
+    lidar = np.load(folder / "bev_lidar.npy", mmap_mode="r")
+    bev_map = np.load(folder / "bev_map.npy", mmap_mode="r")
+    full = tagger.tag_frames(lidar, bev_map, chunk=64)
+    assert full.shape == (12, len(ATTRIBUTES), 80, 40) and np.isfinite(full).all()
+    # Chunks with temporal context give the same tensors as one pass.
+    np.testing.assert_allclose(tagger.tag_frames(lidar, bev_map, chunk=2), full, atol=1e-5)
+    # The stride-2 phases: frames 0, 2, 4, ... form one sequence.
+    x = {k: torch.from_numpy(np.array(a[0::2])).float().div(255.0)[None] for k, a in
+         (("bev_lidar", lidar), ("bev_map", bev_map))}
+    with torch.no_grad():
+        direct = tagger.head(tagger.bev.embed_map(x["bev_lidar"], x["bev_map"]))[0].numpy()
+    np.testing.assert_allclose(full[0::2], direct, atol=1e-5)
+
+
+def test_joint_hook_adds_the_head_to_the_optimiser_and_gives_a_loss(fixture: dict[str, Any]) -> None:
+    from encoders.bev import BevTower
+    from encoders.tagging.testing import tiny_bev_config
+
+    class Model(torch.nn.Module):  # what the hook needs of a DualEncoder: .config.bev, .bev_embedding
+        def __init__(self) -> None:
+            super().__init__()
+            self.bev = BevTower(tiny_bev_config(), 16)
+            self.config = type("C", (), {"bev": tiny_bev_config()})()
+
+        def bev_embedding(self, batch: dict[str, Any]) -> torch.Tensor:
+            return self.bev.embed_map(batch["bev_lidar"], batch["bev_map"])
+
+    model = Model()
+    opt = torch.optim.AdamW(model.parameters(), lr=1e-3)
+    objective = attach_tagging(fixture["clips"], model, opt, TagTrainConfig(batch_size=2, window_frames=3))
+    assert objective is not None and len(opt.param_groups) == 2
+    loss = objective.loss(model.bev_embedding)
+    loss.backward()
+    assert torch.isfinite(loss) and objective.head.attributes.grad is not None
+    assert attach_tagging(fixture["clips"], model, opt, TagTrainConfig(mode="alone")) is None
+
+
+def test_new_attribute_keeps_old_rows_with_a_frozen_backbone(fixture: dict[str, Any], tmp_path: Path) -> None:
+    base = load_tagger(fixture["run"])
+    res = add_attributes(fixture["run"], [CAUSES_EGO_BRAKING], ego_brake_cause_targets, tmp_path / "ext",
+                         fixture["clips"], fixture["logs"], config=TagTrainConfig(
+                             mode="alone", steps=2, batch_size=2, window_frames=3, device="cpu", warmup_steps=1))
+    ext = load_tagger(res.run_dir)
+    assert ext.names == (*base.names, CAUSES_EGO_BRAKING)
+    torch.testing.assert_close(ext.head.attributes[:-1], base.head.attributes)
+    for k, v in base.bev.state_dict().items():
+        torch.testing.assert_close(ext.bev.state_dict()[k], v)
+    t = open_targets(fixture["clips"], "tagged_0", f"bev_attributes_{CAUSES_EGO_BRAKING}")
+    assert t.names == (CAUSES_EGO_BRAKING,) and t.present.all()  # the ego brakes for 'lead' in every frame
+    with pytest.raises(TagError, match="new and distinct"):
+        add_attributes(fixture["run"], ["parked"], ego_brake_cause_targets, tmp_path / "x", fixture["clips"],
+                       fixture["logs"])
+
+
+def test_evaluation_writes_both_tables(fixture: dict[str, Any], tmp_path: Path) -> None:
+    result = evaluate_runs(fixture["run"], fixture["clips"])
+    json_path, md_path = write_report(tmp_path, result)
+    data = json.loads(json_path.read_text())
+    assert set(data["inputs"]) == {"none", "both"}
+    assert data["by_region"]["parked"]["front"]["metric"] == "F1"
+    assert data["by_region"]["vehicle_density"]["full"]["metric"] == "L1"
+    assert set(data["by_region"]["parked"]) == {"full", "front", "behind", "around", "intersection", "crosswalk"}
+    # Statistics: 'parked' is in front in every training frame, so the constant "yes" is perfect there.
+    assert data["inputs"]["none"]["parked"]["metric"] == "F1"
+    assert data["statistics_by_region"]["parked"]["front"]["value"] == 1.0
+    assert "Table 1" in md_path.read_text() and "| vehicle_density | L1 |" in md_path.read_text()

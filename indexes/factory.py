@@ -63,7 +63,7 @@ class AutoConfig:
     max_train_points: int = 256 * 65_536
     target_recall: float = 0.95
     tune_margin: float = 0.01
-    tune_queries: int = 1000
+    tune_queries: int = 500
     tune_k: int = 10
     seed: int = 1234
 

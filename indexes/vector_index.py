@@ -71,6 +71,7 @@ class VectorIndex:
                  removed: np.ndarray, tombstones: np.ndarray, info: dict[str, Any] | None = None,
                  read_only: bool = False) -> None:
         self._index = index
+        self._dim = int(index.d)  # cached: reading a SWIG attribute costs microseconds per query
         self.metric = metric
         self.factory = factory
         self._ids = np.sort(np.asarray(ids, dtype=np.int64))
@@ -194,7 +195,7 @@ class VectorIndex:
 
     @property
     def dim(self) -> int:
-        return int(self._index.d)
+        return self._dim
 
     @property
     def ids(self) -> np.ndarray:

@@ -180,3 +180,12 @@ def test_kill_at_random_moments_of_repeated_saves(tmp_path: Path, data: Data) ->
         child.wait(timeout=30)
         loaded = VectorIndex.load(target)
         assert len(loaded) == len(xb)
+
+
+def test_kill_between_the_two_renames_of_a_save(tmp_path: Path, data: Data) -> None:
+    # A save moves the old directory aside, then moves the new one in; a kill between the two
+    # leaves only the aside copy, which loading still finds.
+    index = VectorIndex.build(data[0][:200], factory="Flat")
+    index.save(tmp_path / "idx")
+    (tmp_path / "idx").rename(tmp_path / ".idx.old")
+    assert len(VectorIndex.load(tmp_path / "idx")) == 200

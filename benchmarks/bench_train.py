@@ -170,9 +170,9 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--acceptance", action="store_true", help="run the quality check instead of the speed run")
     parser.add_argument("--out", type=Path, help="run folders of the acceptance check (default: a temp folder)")
-    parser.add_argument("--train-clips", type=int, default=400)
-    parser.add_argument("--epochs", type=int, default=8)
-    parser.add_argument("--batch-size", type=int, default=32)
+    parser.add_argument("--train-clips", type=int, default=384)
+    parser.add_argument("--epochs", type=int, default=14)
+    parser.add_argument("--batch-size", type=int, default=16)
     parser.add_argument("--spec", choices=["acceptance", "small", "default"], default="acceptance",
                         help="clip sizes of the acceptance check")
     parser.add_argument("--quick", action="store_true")

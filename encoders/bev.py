@@ -9,8 +9,8 @@ After Segal et al., "Universal Embeddings for Spatio-Temporal Tagging of Self-Dr
 
 :meth:`BevTower.embed_map` computes E alone: it is fully convolutional in space and in time (any H, W,
 T) and is what attribute tagging builds on. :meth:`BevTower.forward` pools E under the object's mask in
-each frame, adds the mask's geometry and the ego motion, and runs the :class:`TemporalEncoder` over
-the frames to give the object's clip embedding.
+each frame, adds the mask's geometry (and its change since the previous frame) and the ego motion,
+and runs the :class:`TemporalEncoder` over the frames to give the object's clip embedding.
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from encoders.camera import conv_block, mask_geometry, masked_mean
+from encoders.camera import conv_block, mask_geometry, masked_mean, with_motion
 from encoders.config import BevConfig
 from encoders.fusion import TemporalEncoder
 
@@ -43,6 +43,31 @@ class Backbone(nn.Module):
         return out
 
 
+class Lateral(nn.Module):
+    """Per-stage 1×1 projections to D_e of the LiDAR and the map backbones."""
+
+    def __init__(self, widths: tuple[int, ...], channels: int) -> None:
+        super().__init__()
+        self.lidar = nn.ModuleList(nn.Conv2d(w, channels, 1, bias=False) for w in widths)
+        self.map = nn.ModuleList(nn.Conv2d(w, channels, 1) for w in widths)
+
+
+class TimeConv(nn.Module):
+    """x + a depthwise convolution over time, zero-padded: (B, T, C, h, w) → the same; starts as identity."""
+
+    def __init__(self, kernel: int, channels: int) -> None:
+        super().__init__()
+        self.kernel = kernel
+        self.weight = nn.Parameter(torch.zeros(kernel, channels))
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        k, t = self.kernel, x.shape[1]
+        if k == 1:
+            return x + self.weight[0, :, None, None] * x
+        pad = F.pad(x, (0, 0, 0, 0, 0, 0, k // 2, k // 2))  # (B, T + k - 1, C, h, w)
+        return x + sum(self.weight[j, :, None, None] * pad[:, j : j + t] for j in range(k))
+
+
 class BevTower(nn.Module):
     """BEV clip (LiDAR, map, object mask, ego motion) → E and the object's clip embedding (B, D)."""
 
@@ -55,17 +80,18 @@ class BevTower(nn.Module):
         # A 1×1 convolution of the concatenated upsampled features equals the sum of per-stage 1×1
         # projections, upsampled (upsampling is linear). Projecting first, at each stage's own
         # resolution, and upsampling coarse to fine (FPN order) is the same header at a fraction of the cost.
-        self.lateral_lidar = nn.ModuleList(nn.Conv2d(w, d_e, 1, bias=False) for w in config.widths)
-        self.lateral_map = nn.ModuleList(nn.Conv2d(w, d_e, 1) for w in config.widths)
+        self.lateral = Lateral(config.widths, d_e)
         self.header_space = nn.Sequential(
             nn.Conv2d(d_e, d_e, 3, padding=1, groups=d_e, bias=False), nn.BatchNorm2d(d_e), nn.ReLU(inplace=True)
         )
-        k = config.temporal_kernel
-        self.header_time = nn.Parameter(torch.zeros(k, d_e))  # depthwise temporal kernel, starts as identity
-        self.temporal = TemporalEncoder(config.temporal, 2 * d_e + 4 + config.ego_features)
+        self.header_time = TimeConv(config.temporal_kernel, d_e)
+        self.temporal = TemporalEncoder(config.temporal, 2 * d_e + 8 + config.ego_features)
         self.head = nn.Linear(config.temporal.width, embed_dim)
         self.ego_scale: torch.Tensor
         self.register_buffer("ego_scale", torch.tensor(EGO_MOTION_SCALE[: config.ego_features]), persistent=False)
+
+    #: state_dict prefixes of the parameters that compute E (the rest pools E into the clip embedding).
+    EMBEDDING_PREFIXES = ("lidar.", "map.", "lateral.", "header_space.", "header_time.")
 
     def embed_map(self, bev_lidar: torch.Tensor, bev_map: torch.Tensor) -> torch.Tensor:
         """bev_lidar: (B, T, Cl, H, W); bev_map: (B, T, Cm, H, W) → E (B, T, D_e, H/r, W/r)."""
@@ -76,29 +102,25 @@ class BevTower(nn.Module):
         maps = self.map(bev_map.flatten(0, 1))
         x: torch.Tensor | None = None
         for i in reversed(range(len(lidar))):
-            p = self.lateral_lidar[i](lidar[i]) + self.lateral_map[i](maps[i])  # (B*T, D_e, h_i, w_i)
+            p = self.lateral.lidar[i](lidar[i]) + self.lateral.map[i](maps[i])  # (B*T, D_e, h_i, w_i)
             x = p if x is None else p + F.interpolate(x, size=p.shape[-2:], mode="bilinear")
         assert x is not None
         if x.shape[-2:] != size:
             x = F.interpolate(x, size=size, mode="bilinear")
         x = F.relu(x)  # (B*T, D_e, h, w)
         x = x + self.header_space(x)  # (B*T, D_e, h, w)
-        x = x.reshape(b, t, *x.shape[1:])  # (B, T, D_e, h, w)
-        k = self.config.temporal_kernel
-        if k > 1:  # x + depthwise temporal convolution, zero-padded in time
-            pad = F.pad(x, (0, 0, 0, 0, 0, 0, k // 2, k // 2))  # (B, T + k - 1, D_e, h, w)
-            x = x + sum(self.header_time[j, :, None, None] * pad[:, j : j + t] for j in range(k))
-        return x  # (B, T, D_e, h, w)
+        return self.header_time(x.reshape(b, t, *x.shape[1:]))  # (B, T, D_e, h, w)
 
     def frame_features(self, e: torch.Tensor, bev_object: torch.Tensor, ego_motion: torch.Tensor) -> torch.Tensor:
-        """e: (B, T, D_e, h, w); bev_object: (B, T, 1, H, W); ego_motion: (B, T, 4) → (B, T, 2 D_e + 4 + E)."""
+        """e: (B, T, D_e, h, w); bev_object: (B, T, 1, H, W); ego_motion: (B, T, 4) → (B, T, 2 D_e + 8 + E)."""
         b, t = e.shape[:2]
         e_flat = e.flatten(0, 1)  # (B*T, D_e, h, w)
         obj = bev_object.flatten(0, 1)  # (B*T, 1, H, W)
         small = F.adaptive_avg_pool2d(obj, (e.shape[-2], e.shape[-1]))  # (B*T, 1, h, w)
-        per_frame = torch.cat([masked_mean(e_flat, small), e_flat.mean(dim=(2, 3)), mask_geometry(obj)], dim=-1)
+        pooled = torch.cat([masked_mean(e_flat, small), e_flat.mean(dim=(2, 3))], dim=-1).reshape(b, t, -1)
+        geometry = with_motion(mask_geometry(obj).reshape(b, t, -1))  # (B, T, 8)
         ego = ego_motion[..., : self.config.ego_features] / self.ego_scale  # (B, T, E)
-        return torch.cat([per_frame.reshape(b, t, -1), ego], dim=-1)  # (B, T, 2 D_e + 4 + E)
+        return torch.cat([pooled, geometry, ego], dim=-1)  # (B, T, 2 D_e + 8 + E)
 
     def forward(
         self, bev_lidar: torch.Tensor, bev_map: torch.Tensor, bev_object: torch.Tensor, ego_motion: torch.Tensor

@@ -3,7 +3,8 @@
 A strided per-frame CNN (the stem divides the resolution by 4 at once, which keeps CPU training fast)
 reads RGB and the object mask; each frame is summarised by pooling its feature map twice, under the
 object mask (what the object looks like and where it is) and globally (its surroundings), plus the
-mask's area and centroid (where it is in the image, how large); the :class:`TemporalEncoder` then reads
+mask's area and centroid (where it is in the image, how large) and their change since the previous
+frame (how it moves); the :class:`TemporalEncoder` then reads
 the T frame vectors with learned time positions, so the output depends on frame order.
 """
 
@@ -37,6 +38,18 @@ def mask_geometry(mask: torch.Tensor) -> torch.Tensor:
     return torch.stack([area / (h * w), cx, cy, visible], dim=-1)  # (N, 4)
 
 
+def with_motion(geometry: torch.Tensor) -> torch.Tensor:
+    """geometry: (B, T, G) per-frame mask geometry → (B, T, 2G): with its change since the previous frame.
+
+    The change is scaled by T (so it reads as the displacement over a whole clip) and is 0 in the
+    first frame; shuffled frames turn it into noise, which is what makes it an order feature.
+    """
+    t = geometry.shape[1]
+    delta = torch.zeros_like(geometry)
+    delta[:, 1:] = (geometry[:, 1:] - geometry[:, :-1]) * t
+    return torch.cat([geometry, delta], dim=-1)
+
+
 def masked_mean(features: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
     """features: (N, C, h, w); mask: (N, 1, h, w) weights → (N, C) mean under the mask (0 where empty)."""
     weight = mask.sum(dim=(2, 3)).clamp_min(1e-6)  # (N, 1)
@@ -53,18 +66,19 @@ class CameraTower(nn.Module):
         stages = [conv_block(config.in_channels, widths[0], 5, 4)]
         stages += [conv_block(a, b, 3, 2) for a, b in zip(widths[:-1], widths[1:])]
         self.cnn = nn.Sequential(*stages)
-        self.temporal = TemporalEncoder(config.temporal, 2 * widths[-1] + 4)
+        self.temporal = TemporalEncoder(config.temporal, 2 * widths[-1] + 8)
         self.head = nn.Linear(config.temporal.width, embed_dim)
 
     def frame_features(self, camera: torch.Tensor) -> torch.Tensor:
-        """camera: (B, T, C, H, W) → (B, T, 2 * widths[-1] + 4) per-frame vectors."""
+        """camera: (B, T, C, H, W) → (B, T, 2 * widths[-1] + 8) per-frame vectors."""
         b, t, c, h, w = camera.shape
         x = camera.reshape(b * t, c, h, w)  # (B*T, C, H, W)
         mask = x[:, -1:]  # (B*T, 1, H, W)
         f = self.cnn(x)  # (B*T, F, h, w)
         small = F.adaptive_avg_pool2d(mask, (f.shape[-2], f.shape[-1]))  # (B*T, 1, h, w)
-        per_frame = torch.cat([masked_mean(f, small), f.mean(dim=(2, 3)), mask_geometry(mask)], dim=-1)
-        return per_frame.reshape(b, t, -1)  # (B, T, 2F + 4)
+        pooled = torch.cat([masked_mean(f, small), f.mean(dim=(2, 3))], dim=-1).reshape(b, t, -1)  # (B, T, 2F)
+        geometry = with_motion(mask_geometry(mask).reshape(b, t, -1))  # (B, T, 8)
+        return torch.cat([pooled, geometry], dim=-1)  # (B, T, 2F + 8)
 
     def forward(self, camera: torch.Tensor) -> torch.Tensor:
         """camera: (B, T, C, H, W) → (B, D)."""

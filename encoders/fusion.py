@@ -1,18 +1,30 @@
 """Fusion over time (per-frame vectors → one clip vector) and over views (camera + BEV → one embedding).
 
-:class:`TemporalEncoder` is shared by the camera and BEV towers: learned time positions and a small
-transformer, read out by a learned query token, so its output depends on frame order (a mean over
-frames would not). :class:`ViewFusion` merges the two views' normalised embeddings and drops one view
+:class:`TemporalEncoder` is shared by the camera and BEV towers: a temporal convolution, learned time
+positions and a small transformer read out by a learned query token, so its output depends on frame
+order (a mean over frames would not). :class:`ViewFusion` merges the two views' normalised embeddings and drops one view
 at random in training, so that camera-only and BEV-only inputs embed well too.
 """
 
 from __future__ import annotations
+
+import math
 
 import torch
 import torch.nn.functional as F
 from torch import nn
 
 from encoders.config import FusionConfig, TemporalConfig
+
+
+def sinusoids(length: int, width: int) -> torch.Tensor:
+    """(length, width) sinusoidal position codes (sin on even, cos on odd channels)."""
+    pos = torch.arange(length, dtype=torch.float32)[:, None]  # (L, 1)
+    freq = torch.exp(-math.log(1000.0) * torch.arange(0, width, 2, dtype=torch.float32) / width)  # (W/2,)
+    out = torch.zeros(length, width)
+    out[:, 0::2] = torch.sin(pos * freq)
+    out[:, 1::2] = torch.cos(pos * freq)[:, : width // 2]
+    return out
 
 
 class TemporalEncoder(nn.Module):
@@ -22,7 +34,11 @@ class TemporalEncoder(nn.Module):
         super().__init__()
         self.config = config
         self.proj = nn.Linear(in_features, config.width)
-        self.time = nn.Parameter(torch.randn(config.max_frames, config.width) * 0.02)
+        # A temporal convolution gives each frame its neighbours (local motion: how the object moved
+        # since the last frame); learned time positions, initialised sinusoidal, give the transformer
+        # where each frame sits in the clip.
+        self.motion = nn.Conv1d(config.width, config.width, kernel_size=3, padding=1)
+        self.time = nn.Parameter(sinusoids(config.max_frames, config.width))
         self.query = nn.Parameter(torch.randn(1, 1, config.width) * 0.02)
         layer = nn.TransformerEncoderLayer(
             d_model=config.width,
@@ -40,7 +56,8 @@ class TemporalEncoder(nn.Module):
         b, t, _ = frames.shape
         if t > self.config.max_frames:
             raise ValueError(f"clip has {t} frames, the temporal model takes at most {self.config.max_frames}")
-        x = self.proj(frames) + self.time[:t]  # (B, T, W)
+        x = self.proj(frames)  # (B, T, W)
+        x = x + self.motion(x.transpose(1, 2)).transpose(1, 2) + self.time[:t]  # (B, T, W)
         x = torch.cat([self.query.expand(b, 1, -1), x], dim=1)  # (B, 1 + T, W)
         x = self.transformer(x)  # (B, 1 + T, W)
         return self.norm(x[:, 0])  # (B, W)

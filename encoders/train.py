@@ -109,11 +109,9 @@ def _seed_worker(worker_id: int) -> None:
 
 
 def collate(items: list[dict[str, Any]]) -> dict[str, Any]:
-    """The dataset's ``collate_clips`` (``encoders.data``), or the same contract from :mod:`encoders.synthetic`."""
-    try:
-        from encoders.data import collate_clips
-    except ImportError:
-        from encoders.synthetic import collate_clips
+    """Items → a batch, by the dataset's :func:`encoders.data.collate_clips`."""
+    from encoders.data import collate_clips
+
     return collate_clips(items)
 
 

@@ -22,7 +22,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", type=Path, required=True, help="run folder to write")
     parser.add_argument("--config", type=Path, help="train.yaml (TrainConfig); flags below override it")
     parser.add_argument("--preset", choices=["default", "tiny"], help="start from a preset instead of the defaults")
-    parser.add_argument("--resume", action="store_true", help="continue the run in --out from its last checkpoint")
+    parser.add_argument("--resume", action="store_true",
+                        help="continue the run in --out from its last checkpoint (with its config.json unless "
+                        "--config or --preset is given)")
     parser.add_argument("--force", action="store_true", help="with --resume: accept a different configuration")
     parser.add_argument("--epochs", type=int)
     parser.add_argument("--batch-size", type=int)
@@ -47,6 +49,10 @@ def build_config(args: argparse.Namespace) -> Any:
             config = TrainConfig.from_yaml(args.config.read_text())
         except ConfigError as exc:
             raise ConfigError(f"{args.config}: {exc}") from None
+    elif args.resume and args.preset is None and (args.out / "config.json").is_file():
+        import json
+
+        config = TrainConfig.from_dict(json.loads((args.out / "config.json").read_text()))  # the run's own
     else:
         config = TrainConfig.preset(args.preset or "default")
     flags = {

@@ -111,3 +111,14 @@ def test_saved_state_dict_round_trip(model: DualEncoder, batch: dict[str, Any]) 
         assert torch.allclose(other.encode_video(batch), model.encode_video(batch))
     with pytest.raises(ValueError, match="missing"):
         other.load_saved_state_dict({k: v for k, v in model.saved_state_dict().items() if "camera" not in k})
+
+
+def test_embedding_prefixes_name_exactly_the_parameters_behind_e(batch: dict[str, Any]) -> None:
+    from encoders.bev import BevTower
+
+    torch.manual_seed(0)
+    model = DualEncoder(tiny_model_config()).eval()
+    model.bev_embedding(batch).square().mean().backward()
+    for name, p in model.bev.named_parameters():
+        behind_e = name.startswith(BevTower.EMBEDDING_PREFIXES)
+        assert behind_e == (p.grad is not None), name

@@ -47,6 +47,9 @@ def test_train_resume_and_bad_input(clips_dir: Path, tmp_path: Path, capsys: pyt
     assert "lr: 0.001 -> 0.5" in capsys.readouterr().err
     assert main([*base, "--epochs", "2", "--resume"]) == 0
     assert len((out / "metrics.jsonl").read_text().splitlines()) == 2
+    # Without --config or --preset, --resume continues with the run's own config.json.
+    assert main(["train", str(clips_dir), "--out", str(out), "--resume", "--epochs", "3"]) == 0
+    assert len((out / "metrics.jsonl").read_text().splitlines()) == 3
 
 
 def test_bad_config_and_missing_split(clips_dir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
@@ -61,6 +64,7 @@ def test_bad_config_and_missing_split(clips_dir: Path, tmp_path: Path, capsys: p
     for name in ("manifest.json",):
         (empty / name).write_text((clips_dir / name).read_text())
     table = pq.read_table(clips_dir / "clips.parquet")
-    pq.write_table(table.filter(table.column("split").to_numpy(zero_copy_only=False) != "train"), empty / "clips.parquet")
+    not_train = table.column("split").to_numpy(zero_copy_only=False) != "train"
+    pq.write_table(table.filter(not_train), empty / "clips.parquet")
     assert main(["train", str(empty), "--out", str(tmp_path / "b"), "--preset", "tiny"]) == 2
     assert "'train' split" in capsys.readouterr().err

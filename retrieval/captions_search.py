@@ -104,6 +104,17 @@ def caption_rows(table: pa.Table) -> tuple[pa.Table, list[Skipped]]:
     return table.filter(pa.array(mask)), skipped
 
 
+def is_caption_index(directory: Path | str) -> bool:
+    """Whether ``directory`` holds a caption index written by :meth:`CaptionSearch.save`."""
+    path = Path(directory) / MANIFEST
+    if not path.is_file():
+        return False
+    try:
+        return bool(json.loads(path.read_text()).get("kind") == KIND)
+    except (OSError, json.JSONDecodeError):
+        return False
+
+
 def object_sentence(caption: str) -> str | None:
     """The caption without its leading host sentence, or None when there is no second sentence."""
     if caption.startswith(HOST_PREFIX) and ". " in caption:

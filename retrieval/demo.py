@@ -44,16 +44,18 @@ class DemoConfig:
         seed: seed of the simulation (and so of everything after it).
         frames_per_clip: T frames per clip.
         epochs: training epochs (None: the trainer's default).
+        train_preset: the trainer's preset (``default``; ``tiny`` for smoke runs), None for the trainer's choice.
         sensors: render LiDAR and cameras (off: BEV clips from boxes, no camera).
         queries: example queries shown and put in the report.
         top_k: results shown per example query.
     """
 
-    logs: int = 8
-    duration_s: float = 30.0
+    logs: int = 6
+    duration_s: float = 20.0
     seed: int = 0
     frames_per_clip: int = 16
-    epochs: int | None = None
+    epochs: int | None = 3
+    train_preset: str | None = None
     sensors: bool = True
     queries: tuple[str, ...] = DEFAULT_QUERIES
     top_k: int = 3
@@ -70,7 +72,11 @@ class DemoConfig:
     @staticmethod
     def quick() -> DemoConfig:
         """Smallest sizes that still run every stage (a smoke run, not a measurement)."""
-        return DemoConfig(logs=3, duration_s=12.0, frames_per_clip=8, epochs=1)
+        return DemoConfig(logs=3, duration_s=12.0, frames_per_clip=8, epochs=1, train_preset="tiny")
+
+
+class DemoStageError(RuntimeError):
+    """A stage's command failed; the demo can be resumed from that stage."""
 
 
 @dataclass
@@ -131,7 +137,7 @@ class Demo:
         upto: dict[str, dict[str, Any]] = {"simulate": sim}
         upto["caption"] = upto["simulate"]
         upto["clips"] = {**upto["caption"], "frames_per_clip": c.frames_per_clip}
-        upto["train"] = {**upto["clips"], "epochs": c.epochs}
+        upto["train"] = {**upto["clips"], "epochs": c.epochs, "train_preset": c.train_preset}
         upto["index"] = upto["train"]
         upto["eval"] = upto["train"]
         upto["report"] = {**upto["train"], "queries": list(c.queries), "top_k": c.top_k}
@@ -158,7 +164,7 @@ class Demo:
         self.say("  $ scenesearch " + " ".join(map(str, args)))
         completed = subprocess.run(argv, check=False)
         if completed.returncode != 0:
-            raise RuntimeError(f"`scenesearch {args[0]}` failed with exit status {completed.returncode}; "
+            raise DemoStageError(f"`scenesearch {args[0]}` failed with exit status {completed.returncode}; "
                                f"rerun `scenesearch demo --out {self.out_dir}` to resume from this stage")
 
     def run(self, stages: Sequence[str] = STAGES) -> list[StageResult]:
@@ -200,7 +206,7 @@ class Demo:
     def stage_caption(self) -> str:
         logs = self.log_dirs()
         if not logs:
-            raise RuntimeError(f"{self.logs_dir}: no logs to caption")
+            raise DemoStageError(f"{self.logs_dir}: no logs to caption (the simulation wrote none)")
         self.command(["caption", *logs, "--out", self.captions_dir])
         return ""
 
@@ -211,6 +217,8 @@ class Demo:
 
     def stage_train(self) -> str:
         args: list[object] = ["train", self.clips_dir, "--out", self.run_dir]
+        if self.config.train_preset is not None:
+            args += ["--preset", self.config.train_preset]
         if self.config.epochs is not None:
             args += ["--epochs", self.config.epochs]
         self.command(args)
@@ -221,7 +229,8 @@ class Demo:
         return ""
 
     def stage_eval(self) -> str:
-        self.command(["eval", self.run_dir, self.clips_dir, "--split", "test", "--out", self.metrics_path])
+        self.command(["eval", self.run_dir, self.clips_dir, "--split", "test", "--out", self.metrics_path,
+                      "--index", self.index_dir])
         return ""
 
     def stage_report(self) -> str:

@@ -225,8 +225,12 @@ def _chance_appearance_rate(act: np.ndarray, app: np.ndarray) -> float | None:
 
 
 def evaluate(run_dir: Path | str, clips_dir: Path | str, split: str = "test", embedder: Embedder | None = None,
-             seed: int = 0, progress: Callable[[str], None] | None = None) -> dict[str, Any]:
+             seed: int = 0, progress: Callable[[str], None] | None = None,
+             index_dir: Path | str | None = None) -> dict[str, Any]:
     """Embed the clips of ``split`` with the model of ``run_dir`` and measure every figure.
+
+    With ``index_dir`` (an index of the same model and clips) the clip embeddings are read from the
+    index instead of recomputed; only the shuffled-frames baseline is embedded.
 
     Raises:
         FileNotFoundError: no model or no clip table.
@@ -248,7 +252,11 @@ def evaluate(run_dir: Path | str, clips_dir: Path | str, split: str = "test", em
     embedder = embedder if embedder is not None else ModelEmbedder(run_dir)
     by_id = {r["clip_id"]: r for r in rows}
 
+    stored = _stored_views(index_dir, embedder.model_id, list(by_id)) if index_dir is not None else {}
+
     def embed(view: str, shuffle: bool = False) -> np.ndarray:
+        if not shuffle and view in stored:
+            return stored[view]
         ids, x = embedder.embed_clips(clips_dir, view=view, split=split, shuffle_frames=shuffle)
         pos = {c: i for i, c in enumerate(ids)}
         missing = [c for c in by_id if c not in pos]
@@ -315,6 +323,19 @@ def evaluate(run_dir: Path | str, clips_dir: Path | str, split: str = "test", em
         "wall_s": round(time.perf_counter() - started, 2),
     }
     return _clean(metrics)
+
+
+def _stored_views(index_dir: Path | str, model_id: str, clip_ids: list[str]) -> dict[str, np.ndarray]:
+    """(N, D) embeddings of ``clip_ids`` per view from an index of the same model; {} when it cannot serve."""
+    from retrieval.scenesearch import SceneSearch
+
+    try:
+        search = SceneSearch.open(index_dir)
+    except (ValueError, OSError):
+        return {}
+    if search.manifest.model_sha256 != model_id or any(c not in search.views["fused"] for c in clip_ids):
+        return {}
+    return {view: np.asarray(index.reconstruct(clip_ids), dtype=np.float32) for view, index in search.views.items()}
 
 
 def _clean(value: Any) -> Any:

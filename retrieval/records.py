@@ -68,23 +68,17 @@ class SearchResult:
         )
 
 
-def format_table(results: list[SearchResult], max_caption_chars: int = 70) -> str:
-    """Results as an aligned plain-text table (what the CLI prints by default)."""
+def format_table(results: list[SearchResult], max_caption_chars: int = 72) -> str:
+    """Results as an aligned plain-text table (what the CLI prints by default); clip ids in full."""
     if not results:
         return "(no results)"
-    header = ("#", "score", "category", "log_id", "track_id", "start_s", "dur_s", "caption")
-    t0 = {r.log_id: r.start_ns for r in results}
+    header = ("#", "score", "category", "dur_s", "caption", "clip_id")
     rows = []
     for r in results:
         caption = r.caption if len(r.caption) <= max_caption_chars else r.caption[: max_caption_chars - 1] + "…"
-        rows.append((str(r.rank), f"{r.score:.3f}", r.category, _short(r.log_id, 14), _short(r.track_id, 12),
-                     f"{r.start_ns / 1e9:.1f}" if t0 else "", f"{r.duration_s:.1f}", caption))
+        rows.append((str(r.rank), f"{r.score:.3f}", r.category, f"{r.duration_s:.1f}", caption, r.clip_id))
     widths = [max(len(h), *(len(row[i]) for row in rows)) for i, h in enumerate(header)]
     lines = ["  ".join(h.ljust(w) for h, w in zip(header, widths)).rstrip()]
     lines.append("  ".join("-" * w for w in widths))
     lines.extend("  ".join(c.ljust(w) for c, w in zip(row, widths)).rstrip() for row in rows)
     return "\n".join(lines)
-
-
-def _short(text: str, n: int) -> str:
-    return text if len(text) <= n else text[: n - 1] + "…"

@@ -22,7 +22,7 @@ from retrieval.records import SearchResult
 from scenes.atomic import atomic_write_text
 
 MAX_ACTIONS_COLOURED = 9
-NOT_PLOTTED = ("epoch", "step", "time_s", "wall_s", "elapsed_s", "lr", "learning_rate", "seconds")
+PLOTTED_FIGURES = ("R@1", "R@5", "R@10", "mAP")
 
 
 @dataclass(frozen=True)
@@ -58,29 +58,42 @@ def read_training_log(path: Path) -> list[dict[str, Any]]:
     return rows
 
 
+def _flatten(row: dict[str, Any], prefix: str = "") -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for key, value in row.items():
+        name = f"{prefix}{key}"
+        if isinstance(value, dict):
+            out.update(_flatten(value, f"{name}/"))
+        else:
+            out[name] = value
+    return out
+
+
 def plot_training_curves(rows: Sequence[dict[str, Any]], out_png: Path) -> bool:
-    """Losses (left) and other figures (right) against the step or epoch; False when there is nothing to plot."""
+    """Losses (left) and validation recall / mAP (right) per epoch; False when there is nothing to plot."""
     if not rows:
         return False
-    x_key = next((k for k in ("step", "global_step", "epoch", "iteration") if k in rows[0]), None)
-    numeric: dict[str, list[tuple[float, float]]] = {}
-    for i, row in enumerate(rows):
+    flat = [_flatten(r) for r in rows]
+    x_key = next((k for k in ("epoch", "step", "global_step", "iteration") if k in flat[0]), None)
+    losses: dict[str, list[tuple[float, float]]] = {}
+    figures: dict[str, list[tuple[float, float]]] = {}
+    for i, row in enumerate(flat):
         x = float(row[x_key]) if x_key and isinstance(row.get(x_key), int | float) else float(i)
         for key, value in row.items():
-            if key == x_key or isinstance(value, bool) or not isinstance(value, int | float):
+            if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
                 continue
-            if key in NOT_PLOTTED or not math.isfinite(value):
-                continue
-            numeric.setdefault(key, []).append((x, float(value)))
-    if not numeric:
+            if "loss" in key:
+                losses.setdefault(key, []).append((x, float(value)))
+            elif key.rsplit("/", 1)[-1] in PLOTTED_FIGURES:
+                figures.setdefault(key, []).append((x, float(value)))
+    if not losses and not figures:
         return False
     plt = _pyplot()
     fig, axes = plt.subplots(1, 2, figsize=(11, 3.8))
-    for key, points in sorted(numeric.items()):
-        ax = axes[0] if "loss" in key else axes[1]
-        xs, ys = zip(*points)
-        ax.plot(xs, ys, label=key, marker="." if len(points) < 30 else None)
-    for ax, title in zip(axes, ("losses", "validation figures")):
+    for ax, series, title in ((axes[0], losses, "training loss"), (axes[1], figures, "validation, text → clip")):
+        for key, points in sorted(series.items()):
+            xs, ys = zip(*points)
+            ax.plot(xs, ys, label=key, marker="o" if len(points) < 30 else None)
         ax.set_xlabel(x_key or "record")
         ax.set_title(title)
         if ax.lines:

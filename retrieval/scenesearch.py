@@ -36,7 +36,7 @@ from indexes.filters import FilterSpec
 from retrieval.captions_search import CaptionSearch, Skipped, TextEncoder, caption_rows
 from retrieval.embedding import CONFIG_FILE, Embedder, ModelEmbedder
 from retrieval.errors import IndexDirError, ModelMismatchError, UnknownClipError, UnknownViewError
-from retrieval.querying import check_k, check_query, hits_to_results, preview_of
+from retrieval.querying import check_filters, check_k, check_query, hits_to_results, preview_of
 from retrieval.records import SearchResult
 from scenes.atomic import atomic_directory
 
@@ -257,6 +257,7 @@ class SceneSearch:
         index = self._view(view)
         query = check_query(query)
         k = check_k(k, len(index))
+        filters = check_filters(index, filters)  # before the model loads: bad fields fail fast
         t0 = time.perf_counter()
         xq = np.asarray(self.embedder.embed_texts([query]), dtype=np.float32)
         t1 = time.perf_counter()

@@ -33,6 +33,7 @@ from encoders.tagging.scene_tags import (
     coarse_grid,
     compose,
     downsample_max,
+    map_channel_index,
     parse_tag_expression,
     pool_values,
     reduction_of,
@@ -162,23 +163,30 @@ class TagSearch:
 
     def values(self, log_dir: Path | str, attribute: str) -> NDArray[np.float32]:
         """(F, h, w) per-cell values of an attribute (probabilities for discrete ones, values for continuous)."""
-        name = parse_attribute(attribute, list(self.attributes))
+        return self.values_many(log_dir, [attribute])[0]
+
+    def values_many(self, log_dir: Path | str, attributes: Sequence[str]) -> list[NDArray[np.float32]]:
+        """Per-cell values of several attributes, from one pass of the backbone for those not cached."""
+        names = [parse_attribute(a, list(self.attributes)) for a in attributes]
         fr = self.frames(log_dir)
-        key = (fr.log_id, name)
-        if key not in self._values:
-            v = self.tagger.tag_frames(fr.bev_lidar, fr.bev_map, attributes=[self.tagger.names.index(name)])[:, 0]
-            self._values[key] = values_of(v, name, self.tagger.head.config.kind(name))
-        return self._values[key]
+        todo = [n for n in dict.fromkeys(names) if (fr.log_id, n) not in self._values]
+        if todo:
+            rows = [self.tagger.names.index(n) for n in todo]
+            v = self.tagger.tag_frames(fr.bev_lidar, fr.bev_map, attributes=rows)  # (F, len(todo), h, w)
+            for i, n in enumerate(todo):
+                self._values[(fr.log_id, n)] = values_of(v[:, i], n, self.tagger.head.config.kind(n))
+        return [self._values[(fr.log_id, n)] for n in names]
 
     def mask(self, log_dir: Path | str, region: str | Region) -> NDArray[np.bool_]:
         """(h, w) or (F, h, w) region mask; map regions raise :class:`TagError` for a log without a map."""
         r = parse_region(region) if isinstance(region, str) else region
         fr = self.frames(log_dir)
-        layers = None
-        if r.needs_map and fr.has_map:
-            layers = downsample_max(np.asarray(fr.bev_map), self.tagger.downsample)
-        masks = region_masks(self.grid, layers, self.tagger.map_channels or _default_channels())
-        return region_mask(masks, r, where=f"log {fr.log_id}")
+        if not r.needs_map:
+            return region_mask(region_masks(self.grid), r)
+        if not fr.has_map:
+            return region_mask(region_masks(self.grid), r, where=f"log {fr.log_id}")  # raises: no map
+        ch = map_channel_index(self.tagger.map_channels or _default_channels(), r)
+        return downsample_max(np.asarray(fr.bev_map[:, ch]), self.tagger.downsample) > 0
 
     # -- queries ----------------------------------------------------------------------------------
     def series(self, log_dir: Path | str, tag: str, region: str | Region = Region.FULL, h: str = "identity",
@@ -191,7 +199,7 @@ class TagSearch:
         expr = parse_tag_expression(tag, list(self.attributes))
         mask = self.mask(log_dir, region)  # checks the region before any model work
         fr = self.frames(log_dir)
-        tensors = [self.values(log_dir, a) for a in expr.attributes]
+        tensors = self.values_many(log_dir, expr.attributes)
         composed = compose(tensors, expr.op, h, kappa)
         pooled = pool_values(composed, mask, reduction_of(expr.attributes), self.grid.resolution_m**2)
         return fr.timestamps_ns, pooled

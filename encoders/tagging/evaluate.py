@@ -55,7 +55,8 @@ from encoders.tagging.training import Tagger
 from scenes.atomic import atomic_write_text
 
 Pooled = dict[str, dict[str, NDArray[np.float32]]]
-THRESHOLDS = np.round(np.arange(0.05, 0.96, 0.05), 2)
+#: Candidate F1 thresholds: fine at the low end, where hard-negative-mined probabilities of rare attributes lie.
+THRESHOLDS = np.round(np.concatenate([np.arange(0.01, 0.05, 0.01), np.arange(0.05, 0.96, 0.05)]), 2)
 
 
 def log_has_map(bev_map: NDArray[np.uint8]) -> bool:
@@ -199,14 +200,15 @@ def table2_row(by_region: dict[str, dict[str, dict[str, Any]]]) -> dict[str, dic
 
 
 def skill(row: dict[str, dict[str, Any]], statistics: dict[str, dict[str, Any]]) -> float:
-    """One number per Table 2 row: mean over attributes of F1 (discrete) or 1 − L1 / L1_statistics (continuous)."""
+    """One number per Table 2 row: mean over attributes of F1 (discrete) or 1 − L1 / L1_statistics clipped to
+    [−1, 1] (continuous; 0 = as good as the dataset statistics)."""
     vals = []
     for a, m in row.items():
         if m["metric"] == "F1":
             vals.append(m["value"])
         else:
             base = statistics.get(a, {}).get("value", 0.0)
-            vals.append(1.0 - m["value"] / base if base > 0 else 0.0)
+            vals.append(float(np.clip(1.0 - m["value"] / base, -1.0, 1.0)) if base > 0 else 0.0)
     return round(float(np.mean(vals)), 4) if vals else float("nan")
 
 
@@ -230,7 +232,7 @@ def markdown_tables(by_region: dict[str, dict[str, dict[str, Any]]], inputs: dic
         metric = inputs[rows[0]][a]["metric"]
         cells = [f"{inputs[k][a]['value']:.3f}" if a in inputs[k] else "–" for k in rows]
         lines.append(f"| {a} | {metric} | " + " | ".join(cells) + " |")
-    lines.append("| **skill** (mean of F1 and 1 − L1/L1_none) | | " + " | ".join(
+    lines.append("| **skill** (mean of F1 and 1 − L1/L1_none clipped to ±1) | | " + " | ".join(
         f"{skills.get(k, float('nan')):.3f}" for k in rows) + " |")
     return "\n".join(lines) + "\n"
 
@@ -242,6 +244,7 @@ def evaluate_runs(
     split: str = "test",
     device: str = "cpu",
     progress: Callable[[str], None] | None = None,
+    max_val_logs: int | None = 3,
 ) -> dict[str, Any]:
     """Tables 1 and 2 for a run (and the runs of the input ablation) on a clips folder's held-out logs.
 
@@ -250,6 +253,7 @@ def evaluate_runs(
         clips_dir: a clips folder whose logs have tag targets.
         input_runs: more Table 2 rows: ``{"map": RUN, "lidar": RUN}``.
         split: the held-out split.
+        max_val_logs: validation logs used to choose the F1 thresholds (None: all).
 
     Returns:
         ``{"by_region": ..., "inputs": ..., "skill": {row: x}, "meta": {...}}`` (the layout of ``tags.json``).
@@ -272,7 +276,7 @@ def evaluate_runs(
     for key, tagger in runs.items():
         t0 = time.perf_counter()
         test = pool_split(clips, split, tagger, tagger.downsample, names)
-        val = pool_split(clips, "val", tagger, tagger.downsample, names)
+        val = pool_split(clips, "val", tagger, tagger.downsample, names, max_logs=max_val_logs)
         tables[key] = metrics_by_region(test, val if val.logs else None)
         say(f"inputs={key}: evaluated {len(test.logs)} {split} + {len(val.logs)} val logs in "
             f"{time.perf_counter() - t0:.1f} s")

@@ -5,9 +5,9 @@
   contribute; a frame without positives still contributes its ``min_negatives`` hardest negatives
   (otherwise nothing would ever push an empty scene down). The loss of a (frame, attribute) is the
   mean over its selected pixels; the loss is the mean over the (frame, attribute) pairs.
-- **Continuous** attributes: smooth L1 per pixel (mean over pixels) plus smooth L1 between the
-  scene sums (sum over the pixels of a frame) of prediction and target, divided by ``scene_norm``
-  so that a frame's sum is near unit range. Both are on V / s (the head's output scale).
+- **Continuous** attributes: smooth L1 per pixel (mean over pixels) on V / s (the head's output
+  scale); for densities also smooth L1 between the scene sums (sum over the pixels of a frame) of
+  prediction and target, divided by ``scene_norm`` so that a frame's sum is near unit range.
 - **Task balancing**: :class:`TaskBalancedSampler` draws an attribute uniformly, then a frame in which
   that attribute is positive somewhere.
 
@@ -46,10 +46,10 @@ class TagLossConfig:
     hard_negatives: int = 3
     min_negatives: int = 16
     smooth_l1_beta: float = 0.1
-    scene_weight: float = 1.0
-    scene_norm: float = 10.0
+    scene_weight: float = 0.1
+    scene_norm: float = 100.0
     discrete_weight: float = 1.0
-    continuous_weight: float = 5.0
+    continuous_weight: float = 1.0
 
     def __post_init__(self) -> None:
         if self.hard_negatives < 0 or self.min_negatives < 0:
@@ -115,6 +115,7 @@ def tag_loss(
     scale: torch.Tensor,
     config: TagLossConfig,
     valid: torch.Tensor | None = None,
+    density: torch.Tensor | None = None,
 ) -> tuple[torch.Tensor, dict[str, float]]:
     """The tagging loss of a batch.
 
@@ -125,6 +126,7 @@ def tag_loss(
         scale: (A,) the head's output scales.
         config: weights.
         valid: (A,) bool, attributes that have targets in this batch (default all).
+        density: (A,) bool, the attributes whose scene sums are compared too (default: every continuous one).
 
     Returns:
         The scalar loss and its parts as floats (``discrete``, ``pixel_l1``, ``scene_l1``).
@@ -148,10 +150,15 @@ def tag_loss(
         s = scale[con][:, None, None]
         pred, tgt = vv[con] / s, tt[con] / s  # (Ac, B*T, P)
         pix = smooth_l1_pixels(pred.flatten(0, 1), tgt.flatten(0, 1), config.smooth_l1_beta)
-        scene = smooth_l1_scene(pred.flatten(0, 1), tgt.flatten(0, 1), config.smooth_l1_beta, config.scene_norm)
-        total = total + config.continuous_weight * (pix + config.scene_weight * scene)
+        total = total + config.continuous_weight * pix
         parts["pixel_l1"] = float(pix.detach())
-        parts["scene_l1"] = float(scene.detach())
+        dens = con if density is None else con & density
+        if bool(dens.any()):
+            s_d = scale[dens][:, None, None]
+            pd, td = (vv[dens] / s_d).flatten(0, 1), (tt[dens] / s_d).flatten(0, 1)
+            scene = smooth_l1_scene(pd, td, config.smooth_l1_beta, config.scene_norm)
+            total = total + config.continuous_weight * config.scene_weight * scene
+            parts["scene_l1"] = float(scene.detach())
     return total, parts
 
 

@@ -37,8 +37,25 @@ from encoders.tagging.attributes import (
 from scenes.bev import BevGrid
 
 FloatArray = NDArray[np.float32]
-#: Map channels (of the clip stage's ``bev_map``) behind the map-based regions.
-REGION_MAP_CHANNEL: dict[Region, str] = {Region.INTERSECTION: "intersection", Region.CROSSWALK: "crossing"}
+#: Map channels (of the clip stage's ``bev_map``) behind the map-based regions, by the names the clip
+#: stage has used for them.
+REGION_MAP_CHANNELS: dict[Region, tuple[str, ...]] = {
+    Region.INTERSECTION: ("intersections", "intersection"),
+    Region.CROSSWALK: ("crosswalks", "crossing"),
+}
+
+
+def map_channel_index(map_channels: Sequence[str], region: Region) -> int:
+    """Index of the map channel behind a map region.
+
+    Raises:
+        TagError: no channel of the region among ``map_channels``.
+    """
+    for name in REGION_MAP_CHANNELS[region]:
+        if name in map_channels:
+            return list(map_channels).index(name)
+    raise TagError(f"region {region.value!r} needs a map channel named one of {list(REGION_MAP_CHANNELS[region])}; "
+                   f"the channels are {list(map_channels)}")
 OPS = ("and", "or")
 TRANSFORMS = ("identity", "indicator")
 
@@ -95,8 +112,8 @@ def ego_region_mask(grid: BevGrid, region: Region) -> NDArray[np.bool_]:
 def region_masks(
     grid: BevGrid,
     map_layers: NDArray[np.floating] | None = None,
-    map_channels: Sequence[str] = ("drivable_area", "lane_boundary", "lane_direction_x", "lane_direction_y",
-                                   "crossing", "intersection"),
+    map_channels: Sequence[str] = ("drivable_area", "lane_boundaries", "lane_direction_cos", "lane_direction_sin",
+                                   "crosswalks", "intersections"),
 ) -> dict[Region, NDArray[np.bool_]]:
     """Every region on ``grid``.
 
@@ -115,10 +132,8 @@ def region_masks(
         layers = np.asarray(map_layers)
         if layers.shape[-2:] != grid.shape:
             raise TagError(f"map layers are {layers.shape[-2:]} cells, the grid is {grid.shape}")
-        for region, name in REGION_MAP_CHANNEL.items():
-            if name not in map_channels:
-                raise TagError(f"map channel {name!r} missing (channels: {list(map_channels)})")
-            out[region] = layers[..., list(map_channels).index(name), :, :] > 0
+        for region in REGION_MAP_CHANNELS:
+            out[region] = layers[..., map_channel_index(map_channels, region), :, :] > 0
     return out
 
 

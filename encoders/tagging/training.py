@@ -152,14 +152,16 @@ def window_loss(
     r = hh // v.shape[-2]
     small = downsample_targets(tg.flatten(0, 1), r, _area_mask(head.names, device))  # (B*T, A, h, w)
     small = small.reshape(b, t, a, *small.shape[-2:])
-    return tag_loss(v, small, head.discrete_mask(), head.scale, config.loss)
+    return tag_loss(v, small, head.discrete_mask(), head.scale, config.loss,
+                    density=_area_mask(head.names, device))
 
 
 class TaggingObjective(nn.Module):
     """The tagging term of joint training: owns the head and draws task-balanced windows.
 
-    >>> objective = TaggingObjective(clips_dir, TagTrainConfig(), embed_channels=64)
+    >>> objective = attach_tagging(clips_dir, model, TagTrainConfig())    # None without tag targets
     >>> loss = contrastive + objective.weight * objective.loss(model.bev_embedding)
+    >>> loss.backward(); opt.step(); objective.step(lr)
     """
 
     def __init__(self, clips_dir: Path | str, config: TagTrainConfig, embed_channels: int,
@@ -176,6 +178,7 @@ class TaggingObjective(nn.Module):
         self._epoch = 0
         self._it: Iterator[dict[str, Any]] | None = None
         self.last_parts: dict[str, float] = {}
+        self.optimizer: torch.optim.Optimizer | None = None
 
     def _batches(self) -> Iterator[dict[str, Any]]:
         while True:
@@ -193,6 +196,15 @@ class TaggingObjective(nn.Module):
         device = self.head.attributes.device
         loss, self.last_parts = window_loss(embed, self.head, next(self._it), self.config, device)
         return loss
+
+    def step(self, lr: float) -> None:
+        """Step the objective's own optimiser (when it has one) at ``lr`` and clear the head's gradients."""
+        if self.optimizer is None:
+            return
+        for group in self.optimizer.param_groups:
+            group["lr"] = lr
+        self.optimizer.step()
+        self.optimizer.zero_grad(set_to_none=True)
 
     def save(self, run_dir: Path | str, backbone: nn.Module | None = None) -> None:
         save_tagging(run_dir, self.head, self.config, read_manifest(self.clips_dir), backbone,
@@ -394,6 +406,18 @@ class Tagger:
         return out
 
 
+#: Parameters of the BEV tower that compute E (what tagging needs); the rest pools E into clip embeddings.
+EMBEDDING_PREFIXES = ("lidar.", "map.", "lateral.", "lateral_bias", "header_space.", "header_time.")
+
+
+def load_embedding_weights(bev: BevTower, state: dict[str, torch.Tensor], source: Path) -> None:
+    """Load a saved tower; only the parameters behind E must match (the clip-embedding part may differ)."""
+    result = bev.load_state_dict({k: v for k, v in state.items() if k.startswith(EMBEDDING_PREFIXES)}, strict=False)
+    missing = [k for k in result.missing_keys if k.startswith(EMBEDDING_PREFIXES)]
+    if missing:
+        raise ValueError(f"{source}: the BEV embedding weights do not match the model: missing {missing}")
+
+
 def load_tagger(run_dir: Path | str, device: str = "cpu") -> Tagger:
     """The tagging model of a run folder (trained ``alone`` or jointly).
 
@@ -412,7 +436,7 @@ def load_tagger(run_dir: Path | str, device: str = "cpu") -> Tagger:
     dev = resolve_device(device)
     if meta.get("backbone") == BACKBONE_FILE:
         bev = BevTower(config.bev, 32)
-        bev.load_state_dict(load_file(str(run / BACKBONE_FILE)))
+        load_embedding_weights(bev, load_file(str(run / BACKBONE_FILE)), run / BACKBONE_FILE)
     else:
         from encoders.train import load_model  # type: ignore[import-not-found,unused-ignore]
 
@@ -424,13 +448,16 @@ def load_tagger(run_dir: Path | str, device: str = "cpu") -> Tagger:
 def attach_tagging(
     clips_dir: Path | str,
     model: nn.Module,
-    optimizer: torch.optim.Optimizer,
     config: TagTrainConfig | None = None,
     log: Callable[[str], None] | None = None,
+    optimizer: torch.optim.Optimizer | None = None,
 ) -> TaggingObjective | None:
-    """The joint-training hook: a :class:`TaggingObjective` for ``model`` (a DualEncoder), its A and b added
-    to ``optimizer`` as a new parameter group (no weight decay), or None when ``config.mode`` is ``alone``
-    or the clips folder's training logs have no tag targets (``log`` says why).
+    """The joint-training hook: a :class:`TaggingObjective` for ``model`` (a DualEncoder).
+
+    A and b are trained by ``optimizer`` (added as a parameter group without weight decay) when one is
+    given, else by the objective's own AdamW (:meth:`TaggingObjective.step`), which keeps the main
+    optimiser's state, and so its checkpoints, unchanged. Returns None when ``config.mode`` is
+    ``alone`` or the clips folder's training logs have no tag targets (``log`` says why).
     """
     from encoders.tagging.data import split_logs
     from encoders.tagging.targets import has_targets
@@ -449,10 +476,12 @@ def attach_tagging(
     bev_cfg = getattr(getattr(model, "config", None), "bev", None)
     channels = int(bev_cfg.embed_channels) if bev_cfg is not None else config.bev.embed_channels
     objective = TaggingObjective(clips, config, channels)
-    device = next(model.parameters()).device
-    objective.to(device)
-    lr = optimizer.param_groups[0]["lr"]
-    optimizer.add_param_group({"params": list(objective.head.parameters()), "weight_decay": 0.0, "lr": lr})
+    objective.to(next(model.parameters()).device)
+    params = list(objective.head.parameters())
+    if optimizer is not None:
+        optimizer.add_param_group({"params": params, "weight_decay": 0.0, "lr": optimizer.param_groups[0]["lr"]})
+    else:
+        objective.optimizer = torch.optim.AdamW(params, lr=config.lr, weight_decay=0.0)
     say(f"tagging on: {len(objective.dataset)} frames of {len(logs)} logs, {len(objective.head.names)} attributes, "
         f"weight {config.joint_weight}, inputs {config.inputs}")
     return objective

@@ -10,11 +10,11 @@ HELP = "simulate, caption, build clips, train, index and evaluate a small city; 
 
 def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", type=Path, required=True, metavar="DIR", help="folder for everything the demo makes")
-    parser.add_argument("--logs", type=int, help="simulated logs (default 8)")
-    parser.add_argument("--duration-s", type=float, help="length of each log in seconds (default 30)")
+    parser.add_argument("--logs", type=int, help="simulated logs (default 6)")
+    parser.add_argument("--duration-s", type=float, help="length of each log in seconds (default 20)")
     parser.add_argument("--seed", type=int, help="simulation seed (default 0)")
     parser.add_argument("--frames-per-clip", type=int, help="frames per clip (default 16)")
-    parser.add_argument("--epochs", type=int, help="training epochs (default: the trainer's)")
+    parser.add_argument("--epochs", type=int, help="training epochs (default 3)")
     parser.add_argument("--no-sensors", action="store_true", help="skip LiDAR/camera rendering (BEV from boxes)")
     parser.add_argument("--query", action="append", help="example query (repeatable; replaces the defaults)")
     parser.add_argument("--quick", action="store_true", help="smallest sizes, a smoke run of every stage")
@@ -23,8 +23,14 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from retrieval.demo import STAGES, Demo, config_from_args
+    import sys
+
+    from retrieval.demo import STAGES, Demo, DemoStageError, config_from_args
 
     demo = Demo(args.out, config_from_args(args), say=lambda m: print(m, flush=True))
-    demo.run(tuple(args.stages) if args.stages else STAGES)
+    try:
+        demo.run(tuple(args.stages) if args.stages else STAGES)
+    except DemoStageError as exc:
+        print(f"scenesearch demo: error: {exc}", file=sys.stderr)
+        return 1
     return 0

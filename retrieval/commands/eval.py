@@ -15,6 +15,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--split", default="test", help="split to evaluate (default test)")
     parser.add_argument("--out", type=Path, default=Path("metrics.json"), help="metrics file (default metrics.json)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the random baseline")
+    parser.add_argument("--index", type=Path, metavar="INDEX_DIR",
+                        help="an index of the same model and clips: reuse its clip embeddings")
     parser.add_argument("--json", action="store_true", help="print the metrics as JSON instead of a table")
 
 
@@ -23,7 +25,7 @@ def run(args: argparse.Namespace) -> int:
     from scenes.atomic import atomic_write_text
 
     metrics = evaluate(args.run_dir, args.clips_dir, split=args.split, seed=args.seed,
-                       progress=lambda m: print(m, flush=True))
+                       progress=lambda m: print(m, flush=True), index_dir=args.index)
     atomic_write_text(args.out, json.dumps(metrics, indent=2))
     print(json.dumps(metrics, indent=2) if args.json else metrics_table(metrics))
     print(f"wrote {args.out}")

@@ -5,17 +5,36 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-HELP = "embed all clips (fused, camera-only, BEV-only) and their captions with a trained model; write an index"
+HELP = ("embed all clips (fused, camera-only, BEV-only) and their captions with a trained model; write an index "
+        "(or, with --captions, index rule captions alone: no model or sensors needed)")
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("run_dir", type=Path, metavar="RUN_DIR", help="training run (model.safetensors, config.json)")
-    parser.add_argument("clips_dir", type=Path, metavar="CLIPS_DIR", help="clips directory (clips.parquet, logs/)")
+    parser.add_argument("run_dir", type=Path, nargs="?", metavar="RUN_DIR",
+                        help="training run (model.safetensors, config.json)")
+    parser.add_argument("clips_dir", type=Path, nargs="?", metavar="CLIPS_DIR",
+                        help="clips directory (clips.parquet, logs/)")
+    parser.add_argument("--captions", type=Path, metavar="CAPTIONS_DIR",
+                        help="instead: index the rule captions of `scenesearch caption` (tracks only, any log)")
     parser.add_argument("--out", type=Path, required=True, metavar="INDEX_DIR", help="index directory to write")
 
 
 def run(args: argparse.Namespace) -> int:
     from retrieval.scenesearch import SceneSearch
+
+    if args.captions is not None:
+        if args.run_dir is not None or args.clips_dir is not None:
+            raise ValueError("give either RUN_DIR CLIPS_DIR or --captions CAPTIONS_DIR, not both")
+        from retrieval.captions_search import CaptionSearch
+
+        captions = CaptionSearch.build(args.captions, args.out)
+        for skipped in captions.skipped[:20]:
+            print(f"skipped {skipped.item}: {skipped.reason}")
+        print(f"wrote {args.out}: {len(captions)} captions, {len(captions.texts)} distinct texts "
+              f"({len(captions.skipped)} skipped)")
+        return 0
+    if args.run_dir is None or args.clips_dir is None:
+        raise ValueError("give RUN_DIR and CLIPS_DIR (a trained model and its clips), or --captions CAPTIONS_DIR")
 
     search = SceneSearch.build(args.run_dir, args.clips_dir, args.out, progress=lambda m: print(m, flush=True))
     for item in search.manifest.skipped[:20]:

@@ -24,14 +24,18 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from retrieval.captions_search import CaptionSearch, is_caption_index
     from retrieval.records import format_table
     from retrieval.scenesearch import SceneSearch, parse_cli_filters
 
-    search = SceneSearch.open(args.index_dir, views=(args.view,))
     filters = parse_cli_filters(args.filters)
-    if args.captions:
+    if is_caption_index(args.index_dir):  # built with `scenesearch index --captions`
+        results = CaptionSearch.open(args.index_dir).search(args.query, k=args.k, filters=filters)
+    elif args.captions:
+        search = SceneSearch.open(args.index_dir, views=(args.view,))
         results = search.search_captions(args.query, k=args.k, filters=filters)
     else:
+        search = SceneSearch.open(args.index_dir, views=(args.view,))
         results = search.search_text(args.query, k=args.k, filters=filters, view=args.view)
     if args.json:
         print(json.dumps({"query": args.query, "results": [r.to_dict() for r in results]}, indent=2))

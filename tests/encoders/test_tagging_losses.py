@@ -79,6 +79,12 @@ def test_tag_loss_separates_discrete_and_continuous_terms() -> None:
     assert parts["discrete"] == pytest.approx(math.log(2.0), rel=1e-5)  # logits 0 on 1 pos + 3 negatives
     loss.backward()
     assert v.grad is not None and float(v.grad[0, :, 1].abs().sum()) > 0
+    # The scene-sum term applies to densities only.
+    cfg2 = TagLossConfig(scene_weight=1.0, continuous_weight=1.0, smooth_l1_beta=0.1, scene_norm=1.0)
+    kinds, ones = torch.tensor([False, True]), torch.ones(2)
+    _, with_scene = tag_loss(v, t, kinds, ones, cfg2, density=torch.tensor([True, False]))
+    _, without = tag_loss(v, t, kinds, ones, cfg2, density=torch.tensor([False, False]))
+    assert with_scene["scene_l1"] == pytest.approx(0.5 - 0.05) and without["scene_l1"] == 0.0  # sums 0.5 vs 0
 
 
 def test_task_balanced_sampler_is_uniform_over_attributes() -> None:

@@ -15,13 +15,13 @@ from encoders.tagging.evaluate import evaluate_runs, write_report
 from encoders.tagging.extend import CAUSES_EGO_BRAKING, add_attributes, ego_brake_cause_targets
 from encoders.tagging.targets import open_targets
 from encoders.tagging.testing import build_tagging_fixture
-from encoders.tagging.training import TagTrainConfig, attach_tagging, load_tagger
+from encoders.tagging.training import EMBEDDING_PREFIXES, TagTrainConfig, attach_tagging, load_tagger
 
 
 @pytest.fixture(scope="module")
 def fixture(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
     torch.manual_seed(0)
-    return build_tagging_fixture(tmp_path_factory.mktemp("tagging"))
+    return build_tagging_fixture(tmp_path_factory.mktemp("tagging"), num_frames=8, steps=2)
 
 
 def test_run_folder_loads_and_tags_whole_logs_chunk_independently(fixture: dict[str, Any]) -> None:
@@ -31,7 +31,7 @@ def test_run_folder_loads_and_tags_whole_logs_chunk_independently(fixture: dict[
     lidar = np.load(folder / "bev_lidar.npy", mmap_mode="r")
     bev_map = np.load(folder / "bev_map.npy", mmap_mode="r")
     full = tagger.tag_frames(lidar, bev_map, chunk=64)
-    assert full.shape == (12, len(ATTRIBUTES), 80, 40) and np.isfinite(full).all()
+    assert full.shape == (8, len(ATTRIBUTES), 80, 40) and np.isfinite(full).all()
     # Chunks with temporal context give the same tensors as one pass.
     np.testing.assert_allclose(tagger.tag_frames(lidar, bev_map, chunk=2), full, atol=1e-5)
     # The stride-2 phases: frames 0, 2, 4, ... form one sequence.
@@ -57,12 +57,19 @@ def test_joint_hook_adds_the_head_to_the_optimiser_and_gives_a_loss(fixture: dic
 
     model = Model()
     opt = torch.optim.AdamW(model.parameters(), lr=1e-3)
-    objective = attach_tagging(fixture["clips"], model, opt, TagTrainConfig(batch_size=2, window_frames=3))
-    assert objective is not None and len(opt.param_groups) == 2
+    objective = attach_tagging(fixture["clips"], model, TagTrainConfig(batch_size=2, window_frames=3), optimizer=opt)
+    assert objective is not None and len(opt.param_groups) == 2 and objective.optimizer is None
     loss = objective.loss(model.bev_embedding)
     loss.backward()
     assert torch.isfinite(loss) and objective.head.attributes.grad is not None
-    assert attach_tagging(fixture["clips"], model, opt, TagTrainConfig(mode="alone")) is None
+    assert attach_tagging(fixture["clips"], model, TagTrainConfig(mode="alone")) is None
+    # Without an optimiser the objective trains its head itself.
+    own = attach_tagging(fixture["clips"], model, TagTrainConfig(batch_size=2, window_frames=3))
+    assert own is not None and own.optimizer is not None
+    before = own.head.attributes.detach().clone()
+    own.loss(model.bev_embedding).backward()
+    own.step(1e-2)
+    assert not torch.equal(before, own.head.attributes) and own.head.attributes.grad is None
 
 
 def test_new_attribute_keeps_old_rows_with_a_frozen_backbone(fixture: dict[str, Any], tmp_path: Path) -> None:
@@ -74,7 +81,8 @@ def test_new_attribute_keeps_old_rows_with_a_frozen_backbone(fixture: dict[str, 
     assert ext.names == (*base.names, CAUSES_EGO_BRAKING)
     torch.testing.assert_close(ext.head.attributes[:-1], base.head.attributes)
     for k, v in base.bev.state_dict().items():
-        torch.testing.assert_close(ext.bev.state_dict()[k], v)
+        if k.startswith(EMBEDDING_PREFIXES):  # the part of the tower behind E
+            torch.testing.assert_close(ext.bev.state_dict()[k], v)
     t = open_targets(fixture["clips"], "tagged_0", f"bev_attributes_{CAUSES_EGO_BRAKING}")
     assert t.names == (CAUSES_EGO_BRAKING,) and t.present.all()  # the ego brakes for 'lead' in every frame
     with pytest.raises(TagError, match="new and distinct"):
@@ -94,3 +102,27 @@ def test_evaluation_writes_both_tables(fixture: dict[str, Any], tmp_path: Path) 
     assert data["inputs"]["none"]["parked"]["metric"] == "F1"
     assert data["statistics_by_region"]["parked"]["front"]["value"] == 1.0
     assert "Table 1" in md_path.read_text() and "| vehicle_density | L1 |" in md_path.read_text()
+
+
+def test_a_joint_run_takes_the_backbone_from_the_dual_encoder(fixture: dict[str, Any], tmp_path: Path) -> None:
+    from safetensors.torch import save_file
+
+    from encoders.config import TrainConfig, tiny_model_config
+    from encoders.model import DualEncoder
+
+    config = TrainConfig(model=tiny_model_config(lidar_channels=4, map_channels=6))
+    model = DualEncoder(config.model)
+    opt = torch.optim.AdamW(model.parameters(), lr=1e-3)
+    objective = attach_tagging(fixture["clips"], model, TagTrainConfig(batch_size=2, window_frames=3), optimizer=opt)
+    assert objective is not None
+    objective.loss(model.bev_embedding).backward()
+    run = tmp_path / "joint"
+    run.mkdir()
+    (run / "config.json").write_text(config.to_json())
+    save_file({k: v.detach().contiguous() for k, v in model.saved_state_dict().items()}, str(run / "model.safetensors"))
+    objective.save(run)
+    tagger = load_tagger(run)
+    for k, v in model.bev.state_dict().items():
+        torch.testing.assert_close(tagger.bev.state_dict()[k], v)
+    torch.testing.assert_close(tagger.head.attributes, objective.head.attributes.detach())
+    assert not (run / "tag_backbone.safetensors").exists()

@@ -82,8 +82,8 @@ def test_config_from_flags() -> None:
 
 def test_report(built: dict[str, Any], tmp_path: Path) -> None:
     run = built["run"]
-    (run / "metrics.jsonl").write_text("\n".join(json.dumps({"epoch": e, "train_loss": 2.0 / (e + 1),
-                                                             "val_R@1": 0.1 * e}) for e in range(5)))
+    rows = [{"epoch": e, "train_loss": 2.0 / (e + 1), "val": {"R@1": 0.1 * e, "mAP": 0.2 * e}} for e in range(5)]
+    (run / "metrics.jsonl").write_text("\n".join(json.dumps(r) for r in rows))
     search = SceneSearch.open(built["index"], embedder=built["embedder"], text_encoder=HashTextEncoder())
     results = search.search_text("a car in the left lane approaches", k=3)
     preview = Path(results[0].preview_path or "")

@@ -81,5 +81,26 @@ def test_eval_command(stand_in: dict[str, Any], tmp_path: Path, capsys: pytest.C
     out = tmp_path / "metrics.json"
     assert main(["eval", str(stand_in["run"]), str(stand_in["clips"]), "--out", str(out)]) == 0
     metrics = json.loads(out.read_text())
+    reused = tmp_path / "metrics_reused.json"
+    assert main(["eval", str(stand_in["run"]), str(stand_in["clips"]), "--out", str(reused),
+                 "--index", str(stand_in["index"])]) == 0
+    # The index holds the same model's embeddings: the figures are the same.
+    assert json.loads(reused.read_text())["text_to_clip"] == metrics["text_to_clip"]
     assert metrics["split"] == "test" and "baselines" in metrics
     assert "text→clip R@1" in capsys.readouterr().out
+
+
+def test_caption_only_index(stand_in: dict[str, Any], tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Logs with tracks but no sensors: index the rule captions alone and search them."""
+    captions = tmp_path / "captions"
+    captions.mkdir()
+    table = pq.read_table(stand_in["clips"] / "clips.parquet").drop_columns(["clip_id", "preview_path"])
+    pq.write_table(table, captions / "captions.parquet")
+    out = tmp_path / "caption_index"
+    assert main(["index", "--captions", str(captions), "--out", str(out)]) == 0
+    assert "84 captions" in capsys.readouterr().out
+    assert main(["search", str(out), "stops ahead of the host", "-k", "3", "--filter", "category=car", "--json"]) == 0
+    results = json.loads(capsys.readouterr().out)["results"]
+    assert len(results) == 3 and all(r["category"] == "car" and "stops ahead" in r["caption"] for r in results)
+    assert main(["index", str(stand_in["run"]), "--out", str(out)]) == 2
+    assert "give RUN_DIR and CLIPS_DIR" in capsys.readouterr().err

@@ -74,6 +74,18 @@ class DualEncoder(nn.Module):
             x = self.fusion(camera, bev, has_camera)
         return F.normalize(x, dim=-1) if normalize else x
 
+    def encode_views(self, batch: dict[str, Any], normalize: bool = True) -> dict[str, torch.Tensor]:
+        """All three views of a batch at the cost of one: each tower runs once, fusion reuses them.
+
+        Returns ``{"camera": (B, D), "bev": (B, D), "fused": (B, D)}``, equal to
+        :meth:`encode_video` with each view.
+        """
+        has_camera = torch.as_tensor(batch["has_camera"], dtype=torch.bool, device=self.device).reshape(-1)
+        camera = self.camera(self._get(batch, "camera"))  # (B, D)
+        bev = self._bev(batch)  # (B, D)
+        out = {"camera": camera, "bev": bev, "fused": self.fusion(camera, bev, has_camera)}
+        return {k: F.normalize(v, dim=-1) for k, v in out.items()} if normalize else out
+
     def bev_embedding(self, batch: dict[str, Any]) -> torch.Tensor:
         """batch: collated clips → E (B, T, D_e, Hb/r, Wb/r), the universal BEV embedding."""
         return self.bev.embed_map(self._get(batch, "bev_lidar"), self._get(batch, "bev_map"))

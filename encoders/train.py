@@ -273,6 +273,24 @@ def embed_dataset(
 
 
 @torch.no_grad()
+def embed_dataset_views(
+    model: DualEncoder, dataset: Dataset[dict[str, Any]], batch_size: int = 32
+) -> tuple[list[str], dict[str, np.ndarray]]:
+    """→ clip ids and, per view (camera, bev, fused), (N, D) float32 normalised embeddings, in one pass."""
+    was_training = model.training
+    model.eval()
+    ids: list[str] = []
+    chunks: dict[str, list[np.ndarray]] = {}
+    for batch in _batches(dataset, batch_size):
+        for view, x in model.encode_views(batch).items():
+            chunks.setdefault(view, []).append(x.float().cpu().numpy())
+        ids += list(batch["clip_id"])
+    model.train(was_training)
+    d = model.config.embed_dim
+    return ids, {v: np.concatenate(c) if c else np.zeros((0, d), np.float32) for v, c in chunks.items()}
+
+
+@torch.no_grad()
 def embed_texts(model: DualEncoder, texts: Sequence[str], batch_size: int = 256) -> np.ndarray:
     """texts: N strings → (N, D) float32 normalised embeddings."""
     was_training = model.training

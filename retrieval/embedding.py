@@ -87,6 +87,9 @@ class ModelEmbedder:
         self._model: Any = None
         self._cache: OrderedDict[str, np.ndarray] = OrderedDict()
         self._cache_size = cache_size
+        # All views of the last clips folder (and split) embedded, so each view is computed once.
+        self._views_key: tuple[str, str | None] | None = None
+        self._views: tuple[list[str], dict[str, np.ndarray]] = ([], {})
 
     @property
     def model_id(self) -> str:
@@ -96,6 +99,7 @@ class ModelEmbedder:
     def model(self) -> Any:
         if self._model is None:
             import torch
+
             from encoders.train import load_model
 
             self._model = load_model(self.run_dir, device="cpu")
@@ -128,12 +132,28 @@ class ModelEmbedder:
     def embed_clips(self, clips_dir: Path, view: str = "fused", split: str | None = None,
                     shuffle_frames: bool = False) -> tuple[list[str], np.ndarray]:
         import torch
-        from encoders.train import embed_clips
 
-        with torch.inference_mode():
-            ids, x = embed_clips(self.model, clips_dir, split=split, view=view, shuffle_frames=shuffle_frames,
-                                 batch_size=self.batch_size)
-        return [str(i) for i in ids], l2_normalize(np.asarray(x))
+        from encoders.train import embed_clips, embed_dataset_views
+
+        if shuffle_frames:
+            with torch.inference_mode():
+                ids, x = embed_clips(self.model, clips_dir, split=split, view=view, shuffle_frames=True,
+                                     batch_size=self.batch_size)
+            return [str(i) for i in ids], l2_normalize(np.asarray(x))
+        # Index builds and evaluations ask for every view of the same clips in turn: encode the clips
+        # once for all views (each tower runs once) and serve the other views from memory.
+        key = (str(Path(clips_dir).resolve()), split)
+        if self._views_key != key:
+            from encoders.data import ClipDataset
+
+            with torch.inference_mode():
+                ids, views = embed_dataset_views(self.model, ClipDataset(clips_dir, split=split),
+                                                 batch_size=self.batch_size)
+            self._views_key, self._views = key, ([str(i) for i in ids], views)
+        ids, views = self._views
+        if view not in views:
+            raise ValueError(f"unknown view {view!r}; valid views: {', '.join(views)}")
+        return ids, l2_normalize(views[view])
 
     def embed_arrays(self, clip: Mapping[str, Any], view: str = "fused") -> np.ndarray:
         import torch

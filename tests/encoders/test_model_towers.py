@@ -122,3 +122,15 @@ def test_embedding_prefixes_name_exactly_the_parameters_behind_e(batch: dict[str
     for name, p in model.bev.named_parameters():
         behind_e = name.startswith(BevTower.EMBEDDING_PREFIXES)
         assert behind_e == (p.grad is not None), name
+
+
+def test_encode_views_equals_encode_video_per_view() -> None:
+    torch.manual_seed(0)
+    model = DualEncoder(tiny_model_config()).eval()
+    ds = SyntheticClipDataset(4, spec=SPEC, seed=3)
+    batch = collate_clips([ds[i] for i in range(4)])
+    batch["has_camera"] = torch.tensor([True, False, True, True])  # fusion must mask per clip
+    with torch.no_grad():
+        views = model.encode_views(batch)
+        for view in ("camera", "bev", "fused"):
+            torch.testing.assert_close(views[view], model.encode_video(batch, view=view), rtol=1e-5, atol=1e-5)

@@ -30,7 +30,8 @@ CHROMEDRIVER = shutil.which("chromedriver") or "/usr/bin/chromedriver"
 pytestmark = [
     pytest.mark.browser,
     pytest.mark.skipif(not (Path(CHROMIUM).exists() and Path(CHROMEDRIVER).exists()),
-                       reason="Chromium and chromedriver are not installed (Debian packages chromium, chromium-driver)"),
+                       reason="Chromium and chromedriver are not installed "
+                              "(Debian packages chromium, chromium-driver)"),
 ]
 
 

@@ -41,6 +41,8 @@ from encoders.config import ConfigError, ConfigMismatchError, TrainConfig
 from encoders.loss import contrastive_loss, positives_matrix, tag_similarity
 from encoders.metrics import text_to_clip_metrics
 from encoders.model import DualEncoder
+from encoders.tagging.ablation import mask_inputs
+from encoders.tagging.training import TagTrainConfig, attach_tagging
 from scenes.atomic import atomic_path, atomic_write_text
 
 CHECKPOINT_FORMAT = 1
@@ -362,6 +364,7 @@ def train(
     resume: bool = False,
     force: bool = False,
     datasets: dict[str, Dataset[dict[str, Any]]] | None = None,
+    tagging: TagTrainConfig | None = None,
     on_epoch_end: Callable[[int], None] | None = None,
     log: Callable[[str], None] | None = None,
     progress: bool | None = None,
@@ -398,6 +401,9 @@ def train(
         rows = [r for r in _read_metrics(metrics_path) if r.get("epoch", 0) <= start_epoch]
         atomic_write_text(metrics_path, "".join(json.dumps(r, sort_keys=True) + "\n" for r in rows))
         log(f"resuming {run_dir} after epoch {start_epoch} (step {step})")
+    # -- tagging hook (encoders/tagging): the tag loss joins the contrastive loss when the clips have tag targets
+    tag_config = tagging or TagTrainConfig()
+    tag_objective = attach_tagging(clips_dir, model, tag_config, log) if datasets is None else None
     text_cache = model.text.cache
     cache_path = run_dir / "text_cache.npz"
     if text_cache is not None:
@@ -438,6 +444,7 @@ def train(
             torch.manual_seed(_step_seed(config.seed, step))
             for group in opt.param_groups:
                 group["lr"] = learning_rate(config, step, total_steps)
+            batch = mask_inputs(batch, tag_config.inputs)  # tagging hook: input ablation (none/map/lidar/both)
             if config.shuffle_frames:
                 batch = shuffle_time(batch)
             keys = batch["canonical_caption"] if config.positives == "caption" else [tuple(t) for t in batch["tags"]]
@@ -446,6 +453,8 @@ def train(
                 positives = positives_matrix(keys, device)
                 sim = tag_similarity(batch["tags"], device) if config.tag_weight > 0 else None
                 loss = contrastive_loss(video, text, scale, positives, config.loss, sim, config.tag_weight)
+                if tag_objective is not None:  # tagging hook
+                    loss = loss + tag_objective.weight * tag_objective.loss(model.bev_embedding)
             value = float(loss.detach())
             if not math.isfinite(value):
                 raise NonFiniteLossError(step, epoch, batch["clip_id"], value)
@@ -454,6 +463,8 @@ def train(
             if config.grad_clip > 0:
                 torch.nn.utils.clip_grad_norm_(model.parameters(), config.grad_clip)
             opt.step()
+            if tag_objective is not None:  # tagging hook
+                tag_objective.step(opt.param_groups[0]["lr"])
             step += 1
             seen += len(batch["clip_id"])
             losses.append(value)
@@ -492,6 +503,8 @@ def train(
     if writer is not None:
         writer.close()
     _write_final(run_dir, model, config, history, n, val_set, clips_dir)
+    if tag_objective is not None:  # tagging hook
+        tag_objective.save(run_dir)
     return TrainResult(run_dir=run_dir, epochs=config.epochs, steps=step, val=val, history=history)
 
 

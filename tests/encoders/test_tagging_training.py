@@ -126,3 +126,18 @@ def test_a_joint_run_takes_the_backbone_from_the_dual_encoder(fixture: dict[str,
         torch.testing.assert_close(tagger.bev.state_dict()[k], v)
     torch.testing.assert_close(tagger.head.attributes, objective.head.attributes.detach())
     assert not (run / "tag_backbone.safetensors").exists()
+
+
+def test_scenesearch_training_adds_the_tag_loss_and_writes_the_head(fixture: dict[str, Any], tmp_path: Path) -> None:
+    import dataclasses
+
+    from encoders.config import TrainConfig
+    from encoders.train import train
+
+    config = dataclasses.replace(TrainConfig.preset("tiny"), epochs=1, batch_size=2, device="cpu")
+    lines: list[str] = []
+    train(fixture["clips"], tmp_path / "joint", config, log=lines.append, progress=False,
+          tagging=TagTrainConfig(batch_size=2, window_frames=3, inputs="lidar"))
+    assert any(line.startswith("tagging on") for line in lines)
+    tagger = load_tagger(tmp_path / "joint")
+    assert tagger.inputs.value == "lidar" and len(tagger.names) == len(ATTRIBUTES)

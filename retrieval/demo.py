@@ -229,6 +229,11 @@ class Demo:
                                f"bev: {{resolution_m: {c.bev_resolution_m}}}\n")
         self.command(["clips", *self.log_dirs(), "--captions", self.captions_dir, "--out", self.clips_dir,
                       "--frames-per-clip", c.frames_per_clip, "--config", config_path])
+        # Attribute targets from the simulator's behaviour labels: with them, training also learns the
+        # spatio-temporal tags on the BEV embedding, so the trained model answers tag queries.
+        from encoders.tagging.targets import add_attribute_targets
+
+        add_attribute_targets(self.clips_dir, self.log_dirs(), progress=self.say)
         return ""
 
     def stage_train(self) -> str:
@@ -276,9 +281,51 @@ class Demo:
         settings = ", ".join(f"{k}={v}" for k, v in asdict(self.config).items() if k != "queries")
         path = write_report(self.out_dir, metrics, examples, run_dir=self.run_dir, embedding_map=(x, actions),
                             stage_timings_s=timings, notes=[f"settings: {settings}",
-                                                            f"index: {self.index_dir} ({len(search)} clips)"])
+                                                            f"index: {self.index_dir} ({len(search)} clips)"],
+                            sections=self.tag_sections(meta))
         self.say(f"\nwrote {path}")
         return str(path)
+
+
+    def tag_sections(self, meta: Any) -> list[str]:
+        """A spatio-temporal tag example for the report: pooled tags over a test log, and found spans."""
+        import html
+
+        if not (self.run_dir / "tagging.json").is_file():
+            return []
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+
+        from retrieval.tagging import TagSearch
+
+        test_logs = sorted({str(r["log_id"]) for r in meta.to_pylist() if r.get("split") == "test"})
+        logs = [d for d in self.log_dirs() if d.name in test_logs] or self.log_dirs()[:1]
+        tags = TagSearch(self.run_dir, clips_dir=self.clips_dir)
+        queries = [("vehicle_density", "front"), ("pedestrian_density", "around"), ("stopped", "front"),
+                   ("braking", "front")]
+        fig, axes = plt.subplots(len(queries), 1, figsize=(9, 1.8 * len(queries)), sharex=True)
+        for ax, (tag, region) in zip(axes, queries):
+            ts, values = tags.series(logs[0], tag, region)
+            ax.plot((ts - ts[0]) * 1e-9, values)
+            ax.set_ylabel(f"{tag}\n{region}", fontsize=8)
+        axes[-1].set_xlabel(f"time in log {logs[0].name[:8]} (s)")
+        fig.tight_layout()
+        (self.out_dir / "plots").mkdir(parents=True, exist_ok=True)
+        fig.savefig(self.out_dir / "plots" / "tags_over_time.png", dpi=90)
+        plt.close(fig)
+        spans = tags.find(logs, "stopped", "front", threshold=0.5, min_duration_s=1.0, k=5)
+        first_ns = {d.name: int(tags.frames(d).timestamps_ns[0]) for d in logs}
+        rows = "".join(f"<tr><td>{html.escape(s.log_id[:8])}</td><td>{(s.start_ns - first_ns[s.log_id]) * 1e-9:.1f}"
+                       f"</td><td>{s.duration_s:.1f}</td><td>{s.score:.2f}</td></tr>" for s in spans)
+        self.say(f"tags: {len(spans)} spans where a vehicle is stopped in front, in {len(logs)} test log(s)")
+        return ["<h2>Spatio-temporal tags from the universal BEV embedding</h2>",
+                "<p>Pooled attribute values over a held-out log (densities in m², probabilities otherwise):</p>",
+                "<img src='plots/tags_over_time.png' alt='tags over time'>",
+                "<h3>scenesearch find RUN LOG... --tag stopped --region front</h3>",
+                "<table><tr><th>log</th><th>start (s into the log)</th><th>duration (s)</th><th>score</th></tr>"
+                f"{rows}</table>" if spans else "<p>no span above 0.5</p>"]
 
 
 def config_from_args(args: argparse.Namespace) -> DemoConfig:

@@ -235,8 +235,11 @@ align-items:center;justify-content:center} .meta{font-size:12px} .cap{color:#333
 def write_report(out_dir: Path, metrics: dict[str, Any] | None, examples: Sequence[Example],
                  run_dir: Path | None = None, embedding_map: tuple[np.ndarray, Sequence[str]] | None = None,
                  stage_timings_s: dict[str, float] | None = None, title: str = "scenesearch demo",
-                 notes: Sequence[str] = ()) -> Path:
-    """Write ``out_dir/report.html`` and its plots (``out_dir/plots/*.png``); returns the page's path."""
+                 notes: Sequence[str] = (), sections: Sequence[str] = ()) -> Path:
+    """Write ``out_dir/report.html`` and its plots (``out_dir/plots/*.png``); returns the page's path.
+
+    ``sections`` are extra HTML fragments (already escaped), placed after the example queries.
+    """
     out_dir = Path(out_dir)
     plots = out_dir / "plots"
     plots.mkdir(parents=True, exist_ok=True)
@@ -261,6 +264,7 @@ def write_report(out_dir: Path, metrics: dict[str, Any] | None, examples: Sequen
     if examples:
         body.append("<h2>Example queries</h2>")
         body.append(examples_html(examples, out_dir))
+    body.extend(sections)
     if figures:
         body.append("<h2>Plots</h2><div class='plots'>")
         body.extend(f"<h3>{html.escape(t)}</h3><img src='{src}' alt='{html.escape(t)}'>" for t, src in figures)

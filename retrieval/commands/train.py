@@ -36,6 +36,11 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--text-model", help="sentence-transformers model name or local folder")
     parser.add_argument("--scratch-text", action="store_true", help="train a small text transformer from scratch")
     parser.add_argument("--shuffle-frames", action="store_true", help="bag-of-frames baseline: shuffle frames in time")
+    parser.add_argument("--inputs", choices=["none", "map", "lidar", "both"],
+                        help="BEV inputs the model sees (input ablation of the tagging evaluation; default both)")
+    parser.add_argument("--tag-weight", type=float,
+                        help="weight of the attribute-tagging loss joined to the contrastive loss (default 1). "
+                             "Tagging trains when the clips hold tag targets (eval-tags --logs, or the demo)")
     parser.add_argument("--save-config", type=Path, help="also write the effective config as YAML")
 
 
@@ -75,6 +80,22 @@ def build_config(args: argparse.Namespace) -> Any:
     return dataclasses.replace(config, model=dataclasses.replace(config.model, text=text))
 
 
+def tagging_config(args: argparse.Namespace) -> Any:
+    """The tagging part of training, from ``--inputs`` and ``--tag-weight`` (None: the defaults)."""
+    from encoders.tagging.training import TagTrainConfig
+
+    if args.inputs is None and args.tag_weight is None:
+        return None
+    overrides: dict[str, Any] = {}
+    if args.inputs is not None:
+        overrides["inputs"] = args.inputs
+    if args.tag_weight is not None:
+        if args.tag_weight < 0:
+            raise ValueError(f"--tag-weight must be >= 0, got {args.tag_weight}")
+        overrides["joint_weight"] = args.tag_weight
+    return dataclasses.replace(TagTrainConfig(), **overrides)
+
+
 def run(args: argparse.Namespace) -> int:
     from encoders.train import TrainingError, train
 
@@ -84,7 +105,8 @@ def run(args: argparse.Namespace) -> int:
 
         atomic_write_text(args.save_config, config.to_yaml())
     try:
-        result = train(args.clips_dir, args.out, config, resume=args.resume, force=args.force)
+        result = train(args.clips_dir, args.out, config, resume=args.resume, force=args.force,
+                       tagging=tagging_config(args))
     except TrainingError as exc:
         print(f"scenesearch train: error: {exc}", file=sys.stderr)
         return 2

@@ -227,13 +227,10 @@ class Demo:
         config_path = self.out_dir / "clips.yaml"
         config_path.write_text(f"camera: {{width_px: {c.camera_width_px}, height_px: {c.camera_height_px}}}\n"
                                f"bev: {{resolution_m: {c.bev_resolution_m}}}\n")
+        # --tag-targets: attribute targets from the simulator's behaviour labels; with them, training also
+        # learns the spatio-temporal tags on the BEV embedding, so the trained model answers tag queries.
         self.command(["clips", *self.log_dirs(), "--captions", self.captions_dir, "--out", self.clips_dir,
-                      "--frames-per-clip", c.frames_per_clip, "--config", config_path])
-        # Attribute targets from the simulator's behaviour labels: with them, training also learns the
-        # spatio-temporal tags on the BEV embedding, so the trained model answers tag queries.
-        from encoders.tagging.targets import add_attribute_targets
-
-        add_attribute_targets(self.clips_dir, self.log_dirs(), progress=self.say)
+                      "--frames-per-clip", c.frames_per_clip, "--config", config_path, "--tag-targets"])
         return ""
 
     def stage_train(self) -> str:

@@ -28,6 +28,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--lenient", action="store_true",
                         help="skip (and report) captions naming logs or tracks that are not given, instead of failing")
     parser.add_argument("--no-reuse", action="store_true", help="re-render logs already rendered with this config")
+    parser.add_argument("--tag-targets", action="store_true",
+                        help="also rasterise attribute-tag targets from the logs' behaviour labels (simulated logs), "
+                             "so that `scenesearch train` learns spatio-temporal tags jointly")
     parser.add_argument("--save-config", type=Path, help="also write the effective config as YAML")
 
 
@@ -68,4 +71,11 @@ def run(args: argparse.Namespace) -> int:
             print(f"  {log_id}: skipped corrupt sweeps: {', '.join(stats['corrupt_sweeps'][:5])}")
         if stats.get("corrupt_camera_frames"):
             print(f"  {log_id}: skipped corrupt camera files: {', '.join(stats['corrupt_camera_frames'][:5])}")
+    if args.tag_targets:
+        from encoders.tagging.targets import add_attribute_targets
+
+        targets = add_attribute_targets(args.out, args.log_dirs, progress=print)
+        print(f"tag targets: {len(targets.written)} log(s) written, {len(targets.reused)} reused")
+        for item in targets.skipped:
+            print(f"  skipped {item.get('log_id', '?')}: {item.get('reason', '')}")
     return 0

@@ -43,7 +43,8 @@ def _demo(tmp_path: Path, config: DemoConfig) -> RecordingDemo:
 
 
 def test_stages_run_in_order_with_sizes(tmp_path: Path) -> None:
-    demo = _demo(tmp_path, DemoConfig(logs=2, duration_s=10, epochs=3, frames_per_clip=8))
+    demo = _demo(tmp_path, DemoConfig(logs=2, duration_s=10, epochs=3, frames_per_clip=8, batch_size=4,
+                                      camera_width_px=40, bev_resolution_m=2.0))
     results = demo.run()
     assert [r.name for r in results] == list(STAGES)
     names = [c[0] for c in demo.calls]
@@ -53,7 +54,11 @@ def test_stages_run_in_order_with_sizes(tmp_path: Path) -> None:
     assert demo.calls[1][1:3] == [str(demo.logs_dir / "log0"), str(demo.logs_dir / "log1")]
     clips = demo.calls[2]
     assert clips[clips.index("--frames-per-clip") + 1] == "8"
-    assert demo.calls[3][-2:] == ["--epochs", "3"]
+    clips_yaml = (demo.out_dir / "clips.yaml").read_text()
+    assert clips[clips.index("--config") + 1] == str(demo.out_dir / "clips.yaml")
+    assert "width_px: 40" in clips_yaml and "resolution_m: 2.0" in clips_yaml
+    train = demo.calls[3]
+    assert train[train.index("--epochs") + 1] == "3" and train[train.index("--batch-size") + 1] == "4"
 
 
 def test_resume_skips_complete_stages_and_reruns_after_a_change(tmp_path: Path) -> None:

@@ -20,7 +20,7 @@ import faiss
 import numpy as np
 
 from indexes.errors import IdError, ManifestError
-from indexes.factory import AutoConfig, choose_factory
+from indexes.factory import AutoConfig
 from indexes.persistence import (
     MANIFEST_NAME,
     read_manifest,
@@ -30,7 +30,7 @@ from indexes.persistence import (
     writing_index_dir,
 )
 from indexes.vector_index import KIND as SHARD_KIND
-from indexes.vector_index import IdsLike, VectorIndex, check_k, new_faiss_index, train
+from indexes.vector_index import IdsLike, VectorIndex, check_k, prepare_build
 from indexes.vectors import Metric, as_metric, prepare_ids, prepare_vectors
 
 KIND = "sharded_index"
@@ -68,16 +68,8 @@ class ShardedIndex:
         :meth:`VectorIndex.build`. ``auto`` and the memory budget apply to the whole collection."""
         config = config or AutoConfig()
         metric = as_metric(metric)
-        x = prepare_vectors(xb, None, metric, "xb")
-        n, d = x.shape
-        id_arr = prepare_ids(None if ids is None else np.asarray(ids), n)
-        info: dict[str, Any] = {}
-        if factory == "auto":
-            choice = choose_factory(n, d, memory_budget_bytes, config)
-            factory = choice.factory
-            info.update(choice_reason=choice.reason, estimated_bytes=choice.estimated_bytes)
-        template = new_faiss_index(factory, d, metric)
-        info.update(train(template, factory, x, config))
+        x, id_arr, factory, template, info = prepare_build(xb, ids, metric, factory, memory_budget_bytes, config)
+        n = x.shape[0]
         shards = [
             VectorIndex.from_trained(template, metric, factory, x[start:start + shard_size],
                                      id_arr[start:start + shard_size], dict(info))

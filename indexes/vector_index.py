@@ -61,6 +61,29 @@ EXACT_FALLBACK_MAX = 262_144
 IdsLike = np.ndarray | Sequence[int]
 
 
+
+def prepare_build(xb: np.ndarray, ids: IdsLike | None, metric: Metric, factory: str,
+                  memory_budget_bytes: int | None, config: AutoConfig) -> tuple[
+        np.ndarray, np.ndarray, str, faiss.Index, dict[str, Any]]:
+    """Check vectors and ids, choose the factory (``auto``) and train an empty FAISS index.
+
+    Returns:
+        (N, d) prepared vectors, (N,) ids, the factory string, the trained empty index and the
+        build information (choice reason, training figures).
+    """
+    x = prepare_vectors(xb, None, metric, "xb")
+    n, d = x.shape
+    id_arr = prepare_ids(None if ids is None else np.asarray(ids), n)
+    info: dict[str, Any] = {}
+    if factory == "auto":
+        choice = choose_factory(n, d, memory_budget_bytes, config)
+        factory = choice.factory
+        info.update(choice_reason=choice.reason, estimated_bytes=choice.estimated_bytes)
+    index = new_faiss_index(factory, d, metric)
+    info.update(train(index, factory, x, config))
+    return x, id_arr, factory, index, info
+
+
 class VectorIndex:
     """Vectors with the caller's int64 ids; see the module docstring.
 
@@ -108,16 +131,8 @@ class VectorIndex:
         """
         config = config or AutoConfig()
         metric = as_metric(metric)
-        x = prepare_vectors(xb, None, metric, "xb")
-        n, d = x.shape
-        id_arr = prepare_ids(None if ids is None else np.asarray(ids), n)
-        info: dict[str, Any] = {}
-        if factory == "auto":
-            choice = choose_factory(n, d, memory_budget_bytes, config)
-            factory = choice.factory
-            info.update(choice_reason=choice.reason, estimated_bytes=choice.estimated_bytes)
-        index = new_faiss_index(factory, d, metric)
-        info.update(train(index, factory, x, config))
+        x, id_arr, factory, index, info = prepare_build(xb, ids, metric, factory, memory_budget_bytes, config)
+        n = x.shape[0]
         if n:
             index.add_with_ids(x, id_arr)
         out = cls(index, metric, factory, id_arr, np.empty(0, np.int64), np.empty(0, np.int64), info)

@@ -79,3 +79,11 @@ def test_write_targets_is_float16_with_presence(tmp_path: Path) -> None:
     meta = json.loads((tmp_path / "bev_attributes.json").read_text())
     assert meta["present"] == [[0, 0, 0], [0, 0, 1]] and meta["attributes"] == ["a", "b", "c"]
     assert not list(tmp_path.glob(".*tmp*"))
+
+
+def test_every_behaviour_label_is_a_tag_attribute() -> None:
+    # The tag vocabulary repeats the simulator's behaviour labels by name: they must not drift apart.
+    from encoders.tagging.attributes import Attribute
+    from scenes.behavior import BehaviorLabel
+
+    assert {label.value for label in BehaviorLabel} <= {attribute.value for attribute in Attribute}

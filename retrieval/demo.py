@@ -48,6 +48,9 @@ class DemoConfig:
         bev_resolution_m: cell size of the BEV view of clips (grid x ∈ [−20, 60] m, y ∈ [−20, 20] m).
         epochs: training epochs (None: the trainer's default).
         batch_size: training batch size (None: the trainer's default).
+        tag_weight: weight of the attribute-tagging loss joined to the contrastive loss (None: the
+            trainer's default). Small, because with a few minutes of training a larger weight
+            crowds out the contrastive objective.
         train_preset: the trainer's preset (``default``; ``tiny`` for smoke runs), None for the trainer's choice.
         sensors: render LiDAR and cameras (off: BEV clips from boxes, no camera).
         queries: example queries shown and put in the report.
@@ -65,6 +68,7 @@ class DemoConfig:
     bev_resolution_m: float = 1.25
     epochs: int | None = 12
     batch_size: int | None = 16
+    tag_weight: float | None = 0.2
     train_preset: str | None = None
     sensors: bool = True
     queries: tuple[str, ...] = DEFAULT_QUERIES
@@ -149,7 +153,7 @@ class Demo:
         upto["clips"] = {**upto["caption"], "frames_per_clip": c.frames_per_clip, "camera": [c.camera_width_px,
                          c.camera_height_px], "bev_resolution_m": c.bev_resolution_m}
         upto["train"] = {**upto["clips"], "epochs": c.epochs, "train_preset": c.train_preset,
-                         "batch_size": c.batch_size}
+                         "batch_size": c.batch_size, "tag_weight": c.tag_weight}
         upto["index"] = upto["train"]
         upto["eval"] = upto["train"]
         upto["report"] = {**upto["train"], "queries": list(c.queries), "top_k": c.top_k}
@@ -241,6 +245,8 @@ class Demo:
             args += ["--epochs", self.config.epochs]
         if self.config.batch_size is not None:
             args += ["--batch-size", self.config.batch_size]
+        if self.config.tag_weight is not None:
+            args += ["--tag-weight", self.config.tag_weight]
         self.command(args)
         return ""
 
@@ -330,7 +336,7 @@ def config_from_args(args: argparse.Namespace) -> DemoConfig:
     base = DemoConfig.quick() if args.quick else DemoConfig()
     overrides: dict[str, Any] = {}
     for name in ("logs", "duration_s", "seed", "frames_per_clip", "camera_width_px", "camera_height_px",
-                 "bev_resolution_m", "epochs", "batch_size"):
+                 "bev_resolution_m", "epochs", "batch_size", "tag_weight"):
         value = getattr(args, name, None)
         if value is not None:
             overrides[name] = value

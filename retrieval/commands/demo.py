@@ -19,6 +19,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--bev-resolution-m", type=float, help="BEV cell size of clips in metres (default 1.25)")
     parser.add_argument("--epochs", type=int, help="training epochs (default 12)")
     parser.add_argument("--batch-size", type=int, help="training batch size (default 16)")
+    parser.add_argument("--tag-weight", type=float, help="weight of the tagging loss in training (default 0.2)")
     parser.add_argument("--no-sensors", action="store_true", help="skip LiDAR/camera rendering (BEV from boxes)")
     parser.add_argument("--query", action="append", help="example query (repeatable; replaces the defaults)")
     parser.add_argument("--quick", action="store_true", help="smallest sizes, a smoke run of every stage")

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import shutil
 import subprocess
 import sys
 import time
@@ -238,6 +239,10 @@ class Demo:
         return ""
 
     def stage_train(self) -> str:
+        # The stage runs only when it has no complete output for the current settings: a run folder
+        # left here belongs to other settings (or was cut short), so training starts afresh.
+        if self.run_dir.exists():
+            shutil.rmtree(self.run_dir)
         args: list[object] = ["train", self.clips_dir, "--out", self.run_dir]
         if self.config.train_preset is not None:
             args += ["--preset", self.config.train_preset]

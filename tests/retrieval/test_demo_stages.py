@@ -69,8 +69,12 @@ def test_resume_skips_complete_stages_and_reruns_after_a_change(tmp_path: Path) 
     assert all(r.skipped for r in results) and again.calls == []
     # A new epoch count keeps the data and retrains, then redoes everything after training.
     changed = _demo(tmp_path, DemoConfig(logs=2, duration_s=10, epochs=5))
+    changed.run_dir.mkdir(parents=True, exist_ok=True)
+    (changed.run_dir / "model.safetensors").write_bytes(b"a run of the old settings")
     changed.run()
     assert [c[0] for c in changed.calls] == ["train", "index", "eval", "report"]
+    # The old run is cleared, so `scenesearch train` does not refuse an occupied folder.
+    assert not (changed.run_dir / "model.safetensors").exists()
 
 
 def test_config_from_flags() -> None:

@@ -88,8 +88,8 @@ class BevGrid:
         return np.stack([x, y], axis=-1)
 
 
-def _box_samples(grid: BevGrid, centers_xy: FloatArray, sizes_lw: FloatArray, yaws: FloatArray,
-                 supersample: int) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64]]:
+def box_samples(grid: BevGrid, centers_xy: FloatArray, sizes_lw: FloatArray, yaws: FloatArray,
+                supersample: int) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64]]:
     """Sub-cell samples inside each box: (box index, sample row, sample column) on the supersampled grid.
 
     Vectorised over boxes with a padded window as large as the largest box.
@@ -163,14 +163,14 @@ def rasterize_boxes(
         return out
     if coverage:
         s = int(supersample)
-        b, r, c = _box_samples(grid, centers, sizes, yaw, s)
+        b, r, c = box_samples(grid, centers, sizes, yaw, s)
         fine = np.zeros((grid.height * s, grid.width * s), dtype=np.float32)
         fine[r, c] = 1.0
         return np.asarray(fine.reshape(grid.height, s, grid.width, s).mean(axis=(1, 3)), dtype=np.float32)
     vals = np.ones(n, np.float32) if values is None else np.asarray(values, dtype=np.float32).reshape(-1)
     if vals.shape[0] != n:
         raise ValueError(f"rasterize_boxes: {n} boxes but {vals.shape[0]} values")
-    b, r, c = _box_samples(grid, centers, sizes, yaw, 1)
+    b, r, c = box_samples(grid, centers, sizes, yaw, 1)
     winner = np.full(grid.shape, -1, dtype=np.int64)
     np.maximum.at(winner, (r, c), b)
     hit = winner >= 0

@@ -19,7 +19,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from scenes.bev import MAP_LAYERS, BevGrid, MapRasterizer, _box_samples
+from scenes.bev import MAP_LAYERS, BevGrid, MapRasterizer, box_samples
 from scenes.geometry import SE3, FloatArray
 from scenes.map import VectorMap
 
@@ -80,7 +80,7 @@ def rasterize_track(grid: BevGrid, boxes: NDArray[np.floating]) -> NDArray[np.ui
     if ok.size == 0:
         return out
     # scenes.bev's own cell sampler, vectorised over boxes: one box per frame here.
-    frame, rows, cols = _box_samples(grid, b[ok, :2], b[ok, 2:4], b[ok, 4], 1)
+    frame, rows, cols = box_samples(grid, b[ok, :2], b[ok, 2:4], b[ok, 4], 1)
     out[ok[frame], rows, cols] = 1
     return out
 

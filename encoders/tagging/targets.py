@@ -34,7 +34,7 @@ from numpy.typing import NDArray
 from encoders.tagging.attributes import ATTRIBUTES, BEHAVIOR_ATTRIBUTES, Attribute, TagError
 from scenes.atomic import atomic_path, atomic_write_text
 from scenes.behavior import EGO_TRACK_ID, read_behavior_labels, read_junctions
-from scenes.bev import BevGrid, _box_samples
+from scenes.bev import BevGrid, box_samples
 from scenes.categories import VEHICLE_CATEGORIES, Category
 from scenes.log import Log
 from scenes.tracks import DenseTracks
@@ -144,7 +144,7 @@ def _samples(grid: BevGrid, dense: DenseTracks, kk: NDArray[np.int64], ff: NDArr
     centers = dense.center_ego_xyz_m[kk, ff, :2]
     sizes = dense.size_lwh_m[kk, ff, :2]
     yaws = dense.yaw_ego_rad[kk, ff]
-    return _box_samples(grid, centers, sizes, yaws, s)
+    return box_samples(grid, centers, sizes, yaws, s)
 
 
 def box_coverage(grid: BevGrid, dense: DenseTracks, keep: NDArray[np.bool_], frames: NDArray[np.int64],

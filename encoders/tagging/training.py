@@ -407,7 +407,7 @@ class Tagger:
 
 
 #: Parameters of the BEV tower that compute E (what tagging needs); the rest pools E into clip embeddings.
-EMBEDDING_PREFIXES = ("lidar.", "map.", "lateral.", "lateral_bias", "header_space.", "header_time.")
+EMBEDDING_PREFIXES = BevTower.EMBEDDING_PREFIXES
 
 
 def load_embedding_weights(bev: BevTower, state: dict[str, torch.Tensor], source: Path) -> None:

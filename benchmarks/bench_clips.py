@@ -10,8 +10,10 @@ without per-log arrays would (``naive_clips_per_s``). Figures:
 
 - ``clips_per_s``: clips produced per second by ``build_clips`` (rendering + table, no previews)
 - ``samples_per_s_workers2`` / ``_augmented`` / ``_augmented_uint8``: dataset samples per second
-  through a DataLoader with 2 workers, batch 16 (target ≥ 200 at the defaults); ``uint8`` keeps the
-  image-like views as bytes (``ClipDataset(as_uint8=True)``, converted after the transfer)
+  through a DataLoader with 2 workers, batch 16, at the default clip settings; ``uint8`` keeps the
+  image-like views as bytes (``ClipDataset(as_uint8=True)``; the model converts them on its device),
+  which is how ``scenesearch train`` loads. Target: ≥ 200 on that training path (augmented, uint8),
+  ``loading_target_200_met``
 - ``samples_per_cpu_s_*``: item + collate per CPU-second of one process, which does not depend on
   other load on the machine (wall-clock rates do: ``load_average_during_loading``)
 - ``*_vs_naive``: those divided by ``naive_clips_per_s``
@@ -232,7 +234,7 @@ def run(quick: bool) -> dict[str, Any]:
         "samples_per_s_workers2_augmented": round(rate_2_aug, 1),
         "samples_per_s_workers2_augmented_uint8": round(rate_2_u8, 1),
         "samples_per_s_workers2_vs_naive": round(rate_2 / naive, 1),
-        "loading_target_200_met": bool(rate_2_aug >= 200.0),
+        "loading_target_200_met": bool(rate_2_u8 >= 200.0),  # the path `scenesearch train` uses
         **cpu,
         "load_average_during_loading": [round(load_before, 2), round(load_after, 2)],
         "mb_per_log": round(log_bytes / max(len(report.logs), 1) / 1e6, 2),

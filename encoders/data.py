@@ -40,10 +40,11 @@ from numpy.typing import NDArray
 from encoders.clips.views import (
     LogArrays,
     ego_motion,
+    gather_cells,
     highlight_camera,
     object_footprint,
     open_log_arrays,
-    warp_bev,
+    warp_source_cells,
 )
 from scenes.bev import BevGrid
 
@@ -175,13 +176,6 @@ class ClipDataset(torch.utils.data.Dataset[dict[str, Any]]):
         """Change the augmentation draw (before creating the epoch's DataLoader iterator)."""
         self.epoch = int(epoch)
 
-    def _out(self, array: NDArray[np.uint8]) -> torch.Tensor:
-        """uint8 0–255 → float32 [0, 1] tensor (or the uint8 tensor with ``as_uint8``), same shape."""
-        tensor = torch.from_numpy(np.ascontiguousarray(array))
-        if self.as_uint8:
-            return tensor
-        return torch.empty(tensor.shape, dtype=torch.float32).copy_(tensor).mul_(1.0 / 255.0)
-
     def _log(self, log_id: str) -> LogArrays:
         arrays = self._arrays.get(log_id)
         if arrays is None:
@@ -189,43 +183,55 @@ class ClipDataset(torch.utils.data.Dataset[dict[str, Any]]):
             self._arrays[log_id] = arrays
         return arrays
 
+    def _view_shapes(self, index: int) -> dict[str, tuple[int, ...]]:
+        """Per-item shapes of the image-like views and ego motion (all clips share T)."""
+        t = self._rows[index].frame_indices.shape[0]
+        arrays = self._log(self._rows[index].log_id)
+        hb, wb = self._grid.shape
+        return {
+            "camera": (t, 4, *self._camera_shape),
+            "bev_lidar": (t, arrays.bev_lidar.shape[1], hb, wb),
+            "bev_map": (t, arrays.bev_map.shape[1], hb, wb),
+            "bev_object": (t, 1, hb, wb),
+        }
+
     def __getitem__(self, index: int) -> dict[str, Any]:
-        raw = self._raw(index)
-        for key in UINT8_VIEWS:
-            raw[key] = self._out(raw[key])
-        raw["ego_motion"] = torch.from_numpy(raw["ego_motion"])
-        return raw
+        batch = self.__getitems__([index])
+        item = {key: value[0] for key, value in batch.items()}
+        item["has_camera"] = bool(item["has_camera"])
+        return item
 
     def __getitems__(self, indices: list[int]) -> dict[str, Any]:
-        """A whole batch at once (the DataLoader calls this when it exists): the uint8 views are
-        stacked and converted in one pass straight into the batch tensors (in shared memory inside a
-        worker), instead of converting each item and copying it again in the collate."""
-        raws = [self._raw(int(i)) for i in indices]
-        batch: dict[str, Any] = {}
-        for key in raws[0]:
-            values = [r[key] for r in raws]
-            if key in UINT8_VIEWS:
-                stacked = torch.from_numpy(np.stack(values))
-                if self.as_uint8:
-                    batch[key] = stacked
-                else:
-                    out = _empty_batch(tuple(stacked.shape), torch.float32)
-                    out.copy_(stacked).mul_(1.0 / 255.0)  # two in-place passes: faster than a promoting mul
-                    batch[key] = out
-            elif key == "ego_motion":
-                batch[key] = torch.from_numpy(np.stack(values))
-            elif key == "has_camera":
-                batch[key] = torch.tensor(values, dtype=torch.bool)
+        """A whole batch at once (the DataLoader calls this when it exists; :func:`collate_clips`
+        passes it through). Every item is written straight into its slot of the batch's uint8
+        tensors (in shared memory inside a worker, so handing the batch over copies nothing);
+        float32 views, unless ``as_uint8``, are converted in one pass per view at the end."""
+        indices = [int(i) for i in indices]
+        shapes = self._view_shapes(indices[0])
+        views = {key: _empty_batch((len(indices), *shape), torch.uint8) for key, shape in shapes.items()}
+        slots = {key: tensor.numpy() for key, tensor in views.items()}
+        t = shapes["camera"][0]
+        motion = _empty_batch((len(indices), t, 4), torch.float32)
+        items = [self._fill(i, {key: slot[b] for key, slot in slots.items()}, motion.numpy()[b])
+                 for b, i in enumerate(indices)]
+        batch: dict[str, Any] = {key: [item[key] for item in items] for key in items[0]}
+        batch["has_camera"] = torch.tensor(batch["has_camera"], dtype=torch.bool)
+        for key, tensor in views.items():
+            if self.as_uint8:
+                batch[key] = tensor
             else:
-                batch[key] = values
+                out = _empty_batch(tuple(tensor.shape), torch.float32)
+                out.copy_(tensor).mul_(1.0 / 255.0)  # two in-place passes: faster than a promoting mul
+                batch[key] = out
+        batch["ego_motion"] = motion
         return batch
 
-    def _raw(self, index: int) -> dict[str, Any]:
-        """One item with the image-like views as uint8 numpy arrays and ego motion as numpy."""
+    def _fill(self, index: int, slot: dict[str, NDArray[np.uint8]], motion_out: NDArray[np.float32]) -> dict[str, Any]:
+        """Write item ``index``'s uint8 views into ``slot`` (contiguous (T, C, H, W) arrays) and its
+        ego motion into ``motion_out`` (T, 4); return the item's other fields."""
         row = self._rows[index]
         arrays = self._log(row.log_id)
         fi = row.frame_indices
-        t = fi.shape[0]
         value = arrays.track_value[row.track_id]
         rng = np.random.default_rng([self.seed, self.epoch, index]) if self.augment else None
         aug = self.augment_config
@@ -234,9 +240,8 @@ class ClipDataset(torch.utils.data.Dataset[dict[str, Any]]):
         if rng is not None and row.paraphrases and rng.random() < aug.paraphrase_probability:
             caption = row.paraphrases[int(rng.integers(len(row.paraphrases)))]
 
-        hc, wc = self._camera_shape
         has_camera = bool(row.has_camera and arrays.camera.shape[0] > 0)
-        camera = np.zeros((t, 4, hc, wc), dtype=np.uint8)
+        camera = slot["camera"]
         if has_camera:
             rgb = np.asarray(arrays.camera[fi])  # (T, H, W, 3) uint8
             mask = np.asarray(arrays.camera_instances[fi]) == value  # (T, H, W)
@@ -245,21 +250,26 @@ class ClipDataset(torch.utils.data.Dataset[dict[str, Any]]):
             color, alpha, dim = self._highlight
             shown = highlight_camera(rgb, mask, color, alpha, dim)  # (T, H, W, 3)
             camera[:, :3] = shown.transpose(0, 3, 1, 2)
-            camera[:, 3] = mask * np.uint8(255)
+            np.multiply(mask, np.uint8(255), out=camera[:, 3], casting="unsafe")
+        else:
+            camera.fill(0)
 
-        lidar = np.asarray(arrays.bev_lidar[fi])  # (T, Cl, H, W) uint8
-        bev_map = np.asarray(arrays.bev_map[fi])  # (T, Cm, H, W) uint8
         obj = object_footprint(arrays, self._grid, row.track_id, fi)[:, None]  # (T, 1, H, W), 0/1
-        motion = ego_motion(arrays.pose_xy_yaw, arrays.speed_mps, fi)
-        if rng is not None:
+        obj *= np.uint8(255)
+        motion_out[:] = ego_motion(arrays.pose_xy_yaw, arrays.speed_mps, fi)
+        if rng is None:
+            np.take(arrays.bev_lidar, fi, axis=0, out=slot["bev_lidar"])  # memory map → batch, one copy
+            np.take(arrays.bev_map, fi, axis=0, out=slot["bev_map"])
+            slot["bev_object"][:] = obj
+        else:
             theta = float(rng.uniform(-aug.max_rotation_rad, aug.max_rotation_rad))
             shift = rng.uniform(-aug.max_translation_m, aug.max_translation_m, size=2)
-            cl, cm = lidar.shape[1], bev_map.shape[1]
-            stacked = warp_bev(np.concatenate([lidar, bev_map, obj * np.uint8(255)], axis=1), self._grid, theta, shift)
-            lidar, bev_map = stacked[:, :cl], stacked[:, cl : cl + cm]
-            obj = (stacked[:, cl + cm :] > 127).astype(np.uint8)
+            source, outside = warp_source_cells(self._grid, theta, shift)  # one warp for every layer
+            gather_cells(arrays.bev_lidar[fi], source, outside, slot["bev_lidar"])
+            gather_cells(arrays.bev_map[fi], source, outside, slot["bev_map"])
+            gather_cells(obj, source, outside, slot["bev_object"])
             c, s = np.cos(theta), np.sin(theta)
-            motion[:, :2] = motion[:, :2] @ np.array([[c, s], [-s, c]], dtype=np.float32)
+            motion_out[:, :2] = motion_out[:, :2] @ np.array([[c, s], [-s, c]], dtype=np.float32)
 
         return {
             "clip_id": row.clip_id,
@@ -270,12 +280,7 @@ class ClipDataset(torch.utils.data.Dataset[dict[str, Any]]):
             "canonical_caption": row.canonical_caption,
             "tags": list(row.tags),
             "host_tags": list(row.host_tags),
-            "camera": camera,
             "has_camera": has_camera,
-            "bev_lidar": lidar,
-            "bev_map": bev_map,
-            "bev_object": obj * np.uint8(255),
-            "ego_motion": motion,
         }
 
 

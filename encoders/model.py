@@ -105,7 +105,10 @@ class DualEncoder(nn.Module):
     def _get(self, batch: dict[str, Any], key: str) -> torch.Tensor:
         if key not in batch:
             raise KeyError(f"batch has no {key!r} (keys: {sorted(batch)})")
-        return torch.as_tensor(batch[key]).to(self.device, non_blocking=True)
+        x = torch.as_tensor(batch[key]).to(self.device, non_blocking=True)
+        if x.dtype == torch.uint8:  # a batch loaded with ``as_uint8``: moved as bytes, converted here
+            x = x.to(torch.float32).mul_(1.0 / 255.0)
+        return x
 
     def saved_state_dict(self) -> dict[str, torch.Tensor]:
         """state_dict without frozen pretrained text weights (they are loaded from ``text.model``)."""

@@ -121,7 +121,8 @@ def open_split(clips_dir: Path, split: str, augment: bool = False, seed: int = 0
     """The clips of ``split`` in ``clips_dir`` (an :class:`encoders.data.ClipDataset`)."""
     from encoders.data import ClipDataset
 
-    return ClipDataset(clips_dir, split=split, augment=augment, seed=seed)
+    # uint8 views: a quarter of the bytes through the workers; the model converts them on its device.
+    return ClipDataset(clips_dir, split=split, augment=augment, seed=seed, as_uint8=True)
 
 
 def _open_datasets(
@@ -315,7 +316,7 @@ def embed_clips(
     if isinstance(clips_dir, str | Path):
         from encoders.data import ClipDataset
 
-        dataset: Dataset[dict[str, Any]] = ClipDataset(clips_dir, split=split)
+        dataset: Dataset[dict[str, Any]] = ClipDataset(clips_dir, split=split, as_uint8=True)
     else:
         dataset = clips_dir
     ids, vectors, _ = embed_dataset(model, dataset, view=view, shuffle_frames=shuffle_frames, batch_size=batch_size)

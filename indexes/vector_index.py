@@ -23,7 +23,8 @@ closeness; where fewer than k vectors qualify, ``I`` is −1 and ``D`` is −inf
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -336,11 +337,12 @@ class VectorIndex:
 
     def _faiss_search(self, x: np.ndarray, k: int, sel: faiss.IDSelector | None,
                       knob_value: int | None = None) -> tuple[np.ndarray, np.ndarray]:
-        if sel is None and knob_value is None:
-            D, I = self._index.search(x, k)
-        else:
-            params = search_parameters(self._index, sel, knob_value)
-            D, I = self._index.search(x, k, params=params)
+        with faiss_threads_for(len(x)):
+            if sel is None and knob_value is None:
+                D, I = self._index.search(x, k)
+            else:
+                params = search_parameters(self._index, sel, knob_value)
+                D, I = self._index.search(x, k, params=params)
         return np.asarray(D), np.asarray(I)
 
     def _exact_search(self, x: np.ndarray, k: int, subset: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -352,7 +354,8 @@ class VectorIndex:
             return D, I
         xb = self.reconstruct(subset)
         kk = min(k, len(subset))
-        d_sub, i_sub = faiss.knn(x, xb, kk, metric=self.metric.faiss_metric)
+        with faiss_threads_for(len(x)):
+            d_sub, i_sub = faiss.knn(x, xb, kk, metric=self.metric.faiss_metric)
         D[:, :kk] = d_sub
         I[:, :kk] = np.where(i_sub >= 0, subset[np.maximum(i_sub, 0)], -1)
         return D, I
@@ -556,6 +559,30 @@ def _load_ids(path: Path) -> np.ndarray:
     if arr.ndim != 1 or arr.dtype != np.int64:
         raise IndexFileError(path, f"expected a 1-D int64 array, got {arr.dtype} {arr.shape}")
     return np.asarray(arr)
+
+
+#: Below this many queries FAISS searches one query per thread (flat and IVF alike, under its BLAS
+#: threshold), so extra threads only spin at the barrier afterwards, taking CPU from the caller's
+#: own threads (e.g. the text encoder's) for milliseconds: such searches run on one thread.
+SMALL_BATCH_QUERIES = 20
+
+
+@contextmanager
+def faiss_threads_for(nq: int) -> Iterator[None]:
+    """Run FAISS on one thread while searching fewer than :data:`SMALL_BATCH_QUERIES` queries.
+
+    OpenMP's thread count is per calling thread, so concurrent searches in other threads (the
+    service) keep theirs.
+    """
+    if nq >= SMALL_BATCH_QUERIES:
+        yield
+        return
+    before = faiss.omp_get_max_threads()
+    faiss.omp_set_num_threads(1)
+    try:
+        yield
+    finally:
+        faiss.omp_set_num_threads(before)
 
 
 def check_k(k: int, size: int) -> None:

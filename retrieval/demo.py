@@ -31,6 +31,8 @@ DEFAULT_QUERIES = (
     "a stopped car in the ego lane",
     "a car in the oncoming lane approaches, then moves away",
 )
+#: Share of the demo's logs in the validation split.
+VAL_FRACTION = 0.15
 STAGES = ("simulate", "caption", "clips", "train", "index", "eval", "report")
 MARKERS = ".demo"
 
@@ -42,6 +44,9 @@ class DemoConfig:
     Attributes:
         logs: simulated logs.
         duration_s: length of each log, seconds.
+        test_fraction: share of the logs held out for the test split (validation: 0.15, the rest
+            trains). A quarter, so that the test split spans several logs and so several
+            appearances (time of day, weather): the clip → clip appearance bias needs them.
         seed: seed of the simulation (and so of everything after it).
         frames_per_clip: T frames per clip.
         camera_width_px: width of the camera view of clips (height: ``camera_height_px``).
@@ -60,8 +65,9 @@ class DemoConfig:
 
     # Sized so that the whole demo runs in about a quarter of an hour on 2 CPU cores: small clip views
     # (the model trains at about 25 clips/s on them) and enough epochs for it to beat the baselines.
-    logs: int = 8
-    duration_s: float = 25.0
+    logs: int = 12
+    duration_s: float = 20.0
+    test_fraction: float = 0.25
     seed: int = 0
     frames_per_clip: int = 12
     camera_width_px: int = 64
@@ -81,6 +87,9 @@ class DemoConfig:
                 raise ValueError(f"DemoConfig.{name} must be at least 1, got {getattr(self, name)}")
         if self.duration_s <= 0:
             raise ValueError(f"DemoConfig.duration_s must be positive, got {self.duration_s}")
+        if not 0 < self.test_fraction < 1 - VAL_FRACTION:
+            raise ValueError(
+                f"DemoConfig.test_fraction must lie in (0, {1 - VAL_FRACTION:g}), got {self.test_fraction}")
         if self.epochs is not None and self.epochs < 1:
             raise ValueError(f"DemoConfig.epochs must be at least 1, got {self.epochs}")
 
@@ -152,7 +161,8 @@ class Demo:
         upto: dict[str, dict[str, Any]] = {"simulate": sim}
         upto["caption"] = upto["simulate"]
         upto["clips"] = {**upto["caption"], "frames_per_clip": c.frames_per_clip, "camera": [c.camera_width_px,
-                         c.camera_height_px], "bev_resolution_m": c.bev_resolution_m}
+                         c.camera_height_px], "bev_resolution_m": c.bev_resolution_m,
+                         "test_fraction": c.test_fraction}
         upto["train"] = {**upto["clips"], "epochs": c.epochs, "train_preset": c.train_preset,
                          "batch_size": c.batch_size, "tag_weight": c.tag_weight}
         upto["index"] = upto["train"]
@@ -230,8 +240,10 @@ class Demo:
     def stage_clips(self) -> str:
         c = self.config
         config_path = self.out_dir / "clips.yaml"
+        train_fraction = round(1.0 - VAL_FRACTION - c.test_fraction, 6)
         config_path.write_text(f"camera: {{width_px: {c.camera_width_px}, height_px: {c.camera_height_px}}}\n"
-                               f"bev: {{resolution_m: {c.bev_resolution_m}}}\n")
+                               f"bev: {{resolution_m: {c.bev_resolution_m}}}\n"
+                               f"split: {{train_fraction: {train_fraction}, val_fraction: {VAL_FRACTION}}}\n")
         # --tag-targets: attribute targets from the simulator's behaviour labels; with them, training also
         # learns the spatio-temporal tags on the BEV embedding, so the trained model answers tag queries.
         self.command(["clips", *self.log_dirs(), "--captions", self.captions_dir, "--out", self.clips_dir,
@@ -340,8 +352,8 @@ def config_from_args(args: argparse.Namespace) -> DemoConfig:
     """``--quick`` sizes, then any size flag given."""
     base = DemoConfig.quick() if args.quick else DemoConfig()
     overrides: dict[str, Any] = {}
-    for name in ("logs", "duration_s", "seed", "frames_per_clip", "camera_width_px", "camera_height_px",
-                 "bev_resolution_m", "epochs", "batch_size", "tag_weight"):
+    for name in ("logs", "duration_s", "test_fraction", "seed", "frames_per_clip", "camera_width_px",
+                 "camera_height_px", "bev_resolution_m", "epochs", "batch_size", "tag_weight"):
         value = getattr(args, name, None)
         if value is not None:
             overrides[name] = value

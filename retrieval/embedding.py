@@ -147,7 +147,7 @@ class ModelEmbedder:
             from encoders.data import ClipDataset
 
             with torch.inference_mode():
-                ids, views = embed_dataset_views(self.model, ClipDataset(clips_dir, split=split),
+                ids, views = embed_dataset_views(self.model, ClipDataset(clips_dir, split=split, as_uint8=True),
                                                  batch_size=self.batch_size)
             self._views_key, self._views = key, ([str(i) for i in ids], views)
         ids, views = self._views

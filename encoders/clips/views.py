@@ -71,6 +71,48 @@ def object_footprint(
     return rasterize_track(grid, np.asarray(arrays.track_boxes[indices, k]))
 
 
+def warp_source_cells(
+    grid: BevGrid, theta_rad: float, shift_xy_m: NDArray[np.floating]
+) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """Where each cell of a BEV layer rotated by ``theta_rad`` about the ego origin, then shifted by
+    ``shift_xy_m``, comes from: computed once per clip, applied to every layer by :func:`gather_cells`.
+
+    A point at ego ``p`` moves to ``R(θ)·p + shift``; the nearest source cell is taken.
+
+    Returns:
+        ``source`` (H·W,) flat source cell of each destination cell (0 where it lies outside the
+        grid), and ``outside`` (n,) the flat destination cells whose source lies outside (they get 0).
+    """
+    h, w = grid.shape
+    # Destination cell at p' comes from p = R(−θ)(p' − shift): the source-from-destination pose.
+    cos, sin = np.cos(theta_rad), np.sin(theta_rad)
+    rot_inv = np.array([[cos, sin], [-sin, cos]])
+    source_SE3_grid = np.eye(3)
+    source_SE3_grid[:2, :2] = rot_inv
+    source_SE3_grid[:2, 2] = -rot_inv @ np.asarray(shift_xy_m, dtype=np.float64)
+    affine = grid_affine_from(grid, grid, source_SE3_grid)
+    cols, rows = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
+    src_col = np.rint(affine[0, 0] * cols + affine[0, 1] * rows + affine[0, 2]).astype(np.int64)
+    src_row = np.rint(affine[1, 0] * cols + affine[1, 1] * rows + affine[1, 2]).astype(np.int64)
+    inside = (src_col >= 0) & (src_col < w) & (src_row >= 0) & (src_row < h)
+    source = np.where(inside, src_row * w + src_col, 0).ravel()
+    return source, np.flatnonzero(~inside.ravel())
+
+
+def gather_cells(
+    layers: NDArray[np.uint8], source: NDArray[np.int64], outside: NDArray[np.int64], out: NDArray[np.uint8]
+) -> None:
+    """Write ``layers`` (T, C, H, W) warped by :func:`warp_source_cells` into ``out`` (same shape,
+    C-contiguous, e.g. a slot of a batch tensor): one gather for all planes, then the few cells
+    that come from outside the grid are cleared."""
+    t, c, h, w = layers.shape
+    flat_out = out.reshape(t * c, h * w)  # a view: ``out`` is contiguous
+    # mode="clip" skips the bounds check and lets numpy write straight into ``out`` (no buffer).
+    np.take(np.ascontiguousarray(layers).reshape(t * c, h * w), source, axis=1, out=flat_out, mode="clip")
+    if outside.size:
+        flat_out[:, outside] = 0
+
+
 def warp_bev(
     bev: NDArray[np.uint8], grid: BevGrid, theta_rad: float, shift_xy_m: NDArray[np.floating]
 ) -> NDArray[np.uint8]:
@@ -87,23 +129,10 @@ def warp_bev(
     Returns:
         (T, C, H, W) uint8, nearest cell.
     """
-    t, c, h, w = bev.shape
-    # Destination cell at p' comes from p = R(−θ)(p' − shift): the source-from-destination pose.
-    cos, sin = np.cos(theta_rad), np.sin(theta_rad)
-    rot_inv = np.array([[cos, sin], [-sin, cos]])
-    source_SE3_grid = np.eye(3)
-    source_SE3_grid[:2, :2] = rot_inv
-    source_SE3_grid[:2, 2] = -rot_inv @ np.asarray(shift_xy_m, dtype=np.float64)
-    affine = grid_affine_from(grid, grid, source_SE3_grid)
-    # Nearest source cell of every destination cell, gathered for all planes at once.
-    cols, rows = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
-    src_col = np.rint(affine[0, 0] * cols + affine[0, 1] * rows + affine[0, 2]).astype(np.int64)
-    src_row = np.rint(affine[1, 0] * cols + affine[1, 1] * rows + affine[1, 2]).astype(np.int64)
-    inside = (src_col >= 0) & (src_col < w) & (src_row >= 0) & (src_row < h)
-    index = np.where(inside, src_row * w + src_col, 0).ravel()
-    out = np.take(np.ascontiguousarray(bev).reshape(t * c, h * w), index, axis=1)  # (T·C, H·W)
-    out[:, ~inside.ravel()] = 0
-    return out.reshape(t, c, h, w)
+    source, outside = warp_source_cells(grid, theta_rad, shift_xy_m)
+    out = np.empty(bev.shape, dtype=np.uint8)
+    gather_cells(bev, source, outside, out)
+    return out
 
 
 def ego_motion(pose_xy_yaw: NDArray[np.float64], speed_mps: NDArray[np.float64],

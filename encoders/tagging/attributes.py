@@ -12,7 +12,9 @@ vehicle_density        continuous  fraction of the cell covered by vehicle boxes
 pedestrian_density     continuous  fraction of the cell covered by pedestrian boxes, in [0, 1]
 vehicle_speed          continuous  speed (m/s) of the vehicle whose box holds the cell centre, 0 elsewhere
 parked … braking_for   discrete    1 inside the box of a vehicle with that behaviour label
-three_way, four_way    discrete    1 inside a junction of that kind (``junctions.feather``)
+three_way, four_way    discrete    1 in the area of a junction of that kind (``junctions.feather``): its
+                                   outline and the last 20 m of the lanes entering it, where the
+                                   behaviour labels put a vehicle at the junction
 =====================  ==========  ==================================================================
 
 Regions (:class:`Region`), in the ego frame (x forward, y left, metres; the ego origin is the

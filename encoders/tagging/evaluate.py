@@ -6,7 +6,8 @@ targets area-pooled for densities, max-pooled otherwise; map regions from the re
 per attribute × region:
 
 - continuous: **L1** between pooled prediction and pooled truth, averaged over frames (densities in
-  m² covered, ``vehicle_speed`` in m/s);
+  m² covered, ``vehicle_speed`` in m/s), after a calibration ``max(0, a · pred + b)`` fitted per
+  attribute × region on the ``val`` split (:func:`calibrate_l1`; ``raw_value`` is the L1 without it);
 - discrete: **F1** over frames of "the attribute occurs in the region" (truth: any positive cell;
   prediction: pooled probability ≥ a threshold chosen per attribute × region on the ``val`` split,
   0.5 without one).
@@ -127,6 +128,27 @@ def best_threshold(prob: NDArray[np.floating], truth: NDArray[np.bool_]) -> floa
     return float(THRESHOLDS[int(np.argmax(scores))])
 
 
+#: Candidate scales of the validation calibration of continuous tags (0: a constant).
+CALIBRATION_SCALES = (0.0, 0.25, 0.5, 0.75, 1.0, 1.25, 1.5, 2.0)
+
+
+def calibrate_l1(pred: NDArray[np.floating], truth: NDArray[np.floating]) -> tuple[float, float]:
+    """``(scale, offset)`` of the calibration ``max(0, scale · pred + offset)`` with the lowest L1 on
+    ``(pred, truth)``: for each candidate scale the L1-optimal offset is the median residual.
+
+    Pooled continuous tags sum many cells, so a small bias per cell becomes a large one per region;
+    the validation split measures it. Scale 0 is the constant median, so a calibrated tag is never
+    worse on validation than the best constant.
+    """
+    best = (float("inf"), 1.0, 0.0)
+    for scale in CALIBRATION_SCALES:
+        offset = float(np.median(truth - scale * pred))
+        l1 = float(np.abs(np.maximum(0.0, scale * pred + offset) - truth).mean())
+        if l1 < best[0] - 1e-9:
+            best = (l1, scale, offset)
+    return best[1], best[2]
+
+
 @dataclass
 class SplitPooled:
     """Pooled values of the logs of a split."""
@@ -160,11 +182,20 @@ def metrics_by_region(test: SplitPooled, val: SplitPooled | None) -> dict[str, d
         out[a] = {}
         for r, truth in regions.items():
             pred = test.pred[a][r]
+            has_val = val is not None and val.pred is not None and a in val.pred and r in val.pred[a]
             if attribute_kind(a) == AttributeKind.CONTINUOUS:
-                out[a][r] = {"metric": "L1", "value": round(float(np.abs(pred - truth).mean()), 4)}
+                scale, offset = 1.0, 0.0
+                if has_val:
+                    assert val is not None and val.pred is not None
+                    scale, offset = calibrate_l1(val.pred[a][r], val.truth[a][r])
+                calibrated = np.maximum(0.0, scale * pred + offset)
+                out[a][r] = {"metric": "L1", "value": round(float(np.abs(calibrated - truth).mean()), 4),
+                             "raw_value": round(float(np.abs(pred - truth).mean()), 4),
+                             "calibration": {"scale": scale, "offset": round(offset, 4)}}
                 continue
             thr = 0.5
-            if val is not None and val.pred is not None and a in val.pred and r in val.pred[a]:
+            if has_val:
+                assert val is not None and val.pred is not None
                 thr = best_threshold(val.pred[a][r], val.truth[a][r] > 0)
             out[a][r] = {"metric": "F1", "value": round(f1_score(pred >= thr, truth > 0), 4), "threshold": thr,
                          "positives": int((truth > 0).sum()), "frames": int(truth.shape[0])}

@@ -5,12 +5,14 @@ For a log with F frames (its annotation timestamps, the frames of ``CLIPS_DIR/lo
 :data:`~encoders.tagging.attributes.ATTRIBUTES` (definitions in :mod:`encoders.tagging.attributes`):
 box coverage for densities (4 × 4 samples per cell), the behaviour flags and speed of vehicles
 inside their box footprint (a cell belongs to a box when its centre does), and the junction kinds
-from ``junctions.feather`` inside the junction outlines.
+from ``junctions.feather`` over each junction's area: its outline and the last
+:data:`~scenes.behavior.JUNCTION_APPROACH_M` metres of the lanes entering it.
 
 :func:`add_attribute_targets` is the step after ``scenesearch clips`` that writes, per log::
 
     CLIPS_DIR/logs/<log_id>/bev_attributes.npy    (F, A, H, W) float16
-    CLIPS_DIR/logs/<log_id>/bev_attributes.json   {"attributes": [names], "present": (F, A) 0/1 lists}
+    CLIPS_DIR/logs/<log_id>/bev_attributes.json   {"attributes": [names], "present": (F, A) 0/1 lists,
+                                                  "version": TARGETS_VERSION}
 
 ``present[f][a]`` says whether attribute ``a`` is non-zero anywhere in frame ``f`` (what the
 task-balanced sampler draws from). Both files are written atomically.
@@ -32,14 +34,19 @@ import pyarrow.parquet as pq
 from numpy.typing import NDArray
 
 from encoders.tagging.attributes import ATTRIBUTES, BEHAVIOR_ATTRIBUTES, Attribute, TagError
+from scenes import av2_io
 from scenes.atomic import atomic_path, atomic_write_text
-from scenes.behavior import EGO_TRACK_ID, read_behavior_labels, read_junctions
+from scenes.behavior import EGO_TRACK_ID, JUNCTION_APPROACH_M, read_behavior_labels, read_junctions
 from scenes.bev import BevGrid, box_samples
 from scenes.categories import VEHICLE_CATEGORIES, Category
 from scenes.log import Log
+from scenes.map import VectorMap, resample_polyline
 from scenes.tracks import DenseTracks
 
 TARGETS_STEM = "bev_attributes"
+#: Version of the target definitions; targets written by another version are recomputed, not reused.
+#: 2: junction kinds cover the junction's approaches, not only its outline.
+TARGETS_VERSION = 2
 TARGETS_FILE = f"{TARGETS_STEM}.npy"
 TARGETS_META_FILE = f"{TARGETS_STEM}.json"
 LOGS_DIR = "logs"
@@ -201,18 +208,64 @@ def box_values(grid: BevGrid, dense: DenseTracks, keep: NDArray[np.bool_], frame
     return out
 
 
+def approach_strips(vector_map: VectorMap, outline_xy_m: NDArray[np.floating],
+                    approach_m: float) -> list[NDArray[np.float64]]:
+    """The last ``approach_m`` metres of every lane entering a junction, as (N, 2) city polygons.
+
+    A lane enters the junction when one of its successors is an intersection lane whose midpoint
+    lies inside the junction's outline; a lane shorter than ``approach_m`` continues onto its
+    non-intersection predecessors, so each strip reaches back ``approach_m`` along the road.
+    """
+    outline = np.asarray(outline_xy_m, np.float32).reshape(-1, 1, 2)
+    lanes = vector_map.lane_segments
+
+    def inside(lane_id: int) -> bool:
+        mid = lanes[lane_id].centerline(3)[1, :2]
+        return cv2.pointPolygonTest(outline, (float(mid[0]), float(mid[1])), False) >= 0
+
+    entering = {p for lid, seg in lanes.items() if seg.is_intersection and inside(lid)
+                for p in seg.predecessors if p in lanes and not lanes[p].is_intersection}
+    strips: list[NDArray[np.float64]] = []
+    frontier = [(lid, float(approach_m)) for lid in sorted(entering)]
+    seen: set[int] = set()
+    while frontier:
+        lid, remaining = frontier.pop()
+        if lid in seen or remaining <= 0:
+            continue
+        seen.add(lid)
+        seg = lanes[lid]
+        centre = seg.centerline(2)
+        length = float(np.linalg.norm(centre[-1, :2] - centre[0, :2]))
+        n = max(2, int(np.ceil(length)) + 1)  # about one point per metre
+        left, right = resample_polyline(seg.left_lane_boundary, n), resample_polyline(seg.right_lane_boundary, n)
+        arc = np.linspace(0.0, length, n)
+        keep = arc >= length - remaining
+        if keep.sum() >= 2:
+            strips.append(np.concatenate([left[keep, :2], right[keep, :2][::-1]]))
+        if length < remaining:
+            back = [p for p in seg.predecessors if p in lanes and not lanes[p].is_intersection]
+            frontier += [(p, remaining - length) for p in back]
+    return strips
+
+
 def junction_masks(log_dir: Path, grid: BevGrid, city_SE3_ego: NDArray[np.floating],
-                   kinds: Sequence[str]) -> NDArray[np.float32]:
-    """Junction outlines of each kind in every frame's ego grid.
+                   kinds: Sequence[str], approach_m: float = JUNCTION_APPROACH_M) -> NDArray[np.float32]:
+    """Junction areas of each kind in every frame's ego grid.
+
+    A junction's area is its outline and the last ``approach_m`` metres of the lanes entering it
+    (the simulator's behaviour labels put a vehicle "at" a junction on the same stretch, see
+    :data:`scenes.behavior.JUNCTION_APPROACH_M`): vehicles queueing at a junction are at it.
+    Without a map only the outlines are drawn.
 
     Args:
-        log_dir: the log (reads ``junctions.feather``; absent → zeros).
+        log_dir: the log (reads ``junctions.feather``, absent → zeros, and the vector map).
         grid: the BEV grid.
         city_SE3_ego: (F, 4, 4) ego poses.
         kinds: junction kinds, e.g. ``("three_way", "four_way")``.
+        approach_m: length of the approach strips; 0 for outlines only.
 
     Returns:
-        (F, len(kinds), H, W) float32, 1 where the cell centre is inside a junction of that kind.
+        (F, len(kinds), H, W) float32, 1 where the cell centre is in a junction area of that kind.
     """
     poses = np.asarray(city_SE3_ego, dtype=np.float64)
     f = poses.shape[0]
@@ -225,16 +278,23 @@ def junction_masks(log_dir: Path, grid: BevGrid, city_SE3_ego: NDArray[np.floati
     xs = table.column("polygon_x_m").to_pylist()
     ys = table.column("polygon_y_m").to_pylist()
     polys = [np.stack([np.asarray(x, float), np.asarray(y, float)], 1) for x, y in zip(xs, ys)]
-    pts = np.concatenate([p for p in polys if p.shape[0]]) if any(p.shape[0] for p in polys) else np.zeros((0, 2))
+    map_path = av2_io.find_map_file(Path(log_dir)) if approach_m > 0 else None
+    vector_map = av2_io.read_map(map_path) if map_path is not None else None
+    areas: list[tuple[str, list[NDArray[np.float64]]]] = []
+    for poly, kind in zip(polys, kind_col):
+        if kind in kinds and poly.shape[0] >= 3:
+            strips = approach_strips(vector_map, poly, approach_m) if vector_map is not None else []
+            areas.append((kind, [poly, *strips]))
+    pts = np.concatenate([p for _, ps in areas for p in ps]) if areas else np.zeros((0, 2))
     if pts.shape[0] == 0:
         return out
     res = 0.5 * grid.resolution_m
     origin = pts.min(axis=0) - 1.0
     size = np.ceil((pts.max(axis=0) + 1.0 - origin) / res).astype(int) + 1
     city = np.zeros((len(kinds), int(size[1]), int(size[0])), np.uint8)
-    for poly, kind in zip(polys, kind_col):
-        if kind in kinds and poly.shape[0] >= 3:
-            px = np.round(((poly - origin) / res - 0.5) * 16).astype(np.int32)
+    for kind, shapes in areas:
+        for shape in shapes:
+            px = np.round(((shape - origin) / res - 0.5) * 16).astype(np.int32)
             cv2.fillPoly(city[list(kinds).index(kind)], [px], 1, lineType=cv2.LINE_8, shift=4)
     cells = grid.cell_centers_xy().reshape(-1, 2)  # (H*W, 2) ego x, y
     for lo in range(0, f, _CHUNK_FRAMES):
@@ -326,7 +386,14 @@ def write_targets(folder: Path, targets: NDArray[np.floating], names: Sequence[s
     present = (arr.reshape(arr.shape[0], arr.shape[1], -1) != 0).any(axis=2).astype(np.uint8)
     with atomic_path(folder / f"{stem}.npy") as tmp, open(tmp, "wb") as fh:
         np.save(fh, arr, allow_pickle=False)
-    atomic_write_text(folder / f"{stem}.json", json.dumps({"attributes": list(names), "present": present.tolist()}))
+    meta = {"attributes": list(names), "present": present.tolist(), "version": TARGETS_VERSION}
+    atomic_write_text(folder / f"{stem}.json", json.dumps(meta))
+
+
+def targets_version(clips_dir: Path | str, log_id: str, stem: str = TARGETS_STEM) -> int:
+    """The :data:`TARGETS_VERSION` a log's targets were written with (1 for files without one)."""
+    meta = json.loads((Path(clips_dir) / LOGS_DIR / log_id / f"{stem}.json").read_text())
+    return int(meta.get("version", 1))
 
 
 def add_attribute_targets(
@@ -351,7 +418,7 @@ def add_attribute_targets(
         if not (folder / "frames.parquet").is_file():
             report.skipped.append({"log_id": log_id, "reason": "not rendered in the clips folder"})
             continue
-        if not overwrite and has_targets(clips_dir, log_id):
+        if not overwrite and has_targets(clips_dir, log_id) and targets_version(clips_dir, log_id) == TARGETS_VERSION:
             report.reused.append(log_id)
             continue
         try:

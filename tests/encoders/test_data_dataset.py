@@ -13,7 +13,7 @@ import torch
 from encoders.clips.build import build_clips
 from encoders.clips.config import ClipsConfig
 from encoders.clips.testing import synthetic_captions, write_synthetic_log
-from encoders.data import AugmentConfig, ClipDataset, collate_clips, read_clip_table, read_manifest
+from encoders.data import AugmentConfig, ClipDataset, collate_clips, read_clip_table, read_manifest, to_float
 from scenes.bev import BevGrid
 
 
@@ -115,3 +115,20 @@ def test_collate_and_worker_loading(clips_dir: Path) -> None:
     assert bool(((cam > 0) == batch["has_camera"]).all())
     same = ClipDataset(clips_dir, augment=True)
     np.testing.assert_allclose(batch["bev_map"][1].numpy(), same[1]["bev_map"].numpy())
+
+
+def test_uint8_batches_match_the_float_interface(clips_dir: Path) -> None:
+    floats = ClipDataset(clips_dir, augment=True, seed=2)
+    raw = ClipDataset(clips_dir, augment=True, seed=2, as_uint8=True)
+    indices = [0, 3, 5]
+    a, b = floats.__getitems__(indices), raw.__getitems__(indices)
+    for key in ("camera", "bev_lidar", "bev_map", "bev_object"):
+        assert b[key].dtype == torch.uint8 and a[key].dtype == torch.float32
+        torch.testing.assert_close(b[key].float() / 255.0, a[key])
+        # A batch is the items, stacked: same fill whether fetched alone or together.
+        torch.testing.assert_close(raw[indices[1]][key], b[key][1])
+    torch.testing.assert_close(a["ego_motion"], b["ego_motion"])
+    assert a["caption"] == b["caption"] and a["clip_id"] == [floats.clip_ids[i] for i in indices]
+    converted = to_float(b)
+    for key in ("camera", "bev_lidar", "bev_map", "bev_object"):
+        torch.testing.assert_close(converted[key], a[key])

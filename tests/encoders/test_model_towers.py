@@ -134,3 +134,15 @@ def test_encode_views_equals_encode_video_per_view() -> None:
         views = model.encode_views(batch)
         for view in ("camera", "bev", "fused"):
             torch.testing.assert_close(views[view], model.encode_video(batch, view=view), rtol=1e-5, atol=1e-5)
+
+
+def test_uint8_batches_are_converted_on_the_device(model: DualEncoder, batch: dict[str, Any]) -> None:
+    # Quantise the float views to bytes, as `ClipDataset(as_uint8=True)` delivers them.
+    as_bytes = dict(batch)
+    quantised = dict(batch)
+    for key in ("camera", "bev_lidar", "bev_map", "bev_object"):
+        as_bytes[key] = (batch[key] * 255).round().to(torch.uint8)
+        quantised[key] = as_bytes[key].float() / 255.0
+    with torch.no_grad():
+        torch.testing.assert_close(model.encode_video(as_bytes), model.encode_video(quantised))
+        torch.testing.assert_close(model.bev_embedding(as_bytes), model.bev_embedding(quantised))

@@ -122,3 +122,14 @@ def test_parse_tag_expressions_and_their_errors() -> None:
         parse_tag_expression("stopped & braking | parked")
     with pytest.raises(TagError, match="empty"):
         parse_tag_expression("  ")
+
+
+def test_l1_calibration_fits_scale_and_offset_and_falls_back_to_a_constant() -> None:
+    from encoders.tagging.evaluate import calibrate_l1
+
+    rng = np.random.default_rng(0)
+    truth = rng.uniform(0.0, 4.0, 200).astype(np.float32)
+    scale, offset = calibrate_l1(2.0 * truth + 3.0, truth)  # biased and stretched predictions
+    assert scale == 0.5 and offset == pytest.approx(-1.5, abs=1e-5)
+    scale, offset = calibrate_l1(rng.uniform(0, 1, 200).astype(np.float32), truth)  # noise → the median
+    assert scale == 0.0 and offset == pytest.approx(float(np.median(truth)))

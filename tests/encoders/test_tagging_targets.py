@@ -9,10 +9,11 @@ import pytest
 
 from encoders.clips.testing import write_synthetic_log
 from encoders.tagging.attributes import ATTRIBUTES, Attribute, TagError
-from encoders.tagging.targets import behavior_grid, rasterize_targets, write_targets
+from encoders.tagging.targets import approach_strips, behavior_grid, rasterize_targets, write_targets
 from encoders.tagging.testing import add_synthetic_labels
 from scenes.bev import BevGrid
 from scenes.log import Log
+from scenes.map import LaneSegment, VectorMap
 
 NUM_FRAMES = 6
 
@@ -87,3 +88,24 @@ def test_every_behaviour_label_is_a_tag_attribute() -> None:
     from scenes.behavior import BehaviorLabel
 
     assert {label.value for label in BehaviorLabel} <= {attribute.value for attribute in Attribute}
+
+
+def _lane(lane_id: int, x0: float, x1: float, inter: bool, succ: tuple[int, ...] = (),
+          pred: tuple[int, ...] = ()) -> LaneSegment:
+    """A lane along +x between x0 and x1 with y ∈ [−3.5, 0] (left boundary at y = 0)."""
+    left = np.array([[x0, 0.0, 0.0], [x1, 0.0, 0.0]])
+    right = np.array([[x0, -3.5, 0.0], [x1, -3.5, 0.0]])
+    return LaneSegment(lane_id, inter, "VEHICLE", left, right, successors=succ, predecessors=pred)
+
+
+def test_approach_strips_reach_back_along_entering_lanes() -> None:
+    # 12 m lane → 10 m lane → junction lane inside the outline x ∈ [0, 10] → exit lane.
+    lanes = {1: _lane(1, -22.0, -10.0, False, (2,)), 2: _lane(2, -10.0, 0.0, False, (3,), (1,)),
+             3: _lane(3, 0.0, 10.0, True, (4,), (2,)), 4: _lane(4, 10.0, 30.0, False, (), (3,))}
+    outline = np.array([[0.0, -10.0], [10.0, -10.0], [10.0, 10.0], [0.0, 10.0]])
+    strips = approach_strips(VectorMap(lanes), outline, approach_m=15.0)
+    xs = sorted((float(s[:, 0].min()), float(s[:, 0].max())) for s in strips)
+    # All of lane 2 (10 m) and the last 5 m of lane 1; nothing of the exit lane.
+    assert xs[0] == pytest.approx((-15.0, -10.0), abs=0.6) and xs[1] == pytest.approx((-10.0, 0.0))
+    assert len(strips) == 2 and all(s[:, 1].min() == pytest.approx(-3.5) for s in strips)
+    assert approach_strips(VectorMap(lanes), outline + 100.0, approach_m=15.0) == []  # another junction

@@ -203,3 +203,18 @@ def test_kinds_without_a_knob_still_measure_recall(data: Data, monkeypatch: pyte
     monkeypatch.setattr("indexes.vector_index.EXACT_FILTER_MAX", 0)
     _, I = index.search(data[1], 5, filter=np.arange(0, 3000, 2))
     assert (I % 2 == 0).all() and (I >= 0).all()
+
+
+def test_small_searches_run_faiss_on_one_thread_and_restore_the_setting() -> None:
+    from indexes.vector_index import SMALL_BATCH_QUERIES, faiss_threads_for
+
+    before = faiss.omp_get_max_threads()
+    faiss.omp_set_num_threads(2)
+    try:
+        with faiss_threads_for(1):
+            assert faiss.omp_get_max_threads() == 1
+        assert faiss.omp_get_max_threads() == 2
+        with faiss_threads_for(SMALL_BATCH_QUERIES):
+            assert faiss.omp_get_max_threads() == 2
+    finally:
+        faiss.omp_set_num_threads(before)

@@ -147,13 +147,14 @@ class TagSearch:
             return self._frames[log_id]
         log = Log.open(log_dir)
         config = ClipsConfig.from_dict(self.tagger.meta.get("clips_config") or {}, source=str(self.run_dir))
+        dense = log.dense_tracks()
         folder = None
         for root in (self.clips_dir, self.cache_dir):
-            if root is not None and rendered_log_ok(root / LOGS_DIR / log_id, config):
+            if root is not None and rendered_log_ok(root / LOGS_DIR / log_id, config, dense):
                 folder = root / LOGS_DIR / log_id
                 break
         if folder is None:
-            render_log(log, config, self.cache_dir)
+            render_log(log, config, self.cache_dir, dense)
             folder = self.cache_dir / LOGS_DIR / log_id
         ts = pq.read_table(folder / "frames.parquet", columns=["timestamp_ns"]).column(0).to_numpy()
         frames = LogFrames(log_id, ts.astype(np.int64), np.load(folder / "bev_lidar.npy", mmap_mode="r"),

@@ -168,7 +168,7 @@ def build_clips(
         log = logs[log_id]
         folder = clips_dir / LOGS_DIR / log_id
         t0 = time.perf_counter()
-        if reuse and rendered_log_ok(folder, config):
+        if reuse and rendered_log_ok(folder, config, dense[log_id]):
             stats = read_render_stats(folder)
             report.reused_logs += 1
         else:

@@ -76,6 +76,19 @@ def render_fingerprint(config: ClipsConfig) -> str:
     return hashlib.sha256(json.dumps(payload, sort_keys=True, default=str).encode()).hexdigest()[:16]
 
 
+def log_fingerprint(dense: DenseTracks) -> str:
+    """Hash of a log's content as rendering sees it: frame times, track ids, boxes and ego poses.
+
+    A log written again into the same folder (e.g. simulated anew) gets a new fingerprint, so its
+    old rendering is never reused.
+    """
+    h = hashlib.sha256()
+    for array in (dense.timestamps_ns, dense.valid, dense.center_city_xyz_m, dense.size_lwh_m, dense.city_SE3_ego):
+        h.update(np.ascontiguousarray(array).tobytes())
+    h.update("\0".join(map(str, dense.track_ids)).encode())
+    return h.hexdigest()[:16]
+
+
 @dataclass
 class LogRenderStats:
     """What rendering one log did; kept in ``render.json`` and the manifest.
@@ -97,6 +110,7 @@ class LogRenderStats:
         bytes: disk used by the log's arrays.
         render_s: wall time.
         fingerprint: :func:`render_fingerprint` of the config used.
+        log_fingerprint: :func:`log_fingerprint` of the log rendered.
     """
 
     log_id: str
@@ -114,6 +128,7 @@ class LogRenderStats:
     bytes: int = 0
     render_s: float = 0.0
     fingerprint: str = ""
+    log_fingerprint: str = ""
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -401,15 +416,18 @@ def _frames_table(
     )
 
 
-def rendered_log_ok(folder: Path, config: ClipsConfig) -> bool:
-    """Whether ``folder`` holds a complete rendering made with an equivalent config."""
+def rendered_log_ok(folder: Path, config: ClipsConfig, dense: DenseTracks) -> bool:
+    """Whether ``folder`` holds a complete rendering of this log's content (``dense``) made with an
+    equivalent config."""
     path = folder / "render.json"
     if not path.is_file():
         return False
     try:
-        return bool(json.loads(path.read_text()).get("fingerprint") == render_fingerprint(config))
+        data = json.loads(path.read_text())
     except (OSError, json.JSONDecodeError):
         return False
+    return bool(data.get("fingerprint") == render_fingerprint(config)
+                and data.get("log_fingerprint") == log_fingerprint(dense))
 
 
 def read_render_stats(folder: Path) -> LogRenderStats:
@@ -425,7 +443,8 @@ def render_log(log: Log, config: ClipsConfig, clips_dir: Path, dense: DenseTrack
     start = time.perf_counter()
     dense = log.dense_tracks() if dense is None else dense
     grid = bev_grid(config)
-    stats = LogRenderStats(log_id=log.log_id, fingerprint=render_fingerprint(config))
+    stats = LogRenderStats(log_id=log.log_id, fingerprint=render_fingerprint(config),
+                           log_fingerprint=log_fingerprint(dense))
     frame_ts = dense.timestamps_ns
     f = frame_ts.shape[0]
     stats.frames, stats.tracks = f, int(dense.track_ids.shape[0])

@@ -3,6 +3,7 @@ and the marked BEV cell follow the right track, LiDAR is motion-compensated, bad
 
 from __future__ import annotations
 
+import shutil
 from dataclasses import replace
 from pathlib import Path
 
@@ -195,6 +196,18 @@ def test_corrupt_sweep_is_skipped_counted_and_reported(tmp_path: Path) -> None:
     # A second run reuses the rendered log.
     again = build_clips([log_dir], tmp_path / "c", tmp_path / "clips", CONFIG)
     assert again.reused_logs == 1 and again.num_clips == report.num_clips
+
+
+def test_a_log_written_anew_is_rendered_again(tmp_path: Path) -> None:
+    log_dir = write_synthetic_log(tmp_path / "logs", num_frames=12, with_camera=False, ego_speed_mps=5.0)
+    (tmp_path / "c").mkdir()
+    pq.write_table(synthetic_captions([log_dir], 1, 10), tmp_path / "c" / "captions.parquet")
+    build_clips([log_dir], tmp_path / "c", tmp_path / "clips", CONFIG)
+    # The same log id, simulated again with other content (a longer log, another ego speed).
+    shutil.rmtree(log_dir)
+    write_synthetic_log(tmp_path / "logs", num_frames=16, with_camera=False, ego_speed_mps=8.0)
+    again = build_clips([log_dir], tmp_path / "c", tmp_path / "clips", CONFIG)
+    assert again.reused_logs == 0 and again.logs[log_dir.name]["frames"] == 16
 
 
 def test_cli_writes_clips_and_previews(built: tuple[Path, Path], tmp_path: Path, capsys: pytest.CaptureFixture) -> None:

@@ -23,6 +23,9 @@ from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+from numpy.typing import NDArray
+
 from scenes.atomic import atomic_write_text
 
 DEFAULT_QUERIES = (
@@ -335,17 +338,61 @@ class Demo:
         (self.out_dir / "plots").mkdir(parents=True, exist_ok=True)
         fig.savefig(self.out_dir / "plots" / "tags_over_time.png", dpi=90)
         plt.close(fig)
-        spans = tags.find(logs, "stopped", "front", threshold=0.5, min_duration_s=1.0, k=5)
+        split_of = {str(r["log_id"]): str(r.get("split")) for r in meta.to_pylist()}
+        held = {s: [d for d in self.log_dirs() if split_of.get(d.name) == s] for s in ("val", "train")}
+        threshold, truth, source = self._tag_threshold(tags, "stopped", "front", held, logs)
+        spans = tags.find(logs, "stopped", "front", threshold=threshold, min_duration_s=1.0, k=5)
         first_ns = {d.name: int(tags.frames(d).timestamps_ns[0]) for d in logs}
+        confirmed = []
+        for s in spans:
+            ts = tags.frames(next(d for d in logs if d.name == s.log_id)).timestamps_ns
+            inside = (ts >= s.start_ns) & (ts <= s.end_ns)
+            hit = truth.get(s.log_id)
+            confirmed.append(None if hit is None else float(hit[inside].mean()) if inside.any() else 0.0)
         rows = "".join(f"<tr><td>{html.escape(s.log_id[:8])}</td><td>{(s.start_ns - first_ns[s.log_id]) * 1e-9:.1f}"
-                       f"</td><td>{s.duration_s:.1f}</td><td>{s.score:.2f}</td></tr>" for s in spans)
-        self.say(f"tags: {len(spans)} spans where a vehicle is stopped in front, in {len(logs)} test log(s)")
+                       f"</td><td>{s.duration_s:.1f}</td><td>{s.score:.2f}</td>"
+                       f"<td>{'–' if c is None else f'{c:.0%}'}</td></tr>" for s, c in zip(spans, confirmed))
+        known = [c for c in confirmed if c is not None]
+        precision = f"; the labels confirm {sum(c > 0.5 for c in known)} of {len(known)}" if known else ""
+        self.say(f"tags: {len(spans)} spans where a vehicle is stopped in front, in {len(logs)} test log(s) "
+                 f"(threshold {threshold:.2f} from the {source}{precision})")
         return ["<h2>Spatio-temporal tags from the universal BEV embedding</h2>",
                 "<p>Pooled attribute values over a held-out log (densities in m², probabilities otherwise):</p>",
                 "<img src='plots/tags_over_time.png' alt='tags over time'>",
                 "<h3>scenesearch find RUN LOG... --tag stopped --region front</h3>",
-                "<table><tr><th>log</th><th>start (s into the log)</th><th>duration (s)</th><th>score</th></tr>"
-                f"{rows}</table>" if spans else "<p>no span above 0.5</p>"]
+                f"<p>Test logs; threshold {threshold:.2f}, the best frame F1 against the behaviour labels on the "
+                f"{source}. <i>labelled</i>: share of the span's frames whose labels put a stopped vehicle "
+                f"in front{html.escape(precision)}.</p>",
+                "<table><tr><th>log</th><th>start (s into the log)</th><th>duration (s)</th><th>score</th>"
+                f"<th>labelled</th></tr>{rows}</table>" if spans else f"<p>no span above {threshold:.2f}</p>"]
+
+    def _tag_threshold(self, tags: Any, attribute: str, region: str, held: dict[str, list[Path]],
+                       test_logs: list[Path]) -> tuple[float, dict[str, NDArray[np.bool_]], str]:
+        """The span threshold with the best frame F1 on the validation logs — on the training logs
+        when no validation frame is positive — (0.5 without labels), the per-frame truth of the test
+        logs (empty without tag targets), and which logs chose the threshold."""
+        from encoders.tagging.evaluate import best_threshold, pooled_truth_and_pred
+        from encoders.tagging.targets import has_targets
+
+        factor = tags.tagger.downsample
+
+        def truth_of(d: Path) -> NDArray[np.bool_] | None:
+            if not has_targets(self.clips_dir, d.name):
+                return None
+            pooled = pooled_truth_and_pred(self.clips_dir, d.name, None, factor, (attribute,))[0]
+            return np.asarray(pooled[attribute][region] > 0)
+
+        threshold, source = 0.5, "default (no labelled logs)"
+        for split, logs in held.items():
+            labelled = [(d, t) for d, t in ((d, truth_of(d)) for d in logs) if t is not None]
+            if not any(t.any() for _, t in labelled):
+                continue
+            pred = np.concatenate([tags.series(d, attribute, region)[1] for d, _ in labelled])
+            threshold = best_threshold(pred, np.concatenate([t for _, t in labelled]))
+            source = {"val": "validation logs", "train": "training logs"}[split]
+            break
+        test = {d.name: truth_of(d) for d in test_logs}
+        return threshold, {k: v for k, v in test.items() if v is not None}, source
 
 
 def config_from_args(args: argparse.Namespace) -> DemoConfig:

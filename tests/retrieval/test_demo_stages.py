@@ -57,6 +57,7 @@ def test_stages_run_in_order_with_sizes(tmp_path: Path) -> None:
     clips_yaml = (demo.out_dir / "clips.yaml").read_text()
     assert clips[clips.index("--config") + 1] == str(demo.out_dir / "clips.yaml")
     assert "width_px: 40" in clips_yaml and "resolution_m: 2.0" in clips_yaml
+    assert "split: {train_fraction: 0.6, val_fraction: 0.15}" in clips_yaml  # test: the default quarter
     train = demo.calls[3]
     assert train[train.index("--epochs") + 1] == "3" and train[train.index("--batch-size") + 1] == "4"
 
@@ -85,6 +86,8 @@ def test_config_from_flags() -> None:
     assert config.sensors is False and config.queries == ("a bus stops",)
     with pytest.raises(ValueError, match="logs must be at least 1"):
         DemoConfig(logs=0)
+    with pytest.raises(ValueError, match="test_fraction must lie in"):
+        DemoConfig(test_fraction=0.9)
     with pytest.raises(ValueError, match="unknown stage 'deploy'"):
         _demo(Path("/nonexistent"), DemoConfig()).run(["deploy"])
 

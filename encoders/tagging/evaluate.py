@@ -9,8 +9,9 @@ per attribute × region:
   m² covered, ``vehicle_speed`` in m/s), after a calibration ``max(0, a · pred + b)`` fitted per
   attribute × region on the ``val`` split (:func:`calibrate_l1`; ``raw_value`` is the L1 without it);
 - discrete: **F1** over frames of "the attribute occurs in the region" (truth: any positive cell;
-  prediction: pooled probability ≥ a threshold chosen per attribute × region on the ``val`` split,
-  0.5 without one).
+  prediction: pooled probability ≥ a threshold chosen per attribute × region on the ``val`` split —
+  on a few training logs where no validation frame is positive, 0.5 without either; 0, "always
+  present", is a candidate, as it is the statistics row's answer).
 
 The **dataset-statistics** baseline (inputs ``none``) predicts, per attribute × region, a constant
 from the training split: the median pooled value (continuous, the L1-optimal constant) or
@@ -120,12 +121,18 @@ def f1_score(pred: NDArray[np.bool_], truth: NDArray[np.bool_]) -> float:
     return 0.0 if tp == 0 else 2 * tp / (2 * tp + fp + fn)
 
 
-def best_threshold(prob: NDArray[np.floating], truth: NDArray[np.bool_]) -> float:
-    """The threshold of :data:`THRESHOLDS` with the best F1 (0.5 when nothing is positive)."""
+def best_threshold(prob: NDArray[np.floating], truth: NDArray[np.bool_], allow_always: bool = False) -> float:
+    """The threshold of :data:`THRESHOLDS` with the best F1 (0.5 when nothing is positive).
+
+    ``allow_always`` adds 0, "present in every frame" — the constant answer of the
+    dataset-statistics row — as the last candidate, so a tag whose scores do not separate the
+    frames falls back to it rather than to a worse threshold (ties keep the real threshold).
+    """
     if not truth.any():
         return 0.5
-    scores = [f1_score(prob >= t, truth) for t in THRESHOLDS]
-    return float(THRESHOLDS[int(np.argmax(scores))])
+    candidates = np.concatenate([THRESHOLDS, [0.0]]) if allow_always else THRESHOLDS
+    scores = [f1_score(prob >= t, truth) for t in candidates]
+    return float(candidates[int(np.argmax(scores))])
 
 
 #: Candidate scales of the validation calibration of continuous tags (0: a constant).
@@ -174,8 +181,14 @@ def pool_split(clips_dir: Path, split: str, tagger: Tagger | None, factor: int,
     return SplitPooled(_concat(truths) if truths else {}, _concat(preds) if preds else None, logs)
 
 
-def metrics_by_region(test: SplitPooled, val: SplitPooled | None) -> dict[str, dict[str, dict[str, Any]]]:
-    """Table 1 of a model: ``{attr: {region: {"metric", "value", ...}}}``."""
+def metrics_by_region(test: SplitPooled, val: SplitPooled | None,
+                      fallback: SplitPooled | None = None) -> dict[str, dict[str, dict[str, Any]]]:
+    """Table 1 of a model: ``{attr: {region: {"metric", "value", ...}}}``.
+
+    F1 thresholds and L1 calibrations come from ``val``; a discrete tag with no positive frame in
+    ``val`` for a region takes its threshold from ``fallback`` (training logs) instead, 0.5 when
+    neither has one. ``threshold_from`` records which.
+    """
     out: dict[str, dict[str, dict[str, Any]]] = {}
     assert test.pred is not None
     for a, regions in test.truth.items():
@@ -193,12 +206,16 @@ def metrics_by_region(test: SplitPooled, val: SplitPooled | None) -> dict[str, d
                              "raw_value": round(float(np.abs(pred - truth).mean()), 4),
                              "calibration": {"scale": scale, "offset": round(offset, 4)}}
                 continue
-            thr = 0.5
-            if has_val:
-                assert val is not None and val.pred is not None
-                thr = best_threshold(val.pred[a][r], val.truth[a][r] > 0)
+            thr, source = 0.5, "default"
+            for name, held in (("val", val), ("train", fallback)):
+                if held is None or held.pred is None or a not in held.pred or r not in held.pred[a]:
+                    continue
+                if (held.truth[a][r] > 0).any():
+                    thr, source = best_threshold(held.pred[a][r], held.truth[a][r] > 0, allow_always=True), name
+                    break
             out[a][r] = {"metric": "F1", "value": round(f1_score(pred >= thr, truth > 0), 4), "threshold": thr,
-                         "positives": int((truth > 0).sum()), "frames": int(truth.shape[0])}
+                         "threshold_from": source, "positives": int((truth > 0).sum()),
+                         "frames": int(truth.shape[0])}
     return out
 
 
@@ -275,7 +292,8 @@ def evaluate_runs(
     split: str = "test",
     device: str = "cpu",
     progress: Callable[[str], None] | None = None,
-    max_val_logs: int | None = 3,
+    max_val_logs: int | None = None,
+    max_train_logs: int | None = 4,
 ) -> dict[str, Any]:
     """Tables 1 and 2 for a run (and the runs of the input ablation) on a clips folder's held-out logs.
 
@@ -284,7 +302,8 @@ def evaluate_runs(
         clips_dir: a clips folder whose logs have tag targets.
         input_runs: more Table 2 rows: ``{"map": RUN, "lidar": RUN}``.
         split: the held-out split.
-        max_val_logs: validation logs used to choose the F1 thresholds (None: all).
+        max_val_logs: validation logs used to choose the F1 thresholds and calibrations (None: all).
+        max_train_logs: training logs used for thresholds where no validation frame is positive.
 
     Returns:
         ``{"by_region": ..., "inputs": ..., "skill": {row: x}, "meta": {...}}`` (the layout of ``tags.json``).
@@ -308,9 +327,10 @@ def evaluate_runs(
         t0 = time.perf_counter()
         test = pool_split(clips, split, tagger, tagger.downsample, names)
         val = pool_split(clips, "val", tagger, tagger.downsample, names, max_logs=max_val_logs)
-        tables[key] = metrics_by_region(test, val if val.logs else None)
-        say(f"inputs={key}: evaluated {len(test.logs)} {split} + {len(val.logs)} val logs in "
-            f"{time.perf_counter() - t0:.1f} s")
+        held_train = pool_split(clips, "train", tagger, tagger.downsample, names, max_logs=max_train_logs)
+        tables[key] = metrics_by_region(test, val if val.logs else None, held_train if held_train.logs else None)
+        say(f"inputs={key}: evaluated {len(test.logs)} {split} + {len(val.logs)} val + {len(held_train.logs)} "
+            f"train logs in {time.perf_counter() - t0:.1f} s")
     stats = statistics_by_region(train, test_truth)
     inputs = {"none": table2_row(stats), **{k: table2_row(v) for k, v in tables.items()}}
     skills = {k: skill(row, inputs["none"]) for k, row in inputs.items()}

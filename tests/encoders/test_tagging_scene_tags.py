@@ -133,3 +133,26 @@ def test_l1_calibration_fits_scale_and_offset_and_falls_back_to_a_constant() -> 
     assert scale == 0.5 and offset == pytest.approx(-1.5, abs=1e-5)
     scale, offset = calibrate_l1(rng.uniform(0, 1, 200).astype(np.float32), truth)  # noise → the median
     assert scale == 0.0 and offset == pytest.approx(float(np.median(truth)))
+
+
+def test_thresholds_fall_back_to_always_present_and_to_training_logs() -> None:
+    from encoders.tagging.evaluate import SplitPooled, best_threshold, metrics_by_region
+
+    truth = np.array([1, 1, 1, 1, 0], bool)  # present in most frames
+    useless = np.array([0.2, 0.0, 0.9, 0.1, 0.95], np.float32)  # scores that do not separate them
+    assert best_threshold(useless, truth) != 0.0
+    assert best_threshold(useless, truth, allow_always=True) == 0.0  # F1 8/9: answering "always"
+    separating = np.array([0.9, 0.8, 0.7, 0.6, 0.1], np.float32)
+    assert best_threshold(separating, truth, allow_always=True) == 0.15  # the first with F1 1
+
+    def split(t: list[float], p: list[float]) -> SplitPooled:
+        return SplitPooled({"stopped": {"front": np.array(t, np.float32)}},
+                           {"stopped": {"front": np.array(p, np.float32)}})
+
+    test = split([1, 0, 1, 0], [0.3, 0.1, 0.35, 0.05])
+    no_positives = split([0, 0], [0.1, 0.2])
+    train = split([1, 0, 0, 1], [0.3, 0.1, 0.2, 0.4])
+    cell = metrics_by_region(test, no_positives, train)["stopped"]["front"]
+    assert cell["threshold_from"] == "train" and cell["threshold"] == 0.25 and cell["value"] == 1.0
+    cell = metrics_by_region(test, no_positives)["stopped"]["front"]
+    assert cell["threshold_from"] == "default" and cell["value"] == 0.0  # 0.5 finds nothing

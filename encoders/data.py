@@ -4,7 +4,7 @@
 >>> loader = torch.utils.data.DataLoader(ds, batch_size=32, num_workers=2, collate_fn=collate_clips)
 
 An item is a dict (with ``as_uint8=True`` the four image-like views stay uint8 0–255 — a quarter
-of the bytes to move — and :func:`to_float` converts a batch after the transfer):
+of the bytes to move; :class:`~encoders.model.DualEncoder` converts them on its own device):
 
 - ``clip_id``, ``log_id``, ``track_id``, ``category``: str
 - ``caption``: a seeded paraphrase when augmenting, else the canonical caption; ``canonical_caption``
@@ -184,7 +184,7 @@ class ClipDataset(torch.utils.data.Dataset[dict[str, Any]]):
         return arrays
 
     def _view_shapes(self, index: int) -> dict[str, tuple[int, ...]]:
-        """Per-item shapes of the image-like views and ego motion (all clips share T)."""
+        """Per-item shapes of the image-like views (all clips share T)."""
         t = self._rows[index].frame_indices.shape[0]
         arrays = self._log(self._rows[index].log_id)
         hb, wb = self._grid.shape
@@ -298,18 +298,6 @@ def _colour_jitter(rgb: NDArray[np.uint8], rng: np.random.Generator, aug: Augmen
     out = cv2.LUT(flat, lut)
     gray = cv2.cvtColor(cv2.cvtColor(out, cv2.COLOR_RGB2GRAY), cv2.COLOR_GRAY2RGB)
     return np.asarray(cv2.addWeighted(out, s, gray, 1.0 - s, 0.0), dtype=np.uint8).reshape(rgb.shape)
-
-
-def to_float(batch: dict[str, Any]) -> dict[str, Any]:
-    """A batch (or item) loaded with ``as_uint8=True`` → the float32 [0, 1] views of the interface.
-
-    Converting after the transfer (e.g. on the GPU) moves a quarter of the bytes.
-    """
-    out = dict(batch)
-    for key in UINT8_VIEWS:
-        if key in out and isinstance(out[key], torch.Tensor) and out[key].dtype == torch.uint8:
-            out[key] = out[key].to(torch.float32).mul_(1.0 / 255.0)
-    return out
 
 
 def _empty_batch(shape: tuple[int, ...], dtype: torch.dtype) -> torch.Tensor:

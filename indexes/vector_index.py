@@ -62,7 +62,6 @@ EXACT_FALLBACK_MAX = 262_144
 IdsLike = np.ndarray | Sequence[int]
 
 
-
 def prepare_build(xb: np.ndarray, ids: IdsLike | None, metric: Metric, factory: str,
                   memory_budget_bytes: int | None, config: AutoConfig) -> tuple[
         np.ndarray, np.ndarray, str, faiss.Index, dict[str, Any]]:

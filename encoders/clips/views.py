@@ -113,28 +113,6 @@ def gather_cells(
         flat_out[:, outside] = 0
 
 
-def warp_bev(
-    bev: NDArray[np.uint8], grid: BevGrid, theta_rad: float, shift_xy_m: NDArray[np.floating]
-) -> NDArray[np.uint8]:
-    """Rotate every frame by ``theta_rad`` about the ego origin, then shift it by ``shift_xy_m``.
-
-    A point at ego ``p`` moves to ``R(θ)·p + shift``; cells that come from outside the grid are 0.
-
-    Args:
-        bev: (T, C, H, W) uint8 layers.
-        grid: the grid they are on.
-        theta_rad: rotation.
-        shift_xy_m: (2,) translation in metres.
-
-    Returns:
-        (T, C, H, W) uint8, nearest cell.
-    """
-    source, outside = warp_source_cells(grid, theta_rad, shift_xy_m)
-    out = np.empty(bev.shape, dtype=np.uint8)
-    gather_cells(bev, source, outside, out)
-    return out
-
-
 def ego_motion(pose_xy_yaw: NDArray[np.float64], speed_mps: NDArray[np.float64],
                indices: NDArray[np.integer]) -> NDArray[np.float32]:
     """Each sampled frame's ego pose in the clip's first ego frame, and its speed.

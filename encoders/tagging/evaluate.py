@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import json
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -135,6 +135,26 @@ def best_threshold(prob: NDArray[np.floating], truth: NDArray[np.bool_], allow_a
     return float(candidates[int(np.argmax(scores))])
 
 
+def held_out_threshold(
+    held: Iterable[tuple[str, NDArray[np.floating] | None, NDArray[np.bool_] | None]], allow_always: bool = False,
+) -> tuple[float, str]:
+    """The F1 threshold from the first held-out source with a positive frame, and its name.
+
+    Args:
+        held: ``(name, prob, truth)`` in order of preference (e.g. validation, then training logs);
+            a source with ``None`` values is skipped. Consumed lazily: a generator computes later
+            sources only when the earlier ones have no positive frame.
+        allow_always: see :func:`best_threshold`.
+
+    Returns:
+        ``(threshold, name)``; ``(0.5, "default")`` when no source has a positive frame.
+    """
+    for name, prob, truth in held:
+        if prob is not None and truth is not None and truth.any():
+            return best_threshold(prob, truth, allow_always), name
+    return 0.5, "default"
+
+
 #: Candidate scales of the validation calibration of continuous tags (0: a constant).
 CALIBRATION_SCALES = (0.0, 0.25, 0.5, 0.75, 1.0, 1.25, 1.5, 2.0)
 
@@ -181,6 +201,13 @@ def pool_split(clips_dir: Path, split: str, tagger: Tagger | None, factor: int,
     return SplitPooled(_concat(truths) if truths else {}, _concat(preds) if preds else None, logs)
 
 
+def _pooled(split: SplitPooled | None, a: str, r: str) -> tuple[NDArray[np.float32] | None, NDArray[np.bool_] | None]:
+    """A split's pooled prediction and truth (present or not) of attribute ``a`` in region ``r``, if any."""
+    if split is None or split.pred is None or a not in split.pred or r not in split.pred[a]:
+        return None, None
+    return split.pred[a][r], split.truth[a][r] > 0
+
+
 def metrics_by_region(test: SplitPooled, val: SplitPooled | None,
                       fallback: SplitPooled | None = None) -> dict[str, dict[str, dict[str, Any]]]:
     """Table 1 of a model: ``{attr: {region: {"metric", "value", ...}}}``.
@@ -195,24 +222,19 @@ def metrics_by_region(test: SplitPooled, val: SplitPooled | None,
         out[a] = {}
         for r, truth in regions.items():
             pred = test.pred[a][r]
-            has_val = val is not None and val.pred is not None and a in val.pred and r in val.pred[a]
             if attribute_kind(a) == AttributeKind.CONTINUOUS:
                 scale, offset = 1.0, 0.0
-                if has_val:
-                    assert val is not None and val.pred is not None
-                    scale, offset = calibrate_l1(val.pred[a][r], val.truth[a][r])
+                val_pred = _pooled(val, a, r)[0]
+                if val_pred is not None:
+                    assert val is not None
+                    scale, offset = calibrate_l1(val_pred, val.truth[a][r])
                 calibrated = np.maximum(0.0, scale * pred + offset)
                 out[a][r] = {"metric": "L1", "value": round(float(np.abs(calibrated - truth).mean()), 4),
                              "raw_value": round(float(np.abs(pred - truth).mean()), 4),
                              "calibration": {"scale": scale, "offset": round(offset, 4)}}
                 continue
-            thr, source = 0.5, "default"
-            for name, held in (("val", val), ("train", fallback)):
-                if held is None or held.pred is None or a not in held.pred or r not in held.pred[a]:
-                    continue
-                if (held.truth[a][r] > 0).any():
-                    thr, source = best_threshold(held.pred[a][r], held.truth[a][r] > 0, allow_always=True), name
-                    break
+            thr, source = held_out_threshold([(name, *_pooled(split, a, r)) for name, split in
+                                              (("val", val), ("train", fallback))], allow_always=True)
             out[a][r] = {"metric": "F1", "value": round(f1_score(pred >= thr, truth > 0), 4), "threshold": thr,
                          "threshold_from": source, "positives": int((truth > 0).sum()),
                          "frames": int(truth.shape[0])}

@@ -131,20 +131,21 @@ def add_attributes(
         raise TagError(f"new attributes must be new and distinct: {list(names)} (model has {list(base.names)})")
     stem = stem or f"bev_attributes_{names[0]}"
     write_new_targets(clips_dir, log_dirs, names, targets_fn, stem)
-    cfg = dataclasses.replace(config or base.config, mode="alone", bev=base.bev_config, inputs=base.config.inputs,
-                              frame_stride=base.config.frame_stride)
     out = Path(out_run_dir)
-    result = train_tags(clips_dir, out, cfg, targets=lambda lid: open_targets(clips_dir, lid, stem), init=base,
+    # train_tags keeps the base model's tower, inputs and frame spacing (``init``).
+    result = train_tags(clips_dir, out, dataclasses.replace(config or base.config, mode="alone"),
+                        targets=lambda lid: open_targets(clips_dir, lid, stem), init=base,
                         train_backbone=finetune_backbone, progress=progress)
-    new_head = load_tagger(out).head
+    trained = load_tagger(out)
+    new_head = trained.head
     merged = TagHead(TagHeadConfig(attributes=base.names + names, embed_channels=base.head.config.embed_channels,
                                    kinds={**base.head.config.kinds, **{n: "discrete" for n in names}}))
     with torch.no_grad():
         merged.attributes.copy_(torch.cat([base.head.attributes.detach().cpu(), new_head.attributes.detach().cpu()]))
         merged.bias.copy_(torch.cat([base.head.bias.detach().cpu(), new_head.bias.detach().cpu()]))
-    backbone = load_tagger(out).bev if finetune_backbone else base.bev.cpu()
+    backbone = trained.bev.cpu() if finetune_backbone else base.bev.cpu()
     meta = read_manifest(clips_dir)
-    save_tagging(out, merged, cfg, meta, backbone=backbone,
+    save_tagging(out, merged, trained.config, meta, backbone=backbone,
                  extra={"clips_dir": str(Path(clips_dir).resolve()), "extended_from": str(Path(run_dir).resolve()),
                         "new_attributes": list(names), "new_targets_stem": stem,
                         "finetune_backbone": finetune_backbone})

@@ -208,25 +208,35 @@ def box_values(grid: BevGrid, dense: DenseTracks, keep: NDArray[np.bool_], frame
     return out
 
 
-def approach_strips(vector_map: VectorMap, outline_xy_m: NDArray[np.floating],
-                    approach_m: float) -> list[NDArray[np.float64]]:
-    """The last ``approach_m`` metres of every lane entering a junction, as (N, 2) city polygons.
+def approach_strips(vector_map: VectorMap, outlines_xy_m: Sequence[NDArray[np.floating]],
+                    approach_m: float) -> list[list[NDArray[np.float64]]]:
+    """Per junction outline, the last ``approach_m`` metres of every lane entering it, as (N, 2) city
+    polygons.
 
-    A lane enters the junction when one of its successors is an intersection lane whose midpoint
-    lies inside the junction's outline; a lane shorter than ``approach_m`` continues onto its
+    A lane enters a junction when one of its successors is an intersection lane whose midpoint lies
+    inside the junction's outline; a lane shorter than ``approach_m`` continues onto its
     non-intersection predecessors, so each strip reaches back ``approach_m`` along the road.
     """
-    outline = np.asarray(outline_xy_m, np.float32).reshape(-1, 1, 2)
     lanes = vector_map.lane_segments
+    outlines = [np.asarray(o, np.float32).reshape(-1, 1, 2) for o in outlines_xy_m]
+    # Each intersection lane's midpoint, computed once for every outline.
+    midpoints = {lid: seg.centerline(3)[1, :2] for lid, seg in lanes.items() if seg.is_intersection}
+    out: list[list[NDArray[np.float64]]] = []
+    for outline in outlines:
+        inside = [lid for lid, mid in midpoints.items()
+                  if cv2.pointPolygonTest(outline, (float(mid[0]), float(mid[1])), False) >= 0]
+        entering = {p for lid in inside for p in lanes[lid].predecessors
+                    if p in lanes and not lanes[p].is_intersection}
+        out.append(_lane_tails(vector_map, sorted(entering), float(approach_m)))
+    return out
 
-    def inside(lane_id: int) -> bool:
-        mid = lanes[lane_id].centerline(3)[1, :2]
-        return cv2.pointPolygonTest(outline, (float(mid[0]), float(mid[1])), False) >= 0
 
-    entering = {p for lid, seg in lanes.items() if seg.is_intersection and inside(lid)
-                for p in seg.predecessors if p in lanes and not lanes[p].is_intersection}
+def _lane_tails(vector_map: VectorMap, lane_ids: Sequence[int], length_m: float) -> list[NDArray[np.float64]]:
+    """The last ``length_m`` metres (by arc length) of each lane, continued onto its
+    non-intersection predecessors where a lane is shorter; (N, 2) polygons."""
+    lanes = vector_map.lane_segments
     strips: list[NDArray[np.float64]] = []
-    frontier = [(lid, float(approach_m)) for lid in sorted(entering)]
+    frontier = [(lid, length_m) for lid in lane_ids]
     seen: set[int] = set()
     while frontier:
         lid, remaining = frontier.pop()
@@ -234,12 +244,10 @@ def approach_strips(vector_map: VectorMap, outline_xy_m: NDArray[np.floating],
             continue
         seen.add(lid)
         seg = lanes[lid]
-        centre = seg.centerline(2)
-        length = float(np.linalg.norm(centre[-1, :2] - centre[0, :2]))
+        length = float(np.linalg.norm(np.diff(seg.centerline(16)[:, :2], axis=0), axis=1).sum())
         n = max(2, int(np.ceil(length)) + 1)  # about one point per metre
         left, right = resample_polyline(seg.left_lane_boundary, n), resample_polyline(seg.right_lane_boundary, n)
-        arc = np.linspace(0.0, length, n)
-        keep = arc >= length - remaining
+        keep = np.linspace(0.0, length, n) >= length - remaining
         if keep.sum() >= 2:
             strips.append(np.concatenate([left[keep, :2], right[keep, :2][::-1]]))
         if length < remaining:
@@ -280,11 +288,10 @@ def junction_masks(log_dir: Path, grid: BevGrid, city_SE3_ego: NDArray[np.floati
     polys = [np.stack([np.asarray(x, float), np.asarray(y, float)], 1) for x, y in zip(xs, ys)]
     map_path = av2_io.find_map_file(Path(log_dir)) if approach_m > 0 else None
     vector_map = av2_io.read_map(map_path) if map_path is not None else None
-    areas: list[tuple[str, list[NDArray[np.float64]]]] = []
-    for poly, kind in zip(polys, kind_col):
-        if kind in kinds and poly.shape[0] >= 3:
-            strips = approach_strips(vector_map, poly, approach_m) if vector_map is not None else []
-            areas.append((kind, [poly, *strips]))
+    chosen = [(poly, kind) for poly, kind in zip(polys, kind_col) if kind in kinds and poly.shape[0] >= 3]
+    strips = (approach_strips(vector_map, [poly for poly, _ in chosen], approach_m) if vector_map is not None
+              else [[] for _ in chosen])
+    areas = [(kind, [poly, *tails]) for (poly, kind), tails in zip(chosen, strips)]
     pts = np.concatenate([p for _, ps in areas for p in ps]) if areas else np.zeros((0, 2))
     if pts.shape[0] == 0:
         return out

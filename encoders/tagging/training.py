@@ -275,18 +275,18 @@ def train_tags(
     np.random.seed(config.seed)
     device = resolve_device(config.device)
     manifest = read_manifest(clips_dir)
-    ds = TagWindowDataset(clips_dir, "train", config.window_frames, config.frame_stride, targets)
     if init is None:
         # The tower's input channels follow the clips folder.
         config = dataclasses.replace(config, bev=dataclasses.replace(
             config.bev, lidar_channels=len(manifest["bev"]["lidar_channels"]),
             map_channels=len(manifest["bev"]["map_channels"])))
     else:
+        # A model built on another keeps its tower, inputs and frame spacing.
         config = dataclasses.replace(config, bev=init.bev_config, inputs=init.config.inputs,
                                      frame_stride=init.config.frame_stride)
-    bev_config = config.bev if init is None else init.bev_config
-    bev = BevTower(bev_config, 32) if init is None else init.bev
-    head = TagHead(TagHeadConfig(attributes=ds.names, embed_channels=bev_config.embed_channels))
+    ds = TagWindowDataset(clips_dir, "train", config.window_frames, config.frame_stride, targets)
+    bev = BevTower(config.bev, 32) if init is None else init.bev
+    head = TagHead(TagHeadConfig(attributes=ds.names, embed_channels=config.bev.embed_channels))
     if init is not None:
         with torch.no_grad():
             for i, name in enumerate(ds.names):

@@ -9,19 +9,26 @@ HELP = "simulate, caption, build clips, train, index and evaluate a small city; 
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
+    from retrieval.demo import VAL_FRACTION
+    from retrieval.demo import DemoConfig as D  # the defaults the help shows
+
     parser.add_argument("--out", type=Path, required=True, metavar="DIR", help="folder for everything the demo makes")
-    parser.add_argument("--logs", type=int, help="simulated logs (default 12)")
-    parser.add_argument("--duration-s", type=float, help="length of each log in seconds (default 20)")
-    parser.add_argument("--seed", type=int, help="simulation seed (default 0)")
-    parser.add_argument("--frames-per-clip", type=int, help="frames per clip (default 12)")
-    parser.add_argument("--camera-width-px", type=int, help="camera view width of clips (default 64)")
-    parser.add_argument("--camera-height-px", type=int, help="camera view height of clips (default 32)")
-    parser.add_argument("--bev-resolution-m", type=float, help="BEV cell size of clips in metres (default 1.25)")
-    parser.add_argument("--epochs", type=int, help="training epochs (default 12)")
-    parser.add_argument("--batch-size", type=int, help="training batch size (default 16)")
+    parser.add_argument("--logs", type=int, help=f"simulated logs (default {D.logs})")
+    parser.add_argument("--duration-s", type=float, help=f"length of each log in seconds (default {D.duration_s:g})")
+    parser.add_argument("--seed", type=int, help=f"simulation seed (default {D.seed})")
+    parser.add_argument("--frames-per-clip", type=int, help=f"frames per clip (default {D.frames_per_clip})")
+    parser.add_argument("--camera-width-px", type=int, help=f"camera view width of clips (default {D.camera_width_px})")
+    parser.add_argument("--camera-height-px", type=int,
+                        help=f"camera view height of clips (default {D.camera_height_px})")
+    parser.add_argument("--bev-resolution-m", type=float,
+                        help=f"BEV cell size of clips in metres (default {D.bev_resolution_m:g})")
+    parser.add_argument("--epochs", type=int, help=f"training epochs (default {D.epochs})")
+    parser.add_argument("--batch-size", type=int, help=f"training batch size (default {D.batch_size})")
     parser.add_argument("--test-fraction", type=float,
-                        help="share of the logs held out for testing (default 0.25; validation takes 0.15)")
-    parser.add_argument("--tag-weight", type=float, help="weight of the tagging loss in training (default 0.2)")
+                        help=f"share of the logs held out for testing (default {D.test_fraction:g}; "
+                        f"validation takes {VAL_FRACTION:g})")
+    parser.add_argument("--tag-weight", type=float,
+                        help=f"weight of the tagging loss in training (default {D.tag_weight:g})")
     parser.add_argument("--no-sensors", action="store_true", help="skip LiDAR/camera rendering (BEV from boxes)")
     parser.add_argument("--query", action="append", help="example query (repeatable; replaces the defaults)")
     parser.add_argument("--quick", action="store_true", help="smallest sizes, a smoke run of every stage")

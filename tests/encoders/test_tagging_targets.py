@@ -103,9 +103,9 @@ def test_approach_strips_reach_back_along_entering_lanes() -> None:
     lanes = {1: _lane(1, -22.0, -10.0, False, (2,)), 2: _lane(2, -10.0, 0.0, False, (3,), (1,)),
              3: _lane(3, 0.0, 10.0, True, (4,), (2,)), 4: _lane(4, 10.0, 30.0, False, (), (3,))}
     outline = np.array([[0.0, -10.0], [10.0, -10.0], [10.0, 10.0], [0.0, 10.0]])
-    strips = approach_strips(VectorMap(lanes), outline, approach_m=15.0)
+    strips, elsewhere = approach_strips(VectorMap(lanes), [outline, outline + 100.0], approach_m=15.0)
     xs = sorted((float(s[:, 0].min()), float(s[:, 0].max())) for s in strips)
     # All of lane 2 (10 m) and the last 5 m of lane 1; nothing of the exit lane.
     assert xs[0] == pytest.approx((-15.0, -10.0), abs=0.6) and xs[1] == pytest.approx((-10.0, 0.0))
     assert len(strips) == 2 and all(s[:, 1].min() == pytest.approx(-3.5) for s in strips)
-    assert approach_strips(VectorMap(lanes), outline + 100.0, approach_m=15.0) == []  # another junction
+    assert elsewhere == []  # another junction: no lane enters it

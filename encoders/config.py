@@ -121,6 +121,9 @@ class BevConfig:
         lidar_channels: LiDAR occupancy channels (Cl).
         map_channels: map raster channels (Cm).
         widths: channels of each backbone's stages (strides 2, 4, 8, ...).
+        blocks_per_stage: 3×3 convolutions per stage (the strided one, then residual ones); more
+            blocks widen the receptive field (see :class:`encoders.bev.Backbone`).
+        context_blocks: dilated residual 3×3 convolutions after the last stage (wide context, cheap).
         embed_channels: D_e, channels of E.
         downsample: r, E is at (H/r, W/r); 1, 2, 4 or 8 and at most the first stage's stride.
         temporal_kernel: kernel of the depthwise temporal convolution in the header (odd; 1 disables).
@@ -131,6 +134,8 @@ class BevConfig:
     lidar_channels: int = 5
     map_channels: int = 6
     widths: tuple[int, ...] = (8, 16, 32)
+    blocks_per_stage: int = 1
+    context_blocks: int = 0
     embed_channels: int = 64
     downsample: int = 2
     temporal_kernel: int = 3
@@ -141,6 +146,9 @@ class BevConfig:
         object.__setattr__(self, "widths", tuple(int(w) for w in self.widths))
         if not self.widths or min(self.widths) < 1:
             raise ConfigError(f"BevConfig.widths must be non-empty positive, got {self.widths}")
+        if self.blocks_per_stage < 1 or self.context_blocks < 0:
+            raise ConfigError(f"BevConfig.blocks_per_stage must be >= 1 and context_blocks >= 0, got "
+                              f"{self.blocks_per_stage} and {self.context_blocks}")
         if self.downsample not in (1, 2, 4, 8) or self.downsample > 2 ** len(self.widths):
             raise ConfigError(f"BevConfig.downsample must be 1, 2, 4 or 8 (<= 2**stages), got {self.downsample}")
         if self.temporal_kernel < 1 or self.temporal_kernel % 2 == 0:

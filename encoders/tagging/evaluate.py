@@ -114,6 +114,12 @@ def _concat(parts: list[Pooled]) -> Pooled:
     return {a: {r: np.concatenate(xs) for r, xs in regions.items()} for a, regions in lists.items()}
 
 
+def region_f1(pred: NDArray[np.bool_], truth: NDArray[np.bool_]) -> float | None:
+    """F1 of a region's frames; ``None`` (undefined) when no test frame is positive there: every
+    answer then scores 0, so the cell would only dilute the mean over regions."""
+    return round(f1_score(pred, truth), 4) if truth.any() else None
+
+
 def f1_score(pred: NDArray[np.bool_], truth: NDArray[np.bool_]) -> float:
     tp = float((pred & truth).sum())
     fp = float((pred & ~truth).sum())
@@ -235,7 +241,7 @@ def metrics_by_region(test: SplitPooled, val: SplitPooled | None,
                 continue
             thr, source = held_out_threshold([(name, *_pooled(split, a, r)) for name, split in
                                               (("val", val), ("train", fallback))], allow_always=True)
-            out[a][r] = {"metric": "F1", "value": round(f1_score(pred >= thr, truth > 0), 4), "threshold": thr,
+            out[a][r] = {"metric": "F1", "value": region_f1(pred >= thr, truth > 0), "threshold": thr,
                          "threshold_from": source, "positives": int((truth > 0).sum()),
                          "frames": int(truth.shape[0])}
     return out
@@ -254,18 +260,19 @@ def statistics_by_region(train: SplitPooled, test: SplitPooled) -> dict[str, dic
             else:
                 yes = bool((tr > 0).any())
                 pred = np.full(truth.shape, yes)
-                out[a][r] = {"metric": "F1", "value": round(f1_score(pred, truth > 0), 4),
+                out[a][r] = {"metric": "F1", "value": region_f1(pred, truth > 0),
                              "positives": int((truth > 0).sum()), "frames": int(truth.shape[0])}
     return out
 
 
 def table2_row(by_region: dict[str, dict[str, dict[str, Any]]]) -> dict[str, dict[str, Any]]:
-    """Mean over regions of each attribute's Table 1 metric."""
-    row = {}
+    """Mean over regions of each attribute's Table 1 metric (regions where F1 is undefined left out;
+    ``None`` when it is undefined everywhere)."""
+    row: dict[str, dict[str, Any]] = {}
     for a, regions in by_region.items():
-        vals = [m["value"] for m in regions.values()]
+        vals = [m["value"] for m in regions.values() if m["value"] is not None]
         metric = next(iter(regions.values()))["metric"] if regions else "F1"
-        row[a] = {"metric": metric, "value": round(float(np.mean(vals)), 4) if vals else float("nan")}
+        row[a] = {"metric": metric, "value": round(float(np.mean(vals)), 4) if vals else None}
     return row
 
 
@@ -274,12 +281,18 @@ def skill(row: dict[str, dict[str, Any]], statistics: dict[str, dict[str, Any]])
     [−1, 1] (continuous; 0 = as good as the dataset statistics)."""
     vals = []
     for a, m in row.items():
+        if m["value"] is None:
+            continue
         if m["metric"] == "F1":
             vals.append(m["value"])
         else:
             base = statistics.get(a, {}).get("value", 0.0)
             vals.append(float(np.clip(1.0 - m["value"] / base, -1.0, 1.0)) if base > 0 else 0.0)
     return round(float(np.mean(vals)), 4) if vals else float("nan")
+
+
+def _cell(value: float | None) -> str:
+    return "n/a" if value is None else f"{value:.3f}"
 
 
 def markdown_tables(by_region: dict[str, dict[str, dict[str, Any]]], inputs: dict[str, dict[str, dict[str, Any]]],
@@ -291,16 +304,17 @@ def markdown_tables(by_region: dict[str, dict[str, dict[str, Any]]], inputs: dic
              "|---|---|" + "---|" * len(regions)]
     for a, regs in by_region.items():
         metric = next(iter(regs.values()))["metric"] if regs else ""
-        cells = [f"{regs[r]['value']:.3f}" if r in regs else "–" for r in regions]
+        cells = [_cell(regs[r]["value"]) if r in regs else "–" for r in regions]
         lines.append(f"| {a} | {metric} | " + " | ".join(cells) + " |")
     rows = [k for k in ("none", "map", "lidar", "both") if k in inputs]
-    lines += ["", "L1: lower is better (densities in m² covered, speed in m/s); F1: higher is better.", "",
+    lines += ["", "L1: lower is better (densities in m² covered, speed in m/s); F1: higher is better; "
+              "n/a: no positive test frame in that region (F1 undefined, left out of the means).", "",
               "## Table 2: inputs (mean over regions; none = dataset statistics)", "",
               "| attribute | metric | " + " | ".join(rows) + " |", "|---|---|" + "---|" * len(rows)]
     attrs = list(next(iter(inputs.values())).keys()) if inputs else []
     for a in attrs:
         metric = inputs[rows[0]][a]["metric"]
-        cells = [f"{inputs[k][a]['value']:.3f}" if a in inputs[k] else "–" for k in rows]
+        cells = [_cell(inputs[k][a]["value"]) if a in inputs[k] else "–" for k in rows]
         lines.append(f"| {a} | {metric} | " + " | ".join(cells) + " |")
     lines.append("| **skill** (mean of F1 and 1 − L1/L1_none clipped to ±1) | | " + " | ".join(
         f"{skills.get(k, float('nan')):.3f}" for k in rows) + " |")

@@ -50,6 +50,17 @@ METRICS_FILE = "tag_metrics.jsonl"
 MODES = ("joint", "alone")
 
 
+def tagging_bev_config() -> BevConfig:
+    """The BEV tower trained for tags alone (the one ``benchmarks/bench_tagging.py`` measures).
+
+    Four stages (strides 2–16) then two dilated context blocks: a receptive field of about 80 m.
+    A junction's kind (3-way or 4-way) is only visible with all its arms in view, also from the far
+    end of an approach lane; with four plain stages (about 15 m) ``four_way`` stayed at the
+    statistics (F1 0.37), with the context blocks it reached 0.92 (map only, 600 steps, 24 logs).
+    """
+    return BevConfig(widths=(8, 16, 32, 64), embed_channels=32, downsample=2, context_blocks=2)
+
+
 @dataclass(frozen=True)
 class TagTrainConfig:
     """Tag training.
@@ -74,7 +85,7 @@ class TagTrainConfig:
 
     mode: str = "joint"
     inputs: str = "both"
-    bev: BevConfig = field(default_factory=BevConfig)
+    bev: BevConfig = field(default_factory=tagging_bev_config)
     loss: TagLossConfig = field(default_factory=TagLossConfig)
     joint_weight: float = 1.0
     window_frames: int = 5

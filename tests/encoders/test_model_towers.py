@@ -146,3 +146,41 @@ def test_uint8_batches_are_converted_on_the_device(model: DualEncoder, batch: di
     with torch.no_grad():
         torch.testing.assert_close(model.encode_video(as_bytes), model.encode_video(quantised))
         torch.testing.assert_close(model.bev_embedding(as_bytes), model.bev_embedding(quantised))
+
+
+def _receptive_rows(config: Any) -> int:
+    """Input rows of the map raster that reach E's centre cell (by the gradient)."""
+    from encoders.bev import BevTower
+
+    torch.manual_seed(0)
+    tower = BevTower(config, 16).eval()
+    h, w = 256, 32
+    gen = torch.Generator().manual_seed(0)
+    bev_map = torch.rand(1, 1, config.map_channels, h, w, generator=gen).requires_grad_(True)
+    e = tower.embed_map(torch.rand(1, 1, config.lidar_channels, h, w, generator=gen), bev_map)
+    e[0, 0, :, e.shape[-2] // 2, e.shape[-1] // 2].sum().backward()
+    assert bev_map.grad is not None
+    return int((bev_map.grad.abs().sum(dim=(0, 1, 2, 4)) > 0).sum())
+
+
+def test_context_and_extra_blocks_widen_the_receptive_field() -> None:
+    import dataclasses
+
+    from encoders.config import BevConfig
+
+    base = BevConfig(widths=(4, 4, 4, 4), embed_channels=8)
+    plain = _receptive_rows(base)
+    deeper = _receptive_rows(dataclasses.replace(base, blocks_per_stage=2))
+    context = _receptive_rows(dataclasses.replace(base, context_blocks=2))
+    # Strided 3×3 convolutions at strides 2..16 see 31 rows (plus the header's 3×3 and upsampling).
+    assert 31 <= plain < 64
+    assert deeper > plain + 40  # +2 cells per stage: 2·(2+4+8+16) = 60 rows
+    assert context > plain + 100  # two dilated blocks at stride 16: 2·2·2·16 = 128 rows
+
+
+def test_one_block_per_stage_keeps_the_state_dict_layout() -> None:
+    from encoders.bev import Backbone
+
+    keys = set(Backbone(3, (4, 8)).state_dict())
+    assert keys == {f"stages.{i}.{j}.{p}" for i in (0, 1) for j, params in ((0, ("weight",)), (1, (
+        "weight", "bias", "running_mean", "running_var", "num_batches_tracked"))) for p in params}

@@ -156,3 +156,23 @@ def test_thresholds_fall_back_to_always_present_and_to_training_logs() -> None:
     assert cell["threshold_from"] == "train" and cell["threshold"] == 0.25 and cell["value"] == 1.0
     cell = metrics_by_region(test, no_positives)["stopped"]["front"]
     assert cell["threshold_from"] == "default" and cell["value"] == 0.0  # 0.5 finds nothing
+
+
+def test_f1_is_undefined_where_no_test_frame_is_positive() -> None:
+    from encoders.tagging.evaluate import SplitPooled, markdown_tables, metrics_by_region, skill, table2_row
+
+    test = SplitPooled({"stopped": {"front": np.array([0, 0, 0], np.float32), "full": np.array([1, 0, 1], np.float32)}},
+                       {"stopped": {"front": np.array([0.9, 0.1, 0.2], np.float32),
+                                    "full": np.array([0.9, 0.1, 0.8], np.float32)}})
+    val = SplitPooled({"stopped": {"front": np.array([1, 0], np.float32), "full": np.array([1, 0], np.float32)}},
+                      {"stopped": {"front": np.array([0.9, 0.1], np.float32),
+                                   "full": np.array([0.9, 0.1], np.float32)}})
+    by_region = metrics_by_region(test, val)
+    assert by_region["stopped"]["front"]["value"] is None  # no positive frame: F1 undefined, not 0
+    assert by_region["stopped"]["full"]["value"] == 1.0
+    row = table2_row(by_region)
+    assert row["stopped"]["value"] == 1.0  # the mean leaves the undefined region out
+    assert skill(row, {}) == 1.0
+    assert "n/a" in markdown_tables(by_region, {"both": row}, {"both": 1.0})
+    only_undefined = table2_row({"stopped": {"front": by_region["stopped"]["front"]}})
+    assert only_undefined["stopped"]["value"] is None and np.isnan(skill(only_undefined, {}))

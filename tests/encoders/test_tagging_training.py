@@ -59,6 +59,7 @@ def test_joint_hook_adds_the_head_to_the_optimiser_and_gives_a_loss(fixture: dic
     opt = torch.optim.AdamW(model.parameters(), lr=1e-3)
     objective = attach_tagging(fixture["clips"], model, TagTrainConfig(batch_size=2, window_frames=3), optimizer=opt)
     assert objective is not None and len(opt.param_groups) == 2 and objective.optimizer is None
+    assert objective.config.bev == tiny_bev_config()  # the run records the tower the tags ride on
     loss = objective.loss(model.bev_embedding)
     loss.backward()
     assert torch.isfinite(loss) and objective.head.attributes.grad is not None

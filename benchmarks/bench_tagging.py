@@ -20,7 +20,7 @@ One run, all on this machine's CPU:
 Last measured (2026-11-21, 2 CPU cores; 60 simulated logs × 30 s, split 35 / 13 / 12 logs, 3600 test
 frames; the default tower for tags, ``tagging_bev_config``: widths (8, 16, 32, 64), two dilated
 context blocks — a receptive field of about 80 m — D_e = 64, r = 2; 2000 steps × 4 windows of 5
-frames, about 450 s per model, 29 min in all; F1 thresholds and L1 calibrations from the 13
+frames, about 450 s per model, about 37 min in all; F1 thresholds and L1 calibrations from the 13
 validation logs; F1 is undefined, and left out of the means, in a region without a positive test
 frame). Table 2, mean over the six regions (L1 lower is better, F1 higher):
 

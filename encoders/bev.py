@@ -32,11 +32,7 @@ class Residual(nn.Module):
 
     def __init__(self, channels: int, dilation: int = 1) -> None:
         super().__init__()
-        self.block = nn.Sequential(
-            nn.Conv2d(channels, channels, 3, padding=dilation, dilation=dilation, bias=False),
-            nn.BatchNorm2d(channels),
-            nn.ReLU(inplace=True),
-        )
+        self.block = conv_block(channels, channels, 3, 1, dilation)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         return x + self.block(x)

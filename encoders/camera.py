@@ -18,9 +18,10 @@ from encoders.config import CameraConfig
 from encoders.fusion import TemporalEncoder
 
 
-def conv_block(c_in: int, c_out: int, kernel: int, stride: int) -> nn.Sequential:
+def conv_block(c_in: int, c_out: int, kernel: int, stride: int, dilation: int = 1) -> nn.Sequential:
+    """Convolution ("same" padding for stride 1), batch norm, ReLU."""
     return nn.Sequential(
-        nn.Conv2d(c_in, c_out, kernel, stride=stride, padding=kernel // 2, bias=False),
+        nn.Conv2d(c_in, c_out, kernel, stride=stride, padding=dilation * (kernel // 2), dilation=dilation, bias=False),
         nn.BatchNorm2d(c_out),
         nn.ReLU(inplace=True),
     )

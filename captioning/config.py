@@ -26,7 +26,7 @@ from typing import Any
 import yaml
 
 from captioning.errors import ConfigError
-from scenes.atomic import atomic_write_text
+from common.atomic import atomic_write_text
 
 #: The annotated default configuration shipped with the package.
 DEFAULT_CONFIG_PATH = Path(__file__).with_name("captioning.yaml")

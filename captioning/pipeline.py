@@ -39,7 +39,7 @@ from captioning.neighbors import NeighborTags, neighbor_tags
 from captioning.tags import BASELINE_LANES, HOST_DIRECTIONS, HOST_MOTIONS, LANES, MOTIONS, NO_TAG
 from captioning.text import caption_text, paraphrases
 from captioning.unify import Segment, caption_windows, collapse_codes
-from scenes.atomic import atomic_path
+from common.atomic import atomic_path
 from scenes.errors import ScenesError
 from scenes.log import Log
 from scenes.tracks import DenseTracks

@@ -37,13 +37,13 @@ import numpy as np
 import torch
 from torch.utils.data import DataLoader, Dataset
 
+from common.atomic import atomic_path, atomic_write_text
 from encoders.config import ConfigError, ConfigMismatchError, TrainConfig
 from encoders.loss import contrastive_loss, positives_matrix, tag_similarity
 from encoders.metrics import text_to_clip_metrics
 from encoders.model import DualEncoder
 from encoders.tagging.ablation import mask_inputs
 from encoders.tagging.training import TagTrainConfig, attach_tagging
-from scenes.atomic import atomic_path, atomic_write_text
 
 CHECKPOINT_FORMAT = 1
 #: Config keys that may differ when resuming.

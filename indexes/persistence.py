@@ -10,7 +10,7 @@
 
 The manifest is written last, inside a temporary directory that is renamed onto the target, so a
 reader sees either the previous complete index or the new one. :func:`resolve_dir` also accepts the
-previous copy that :func:`scenes.atomic.atomic_directory` keeps aside during the instant between
+previous copy that :func:`common.atomic.atomic_directory` keeps aside during the instant between
 its two renames, so a kill at any moment leaves a loadable index.
 """
 
@@ -24,8 +24,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from common.atomic import atomic_directory
 from indexes.errors import IndexFileError, ManifestError, UnsupportedFormatError
-from scenes.atomic import atomic_directory
 
 FORMAT_VERSION = 1
 MANIFEST_NAME = "manifest.json"

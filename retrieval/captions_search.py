@@ -39,6 +39,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from common.atomic import atomic_directory
 from indexes.errors import FilterError
 from indexes.filters import FilterSpec
 from indexes.metadata import MetadataStore
@@ -46,7 +47,6 @@ from retrieval.embedding import SentenceEncoder
 from retrieval.errors import FilterSyntaxError, IndexDirError
 from retrieval.querying import check_k, check_query, preview_of
 from retrieval.records import SearchResult
-from scenes.atomic import atomic_directory
 
 TextEncoder = Callable[[Sequence[str]], np.ndarray]
 MANIFEST = "manifest.json"

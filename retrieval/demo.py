@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from scenes.atomic import atomic_write_text
+from common.atomic import atomic_write_text
 
 DEFAULT_QUERIES = (
     "a car in the left lane approaches, then moves into the ego lane",

@@ -30,6 +30,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from common.atomic import atomic_directory
 from indexes.clip_index import ClipIndex
 from indexes.errors import IndexesError
 from indexes.filters import FilterSpec
@@ -38,7 +39,6 @@ from retrieval.embedding import CONFIG_FILE, Embedder, ModelEmbedder
 from retrieval.errors import IndexDirError, ModelMismatchError, UnknownClipError, UnknownViewError
 from retrieval.querying import check_filters, check_k, check_query, hits_to_results, preview_of
 from retrieval.records import SearchResult
-from scenes.atomic import atomic_directory
 
 FORMAT_VERSION = 1
 KIND = "scenesearch_index"
@@ -315,7 +315,7 @@ class SceneSearch:
         ``embedding`` for the first, ``embedding_<view>`` for others) or ``.npy`` (+ ``.json`` beside it
         with the metadata rows, the view and the model hash). Written atomically.
         """
-        from scenes.atomic import atomic_path, atomic_write_text
+        from common.atomic import atomic_path, atomic_write_text
 
         path = Path(path)
         views = views or tuple(self.views)

@@ -25,8 +25,8 @@ import pyarrow as pa
 import pyarrow.feather as feather
 from numpy.typing import NDArray
 
+from common.atomic import atomic_path, atomic_write_bytes, atomic_write_text
 from scenes import validate
-from scenes.atomic import atomic_path, atomic_write_bytes, atomic_write_text
 from scenes.calibration import Calibration, CameraIntrinsics
 from scenes.errors import LogFormatError, Problem
 from scenes.geometry import SE3

@@ -34,7 +34,7 @@ from pathlib import Path
 import pyarrow as pa
 import pyarrow.feather as feather
 
-from scenes.atomic import atomic_path
+from common.atomic import atomic_path
 from scenes.errors import LogFormatError, Problem
 
 BEHAVIOR_FILENAME = "behavior_labels.feather"

@@ -80,8 +80,8 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
+from common.atomic import atomic_directory
 from scenes import av2_io
-from scenes.atomic import atomic_directory
 from scenes.calibration import Calibration, CameraIntrinsics
 from scenes.categories import CATEGORY_TO_AV2, KITTI_TO_CATEGORY, Category
 from scenes.errors import ImportFormatError

@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from common.atomic import atomic_write_text
 from encoders.clips.config import ClipsConfig
 from encoders.clips.raster import MAP_CHANNELS
 from encoders.clips.render import (
@@ -38,7 +39,6 @@ from encoders.clips.table import (
     window_frames,
     write_clip_table,
 )
-from scenes.atomic import atomic_write_text
 from scenes.errors import LogFormatError
 from scenes.log import Log
 from scenes.tracks import DenseTracks

@@ -13,7 +13,7 @@ from typing import Any
 
 import yaml
 
-from scenes.atomic import atomic_write_text
+from common.atomic import atomic_write_text
 
 
 class BevSource(str, Enum):

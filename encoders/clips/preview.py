@@ -26,10 +26,10 @@ import pyarrow.compute as pc
 import pyarrow.parquet as pq
 from numpy.typing import NDArray
 
+from common.atomic import atomic_path
 from encoders.clips.config import ClipsConfig
 from encoders.clips.raster import MAP_CHANNELS
 from encoders.clips.views import LogArrays, highlight_camera, object_footprint, open_log_arrays
-from scenes.atomic import atomic_path
 from scenes.bev import BevGrid
 
 SCALE = 2

@@ -43,10 +43,10 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 from numpy.typing import NDArray
 
+from common.atomic import atomic_directory, atomic_write_text
 from encoders.clips.config import BevSource, BevSourceChoice, ClipsConfig
 from encoders.clips.raster import MAP_CHANNELS, density_uint8, render_map_frames
 from scenes import av2_io
-from scenes.atomic import atomic_directory, atomic_write_text
 from scenes.bev import BevGrid, lidar_occupancy, rasterize_boxes
 from scenes.errors import LogFormatError
 from scenes.geometry import FloatArray, invert_matrices, quat_to_yaw, rotmat_to_quat

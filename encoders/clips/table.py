@@ -157,7 +157,7 @@ def window_frames(
 
 def write_clip_table(path: Path, rows: list[dict[str, Any]]) -> None:
     """Write ``clips.parquet`` atomically."""
-    from scenes.atomic import atomic_write_with
+    from common.atomic import atomic_write_with
 
     table = pa.Table.from_pylist(rows, schema=CLIP_SCHEMA)
     atomic_write_with(path, lambda tmp: pq.write_table(table, tmp))

@@ -34,6 +34,7 @@ import numpy as np
 import torch
 from numpy.typing import NDArray
 
+from common.atomic import atomic_write_text
 from encoders.tagging.attributes import AttributeKind, Region, attribute_kind, is_density
 from encoders.tagging.data import split_logs
 from encoders.tagging.losses import downsample_targets
@@ -54,7 +55,6 @@ from encoders.tagging.targets import (
     read_manifest,
 )
 from encoders.tagging.training import Tagger
-from scenes.atomic import atomic_write_text
 
 Pooled = dict[str, dict[str, NDArray[np.float32]]]
 #: Candidate F1 thresholds: fine at the low end, where hard-negative-mined probabilities of rare attributes lie.

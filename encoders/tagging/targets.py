@@ -33,9 +33,9 @@ import numpy as np
 import pyarrow.parquet as pq
 from numpy.typing import NDArray
 
+from common.atomic import atomic_path, atomic_write_text
 from encoders.tagging.attributes import ATTRIBUTES, BEHAVIOR_ATTRIBUTES, Attribute, TagError
 from scenes import av2_io
-from scenes.atomic import atomic_path, atomic_write_text
 from scenes.behavior import EGO_TRACK_ID, JUNCTION_APPROACH_M, read_behavior_labels, read_junctions
 from scenes.bev import BevGrid, box_samples
 from scenes.categories import VEHICLE_CATEGORIES, Category

@@ -32,6 +32,7 @@ from numpy.typing import NDArray
 from safetensors.torch import load_file, save_file
 from torch import nn
 
+from common.atomic import atomic_path, atomic_write_text
 from encoders.bev import BevTower
 from encoders.config import BevConfig, ConfigError, from_dict
 from encoders.tagging.ablation import Inputs, mask_inputs, parse_inputs
@@ -40,7 +41,6 @@ from encoders.tagging.data import TagWindowDataset, TargetSource, collate_window
 from encoders.tagging.head import TagHead, TagHeadConfig
 from encoders.tagging.losses import TagLossConfig, TaskBalancedSampler, downsample_targets, tag_loss
 from encoders.tagging.targets import grid_from_manifest, read_manifest
-from scenes.atomic import atomic_path, atomic_write_text
 from scenes.bev import BevGrid
 
 TAGGING_FILE = "tagging.json"

@@ -21,8 +21,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from common.atomic import atomic_write_text
     from retrieval.evaluation import evaluate, metrics_table
-    from scenes.atomic import atomic_write_text
 
     metrics = evaluate(args.run_dir, args.clips_dir, split=args.split, seed=args.seed,
                        progress=lambda m: print(m, flush=True), index_dir=args.index)

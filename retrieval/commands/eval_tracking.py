@@ -17,7 +17,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from scenes.atomic import atomic_write_text
+    from common.atomic import atomic_write_text
     from scenes.log import Log
     from scenes.tracking.evaluate import evaluate_tracking
 

@@ -101,7 +101,7 @@ def run(args: argparse.Namespace) -> int:
 
     config = build_config(args)
     if args.save_config:
-        from scenes.atomic import atomic_write_text
+        from common.atomic import atomic_write_text
 
         atomic_write_text(args.save_config, config.to_yaml())
     try:

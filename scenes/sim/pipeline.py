@@ -30,8 +30,8 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 
+from common.atomic import atomic_directory
 from scenes import av2_io
-from scenes.atomic import atomic_directory
 from scenes.behavior import BEHAVIOR_SCHEMA, EGO_TRACK_ID, BehaviorLabel, write_behavior_labels, write_junctions
 from scenes.geometry import wrap_angle_rad
 from scenes.map import VectorMap

@@ -17,8 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
+from common.atomic import atomic_directory
 from scenes import av2_io
-from scenes.atomic import atomic_directory
 from scenes.categories import KITTI_TO_CATEGORY
 from scenes.errors import ImportFormatError
 from scenes.geometry import quat_to_yaw

@@ -8,8 +8,8 @@ from pathlib import Path
 
 import numpy as np
 
+from common.atomic import atomic_directory
 from scenes import av2_io
-from scenes.atomic import atomic_directory
 from scenes.log import Log
 from scenes.metadata import LogMetadata
 from scenes.sensors import timestamps_in

@@ -1,0 +1,261 @@
+"""Reading and writing configs: frozen dataclasses are the schema, YAML files their serialised instances.
+
+Every stage's config goes through these functions, so every config file fails the same way::
+
+    >>> config = from_yaml(ClipsConfig, "clips.yaml")   # missing keys keep their defaults
+    >>> to_yaml(config, "clips.yaml")                    # atomic; round-trips exactly
+
+A value is checked against the field's type hint (``bool``, ``int``, ``float``, ``str``, ``Path``, a
+``str`` Enum, ``Literal[...]``, ``tuple[...]``, ``dict[str, ...]``, ``X | None`` and nested config
+dataclasses), and an error names the file, the dotted key and the type expected::
+
+    clips.yaml: key 'bev.num_sweeps': expected an integer, got 'two'
+    train.yaml: unknown keys model.camera.widht, epoch (known at model.camera: temporal, widths)
+
+Checks that relate several fields stay in each dataclass's ``__post_init__``; a ``ValueError`` raised
+there is reported with the file name in front.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import enum
+import types
+import typing
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any, TypeVar
+
+import yaml
+
+from common.atomic import atomic_write_text
+
+T = TypeVar("T")
+
+
+class ConfigError(ValueError):
+    """A config file or mapping is unreadable, holds unknown keys, or a value of the wrong type."""
+
+
+# --- writing ----------------------------------------------------------------------------------------
+
+
+def to_dict(config: Any) -> dict[str, Any]:
+    """The plain nested dict of a config dataclass: enums as their values, tuples as lists, paths as str."""
+    if not dataclasses.is_dataclass(config) or isinstance(config, type):
+        raise TypeError(f"to_dict needs a dataclass instance, got {type(config).__name__}")
+    plain = _to_plain(config)
+    assert isinstance(plain, dict)
+    return plain
+
+
+def _to_plain(value: Any) -> Any:
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        return {f.name: _to_plain(getattr(value, f.name)) for f in dataclasses.fields(value)}
+    if isinstance(value, enum.Enum):
+        return value.value
+    if isinstance(value, Path):
+        return str(value)
+    if isinstance(value, Mapping):
+        return {k: _to_plain(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_to_plain(v) for v in value]
+    return value
+
+
+def to_yaml_text(config: Any) -> str:
+    """YAML text of ``config``, keys in field order (the order a reader of the file expects)."""
+    return str(yaml.safe_dump(to_dict(config), sort_keys=False))
+
+
+def to_yaml(config: Any, path: Path | str) -> None:
+    """Write ``config`` to ``path`` as YAML, atomically."""
+    atomic_write_text(path, to_yaml_text(config))
+
+
+# --- reading ----------------------------------------------------------------------------------------
+
+
+def from_yaml(cls: type[T], path: Path | str, error: type[ConfigError] = ConfigError) -> T:
+    """Load the config dataclass ``cls`` from the YAML file ``path``; raises ``error`` naming file and key."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise error(f"{path}: cannot read config ({exc})") from None
+    return from_yaml_text(cls, text, source=str(path), error=error)
+
+
+def from_yaml_text(cls: type[T], text: str, source: str = "<text>", error: type[ConfigError] = ConfigError) -> T:
+    """Like :func:`from_yaml` for YAML already in memory (``source`` names it in errors)."""
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        where = getattr(exc, "problem_mark", None)
+        line = f" (line {where.line + 1}, column {where.column + 1})" if where is not None else ""
+        problem = getattr(exc, "problem", None) or exc
+        raise error(f"{source}: not valid YAML{line}: {problem}") from None
+    return from_dict(cls, data, source=source, error=error)
+
+
+def from_dict(
+    cls: type[T], data: Mapping[str, Any] | None, source: str = "<dict>", error: type[ConfigError] = ConfigError
+) -> T:
+    """Build the config dataclass ``cls`` from nested plain data; missing keys keep their defaults.
+
+    Raises:
+        ``error`` (a :class:`ConfigError`): the top level is not a mapping, keys are unknown (all of
+        them are listed, dotted), or a value does not fit its field's type.
+    """
+    if data is None:
+        data = {}
+    if not isinstance(data, Mapping):
+        raise error(f"{source}: expected a mapping at the top level, got {_kind(data)}")
+    unknown = unknown_keys(cls, data)
+    if unknown:
+        raise error(f"{source}: unknown keys {', '.join(path for path, _ in unknown)} ({_known_hint(unknown)})")
+    return _build(cls, data, "", source, error)
+
+
+def unknown_keys(cls: type, data: Mapping[str, Any], prefix: str = "") -> list[tuple[str, type]]:
+    """(dotted path, dataclass) of every key of ``data`` that the nested dataclass ``cls`` lacks."""
+    hints = typing.get_type_hints(cls)
+    names = {f.name for f in dataclasses.fields(cls)}
+    found = [(f"{prefix}{key}", cls) for key in data if key not in names]
+    for key, value in data.items():
+        if key in names and isinstance(value, Mapping):
+            sub = _dataclass_of(hints[key])
+            if sub is not None:
+                found += unknown_keys(sub, value, f"{prefix}{key}.")
+    return found
+
+
+def _known_hint(unknown: list[tuple[str, type]]) -> str:
+    parts = []
+    for path, cls in unknown:
+        where = path.rpartition(".")[0] or "top level"
+        known = ", ".join(f.name for f in dataclasses.fields(cls))
+        part = f"known at {where}: {known}"
+        if part not in parts:
+            parts.append(part)
+    return "; ".join(parts)
+
+
+def _build(cls: type[T], data: Mapping[str, Any], prefix: str, source: str, error: type[ConfigError]) -> T:
+    hints = typing.get_type_hints(cls)
+    values = {key: _convert(hints[key], value, f"{prefix}{key}", source, error) for key, value in data.items()}
+    try:
+        return cls(**values)
+    except ConfigError as exc:
+        raise error(f"{source}: {exc}") from None
+    except (TypeError, ValueError) as exc:
+        where = f"key '{prefix.rstrip('.')}': " if prefix else ""
+        raise error(f"{source}: {where}{exc}") from None
+
+
+def _convert(hint: Any, value: Any, key: str, source: str, error: type[ConfigError]) -> Any:
+    def wrong() -> ConfigError:
+        return error(f"{source}: key '{key}': expected {_describe(hint)}, got {value!r}")
+
+    origin = typing.get_origin(hint)
+    args = typing.get_args(hint)
+    if hint is Any or hint is object:
+        return value
+    if origin in (typing.Union, types.UnionType):
+        if value is None and type(None) in args:
+            return None
+        for arg in (a for a in args if a is not type(None)):
+            try:
+                return _convert(arg, value, key, source, error)
+            except ConfigError:
+                continue
+        raise wrong()
+    if origin is typing.Literal:
+        if value not in args:
+            raise wrong()
+        return value
+    if dataclasses.is_dataclass(hint):
+        if not isinstance(value, Mapping):
+            raise wrong()
+        return _build(typing.cast(type, hint), value, f"{key}.", source, error)
+    if isinstance(hint, type) and issubclass(hint, enum.Enum):
+        try:
+            return hint(value)
+        except ValueError:
+            raise wrong() from None
+    if hint is bool:
+        if not isinstance(value, bool):
+            raise wrong()
+        return value
+    if hint is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise wrong()
+        return value
+    if hint is float:
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise wrong()
+        return float(value)
+    if hint is str:
+        if not isinstance(value, str):
+            raise wrong()
+        return value
+    if hint is Path:
+        if not isinstance(value, str | Path):
+            raise wrong()
+        return Path(value)
+    if origin is tuple:
+        if not isinstance(value, list | tuple):
+            raise wrong()
+        if len(args) == 2 and args[1] is Ellipsis:
+            return tuple(_convert(args[0], v, f"{key}[{i}]", source, error) for i, v in enumerate(value))
+        if args and len(args) != len(value):
+            raise wrong()
+        return tuple(_convert(a, v, f"{key}[{i}]", source, error) for i, (a, v) in enumerate(zip(args, value)))
+    if origin is list:
+        if not isinstance(value, list | tuple):
+            raise wrong()
+        item = args[0] if args else Any
+        return [_convert(item, v, f"{key}[{i}]", source, error) for i, v in enumerate(value)]
+    if origin in (dict, Mapping):
+        if not isinstance(value, Mapping):
+            raise wrong()
+        item = args[1] if len(args) == 2 else Any
+        return {k: _convert(item, v, f"{key}.{k}", source, error) for k, v in value.items()}
+    return value
+
+
+def _dataclass_of(hint: Any) -> type | None:
+    """The config dataclass a field holds, looking through ``X | None``."""
+    if dataclasses.is_dataclass(hint):
+        return typing.cast(type, hint)
+    for arg in typing.get_args(hint):
+        if dataclasses.is_dataclass(arg):
+            return typing.cast(type, arg)
+    return None
+
+
+def _describe(hint: Any) -> str:
+    origin = typing.get_origin(hint)
+    args = typing.get_args(hint)
+    if origin in (typing.Union, types.UnionType):
+        return " or ".join(_describe(a) for a in args)
+    if origin is typing.Literal:
+        return "one of " + ", ".join(repr(a) for a in args)
+    if origin is tuple:
+        if len(args) == 2 and args[1] is Ellipsis:
+            return f"a list of {_describe(args[0])}"
+        return f"a list of {len(args)} values"
+    if origin is list:
+        return f"a list of {_describe(args[0]) if args else 'values'}"
+    if origin in (dict, Mapping):
+        return "a mapping"
+    if dataclasses.is_dataclass(hint):
+        return "a mapping"
+    if isinstance(hint, type) and issubclass(hint, enum.Enum):
+        return "one of " + ", ".join(repr(m.value) for m in hint)
+    names = {bool: "true or false", int: "an integer", float: "a number", str: "a string", Path: "a path"}
+    return names.get(hint, getattr(hint, "__name__", str(hint)))
+
+
+def _kind(value: object) -> str:
+    return "nothing" if value is None else type(value).__name__

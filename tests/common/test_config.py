@@ -1,0 +1,100 @@
+"""The one config reader: round trips, unknown keys listed, type errors naming file and key."""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Literal
+
+import pytest
+
+from common.config import ConfigError, from_dict, from_yaml, from_yaml_text, to_dict, to_yaml
+
+
+class Mode(str, enum.Enum):
+    FAST = "fast"
+    EXACT = "exact"
+
+
+@dataclass(frozen=True)
+class Inner:
+    widths: tuple[int, ...] = (8, 16)
+    scale_m: float = 0.5
+    name: str | None = None
+
+    def __post_init__(self) -> None:
+        if self.scale_m <= 0:
+            raise ValueError(f"scale_m must be > 0, got {self.scale_m}")
+
+
+@dataclass(frozen=True)
+class Outer:
+    epochs: int = 3
+    amp: bool = False
+    mode: Mode = Mode.FAST
+    kind: Literal["a", "b"] = "a"
+    inner: Inner = field(default_factory=Inner)
+    weights: dict[str, float] = field(default_factory=dict)
+    out: Path = Path("run")
+
+
+class StageConfigError(ConfigError):
+    pass
+
+
+def test_round_trip_through_a_file(tmp_path: Path) -> None:
+    config = Outer(epochs=5, amp=True, mode=Mode.EXACT, kind="b", inner=Inner((1, 2, 3), 2.0, "x"), weights={"a": 1.0})
+    to_yaml(config, tmp_path / "c.yaml")
+    assert from_yaml(Outer, tmp_path / "c.yaml") == config
+    assert to_dict(config)["mode"] == "exact" and to_dict(config)["inner"]["widths"] == [1, 2, 3]
+
+
+def test_missing_keys_keep_defaults_and_ints_become_floats() -> None:
+    config = from_dict(Outer, {"inner": {"scale_m": 2}})
+    assert config == Outer(inner=Inner(scale_m=2.0))
+    assert isinstance(config.inner.scale_m, float)
+    assert from_dict(Outer, None) == Outer()
+
+
+def test_every_unknown_key_is_listed_with_its_dotted_path() -> None:
+    with pytest.raises(ConfigError) as info:
+        from_dict(Outer, {"epoch": 1, "inner": {"widht": 3}}, source="train.yaml")
+    message = str(info.value)
+    assert message.startswith("train.yaml: unknown keys epoch, inner.widht")
+    assert "known at inner: widths, scale_m, name" in message
+
+
+@pytest.mark.parametrize(
+    ("data", "key", "expected"),
+    [
+        ({"epochs": "two"}, "epochs", "an integer"),
+        ({"epochs": True}, "epochs", "an integer"),
+        ({"amp": 1}, "amp", "true or false"),
+        ({"mode": "slow"}, "mode", "one of 'fast', 'exact'"),
+        ({"kind": "c"}, "kind", "one of 'a', 'b'"),
+        ({"inner": {"widths": [1, "x"]}}, "inner.widths[1]", "an integer"),
+        ({"inner": 3}, "inner", "a mapping"),
+        ({"weights": {"a": "heavy"}}, "weights.a", "a number"),
+    ],
+)
+def test_wrong_types_name_file_key_and_expected_type(data: dict, key: str, expected: str) -> None:
+    with pytest.raises(StageConfigError) as info:
+        from_dict(Outer, data, source="c.yaml", error=StageConfigError)
+    assert str(info.value).startswith(f"c.yaml: key '{key}': expected {expected}, got ")
+
+
+def test_checks_of_the_dataclass_are_reported_with_the_file() -> None:
+    with pytest.raises(ConfigError, match=r"^c.yaml: key 'inner': scale_m must be > 0, got -1.0$"):
+        from_dict(Outer, {"inner": {"scale_m": -1}}, source="c.yaml")
+
+
+def test_yaml_syntax_and_top_level_errors_name_the_file(tmp_path: Path) -> None:
+    path = tmp_path / "bad.yaml"
+    path.write_text("epochs: [1\n")
+    with pytest.raises(ConfigError, match=r"bad.yaml: not valid YAML \(line 2, column 1\)"):
+        from_yaml(Outer, path)
+    with pytest.raises(ConfigError, match="expected a mapping at the top level, got list"):
+        from_yaml_text(Outer, "- 1\n", source="x.yaml")
+    with pytest.raises(ConfigError, match="cannot read config"):
+        from_yaml(Outer, tmp_path / "missing.yaml")

@@ -19,7 +19,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass, field
-from enum import Enum
+from enum import Enum, StrEnum
 from pathlib import Path
 from typing import Any
 
@@ -32,16 +32,13 @@ from common.atomic import atomic_write_text
 DEFAULT_CONFIG_PATH = Path(__file__).with_name("captioning.yaml")
 
 
-class WindowStrategy(str, Enum):
+class WindowStrategy(StrEnum):
     """How neighbour captions are cut in time."""
 
     #: One window per host segment, as in the paper.
     HOST_SEGMENTS = "host_segments"
     #: Fixed-length windows every ``stride_s``.
     SLIDING = "sliding"
-
-    def __str__(self) -> str:
-        return self.value
 
 
 @dataclass(frozen=True)

@@ -9,18 +9,13 @@ this package flips signs. A neighbour at ego-frame ``y = +3 m`` has paper ``y = 
 
 from __future__ import annotations
 
-from enum import Enum
+from enum import StrEnum
 
 import numpy as np
 from numpy.typing import NDArray
 
 
-class _Tag(str, Enum):
-    def __str__(self) -> str:
-        return self.value
-
-
-class HostMotion(_Tag):
+class HostMotion(StrEnum):
     """Eq. 1."""
 
     STATIONARY = "stationary"
@@ -29,7 +24,7 @@ class HostMotion(_Tag):
     CRUISING = "cruising"
 
 
-class HostDirection(_Tag):
+class HostDirection(StrEnum):
     """Eq. 2 (ω positive = turning left)."""
 
     STEERING_LEFT = "steering_left"
@@ -37,7 +32,7 @@ class HostDirection(_Tag):
     HEADING_STRAIGHT = "heading_straight"
 
 
-class BaselineLane(_Tag):
+class BaselineLane(StrEnum):
     """Eq. 4, from the neighbour's heading relative to the host."""
 
     ONGOING = "ongoing"
@@ -45,7 +40,7 @@ class BaselineLane(_Tag):
     ONCOMING = "oncoming"
 
 
-class Lane(_Tag):
+class Lane(StrEnum):
     """Eq. 5."""
 
     LEFT = "left"
@@ -57,7 +52,7 @@ class Lane(_Tag):
     ONCOMING = "oncoming"
 
 
-class Motion(_Tag):
+class Motion(StrEnum):
     """Eqs. 6, 7, relative to the host."""
 
     APPROACH = "approach"

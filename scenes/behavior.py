@@ -28,7 +28,7 @@ from the boxes). Readers return None when a file is absent, as for real logs.
 
 from __future__ import annotations
 
-from enum import Enum
+from enum import StrEnum
 from pathlib import Path
 
 import pyarrow as pa
@@ -62,7 +62,7 @@ JUNCTION_APPROACH_M = 20.0
 LANE_CHANGE_OFFSET_M = 0.05
 
 
-class BehaviorLabel(str, Enum):
+class BehaviorLabel(StrEnum):
     """Per-(timestamp, track) behaviours. The values are the column names of the labels file.
 
     Definitions, evaluated from the simulator state at each timestamp:
@@ -98,20 +98,14 @@ class BehaviorLabel(str, Enum):
     BLOCKED_BY = "blocked_by"
     BRAKING_FOR = "braking_for"
 
-    def __str__(self) -> str:
-        return self.value
 
-
-class JunctionKind(str, Enum):
+class JunctionKind(StrEnum):
     """Junction kind by the number of roads meeting there (distinct neighbouring junctions)."""
 
     THREE_WAY = "three_way"
     FOUR_WAY = "four_way"
     #: Five or more arms (the centre of a spider network).
     MULTI_WAY = "multi_way"
-
-    def __str__(self) -> str:
-        return self.value
 
     @staticmethod
     def from_arms(num_arms: int) -> JunctionKind | None:

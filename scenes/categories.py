@@ -6,10 +6,10 @@ Raw dataset labels (AV2 categories, KITTI types, simulator vehicle classes) map 
 
 from __future__ import annotations
 
-from enum import Enum
+from enum import StrEnum
 
 
-class Category(str, Enum):
+class Category(StrEnum):
     """Public object categories. The string values are the vocabulary of files and queries."""
 
     CAR = "car"
@@ -19,9 +19,6 @@ class Category(str, Enum):
     CYCLIST = "cyclist"
     MOTORCYCLE = "motorcycle"
     OTHER = "other"
-
-    def __str__(self) -> str:
-        return self.value
 
 
 #: The ego's own box in some AV2 annotation tables. It is never a neighbour.

@@ -7,7 +7,7 @@
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass, field, fields, replace
-from enum import Enum
+from enum import Enum, StrEnum
 from pathlib import Path
 from typing import Any
 
@@ -16,34 +16,25 @@ import yaml
 from common.atomic import atomic_write_text
 
 
-class BevSource(str, Enum):
+class BevSource(StrEnum):
     """Where a log's BEV occupancy comes from."""
 
     LIDAR = "lidar"  # real or simulated sweeps, motion-compensated
     BOXES = "boxes"  # rendered from the annotated cuboids (logs without sweeps)
 
-    def __str__(self) -> str:
-        return self.value
 
-
-class BevSourceChoice(str, Enum):
+class BevSourceChoice(StrEnum):
     """Which BEV source to use for a log: ``auto`` picks LiDAR when sweeps cover enough frames."""
 
     AUTO = "auto"
     LIDAR = "lidar"
     BOXES = "boxes"
 
-    def __str__(self) -> str:
-        return self.value
 
-
-class Split(str, Enum):
+class Split(StrEnum):
     TRAIN = "train"
     VAL = "val"
     TEST = "test"
-
-    def __str__(self) -> str:
-        return self.value
 
 
 class ClipsConfigError(ValueError):

@@ -7,7 +7,7 @@ time alike, so the architecture (and E's shape) never changes.
 
 from __future__ import annotations
 
-from enum import Enum
+from enum import StrEnum
 from typing import Any
 
 import torch
@@ -15,16 +15,13 @@ import torch
 from encoders.tagging.attributes import TagError
 
 
-class Inputs(str, Enum):
+class Inputs(StrEnum):
     """Which BEV inputs reach the backbone."""
 
     NONE = "none"
     MAP = "map"
     LIDAR = "lidar"
     BOTH = "both"
-
-    def __str__(self) -> str:
-        return self.value
 
     @property
     def uses_lidar(self) -> bool:

@@ -32,14 +32,14 @@ The last two need the log's map; the ego-relative ones always work.
 
 from __future__ import annotations
 
-from enum import Enum
+from enum import StrEnum
 
 
 class TagError(ValueError):
     """Bad tagging input: unknown attribute or region, malformed composition, missing map or labels."""
 
 
-class AttributeKind(str, Enum):
+class AttributeKind(StrEnum):
     """How an attribute is predicted, trained, pooled and evaluated."""
 
     #: Regressed per cell (smooth L1), pooled with sum (densities) or max (speed), scored by L1.
@@ -47,11 +47,8 @@ class AttributeKind(str, Enum):
     #: A per-cell logit (cross entropy with hard negatives), pooled with max of sigmoid, scored by F1.
     DISCRETE = "discrete"
 
-    def __str__(self) -> str:
-        return self.value
 
-
-class Attribute(str, Enum):
+class Attribute(StrEnum):
     """Tagging attributes; the values are the public vocabulary."""
 
     VEHICLE_DENSITY = "vehicle_density"
@@ -70,9 +67,6 @@ class Attribute(str, Enum):
     THREE_WAY = "three_way"
     FOUR_WAY = "four_way"
 
-    def __str__(self) -> str:
-        return self.value
-
     @property
     def kind(self) -> AttributeKind:
         return AttributeKind.CONTINUOUS if self in CONTINUOUS else AttributeKind.DISCRETE
@@ -82,7 +76,7 @@ class Attribute(str, Enum):
         return self in DENSITIES
 
 
-class Region(str, Enum):
+class Region(StrEnum):
     """Scene regions for pooling tag tensors (metre definitions in the module docstring)."""
 
     FULL = "full"
@@ -91,9 +85,6 @@ class Region(str, Enum):
     AROUND = "around"
     INTERSECTION = "intersection"
     CROSSWALK = "crosswalk"
-
-    def __str__(self) -> str:
-        return self.value
 
     @property
     def needs_map(self) -> bool:

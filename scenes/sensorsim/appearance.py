@@ -11,7 +11,7 @@ from __future__ import annotations
 import zlib
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from enum import Enum
+from enum import StrEnum
 from typing import Any
 
 import numpy as np
@@ -21,22 +21,16 @@ from scenes.geometry import FloatArray
 from scenes.sensorsim.scene import GroundMaterial
 
 
-class TimeOfDay(str, Enum):
+class TimeOfDay(StrEnum):
     DAY = "day"
     DUSK = "dusk"
     NIGHT = "night"
 
-    def __str__(self) -> str:
-        return self.value
 
-
-class Weather(str, Enum):
+class Weather(StrEnum):
     CLEAR = "clear"
     RAIN = "rain"
     FOG = "fog"
-
-    def __str__(self) -> str:
-        return self.value
 
 
 @dataclass(frozen=True)

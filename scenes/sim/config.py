@@ -4,13 +4,13 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass, field
-from enum import Enum
+from enum import StrEnum
 from typing import Any
 
 import yaml
 
 
-class NetworkKind(str, Enum):
+class NetworkKind(StrEnum):
     """Road network layouts ``netgenerate`` builds for the simulated city."""
 
     #: A 5 × 4 grid: 4-way junctions inside, 3-way junctions on the border and where roads are removed.
@@ -19,9 +19,6 @@ class NetworkKind(str, Enum):
     SPIDER = "spider"
     #: A random planar network with junctions of varied degree.
     RANDOM = "random"
-
-    def __str__(self) -> str:
-        return self.value
 
     @staticmethod
     def parse(value: str | NetworkKind) -> NetworkKind:

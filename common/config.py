@@ -1,9 +1,10 @@
 """Reading and writing configs: frozen dataclasses are the schema, YAML files their serialised instances.
 
-Every stage's config goes through these functions, so every config file fails the same way::
+Every stage's config goes through these functions, so every config file fails the same way. The
+config dataclasses inherit :class:`YamlConfig`, which offers them as methods::
 
-    >>> config = from_yaml(ClipsConfig, "clips.yaml")   # missing keys keep their defaults
-    >>> to_yaml(config, "clips.yaml")                    # atomic; round-trips exactly
+    >>> config = ClipsConfig.from_yaml("clips.yaml")   # missing keys keep their defaults
+    >>> config.to_yaml("clips.yaml")                    # atomic; round-trips exactly
 
 A value is checked against the field's type hint (``bool``, ``int``, ``float``, ``str``, ``Path``, a
 ``str`` Enum, ``Literal[...]``, ``tuple[...]``, ``dict[str, ...]``, ``X | None`` and nested config
@@ -24,7 +25,7 @@ import types
 import typing
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any, ClassVar, Self, TypeVar
 
 import yaml
 
@@ -35,6 +36,37 @@ T = TypeVar("T")
 
 class ConfigError(ValueError):
     """A config file or mapping is unreadable, holds unknown keys, or a value of the wrong type."""
+
+
+class YamlConfig:
+    """Base of the config dataclasses: this module's functions as methods, raising the stage's error.
+
+    A stage sets ``config_error`` to its own :class:`ConfigError` subclass, so that its callers can
+    catch one exception type for every bad config of that stage.
+    """
+
+    config_error: ClassVar[type[ConfigError]] = ConfigError
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any] | None, source: str = "<dict>") -> Self:
+        return from_dict(cls, data, source=source, error=cls.config_error)
+
+    @classmethod
+    def from_yaml(cls, path: Path | str) -> Self:
+        return from_yaml(cls, path, error=cls.config_error)
+
+    @classmethod
+    def from_yaml_text(cls, text: str, source: str = "<text>") -> Self:
+        return from_yaml_text(cls, text, source=source, error=cls.config_error)
+
+    def to_dict(self) -> dict[str, Any]:
+        return to_dict(self)
+
+    def to_yaml(self, path: Path | str) -> None:
+        to_yaml(self, path)
+
+    def to_yaml_text(self) -> str:
+        return to_yaml_text(self)
 
 
 # --- writing ----------------------------------------------------------------------------------------

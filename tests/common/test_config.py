@@ -9,7 +9,7 @@ from typing import Literal
 
 import pytest
 
-from common.config import ConfigError, from_dict, from_yaml, from_yaml_text, to_dict, to_yaml
+from common.config import ConfigError, YamlConfig, from_dict, from_yaml, from_yaml_text, to_dict, to_yaml
 
 
 class Mode(str, enum.Enum):
@@ -98,3 +98,21 @@ def test_yaml_syntax_and_top_level_errors_name_the_file(tmp_path: Path) -> None:
         from_yaml_text(Outer, "- 1\n", source="x.yaml")
     with pytest.raises(ConfigError, match="cannot read config"):
         from_yaml(Outer, tmp_path / "missing.yaml")
+
+
+class StageConfig(YamlConfig):
+    config_error = StageConfigError
+
+
+@dataclass(frozen=True)
+class Small(StageConfig):
+    epochs: int = 3
+
+
+def test_the_base_class_offers_the_functions_with_the_stage_error(tmp_path: Path) -> None:
+    Small(epochs=4).to_yaml(tmp_path / "s.yaml")
+    assert Small.from_yaml(tmp_path / "s.yaml") == Small(epochs=4)
+    assert Small.from_yaml_text(Small(epochs=5).to_yaml_text()) == Small(epochs=5)
+    assert Small.from_dict({"epochs": 6}).to_dict() == {"epochs": 6}
+    with pytest.raises(StageConfigError, match="unknown keys epoch "):
+        Small.from_dict({"epoch": 1})

@@ -135,10 +135,11 @@ def _cpu_rate(clips_dir: Path, augment: bool, as_uint8: bool, samples: int) -> f
 
 def _naive_clips_per_s(logs: list[Path], clips_dir: Path, config: Any, max_clips: int) -> float:
     """Render each clip's own frames from the log files (no per-log arrays)."""
+    from encoders.clips.layout import read_clip_table
     from encoders.clips.render import render_log
     from scenes.log import Log
 
-    table = pq.read_table(clips_dir / "clips.parquet").to_pylist()[:max_clips]
+    table = read_clip_table(clips_dir).to_pylist()[:max_clips]
     by_id = {p.name: p for p in logs}
     opened: dict[str, Any] = {}
     start = time.perf_counter()
@@ -160,8 +161,9 @@ def _naive_clips_per_s(logs: list[Path], clips_dir: Path, config: Any, max_clips
 
 
 def run(quick: bool) -> dict[str, Any]:
-    from encoders.clips.build import build_clips, preview_file_name
+    from encoders.clips.build import build_clips
     from encoders.clips.config import ClipsConfig
+    from encoders.clips.layout import PREVIEWS_DIR, preview_file_name, read_clip_table
     from encoders.clips.preview import write_preview
 
     n_logs, duration_s = (2, 10.0) if quick else (4, 20.0)
@@ -185,11 +187,11 @@ def run(quick: bool) -> dict[str, Any]:
     frames = sum(int(s["frames"]) for s in report.logs.values())
     log_bytes = sum(int(s["bytes"]) for s in report.logs.values())
 
-    rows = pq.read_table(clips_dir / "clips.parquet").to_pylist()[: 8 if quick else 24]
+    rows = read_clip_table(clips_dir).to_pylist()[: 8 if quick else 24]
     start = time.perf_counter()
     preview_bytes = 0
     for row in rows:
-        path = clips_dir / "previews" / preview_file_name(row["clip_id"])
+        path = clips_dir / PREVIEWS_DIR / preview_file_name(row["clip_id"])
         write_preview(clips_dir, row, path, config)
         preview_bytes += path.stat().st_size
     preview_s = time.perf_counter() - start

@@ -137,7 +137,7 @@ def _pct(values: list[float], q: float) -> float:
 
 def measure(n: int, embedder: TowerEmbedder, texts: list[str], seed: int = 0) -> dict[str, Any]:
     from indexes.clip_index import ClipIndex
-    from retrieval.querying import hits_to_results
+    from retrieval.querying import Query, hits_to_results
     from retrieval.scenesearch import SceneSearch
 
     d = embedder.dim
@@ -179,7 +179,7 @@ def measure(n: int, embedder: TowerEmbedder, texts: list[str], seed: int = 0) ->
         t1 = time.perf_counter()
         index.vectors.search(xq, 10)
         t2 = time.perf_counter()
-        hits_to_results(index, xq, 10, None, "fused", None)
+        hits_to_results(index, xq, Query(10, None), "fused", None)
         t3 = time.perf_counter()
         enc.append(t1 - t0)
         fais.append(t2 - t1)

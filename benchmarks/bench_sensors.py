@@ -45,15 +45,9 @@ from scenes.sensorsim.camera import CameraRenderer
 from scenes.sensorsim.config import LidarConfig, SensorConfig
 from scenes.sensorsim.instance_masks import write_instance_mask
 from scenes.sensorsim.lidar import _ray_pattern, cast_sweep
-from scenes.sensorsim.scene import (
-    BOX_SHAPE,
-    FrameObjects,
-    StaticWorld,
-    _kerb_mesh,
-    build_object_mesh,
-    o3d_tensor,
-)
+from scenes.sensorsim.objects import BOX_SHAPE, FrameObjects, build_object_mesh
 from scenes.sensorsim.synthetic import write_synthetic_log
+from scenes.sensorsim.world import StaticWorld, _kerb_mesh, o3d_tensor
 
 
 def _static_triangles(world: StaticWorld) -> tuple[np.ndarray, np.ndarray]:

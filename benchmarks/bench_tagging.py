@@ -107,10 +107,11 @@ def frame_truth(clips: Path, log_dirs: list[Path], factor: int) -> dict[str, tup
     import pyarrow.parquet as pq
     import torch
 
+    from encoders.clips.layout import FRAMES_FILE, grid_from_manifest, read_manifest, rendered_log_dir
     from encoders.tagging.attributes import Region
     from encoders.tagging.losses import downsample_targets
     from encoders.tagging.scene_tags import coarse_grid, ego_region_mask
-    from encoders.tagging.targets import grid_from_manifest, open_targets, read_manifest
+    from encoders.tagging.targets import open_targets
 
     grid = coarse_grid(grid_from_manifest(read_manifest(clips)), factor)
     front = ego_region_mask(grid, Region.FRONT)
@@ -121,7 +122,7 @@ def frame_truth(clips: Path, log_dirs: list[Path], factor: int) -> dict[str, tup
         t = downsample_targets(torch.from_numpy(np.asarray(lt.targets[:, cols], np.float32)), factor,
                                torch.tensor([False, False])).numpy()
         hit = ((t[:, 0] >= 0.5) & (t[:, 1] >= 0.5) & front).any(axis=(1, 2))
-        ts = pq.read_table(clips / "logs" / d.name / "frames.parquet", columns=["timestamp_ns"]).column(0).to_numpy()
+        ts = pq.read_table(rendered_log_dir(clips, d.name) / FRAMES_FILE, columns=["timestamp_ns"]).column(0).to_numpy()
         truth[d.name] = (np.asarray(ts), np.asarray(hit, dtype=bool))
     return truth
 
@@ -166,11 +167,14 @@ def run(quick: bool = False, out: Path | None = None, steps: int | None = None,
 
     import torch
 
+    from encoders.clips.layout import read_manifest
+    from encoders.tagging.config import TagTrainConfig
     from encoders.tagging.data import split_logs
     from encoders.tagging.evaluate import best_threshold, evaluate_runs, metrics_by_region, pool_split, write_report
     from encoders.tagging.extend import CAUSES_EGO_BRAKING, add_attributes, ego_brake_cause_targets
-    from encoders.tagging.targets import open_targets, read_manifest
-    from encoders.tagging.training import TagTrainConfig, load_tagger, train_tags
+    from encoders.tagging.inference import load_tagger
+    from encoders.tagging.targets import open_targets
+    from encoders.tagging.training import train_tags
     from retrieval.tagging import TagSearch
 
     torch.set_num_threads(2)

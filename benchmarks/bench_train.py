@@ -137,7 +137,7 @@ def acceptance(
         t0 = time.perf_counter()
         config = dataclasses.replace(base, shuffle_frames=shuffled)
         train("synthetic", run_dir, config, datasets=data, resume=(run_dir / "checkpoints" / "last.pt").exists())
-        from encoders.train import load_model
+        from encoders.inference import load_model
 
         model = load_model(run_dir)
         results[name] = {

@@ -33,6 +33,11 @@ from captioning.tags import HOST_DIRECTIONS, LANES, NO_TAG, HostDirection, Lane
 _ORDER = {LANES.index(Lane.RIGHT): 0, LANES.index(Lane.HOST): 1, LANES.index(Lane.LEFT): 2}
 
 
+def _rate(agreeing: int, events: int) -> float:
+    """Share of ``events`` that the tags agree with; NaN without events."""
+    return agreeing / events if events else float("nan")
+
+
 @dataclass(frozen=True)
 class AgreementReport:
     """Counts of labelled events and how many the tags agree with."""
@@ -49,21 +54,22 @@ class AgreementReport:
     @property
     def lane_change_rate(self) -> float:
         """Share of evaluable lane-change events whose lane tags change (NaN if none)."""
-        return self.lane_change_transition / self.lane_change_evaluable if self.lane_change_evaluable else float("nan")
+        return _rate(self.lane_change_transition, self.lane_change_evaluable)
 
     @property
     def lane_change_directed_rate(self) -> float:
-        return self.lane_change_directed / self.lane_change_evaluable if self.lane_change_evaluable else float("nan")
+        """Share of evaluable lane-change events whose lane tags move the labelled way (NaN if none)."""
+        return _rate(self.lane_change_directed, self.lane_change_evaluable)
 
     @property
     def band_crossing_rate(self) -> float:
         """Share of band-crossing lane changes whose lane tags change (NaN if none)."""
-        return self.band_crossing_transition / self.band_crossing_events if self.band_crossing_events else float("nan")
+        return _rate(self.band_crossing_transition, self.band_crossing_events)
 
     @property
     def ego_turn_rate(self) -> float:
         """Share of ego turns whose host tags steer the labelled way (NaN if none)."""
-        return self.ego_turn_steering / self.ego_turn_events if self.ego_turn_events else float("nan")
+        return _rate(self.ego_turn_steering, self.ego_turn_events)
 
     def __add__(self, other: AgreementReport) -> AgreementReport:
         a, b = asdict(self), asdict(other)

@@ -10,26 +10,30 @@ The YAML file mirrors the nesting (every key optional, defaults below)::
     windows:   {strategy: host_segments, length_s: 5.0, stride_s: 2.5}
     text:      {num_paraphrases: 3, seed: 0}
 
-Unknown keys and contradicting thresholds raise :class:`~captioning.errors.ConfigError`.
-:data:`DEFAULT_CONFIG_PATH` is the annotated default file, equal to ``CaptioningConfig()``.
+Reading and writing go through :mod:`common.config` (``CaptioningConfig.from_yaml(path)``,
+``to_yaml(path)``): unknown keys (all listed), values of the wrong type and contradicting thresholds
+raise :class:`~captioning.errors.ConfigError`. :data:`DEFAULT_CONFIG_PATH` is the annotated default
+file, equal to ``CaptioningConfig()``.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from dataclasses import dataclass, field
-from enum import Enum, StrEnum
+from enum import StrEnum
 from pathlib import Path
-from typing import Any
-
-import yaml
 
 from captioning.errors import ConfigError
-from common.atomic import atomic_write_text
+from common.config import YamlConfig
 
 #: The annotated default configuration shipped with the package.
 DEFAULT_CONFIG_PATH = Path(__file__).with_name("captioning.yaml")
+
+
+class CaptioningYamlConfig(YamlConfig):
+    """Base of the captioning config dataclasses: every bad value or file raises :class:`ConfigError`."""
+
+    config_error = ConfigError
 
 
 class WindowStrategy(StrEnum):
@@ -42,7 +46,7 @@ class WindowStrategy(StrEnum):
 
 
 @dataclass(frozen=True)
-class HostConfig:
+class HostConfig(CaptioningYamlConfig):
     """Host (ego) motion and direction thresholds (paper eqs. 1, 2).
 
     Attributes:
@@ -60,7 +64,7 @@ class HostConfig:
 
 
 @dataclass(frozen=True)
-class NeighborConfig:
+class NeighborConfig(CaptioningYamlConfig):
     """Neighbour stationarity, lane and motion thresholds (paper eqs. 3–7).
 
     Attributes:
@@ -86,7 +90,7 @@ class NeighborConfig:
 
 
 @dataclass(frozen=True)
-class SmoothingConfig:
+class SmoothingConfig(CaptioningYamlConfig):
     """Derivatives and flicker suppression.
 
     Attributes:
@@ -109,7 +113,7 @@ class SmoothingConfig:
 
 
 @dataclass(frozen=True)
-class SegmentsConfig:
+class SegmentsConfig(CaptioningYamlConfig):
     """Host segments: runs of one host tag, ``min_frames``..``max_frames`` long (paper: 8..300).
 
     Runs shorter than ``min_frames`` are dropped; longer than ``max_frames`` are split into equal parts,
@@ -121,7 +125,7 @@ class SegmentsConfig:
 
 
 @dataclass(frozen=True)
-class WindowsConfig:
+class WindowsConfig(CaptioningYamlConfig):
     """Neighbour caption windows.
 
     Attributes:
@@ -136,7 +140,7 @@ class WindowsConfig:
 
 
 @dataclass(frozen=True)
-class TextConfig:
+class TextConfig(CaptioningYamlConfig):
     """Caption text.
 
     Attributes:
@@ -149,7 +153,7 @@ class TextConfig:
 
 
 @dataclass(frozen=True)
-class CaptioningConfig:
+class CaptioningConfig(CaptioningYamlConfig):
     """All thresholds of the rules. See each part's docstring for the defaults' reasons."""
 
     host: HostConfig = field(default_factory=HostConfig)
@@ -215,101 +219,3 @@ class CaptioningConfig:
             problems.append(f"text.num_paraphrases must be >= 0, got {self.text.num_paraphrases}")
         if problems:
             raise ConfigError("invalid captioning config: " + "; ".join(problems))
-
-    # --- (de)serialisation -------------------------------------------------------------------
-
-    def to_dict(self) -> dict[str, Any]:
-        """Plain nested dict (enums as strings, tuples as lists), the YAML layout."""
-        out: dict[str, Any] = {}
-        for part in dataclasses.fields(self):
-            section = getattr(self, part.name)
-            values: dict[str, Any] = {}
-            for f in dataclasses.fields(section):
-                v = getattr(section, f.name)
-                values[f.name] = v.value if isinstance(v, Enum) else list(v) if isinstance(v, tuple) else v
-            out[part.name] = values
-        return out
-
-    @staticmethod
-    def from_dict(data: dict[str, Any] | None, source: str = "<dict>") -> CaptioningConfig:
-        """Build from a nested dict; missing keys keep defaults.
-
-        Raises:
-            ConfigError: unknown sections/keys (all listed), wrong types, contradictions.
-        """
-        data = data or {}
-        if not isinstance(data, dict):
-            raise ConfigError(f"{source}: top level must be a mapping, got {type(data).__name__}")
-        sections = {f.name: f for f in dataclasses.fields(CaptioningConfig)}
-        unknown = [k for k in data if k not in sections]
-        for name, value in data.items():
-            if name in sections and isinstance(value, dict):
-                section_cls = _SECTION_TYPES[name]
-                known = {f.name for f in dataclasses.fields(section_cls)}
-                unknown += [f"{name}.{k}" for k in value if k not in known]
-        if unknown:
-            raise ConfigError(f"{source}: unknown config keys: {', '.join(map(str, unknown))}")
-        kwargs: dict[str, Any] = {}
-        for name, value in data.items():
-            if not isinstance(value, dict):
-                raise ConfigError(f"{source}: section '{name}' must be a mapping, got {type(value).__name__}")
-            kwargs[name] = _build_section(name, value, source)
-        return CaptioningConfig(**kwargs)
-
-    @staticmethod
-    def from_yaml(path: Path | str) -> CaptioningConfig:
-        """Load a YAML file (see the module docstring for the layout)."""
-        path = Path(path)
-        try:
-            data = yaml.safe_load(path.read_text())
-        except yaml.YAMLError as exc:
-            raise ConfigError(f"{path}: not valid YAML: {exc}") from exc
-        return CaptioningConfig.from_dict(data, source=str(path))
-
-    def to_yaml_text(self) -> str:
-        return yaml.safe_dump(self.to_dict(), sort_keys=False)
-
-    def to_yaml(self, path: Path | str) -> None:
-        """Write atomically."""
-        atomic_write_text(path, self.to_yaml_text())
-
-
-_SECTION_TYPES: dict[str, type] = {
-    "host": HostConfig,
-    "neighbor": NeighborConfig,
-    "smoothing": SmoothingConfig,
-    "segments": SegmentsConfig,
-    "windows": WindowsConfig,
-    "text": TextConfig,
-}
-
-
-def _build_section(name: str, values: dict[str, Any], source: str) -> Any:
-    section_cls = _SECTION_TYPES[name]
-    defaults = section_cls()
-    kwargs: dict[str, Any] = {}
-    for key, raw in values.items():
-        default = getattr(defaults, key)
-        where = f"{source}: {name}.{key}"
-        if isinstance(default, WindowStrategy):
-            try:
-                kwargs[key] = WindowStrategy(raw)
-            except ValueError as exc:
-                raise ConfigError(f"{where} must be one of {[v.value for v in WindowStrategy]}, got {raw!r}") from exc
-        elif isinstance(default, tuple):
-            if not isinstance(raw, list | tuple) or len(raw) != len(default) or not all(_is_number(v) for v in raw):
-                raise ConfigError(f"{where} must be a list of {len(default)} numbers, got {raw!r}")
-            kwargs[key] = tuple(float(v) for v in raw)
-        elif isinstance(default, bool) or (isinstance(default, int) and not isinstance(default, float)):
-            if isinstance(raw, bool) or not isinstance(raw, int):
-                raise ConfigError(f"{where} must be an integer, got {raw!r}")
-            kwargs[key] = raw
-        else:
-            if not _is_number(raw):
-                raise ConfigError(f"{where} must be a number, got {raw!r}")
-            kwargs[key] = float(raw)
-    return section_cls(**kwargs)
-
-
-def _is_number(value: object) -> bool:
-    return isinstance(value, int | float) and not isinstance(value, bool)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import common.config
 from scenes.errors import ScenesError
 
 
@@ -9,7 +10,7 @@ class CaptioningError(ScenesError):
     """Base class of every error raised by :mod:`captioning`."""
 
 
-class ConfigError(CaptioningError, ValueError):
+class ConfigError(CaptioningError, common.config.ConfigError):
     """A captioning configuration is malformed or its thresholds contradict each other."""
 
 

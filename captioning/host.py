@@ -5,14 +5,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
 
 from captioning.config import CaptioningConfig
-from captioning.smoothing import seconds_since_first, suppress_flicker, time_derivative
+from captioning.smoothing import IntArray, seconds_since_first, suppress_flicker, time_derivative
 from captioning.tags import HOST_DIRECTIONS, HOST_MOTIONS, NO_TAG, HostDirection, HostMotion
 from scenes.geometry import FloatArray
-
-IntArray = NDArray[np.int64]
 
 
 @dataclass(frozen=True)

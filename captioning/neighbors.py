@@ -34,7 +34,14 @@ import numpy as np
 from numpy.typing import NDArray
 
 from captioning.config import CaptioningConfig
-from captioning.smoothing import run_bounds, seconds_since_first, suppress_flicker, time_derivative
+from captioning.smoothing import (
+    BoolArray,
+    IntArray,
+    run_bounds,
+    seconds_since_first,
+    suppress_flicker,
+    time_derivative,
+)
 from captioning.tags import (
     BASELINE_CODE_OF_LANE_CODE,
     BASELINE_LANES,
@@ -47,9 +54,6 @@ from captioning.tags import (
     paper_lateral_m,
 )
 from scenes.geometry import FloatArray, wrap_angle_rad
-
-IntArray = NDArray[np.int64]
-BoolArray = NDArray[np.bool_]
 
 _ONGOING, _LATERAL, _ONCOMING = (BASELINE_LANES.index(b) for b in BaselineLane)
 _L = {lane: LANES.index(lane) for lane in Lane}

@@ -36,6 +36,7 @@ from captioning.config import CaptioningConfig
 from captioning.errors import TrackDataError
 from captioning.host import host_tags
 from captioning.neighbors import NeighborTags, neighbor_tags
+from captioning.smoothing import BoolArray, FloatArray, IntArray
 from captioning.tags import BASELINE_LANES, HOST_DIRECTIONS, HOST_MOTIONS, LANES, MOTIONS, NO_TAG
 from captioning.text import caption_text, paraphrases
 from captioning.unify import Segment, caption_windows, collapse_codes
@@ -85,9 +86,6 @@ CAPTIONS_SCHEMA = pa.schema(
     ]
 )
 
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
-BoolArray = NDArray[np.bool_]
 
 _HOST_STRINGS = [f"{m.value}:{d.value}" for m in HOST_MOTIONS for d in HOST_DIRECTIONS]
 _NEIGHBOR_STRINGS = [f"{lane.value}:{m.value}" for lane in LANES for m in MOTIONS]

@@ -9,12 +9,13 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
 
 from captioning.config import CaptioningConfig
-from captioning.smoothing import savgol_derivative_coefficients
+from captioning.smoothing import FloatArray, savgol_derivative_coefficients
 from captioning.tags import (
     BASELINE_OF_LANE,
     HOST_DIRECTIONS,
@@ -29,7 +30,7 @@ from captioning.tags import (
     Motion,
 )
 
-FloatArray = NDArray[np.float64]
+T = TypeVar("T")
 
 
 @dataclass(frozen=True)
@@ -112,6 +113,15 @@ def _suppress(codes: list[int], min_run: int) -> list[int]:
     return out
 
 
+def _by_threshold(value: float, threshold: float, below: T, within: T, above: T) -> T:
+    """``below`` under −``threshold``, ``above`` over +``threshold``, else ``within`` (the rules' three-way test)."""
+    if value < -threshold:
+        return below
+    if value > threshold:
+        return above
+    return within
+
+
 def reference_tags(
     timestamps_ns: NDArray[np.int64],
     valid: NDArray[np.bool_],
@@ -120,15 +130,8 @@ def reference_tags(
     city_SE3_ego: FloatArray,
     config: CaptioningConfig,
 ) -> ReferenceTags:
-    """Per-frame tags, one Python step at a time.
-
-    Args:
-        timestamps_ns: (T,) frame timestamps.
-        valid: (K, T) observed mask.
-        center_ego_xy_m: (K, T, 2) centres in the ego frame.
-        yaw_ego_rad: (K, T) headings in the ego frame.
-        city_SE3_ego: (T, 4, 4) ego poses.
-    """
+    """Per-frame tags, one Python step at a time; the arguments (and their shapes) are those of
+    :func:`captioning.neighbors.neighbor_tags`, whose results these must equal."""
     h, nb, m = config.host, config.neighbor, config.smoothing.min_run_frames
     k_count, t_count = valid.shape
     t_s = [float(ts - timestamps_ns[0]) * 1e-9 for ts in timestamps_ns.tolist()]
@@ -148,20 +151,15 @@ def reference_tags(
             host_motion.append(NO_TAG)
         elif v < h.stationary_speed_mps:
             host_motion.append(HOST_MOTIONS.index(HostMotion.STATIONARY))
-        elif a > h.accel_mps2:
-            host_motion.append(HOST_MOTIONS.index(HostMotion.ACCELERATING))
-        elif a < -h.accel_mps2:
-            host_motion.append(HOST_MOTIONS.index(HostMotion.DECELERATING))
         else:
-            host_motion.append(HOST_MOTIONS.index(HostMotion.CRUISING))
+            host_motion.append(HOST_MOTIONS.index(_by_threshold(
+                a, h.accel_mps2, HostMotion.DECELERATING, HostMotion.CRUISING, HostMotion.ACCELERATING)))
         if math.isnan(w):
             host_direction.append(NO_TAG)
-        elif w < -h.yaw_rate_rps:
-            host_direction.append(HOST_DIRECTIONS.index(HostDirection.STEERING_RIGHT))
-        elif w > h.yaw_rate_rps:
-            host_direction.append(HOST_DIRECTIONS.index(HostDirection.STEERING_LEFT))
         else:
-            host_direction.append(HOST_DIRECTIONS.index(HostDirection.HEADING_STRAIGHT))
+            host_direction.append(HOST_DIRECTIONS.index(_by_threshold(
+                w, h.yaw_rate_rps, HostDirection.STEERING_RIGHT, HostDirection.HEADING_STRAIGHT,
+                HostDirection.STEERING_LEFT)))
 
     first_SE3_city = np.linalg.inv(city_SE3_ego[0])
     stationary = np.zeros(k_count, dtype=bool)
@@ -252,12 +250,8 @@ def reference_tags(
             else:
                 pos, vel = rel_x[f], drx[f]
             ddist = (1.0 if pos > 0 else -1.0 if pos < 0 else 0.0) * vel
-            if ddist < -nb.relative_speed_mps:
-                raw_motion.append(MOTIONS.index(Motion.APPROACH))
-            elif ddist > nb.relative_speed_mps:
-                raw_motion.append(MOTIONS.index(Motion.AWAY))
-            else:
-                raw_motion.append(MOTIONS.index(Motion.CONSTANT))
+            raw_motion.append(MOTIONS.index(_by_threshold(
+                ddist, nb.relative_speed_mps, Motion.APPROACH, Motion.CONSTANT, Motion.AWAY)))
         motion_codes = _suppress(raw_motion, m)
         for f in range(t_count):
             if ok_observed[f]:

@@ -26,8 +26,9 @@ from numpy.typing import NDArray
 from scipy.ndimage import correlate1d
 
 from captioning.tags import NO_TAG
+from scenes.geometry import FloatArray
 
-FloatArray = NDArray[np.float64]
+# The array types of the captioning stage, imported from here by its modules (FloatArray is the scenes' own).
 IntArray = NDArray[np.int64]
 BoolArray = NDArray[np.bool_]
 

@@ -6,12 +6,10 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
 
 from captioning.config import CaptioningConfig, WindowStrategy
+from captioning.smoothing import IntArray
 from captioning.tags import NO_TAG
-
-IntArray = NDArray[np.int64]
 
 
 def collapse(tags: Sequence[str]) -> list[str]:

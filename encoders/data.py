@@ -25,7 +25,6 @@ rotated to match), and colour jitter of the camera frames.
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -33,10 +32,10 @@ from typing import Any
 import cv2
 import numpy as np
 import pyarrow as pa
-import pyarrow.parquet as pq
 import torch
 from numpy.typing import NDArray
 
+from encoders.clips.layout import grid_from_manifest, read_clip_table, read_manifest
 from encoders.clips.views import (
     LogArrays,
     ego_motion,
@@ -46,29 +45,9 @@ from encoders.clips.views import (
     open_log_arrays,
     warp_source_cells,
 )
-from scenes.bev import BevGrid
 
-CLIPS_FILE = "clips.parquet"
-MANIFEST_FILE = "manifest.json"
 #: The image-like views; uint8 0–255 with ``as_uint8=True``, else float32 in [0, 1].
 UINT8_VIEWS = ("camera", "bev_lidar", "bev_map", "bev_object")
-
-
-def read_clip_table(clips_dir: Path | str) -> pa.Table:
-    """``CLIPS_DIR/clips.parquet``."""
-    path = Path(clips_dir) / CLIPS_FILE
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: clip table not found (run `scenesearch clips` first)")
-    return pq.read_table(path)
-
-
-def read_manifest(clips_dir: Path | str) -> dict[str, Any]:
-    """``CLIPS_DIR/manifest.json``."""
-    path = Path(clips_dir) / MANIFEST_FILE
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: clips manifest not found (run `scenesearch clips` first)")
-    data: dict[str, Any] = json.loads(path.read_text())
-    return data
 
 
 @dataclass(frozen=True)
@@ -153,10 +132,7 @@ class ClipDataset(torch.utils.data.Dataset[dict[str, Any]]):
             float(cam.get("highlight_alpha", 0.5)),
             float(cam.get("dim_factor", 0.7)),
         )
-        bev = self.manifest["bev"]
-        self._bev = (float(bev["x_min_m"]), float(bev["x_max_m"]), float(bev["y_min_m"]), float(bev["y_max_m"]),
-                     float(bev["resolution_m"]))
-        self._grid = BevGrid(*self._bev)
+        self._grid = grid_from_manifest(self.manifest)
         self._arrays: dict[str, LogArrays] = {}
 
     # Memory maps are opened lazily in each process, never pickled to workers.

@@ -1,12 +1,90 @@
-"""Retrieval metrics, pure numpy: text → clip recall at k, median rank and mean average precision."""
+"""Text → clip retrieval metrics, pure numpy: recall at k, median rank and mean average precision.
+
+The one implementation behind training validation (``metrics.jsonl``) and ``scenesearch eval``, so
+both report the same figures for the same embeddings.
+
+Ties count against the model: a relevant clip that scores the same as an irrelevant one ranks
+after it. A model that gives every clip the same score therefore ranks each query's relevant
+clips last, not first.
+"""
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 
+KS = (1, 5, 10)
+CURVE_MAX_K = 50
 
-def text_to_clip_metrics(sim: np.ndarray, relevant: np.ndarray, ks: tuple[int, ...] = (1, 5, 10)) -> dict[str, float]:
-    """Retrieval quality of Q queries over N gallery items.
+
+def _check_pair(sim: np.ndarray, relevant: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``sim`` as float64 and ``relevant`` as bool, both (Q, N)."""
+    sim = np.asarray(sim, dtype=np.float64)
+    relevant = np.asarray(relevant, dtype=bool)
+    if sim.ndim != 2 or sim.shape != relevant.shape:
+        raise ValueError(f"sim {sim.shape} and relevant {relevant.shape} must both be (Q, N)")
+    return sim, relevant
+
+
+def _check_every_query_has_a_relevant_clip(relevant: np.ndarray) -> None:
+    empty = np.flatnonzero(~relevant.any(axis=1))
+    if len(empty):
+        raise ValueError(f"query row {int(empty[0])} has no relevant clip ({len(empty)} such rows)")
+
+
+def ranked_relevance(sim: np.ndarray, relevant: np.ndarray) -> np.ndarray:
+    """(Q, N) bool: each query's relevance in ranked order, best first, relevant clips after tied irrelevant ones.
+
+    Args:
+        sim: (Q, N) scores, higher is closer.
+        relevant: (Q, N) bool.
+    """
+    sim, relevant = _check_pair(sim, relevant)
+    # lexsort's last key is the primary one: by score (descending), then irrelevant before relevant.
+    order = np.lexsort((relevant, -sim), axis=1)
+    return np.take_along_axis(relevant, order, axis=1)
+
+
+def first_relevant_ranks(sim: np.ndarray, relevant: np.ndarray) -> np.ndarray:
+    """(Q,) 1-based rank of the best-ranked relevant clip of each query (ties broken against the query).
+
+    Args:
+        sim: (Q, N) scores, higher is closer.
+        relevant: (Q, N) bool; every row needs at least one True.
+    """
+    sim, relevant = _check_pair(sim, relevant)
+    _check_every_query_has_a_relevant_clip(relevant)
+    best = np.where(relevant, sim, -np.inf).max(axis=1)
+    # An irrelevant clip scoring equal to the best relevant one ranks before it.
+    return np.asarray(1 + ((sim > best[:, None]) | ((sim == best[:, None]) & ~relevant)).sum(axis=1))
+
+
+def average_precision(sim: np.ndarray, relevant: np.ndarray) -> np.ndarray:
+    """(Q,) average precision of each query's full ranking (ties broken against the query; 0 without
+    a relevant clip)."""
+    hits = ranked_relevance(sim, relevant)
+    precision = np.cumsum(hits, axis=1) / np.arange(1, hits.shape[1] + 1)[None, :]
+    return np.asarray((precision * hits).sum(axis=1) / np.maximum(hits.sum(axis=1), 1))
+
+
+def text_to_clip_figures(sim: np.ndarray, relevant: np.ndarray, ks: Sequence[int] = KS) -> dict[str, float]:
+    """R@K (a relevant clip among the top K), median rank of the first relevant clip, and mAP.
+
+    Args:
+        sim: (Q, N) query × clip scores.
+        relevant: (Q, N) bool relevance; every query needs a relevant clip.
+        ks: cut-offs for recall.
+    """
+    ranks = first_relevant_ranks(sim, relevant)
+    out = {f"R@{k}": float(np.mean(ranks <= k)) for k in ks}
+    out["median_rank"] = float(np.median(ranks))
+    out["mAP"] = float(np.mean(average_precision(sim, relevant)))
+    return out
+
+
+def text_to_clip_metrics(sim: np.ndarray, relevant: np.ndarray, ks: Sequence[int] = KS) -> dict[str, float]:
+    """:func:`text_to_clip_figures` over the queries that have a relevant item, and their count.
 
     Args:
         sim: (Q, N) similarity of each query to each item (higher is better).
@@ -14,26 +92,26 @@ def text_to_clip_metrics(sim: np.ndarray, relevant: np.ndarray, ks: tuple[int, .
         ks: cut-offs for recall.
 
     Returns:
-        ``R@k``: share of queries with a relevant item in the top k; ``median_rank``: median over queries
-        of the 1-based rank of the first relevant item; ``mAP``: mean average precision; ``queries``: Q
-        (queries with no relevant item are left out).
+        ``R@k``, ``median_rank``, ``mAP`` (NaN when no query is left) and ``queries``: the queries
+        kept (those with no relevant item are left out).
     """
-    sim = np.asarray(sim, dtype=np.float64)
-    relevant = np.asarray(relevant, dtype=bool)
-    if sim.ndim != 2 or sim.shape != relevant.shape:
-        raise ValueError(f"sim {sim.shape} and relevant {relevant.shape} must both be (Q, N)")
+    sim, relevant = _check_pair(sim, relevant)
     keep = relevant.any(axis=1)
-    sim, relevant = sim[keep], relevant[keep]
-    out: dict[str, float] = {"queries": float(len(sim))}
-    if len(sim) == 0:
+    out: dict[str, float] = {"queries": float(keep.sum())}
+    if not keep.any():
         return {**out, **{f"R@{k}": float("nan") for k in ks}, "median_rank": float("nan"), "mAP": float("nan")}
-    order = np.argsort(-sim, axis=1, kind="stable")  # (Q, N)
-    hits = np.take_along_axis(relevant, order, axis=1)  # (Q, N) relevance in ranked order
-    first = hits.argmax(axis=1) + 1  # (Q,) 1-based rank of the first relevant item
-    for k in ks:
-        out[f"R@{k}"] = float((first <= k).mean())
-    out["median_rank"] = float(np.median(first))
-    ranks = np.arange(1, hits.shape[1] + 1)
-    precision = np.cumsum(hits, axis=1) / ranks  # (Q, N)
-    out["mAP"] = float(((precision * hits).sum(axis=1) / hits.sum(axis=1)).mean())
-    return out
+    return {**out, **text_to_clip_figures(sim[keep], relevant[keep], ks)}
+
+
+def recall_curve(sim: np.ndarray, relevant: np.ndarray, max_k: int = CURVE_MAX_K) -> list[float]:
+    """R@K for K = 1 … min(max_k, N)."""
+    ranks = first_relevant_ranks(sim, relevant)
+    n = min(max_k, np.asarray(sim).shape[1])
+    return [float(np.mean(ranks <= k)) for k in range(1, n + 1)]
+
+
+def relevance_by_caption(query_captions: Sequence[str], clip_captions: Sequence[str]) -> np.ndarray:
+    """(Q, N) bool: clip n is relevant to query q when their canonical captions are equal."""
+    q = np.asarray(list(query_captions), dtype=object)
+    c = np.asarray(list(clip_captions), dtype=object)
+    return np.asarray(q[:, None] == c[None, :], dtype=bool)

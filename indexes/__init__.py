@@ -14,7 +14,7 @@ Typical use::
     index.save("out/index")          # atomic; ClipIndex.load("out/index", mmap=True) maps IVF lists
 """
 
-from indexes.clip_index import ClipIndex, Hit, SearchResult
+from indexes.clip_index import ClipIndex, Hit, IndexHits
 from indexes.errors import (
     DimensionMismatchError,
     FilterError,
@@ -44,6 +44,7 @@ __all__ = [
     "Hit",
     "IdError",
     "IndexFileError",
+    "IndexHits",
     "IndexesError",
     "InvalidKError",
     "ManifestError",
@@ -52,7 +53,6 @@ __all__ = [
     "MetadataStore",
     "Metric",
     "ReadOnlyIndexError",
-    "SearchResult",
     "ShardedIndex",
     "UnsupportedFormatError",
     "VectorError",

@@ -50,8 +50,8 @@ class Hit:
 
 
 @dataclass(frozen=True)
-class SearchResult:
-    """Results of a batch of queries.
+class IndexHits:
+    """What the index found for a batch of queries (retrieval turns each hit into a user-facing result).
 
     Attributes:
         D: (nq, k) scores, −inf / +inf where fewer than k clips qualify.
@@ -134,7 +134,7 @@ class ClipIndex:
 
     # ------------------------------------------------------------------ search
 
-    def search(self, xq: np.ndarray, k: int, filter: FilterSpec = None) -> SearchResult:
+    def search(self, xq: np.ndarray, k: int, filter: FilterSpec = None) -> IndexHits:
         """The k closest clips to each query among those matching ``filter``.
 
         Args:
@@ -144,16 +144,15 @@ class ClipIndex:
             filter: a filter string, dict or conditions (see :mod:`indexes.filters`), or None.
 
         Raises:
-            InvalidKError: ``k <= 0`` or ``k > len(self)``.
+            InvalidKError: ``k <= 0`` or ``k > len(self)`` (checked by :meth:`VectorIndex.search`).
             FilterError: an unknown field or a value of the wrong type.
         """
-        check_k(k, len(self))
         allowed = None if filter is None else self.metadata.select(filter)
         D, I = self.vectors.search(xq, k, allowed)
-        return SearchResult(D, I, self._hits(D, I))
+        return IndexHits(D, I, self._hits(D, I))
 
     def search_clip(self, clip_id: str, k: int, filter: FilterSpec = None,
-                    exclude_self: bool = True) -> SearchResult:
+                    exclude_self: bool = True) -> IndexHits:
         """Clips closest to ``clip_id``'s own vector (clip → clip); the clip itself left out by default."""
         x = self.reconstruct(clip_id)[None, :]
         if not exclude_self:
@@ -169,7 +168,7 @@ class ClipIndex:
         else:
             allowed = self.metadata.select(filter)
             D, I = self.vectors.search(x, k, allowed[allowed != own])
-        return SearchResult(D, I, self._hits(D, I))
+        return IndexHits(D, I, self._hits(D, I))
 
     def _hits(self, D: np.ndarray, I: np.ndarray) -> list[list[Hit]]:
         valid = I >= 0

@@ -9,9 +9,15 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import common.config
+
 
 class IndexesError(Exception):
     """Base class of every error raised by :mod:`indexes`."""
+
+
+class ConfigError(IndexesError, common.config.ConfigError):
+    """An index configuration (:class:`~indexes.factory.AutoConfig`) holds unknown keys or values out of range."""
 
 
 class VectorError(IndexesError, ValueError):
@@ -104,3 +110,9 @@ class MetadataError(IndexesError, ValueError):
         if field is not None:
             where.append(f"field '{field}'")
         super().__init__(f"{', '.join(where)}: {message}" if where else message)
+
+
+def faiss_message(exc: BaseException) -> str:
+    """The useful line of a FAISS C++ exception (they start with a long source location)."""
+    text = str(exc).strip().splitlines()[0] if str(exc).strip() else repr(exc)
+    return text.split("Error: ", 1)[-1] if "Error: " in text else text

@@ -16,13 +16,10 @@ each kind, so that the choice can be predicted from the numbers in the manifest.
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, fields
-from pathlib import Path
-from typing import Any
+from dataclasses import dataclass
 
-import yaml
-
-from indexes.errors import MemoryBudgetError
+from common.config import YamlConfig
+from indexes.errors import ConfigError, MemoryBudgetError
 
 # Bytes the id map takes per vector: the int64 id plus the hash-table entry that lets an IVF index
 # reconstruct and remove by id.
@@ -32,8 +29,8 @@ HNSW_LINK_BYTES_PER_NEIGHBOUR = 4 * 2 * 1.1
 
 
 @dataclass(frozen=True)
-class AutoConfig:
-    """Thresholds of the automatic choice; serialised as YAML (see :meth:`to_yaml`).
+class AutoConfig(YamlConfig):
+    """Thresholds of the automatic choice; read and written as YAML through :mod:`common.config`.
 
     Attributes:
         flat_max_n: collections up to this many vectors use exact ``Flat``.
@@ -67,27 +64,15 @@ class AutoConfig:
     tune_k: int = 10
     seed: int = 1234
 
+    config_error = ConfigError
+
     def __post_init__(self) -> None:
         if not 0.0 < self.target_recall <= 1.0:
-            raise ValueError(f"AutoConfig.target_recall must be in (0, 1], got {self.target_recall}")
+            raise ConfigError(f"AutoConfig.target_recall must be in (0, 1], got {self.target_recall}")
         for name in ("flat_max_n", "hnsw_max_n", "hnsw_m", "ivf_min_lists", "train_points_per_list",
                      "max_train_points", "tune_queries", "tune_k"):
             if getattr(self, name) <= 0:
-                raise ValueError(f"AutoConfig.{name} must be positive, got {getattr(self, name)}")
-
-    def to_yaml(self) -> str:
-        return yaml.safe_dump(asdict(self), sort_keys=True)
-
-    @classmethod
-    def from_yaml(cls, text: str, source: str | Path = "<string>") -> AutoConfig:
-        data: Any = yaml.safe_load(text) or {}
-        if not isinstance(data, dict):
-            raise ValueError(f"{source}: expected a mapping of AutoConfig fields")
-        known = {f.name for f in fields(cls)}
-        unknown = sorted(set(data) - known)
-        if unknown:
-            raise ValueError(f"{source}: unknown AutoConfig fields {unknown}; valid: {sorted(known)}")
-        return cls(**data)
+                raise ConfigError(f"AutoConfig.{name} must be positive, got {getattr(self, name)}")
 
 
 @dataclass(frozen=True)

@@ -207,9 +207,21 @@ def conditions_of(spec: FilterSpec) -> list[Condition]:
 
 def compile_mask(table: pa.Table, spec: FilterSpec) -> np.ndarray:
     """(N,) bool mask of the rows of ``table`` that satisfy every condition of ``spec``."""
-    expression = spec if isinstance(spec, str) else None
+    return _mask(table, conditions_of(spec), spec if isinstance(spec, str) else None)
+
+
+def check(conditions: Sequence[Condition], schema: pa.Schema, expression: str | None = None) -> None:
+    """Raise the :class:`FilterError` that :func:`compile_mask` would raise on a table of ``schema``
+    (unknown field, an operator the field does not take, a value of the wrong type), reading no rows.
+
+    ``expression`` is the filter string the conditions were parsed from, named in the error.
+    """
+    _mask(schema.empty_table(), conditions, expression)
+
+
+def _mask(table: pa.Table, conditions: Sequence[Condition], expression: str | None) -> np.ndarray:
     mask = np.ones(table.num_rows, dtype=bool)
-    for cond in conditions_of(spec):
+    for cond in conditions:
         if cond.field not in table.column_names:
             raise FilterError(f"unknown field; valid fields: {', '.join(sorted(table.column_names))}",
                               expression, cond.field)

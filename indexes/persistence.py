@@ -24,8 +24,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import faiss
+import numpy as np
+
 from common.atomic import atomic_directory
-from indexes.errors import IndexFileError, ManifestError, UnsupportedFormatError
+from indexes.errors import IndexFileError, ManifestError, UnsupportedFormatError, faiss_message
 
 FORMAT_VERSION = 1
 MANIFEST_NAME = "manifest.json"
@@ -175,3 +178,32 @@ def read_manifest(directory: Path | str, expected_kind: str | None = None, verif
     if not isinstance(extra, dict):
         raise ManifestError(path, "not an object", field="extra")
     return Manifest(version, raw["kind"], raw["dim"], raw["metric"], raw["factory"], raw["count"], files, extra)
+
+
+def read_faiss_index(path: Path, mmap: bool) -> faiss.Index:
+    """Read a FAISS file, memory-mapped on request, turning FAISS's errors into :class:`IndexFileError`."""
+    # The returned objects are already of their concrete type; downcasting them again would create
+    # a second Python owner-less proxy and is never needed.
+    flags = (faiss.IO_FLAG_MMAP | faiss.IO_FLAG_MMAP_IFC | faiss.IO_FLAG_READ_ONLY) if mmap else 0
+    try:
+        index = faiss.read_index(str(path), flags)
+    except RuntimeError as exc:
+        if mmap:
+            # Kinds FAISS cannot map (e.g. graphs) are read into memory; they stay read-only.
+            try:
+                return faiss.read_index(str(path))
+            except RuntimeError:
+                pass
+        raise IndexFileError(path, f"FAISS cannot read it (truncated or corrupt?): {faiss_message(exc)}") from None
+    return index
+
+
+def load_ids(path: Path) -> np.ndarray:
+    """The (N,) int64 ids saved in ``path`` (``.npy``)."""
+    try:
+        arr = np.load(path, allow_pickle=False)
+    except (OSError, ValueError, EOFError) as exc:
+        raise IndexFileError(path, f"unreadable: {exc}") from None
+    if arr.ndim != 1 or arr.dtype != np.int64:
+        raise IndexFileError(path, f"expected a 1-D int64 array, got {arr.dtype} {arr.shape}")
+    return np.asarray(arr)

@@ -19,6 +19,7 @@ from typing import Any
 import faiss
 import numpy as np
 
+from indexes.building import IdsLike, prepare_build
 from indexes.errors import IdError, ManifestError
 from indexes.factory import AutoConfig
 from indexes.persistence import (
@@ -30,7 +31,7 @@ from indexes.persistence import (
     writing_index_dir,
 )
 from indexes.vector_index import KIND as SHARD_KIND
-from indexes.vector_index import IdsLike, VectorIndex, check_k, prepare_build
+from indexes.vector_index import VectorIndex, check_k
 from indexes.vectors import Metric, as_metric, prepare_ids, prepare_vectors
 
 KIND = "sharded_index"

@@ -1,4 +1,4 @@
-"""Search-time knobs (``nprobe``, ``efSearch``) and tuning them to a target recall.
+"""Search-time knobs (``nprobe``, ``efSearch``, threads) and tuning them to a target recall.
 
 Tuning searches a held-out sample of the collection's own vectors: each sampled vector is a query
 whose own id is dropped from both the exact and the approximate answer, so the sample behaves like
@@ -7,13 +7,19 @@ a query that is not in the collection (otherwise the trivial self match would in
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import dataclasses
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import asdict, dataclass
 from enum import Enum
+from typing import Any
 
 import faiss
 import numpy as np
 from faiss.contrib.evaluation import knn_intersection_measure
+
+from indexes.factory import AutoConfig
+from indexes.vectors import Metric
 
 
 class Knob(str, Enum):
@@ -44,34 +50,38 @@ def knob_of(index: faiss.Index) -> Knob:
     return Knob.NONE
 
 
-def get_knob(index: faiss.Index) -> int:
+def _knob_holder(index: faiss.Index) -> tuple[Knob, Any]:
+    """The knob of ``index`` and the FAISS object whose attribute of that name holds it (None: no knob)."""
     inner = unwrap(index)
     knob = knob_of(inner)
     if knob is Knob.NPROBE:
-        return int(faiss.extract_index_ivf(inner).nprobe)
+        return knob, faiss.extract_index_ivf(inner)
     if knob is Knob.EF_SEARCH:
-        return int(inner.hnsw.efSearch)  # type: ignore[attr-defined]
-    return 0
+        return knob, inner.hnsw  # type: ignore[attr-defined]
+    return knob, None
+
+
+def get_knob(index: faiss.Index) -> int:
+    knob, holder = _knob_holder(index)
+    return 0 if holder is None else int(getattr(holder, knob.value))
 
 
 def set_knob(index: faiss.Index, value: int) -> None:
-    inner = unwrap(index)
-    knob = knob_of(inner)
-    if knob is Knob.NPROBE:
-        faiss.extract_index_ivf(inner).nprobe = int(value)
-    elif knob is Knob.EF_SEARCH:
-        inner.hnsw.efSearch = int(value)  # type: ignore[attr-defined]
+    knob, holder = _knob_holder(index)
+    if holder is not None:
+        setattr(holder, knob.value, int(value))
+
+
+#: Most candidates an HNSW search is widened to; beyond it a search costs more than exact search.
+MAX_EF_SEARCH = 4096
 
 
 def knob_limit(index: faiss.Index) -> int:
-    """Largest sensible value: all lists for IVF, 4096 candidates for HNSW."""
-    inner = unwrap(index)
-    knob = knob_of(inner)
+    """Largest sensible value: all lists for IVF, :data:`MAX_EF_SEARCH` candidates for HNSW."""
+    knob, holder = _knob_holder(index)
     if knob is Knob.NPROBE:
-        return int(faiss.extract_index_ivf(inner).nlist)
-    if knob is Knob.EF_SEARCH:
-        return 4096
-    return 0
+        return int(holder.nlist)
+    return MAX_EF_SEARCH if knob is Knob.EF_SEARCH else 0
 
 
 def search_parameters(index: faiss.Index, sel: faiss.IDSelector | None,
@@ -94,6 +104,30 @@ def search_parameters(index: faiss.Index, sel: faiss.IDSelector | None,
     if sel is not None:
         params.sel = sel
     return params
+
+
+#: Below this many queries FAISS searches one query per thread (flat and IVF alike, under its BLAS
+#: threshold), so extra threads only spin at the barrier afterwards, taking CPU from the caller's
+#: own threads (e.g. the text encoder's) for milliseconds: such searches run on one thread.
+SMALL_BATCH_QUERIES = 20
+
+
+@contextmanager
+def faiss_threads_for(nq: int) -> Iterator[None]:
+    """Run FAISS on one thread while searching fewer than :data:`SMALL_BATCH_QUERIES` queries.
+
+    OpenMP's thread count is per calling thread, so concurrent searches in other threads (the
+    service) keep theirs.
+    """
+    if nq >= SMALL_BATCH_QUERIES:
+        yield
+        return
+    before = faiss.omp_get_max_threads()
+    faiss.omp_set_num_threads(1)
+    try:
+        yield
+    finally:
+        faiss.omp_set_num_threads(before)
 
 
 @dataclass(frozen=True)
@@ -191,3 +225,47 @@ def tune(search: SearchFn, exact_ids: np.ndarray, self_ids: np.ndarray, k: int, 
     elif recall < aim and curve:
         value, recall = max(curve, key=lambda p: (p[1], -p[0]))
     return TuningResult(knob.value, int(value), float(recall), k, target_recall, margin, len(self_ids), curve)
+
+
+def tune_index(index: faiss.Index, metric: Metric, x: np.ndarray, ids: np.ndarray, config: AutoConfig,
+               query_ids: np.ndarray | None = None) -> TuningResult:
+    """Tune the knob of ``index`` (holding ``x``) with held-out queries drawn from ``x``, and set it.
+
+    Args:
+        index: a built index holding the rows of ``x`` under ``ids``.
+        metric: the index's metric (exact answers use it too).
+        x: (N, d) prepared vectors.
+        ids: (N,) their ids, sorted.
+        config: ``tune_k``, ``tune_queries``, ``target_recall``, ``tune_margin`` and ``seed``.
+        query_ids: (M,) ids of the rows that query; a seeded sample of ``tune_queries`` rows when None.
+    """
+    k = config.tune_k
+    knob = knob_of(index)
+    exact = isinstance(unwrap(index), faiss.IndexFlat)
+    if exact or len(ids) <= k + 1:
+        # Exact search, or too few vectors to hold any out: nothing to tune or measure.
+        return TuningResult(Knob.NONE.value, 0, 1.0 if exact else None, k, config.target_recall, 0.0, 0, [])
+    rng = np.random.default_rng(config.seed)
+    if query_ids is None:
+        rows = np.sort(rng.choice(len(ids), size=min(config.tune_queries, len(ids)), replace=False))
+    else:
+        rows = np.searchsorted(ids, query_ids)
+    xq = np.ascontiguousarray(x[rows])
+    self_ids = ids[rows]
+    _, rows_exact = faiss.knn(xq, x, k + 1, metric=metric.faiss_metric)
+    exact_ids = np.where(rows_exact >= 0, ids[np.maximum(rows_exact, 0)], -1)
+
+    def search(kk: int, value: int) -> np.ndarray:
+        if knob is Knob.NONE:
+            return np.asarray(index.search(xq, kk)[1])
+        return np.asarray(index.search(xq, kk, params=search_parameters(index, None, value))[1])
+
+    start = 16 if knob is Knob.EF_SEARCH else 1
+    # Kinds without a knob (e.g. flat PQ codes) get their recall measured once.
+    limit = knob_limit(index) if knob is not Knob.NONE else 1
+    result = tune(search, exact_ids, self_ids, k, knob, limit, config.target_recall, start=start,
+                  margin=config.tune_margin)
+    if knob is Knob.NONE:
+        result = dataclasses.replace(result, value=0)
+    set_knob(index, result.value)
+    return result

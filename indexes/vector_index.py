@@ -4,13 +4,18 @@ FAISS stores vectors and int64 ids; this class owns everything around them:
 
 * ids — the caller's ids live inside the FAISS index (IVF lists natively, other kinds through
   ``IndexIDMap2``), the set of live ids is kept sorted beside it, and removed ids are never reused;
-* the choice of index (``factory="auto"``, see :mod:`indexes.factory`) and tuning of
-  ``nprobe``/``efSearch`` to a target recall (see :mod:`indexes.tuning`);
 * filtering inside the search through FAISS ID selectors, with an exact fallback when a filter is
   so selective that the approximate search would come back short;
 * removal: in place where FAISS supports it (Flat, IVF); for HNSW, which cannot delete, removed
   ids become tombstones excluded by a selector on every search;
-* persistence (:mod:`indexes.persistence`).
+* saving and loading its files, checked against the manifest.
+
+The trained empty index comes from :mod:`indexes.building` (``factory="auto"`` picks the kind, see
+:mod:`indexes.factory`), ``nprobe``/``efSearch`` are tuned to a target recall by
+:mod:`indexes.tuning`, and the directory layout is :mod:`indexes.persistence`'s. What stays here is
+one job, keeping the id bookkeeping (live, removed, tombstoned ids) true to the FAISS index: every
+method left reads or updates that bookkeeping, so splitting them would spread one invariant over
+several modules.
 
 Search results follow FAISS: ``D`` and ``I`` are (nq, k); ``I`` holds the caller's ids, sorted by
 closeness; where fewer than k vectors qualify, ``I`` is −1 and ``D`` is −inf (similarity metrics) or
@@ -23,26 +28,32 @@ closeness; where fewer than k vectors qualify, ``I`` is −1 and ``D`` is −inf
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Iterator, Sequence
-from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
 import faiss
 import numpy as np
 
-from indexes.errors import IdError, IndexesError, IndexFileError, InvalidKError, ManifestError, ReadOnlyIndexError
-from indexes.factory import AutoConfig, choose_factory, train_points
-from indexes.persistence import read_manifest, resolve_dir, write_manifest, writing_index_dir
+from indexes.building import IdsLike, prepare_build
+from indexes.errors import IdError, IndexesError, InvalidKError, ManifestError, ReadOnlyIndexError, faiss_message
+from indexes.factory import AutoConfig
+from indexes.persistence import (
+    load_ids,
+    read_faiss_index,
+    read_manifest,
+    resolve_dir,
+    write_manifest,
+    writing_index_dir,
+)
 from indexes.tuning import (
     Knob,
-    TuningResult,
+    faiss_threads_for,
     get_knob,
     knob_limit,
     knob_of,
     search_parameters,
     set_knob,
-    tune,
+    tune_index,
     unwrap,
 )
 from indexes.vectors import Metric, as_metric, prepare_ids, prepare_vectors
@@ -58,30 +69,6 @@ TOMBSTONES_FILE = "tombstones.npy"
 EXACT_FILTER_MAX = 4096
 # Exact search over a filtered subset is also used as the last fallback, up to this many vectors.
 EXACT_FALLBACK_MAX = 262_144
-
-IdsLike = np.ndarray | Sequence[int]
-
-
-def prepare_build(xb: np.ndarray, ids: IdsLike | None, metric: Metric, factory: str,
-                  memory_budget_bytes: int | None, config: AutoConfig) -> tuple[
-        np.ndarray, np.ndarray, str, faiss.Index, dict[str, Any]]:
-    """Check vectors and ids, choose the factory (``auto``) and train an empty FAISS index.
-
-    Returns:
-        (N, d) prepared vectors, (N,) ids, the factory string, the trained empty index and the
-        build information (choice reason, training figures).
-    """
-    x = prepare_vectors(xb, None, metric, "xb")
-    n, d = x.shape
-    id_arr = prepare_ids(None if ids is None else np.asarray(ids), n)
-    info: dict[str, Any] = {}
-    if factory == "auto":
-        choice = choose_factory(n, d, memory_budget_bytes, config)
-        factory = choice.factory
-        info.update(choice_reason=choice.reason, estimated_bytes=choice.estimated_bytes)
-    index = new_faiss_index(factory, d, metric)
-    info.update(train(index, factory, x, config))
-    return x, id_arr, factory, index, info
 
 
 class VectorIndex:
@@ -169,39 +156,8 @@ class VectorIndex:
 
     def tune_on(self, x: np.ndarray, ids: np.ndarray, config: AutoConfig,
                  query_ids: np.ndarray | None = None) -> None:
-        """Tune the knob with held-out queries drawn from ``x`` (rows labelled ``ids``)."""
-        k = config.tune_k
-        exact = isinstance(unwrap(self._index), faiss.IndexFlat)
-        if exact or len(ids) <= k + 1:
-            # Exact search, or too few vectors to hold any out: nothing to tune or measure.
-            self.info["tuning"] = TuningResult(Knob.NONE.value, 0, 1.0 if exact else None, k,
-                                               config.target_recall, 0.0, 0, []).to_dict()
-            return
-        rng = np.random.default_rng(config.seed)
-        if query_ids is None:
-            rows = np.sort(rng.choice(len(ids), size=min(config.tune_queries, len(ids)), replace=False))
-        else:
-            rows = np.searchsorted(ids, query_ids)
-        xq = np.ascontiguousarray(x[rows])
-        self_ids = ids[rows]
-        _, rows_exact = faiss.knn(xq, x, k + 1, metric=self.metric.faiss_metric)
-        exact_ids = np.where(rows_exact >= 0, ids[np.maximum(rows_exact, 0)], -1)
-
-        def search(kk: int, value: int) -> np.ndarray:
-            if self._knob is Knob.NONE:
-                return np.asarray(self._index.search(xq, kk)[1])
-            params = search_parameters(self._index, None, value)
-            return np.asarray(self._index.search(xq, kk, params=params)[1])
-
-        start = 16 if self._knob is Knob.EF_SEARCH else 1
-        # Kinds without a knob (e.g. flat PQ codes) get their recall measured once.
-        limit = knob_limit(self._index) if self._knob is not Knob.NONE else 1
-        result = tune(search, exact_ids, self_ids, k, self._knob, limit,
-                      config.target_recall, start=start, margin=config.tune_margin)
-        if self._knob is Knob.NONE:
-            result = dataclasses.replace(result, value=0)
-        set_knob(self._index, result.value)
-        self.info["tuning"] = result.to_dict()
+        """Tune the knob with held-out queries drawn from ``x`` (rows labelled ``ids``); see :func:`tune_index`."""
+        self.info["tuning"] = tune_index(self._index, self.metric, x, ids, config, query_ids).to_dict()
 
     # ------------------------------------------------------------------ properties
 
@@ -285,7 +241,7 @@ class VectorIndex:
             subset = self._ids if allowed is None else allowed
             if not sel_refs or len(subset) > EXACT_FALLBACK_MAX:
                 raise IndexesError(f"factory {self.factory!r} cannot search with a filter: "
-                                   f"{_faiss_message(exc)}") from None
+                                   f"{faiss_message(exc)}") from None
             return self._exact_search(x, k, subset)
         expected = min(k, len(self) if allowed is None else len(allowed))
         # FAISS puts padding last, so a row is short exactly when its expected-th result is −1.
@@ -375,7 +331,7 @@ class VectorIndex:
             return np.asarray(self._index.reconstruct_batch(arr), dtype=np.float32)
         except RuntimeError as exc:
             raise IndexesError(f"factory {self.factory!r} cannot return stored vectors: "
-                               f"{_faiss_message(exc)}") from None
+                               f"{faiss_message(exc)}") from None
 
     # ------------------------------------------------------------------ changes
 
@@ -484,9 +440,9 @@ class VectorIndex:
         except ValueError:
             raise ManifestError(manifest_path, f"unknown metric {metric_name!r}", field="metric") from None
         index = read_faiss_index(d / INDEX_FILE, mmap)
-        ids = _load_ids(d / IDS_FILE)
-        removed = _load_ids(d / REMOVED_FILE)
-        tombstones = _load_ids(d / TOMBSTONES_FILE)
+        ids = load_ids(d / IDS_FILE)
+        removed = load_ids(d / REMOVED_FILE)
+        tombstones = load_ids(d / TOMBSTONES_FILE)
         if index.d != dim:
             raise ManifestError(manifest_path, f"says dimension {dim}, {INDEX_FILE} has {index.d}", field="dim")
         if index.metric_type != metric.faiss_metric:
@@ -501,95 +457,6 @@ class VectorIndex:
         return out
 
 
-def train(index: faiss.Index, factory: str, x: np.ndarray, config: AutoConfig) -> dict[str, Any]:
-    """Train ``index`` (if it needs it) on a seeded sample of ``x`` (N, d); returns info fields."""
-    if index.is_trained:
-        return {}
-    n = len(x)
-    n_train = train_points(factory, n, config) or min(n, 100_000)
-    rng = np.random.default_rng(config.seed)
-    sample = np.sort(rng.choice(n, size=n_train, replace=False)) if n_train < n else np.arange(n)
-    try:
-        index.train(np.ascontiguousarray(x[sample]))
-    except RuntimeError as exc:
-        raise ValueError(f"factory {factory!r} cannot be trained on {n} vectors: {_faiss_message(exc)}") from None
-    return {"train_points": len(sample)}
-
-
-def new_faiss_index(factory: str, d: int, metric: Metric) -> faiss.Index:
-    """An empty FAISS index for ``factory`` that accepts the caller's ids and reconstructs by id."""
-    try:
-        index = faiss.index_factory(d, factory, metric.faiss_metric)
-    except RuntimeError as exc:
-        raise ValueError(f"FAISS rejects factory string {factory!r}: {_faiss_message(exc)}") from None
-    ivf = faiss.try_extract_index_ivf(index)
-    if ivf is not None and not isinstance(index, faiss.IndexIDMap | faiss.IndexIDMap2):
-        # IVF lists store ids natively; a hash-table map adds lookup (reconstruct) and removal by id.
-        ivf.set_direct_map_type(faiss.DirectMap.Hashtable)  # type: ignore[attr-defined]
-        return index
-    if isinstance(index, faiss.IndexIDMap | faiss.IndexIDMap2):
-        return index
-    return faiss.IndexIDMap2(index)
-
-
-def read_faiss_index(path: Path, mmap: bool) -> faiss.Index:
-    """Read a FAISS file, memory-mapped on request, turning FAISS's errors into :class:`IndexFileError`."""
-    # The returned objects are already of their concrete type; downcasting them again would create
-    # a second Python owner-less proxy and is never needed.
-    flags = (faiss.IO_FLAG_MMAP | faiss.IO_FLAG_MMAP_IFC | faiss.IO_FLAG_READ_ONLY) if mmap else 0
-    try:
-        index = faiss.read_index(str(path), flags)
-    except RuntimeError as exc:
-        if mmap:
-            # Kinds FAISS cannot map (e.g. graphs) are read into memory; they stay read-only.
-            try:
-                return faiss.read_index(str(path))
-            except RuntimeError:
-                pass
-        raise IndexFileError(path, f"FAISS cannot read it (truncated or corrupt?): {_faiss_message(exc)}") from None
-    return index
-
-
-def _load_ids(path: Path) -> np.ndarray:
-    try:
-        arr = np.load(path, allow_pickle=False)
-    except (OSError, ValueError, EOFError) as exc:
-        raise IndexFileError(path, f"unreadable: {exc}") from None
-    if arr.ndim != 1 or arr.dtype != np.int64:
-        raise IndexFileError(path, f"expected a 1-D int64 array, got {arr.dtype} {arr.shape}")
-    return np.asarray(arr)
-
-
-#: Below this many queries FAISS searches one query per thread (flat and IVF alike, under its BLAS
-#: threshold), so extra threads only spin at the barrier afterwards, taking CPU from the caller's
-#: own threads (e.g. the text encoder's) for milliseconds: such searches run on one thread.
-SMALL_BATCH_QUERIES = 20
-
-
-@contextmanager
-def faiss_threads_for(nq: int) -> Iterator[None]:
-    """Run FAISS on one thread while searching fewer than :data:`SMALL_BATCH_QUERIES` queries.
-
-    OpenMP's thread count is per calling thread, so concurrent searches in other threads (the
-    service) keep theirs.
-    """
-    if nq >= SMALL_BATCH_QUERIES:
-        yield
-        return
-    before = faiss.omp_get_max_threads()
-    faiss.omp_set_num_threads(1)
-    try:
-        yield
-    finally:
-        faiss.omp_set_num_threads(before)
-
-
 def check_k(k: int, size: int) -> None:
     if not isinstance(k, int | np.integer) or k <= 0 or k > size:
         raise InvalidKError(int(k), size)
-
-
-def _faiss_message(exc: BaseException) -> str:
-    """The useful line of a FAISS C++ exception (they start with a long source location)."""
-    text = str(exc).strip().splitlines()[0] if str(exc).strip() else repr(exc)
-    return text.split("Error: ", 1)[-1] if "Error: " in text else text

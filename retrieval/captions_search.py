@@ -39,13 +39,14 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from captioning.pipeline import CAPTIONS_FILENAME
 from common.atomic import atomic_directory
-from indexes.errors import FilterError
+from encoders.clips.layout import clip_id
 from indexes.filters import FilterSpec
 from indexes.metadata import MetadataStore
 from retrieval.embedding import SentenceEncoder
-from retrieval.errors import FilterSyntaxError, IndexDirError
-from retrieval.querying import check_k, check_query, preview_of
+from retrieval.errors import IndexDirError
+from retrieval.querying import MAX_K, build_query, check_query, preview_of
 from retrieval.records import SearchResult
 
 TextEncoder = Callable[[Sequence[str]], np.ndarray]
@@ -66,16 +67,12 @@ class Skipped:
     reason: str
 
 
-def clip_id_of(log_id: str, track_id: str, start_ns: int) -> str:
-    """The stable id of a moment: ``f"{log_id}:{track_id}:{start_ns}"``."""
-    return f"{log_id}:{track_id}:{int(start_ns)}"
-
-
 def caption_rows(table: pa.Table) -> tuple[pa.Table, list[Skipped]]:
     """The metadata table of a caption (or clip) table: one row per unique moment with a caption.
 
-    Adds ``clip_id`` when absent; drops rows without a caption and repeated ids (reported). Keeps
-    ``paraphrases`` and ``canonical_caption`` for :func:`text_variants` (they are not metadata).
+    Adds ``clip_id`` (:func:`encoders.clips.layout.clip_id`) when absent; drops rows without a caption
+    and repeated ids (reported). Keeps ``paraphrases`` and ``canonical_caption`` for
+    :func:`text_variants` (they are not metadata).
     """
     missing = [c for c in ("log_id", "track_id", "start_ns", "caption") if c not in table.column_names]
     if "caption" in missing and "canonical_caption" in table.column_names:
@@ -84,9 +81,9 @@ def caption_rows(table: pa.Table) -> tuple[pa.Table, list[Skipped]]:
     if missing:
         raise ValueError(f"the caption table lacks the columns {missing}; it has {table.column_names}")
     if "clip_id" not in table.column_names:
-        ids = [clip_id_of(lg, tr, st) for lg, tr, st in zip(table.column("log_id").to_pylist(),
-                                                            table.column("track_id").to_pylist(),
-                                                            table.column("start_ns").to_pylist())]
+        ids = [clip_id(lg, tr, st) for lg, tr, st in zip(table.column("log_id").to_pylist(),
+                                                         table.column("track_id").to_pylist(),
+                                                         table.column("start_ns").to_pylist())]
         table = table.append_column("clip_id", pa.array(ids, pa.string()))
     keep = [c for c in (*METADATA_COLUMNS, "canonical_caption", "paraphrases") if c in table.column_names]
     table = table.select(keep)
@@ -195,7 +192,7 @@ class CaptionSearch:
         else:
             path = Path(captions)
             if path.is_dir():
-                path = path / "captions.parquet"
+                path = path / CAPTIONS_FILENAME
             if not path.is_file():
                 raise FileNotFoundError(f"{path}: no caption table here (run `scenesearch caption` first)")
             table = pq.read_table(path)
@@ -272,20 +269,21 @@ class CaptionSearch:
         per_text = self.text_embeddings @ np.asarray(xq, dtype=np.float32).reshape(-1)
         return np.asarray(0.5 * (self.full.best(per_text) + self.objects.best(per_text)))
 
-    def search(self, query: str, k: int = 10, filters: FilterSpec = None) -> list[SearchResult]:
+    def search(self, query: str, k: int = 10, filters: FilterSpec = None,
+               max_k: int = MAX_K) -> list[SearchResult]:
         """The k moments whose captions are closest to ``query`` (fewer when a filter passes fewer).
 
         Raises:
-            EmptyQueryError, InvalidKError, FilterSyntaxError: bad arguments.
+            EmptyQueryError, InvalidKError, FilterSyntaxError: bad arguments (see :func:`build_query`).
         """
         query = check_query(query)
-        k = check_k(k, len(self))
+        checked = build_query(k, filters, self.metadata, len(self), max_k)
         scores = self.scores(np.asarray(self.encoder([query]), dtype=np.float32)[0])
-        if filters is not None:
+        if checked.filters is not None:
             allowed = np.zeros(len(self), dtype=bool)
-            allowed[self._select(filters)] = True
+            allowed[self.metadata.select(checked.filters)] = True
             scores = np.where(allowed, scores, -np.inf)
-        k_eff = min(k, int(np.isfinite(scores).sum()))
+        k_eff = min(checked.k, int(np.isfinite(scores).sum()))
         if k_eff == 0:
             return []
         top = np.argpartition(-scores, k_eff - 1)[:k_eff]
@@ -293,19 +291,6 @@ class CaptionSearch:
         rows = self.metadata.rows(top)
         return [SearchResult.from_row(rank, row, float(scores[i]), "captions", preview_of(row, self.base_dir))
                 for rank, (i, row) in enumerate(zip(top, rows), start=1)]
-
-    def _select(self, filters: FilterSpec) -> np.ndarray:
-        valid = self.fields
-        if isinstance(filters, dict):
-            unknown = [f for f in filters if f not in valid]
-            if unknown:
-                raise FilterSyntaxError(f"unknown filter field {unknown[0]!r}; valid fields: {', '.join(valid)}")
-        try:
-            return self.metadata.select(filters)
-        except FilterError as exc:
-            message = str(exc)
-            raise FilterSyntaxError(message if "valid fields" in message else
-                                    f"{message}; valid fields: {', '.join(valid)}") from None
 
 
 # ---------------------------------------------------------------------- logs end to end

@@ -23,9 +23,6 @@ from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-from numpy.typing import NDArray
-
 from common.atomic import atomic_write_text
 
 DEFAULT_QUERIES = (
@@ -126,29 +123,11 @@ class Demo:
 
     # ------------------------------------------------------------------ paths
 
-    @property
-    def logs_dir(self) -> Path:
-        return self.out_dir / "logs"
-
-    @property
-    def captions_dir(self) -> Path:
-        return self.out_dir / "captions"
-
-    @property
-    def clips_dir(self) -> Path:
-        return self.out_dir / "clips"
-
-    @property
-    def run_dir(self) -> Path:
-        return self.out_dir / "run"
-
-    @property
-    def index_dir(self) -> Path:
-        return self.out_dir / "index"
-
-    @property
-    def metrics_path(self) -> Path:
-        return self.out_dir / "metrics.json"
+    def __post_init__(self) -> None:
+        # One folder (or file) per stage's output; every later command can be pointed at them.
+        out = self.out_dir
+        self.logs_dir, self.captions_dir, self.clips_dir = out / "logs", out / "captions", out / "clips"
+        self.run_dir, self.index_dir, self.metrics_path = out / "run", out / "index", out / "metrics.json"
 
     def log_dirs(self) -> list[Path]:
         if not self.logs_dir.is_dir():
@@ -241,12 +220,16 @@ class Demo:
         return ""
 
     def stage_clips(self) -> str:
+        from encoders.clips.config import BevClipConfig, CameraClipConfig, ClipsConfig, SplitConfig
+
         c = self.config
         config_path = self.out_dir / "clips.yaml"
-        train_fraction = round(1.0 - VAL_FRACTION - c.test_fraction, 6)
-        config_path.write_text(f"camera: {{width_px: {c.camera_width_px}, height_px: {c.camera_height_px}}}\n"
-                               f"bev: {{resolution_m: {c.bev_resolution_m}}}\n"
-                               f"split: {{train_fraction: {train_fraction}, val_fraction: {VAL_FRACTION}}}\n")
+        ClipsConfig(
+            frames_per_clip=c.frames_per_clip,
+            camera=CameraClipConfig(width_px=c.camera_width_px, height_px=c.camera_height_px),
+            bev=BevClipConfig(resolution_m=c.bev_resolution_m),
+            split=SplitConfig(train_fraction=round(1.0 - VAL_FRACTION - c.test_fraction, 6), val_fraction=VAL_FRACTION),
+        ).to_yaml(config_path)
         # --tag-targets: attribute targets from the simulator's behaviour labels; with them, training also
         # learns the spatio-temporal tags on the BEV embedding, so the trained model answers tag queries.
         self.command(["clips", *self.log_dirs(), "--captions", self.captions_dir, "--out", self.clips_dir,
@@ -284,6 +267,7 @@ class Demo:
         from retrieval.records import format_table
         from retrieval.report import Example, write_report
         from retrieval.scenesearch import SceneSearch
+        from retrieval.tag_report import tag_sections
 
         metrics = json.loads(self.metrics_path.read_text()) if self.metrics_path.is_file() else None
         if metrics is not None:
@@ -305,94 +289,10 @@ class Demo:
         path = write_report(self.out_dir, metrics, examples, run_dir=self.run_dir, embedding_map=(x, actions),
                             stage_timings_s=timings, notes=[f"settings: {settings}",
                                                             f"index: {self.index_dir} ({len(search)} clips)"],
-                            sections=self.tag_sections(meta))
+                            sections=tag_sections(self.run_dir, self.clips_dir, self.log_dirs(), meta,
+                                                  self.out_dir, self.say))
         self.say(f"\nwrote {path}")
         return str(path)
-
-    def tag_sections(self, meta: Any) -> list[str]:
-        """A spatio-temporal tag example for the report: pooled tags over a test log, and found spans."""
-        import html
-
-        if not (self.run_dir / "tagging.json").is_file():
-            return []
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-
-        from retrieval.tagging import TagSearch
-
-        test_logs = sorted({str(r["log_id"]) for r in meta.to_pylist() if r.get("split") == "test"})
-        logs = [d for d in self.log_dirs() if d.name in test_logs] or self.log_dirs()[:1]
-        tags = TagSearch(self.run_dir, clips_dir=self.clips_dir)
-        queries = [("vehicle_density", "front"), ("pedestrian_density", "around"), ("stopped", "front"),
-                   ("braking", "front")]
-        fig, axes = plt.subplots(len(queries), 1, figsize=(9, 1.8 * len(queries)), sharex=True)
-        for ax, (tag, region) in zip(axes, queries):
-            ts, values = tags.series(logs[0], tag, region)
-            ax.plot((ts - ts[0]) * 1e-9, values)
-            ax.set_ylabel(f"{tag}\n{region}", fontsize=8)
-        axes[-1].set_xlabel(f"time in log {logs[0].name[:8]} (s)")
-        fig.tight_layout()
-        (self.out_dir / "plots").mkdir(parents=True, exist_ok=True)
-        fig.savefig(self.out_dir / "plots" / "tags_over_time.png", dpi=90)
-        plt.close(fig)
-        split_of = {str(r["log_id"]): str(r.get("split")) for r in meta.to_pylist()}
-        held = {s: [d for d in self.log_dirs() if split_of.get(d.name) == s] for s in ("val", "train")}
-        threshold, truth, source = self._tag_threshold(tags, "stopped", "front", held, logs)
-        spans = tags.find(logs, "stopped", "front", threshold=threshold, min_duration_s=1.0, k=5)
-        first_ns = {d.name: int(tags.frames(d).timestamps_ns[0]) for d in logs}
-        confirmed = []
-        for s in spans:
-            ts = tags.frames(next(d for d in logs if d.name == s.log_id)).timestamps_ns
-            inside = (ts >= s.start_ns) & (ts <= s.end_ns)
-            hit = truth.get(s.log_id)
-            confirmed.append(None if hit is None else float(hit[inside].mean()) if inside.any() else 0.0)
-        rows = "".join(f"<tr><td>{html.escape(s.log_id[:8])}</td><td>{(s.start_ns - first_ns[s.log_id]) * 1e-9:.1f}"
-                       f"</td><td>{s.duration_s:.1f}</td><td>{s.score:.2f}</td>"
-                       f"<td>{'–' if c is None else f'{c:.0%}'}</td></tr>" for s, c in zip(spans, confirmed))
-        known = [c for c in confirmed if c is not None]
-        precision = (f"; the labels confirm {sum(c > 0.5 for c in known)} of {len(known)} (most of a span's frames)"
-                     if known else "")
-        self.say(f"tags: {len(spans)} spans where a vehicle is stopped in front, in {len(logs)} test log(s) "
-                 f"(threshold {threshold:.2f} from the {source}{precision})")
-        return ["<h2>Spatio-temporal tags from the universal BEV embedding</h2>",
-                "<p>Pooled attribute values over a held-out log (densities in m², probabilities otherwise):</p>",
-                "<img src='plots/tags_over_time.png' alt='tags over time'>",
-                "<h3>scenesearch find RUN LOG... --tag stopped --region front</h3>",
-                f"<p>Test logs; threshold {threshold:.2f}, the best frame F1 against the behaviour labels on the "
-                f"{source}. <i>labelled</i>: share of the span's frames whose labels put a stopped vehicle "
-                f"in front{html.escape(precision)}.</p>",
-                "<table><tr><th>log</th><th>start (s into the log)</th><th>duration (s)</th><th>score</th>"
-                f"<th>labelled</th></tr>{rows}</table>" if spans else f"<p>no span above {threshold:.2f}</p>"]
-
-    def _tag_threshold(self, tags: Any, attribute: str, region: str, held: dict[str, list[Path]],
-                       test_logs: list[Path]) -> tuple[float, dict[str, NDArray[np.bool_]], str]:
-        """The span threshold with the best frame F1 on the validation logs — on the training logs
-        when no validation frame is positive — (0.5 without labels), the per-frame truth of the test
-        logs (empty without tag targets), and which logs chose the threshold."""
-        from encoders.tagging.evaluate import held_out_threshold, pooled_truth_and_pred
-        from encoders.tagging.targets import has_targets
-
-        factor = tags.tagger.downsample
-
-        def truth_of(d: Path) -> NDArray[np.bool_] | None:
-            if not has_targets(self.clips_dir, d.name):
-                return None
-            pooled = pooled_truth_and_pred(self.clips_dir, d.name, None, factor, (attribute,))[0]
-            return np.asarray(pooled[attribute][region] > 0)
-
-        def pooled(logs: list[Path]) -> tuple[NDArray[np.float32] | None, NDArray[np.bool_] | None]:
-            labelled = [(d, t) for d, t in ((d, truth_of(d)) for d in logs) if t is not None]
-            if not any(t.any() for _, t in labelled):
-                return None, None  # skipped without running the model
-            return (np.concatenate([tags.series(d, attribute, region)[1] for d, _ in labelled]),
-                    np.concatenate([t for _, t in labelled]))
-
-        threshold, source = held_out_threshold((split, *pooled(logs)) for split, logs in held.items())
-        names = {"val": "validation logs", "train": "training logs", "default": "default (no labelled logs)"}
-        test = {d.name: truth_of(d) for d in test_logs}
-        return threshold, {k: v for k, v in test.items() if v is not None}, names[source]
 
 
 def config_from_args(args: argparse.Namespace) -> DemoConfig:

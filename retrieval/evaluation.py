@@ -1,6 +1,7 @@
 """How well retrieval works, each figure beside baselines measured in the same run.
 
-Pure functions on similarity matrices (``sim`` is (Q, N): queries × clips, higher is closer) and one
+Pure functions on similarity matrices (``sim`` is (Q, N): queries × clips, higher is closer; the
+text → clip figures are :mod:`encoders.metrics`, shared with training validation) and one
 orchestrator, :func:`evaluate`, that embeds a split of a clips directory with a trained model and
 returns the metrics dictionary written to ``metrics.json``::
 
@@ -23,64 +24,12 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import pyarrow.parquet as pq
 
+from encoders.clips.layout import read_clip_table
+from encoders.metrics import CURVE_MAX_K, KS, recall_curve, relevance_by_caption, text_to_clip_figures
 from retrieval.embedding import Embedder, ModelEmbedder
 
-KS = (1, 5, 10)
-CURVE_MAX_K = 50
-
-
 # ---------------------------------------------------------------------- text → clip
-
-
-def first_relevant_ranks(sim: np.ndarray, relevant: np.ndarray) -> np.ndarray:
-    """(Q,) 1-based rank of the best-ranked relevant clip of each query (ties broken against the query).
-
-    Args:
-        sim: (Q, N) scores, higher is closer.
-        relevant: (Q, N) bool; every row needs at least one True.
-    """
-    sim = np.asarray(sim, dtype=np.float64)
-    relevant = np.asarray(relevant, dtype=bool)
-    _check_pair(sim, relevant)
-    best = np.where(relevant, sim, -np.inf).max(axis=1)
-    # Pessimistic ties: an irrelevant clip scoring equal to the best relevant one ranks first.
-    return 1 + ((sim > best[:, None]) | ((sim == best[:, None]) & ~relevant)).sum(axis=1)
-
-
-def average_precision(sim: np.ndarray, relevant: np.ndarray) -> np.ndarray:
-    """(Q,) average precision of each query's full ranking."""
-    sim = np.asarray(sim, dtype=np.float64)
-    relevant = np.asarray(relevant, dtype=bool)
-    _check_pair(sim, relevant)
-    order = np.argsort(-sim, axis=1, kind="stable")
-    rel_sorted = np.take_along_axis(relevant, order, axis=1)
-    hits = np.cumsum(rel_sorted, axis=1)
-    ranks = np.arange(1, sim.shape[1] + 1)[None, :]
-    precision = hits / ranks
-    return np.asarray((precision * rel_sorted).sum(axis=1) / np.maximum(rel_sorted.sum(axis=1), 1))
-
-
-def text_to_clip_figures(sim: np.ndarray, relevant: np.ndarray, ks: Sequence[int] = KS) -> dict[str, float]:
-    """R@K (a relevant clip among the top K), median rank of the first relevant clip, and mAP.
-
-    Args:
-        sim: (Q, N) query × clip scores.
-        relevant: (Q, N) bool relevance.
-    """
-    ranks = first_relevant_ranks(sim, relevant)
-    out = {f"R@{k}": float(np.mean(ranks <= k)) for k in ks}
-    out["median_rank"] = float(np.median(ranks))
-    out["mAP"] = float(np.mean(average_precision(sim, relevant)))
-    return out
-
-
-def recall_curve(sim: np.ndarray, relevant: np.ndarray, max_k: int = CURVE_MAX_K) -> list[float]:
-    """R@K for K = 1 … min(max_k, N)."""
-    ranks = first_relevant_ranks(sim, relevant)
-    n = min(max_k, np.asarray(sim).shape[1])
-    return [float(np.mean(ranks <= k)) for k in range(1, n + 1)]
 
 
 def random_text_to_clip(relevant: np.ndarray, seed: int = 0, draws: int = 20,
@@ -99,13 +48,6 @@ def random_text_to_clip(relevant: np.ndarray, seed: int = 0, draws: int = 20,
         curves.append(recall_curve(sim, relevant))
     mean = {key: float(np.mean([f[key] for f in figures])) for key in figures[0]}
     return mean, [float(v) for v in np.mean(np.asarray(curves), axis=0)]
-
-
-def relevance_by_caption(query_captions: Sequence[str], clip_captions: Sequence[str]) -> np.ndarray:
-    """(Q, N) bool: clip n is relevant to query q when their canonical captions are equal."""
-    q = np.asarray(list(query_captions), dtype=object)
-    c = np.asarray(list(clip_captions), dtype=object)
-    return np.asarray(q[:, None] == c[None, :], dtype=bool)
 
 
 # ---------------------------------------------------------------------- temporal order
@@ -239,10 +181,7 @@ def evaluate(run_dir: Path | str, clips_dir: Path | str, split: str = "test", em
     say = progress or (lambda _m: None)
     clips_dir = Path(clips_dir)
     started = time.perf_counter()
-    table_path = clips_dir / "clips.parquet"
-    if not table_path.is_file():
-        raise FileNotFoundError(f"{table_path}: no clip table (run `scenesearch clips` first)")
-    table = pq.read_table(table_path)
+    table = read_clip_table(clips_dir)
     splits = sorted(set(table.column("split").to_pylist())) if "split" in table.column_names else []
     if split not in splits:
         raise ValueError(f"unknown split {split!r}; the clips have splits: {', '.join(splits) or '(none)'}")
@@ -349,14 +288,6 @@ def _clean(value: Any) -> Any:
     if isinstance(value, float) and math.isnan(value):
         return None
     return value
-
-
-def _check_pair(sim: np.ndarray, relevant: np.ndarray) -> None:
-    if sim.ndim != 2 or sim.shape != relevant.shape:
-        raise ValueError(f"sim and relevant must both be (Q, N), got {sim.shape} and {relevant.shape}")
-    empty = np.flatnonzero(~relevant.any(axis=1))
-    if len(empty):
-        raise ValueError(f"query row {int(empty[0])} has no relevant clip ({len(empty)} such rows)")
 
 
 def metrics_table(metrics: dict[str, Any]) -> str:

@@ -1,7 +1,15 @@
-"""Argument checks and index hits → result records, shared by every search entry point."""
+"""A query's arguments, checked once where the query is built, and index hits → result records.
+
+Every search entry point (:class:`retrieval.SceneSearch`, :class:`retrieval.captions_search.CaptionSearch`,
+and through them the CLI and the HTTP service) builds a :class:`Query` with :func:`build_query` before
+any work: ``k`` and the filter are checked there, with one error style naming the parameter, and the
+layers below (:func:`hits_to_results`, :mod:`indexes`) take the query as it is.
+"""
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -9,69 +17,122 @@ import numpy as np
 
 from indexes.clip_index import ClipIndex
 from indexes.errors import FilterError
-from indexes.errors import InvalidKError as IndexInvalidKError
-from indexes.filters import FilterSpec
+from indexes.filters import Condition, FilterSpec, check, conditions_of
+from indexes.metadata import MetadataStore
 from retrieval.errors import EmptyQueryError, FilterSyntaxError, InvalidKError
 from retrieval.records import SearchResult
 
+#: The most results one query may ask for (the service lowers it with its own limit).
+MAX_K = 10_000
+
 
 def check_query(query: object) -> str:
+    """The query sentence without surrounding blanks; raises :class:`EmptyQueryError` when nothing is left."""
     if not isinstance(query, str) or not query.strip():
         raise EmptyQueryError()
     return query.strip()
 
 
-#: The most results one query may ask for.
-MAX_K = 10_000
+@dataclass(frozen=True)
+class Query:
+    """The checked ``k`` and filter of one search.
+
+    Attributes:
+        k: results to ask for, 0 … the items the search can return (0 only when it can return none).
+        filters: the filter's conditions, each naming a metadata field with a value of its type and an
+            operator it takes; None without a filter.
+    """
+
+    k: int
+    filters: tuple[Condition, ...] | None
 
 
-def check_k(k: object, size: int) -> int:
-    """``k`` as an int, at most ``size`` (the items that can be returned).
+def build_query(k: object, filters: FilterSpec, metadata: MetadataStore, size: int, max_k: int = MAX_K) -> Query:
+    """Check ``k`` and ``filters`` against the searched ``metadata``; the only place either is checked.
+
+    Args:
+        k: results wanted, an integer in 1 … ``max_k``; more than ``size`` gives ``size``.
+        filters: ``{"category": "car"}``, ``{"category": ["car", "bus"]}``, a filter string
+            (``"category in {car, bus} and tags contains 'left:approach'"``, see :mod:`indexes.filters`),
+            conditions, or None.
+        metadata: the rows searched; filters may name its fields except ``id``.
+        size: how many items the search can return.
+        max_k: the most results a query may ask for.
 
     Raises:
-        InvalidKError: ``k`` is not an integer in 1 … ``MAX_K``.
+        InvalidKError: ``k`` is not an integer in 1 … ``max_k``.
+        FilterSyntaxError: the filter cannot be read, names an unknown field, or holds a value or an
+            operator its field does not take (the message lists the valid fields).
     """
-    if isinstance(k, bool) or not isinstance(k, int | np.integer) or not 1 <= int(k) <= MAX_K:
-        raise InvalidKError(k, MAX_K)
-    return min(int(k), size)
+    return Query(min(check_k(k, max_k), size), _checked_filters(filters, metadata))
 
 
-def check_filters(index: ClipIndex, filters: FilterSpec) -> FilterSpec:
-    """Reject unknown fields with the list of valid ones; other errors come from the filter language."""
-    if filters is None or isinstance(filters, str):
-        return filters
-    if isinstance(filters, dict):
-        valid = [f for f in index.fields if f != "id"]
-        unknown = [f for f in filters if f not in valid]
+def check_k(k: object, max_k: int = MAX_K) -> int:
+    """``k`` as an int; raises :class:`InvalidKError` unless it is an integer in 1 … ``max_k``."""
+    if isinstance(k, bool) or not isinstance(k, int | np.integer) or not 1 <= int(k) <= max_k:
+        raise InvalidKError(k, max_k)
+    return int(k)
+
+
+def _checked_filters(filters: FilterSpec, metadata: MetadataStore) -> tuple[Condition, ...] | None:
+    if filters is None:
+        return None
+    valid = [f for f in metadata.fields if f != "id"]
+    try:
+        conditions = conditions_of(filters)
+        unknown = [c.field for c in conditions if c.field not in valid]
         if unknown:
             raise FilterSyntaxError(f"unknown filter field {unknown[0]!r}; valid fields: {', '.join(valid)}")
-    return filters
-
-
-def hits_to_results(index: ClipIndex, xq: np.ndarray, k: int, filters: FilterSpec, view: str,
-                    base_dir: Path | None, exclude_clip: str | None = None) -> list[SearchResult]:
-    """Search ``index`` with one query vector (1, D) and turn the hits into records."""
-    filters = check_filters(index, filters)
-    try:
-        if exclude_clip is not None:
-            found = index.search_clip(exclude_clip, k, filters)
-        else:
-            found = index.search(xq, k, filters)
+        check(conditions, metadata.table.schema, filters if isinstance(filters, str) else None)
     except FilterError as exc:
-        valid = ", ".join(f for f in index.fields if f != "id")
-        message = str(exc)
-        raise FilterSyntaxError(message if "valid fields" in message else f"{message}; valid fields: {valid}") \
-            from None
-    except IndexInvalidKError:
-        raise InvalidKError(k, MAX_K) from None
-    results = []
-    for rank, hit in enumerate(found.hits[0], start=1):
-        results.append(SearchResult.from_row(rank, hit.metadata, hit.score, view,
-                                             preview_of(hit.metadata, base_dir)))
-    return results
+        raise FilterSyntaxError(f"{exc}; valid fields: {', '.join(valid)}") from None
+    return tuple(conditions)
+
+
+def parse_cli_filters(items: Sequence[str] | None) -> FilterSpec:
+    """``["category=car", "time_of_day=night,dusk"]`` → ``{"category": "car", "time_of_day": [...]}``.
+
+    An item without a single ``=`` (e.g. ``start_ns >= 5``) is passed through in the filter language.
+    Checking the result is :func:`build_query`'s job.
+
+    Raises:
+        FilterSyntaxError: an item ``FIELD=VALUE`` with an empty side.
+    """
+    if not items:
+        return None
+    simple: dict[str, Any] = {}
+    expressions: list[str] = []
+    for item in items:
+        if "=" in item and not any(op in item for op in ("==", "!=", "<=", ">=")) and item.count("=") == 1:
+            key, value = (s.strip() for s in item.split("=", 1))
+            if not key or not value:
+                raise FilterSyntaxError(f"--filter {item!r}: expected FIELD=VALUE, e.g. category=car")
+            simple[key] = value.split(",") if "," in value else value
+        else:
+            expressions.append(item)
+    if not expressions:
+        return simple
+    parts = [f"{k} in {{{', '.join(repr(x) for x in v)}}}" if isinstance(v, list) else f"{k} == {v!r}"
+             for k, v in simple.items()]
+    return " and ".join(parts + expressions)
+
+
+def hits_to_results(index: ClipIndex, xq: np.ndarray, query: Query, view: str, base_dir: Path | None,
+                    exclude_clip: str | None = None) -> list[SearchResult]:
+    """Search ``index`` with one query vector (1, D), or from ``exclude_clip``'s own vector, and turn the
+    hits into records."""
+    if query.k == 0:
+        return []
+    if exclude_clip is not None:
+        found = index.search_clip(exclude_clip, query.k, query.filters)
+    else:
+        found = index.search(xq, query.k, query.filters)
+    return [SearchResult.from_row(rank, hit.metadata, hit.score, view, preview_of(hit.metadata, base_dir))
+            for rank, hit in enumerate(found.hits[0], start=1)]
 
 
 def preview_of(row: dict[str, Any], base_dir: Path | None) -> str | None:
+    """The absolute preview path of a metadata row (relative ones are under ``base_dir``), or None."""
     rel = row.get("preview_path")
     if not rel:
         return None

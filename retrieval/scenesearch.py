@@ -31,13 +31,14 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from common.atomic import atomic_directory
+from encoders.clips.layout import read_clip_table
 from indexes.clip_index import ClipIndex
 from indexes.errors import IndexesError
 from indexes.filters import FilterSpec
 from retrieval.captions_search import CaptionSearch, Skipped, TextEncoder, caption_rows
 from retrieval.embedding import CONFIG_FILE, Embedder, ModelEmbedder
 from retrieval.errors import IndexDirError, ModelMismatchError, UnknownClipError, UnknownViewError
-from retrieval.querying import check_filters, check_k, check_query, hits_to_results, preview_of
+from retrieval.querying import MAX_K, build_query, check_query, hits_to_results, preview_of
 from retrieval.records import SearchResult
 
 FORMAT_VERSION = 1
@@ -139,10 +140,7 @@ class SceneSearch:
         say = progress or (lambda _m: None)
         run_dir, clips_dir, out_dir = Path(run_dir).resolve(), Path(clips_dir).resolve(), Path(out_dir)
         embedder = embedder if embedder is not None else ModelEmbedder(run_dir)
-        clip_table_path = clips_dir / "clips.parquet"
-        if not clip_table_path.is_file():
-            raise FileNotFoundError(f"{clip_table_path}: no clip table (run `scenesearch clips` first)")
-        rows, skipped = caption_rows(pq.read_table(clip_table_path))
+        rows, skipped = caption_rows(read_clip_table(clips_dir))
         clip_ids = rows.column("clip_id").to_pylist()
         views: dict[str, ClipIndex] = {}
         dim = 0
@@ -240,12 +238,12 @@ class SceneSearch:
         return self.views[view]
 
     def search_text(self, query: str, k: int = 10, filters: FilterSpec = None,
-                    view: str = "fused") -> list[SearchResult]:
+                    view: str = "fused", max_k: int = MAX_K) -> list[SearchResult]:
         """The k clips closest to the sentence ``query``.
 
         Args:
             query: a sentence, e.g. ``"a car in the left lane approaches, then stops"``.
-            k: results, 1 … 10 000 (fewer when the index or the filter holds fewer clips).
+            k: results, 1 … ``max_k`` (fewer when the index or the filter holds fewer clips).
             filters: ``{"category": "car"}``, ``{"category": ["car", "bus"]}`` or a filter string
                 (``"category in {car, bus} and tags contains 'left:approach'"``, see ``indexes.filters``).
             view: ``fused``, ``camera`` or ``bev``.
@@ -256,23 +254,22 @@ class SceneSearch:
         """
         index = self._view(view)
         query = check_query(query)
-        k = check_k(k, len(index))
-        filters = check_filters(index, filters)  # before the model loads: bad fields fail fast
+        checked = build_query(k, filters, index.metadata, len(index), max_k)  # before the model loads
         t0 = time.perf_counter()
         xq = np.asarray(self.embedder.embed_texts([query]), dtype=np.float32)
         t1 = time.perf_counter()
-        results = hits_to_results(index, xq, k, filters, view, self.clips_dir)
+        results = hits_to_results(index, xq, checked, view, self.clips_dir)
         t2 = time.perf_counter()
         self.last_timings_s = {"encode_text": t1 - t0, "search_and_records": t2 - t1}
         return results
 
     def search_clip(self, clip: str | Mapping[str, Any], k: int = 10, filters: FilterSpec = None,
-                    view: str = "fused") -> list[SearchResult]:
+                    view: str = "fused", max_k: int = MAX_K) -> list[SearchResult]:
         """The k clips most like ``clip``: an indexed clip id (left out of its own results) or clip arrays.
 
         Args:
             clip: a clip id, or a clip item / batch as ``encoders.data`` builds it (arrays of one clip).
-            k, filters, view: as in :meth:`search_text`.
+            k, filters, view, max_k: as in :meth:`search_text`.
 
         Raises:
             UnknownClipError: the clip id is not indexed (the message shows valid ones).
@@ -282,16 +279,17 @@ class SceneSearch:
             if clip not in index:
                 examples = index.metadata.table.column("clip_id").slice(0, 3).to_pylist()
                 raise UnknownClipError(clip, examples)
-            k = check_k(k, len(index) - 1)
-            return hits_to_results(index, np.zeros((1, index.dim), np.float32), k, filters, view, self.clips_dir,
+            checked = build_query(k, filters, index.metadata, len(index) - 1, max_k)
+            return hits_to_results(index, np.zeros((1, index.dim), np.float32), checked, view, self.clips_dir,
                                    exclude_clip=clip)
-        k = check_k(k, len(index))
+        checked = build_query(k, filters, index.metadata, len(index), max_k)
         xq = np.asarray(self.embedder.embed_arrays(clip, view=view), dtype=np.float32)[:1]
-        return hits_to_results(index, xq, k, filters, view, self.clips_dir)
+        return hits_to_results(index, xq, checked, view, self.clips_dir)
 
-    def search_captions(self, query: str, k: int = 10, filters: FilterSpec = None) -> list[SearchResult]:
+    def search_captions(self, query: str, k: int = 10, filters: FilterSpec = None,
+                        max_k: int = MAX_K) -> list[SearchResult]:
         """Track-based search over the rule captions, with the frozen sentence encoder (no trained model)."""
-        return self.captions.search(query, k, filters)
+        return self.captions.search(query, k, filters, max_k)
 
     def get(self, clip_id: str) -> SearchResult:
         """The record of one indexed clip (score 1, rank 0)."""
@@ -355,27 +353,3 @@ def _align(clip_ids: list[str], ids: list[str], x: np.ndarray) -> tuple[np.ndarr
     if not order:
         raise ValueError("the model embedded none of the clips of the clip table")
     return np.asarray(x, dtype=np.float32)[order], kept
-
-
-def parse_cli_filters(items: list[str] | None) -> FilterSpec:
-    """``["category=car", "time_of_day=night,dusk"]`` → ``{"category": "car", "time_of_day": [...]}``.
-
-    An item without a single ``=`` (e.g. ``start_ns >= 5``) is passed through in the filter language.
-    """
-    if not items:
-        return None
-    simple: dict[str, Any] = {}
-    expressions: list[str] = []
-    for item in items:
-        if "=" in item and not any(op in item for op in ("==", "!=", "<=", ">=")) and item.count("=") == 1:
-            key, value = (s.strip() for s in item.split("=", 1))
-            if not key or not value:
-                raise ValueError(f"--filter {item!r}: expected FIELD=VALUE, e.g. category=car")
-            simple[key] = value.split(",") if "," in value else value
-        else:
-            expressions.append(item)
-    if not expressions:
-        return simple
-    parts = [f"{k} in {{{', '.join(repr(x) for x in v)}}}" if isinstance(v, list) else f"{k} == {v!r}"
-             for k, v in simple.items()]
-    return " and ".join(parts + expressions)

@@ -28,6 +28,7 @@ import pyarrow.parquet as pq
 from numpy.typing import NDArray
 
 from encoders.tagging.attributes import Region, TagError, parse_attribute, parse_region
+from encoders.tagging.inference import Tagger, load_tagger
 from encoders.tagging.scene_tags import (
     TagExpression,
     coarse_grid,
@@ -41,7 +42,6 @@ from encoders.tagging.scene_tags import (
     region_masks,
     values_of,
 )
-from encoders.tagging.training import Tagger, load_tagger
 
 CACHE_DIR = "tag_cache"
 
@@ -137,8 +137,10 @@ class TagSearch:
     # -- frames and tag tensors -------------------------------------------------------------------
     def frames(self, log_dir: Path | str) -> LogFrames:
         """The log's BEV frames, reused from the training clips folder or rendered once into the cache."""
+        from encoders.clips import layout
         from encoders.clips.config import ClipsConfig
-        from encoders.clips.render import LOGS_DIR, render_log, rendered_log_ok
+        from encoders.clips.render import render_log
+        from encoders.clips.render_stats import rendered_log_ok
         from scenes.log import Log
 
         log_dir = Path(log_dir)
@@ -150,15 +152,15 @@ class TagSearch:
         dense = log.dense_tracks()
         folder = None
         for root in (self.clips_dir, self.cache_dir):
-            if root is not None and rendered_log_ok(root / LOGS_DIR / log_id, config, dense):
-                folder = root / LOGS_DIR / log_id
+            if root is not None and rendered_log_ok(layout.rendered_log_dir(root, log_id), config, dense):
+                folder = layout.rendered_log_dir(root, log_id)
                 break
         if folder is None:
             render_log(log, config, self.cache_dir, dense)
-            folder = self.cache_dir / LOGS_DIR / log_id
-        ts = pq.read_table(folder / "frames.parquet", columns=["timestamp_ns"]).column(0).to_numpy()
-        frames = LogFrames(log_id, ts.astype(np.int64), np.load(folder / "bev_lidar.npy", mmap_mode="r"),
-                           np.load(folder / "bev_map.npy", mmap_mode="r"), log.map_path is not None)
+            folder = layout.rendered_log_dir(self.cache_dir, log_id)
+        ts = pq.read_table(folder / layout.FRAMES_FILE, columns=["timestamp_ns"]).column(0).to_numpy()
+        frames = LogFrames(log_id, ts.astype(np.int64), np.load(folder / layout.BEV_LIDAR_FILE, mmap_mode="r"),
+                           np.load(folder / layout.BEV_MAP_FILE, mmap_mode="r"), log.map_path is not None)
         self._frames[log_id] = frames
         return frames
 

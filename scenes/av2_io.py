@@ -1,6 +1,6 @@
 """Read and write logs in the Argoverse 2 sensor layout.
 
-Every reader validates what it reads (see :mod:`scenes.validate`) and raises
+Every reader checks what it reads against :mod:`scenes.schema` and raises
 :class:`~scenes.errors.LogFormatError` listing each problem with its file, row and field. Every
 writer writes atomically (temp name, then rename), so a reader never sees a half file.
 
@@ -26,7 +26,7 @@ import pyarrow.feather as feather
 from numpy.typing import NDArray
 
 from common.atomic import atomic_path, atomic_write_bytes, atomic_write_text
-from scenes import validate
+from scenes import schema
 from scenes.calibration import Calibration, CameraIntrinsics
 from scenes.errors import LogFormatError, Problem
 from scenes.geometry import SE3
@@ -43,22 +43,33 @@ LIDAR_DIR = Path("sensors") / "lidar"
 CAMERAS_DIR = Path("sensors") / "cameras"
 
 
-def _read_table(path: Path) -> pa.Table:
-    if not path.is_file():
-        raise LogFormatError.single(path, "file is missing")
-    try:
-        return feather.read_table(path)
-    except (OSError, pa.ArrowInvalid, pa.ArrowException) as exc:
-        raise LogFormatError.single(path, f"unreadable feather file (truncated or corrupt?): {exc}") from exc
-
-
 def _write_table(path: Path, table: pa.Table) -> None:
     with atomic_path(path) as tmp:
         feather.write_feather(table, tmp, compression="lz4")
 
 
-def _floats(table: pa.Table, names: list[str]) -> NDArray[np.float64]:
-    return np.stack([np.asarray(table.column(n).to_numpy(), dtype=np.float64) for n in names], axis=1)
+def _float_columns(table: pa.Table, names: tuple[str, ...]) -> dict[str, NDArray[np.float64]]:
+    """Each named column as a (N,) float64 array."""
+    return {n: np.asarray(table.column(n).to_numpy(), dtype=np.float64) for n in names}
+
+
+def _stack(columns: dict[str, NDArray[np.float64]], names: tuple[str, ...]) -> NDArray[np.float64]:
+    """(N, len(names)) the named columns side by side."""
+    return np.stack([columns[n] for n in names], axis=1)
+
+
+def _read_se3(table: pa.Table) -> tuple[dict[str, NDArray[np.float64]], NDArray[np.float64], NDArray[np.float64]]:
+    """The pose columns of a table: by name (each (N,)), the (N, 4) quaternions and the (N, 3) translations."""
+    floats = _float_columns(table, (*schema.QUAT_COLUMNS, *schema.TRANSLATION_COLUMNS))
+    return floats, _stack(floats, schema.QUAT_COLUMNS), _stack(floats, schema.TRANSLATION_COLUMNS)
+
+
+def _se3_columns(quat_wxyz: NDArray[np.floating], translation_m: NDArray[np.floating]) -> dict[str, NDArray]:
+    """The pose columns ``qw qx qy qz tx_m ty_m tz_m`` of a table. ``quat_wxyz``: (N, 4); ``translation_m``: (N, 3)."""
+    return {
+        **{n: quat_wxyz[:, i] for i, n in enumerate(schema.QUAT_COLUMNS)},
+        **{n: translation_m[:, i] for i, n in enumerate(schema.TRANSLATION_COLUMNS)},
+    }
 
 
 # ---------------------------------------------------------------------------------------------
@@ -67,31 +78,22 @@ def _floats(table: pa.Table, names: list[str]) -> NDArray[np.float64]:
 
 def read_annotations(path: Path) -> Annotations:
     """Read and validate ``annotations.feather``."""
-    table = _read_table(path)
-    problems = validate.check_columns(
-        path, table, validate.ANNOTATION_COLUMNS, validate.OPTIONAL_ANNOTATION_COLUMNS
-    )
-    if problems:
-        raise LogFormatError(problems)
+    table = schema.read_feather(path, schema.ANNOTATION_COLUMNS, schema.OPTIONAL_ANNOTATION_COLUMNS)
     if table.num_rows == 0:
         raise LogFormatError.single(path, "table has no rows")
     timestamps = np.asarray(table.column("timestamp_ns").to_numpy(), dtype=np.int64)
     track_ids = np.asarray(table.column("track_uuid").to_pylist(), dtype=np.str_)
     categories = np.asarray(table.column("category").to_pylist(), dtype=np.str_)
-    size = _floats(table, ["length_m", "width_m", "height_m"])
-    quat = _floats(table, ["qw", "qx", "qy", "qz"])
-    center = _floats(table, ["tx_m", "ty_m", "tz_m"])
-    floats = {
-        **{n: size[:, i] for i, n in enumerate(["length_m", "width_m", "height_m"])},
-        **{n: quat[:, i] for i, n in enumerate(["qw", "qx", "qy", "qz"])},
-        **{n: center[:, i] for i, n in enumerate(["tx_m", "ty_m", "tz_m"])},
-    }
-    problems = validate.check_finite(path, floats)
+    floats = _float_columns(table, (*schema.SIZE_COLUMNS, *schema.QUAT_COLUMNS, *schema.TRANSLATION_COLUMNS))
+    size = _stack(floats, schema.SIZE_COLUMNS)
+    quat = _stack(floats, schema.QUAT_COLUMNS)
+    center = _stack(floats, schema.TRANSLATION_COLUMNS)
+    problems = schema.check_finite(path, floats)
     if not problems:
-        problems += validate.check_quaternions(path, quat)
-        problems += validate.check_positive_sizes(path, size)
-    problems += validate.check_increasing(path, timestamps, strict=False)
-    problems += validate.check_unique_track_per_frame(path, timestamps, track_ids)
+        problems += schema.check_quaternions(path, quat)
+        problems += schema.check_positive_sizes(path, size)
+    problems += schema.check_increasing(path, timestamps, strict=False)
+    problems += schema.check_unique_track_per_frame(path, timestamps, track_ids)
     if problems:
         raise LogFormatError(problems)
     if "num_interior_pts" in table.column_names:
@@ -109,16 +111,8 @@ def write_annotations(log_dir: Path, annotations: Annotations) -> Path:
             "timestamp_ns": pa.array(ann.timestamp_ns, pa.int64()),
             "track_uuid": pa.array(ann.track_id.tolist(), pa.string()),
             "category": pa.array(ann.category.tolist(), pa.string()),
-            "length_m": ann.size_lwh_m[:, 0],
-            "width_m": ann.size_lwh_m[:, 1],
-            "height_m": ann.size_lwh_m[:, 2],
-            "qw": ann.quat_wxyz[:, 0],
-            "qx": ann.quat_wxyz[:, 1],
-            "qy": ann.quat_wxyz[:, 2],
-            "qz": ann.quat_wxyz[:, 3],
-            "tx_m": ann.center_xyz_m[:, 0],
-            "ty_m": ann.center_xyz_m[:, 1],
-            "tz_m": ann.center_xyz_m[:, 2],
+            **{n: ann.size_lwh_m[:, i] for i, n in enumerate(schema.SIZE_COLUMNS)},
+            **_se3_columns(ann.quat_wxyz, ann.center_xyz_m),
             "num_interior_pts": pa.array(ann.num_interior_pts, pa.int64()),
         }
     )
@@ -133,22 +127,16 @@ def write_annotations(log_dir: Path, annotations: Annotations) -> Path:
 
 def read_ego_poses(path: Path) -> EgoTrajectory:
     """Read and validate ``city_SE3_egovehicle.feather``."""
-    table = _read_table(path)
-    problems = validate.check_columns(path, table, validate.POSE_COLUMNS)
-    if problems:
-        raise LogFormatError(problems)
+    table = schema.read_feather(path, schema.POSE_COLUMNS)
     if table.num_rows == 0:
         raise LogFormatError.single(path, "table has no rows")
     timestamps = np.asarray(table.column("timestamp_ns").to_numpy(), dtype=np.int64)
-    quat = _floats(table, ["qw", "qx", "qy", "qz"])
-    trans = _floats(table, ["tx_m", "ty_m", "tz_m"])
-    floats = {n: quat[:, i] for i, n in enumerate(["qw", "qx", "qy", "qz"])}
-    floats.update({n: trans[:, i] for i, n in enumerate(["tx_m", "ty_m", "tz_m"])})
-    problems = validate.check_finite(path, floats)
-    problems += validate.check_increasing(path, timestamps, strict=True)
+    floats, quat, trans = _read_se3(table)
+    problems = schema.check_finite(path, floats)
+    problems += schema.check_increasing(path, timestamps, strict=True)
     if not problems:
-        problems += validate.check_quaternions(path, quat)
-        problems += validate.check_pose_jumps(path, timestamps, trans)
+        problems += schema.check_quaternions(path, quat)
+        problems += schema.check_pose_jumps(path, timestamps, trans)
     if problems:
         raise LogFormatError(problems)
     return EgoTrajectory(timestamps, quat, trans)
@@ -156,16 +144,7 @@ def read_ego_poses(path: Path) -> EgoTrajectory:
 
 def write_ego_poses(log_dir: Path, ego: EgoTrajectory) -> Path:
     table = pa.table(
-        {
-            "timestamp_ns": pa.array(ego.timestamps_ns, pa.int64()),
-            "qw": ego.quat_wxyz[:, 0],
-            "qx": ego.quat_wxyz[:, 1],
-            "qy": ego.quat_wxyz[:, 2],
-            "qz": ego.quat_wxyz[:, 3],
-            "tx_m": ego.translation_m[:, 0],
-            "ty_m": ego.translation_m[:, 1],
-            "tz_m": ego.translation_m[:, 2],
-        }
+        {"timestamp_ns": pa.array(ego.timestamps_ns, pa.int64()), **_se3_columns(ego.quat_wxyz, ego.translation_m)}
     )
     path = Path(log_dir) / POSES_FILENAME
     _write_table(path, table)
@@ -210,28 +189,16 @@ def read_calibration(log_dir: Path) -> Calibration:
     intrinsics: dict[str, CameraIntrinsics] = {}
     ext_path = log_dir / EXTRINSICS_PATH
     if ext_path.is_file():
-        table = _read_table(ext_path)
-        cols = {"sensor_name": "str", **{k: v for k, v in validate.POSE_COLUMNS.items() if k != "timestamp_ns"}}
-        problems = validate.check_columns(ext_path, table, cols)
-        if problems:
-            raise LogFormatError(problems)
-        quat = _floats(table, ["qw", "qx", "qy", "qz"])
-        trans = _floats(table, ["tx_m", "ty_m", "tz_m"])
-        floats = {n: quat[:, i] for i, n in enumerate(["qw", "qx", "qy", "qz"])}
-        floats.update({n: trans[:, i] for i, n in enumerate(["tx_m", "ty_m", "tz_m"])})
-        problems = validate.check_finite(ext_path, floats) or validate.check_quaternions(ext_path, quat)
+        table = schema.read_feather(ext_path, schema.EXTRINSICS_COLUMNS)
+        floats, quat, trans = _read_se3(table)
+        problems = schema.check_finite(ext_path, floats) or schema.check_quaternions(ext_path, quat)
         if problems:
             raise LogFormatError(problems)
         for i, name in enumerate(table.column("sensor_name").to_pylist()):
             extrinsics[str(name)] = SE3.from_quat(quat[i], trans[i])
     int_path = log_dir / INTRINSICS_PATH
     if int_path.is_file():
-        table = _read_table(int_path)
-        cols = {"sensor_name": "str", "fx_px": "float", "fy_px": "float", "cx_px": "float", "cy_px": "float",
-                "height_px": "int", "width_px": "int"}
-        problems = validate.check_columns(int_path, table, cols)
-        if problems:
-            raise LogFormatError(problems)
+        table = schema.read_feather(int_path, schema.INTRINSICS_COLUMNS)
         rows = table.to_pylist()
         for i, row in enumerate(rows):
             if row["fx_px"] <= 0 or row["fy_px"] <= 0:
@@ -257,13 +224,7 @@ def write_calibration(log_dir: Path, calibration: Calibration) -> None:
         names = sorted(calibration.ego_SE3_sensor)
         quat = np.stack([calibration.ego_SE3_sensor[n].quat_wxyz for n in names])
         trans = np.stack([calibration.ego_SE3_sensor[n].translation for n in names])
-        table = pa.table(
-            {
-                "sensor_name": names,
-                "qw": quat[:, 0], "qx": quat[:, 1], "qy": quat[:, 2], "qz": quat[:, 3],
-                "tx_m": trans[:, 0], "ty_m": trans[:, 1], "tz_m": trans[:, 2],
-            }
-        )
+        table = pa.table({"sensor_name": names, **_se3_columns(quat, trans)})
         _write_table(log_dir / EXTRINSICS_PATH, table)
     if calibration.intrinsics:
         cams = [calibration.intrinsics[n] for n in sorted(calibration.intrinsics)]

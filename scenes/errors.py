@@ -2,12 +2,23 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import ParamSpec, TypeVar
+
+import common.config
+
+P = ParamSpec("P")
+T = TypeVar("T")
 
 
 class ScenesError(Exception):
     """Base class of every error raised by :mod:`scenes`."""
+
+
+class ConfigError(ScenesError, common.config.ConfigError):
+    """A config of a scenes stage (simulator, sensors, tracker) is invalid; names the file and the key."""
 
 
 @dataclass(frozen=True)
@@ -50,6 +61,18 @@ class LogFormatError(ScenesError):
     @staticmethod
     def single(path: Path | str, message: str, field: str | None = None, row: int | None = None) -> LogFormatError:
         return LogFormatError(Problem(Path(path), message, field, row))
+
+
+def collect_problems(problems: list[Problem], read: Callable[P, T], *args: P.args, **kwargs: P.kwargs) -> T | None:
+    """``read(*args, **kwargs)``, or None with its :class:`LogFormatError`'s problems added to ``problems``.
+
+    For checks that go on after a bad file, so that every problem of a log is reported, not just the first.
+    """
+    try:
+        return read(*args, **kwargs)
+    except LogFormatError as exc:
+        problems.extend(exc.problems)
+        return None
 
 
 class ImportFormatError(ScenesError):

@@ -19,7 +19,7 @@ from numpy.typing import NDArray
 
 from scenes import av2_io
 from scenes.calibration import Calibration
-from scenes.errors import LogFormatError, Problem
+from scenes.errors import LogFormatError, Problem, collect_problems
 from scenes.map import VectorMap
 from scenes.metadata import LogMetadata
 from scenes.sensors import LidarSweep, read_camera_frame, read_lidar_sweep, timestamps_in
@@ -49,19 +49,12 @@ class Log:
             raise LogFormatError.single(log_dir, "log folder does not exist")
         problems: list[Problem] = []
         annotations: Annotations | None = None
-        ego: EgoTrajectory | None = None
         ann_path = log_dir / av2_io.ANNOTATIONS_FILENAME
         if not ann_path.is_file():
             problems.append(Problem(ann_path, "log has no annotations (file is missing)"))
         else:
-            try:
-                annotations = av2_io.read_annotations(ann_path)
-            except LogFormatError as exc:
-                problems.extend(exc.problems)
-        try:
-            ego = av2_io.read_ego_poses(log_dir / av2_io.POSES_FILENAME)
-        except LogFormatError as exc:
-            problems.extend(exc.problems)
+            annotations = collect_problems(problems, av2_io.read_annotations, ann_path)
+        ego = collect_problems(problems, av2_io.read_ego_poses, log_dir / av2_io.POSES_FILENAME)
         if annotations is not None and ego is not None:
             problems.extend(_check_pose_coverage(log_dir, annotations, ego))
         if problems or annotations is None or ego is None:

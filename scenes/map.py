@@ -25,6 +25,17 @@ def _points(array: Any) -> FloatArray:
     return out
 
 
+def _store_points(element: object, *names: str) -> None:
+    """Store the named fields of a frozen map element as read-only (N, 3) float arrays."""
+    for name in names:
+        object.__setattr__(element, name, _points(getattr(element, name)))
+
+
+def _outline(first: FloatArray, second: FloatArray) -> FloatArray:
+    """(N + M, 3) closed outline: the polyline ``first``, then ``second`` reversed."""
+    return np.concatenate([first, second[::-1]], axis=0)
+
+
 @dataclass(frozen=True)
 class LaneSegment:
     """A lane segment: two boundaries walked in the direction of travel.
@@ -56,8 +67,7 @@ class LaneSegment:
     right_neighbor_id: int | None = None
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "left_lane_boundary", _points(self.left_lane_boundary))
-        object.__setattr__(self, "right_lane_boundary", _points(self.right_lane_boundary))
+        _store_points(self, "left_lane_boundary", "right_lane_boundary")
         object.__setattr__(self, "successors", tuple(int(s) for s in self.successors))
         object.__setattr__(self, "predecessors", tuple(int(p) for p in self.predecessors))
 
@@ -69,7 +79,7 @@ class LaneSegment:
 
     def polygon(self) -> FloatArray:
         """(N + M, 3) closed outline: the left boundary then the right one reversed."""
-        return np.concatenate([self.left_lane_boundary, self.right_lane_boundary[::-1]], axis=0)
+        return _outline(self.left_lane_boundary, self.right_lane_boundary)
 
 
 @dataclass(frozen=True)
@@ -87,12 +97,11 @@ class PedestrianCrossing:
     edge2: FloatArray
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "edge1", _points(self.edge1))
-        object.__setattr__(self, "edge2", _points(self.edge2))
+        _store_points(self, "edge1", "edge2")
 
     def polygon(self) -> FloatArray:
         """(4, 3) outline: edge1 then edge2 reversed."""
-        return np.concatenate([self.edge1, self.edge2[::-1]], axis=0)
+        return _outline(self.edge1, self.edge2)
 
 
 @dataclass(frozen=True)
@@ -108,7 +117,7 @@ class DrivableArea:
     area_boundary: FloatArray
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "area_boundary", _points(self.area_boundary))
+        _store_points(self, "area_boundary")
 
 
 @dataclass(frozen=True)

@@ -6,9 +6,26 @@ Written as ``<log>/log_metadata.json``; readers work when it is absent (real AV2
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from enum import StrEnum
 from typing import Any
 
 METADATA_FILENAME = "log_metadata.json"
+
+
+class TimeOfDay(StrEnum):
+    """Lighting of a log: the ``appearance.time_of_day`` of its metadata."""
+
+    DAY = "day"
+    DUSK = "dusk"
+    NIGHT = "night"
+
+
+class Weather(StrEnum):
+    """Visibility of a log: the ``appearance.weather`` of its metadata."""
+
+    CLEAR = "clear"
+    RAIN = "rain"
+    FOG = "fog"
 
 
 @dataclass(frozen=True)
@@ -20,7 +37,8 @@ class LogMetadata:
         source: ``av2``, ``kitti``, ``sumo`` or another producer's name.
         city_name: city code of the map (AV2 uses e.g. ``PIT``; simulated logs ``SIM``).
         appearance: scene look, e.g. ``{"time_of_day": "night", "weather": "rain",
-            "vehicle_colors": {track_id: [r, g, b]}}``.
+            "vehicle_colors": {track_id: [r, g, b]}}`` (values of :class:`TimeOfDay` and
+            :class:`Weather`).
         extra: anything else a producer wants to keep (simulator seed, importer counts, …).
     """
 

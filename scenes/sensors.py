@@ -1,8 +1,8 @@
 """LiDAR sweeps and camera frames, loaded lazily from a log folder.
 
 A sweep is ``sensors/lidar/<timestamp_ns>.feather`` with AV2 columns ``x y z`` (float16 metres,
-ego frame), ``intensity`` and ``laser_number`` (uint8), ``offset_ns`` (int32). A camera frame is
-``sensors/cameras/<name>/<timestamp_ns>.jpg``.
+ego frame), ``intensity`` and ``laser_number`` (uint8), ``offset_ns`` (int32); see
+:data:`scenes.schema.LIDAR_COLUMNS`. A camera frame is ``sensors/cameras/<name>/<timestamp_ns>.jpg``.
 """
 
 from __future__ import annotations
@@ -14,16 +14,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from scenes import schema
 from scenes.errors import LogFormatError
-
-LIDAR_COLUMNS: dict[str, str] = {
-    "x": "halffloat",
-    "y": "halffloat",
-    "z": "halffloat",
-    "intensity": "uint8",
-    "laser_number": "uint8",
-    "offset_ns": "int32",
-}
 
 
 @dataclass(frozen=True)
@@ -61,24 +53,12 @@ def timestamps_in(folder: Path, suffix: str) -> NDArray[np.int64]:
 
 def read_lidar_sweep(path: Path) -> LidarSweep:
     """Read one sweep; raises :class:`LogFormatError` naming the file and field on bad content."""
-    import pyarrow as pa
-    import pyarrow.feather as feather
-
-    from scenes import validate
-
-    try:
-        table = feather.read_table(path)
-    except (OSError, pa.ArrowException) as exc:
-        raise LogFormatError.single(path, f"unreadable feather file (truncated or corrupt?): {exc}") from exc
-    problems = validate.check_columns(path, table, validate.LIDAR_REQUIRED_COLUMNS, validate.LIDAR_OPTIONAL_COLUMNS)
+    table = schema.read_feather(path, schema.LIDAR_REQUIRED_COLUMNS, schema.LIDAR_OPTIONAL_COLUMNS)
+    coords = {c: np.asarray(table.column(c).to_numpy(), dtype=np.float32) for c in ("x", "y", "z")}
+    problems = schema.check_finite(path, coords)
     if problems:
         raise LogFormatError(problems)
-    xyz = np.stack([table.column(c).to_numpy().astype(np.float32) for c in ("x", "y", "z")], axis=1)
-    bad = ~np.isfinite(xyz).all(axis=1)
-    if bad.any():
-        row = int(np.argmax(bad))
-        name = "xyz"[int(np.argmax(~np.isfinite(xyz[row])))]
-        raise LogFormatError.single(path, "NaN or inf value", field=name, row=row)
+    xyz = np.stack(list(coords.values()), axis=1)
     n = xyz.shape[0]
 
     def col(name: str, dtype: type, default: int = 0) -> Any:

@@ -1,181 +1,26 @@
-"""Checks of the log contract, run on every open and by ``scenesearch validate``.
+"""``scenesearch validate``: every check of the log contract on one log folder, as a report.
 
-Each check returns :class:`~scenes.errors.Problem` records naming the file, the row or frame and
-the field. Nothing is repaired: a reader either gets valid data or an error listing every problem.
+The checks themselves are the readers' (:mod:`scenes.av2_io`, :mod:`scenes.sensors`, with the
+schema of :mod:`scenes.schema`): a log validates exactly when everything in it can be read. On top
+of the readers, the report checks what they take on trust: coordinates of the map, the first bytes
+of each camera frame, and sweeps without points. Nothing is repaired; every problem is collected,
+not just the first.
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
-import pyarrow as pa
 from numpy.typing import NDArray
 
-from scenes.errors import Problem
-
-if TYPE_CHECKING:
-    from scenes.map import VectorMap
-
-#: Columns of ``annotations.feather`` and the Arrow type family each must belong to.
-ANNOTATION_COLUMNS: dict[str, str] = {
-    "timestamp_ns": "int",
-    "track_uuid": "str",
-    "category": "str",
-    "length_m": "float",
-    "width_m": "float",
-    "height_m": "float",
-    "qw": "float",
-    "qx": "float",
-    "qy": "float",
-    "qz": "float",
-    "tx_m": "float",
-    "ty_m": "float",
-    "tz_m": "float",
-}
-OPTIONAL_ANNOTATION_COLUMNS: dict[str, str] = {"num_interior_pts": "int"}
-
-POSE_COLUMNS: dict[str, str] = {
-    "timestamp_ns": "int",
-    "qw": "float",
-    "qx": "float",
-    "qy": "float",
-    "qz": "float",
-    "tx_m": "float",
-    "ty_m": "float",
-    "tz_m": "float",
-}
-
-#: A quaternion whose norm is further than this from 1 is not a rotation.
-QUAT_NORM_TOLERANCE = 1e-2
-#: Fastest believable ego speed between consecutive poses. Anything faster is a pose jump.
-MAX_EGO_SPEED_MPS = 70.0
-
-
-def _type_ok(arrow_type: pa.DataType, family: str) -> bool:
-    if family == "int":
-        return bool(pa.types.is_integer(arrow_type))
-    if family == "float":
-        return bool(pa.types.is_floating(arrow_type) or pa.types.is_integer(arrow_type))
-    if family == "str":
-        return bool(pa.types.is_string(arrow_type) or pa.types.is_large_string(arrow_type))
-    raise ValueError(family)
-
-
-def check_columns(
-    path: Path, table: pa.Table, required: dict[str, str], optional: dict[str, str] | None = None
-) -> list[Problem]:
-    """Missing columns, wrong type families, and nulls."""
-    problems = []
-    for name, family in {**required, **(optional or {})}.items():
-        if name not in table.column_names:
-            if name in required:
-                problems.append(Problem(path, "missing column", field=name))
-            continue
-        column = table.column(name)
-        if not _type_ok(column.type, family):
-            problems.append(Problem(path, f"wrong type {column.type}, expected {family}", field=name))
-        elif column.null_count:
-            first_null = int(np.flatnonzero(column.is_null().to_numpy(zero_copy_only=False))[0])
-            problems.append(Problem(path, "null value", field=name, row=first_null))
-    return problems
-
-
-def check_finite(path: Path, columns: Mapping[str, NDArray[np.floating]]) -> list[Problem]:
-    """NaN or inf in any float column; names the first bad row of each column."""
-    problems = []
-    for name, values in columns.items():
-        bad = ~np.isfinite(values)
-        if bad.any():
-            problems.append(Problem(path, "NaN or inf value", field=name, row=int(np.argmax(bad))))
-    return problems
-
-
-def check_quaternions(path: Path, quat_wxyz: NDArray[np.floating]) -> list[Problem]:
-    """Quaternions far from unit norm. ``quat_wxyz``: (N, 4)."""
-    norm = np.linalg.norm(quat_wxyz, axis=1)
-    bad = np.abs(norm - 1.0) > QUAT_NORM_TOLERANCE
-    if bad.any():
-        row = int(np.argmax(bad))
-        return [Problem(path, f"quaternion norm {norm[row]:.4f} is not 1", field="qw..qz", row=row)]
-    return []
-
-
-def check_increasing(path: Path, timestamps_ns: NDArray[np.integer], strict: bool) -> list[Problem]:
-    """Timestamps that go backwards (or repeat, when ``strict``). ``timestamps_ns``: (N,)."""
-    if timestamps_ns.shape[0] < 2:
-        return []
-    step = np.diff(timestamps_ns)
-    bad = step <= 0 if strict else step < 0
-    if bad.any():
-        row = int(np.argmax(bad)) + 1
-        word = "increasing" if strict else "non-decreasing"
-        return [Problem(path, f"timestamps not {word}", field="timestamp_ns", row=row)]
-    return []
-
-
-def check_unique_track_per_frame(
-    path: Path, timestamps_ns: NDArray[np.integer], track_ids: NDArray[np.str_]
-) -> list[Problem]:
-    """A track id appearing twice at one timestamp."""
-    if timestamps_ns.shape[0] < 2:
-        return []
-    order = np.lexsort((track_ids, timestamps_ns))
-    ts, ids = timestamps_ns[order], track_ids[order]
-    dup = (ts[1:] == ts[:-1]) & (ids[1:] == ids[:-1])
-    if dup.any():
-        row = int(order[int(np.argmax(dup)) + 1])
-        return [
-            Problem(path, f"track '{ids[int(np.argmax(dup))]}' appears twice at timestamp {ts[int(np.argmax(dup))]}",
-                    field="track_uuid", row=row)
-        ]
-    return []
-
-
-def check_positive_sizes(path: Path, size_lwh_m: NDArray[np.floating]) -> list[Problem]:
-    """Box sizes that are zero or negative. ``size_lwh_m``: (N, 3)."""
-    problems = []
-    for axis, name in enumerate(("length_m", "width_m", "height_m")):
-        bad = size_lwh_m[:, axis] <= 0
-        if bad.any():
-            problems.append(Problem(path, "box size must be positive", field=name, row=int(np.argmax(bad))))
-    return problems
-
-
-def check_pose_jumps(
-    path: Path, timestamps_ns: NDArray[np.integer], translation_m: NDArray[np.floating]
-) -> list[Problem]:
-    """Consecutive poses further apart than :data:`MAX_EGO_SPEED_MPS` allows."""
-    if timestamps_ns.shape[0] < 2:
-        return []
-    dt_s = np.diff(timestamps_ns).astype(np.float64) * 1e-9
-    dist_m = np.linalg.norm(np.diff(translation_m, axis=0), axis=1)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        speed = np.where(dt_s > 0, dist_m / dt_s, 0.0)
-    bad = speed > MAX_EGO_SPEED_MPS
-    if bad.any():
-        row = int(np.argmax(bad)) + 1
-        return [
-            Problem(path, f"pose jumps {dist_m[row - 1]:.2f} m in {dt_s[row - 1] * 1e3:.1f} ms "
-                    f"({speed[row - 1]:.0f} m/s > {MAX_EGO_SPEED_MPS:.0f} m/s)", field="tx_m,ty_m,tz_m", row=row)
-        ]
-    return []
-
-
-def format_problems(problems: Iterable[Problem]) -> str:
-    return "\n".join(str(p) for p in problems)
-
-
-# ---------------------------------------------------------------------------------------------
-# Whole-log validation (``scenesearch validate``)
-
-#: Columns of a LiDAR sweep file: ``x y z`` are required, the rest optional (AV2 types in
-#: :data:`scenes.sensors.LIDAR_COLUMNS`).
-LIDAR_REQUIRED_COLUMNS: dict[str, str] = {"x": "float", "y": "float", "z": "float"}
-LIDAR_OPTIONAL_COLUMNS: dict[str, str] = {"intensity": "int", "laser_number": "int", "offset_ns": "int"}
+from scenes import av2_io
+from scenes.errors import Problem, collect_problems
+from scenes.log import Log
+from scenes.map import VectorMap
+from scenes.sensors import read_lidar_sweep, timestamps_in
 
 _JPEG_MAGIC = b"\xff\xd8"
 
@@ -225,20 +70,12 @@ class ValidationReport:
 
 
 def check_lidar_sweep_file(path: Path) -> list[Problem]:
-    """Columns, types, nulls and finite coordinates of one ``sensors/lidar/<ns>.feather``."""
-    import pyarrow.feather as feather
-
-    try:
-        table = feather.read_table(path)
-    except (OSError, pa.ArrowException) as exc:
-        return [Problem(path, f"unreadable feather file (truncated or corrupt?): {exc}")]
-    problems = check_columns(path, table, LIDAR_REQUIRED_COLUMNS, LIDAR_OPTIONAL_COLUMNS)
-    if problems:
-        return problems
-    if table.num_rows == 0:
-        return [Problem(path, "sweep has no points")]
-    coords = {n: np.asarray(table.column(n).to_numpy(), dtype=np.float64) for n in ("x", "y", "z")}
-    return check_finite(path, coords)
+    """What :func:`scenes.sensors.read_lidar_sweep` finds wrong with one sweep, and a sweep without points."""
+    problems: list[Problem] = []
+    sweep = collect_problems(problems, read_lidar_sweep, path)
+    if sweep is not None and len(sweep) == 0:
+        problems.append(Problem(path, "sweep has no points"))
+    return problems
 
 
 def check_map_finite(path: Path, vector_map: VectorMap) -> list[Problem]:
@@ -277,11 +114,6 @@ def validate_log(log_dir: Path | str) -> ValidationReport:
     :meth:`scenes.log.Log.open` reads lazily (map, calibration, LiDAR sweeps, camera frames,
     metadata). Nothing is repaired; every problem is collected, not just the first.
     """
-    from scenes import av2_io
-    from scenes.errors import LogFormatError
-    from scenes.log import Log
-    from scenes.sensors import timestamps_in
-
     log_dir = Path(log_dir)
     problems: list[Problem] = []
     warnings: list[str] = []
@@ -289,34 +121,16 @@ def validate_log(log_dir: Path | str) -> ValidationReport:
     if not log_dir.is_dir():
         return ValidationReport(log_dir, [Problem(log_dir, "log folder does not exist")])
 
-    log: Log | None = None
-    try:
-        log = Log.open(log_dir)
-    except LogFormatError as exc:
-        problems.extend(exc.problems)
-
-    try:
-        metadata = av2_io.read_metadata(log_dir)
-    except LogFormatError as exc:
-        problems.extend(exc.problems)
-        metadata = None
-
+    log = collect_problems(problems, Log.open, log_dir)
+    metadata = collect_problems(problems, av2_io.read_metadata, log_dir)
     map_path = av2_io.find_map_file(log_dir)
     if map_path is None:
         warnings.append("no map (map/log_map_archive_*.json)")
     else:
-        try:
-            vector_map = av2_io.read_map(map_path)
-        except LogFormatError as exc:
-            problems.extend(exc.problems)
-        else:
+        vector_map = collect_problems(problems, av2_io.read_map, map_path)
+        if vector_map is not None:
             problems.extend(check_map_finite(map_path, vector_map))
-
-    calibration = None
-    try:
-        calibration = av2_io.read_calibration(log_dir)
-    except LogFormatError as exc:
-        problems.extend(exc.problems)
+    calibration = collect_problems(problems, av2_io.read_calibration, log_dir)
 
     lidar_dir = log_dir / av2_io.LIDAR_DIR
     lidar_ts = timestamps_in(lidar_dir, ".feather")

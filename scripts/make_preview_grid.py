@@ -52,7 +52,9 @@ def build_demo_clips(work: Path, seed: int) -> Path:
 
 def pick_clips(clips_dir: Path, count: int) -> list[str]:
     """Clips with a camera view first, one per distinct tag sequence, in table order."""
-    rows = pq.read_table(clips_dir / "clips.parquet").to_pylist()
+    from encoders.clips.layout import read_clip_table
+
+    rows = read_clip_table(clips_dir).to_pylist()
     rows.sort(key=lambda r: (not r["has_camera"], r["clip_id"]))
     chosen, seen = [], set()
     for row in rows:
@@ -66,6 +68,7 @@ def pick_clips(clips_dir: Path, count: int) -> list[str]:
 
 
 def main() -> int:
+    from encoders.clips.layout import read_clip_rows
     from encoders.clips.preview import write_preview_grid
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -79,9 +82,8 @@ def main() -> int:
         clips = args.clips or build_demo_clips(Path(tmp), args.seed)
         ids = pick_clips(clips, args.count)
         write_preview_grid(clips, ids, args.out, columns=args.columns)
-        rows = {r["clip_id"]: r for r in pq.read_table(clips / "clips.parquet").to_pylist()}
-        for clip_id in ids:
-            print(f"{clip_id}: {rows[clip_id]['caption']}")
+        for row in read_clip_rows(clips, ids):
+            print(f"{row['clip_id']}: {row['caption']}")
     print(f"wrote {args.out}")
     return 0
 

@@ -1,7 +1,11 @@
 """Clips: per-log rendered camera and BEV frames, a clip table cut from captions, splits, previews.
 
+- :mod:`encoders.clips.layout`: the clips folder: every file name, the clip id, the readers of
+  ``manifest.json`` and ``clips.parquet``.
 - :mod:`encoders.clips.config`: :class:`ClipsConfig` (YAML round trip).
-- :mod:`encoders.clips.render`: :func:`render_log`, every per-frame array of one log, once.
+- :mod:`encoders.clips.render`: :func:`render_log`, every per-frame array of one log, once; the BEV
+  and camera arrays in :mod:`encoders.clips.render_bev` and :mod:`encoders.clips.render_camera`,
+  reuse of a rendering in :mod:`encoders.clips.render_stats`.
 - :mod:`encoders.clips.table`: captions → clip rows (``clips.parquet``).
 - :mod:`encoders.clips.splits`: train / val / test by log.
 - :mod:`encoders.clips.build`: :func:`build_clips`, the ``scenesearch clips`` command's work.

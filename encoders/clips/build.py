@@ -15,22 +15,21 @@ from typing import Any
 
 import numpy as np
 
+from captioning.pipeline import CAPTIONS_FILENAME
 from common.atomic import atomic_write_text
 from encoders.clips.config import ClipsConfig
-from encoders.clips.raster import MAP_CHANNELS
-from encoders.clips.render import (
-    LOGS_DIR,
-    LogRenderStats,
-    bev_grid,
-    lidar_channel_names,
-    read_render_stats,
-    render_log,
-    rendered_log_ok,
+from encoders.clips.layout import (
+    CAMERA_PIXEL_COUNTS_FILE,
+    MANIFEST_FILE,
+    PREVIEWS_DIR,
+    preview_file_name,
+    rendered_log_dir,
 )
+from encoders.clips.raster import MAP_CHANNELS
+from encoders.clips.render import bev_grid, lidar_channel_names, render_log
+from encoders.clips.render_stats import LogRenderStats, read_render_stats, rendered_log_ok
 from encoders.clips.splits import assign_splits
 from encoders.clips.table import (
-    CAPTIONS_FILE,
-    CLIPS_FILE,
     CaptionRow,
     ClipsInputError,
     Skipped,
@@ -43,8 +42,6 @@ from scenes.errors import LogFormatError
 from scenes.log import Log
 from scenes.tracks import DenseTracks
 
-MANIFEST_FILE = "manifest.json"
-PREVIEWS_DIR = "previews"
 FORMAT_VERSION = 1
 
 
@@ -60,12 +57,6 @@ class ClipsReport:
     table_s: float = 0.0
     preview_s: float = 0.0
     reused_logs: int = 0
-
-
-def preview_file_name(clip_id: str) -> str:
-    """File name of a clip's preview: the id with characters unsafe in URLs replaced."""
-    safe = "".join(ch if ch.isalnum() or ch in "-_." else "_" for ch in clip_id)
-    return f"{safe}.gif"
 
 
 def _check_references(
@@ -131,7 +122,7 @@ def build_clips(
     clips_dir = Path(clips_dir)
     captions_path = Path(captions_dir)
     if captions_path.is_dir():
-        captions_path = captions_path / CAPTIONS_FILE
+        captions_path = captions_path / CAPTIONS_FILENAME
     rows = read_captions(captions_path)
     report = ClipsReport(clips_dir=clips_dir)
     skipped = Skipped()
@@ -166,7 +157,7 @@ def build_clips(
     seen: set[str] = set()
     for log_id, log_rows in by_log.items():
         log = logs[log_id]
-        folder = clips_dir / LOGS_DIR / log_id
+        folder = rendered_log_dir(clips_dir, log_id)
         t0 = time.perf_counter()
         if reuse and rendered_log_ok(folder, config, dense[log_id]):
             stats = read_render_stats(folder)
@@ -202,7 +193,7 @@ def build_clips(
             clip["preview_path"] = rel
         report.preview_s = time.perf_counter() - t2
 
-    write_clip_table(clips_dir / CLIPS_FILE, clip_rows)
+    write_clip_table(clips_dir, clip_rows)
     manifest = {
         "format_version": FORMAT_VERSION,
         "frames_per_clip": config.frames_per_clip,
@@ -243,7 +234,7 @@ def _clip_rows(
 ) -> list[dict[str, Any]]:
     frame_ts = dense.timestamps_ns
     track_index = {str(t): i for i, t in enumerate(dense.track_ids)}
-    counts = np.load(folder / "camera_pixel_counts.npy", mmap_mode="r")
+    counts = np.load(folder / CAMERA_PIXEL_COUNTS_FILE, mmap_mode="r")
     cam = config.camera
     appearance = log.metadata.appearance
     time_of_day = str(appearance.get("time_of_day", "unknown"))

@@ -1,4 +1,4 @@
-"""Configuration of clip rendering: frozen dataclasses, serialised as YAML.
+"""Configuration of clip rendering: frozen dataclasses, serialised as YAML by :mod:`common.config`.
 
 >>> config = ClipsConfig.from_yaml(Path("clips.yaml"))     # every field optional
 >>> config.to_yaml(Path("clips.yaml"))                        # round-trips exactly
@@ -6,14 +6,11 @@
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field, fields, replace
-from enum import Enum, StrEnum
-from pathlib import Path
-from typing import Any
+from dataclasses import dataclass, field
+from enum import StrEnum
 
-import yaml
-
-from common.atomic import atomic_write_text
+import common.config
+from common.config import YamlConfig
 
 
 class BevSource(StrEnum):
@@ -37,12 +34,18 @@ class Split(StrEnum):
     TEST = "test"
 
 
-class ClipsConfigError(ValueError):
+class ClipsConfigError(common.config.ConfigError):
     """A clips configuration file or value is invalid; names the file and the field."""
 
 
+class ClipsYamlConfig(YamlConfig):
+    """Base of the clips configs: every bad value or file raises :class:`ClipsConfigError`."""
+
+    config_error = ClipsConfigError
+
+
 @dataclass(frozen=True)
-class CameraClipConfig:
+class CameraClipConfig(ClipsYamlConfig):
     """The camera view.
 
     Attributes:
@@ -70,7 +73,7 @@ class CameraClipConfig:
 
 
 @dataclass(frozen=True)
-class BevClipConfig:
+class BevClipConfig(ClipsYamlConfig):
     """The LiDAR bird's-eye view, a grid in each frame's ego frame.
 
     Attributes:
@@ -100,7 +103,7 @@ class BevClipConfig:
 
 
 @dataclass(frozen=True)
-class SplitConfig:
+class SplitConfig(ClipsYamlConfig):
     """Splits by log: a seeded hash of the log id picks train / val / test."""
 
     seed: int = 0
@@ -109,7 +112,7 @@ class SplitConfig:
 
 
 @dataclass(frozen=True)
-class ClipsConfig:
+class ClipsConfig(ClipsYamlConfig):
     """Everything ``scenesearch clips`` needs.
 
     Attributes:
@@ -148,78 +151,3 @@ class ClipsConfig:
             problems.append("split fractions must be positive and sum to ≤ 1")
         if problems:
             raise ClipsConfigError("; ".join(problems))
-
-    # -- serialisation ----------------------------------------------------------------------
-
-    def to_dict(self) -> dict[str, Any]:
-        def plain(value: Any) -> Any:
-            if isinstance(value, Enum):
-                return value.value
-            if isinstance(value, tuple | list):
-                return [plain(v) for v in value]
-            if isinstance(value, dict):
-                return {k: plain(v) for k, v in value.items()}
-            return value
-
-        result: dict[str, Any] = plain(asdict(self))
-        return result
-
-    @staticmethod
-    def from_dict(data: dict[str, Any], source: str = "<dict>") -> ClipsConfig:
-        """Build from a (partial) dict; unknown keys raise :class:`ClipsConfigError` naming them."""
-        try:
-            sub = {
-                "camera": _build(CameraClipConfig, data.get("camera") or {}, f"{source}: camera"),
-                "bev": _build(BevClipConfig, data.get("bev") or {}, f"{source}: bev"),
-                "split": _build(SplitConfig, data.get("split") or {}, f"{source}: split"),
-            }
-            top = {k: v for k, v in data.items() if k not in sub}
-            config = _build(ClipsConfig, top, source)
-            return replace(config, **sub)
-        except (TypeError, ValueError) as exc:
-            if isinstance(exc, ClipsConfigError):
-                raise
-            raise ClipsConfigError(f"{source}: {exc}") from exc
-
-    def to_yaml(self, path: Path | str) -> None:
-        atomic_write_text(path, yaml.safe_dump(self.to_dict(), sort_keys=False))
-
-    @staticmethod
-    def from_yaml(path: Path | str) -> ClipsConfig:
-        path = Path(path)
-        try:
-            data = yaml.safe_load(path.read_text()) or {}
-        except (OSError, yaml.YAMLError) as exc:
-            raise ClipsConfigError(f"{path}: cannot read clips config ({exc})") from exc
-        if not isinstance(data, dict):
-            raise ClipsConfigError(f"{path}: expected a mapping at the top level")
-        return ClipsConfig.from_dict(data, source=str(path))
-
-
-def _build(cls: type, data: dict[str, Any], where: str) -> Any:
-    known = {f.name: f for f in fields(cls)}
-    unknown = sorted(set(data) - set(known))
-    if unknown:
-        raise ClipsConfigError(f"{where}: unknown field(s) {unknown}")
-    values: dict[str, Any] = {}
-    for name, value in data.items():
-        default = getattr(cls(), name) if name not in ("camera", "bev", "split") else None
-        if isinstance(default, Enum):
-            try:
-                value = type(default)(value)
-            except ValueError as exc:
-                allowed = [e.value for e in type(default)]
-                raise ClipsConfigError(f"{where}, field '{name}': {value!r} is not one of {allowed}") from exc
-        elif isinstance(default, tuple):
-            value = tuple(value)
-        elif isinstance(default, bool):
-            if not isinstance(value, bool):
-                raise ClipsConfigError(f"{where}, field '{name}': expected true/false, got {value!r}")
-        elif isinstance(default, int) and not isinstance(value, int):
-            raise ClipsConfigError(f"{where}, field '{name}': expected an integer, got {value!r}")
-        elif isinstance(default, float):
-            if not isinstance(value, int | float) or isinstance(value, bool):
-                raise ClipsConfigError(f"{where}, field '{name}': expected a number, got {value!r}")
-            value = float(value)
-        values[name] = value
-    return cls(**values)

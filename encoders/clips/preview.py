@@ -22,33 +22,22 @@ from typing import Any
 
 import cv2
 import numpy as np
-import pyarrow.compute as pc
-import pyarrow.parquet as pq
 from numpy.typing import NDArray
 
 from common.atomic import atomic_path
 from encoders.clips.config import ClipsConfig
+from encoders.clips.layout import read_clip_rows, read_manifest
 from encoders.clips.raster import MAP_CHANNELS
+from encoders.clips.render import bev_grid
 from encoders.clips.views import LogArrays, highlight_camera, object_footprint, open_log_arrays
-from scenes.bev import BevGrid
 
 SCALE = 2
 GAP_PX = 4
 
 
-def _clip_row(clips_dir: Path, clip_id: str) -> dict[str, Any]:
-    table = pq.read_table(clips_dir / "clips.parquet")
-    hit = table.filter(pc.equal(table.column("clip_id"), clip_id))
-    if hit.num_rows == 0:
-        raise KeyError(f"{clips_dir / 'clips.parquet'}: no clip with clip_id {clip_id!r}")
-    return hit.to_pylist()[0]
-
-
 def _config(clips_dir: Path) -> ClipsConfig:
-    import json
-
-    manifest = json.loads((clips_dir / "manifest.json").read_text())
-    return ClipsConfig.from_dict(manifest.get("config", {}))
+    """The config the clips folder was built with (its manifest's ``config`` field)."""
+    return ClipsConfig.from_dict(read_manifest(clips_dir).get("config", {}))
 
 
 def render_preview_frames(arrays: LogArrays, clip: Mapping[str, Any], config: ClipsConfig) -> NDArray[np.uint8]:
@@ -69,8 +58,7 @@ def render_preview_frames(arrays: LogArrays, clip: Mapping[str, Any], config: Cl
     lidar = np.asarray(arrays.bev_lidar[fi])  # (T, Z, H, W)
     occ = (lidar[:, 1:] if lidar.shape[1] > 1 else lidar).max(axis=1)  # above the ground bin: (T, H, W)
     b = config.bev
-    grid = BevGrid(b.x_min_m, b.x_max_m, b.y_min_m, b.y_max_m, b.resolution_m)
-    obj = object_footprint(arrays, grid, str(clip["track_id"]), fi) > 0
+    obj = object_footprint(arrays, bev_grid(config), str(clip["track_id"]), fi) > 0
     hb, wb = occ.shape[1:]
     bev = np.zeros((t, hb, wb, 3), np.uint8)
 
@@ -108,7 +96,7 @@ def write_preview(
     from PIL import Image
 
     clips_dir = Path(clips_dir)
-    row = _clip_row(clips_dir, clip) if isinstance(clip, str) else clip
+    row = read_clip_rows(clips_dir, [clip])[0] if isinstance(clip, str) else clip
     config = config or _config(clips_dir)
     frames = render_preview_frames(open_log_arrays(clips_dir, str(row["log_id"])), row, config)
     # One palette for the whole clip, from a mosaic of a few frames: much faster than a palette per frame.
@@ -132,9 +120,7 @@ def best_frame(arrays: LogArrays, clip: Mapping[str, Any], config: ClipsConfig) 
     if bool(clip["has_camera"]) and arrays.camera.shape[0]:
         area = (np.asarray(arrays.camera_instances[fi]) == value).sum(axis=(1, 2))
     else:
-        b = config.bev
-        grid = BevGrid(b.x_min_m, b.x_max_m, b.y_min_m, b.y_max_m, b.resolution_m)
-        area = object_footprint(arrays, grid, str(clip["track_id"]), fi).sum(axis=(1, 2))
+        area = object_footprint(arrays, bev_grid(config), str(clip["track_id"]), fi).sum(axis=(1, 2))
     return int(np.argmax(area))
 
 
@@ -146,13 +132,8 @@ def write_preview_grid(
     where the object is most visible (:func:`best_frame`)."""
     clips_dir = Path(clips_dir)
     config = _config(clips_dir)
-    table = pq.read_table(clips_dir / "clips.parquet")
-    rows = {r["clip_id"]: r for r in table.to_pylist()}
     tiles = []
-    for clip_id in clip_ids:
-        if clip_id not in rows:
-            raise KeyError(f"{clips_dir / 'clips.parquet'}: no clip with clip_id {clip_id!r}")
-        row = rows[clip_id]
+    for row in read_clip_rows(clips_dir, clip_ids):
         arrays = open_log_arrays(clips_dir, row["log_id"])
         frames = render_preview_frames(arrays, row, config)
         if frame_fraction is None:

@@ -18,8 +18,9 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 from numpy.typing import NDArray
 
-CAPTIONS_FILE = "captions.parquet"
-CLIPS_FILE = "clips.parquet"
+from common.atomic import atomic_write_with
+from encoders.clips.layout import CLIPS_FILE, clip_id
+
 HOST_TRACK_ID = "ego"
 REQUIRED_CAPTION_COLUMNS = ("log_id", "track_id", "start_ns", "end_ns", "caption")
 
@@ -53,14 +54,14 @@ class ClipsInputError(ValueError):
 
 @dataclass(frozen=True)
 class CaptionRow:
-    """One neighbour caption, as read from ``captions.parquet``."""
+    """One neighbour caption, as read from ``captions.parquet``: the parts of its clip id first."""
 
     row: int
     log_id: str
     track_id: str
-    category: str
     start_ns: int
     end_ns: int
+    category: str
     caption: str
     canonical_caption: str
     paraphrases: list[str]
@@ -69,7 +70,7 @@ class CaptionRow:
 
     @property
     def clip_id(self) -> str:
-        return f"{self.log_id}:{self.track_id}:{self.start_ns}"
+        return clip_id(self.log_id, self.track_id, self.start_ns)
 
 
 @dataclass
@@ -155,9 +156,8 @@ def window_frames(
     return first, last
 
 
-def write_clip_table(path: Path, rows: list[dict[str, Any]]) -> None:
-    """Write ``clips.parquet`` atomically."""
-    from common.atomic import atomic_write_with
-
+def write_clip_table(clips_dir: Path, rows: list[dict[str, Any]]) -> None:
+    """Write ``CLIPS_DIR/clips.parquet`` atomically."""
     table = pa.Table.from_pylist(rows, schema=CLIP_SCHEMA)
+    path = Path(clips_dir) / CLIPS_FILE
     atomic_write_with(path, lambda tmp: pq.write_table(table, tmp))

@@ -14,15 +14,15 @@ import numpy as np
 import pyarrow.parquet as pq
 from numpy.typing import NDArray
 
+from encoders.clips import layout
 from encoders.clips.raster import grid_affine_from, rasterize_track
-from encoders.clips.render import LOGS_DIR
 from scenes.bev import BevGrid
 from scenes.geometry import wrap_angle_rad
 
 
 @dataclass(frozen=True)
 class LogArrays:
-    """A rendered log opened with ``mmap_mode='r'``; see :mod:`encoders.clips.render` for shapes.
+    """A rendered log opened with ``mmap_mode='r'``; see :mod:`encoders.clips.layout` for shapes.
 
     Attributes:
         track_value: track id → instance value (1 + index in ``track_ids.json``).
@@ -42,21 +42,21 @@ class LogArrays:
 
 
 def open_log_arrays(clips_dir: Path, log_id: str) -> LogArrays:
-    folder = Path(clips_dir) / LOGS_DIR / log_id
+    folder = layout.rendered_log_dir(clips_dir, log_id)
 
     def load(name: str) -> NDArray[np.generic]:
         return np.load(folder / name, mmap_mode="r")
 
-    ids = json.loads((folder / "track_ids.json").read_text())
-    frames = pq.read_table(folder / "frames.parquet", columns=["x_m", "y_m", "yaw_rad", "speed_mps"])
+    ids = json.loads((folder / layout.TRACK_IDS_FILE).read_text())
+    frames = pq.read_table(folder / layout.FRAMES_FILE, columns=["x_m", "y_m", "yaw_rad", "speed_mps"])
     pose = np.stack([frames.column(c).to_numpy() for c in ("x_m", "y_m", "yaw_rad")], axis=1).astype(np.float64)
     return LogArrays(
-        camera=load("camera.npy"),  # type: ignore[arg-type]
-        camera_instances=load("camera_instances.npy"),  # type: ignore[arg-type]
-        bev_lidar=load("bev_lidar.npy"),  # type: ignore[arg-type]
-        bev_map=load("bev_map.npy"),  # type: ignore[arg-type]
-        bev_instances=load("bev_instances.npy"),  # type: ignore[arg-type]
-        track_boxes=load("track_boxes.npy"),  # type: ignore[arg-type]
+        camera=load(layout.CAMERA_FILE),  # type: ignore[arg-type]
+        camera_instances=load(layout.CAMERA_INSTANCES_FILE),  # type: ignore[arg-type]
+        bev_lidar=load(layout.BEV_LIDAR_FILE),  # type: ignore[arg-type]
+        bev_map=load(layout.BEV_MAP_FILE),  # type: ignore[arg-type]
+        bev_instances=load(layout.BEV_INSTANCES_FILE),  # type: ignore[arg-type]
+        track_boxes=load(layout.TRACK_BOXES_FILE),  # type: ignore[arg-type]
         track_value={str(t): i + 1 for i, t in enumerate(ids)},
         pose_xy_yaw=pose,
         speed_mps=frames.column("speed_mps").to_numpy().astype(np.float64),

@@ -12,7 +12,7 @@ from typing import Any
 
 import torch
 
-from encoders.tagging.attributes import TagError
+from encoders.tagging.attributes import parse_choice
 
 
 class Inputs(StrEnum):
@@ -33,10 +33,12 @@ class Inputs(StrEnum):
 
 
 def parse_inputs(value: str | Inputs) -> Inputs:
-    try:
-        return Inputs(str(value))
-    except ValueError:
-        raise TagError(f"unknown inputs {value!r}; valid: {', '.join(i.value for i in Inputs)}") from None
+    """``Inputs`` from its name.
+
+    Raises:
+        TagError: listing the valid inputs.
+    """
+    return parse_choice(Inputs, value, "inputs", "valid")
 
 
 def mask_inputs(batch: dict[str, Any], inputs: str | Inputs) -> dict[str, Any]:

@@ -33,6 +33,11 @@ The last two need the log's map; the ego-relative ones always work.
 from __future__ import annotations
 
 from enum import StrEnum
+from typing import TypeVar
+
+from scenes.behavior import BehaviorLabel, JunctionKind
+
+_Choice = TypeVar("_Choice", bound=StrEnum)
 
 
 class TagError(ValueError):
@@ -49,23 +54,28 @@ class AttributeKind(StrEnum):
 
 
 class Attribute(StrEnum):
-    """Tagging attributes; the values are the public vocabulary."""
+    """Tagging attributes; the values are the public vocabulary.
+
+    The behaviour and junction attributes take their words from :mod:`scenes.behavior` (the
+    columns of the behaviour labels and the junction kinds), so a label renamed there is renamed
+    here too.
+    """
 
     VEHICLE_DENSITY = "vehicle_density"
     PEDESTRIAN_DENSITY = "pedestrian_density"
     VEHICLE_SPEED = "vehicle_speed"
-    PARKED = "parked"
-    STOPPED = "stopped"
-    BRAKING = "braking"
-    KEEPING_LANE = "keeping_lane"
-    LEFT_TURN = "left_turn"
-    RIGHT_TURN = "right_turn"
-    LEFT_LANE_CHANGE = "left_lane_change"
-    RIGHT_LANE_CHANGE = "right_lane_change"
-    BLOCKED_BY = "blocked_by"
-    BRAKING_FOR = "braking_for"
-    THREE_WAY = "three_way"
-    FOUR_WAY = "four_way"
+    PARKED = BehaviorLabel.PARKED.value
+    STOPPED = BehaviorLabel.STOPPED.value
+    BRAKING = BehaviorLabel.BRAKING.value
+    KEEPING_LANE = BehaviorLabel.KEEPING_LANE.value
+    LEFT_TURN = BehaviorLabel.LEFT_TURN.value
+    RIGHT_TURN = BehaviorLabel.RIGHT_TURN.value
+    LEFT_LANE_CHANGE = BehaviorLabel.LEFT_LANE_CHANGE.value
+    RIGHT_LANE_CHANGE = BehaviorLabel.RIGHT_LANE_CHANGE.value
+    BLOCKED_BY = BehaviorLabel.BLOCKED_BY.value
+    BRAKING_FOR = BehaviorLabel.BRAKING_FOR.value
+    THREE_WAY = JunctionKind.THREE_WAY.value
+    FOUR_WAY = JunctionKind.FOUR_WAY.value
 
     @property
     def kind(self) -> AttributeKind:
@@ -95,19 +105,10 @@ CONTINUOUS: frozenset[Attribute] = frozenset(
     {Attribute.VEHICLE_DENSITY, Attribute.PEDESTRIAN_DENSITY, Attribute.VEHICLE_SPEED}
 )
 DENSITIES: frozenset[Attribute] = frozenset({Attribute.VEHICLE_DENSITY, Attribute.PEDESTRIAN_DENSITY})
-#: Attributes taken from the behaviour-label columns of the same name.
-BEHAVIOR_ATTRIBUTES: tuple[Attribute, ...] = (
-    Attribute.PARKED,
-    Attribute.STOPPED,
-    Attribute.BRAKING,
-    Attribute.KEEPING_LANE,
-    Attribute.LEFT_TURN,
-    Attribute.RIGHT_TURN,
-    Attribute.LEFT_LANE_CHANGE,
-    Attribute.RIGHT_LANE_CHANGE,
-    Attribute.BLOCKED_BY,
-    Attribute.BRAKING_FOR,
-)
+#: Attributes taken from the behaviour-label columns of the same name, in the labels' order.
+BEHAVIOR_ATTRIBUTES: tuple[Attribute, ...] = tuple(Attribute(label.value) for label in BehaviorLabel)
+#: Attributes marking the area of a junction of the kind of the same name.
+JUNCTION_ATTRIBUTES: tuple[Attribute, ...] = (Attribute.THREE_WAY, Attribute.FOUR_WAY)
 #: All attributes in the order of the rows of A and of the target channels.
 ATTRIBUTES: tuple[Attribute, ...] = tuple(Attribute)
 
@@ -146,13 +147,22 @@ def parse_attribute(name: str, valid: tuple[str, ...] | list[str] | None = None)
     return key
 
 
+def parse_choice(choices: type[_Choice], value: str | _Choice, what: str, valid: str) -> _Choice:
+    """The member of ``choices`` named ``value`` (surrounding spaces ignored).
+
+    Raises:
+        TagError: ``unknown <what> ...; <valid>: <the valid names>``.
+    """
+    try:
+        return choices(str(value).strip())
+    except ValueError:
+        raise TagError(f"unknown {what} {value!r}; {valid}: {', '.join(c.value for c in choices)}") from None
+
+
 def parse_region(name: str) -> Region:
     """``Region`` from its name.
 
     Raises:
         TagError: listing the valid regions.
     """
-    try:
-        return Region(str(name).strip())
-    except ValueError:
-        raise TagError(f"unknown region {name!r}; valid regions: {', '.join(r.value for r in Region)}") from None
+    return parse_choice(Region, name, "region", "valid regions")

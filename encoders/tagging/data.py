@@ -22,8 +22,9 @@ import numpy as np
 import torch
 from numpy.typing import NDArray
 
+from encoders.clips.layout import BEV_LIDAR_FILE, BEV_MAP_FILE, read_manifest, rendered_log_dir
 from encoders.tagging.attributes import TagError
-from encoders.tagging.targets import LOGS_DIR, LogTargets, open_targets, read_manifest
+from encoders.tagging.targets import LogTargets, open_targets
 
 TargetSource = Callable[[str], LogTargets]
 
@@ -92,9 +93,9 @@ class TagWindowDataset(torch.utils.data.Dataset[dict[str, Any]]):
 
     def _bev(self, log_id: str) -> tuple[NDArray[np.uint8], NDArray[np.uint8]]:
         if log_id not in self._arrays:
-            folder = self.clips_dir / LOGS_DIR / log_id
-            self._arrays[log_id] = (np.load(folder / "bev_lidar.npy", mmap_mode="r"),
-                                    np.load(folder / "bev_map.npy", mmap_mode="r"))
+            folder = rendered_log_dir(self.clips_dir, log_id)
+            self._arrays[log_id] = (np.load(folder / BEV_LIDAR_FILE, mmap_mode="r"),
+                                    np.load(folder / BEV_MAP_FILE, mmap_mode="r"))
         return self._arrays[log_id]
 
     def __getitem__(self, index: int) -> dict[str, Any]:

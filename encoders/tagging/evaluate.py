@@ -35,8 +35,17 @@ import torch
 from numpy.typing import NDArray
 
 from common.atomic import atomic_write_text
+from encoders.clips.layout import (
+    BEV_LIDAR_FILE,
+    BEV_MAP_FILE,
+    TARGETS_STEM,
+    grid_from_manifest,
+    read_manifest,
+    rendered_log_dir,
+)
 from encoders.tagging.attributes import AttributeKind, Region, attribute_kind, is_density
 from encoders.tagging.data import split_logs
+from encoders.tagging.inference import Tagger
 from encoders.tagging.losses import downsample_targets
 from encoders.tagging.scene_tags import (
     coarse_grid,
@@ -46,15 +55,7 @@ from encoders.tagging.scene_tags import (
     region_masks,
     values_of,
 )
-from encoders.tagging.targets import (
-    LOGS_DIR,
-    TARGETS_STEM,
-    grid_from_manifest,
-    has_targets,
-    open_targets,
-    read_manifest,
-)
-from encoders.tagging.training import Tagger
+from encoders.tagging.targets import has_targets, open_targets
 
 Pooled = dict[str, dict[str, NDArray[np.float32]]]
 #: Candidate F1 thresholds: fine at the low end, where hard-negative-mined probabilities of rare attributes lie.
@@ -77,8 +78,8 @@ def pooled_truth_and_pred(
     """
     manifest = read_manifest(clips_dir)
     grid = coarse_grid(grid_from_manifest(manifest), factor)
-    folder = clips_dir / LOGS_DIR / log_id
-    bev_map = np.load(folder / "bev_map.npy", mmap_mode="r")
+    folder = rendered_log_dir(clips_dir, log_id)
+    bev_map = np.load(folder / BEV_MAP_FILE, mmap_mode="r")
     lt = open_targets(clips_dir, log_id, stem)
     attrs = names or lt.names
     cols = [lt.names.index(a) for a in attrs]
@@ -90,7 +91,7 @@ def pooled_truth_and_pred(
     cell = grid.resolution_m**2
     v = None
     if tagger is not None:
-        lidar = np.load(folder / "bev_lidar.npy", mmap_mode="r")
+        lidar = np.load(folder / BEV_LIDAR_FILE, mmap_mode="r")
         v = tagger.tag_frames(lidar, bev_map, attributes=[tagger.names.index(a) for a in attrs])
     truth: Pooled = {}
     pred: Pooled = {}
@@ -344,7 +345,7 @@ def evaluate_runs(
     Returns:
         ``{"by_region": ..., "inputs": ..., "skill": {row: x}, "meta": {...}}`` (the layout of ``tags.json``).
     """
-    from encoders.tagging.training import load_tagger
+    from encoders.tagging.inference import load_tagger
 
     clips = Path(clips_dir)
     say = progress or (lambda _line: None)

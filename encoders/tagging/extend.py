@@ -26,26 +26,14 @@ import numpy as np
 import torch
 from numpy.typing import NDArray
 
+from encoders.clips.layout import TARGETS_STEM, grid_from_manifest, read_manifest, rendered_log_dir
 from encoders.tagging.attributes import BEHAVIOR_ATTRIBUTES, Attribute, TagError
+from encoders.tagging.config import TagTrainConfig
 from encoders.tagging.head import TagHead, TagHeadConfig
-from encoders.tagging.targets import (
-    LOGS_DIR,
-    behavior_grid,
-    box_values,
-    grid_from_manifest,
-    has_targets,
-    open_targets,
-    read_manifest,
-    write_targets,
-)
-from encoders.tagging.training import (
-    BACKBONE_FILE,
-    TagTrainConfig,
-    TagTrainResult,
-    load_tagger,
-    save_tagging,
-    train_tags,
-)
+from encoders.tagging.inference import BACKBONE_FILE, load_tagger
+from encoders.tagging.rasterize import behavior_grid, box_values
+from encoders.tagging.targets import has_targets, open_targets, write_targets
+from encoders.tagging.training import TagTrainResult, save_tagging, train_tags
 from scenes.bev import BevGrid
 from scenes.log import Log
 from scenes.tracks import DenseTracks
@@ -74,7 +62,7 @@ def write_new_targets(clips_dir: Path | str, log_dirs: Sequence[Path | str], nam
     done = []
     for log_dir in log_dirs:
         log_id = Path(log_dir).name
-        folder = clips / LOGS_DIR / log_id
+        folder = rendered_log_dir(clips, log_id)
         if not folder.is_dir():
             continue
         if overwrite or not has_targets(clips, log_id, stem):
@@ -129,7 +117,7 @@ def add_attributes(
     clash = [n for n in names if n in base.names]
     if clash or len(set(names)) != len(names) or not names:
         raise TagError(f"new attributes must be new and distinct: {list(names)} (model has {list(base.names)})")
-    stem = stem or f"bev_attributes_{names[0]}"
+    stem = stem or f"{TARGETS_STEM}_{names[0]}"
     write_new_targets(clips_dir, log_dirs, names, targets_fn, stem)
     out = Path(out_run_dir)
     # train_tags keeps the base model's tower, inputs and frame spacing (``init``).

@@ -54,8 +54,9 @@ def build_tagging_fixture(root: Path, num_logs: int = 3, num_frames: int = 12, s
     """
     from encoders.clips.build import build_clips
     from encoders.clips.config import ClipsConfig
+    from encoders.tagging.config import TagTrainConfig
     from encoders.tagging.targets import add_attribute_targets
-    from encoders.tagging.training import TagTrainConfig, train_tags
+    from encoders.tagging.training import train_tags
 
     logs = [write_synthetic_log(root / "logs", f"tagged_{i}", num_frames=num_frames, with_camera=False,
                                 with_lidar=False, seed=i) for i in range(num_logs)]

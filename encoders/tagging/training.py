@@ -1,4 +1,4 @@
-"""Training the attribute head (and the BEV backbone) on tag targets; loading a tagging model.
+"""Training the attribute head (and the BEV backbone) on tag targets, and writing the tagging run files.
 
 Two ways to train, chosen by :attr:`TagTrainConfig.mode`:
 
@@ -10,9 +10,9 @@ Two ways to train, chosen by :attr:`TagTrainConfig.mode`:
 - ``alone``: :func:`train_tags` trains a :class:`~encoders.bev.BevTower` and the head on the tag
   loss only (``scenesearch eval-tags --train`` and the benchmarks use it for the input ablation).
 
-A run folder that answers tag queries holds ``tagging.json`` (this config, the attribute names, the
-clips grid and rendering config) and ``tag_head.safetensors``; a run trained ``alone`` also holds
-``tag_backbone.safetensors`` (the BEV tower), a joint run takes the tower from ``model.safetensors``.
+:func:`save_tagging` writes the files of a run folder that answers tag queries (``tagging.json``,
+``tag_head.safetensors`` and, ``alone``, ``tag_backbone.safetensors``); :mod:`encoders.tagging.inference`
+loads them.
 """
 
 from __future__ import annotations
@@ -22,129 +22,29 @@ import json
 import math
 import time
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
-from numpy.typing import NDArray
-from safetensors.torch import load_file, save_file
+from safetensors.torch import save_file
 from torch import nn
 
 from common.atomic import atomic_path, atomic_write_text
 from encoders.bev import BevTower
-from encoders.config import BevConfig, ConfigError, from_dict
-from encoders.tagging.ablation import Inputs, mask_inputs, parse_inputs
+from encoders.clips.layout import read_manifest
+from encoders.config import BevConfig
+from encoders.inference import resolve_device
+from encoders.tagging.ablation import mask_inputs
 from encoders.tagging.attributes import TagError, is_density
+from encoders.tagging.config import TagTrainConfig
 from encoders.tagging.data import TagWindowDataset, TargetSource, collate_windows
 from encoders.tagging.head import TagHead, TagHeadConfig
-from encoders.tagging.losses import TagLossConfig, TaskBalancedSampler, downsample_targets, tag_loss
-from encoders.tagging.targets import grid_from_manifest, read_manifest
-from scenes.bev import BevGrid
+from encoders.tagging.inference import BACKBONE_FILE, HEAD_FILE, TAGGING_FILE, Tagger
+from encoders.tagging.losses import TaskBalancedSampler, downsample_targets, tag_loss
 
-TAGGING_FILE = "tagging.json"
-HEAD_FILE = "tag_head.safetensors"
-BACKBONE_FILE = "tag_backbone.safetensors"
 METRICS_FILE = "tag_metrics.jsonl"
-MODES = ("joint", "alone")
-
-
-def tagging_bev_config() -> BevConfig:
-    """The BEV tower trained for tags alone (the one ``benchmarks/bench_tagging.py`` measures).
-
-    Four stages (strides 2–16) then two dilated context blocks: a receptive field of about 80 m.
-    A junction's kind (3-way or 4-way) is only visible with all its arms in view, also from the far
-    end of an approach lane; with four plain stages (about 15 m) ``four_way`` stayed at the
-    statistics (F1 0.37), with the context blocks it reached 0.92 (map only, 600 steps, 24 logs).
-    D_e = 64: with 32 channels shared by the 15 attributes, pedestrian density (a sparse, small
-    signal) stayed behind the statistics (L1 0.224 vs 0.216 on the benchmark's test logs).
-    """
-    return BevConfig(widths=(8, 16, 32, 64), embed_channels=64, downsample=2, context_blocks=2)
-
-
-@dataclass(frozen=True)
-class TagTrainConfig:
-    """Tag training.
-
-    Attributes:
-        mode: ``joint`` (with the contrastive loss, in ``scenesearch train``) or ``alone``.
-        inputs: BEV inputs the model sees: ``none``, ``map``, ``lidar`` or ``both``.
-        bev: the BEV tower trained ``alone`` (joint runs use the dual encoder's).
-        loss: the tagging loss.
-        joint_weight: weight of the tag loss added to the contrastive loss in joint training.
-        window_frames: T frames per training window.
-        frame_stride: frames between the window's frames (the same spacing is used at query time).
-        batch_size: windows per step.
-        steps: optimiser steps (``alone``).
-        lr: peak AdamW learning rate (``alone``), linear warm-up then cosine decay.
-        warmup_steps: warm-up steps.
-        weight_decay: AdamW weight decay.
-        seed: seeds torch, numpy and the sampler.
-        device: ``auto``, ``cpu`` or ``cuda[:i]``.
-        log_every: steps between lines of ``tag_metrics.jsonl``.
-    """
-
-    mode: str = "joint"
-    inputs: str = "both"
-    bev: BevConfig = field(default_factory=tagging_bev_config)
-    loss: TagLossConfig = field(default_factory=TagLossConfig)
-    joint_weight: float = 1.0
-    window_frames: int = 5
-    frame_stride: int = 2
-    batch_size: int = 8
-    steps: int = 400
-    lr: float = 3e-3
-    warmup_steps: int = 20
-    weight_decay: float = 1e-4
-    seed: int = 0
-    device: str = "auto"
-    log_every: int = 20
-
-    def __post_init__(self) -> None:
-        if self.mode not in MODES:
-            raise ConfigError(f"TagTrainConfig.mode must be one of {MODES}, got {self.mode!r}")
-        parse_inputs(self.inputs)
-        for name in ("window_frames", "frame_stride", "batch_size", "steps", "log_every"):
-            if getattr(self, name) < 1:
-                raise ConfigError(f"TagTrainConfig.{name} must be >= 1, got {getattr(self, name)}")
-        if self.lr <= 0 or self.weight_decay < 0 or self.joint_weight < 0 or self.warmup_steps < 0:
-            raise ConfigError("TagTrainConfig.lr must be > 0; weight_decay, joint_weight, warmup_steps >= 0")
-
-    def to_dict(self) -> dict[str, Any]:
-        return _plain(dataclasses.asdict(self))
-
-    @staticmethod
-    def from_dict(data: dict[str, Any]) -> TagTrainConfig:
-        return from_dict(TagTrainConfig, data)
-
-    def to_yaml(self) -> str:
-        import yaml
-
-        return str(yaml.safe_dump(self.to_dict(), sort_keys=True))
-
-    @staticmethod
-    def from_yaml(text: str) -> TagTrainConfig:
-        import yaml
-
-        data = yaml.safe_load(text) or {}
-        if not isinstance(data, dict):
-            raise ConfigError("TagTrainConfig YAML must be a mapping")
-        return TagTrainConfig.from_dict(data)
-
-
-def _plain(value: Any) -> Any:
-    if isinstance(value, dict):
-        return {k: _plain(v) for k, v in value.items()}
-    if isinstance(value, list | tuple):
-        return [_plain(v) for v in value]
-    return value
-
-
-def resolve_device(name: str) -> torch.device:
-    if name == "auto":
-        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    return torch.device(name)
 
 
 def _area_mask(names: tuple[str, ...], device: torch.device) -> torch.Tensor:
@@ -347,115 +247,6 @@ def train_tags(
                                   "train_backbone": train_backbone}})
     atomic_write_text(run / METRICS_FILE, "\n".join(lines) + "\n")
     return TagTrainResult(run, step + 1, loss_avg, seconds, (step + 1) * config.batch_size / max(seconds, 1e-9))
-
-
-# ---------------------------------------------------------------------------------------------
-# Loading and inference
-
-
-class Tagger:
-    """A trained tagging model: BEV tower + attribute head, and the grid and inputs it was trained on."""
-
-    def __init__(self, bev: BevTower, head: TagHead, config: TagTrainConfig, meta: dict[str, Any],
-                 device: torch.device) -> None:
-        self.bev = bev.eval().to(device)
-        self.head = head.eval().to(device)
-        self.config = config
-        self.meta = meta
-        self.device = device
-        self.grid: BevGrid = grid_from_manifest({"bev": meta["grid"]})
-        self.map_channels: list[str] = list(meta["grid"].get("map_channels", []))
-        self.downsample = int(self.bev.config.downsample)
-
-    @property
-    def bev_config(self) -> BevConfig:
-        return self.bev.config
-
-    @property
-    def names(self) -> tuple[str, ...]:
-        return self.head.names
-
-    @property
-    def inputs(self) -> Inputs:
-        return parse_inputs(self.config.inputs)
-
-    @torch.no_grad()
-    def tag_frames(self, bev_lidar: NDArray[np.uint8], bev_map: NDArray[np.uint8], chunk: int = 32,
-                   attributes: list[int] | None = None) -> NDArray[np.float32]:
-        """Tag tensors of consecutive frames of one log.
-
-        E is computed over the frames at the training spacing (``frame_stride``: one pass per phase,
-        in chunks with temporal context), so each frame sees neighbours as in training.
-
-        Args:
-            bev_lidar: (F, Cl, H, W) uint8 (the clip stage's ``bev_lidar.npy``).
-            bev_map: (F, Cm, H, W) uint8.
-            chunk: frames per forward pass.
-            attributes: rows of A to return (default all).
-
-        Returns:
-            (F, A', H/r, W/r) float32 V (logits for discrete attributes).
-        """
-        f = int(bev_lidar.shape[0])
-        sel = list(range(len(self.names))) if attributes is None else list(attributes)
-        h, w = self.grid.height // self.downsample, self.grid.width // self.downsample
-        out = np.zeros((f, len(sel), h, w), np.float32)
-        ctx = self.bev.config.temporal_kernel // 2
-        stride = self.config.frame_stride
-        for phase in range(min(stride, f)):
-            idx = np.arange(phase, f, stride)
-            for lo in range(0, idx.shape[0], chunk):
-                a, b = max(0, lo - ctx), min(idx.shape[0], lo + chunk + ctx)
-                fr = idx[a:b]
-                batch = {
-                    "bev_lidar": torch.from_numpy(np.asarray(bev_lidar[fr])).float().div_(255.0)[None],
-                    "bev_map": torch.from_numpy(np.asarray(bev_map[fr])).float().div_(255.0)[None],
-                }
-                batch = mask_inputs(batch, self.inputs)
-                e = self.bev.embed_map(batch["bev_lidar"].to(self.device), batch["bev_map"].to(self.device))
-                v = self.head(e)[0, :, sel]  # (n, A', h, w)
-                keep = slice(lo - a, lo - a + min(chunk, idx.shape[0] - lo))
-                out[idx[lo : lo + chunk]] = v[keep].float().cpu().numpy()
-        return out
-
-
-#: Parameters of the BEV tower that compute E (what tagging needs); the rest pools E into clip embeddings.
-EMBEDDING_PREFIXES = BevTower.EMBEDDING_PREFIXES
-
-
-def load_embedding_weights(bev: BevTower, state: dict[str, torch.Tensor], source: Path) -> None:
-    """Load a saved tower; only the parameters behind E must match (the clip-embedding part may differ)."""
-    result = bev.load_state_dict({k: v for k, v in state.items() if k.startswith(EMBEDDING_PREFIXES)}, strict=False)
-    missing = [k for k in result.missing_keys if k.startswith(EMBEDDING_PREFIXES)]
-    if missing:
-        raise ValueError(f"{source}: the BEV embedding weights do not match the model: missing {missing}")
-
-
-def load_tagger(run_dir: Path | str, device: str = "cpu") -> Tagger:
-    """The tagging model of a run folder (trained ``alone`` or jointly).
-
-    Raises:
-        FileNotFoundError: the run has no ``tagging.json`` (it was trained without tagging).
-    """
-    run = Path(run_dir)
-    path = run / TAGGING_FILE
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: the run has no tagging model (train with tagging, or "
-                                "`scenesearch eval-tags --train`)")
-    meta = json.loads(path.read_text())
-    config = TagTrainConfig.from_dict(meta["config"])
-    head = TagHead(TagHeadConfig.from_dict(meta["head"]))
-    head.load_state_dict(load_file(str(run / HEAD_FILE)))
-    dev = resolve_device(device)
-    if meta.get("backbone") == BACKBONE_FILE:
-        bev = BevTower(config.bev, 32)
-        load_embedding_weights(bev, load_file(str(run / BACKBONE_FILE)), run / BACKBONE_FILE)
-    else:
-        from encoders.train import load_model  # type: ignore[import-not-found,unused-ignore]
-
-        model = load_model(run, device="cpu")
-        bev = model.bev
-    return Tagger(bev, head, config, meta, dev)
 
 
 def attach_tagging(

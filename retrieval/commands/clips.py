@@ -37,6 +37,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from encoders.clips.build import build_clips
     from encoders.clips.config import BevSourceChoice, ClipsConfig
+    from encoders.clips.layout import MANIFEST_FILE
 
     config = ClipsConfig.from_yaml(args.config) if args.config else ClipsConfig()
     if args.frames_per_clip is not None:
@@ -65,7 +66,7 @@ def run(args: argparse.Namespace) -> int:
             where = ", ".join(f"{k}={v}" for k, v in item.items() if k != "reason")
             print(f"  {where}: {item['reason']}")
         if len(report.skipped) > 50:
-            print(f"  ... and {len(report.skipped) - 50} more (see {args.out / 'manifest.json'})")
+            print(f"  ... and {len(report.skipped) - 50} more (see {args.out / MANIFEST_FILE})")
     for log_id, stats in report.logs.items():
         if stats.get("corrupt_sweeps"):
             print(f"  {log_id}: skipped corrupt sweeps: {', '.join(stats['corrupt_sweeps'][:5])}")

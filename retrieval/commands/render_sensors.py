@@ -32,7 +32,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 def build_config(args: argparse.Namespace) -> object:
     from scenes.sensorsim.config import SensorConfig
 
-    config = SensorConfig.from_yaml(args.config.read_text()) if args.config else SensorConfig()
+    config = SensorConfig.from_yaml(args.config) if args.config else SensorConfig()
     lidar, camera = config.lidar, config.camera
     if args.beams is not None:
         lidar = dataclasses.replace(lidar, beams=args.beams)

@@ -25,8 +25,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from retrieval.captions_search import CaptionSearch, is_caption_index
+    from retrieval.querying import parse_cli_filters
     from retrieval.records import format_table
-    from retrieval.scenesearch import SceneSearch, parse_cli_filters
+    from retrieval.scenesearch import SceneSearch
 
     filters = parse_cli_filters(args.filters)
     if is_caption_index(args.index_dir):  # built with `scenesearch index --captions`

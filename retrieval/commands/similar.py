@@ -21,8 +21,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from retrieval.querying import parse_cli_filters
     from retrieval.records import format_table
-    from retrieval.scenesearch import SceneSearch, parse_cli_filters
+    from retrieval.scenesearch import SceneSearch
 
     search = SceneSearch.open(args.index_dir, views=(args.view,))
     results = search.search_clip(args.clip_id, k=args.k, filters=parse_cli_filters(args.filters), view=args.view)

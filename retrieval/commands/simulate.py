@@ -41,7 +41,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 def build_config(args: argparse.Namespace) -> SimulationConfig:
     """The config file's values, overridden by the flags given."""
-    base = SimulationConfig.from_yaml(args.config.read_text()) if args.config else SimulationConfig()
+    base = SimulationConfig.from_yaml(args.config) if args.config else SimulationConfig()
     overrides: dict[str, Any] = {}
     for name in ("logs", "duration_s", "seed", "warmup_s", "egos_per_run", "tracker_noise", "sensors", "cache_dir"):
         value = getattr(args, name, None)
@@ -62,7 +62,7 @@ def post_log_hooks(config: SimulationConfig, emit_detections: bool = False,
         from scenes.sensorsim.config import SensorConfig
         from scenes.sensorsim.render import render_log_sensors
 
-        base = SensorConfig.from_yaml(sensor_config.read_text()) if sensor_config else SensorConfig()
+        base = SensorConfig.from_yaml(sensor_config) if sensor_config else SensorConfig()
         sensors = replace(base, seed=config.seed) if sensor_config is None else base
 
         def render(log_dir: Path) -> None:

@@ -45,19 +45,14 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def build_config(args: argparse.Namespace) -> Any:
-    from encoders.config import ConfigError, TrainConfig
+    from encoders.config import TrainConfig
 
     if args.config is not None:
         if not args.config.is_file():
             raise FileNotFoundError(f"{args.config}: config file not found")
-        try:
-            config = TrainConfig.from_yaml(args.config.read_text())
-        except ConfigError as exc:
-            raise ConfigError(f"{args.config}: {exc}") from None
+        config = TrainConfig.from_yaml(args.config)
     elif args.resume and args.preset is None and (args.out / "config.json").is_file():
-        import json
-
-        config = TrainConfig.from_dict(json.loads((args.out / "config.json").read_text()))  # the run's own
+        config = TrainConfig.from_json(args.out / "config.json")  # the run's own
     else:
         config = TrainConfig.preset(args.preset or "default")
     flags = {
@@ -82,7 +77,7 @@ def build_config(args: argparse.Namespace) -> Any:
 
 def tagging_config(args: argparse.Namespace) -> Any:
     """The tagging part of training, from ``--inputs`` and ``--tag-weight`` (None: the defaults)."""
-    from encoders.tagging.training import TagTrainConfig
+    from encoders.tagging.config import TagTrainConfig
 
     if args.inputs is None and args.tag_weight is None:
         return None
@@ -101,9 +96,7 @@ def run(args: argparse.Namespace) -> int:
 
     config = build_config(args)
     if args.save_config:
-        from common.atomic import atomic_write_text
-
-        atomic_write_text(args.save_config, config.to_yaml())
+        config.to_yaml(args.save_config)
     try:
         result = train(args.clips_dir, args.out, config, resume=args.resume, force=args.force,
                        tagging=tagging_config(args))

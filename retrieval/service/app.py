@@ -30,15 +30,15 @@ from fastapi.responses import FileResponse, JSONResponse
 from fastapi.staticfiles import StaticFiles
 
 from retrieval.errors import (
-    EmptyQueryError,
     IndexDirError,
     ModelMismatchError,
     RetrievalError,
     UnknownClipError,
     UnknownViewError,
 )
+from retrieval.querying import parse_cli_filters
 from retrieval.records import SearchResult
-from retrieval.scenesearch import SceneSearch, parse_cli_filters
+from retrieval.scenesearch import SceneSearch
 
 STATIC_DIR = Path(__file__).parent / "static"
 
@@ -97,18 +97,12 @@ def create_app(search: SceneSearch, limits: ServiceLimits | None = None) -> Fast
     async def _retrieval_error(_request: Request, exc: RetrievalError) -> JSONResponse:
         return JSONResponse({"detail": str(exc)}, status_code=_status_of(exc))
 
-    def check_k(k: int) -> int:
-        if not 1 <= k <= limits.max_k:
-            raise HTTPException(422, f"k must be between 1 and {limits.max_k}, got {k}")
-        return min(k, max(len(search) - 1, 1))
-
+    # k and the filters are checked where the search builds its query (retrieval.querying), against
+    # this service's max_k; here only the count of filter parameters is limited.
     def filters_of(items: list[str] | None) -> Any:
         if items and len(items) > limits.max_filters:
             raise HTTPException(422, f"at most {limits.max_filters} filter parameters, got {len(items)}")
-        try:
-            return parse_cli_filters([i for i in items or [] if i.strip()])
-        except ValueError as exc:
-            raise HTTPException(422, str(exc)) from None
+        return parse_cli_filters([i for i in items or [] if i.strip()])
 
     def check_view(view: str) -> str:
         if view not in search.views:
@@ -142,17 +136,14 @@ def create_app(search: SceneSearch, limits: ServiceLimits | None = None) -> Fast
     ) -> dict[str, Any]:
         if len(q) > limits.max_query_chars:
             raise HTTPException(413, f"query is {len(q)} characters; the limit is {limits.max_query_chars}")
-        if not q.strip():
-            raise EmptyQueryError()
         if mode not in MODES:
             raise HTTPException(422, f"unknown mode {mode!r}; valid modes: {', '.join(MODES)}")
-        k = check_k(k)
         spec = filters_of(filter)
         start = time.perf_counter()
         if mode == "captions":
-            results = search.search_captions(q, k=k, filters=spec)
+            results = search.search_captions(q, k=k, filters=spec, max_k=limits.max_k)
         else:
-            results = search.search_text(q, k=k, filters=spec, view=check_view(view))
+            results = search.search_text(q, k=k, filters=spec, view=check_view(view), max_k=limits.max_k)
         elapsed_ms = (time.perf_counter() - start) * 1e3
         return {"query": q, "k": k, "view": view, "mode": mode, "elapsed_ms": round(elapsed_ms, 2),
                 "results": [_result_json(r) for r in results]}
@@ -164,8 +155,8 @@ def create_app(search: SceneSearch, limits: ServiceLimits | None = None) -> Fast
         filter: Annotated[list[str] | None, Query(description="FIELD=VALUE or a filter expression")] = None,
         view: Annotated[str, Query(description="fused, camera or bev")] = "fused",
     ) -> dict[str, Any]:
-        k = check_k(k)
-        results = search.search_clip(clip_id, k=k, filters=filters_of(filter), view=check_view(view))
+        results = search.search_clip(clip_id, k=k, filters=filters_of(filter), view=check_view(view),
+                                     max_k=limits.max_k)
         return {"clip_id": clip_id, "k": k, "view": view, "results": [_result_json(r) for r in results]}
 
     @app.get("/api/clips/{clip_id:path}/preview", summary="Animated preview of a clip", response_model=None)
@@ -208,7 +199,7 @@ def create_app(search: SceneSearch, limits: ServiceLimits | None = None) -> Fast
         if q is not None:
             if len(q) > limits.max_query_chars:
                 raise HTTPException(413, f"query is {len(q)} characters; the limit is {limits.max_query_chars}")
-            clip_ids = [r.clip_id for r in search.search_text(q, k=check_k(k), view=view)]
+            clip_ids = [r.clip_id for r in search.search_text(q, k=k, view=view, max_k=limits.max_k)]
         else:
             clip_ids = [c for c in (ids or "").split(",") if c]
             if not clip_ids or len(clip_ids) > limits.max_export_ids:

@@ -27,6 +27,8 @@ from fastapi import FastAPI, HTTPException, Query
 
 from encoders.tagging.attributes import Region, TagError
 from encoders.tagging.scene_tags import OPS, TRANSFORMS
+from retrieval.errors import InvalidKError
+from retrieval.querying import check_k
 from retrieval.tagging import TagSearch
 
 
@@ -76,8 +78,10 @@ def register_tag_routes(app: FastAPI, search: TagSearch, log_dirs: Sequence[Path
         log_id: Annotated[list[str] | None, Query(description="restrict to these logs")] = None,
         kappa: Annotated[float | None, Query(description="compose 1{V >= kappa} instead of values")] = None,
     ) -> dict[str, Any]:
-        if not 1 <= k <= max_k:
-            raise HTTPException(422, f"k must be between 1 and {max_k}, got {k}")
+        try:
+            check_k(k, max_k)
+        except InvalidKError as exc:
+            raise HTTPException(422, str(exc)) from None
         dirs = [log_dir_of(lid) for lid in log_id] if log_id else list(logs.values())
         h, kap = transform(kappa)
         try:

@@ -11,26 +11,14 @@ from __future__ import annotations
 import zlib
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from enum import StrEnum
 from typing import Any
 
 import numpy as np
 
 from scenes.categories import Category
 from scenes.geometry import FloatArray
-from scenes.sensorsim.scene import GroundMaterial
-
-
-class TimeOfDay(StrEnum):
-    DAY = "day"
-    DUSK = "dusk"
-    NIGHT = "night"
-
-
-class Weather(StrEnum):
-    CLEAR = "clear"
-    RAIN = "rain"
-    FOG = "fog"
+from scenes.metadata import TimeOfDay, Weather
+from scenes.sensorsim.ground import GroundMaterial
 
 
 @dataclass(frozen=True)

@@ -29,15 +29,9 @@ from scenes.calibration import CameraIntrinsics
 from scenes.geometry import SE3, FloatArray
 from scenes.sensorsim.appearance import Appearance, make_palette, object_colors
 from scenes.sensorsim.config import CameraConfig
-from scenes.sensorsim.scene import (
-    BOX_SHAPE,
-    FrameObjects,
-    GroundMaterial,
-    ShapePart,
-    StaticWorld,
-    object_vertices,
-    shape_of,
-)
+from scenes.sensorsim.ground import GroundMaterial
+from scenes.sensorsim.objects import BOX_SHAPE, FrameObjects, ShapePart, object_vertices, shape_of
+from scenes.sensorsim.world import StaticWorld
 
 #: Points nearer than this to the camera plane are clipped away.
 NEAR_PLANE_M = 0.1

@@ -1,4 +1,4 @@
-"""Configuration of the sensor simulation: frozen dataclasses that round-trip YAML.
+"""Configuration of the sensor simulation: frozen dataclasses, serialised as YAML by :mod:`common.config`.
 
 Sensor mounting positions are in the ego frame (x forward, y left, z up, origin on the ground
 under the rear axle). They are recorded in the log's calibration as ``ego_SE3_sensor`` under the
@@ -7,29 +7,21 @@ names :data:`LIDAR_SENSOR_NAME` and :attr:`CameraConfig.name`.
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
-import yaml
 
 from scenes.calibration import CameraIntrinsics
+from scenes.config import ScenesConfig, check_at_least, check_positive
 from scenes.geometry import SE3
 
 #: Calibration name of the simulated LiDAR (the AV2 name of the roof LiDAR).
 LIDAR_SENSOR_NAME = "up_lidar"
 
 
-def _check_positive(owner: str, **values: float) -> None:
-    for name, value in values.items():
-        if not value > 0:
-            raise ValueError(f"{owner}.{name} must be > 0, got {value}")
-
-
 @dataclass(frozen=True)
-class LidarConfig:
+class LidarConfig(ScenesConfig):
     """A spinning multi-beam LiDAR on the roof.
 
     Attributes:
@@ -74,7 +66,7 @@ class LidarConfig:
                              f"{self.azimuth_steps}")
         if self.beams > 256:
             raise ValueError(f"LidarConfig.beams must fit laser_number (uint8), got {self.beams}")
-        _check_positive("LidarConfig", max_range_m=self.max_range_m, mount_height_m=self.mount_height_m,
+        check_positive("LidarConfig", max_range_m=self.max_range_m, mount_height_m=self.mount_height_m,
                         spin_period_s=self.spin_period_s)
         if not 0 <= self.min_range_m < self.max_range_m:
             raise ValueError(f"LidarConfig.min_range_m must be in [0, max_range_m), got {self.min_range_m}")
@@ -98,7 +90,7 @@ class LidarConfig:
 
 
 @dataclass(frozen=True)
-class CameraConfig:
+class CameraConfig(ScenesConfig):
     """A forward-looking pinhole camera (no distortion).
 
     Attributes:
@@ -134,7 +126,7 @@ class CameraConfig:
             raise ValueError(f"CameraConfig.jpeg_quality must be in [1, 100], got {self.jpeg_quality}")
         if not self.name or "/" in self.name:
             raise ValueError(f"CameraConfig.name must be a plain folder name, got {self.name!r}")
-        _check_positive("CameraConfig", mount_height_m=self.mount_height_m, max_distance_m=self.max_distance_m)
+        check_positive("CameraConfig", mount_height_m=self.mount_height_m, max_distance_m=self.max_distance_m)
 
     @property
     def intrinsics(self) -> CameraIntrinsics:
@@ -154,7 +146,7 @@ class CameraConfig:
 
 
 @dataclass(frozen=True)
-class WorldConfig:
+class WorldConfig(ScenesConfig):
     """The static world built from the map: kerbs, sidewalks and building blocks.
 
     Attributes:
@@ -182,11 +174,10 @@ class WorldConfig:
     def __post_init__(self) -> None:
         object.__setattr__(self, "building_size_m", tuple(float(v) for v in self.building_size_m))
         object.__setattr__(self, "building_height_m", tuple(float(v) for v in self.building_height_m))
-        _check_positive("WorldConfig", raster_resolution_m=self.raster_resolution_m, margin_m=self.margin_m,
+        check_positive("WorldConfig", raster_resolution_m=self.raster_resolution_m, margin_m=self.margin_m,
                         building_spacing_m=self.building_spacing_m, lane_mark_width_m=self.lane_mark_width_m)
-        for name in ("kerb_height_m", "sidewalk_width_m", "building_setback_m"):
-            if getattr(self, name) < 0:
-                raise ValueError(f"WorldConfig.{name} must be >= 0, got {getattr(self, name)}")
+        check_at_least("WorldConfig", 0, kerb_height_m=self.kerb_height_m, sidewalk_width_m=self.sidewalk_width_m,
+                       building_setback_m=self.building_setback_m)
         for name in ("building_size_m", "building_height_m"):
             lo, hi = getattr(self, name)
             if not 0 < lo <= hi:
@@ -194,7 +185,7 @@ class WorldConfig:
 
 
 @dataclass(frozen=True)
-class SensorConfig:
+class SensorConfig(ScenesConfig):
     """Everything the sensor simulation of one log needs.
 
     Attributes:
@@ -212,43 +203,3 @@ class SensorConfig:
     seed: int = 0
     render_lidar: bool = True
     render_camera: bool = True
-
-    def __post_init__(self) -> None:
-        for name, cls in (("lidar", LidarConfig), ("camera", CameraConfig), ("world", WorldConfig)):
-            value = getattr(self, name)
-            if isinstance(value, dict):
-                object.__setattr__(self, name, _from_dict(cls, value, f"SensorConfig.{name}"))
-
-    def to_dict(self) -> dict[str, Any]:
-        return _to_plain(dataclasses.asdict(self))
-
-    @staticmethod
-    def from_dict(data: dict[str, Any]) -> SensorConfig:
-        return _from_dict(SensorConfig, data, "SensorConfig")
-
-    def to_yaml(self) -> str:
-        return yaml.safe_dump(self.to_dict(), sort_keys=True)
-
-    @staticmethod
-    def from_yaml(text: str) -> SensorConfig:
-        data = yaml.safe_load(text) or {}
-        if not isinstance(data, dict):
-            raise ValueError("SensorConfig YAML must be a mapping")
-        return SensorConfig.from_dict(data)
-
-
-def _to_plain(value: Any) -> Any:
-    if isinstance(value, dict):
-        return {k: _to_plain(v) for k, v in value.items()}
-    if isinstance(value, tuple | list):
-        return [_to_plain(v) for v in value]
-    return value
-
-
-def _from_dict(cls: Any, data: dict[str, Any], owner: str) -> Any:
-    known = {f.name for f in dataclasses.fields(cls)}
-    unknown = sorted(set(data) - known)
-    if unknown:
-        raise ValueError(f"{owner}: unknown keys {unknown}")
-    values = {k: tuple(v) if isinstance(v, list) else v for k, v in data.items()}
-    return cls(**values)

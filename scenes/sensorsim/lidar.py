@@ -24,17 +24,9 @@ from numpy.typing import NDArray
 from scenes.geometry import SE3, FloatArray
 from scenes.sensors import LidarSweep
 from scenes.sensorsim.config import LidarConfig
-from scenes.sensorsim.scene import (
-    BUILDING_REFLECTIVITY,
-    GROUND_REFLECTIVITY,
-    KERB_REFLECTIVITY,
-    OBJECT_REFLECTIVITY,
-    FrameObjects,
-    StaticKind,
-    StaticWorld,
-    build_object_mesh,
-    o3d_tensor,
-)
+from scenes.sensorsim.ground import GROUND_REFLECTIVITY
+from scenes.sensorsim.objects import OBJECT_REFLECTIVITY, FrameObjects, build_object_mesh
+from scenes.sensorsim.world import BUILDING_REFLECTIVITY, KERB_REFLECTIVITY, StaticKind, StaticWorld, o3d_tensor
 
 #: Instance value of points on the static world.
 STATIC_INSTANCE = -1
@@ -279,16 +271,3 @@ def cast_sweep(
         offset_ns=pattern.offset_ns[idx].copy(),
     )
     return LidarReturns(sweep, track_index, n_rays)
-
-
-def simulate_sweep(
-    world: StaticWorld,
-    objects: FrameObjects,
-    city_SE3_ego: SE3,
-    config: LidarConfig,
-    rng: np.random.Generator,
-    timestamp_ns: int = 0,
-    nthreads: int = 0,
-) -> LidarSweep:
-    """One sweep in the ego frame (see :func:`cast_sweep`, which also says which object each point hit)."""
-    return cast_sweep(world, objects, city_SE3_ego, config, rng, timestamp_ns, nthreads).sweep

@@ -32,7 +32,8 @@ from scenes.sensorsim.config import LIDAR_SENSOR_NAME, SensorConfig
 from scenes.sensorsim.errors import BadObjectError
 from scenes.sensorsim.instance_masks import write_instance_mask, write_instance_track_ids
 from scenes.sensorsim.lidar import cast_sweep
-from scenes.sensorsim.scene import FrameObjects, StaticWorld
+from scenes.sensorsim.objects import FrameObjects
+from scenes.sensorsim.world import StaticWorld
 from scenes.tracks import DenseTracks
 
 #: Ego poses at most this far apart count as a frame-rate pose stream (simulated logs).

@@ -6,24 +6,13 @@ caught. They are recorded in the log metadata for the camera renderer.
 
 from __future__ import annotations
 
-from enum import Enum
 from typing import Any
 
 import numpy as np
 
+from scenes.metadata import TimeOfDay, Weather
 
-class TimeOfDay(str, Enum):
-    DAY = "day"
-    DUSK = "dusk"
-    NIGHT = "night"
-
-
-class Weather(str, Enum):
-    CLEAR = "clear"
-    RAIN = "rain"
-    FOG = "fog"
-
-
+#: Chance of each :class:`TimeOfDay` and :class:`Weather`, in their declaration order.
 TIME_OF_DAY_P = (0.6, 0.2, 0.2)
 WEATHER_P = (0.6, 0.25, 0.15)
 #: Common car paints (white, black, silver, grey, blue, red, green, beige), 0–255 RGB.

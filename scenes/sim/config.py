@@ -1,13 +1,11 @@
-"""Configuration of the city simulator: frozen dataclasses that round-trip YAML."""
+"""Configuration of the city simulator: frozen dataclasses, serialised as YAML by :mod:`common.config`."""
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass, field
 from enum import StrEnum
-from typing import Any
 
-import yaml
+from scenes.config import ScenesConfig, check_at_least, check_positive
 
 
 class NetworkKind(StrEnum):
@@ -30,7 +28,7 @@ class NetworkKind(StrEnum):
 
 
 @dataclass(frozen=True)
-class TrackerNoiseConfig:
+class TrackerNoiseConfig(ScenesConfig):
     """What a real LiDAR detector and tracker do to perfect boxes.
 
     Attributes:
@@ -54,23 +52,20 @@ class TrackerNoiseConfig:
     occlusion_rays: int = 16
 
     def __post_init__(self) -> None:
-        for name in ("center_std_m", "yaw_std_rad", "id_switch_rate_per_s"):
-            if getattr(self, name) < 0:
-                raise ValueError(f"TrackerNoiseConfig.{name} must be >= 0, got {getattr(self, name)}")
+        check_at_least("TrackerNoiseConfig", 0, center_std_m=self.center_std_m, yaw_std_rad=self.yaw_std_rad,
+                       id_switch_rate_per_s=self.id_switch_rate_per_s)
         if not 0.0 <= self.miss_probability <= 1.0:
             raise ValueError(f"TrackerNoiseConfig.miss_probability must be in [0, 1], got {self.miss_probability}")
         if not 0.0 < self.occlusion_fraction <= 1.0:
             raise ValueError(
                 f"TrackerNoiseConfig.occlusion_fraction must be in (0, 1], got {self.occlusion_fraction}"
             )
-        if self.max_range_m <= 0:
-            raise ValueError(f"TrackerNoiseConfig.max_range_m must be > 0, got {self.max_range_m}")
-        if self.occlusion_rays < 2:
-            raise ValueError(f"TrackerNoiseConfig.occlusion_rays must be >= 2, got {self.occlusion_rays}")
+        check_positive("TrackerNoiseConfig", max_range_m=self.max_range_m)
+        check_at_least("TrackerNoiseConfig", 2, occlusion_rays=self.occlusion_rays)
 
 
 @dataclass(frozen=True)
-class SimulationConfig:
+class SimulationConfig(ScenesConfig):
     """One simulator run: ``logs`` windows of ``duration_s`` cut from the drives of the egos.
 
     Attributes:
@@ -113,18 +108,11 @@ class SimulationConfig:
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "network", NetworkKind.parse(self.network))
-        if isinstance(self.noise, dict):
-            object.__setattr__(self, "noise", TrackerNoiseConfig(**self.noise))
-        if self.logs < 1:
-            raise ValueError(f"SimulationConfig.logs must be >= 1, got {self.logs}")
-        for name in ("duration_s", "step_s", "range_m"):
-            if not getattr(self, name) > 0:
-                raise ValueError(f"SimulationConfig.{name} must be > 0, got {getattr(self, name)}")
-        for name in ("warmup_s", "vehicles_per_s_per_km", "pedestrians_per_s_per_km", "parked_vehicles"):
-            if getattr(self, name) < 0:
-                raise ValueError(f"SimulationConfig.{name} must be >= 0, got {getattr(self, name)}")
-        if self.egos_per_run < 1:
-            raise ValueError(f"SimulationConfig.egos_per_run must be >= 1, got {self.egos_per_run}")
+        check_at_least("SimulationConfig", 1, logs=self.logs)
+        check_positive("SimulationConfig", duration_s=self.duration_s, step_s=self.step_s, range_m=self.range_m)
+        check_at_least("SimulationConfig", 0, warmup_s=self.warmup_s, vehicles_per_s_per_km=self.vehicles_per_s_per_km,
+                       pedestrians_per_s_per_km=self.pedestrians_per_s_per_km, parked_vehicles=self.parked_vehicles)
+        check_at_least("SimulationConfig", 1, egos_per_run=self.egos_per_run)
         if self.duration_s < 2 * self.step_s:
             raise ValueError(f"SimulationConfig.duration_s must span at least two steps, got {self.duration_s}")
 
@@ -136,33 +124,3 @@ class SimulationConfig:
     @property
     def num_egos(self) -> int:
         return min(self.logs, self.egos_per_run)
-
-    def to_dict(self) -> dict[str, Any]:
-        data = dataclasses.asdict(self)
-        data["network"] = self.network.value
-        return data
-
-    @staticmethod
-    def from_dict(data: dict[str, Any]) -> SimulationConfig:
-        known = {f.name for f in dataclasses.fields(SimulationConfig)}
-        unknown = sorted(set(data) - known)
-        if unknown:
-            raise ValueError(f"SimulationConfig: unknown keys {unknown}")
-        values = dict(data)
-        if "noise" in values and isinstance(values["noise"], dict):
-            noise_known = {f.name for f in dataclasses.fields(TrackerNoiseConfig)}
-            noise_unknown = sorted(set(values["noise"]) - noise_known)
-            if noise_unknown:
-                raise ValueError(f"SimulationConfig.noise: unknown keys {noise_unknown}")
-            values["noise"] = TrackerNoiseConfig(**values["noise"])
-        return SimulationConfig(**values)
-
-    def to_yaml(self) -> str:
-        return yaml.safe_dump(self.to_dict(), sort_keys=True)
-
-    @staticmethod
-    def from_yaml(text: str) -> SimulationConfig:
-        data = yaml.safe_load(text) or {}
-        if not isinstance(data, dict):
-            raise ValueError("SimulationConfig YAML must be a mapping")
-        return SimulationConfig.from_dict(data)

@@ -16,7 +16,7 @@ import io
 import os
 import sys
 from collections.abc import Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from itertools import chain
 from pathlib import Path
 from typing import Any
@@ -125,27 +125,22 @@ class _Collector:
     ego_rows: list[int] = field(default_factory=list)
 
 
+#: dtype of each :class:`ObjectRows` field, in field order: the order of the values in a stored row.
+_ROW_DTYPES: tuple[type, ...] = (
+    np.int64, np.str_, np.str_, np.bool_, np.float64, np.float64, np.float64, np.float64, np.str_, np.int64,
+    np.float64, np.int64, np.str_, np.float64, np.float64, np.float64, np.float64,
+)
+
+
 def _to_rows(rows: list[tuple[Any, ...]]) -> ObjectRows:
-    cols = list(zip(*rows)) if rows else [()] * 17
-    return ObjectRows(
-        step=np.asarray(cols[0], dtype=np.int64),
-        sumo_id=np.asarray(cols[1], dtype=np.str_),
-        type_id=np.asarray(cols[2], dtype=np.str_),
-        is_person=np.asarray(cols[3], dtype=bool),
-        front_xy_m=np.asarray(cols[4], dtype=np.float64).reshape(-1, 2),
-        angle_deg=np.asarray(cols[5], dtype=np.float64),
-        speed_mps=np.asarray(cols[6], dtype=np.float64),
-        accel_mps2=np.asarray(cols[7], dtype=np.float64),
-        lane_id=np.asarray(cols[8], dtype=np.str_),
-        lane_index=np.asarray(cols[9], dtype=np.int64),
-        lateral_m=np.asarray(cols[10], dtype=np.float64),
-        stop_state=np.asarray(cols[11], dtype=np.int64),
-        leader_id=np.asarray(cols[12], dtype=np.str_),
-        leader_gap_m=np.asarray(cols[13], dtype=np.float64),
-        leader_speed_mps=np.asarray(cols[14], dtype=np.float64),
-        leader_accel_mps2=np.asarray(cols[15], dtype=np.float64),
-        lane_pos_m=np.asarray(cols[16], dtype=np.float64),
-    )
+    """Stored rows (one tuple per (step, object), values in :class:`ObjectRows` field order) as columns."""
+    names = [f.name for f in fields(ObjectRows)]
+    cols = list(zip(*rows)) if rows else [()] * len(names)
+    arrays: dict[str, NDArray[Any]] = {
+        name: np.asarray(col, dtype=dtype) for name, col, dtype in zip(names, cols, _ROW_DTYPES, strict=True)
+    }
+    arrays["front_xy_m"] = arrays["front_xy_m"].reshape(-1, 2)  # (N, 2): a row holds an (x, y) pair
+    return ObjectRows(**arrays)
 
 
 @dataclass(frozen=True)

@@ -1,13 +1,11 @@
-"""Tracker parameters, one frozen dataclass, loadable from YAML."""
+"""Tracker parameters, one frozen dataclass, serialised as YAML by :mod:`common.config`."""
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import dataclass, field
 from enum import Enum
-from pathlib import Path
-from typing import Any
 
-import yaml
+from scenes.config import ScenesConfig, check_at_least, check_positive
 
 
 class Association(str, Enum):
@@ -27,7 +25,7 @@ def _default_gates() -> dict[str, float]:
 
 
 @dataclass(frozen=True)
-class TrackerConfig:
+class TrackerConfig(ScenesConfig):
     """Parameters of :class:`~scenes.tracking.tracker.Tracker`.
 
     Attributes:
@@ -69,45 +67,18 @@ class TrackerConfig:
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "association", Association(self.association))
-        if self.min_hits < 1:
-            raise ValueError(f"TrackerConfig.min_hits must be >= 1, got {self.min_hits}")
-        if self.max_age < 0:
-            raise ValueError(f"TrackerConfig.max_age must be >= 0, got {self.max_age}")
+        check_at_least("TrackerConfig", 1, min_hits=self.min_hits)
+        check_at_least("TrackerConfig", 0, max_age=self.max_age)
         if not 0.0 <= self.score_threshold <= 1.0:
             raise ValueError(f"TrackerConfig.score_threshold must be in [0, 1], got {self.score_threshold}")
         if not 0.0 < self.min_bev_iou <= 1.0:
             raise ValueError(f"TrackerConfig.min_bev_iou must be in (0, 1], got {self.min_bev_iou}")
-        noise_fields = ("position_noise_m", "yaw_noise_rad", "size_noise_m", "accel_noise_mps2",
-                        "initial_velocity_std_mps")
-        for name in noise_fields:
-            if getattr(self, name) <= 0:
-                raise ValueError(f"TrackerConfig.{name} must be positive, got {getattr(self, name)}")
+        check_positive("TrackerConfig", position_noise_m=self.position_noise_m, yaw_noise_rad=self.yaw_noise_rad,
+                       size_noise_m=self.size_noise_m, accel_noise_mps2=self.accel_noise_mps2,
+                       initial_velocity_std_mps=self.initial_velocity_std_mps)
         for category, gate in self.distance_gate_m.items():
-            if gate <= 0:
-                raise ValueError(f"TrackerConfig.distance_gate_m[{category!r}] must be positive, got {gate}")
+            if not gate > 0:
+                raise ValueError(f"TrackerConfig.distance_gate_m[{category!r}] must be > 0, got {gate}")
 
     def gate_m(self, category: str) -> float:
         return float(self.distance_gate_m.get(category, self.distance_gate_m.get("other", 1.5)))
-
-    def to_dict(self) -> dict[str, Any]:
-        out = asdict(self)
-        out["association"] = self.association.value
-        return out
-
-    @staticmethod
-    def from_dict(data: dict[str, Any], source: str = "config") -> TrackerConfig:
-        known = {f.name for f in fields(TrackerConfig)}
-        unknown = sorted(set(data) - known)
-        if unknown:
-            raise ValueError(f"{source}: unknown tracker config keys {unknown}; valid keys: {sorted(known)}")
-        return TrackerConfig(**data)
-
-    def to_yaml(self, path: Path) -> None:
-        Path(path).write_text(yaml.safe_dump(self.to_dict(), sort_keys=True))
-
-    @staticmethod
-    def from_yaml(path: Path) -> TrackerConfig:
-        data = yaml.safe_load(Path(path).read_text()) or {}
-        if not isinstance(data, dict):
-            raise ValueError(f"{path}: expected a mapping of tracker config keys")
-        return TrackerConfig.from_dict(data, source=str(path))

@@ -7,7 +7,7 @@ Each file ``<Class>/<seq>.txt`` holds comma-separated rows::
 with ``type`` 1 = Pedestrian, 2 = Car, 3 = Cyclist, boxes in the rectified camera frame (bottom
 centre, as in KITTI labels) and ``score`` a raw detector logit. Scores are mapped to [0, 1] with the
 logistic function, which keeps their order (so any threshold on raw scores has an equivalent).
-The frame conversion is :func:`scenes.kitti.kitti_boxes_to_ego`.
+The frame conversion is :func:`scenes.kitti.boxes.kitti_boxes_to_ego`.
 """
 
 from __future__ import annotations
@@ -17,21 +17,13 @@ from pathlib import Path
 
 import numpy as np
 
-from common.atomic import atomic_directory
-from scenes import av2_io
 from scenes.categories import KITTI_TO_CATEGORY
 from scenes.errors import ImportFormatError
-from scenes.geometry import quat_to_yaw
-from scenes.kitti import (
-    FRAME_PERIOD_NS,
-    KITTI_EPOCH_NS,
-    ego_trajectory_from_kitti,
-    kitti_calibration_to_av2,
-    read_kitti_calibration,
-    read_kitti_poses,
-    sequence_name,
-)
-from scenes.log import Log
+from scenes.geometry import SE3, quat_to_yaw
+from scenes.kitti.boxes import kitti_boxes_to_ego
+from scenes.kitti.calibration import read_kitti_calibration
+from scenes.kitti.importer import sequence_name, write_kitti_log
+from scenes.kitti.poses import FRAME_PERIOD_NS, KITTI_EPOCH_NS, ego_trajectory_from_kitti, read_kitti_poses
 from scenes.metadata import LogMetadata
 from scenes.tracking.config import TrackerConfig
 from scenes.tracking.detections import Detections
@@ -41,21 +33,17 @@ POINTRCNN_TYPES = {1: "Pedestrian", 2: "Car", 3: "Cyclist"}
 POINTRCNN_FIELDS = ("frame", "type", "x1", "y1", "x2", "y2", "score", "h", "w", "l", "x", "y", "z", "rot_y", "alpha")
 
 
-def read_pointrcnn_detections(path: Path | str, ego_SE3_cam: object) -> Detections:
+def read_pointrcnn_detections(path: Path | str, ego_SE3_cam: SE3) -> Detections:
     """Read one PointRCNN detection file into ego-frame detections.
 
     Args:
         path: the CSV file.
-        ego_SE3_cam: :class:`~scenes.geometry.SE3`, rectified camera → ego (from the calibration).
+        ego_SE3_cam: rectified camera → ego (from the calibration).
 
     Raises:
         ImportFormatError: wrong column count, a non-number, an unknown type code, a non-positive
             size (each names the line and field).
     """
-    from scenes.geometry import SE3
-    from scenes.kitti import kitti_boxes_to_ego
-
-    assert isinstance(ego_SE3_cam, SE3)
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"{path}: detections file is missing")
@@ -163,12 +151,6 @@ def import_kitti_detections(
         extra={"sequence": seq, "frames": int(world_SE3_cam.shape[0]), "detections": len(detections),
                "detection_files": [str(p) for p in paths], "tracker": cfg.to_dict()},
     )
-    target = Path(out_dir) / log_id
-    with atomic_directory(target, overwrite=overwrite) as tmp:
-        av2_io.write_annotations(tmp, annotations)
-        av2_io.write_ego_poses(tmp, ego)
-        av2_io.write_calibration(tmp, kitti_calibration_to_av2(calibration))
-        av2_io.write_metadata(tmp, metadata)
-        Log.open(tmp)
+    target = write_kitti_log(out_dir, annotations, ego, calibration, metadata, overwrite)
     return TrackingImportReport(target, seq, int(world_SE3_cam.shape[0]), len(detections),
                                 len(annotations.track_ids), len(annotations))

@@ -18,10 +18,10 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.optimize import linear_sum_assignment
 
+import scenes.tracking.kalman as kalman
 from scenes.categories import CATEGORY_TO_AV2, Category
 from scenes.errors import ImportFormatError
 from scenes.geometry import FloatArray, wrap_angle_rad
-from scenes.tracking import kalman
 from scenes.tracking.config import Association, TrackerConfig
 from scenes.tracking.detections import Detections
 from scenes.tracks import Annotations, EgoTrajectory

@@ -6,6 +6,7 @@ from pathlib import Path
 
 import pytest
 
+import common.config
 from captioning.config import (
     DEFAULT_CONFIG_PATH,
     CaptioningConfig,
@@ -13,7 +14,7 @@ from captioning.config import (
     SegmentsConfig,
     WindowStrategy,
 )
-from captioning.errors import ConfigError
+from captioning.errors import CaptioningError, ConfigError
 
 
 def test_default_round_trips_through_yaml(tmp_path: Path) -> None:
@@ -77,3 +78,4 @@ def test_dataclass_construction_is_validated_too() -> None:
 
 def test_config_error_is_a_value_error_for_the_cli() -> None:
     assert issubclass(ConfigError, ValueError)
+    assert issubclass(ConfigError, CaptioningError) and issubclass(ConfigError, common.config.ConfigError)

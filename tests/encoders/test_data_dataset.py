@@ -12,8 +12,9 @@ import torch
 
 from encoders.clips.build import build_clips
 from encoders.clips.config import ClipsConfig
+from encoders.clips.layout import parse_clip_id, read_clip_table, read_manifest
 from encoders.clips.testing import synthetic_captions, write_synthetic_log
-from encoders.data import AugmentConfig, ClipDataset, collate_clips, read_clip_table, read_manifest
+from encoders.data import AugmentConfig, ClipDataset, collate_clips
 from scenes.bev import BevGrid
 
 
@@ -56,7 +57,7 @@ def test_splits_do_not_share_logs(clips_dir: Path) -> None:
     seen: dict[str, set[str]] = {}
     for split in ("train", "val", "test"):
         ds = ClipDataset(clips_dir, split=split)
-        seen[split] = {cid.split(":")[0] for cid in ds.clip_ids}
+        seen[split] = {parse_clip_id(cid)[0] for cid in ds.clip_ids}
         assert len(ds) >= 3  # three logs → every split gets one
     assert not (seen["train"] & seen["val"]) and not (seen["train"] & seen["test"]) and not (seen["val"] & seen["test"])
     with pytest.raises(ValueError, match="split"):

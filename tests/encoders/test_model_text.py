@@ -10,7 +10,8 @@ import pytest
 import torch
 
 from encoders.config import TextConfig
-from encoders.text import TextModelUnavailableError, TextTower, hash_tokens
+from encoders.sentence import TextModelUnavailableError, load_sentence_encoder, shared_sentence_encoder
+from encoders.text import TextTower, hash_tokens
 
 os.environ["HF_HUB_OFFLINE"] = "1"
 CAPTIONS = [
@@ -67,6 +68,22 @@ def test_finetune_top_layers_trains_them_without_cache() -> None:
 def test_missing_pretrained_model_explains_the_fallback(tmp_path: Path) -> None:
     with pytest.raises(TextModelUnavailableError, match="kind: scratch"):
         TextTower(TextConfig(model=str(tmp_path / "no_model")), 8)
+
+
+def test_one_shared_encoder_per_process_and_private_copies_to_train(pretrained: TextTower) -> None:
+    shared = shared_sentence_encoder()
+    assert shared_sentence_encoder() is shared  # loaded once, whoever asks
+    own = load_sentence_encoder()
+    assert own is not shared and pretrained.backbone.encoder is not shared
+    assert all(a is not b for a, b in zip(own.parameters(), shared.parameters()))
+    # The tower's frozen features are the shared model's sentence embeddings.
+    expected = shared.encode(CAPTIONS[:1], convert_to_tensor=True)
+    with torch.no_grad():
+        got = pretrained.backbone(CAPTIONS[:1], torch.device("cpu"))
+    torch.testing.assert_close(got, expected, rtol=1e-4, atol=1e-5)
+    # Training a copy leaves the shared model as it was.
+    next(own.parameters()).data.add_(1.0)
+    assert not torch.equal(next(own.parameters()), next(shared.parameters()))
 
 
 def test_scratch_tower_reads_word_order() -> None:

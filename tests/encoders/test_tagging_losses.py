@@ -11,6 +11,7 @@ import torch.nn.functional as F
 
 from encoders.tagging.ablation import mask_inputs
 from encoders.tagging.attributes import TagError
+from encoders.tagging.config import TagTrainConfig
 from encoders.tagging.head import TagHeadConfig
 from encoders.tagging.losses import (
     TagLossConfig,
@@ -20,7 +21,6 @@ from encoders.tagging.losses import (
     smooth_l1_scene,
     tag_loss,
 )
-from encoders.tagging.training import TagTrainConfig
 
 
 def naive_hard_negative_bce(logits: torch.Tensor, targets: torch.Tensor, k: int, min_neg: int) -> float:
@@ -128,7 +128,7 @@ def test_mask_inputs_zeroes_the_unused_view() -> None:
 
 def test_configs_round_trip_yaml_and_reject_unknown_keys() -> None:
     cfg = TagTrainConfig(mode="alone", inputs="map", steps=7, loss=TagLossConfig(hard_negatives=2))
-    assert TagTrainConfig.from_yaml(cfg.to_yaml()) == cfg
+    assert TagTrainConfig.from_yaml_text(cfg.to_yaml_text()) == cfg
     head = TagHeadConfig(attributes=("parked", "ego_brake_cause"), embed_channels=8,
                          kinds={"ego_brake_cause": "discrete"})
     assert TagHeadConfig.from_dict(head.to_dict()) == head

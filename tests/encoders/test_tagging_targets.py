@@ -8,9 +8,11 @@ import numpy as np
 import pytest
 
 from encoders.clips.testing import write_synthetic_log
-from encoders.tagging.attributes import ATTRIBUTES, Attribute, TagError
-from encoders.tagging.targets import approach_strips, behavior_grid, rasterize_targets, write_targets
+from encoders.tagging.attributes import ATTRIBUTES, BEHAVIOR_ATTRIBUTES, JUNCTION_ATTRIBUTES, Attribute, TagError
+from encoders.tagging.rasterize import approach_strips, behavior_grid, rasterize_targets
+from encoders.tagging.targets import write_targets
 from encoders.tagging.testing import add_synthetic_labels
+from scenes.behavior import BehaviorLabel, JunctionKind
 from scenes.bev import BevGrid
 from scenes.log import Log
 from scenes.map import LaneSegment, VectorMap
@@ -82,11 +84,10 @@ def test_write_targets_is_float16_with_presence(tmp_path: Path) -> None:
     assert not list(tmp_path.glob(".*tmp*"))
 
 
-def test_every_behaviour_label_is_a_tag_attribute() -> None:
-    # The tag vocabulary repeats the simulator's behaviour labels by name: they must not drift apart.
-    from encoders.tagging.attributes import Attribute
-    from scenes.behavior import BehaviorLabel
-
+def test_behaviour_and_junction_attributes_are_the_simulators_words() -> None:
+    # The targets read the behaviour-label columns and junction kinds by these names.
+    assert [a.value for a in BEHAVIOR_ATTRIBUTES] == [label.value for label in BehaviorLabel]
+    assert {a.value for a in JUNCTION_ATTRIBUTES} <= {kind.value for kind in JunctionKind}
     assert {label.value for label in BehaviorLabel} <= {attribute.value for attribute in Attribute}
 
 

@@ -11,11 +11,13 @@ import pytest
 import torch
 
 from encoders.tagging.attributes import ATTRIBUTES, TagError
+from encoders.tagging.config import TagTrainConfig
 from encoders.tagging.evaluate import evaluate_runs, write_report
 from encoders.tagging.extend import CAUSES_EGO_BRAKING, add_attributes, ego_brake_cause_targets
+from encoders.tagging.inference import EMBEDDING_PREFIXES, load_tagger
 from encoders.tagging.targets import open_targets
 from encoders.tagging.testing import build_tagging_fixture
-from encoders.tagging.training import EMBEDDING_PREFIXES, TagTrainConfig, attach_tagging, load_tagger
+from encoders.tagging.training import attach_tagging
 
 
 @pytest.fixture(scope="module")

@@ -13,7 +13,7 @@ import torch
 from encoders.clips.build import build_clips
 from encoders.clips.config import ClipsConfig
 from encoders.clips.testing import synthetic_captions, write_synthetic_log
-from encoders.train import embed_clips, embed_texts, load_model
+from encoders.inference import embed_clips, embed_texts, load_model
 from retrieval.cli import main
 
 

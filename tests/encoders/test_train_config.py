@@ -1,24 +1,50 @@
-"""TrainConfig: YAML round trip, unknown keys listed with their path, values checked."""
+"""TrainConfig: YAML and run-folder JSON round trips, unknown keys listed with their path, values checked."""
 
 from __future__ import annotations
 
 import dataclasses
+from pathlib import Path
 
 import pytest
 
+import common.config
 from encoders.config import BevConfig, ConfigError, FusionConfig, TrainConfig
 
 
 @pytest.mark.parametrize("preset", ["default", "tiny"])
-def test_yaml_round_trip(preset: str) -> None:
+def test_yaml_round_trip(preset: str, tmp_path: Path) -> None:
     config = TrainConfig.preset(preset)
-    again = TrainConfig.from_yaml(config.to_yaml())
-    assert again == config
+    config.to_yaml(tmp_path / "train.yaml")
+    again = TrainConfig.from_yaml(tmp_path / "train.yaml")
+    assert again == config == TrainConfig.from_yaml_text(config.to_yaml_text())
     assert isinstance(again.model.camera.widths, tuple)
 
 
+def test_run_config_json_round_trips(tmp_path: Path) -> None:
+    config = dataclasses.replace(TrainConfig.preset("tiny"), lr=1e-6)  # JSON writes 1e-06, which YAML 1.1 reads as text
+    (tmp_path / "config.json").write_text(config.to_json())
+    assert TrainConfig.from_json(tmp_path / "config.json") == config
+
+
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [('{"epochs": "three"}', r"config\.json: key 'epochs': expected an integer"),
+     ("{", r"config\.json: cannot read config")],
+)
+def test_a_bad_run_config_json_names_the_file(tmp_path: Path, text: str, message: str) -> None:
+    (tmp_path / "config.json").write_text(text)
+    with pytest.raises(ConfigError, match=message):
+        TrainConfig.from_json(tmp_path / "config.json")
+
+
+def test_errors_are_the_common_config_error() -> None:
+    assert issubclass(ConfigError, common.config.ConfigError)
+    with pytest.raises(common.config.ConfigError, match="train.yaml: unknown keys epochz"):
+        TrainConfig.from_yaml_text("epochz: 3", source="train.yaml")
+
+
 def test_partial_yaml_keeps_defaults() -> None:
-    config = TrainConfig.from_yaml("epochs: 3\nmodel:\n  bev:\n    embed_channels: 32\n")
+    config = TrainConfig.from_yaml_text("epochs: 3\nmodel:\n  bev:\n    embed_channels: 32\n")
     assert config.epochs == 3 and config.model.bev.embed_channels == 32
     assert config.model.bev.downsample == BevConfig().downsample and config.lr == TrainConfig().lr
 
@@ -26,7 +52,7 @@ def test_partial_yaml_keeps_defaults() -> None:
 def test_unknown_keys_are_listed_with_their_path() -> None:
     text = "epochz: 3\nmodel:\n  camera:\n    widht: 4\n  bev:\n    temporal:\n      layerz: 1\n"
     with pytest.raises(ConfigError) as info:
-        TrainConfig.from_yaml(text)
+        TrainConfig.from_yaml_text(text)
     message = str(info.value)
     for key in ("epochz", "model.camera.widht", "model.bev.temporal.layerz"):
         assert key in message
@@ -40,7 +66,7 @@ def test_unknown_keys_are_listed_with_their_path() -> None:
 )
 def test_bad_values(text: str, field: str) -> None:
     with pytest.raises(ConfigError, match=field):
-        TrainConfig.from_yaml(text)
+        TrainConfig.from_yaml_text(text)
 
 
 def test_modality_dropout_keeps_one_view() -> None:

@@ -12,14 +12,14 @@ import torch
 from safetensors.torch import load_file
 
 from encoders.config import ConfigMismatchError, TrainConfig
+from encoders.inference import load_model, shuffle_time
 from encoders.synthetic import SyntheticClipDataset, SyntheticSpec
 from encoders.train import (
     NonFiniteLossError,
     NoTrainingSplitError,
+    check_resume_config,
     evaluate,
     learning_rate,
-    load_model,
-    shuffle_time,
     train,
 )
 
@@ -97,6 +97,17 @@ def test_resume_with_another_config_needs_force(tmp_path: Path) -> None:
         run(out, config(lr=0.01), resume=True)
     run(out, config(lr=0.01), resume=True, force=True)
     assert [r["epoch"] for r in metrics(out)] == [1, 2]
+
+
+def test_resume_check_reads_the_saved_config_dict() -> None:
+    saved = json.loads(json.dumps(config().to_dict(), sort_keys=True))  # as a checkpoint or config.json keeps it
+    check_resume_config(dataclasses.replace(config(), epochs=5, device="cpu", num_workers=2), saved, done_epochs=2)
+    with pytest.raises(ConfigMismatchError, match=r"model\.bev\.widths: \[8, 16\] -> \[8, 32\]"):
+        tiny = config().model
+        check_resume_config(config(model=dataclasses.replace(tiny, bev=dataclasses.replace(tiny.bev, widths=(8, 32)))),
+                            saved, done_epochs=2)
+    with pytest.raises(ConfigMismatchError, match="epochs=1 is fewer"):
+        check_resume_config(dataclasses.replace(config(), epochs=1), saved, done_epochs=2)
 
 
 def test_nan_loss_stops_with_step_and_clips_and_keeps_the_checkpoint(tmp_path: Path) -> None:

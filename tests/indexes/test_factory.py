@@ -1,8 +1,10 @@
 import math
+from pathlib import Path
 
 import pytest
 
-from indexes.errors import MemoryBudgetError
+import common.config
+from indexes.errors import ConfigError, IndexesError, MemoryBudgetError
 from indexes.factory import AutoConfig, choose_factory, ivf_lists, train_points
 
 
@@ -52,11 +54,16 @@ def test_train_points_enough_per_list() -> None:
     assert train_points("HNSW32", 10_000, config) == 0
 
 
-def test_auto_config_round_trips_yaml() -> None:
+def test_auto_config_round_trips_yaml(tmp_path: Path) -> None:
     config = AutoConfig(flat_max_n=5, target_recall=0.9, tune_queries=123)
-    assert AutoConfig.from_yaml(config.to_yaml()) == config
-    assert AutoConfig.from_yaml(AutoConfig().to_yaml()) == AutoConfig()
-    with pytest.raises(ValueError, match="unknown AutoConfig fields"):
-        AutoConfig.from_yaml("nprobe: 3\n")
-    with pytest.raises(ValueError, match="target_recall"):
+    config.to_yaml(tmp_path / "auto.yaml")
+    assert AutoConfig.from_yaml(tmp_path / "auto.yaml") == config
+    assert AutoConfig.from_yaml_text(AutoConfig().to_yaml_text()) == AutoConfig()
+    with pytest.raises(ConfigError, match=r"unknown keys nprobe \(known at top level: flat_max_n"):
+        AutoConfig.from_yaml_text("nprobe: 3\n")
+    (tmp_path / "auto.yaml").write_text("tune_k: ten\n")
+    with pytest.raises(ConfigError, match=r"auto\.yaml: key 'tune_k': expected an integer, got 'ten'"):
+        AutoConfig.from_yaml(tmp_path / "auto.yaml")
+    with pytest.raises(ConfigError, match="target_recall"):
         AutoConfig(target_recall=1.5)
+    assert issubclass(ConfigError, common.config.ConfigError) and issubclass(ConfigError, IndexesError)

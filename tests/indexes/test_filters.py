@@ -3,7 +3,7 @@ import pyarrow as pa
 import pytest
 
 from indexes.errors import FilterError
-from indexes.filters import Condition, Op, compile_mask, conditions_of, parse
+from indexes.filters import Condition, Op, check, compile_mask, conditions_of, parse
 
 
 @pytest.fixture
@@ -74,6 +74,17 @@ def test_unknown_field_lists_valid_fields(table: pa.Table) -> None:
 def test_values_of_the_wrong_type(table: pa.Table, spec: str, pattern: str) -> None:
     with pytest.raises(FilterError, match=pattern):
         compile_mask(table, spec)
+    # The schema alone gives the same error, before any row is read.
+    with pytest.raises(FilterError, match=pattern):
+        check(parse(spec), table.schema, spec)
+
+
+def test_check_against_the_schema_passes_what_compiles(table: pa.Table) -> None:
+    dictionary = table.set_column(2, "category", pa.array(table.column("category").to_pylist()).dictionary_encode())
+    for spec in ("category in {car, truck} and tags contains host:stop", "start_ns >= 20 and night == true"):
+        check(parse(spec), dictionary.schema, spec)
+    with pytest.raises(FilterError, match=r"filter 'colour == red', field 'colour': unknown field"):
+        check(parse("colour == red"), table.schema, "colour == red")
 
 
 @pytest.mark.parametrize("spec", [

@@ -20,6 +20,12 @@ Data = tuple[np.ndarray, np.ndarray]
 ROOT = Path(__file__).resolve().parents[2]
 
 
+def _saved_file(tmp_path: Path, xb: np.ndarray, name: str) -> Path:
+    """Save a Flat index of ``xb`` (N, d) to ``tmp_path/idx``; the path of its file ``name``."""
+    VectorIndex.build(xb, factory="Flat").save(tmp_path / "idx")
+    return tmp_path / "idx" / name
+
+
 @pytest.mark.parametrize("factory", ["Flat", "HNSW16", "IVF32,Flat"])
 def test_round_trip_gives_identical_results(tmp_path: Path, data: Data, factory: str) -> None:
     xb, xq = data
@@ -56,8 +62,7 @@ def test_mmap_load_is_read_only_and_equal(tmp_path: Path, data: Data, factory: s
 
 
 def test_truncated_index_file_is_refused(tmp_path: Path, data: Data) -> None:
-    VectorIndex.build(data[0], factory="Flat").save(tmp_path / "idx")
-    path = tmp_path / "idx" / "index.faiss"
+    path = _saved_file(tmp_path, data[0], "index.faiss")
     path.write_bytes(path.read_bytes()[:1000])
     with pytest.raises(IndexFileError, match=r"index\.faiss.*truncated"):
         VectorIndex.load(tmp_path / "idx")
@@ -66,8 +71,7 @@ def test_truncated_index_file_is_refused(tmp_path: Path, data: Data) -> None:
 
 
 def test_truncated_file_without_manifest_check_fails_clearly(tmp_path: Path, data: Data) -> None:
-    VectorIndex.build(data[0], factory="Flat").save(tmp_path / "idx")
-    path = tmp_path / "idx" / "index.faiss"
+    path = _saved_file(tmp_path, data[0], "index.faiss")
     path.write_bytes(path.read_bytes()[:1000])
     manifest = json.loads((tmp_path / "idx" / "manifest.json").read_text())
     manifest["files"]["index.faiss"]["size_bytes"] = 1000  # a manifest that agrees with the damage
@@ -77,8 +81,7 @@ def test_truncated_file_without_manifest_check_fails_clearly(tmp_path: Path, dat
 
 
 def test_corrupt_bytes_fail_the_checksum(tmp_path: Path, data: Data) -> None:
-    VectorIndex.build(data[0], factory="Flat").save(tmp_path / "idx")
-    path = tmp_path / "idx" / "ids.npy"
+    path = _saved_file(tmp_path, data[0], "ids.npy")
     raw = bytearray(path.read_bytes())
     raw[-3] ^= 0xFF
     path.write_bytes(bytes(raw))
@@ -86,24 +89,17 @@ def test_corrupt_bytes_fail_the_checksum(tmp_path: Path, data: Data) -> None:
         VectorIndex.load(tmp_path / "idx")
 
 
-def test_newer_format_is_refused(tmp_path: Path, data: Data) -> None:
-    VectorIndex.build(data[0][:100], factory="Flat").save(tmp_path / "idx")
-    path = tmp_path / "idx" / "manifest.json"
-    manifest = json.loads(path.read_text())
-    manifest["format_version"] = FORMAT_VERSION + 1
-    path.write_text(json.dumps(manifest))
-    with pytest.raises(UnsupportedFormatError, match="newer"):
-        VectorIndex.load(tmp_path / "idx")
-
-
 def test_manifest_mismatches_are_refused(tmp_path: Path, data: Data) -> None:
-    VectorIndex.build(data[0][:100], factory="Flat").save(tmp_path / "idx")
-    path = tmp_path / "idx" / "manifest.json"
+    path = _saved_file(tmp_path, data[0][:100], "manifest.json")
     good = json.loads(path.read_text())
-    for key, value, pattern in [("dim", 64, "dimension"), ("count", 7, "vectors"), ("kind", "clip_index", "kind"),
-                                ("metric", "l2", "metric"), ("metric", "hamming", "metric")]:
+    for key, value, error, pattern in [
+        ("dim", 64, ManifestError, "dimension"), ("count", 7, ManifestError, "vectors"),
+        ("kind", "clip_index", ManifestError, "kind"), ("metric", "l2", ManifestError, "metric"),
+        ("metric", "hamming", ManifestError, "metric"),
+        ("format_version", FORMAT_VERSION + 1, UnsupportedFormatError, "newer"),
+    ]:
         path.write_text(json.dumps({**good, key: value}))
-        with pytest.raises(ManifestError, match=pattern):
+        with pytest.raises(error, match=pattern):
             VectorIndex.load(tmp_path / "idx")
     path.write_text("{not json")
     with pytest.raises(ManifestError, match="unreadable"):

@@ -206,7 +206,7 @@ def test_kinds_without_a_knob_still_measure_recall(data: Data, monkeypatch: pyte
 
 
 def test_small_searches_run_faiss_on_one_thread_and_restore_the_setting() -> None:
-    from indexes.vector_index import SMALL_BATCH_QUERIES, faiss_threads_for
+    from indexes.tuning import SMALL_BATCH_QUERIES, faiss_threads_for
 
     before = faiss.omp_get_max_threads()
     faiss.omp_set_num_threads(2)

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 from retrieval_fakes import FakeEmbedder, HashTextEncoder
 
+from encoders.clips.config import BevClipConfig, CameraClipConfig, ClipsConfig, SplitConfig
 from retrieval.demo import STAGES, Demo, DemoConfig, config_from_args
 from retrieval.embedding import model_hash
 from retrieval.evaluation import evaluate
@@ -54,10 +55,11 @@ def test_stages_run_in_order_with_sizes(tmp_path: Path) -> None:
     assert demo.calls[1][1:3] == [str(demo.logs_dir / "log0"), str(demo.logs_dir / "log1")]
     clips = demo.calls[2]
     assert clips[clips.index("--frames-per-clip") + 1] == "8"
-    clips_yaml = (demo.out_dir / "clips.yaml").read_text()
     assert clips[clips.index("--config") + 1] == str(demo.out_dir / "clips.yaml")
-    assert "width_px: 40" in clips_yaml and "resolution_m: 2.0" in clips_yaml
-    assert "split: {train_fraction: 0.6, val_fraction: 0.15}" in clips_yaml  # test: the default quarter
+    # The test split takes the default quarter, validation 0.15, training the rest.
+    assert ClipsConfig.from_yaml(demo.out_dir / "clips.yaml") == ClipsConfig(
+        frames_per_clip=8, camera=CameraClipConfig(width_px=40, height_px=DemoConfig().camera_height_px),
+        bev=BevClipConfig(resolution_m=2.0), split=SplitConfig(train_fraction=0.6, val_fraction=0.15))
     train = demo.calls[3]
     assert train[train.index("--epochs") + 1] == "3" and train[train.index("--batch-size") + 1] == "4"
 

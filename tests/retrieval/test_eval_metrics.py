@@ -15,20 +15,23 @@ from retrieval_fakes import (
     make_run_dir,
 )
 
+from encoders.metrics import (
+    average_precision,
+    first_relevant_ranks,
+    relevance_by_caption,
+    text_to_clip_figures,
+    text_to_clip_metrics,
+)
 from retrieval.embedding import model_hash
 from retrieval.evaluation import (
-    average_precision,
     caption_generator,
     clip_to_clip_figures,
     evaluate,
-    first_relevant_ranks,
     metrics_table,
     random_clip_to_clip,
     random_text_to_clip,
-    relevance_by_caption,
     reverse_steps,
     temporal_order_accuracy,
-    text_to_clip_figures,
 )
 
 
@@ -50,6 +53,33 @@ def test_ties_count_against_the_model() -> None:
     sim = np.zeros((1, 5))
     rel = np.array([[False, False, True, False, False]])
     assert first_relevant_ranks(sim, rel).tolist() == [5]
+    assert average_precision(sim, rel).tolist() == [0.2]
+
+
+def test_training_validation_and_eval_agree_on_ties() -> None:
+    # Coarse embeddings: several clips share a score with a query, relevant and irrelevant ones alike.
+    text = np.array([[1.0, 0.0], [0.0, 1.0], [1.0, 1.0]])  # queries "a", "b", "c"
+    clips = np.array([[1.0, 0.0], [1.0, 0.0], [0.0, 1.0], [0.0, 1.0], [0.5, 0.5], [0.0, 0.0]])
+    captions = ["a", "b", "b", "a", "c", "c"]
+    sim = text @ clips.T  # (3, 6)
+    rel = relevance_by_caption(["a", "b", "c"], captions)
+    validation = text_to_clip_metrics(sim, rel)  # what training writes to metrics.jsonl
+    evaluation = text_to_clip_figures(sim, rel)  # what `scenesearch eval` writes to metrics.json
+    for key in ("R@1", "R@5", "mAP"):
+        assert validation[key] == evaluation[key]
+    # "a": clip 1 (irrelevant) ties clip 0 on top, so the first hit ranks 2nd; "b" likewise (clip 3
+    # before clip 2); "c": the four clips scoring 1 rank before clip 4.
+    assert first_relevant_ranks(sim, rel).tolist() == [2, 2, 5]
+    assert evaluation["R@1"] == 0.0 and evaluation["R@5"] == 1.0
+    # Relevant clips after their ties: a at ranks 2 and 6, b at 2 and 6, c at 5 and 6.
+    assert evaluation["mAP"] == pytest.approx(np.mean([(1 / 2 + 2 / 6) / 2, (1 / 2 + 2 / 6) / 2, (1 / 5 + 2 / 6) / 2]))
+
+
+def test_a_constant_score_model_gets_no_credit() -> None:
+    rel = relevance_by_caption(["a", "b"], ["a", "b", "b", "a"])
+    for figures in (text_to_clip_metrics(np.ones((2, 4)), rel), text_to_clip_figures(np.ones((2, 4)), rel)):
+        assert figures["R@1"] == 0.0 and figures["median_rank"] == 3.0
+        assert figures["mAP"] == pytest.approx((1 / 3 + 2 / 4) / 2)
 
 
 def test_perfect_and_random_rankings() -> None:

@@ -22,8 +22,9 @@ from retrieval.errors import (
     UnknownClipError,
     UnknownViewError,
 )
+from retrieval.querying import parse_cli_filters
 from retrieval.records import SearchResult, format_table
-from retrieval.scenesearch import SceneSearch, parse_cli_filters
+from retrieval.scenesearch import SceneSearch
 
 
 def _open(built: dict[str, Any]) -> SceneSearch:

@@ -161,6 +161,18 @@ def test_bad_parameters_get_clear_errors(served: dict[str, Any], params: dict[st
     assert needle in str(response.json()["detail"])
 
 
+def test_k_is_checked_once_with_the_service_limit(served: dict[str, Any]) -> None:
+    client, clip_id = served["client"], served["rows"][0]["clip_id"]
+    endpoints = [("/api/search", {"q": "a car"}), ("/api/search", {"q": "a car", "mode": "captions"}),
+                 (f"/api/similar/{clip_id}", {}), ("/api/export", {"q": "a car"})]
+    for path, params in endpoints:
+        ok = client.get(path, params={**params, "k": 20}).json()
+        assert len(ok.get("results", ok.get("clip_ids"))) == 20
+        response = client.get(path, params={**params, "k": 21})
+        assert response.status_code == 422
+        assert response.json()["detail"] == "k must be an integer in 1 … 20, got k=21"
+
+
 def test_unknown_ids_are_404(served: dict[str, Any]) -> None:
     client = served["client"]
     assert client.get("/api/clips/nope:1:2").status_code == 404

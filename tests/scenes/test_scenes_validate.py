@@ -15,7 +15,7 @@ import pytest
 from retrieval.cli import main as cli_main
 from scenes import av2_io
 from scenes.calibration import Calibration, CameraIntrinsics
-from scenes.errors import LogFormatError, Problem
+from scenes.errors import LogFormatError, Problem, collect_problems
 from scenes.geometry import SE3, yaw_to_quat
 from scenes.log import Log
 from scenes.map import LaneSegment, VectorMap
@@ -123,39 +123,55 @@ def test_wrong_column_dtype(log_dir: Path) -> None:
     assert "wrong type" in problem.message
 
 
-def test_nan_value_names_row_and_field(log_dir: Path) -> None:
-    def change(t: pa.Table) -> pa.Table:
-        values = t.column("ty_m").to_numpy().copy()
-        values[7] = np.nan
-        return _set(t, "ty_m", values, pa.float64())
+def _put(row: int, value: object) -> Callable[[np.ndarray], np.ndarray]:
+    def change(values: np.ndarray) -> np.ndarray:
+        values[row] = value
+        return values
 
-    _edit(log_dir / ANN, change)
+    return change
+
+
+def _shift_from(row: int, offset: float) -> Callable[[np.ndarray], np.ndarray]:
+    def change(values: np.ndarray) -> np.ndarray:
+        values[row:] += offset
+        return values
+
+    return change
+
+
+def _copy_row(src: int, dst: int) -> Callable[[np.ndarray], np.ndarray]:
+    def change(values: np.ndarray) -> np.ndarray:
+        values[dst] = values[src]
+        return values
+
+    return change
+
+
+@pytest.mark.parametrize(
+    ("filename", "column", "change", "row", "field", "message"),
+    [
+        pytest.param(ANN, "ty_m", _put(7, np.nan), 7, "ty_m", "NaN", id="nan-names-row-and-field"),
+        pytest.param(POSES, "qz", _put(3, np.inf), 3, "qz", "NaN or inf", id="inf-in-poses"),
+        pytest.param(POSES, "timestamp_ns", _copy_row(3, 4), 4, "timestamp_ns", "not increasing",
+                     id="pose-timestamps-not-increasing"),
+        # rows 3 and 4 share a timestamp
+        pytest.param(ANN, "track_uuid", _copy_row(3, 4), 4, "track_uuid", "twice", id="track-twice-in-one-frame"),
+        pytest.param(ANN, "qw", _put(2, 1.5), 2, "qw..qz", "norm 1.5", id="quaternion-far-from-unit-norm"),
+        pytest.param(POSES, "tx_m", _shift_from(5, 30.0), 5, "tx_m,ty_m,tz_m", "jumps", id="pose-jump-30m-in-50ms"),
+        pytest.param(ANN, "width_m", _put(9, 0.0), 9, "width_m", "positive", id="non-positive-box-size"),
+    ],
+)
+def test_one_bad_value_names_file_row_and_field(
+    log_dir: Path, filename: str, column: str, change: Callable[[np.ndarray], np.ndarray], row: int, field: str,
+    message: str,
+) -> None:
+    def edit(t: pa.Table) -> pa.Table:
+        return _set(t, column, change(t.column(column).to_numpy(zero_copy_only=False).copy()), t.column(column).type)
+
+    _edit(log_dir / filename, edit)
     problem = _only(_open_problems(log_dir))
-    assert (problem.path.name, problem.row, problem.field) == (ANN, 7, "ty_m")
-    assert "NaN" in problem.message
-
-
-def test_inf_in_poses(log_dir: Path) -> None:
-    def change(t: pa.Table) -> pa.Table:
-        values = t.column("qz").to_numpy().copy()
-        values[3] = np.inf
-        return _set(t, "qz", values, pa.float64())
-
-    _edit(log_dir / POSES, change)
-    problem = _only(_open_problems(log_dir))
-    assert (problem.path.name, problem.row, problem.field) == (POSES, 3, "qz")
-
-
-def test_pose_timestamps_not_increasing(log_dir: Path) -> None:
-    def change(t: pa.Table) -> pa.Table:
-        ts = t.column("timestamp_ns").to_numpy().copy()
-        ts[4] = ts[3]
-        return _set(t, "timestamp_ns", ts, pa.int64())
-
-    _edit(log_dir / POSES, change)
-    problem = _only(_open_problems(log_dir))
-    assert (problem.path.name, problem.row, problem.field) == (POSES, 4, "timestamp_ns")
-    assert "not increasing" in problem.message
+    assert (problem.path.name, problem.row, problem.field) == (filename, row, field)
+    assert message in problem.message
 
 
 def test_annotation_timestamps_going_backwards(log_dir: Path) -> None:
@@ -167,43 +183,6 @@ def test_annotation_timestamps_going_backwards(log_dir: Path) -> None:
     _edit(log_dir / ANN, change)
     problems = _open_problems(log_dir)
     assert any(p.path.name == ANN and p.row == 6 and p.field == "timestamp_ns" for p in problems), problems
-
-
-def test_track_twice_in_one_frame(log_dir: Path) -> None:
-    def change(t: pa.Table) -> pa.Table:
-        ids = t.column("track_uuid").to_pylist()
-        ids[4] = ids[3]  # rows 3 and 4 share a timestamp
-        return _set(t, "track_uuid", ids, pa.string())
-
-    _edit(log_dir / ANN, change)
-    problem = _only(_open_problems(log_dir))
-    assert (problem.path.name, problem.row, problem.field) == (ANN, 4, "track_uuid")
-    assert "twice" in problem.message
-
-
-def test_quaternion_far_from_unit_norm(log_dir: Path) -> None:
-    _edit(log_dir / ANN, lambda t: _set(t, "qw", np.where(np.arange(t.num_rows) == 2, 1.5, 1.0), pa.float64()))
-    problem = _only(_open_problems(log_dir))
-    assert (problem.path.name, problem.row, problem.field) == (ANN, 2, "qw..qz")
-    assert "norm 1.5" in problem.message
-
-
-def test_pose_jump(log_dir: Path) -> None:
-    def change(t: pa.Table) -> pa.Table:
-        x = t.column("tx_m").to_numpy().copy()
-        x[5:] += 30.0  # 30 m in 50 ms
-        return _set(t, "tx_m", x, pa.float64())
-
-    _edit(log_dir / POSES, change)
-    problem = _only(_open_problems(log_dir))
-    assert (problem.path.name, problem.row, problem.field) == (POSES, 5, "tx_m,ty_m,tz_m")
-    assert "jumps" in problem.message
-
-
-def test_non_positive_box_size(log_dir: Path) -> None:
-    _edit(log_dir / ANN, lambda t: _set(t, "width_m", np.where(np.arange(t.num_rows) == 9, 0.0, 2.0), pa.float64()))
-    problem = _only(_open_problems(log_dir))
-    assert (problem.row, problem.field) == (9, "width_m")
 
 
 def test_empty_table(log_dir: Path) -> None:
@@ -272,6 +251,29 @@ def test_lidar_sweep_missing_column_and_nan(log_dir: Path) -> None:
     assert (problem.row, problem.field) == (11, "z")
     with pytest.raises(LogFormatError, match="row 11"):
         read_lidar_sweep(_sweep_path(log_dir))
+
+
+def test_lidar_sweep_reader_and_validate_name_every_bad_coordinate_column(log_dir: Path) -> None:
+    def with_bad_values(t: pa.Table) -> pa.Table:
+        for name, row, value in (("x", 3, np.nan), ("z", 1, np.inf)):
+            values = t.column(name).to_numpy().copy()
+            values[row] = value
+            t = _set(t, name, values, pa.float16())
+        return t
+
+    _edit(_sweep_path(log_dir), with_bad_values)
+    with pytest.raises(LogFormatError) as info:
+        read_lidar_sweep(_sweep_path(log_dir))
+    expected = [(_sweep_path(log_dir), 3, "x"), (_sweep_path(log_dir), 1, "z")]
+    assert [(p.path, p.row, p.field) for p in info.value.problems] == expected
+    assert validate_log(log_dir).problems == info.value.problems
+
+
+def test_lidar_sweep_missing_file_is_named_like_the_other_tables(log_dir: Path) -> None:
+    path = log_dir / av2_io.LIDAR_DIR / "123.feather"
+    with pytest.raises(LogFormatError) as info:
+        Log.open(log_dir).lidar_sweep(123)
+    assert [(p.path, p.message) for p in info.value.problems] == [(path, "file is missing")]
 
 
 def test_lidar_sweep_truncated(log_dir: Path) -> None:
@@ -368,3 +370,10 @@ def test_validate_command_exit_status_and_output(tmp_path: Path, capsys: pytest.
     assert [r["ok"] for r in reports] == [True, False]
     assert reports[1]["problems"] == [{"path": str(bad / ANN), "row": None, "field": "qy", "message": "missing column"}]
     assert reports[0]["facts"]["lidar_sweeps"] == 1
+
+
+def test_collect_problems_keeps_going_after_a_bad_file(tmp_path: Path) -> None:
+    problems: list[Problem] = []
+    assert collect_problems(problems, av2_io.read_ego_poses, tmp_path / POSES) is None
+    assert collect_problems(problems, lambda: 7) == 7
+    assert [(p.path, p.message) for p in problems] == [(tmp_path / POSES, "file is missing")]

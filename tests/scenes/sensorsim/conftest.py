@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from scenes.sensorsim.config import LidarConfig, WorldConfig
-from scenes.sensorsim.scene import StaticWorld
+from scenes.sensorsim.world import StaticWorld
 
 
 @pytest.fixture(scope="session")

@@ -6,10 +6,12 @@ import numpy as np
 import pytest
 
 from scenes.geometry import SE3
-from scenes.sensorsim.appearance import Appearance, TimeOfDay, Weather
+from scenes.metadata import TimeOfDay, Weather
+from scenes.sensorsim.appearance import Appearance
 from scenes.sensorsim.camera import NEAR_PLANE_M, CameraRenderer, clip_near_plane
 from scenes.sensorsim.config import CameraConfig
-from scenes.sensorsim.scene import FrameObjects, StaticWorld
+from scenes.sensorsim.objects import FrameObjects
+from scenes.sensorsim.world import StaticWorld
 
 CAMERA = CameraConfig(width_px=160, height_px=90, pitch_deg=0.0)
 
@@ -143,7 +145,7 @@ def test_mask_agrees_with_ray_casting(bare_world: StaticWorld) -> None:
     """The painter's-order mask equals a per-pixel ray cast of the same shapes (a z-buffer)."""
     import open3d as o3d
 
-    from scenes.sensorsim.scene import build_object_mesh
+    from scenes.sensorsim.objects import build_object_mesh
 
     boxes = [("bus", (1.0, 3.2, 1.6), (14.0, 2.6, 3.2), 0.0), ("car", (12.0, 0.0, 0.75), (4.5, 1.9, 1.5), 0.1),
              ("truck", (24.0, 1.5, 1.6), (8.0, 2.5, 3.2), -0.2), ("pedestrian", (7.0, -2.5, 0.9), (0.6, 0.6, 1.8), 0.0),

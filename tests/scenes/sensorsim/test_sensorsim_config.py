@@ -21,11 +21,12 @@ def test_yaml_round_trip() -> None:
         seed=42,
         render_camera=False,
     )
-    text = config.to_yaml()
-    back = SensorConfig.from_yaml(text)
+    text = config.to_yaml_text()
+    back = SensorConfig.from_yaml_text(text)
     assert back == config
-    assert SensorConfig.from_yaml(SensorConfig().to_yaml()) == SensorConfig()
-    assert SensorConfig.from_yaml("seed: 3\nlidar: {beams: 8}\n") == SensorConfig(seed=3, lidar=LidarConfig(beams=8))
+    assert SensorConfig.from_yaml_text(SensorConfig().to_yaml_text()) == SensorConfig()
+    small = SensorConfig.from_yaml_text("seed: 3\nlidar: {beams: 8}\n")
+    assert small == SensorConfig(seed=3, lidar=LidarConfig(beams=8))
 
 
 @pytest.mark.parametrize(
@@ -44,7 +45,7 @@ def test_yaml_round_trip() -> None:
 )
 def test_bad_values_are_refused(text: str, match: str) -> None:
     with pytest.raises(ValueError, match=match):
-        SensorConfig.from_yaml(text)
+        SensorConfig.from_yaml_text(text)
 
 
 def test_camera_extrinsics_and_intrinsics() -> None:

@@ -6,8 +6,9 @@ import numpy as np
 
 from scenes.geometry import SE3
 from scenes.sensorsim.config import LidarConfig
-from scenes.sensorsim.lidar import STATIC_INSTANCE, cast_sweep, simulate_sweep
-from scenes.sensorsim.scene import FrameObjects, StaticWorld
+from scenes.sensorsim.lidar import STATIC_INSTANCE, cast_sweep
+from scenes.sensorsim.objects import FrameObjects
+from scenes.sensorsim.world import StaticWorld
 
 NOTHING = FrameObjects.from_boxes([])
 
@@ -74,7 +75,7 @@ def test_nearer_object_occludes_farther_one(bare_world: StaticWorld, dense_lidar
 
 def test_sweep_layout_timing_and_ranges(bare_world: StaticWorld) -> None:
     config = LidarConfig(beams=16, azimuth_steps=256, max_range_m=40.0, range_noise_std_m=0.0, dropout_prob=0.0)
-    sweep = simulate_sweep(bare_world, NOTHING, SE3.identity(), config, np.random.default_rng(0), 123)
+    sweep = cast_sweep(bare_world, NOTHING, SE3.identity(), config, np.random.default_rng(0), 123).sweep
     assert sweep.timestamp_ns == 123
     origin = np.array([config.mount_x_m, 0.0, config.mount_height_m])
     rng_m = np.linalg.norm(sweep.xyz_m - origin, axis=1)
@@ -97,9 +98,9 @@ def test_sweep_layout_timing_and_ranges(bare_world: StaticWorld) -> None:
 
 def test_noise_dropout_and_seed(bare_world: StaticWorld, small_lidar: LidarConfig) -> None:
     noisy = LidarConfig(beams=16, azimuth_steps=256, range_noise_std_m=0.05, dropout_prob=0.5)
-    a = simulate_sweep(bare_world, NOTHING, SE3.identity(), noisy, np.random.default_rng(7))
-    b = simulate_sweep(bare_world, NOTHING, SE3.identity(), noisy, np.random.default_rng(7))
-    clean = simulate_sweep(bare_world, NOTHING, SE3.identity(), small_lidar, np.random.default_rng(7))
+    a = cast_sweep(bare_world, NOTHING, SE3.identity(), noisy, np.random.default_rng(7)).sweep
+    b = cast_sweep(bare_world, NOTHING, SE3.identity(), noisy, np.random.default_rng(7)).sweep
+    clean = cast_sweep(bare_world, NOTHING, SE3.identity(), small_lidar, np.random.default_rng(7)).sweep
     assert np.array_equal(a.xyz_m, b.xyz_m) and np.array_equal(a.intensity, b.intensity)
     assert 0.4 < len(a) / len(clean) < 0.6
     # Ground returns: the true range of beam b is mount height / sin(−elevation_b).
@@ -127,7 +128,7 @@ def test_ray_prefilter_keeps_every_ray_that_hits_an_object() -> None:
     import open3d as o3d
 
     from scenes.sensorsim.lidar import _ray_pattern, rays_near_boxes
-    from scenes.sensorsim.scene import build_object_mesh
+    from scenes.sensorsim.objects import build_object_mesh
 
     rng = np.random.default_rng(3)
     config = LidarConfig(beams=32, azimuth_steps=512, ego_box_lwh_m=(0.0, 0.0, 0.0))

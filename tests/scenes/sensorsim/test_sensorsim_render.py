@@ -25,7 +25,7 @@ AV2_SWEEP_DIR = (Path(__file__).resolve().parents[3] / ".." / "shared" / "realda
 
 @pytest.fixture(scope="module")
 def rendered_log(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    small = SensorConfig.from_yaml(
+    small = SensorConfig.from_yaml_text(
         "lidar: {beams: 16, azimuth_steps: 256}\ncamera: {width_px: 160, height_px: 90}\n"
         "world: {raster_resolution_m: 0.25, margin_m: 60.0}\n"
     )
@@ -97,7 +97,7 @@ def test_instance_masks_index_the_log_tracks(rendered_log: Path) -> None:
 
 
 def test_render_is_deterministic(rendered_log: Path, tmp_path: Path) -> None:
-    small = SensorConfig.from_yaml(
+    small = SensorConfig.from_yaml_text(
         "lidar: {beams: 16, azimuth_steps: 256}\ncamera: {width_px: 160, height_px: 90}\n"
         "world: {raster_resolution_m: 0.25, margin_m: 60.0}\nrender_camera: false\n"
     )
@@ -143,8 +143,8 @@ def test_non_positive_size_names_the_track(tmp_path: Path) -> None:
 
 def test_log_without_map_or_objects_in_view(tmp_path: Path) -> None:
     log_dir = _one_box_log(tmp_path, (-30.0, 0.0, 1.0), (4.0, 2.0, 2.0))  # behind the ego
-    config = SensorConfig.from_yaml("lidar: {beams: 8, azimuth_steps: 64}\ncamera: {width_px: 64, height_px: 36}\n"
-                                    "world: {margin_m: 20.0, raster_resolution_m: 0.5}\n")
+    config = SensorConfig.from_yaml_text("lidar: {beams: 8, azimuth_steps: 64}\ncamera: {width_px: 64, height_px: 36}\n"
+                                         "world: {margin_m: 20.0, raster_resolution_m: 0.5}\n")
     report = render_log_sensors(log_dir, config, progress=False)
     assert report.empty_camera_frames == 3
     mask, _ = read_instance_mask(log_dir, "ring_front_center", 0)

@@ -22,8 +22,10 @@ def test_render_a_simulated_log(tmp_path: Path) -> None:
         (log_dir,) = sim.simulate(config, tmp_path / "sim")
     except sim.SimulationError as exc:  # SUMO missing on this machine
         pytest.skip(f"simulator unavailable: {exc}")
-    small = SensorConfig.from_yaml("lidar: {beams: 16, azimuth_steps: 256}\ncamera: {width_px: 160, height_px: 90}\n"
-                                   "world: {raster_resolution_m: 0.25}\n")
+    small = SensorConfig.from_yaml_text(
+        "lidar: {beams: 16, azimuth_steps: 256}\ncamera: {width_px: 160, height_px: 90}\n"
+        "world: {raster_resolution_m: 0.25}\n"
+    )
     report = render_log_sensors(log_dir, small, progress=False)
     log = Log.open(log_dir)
     # Every 10 Hz ego pose gets sensors, also frames where no object is annotated.

@@ -7,9 +7,11 @@ import pytest
 
 from scenes.geometry import SE3
 from scenes.sensorsim.config import LidarConfig, WorldConfig
+from scenes.sensorsim.ground import GroundMaterial
 from scenes.sensorsim.lidar import STATIC_INSTANCE, cast_sweep
-from scenes.sensorsim.scene import FrameObjects, GroundMaterial, StaticWorld
+from scenes.sensorsim.objects import FrameObjects
 from scenes.sensorsim.synthetic import HALF_ROAD_M, JUNCTION_X_M, crossroad_map
+from scenes.sensorsim.world import StaticWorld
 
 WORLD = WorldConfig(raster_resolution_m=0.1, margin_m=50.0)
 

@@ -4,7 +4,7 @@ import pytest
 
 from retrieval.cli import main
 from scenes.log import Log
-from scenes.sim import SimulationConfig
+from scenes.sim import NetworkKind, SimulationConfig
 
 
 def _args(out: Path, cache: Path, *extra: str) -> list[str]:
@@ -47,7 +47,7 @@ def test_flags_override_the_config_file(tmp_path: Path) -> None:
     from retrieval.commands.simulate import build_config
 
     path = tmp_path / "sim.yaml"
-    path.write_text(SimulationConfig(logs=5, seed=9, network="spider").to_yaml())  # type: ignore[arg-type]
+    SimulationConfig(logs=5, seed=9, network=NetworkKind.SPIDER).to_yaml(path)
     args = build_parser().parse_args(["simulate", "--out", "x", "--config", str(path), "--seed", "2"])
     config = build_config(args)
     assert (config.logs, config.seed, config.network.value) == (5, 2, "spider")

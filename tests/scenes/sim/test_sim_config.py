@@ -1,11 +1,15 @@
+from pathlib import Path
+
 import pytest
 
+import common.config
+from scenes.errors import ConfigError, ScenesError
 from scenes.sim.config import NetworkKind, SimulationConfig, TrackerNoiseConfig
 
 
 def test_default_config_round_trips_yaml() -> None:
     config = SimulationConfig()
-    assert SimulationConfig.from_yaml(config.to_yaml()) == config
+    assert SimulationConfig.from_yaml_text(config.to_yaml_text()) == config
 
 
 def test_custom_config_round_trips_yaml() -> None:
@@ -14,9 +18,9 @@ def test_custom_config_round_trips_yaml() -> None:
         noise=TrackerNoiseConfig(center_std_m=0.3, miss_probability=0.2, max_range_m=50.0),
         sensors=False, cache_dir="/tmp/x",
     )
-    text = config.to_yaml()
+    text = config.to_yaml_text()
     assert "spider" in text
-    back = SimulationConfig.from_yaml(text)
+    back = SimulationConfig.from_yaml_text(text)
     assert back == config
     assert isinstance(back.network, NetworkKind)
     assert isinstance(back.noise, TrackerNoiseConfig)
@@ -46,11 +50,25 @@ def test_unknown_network_kind_lists_the_choices() -> None:
         SimulationConfig(network="hexagon")  # type: ignore[arg-type]
 
 
-def test_unknown_yaml_keys_are_refused() -> None:
-    with pytest.raises(ValueError, match="bogus"):
-        SimulationConfig.from_yaml("logs: 2\nbogus: 1\n")
-    with pytest.raises(ValueError, match="jitter"):
-        SimulationConfig.from_yaml("noise: {jitter: 1}\n")
+def test_unknown_yaml_keys_are_refused_naming_file_and_key(tmp_path: Path) -> None:
+    path = tmp_path / "sim.yaml"
+    path.write_text("logs: 2\nbogus: 1\n")
+    with pytest.raises(ConfigError, match=f"^{path}: unknown keys bogus"):
+        SimulationConfig.from_yaml(path)
+    with pytest.raises(ConfigError, match="unknown keys noise.jitter"):
+        SimulationConfig.from_yaml_text("noise: {jitter: 1}\n")
+
+
+def test_config_file_errors_are_scenes_and_common_config_errors(tmp_path: Path) -> None:
+    path = tmp_path / "sim.yaml"
+    SimulationConfig(logs=3).to_yaml(path)
+    assert SimulationConfig.from_yaml(path) == SimulationConfig(logs=3)
+    path.write_text("logs: three\n")
+    with pytest.raises(ConfigError, match="key 'logs': expected an integer") as info:
+        SimulationConfig.from_yaml(path)
+    assert isinstance(info.value, ScenesError) and isinstance(info.value, common.config.ConfigError)
+    with pytest.raises(ConfigError, match="key 'network': expected one of 'grid', 'spider', 'random'"):
+        SimulationConfig.from_yaml_text("network: hexagon\n")
 
 
 def test_noise_config_validates() -> None:

@@ -1,4 +1,7 @@
+from dataclasses import replace
+
 import numpy as np
+import pytest
 
 from scenes.sim.config import TrackerNoiseConfig
 from scenes.sim.noise import apply_tracker_noise, occluded_mask
@@ -31,10 +34,16 @@ def test_without_noise_nothing_changes() -> None:
     assert set(out.track_id) == set(ann.track_id)
 
 
-def test_range_limit_drops_far_boxes() -> None:
-    ann = _cars(3, [(10.0, 0.0), (90.0, 0.0)])
-    config = TrackerNoiseConfig(**{**NO_NOISE.__dict__, "max_range_m": 50.0})
-    out = apply_tracker_noise(ann, _ego(3), config, np.random.default_rng(0))
+@pytest.mark.parametrize(
+    ("num_frames", "far_xy", "changes"),
+    [
+        pytest.param(3, (90.0, 0.0), {"max_range_m": 50.0}, id="range-limit-drops-far-boxes"),
+        pytest.param(4, (25.0, 0.0), {"occlusion_fraction": 0.8}, id="occlusion-applies-in-apply-tracker-noise"),
+    ],
+)
+def test_only_the_near_box_is_kept(num_frames: int, far_xy: tuple[float, float], changes: dict[str, float]) -> None:
+    ann = _cars(num_frames, [(10.0, 0.0), far_xy])
+    out = apply_tracker_noise(ann, _ego(num_frames), replace(NO_NOISE, **changes), np.random.default_rng(0))
     assert set(out.track_id) == {"t0"}
 
 
@@ -52,23 +61,16 @@ def test_occlusion_works_across_the_rear_wraparound() -> None:
     assert hidden.tolist() == [False, True]
 
 
-def test_occlusion_applies_in_apply_tracker_noise() -> None:
-    ann = _cars(4, [(10.0, 0.0), (25.0, 0.0)])
-    config = TrackerNoiseConfig(**{**NO_NOISE.__dict__, "occlusion_fraction": 0.8})
-    out = apply_tracker_noise(ann, _ego(4), config, np.random.default_rng(0))
-    assert set(out.track_id) == {"t0"}
-
-
 def test_misses_drop_about_the_given_share() -> None:
     ann = _cars(200, [(10.0, 0.0), (0.0, 12.0), (-20.0, -5.0), (5.0, -30.0)])
-    config = TrackerNoiseConfig(**{**NO_NOISE.__dict__, "miss_probability": 0.25})
+    config = replace(NO_NOISE, miss_probability=0.25)
     out = apply_tracker_noise(ann, _ego(200), config, np.random.default_rng(1))
     assert abs(len(out) / len(ann) - 0.75) < 0.05
 
 
 def test_jitter_has_the_configured_spread() -> None:
     ann = _cars(500, [(10.0, 0.0), (0.0, 12.0)])
-    config = TrackerNoiseConfig(**{**NO_NOISE.__dict__, "center_std_m": 0.2, "yaw_std_rad": 0.05})
+    config = replace(NO_NOISE, center_std_m=0.2, yaw_std_rad=0.05)
     out = apply_tracker_noise(ann, _ego(500), config, np.random.default_rng(2))
     err = out.center_xyz_m[:, :2] - ann.sorted().center_xyz_m[:, :2]
     assert abs(err.std() - 0.2) < 0.02
@@ -78,7 +80,7 @@ def test_jitter_has_the_configured_spread() -> None:
 
 def test_id_switches_start_new_ids_and_keep_rows() -> None:
     ann = _cars(300, [(10.0, 0.0)])  # one 30 s track
-    config = TrackerNoiseConfig(**{**NO_NOISE.__dict__, "id_switch_rate_per_s": 0.5})
+    config = replace(NO_NOISE, id_switch_rate_per_s=0.5)
     out = apply_tracker_noise(ann, _ego(300), config, np.random.default_rng(3))
     assert len(out) == len(ann)
     ids = out.track_id

@@ -1,0 +1,161 @@
+"""The clips folder: every file name in it, the clip id, and the readers of its manifest and clip table.
+
+Writers and readers of a clips folder (``scenesearch clips``, the dataset, tagging, retrieval) take
+the names from here::
+
+    CLIPS_DIR/clips.parquet           the clip table, one row per clip (:data:`encoders.clips.table.CLIP_SCHEMA`)
+    CLIPS_DIR/manifest.json           format version, camera and BEV sizes and channels, per-log stats and
+                                      splits, the clips config, skipped inputs
+    CLIPS_DIR/previews/<clip>.gif     an animated preview per clip (:func:`preview_file_name`), optional
+    CLIPS_DIR/logs/<log_id>/          each log's rendered arrays (:func:`rendered_log_dir`), below
+
+For a log with F frames (its annotation timestamps) :func:`encoders.clips.render.render_log` writes:
+
+========================  =====================  =========================================================
+file                      shape, dtype           content
+========================  =====================  =========================================================
+camera.npy                (F, Hc, Wc, 3) uint8   front camera RGB, resized (F = 0 when the log has no camera)
+camera_instances.npy      (F, Hc, Wc) uint16     instance masks: v ≥ 1 ↔ ``track_ids[v − 1]``, 0 = none
+camera_pixel_counts.npy   (F, K) int32           mask pixels of every track at the camera's full resolution
+bev_lidar.npy             (F, Z, Hb, Wb) uint8   occupancy per height bin (log-scaled point density)
+bev_map.npy               (F, Cm, Hb, Wb) uint8  map layers (:data:`~encoders.clips.raster.MAP_CHANNELS`)
+bev_instances.npy         (F, Hb, Wb) uint16     box footprints: v ≥ 1 ↔ ``track_ids[v − 1]`` (overlaps: the
+                                                 smaller box wins)
+track_boxes.npy           (F, K, 5) float32      every track's ``x_m, y_m, length_m, width_m, yaw_rad`` in
+                                                 the frame's ego frame, NaN when not observed; the dataset
+                                                 draws the object of interest from it (never hidden by
+                                                 an overlapping box)
+track_ids.json            list[str]              K track ids
+frames.parquet            F rows                 frame_index, timestamp_ns, city_SE3_ego (qw..tz_m), x_m, y_m,
+                                                 yaw_rad, speed_mps, has_sweep, has_camera_frame
+render.json               dict                   stats and the rendering config's fingerprint
+========================  =====================  =========================================================
+
+and the tagging stage adds the ground-truth tag rasters beside them (:mod:`encoders.tagging.targets`):
+``bev_attributes.npy`` (F, A, H, W) float16 and its ``bev_attributes.json`` sidecar (other stems for
+attributes added later).
+
+Every BEV grid is in its own frame's ego frame; ego motion is recoverable from ``frames.parquet``.
+
+A clip's id is ``log_id:track_id:start_ns`` (:func:`clip_id`); caption rows without a clip use the
+same form, so an id names the same moment everywhere.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import pyarrow as pa
+import pyarrow.compute as pc
+import pyarrow.parquet as pq
+
+from scenes.bev import BevGrid
+
+CLIPS_FILE = "clips.parquet"
+MANIFEST_FILE = "manifest.json"
+PREVIEWS_DIR = "previews"
+#: Folder of rendered logs inside CLIPS_DIR.
+LOGS_DIR = "logs"
+
+# Per-log files in CLIPS_DIR/logs/<log_id>/ (the table in the module docstring).
+CAMERA_FILE = "camera.npy"
+CAMERA_INSTANCES_FILE = "camera_instances.npy"
+CAMERA_PIXEL_COUNTS_FILE = "camera_pixel_counts.npy"
+BEV_LIDAR_FILE = "bev_lidar.npy"
+BEV_MAP_FILE = "bev_map.npy"
+BEV_INSTANCES_FILE = "bev_instances.npy"
+TRACK_BOXES_FILE = "track_boxes.npy"
+TRACK_IDS_FILE = "track_ids.json"
+FRAMES_FILE = "frames.parquet"
+RENDER_FILE = "render.json"
+#: Stem of the built-in tag targets: ``<stem>.npy`` holds the rasters, ``<stem>.json`` their sidecar.
+TARGETS_STEM = "bev_attributes"
+
+
+def clip_id(log_id: str, track_id: str, start_ns: int) -> str:
+    """The stable id of a moment: ``f"{log_id}:{track_id}:{start_ns}"``."""
+    return f"{log_id}:{track_id}:{int(start_ns)}"
+
+
+def parse_clip_id(value: str) -> tuple[str, str, int]:
+    """``(log_id, track_id, start_ns)`` of a clip id (a log id may itself hold colons).
+
+    Raises:
+        ValueError: not of the form ``log_id:track_id:start_ns``.
+    """
+    log_id, _, rest = str(value).rpartition(":")
+    log_id, _, track_id = log_id.rpartition(":")
+    if not log_id or not track_id or not rest.lstrip("-").isdigit():
+        raise ValueError(f"clip_id {value!r}: expected 'log_id:track_id:start_ns' with an integer start_ns")
+    return log_id, track_id, int(rest)
+
+
+def rendered_log_dir(clips_dir: Path | str, log_id: str) -> Path:
+    """``CLIPS_DIR/logs/<log_id>``: a log's rendered arrays."""
+    return Path(clips_dir) / LOGS_DIR / log_id
+
+
+def preview_file_name(clip_id: str) -> str:
+    """File name of a clip's preview: the id with characters unsafe in URLs replaced."""
+    safe = "".join(ch if ch.isalnum() or ch in "-_." else "_" for ch in clip_id)
+    return f"{safe}.gif"
+
+
+def read_manifest(clips_dir: Path | str) -> dict[str, Any]:
+    """``CLIPS_DIR/manifest.json``.
+
+    Raises:
+        FileNotFoundError: there is no manifest (the folder was never built, or its build never finished).
+        ValueError: the manifest is not valid JSON.
+    """
+    path = Path(clips_dir) / MANIFEST_FILE
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: clips manifest not found (run `scenesearch clips` first)")
+    try:
+        data: dict[str, Any] = json.loads(path.read_text())
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"{path}: unreadable clips manifest ({exc})") from None
+    return data
+
+
+def grid_from_manifest(manifest: dict[str, Any]) -> BevGrid:
+    """The clip stage's BEV grid from the ``bev`` field of ``CLIPS_DIR/manifest.json``."""
+    bev = manifest["bev"]
+    return BevGrid(float(bev["x_min_m"]), float(bev["x_max_m"]), float(bev["y_min_m"]), float(bev["y_max_m"]),
+                   float(bev["resolution_m"]))
+
+
+def read_clip_table(clips_dir: Path | str, columns: Sequence[str] | None = None) -> pa.Table:
+    """``CLIPS_DIR/clips.parquet`` (only ``columns`` when given).
+
+    Raises:
+        FileNotFoundError: there is no clip table.
+        ValueError: a requested column is missing (names the file and the columns).
+    """
+    path = Path(clips_dir) / CLIPS_FILE
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no clip table (run `scenesearch clips` first)")
+    if columns is not None:
+        missing = [c for c in columns if c not in pq.read_schema(path).names]
+        if missing:
+            raise ValueError(f"{path}: missing column(s) {missing}")
+        return pq.read_table(path, columns=list(columns))
+    return pq.read_table(path)
+
+
+def read_clip_rows(clips_dir: Path | str, clip_ids: Sequence[str]) -> list[dict[str, Any]]:
+    """The clip-table rows of ``clip_ids``, in their order.
+
+    Raises:
+        KeyError: an id is not in the table (names the file and the id).
+    """
+    table = read_clip_table(clips_dir)
+    wanted = pa.array(list(clip_ids), pa.string())
+    found = {r["clip_id"]: r for r in table.filter(pc.is_in(table.column("clip_id"), value_set=wanted)).to_pylist()}
+    for cid in clip_ids:
+        if cid not in found:
+            raise KeyError(f"{Path(clips_dir) / CLIPS_FILE}: no clip with clip_id {cid!r}")
+    return [found[cid] for cid in clip_ids]

@@ -1,0 +1,105 @@
+"""Whether a log's rendered arrays can be reused: what rendering did, and fingerprints of its inputs.
+
+``CLIPS_DIR/logs/<log_id>/render.json`` holds a :class:`LogRenderStats`; a rendering is reused when
+its fingerprints (the rendering config's and the log content's) match the current ones.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from encoders.clips.config import BevSource, ClipsConfig
+from encoders.clips.layout import RENDER_FILE
+from scenes.tracks import DenseTracks
+
+#: Version of the per-log files; bump when their content changes.
+RENDER_VERSION = 4
+
+
+def render_fingerprint(config: ClipsConfig) -> str:
+    """Hash of everything that changes the per-log arrays (not splits, previews or clip sampling)."""
+    payload = {"version": RENDER_VERSION, "camera": asdict(config.camera), "bev": config.to_dict()["bev"]}
+    return hashlib.sha256(json.dumps(payload, sort_keys=True, default=str).encode()).hexdigest()[:16]
+
+
+def log_fingerprint(dense: DenseTracks) -> str:
+    """Hash of a log's content as rendering sees it: frame times, track ids, boxes and ego poses.
+
+    A log written again into the same folder (e.g. simulated anew) gets a new fingerprint, so its
+    old rendering is never reused.
+    """
+    h = hashlib.sha256()
+    for array in (dense.timestamps_ns, dense.valid, dense.center_city_xyz_m, dense.size_lwh_m, dense.city_SE3_ego):
+        h.update(np.ascontiguousarray(array).tobytes())
+    h.update("\0".join(map(str, dense.track_ids)).encode())
+    return h.hexdigest()[:16]
+
+
+@dataclass
+class LogRenderStats:
+    """What rendering one log did; kept in ``render.json`` and the manifest.
+
+    Attributes:
+        log_id: the log.
+        frames: F.
+        tracks: K.
+        bev_source: ``lidar`` or ``boxes``.
+        sweeps: sweeps on disk.
+        sweep_coverage: fraction of frames with a usable sweep within tolerance.
+        corrupt_sweeps: file names of sweeps that could not be read (skipped).
+        frames_without_sweep: frames whose BEV occupancy is empty because no usable sweep was near
+            (only for ``lidar`` logs).
+        camera_frames: frames with a camera image.
+        camera_frames_missing: frames without one (black, no masks) when the log has a camera.
+        camera_mask_source: ``instance_masks``, ``projected_boxes`` or ``none``.
+        corrupt_camera_frames: file names of images or masks that could not be decoded (skipped).
+        bytes: disk used by the log's arrays.
+        render_s: wall time.
+        fingerprint: :func:`render_fingerprint` of the config used.
+        log_fingerprint: :func:`log_fingerprint` of the log rendered.
+    """
+
+    log_id: str
+    frames: int = 0
+    tracks: int = 0
+    bev_source: str = BevSource.BOXES.value
+    sweeps: int = 0
+    sweep_coverage: float = 0.0
+    corrupt_sweeps: list[str] = field(default_factory=list)
+    frames_without_sweep: int = 0
+    camera_frames: int = 0
+    camera_frames_missing: int = 0
+    camera_mask_source: str = "none"
+    corrupt_camera_frames: list[str] = field(default_factory=list)
+    bytes: int = 0
+    render_s: float = 0.0
+    fingerprint: str = ""
+    log_fingerprint: str = ""
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+def rendered_log_ok(folder: Path, config: ClipsConfig, dense: DenseTracks) -> bool:
+    """Whether ``folder`` holds a complete rendering of this log's content (``dense``) made with an
+    equivalent config."""
+    path = folder / RENDER_FILE
+    if not path.is_file():
+        return False
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, json.JSONDecodeError):
+        return False
+    return bool(data.get("fingerprint") == render_fingerprint(config)
+                and data.get("log_fingerprint") == log_fingerprint(dense))
+
+
+def read_render_stats(folder: Path) -> LogRenderStats:
+    data = json.loads((folder / RENDER_FILE).read_text())
+    return LogRenderStats(**{k: v for k, v in data.items() if k in LogRenderStats.__dataclass_fields__})

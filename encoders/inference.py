@@ -1,0 +1,159 @@
+"""Query-time use of a trained :class:`~encoders.model.DualEncoder`: load a run, embed clips and texts.
+
+``load_model(run_dir)`` reads what :func:`encoders.train.train` wrote in a run folder (``config.json``,
+``model.safetensors`` and, for a frozen pretrained text tower, ``text_cache.npz``). The ``embed_*``
+functions return float32 L2-normalised embeddings, one (D,) row per clip or text, and leave the model
+in the mode (train or eval) they found it in, so training validation can call them between steps.
+:func:`resolve_device` turns a device name of the configs (``auto``, ``cpu``, ``cuda[:i]``) into a
+torch device, for training and inference alike.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from torch.utils.data import DataLoader, Dataset
+
+from encoders.config import ConfigError, TrainConfig, check_device_name
+from encoders.model import DualEncoder
+
+
+def resolve_device(name: str) -> torch.device:
+    """``auto`` → ``cuda`` when available, else ``cpu``; ``cpu`` and ``cuda[:i]`` as named.
+
+    Raises:
+        ConfigError: ``name`` is none of those, or names a CUDA device that torch cannot use.
+    """
+    check_device_name(name)
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    device = torch.device(name)
+    if device.type == "cuda":
+        if not torch.cuda.is_available():
+            raise ConfigError(f"device {name!r} requested but torch.cuda.is_available() is False")
+        if device.index is not None and device.index >= torch.cuda.device_count():
+            raise ConfigError(f"device {name!r} requested but only {torch.cuda.device_count()} CUDA devices exist")
+    return device
+
+
+def collate(items: list[dict[str, Any]]) -> dict[str, Any]:
+    """Items → a batch, by the dataset's :func:`encoders.data.collate_clips`."""
+    from encoders.data import collate_clips
+
+    return collate_clips(items)
+
+
+def open_split(clips_dir: Path | str, split: str | None, augment: bool = False,
+               seed: int = 0) -> Dataset[dict[str, Any]]:
+    """The clips of ``split`` (all when None) in ``clips_dir`` (an :class:`encoders.data.ClipDataset`)."""
+    from encoders.data import ClipDataset
+
+    # uint8 views: a quarter of the bytes through the workers; the model converts them on its device.
+    return ClipDataset(clips_dir, split=split, augment=augment, seed=seed, as_uint8=True)
+
+
+def shuffle_time(batch: dict[str, Any], generator: torch.Generator | None = None) -> dict[str, Any]:
+    """The batch with each clip's frames in a random order (the same order across its tensors)."""
+    out = dict(batch)
+    b, t = batch["bev_lidar"].shape[:2]
+    perms = torch.stack([torch.randperm(t, generator=generator) for _ in range(b)])  # (B, T)
+    for key, value in batch.items():
+        if isinstance(value, torch.Tensor) and value.ndim >= 2 and value.shape[:2] == (b, t):
+            idx = perms.reshape(b, t, *([1] * (value.ndim - 2))).expand_as(value)
+            out[key] = torch.gather(value, 1, idx)
+    return out
+
+
+def _batches(dataset: Dataset[dict[str, Any]], batch_size: int, num_workers: int = 0) -> Iterator[dict[str, Any]]:
+    loader = DataLoader(dataset, batch_size=batch_size, shuffle=False, num_workers=num_workers, collate_fn=collate)
+    yield from loader
+
+
+@torch.no_grad()
+def embed_dataset(
+    model: DualEncoder,
+    dataset: Dataset[dict[str, Any]],
+    view: str = "fused",
+    shuffle_frames: bool = False,
+    batch_size: int = 32,
+    seed: int = 0,
+) -> tuple[list[str], np.ndarray, list[str]]:
+    """→ clip ids, (N, D) float32 normalised clip embeddings, canonical captions."""
+    was_training = model.training
+    model.eval()
+    gen = torch.Generator().manual_seed(seed)
+    ids: list[str] = []
+    captions: list[str] = []
+    chunks = []
+    for batch in _batches(dataset, batch_size):
+        if shuffle_frames:
+            batch = shuffle_time(batch, gen)
+        chunks.append(model.encode_video(batch, view=view).float().cpu().numpy())
+        ids += list(batch["clip_id"])
+        captions += list(batch["canonical_caption"])
+    model.train(was_training)
+    d = model.config.embed_dim
+    return ids, (np.concatenate(chunks) if chunks else np.zeros((0, d), np.float32)), captions
+
+
+@torch.no_grad()
+def embed_dataset_views(
+    model: DualEncoder, dataset: Dataset[dict[str, Any]], batch_size: int = 32
+) -> tuple[list[str], dict[str, np.ndarray]]:
+    """→ clip ids and, per view (camera, bev, fused), (N, D) float32 normalised embeddings, in one pass."""
+    was_training = model.training
+    model.eval()
+    ids: list[str] = []
+    chunks: dict[str, list[np.ndarray]] = {}
+    for batch in _batches(dataset, batch_size):
+        for view, x in model.encode_views(batch).items():
+            chunks.setdefault(view, []).append(x.float().cpu().numpy())
+        ids += list(batch["clip_id"])
+    model.train(was_training)
+    d = model.config.embed_dim
+    return ids, {v: np.concatenate(c) if c else np.zeros((0, d), np.float32) for v, c in chunks.items()}
+
+
+@torch.no_grad()
+def embed_texts(model: DualEncoder, texts: Sequence[str], batch_size: int = 256) -> np.ndarray:
+    """texts: N strings → (N, D) float32 normalised embeddings."""
+    was_training = model.training
+    model.eval()
+    out = [model.encode_text(list(texts[i : i + batch_size])).float().cpu().numpy()
+           for i in range(0, len(texts), batch_size)]
+    model.train(was_training)
+    return np.concatenate(out) if out else np.zeros((0, model.config.embed_dim), np.float32)
+
+
+def embed_clips(
+    model: DualEncoder,
+    clips_dir: Path | str | Dataset[dict[str, Any]],
+    split: str | None = None,
+    view: str = "fused",
+    shuffle_frames: bool = False,
+    batch_size: int = 32,
+) -> tuple[list[str], np.ndarray]:
+    """Embed the clips of ``split`` (all when None) of a clips folder (or a dataset): → (ids, (N, D) float32)."""
+    dataset = open_split(clips_dir, split) if isinstance(clips_dir, str | Path) else clips_dir
+    ids, vectors, _ = embed_dataset(model, dataset, view=view, shuffle_frames=shuffle_frames, batch_size=batch_size)
+    return ids, vectors
+
+
+def load_model(run_dir: Path | str, device: str = "cpu") -> DualEncoder:
+    """The trained DualEncoder of ``run_dir`` (config.json + model.safetensors), in eval mode."""
+    from safetensors.torch import load_file
+
+    run_dir = Path(run_dir)
+    config_path, weights_path = run_dir / "config.json", run_dir / "model.safetensors"
+    for path in (config_path, weights_path):
+        if not path.exists():
+            raise FileNotFoundError(f"{path}: not found (is {run_dir} a finished training run?)")
+    model = DualEncoder(TrainConfig.from_json(config_path).model)
+    model.load_saved_state_dict(load_file(str(weights_path)))
+    if model.text.cache is not None:
+        model.text.cache.load(run_dir / "text_cache.npz")
+    return model.to(resolve_device(device)).eval()

@@ -1,0 +1,51 @@
+"""The ``model_card.md`` of a training run: the model, the data it saw, its validation metrics and its limits."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from torch.utils.data import Dataset
+
+from encoders.config import TrainConfig
+
+
+def model_card(config: TrainConfig, history: list[dict[str, Any]], n_train: int,
+               val_set: Dataset[dict[str, Any]] | None, clips_dir: Path | str) -> str:
+    """Markdown for ``run_dir/model_card.md``; ``history`` holds the rows of ``metrics.jsonl``."""
+    last_val: dict[str, float] = next((r["val"] for r in reversed(history) if "val" in r), {})
+    m = config.model
+    metric_lines = "\n".join(f"| {k} | {v:.4g} |" for k, v in last_val.items()) or "| (no validation split) | |"
+    text = m.text.model if m.text.kind == "pretrained" else f"scratch transformer ({m.text.scratch_layers} layers)"
+    frozen = " (frozen, cached)" if m.text.kind == "pretrained" and m.text.freeze else ""
+    n_val = len(val_set) if val_set is not None else 0  # type: ignore[arg-type]
+    return f"""# DualEncoder model card
+
+Text → clip and clip → clip retrieval of object behaviour in driving logs.
+
+## Model
+- Text tower: {text}{frozen}, projection to D = {m.embed_dim}.
+- Camera tower: strided CNN {list(m.camera.widths)} over RGB + object mask, temporal transformer over frames.
+- BEV tower: LiDAR and map backbones {list(m.bev.widths)}, universal embedding E with D_e = {m.bev.embed_channels} at
+  1/{m.bev.downsample} resolution, object-masked pooling, temporal transformer with ego motion.
+- Fusion: mean of normalised views + MLP; modality dropout camera {m.fusion.drop_camera_p}, BEV {m.fusion.drop_bev_p}.
+
+## Data
+- Clips: `{clips_dir}`; {n_train} training clips, {n_val} validation clips.
+- Supervision: rule-based canonical captions{" (paraphrases as augmentation)" if config.augment else ""};
+  positives: equal {config.positives}; loss: {config.loss}.
+
+## Training
+- {len(history)} epochs, batch {config.batch_size}, AdamW lr {config.lr}, seed {config.seed}.
+
+## Validation (text → clip, last evaluated epoch)
+| metric | value |
+|---|---|
+{metric_lines}
+
+## Limits
+- Captions come from rules over LiDAR tracks: the model knows only the behaviours those rules name, and
+  inherits their errors (tracking noise, lane assignment near junctions).
+- Trained on the clips above only; simulated clips do not cover the look of real cameras.
+- Clips without camera are embedded from BEV alone; camera-only queries are weaker where the object is small.
+"""

@@ -1,0 +1,79 @@
+"""One check of a query's k and filters, whatever form the filter takes and whoever asks."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+import pytest
+
+from indexes.clip_index import ClipIndex
+from indexes.filters import Condition, Op
+from indexes.metadata import MetadataStore
+from retrieval.errors import FilterSyntaxError, InvalidKError
+from retrieval.querying import MAX_K, Query, build_query, check_k, hits_to_results, parse_cli_filters
+
+ROWS = [{"clip_id": f"c{i}", "category": ["car", "truck", "pedestrian"][i % 3], "start_ns": 10 * i,
+         "tags": [["left:approach"], ["host:stop"], []][i % 3]} for i in range(6)]
+
+
+@pytest.fixture(scope="module")
+def metadata() -> MetadataStore:
+    return MetadataStore.from_rows(pa.Table.from_pylist(ROWS), np.arange(len(ROWS)))
+
+
+@pytest.mark.parametrize("k", [0, -1, MAX_K + 1, 2.5, True, "3", None])
+def test_k_outside_1_to_max_k_names_the_parameter(metadata: MetadataStore, k: Any) -> None:
+    with pytest.raises(InvalidKError, match=rf"^k must be an integer in 1 … {MAX_K}, got k={k!r}$"):
+        build_query(k, None, metadata, len(metadata))
+
+
+def test_k_is_capped_by_what_the_search_can_return(metadata: MetadataStore) -> None:
+    assert build_query(50, None, metadata, 5) == Query(5, None)
+    assert build_query(np.int64(2), None, metadata, 5) == Query(2, None)
+    assert build_query(3, None, metadata, 0).k == 0
+    with pytest.raises(InvalidKError, match="in 1 … 20, got k=21"):
+        build_query(21, None, metadata, 5, max_k=20)
+    assert check_k(7, max_k=20) == 7
+
+
+@pytest.mark.parametrize("spec", [{"colour": "red"}, "colour == red", [Condition("colour", Op.EQ, "red")],
+                                  {"id": 3}, "id == 3"])
+def test_unknown_fields_get_one_message_in_every_form(metadata: MetadataStore, spec: Any) -> None:
+    field = "colour" if "colour" in str(spec) else "id"
+    with pytest.raises(FilterSyntaxError,
+                       match=rf"^unknown filter field '{field}'; valid fields: clip_id, category, start_ns, tags$"):
+        build_query(3, spec, metadata, len(metadata))
+
+
+@pytest.mark.parametrize(("spec", "needle"), [
+    ("start_ns >= soon", r"filter 'start_ns >= soon', field 'start_ns': 'soon' is not an integer"),
+    ({"start_ns": {"~": 3}}, "unknown operator"),
+    ("tags > 3", "only 'contains'"),
+    ("category ==", "a value is missing"),
+])
+def test_unreadable_filters_are_caught_before_any_search(metadata: MetadataStore, spec: Any, needle: str) -> None:
+    with pytest.raises(FilterSyntaxError, match=rf"{needle}.*; valid fields: clip_id, category"):
+        build_query(3, spec, metadata, len(metadata))
+
+
+def test_filters_become_conditions_once(metadata: MetadataStore) -> None:
+    query = build_query(3, "category in {car, truck} and start_ns >= 10", metadata, len(metadata))
+    assert query.filters == (Condition("category", Op.IN, ("car", "truck")), Condition("start_ns", Op.GE, "10"))
+    assert build_query(3, parse_cli_filters(["category=car,truck"]), metadata, 6).filters == (
+        Condition("category", Op.IN, ("car", "truck")),)
+    with pytest.raises(FilterSyntaxError, match="expected FIELD=VALUE"):
+        parse_cli_filters(["category="])
+
+
+def test_hits_come_from_the_checked_query(metadata: MetadataStore) -> None:
+    x = np.eye(len(ROWS), dtype=np.float32)
+    index = ClipIndex.build(x, ROWS, factory="Flat")
+    query = build_query(100, {"category": "car"}, index.metadata, len(index))
+    results = hits_to_results(index, x[:1], query, "fused", None)
+    assert [r.clip_id for r in results] == ["c0", "c3"] and [r.rank for r in results] == [1, 2]
+    others = hits_to_results(index, x[:1], build_query(100, None, index.metadata, len(index) - 1), "fused", None,
+                             exclude_clip="c0")
+    assert len(others) == len(ROWS) - 1 and "c0" not in {r.clip_id for r in others}
+    assert hits_to_results(index, x[:1], Query(0, None), "fused", None, exclude_clip="c0") == []

@@ -1,4 +1,4 @@
-"""Text → clip retrieval metrics, pure numpy: recall at k, median rank and mean average precision.
+"""Text → clip retrieval metrics, pure numpy: recall and precision at k, median rank and mean average precision.
 
 The one implementation behind training validation (``metrics.jsonl``) and ``scenesearch eval``, so
 both report the same figures for the same embeddings.
@@ -66,6 +66,22 @@ def average_precision(sim: np.ndarray, relevant: np.ndarray) -> np.ndarray:
     hits = ranked_relevance(sim, relevant)
     precision = np.cumsum(hits, axis=1) / np.arange(1, hits.shape[1] + 1)[None, :]
     return np.asarray((precision * hits).sum(axis=1) / np.maximum(hits.sum(axis=1), 1))
+
+
+def precision_at_k(sim: np.ndarray, relevant: np.ndarray, k: int = 10) -> np.ndarray:
+    """(Q,) share of relevant clips among each query's top ``k`` (ties broken against the query).
+
+    Queries without any relevant clip get NaN: they say nothing about the ranking.
+
+    Args:
+        sim: (Q, N) scores, higher is closer.
+        relevant: (Q, N) bool.
+    """
+    if k < 1:
+        raise ValueError(f"k must be >= 1, got {k}")
+    ranked = ranked_relevance(sim, relevant)[:, :k]  # (Q, min(k, N))
+    out = ranked.sum(axis=1) / float(min(k, ranked.shape[1]) if ranked.shape[1] else 1)
+    return np.where(np.asarray(relevant, dtype=bool).any(axis=1), out, np.nan)
 
 
 def text_to_clip_figures(sim: np.ndarray, relevant: np.ndarray, ks: Sequence[int] = KS) -> dict[str, float]:

@@ -8,10 +8,15 @@ returns the metrics dictionary written to ``metrics.json``::
     text_to_clip:            R@1, R@5, R@10, median_rank, mAP   (queries = the split's unique canonical captions;
                                                                 a clip is relevant when its caption matches)
     temporal_order_accuracy: accuracy, num_captions           (true caption vs the same steps reversed)
+    text_order:              pairs, mean_cosine, kept_apart     (the text tower alone: how far a caption's
+                                                                embedding is from its reversed steps')
+    freeform:                queries, answered, precision@10    (held-out everyday sentences, relevance from
+                                                                each clip's tags: :mod:`retrieval.freeform`)
     clip_to_clip:            action_precision@5, appearance_bias (+ the rates behind the bias)
     views:                   camera / bev: the text_to_clip figures of each single view
-    baselines:               random / bag_of_frames: the same figures for random ranking and for the model
-                             with frames shuffled in time
+    baselines:               random / bag_of_frames / rule_captions: the same figures for random ranking,
+                             for the model with frames shuffled in time, and for rule-caption search (the
+                             frozen sentence encoder over each clip's rule captions, no trained model)
     curves:                  recall@K for K = 1 … 50 of the model and the baselines (for plots)
 """
 
@@ -26,8 +31,23 @@ from typing import Any
 import numpy as np
 
 from encoders.clips.layout import read_clip_table
-from encoders.metrics import CURVE_MAX_K, KS, recall_curve, relevance_by_caption, text_to_clip_figures
-from retrieval.embedding import Embedder, ModelEmbedder
+from encoders.metrics import (
+    CURVE_MAX_K,
+    KS,
+    precision_at_k,
+    recall_curve,
+    relevance_by_caption,
+    text_to_clip_figures,
+)
+from retrieval.captions_search import CaptionSearch, TextEncoder
+from retrieval.embedding import Embedder, ModelEmbedder, SentenceEncoder
+from retrieval.freeform import FREEFORM_QUERIES, FreeformQuery, freeform_relevance
+
+#: A caption and its reversed steps count as kept apart by a text tower when their cosine is below this.
+#: Frozen mean-pooled sentence encoders give 0.98–0.99 for such pairs; 0.95 asks for a visible gap.
+ORDER_COSINE_MAX = 0.95
+#: Precision is read in the top this-many clips of each free-form query.
+FREEFORM_K = 10
 
 # ---------------------------------------------------------------------- text → clip
 
@@ -163,16 +183,56 @@ def _chance_appearance_rate(act: np.ndarray, app: np.ndarray) -> float | None:
     return float(same_app[differ].mean())
 
 
+def text_order_figures(t_true: np.ndarray, t_reversed: np.ndarray) -> dict[str, float | int | None]:
+    """How far a text tower keeps each caption from its reversed steps.
+
+    Args:
+        t_true: (M, D) L2-normalised embeddings of captions.
+        t_reversed: (M, D) the same captions with their steps reversed.
+    """
+    if len(t_true) == 0:
+        return {"pairs": 0, "mean_cosine": None, "kept_apart": None}
+    cosine = (np.asarray(t_true, dtype=np.float64) * np.asarray(t_reversed, dtype=np.float64)).sum(axis=1)
+    return {"pairs": len(cosine), "mean_cosine": float(cosine.mean()),
+            "kept_apart": float((cosine < ORDER_COSINE_MAX).mean())}
+
+
+def freeform_figures(sim: np.ndarray, relevant: np.ndarray, k: int = FREEFORM_K) -> dict[str, float | int | None]:
+    """Mean precision@k over the free-form queries that have at least one relevant clip.
+
+    Args:
+        sim: (Q, N) scores of the free-form queries against the clips.
+        relevant: (Q, N) bool from :func:`retrieval.freeform.freeform_relevance`.
+    """
+    answered = np.asarray(np.asarray(relevant, dtype=bool).any(axis=1))  # (Q,)
+    precision = precision_at_k(sim, relevant, k)
+    return {"queries": int(answered.shape[0]), "answered": int(answered.sum()),
+            f"precision@{k}": float(np.nanmean(precision)) if answered.any() else None}
+
+
+def rule_caption_scores(rows: Sequence[dict[str, Any]], queries: Sequence[str], encoder: TextEncoder) -> np.ndarray:
+    """(Q, N) scores of rule-caption search (:class:`retrieval.captions_search.CaptionSearch`) over ``rows``."""
+    import pyarrow as pa
+
+    search = CaptionSearch.build(pa.Table.from_pylist(list(rows)), encoder=encoder)
+    if len(search) != len(rows):
+        raise ValueError(f"rule-caption search kept {len(search)} of {len(rows)} clips: {search.skipped[:3]}")
+    xq = np.asarray(encoder(list(queries)), dtype=np.float32)
+    return np.stack([search.scores(q) for q in xq]) if len(xq) else np.zeros((0, len(rows)))
+
+
 # ---------------------------------------------------------------------- orchestration
 
 
 def evaluate(run_dir: Path | str, clips_dir: Path | str, split: str = "test", embedder: Embedder | None = None,
              seed: int = 0, progress: Callable[[str], None] | None = None,
-             index_dir: Path | str | None = None) -> dict[str, Any]:
+             index_dir: Path | str | None = None, sentence_encoder: TextEncoder | None = None,
+             freeform: Sequence[FreeformQuery] = FREEFORM_QUERIES) -> dict[str, Any]:
     """Embed the clips of ``split`` with the model of ``run_dir`` and measure every figure.
 
     With ``index_dir`` (an index of the same model and clips) the clip embeddings are read from the
-    index instead of recomputed; only the shuffled-frames baseline is embedded.
+    index instead of recomputed; only the shuffled-frames baseline is embedded. ``sentence_encoder``
+    (default: the frozen sentence encoder) serves the rule-caption search reference.
 
     Raises:
         FileNotFoundError: no model or no clip table.
@@ -223,6 +283,10 @@ def evaluate(run_dir: Path | str, clips_dir: Path | str, split: str = "test", em
             pairs.append((i, caption, rev))
     order: dict[str, float | int | None] = {"num_captions": len(pairs)}
     order_bag: float | None = None
+    order_rule: float | None = None
+    sentence = sentence_encoder if sentence_encoder is not None else SentenceEncoder()
+    text_order = text_order_figures(np.zeros((0, 1)), np.zeros((0, 1)))
+    text_order_frozen = dict(text_order)
     if pairs:
         idx = np.asarray([p[0] for p in pairs])
         t_true = np.asarray(embedder.embed_texts([p[1] for p in pairs]), dtype=np.float32)
@@ -230,9 +294,25 @@ def evaluate(run_dir: Path | str, clips_dir: Path | str, split: str = "test", em
         accuracy = temporal_order_accuracy((x["fused"][idx] * t_true).sum(1), (x["fused"][idx] * t_rev).sum(1))
         order_bag = temporal_order_accuracy((x_bag[idx] * t_true).sum(1), (x_bag[idx] * t_rev).sum(1))
         order["accuracy"] = accuracy
+        text_order = text_order_figures(t_true, t_rev)
+        s_true = np.asarray(sentence([p[1] for p in pairs]), dtype=np.float32)
+        s_rev = np.asarray(sentence([p[2] for p in pairs]), dtype=np.float32)
+        text_order_frozen = text_order_figures(s_true, s_rev)
+        rule_true = rule_caption_scores(rows, [p[1] for p in pairs], sentence)  # (M, N)
+        rule_rev = rule_caption_scores(rows, [p[2] for p in pairs], sentence)
+        order_rule = temporal_order_accuracy(rule_true[np.arange(len(idx)), idx], rule_rev[np.arange(len(idx)), idx])
     else:
         order["accuracy"] = None
     say(f"eval: {len(queries)} text queries, {len(pairs)} temporal-order pairs")
+
+    # Rule-caption search: the reference a trained model has to beat on free-form text.
+    sim_rule = rule_caption_scores(rows, queries, sentence)
+    free_relevant = freeform_relevance(freeform, rows)
+    free_texts = [q.text for q in freeform]
+    t_free = np.asarray(embedder.embed_texts(free_texts), dtype=np.float32)
+    free_model, free_bag = t_free @ x["fused"].T, t_free @ x_bag.T
+    free_rule = rule_caption_scores(rows, free_texts, sentence)
+    free_random = np.random.default_rng(seed).random(free_relevant.shape)
 
     actions = ["|".join(r.get("tags") or []) for r in rows]
     appearance = [f"{r.get('time_of_day', 'unknown')}|{r.get('weather', 'unknown')}" for r in rows]
@@ -242,22 +322,31 @@ def evaluate(run_dir: Path | str, clips_dir: Path | str, split: str = "test", em
                    "actions": len(set(actions))},
         "text_to_clip": text_to_clip_figures(sims["fused"], relevant),
         "temporal_order_accuracy": order,
+        "text_order": text_order,
+        "freeform": freeform_figures(free_model, free_relevant),
         "clip_to_clip": clip_to_clip_figures(x["fused"], actions, appearance),
         "views": {view: text_to_clip_figures(sims[view], relevant) for view in ("camera", "bev")},
         "baselines": {
             "random": {"text_to_clip": random_figures,
                        "temporal_order_accuracy": {"accuracy": 0.5 if pairs else None, "num_captions": len(pairs)},
+                       "freeform": freeform_figures(free_random, free_relevant),
                        "clip_to_clip": random_clip_to_clip(actions, appearance)},
             "bag_of_frames": {"text_to_clip": text_to_clip_figures(sim_bag, relevant),
                               "temporal_order_accuracy": {"accuracy": order_bag, "num_captions": len(pairs)},
+                              "freeform": freeform_figures(free_bag, free_relevant),
                               "clip_to_clip": clip_to_clip_figures(x_bag, actions, appearance)},
+            "rule_captions": {"text_to_clip": text_to_clip_figures(sim_rule, relevant),
+                              "temporal_order_accuracy": {"accuracy": order_rule, "num_captions": len(pairs)},
+                              "text_order": text_order_frozen,
+                              "freeform": freeform_figures(free_rule, free_relevant)},
         },
         "curves": {"k": list(range(1, min(CURVE_MAX_K, len(rows)) + 1)),
                    "model": recall_curve(sims["fused"], relevant),
                    "camera": recall_curve(sims["camera"], relevant),
                    "bev": recall_curve(sims["bev"], relevant),
                    "random": random_curve,
-                   "bag_of_frames": recall_curve(sim_bag, relevant)},
+                   "bag_of_frames": recall_curve(sim_bag, relevant),
+                   "rule_captions": recall_curve(sim_rule, relevant)},
         "model_sha256": embedder.model_id,
         "wall_s": round(time.perf_counter() - started, 2),
     }
@@ -293,30 +382,42 @@ def _clean(value: Any) -> Any:
 def metrics_table(metrics: dict[str, Any]) -> str:
     """The headline figures against the baselines, as a plain-text table."""
     base = metrics["baselines"]
-    columns = [("model", metrics), ("camera only", None), ("bev only", None),
-               ("bag of frames", base["bag_of_frames"]), ("random", base["random"])]
-    lines = []
-    header = ["figure"] + [c[0] for c in columns]
+    rule = base.get("rule_captions", {})
+    header = ["figure", "model", "camera only", "bev only", "bag of frames", "random", "rule captions"]
 
     def fmt(v: Any) -> str:
         return "—" if v is None else (f"{v:.3f}" if isinstance(v, float) else str(v))
+
+    def get(d: dict[str, Any], *keys: str) -> Any:
+        for key in keys:
+            d = d.get(key, {}) if isinstance(d, dict) else {}
+        return None if d == {} else d
 
     body: list[list[str]] = []
     for key in ("R@1", "R@5", "R@10", "median_rank", "mAP"):
         body.append([f"text→clip {key}", fmt(metrics["text_to_clip"][key]), fmt(metrics["views"]["camera"][key]),
                      fmt(metrics["views"]["bev"][key]), fmt(base["bag_of_frames"]["text_to_clip"][key]),
-                     fmt(base["random"]["text_to_clip"][key])])
+                     fmt(base["random"]["text_to_clip"][key]), fmt(get(rule, "text_to_clip", key))])
     body.append(["temporal order acc.", fmt(metrics["temporal_order_accuracy"]["accuracy"]), "", "",
                  fmt(base["bag_of_frames"]["temporal_order_accuracy"]["accuracy"]),
-                 fmt(base["random"]["temporal_order_accuracy"]["accuracy"])])
+                 fmt(base["random"]["temporal_order_accuracy"]["accuracy"]),
+                 fmt(get(rule, "temporal_order_accuracy", "accuracy"))])
+    for key in ("mean_cosine", "kept_apart"):
+        body.append([f"text order {key}", fmt(get(metrics, "text_order", key)), "", "", "", "",
+                     fmt(get(rule, "text_order", key))])
+    p_key = f"precision@{FREEFORM_K}"
+    body.append([f"free-form {p_key}", fmt(get(metrics, "freeform", p_key)), "", "",
+                 fmt(get(base, "bag_of_frames", "freeform", p_key)), fmt(get(base, "random", "freeform", p_key)),
+                 fmt(get(rule, "freeform", p_key))])
     for key in ("action_precision@5", "appearance_bias"):
         body.append([f"clip→clip {key}", fmt(metrics["clip_to_clip"][key]), "", "",
-                     fmt(base["bag_of_frames"]["clip_to_clip"][key]), fmt(base["random"]["clip_to_clip"][key])])
+                     fmt(base["bag_of_frames"]["clip_to_clip"][key]), fmt(base["random"]["clip_to_clip"][key]), ""])
     widths = [max(len(r[i]) for r in [header, *body]) for i in range(len(header))]
-    lines.append("  ".join(h.ljust(w) for h, w in zip(header, widths)))
-    lines.append("  ".join("-" * w for w in widths))
+    lines = ["  ".join(h.ljust(w) for h, w in zip(header, widths)), "  ".join("-" * w for w in widths)]
     lines.extend("  ".join(c.ljust(w) for c, w in zip(r, widths)).rstrip() for r in body)
     counts = metrics.get("counts", {})
+    free = metrics.get("freeform", {})
     lines.append(f"({counts.get('clips')} {metrics.get('split')} clips, {counts.get('queries')} caption queries, "
-                 f"{counts.get('temporal_pairs')} temporal-order pairs)")
+                 f"{counts.get('temporal_pairs')} temporal-order pairs, {free.get('answered')} of "
+                 f"{free.get('queries')} free-form queries with a relevant clip)")
     return "\n".join(lines)

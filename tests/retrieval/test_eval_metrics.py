@@ -18,6 +18,7 @@ from retrieval_fakes import (
 from encoders.metrics import (
     average_precision,
     first_relevant_ranks,
+    precision_at_k,
     relevance_by_caption,
     text_to_clip_figures,
     text_to_clip_metrics,
@@ -27,12 +28,15 @@ from retrieval.evaluation import (
     caption_generator,
     clip_to_clip_figures,
     evaluate,
+    freeform_figures,
     metrics_table,
     random_clip_to_clip,
     random_text_to_clip,
     reverse_steps,
     temporal_order_accuracy,
+    text_order_figures,
 )
+from retrieval.freeform import FREEFORM_QUERIES
 
 
 def test_ranks_and_average_precision_by_hand() -> None:
@@ -142,7 +146,18 @@ def test_evaluate_with_stand_in_model(tmp_path: Path) -> None:
         assert key in metrics
     assert set(metrics["text_to_clip"]) == {"R@1", "R@5", "R@10", "median_rank", "mAP"}
     assert set(metrics["views"]) == {"camera", "bev"}
-    assert set(metrics["baselines"]) == {"random", "bag_of_frames"}
+    assert set(metrics["baselines"]) == {"random", "bag_of_frames", "rule_captions"}
+    # Rule-caption search over the clips' own captions finds a caption query's words far above chance, but
+    # the frozen sentence encoder hardly sees the order of steps, so reversed captions compete at rank 1.
+    rule = metrics["baselines"]["rule_captions"]["text_to_clip"]
+    assert rule["R@5"] > metrics["baselines"]["random"]["text_to_clip"]["R@5"] + 0.3
+    # The frozen sentence encoder barely tells a caption from its reversed steps.
+    frozen = metrics["baselines"]["rule_captions"]["text_order"]
+    assert frozen["pairs"] == metrics["counts"]["temporal_pairs"] and frozen["mean_cosine"] > 0.9
+    assert set(metrics["text_order"]) == {"pairs", "mean_cosine", "kept_apart"}
+    free = metrics["freeform"]
+    assert free["queries"] == len(FREEFORM_QUERIES) and 0 < free["answered"] <= free["queries"]
+    assert 0.0 <= free["precision@10"] <= 1.0
     assert "action_precision@5" in metrics["clip_to_clip"] and "appearance_bias" in metrics["clip_to_clip"]
     model, rnd = metrics["text_to_clip"], metrics["baselines"]["random"]["text_to_clip"]
     assert model["R@1"] > rnd["R@1"] + 0.3 and model["mAP"] > rnd["mAP"]
@@ -152,6 +167,26 @@ def test_evaluate_with_stand_in_model(tmp_path: Path) -> None:
     assert metrics["baselines"]["bag_of_frames"]["temporal_order_accuracy"]["accuracy"] < order["accuracy"]
     assert metrics["counts"]["clips"] == 42
     table = metrics_table(metrics)
-    assert "text→clip R@1" in table and "temporal order" in table
+    assert "text→clip R@1" in table and "temporal order" in table and "free-form precision@10" in table
     with pytest.raises(ValueError, match="unknown split 'dev'; the clips have splits: test, train, val"):
         evaluate(run, clips, split="dev", embedder=embedder)
+
+
+def test_precision_at_k_counts_ties_against_the_query() -> None:
+    sim = np.array([[3.0, 2.0, 1.0, 0.0], [1.0, 1.0, 1.0, 1.0], [1.0, 2.0, 3.0, 4.0]])
+    relevant = np.array([[1, 0, 1, 0], [1, 0, 0, 0], [0, 0, 0, 0]], dtype=bool)
+    p = precision_at_k(sim, relevant, k=2)
+    assert p[0] == 0.5 and p[1] == 0.0 and np.isnan(p[2])
+    assert precision_at_k(sim[:1], relevant[:1], k=10)[0] == 0.5  # k past N: the share among all N
+    with pytest.raises(ValueError, match="k must be >= 1"):
+        precision_at_k(sim, relevant, k=0)
+
+
+def test_text_order_and_freeform_figures() -> None:
+    a = np.array([[1.0, 0.0], [0.0, 1.0]])
+    b = np.array([[1.0, 0.0], [1.0, 0.0]])
+    assert text_order_figures(a, b) == {"pairs": 2, "mean_cosine": 0.5, "kept_apart": 0.5}
+    assert text_order_figures(np.zeros((0, 2)), np.zeros((0, 2)))["mean_cosine"] is None
+    relevant = np.array([[1, 0], [0, 0]], dtype=bool)
+    assert freeform_figures(np.array([[1.0, 0.0], [0.0, 1.0]]), relevant, k=1) == \
+        {"queries": 2, "answered": 1, "precision@1": 1.0}

@@ -1,0 +1,36 @@
+"""Free-form queries: relevance comes from a clip's tags, in order, never from its caption text."""
+
+from __future__ import annotations
+
+from retrieval.freeform import FREEFORM_QUERIES, FreeformQuery, freeform_relevance
+
+
+def _row(category: str, tags: list[str], host: list[str]) -> dict[str, object]:
+    return {"category": category, "tags": tags, "host_tags": host, "caption": "ignored"}
+
+
+def test_steps_match_in_order_with_patterns() -> None:
+    cut_in = FreeformQuery("a car cuts in from the left", frozenset({"car"}), ("left:*", "host:*"))
+    assert cut_in.matches(_row("car", ["left:approach", "host:away"], []))
+    assert cut_in.matches(_row("car", ["left:approach", "oncoming:away", "host:constant"], []))  # not adjacent
+    assert not cut_in.matches(_row("car", ["host:away", "left:approach"], []))  # wrong order
+    assert not cut_in.matches(_row("truck", ["left:approach", "host:away"], []))  # wrong category
+    lateral = FreeformQuery("something crossing away on the left", steps=("left*:away",))
+    assert lateral.matches(_row("bus", ["left_lateral:away"], [])) and lateral.matches(_row("bus", ["left:away"], []))
+
+
+def test_host_steps_and_relevance_matrix() -> None:
+    stop = FreeformQuery("we brake and stop", host=("decelerating:*", "stationary:*"))
+    rows = [_row("car", [], ["decelerating:heading_straight", "stationary:heading_straight"]),
+            _row("car", [], ["stationary:heading_straight", "decelerating:heading_straight"]),
+            _row("car", [], ["decelerating:steering_left"])]
+    assert freeform_relevance([stop], rows).tolist() == [[True, False, False]]
+    assert freeform_relevance([stop], []).shape == (1, 0)
+
+
+def test_the_held_out_set_is_written_in_everyday_words() -> None:
+    texts = [q.text for q in FREEFORM_QUERIES]
+    assert len(texts) == len(set(texts)) >= 20
+    # Unlike the caption templates: no query starts with the host sentence or says "host lane".
+    assert not any(t.lower().startswith("the ego vehicle") or "host" in t.lower() for t in texts)
+    assert all(q.categories or q.steps or q.host for q in FREEFORM_QUERIES)

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -32,6 +32,12 @@ class KittiLabels:
         rotation_y_rad: (N,) rotation about the camera's y axis.
         dropped_dontcare: number of ``DontCare`` rows removed.
         num_label_frames: number of distinct frames in the file (``DontCare``-only frames included).
+        truncated: (N,) truncation level (tracking labels: 0 none, 1 partly, 2 largely out of the image).
+        occluded: (N,) occlusion level (0 visible, 1 partly, 2 largely occluded, 3 unknown).
+        box_px: (N, 4) image box ``x1 y1 x2 y2`` of each object in camera 2.
+        dontcare_frame: (M,) frame of each ``DontCare`` region.
+        dontcare_box_px: (M, 4) image box of each ``DontCare`` region, kept for evaluation's
+            ignore rules although the rows are not objects.
     """
 
     frame: NDArray[np.int64]
@@ -42,6 +48,11 @@ class KittiLabels:
     rotation_y_rad: FloatArray
     dropped_dontcare: int
     num_label_frames: int
+    truncated: NDArray[np.int64] = field(default_factory=lambda: np.zeros(0, np.int64))
+    occluded: NDArray[np.int64] = field(default_factory=lambda: np.zeros(0, np.int64))
+    box_px: FloatArray = field(default_factory=lambda: np.zeros((0, 4)))
+    dontcare_frame: NDArray[np.int64] = field(default_factory=lambda: np.zeros(0, np.int64))
+    dontcare_box_px: FloatArray = field(default_factory=lambda: np.zeros((0, 4)))
 
     def __len__(self) -> int:
         return int(self.frame.shape[0])
@@ -60,6 +71,9 @@ def read_kitti_labels(path: Path | str) -> KittiLabels:
     track_ids: list[int] = []
     types: list[str] = []
     values: list[FloatArray] = []
+    image: list[FloatArray] = []  # truncated occluded x1 y1 x2 y2 of each object row
+    dontcare_frames: list[int] = []
+    dontcare_boxes: list[FloatArray] = []
     dropped = 0
     all_frames: set[int] = set()
     seen: dict[tuple[int, int], int] = {}
@@ -91,6 +105,8 @@ def read_kitti_labels(path: Path | str) -> KittiLabels:
         kitti_type = tokens[2]
         if kitti_type == DONTCARE:
             dropped += 1
+            dontcare_frames.append(frame)
+            dontcare_boxes.append(parse_floats(path, line_no, tokens[6:10], list(LABEL_FIELDS[6:10])))
             continue
         if track < 0:
             raise ImportFormatError(path, f"negative track id {track} on a {kitti_type} row", line=line_no,
@@ -109,9 +125,12 @@ def read_kitti_labels(path: Path | str) -> KittiLabels:
         track_ids.append(track)
         types.append(kitti_type)
         values.append(box)
+        image.append(parse_floats(path, line_no, [tokens[3], tokens[4], *tokens[6:10]],
+                                  [*LABEL_FIELDS[3:5], *LABEL_FIELDS[6:10]]))
     if not all_frames:
         raise ImportFormatError(path, "label file has no rows")
     box_array = np.stack(values) if values else np.zeros((0, 7))
+    image_array = np.stack(image) if image else np.zeros((0, 6))
     return KittiLabels(
         frame=np.asarray(frames, dtype=np.int64),
         track_id=np.asarray(track_ids, dtype=np.int64),
@@ -121,4 +140,9 @@ def read_kitti_labels(path: Path | str) -> KittiLabels:
         rotation_y_rad=box_array[:, 6],
         dropped_dontcare=dropped,
         num_label_frames=len(all_frames),
+        truncated=image_array[:, 0].astype(np.int64),
+        occluded=image_array[:, 1].astype(np.int64),
+        box_px=image_array[:, 2:6],
+        dontcare_frame=np.asarray(dontcare_frames, dtype=np.int64),
+        dontcare_box_px=np.stack(dontcare_boxes) if dontcare_boxes else np.zeros((0, 4)),
     )

@@ -4,7 +4,7 @@
 
     config.json           the TrainConfig (model channels resolved from the data)
     metrics.jsonl         one line per epoch: loss, learning rate, samples/s, validation retrieval metrics
-    checkpoints/last.pt   model, optimiser, epoch and step, written atomically after every epoch
+    checkpoints/last.pt   everything a resumed run needs (:mod:`encoders.checkpoints`), atomically every epoch
     model.safetensors     final weights (frozen pretrained text weights are left out: they load from text.model)
     text_cache.npz        cached frozen caption embeddings (pretrained text tower)
     model_card.md         data, metrics and limits (:mod:`encoders.model_card`)
@@ -12,12 +12,20 @@
 
 Determinism: the data order of epoch e is a permutation seeded by (seed, e), and before every step the
 torch generator is re-seeded from (seed, step), so modality dropout and frame shuffling depend only on
-the step. A run resumed from ``checkpoints/last.pt`` therefore continues exactly as if it had not
-stopped (on CPU; CUDA kernels may add their own non-determinism).
+the step; the tagging objective's n-th batch of windows depends only on (seed, n). The learning rate is
+a function of the step (no scheduler object holds state). A run resumed from ``checkpoints/last.pt``
+therefore continues exactly as if it had not stopped (on CPU; CUDA kernels may add their own
+non-determinism), with or without tag targets and with a trained or a frozen text tower.
+
+Checkpoints (:mod:`encoders.checkpoints`) hold every optimiser's state (the tagging head's own
+included), the random states and the metrics rows so far, as plain tensors and data read with
+``torch.load(weights_only=True)``; a file that needs more is refused, never unpickled.
 
 Resuming checks that the configuration equals the checkpoint's, except for ``epochs`` (which may be
 extended; the cosine schedule then stretches to the new end), ``num_workers``, ``device`` and
-``eval_batch_size``; ``force`` skips the check.
+``eval_batch_size``, and that the tagging configuration equals its (except ``device``, ``steps`` and
+``log_every``, which joint training does not use); ``force`` skips the checks (a checkpoint without
+tagging state then starts the head afresh).
 
 Loading a finished run and embedding clips and texts with it is :mod:`encoders.inference`.
 """
@@ -40,7 +48,14 @@ import torch
 from torch.utils.data import DataLoader, Dataset
 
 from common.atomic import atomic_path, atomic_write_text
-from encoders.config import ConfigMismatchError, TrainConfig
+from encoders.checkpoints import (
+    check_resume_config,
+    check_resume_tagging,
+    read_checkpoint,
+    restore_rng,
+    save_checkpoint,
+)
+from encoders.config import TrainConfig
 from encoders.inference import collate, embed_dataset, embed_texts, open_split, resolve_device, shuffle_time
 from encoders.loss import contrastive_loss, positives_matrix, tag_similarity
 from encoders.metrics import relevance_by_caption, text_to_clip_metrics
@@ -49,10 +64,6 @@ from encoders.model_card import model_card
 from encoders.tagging.ablation import mask_inputs
 from encoders.tagging.config import TagTrainConfig
 from encoders.tagging.training import attach_tagging
-
-CHECKPOINT_FORMAT = 1
-#: Config keys that may differ when resuming.
-RESUMABLE_KEYS = ("epochs", "num_workers", "device", "eval_batch_size")
 
 
 class TrainingError(RuntimeError):
@@ -159,52 +170,6 @@ def learning_rate(config: TrainConfig, step: int, total_steps: int) -> float:
     return config.lr * 0.5 * (1.0 + math.cos(math.pi * progress))
 
 
-# --- checkpoints -------------------------------------------------------------------------------------
-def _save_checkpoint(path: Path, model: DualEncoder, opt: torch.optim.Optimizer, config: TrainConfig,
-                     epoch: int, step: int) -> None:
-    state = {
-        "format": CHECKPOINT_FORMAT,
-        "epoch": epoch,
-        "step": step,
-        "config": config.to_dict(),
-        "model": model.saved_state_dict(),
-        "optimizer": opt.state_dict(),
-        "rng": {"python": random.getstate(), "numpy": np.random.get_state(), "torch": torch.get_rng_state()},
-    }
-    with atomic_path(path) as tmp:
-        torch.save(state, tmp)
-
-
-def _config_differences(a: dict[str, Any], b: dict[str, Any], prefix: str = "") -> list[str]:
-    diffs = []
-    for key in sorted(set(a) | set(b)):
-        va, vb = a.get(key), b.get(key)
-        if isinstance(va, dict) and isinstance(vb, dict):
-            diffs += _config_differences(va, vb, f"{prefix}{key}.")
-        elif va != vb:
-            diffs.append(f"{prefix}{key}: {vb!r} -> {va!r}")
-    return diffs
-
-
-def check_resume_config(new: TrainConfig, saved: dict[str, Any], done_epochs: int) -> None:
-    """Raise :class:`ConfigMismatchError` when ``new`` differs from the checkpoint's config beyond RESUMABLE_KEYS."""
-    a = {k: v for k, v in new.to_dict().items() if k not in RESUMABLE_KEYS}
-    b = {k: v for k, v in saved.items() if k not in RESUMABLE_KEYS}
-    diffs = _config_differences(a, b)
-    if diffs:
-        raise ConfigMismatchError(
-            "resuming with a different configuration (use --force to resume anyway): " + "; ".join(diffs)
-        )
-    if new.epochs < done_epochs:
-        raise ConfigMismatchError(f"the checkpoint has {done_epochs} epochs done; epochs={new.epochs} is fewer")
-
-
-def _read_metrics(path: Path) -> list[dict[str, Any]]:
-    if not path.exists():
-        return []
-    return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
-
-
 def _append_metrics(path: Path, row: dict[str, Any]) -> None:
     with open(path, "a") as fh:
         fh.write(json.dumps(row, sort_keys=True) + "\n")
@@ -274,25 +239,34 @@ def train(
     run_dir.mkdir(parents=True, exist_ok=True)
 
     device = resolve_device(config.device)
+    checkpoint = read_checkpoint(ckpt_path) if resume else None
+    if checkpoint is not None and not force:
+        check_resume_config(config, checkpoint.config, checkpoint.epoch)
     seed_everything(config.seed)
     model = DualEncoder(config.model).to(device)
     opt = build_optimizer(model, config)
-    start_epoch, step = 0, 0
-    if resume:
-        if not ckpt_path.exists():
-            raise FileNotFoundError(f"{ckpt_path}: no checkpoint to resume from")
-        state = torch.load(ckpt_path, map_location=device, weights_only=False)
-        if not force:
-            check_resume_config(config, state["config"], state["epoch"])
-        model.load_saved_state_dict(state["model"])
-        opt.load_state_dict(state["optimizer"])
-        start_epoch, step = int(state["epoch"]), int(state["step"])
-        rows = [r for r in _read_metrics(metrics_path) if r.get("epoch", 0) <= start_epoch]
-        atomic_write_text(metrics_path, "".join(json.dumps(r, sort_keys=True) + "\n" for r in rows))
-        log(f"resuming {run_dir} after epoch {start_epoch} (step {step})")
     # -- tagging hook (encoders/tagging): the tag loss joins the contrastive loss when the clips have tag targets
     tag_config = tagging or TagTrainConfig()
     tag_objective = attach_tagging(clips_dir, model, tag_config, log) if datasets is None else None
+    start_epoch, step = 0, 0
+    history: list[dict[str, Any]] = []
+    val: dict[str, float] = {}
+    if checkpoint is not None:
+        saved_tagging = checkpoint.tagging["config"] if checkpoint.tagging is not None else None
+        if not force:
+            check_resume_tagging(tag_objective, saved_tagging)
+        model.load_saved_state_dict(checkpoint.model)
+        opt.load_state_dict(checkpoint.optimizer)
+        if tag_objective is not None and checkpoint.tagging is not None:
+            tag_objective.load_training_state(checkpoint.tagging["state"])
+        elif tag_objective is not None:
+            log("the checkpoint has no tagging state: the tagging head starts afresh (--force)")
+        restore_rng(checkpoint.rng)
+        start_epoch, step, history = checkpoint.epoch, checkpoint.step, list(checkpoint.history)
+        val = next((dict(r["val"]) for r in reversed(history) if isinstance(r.get("val"), dict)), {})
+        # The checkpoint's rows are the truth: a kill after it was written may have cut the file short.
+        atomic_write_text(metrics_path, "".join(json.dumps(r, sort_keys=True) + "\n" for r in history))
+        log(f"resuming {run_dir} after epoch {start_epoch} (step {step})")
     text_cache = model.text.cache
     cache_path = run_dir / "text_cache.npz"
     if text_cache is not None:
@@ -306,8 +280,6 @@ def train(
     total_steps = batches_per_epoch * config.epochs
     use_amp = config.amp and device.type == "cuda"
     writer = _tensorboard(run_dir)
-    history = _read_metrics(metrics_path)
-    val: dict[str, float] = {}
     log(f"training on {n} clips, {batches_per_epoch} steps/epoch, {config.epochs} epochs, device {device}")
 
     for epoch in range(start_epoch, config.epochs):
@@ -375,11 +347,12 @@ def train(
         }
         if val and (done % config.eval_every == 0 or done == config.epochs):
             row["val"] = val
-        _save_checkpoint(ckpt_path, model, opt, config, done, step)
-        _append_metrics(metrics_path, row)
         history.append(row)
         if text_cache is not None:
+            # Before the checkpoint: a resumed run then finds every caption embedding it had.
             text_cache.save(cache_path)
+        save_checkpoint(ckpt_path, model, opt, config, done, step, history, tag_objective)
+        _append_metrics(metrics_path, row)
         if writer is not None:
             writer.add_scalar("train/loss", row["train_loss"], step)
             writer.add_scalar("train/samples_per_s", row["samples_per_s"], step)

@@ -6,7 +6,9 @@ Two ways to train, chosen by :attr:`TagTrainConfig.mode`:
   creates a :class:`TaggingObjective` beside the :class:`~encoders.model.DualEncoder`, adds its
   parameters (A and b) to the optimiser, adds ``weight × objective.loss(model)`` to every step's
   loss (the objective draws its own task-balanced batch of tag windows and calls
-  ``model.bev_embedding``), and calls ``objective.save(run_dir)`` with the weights.
+  ``model.bev_embedding``), and calls ``objective.save(run_dir)`` with the weights. Its checkpoints
+  hold :meth:`TaggingObjective.training_state` (head, optimiser, windows drawn), so a resumed run
+  draws the same windows and takes the same steps as one that never stopped.
 - ``alone``: :func:`train_tags` trains a :class:`~encoders.bev.BevTower` and the head on the tag
   loss only (``scenesearch eval-tags --train`` and the benchmarks use it for the input ablation).
 
@@ -69,12 +71,21 @@ def window_loss(
                     density=_area_mask(head.names, device))
 
 
+#: Batches of one task-balanced draw of :class:`TaggingObjective` (the draw is seeded by its number).
+BATCHES_PER_DRAW = 64
+
+
 class TaggingObjective(nn.Module):
     """The tagging term of joint training: owns the head and draws task-balanced windows.
 
     >>> objective = attach_tagging(clips_dir, model, TagTrainConfig())    # None without tag targets
     >>> loss = contrastive + objective.weight * objective.loss(model.bev_embedding)
     >>> loss.backward(); opt.step(); objective.step(lr)
+
+    The n-th batch drawn is a pure function of (seed, n): draw ``n // BATCHES_PER_DRAW`` of the
+    :class:`TaskBalancedSampler`, batch ``n % BATCHES_PER_DRAW`` of it. Drawing touches no global
+    random state (training re-seeds torch every step, and must see the same stream whether or not
+    a run was resumed between two batches).
     """
 
     def __init__(self, clips_dir: Path | str, config: TagTrainConfig, embed_channels: int,
@@ -88,19 +99,23 @@ class TaggingObjective(nn.Module):
             raise TagError(f"head attributes {list(hc.attributes)} differ from the targets' {list(self.dataset.names)}")
         self.head = TagHead(hc)
         self.weight = config.joint_weight
-        self._epoch = 0
+        self.batches_drawn = 0
         self._it: Iterator[dict[str, Any]] | None = None
         self.last_parts: dict[str, float] = {}
         self.optimizer: torch.optim.Optimizer | None = None
 
     def _batches(self) -> Iterator[dict[str, Any]]:
+        """Batches from the ``batches_drawn``-th on."""
+        size = self.config.batch_size
+        sampler = TaskBalancedSampler(self.dataset.present, BATCHES_PER_DRAW * size, self.config.seed)
         while True:
-            sampler = TaskBalancedSampler(self.dataset.present, 64 * self.config.batch_size, self.config.seed)
-            sampler.set_epoch(self._epoch)
-            self._epoch += 1
-            loader = torch.utils.data.DataLoader(self.dataset, batch_size=self.config.batch_size, sampler=sampler,
-                                                 collate_fn=collate_windows)
-            yield from loader
+            draw, first = divmod(self.batches_drawn, BATCHES_PER_DRAW)
+            sampler.set_epoch(draw)
+            items = sampler.draw()[1]  # (BATCHES_PER_DRAW * size,)
+            for b in range(first, BATCHES_PER_DRAW):
+                batch = collate_windows([self.dataset[int(i)] for i in items[b * size : (b + 1) * size]])
+                self.batches_drawn += 1
+                yield batch
 
     def loss(self, embed: Callable[[dict[str, Any]], torch.Tensor]) -> torch.Tensor:
         """The tag loss of the next task-balanced batch; ``embed`` is e.g. ``model.bev_embedding``."""
@@ -118,6 +133,35 @@ class TaggingObjective(nn.Module):
             group["lr"] = lr
         self.optimizer.step()
         self.optimizer.zero_grad(set_to_none=True)
+
+    def training_state(self) -> dict[str, Any]:
+        """What a checkpoint keeps to resume exactly: tensors and plain data only (loads with ``weights_only``).
+
+        ``{"attributes": [names], "head": head state dict, "optimizer": own optimiser state or None,
+        "batches_drawn": int}``; the learning rate is not state: :meth:`step` receives it from the
+        training loop's schedule.
+        """
+        return {
+            "attributes": list(self.head.names),
+            "head": {k: v.detach().cpu().clone() for k, v in self.head.state_dict().items()},
+            "optimizer": self.optimizer.state_dict() if self.optimizer is not None else None,
+            "batches_drawn": self.batches_drawn,
+        }
+
+    def load_training_state(self, state: dict[str, Any]) -> None:
+        """Restore what :meth:`training_state` returned; the next batch is the one after the last drawn."""
+        saved = list(state.get("attributes") or [])
+        if saved != list(self.head.names):
+            raise TagError(f"the saved tagging head has attributes {saved}, the clips' tag targets "
+                           f"{list(self.head.names)}")
+        self.head.load_state_dict(state["head"])
+        if (state["optimizer"] is None) != (self.optimizer is None):
+            raise TagError("the saved tagging state and this objective differ in who steps the head "
+                           "(its own optimiser or the training loop's)")
+        if self.optimizer is not None:
+            self.optimizer.load_state_dict(state["optimizer"])
+        self.batches_drawn = int(state["batches_drawn"])
+        self._it = None
 
     def save(self, run_dir: Path | str, backbone: nn.Module | None = None) -> None:
         save_tagging(run_dir, self.head, self.config, read_manifest(self.clips_dir), backbone,

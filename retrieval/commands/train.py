@@ -3,7 +3,9 @@
 Trains the dual text/video encoder contrastively on the 'train' split of a clips folder, validating
 text → clip retrieval on 'val' after every epoch. RUN_DIR receives config.json, metrics.jsonl,
 checkpoints/last.pt (every epoch), model.safetensors, text_cache.npz and model_card.md. ``--resume``
-continues from the last checkpoint exactly; with a different configuration it stops unless ``--force``.
+continues from the last checkpoint exactly (tagging head included); with a different configuration it
+stops unless ``--force``. The checkpoint is read as plain tensors and data only: one that is not (a
+pickled object, a damaged file) is refused with an error naming it.
 """
 
 from __future__ import annotations

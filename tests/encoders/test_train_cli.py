@@ -51,6 +51,14 @@ def test_train_resume_and_bad_input(clips_dir: Path, tmp_path: Path, capsys: pyt
     assert main(["train", str(clips_dir), "--out", str(out), "--resume", "--epochs", "3"]) == 0
     assert len((out / "metrics.jsonl").read_text().splitlines()) == 3
 
+    # A checkpoint that needs more than tensors and plain data to load is refused, naming the file.
+    checkpoint = out / "checkpoints" / "last.pt"
+    torch.save({**torch.load(checkpoint, weights_only=True), "extra": Path("anything")}, checkpoint)
+    capsys.readouterr()
+    assert main(["train", str(clips_dir), "--out", str(out), "--resume", "--epochs", "4"]) == 2
+    err = capsys.readouterr().err
+    assert f"{checkpoint}: not a checkpoint that loads as plain tensors" in err and "Traceback" not in err
+
 
 def test_bad_config_and_missing_split(clips_dir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     bad = tmp_path / "train.yaml"
@@ -58,6 +66,12 @@ def test_bad_config_and_missing_split(clips_dir: Path, tmp_path: Path, capsys: p
     assert main(["train", str(clips_dir), "--out", str(tmp_path / "a"), "--config", str(bad)]) == 2
     err = capsys.readouterr().err
     assert "learning_rate" in err and "model.bev.depth" in err and str(bad) in err
+
+    broken = tmp_path / "broken.yaml"
+    broken.write_text("epochs: [1\n")
+    assert main(["train", str(clips_dir), "--out", str(tmp_path / "c"), "--config", str(broken)]) == 2
+    err = capsys.readouterr().err
+    assert f"{broken}: not valid YAML (line 2, column 1)" in err and not (tmp_path / "c").exists()
 
     empty = tmp_path / "empty_clips"
     empty.mkdir()

@@ -4,24 +4,28 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import random
+import re
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 import torch
 from safetensors.torch import load_file
 
+from encoders.checkpoints import (
+    CHECKPOINT_FORMAT,
+    CheckpointError,
+    check_resume_config,
+    read_checkpoint,
+    restore_rng,
+    rng_state,
+)
 from encoders.config import ConfigMismatchError, TrainConfig
 from encoders.inference import load_model, shuffle_time
 from encoders.synthetic import SyntheticClipDataset, SyntheticSpec
-from encoders.train import (
-    NonFiniteLossError,
-    NoTrainingSplitError,
-    check_resume_config,
-    evaluate,
-    learning_rate,
-    train,
-)
+from encoders.train import NonFiniteLossError, NoTrainingSplitError, evaluate, learning_rate, train
 
 SPEC = SyntheticSpec(frames=6, camera_hw=(24, 32), bev_hw=(24, 12), distractors=1)
 TIMING = {"samples_per_s", "epoch_s"}
@@ -129,8 +133,77 @@ def test_nan_loss_stops_with_step_and_clips_and_keeps_the_checkpoint(tmp_path: P
     with pytest.raises(NonFiniteLossError, match=r"at step 2 \(epoch 2\), batch clips: synthetic-train:") as info:
         train("unused", out, config(), datasets=data, on_epoch_end=poison, progress=False, log=lambda _m: None)
     assert info.value.step == 2 and len(info.value.clip_ids) == 8
-    state = torch.load(out / "checkpoints" / "last.pt", weights_only=False)
-    assert state["epoch"] == 1 and state["step"] == 2
+    state = read_checkpoint(out / "checkpoints" / "last.pt")
+    assert state.epoch == 1 and state.step == 2 and [r["epoch"] for r in state.history] == [1]
+
+
+def test_checkpoint_is_plain_tensors_and_json(straight: Path) -> None:
+    path = straight / "checkpoints" / "last.pt"
+    raw = torch.load(path, weights_only=True)
+    assert raw["format"] == CHECKPOINT_FORMAT and isinstance(raw["meta"], str) and raw["tagging"] is None
+    meta = json.loads(raw["meta"])
+    assert meta["epoch"] == 2 and meta["step"] == 4 and meta["config"]["batch_size"] == 8
+    assert all(isinstance(v, torch.Tensor) for k, v in raw["rng"].items() if k != "cuda")
+    state = read_checkpoint(path)
+    assert [r["epoch"] for r in state.history] == [1, 2] and state.optimizer["state"]
+
+
+def test_random_states_round_trip_through_a_weights_only_file(tmp_path: Path) -> None:
+    random.gauss(0, 1)  # a cached Gaussian in Python's state
+    np.random.standard_normal(3)
+    torch.save(rng_state(), tmp_path / "rng.pt")
+    draws = (random.random(), random.gauss(0, 1), np.random.standard_normal(2).tolist(), torch.rand(2).tolist())
+    restore_rng(torch.load(tmp_path / "rng.pt", weights_only=True))
+    assert (random.random(), random.gauss(0, 1), np.random.standard_normal(2).tolist(), torch.rand(2).tolist()) == draws
+
+
+class Planted:
+    """Unpickling it would create ``marker``: what loading an untrusted run folder must never do."""
+
+    def __init__(self, marker: Path) -> None:
+        self.marker = marker
+
+    def __reduce__(self) -> tuple[Any, ...]:
+        return (Path.touch, (self.marker,))
+
+
+def killed_run(out: Path) -> Path:
+    with pytest.raises(Killed):
+        run(out, config(), on_epoch_end=lambda e: (_ for _ in ()).throw(Killed()))
+    return out / "checkpoints" / "last.pt"
+
+
+def test_a_checkpoint_with_a_pickled_object_is_refused(tmp_path: Path) -> None:
+    path = killed_run(tmp_path / "run")
+    raw = torch.load(path, weights_only=True)
+    marker = tmp_path / "unpickled"
+    torch.save({**raw, "extra": Planted(marker)}, path)
+    with pytest.raises(CheckpointError, match=r"last\.pt: not a checkpoint that loads as plain tensors") as info:
+        run(tmp_path / "run", config(), resume=True)
+    assert str(path) in str(info.value)
+    assert not marker.exists()
+
+
+@pytest.mark.parametrize("damage", ["bytes", "old_format", "no_meta", "bad_meta", "not_dict"])
+def test_damaged_checkpoints_name_the_file_and_part(tmp_path: Path, damage: str) -> None:
+    path = killed_run(tmp_path / "run")
+    raw = torch.load(path, weights_only=True)
+    if damage == "bytes":
+        path.write_bytes(path.read_bytes()[:200])
+    elif damage == "old_format":
+        torch.save({**raw, "format": 1}, path)
+    elif damage == "no_meta":
+        torch.save({k: v for k, v in raw.items() if k != "meta"}, path)
+    elif damage == "bad_meta":
+        torch.save({**raw, "meta": json.dumps({**json.loads(raw["meta"]), "step": "two"})}, path)
+    else:
+        torch.save([1, 2], path)
+    expected = {"bytes": "not a checkpoint that loads", "old_format": "checkpoint format 1, this version reads 2",
+                "no_meta": "checkpoint part 'meta' is missing",
+                "bad_meta": "checkpoint part 'meta.step' is missing or not int",
+                "not_dict": "not a checkpoint"}[damage]
+    with pytest.raises(CheckpointError, match=re.escape(f"{path}: {expected}")):
+        run(tmp_path / "run", config(), resume=True)
 
 
 def test_no_training_split(tmp_path: Path) -> None:

@@ -1,0 +1,119 @@
+"""Exact resume on a clips folder with tag targets: 2 epochs straight equal 1 epoch, a kill, and 1 resumed.
+
+Every configuration: with and without the tagging head (its own optimiser, weights and window draws
+live in the checkpoint), with a scratch and with a frozen pretrained text tower.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+from typing import Any
+
+import pytest
+import torch
+from safetensors.torch import load_file
+
+from encoders.checkpoints import read_checkpoint
+from encoders.config import ConfigMismatchError, TextConfig, TrainConfig
+from encoders.sentence import TextModelUnavailableError
+from encoders.tagging.config import TagTrainConfig
+from encoders.tagging.testing import build_tagging_fixture
+from encoders.train import train
+
+TIMING = {"samples_per_s", "epoch_s"}
+TAGS = TagTrainConfig(batch_size=2, window_frames=3)
+NO_TAGS = TagTrainConfig(mode="alone")
+
+
+class Killed(Exception):
+    pass
+
+
+@pytest.fixture(scope="module")
+def clips(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    torch.manual_seed(0)
+    # Five logs put two in the training split: 6 clips, so an epoch has 2 steps of 2 clips.
+    fixture = build_tagging_fixture(tmp_path_factory.mktemp("resume"), num_logs=5, num_frames=8, steps=1)
+    return Path(str(fixture["clips"]))
+
+
+def config(text: str) -> TrainConfig:
+    tiny = TrainConfig.preset("tiny")
+    model = tiny.model
+    if text == "frozen":  # the pretrained sentence encoder, frozen: its embeddings come from the text cache
+        model = dataclasses.replace(model, text=TextConfig(kind="pretrained", freeze=True, cache=True))
+    return dataclasses.replace(tiny, model=model, epochs=2, batch_size=2, max_steps_per_epoch=2, device="cpu")
+
+
+def run(clips: Path, out: Path, cfg: TrainConfig, tagging: TagTrainConfig, **kwargs: Any) -> list[str]:
+    torch.set_num_threads(1)
+    lines: list[str] = []
+    try:
+        train(clips, out, cfg, tagging=tagging, log=lines.append, progress=False, **kwargs)
+    except TextModelUnavailableError as exc:
+        pytest.skip(f"the pretrained sentence encoder is not installed: {exc}")
+    return lines
+
+
+def kill_after_first_epoch(epoch: int) -> None:
+    if epoch == 1:
+        raise Killed
+
+
+def metrics(run_dir: Path) -> list[dict[str, Any]]:
+    rows = [json.loads(line) for line in (run_dir / "metrics.jsonl").read_text().splitlines()]
+    return [{k: v for k, v in r.items() if k not in TIMING} for r in rows]
+
+
+def assert_same_weights(a: Path, b: Path) -> None:
+    x, y = load_file(str(a)), load_file(str(b))
+    assert x.keys() == y.keys()
+    differ = [k for k in x if not torch.equal(x[k], y[k])]
+    assert not differ, f"{a.name}: {len(differ)} tensors differ, e.g. {differ[:3]}"
+
+
+@pytest.mark.parametrize("text", ["scratch", "frozen"])
+@pytest.mark.parametrize("tags", [True, False], ids=["tags", "no_tags"])
+def test_resume_reproduces_the_straight_run(clips: Path, tmp_path: Path, tags: bool, text: str) -> None:
+    cfg, tagging = config(text), (TAGS if tags else NO_TAGS)
+    straight, resumed = tmp_path / "straight", tmp_path / "resumed"
+    lines = run(clips, straight, cfg, tagging)
+    assert any(line.startswith("tagging on") for line in lines) == tags
+
+    with pytest.raises(Killed):
+        run(clips, resumed, cfg, tagging, on_epoch_end=kill_after_first_epoch)
+    # A kill after the checkpoint but before the metrics row: the checkpoint's rows are restored.
+    (resumed / "metrics.jsonl").write_text("")
+    run(clips, resumed, cfg, tagging, resume=True)
+
+    assert metrics(resumed) == metrics(straight)
+    assert [(r["epoch"], r["step"]) for r in metrics(resumed)] == [(1, 2), (2, 4)]
+    assert_same_weights(resumed / "model.safetensors", straight / "model.safetensors")
+    assert (resumed / "tag_head.safetensors").exists() == tags
+    if tags:
+        assert_same_weights(resumed / "tag_head.safetensors", straight / "tag_head.safetensors")
+        checkpoint = read_checkpoint(resumed / "checkpoints" / "last.pt")
+        assert checkpoint.tagging is not None and checkpoint.tagging["state"]["batches_drawn"] == 4
+        assert checkpoint.tagging["state"]["optimizer"]["state"]  # AdamW moments of the head
+
+
+def test_resume_refuses_another_tagging_setup_unless_forced(clips: Path, tmp_path: Path) -> None:
+    out, cfg = tmp_path / "run", config("scratch")
+    with pytest.raises(Killed):
+        run(clips, out, cfg, TAGS, on_epoch_end=kill_after_first_epoch)
+    with pytest.raises(ConfigMismatchError, match=r"tagging\.batch_size: 2 -> 4"):
+        run(clips, out, cfg, dataclasses.replace(TAGS, batch_size=4), resume=True)
+    with pytest.raises(ConfigMismatchError, match="the checkpoint has a tagging head and this run has no"):
+        run(clips, out, cfg, NO_TAGS, resume=True)
+    run(clips, out, cfg, NO_TAGS, resume=True, force=True)
+    assert [r["epoch"] for r in metrics(out)] == [1, 2]
+
+    other = tmp_path / "other"
+    with pytest.raises(Killed):
+        run(clips, other, cfg, NO_TAGS, on_epoch_end=kill_after_first_epoch)
+    with pytest.raises(ConfigMismatchError, match="the checkpoint has no tagging head and this run has a"):
+        run(clips, other, cfg, TAGS, resume=True)
+    lines = run(clips, other, cfg, TAGS, resume=True, force=True)
+    assert any("tagging head starts afresh" in line for line in lines)

@@ -4,6 +4,11 @@
 KITTI tracking sequence into ``DIR/kitti_<seq>/`` (see :mod:`scenes.kitti`).
 ``--detections D [D ...]`` instead of ``--labels`` builds tracks from per-frame detections with
 :func:`scenes.tracking.import_kitti_detections`.
+
+``scenesearch import womd FILE.tfrecord... --out DIR [--overwrite]`` converts every Waymo Open
+Motion Dataset scenario of the files into ``DIR/womd_<scenario_id>/`` (see :mod:`scenes.womd`).
+Scenarios that cannot be imported are listed with the reason and the rest go on; the exit status is
+1 when any scenario was skipped.
 """
 
 from __future__ import annotations
@@ -12,7 +17,7 @@ import argparse
 import importlib
 from pathlib import Path
 
-HELP = "convert foreign logs into the AV2 layout (kitti)"
+HELP = "convert foreign logs into the AV2 layout (kitti, womd)"
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -34,6 +39,17 @@ def configure(parser: argparse.ArgumentParser) -> None:
     kitti.add_argument("--out", type=Path, required=True, help="folder that receives kitti_<seq>/")
     kitti.add_argument("--overwrite", action="store_true", help="replace an existing log of the same name")
     kitti.set_defaults(_import=_run_kitti)
+    womd = formats.add_parser(
+        "womd",
+        help="Waymo Open Motion Dataset scenarios (TFRecord files) → DIR/womd_<scenario_id>/",
+        description="Convert every Scenario of Waymo Open Motion Dataset TFRecord files into an AV2-layout "
+        "log DIR/womd_<scenario_id>/. Scenarios that cannot be imported are listed with the reason; the "
+        "others are imported. Exits 1 when any scenario was skipped.",
+    )
+    womd.add_argument("files", nargs="+", type=Path, metavar="FILE", help="TFRecord files of Scenario records")
+    womd.add_argument("--out", type=Path, required=True, help="folder that receives womd_<scenario_id>/")
+    womd.add_argument("--overwrite", action="store_true", help="replace existing logs of the same name")
+    womd.set_defaults(_import=_run_womd)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -60,3 +76,15 @@ def _run_kitti(args: argparse.Namespace) -> int:
     report = import_kitti_sequence(args.labels, args.poses, args.calib, args.out, overwrite=args.overwrite)
     print(report.summary())
     return 0
+
+
+def _run_womd(args: argparse.Namespace) -> int:
+    from scenes.womd import import_womd_files
+
+    batch = import_womd_files(args.files, args.out, overwrite=args.overwrite)
+    for report in batch.imported:
+        print(report.summary())
+    for skip in batch.skipped:
+        print(skip)
+    print(f"imported {len(batch.imported)} scenarios into {args.out}; skipped {len(batch.skipped)}")
+    return 1 if batch.skipped or not batch.imported else 0

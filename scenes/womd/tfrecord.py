@@ -1,0 +1,232 @@
+"""TFRecord framing, read and checked without TensorFlow.
+
+A TFRecord file is a sequence of records, each::
+
+    uint64 length            little-endian
+    uint32 masked_crc32c(length bytes)
+    byte   data[length]
+    uint32 masked_crc32c(data)
+
+Both checksums are verified; a mismatch or a file that ends inside a record raises
+:class:`WomdFormatError` naming the file and the 0-based record index.
+
+CRC-32C (Castagnoli) is not in the standard library. :func:`crc32c` computes it with numpy: the
+data is cut into equal rows whose CRCs advance together one byte column at a time, and the row
+CRCs are then merged pairwise with the GF(2) operator that shifts a CRC over a run of zero bytes.
+A record of 1 MB costs a few milliseconds instead of the ~0.1 s of a byte loop in Python.
+"""
+
+from __future__ import annotations
+
+import functools
+import struct
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from scenes.errors import ImportFormatError, ScenesError
+
+#: Reflected CRC-32C polynomial.
+_POLY = 0x82F63B78
+_MASK_DELTA = 0xA282EAD8
+_HEADER = struct.Struct("<QI")
+_FOOTER = struct.Struct("<I")
+#: Below this many bytes a plain byte loop is faster than the vectorised path.
+_SMALL_BYTES = 2048
+
+U32Array = NDArray[np.uint32]
+
+
+class WomdFormatError(ImportFormatError):
+    """A Waymo Open Motion Dataset file cannot be converted; names the file, the 0-based record
+    and, where it applies, the field (``tracks[3].states``)."""
+
+    def __init__(self, path: Path | str, message: str, record: int | None = None, field: str | None = None) -> None:
+        self.path = Path(path)
+        self.line = None
+        self.field = field
+        self.record = record
+        self.reason = message
+        where = str(self.path)
+        if record is not None:
+            where += f", record {record}"
+        if field is not None:
+            where += f", field '{field}'"
+        ScenesError.__init__(self, f"{where}: {message}")
+
+
+def _make_table() -> U32Array:
+    table = np.zeros(256, dtype=np.uint32)
+    for i in range(256):
+        c = i
+        for _ in range(8):
+            c = (c >> 1) ^ (_POLY if c & 1 else 0)
+        table[i] = c
+    return table
+
+
+_TABLE = _make_table()
+_TABLE_LIST = [int(v) for v in _TABLE]
+_BITS = np.arange(32, dtype=np.uint32)
+
+
+def _apply(columns: U32Array, values: U32Array) -> U32Array:
+    """A 32×32 GF(2) operator applied to many registers.
+
+    Args:
+        columns: (32,) the operator's image of each single bit ``1 << j``.
+        values: (N,) registers.
+
+    Returns:
+        (N,) the images of the registers.
+    """
+    bits = ((values[:, None] >> _BITS) & 1).astype(bool)  # (N, 32)
+    return np.bitwise_xor.reduce(np.where(bits, columns, np.uint32(0)), axis=1).astype(np.uint32)
+
+
+@functools.cache
+def _zeros_operator(log2_bytes: int) -> U32Array:
+    """(32,) columns of the operator that runs a raw CRC register over ``2**log2_bytes`` zero bytes."""
+    if log2_bytes == 0:
+        single = np.uint32(1) << _BITS  # (32,)
+        return (_TABLE[single & 0xFF] ^ (single >> 8)).astype(np.uint32)
+    half = _zeros_operator(log2_bytes - 1)
+    return _apply(half, half)
+
+
+def _shift_zeros(register: int, num_bytes: int) -> int:
+    """A raw CRC register after ``num_bytes`` zero bytes."""
+    values = np.array([register], dtype=np.uint32)
+    k = 0
+    while num_bytes:
+        if num_bytes & 1:
+            values = _apply(_zeros_operator(k), values)
+        num_bytes >>= 1
+        k += 1
+    return int(values[0])
+
+
+def _raw_crc_small(data: bytes | memoryview, register: int = 0) -> int:
+    table = _TABLE_LIST
+    for byte in bytes(data):
+        register = table[(register ^ byte) & 0xFF] ^ (register >> 8)
+    return register
+
+
+def _raw_crc(data: bytes | memoryview) -> int:
+    """The CRC register after ``data``, starting from 0, without the final inversion.
+
+    Starting from 0 makes leading zero bytes free, so the data is padded in front to a (rows × width)
+    block with a power-of-two row count; the rows then merge pairwise in log2(rows) steps.
+    """
+    n = len(data)
+    if n < _SMALL_BYTES:
+        return _raw_crc_small(data)
+    width_log2 = max(6, (n.bit_length() + 1) // 2)
+    width = 1 << width_log2
+    rows = 1 << max(0, (-(-n // width) - 1).bit_length())
+    block = np.zeros(rows * width, dtype=np.uint8)
+    block[rows * width - n :] = np.frombuffer(data, dtype=np.uint8)
+    columns = np.ascontiguousarray(block.reshape(rows, width).T)  # (width, rows)
+    registers = np.zeros(rows, dtype=np.uint32)
+    for column in columns:
+        registers = _TABLE[(registers ^ column) & 0xFF] ^ (registers >> 8)
+    level = width_log2
+    while registers.shape[0] > 1:
+        registers = _apply(_zeros_operator(level), registers[0::2]) ^ registers[1::2]
+        level += 1
+    return int(registers[0])
+
+
+def crc32c(data: bytes | memoryview) -> int:
+    """CRC-32C (Castagnoli) of ``data``, as TFRecord uses it (``crc32c(b"123456789") == 0xE3069283``)."""
+    # The standard CRC starts from 0xFFFFFFFF; by linearity that start contributes the all-ones
+    # register shifted over len(data) zero bytes.
+    start = _shift_zeros(0xFFFFFFFF, len(data))
+    return (_raw_crc(data) ^ start ^ 0xFFFFFFFF) & 0xFFFFFFFF
+
+
+def masked_crc32c(data: bytes | memoryview) -> int:
+    """The masked CRC-32C that TFRecord stores (rotated right by 15 bits, plus a constant)."""
+    crc = crc32c(data)
+    return ((((crc >> 15) | (crc << 17)) & 0xFFFFFFFF) + _MASK_DELTA) & 0xFFFFFFFF
+
+
+def encode_record(data: bytes) -> bytes:
+    """One framed record: length, its masked CRC, ``data``, its masked CRC."""
+    length = struct.pack("<Q", len(data))
+    return length + struct.pack("<I", masked_crc32c(length)) + data + struct.pack("<I", masked_crc32c(data))
+
+
+@dataclass(frozen=True)
+class Record:
+    """One record's payload and where it sits in its file.
+
+    Attributes:
+        index: 0-based record number in the file.
+        offset: byte offset of the record's header.
+        data: the payload.
+    """
+
+    index: int
+    offset: int
+    data: bytes
+
+
+def read_records(path: Path | str) -> Iterator[Record]:
+    """Yield the records of a TFRecord file, each checked against both of its CRCs.
+
+    Raises:
+        FileNotFoundError: the file does not exist.
+        WomdFormatError: a CRC does not match or the file ends inside a record; records before it
+            have been yielded.
+    """
+    for item in iter_records(path):
+        if isinstance(item, WomdFormatError):
+            raise item
+        yield item
+
+
+def iter_records(path: Path | str) -> Iterator[Record | WomdFormatError]:
+    """Like :func:`read_records`, but a record whose data fails its CRC is yielded as its error and
+    reading goes on with the next one (its length was verified, so the framing still holds).
+
+    Raises:
+        FileNotFoundError: the file does not exist.
+        WomdFormatError: the file ends inside a record or a length fails its CRC (nothing after it
+            can be framed).
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no such file")
+    with path.open("rb") as f:
+        index = 0
+        offset = 0
+        while True:
+            header = f.read(_HEADER.size)
+            if not header:
+                return
+            if len(header) < _HEADER.size:
+                raise WomdFormatError(
+                    path, f"truncated: the file ends inside a record header at byte {offset + len(header)}", index
+                )
+            length, length_crc = _HEADER.unpack(header)
+            if masked_crc32c(header[:8]) != length_crc:
+                raise WomdFormatError(path, f"corrupt record length at byte {offset} (CRC mismatch)", index)
+            data = f.read(length)
+            footer = f.read(_FOOTER.size)
+            if len(data) < length or len(footer) < _FOOTER.size:
+                raise WomdFormatError(
+                    path, f"truncated: the record at byte {offset} declares {length} bytes, "
+                    f"the file ends {len(data) + len(footer)} bytes into it", index
+                )
+            (data_crc,) = _FOOTER.unpack(footer)
+            if masked_crc32c(data) != data_crc:
+                yield WomdFormatError(path, f"corrupt record data at byte {offset} (CRC mismatch)", index)
+            else:
+                yield Record(index, offset, data)
+            offset += _HEADER.size + length + _FOOTER.size
+            index += 1

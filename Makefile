@@ -29,6 +29,8 @@ $(STAMP): pyproject.toml | system-deps
 	# The CPU build of torch first: a loose requirement would pull several GB of CUDA packages.
 	$(PIP) install -q torch==2.13.0
 	$(PIP) install -q -e '.[dev]'
+	# av2-api, the reference readers the tests compare against; its readers' imports are in [dev].
+	$(PIP) install -q --no-deps av2==0.3.6
 	touch $(STAMP)
 
 demo: install

@@ -18,6 +18,7 @@ Layout::
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -28,8 +29,8 @@ from numpy.typing import NDArray
 from common.atomic import atomic_path, atomic_write_bytes, atomic_write_text
 from scenes import schema
 from scenes.calibration import Calibration, CameraIntrinsics
-from scenes.errors import LogFormatError, Problem
-from scenes.geometry import SE3
+from scenes.errors import LogFormatError, MapFormatError, Problem, collect_problems
+from scenes.geometry import SE3, quat_to_rotmat
 from scenes.map import VectorMap
 from scenes.metadata import METADATA_FILENAME, LogMetadata
 from scenes.sensors import LidarSweep
@@ -77,7 +78,11 @@ def _se3_columns(quat_wxyz: NDArray[np.floating], translation_m: NDArray[np.floa
 
 
 def read_annotations(path: Path) -> Annotations:
-    """Read and validate ``annotations.feather``."""
+    """Read and validate ``annotations.feather``; rows come back ordered by (timestamp, track id).
+
+    The file may hold its rows in any order, as av2-api accepts: real logs keep ``EGO_VEHICLE`` rows
+    at the end or group rows by track. Problems name the row as it is in the file.
+    """
     table = schema.read_feather(path, schema.ANNOTATION_COLUMNS, schema.OPTIONAL_ANNOTATION_COLUMNS)
     if table.num_rows == 0:
         raise LogFormatError.single(path, "table has no rows")
@@ -92,7 +97,6 @@ def read_annotations(path: Path) -> Annotations:
     if not problems:
         problems += schema.check_quaternions(path, quat)
         problems += schema.check_positive_sizes(path, size)
-    problems += schema.check_increasing(path, timestamps, strict=False)
     problems += schema.check_unique_track_per_frame(path, timestamps, track_ids)
     if problems:
         raise LogFormatError(problems)
@@ -100,7 +104,17 @@ def read_annotations(path: Path) -> Annotations:
         points = np.asarray(table.column("num_interior_pts").to_numpy(), dtype=np.int64)
     else:
         points = np.full(table.num_rows, -1, dtype=np.int64)
-    return Annotations(timestamps, track_ids, categories, center, size, quat, points)
+    annotations = Annotations(timestamps, track_ids, categories, center, size, quat, points)
+    return annotations if _in_canonical_order(timestamps, track_ids) else annotations.sorted()
+
+
+def _in_canonical_order(timestamps_ns: NDArray[np.int64], track_ids: NDArray[np.str_]) -> bool:
+    """Whether rows are already ordered by (timestamp, track id), so that sorting can be skipped.
+
+    ``timestamps_ns``, ``track_ids``: (N,).
+    """
+    same = timestamps_ns[1:] == timestamps_ns[:-1]
+    return bool(np.all((timestamps_ns[1:] > timestamps_ns[:-1]) | (same & (track_ids[1:] > track_ids[:-1]))))
 
 
 def write_annotations(log_dir: Path, annotations: Annotations) -> Path:
@@ -126,20 +140,28 @@ def write_annotations(log_dir: Path, annotations: Annotations) -> Path:
 
 
 def read_ego_poses(path: Path) -> EgoTrajectory:
-    """Read and validate ``city_SE3_egovehicle.feather``."""
+    """Read and validate ``city_SE3_egovehicle.feather``; poses come back in time order.
+
+    Rows may be in any order (av2-api reads them into a mapping keyed by timestamp); a timestamp
+    on two rows is refused. Problems name the row as it is in the file.
+    """
     table = schema.read_feather(path, schema.POSE_COLUMNS)
     if table.num_rows == 0:
         raise LogFormatError.single(path, "table has no rows")
     timestamps = np.asarray(table.column("timestamp_ns").to_numpy(), dtype=np.int64)
     floats, quat, trans = _read_se3(table)
     problems = schema.check_finite(path, floats)
-    problems += schema.check_increasing(path, timestamps, strict=True)
+    problems += schema.check_unique_timestamps(path, timestamps)
     if not problems:
         problems += schema.check_quaternions(path, quat)
-        problems += schema.check_pose_jumps(path, timestamps, trans)
+    order = np.argsort(timestamps, kind="stable")
+    if not problems:
+        # Jumps are between poses neighbouring in time; their rows are mapped back to the file's.
+        jumps = schema.check_pose_jumps(path, timestamps[order], trans[order])
+        problems += [replace(p, row=None if p.row is None else int(order[p.row])) for p in jumps]
     if problems:
         raise LogFormatError(problems)
-    return EgoTrajectory(timestamps, quat, trans)
+    return EgoTrajectory(timestamps[order], quat[order], trans[order])
 
 
 def write_ego_poses(log_dir: Path, ego: EgoTrajectory) -> Path:
@@ -162,14 +184,15 @@ def find_map_file(log_dir: Path) -> Path | None:
 
 
 def read_map(path: Path) -> VectorMap:
+    """Read a map JSON file; :class:`LogFormatError` names the file and the key of every bad part."""
     try:
-        data = json.loads(path.read_text())
-    except (OSError, json.JSONDecodeError) as exc:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError, RecursionError) as exc:
         raise LogFormatError.single(path, f"unreadable map JSON: {exc}") from exc
     try:
         return VectorMap.from_json_dict(data)
-    except ValueError as exc:
-        raise LogFormatError.single(path, str(exc)) from exc
+    except MapFormatError as exc:
+        raise LogFormatError(exc.problems(path)) from exc
 
 
 def write_map(log_dir: Path, vector_map: VectorMap, log_id: str, city_name: str = "SIM") -> Path:
@@ -183,39 +206,70 @@ def write_map(log_dir: Path, vector_map: VectorMap, log_id: str, city_name: str 
 
 
 def read_calibration(log_dir: Path) -> Calibration:
-    """Extrinsics and intrinsics; an empty :class:`Calibration` when the log has none."""
+    """Extrinsics and intrinsics; an empty :class:`Calibration` when the log has none.
+
+    Beyond the columns, the values must make sense: every extrinsic rotation is a proper rotation,
+    focal lengths and image sizes are finite and positive, principal points and distortion finite.
+    Every problem of both files is reported.
+    """
     log_dir = Path(log_dir)
-    extrinsics: dict[str, SE3] = {}
-    intrinsics: dict[str, CameraIntrinsics] = {}
-    ext_path = log_dir / EXTRINSICS_PATH
-    if ext_path.is_file():
-        table = schema.read_feather(ext_path, schema.EXTRINSICS_COLUMNS)
-        floats, quat, trans = _read_se3(table)
-        problems = schema.check_finite(ext_path, floats) or schema.check_quaternions(ext_path, quat)
-        if problems:
-            raise LogFormatError(problems)
-        for i, name in enumerate(table.column("sensor_name").to_pylist()):
-            extrinsics[str(name)] = SE3.from_quat(quat[i], trans[i])
-    int_path = log_dir / INTRINSICS_PATH
-    if int_path.is_file():
-        table = schema.read_feather(int_path, schema.INTRINSICS_COLUMNS)
-        rows = table.to_pylist()
-        for i, row in enumerate(rows):
-            if row["fx_px"] <= 0 or row["fy_px"] <= 0:
-                raise LogFormatError.single(int_path, "focal length must be positive", field="fx_px", row=i)
-            intrinsics[str(row["sensor_name"])] = CameraIntrinsics(
-                sensor_name=str(row["sensor_name"]),
-                fx_px=float(row["fx_px"]),
-                fy_px=float(row["fy_px"]),
-                cx_px=float(row["cx_px"]),
-                cy_px=float(row["cy_px"]),
-                width_px=int(row["width_px"]),
-                height_px=int(row["height_px"]),
-                k1=float(row.get("k1") or 0.0),
-                k2=float(row.get("k2") or 0.0),
-                k3=float(row.get("k3") or 0.0),
-            )
-    return Calibration(extrinsics, intrinsics)
+    problems: list[Problem] = []
+    extrinsics = collect_problems(problems, _read_extrinsics, log_dir / EXTRINSICS_PATH)
+    intrinsics = collect_problems(problems, _read_intrinsics, log_dir / INTRINSICS_PATH)
+    if problems:
+        raise LogFormatError(problems)
+    return Calibration(extrinsics or {}, intrinsics or {})
+
+
+def _read_extrinsics(path: Path) -> dict[str, SE3]:
+    if not path.is_file():
+        return {}
+    table = schema.read_feather(path, schema.EXTRINSICS_COLUMNS)
+    floats, quat, trans = _read_se3(table)
+    problems = schema.check_finite(path, floats) or schema.check_quaternions(path, quat)
+    if problems:
+        raise LogFormatError(problems)
+    # The norm check already implies a rotation; checking the matrices actually used keeps every
+    # calibration file (AV2, KITTI) to the one rule of :func:`scenes.schema.check_rotations`.
+    rotation = quat_to_rotmat(quat)
+    problems = schema.check_rotations(path, rotation, "qw..qz")
+    if problems:
+        raise LogFormatError(problems)
+    names = [str(name) for name in table.column("sensor_name").to_pylist()]
+    return {name: SE3(rotation[i], trans[i]) for i, name in enumerate(names)}
+
+
+def _read_intrinsics(path: Path) -> dict[str, CameraIntrinsics]:
+    if not path.is_file():
+        return {}
+    distortion = schema.OPTIONAL_INTRINSICS_COLUMNS
+    table = schema.read_feather(path, schema.INTRINSICS_COLUMNS, distortion)
+    present = tuple(c for c in ("fx_px", "fy_px", "cx_px", "cy_px", *distortion) if c in table.column_names)
+    floats = _float_columns(table, present)
+    sizes = {c: np.asarray(table.column(c).to_numpy(), dtype=np.int64) for c in ("width_px", "height_px")}
+    problems = schema.check_finite(path, floats)
+    not_finite = {p.field for p in problems}  # a NaN is named once, as NaN, not again as not positive
+    focal = {c: floats[c] for c in ("fx_px", "fy_px") if c not in not_finite}
+    problems += schema.check_positive(path, focal, "focal length")
+    problems += schema.check_positive(path, sizes, "image size")
+    if problems:
+        raise LogFormatError(problems)
+    zeros = np.zeros(table.num_rows)
+    out: dict[str, CameraIntrinsics] = {}
+    for i, name in enumerate(str(n) for n in table.column("sensor_name").to_pylist()):
+        out[name] = CameraIntrinsics(
+            sensor_name=name,
+            fx_px=float(floats["fx_px"][i]),
+            fy_px=float(floats["fy_px"][i]),
+            cx_px=float(floats["cx_px"][i]),
+            cy_px=float(floats["cy_px"][i]),
+            width_px=int(sizes["width_px"][i]),
+            height_px=int(sizes["height_px"][i]),
+            k1=float(floats.get("k1", zeros)[i]),
+            k2=float(floats.get("k2", zeros)[i]),
+            k3=float(floats.get("k3", zeros)[i]),
+        )
+    return out
 
 
 def write_calibration(log_dir: Path, calibration: Calibration) -> None:

@@ -75,6 +75,30 @@ def collect_problems(problems: list[Problem], read: Callable[P, T], *args: P.arg
         return None
 
 
+class MapFormatError(ScenesError, ValueError):
+    """A map JSON object does not have the AV2 map shape; names the key of every bad part.
+
+    Attributes:
+        errors: ``(key, message, row)`` of each bad part: ``key`` is a path such as
+            ``lane_segments[42].left_lane_boundary`` (None for the top level), ``row`` the 0-based
+            point of a polyline, if any.
+    """
+
+    def __init__(self, errors: list[tuple[str | None, str, int | None]]) -> None:
+        if not errors:
+            raise ValueError("MapFormatError needs at least one error")
+        self.errors = list(errors)
+        lines = [f"{key or 'map'}{'' if row is None else f', point {row}'}: {message}"
+                 for key, message, row in self.errors[:20]]
+        if len(self.errors) > 20:
+            lines.append(f"... and {len(self.errors) - 20} more")
+        super().__init__("\n".join(lines))
+
+    def problems(self, path: Path) -> list[Problem]:
+        """The errors as :class:`Problem` records of the file they were read from."""
+        return [Problem(Path(path), message, field=key, row=row) for key, message, row in self.errors]
+
+
 class ImportFormatError(ScenesError):
     """A file of a foreign format (KITTI, detections, …) cannot be converted."""
 

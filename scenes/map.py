@@ -7,12 +7,13 @@
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 
+from scenes.errors import MapFormatError
 from scenes.geometry import FloatArray
 
 
@@ -110,7 +111,8 @@ class DrivableArea:
 
     Attributes:
         id: area id.
-        area_boundary: (N, 3) polygon vertices in the city frame.
+        area_boundary: (N, 3) polygon vertices in the city frame, as the file lists them: the first
+            vertex is not repeated at the end (av2-api's ``DrivableArea.xyz`` appends it).
     """
 
     id: int
@@ -162,43 +164,133 @@ class VectorMap:
         }
 
     @staticmethod
-    def from_json_dict(data: Mapping[str, Any]) -> VectorMap:
-        """Parse the AV2 map JSON object. Raises ``KeyError``/``ValueError`` naming the element."""
+    def from_json_dict(data: object) -> VectorMap:
+        """Parse the AV2 map JSON object.
 
-        def pts(items: list[Mapping[str, float]]) -> FloatArray:
-            return np.array([[p["x"], p["y"], p.get("z", 0.0)] for p in items], dtype=np.float64).reshape(-1, 3)
-
-        lanes: dict[int, LaneSegment] = {}
-        for key, s in data.get("lane_segments", {}).items():
-            try:
-                lanes[int(s["id"])] = LaneSegment(
-                    id=int(s["id"]),
-                    is_intersection=bool(s["is_intersection"]),
-                    lane_type=str(s["lane_type"]),
-                    left_lane_boundary=pts(s["left_lane_boundary"]),
-                    right_lane_boundary=pts(s["right_lane_boundary"]),
-                    left_lane_mark_type=str(s.get("left_lane_mark_type", "NONE")),
-                    right_lane_mark_type=str(s.get("right_lane_mark_type", "NONE")),
-                    successors=tuple(s.get("successors") or ()),
-                    predecessors=tuple(s.get("predecessors") or ()),
-                    left_neighbor_id=s.get("left_neighbor_id"),
-                    right_neighbor_id=s.get("right_neighbor_id"),
-                )
-            except (KeyError, ValueError, TypeError) as exc:
-                raise ValueError(f"lane_segments[{key}]: {exc!r}") from exc
-        crossings: dict[int, PedestrianCrossing] = {}
-        for key, c in data.get("pedestrian_crossings", {}).items():
-            try:
-                crossings[int(c["id"])] = PedestrianCrossing(int(c["id"]), pts(c["edge1"]), pts(c["edge2"]))
-            except (KeyError, ValueError, TypeError) as exc:
-                raise ValueError(f"pedestrian_crossings[{key}]: {exc!r}") from exc
-        areas: dict[int, DrivableArea] = {}
-        for key, a in data.get("drivable_areas", {}).items():
-            try:
-                areas[int(a["id"])] = DrivableArea(int(a["id"]), pts(a["area_boundary"]))
-            except (KeyError, ValueError, TypeError) as exc:
-                raise ValueError(f"drivable_areas[{key}]: {exc!r}") from exc
+        A missing section is an empty one. Raises :class:`~scenes.errors.MapFormatError` naming the
+        key of every bad part (the top level, a section, an element, one of its fields, a point).
+        """
+        parser = _MapParser()
+        if not isinstance(data, Mapping):
+            raise MapFormatError([(None, "map JSON must be an object with 'lane_segments', 'pedestrian_crossings' "
+                                         f"and 'drivable_areas', got {_kind(data)}", None)])
+        lanes = {s.id: s for s in parser.section(data, "lane_segments", parser.lane)}
+        crossings = {c.id: c for c in parser.section(data, "pedestrian_crossings", parser.crossing)}
+        areas = {a.id: a for a in parser.section(data, "drivable_areas", parser.area)}
+        if parser.errors:
+            raise MapFormatError(parser.errors)
         return VectorMap(lanes, crossings, areas)
+
+
+def _kind(value: object) -> str:
+    """The JSON kind of a parsed value, for messages."""
+    names = {dict: "an object", list: "a list", str: "a string", bool: "a boolean", type(None): "null"}
+    return names.get(type(value), "a number" if isinstance(value, int | float) else type(value).__name__)
+
+
+class _BadPart(Exception):
+    """One bad part of a map element; the parser records it and goes on with the next element."""
+
+    def __init__(self, key: str, message: str, row: int | None = None) -> None:
+        super().__init__(message)
+        self.key, self.message, self.row = key, message, row
+
+
+T = TypeVar("T")
+
+
+class _MapParser:
+    """Parses the sections of a map JSON object, collecting every bad part with its key."""
+
+    def __init__(self) -> None:
+        self.errors: list[tuple[str | None, str, int | None]] = []
+
+    def section(self, data: Mapping[str, Any], name: str, parse: Callable[[str, Mapping[str, Any]], T]) -> list[T]:
+        items = data.get(name, {})
+        if not isinstance(items, Mapping):
+            self.errors.append((name, f"must be an object keyed by id, got {_kind(items)}", None))
+            return []
+        out = []
+        for key, item in items.items():
+            where = f"{name}[{key}]"
+            try:
+                if not isinstance(item, Mapping):
+                    raise _BadPart(where, f"must be an object, got {_kind(item)}")
+                out.append(parse(where, item))
+            except _BadPart as bad:
+                self.errors.append((bad.key, bad.message, bad.row))
+        return out
+
+    @staticmethod
+    def required(where: str, item: Mapping[str, Any], name: str) -> Any:
+        if name not in item:
+            raise _BadPart(f"{where}.{name}", "missing key")
+        return item[name]
+
+    @staticmethod
+    def as_id(key: str, value: object) -> int:
+        """An element id: a JSON integer, or a string of one (AV2 keys are strings)."""
+        if isinstance(value, int) and not isinstance(value, bool):
+            return value
+        if isinstance(value, str) and value.lstrip("-").isdigit():
+            return int(value)
+        raise _BadPart(key, f"must be an integer id, got {_kind(value)}")
+
+    def integer(self, where: str, item: Mapping[str, Any], name: str) -> int:
+        return self.as_id(f"{where}.{name}", self.required(where, item, name))
+
+    def optional_id(self, where: str, item: Mapping[str, Any], name: str) -> int | None:
+        value = item.get(name)
+        return None if value is None else self.as_id(f"{where}.{name}", value)
+
+    def ids(self, where: str, item: Mapping[str, Any], name: str) -> tuple[int, ...]:
+        values = item.get(name) or []
+        if not isinstance(values, list):
+            raise _BadPart(f"{where}.{name}", f"must be a list of ids, got {_kind(values)}")
+        return tuple(self.as_id(f"{where}.{name}[{i}]", v) for i, v in enumerate(values))
+
+    def points(self, where: str, item: Mapping[str, Any], name: str) -> FloatArray:
+        """(N, 3) polyline from a list of ``{"x", "y", "z"}`` points (z defaults to 0); N ≥ 1."""
+        key = f"{where}.{name}"
+        values = self.required(where, item, name)
+        if not isinstance(values, list):
+            raise _BadPart(key, f"must be a list of {{x, y, z}} points, got {_kind(values)}")
+        if not values:
+            raise _BadPart(key, "polyline has no points")
+        out = np.zeros((len(values), 3), dtype=np.float64)
+        for row, point in enumerate(values):
+            if not isinstance(point, Mapping):
+                raise _BadPart(key, f"point must be an object with x, y, z, got {_kind(point)}", row)
+            for axis, coord in enumerate("xyz"):
+                value = point.get(coord, 0.0 if coord == "z" else None)
+                if value is None:
+                    raise _BadPart(key, f"point has no '{coord}'", row)
+                if isinstance(value, bool) or not isinstance(value, int | float):
+                    raise _BadPart(key, f"coordinate '{coord}' must be a number, got {_kind(value)}", row)
+                out[row, axis] = value
+        return out
+
+    def lane(self, where: str, s: Mapping[str, Any]) -> LaneSegment:
+        return LaneSegment(
+            id=self.integer(where, s, "id"),
+            is_intersection=bool(self.required(where, s, "is_intersection")),
+            lane_type=str(self.required(where, s, "lane_type")),
+            left_lane_boundary=self.points(where, s, "left_lane_boundary"),
+            right_lane_boundary=self.points(where, s, "right_lane_boundary"),
+            left_lane_mark_type=str(s.get("left_lane_mark_type", "NONE")),
+            right_lane_mark_type=str(s.get("right_lane_mark_type", "NONE")),
+            successors=self.ids(where, s, "successors"),
+            predecessors=self.ids(where, s, "predecessors"),
+            left_neighbor_id=self.optional_id(where, s, "left_neighbor_id"),
+            right_neighbor_id=self.optional_id(where, s, "right_neighbor_id"),
+        )
+
+    def crossing(self, where: str, c: Mapping[str, Any]) -> PedestrianCrossing:
+        return PedestrianCrossing(self.integer(where, c, "id"), self.points(where, c, "edge1"),
+                                  self.points(where, c, "edge2"))
+
+    def area(self, where: str, a: Mapping[str, Any]) -> DrivableArea:
+        return DrivableArea(self.integer(where, a, "id"), self.points(where, a, "area_boundary"))
 
 
 def resample_polyline(points_xyz: FloatArray, num_points: int) -> FloatArray:

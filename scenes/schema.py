@@ -53,6 +53,7 @@ INTRINSICS_COLUMNS: dict[str, str] = {
     "height_px": "int",
     "width_px": "int",
 }
+OPTIONAL_INTRINSICS_COLUMNS: dict[str, str] = {"k1": "float", "k2": "float", "k3": "float"}
 
 #: ``sensors/lidar/<timestamp_ns>.feather``: ``x y z`` are required, the rest optional.
 LIDAR_REQUIRED_COLUMNS: dict[str, str] = {"x": "float", "y": "float", "z": "float"}
@@ -69,6 +70,9 @@ LIDAR_COLUMNS: dict[str, str] = {
 
 #: A quaternion whose norm is further than this from 1 is not a rotation.
 QUAT_NORM_TOLERANCE = 1e-2
+#: A matrix is a rotation when ``R·Rᵀ`` is within this of the identity (entrywise) and its determinant
+#: within this of +1. Calibration files print rotations to 6–7 digits (KITTI: errors about 1e-7).
+ROTATION_TOLERANCE = 1e-3
 #: Fastest believable ego speed between consecutive poses. Anything faster is a pose jump.
 MAX_EGO_SPEED_MPS = 70.0
 
@@ -140,16 +144,55 @@ def check_quaternions(path: Path, quat_wxyz: NDArray[np.floating]) -> list[Probl
     return []
 
 
-def check_increasing(path: Path, timestamps_ns: NDArray[np.integer], strict: bool) -> list[Problem]:
-    """Timestamps that go backwards (or repeat, when ``strict``). ``timestamps_ns``: (N,)."""
+def check_rotations(path: Path, rotation: NDArray[np.floating], field: str) -> list[Problem]:
+    """Matrices that are not proper rotations: not orthonormal, or a reflection (determinant −1).
+
+    ``rotation``: (N, 3, 3). An all-zero or scaled matrix fails, which would otherwise collapse or
+    stretch every point it maps.
+    """
+    rot = np.asarray(rotation, dtype=np.float64).reshape(-1, 3, 3)
+    if rot.shape[0] == 0:
+        return []
+    gram_error = np.abs(rot @ np.swapaxes(rot, 1, 2) - np.eye(3)).max(axis=(1, 2))
+    det = np.linalg.det(rot)
+    bad = ~((gram_error <= ROTATION_TOLERANCE) & (np.abs(det - 1.0) <= ROTATION_TOLERANCE))
+    if not bad.any():
+        return []
+    row = int(np.argmax(bad))
+    return [
+        Problem(path, f"not a proper rotation: max |R·Rᵀ − I| = {gram_error[row]:.3g}, det = {det[row]:.3g} "
+                "(expected orthonormal, determinant +1)", field=field, row=row)
+    ]
+
+
+def check_positive(path: Path, columns: Mapping[str, NDArray[np.number]], what: str) -> list[Problem]:
+    """Values that are zero or negative in any column (each (N,)); names the first bad row of each.
+
+    NaN fails too (it is not positive), so a missing value cannot slip through a ``<= 0`` test.
+    """
+    problems = []
+    for name, values in columns.items():
+        bad = ~(np.asarray(values, dtype=np.float64) > 0)
+        if bad.any():
+            problems.append(Problem(path, f"{what} must be positive", field=name, row=int(np.argmax(bad))))
+    return problems
+
+
+def check_unique_timestamps(path: Path, timestamps_ns: NDArray[np.integer]) -> list[Problem]:
+    """A timestamp that appears on more than one row (in any order). ``timestamps_ns``: (N,).
+
+    Names the later of the first two rows that share a timestamp.
+    """
     if timestamps_ns.shape[0] < 2:
         return []
-    step = np.diff(timestamps_ns)
-    bad = step <= 0 if strict else step < 0
-    if bad.any():
-        row = int(np.argmax(bad)) + 1
-        word = "increasing" if strict else "non-decreasing"
-        return [Problem(path, f"timestamps not {word}", field="timestamp_ns", row=row)]
+    order = np.argsort(timestamps_ns, kind="stable")
+    ts = timestamps_ns[order]
+    dup = ts[1:] == ts[:-1]
+    if dup.any():
+        i = int(np.argmax(dup))
+        first, second = sorted((int(order[i]), int(order[i + 1])))
+        return [Problem(path, f"timestamp {int(ts[i])} appears twice (rows {first} and {second}); "
+                        "timestamps must be unique", field="timestamp_ns", row=second)]
     return []
 
 
@@ -173,12 +216,7 @@ def check_unique_track_per_frame(
 
 def check_positive_sizes(path: Path, size_lwh_m: NDArray[np.floating]) -> list[Problem]:
     """Box sizes that are zero or negative. ``size_lwh_m``: (N, 3)."""
-    problems = []
-    for axis, name in enumerate(SIZE_COLUMNS):
-        bad = size_lwh_m[:, axis] <= 0
-        if bad.any():
-            problems.append(Problem(path, "box size must be positive", field=name, row=int(np.argmax(bad))))
-    return problems
+    return check_positive(path, {name: size_lwh_m[:, axis] for axis, name in enumerate(SIZE_COLUMNS)}, "box size")
 
 
 def check_pose_jumps(

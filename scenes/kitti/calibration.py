@@ -11,6 +11,7 @@ from scenes.calibration import Calibration, CameraIntrinsics
 from scenes.errors import ImportFormatError
 from scenes.geometry import SE3, FloatArray
 from scenes.kitti.text import parse_floats, read_lines
+from scenes.schema import check_rotations
 
 #: Height of the Velodyne above the road in the KITTI recording platform, metres.
 VELODYNE_HEIGHT_M = 1.73
@@ -60,7 +61,15 @@ class KittiCalibration:
 
 
 def read_kitti_calibration(path: Path | str) -> KittiCalibration:
-    """Read ``calib/<seq>.txt`` (``key: v1 v2 …`` lines; tracking and object spellings accepted)."""
+    """Read ``calib/<seq>.txt`` (``key: v1 v2 …`` lines; tracking and object spellings accepted).
+
+    Beyond parsing, the values must describe a camera rig: ``R0_rect`` and the rotation part of
+    ``Tr_velo_to_cam`` are proper rotations (orthonormal, determinant +1) and ``P2``'s focal lengths
+    are positive. A file of zeros would otherwise import, with every box mapped to one point.
+
+    Raises:
+        ImportFormatError: naming the file, the line and the entry at fault.
+    """
     path = Path(path)
     entries: dict[str, tuple[int, list[str]]] = {}
     for line_no, line in enumerate(read_lines(path), start=1):
@@ -71,7 +80,8 @@ def read_kitti_calibration(path: Path | str) -> KittiCalibration:
             key, _, rest = line.strip().partition(" ")
         entries[key.strip()] = (line_no, rest.split())
 
-    def matrix(names: tuple[str, ...], shape: tuple[int, int]) -> FloatArray:
+    def matrix(names: tuple[str, ...], shape: tuple[int, int]) -> tuple[FloatArray, int, str]:
+        """The entry as a matrix, with its line number and the spelling found."""
         for name in names:
             if name in entries:
                 line_no, tokens = entries[name]
@@ -79,14 +89,22 @@ def read_kitti_calibration(path: Path | str) -> KittiCalibration:
                     raise ImportFormatError(
                         path, f"expected {shape[0] * shape[1]} numbers, got {len(tokens)}", line=line_no, field=name
                     )
-                return parse_floats(path, line_no, tokens).reshape(shape)
+                return parse_floats(path, line_no, tokens).reshape(shape), line_no, name
         raise ImportFormatError(path, "missing calibration entry", field=" or ".join(names))
 
-    return KittiCalibration(
-        P2=matrix(("P2",), (3, 4)),
-        R0_rect=matrix(("R0_rect", "R_rect"), (3, 3)),
-        Tr_velo_to_cam=matrix(("Tr_velo_to_cam", "Tr_velo_cam"), (3, 4)),
-    )
+    p2, p2_line, p2_name = matrix(("P2",), (3, 4))
+    r0_rect, r0_line, r0_name = matrix(("R0_rect", "R_rect"), (3, 3))
+    velo_to_cam, tr_line, tr_name = matrix(("Tr_velo_to_cam", "Tr_velo_cam"), (3, 4))
+    rotations = (("matrix", r0_rect, r0_line, r0_name), ("rotation part", velo_to_cam[:, :3], tr_line, tr_name))
+    for what, rotation, line_no, name in rotations:
+        problems = check_rotations(path, rotation[None], name)
+        if problems:
+            raise ImportFormatError(path, f"{what} is {problems[0].message}", line=line_no, field=name)
+    for value, what in ((p2[0, 0], "fx (P2[0,0])"), (p2[1, 1], "fy (P2[1,1])")):
+        if not value > 0:
+            raise ImportFormatError(path, f"focal length {what} must be positive, got {value:g}", line=p2_line,
+                                    field=p2_name)
+    return KittiCalibration(P2=p2, R0_rect=r0_rect, Tr_velo_to_cam=velo_to_cam)
 
 
 def kitti_calibration_to_av2(

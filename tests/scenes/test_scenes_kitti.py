@@ -4,6 +4,7 @@ and facts about the real development sequences in ../shared/realdata."""
 from __future__ import annotations
 
 import json
+import re
 import sys
 import types
 from pathlib import Path
@@ -243,6 +244,48 @@ def test_bad_calibration(tmp_path: Path) -> None:
     with pytest.raises(ImportFormatError, match="expected 12 numbers, got 11") as info:
         read_kitti_calibration(paths["calib"])
     assert (info.value.line, info.value.field) == (2, "P2")
+
+
+_TR = "Tr_velo_to_cam: " + " ".join(str(v) for v in NOMINAL_VELO_TO_CAM.ravel())
+
+
+@pytest.mark.parametrize(
+    ("old", "new", "line", "field", "message"),
+    [
+        pytest.param("R0_rect: 1 0 0 0 1 0 0 0 1", "R0_rect: 0 0 0 0 0 0 0 0 0", 3, "R0_rect",
+                     "matrix is not a proper rotation", id="rectification-all-zeros"),
+        pytest.param("R0_rect: 1 0 0 0 1 0 0 0 1", "R_rect: 1 0 0 0 1 0 0 0 -1", 3, "R_rect",
+                     "det = -1", id="rectification-reflection"),
+        pytest.param("R0_rect: 1 0 0 0 1 0 0 0 1", "R0_rect: 2 0 0 0 2 0 0 0 2", 3, "R0_rect",
+                     "not a proper rotation", id="rectification-scaled"),
+        pytest.param(_TR, "Tr_velo_cam: " + " ".join(["0"] * 12), 4, "Tr_velo_cam",
+                     "rotation part is not a proper rotation", id="velo-to-cam-all-zeros"),
+        pytest.param(_TR, "Tr_velo_to_cam: 0 -1 0 0 0 0 -1 -0.08 1 0 0.2 -0.27", 4, "Tr_velo_to_cam",
+                     "rotation part is not a proper rotation", id="velo-to-cam-sheared"),
+        pytest.param("P2: 700 0 600 45 0 700", "P2: 0 0 600 45 0 700", 2, "P2", "fx (P2[0,0]) must be positive",
+                     id="focal-length-zero"),
+        pytest.param("P2: 700 0 600 45 0 700", "P2: 700 0 600 45 0 -700", 2, "P2", "fy (P2[1,1]) must be positive",
+                     id="focal-length-negative"),
+        pytest.param("P2: 700 0 600 45 0 700", "P2: nan 0 600 45 0 700", 2, "value 1", "NaN",
+                     id="focal-length-nan"),
+    ],
+)
+def test_calibration_values_must_describe_a_rig(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], old: str, new: str, line: int, field: str, message: str
+) -> None:
+    """A calibration that parses but is not a camera rig is refused, naming file, line and entry,
+    before anything is imported (an all-zero rectification once put every box at one point)."""
+    paths = _inputs(tmp_path)
+    assert old in CALIB_TEXT
+    paths["calib"].write_text(CALIB_TEXT.replace(old, new))
+    with pytest.raises(ImportFormatError, match=re.escape(message)) as info:
+        read_kitti_calibration(paths["calib"])
+    assert (info.value.path, info.value.line, info.value.field) == (paths["calib"], line, field)
+    argv = ["import", "kitti", "--labels", str(paths["labels"]), "--poses", str(paths["poses"]),
+            "--calib", str(paths["calib"]), "--out", str(tmp_path / "out")]
+    assert cli_main(argv) == 2
+    assert f"{paths['calib']}, line {line}, field '{field}'" in capsys.readouterr().err
+    assert not (tmp_path / "out" / "kitti_0042").exists()
 
 
 def test_files_of_different_sequences_are_refused(tmp_path: Path) -> None:

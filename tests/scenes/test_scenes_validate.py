@@ -13,7 +13,7 @@ import pyarrow.feather as feather
 import pytest
 
 from retrieval.cli import main as cli_main
-from scenes import av2_io
+from scenes import av2_io, schema
 from scenes.calibration import Calibration, CameraIntrinsics
 from scenes.errors import LogFormatError, Problem, collect_problems
 from scenes.geometry import SE3, yaw_to_quat
@@ -152,8 +152,8 @@ def _copy_row(src: int, dst: int) -> Callable[[np.ndarray], np.ndarray]:
     [
         pytest.param(ANN, "ty_m", _put(7, np.nan), 7, "ty_m", "NaN", id="nan-names-row-and-field"),
         pytest.param(POSES, "qz", _put(3, np.inf), 3, "qz", "NaN or inf", id="inf-in-poses"),
-        pytest.param(POSES, "timestamp_ns", _copy_row(3, 4), 4, "timestamp_ns", "not increasing",
-                     id="pose-timestamps-not-increasing"),
+        pytest.param(POSES, "timestamp_ns", _copy_row(3, 4), 4, "timestamp_ns", "appears twice (rows 3 and 4)",
+                     id="pose-timestamp-repeated"),
         # rows 3 and 4 share a timestamp
         pytest.param(ANN, "track_uuid", _copy_row(3, 4), 4, "track_uuid", "twice", id="track-twice-in-one-frame"),
         pytest.param(ANN, "qw", _put(2, 1.5), 2, "qw..qz", "norm 1.5", id="quaternion-far-from-unit-norm"),
@@ -174,15 +174,28 @@ def test_one_bad_value_names_file_row_and_field(
     assert message in problem.message
 
 
-def test_annotation_timestamps_going_backwards(log_dir: Path) -> None:
-    def change(t: pa.Table) -> pa.Table:
-        ts = t.column("timestamp_ns").to_numpy().copy()
-        ts[6] = ts[0] - 1
-        return _set(t, "timestamp_ns", ts, pa.int64())
+def test_rows_in_any_order_are_read_in_time_order(log_dir: Path) -> None:
+    """Annotations and poses whose rows are not in time order open, sorted; a pose jump still names
+    the row as it is in the file."""
+    before = Log.open(log_dir)
+    reverse = lambda t: t.take(pa.array(np.arange(t.num_rows)[::-1]))  # noqa: E731
+    _edit(log_dir / ANN, reverse)
+    _edit(log_dir / POSES, reverse)
+    after = Log.open(log_dir)
+    np.testing.assert_array_equal(after.annotations.timestamp_ns, before.annotations.timestamp_ns)
+    np.testing.assert_array_equal(after.annotations.track_id, before.annotations.track_id)
+    np.testing.assert_array_equal(after.ego.timestamps_ns, before.ego.timestamps_ns)
+    np.testing.assert_array_equal(after.ego.translation_m, before.ego.translation_m)
+    assert validate_log(log_dir).ok
 
-    _edit(log_dir / ANN, change)
-    problems = _open_problems(log_dir)
-    assert any(p.path.name == ANN and p.row == 6 and p.field == "timestamp_ns" for p in problems), problems
+    def jump(t: pa.Table) -> pa.Table:  # reversed file: file row 2 is the 7th pose in time
+        tx = t.column("tx_m").to_numpy().copy()
+        tx[:3] += 30.0
+        return _set(t, "tx_m", tx, pa.float64())
+
+    _edit(log_dir / POSES, jump)
+    problem = _only(_open_problems(log_dir))
+    assert (problem.path.name, problem.row, problem.field) == (POSES, 2, "tx_m,ty_m,tz_m")
 
 
 def test_empty_table(log_dir: Path) -> None:
@@ -291,14 +304,77 @@ def test_map_json_unparseable(log_dir: Path) -> None:
     assert problem.path == map_path and "map JSON" in problem.message
 
 
-def test_map_element_missing_key(log_dir: Path) -> None:
+def _lane(data: dict) -> dict:
+    return data["lane_segments"]["1"]
+
+
+@pytest.mark.parametrize(
+    ("change", "field", "row", "message"),
+    [
+        pytest.param(lambda d: [], None, None, "got a list", id="map-is-a-list"),
+        pytest.param(lambda d: {**d, "lane_segments": list(d["lane_segments"].values())}, "lane_segments", None,
+                     "must be an object keyed by id, got a list", id="lane-segments-is-a-list"),
+        pytest.param(lambda d: {**d, "drivable_areas": 3}, "drivable_areas", None, "got a number",
+                     id="section-is-a-number"),
+        pytest.param(lambda d: {**d, "lane_segments": {"1": "lane"}}, "lane_segments[1]", None,
+                     "must be an object, got a string", id="element-is-a-string"),
+        pytest.param(lambda d: _lane(d).pop("right_lane_boundary") and d, "lane_segments[1].right_lane_boundary",
+                     None, "missing key", id="element-missing-key"),
+        pytest.param(lambda d: _lane(d).pop("id") and d, "lane_segments[1].id", None, "missing key",
+                     id="element-missing-id"),
+        pytest.param(lambda d: _lane(d).update(id=[1]) or d, "lane_segments[1].id", None, "integer id",
+                     id="id-is-a-list"),
+        pytest.param(lambda d: _lane(d).update(left_lane_boundary={"x": 1}) or d,
+                     "lane_segments[1].left_lane_boundary", None, "list of {x, y, z} points", id="polyline-is-dict"),
+        pytest.param(lambda d: _lane(d).update(left_lane_boundary=[]) or d, "lane_segments[1].left_lane_boundary",
+                     None, "no points", id="polyline-empty"),
+        pytest.param(lambda d: _lane(d)["left_lane_boundary"][1].pop("y") and d,
+                     "lane_segments[1].left_lane_boundary", 1, "point has no 'y'", id="point-missing-y"),
+        pytest.param(lambda d: _lane(d)["right_lane_boundary"][0].update(x="far") or d,
+                     "lane_segments[1].right_lane_boundary", 0, "must be a number, got a string",
+                     id="coordinate-is-a-string"),
+        pytest.param(lambda d: _lane(d).update(successors=7) or d, "lane_segments[1].successors", None,
+                     "list of ids", id="successors-not-a-list"),
+        pytest.param(lambda d: _lane(d).update(successors=[2, None]) or d, "lane_segments[1].successors[1]", None,
+                     "integer id", id="successor-is-null"),
+    ],
+)
+def test_bad_map_shape_names_file_and_key(
+    log_dir: Path, change: Callable[[dict], object], field: str | None, row: int | None, message: str
+) -> None:
+    """Each bad shape is one problem naming the map file and the key, in validate and in the reader that
+    captioning and clips use (no traceback)."""
+    map_path = av2_io.find_map_file(log_dir)
+    assert map_path is not None
+    map_path.write_text(json.dumps(change(json.loads(map_path.read_text()))))
+    problem = _only(validate_log(log_dir).problems)
+    assert (problem.path, problem.field, problem.row) == (map_path, field, row)
+    assert message in problem.message
+    with pytest.raises(LogFormatError) as info:
+        _ = Log.open(log_dir).map
+    assert info.value.problems == [problem]
+
+
+def test_every_bad_map_element_is_reported(log_dir: Path) -> None:
     map_path = av2_io.find_map_file(log_dir)
     assert map_path is not None
     data = json.loads(map_path.read_text())
-    del data["lane_segments"]["1"]["right_lane_boundary"]
+    data["lane_segments"]["2"] = {**_lane(data), "id": 2, "lane_type": None}
+    del data["lane_segments"]["2"]["is_intersection"]
+    del _lane(data)["left_lane_boundary"]
+    data["pedestrian_crossings"] = {"5": {"id": 5, "edge1": [{"x": 0, "y": 0}], "edge2": 4}}
     map_path.write_text(json.dumps(data))
+    fields = [p.field for p in validate_log(log_dir).problems]
+    assert fields == ["lane_segments[1].left_lane_boundary", "lane_segments[2].is_intersection",
+                      "pedestrian_crossings[5].edge2"]
+
+
+def test_map_not_utf8(log_dir: Path) -> None:
+    map_path = av2_io.find_map_file(log_dir)
+    assert map_path is not None
+    map_path.write_bytes(b"\xff\xfe{")
     problem = _only(validate_log(log_dir).problems)
-    assert "lane_segments[1]" in problem.message and "right_lane_boundary" in problem.message
+    assert problem.path == map_path and "unreadable map JSON" in problem.message
 
 
 def test_map_nan_coordinate(log_dir: Path) -> None:
@@ -336,6 +412,54 @@ def test_intrinsics_missing_column(log_dir: Path) -> None:
     assert (problem.path, problem.field) == (path, "fy_px")
 
 
+@pytest.mark.parametrize(
+    ("column", "value", "message"),
+    [
+        pytest.param("fx_px", float("nan"), "NaN or inf", id="fx-nan"),
+        pytest.param("fy_px", float("inf"), "NaN or inf", id="fy-inf"),
+        pytest.param("cx_px", float("nan"), "NaN or inf", id="cx-nan"),
+        pytest.param("fx_px", 0.0, "focal length must be positive", id="fx-zero"),
+        pytest.param("fy_px", -500.0, "focal length must be positive", id="fy-negative"),
+        pytest.param("width_px", 0, "image size must be positive", id="width-zero"),
+        pytest.param("k1", float("nan"), "NaN or inf", id="distortion-nan"),
+    ],
+)
+def test_intrinsics_values_must_make_sense(log_dir: Path, column: str, value: float, message: str) -> None:
+    path = log_dir / av2_io.INTRINSICS_PATH
+    _edit(path, lambda t: _set(t, column, [value], t.column(column).type))
+    problem = _only(validate_log(log_dir).problems)
+    assert (problem.path, problem.row, problem.field) == (path, 0, column)
+    assert message in problem.message
+    with pytest.raises(LogFormatError, match=column):
+        av2_io.read_calibration(log_dir)
+
+
+def test_every_calibration_problem_of_both_files_is_reported(log_dir: Path) -> None:
+    _edit(log_dir / av2_io.EXTRINSICS_PATH, lambda t: _set(t, "qw", [0.0], pa.float64()))
+    _edit(log_dir / av2_io.EXTRINSICS_PATH, lambda t: _set(t, "qz", [0.0], pa.float64()))
+    _edit(log_dir / av2_io.INTRINSICS_PATH, lambda t: _set(t, "fx_px", [float("nan")], pa.float64()))
+    _edit(log_dir / av2_io.INTRINSICS_PATH, lambda t: _set(t, "height_px", [0], t.column("height_px").type))
+    with pytest.raises(LogFormatError) as info:
+        av2_io.read_calibration(log_dir)
+    assert [(p.path.name, p.field) for p in info.value.problems] == [
+        ("egovehicle_SE3_sensor.feather", "qw..qz"), ("intrinsics.feather", "fx_px"),
+        ("intrinsics.feather", "height_px")]
+    assert validate_log(log_dir).problems == info.value.problems
+
+
+def test_check_rotations_refuses_zeros_scale_and_reflection() -> None:
+    turn = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    bad = {"zeros": np.zeros((3, 3)), "scaled": 1.1 * turn, "reflection": np.diag([1.0, 1.0, -1.0]),
+           "shear": turn + np.array([[0.0, 0.01, 0.0], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]])}
+    for name, matrix in bad.items():
+        problems = schema.check_rotations(Path("calib"), np.stack([turn, turn, matrix]), "R")
+        assert [(p.row, p.field) for p in problems] == [(2, "R")], name
+        assert "not a proper rotation" in problems[0].message
+    rounded = np.round(turn @ np.array([[0.9999239, 0.0098378, -0.0074450], [-0.0098698, 0.9999421, -0.0042785],
+                                        [0.0074025, 0.0043516, 0.9999631]]), 7)  # printed to 7 digits, as KITTI
+    assert schema.check_rotations(Path("calib"), rounded[None], "R") == []
+
+
 def test_camera_frame_not_a_jpeg(log_dir: Path) -> None:
     path = log_dir / av2_io.CAMERAS_DIR / "front" / f"{T0 + 100_000_000}.jpg"
     path.write_bytes(b"")
@@ -370,6 +494,42 @@ def test_validate_command_exit_status_and_output(tmp_path: Path, capsys: pytest.
     assert [r["ok"] for r in reports] == [True, False]
     assert reports[1]["problems"] == [{"path": str(bad / ANN), "row": None, "field": "qy", "message": "missing column"}]
     assert reports[0]["facts"]["lidar_sweeps"] == 1
+
+
+def test_validate_command_checks_every_log_after_bad_ones(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A bad map, bad intrinsics, an unreadable log: each log fails alone and the ones after are checked."""
+    bad_map = _write_log(tmp_path / "bad_map")
+    map_path = av2_io.find_map_file(bad_map)
+    assert map_path is not None
+    map_path.write_text("[]")
+    bad_calib = _write_log(tmp_path / "bad_calib")
+    _edit(bad_calib / av2_io.INTRINSICS_PATH, lambda t: _set(t, "fx_px", [float("nan")], pa.float64()))
+    unreadable = _write_log(tmp_path / "unreadable")
+    good = _write_log(tmp_path / "good")
+    real_validate = validate_log
+
+    def validate_or_fail(log_dir: Path | str) -> object:
+        if Path(log_dir) == unreadable:
+            raise PermissionError(13, "Permission denied", str(unreadable / "sensors"))
+        return real_validate(log_dir)
+
+    monkeypatch.setattr("retrieval.commands.validate.validate_log", validate_or_fail)
+    assert cli_main(["validate", str(bad_map), str(bad_calib), str(unreadable), str(good)]) == 1
+    lines = capsys.readouterr().out.splitlines()
+    assert lines == [
+        f"FAIL {bad_map}: 1 problem(s)",
+        f"  {map_path}: map JSON must be an object with 'lane_segments', 'pedestrian_crossings' and "
+        "'drivable_areas', got a list",
+        f"FAIL {bad_calib}: 1 problem(s)",
+        f"  {bad_calib / av2_io.INTRINSICS_PATH}, row 0, field 'fx_px': NaN or inf value",
+        f"FAIL {unreadable}: 1 problem(s)",
+        f"  {unreadable / 'sensors'}: cannot read: Permission denied",
+        *[line for line in lines if line.startswith(f"OK {good} ")],
+        "1 of 4 logs OK",
+    ]
+    assert lines[-2].startswith(f"OK {good} ")
 
 
 def test_collect_problems_keeps_going_after_a_bad_file(tmp_path: Path) -> None:

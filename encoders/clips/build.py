@@ -159,11 +159,17 @@ def build_clips(
         log = logs[log_id]
         folder = rendered_log_dir(clips_dir, log_id)
         t0 = time.perf_counter()
-        if reuse and rendered_log_ok(folder, config, dense[log_id]):
-            stats = read_render_stats(folder)
-            report.reused_logs += 1
-        else:
-            stats = render_log(log, config, clips_dir, dense[log_id])
+        try:
+            if reuse and rendered_log_ok(folder, config, dense[log_id]):
+                stats = read_render_stats(folder)
+                report.reused_logs += 1
+            else:
+                stats = render_log(log, config, clips_dir, dense[log_id])
+        except LogFormatError as exc:
+            # Files read lazily while rendering (the map, sweeps' folder) can still be bad: skip the log.
+            skipped.add(f"log could not be rendered: {exc}", log_id=log_id)
+            say(f"{log_id}: skipped: {exc}")
+            continue
         report.render_s += time.perf_counter() - t0
         t1 = time.perf_counter()
         new_rows = _clip_rows(log, dense[log_id], log_rows, stats, folder, splits[log_id].value, config,
@@ -193,6 +199,11 @@ def build_clips(
             clip["preview_path"] = rel
         report.preview_s = time.perf_counter() - t2
 
+    if not clip_rows:
+        # Nothing to publish: keep whatever an earlier run wrote rather than replace it with an empty table.
+        reasons = "; ".join(f"{item.get('log_id') or item.get('clip') or '?'}: {item['reason']}"
+                            for item in skipped.items[:5])
+        raise ClipsInputError(f"no clip could be made from {len(log_dirs)} log(s); {reasons or 'no captions'}")
     write_clip_table(clips_dir, clip_rows)
     manifest = {
         "format_version": FORMAT_VERSION,

@@ -265,3 +265,21 @@ def test_track_footprints_match_scenes_bev_and_highlight_blends() -> None:
     shown = highlight_camera(rgb, mask, (255, 0, 255), 0.5, 0.7).astype(float)
     expected = np.where(mask[..., None], 0.5 * rgb + 0.5 * np.array([255, 0, 255]), 0.7 * rgb)
     assert np.abs(shown - expected).max() <= 1.0
+
+
+def test_a_log_with_a_bad_map_is_skipped_and_an_all_failed_batch_keeps_the_old_output(tmp_path: Path) -> None:
+    good = write_synthetic_log(tmp_path / "logs", num_frames=12, with_camera=False, log_id="good")
+    bad = write_synthetic_log(tmp_path / "logs", num_frames=12, with_camera=False, log_id="bad")
+    (tmp_path / "c").mkdir()
+    pq.write_table(synthetic_captions([good, bad], 1, 10), tmp_path / "c" / "captions.parquet")
+    first = build_clips([good], tmp_path / "c", tmp_path / "clips", replace(CONFIG, strict=False))
+    table_before = (tmp_path / "clips" / "clips.parquet").read_bytes()
+    for map_file in (bad / "map").glob("log_map_archive_*.json"):
+        map_file.write_text("[]")
+    report = build_clips([bad, good], tmp_path / "c", tmp_path / "clips2", replace(CONFIG, strict=False))
+    assert report.num_clips == first.num_clips > 0
+    assert any(s.get("log_id") == "bad" and "map" in s["reason"] for s in report.skipped)
+    with pytest.raises(ClipsInputError,
+                       match=r"no clip could be made from 1 log\(s\);.*bad: log could not be rendered: .*map JSON"):
+        build_clips([bad], tmp_path / "c", tmp_path / "clips", replace(CONFIG, strict=False))
+    assert (tmp_path / "clips" / "clips.parquet").read_bytes() == table_before

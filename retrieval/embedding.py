@@ -12,8 +12,9 @@ trained model.
 from __future__ import annotations
 
 import hashlib
+import threading
 from collections import OrderedDict
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any, Protocol, runtime_checkable
 
@@ -74,6 +75,40 @@ def l2_normalize(x: np.ndarray) -> np.ndarray:
     return np.asarray(out / np.maximum(norms, 1e-12), dtype=np.float32)
 
 
+class EmbeddingCache:
+    """A bounded LRU cache of text embeddings, safe to share between threads (the service's workers).
+
+    The lock guards the cache only: embedding the texts not cached runs outside it, so threads
+    encode at the same time and a hit never waits for another thread's encoding. Two threads
+    missing the same text may both encode it; the rows are the same.
+    """
+
+    def __init__(self, size: int) -> None:
+        self.size = size
+        self._rows: OrderedDict[str, np.ndarray] = OrderedDict()
+        self._lock = threading.Lock()
+
+    def __len__(self) -> int:
+        with self._lock:
+            return len(self._rows)
+
+    def get_or_embed(self, texts: Sequence[str], embed: Callable[[list[str]], np.ndarray]) -> list[np.ndarray]:
+        """The rows of ``texts`` (in order), calling ``embed`` once for those not cached."""
+        unique = list(dict.fromkeys(texts))
+        with self._lock:
+            found = {t: self._rows[t] for t in unique if t in self._rows}
+        missing = [t for t in unique if t not in found]
+        if missing:
+            found.update(zip(missing, embed(missing)))
+        with self._lock:
+            for t in unique:
+                self._rows[t] = found[t]
+                self._rows.move_to_end(t)
+            while len(self._rows) > self.size:
+                self._rows.popitem(last=False)
+        return [found[t] for t in texts]
+
+
 class ModelEmbedder:
     """The trained dual encoder of ``run_dir``, loaded on first use (CPU)."""
 
@@ -88,11 +123,12 @@ class ModelEmbedder:
                 "rebuild the index with `scenesearch index`")
         self.batch_size = batch_size
         self._model: Any = None
-        self._cache: OrderedDict[str, np.ndarray] = OrderedDict()
-        self._cache_size = cache_size
+        self._model_lock = threading.Lock()  # threads asking for the model at once load it once
+        self._cache = EmbeddingCache(cache_size)
         # All views of the last clips folder (and split) embedded, so each view is computed once.
         self._views_key: tuple[str, str | None] | None = None
         self._views: tuple[list[str], dict[str, np.ndarray]] = ([], {})
+        self._views_lock = threading.Lock()
 
     @property
     def model_id(self) -> str:
@@ -101,36 +137,30 @@ class ModelEmbedder:
     @property
     def model(self) -> Any:
         if self._model is None:
-            import torch
+            with self._model_lock:
+                if self._model is None:
+                    from encoders.inference import load_model
 
-            from encoders.inference import load_model
-
-            self._model = load_model(self.run_dir, device="cpu")
-            self._model.eval()
-            torch.set_grad_enabled(False)
+                    model = load_model(self.run_dir, device="cpu")
+                    model.eval()  # every call below also runs under torch.inference_mode()
+                    self._model = model
         return self._model
 
     def embed_texts(self, texts: Sequence[str]) -> np.ndarray:
         texts = list(texts)
-        missing = list(dict.fromkeys(t for t in texts if t not in self._cache))
-        if missing:
-            for start in range(0, len(missing), 256):
-                chunk = missing[start:start + 256]
-                for text, row in zip(chunk, self._encode_texts(chunk)):
-                    self._cache[text] = row
-        out = np.stack([self._cache[t] for t in texts]) if texts else np.zeros((0, 0), np.float32)
-        for t in texts:
-            self._cache.move_to_end(t)
-        while len(self._cache) > self._cache_size:
-            self._cache.popitem(last=False)
-        return out
+        if not texts:
+            return np.zeros((0, 0), np.float32)
+        return np.stack(self._cache.get_or_embed(texts, self._encode_texts))
 
     def _encode_texts(self, texts: list[str]) -> np.ndarray:
         import torch
 
-        with torch.inference_mode():
-            emb = self.model.encode_text(texts, normalize=True)
-        return l2_normalize(_to_numpy(emb))
+        rows = []
+        for start in range(0, len(texts), 256):
+            with torch.inference_mode():
+                emb = self.model.encode_text(texts[start:start + 256], normalize=True)
+            rows.append(l2_normalize(_to_numpy(emb)))
+        return np.concatenate(rows)
 
     def embed_clips(self, clips_dir: Path, view: str = "fused", split: str | None = None,
                     shuffle_frames: bool = False) -> tuple[list[str], np.ndarray]:
@@ -146,14 +176,15 @@ class ModelEmbedder:
         # Index builds and evaluations ask for every view of the same clips in turn: encode the clips
         # once for all views (each tower runs once) and serve the other views from memory.
         key = (str(Path(clips_dir).resolve()), split)
-        if self._views_key != key:
-            from encoders.data import ClipDataset
+        with self._views_lock:  # held while embedding: the clips are encoded once, not once per thread
+            if self._views_key != key:
+                from encoders.data import ClipDataset
 
-            with torch.inference_mode():
-                ids, views = embed_dataset_views(self.model, ClipDataset(clips_dir, split=split, as_uint8=True),
-                                                 batch_size=self.batch_size)
-            self._views_key, self._views = key, ([str(i) for i in ids], views)
-        ids, views = self._views
+                with torch.inference_mode():
+                    ids, views = embed_dataset_views(self.model, ClipDataset(clips_dir, split=split, as_uint8=True),
+                                                     batch_size=self.batch_size)
+                self._views_key, self._views = key, ([str(i) for i in ids], views)
+            ids, views = self._views
         if view not in views:
             raise ValueError(f"unknown view {view!r}; valid views: {', '.join(views)}")
         return ids, l2_normalize(views[view])
@@ -214,21 +245,17 @@ class SentenceEncoder:
     name = "all-MiniLM-L6-v2"
 
     def __init__(self, cache_size: int = 100_000) -> None:
-        self._cache: OrderedDict[str, np.ndarray] = OrderedDict()
-        self._cache_size = cache_size
+        self._cache = EmbeddingCache(cache_size)
 
     def __call__(self, texts: Sequence[str]) -> np.ndarray:
         texts = list(texts)
-        missing = list(dict.fromkeys(t for t in texts if t not in self._cache))
-        if missing:
-            model = shared_sentence_encoder(BUNDLED_TEXT_MODEL, device="cpu")
-            emb = model.encode(missing, batch_size=64, convert_to_numpy=True, normalize_embeddings=True,
-                               show_progress_bar=False)
-            for text, row in zip(missing, np.asarray(emb, dtype=np.float32)):
-                self._cache[text] = row
         if not texts:
             return np.zeros((0, 384), np.float32)
-        out = np.stack([self._cache[t] for t in texts])
-        while len(self._cache) > self._cache_size:
-            self._cache.popitem(last=False)
-        return out
+        return np.stack(self._cache.get_or_embed(texts, _encode_sentences))
+
+
+def _encode_sentences(texts: list[str]) -> np.ndarray:
+    model = shared_sentence_encoder(BUNDLED_TEXT_MODEL, device="cpu")  # loaded once, under its own lock
+    emb = model.encode(texts, batch_size=64, convert_to_numpy=True, normalize_embeddings=True,
+                       show_progress_bar=False)
+    return np.asarray(emb, dtype=np.float32)

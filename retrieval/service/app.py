@@ -11,22 +11,29 @@ Endpoints (OpenAPI at ``/openapi.json``, interactive docs at ``/docs``)::
     GET /api/export?ids= | q=&k=        embeddings of a result set
     GET /                               the search page (static files, no network fetches)
 
-Errors are JSON ``{"detail": "..."}``: 422 for malformed parameters, 404 for unknown clips, 413
-for queries longer than the limit, 409 when the index's model changed, 503 when the model is gone.
+Errors are JSON ``{"detail": "..."}``: 422 for a malformed, unknown or repeated parameter (the
+message names it), 404 for unknown clips, 413 for queries longer than the limit, 409 when the
+index's model changed, 503 when the model is gone, 429 (with ``Retry-After``) when every search
+slot is taken, 504 when a request is not answered within the time limit (see
+:mod:`retrieval.service.limits`; the connection-level limits are in :mod:`retrieval.service.server`).
 Clip ids are only ever looked up in the index, and preview files are served only from inside the
 clips directory, so no request can read a file outside it.
 """
 
 from __future__ import annotations
 
+import threading
 import time
-from dataclasses import dataclass
+import typing
+from enum import StrEnum
 from pathlib import Path
 from typing import Annotated, Any
 
 import numpy as np
-from fastapi import FastAPI, HTTPException, Query, Request
+from fastapi import Depends, FastAPI, HTTPException, Query, Request
+from fastapi.exceptions import RequestValidationError
 from fastapi.responses import FileResponse, JSONResponse
+from fastapi.routing import APIRoute
 from fastapi.staticfiles import StaticFiles
 
 from retrieval.errors import (
@@ -39,30 +46,23 @@ from retrieval.errors import (
 from retrieval.querying import parse_cli_filters
 from retrieval.records import SearchResult
 from retrieval.scenesearch import SceneSearch
+from retrieval.service.limits import RequestTimeout, SearchGate, ServiceBusyError, ServiceLimits, check_chars
 
 STATIC_DIR = Path(__file__).parent / "static"
 
 #: Filter fields the page offers as menus, with their distinct values.
 MENU_FIELDS = ("category", "log_id", "time_of_day", "weather")
 VIEWS = ("fused", "camera", "bev")
-MODES = ("model", "captions")
 
 
-@dataclass(frozen=True)
-class ServiceLimits:
-    """Limits that keep one request cheap.
+class SearchMode(StrEnum):
+    """What answers a text query: the trained encoder, or the rule captions (no trained model)."""
 
-    Attributes:
-        max_k: the most results one request may ask for.
-        max_query_chars: the longest query accepted (longer → 413).
-        max_filters: the most ``filter`` parameters in one request.
-        max_export_ids: the most clips one export may name.
-    """
+    MODEL = "model"
+    CAPTIONS = "captions"
 
-    max_k: int = 100
-    max_query_chars: int = 500
-    max_filters: int = 8
-    max_export_ids: int = 1000
+
+MODES = tuple(m.value for m in SearchMode)
 
 
 def _status_of(exc: RetrievalError) -> int:
@@ -83,31 +83,100 @@ def _result_json(result: SearchResult) -> dict[str, Any]:
     return out
 
 
+def _is_repeatable(annotation: Any) -> bool:
+    """Whether a query parameter's type takes several values (``list[str] | None``)."""
+    if typing.get_origin(annotation) in (list, tuple, set, frozenset):
+        return True
+    return any(_is_repeatable(a) for a in typing.get_args(annotation) if a is not type(None))
+
+
+async def strict_parameters(request: Request) -> None:
+    """422 for a query parameter the endpoint does not take, or a single-valued one given twice.
+
+    FastAPI alone ignores unknown parameters and keeps the last of repeated ones, so a typo
+    (``?kk=5``) or a clash (``?k=1&k=50``) would silently give another search than was asked for.
+    """
+    route = request.scope.get("route")
+    if not isinstance(route, APIRoute) or not route.include_in_schema:
+        return  # the page itself: its address carries the page's own state (``/?q=...``)
+    # Per route of this app: its query parameters, and those that may repeat. Filled on first use, on
+    # the event loop's thread (async dependencies run there), so no lock is needed.
+    known: dict[int, tuple[frozenset[str], frozenset[str]]] = request.app.state.route_parameters
+    if id(route) not in known:
+        params = route.dependant.query_params
+        known[id(route)] = (frozenset(p.alias for p in params),
+                            frozenset(p.alias for p in params if _is_repeatable(p.field_info.annotation)))
+    names, repeatable = known[id(route)]
+    for name in dict.fromkeys(request.query_params.keys()):
+        if name not in names:
+            valid = ", ".join(sorted(names)) or "none"
+            raise HTTPException(422, f"unknown parameter {name!r} for {route.path}; valid parameters: {valid}")
+        count = len(request.query_params.getlist(name))
+        if count > 1 and name not in repeatable:
+            raise HTTPException(422, f"parameter {name!r} is given {count} times; give it once")
+
+
+def _describe(error: Any) -> str:
+    """One FastAPI validation error as ``parameter 'k': <why> (got '...')``."""
+    loc = [str(x) for x in error.get("loc", ())]
+    name = loc[-1] if len(loc) > 1 else ".".join(loc) or "request"
+    text = f"parameter {name!r}: {error.get('msg', 'invalid')}"
+    if error.get("type") != "missing" and "input" in error:
+        got = repr(error["input"])
+        text += f" (got {got[:60] + '…' if len(got) > 60 else got})"
+    return text
+
+
 def create_app(search: SceneSearch, limits: ServiceLimits | None = None) -> FastAPI:
-    """The FastAPI application serving ``search``."""
+    """The FastAPI application serving ``search``.
+
+    Searches (text, caption, clip → clip, export) go through one :class:`SearchGate`; every request
+    is answered within ``limits.request_timeout_s``. The gate is ``app.state.search_gate``, for
+    routes added later (:func:`retrieval.service.tags_api.register_tag_routes`).
+    """
     limits = limits or ServiceLimits()
     clips_root = search.clips_dir.resolve()
+    gate = SearchGate(limits.max_concurrent_searches, limits.max_waiting_searches)
     app = FastAPI(
         title="scenesearch",
         description="Natural-language and example-based search over driving-log clips.",
         version="1",
+        dependencies=[Depends(strict_parameters)],
     )
+    app.state.search_gate = gate
+    app.state.route_parameters = {}
+    app.state.limits = limits
+    app.add_middleware(RequestTimeout, timeout_s=limits.request_timeout_s)
 
     @app.exception_handler(RetrievalError)
     async def _retrieval_error(_request: Request, exc: RetrievalError) -> JSONResponse:
         return JSONResponse({"detail": str(exc)}, status_code=_status_of(exc))
 
+    @app.exception_handler(RequestValidationError)
+    async def _invalid_parameter(_request: Request, exc: RequestValidationError) -> JSONResponse:
+        return JSONResponse({"detail": "; ".join(_describe(e) for e in exc.errors())}, status_code=422)
+
+    @app.exception_handler(ServiceBusyError)
+    async def _busy(_request: Request, exc: ServiceBusyError) -> JSONResponse:
+        return JSONResponse({"detail": str(exc)}, status_code=429,
+                            headers={"Retry-After": str(limits.retry_after_s)})
+
     # k and the filters are checked where the search builds its query (retrieval.querying), against
-    # this service's max_k; here only the count of filter parameters is limited.
+    # this service's max_k; here only the count and length of filter parameters are limited.
     def filters_of(items: list[str] | None) -> Any:
         if items and len(items) > limits.max_filters:
-            raise HTTPException(422, f"at most {limits.max_filters} filter parameters, got {len(items)}")
+            raise HTTPException(422, f"parameter 'filter': at most {limits.max_filters} filters, got {len(items)}")
+        for item in items or []:
+            check_chars("filter", item, limits)
         return parse_cli_filters([i for i in items or [] if i.strip()])
 
     def check_view(view: str) -> str:
         if view not in search.views:
             raise UnknownViewError(view, list(search.views))
         return view
+
+    fields_lock = threading.Lock()
+    fields_answer: dict[str, Any] = {}
 
     @app.get("/health", summary="Liveness and what is served")
     def health() -> dict[str, Any]:
@@ -116,48 +185,62 @@ def create_app(search: SceneSearch, limits: ServiceLimits | None = None) -> Fast
 
     @app.get("/api/fields", summary="Filter fields, with the values offered as menus")
     def fields() -> dict[str, Any]:
-        table = search.views[next(iter(search.views))].metadata.table
-        menus = {f: sorted({str(v) for v in table.column(f).to_pylist() if v is not None})
-                 for f in MENU_FIELDS if f in table.column_names}
-        tags: set[str] = set()
-        if "tags" in table.column_names:
-            for row in table.column("tags").to_pylist():
-                tags.update(row or [])
-        return {"fields": search.fields, "menus": menus, "tags": sorted(tags), "views": list(search.views),
-                "modes": list(MODES), "limits": {"max_k": limits.max_k, "max_query_chars": limits.max_query_chars}}
+        # Scans every clip's metadata: computed once (the index does not change while served).
+        with fields_lock:
+            if not fields_answer:
+                table = search.views[next(iter(search.views))].metadata.table
+                menus = {f: sorted({str(v) for v in table.column(f).to_pylist() if v is not None})
+                         for f in MENU_FIELDS if f in table.column_names}
+                tags: set[str] = set()
+                if "tags" in table.column_names:
+                    for row in table.column("tags").to_pylist():
+                        tags.update(row or [])
+                fields_answer.update(
+                    fields=search.fields, menus=menus, tags=sorted(tags), views=list(search.views), modes=list(MODES),
+                    limits={"max_k": limits.max_k, "max_query_chars": limits.max_query_chars})
+            return fields_answer
 
     @app.get("/api/search", summary="Clips matching a sentence")
-    def api_search(
+    async def api_search(
         q: Annotated[str, Query(description="a sentence, e.g. 'a car in the left lane approaches, then stops'")],
         k: Annotated[int, Query(description="number of results")] = 10,
         filter: Annotated[list[str] | None, Query(description="FIELD=VALUE or a filter expression")] = None,
-        view: Annotated[str, Query(description="fused, camera or bev")] = "fused",
-        mode: Annotated[str, Query(description="model (trained encoder) or captions (rule captions)")] = "model",
+        view: Annotated[str, Query(description="fused, camera or bev (model mode)")] = "fused",
+        mode: Annotated[SearchMode, Query(description="model (trained encoder) or captions (rule captions)")]
+        = SearchMode.MODEL,
     ) -> dict[str, Any]:
-        if len(q) > limits.max_query_chars:
-            raise HTTPException(413, f"query is {len(q)} characters; the limit is {limits.max_query_chars}")
-        if mode not in MODES:
-            raise HTTPException(422, f"unknown mode {mode!r}; valid modes: {', '.join(MODES)}")
+        check_chars("q", q, limits)
         spec = filters_of(filter)
-        start = time.perf_counter()
-        if mode == "captions":
-            results = search.search_captions(q, k=k, filters=spec, max_k=limits.max_k)
-        else:
-            results = search.search_text(q, k=k, filters=spec, view=check_view(view), max_k=limits.max_k)
-        elapsed_ms = (time.perf_counter() - start) * 1e3
-        return {"query": q, "k": k, "view": view, "mode": mode, "elapsed_ms": round(elapsed_ms, 2),
-                "results": [_result_json(r) for r in results]}
+        check_view(view)  # in every mode: a view the index does not serve is an error, never echoed
+
+        def work() -> dict[str, Any]:
+            start = time.perf_counter()
+            if mode is SearchMode.CAPTIONS:
+                results = search.search_captions(q, k=k, filters=spec, max_k=limits.max_k)
+            else:
+                results = search.search_text(q, k=k, filters=spec, view=view, max_k=limits.max_k)
+            elapsed_ms = (time.perf_counter() - start) * 1e3
+            # Caption search uses no clip view: the answer says so rather than echoing the parameter.
+            return {"query": q, "k": k, "view": view if mode is SearchMode.MODEL else None, "mode": mode.value,
+                    "elapsed_ms": round(elapsed_ms, 2), "results": [_result_json(r) for r in results]}
+
+        return await gate.run(work)
 
     @app.get("/api/similar/{clip_id:path}", summary="Clips most like an indexed clip")
-    def api_similar(
+    async def api_similar(
         clip_id: str,
         k: Annotated[int, Query(description="number of results")] = 10,
         filter: Annotated[list[str] | None, Query(description="FIELD=VALUE or a filter expression")] = None,
         view: Annotated[str, Query(description="fused, camera or bev")] = "fused",
     ) -> dict[str, Any]:
-        results = search.search_clip(clip_id, k=k, filters=filters_of(filter), view=check_view(view),
-                                     max_k=limits.max_k)
-        return {"clip_id": clip_id, "k": k, "view": view, "results": [_result_json(r) for r in results]}
+        spec = filters_of(filter)
+        check_view(view)
+
+        def work() -> dict[str, Any]:
+            results = search.search_clip(clip_id, k=k, filters=spec, view=view, max_k=limits.max_k)
+            return {"clip_id": clip_id, "k": k, "view": view, "results": [_result_json(r) for r in results]}
+
+        return await gate.run(work)
 
     @app.get("/api/clips/{clip_id:path}/preview", summary="Animated preview of a clip", response_model=None)
     def api_preview(clip_id: str) -> FileResponse:
@@ -187,7 +270,7 @@ def create_app(search: SceneSearch, limits: ServiceLimits | None = None) -> Fast
         return out
 
     @app.get("/api/export", summary="Embeddings of a result set")
-    def api_export(
+    async def api_export(
         ids: Annotated[str | None, Query(description="comma-separated clip ids")] = None,
         q: Annotated[str | None, Query(description="a query whose results to export (instead of ids)")] = None,
         k: Annotated[int, Query(description="results of q to export")] = 10,
@@ -196,19 +279,26 @@ def create_app(search: SceneSearch, limits: ServiceLimits | None = None) -> Fast
         view = check_view(view)
         if (ids is None) == (q is None):
             raise HTTPException(422, "give exactly one of ids (comma-separated clip ids) or q (a query)")
+        clip_ids: list[str] = []
         if q is not None:
-            if len(q) > limits.max_query_chars:
-                raise HTTPException(413, f"query is {len(q)} characters; the limit is {limits.max_query_chars}")
-            clip_ids = [r.clip_id for r in search.search_text(q, k=k, view=view, max_k=limits.max_k)]
+            check_chars("q", q, limits)
         else:
             clip_ids = [c for c in (ids or "").split(",") if c]
             if not clip_ids or len(clip_ids) > limits.max_export_ids:
-                raise HTTPException(422, f"ids must name 1 to {limits.max_export_ids} clips")
-            for clip_id in clip_ids:
-                search.get(clip_id)  # 404 for unknown ids
-        x = np.asarray(search.views[view].reconstruct(clip_ids), dtype=np.float32)
-        return {"view": view, "model": search.manifest.model_sha256, "dim": int(x.shape[1]),
-                "clip_ids": clip_ids, "embeddings": x.round(6).tolist()}
+                raise HTTPException(422, f"parameter 'ids' must name 1 to {limits.max_export_ids} clips")
+
+        def work() -> dict[str, Any]:
+            if q is not None:
+                found = [r.clip_id for r in search.search_text(q, k=k, view=view, max_k=limits.max_k)]
+            else:
+                found = clip_ids
+                for clip_id in found:
+                    search.get(clip_id)  # 404 for unknown ids
+            x = np.asarray(search.views[view].reconstruct(found), dtype=np.float32)
+            return {"view": view, "model": search.manifest.model_sha256, "dim": int(x.shape[1]),
+                    "clip_ids": found, "embeddings": x.round(6).tolist()}
+
+        return await gate.run(work)
 
     @app.get("/", include_in_schema=False, response_model=None)
     def index_page() -> FileResponse:
@@ -224,4 +314,3 @@ def _plain(value: Any) -> Any:
     if isinstance(value, list | tuple):
         return [_plain(v) for v in value]
     return value
-

@@ -151,7 +151,7 @@ def test_export_by_ids_and_by_query(served: dict[str, Any]) -> None:
         ({"q": "x" * 201}, 413, "limit"),
         ({"q": "car", "filter": "colour=red"}, 422, "valid fields"),
         ({"q": "car", "view": "lidar"}, 422, "lidar"),
-        ({"q": "car", "mode": "guess"}, 422, "valid modes"),
+        ({"q": "car", "mode": "guess"}, 422, "parameter 'mode'"),
     ],
 )
 def test_bad_parameters_get_clear_errors(served: dict[str, Any], params: dict[str, Any], status: int,

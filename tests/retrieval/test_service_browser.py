@@ -8,8 +8,6 @@ from __future__ import annotations
 
 import os
 import shutil
-import socket
-import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -22,7 +20,7 @@ from retrieval_fakes import FakeEmbedder, HashTextEncoder, caption_of, make_clip
 
 from retrieval.embedding import model_hash
 from retrieval.scenesearch import SceneSearch
-from retrieval.service import create_app
+from retrieval.service import ServiceLimits, create_app, serving_in_thread
 
 CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
 CHROMEDRIVER = shutil.which("chromedriver") or "/usr/bin/chromedriver"
@@ -35,16 +33,8 @@ pytestmark = [
 ]
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
 @pytest.fixture(scope="module")
 def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any]]:
-    import uvicorn
-
     root = tmp_path_factory.mktemp("browser")
     clips = make_clips_dir(root / "clips", n_logs=4, clips_per_log=8)
     for i, row in enumerate(pq.read_table(clips / "clips.parquet").to_pylist()):
@@ -55,19 +45,8 @@ def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any]]
     run = make_run_dir(root / "run")
     search = SceneSearch.build(run, clips, root / "index", embedder=FakeEmbedder(model_hash(run)),
                                text_encoder=HashTextEncoder())
-    port = _free_port()
-    config = uvicorn.Config(create_app(search), host="127.0.0.1", port=port, log_level="warning")
-    uv = uvicorn.Server(config)
-    thread = threading.Thread(target=uv.run, daemon=True)
-    thread.start()
-    deadline = time.monotonic() + 20
-    while not uv.started:
-        if time.monotonic() > deadline or not thread.is_alive():
-            pytest.fail("the server did not start within 20 s")
-        time.sleep(0.05)
-    yield {"url": f"http://127.0.0.1:{port}/", "root": root}
-    uv.should_exit = True
-    thread.join(timeout=10)
+    with serving_in_thread(create_app(search), ServiceLimits()) as url:
+        yield {"url": url + "/", "root": root}
 
 
 @pytest.fixture(scope="module")

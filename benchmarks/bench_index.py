@@ -4,6 +4,14 @@ In one run, for exact ``Flat``, the automatic choice, and raw FAISS with the aut
 factory string and knob (our overhead), plus NumPy brute force as the floor: build time, memory
 (resident-set growth), recall@10 against exact search, batch queries/s and single-query p50/p99
 latency. Ratios are against exact ``Flat`` measured in the same run.
+
+``open``: the cost of verifying checksums when a saved :class:`~indexes.clip_index.ClipIndex` (the
+vectors and their metadata, what search opens per view) is loaded: a first open (every file
+hashed, overlapped with loading), a later open (files trusted from the stamp) and a full re-hash,
+each as a ratio to an open with verification turned off, in wall time (which hides the hashing
+when a core is free) and in CPU time of all threads (what the hashing costs); plus the time to hash
+the files alone.
+Run on its own with ``python -c "from benchmarks.bench_index import open_figures; print(open_figures(1_000_000))"``.
 """
 
 # D and I are FAISS's names for the (nq, k) score and id tables.
@@ -13,14 +21,21 @@ from __future__ import annotations
 
 import gc
 import os
+import shutil
+import tempfile
 import time
+import warnings
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import faiss
 import numpy as np
 from faiss.contrib.evaluation import knn_intersection_measure
 
+from indexes import integrity
+from indexes.clip_index import ClipIndex
+from indexes.metadata import MetadataStore
 from indexes.vector_index import VectorIndex
 
 SearchFn = Callable[[np.ndarray, int], tuple[np.ndarray, np.ndarray]]
@@ -199,4 +214,78 @@ def run(quick: bool) -> dict[str, Any]:
         "auto_qps_ge_20x_flat": out["auto_qps_over_flat"] >= 20,
         "overhead_batch_qps_le_10pct": out["overhead_batch_qps"] <= 0.10,
     }
+    out["open"] = open_figures(n)
     return out
+
+
+def open_figures(n: int, rounds: int = 3) -> dict[str, Any]:
+    """Open time of a saved n × 256 Flat :class:`ClipIndex` with and without checksum verification.
+
+    Best of ``rounds`` interleaved rounds, files in the page cache (a warm-up open reads them), so
+    the figures compare CPU costs rather than the disk.
+    """
+    import pyarrow as pa
+
+    _progress(f"open: saving a {n} x {DIM} clip index")
+    xb, _ = clustered_data(n, 1)
+    ids = np.arange(n, dtype=np.int64)
+    vectors = VectorIndex.build(xb, ids, metric="cosine", factory="Flat", tune_recall=False)
+    del xb
+    meta = pa.table({"clip_id": [f"log{i // 1000:05d}:t{i % 1000:04d}:0" for i in range(n)],
+                     "category": pa.array(["car", "bus", "pedestrian"] * (n // 3) + ["car"] * (n % 3)),
+                     "log_id": [f"log{i // 1000:05d}" for i in range(n)]})
+    root = Path(tempfile.mkdtemp(prefix="bench_index_open."))
+    directory = root / "clips"
+    try:
+        ClipIndex(vectors, MetadataStore.from_rows(meta, ids)).save(directory)
+        del vectors, meta
+        gc.collect()
+        stamp = directory / integrity.STAMP_NAME
+        size = sum(p.stat().st_size for p in directory.iterdir())
+        # Files younger than the stamp margin are hashed on every open (see indexes.integrity).
+        time.sleep(integrity.STAMP_MARGIN_NS / 1e9 + 0.1)
+
+        def load(verify: str, keep_stamp: bool) -> tuple[float, float]:
+            if not keep_stamp:
+                stamp.unlink(missing_ok=True)
+            gc.collect()
+            t, cpu = time.perf_counter(), time.process_time()
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", integrity.IntegrityWarning)
+                index = ClipIndex.load(directory, verify=verify)
+            elapsed = time.perf_counter() - t, time.process_time() - cpu
+            del index
+            return elapsed
+
+        def hash_only() -> tuple[float, float]:
+            t, cpu = time.perf_counter(), time.process_time()
+            for p in sorted(directory.iterdir()):
+                if not p.name.startswith("."):
+                    integrity.sha256_file(p)
+            return time.perf_counter() - t, time.process_time() - cpu
+
+        load("off", True)  # warm the page cache
+        runs: dict[str, list[tuple[float, float]]] = {k: [] for k in ("off", "first", "stamped", "full", "hash_only")}
+        for _ in range(rounds):
+            runs["off"].append(load("off", True))
+            runs["first"].append(load("cached", False))  # no stamp: every file hashed; writes the stamp
+            runs["stamped"].append(load("cached", True))
+            runs["full"].append(load("full", True))
+            runs["hash_only"].append(hash_only())
+        # Wall time needs a free core for the hashing thread; CPU time (all threads) says what it costs.
+        wall = {k: min(w for w, _ in v) for k, v in runs.items()}
+        cpu = {k: min(c for _, c in v) for k, v in runs.items()}
+        _progress(f"open: wall {wall}, cpu {cpu}")
+        return {
+            "n": n, "bytes": size, "rounds": rounds,
+            **{f"{k}_s": round(v, 3) for k, v in wall.items()},
+            **{f"{k}_cpu_s": round(v, 3) for k, v in cpu.items()},
+            "first_open_over_unverified": round(wall["first"] / wall["off"], 3),
+            "stamped_open_over_unverified": round(wall["stamped"] / wall["off"], 3),
+            "full_open_over_unverified": round(wall["full"] / wall["off"], 3),
+            "first_open_cpu_over_unverified": round(cpu["first"] / cpu["off"], 3),
+            "stamped_open_cpu_over_unverified": round(cpu["stamped"] / cpu["off"], 3),
+            "hash_gb_per_s": round(size / wall["hash_only"] / 1e9, 2),
+        }
+    finally:
+        shutil.rmtree(root, ignore_errors=True)

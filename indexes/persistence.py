@@ -1,22 +1,24 @@
 """On-disk layout of an index: a directory of files described by ``manifest.json``.
 
 ```
-<dir>/manifest.json    format version, kind, dimension, metric, factory, count, per-file size+sha256
+<dir>/manifest.json    format version, kind, dimension, metric, factory, count, per-file size+sha256,
+                       and the checksum of its own content
 <dir>/index.faiss      the FAISS index (ids inside it are the caller's ids)
 <dir>/ids.npy          live ids, sorted (int64)
 <dir>/removed.npy      ids removed so far; never reused
 <dir>/metadata.parquet clip metadata (ClipIndex only)
+<dir>/.verified.json   files already verified (written on open; see :mod:`indexes.integrity`)
 ```
 
 The manifest is written last, inside a temporary directory that is renamed onto the target, so a
-reader sees either the previous complete index or the new one. :func:`resolve_dir` also accepts the
-previous copy that :func:`common.atomic.atomic_directory` keeps aside during the instant between
-its two renames, so a kill at any moment leaves a loadable index.
+reader sees either the previous complete index or the new one. A kill between the two renames of
+that swap leaves the complete previous index aside (see :mod:`common.atomic`); :func:`resolve_dir`
+moves it back, so a kill at any moment leaves a loadable index. Loading checks every file against
+the manifest (:mod:`indexes.integrity`).
 """
 
 from __future__ import annotations
 
-import hashlib
 import json
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -27,20 +29,13 @@ from typing import Any
 import faiss
 import numpy as np
 
-from common.atomic import atomic_directory
+from common.atomic import atomic_directory, recover_directory
 from indexes.errors import IndexFileError, ManifestError, UnsupportedFormatError, faiss_message
+from indexes.integrity import FileEntry, check_seal, file_entries, parse_file_entries, seal
 
-FORMAT_VERSION = 1
+#: 2: the manifest holds the checksum of its own content. Version 1 is still read (with a warning).
+FORMAT_VERSION = 2
 MANIFEST_NAME = "manifest.json"
-_CHUNK_BYTES = 8 << 20
-
-
-@dataclass(frozen=True)
-class FileEntry:
-    """One file of an index directory: its size and SHA-256."""
-
-    size_bytes: int
-    sha256: str
 
 
 @dataclass(frozen=True)
@@ -71,18 +66,10 @@ class Manifest:
         payload = {
             "format_version": self.format_version, "kind": self.kind, "dim": self.dim,
             "metric": self.metric, "factory": self.factory, "count": self.count,
-            "files": {name: {"size_bytes": e.size_bytes, "sha256": e.sha256} for name, e in self.files.items()},
+            "files": {name: e.to_json() for name, e in self.files.items()},
             "extra": self.extra,
         }
-        return json.dumps(payload, indent=2, sort_keys=True)
-
-
-def sha256_file(path: Path) -> str:
-    h = hashlib.sha256()
-    with path.open("rb") as f:
-        while chunk := f.read(_CHUNK_BYTES):
-            h.update(chunk)
-    return h.hexdigest()
+        return json.dumps(seal(json.loads(json.dumps(payload))), indent=2, sort_keys=True)
 
 
 @contextmanager
@@ -99,44 +86,72 @@ def writing_index_dir(target: Path | str, overwrite: bool = True) -> Iterator[Pa
 def write_manifest(directory: Path, kind: str, dim: int, metric: str, factory: str, count: int,
                    extra: dict[str, Any] | None = None) -> Manifest:
     """Checksum every file in ``directory`` (subdirectories hold their own manifests) and write the manifest."""
-    files = {
-        p.name: FileEntry(p.stat().st_size, sha256_file(p))
-        for p in sorted(directory.iterdir()) if p.is_file() and p.name != MANIFEST_NAME
-    }
-    manifest = Manifest(FORMAT_VERSION, kind, dim, metric, factory, count, files, dict(extra or {}))
+    names = [p.name for p in sorted(directory.iterdir())
+             if p.is_file() and p.name != MANIFEST_NAME and not p.name.startswith(".")]
+    manifest = Manifest(FORMAT_VERSION, kind, dim, metric, factory, count, file_entries(directory, names),
+                        dict(extra or {}))
     (directory / MANIFEST_NAME).write_text(manifest.to_json())
     return manifest
 
 
+def require_files(manifest: Manifest, directory: Path, names: tuple[str, ...]) -> None:
+    """Refuse a manifest that does not list (hence would not verify) each of ``names``."""
+    missing = [n for n in names if n not in manifest.files]
+    if missing:
+        raise ManifestError(directory / MANIFEST_NAME, f"does not list {', '.join(missing)}", field="files")
+
+
 def resolve_dir(directory: Path | str) -> Path:
-    """The directory to read: ``directory``, or the previous copy kept aside during a save's swap."""
-    directory = Path(directory)
+    """The directory to read at ``directory``, after recovering a save whose swap a kill interrupted.
+
+    Raises:
+        IndexFileError: nothing there.
+        ManifestError: a directory without a manifest.
+    """
+    directory = recover_directory(Path(directory))
     if (directory / MANIFEST_NAME).exists():
         return directory
-    aside = directory.with_name(f".{directory.name}.old")
-    if not directory.exists() and (aside / MANIFEST_NAME).exists():
-        return aside
     if not directory.exists():
         raise IndexFileError(directory, "no index directory here")
     raise ManifestError(directory / MANIFEST_NAME, "missing; this is not a saved index (or its save never finished)")
 
 
-def read_manifest(directory: Path | str, expected_kind: str | None = None, verify: bool = True) -> Manifest:
-    """Read and check ``manifest.json`` and the files it lists.
+def read_manifest(directory: Path | str, expected_kind: str | None = None) -> Manifest:
+    """Read and check ``manifest.json``: its fields and its own checksum.
+
+    The files it lists are checked by :func:`indexes.integrity.verifying` while they load.
 
     Args:
         directory: an index directory (see :func:`resolve_dir`).
         expected_kind: refuse a manifest of another kind.
-        verify: compare SHA-256 checksums (reads every byte); sizes are always compared, which
-            catches truncated files cheaply.
 
     Raises:
         UnsupportedFormatError: written by a newer format version.
-        ManifestError: unreadable, missing fields, or wrong kind.
-        IndexFileError: a listed file is missing, truncated or fails its checksum.
+        ManifestError: unreadable, missing fields, corrupt, or of the wrong kind.
     """
-    directory = Path(directory)
-    path = directory / MANIFEST_NAME
+    path = Path(directory) / MANIFEST_NAME
+    raw = read_json_manifest(path, expected_kind, FORMAT_VERSION)
+    required = {"kind": str, "dim": int, "metric": str, "factory": str, "count": int, "files": dict}
+    for key, typ in required.items():
+        if not isinstance(raw.get(key), typ):
+            raise ManifestError(path, f"missing or not a {typ.__name__}", field=key)
+    files = parse_file_entries(raw["files"], path)
+    extra = raw.get("extra", {})
+    if not isinstance(extra, dict):
+        raise ManifestError(path, "not an object", field="extra")
+    return Manifest(raw["format_version"], raw["kind"], raw["dim"], raw["metric"], raw["factory"], raw["count"],
+                    files, extra)
+
+
+def read_json_manifest(path: Path, kind: str | None, max_version: int, sealed_from: int = 2) -> dict[str, Any]:
+    """Parse a manifest file: a JSON object of ``kind`` whose ``format_version`` is at most
+    ``max_version`` and whose content matches its own checksum (required from version ``sealed_from``;
+    older versions are read with an :class:`~indexes.integrity.IntegrityWarning`).
+
+    Raises:
+        ManifestError: missing, unreadable, not an object, of another kind, or corrupt.
+        UnsupportedFormatError: a newer format version.
+    """
     try:
         raw = json.loads(path.read_text())
     except FileNotFoundError:
@@ -148,36 +163,14 @@ def read_manifest(directory: Path | str, expected_kind: str | None = None, verif
     version = raw.get("format_version")
     if not isinstance(version, int):
         raise ManifestError(path, "missing or non-integer", field="format_version")
-    if version > FORMAT_VERSION:
+    if version > max_version:
         raise UnsupportedFormatError(
-            path, f"format version {version} is newer than the supported version {FORMAT_VERSION}; "
+            path, f"format version {version} is newer than the supported version {max_version}; "
             "upgrade scenesearch to read it", field="format_version")
-    required = {"kind": str, "dim": int, "metric": str, "factory": str, "count": int, "files": dict}
-    for key, typ in required.items():
-        if not isinstance(raw.get(key), typ):
-            raise ManifestError(path, f"missing or not a {typ.__name__}", field=key)
-    if expected_kind is not None and raw["kind"] != expected_kind:
-        raise ManifestError(path, f"holds a {raw['kind']!r}, expected a {expected_kind!r}", field="kind")
-    files: dict[str, FileEntry] = {}
-    for name, entry in raw["files"].items():
-        try:
-            files[name] = FileEntry(int(entry["size_bytes"]), str(entry["sha256"]))
-        except (KeyError, TypeError, ValueError):
-            raise ManifestError(path, f"bad entry for {name!r}", field="files") from None
-    for name, entry in files.items():
-        file = directory / name
-        if not file.is_file():
-            raise IndexFileError(file, "listed in the manifest but missing")
-        size = file.stat().st_size
-        if size != entry.size_bytes:
-            raise IndexFileError(file, f"is {size} bytes, the manifest says {entry.size_bytes} "
-                                       "(truncated or overwritten)")
-        if verify and sha256_file(file) != entry.sha256:
-            raise IndexFileError(file, "checksum differs from the manifest (corrupt file)")
-    extra = raw.get("extra", {})
-    if not isinstance(extra, dict):
-        raise ManifestError(path, "not an object", field="extra")
-    return Manifest(version, raw["kind"], raw["dim"], raw["metric"], raw["factory"], raw["count"], files, extra)
+    if kind is not None and raw.get("kind") != kind:
+        raise ManifestError(path, f"holds a {raw.get('kind')!r}, expected a {kind!r}", field="kind")
+    check_seal(raw, path, required=version >= sealed_from)
+    return raw
 
 
 def read_faiss_index(path: Path, mmap: bool) -> faiss.Index:
@@ -198,12 +191,27 @@ def read_faiss_index(path: Path, mmap: bool) -> faiss.Index:
     return index
 
 
-def load_ids(path: Path) -> np.ndarray:
-    """The (N,) int64 ids saved in ``path`` (``.npy``)."""
+def load_array(path: Path, dtype: type | np.dtype[Any], shape: tuple[int | str, ...]) -> np.ndarray:
+    """Read a ``.npy`` file and check it: ``dtype`` and ``shape`` (a name such as ``"N"`` for any length).
+
+    Raises:
+        IndexFileError: missing, unreadable, or another dtype or shape (naming what was expected).
+    """
+    want = np.dtype(dtype)
+    expected = f"a {want.name} array of shape ({', '.join(str(s) for s in shape)}{',' if len(shape) == 1 else ''})"
     try:
         arr = np.load(path, allow_pickle=False)
+    except FileNotFoundError:
+        raise IndexFileError(path, f"missing; expected {expected}") from None
     except (OSError, ValueError, EOFError) as exc:
-        raise IndexFileError(path, f"unreadable: {exc}") from None
-    if arr.ndim != 1 or arr.dtype != np.int64:
-        raise IndexFileError(path, f"expected a 1-D int64 array, got {arr.dtype} {arr.shape}")
-    return np.asarray(arr)
+        raise IndexFileError(path, f"not a readable .npy file ({exc}); expected {expected}") from None
+    if not isinstance(arr, np.ndarray) or arr.dtype != want or arr.ndim != len(shape) or any(
+            isinstance(s, int) and s != n for s, n in zip(shape, arr.shape)):
+        got = f"{arr.dtype} {arr.shape}" if isinstance(arr, np.ndarray) else type(arr).__name__
+        raise IndexFileError(path, f"expected {expected}, got {got}")
+    return arr
+
+
+def load_ids(path: Path) -> np.ndarray:
+    """The (N,) int64 ids saved in ``path`` (``.npy``)."""
+    return load_array(path, np.int64, ("N",))

@@ -22,14 +22,16 @@ import numpy as np
 from indexes.building import IdsLike, prepare_build
 from indexes.errors import IdError, ManifestError
 from indexes.factory import AutoConfig
+from indexes.integrity import Verify, VerifyLike, sha256_file, verifying
 from indexes.persistence import (
     MANIFEST_NAME,
     read_manifest,
+    require_files,
     resolve_dir,
-    sha256_file,
     write_manifest,
     writing_index_dir,
 )
+from indexes.vector_index import FILES as SHARD_FILES
 from indexes.vector_index import KIND as SHARD_KIND
 from indexes.vector_index import VectorIndex, check_k
 from indexes.vectors import Metric, as_metric, prepare_ids, prepare_vectors
@@ -203,26 +205,38 @@ class ShardedIndex:
                            {"shards": names, "shard_size": self.shard_size, "info": self.info})
 
     @classmethod
-    def load(cls, directory: Path | str, mmap: bool = False, verify: bool | None = None) -> ShardedIndex:
-        """Load what :meth:`save` wrote; each shard is checked against its own manifest."""
+    def load(cls, directory: Path | str, mmap: bool = False, verify: VerifyLike = Verify.CACHED) -> ShardedIndex:
+        """Load what :meth:`save` wrote; each shard is checked against its own manifest, itself
+        checked against the top manifest. Arguments as :meth:`VectorIndex.load`."""
         d = resolve_dir(directory)
-        verify = (not mmap) if verify is None else verify
-        m = read_manifest(d, KIND, verify=verify)
+        m = read_manifest(d, KIND)
         entries = m.extra.get("shards")
+        top = d / MANIFEST_NAME
         if not isinstance(entries, list) or not entries:
-            raise ManifestError(d / MANIFEST_NAME, "lists no shards", field="extra.shards")
-        shards = []
+            raise ManifestError(top, "lists no shards", field="extra.shards")
+        files = dict(m.files)
+        shard_manifests = []
         for entry in entries:
-            sub = d / str(entry["name"])
+            name = entry.get("name") if isinstance(entry, dict) else None
+            if not isinstance(name, str) or Path(name).name != name or name in ("", ".", "..") or \
+                    not isinstance(entry.get("manifest_sha256"), str):
+                raise ManifestError(top, f"bad shard entry {entry!r}", field="extra.shards")
+            sub = d / name
             if not (sub / MANIFEST_NAME).is_file():
                 raise ManifestError(sub / MANIFEST_NAME, "shard manifest missing")
-            if verify and sha256_file(sub / MANIFEST_NAME) != entry.get("manifest_sha256"):
+            # A shard manifest is a few hundred bytes: always compared with the top manifest.
+            if sha256_file(sub / MANIFEST_NAME) != entry["manifest_sha256"]:
                 raise ManifestError(sub / MANIFEST_NAME, "differs from the checksum in the top manifest")
-            sm = read_manifest(sub, SHARD_KIND, verify=verify)
-            shards.append(VectorIndex.from_files(sub, sm.dim, sm.metric, sm.factory, sm.count, sm.extra, mmap))
+            sm = read_manifest(sub, SHARD_KIND)
+            require_files(sm, sub, SHARD_FILES)
+            files.update({f"{name}/{file}": e for file, e in sm.files.items()})
+            shard_manifests.append((sub, sm))
+        with verifying(d, files, verify):  # one pass over every shard's files, hashed in parallel
+            shards = [VectorIndex.from_files(sub, sm.dim, sm.metric, sm.factory, sm.count, sm.extra, mmap)
+                      for sub, sm in shard_manifests]
         out = cls(shards, int(m.extra.get("shard_size", DEFAULT_SHARD_SIZE)), m.extra.get("info"))
         if len(out) != m.count or out.dim != m.dim:
-            raise ManifestError(d / MANIFEST_NAME, f"says {m.count} vectors of dimension {m.dim}, the shards hold "
+            raise ManifestError(top, f"says {m.count} vectors of dimension {m.dim}, the shards hold "
                                 f"{len(out)} of dimension {out.dim}", field="count")
         return out
 

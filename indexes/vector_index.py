@@ -37,10 +37,12 @@ import numpy as np
 from indexes.building import IdsLike, prepare_build
 from indexes.errors import IdError, IndexesError, InvalidKError, ManifestError, ReadOnlyIndexError, faiss_message
 from indexes.factory import AutoConfig
+from indexes.integrity import Verify, VerifyLike, verifying
 from indexes.persistence import (
     load_ids,
     read_faiss_index,
     read_manifest,
+    require_files,
     resolve_dir,
     write_manifest,
     writing_index_dir,
@@ -63,6 +65,7 @@ INDEX_FILE = "index.faiss"
 IDS_FILE = "ids.npy"
 REMOVED_FILE = "removed.npy"
 TOMBSTONES_FILE = "tombstones.npy"
+FILES = (INDEX_FILE, IDS_FILE, REMOVED_FILE, TOMBSTONES_FILE)
 
 # Filters passing at most this many vectors are answered by exact search over just those vectors:
 # cheaper than a selector scan and never short of results.
@@ -412,23 +415,27 @@ class VectorIndex:
         return {"info": self.info, "knob": knob, "knob_value": value, "tombstones": len(self._tombstones)}
 
     @classmethod
-    def load(cls, directory: Path | str, mmap: bool = False, verify: bool | None = None) -> VectorIndex:
+    def load(cls, directory: Path | str, mmap: bool = False, verify: VerifyLike = Verify.CACHED) -> VectorIndex:
         """Load an index saved by :meth:`save`.
 
         Args:
             directory: the saved directory.
             mmap: map IVF lists (and flat codes) from disk instead of reading them; the index is
                 then read-only and pages in on demand.
-            verify: compare file checksums; defaults to ``not mmap`` (sizes are always checked).
+            verify: file checksums: ``cached`` (hash files not verified before), ``full`` or
+                ``off`` (warns); see :mod:`indexes.integrity`. Sizes are always checked. With
+                ``mmap`` the first verified open still reads every byte once.
 
         Raises:
             UnsupportedFormatError: the manifest is from a newer format version.
             ManifestError, IndexFileError: missing, truncated, corrupt or inconsistent files.
         """
         d = resolve_dir(directory)
-        manifest = read_manifest(d, KIND, verify=(not mmap) if verify is None else verify)
-        return cls.from_files(d, manifest.dim, manifest.metric, manifest.factory, manifest.count,
-                              manifest.extra, mmap)
+        manifest = read_manifest(d, KIND)
+        require_files(manifest, d, FILES)
+        with verifying(d, manifest.files, verify):
+            return cls.from_files(d, manifest.dim, manifest.metric, manifest.factory, manifest.count,
+                                  manifest.extra, mmap)
 
     @classmethod
     def from_files(cls, d: Path, dim: int, metric_name: str, factory: str, count: int,

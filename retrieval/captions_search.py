@@ -18,7 +18,8 @@ captions and searches real AV2 logs (tracks only) in one call.
 
 Directory layout (written atomically)::
 
-    manifest.json         kind caption_search, format version, text encoder, counts, skipped rows
+    manifest.json         kind caption_search, format version, text encoder, counts, skipped rows,
+                          each file's size and SHA-256, and the checksum of its own content
     metadata.parquet      one row per moment (id, clip_id, log_id, track_id, category, start_ns, …)
     texts.parquet         the distinct texts (column ``text``)
     text_embeddings.npy   (M, D) float32, L2-normalised, row i embeds texts[i]
@@ -40,10 +41,13 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from captioning.pipeline import CAPTIONS_FILENAME
-from common.atomic import atomic_directory
+from common.atomic import atomic_directory, recover_directory
 from encoders.clips.layout import clip_id
+from indexes.errors import IndexesError, IndexFileError, ManifestError
 from indexes.filters import FilterSpec
+from indexes.integrity import Verify, VerifyLike, file_entries, parse_file_entries, seal, verifying
 from indexes.metadata import MetadataStore
+from indexes.persistence import load_array, read_json_manifest
 from retrieval.embedding import SentenceEncoder
 from retrieval.errors import IndexDirError
 from retrieval.querying import MAX_K, build_query, check_query, preview_of
@@ -52,7 +56,13 @@ from retrieval.records import SearchResult
 TextEncoder = Callable[[Sequence[str]], np.ndarray]
 MANIFEST = "manifest.json"
 KIND = "caption_search"
-FORMAT_VERSION = 1
+#: 2: the manifest lists every file's size and SHA-256 and holds the checksum of its own content.
+FORMAT_VERSION = 2
+METADATA_FILE = "metadata.parquet"
+TEXTS_FILE = "texts.parquet"
+EMBEDDINGS_FILE = "text_embeddings.npy"
+FILES = (METADATA_FILE, TEXTS_FILE, EMBEDDINGS_FILE, "full_offsets.npy", "full_texts.npy", "object_offsets.npy",
+         "object_texts.npy")
 #: Columns kept as metadata (and filterable) when present in the caption table.
 METADATA_COLUMNS = ("clip_id", "log_id", "track_id", "category", "start_ns", "end_ns", "caption", "tags",
                     "host_tags", "window", "split", "time_of_day", "weather", "has_camera", "preview_path")
@@ -103,7 +113,7 @@ def caption_rows(table: pa.Table) -> tuple[pa.Table, list[Skipped]]:
 
 def is_caption_index(directory: Path | str) -> bool:
     """Whether ``directory`` holds a caption index written by :meth:`CaptionSearch.save`."""
-    path = Path(directory) / MANIFEST
+    path = recover_directory(Path(directory)) / MANIFEST
     if not path.is_file():
         return False
     try:
@@ -149,6 +159,48 @@ class _Groups:
     def best(self, per_text: np.ndarray) -> np.ndarray:
         """(N,) the best score among each row's texts, given (M,) scores of all texts."""
         return np.asarray(np.maximum.reduceat(per_text[self.indices], self.offsets[:-1]))
+
+
+def _read_parts(directory: Path, counts: dict[str, Any]) -> tuple[MetadataStore, list[str], np.ndarray, _Groups,
+                                                                   _Groups]:
+    """Metadata, texts, (M, D) text embeddings and the two groups of a caption index, each checked.
+
+    Raises:
+        IndexFileError, MetadataError: a file that is unreadable or disagrees with the manifest's
+            ``counts`` (``count`` rows, ``texts`` texts of ``dim`` dimensions) or with the others.
+    """
+    metadata = MetadataStore.read(directory / METADATA_FILE)
+    if len(metadata) != counts["count"]:
+        raise IndexFileError(directory / METADATA_FILE, f"holds {len(metadata)} rows, the manifest says "
+                                                        f"{counts['count']}")
+    texts_path = directory / TEXTS_FILE
+    try:
+        texts_table = pq.read_table(texts_path)
+    except (OSError, pa.ArrowException) as exc:
+        raise IndexFileError(texts_path, f"unreadable Parquet: {exc}") from None
+    if "text" not in texts_table.column_names or not pa.types.is_string(texts_table.schema.field("text").type) \
+            or texts_table.num_rows != counts["texts"] or texts_table.column("text").null_count:
+        raise IndexFileError(texts_path, f"expected a string column 'text' of {counts['texts']} rows, got "
+                                         f"{texts_table.schema} with {texts_table.num_rows} rows")
+    texts = texts_table.column("text").to_pylist()
+    emb = load_array(directory / EMBEDDINGS_FILE, np.float32, (len(texts), counts["dim"]))
+    if not np.isfinite(emb).all():
+        raise IndexFileError(directory / EMBEDDINGS_FILE, "holds NaN or infinite values")
+    groups = []
+    for name in ("full", "object"):
+        offsets_path, texts_idx_path = directory / f"{name}_offsets.npy", directory / f"{name}_texts.npy"
+        offsets = load_array(offsets_path, np.int64, (len(metadata) + 1,))
+        indices = load_array(texts_idx_path, np.int64, ("V",))
+        # Every row has at least one text, so offsets rise strictly (np.maximum.reduceat needs it).
+        if offsets[0] != 0 or offsets[-1] != len(indices) or (np.diff(offsets) <= 0).any():
+            raise IndexFileError(offsets_path, f"expected offsets rising strictly from 0 to {len(indices)} (the "
+                                               f"length of {texts_idx_path.name}), got {offsets[:3].tolist()}… "
+                                               f"ending at {int(offsets[-1])}")
+        if len(indices) and (int(indices.min()) < 0 or int(indices.max()) >= len(texts)):
+            raise IndexFileError(texts_idx_path, f"expected indices into the {len(texts)} texts, got values in "
+                                                 f"[{int(indices.min())}, {int(indices.max())}]")
+        groups.append(_Groups(offsets, indices))
+    return metadata, texts, emb, groups[0], groups[1]
 
 
 class CaptionSearch:
@@ -217,52 +269,55 @@ class CaptionSearch:
     def save(self, out_dir: Path | str) -> None:
         """Write the directory described in the module docstring, atomically."""
         with atomic_directory(out_dir, overwrite=True) as tmp:
-            self.metadata.write(tmp / "metadata.parquet")
-            pq.write_table(pa.table({"text": pa.array(self.texts, pa.string())}), tmp / "texts.parquet")
-            np.save(tmp / "text_embeddings.npy", self.text_embeddings)
+            self.metadata.write(tmp / METADATA_FILE)
+            pq.write_table(pa.table({"text": pa.array(self.texts, pa.string())}), tmp / TEXTS_FILE)
+            np.save(tmp / EMBEDDINGS_FILE, self.text_embeddings)
             for name, groups in (("full", self.full), ("object", self.objects)):
                 np.save(tmp / f"{name}_offsets.npy", groups.offsets)
                 np.save(tmp / f"{name}_texts.npy", groups.indices)
             info = {"format_version": FORMAT_VERSION, "kind": KIND, "text_encoder": self.encoder_name,
                     "count": len(self), "texts": len(self.texts), "dim": int(self.text_embeddings.shape[1]),
                     "base_dir": None if self.base_dir is None else str(Path(self.base_dir).resolve()),
-                    "skipped": [{"item": s.item, "reason": s.reason} for s in self.skipped]}
-            (tmp / MANIFEST).write_text(json.dumps(info, indent=2))
+                    "skipped": [{"item": s.item, "reason": s.reason} for s in self.skipped],
+                    "files": {n: e.to_json() for n, e in file_entries(tmp, list(FILES)).items()}}
+            (tmp / MANIFEST).write_text(json.dumps(seal(info), indent=2))
 
     @classmethod
-    def open(cls, directory: Path | str, encoder: TextEncoder | None = None) -> CaptionSearch:
-        """Open a directory written by :meth:`save`.
+    def open(cls, directory: Path | str, encoder: TextEncoder | None = None,
+             verify: VerifyLike = Verify.CACHED) -> CaptionSearch:
+        """Open a directory written by :meth:`save`, checking every file against the manifest.
+
+        Args:
+            directory: the caption index.
+            encoder: the sentence encoder of queries (default: the one the index was built with).
+            verify: file checksums: ``cached``, ``full`` or ``off`` (warns); see :mod:`indexes.integrity`.
 
         Raises:
-            IndexDirError: not a caption index, an unsupported format, or inconsistent files.
+            IndexDirError: not a caption index, an unsupported format, or a missing, corrupt or
+                inconsistent file (the message names it and what was expected).
         """
-        directory = Path(directory)
+        directory = recover_directory(Path(directory))
         path = directory / MANIFEST
         if not path.is_file():
             raise IndexDirError(f"{path}: missing; {directory} is not a caption index (build one with "
                                 "CaptionSearch.build or `scenesearch index`)")
-        info = json.loads(path.read_text())
-        if info.get("kind") != KIND:
-            raise IndexDirError(f"{path}: holds a {info.get('kind')!r}, not a {KIND!r}")
-        if int(info.get("format_version", 0)) > FORMAT_VERSION:
-            raise IndexDirError(f"{path}: format version {info['format_version']} is newer than "
-                                f"{FORMAT_VERSION}; upgrade scenesearch")
         try:
-            metadata = MetadataStore.read(directory / "metadata.parquet")
-            texts = pq.read_table(directory / "texts.parquet").column("text").to_pylist()
-            emb = np.load(directory / "text_embeddings.npy")
-            groups = [_Groups(np.load(directory / f"{name}_offsets.npy"), np.load(directory / f"{name}_texts.npy"))
-                      for name in ("full", "object")]
-        except (OSError, ValueError, KeyError) as exc:
-            raise IndexDirError(f"{directory}: unreadable caption index: {exc}") from None
-        for g in groups:
-            if len(g.offsets) != len(metadata) + 1 or g.offsets[-1] != len(g.indices) or \
-                    (len(g.indices) and int(g.indices.max()) >= len(texts)) or emb.shape[0] != len(texts):
-                raise IndexDirError(f"{directory}: files disagree ({len(metadata)} rows, {len(g.offsets)} offsets, "
-                                    f"{len(texts)} texts, {emb.shape[0]} embeddings)")
+            info = read_json_manifest(path, KIND, FORMAT_VERSION)
+            version = info["format_version"]
+            files = parse_file_entries(info.get("files"), path) if version >= 2 else {}
+            if version >= 2 and (missing := [n for n in FILES if n not in files]):
+                raise ManifestError(path, f"does not list {', '.join(missing)}", field="files")
+            counts = {k: info.get(k) for k in ("count", "texts", "dim")}
+            for key, value in counts.items():
+                if not isinstance(value, int) or value < 0:
+                    raise ManifestError(path, "missing or not a count", field=key)
+            with verifying(directory, files, verify):
+                parts = _read_parts(directory, counts)
+        except IndexesError as exc:
+            raise IndexDirError(str(exc)) from exc
         base = info.get("base_dir")
-        return cls(metadata, texts, emb, groups[0], groups[1], encoder, info.get("text_encoder"),
-                   Path(base) if base else None, [Skipped(s["item"], s["reason"]) for s in info.get("skipped", [])])
+        return cls(*parts, encoder, info.get("text_encoder"), Path(base) if base else None,
+                   [Skipped(s["item"], s["reason"]) for s in info.get("skipped", [])])
 
     def scores(self, xq: np.ndarray) -> np.ndarray:
         """(N,) score of every row for one query embedding (D,): mean of its best full and best object text."""

@@ -2,7 +2,8 @@
 
 An index directory holds everything a search needs::
 
-    INDEX_DIR/manifest.json     format version, model hash, dimensions, views, counts, created, paths
+    INDEX_DIR/manifest.json     format version, model hash, dimensions, views, counts, created, paths,
+                                checksums of the sub-manifests and run/config.json, and of its own content
     INDEX_DIR/fused/            ClipIndex (indexes/) of fused camera + BEV clip embeddings
     INDEX_DIR/camera/           ClipIndex of camera-only embeddings
     INDEX_DIR/bev/              ClipIndex of BEV-only embeddings
@@ -20,6 +21,7 @@ from __future__ import annotations
 import json
 import shutil
 import time
+import warnings
 from collections.abc import Callable, Mapping
 from dataclasses import asdict, dataclass, field
 from datetime import UTC, datetime
@@ -30,22 +32,35 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from common.atomic import atomic_directory
+from common.atomic import atomic_directory, recover_directory
 from encoders.clips.layout import read_clip_table
 from indexes.clip_index import ClipIndex
-from indexes.errors import IndexesError
+from indexes.errors import IndexesError, ManifestError
 from indexes.filters import FilterSpec
+from indexes.integrity import (
+    IntegrityWarning,
+    Verify,
+    VerifyLike,
+    as_verify,
+    file_entries,
+    parse_file_entries,
+    seal,
+    verify_files,
+)
+from indexes.persistence import read_json_manifest
 from retrieval.captions_search import CaptionSearch, Skipped, TextEncoder, caption_rows
 from retrieval.embedding import CONFIG_FILE, Embedder, ModelEmbedder
 from retrieval.errors import IndexDirError, ModelMismatchError, UnknownClipError, UnknownViewError
 from retrieval.querying import MAX_K, build_query, check_query, hits_to_results, preview_of
 from retrieval.records import SearchResult
 
-FORMAT_VERSION = 1
+#: 2: the manifest holds checksums (``files``, ``content_sha256``); version 1 is still read, with a warning.
+FORMAT_VERSION = 2
 KIND = "scenesearch_index"
 MANIFEST = "manifest.json"
 VIEWS = ("fused", "camera", "bev")
 CAPTIONS_DIR = "captions"
+RUN_CONFIG = f"run/{CONFIG_FILE}"
 Progress = Callable[[str], None]
 
 
@@ -65,6 +80,8 @@ class IndexManifest:
         text_encoder: the sentence encoder of the caption index.
         created: UTC time of the build, ISO 8601.
         skipped: clips left out, with the reason.
+        files: size and SHA-256 of ``<view>/manifest.json``, ``captions/manifest.json`` and
+            ``run/config.json`` (each sub-manifest in turn covers its own files).
     """
 
     format_version: int
@@ -78,6 +95,7 @@ class IndexManifest:
     text_encoder: str
     created: str
     skipped: list[dict[str, str]] = field(default_factory=list)
+    files: dict[str, dict[str, Any]] = field(default_factory=dict)
 
     @staticmethod
     def read(index_dir: Path) -> IndexManifest:
@@ -88,17 +106,13 @@ class IndexManifest:
             raise IndexDirError(f"{path}: missing; {index_dir} is not a scenesearch index (or its build never "
                                 "finished)")
         try:
-            raw = json.loads(path.read_text())
-        except (OSError, json.JSONDecodeError) as exc:
-            raise IndexDirError(f"{path}: unreadable: {exc}") from None
-        if raw.get("kind") != KIND:
-            raise IndexDirError(f"{path}: holds a {raw.get('kind')!r}, not a {KIND!r}")
-        version = raw.get("format_version")
-        if not isinstance(version, int) or version > FORMAT_VERSION:
-            raise IndexDirError(f"{path}: format version {version!r} is not supported (this code reads up to "
-                                f"{FORMAT_VERSION}); upgrade scenesearch or rebuild the index")
+            raw = read_json_manifest(path, KIND, FORMAT_VERSION)
+            if raw["format_version"] >= 2:
+                parse_file_entries(raw.get("files"), path)
+        except IndexesError as exc:
+            raise IndexDirError(str(exc)) from exc
         names = {f for f in IndexManifest.__dataclass_fields__}
-        missing = sorted(n for n in names if n not in raw and n != "skipped")
+        missing = sorted(n for n in names if n not in raw and n not in ("skipped", "files"))
         if missing:
             raise IndexDirError(f"{path}: missing fields {missing}")
         return IndexManifest(**{k: v for k, v in raw.items() if k in names})
@@ -164,35 +178,49 @@ class SceneSearch:
         if "split" in rows.column_names:
             for s in rows.column("split").to_pylist():
                 split_counts[f"split_{s}"] = split_counts.get(f"split_{s}", 0) + 1
-        manifest = IndexManifest(
-            format_version=FORMAT_VERSION, kind=KIND, model_sha256=embedder.model_id, run_dir=str(run_dir),
-            clips_dir=str(clips_dir), embed_dim=dim, views=list(VIEWS),
-            counts={**{v: len(ix) for v, ix in views.items()}, "captions": len(captions), **split_counts},
-            text_encoder=captions.encoder_name, created=datetime.now(UTC).isoformat(timespec="seconds"),
-            skipped=[{"item": s.item, "reason": s.reason} for s in skipped])
         with atomic_directory(out_dir, overwrite=True) as tmp:
             for view, index in views.items():
                 index.save(tmp / view)
             captions.save(tmp / CAPTIONS_DIR)
             (tmp / "run").mkdir()
+            covered = [f"{d}/{MANIFEST}" for d in (*VIEWS, CAPTIONS_DIR)]
             if (run_dir / CONFIG_FILE).is_file():
                 shutil.copy2(run_dir / CONFIG_FILE, tmp / "run" / CONFIG_FILE)
-            (tmp / MANIFEST).write_text(json.dumps(asdict(manifest), indent=2))
+                covered.append(RUN_CONFIG)
+            manifest = IndexManifest(
+                format_version=FORMAT_VERSION, kind=KIND, model_sha256=embedder.model_id, run_dir=str(run_dir),
+                clips_dir=str(clips_dir), embed_dim=dim, views=list(VIEWS),
+                counts={**{v: len(ix) for v, ix in views.items()}, "captions": len(captions), **split_counts},
+                text_encoder=captions.encoder_name, created=datetime.now(UTC).isoformat(timespec="seconds"),
+                skipped=[{"item": s.item, "reason": s.reason} for s in skipped],
+                files={n: e.to_json() for n, e in file_entries(tmp, covered).items()})
+            (tmp / MANIFEST).write_text(json.dumps(seal(asdict(manifest)), indent=2))
         say(f"index: wrote {out_dir} ({len(clip_ids)} clips, {len(skipped)} skipped)")
         return cls(out_dir, manifest, views, captions, embedder)
 
     @classmethod
     def open(cls, index_dir: Path | str, embedder: Embedder | None = None,
-             text_encoder: TextEncoder | None = None, views: tuple[str, ...] = VIEWS) -> SceneSearch:
-        """Open an index directory written by :meth:`build`.
+             text_encoder: TextEncoder | None = None, views: tuple[str, ...] = VIEWS,
+             verify: VerifyLike = Verify.CACHED) -> SceneSearch:
+        """Open an index directory written by :meth:`build`, checking every file it reads.
 
-        The model is loaded when the first text query needs it; its hash is checked then.
+        The model is loaded when the first text query needs it; its hash is checked then. A build
+        killed while swapping directories is recovered here (see :mod:`common.atomic`).
+
+        Args:
+            index_dir: the index directory.
+            embedder: the model of text queries (default: the run's, loaded on first use).
+            text_encoder: the sentence encoder of caption search.
+            views: the views to load.
+            verify: file checksums: ``cached`` (hash files not verified before), ``full`` or
+                ``off`` (warns once); see :mod:`indexes.integrity`.
 
         Raises:
-            IndexDirError: not an index directory, or an unsupported format.
+            IndexDirError: not an index directory, an unsupported format, or a missing, truncated
+                or corrupt file (the message names it).
             ModelMismatchError: ``embedder`` is another model than the index was built with.
         """
-        index_dir = Path(index_dir)
+        index_dir = recover_directory(Path(index_dir))
         manifest = IndexManifest.read(index_dir)
         if embedder is not None and embedder.model_id != manifest.model_sha256:
             raise ModelMismatchError(
@@ -201,11 +229,22 @@ class SceneSearch:
         unknown = [v for v in views if v not in manifest.views]
         if unknown:
             raise UnknownViewError(unknown[0], manifest.views)
-        try:
-            loaded = {v: ClipIndex.load(index_dir / v, verify=False) for v in views}
-        except IndexesError as exc:
-            raise IndexDirError(f"{index_dir}: {exc}") from None
-        captions = CaptionSearch.open(index_dir / CAPTIONS_DIR, encoder=text_encoder)
+        mode = as_verify(verify)
+        with warnings.catch_warnings():
+            if mode is Verify.OFF:
+                warnings.warn(f"{index_dir}: checksums not verified (verify='off'); only file sizes were checked",
+                              IntegrityWarning, stacklevel=2)
+                warnings.filterwarnings("ignore", message=".*checksums not verified", category=IntegrityWarning)
+            try:
+                _verify_top_files(index_dir, manifest, views, mode)
+                loaded = {v: ClipIndex.load(index_dir / v, verify=mode) for v in views}
+            except IndexesError as exc:
+                raise IndexDirError(str(exc)) from exc
+            captions = CaptionSearch.open(index_dir / CAPTIONS_DIR, encoder=text_encoder, verify=mode)
+        for name, size in [*((v, len(ix)) for v, ix in loaded.items()), ("captions", len(captions))]:
+            if manifest.counts.get(name) not in (None, size):
+                raise IndexDirError(f"{index_dir / name}: holds {size} entries, {index_dir / MANIFEST} says "
+                                    f"{manifest.counts[name]}")
         captions.base_dir = Path(manifest.clips_dir)
         return cls(index_dir, manifest, loaded, captions, embedder)
 
@@ -343,6 +382,20 @@ class SceneSearch:
                                                    "rows": meta.to_pylist()}, indent=1, default=str))
             return path
         raise ValueError(f"{path}: unknown export format {path.suffix!r}; use .parquet or .npy")
+
+
+def _verify_top_files(index_dir: Path, manifest: IndexManifest, views: tuple[str, ...], mode: Verify) -> None:
+    """Check the files the top manifest covers: the sub-manifests of ``views`` and captions, and the run config."""
+    if manifest.format_version < 2:
+        return  # IndexManifest.read warned: no checksums in this format
+    path = index_dir / MANIFEST
+    files = parse_file_entries(manifest.files, path)
+    wanted = [f"{d}/{MANIFEST}" for d in (*views, CAPTIONS_DIR)]
+    missing = [n for n in wanted if n not in files]
+    if missing:
+        raise ManifestError(path, f"does not list {', '.join(missing)}", field="files")
+    wanted += [n for n in files if n == RUN_CONFIG]
+    verify_files(index_dir, {n: files[n] for n in wanted}, mode)
 
 
 def _align(clip_ids: list[str], ids: list[str], x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -12,12 +12,19 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from common.atomic import sweep_stale
 from indexes.errors import IndexFileError, ManifestError, ReadOnlyIndexError, UnsupportedFormatError
+from indexes.integrity import seal
 from indexes.persistence import FORMAT_VERSION
 from indexes.vector_index import VectorIndex
 
 Data = tuple[np.ndarray, np.ndarray]
 ROOT = Path(__file__).resolve().parents[2]
+
+
+def _write_sealed(path: Path, manifest: dict) -> None:
+    """Write an edited manifest with a matching content checksum (as a consistent writer would)."""
+    path.write_text(json.dumps(seal(manifest)))
 
 
 def _saved_file(tmp_path: Path, xb: np.ndarray, name: str) -> Path:
@@ -75,8 +82,9 @@ def test_truncated_file_without_manifest_check_fails_clearly(tmp_path: Path, dat
     path.write_bytes(path.read_bytes()[:1000])
     manifest = json.loads((tmp_path / "idx" / "manifest.json").read_text())
     manifest["files"]["index.faiss"]["size_bytes"] = 1000  # a manifest that agrees with the damage
-    (tmp_path / "idx" / "manifest.json").write_text(json.dumps(manifest))
-    with pytest.raises(IndexFileError, match=r"index\.faiss"):
+    _write_sealed(tmp_path / "idx" / "manifest.json", manifest)
+    with pytest.warns(UserWarning, match="checksums not verified"), \
+            pytest.raises(IndexFileError, match=r"index\.faiss"):
         VectorIndex.load(tmp_path / "idx", verify=False)
 
 
@@ -98,7 +106,7 @@ def test_manifest_mismatches_are_refused(tmp_path: Path, data: Data) -> None:
         ("metric", "hamming", ManifestError, "metric"),
         ("format_version", FORMAT_VERSION + 1, UnsupportedFormatError, "newer"),
     ]:
-        path.write_text(json.dumps({**good, key: value}))
+        _write_sealed(path, {**good, key: value})
         with pytest.raises(error, match=pattern):
             VectorIndex.load(tmp_path / "idx")
     path.write_text("{not json")
@@ -185,3 +193,62 @@ def test_kill_between_the_two_renames_of_a_save(tmp_path: Path, data: Data) -> N
     index.save(tmp_path / "idx")
     (tmp_path / "idx").rename(tmp_path / ".idx.old")
     assert len(VectorIndex.load(tmp_path / "idx")) == 200
+
+
+_KILLED_SAVE = textwrap.dedent("""
+    import sys
+    sys.path[:0] = [{root!r}, {root!r} + "/tests/common"]
+    import kill_points
+    import numpy as np
+    from indexes.clip_index import ClipIndex
+    kill_points.install({target!r}, {point!r})
+    index = ClipIndex.load({target!r})
+    x = np.random.default_rng(5).normal(size=(40, 32)).astype(np.float32)
+    index.add(x, [{{"clip_id": f"new{{i}}", "category": "car"}} for i in range(40)])
+    index.save({target!r})
+""")
+
+
+@pytest.mark.parametrize("point", ["after_write:index.faiss", "before_swap", "between_renames", "after_swap"])
+def test_kill_at_each_point_of_a_clip_index_save(tmp_path: Path, data: Data, point: str) -> None:
+    """A save killed anywhere leaves an index that loads and answers as before (or as after, once swapped)."""
+    from indexes.clip_index import ClipIndex
+
+    xb, xq = data
+    target = tmp_path / "clips"
+    ClipIndex.build(xb[:300], [{"clip_id": f"c{i}", "category": "bus"} for i in range(300)],
+                    factory="Flat").save(target)
+    before = ClipIndex.load(target).search(xq, 5)
+    code = _KILLED_SAVE.format(root=str(ROOT), target=str(target), point=point)
+    assert subprocess.run([sys.executable, "-c", code], timeout=60).returncode == -signal.SIGKILL
+    assert any(p.name.startswith(".clips.") for p in tmp_path.iterdir())  # the kill left debris
+    loaded = ClipIndex.load(target)
+    assert len(loaded) == (340 if point == "after_swap" else 300)
+    if point != "after_swap":
+        np.testing.assert_array_equal(loaded.search(xq, 5).I, before.I)
+    # The next save (here: a new process's first write into the folder) leaves only the index.
+    sweep_stale(tmp_path, force=True)
+    loaded.save(target)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["clips"]
+    assert len(ClipIndex.load(target)) == len(loaded)
+
+
+def test_concurrent_writers_of_one_index_never_break_each_other(tmp_path: Path, data: Data) -> None:
+    """Two processes saving the same index over and over: every save succeeds, neither removes the
+    other's temporary folder, and what is left is one complete index."""
+    target = tmp_path / "idx"
+    VectorIndex.build(data[0][:200], factory="Flat").save(target)
+    loop = textwrap.dedent(f"""
+        import sys
+        sys.path.insert(0, {str(ROOT)!r})
+        import common.atomic
+        from indexes.vector_index import VectorIndex
+        common.atomic.SWEEP_INTERVAL_S = 0.0  # sweep on every write: the hardest case for the other writer
+        index = VectorIndex.load({str(target)!r})
+        for _ in range(25):
+            index.save({str(target)!r})
+    """)
+    writers = [subprocess.Popen([sys.executable, "-c", loop]) for _ in range(2)]
+    assert [w.wait(timeout=120) for w in writers] == [0, 0]
+    assert len(VectorIndex.load(target)) == 200
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["idx"]

@@ -2,13 +2,17 @@
 
 from __future__ import annotations
 
+import json
+from collections.abc import Callable
 from pathlib import Path
 
+import numpy as np
 import pyarrow as pa
 import pytest
 from retrieval_fakes import HashTextEncoder
 
-from retrieval.captions_search import CaptionSearch, caption_logs, object_sentence, text_variants
+from indexes.integrity import seal, sha256_file
+from retrieval.captions_search import CaptionSearch, caption_logs, is_caption_index, object_sentence, text_variants
 from retrieval.errors import EmptyQueryError, FilterSyntaxError, IndexDirError, InvalidKError
 
 REALDATA = Path(__file__).resolve().parents[3] / "shared" / "realdata" / "av2"
@@ -88,3 +92,88 @@ def test_stopped_car_on_real_av2_logs() -> None:
     assert all("stationary" in r.caption.split(". ", 1)[1] for r in cars[:2])
     peds = search.search("a pedestrian approaching", k=3)
     assert all(r.category == "pedestrian" and "approaches" in r.caption for r in peds)
+
+
+# ---------------------------------------------------------------------- integrity
+
+
+def _rewrite(directory: Path, name: str, arr: np.ndarray) -> None:
+    """Replace ``name`` and update the manifest to match, as a buggy but consistent writer would."""
+    np.save(directory / name, arr)
+    manifest = json.loads((directory / "manifest.json").read_text())
+    manifest["files"][name] = {"size_bytes": (directory / name).stat().st_size,
+                               "sha256": sha256_file(directory / name)}
+    (directory / "manifest.json").write_text(json.dumps(seal(manifest)))
+
+
+def _built(tmp_path: Path) -> Path:
+    CaptionSearch.build(_table(), tmp_path / "cap", encoder=HashTextEncoder())
+    return tmp_path / "cap"
+
+
+def test_permuted_embeddings_and_corrupt_offsets_are_refused(tmp_path: Path) -> None:
+    directory = _built(tmp_path)
+    emb = np.load(directory / "text_embeddings.npy")
+    np.save(directory / "text_embeddings.npy", emb[::-1])
+    with pytest.raises(IndexDirError, match=r"text_embeddings\.npy: checksum differs"):
+        CaptionSearch.open(directory, encoder=HashTextEncoder())
+    directory = _built(tmp_path / "again")
+    path = directory / "full_offsets.npy"
+    path.write_bytes(b"\x00" * path.stat().st_size)
+    with pytest.raises(IndexDirError, match=r"full_offsets\.npy: checksum differs"):
+        CaptionSearch.open(directory, encoder=HashTextEncoder())
+    with pytest.warns(UserWarning, match="checksums not verified"), \
+            pytest.raises(IndexDirError, match=r"full_offsets\.npy: not a readable \.npy file.*int64 array of shape"):
+        CaptionSearch.open(directory, encoder=HashTextEncoder(), verify="off")
+
+
+def _set(index: tuple[int, ...], value: float) -> Callable[[np.ndarray], np.ndarray]:
+    def change(arr: np.ndarray) -> np.ndarray:
+        arr = arr.copy()
+        arr[index] = value
+        return arr
+    return change
+
+
+@pytest.mark.parametrize(("name", "change", "pattern"), [
+    ("full_offsets.npy", lambda a: a.astype(np.float64),
+     r"full_offsets\.npy: expected a int64 array of shape \(5,\), got float64"),
+    ("full_offsets.npy", _set((1,), 0), r"full_offsets\.npy: expected offsets rising strictly from 0"),
+    ("object_texts.npy", _set((-1,), 99), r"object_texts\.npy: expected indices into the \d+ texts"),
+    ("text_embeddings.npy", lambda a: a[:3], r"text_embeddings\.npy: expected a float32 array "
+                                             r"of shape \(\d+, 64\), got float32 \(3, 64\)"),
+    ("text_embeddings.npy", _set((0, 0), np.nan), r"text_embeddings\.npy: holds NaN"),
+])
+def test_sidecar_errors_name_file_and_expectation(tmp_path: Path, name: str,
+                                                  change: Callable[[np.ndarray], np.ndarray], pattern: str) -> None:
+    directory = _built(tmp_path)
+    _rewrite(directory, name, change(np.load(directory / name)))
+    with pytest.raises(IndexDirError, match=pattern):
+        CaptionSearch.open(directory, encoder=HashTextEncoder())
+
+
+def test_older_caption_index_opens_with_a_warning(tmp_path: Path) -> None:
+    directory = _built(tmp_path)
+    manifest = json.loads((directory / "manifest.json").read_text())
+    for key in ("files", "content_sha256"):
+        manifest.pop(key)
+    (directory / "manifest.json").write_text(json.dumps({**manifest, "format_version": 1}))
+    with pytest.warns(UserWarning, match="older version"):
+        assert len(CaptionSearch.open(directory, encoder=HashTextEncoder())) == 4
+
+
+def test_cli_reports_a_corrupt_caption_index_in_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from retrieval.cli import main
+
+    directory = _built(tmp_path)
+    (directory / "manifest.json").write_text("{truncated")
+    assert main(["search", str(directory), "stopped car"]) == 2
+    err = capsys.readouterr().err
+    assert "manifest.json: unreadable" in err and "Traceback" not in err
+
+
+def test_interrupted_swap_of_a_caption_index_is_recovered(tmp_path: Path) -> None:
+    directory = _built(tmp_path)
+    directory.rename(tmp_path / ".cap.old")  # killed between the swap's two renames
+    assert is_caption_index(directory)
+    assert len(CaptionSearch.open(directory, encoder=HashTextEncoder())) == 4

@@ -4,6 +4,10 @@ from __future__ import annotations
 
 import json
 import shutil
+import signal
+import subprocess
+import sys
+import textwrap
 from pathlib import Path
 from typing import Any
 
@@ -12,6 +16,8 @@ import pyarrow.parquet as pq
 import pytest
 from retrieval_fakes import FakeEmbedder, HashTextEncoder, caption_of
 
+from common.atomic import sweep_stale
+from indexes.integrity import seal
 from retrieval.embedding import ModelEmbedder, model_hash
 from retrieval.errors import (
     EmptyQueryError,
@@ -120,7 +126,7 @@ def test_model_version_mismatch(built: dict[str, Any], tmp_path: Path) -> None:
     shutil.copytree(built["run"], run_copy)
     manifest = json.loads((index_copy / "manifest.json").read_text())
     manifest["run_dir"] = str(run_copy)
-    (index_copy / "manifest.json").write_text(json.dumps(manifest))
+    (index_copy / "manifest.json").write_text(json.dumps(seal(manifest)))  # as if built from run_copy
     (run_copy / "model.safetensors").write_bytes(b"weights-v2")
     search = SceneSearch.open(index_copy, text_encoder=HashTextEncoder())
     with pytest.raises(ModelMismatchError, match="index built by another model version"):
@@ -159,3 +165,110 @@ def test_export_parquet_and_npy(built: dict[str, Any], tmp_path: Path) -> None:
     assert side["view"] == "bev" and len(side["rows"]) == 84
     with pytest.raises(ValueError, match=r"use .parquet or .npy"):
         search.export(tmp_path / "emb.csv")
+
+
+# ---------------------------------------------------------------------- integrity and faults
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def _flip(path: Path, count: int = 64) -> None:
+    """Invert ``count`` bytes in the middle of ``path``, in place (same size)."""
+    raw = bytearray(path.read_bytes())
+    mid = len(raw) // 2
+    raw[mid:mid + count] = bytes(b ^ 0xFF for b in raw[mid:mid + count])
+    with path.open("r+b") as f:
+        f.write(bytes(raw))
+
+
+def _copy(built: dict[str, Any], tmp_path: Path) -> Path:
+    shutil.copytree(built["index"], tmp_path / "index")
+    return tmp_path / "index"
+
+
+@pytest.mark.parametrize("name", ["fused/index.faiss", "bev/metadata.parquet", "captions/text_embeddings.npy",
+                                  "captions/full_offsets.npy", "camera/manifest.json", "run/config.json"])
+def test_corrupt_file_is_refused_naming_it(built: dict[str, Any], tmp_path: Path, name: str) -> None:
+    index = _copy(built, tmp_path)
+    _flip(index / name, count=min(64, (index / name).stat().st_size // 4))
+    with pytest.raises(IndexDirError, match=rf"{name}.*(checksum|differs)"):
+        SceneSearch.open(index, embedder=built["embedder"], text_encoder=HashTextEncoder())
+
+
+def test_permuted_caption_embeddings_are_refused(built: dict[str, Any], tmp_path: Path) -> None:
+    index = _copy(built, tmp_path)
+    path = index / "captions" / "text_embeddings.npy"
+    emb = np.load(path)
+    np.save(path, emb[np.random.default_rng(0).permutation(len(emb))])  # same shape, size and dtype
+    with pytest.raises(IndexDirError, match=r"text_embeddings\.npy: checksum differs"):
+        SceneSearch.open(index, text_encoder=HashTextEncoder())
+
+
+def test_skipping_verification_says_so_once(built: dict[str, Any], tmp_path: Path) -> None:
+    from indexes.integrity import IntegrityWarning
+
+    index = _copy(built, tmp_path)
+    with pytest.warns(IntegrityWarning, match="checksums not verified") as record:
+        search = SceneSearch.open(index, text_encoder=HashTextEncoder(), verify="off")
+    assert len([w for w in record if issubclass(w.category, IntegrityWarning)]) == 1
+    assert len(search) == 84
+
+
+def test_edited_top_manifest_is_refused(built: dict[str, Any], tmp_path: Path) -> None:
+    index = _copy(built, tmp_path)
+    manifest = json.loads((index / "manifest.json").read_text())
+    (index / "manifest.json").write_text(json.dumps({**manifest, "clips_dir": "/elsewhere"}))
+    with pytest.raises(IndexDirError, match="content differs from its checksum"):
+        SceneSearch.open(index, text_encoder=HashTextEncoder())
+
+
+def test_check_command_reports_the_corrupt_file(built: dict[str, Any], tmp_path: Path,
+                                                capsys: pytest.CaptureFixture[str]) -> None:
+    from retrieval.cli import main
+
+    index = _copy(built, tmp_path)
+    assert main(["index", "--check", str(index)]) == 0
+    assert "every file matches its checksum" in capsys.readouterr().out
+    _flip(index / "bev" / "index.faiss")
+    assert main(["index", "--check", str(index)]) == 2
+    assert "bev/index.faiss: checksum differs" in capsys.readouterr().err
+
+
+_KILLED_BUILD = textwrap.dedent("""
+    import sys
+    sys.path[:0] = [{root!r}, {fakes!r}, {root!r} + "/tests/common"]
+    import kill_points
+    from retrieval_fakes import FakeEmbedder, HashTextEncoder
+    from retrieval.scenesearch import SceneSearch
+    kill_points.install({target!r}, {point!r})
+    embedder = FakeEmbedder({model_id!r}, seed=1)  # another training of the same model: other vectors
+    SceneSearch.build({run!r}, {clips!r}, {target!r}, embedder=embedder, text_encoder=HashTextEncoder())
+""")
+
+
+@pytest.mark.parametrize("point", ["after_write:text_embeddings.npy", "before_swap", "between_renames",
+                                   "after_swap"])
+def test_kill_during_an_index_build_keeps_a_searchable_index(built: dict[str, Any], tmp_path: Path,
+                                                             point: str) -> None:
+    index = _copy(built, tmp_path)
+    query = caption_of(["left:approach", "left:cut_in"])
+    before = [r.clip_id for r in _open_at(index, built).search_text(query, k=10)]
+    code = _KILLED_BUILD.format(root=str(ROOT), fakes=str(Path(__file__).parent), target=str(index), point=point,
+                                model_id=built["embedder"].model_id, run=str(built["run"]), clips=str(built["clips"]))
+    assert subprocess.run([sys.executable, "-c", code], timeout=120).returncode == -signal.SIGKILL
+    assert any(p.name.startswith(".index.") for p in tmp_path.iterdir())
+    after = [r.clip_id for r in _open_at(index, built).search_text(query, k=10)]
+    if point == "after_swap":
+        assert after != before  # the new build is complete and in place
+    else:
+        assert after == before
+    assert (index / "manifest.json").is_file()  # opening moved an aside copy back
+    # The next build replaces the index and removes what the killed one left.
+    sweep_stale(tmp_path, force=True)
+    SceneSearch.build(built["run"], built["clips"], index, embedder=built["embedder"], text_encoder=HashTextEncoder())
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["index"]
+    assert [r.clip_id for r in _open_at(index, built).search_text(query, k=10)] == before
+
+
+def _open_at(index: Path, built: dict[str, Any]) -> SceneSearch:
+    return SceneSearch.open(index, embedder=built["embedder"], text_encoder=HashTextEncoder())

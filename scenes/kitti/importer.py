@@ -162,7 +162,9 @@ def import_kitti_sequence(
             "unknown_types": unknown,
             "frame_period_ns": FRAME_PERIOD_NS,
             "epoch_ns": KITTI_EPOCH_NS,
-            "sources": {"labels": str(labels_path), "poses": str(poses_path), "calib": str(calib_path)},
+            # Absolute, so that commands run from any folder (eval-tracking reads the labels back) find them.
+            "sources": {"labels": str(Path(labels_path).resolve()), "poses": str(Path(poses_path).resolve()),
+                        "calib": str(Path(calib_path).resolve())},
         },
     )
     target = write_kitti_log(out_dir, annotations, ego, calibration, metadata, overwrite, image_size_px)

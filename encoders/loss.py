@@ -11,6 +11,11 @@ positives for each other, not negatives. With ``P`` (B, B) the positives (``P_ii
 ``multi_positive`` puts the softmax mass on the set of positives (it does not force equal mass on each,
 which is right for identical captions); ``soft`` spreads the target over positives, and over
 tag-similar clips when ``tag_weight`` > 0. The loss is the mean of the clip→text and text→clip terms.
+
+Hard negatives (``negatives`` (M, D), e.g. captions of a clip's steps reversed: :mod:`encoders.negatives`)
+join the clip→text side as M more columns of every row; the text→clip side and the targets over the
+batch stay as they are. A negative whose key equals clip i's (``negative_positives[i, j]``) is a
+positive of clip i there.
 """
 
 from __future__ import annotations
@@ -59,27 +64,38 @@ def contrastive_loss(
     variant: str = "multi_positive",
     similarity: torch.Tensor | None = None,
     tag_weight: float = 0.0,
+    negatives: torch.Tensor | None = None,
+    negative_positives: torch.Tensor | None = None,
 ) -> torch.Tensor:
     """video: (B, D), text: (B, D) normalised; scale: () ; positives: (B, B) bool → scalar loss.
 
-    ``similarity`` (B, B) in [0, 1] weighs non-positive pairs in the ``soft`` variant.
+    ``similarity`` (B, B) in [0, 1] weighs non-positive pairs in the ``soft`` variant. ``negatives``
+    (M, D) normalised are extra captions for the clip→text side; ``negative_positives`` (B, M) bool
+    marks the ones equal to a clip's own caption (default: none).
     """
     logits = scale * video.float() @ text.float().T  # (B, B) clip i vs caption j
     pos = positives.to(logits.device)
     if variant == "multi_positive":
         # −log Σ_{j∈P_i} softmax(s_i)_j = logsumexp(s_i) − logsumexp(s_i over P_i)
-        def side(s: torch.Tensor) -> torch.Tensor:
-            return (torch.logsumexp(s, dim=1) - torch.logsumexp(s.masked_fill(~pos, float("-inf")), dim=1)).mean()
+        def side(s: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
+            return (torch.logsumexp(s, dim=1) - torch.logsumexp(s.masked_fill(~t, float("-inf")), dim=1)).mean()
 
+        target = pos
     elif variant == "soft":
         weight = pos.float()  # (B, B), symmetric: the same targets serve both directions
         if similarity is not None and tag_weight > 0:
             weight = weight + tag_weight * similarity.to(logits.device).float() * (~pos).float()
-        target = weight / weight.sum(dim=1, keepdim=True)  # (B, B)
 
-        def side(s: torch.Tensor) -> torch.Tensor:
-            return -(target * F.log_softmax(s, dim=1)).sum(dim=1).mean()
+        def side(s: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
+            return -(t / t.sum(dim=1, keepdim=True) * F.log_softmax(s, dim=1)).sum(dim=1).mean()
 
+        target = weight
     else:
         raise ValueError(f"unknown loss variant {variant!r} (choose 'multi_positive' or 'soft')")
-    return 0.5 * (side(logits) + side(logits.T))
+    v2t_logits, v2t_target = logits, target
+    if negatives is not None and len(negatives):
+        own = (torch.zeros(len(video), len(negatives), dtype=torch.bool) if negative_positives is None
+               else negative_positives).to(logits.device)  # (B, M)
+        v2t_logits = torch.cat([logits, scale * video.float() @ negatives.float().T], dim=1)  # (B, B + M)
+        v2t_target = torch.cat([target, own.to(target.dtype)], dim=1)
+    return 0.5 * (side(v2t_logits, v2t_target) + side(logits.T, target.T))

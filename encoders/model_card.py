@@ -16,8 +16,9 @@ def model_card(config: TrainConfig, history: list[dict[str, Any]], n_train: int,
     last_val: dict[str, float] = next((r["val"] for r in reversed(history) if "val" in r), {})
     m = config.model
     metric_lines = "\n".join(f"| {k} | {v:.4g} |" for k, v in last_val.items()) or "| (no validation split) | |"
-    text = m.text.model if m.text.kind == "pretrained" else f"scratch transformer ({m.text.scratch_layers} layers)"
-    frozen = " (frozen, cached)" if m.text.kind == "pretrained" and m.text.freeze else ""
+    text = {"pretrained": m.text.model, "clauses": f"{m.text.model} over the text and each of its steps "
+            f"(up to {m.text.max_steps})"}.get(m.text.kind, f"scratch transformer ({m.text.scratch_layers} layers)")
+    frozen = " (frozen, cached)" if m.text.kind != "scratch" and m.text.freeze else ""
     n_val = len(val_set) if val_set is not None else 0  # type: ignore[arg-type]
     return f"""# DualEncoder model card
 
@@ -33,7 +34,8 @@ Text → clip and clip → clip retrieval of object behaviour in driving logs.
 ## Data
 - Clips: `{clips_dir}`; {n_train} training clips, {n_val} validation clips.
 - Supervision: rule-based canonical captions{" (paraphrases as augmentation)" if config.augment else ""};
-  positives: equal {config.positives}; loss: {config.loss}.
+  positives: equal {config.positives}; loss: {config.loss};
+  hard negatives (edited steps): {", ".join(config.hard_negatives) or "none"}.
 
 ## Training
 - {len(history)} epochs, batch {config.batch_size}, AdamW lr {config.lr}, seed {config.seed}.

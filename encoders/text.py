@@ -7,6 +7,11 @@ sentence embeddings are cached per caption string (:class:`TextFeatureCache`, op
 ``RUN_DIR/text_cache.npz`` keyed by model name and text hash), so training runs only the head on text.
 With ``finetune_top_layers`` > 0 the top transformer layers train too and the cache is off.
 
+``kind: clauses`` runs the same encoder over the whole text and over each of its steps
+(:func:`text_steps`: sentences, split again before "then"), and a head reads the slots in order:
+a caption and the same steps reversed then differ in what each slot holds, where one pooled
+sentence embedding barely changes (cosine ≈ 0.99). Every string goes through the same cache.
+
 ``kind: scratch`` is a small text transformer over hashed words, trained from scratch: the fallback
 when no pretrained encoder is installed.
 """
@@ -172,21 +177,76 @@ class ScratchText(nn.Module):
         return self.norm((x * keep).sum(1) / keep.sum(1))  # (B, W)
 
 
+#: Where a text's steps part: after a sentence's end, before ", then" (the comma goes, "then" stays with
+#: its step), at a bare " then " (dropped), and before ", after that" / ", afterwards" / ", and then".
+_STEP_BREAK = re.compile(
+    r"(?<=[.!?;])\s+|,\s*(?=then\b)|\s+then\s+|,\s*(?:and\s+)?(?:after that|afterwards|and then)\s+", re.I
+)
+
+
+def text_steps(text: str, max_steps: int) -> list[str]:
+    """The steps of any text, in order: its sentences, each split again before "then".
+
+    A text that does not split is one step; steps beyond ``max_steps`` merge into the last one, so
+    every word still reaches the encoder. "A car approaches. Then it moves away, then stops." →
+    ``["A car approaches", "Then it moves away", "then stops"]``.
+    """
+    steps = [s.strip(" ,.;") for s in _STEP_BREAK.split(text)]
+    steps = [s for s in steps if s] or [text.strip() or text]
+    if len(steps) > max_steps:
+        steps = [*steps[: max_steps - 1], " ".join(steps[max_steps - 1 :])]
+    return steps
+
+
+class ClauseText(nn.Module):
+    """The pretrained encoder over a text and its steps → (B, (1 + max_steps) · F): slot 0 the whole
+    text, slot 1 + j its step j, empty slots zero. Each distinct string of a batch is encoded (or
+    read from the cache) once."""
+
+    def __init__(self, config: TextConfig) -> None:
+        super().__init__()
+        self.config = config
+        self.sentence = PretrainedText(config)
+        self.slots = 1 + config.max_steps
+        self.out_features = self.slots * self.sentence.out_features
+        self.trainable = self.sentence.trainable
+        self.cache = self.sentence.cache
+
+    def forward(self, texts: list[str], device: torch.device) -> torch.Tensor:
+        """texts: B strings → (B, (1 + max_steps) · F)."""
+        index: dict[str, int] = {}
+        rows: list[int] = []
+        slots: list[int] = []
+        source: list[int] = []
+        for i, text in enumerate(texts):
+            for slot, part in enumerate([text, *text_steps(text, self.config.max_steps)]):
+                rows.append(i)
+                slots.append(slot)
+                source.append(index.setdefault(part, len(index)))
+        vectors = self.sentence(list(index), device)  # (U, F), U distinct strings
+        x = vectors.new_zeros(len(texts), self.slots, vectors.shape[1])  # (B, S, F)
+        at = {"device": vectors.device}
+        x[torch.tensor(rows, **at), torch.tensor(slots, **at)] = vectors[torch.tensor(source, **at)]
+        return x.reshape(len(texts), -1)
+
+
 class TextTower(nn.Module):
-    """Captions → (B, D): a sentence encoder (pretrained or scratch) and a projection head."""
+    """Captions → (B, D): a sentence encoder (pretrained, clauses or scratch) and a projection head."""
 
     def __init__(self, config: TextConfig, embed_dim: int) -> None:
         super().__init__()
         self.config = config
-        self.backbone: PretrainedText | ScratchText = (
-            PretrainedText(config) if config.kind == "pretrained" else ScratchText(config)
-        )
+        backbones: dict[str, type[PretrainedText | ClauseText | ScratchText]] = {
+            "pretrained": PretrainedText, "clauses": ClauseText, "scratch": ScratchText}
+        self.backbone: PretrainedText | ClauseText | ScratchText = backbones[config.kind](config)
         f = self.backbone.out_features
-        self.head = nn.Sequential(nn.Linear(f, f), nn.GELU(), nn.Linear(f, embed_dim))
+        # The clauses backbone is (1 + max_steps) × wider: a square first layer would be mostly idle weights.
+        hidden = config.step_hidden if config.kind == "clauses" else f
+        self.head = nn.Sequential(nn.Linear(f, hidden), nn.GELU(), nn.Linear(hidden, embed_dim))
 
     @property
     def cache(self) -> TextFeatureCache | None:
-        return self.backbone.cache if isinstance(self.backbone, PretrainedText) else None
+        return None if isinstance(self.backbone, ScratchText) else self.backbone.cache
 
     def forward(self, texts: list[str], device: torch.device) -> torch.Tensor:
         """texts: B strings → (B, D)."""
@@ -196,4 +256,6 @@ class TextTower(nn.Module):
         """state_dict key prefixes (below this module) that are frozen pretrained weights, not saved in runs."""
         if isinstance(self.backbone, PretrainedText) and not self.backbone.trainable:
             return ["backbone.encoder."]
+        if isinstance(self.backbone, ClauseText) and not self.backbone.trainable:
+            return ["backbone.sentence.encoder."]
         return []

@@ -6,16 +6,21 @@
     metrics.jsonl         one line per epoch: loss, learning rate, samples/s, validation retrieval metrics
     checkpoints/last.pt   everything a resumed run needs (:mod:`encoders.checkpoints`), atomically every epoch
     model.safetensors     final weights (frozen pretrained text weights are left out: they load from text.model)
-    text_cache.npz        cached frozen caption embeddings (pretrained text tower)
+    text_cache.npz        cached frozen caption embeddings (pretrained and clauses text towers)
     model_card.md         data, metrics and limits (:mod:`encoders.model_card`)
     tensorboard/          when TensorBoard is installed
 
 Determinism: the data order of epoch e is a permutation seeded by (seed, e), and before every step the
 torch generator is re-seeded from (seed, step), so modality dropout and frame shuffling depend only on
-the step; the tagging objective's n-th batch of windows depends only on (seed, n). The learning rate is
-a function of the step (no scheduler object holds state). A run resumed from ``checkpoints/last.pt``
-therefore continues exactly as if it had not stopped (on CPU; CUDA kernels may add their own
-non-determinism), with or without tag targets and with a trained or a frozen text tower.
+the step, as do the paraphrases of hard negatives; the tagging objective's n-th batch of windows
+depends only on (seed, n). The learning rate is a function of the step (no scheduler object holds
+state). A run resumed from ``checkpoints/last.pt`` therefore continues exactly as if it had not
+stopped (on CPU; CUDA kernels may add their own non-determinism), with or without tag targets and
+with a trained or a frozen text tower.
+
+With ``hard_negatives`` (:mod:`encoders.negatives`), each clip's captions with its steps edited
+(reversed, one approach ↔ away flipped, lanes mirrored) are encoded with the batch's captions and
+join the clip → text side of the loss as extra negatives.
 
 Checkpoints (:mod:`encoders.checkpoints`) hold every optimiser's state (the tagging head's own
 included), the random states and the metrics rows so far, as plain tensors and data read with
@@ -56,11 +61,13 @@ from encoders.checkpoints import (
     save_checkpoint,
 )
 from encoders.config import TrainConfig
+from encoders.data import AugmentConfig
 from encoders.inference import collate, embed_dataset, embed_texts, open_split, resolve_device, shuffle_time
 from encoders.loss import contrastive_loss, positives_matrix, tag_similarity
 from encoders.metrics import relevance_by_caption, text_to_clip_metrics
 from encoders.model import DualEncoder
 from encoders.model_card import model_card
+from encoders.negatives import NEGATIVE_FIELDS, batch_negatives
 from encoders.tagging.ablation import mask_inputs
 from encoders.tagging.config import TagTrainConfig
 from encoders.tagging.training import attach_tagging
@@ -231,7 +238,11 @@ def train(
     log = log or (lambda msg: print(msg, file=sys.stderr))
     run_dir = Path(run_dir)
     train_set, val_set = _open_datasets(Path(clips_dir), config, datasets)
-    config = resolve_channels(config, train_set[0])
+    first = train_set[0]
+    config = resolve_channels(config, first)
+    missing = [k for k in NEGATIVE_FIELDS if k not in first] if config.hard_negatives else []
+    if missing:
+        raise TrainingError(f"{clips_dir}: hard_negatives needs each clip's {', '.join(missing)}, which the clips lack")
     ckpt_path = run_dir / "checkpoints" / "last.pt"
     metrics_path = run_dir / "metrics.jsonl"
     if not resume and (ckpt_path.exists() or metrics_path.exists()):
@@ -279,6 +290,8 @@ def train(
         batches_per_epoch = min(batches_per_epoch, config.max_steps_per_epoch)
     total_steps = batches_per_epoch * config.epochs
     use_amp = config.amp and device.type == "cuda"
+    # Negatives are paraphrased as often as the positives are.
+    negative_paraphrases = AugmentConfig().paraphrase_probability if config.augment else 0.0
     writer = _tensorboard(run_dir)
     log(f"training on {n} clips, {batches_per_epoch} steps/epoch, {config.epochs} epochs, device {device}")
 
@@ -309,11 +322,19 @@ def train(
             if config.shuffle_frames:
                 batch = shuffle_time(batch)
             keys = batch["canonical_caption"] if config.positives == "caption" else [tuple(t) for t in batch["tags"]]
+            negative_texts: list[str] = []
+            own: list[list[bool]] = []
+            if config.hard_negatives:
+                negative_texts, own = batch_negatives(batch, config.hard_negatives, keys, config.positives,
+                                                      config.seed, step, negative_paraphrases)
             with torch.autocast(device_type=device.type, dtype=torch.bfloat16, enabled=use_amp):
-                video, text, scale = model(batch, list(batch["caption"]))
+                video, texts, scale = model(batch, list(batch["caption"]) + negative_texts)
+                text, negatives = texts[: len(keys)], texts[len(keys) :]  # (B, D), (M, D)
                 positives = positives_matrix(keys, device)
                 sim = tag_similarity(batch["tags"], device) if config.tag_weight > 0 else None
-                loss = contrastive_loss(video, text, scale, positives, config.loss, sim, config.tag_weight)
+                own_mask = torch.tensor(own, dtype=torch.bool, device=device).reshape(len(keys), len(negative_texts))
+                loss = contrastive_loss(video, text, scale, positives, config.loss, sim, config.tag_weight,
+                                        negatives, own_mask)
                 if tag_objective is not None:  # tagging hook
                     loss = loss + tag_objective.weight * tag_objective.loss(model.bev_embedding)
             value = float(loss.detach())

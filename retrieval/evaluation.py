@@ -97,10 +97,10 @@ def reverse_steps(tags: Sequence[str], caption: str, generate: Callable[[Sequenc
         caption: the caption of ``tags``.
         generate: tags → caption text (captioning's generator, with the row's category and host tags bound).
     """
-    if len(tags) < 2:
-        return None
-    reversed_tags = list(tags)[::-1]
-    if reversed_tags == list(tags):
+    from encoders.negatives import reversed_steps
+
+    reversed_tags = reversed_steps(tags)
+    if reversed_tags is None:
         return None
     try:
         text = generate(reversed_tags)
@@ -111,10 +111,9 @@ def reverse_steps(tags: Sequence[str], caption: str, generate: Callable[[Sequenc
 
 def caption_generator(category: str, host_tags: Sequence[str]) -> Callable[[Sequence[str]], str]:
     """captioning's tags → canonical caption text for one object (host tags kept as they are)."""
-    from captioning.text import caption_text
+    from encoders.negatives import render_caption
 
-    is_host = category == "ego"
-    return lambda tags: caption_text(None if is_host else category, tags, list(tags) if is_host else list(host_tags))
+    return lambda tags: render_caption(category, tags, host_tags)
 
 
 # ---------------------------------------------------------------------- clip → clip

@@ -1,11 +1,15 @@
 """Captioning speed and quality: vectorised rules against the per-frame reference implementation, same run.
 
 Synthetic fleet-like logs (10 Hz, tracks with random spans, rare gaps, a wandering ego). Figures:
-object-frames per second of the tag computation (host + neighbour tags) for both
-implementations, their ratio, and the throughput of the whole ``caption_arrays`` (tags, windows,
-text). Quality: agreement of the tags with the simulator's behaviour labels on freshly simulated
-logs (ego turns → steering tags, neighbour lane changes → lane transitions), when SUMO is
-available. The reference is timed on a subset (it is slow by design) and must give the same tags.
+object-frames per second of the tag computation for both implementations of the paper's rules
+(host + neighbour tags; the reference is timed on a subset, it is slow by design, and must give
+the same tags), their ratio, and the throughput of the whole ``caption_arrays`` (tags, windows,
+text). The default rules (``rules: behavior``: own behaviour too, stationary objects captioned)
+are timed against the paper's rules in the same run (``behavior_*`` figures; no map on synthetic
+logs), and again on the simulated logs with their maps (map rasterisation included). Quality:
+agreement of the tags with the simulator's behaviour labels on freshly simulated logs (ego turns →
+steering tags, neighbour lane changes → lane transitions), when SUMO is available; the own-behaviour
+F1 per label is ``benchmarks/bench_behavior_rules.py``.
 Times are CPU seconds of this process (``time.process_time``), so that other work on a shared
 machine does not count; numpy's elementwise kernels run on one core.
 """
@@ -19,12 +23,13 @@ from pathlib import Path
 import numpy as np
 
 from captioning.agreement import agreement_for_logs
-from captioning.config import CaptioningConfig
+from captioning.config import CaptioningConfig, RuleSet
 from captioning.host import host_tags
 from captioning.neighbors import neighbor_tags
-from captioning.pipeline import caption_arrays
+from captioning.pipeline import caption_arrays, tag_arrays
 from captioning.reference import reference_tags
 from scenes.geometry import batch_matrices, quat_to_rotmat, yaw_to_quat
+from scenes.log import Log
 
 
 def synthetic_log(seed: int, num_tracks: int, num_frames: int) -> dict:
@@ -71,7 +76,8 @@ def _best_of(repeats: int, fn, *args) -> float:  # type: ignore[no-untyped-def]
 
 
 def run(quick: bool) -> dict:
-    config = CaptioningConfig()
+    config = CaptioningConfig(rules=RuleSet.PAPER)
+    rich = CaptioningConfig()
     num_logs, num_tracks, num_frames = (3, 100, 300) if quick else (8, 250, 1200)
     logs = [synthetic_log(seed, num_tracks, num_frames) for seed in range(num_logs)]
     object_frames = sum(int(d["valid"].sum()) for d in logs)
@@ -83,6 +89,10 @@ def run(quick: bool) -> dict:
 
     fast_s = _best_of(repeats, all_tags)
     full_s = _best_of(repeats, lambda: [caption_arrays(config=config, **d) for d in logs])
+    # Before and after in the same run: every per-frame tag under each rule set, then whole captions.
+    paper_tags_s = _best_of(repeats, lambda: [tag_arrays(config=config, **d) for d in logs])
+    rich_tags_s = _best_of(repeats, lambda: [tag_arrays(config=rich, **d) for d in logs])
+    rich_full_s = _best_of(repeats, lambda: [caption_arrays(config=rich, **d) for d in logs])
 
     subset = synthetic_log(100, 12 if quick else 30, num_frames)
     subset_frames = int(subset["valid"].sum())
@@ -97,9 +107,14 @@ def run(quick: bool) -> dict:
     fast_rate = object_frames / fast_s
     ref_rate = subset_frames / ref_s
     return {
-        **_simulated_agreement(num_logs=2 if quick else 8, duration_s=40 if quick else 60),
+        **_simulated_agreement(num_logs=2 if quick else 8, duration_s=40 if quick else 60, repeats=repeats),
         "object_frames": object_frames,
         "vectorised_object_frames_per_s": round(fast_rate),
+        "paper_rules_tags_object_frames_per_s": round(object_frames / paper_tags_s),
+        "behavior_rules_tags_object_frames_per_s": round(object_frames / rich_tags_s),
+        "behavior_tags_slowdown_vs_paper": round(rich_tags_s / paper_tags_s, 2),
+        "behavior_rules_full_pipeline_object_frames_per_s": round(object_frames / rich_full_s),
+        "behavior_full_slowdown_vs_paper": round(rich_full_s / full_s, 2),
         "reference_object_frames_per_s": round(ref_rate),
         "speedup_vs_reference": round(fast_rate / ref_rate, 1),
         "full_pipeline_object_frames_per_s": round(object_frames / full_s),
@@ -113,8 +128,9 @@ def run(quick: bool) -> dict:
     }
 
 
-def _simulated_agreement(num_logs: int, duration_s: int) -> dict:
-    """Agreement figures on simulated logs (empty with a reason when the simulator cannot run)."""
+def _simulated_agreement(num_logs: int, duration_s: int, repeats: int) -> dict:
+    """Agreement figures on simulated logs (empty with a reason when the simulator cannot run), and the
+    speed of the paper's and the default rules on them, maps included."""
     from retrieval.cli import main
 
     with tempfile.TemporaryDirectory() as tmp:
@@ -126,9 +142,37 @@ def _simulated_agreement(num_logs: int, duration_s: int) -> dict:
                 return {"agreement_error": "simulate failed"}
         except Exception as exc:
             return {"agreement_error": f"{type(exc).__name__}: {exc}"}
-        report = agreement_for_logs(sorted(p for p in out.iterdir() if p.is_dir()))
-    return {f"agreement_{key}": (round(value, 3) if isinstance(value, float) else value)
-            for key, value in report.to_dict().items()}
+        log_dirs = sorted(p for p in out.iterdir() if p.is_dir())
+        report = agreement_for_logs(log_dirs, CaptioningConfig(rules=RuleSet.PAPER))
+        speed = _simulated_speed(log_dirs, repeats)
+    return {**speed, **{f"agreement_{key}": (round(value, 3) if isinstance(value, float) else value)
+                        for key, value in report.to_dict().items()}}
+
+
+def _simulated_speed(log_dirs: list[Path], repeats: int) -> dict:
+    """Per-frame tags of simulated logs with their maps: the paper's rules against the default rules."""
+    inputs = []
+    for log_dir in log_dirs:
+        log = Log.open(log_dir)
+        dense = log.dense_tracks()
+        inputs.append((dict(log_id=log.log_id, timestamps_ns=dense.timestamps_ns, track_ids=dense.track_ids,
+                            categories=dense.categories, valid=dense.valid,
+                            center_ego_xy_m=dense.center_ego_xyz_m[..., :2], yaw_ego_rad=dense.yaw_ego_rad,
+                            city_SE3_ego=dense.city_SE3_ego), log.map, dense.size_lwh_m[..., 0]))
+    object_frames = sum(int(d["valid"].sum()) for d, _, _ in inputs)
+
+    def tags(config: CaptioningConfig) -> None:
+        for d, vector_map, length in inputs:
+            tag_arrays(config=config, vector_map=vector_map, length_m=length, **d)
+
+    paper_s = _best_of(repeats, tags, CaptioningConfig(rules=RuleSet.PAPER))
+    rich_s = _best_of(repeats, tags, CaptioningConfig())
+    return {
+        "simulated_object_frames": object_frames,
+        "simulated_paper_tags_object_frames_per_s": round(object_frames / paper_s),
+        "simulated_behavior_tags_with_map_object_frames_per_s": round(object_frames / rich_s),
+        "simulated_behavior_slowdown_vs_paper": round(rich_s / paper_s, 2),
+    }
 
 
 if __name__ == "__main__":

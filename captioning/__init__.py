@@ -8,14 +8,21 @@ LiDAR Tracks", vectorised over tracks × frames:
   generalised to objects behind the host): :mod:`captioning.neighbors`;
 - Savitzky–Golay derivatives per contiguous run and flicker suppression: :mod:`captioning.smoothing`;
 - unified tags (eq. 8), host segments and windows: :mod:`captioning.unify`;
-- caption text and seeded paraphrases: :mod:`captioning.text`;
+- caption text and seeded paraphrases: :mod:`captioning.text`; caption rows per window:
+  :mod:`captioning.assemble`;
+- each object's own behaviour (parked, stopped, braking, turns, lane changes, blocked by / braking
+  for a leader, speed; the simulator's label vocabulary) from its city-frame track and the map:
+  :mod:`captioning.behavior`, :mod:`captioning.leaders`; map context (lane, intersection,
+  crosswalk, junction kind): :mod:`captioning.map_context`. ``rules: paper`` leaves them out and
+  gives the paper's captions exactly;
 - the paper's right-positive lateral axis is converted once, in :mod:`captioning.tags`;
 - all thresholds: :class:`CaptioningConfig` (:mod:`captioning.config`, ``captioning.yaml``);
-- files and the batch API: :mod:`captioning.pipeline`; simulator-label agreement:
-  :mod:`captioning.agreement`; the per-frame oracle: :mod:`captioning.reference`.
+- files and the batch API: :mod:`captioning.pipeline`, their columns :mod:`captioning.tables`, published
+  together by :mod:`captioning.publish`; simulator-label agreement and own-behaviour F1:
+  :mod:`captioning.agreement`; the per-frame oracle of the paper's rules: :mod:`captioning.reference`.
 
-Every tracked object is tagged wherever it is around the ego; restricting to what a camera sees
-is the clip stage's job.
+Every tracked object is tagged wherever it is around the ego (standing ones too, under the default
+``rules: behavior``); restricting to what a camera sees is the clip stage's job.
 
 Public API::
 

@@ -13,6 +13,11 @@ Two checks, per labelled *event* (a contiguous run of frames where a label holds
   (``±host_lane_half_width_m``) are also counted apart (*band crossing*).
 - **Ego turns** (``left_turn`` / ``right_turn`` of the ego): the host direction tags inside the
   event should include ``steering_left`` / ``steering_right``.
+
+And per frame, the **own-behaviour tags** (:mod:`captioning.behavior`) against the labels of the same
+name: F1, precision and recall per label over the object frames that carry both a label row and a
+computed tag (:func:`behavior_counts`, :func:`behavior_counts_for_logs`). Objects under a new id after
+a tracker's id switch have no label rows and are left out.
 """
 
 from __future__ import annotations
@@ -25,7 +30,8 @@ import numpy as np
 import pyarrow as pa
 from numpy.typing import NDArray
 
-from captioning.config import CaptioningConfig
+from captioning.behavior import LABELS
+from captioning.config import CaptioningConfig, RuleSet
 from captioning.pipeline import EGO_TRACK_ID, LogCaptions, caption_log
 from captioning.tags import HOST_DIRECTIONS, LANES, NO_TAG, HostDirection, Lane
 
@@ -164,4 +170,96 @@ def agreement_for_logs(log_dirs: Iterable[Path | str], config: CaptioningConfig 
             continue
         result = caption_log(Log.open(log_dir), config)
         total = total + agreement(result, labels, host_lane_half_width_m=config.neighbor.host_lane_half_width_m)
+    return total
+
+
+def label_grid(labels: pa.Table, timestamps_ns: NDArray[np.int64], track_ids: NDArray[np.str_]
+               ) -> tuple[NDArray[np.bool_], NDArray[np.bool_]]:
+    """Behaviour labels on a log's (K, T) grid.
+
+    Args:
+        labels: the ``scenes.behavior`` table.
+        timestamps_ns: (T,) the frame grid.
+        track_ids: (K,) the tracks.
+
+    Returns:
+        (K, T, len(LABELS)) label values and (K, T) whether the cell has a label row.
+    """
+    k, t = len(track_ids), len(timestamps_ns)
+    flags = np.zeros((k, t, len(LABELS)), dtype=bool)
+    labelled = np.zeros((k, t), dtype=bool)
+    if k == 0 or t == 0 or labels.num_rows == 0:
+        return flags, labelled
+    ts = np.asarray(labels.column("timestamp_ns").to_numpy())
+    ids = np.asarray(labels.column("track_id").to_numpy(zero_copy_only=False)).astype(str)
+    order = np.argsort(np.asarray(track_ids).astype(str))
+    sorted_ids = np.asarray(track_ids).astype(str)[order]
+    pos = np.clip(np.searchsorted(sorted_ids, ids), 0, k - 1)
+    row = order[pos]
+    col = np.clip(np.searchsorted(timestamps_ns, ts), 0, t - 1)
+    ok = (sorted_ids[pos] == ids) & (timestamps_ns[col] == ts)
+    values = np.stack([np.asarray(labels.column(label.value).to_numpy(zero_copy_only=False), dtype=bool)
+                       for label in LABELS], axis=1)
+    flags[row[ok], col[ok]] = values[ok]
+    labelled[row[ok], col[ok]] = True
+    return flags, labelled
+
+
+@dataclass(frozen=True)
+class BehaviorCounts:
+    """True positives, false positives and false negatives per label (in :data:`~captioning.behavior.LABELS` order)."""
+
+    tp: tuple[int, ...] = (0,) * len(LABELS)
+    fp: tuple[int, ...] = (0,) * len(LABELS)
+    fn: tuple[int, ...] = (0,) * len(LABELS)
+
+    def __add__(self, other: BehaviorCounts) -> BehaviorCounts:
+        return BehaviorCounts(*(tuple(a + b for a, b in zip(x, y)) for x, y in
+                                ((self.tp, other.tp), (self.fp, other.fp), (self.fn, other.fn))))
+
+    def f1(self) -> dict[str, float]:
+        """Label → F1 (NaN for a label that is never true and never tagged)."""
+        return {label.value: (2 * tp / (2 * tp + fp + fn) if tp + fp + fn else float("nan"))
+                for label, tp, fp, fn in zip(LABELS, self.tp, self.fp, self.fn)}
+
+    def to_dict(self) -> dict[str, dict[str, float]]:
+        """Label → ``{"f1", "precision", "recall", "positives"}``."""
+        out: dict[str, dict[str, float]] = {}
+        for (name, f1), tp, fp, fn in zip(self.f1().items(), self.tp, self.fp, self.fn):
+            out[name] = {"f1": round(f1, 3), "precision": round(tp / (tp + fp), 3) if tp + fp else float("nan"),
+                         "recall": round(tp / (tp + fn), 3) if tp + fn else float("nan"), "positives": tp + fn}
+        return out
+
+
+def behavior_counts(result: LogCaptions, labels: pa.Table) -> BehaviorCounts:
+    """Own-behaviour tags of a log (captioned under ``rules: behavior``) against its behaviour labels."""
+    beh = result.behavior
+    if beh is None:
+        raise ValueError(f"log {result.log_id} was captioned under rules: paper; own behaviour needs rules: behavior")
+    truth, labelled = label_grid(labels, result.timestamps_ns, result.track_ids)
+    scored = labelled[..., None] & beh.known
+    tagged = beh.flags & scored
+    true = truth & scored
+    return BehaviorCounts(tuple(int(x) for x in (tagged & true).sum(axis=(0, 1))),
+                          tuple(int(x) for x in (tagged & ~true).sum(axis=(0, 1))),
+                          tuple(int(x) for x in (~tagged & true).sum(axis=(0, 1))))
+
+
+def behavior_counts_for_logs(
+    log_dirs: Iterable[Path | str], config: CaptioningConfig | None = None
+) -> BehaviorCounts:
+    """Caption simulated logs under ``rules: behavior`` and sum :func:`behavior_counts` (logs without
+    labels add nothing)."""
+    from dataclasses import replace
+
+    from scenes.behavior import read_behavior_labels
+    from scenes.log import Log
+
+    config = replace(config or CaptioningConfig(), rules=RuleSet.BEHAVIOR)
+    total = BehaviorCounts()
+    for log_dir in log_dirs:
+        labels = read_behavior_labels(log_dir)
+        if labels is None:
+            continue
+        total = total + behavior_counts(caption_log(Log.open(log_dir), config), labels)
     return total

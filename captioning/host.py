@@ -94,6 +94,11 @@ def host_tags(timestamps_ns: IntArray, city_SE3_ego: FloatArray, config: Caption
     Returns:
         (T,) motion codes and (T,) direction codes.
     """
-    motion, direction = classify_host(host_kinematics(timestamps_ns, city_SE3_ego, config), config)
+    return host_tags_of(host_kinematics(timestamps_ns, city_SE3_ego, config), config)
+
+
+def host_tags_of(kin: HostKinematics, config: CaptioningConfig) -> tuple[IntArray, IntArray]:
+    """:func:`host_tags` from kinematics computed already (they also serve the ego as a leader)."""
+    motion, direction = classify_host(kin, config)
     m = config.smoothing.min_run_frames
     return suppress_flicker(motion[None], m)[0], suppress_flicker(direction[None], m)[0]

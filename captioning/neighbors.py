@@ -101,7 +101,7 @@ def host_compensated_xy(center_ego_xy_m: FloatArray, first_SE3_ego_planar: Float
 
 
 @dataclass(frozen=True)
-class _Compact:
+class CompactGrid:
     """Tracks re-laid from the (K, T) log grid onto (K, L) rows that start at each track's first
     frame (L = longest span), so long logs with short tracks cost O(tracks × span), not O(K × T).
 
@@ -120,7 +120,7 @@ class _Compact:
     cols: IntArray
 
     @staticmethod
-    def of(valid: BoolArray) -> _Compact:
+    def of(valid: BoolArray) -> CompactGrid:
         k, t = valid.shape
         observed = valid.any(axis=1)
         first = np.argmax(valid, axis=1)
@@ -133,7 +133,7 @@ class _Compact:
         inside = cols < span[:, None]
         cvalid = inside & valid[rows, frame]
         obs_rows, obs_cols = np.nonzero(cvalid)
-        return _Compact(frame=frame, valid=cvalid, inside=inside, rows=obs_rows, cols=obs_cols)
+        return CompactGrid(frame=frame, valid=cvalid, inside=inside, rows=obs_rows, cols=obs_cols)
 
     def gather(self, grid: NDArray[np.generic]) -> NDArray[np.generic]:
         """(K, T, ...) → (K, L, ...)."""
@@ -262,15 +262,43 @@ def motion_codes(
     return np.where(moving, rel, _M[Motion.STATIONARY]).astype(np.int64)
 
 
-def neighbor_tags(
+@dataclass(frozen=True)
+class TrackMotion:
+    """Tracks on the compact grid, gaps bridged, differentiated: what the neighbour tags and the own
+    behaviour (:mod:`captioning.behavior`) both start from.
+
+    Attributes:
+        grid: the compact grid (K, L) of every array here.
+        t_s: (K, L) sample times.
+        positions: (K, L, 4) centres in the host's first-frame pose, then in the ego frame (bridged).
+        yaw_ego_rad: (K, L) headings in the ego frame (bridged).
+        bridged: (K, L) observed or bridged cells.
+        run_start: (K, L) first column of each bridged cell's run (:func:`~captioning.smoothing.run_bounds`).
+        run_end: (K, L) its last column.
+        derivative: (K, L, 4) time derivatives of ``positions`` (``smoothing`` window); NaN where undefined.
+        city_SE3_first: (4, 4) the host's first-frame pose: ``city = city_SE3_first · first``.
+    """
+
+    grid: CompactGrid
+    t_s: FloatArray
+    positions: FloatArray
+    yaw_ego_rad: FloatArray
+    bridged: BoolArray
+    run_start: IntArray
+    run_end: IntArray
+    derivative: FloatArray
+    city_SE3_first: FloatArray
+
+
+def track_motion(
     timestamps_ns: IntArray,
     valid: BoolArray,
     center_ego_xy_m: FloatArray,
     yaw_ego_rad: FloatArray,
     city_SE3_ego: FloatArray,
     config: CaptioningConfig,
-) -> NeighborTags:
-    """All neighbour tags, vectorised over tracks × frames.
+) -> TrackMotion:
+    """Gather, bridge and differentiate the tracks (see :class:`TrackMotion`); K and T must be > 0.
 
     Args:
         timestamps_ns: (T,) frame timestamps.
@@ -279,13 +307,8 @@ def neighbor_tags(
         yaw_ego_rad: (K, T) headings in the ego frame.
         city_SE3_ego: (T, 4, 4) ego poses.
     """
-    k, t = valid.shape
     w, p = config.smoothing.window_frames, config.smoothing.polyorder
-    nb = config.neighbor
-    if k == 0 or t == 0:
-        empty = np.full((k, t), NO_TAG, dtype=np.int8)
-        return NeighborTags(np.zeros(k, bool), np.zeros(k, bool), np.zeros((k, t), bool), empty, empty, empty)
-    grid = _Compact.of(valid)
+    grid = CompactGrid.of(valid)
     cvalid = grid.valid
     rel_xy: FloatArray = np.where(cvalid[..., None], grid.gather(center_ego_xy_m), 0.0)  # (K, L, 2)
     yaw = np.asarray(grid.gather(yaw_ego_rad), dtype=np.float64)
@@ -295,7 +318,43 @@ def neighbor_tags(
     t_s = seconds_since_first(timestamps_ns)[grid.frame]  # (K, L)
     positions = np.concatenate([first_xy, rel_xy], axis=2)  # (K, L, 4)
     bridged = bridge_gaps(positions, yaw, cvalid, grid.inside, t_s, config.smoothing.max_gap_frames)
-    d = time_derivative(positions, bridged, t_s, w, p)  # (K, L, 4)
+    runs = run_bounds(bridged)
+    d = time_derivative(positions, bridged, t_s, w, p, runs=runs)  # (K, L, 4)
+    return TrackMotion(grid, t_s, positions, yaw, bridged, *runs, d, np.asarray(city_SE3_ego[0], dtype=np.float64))
+
+
+def neighbor_tags(
+    timestamps_ns: IntArray,
+    valid: BoolArray,
+    center_ego_xy_m: FloatArray,
+    yaw_ego_rad: FloatArray,
+    city_SE3_ego: FloatArray,
+    config: CaptioningConfig,
+    stationary_objects: bool = False,
+    tracks: TrackMotion | None = None,
+) -> NeighborTags:
+    """All neighbour tags, vectorised over tracks × frames.
+
+    Args:
+        timestamps_ns: (T,) frame timestamps.
+        valid: (K, T) observed mask.
+        center_ego_xy_m: (K, T, 2) centres in the ego frame (anything where not observed).
+        yaw_ego_rad: (K, T) headings in the ego frame.
+        city_SE3_ego: (T, 4, 4) ego poses.
+        stationary_objects: tag stationary tracks too, and let motion be the distance rule alone
+            (approach / away / constant, the ego's doing for an object that stands): whether an
+            object stands is then its own-behaviour tag (:mod:`captioning.behavior`), not a motion.
+        tracks: :func:`track_motion` of the same arguments, when computed already.
+    """
+    k, t = valid.shape
+    nb = config.neighbor
+    if k == 0 or t == 0:
+        empty = np.full((k, t), NO_TAG, dtype=np.int8)
+        return NeighborTags(np.zeros(k, bool), np.zeros(k, bool), np.zeros((k, t), bool), empty, empty, empty)
+    if tracks is None:
+        tracks = track_motion(timestamps_ns, valid, center_ego_xy_m, yaw_ego_rad, city_SE3_ego, config)
+    grid, positions, yaw, d = tracks.grid, tracks.positions, tracks.yaw_ego_rad, tracks.derivative
+    cvalid = grid.valid
     abs_first_vel = np.abs(d[..., :2])
     rel_vel = d[..., 2:]
     differentiable: BoolArray = np.asarray(np.isfinite(d).all(axis=2), dtype=bool)
@@ -306,8 +365,10 @@ def neighbor_tags(
     still_y = quantile_below(np.where(observed, abs_first_vel[..., 1], np.nan), q, ts)
     stationary = taggable & still_x & still_y
     # Bridged frames carry tags while flicker is suppressed; only observed frames are reported.
-    tagged = differentiable & (taggable & ~stationary)[:, None]
+    tagged = differentiable & (taggable & (stationary_objects | ~stationary))[:, None]
     moving = (abs_first_vel[..., 0] >= nb.stationary_speed_mps) | (abs_first_vel[..., 1] >= nb.stationary_speed_mps)
+    if stationary_objects:
+        moving = np.ones_like(moving)
 
     m = config.smoothing.min_run_frames
     raw_lane = lane_codes(baseline_lane_codes(yaw, config), positions[..., 3], config)

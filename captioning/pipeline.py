@@ -10,19 +10,31 @@ Output files (``write_outputs``), both Parquet:
 ``frame_tags.parquet``: one row per (log, timestamp, track), the ego included as track ``ego``:
 ``log_id, timestamp_ns, track_id, category, x_m, y_m`` (ego frame; null for the ego),
 ``host_motion, host_direction`` (ego rows), ``stationary`` (object rows; null for tracks of
-single frames), ``baseline_lane, lane, motion`` (tagged object rows, else null).
+single frames), ``baseline_lane, lane, motion`` (tagged object rows, else null). Under
+``rules: behavior`` (the default) object rows also carry the object's own behaviour
+(:mod:`captioning.behavior`): ``parked, stopped, braking, keeping_lane, left_turn, right_turn,
+left_lane_change, right_lane_change, blocked_by, braking_for`` (bool) and ``speed_mps``, and its map
+context (:mod:`captioning.map_context`): ``at_intersection, on_crosswalk`` (bool) and
+``junction_kind`` (``three_way``, ``four_way``, ``multi_way`` or null); null where a tag could not be
+computed (frames of too short runs; lane tags and context on a log without a map).
 
 ``captions.parquet``: one row per caption: ``log_id, track_id, category, start_ns, end_ns,
 num_frames, tags`` (the unified sequence), ``host_tags`` (the host's over the same window),
 ``caption`` (= ``canonical_caption``), ``canonical_caption, paraphrases, window``. Host captions
-have track id ``ego``, one per host segment; neighbour captions one per (moving track, window)
-where the track is tagged in at least ``segments.min_frames`` frames of the window; the
-interval is the track's first and last tagged frame inside the window, and (log, track, start)
-is unique (of sliding windows that clip a track to the same start, the longest is kept).
+have track id ``ego``, one per host segment; neighbour captions one per (track, window) where the
+track is tagged in at least ``segments.min_frames`` frames of the window (moving tracks only under
+``rules: paper``); the interval is the track's first and last tagged frame inside the window, and
+(log, track, start) is unique (of sliding windows that clip a track to the same start, the longest
+is kept). Under ``rules: behavior`` the neighbour tags carry the own action and context
+(``left:approach:braking``) and each row has one column per behaviour label and
+``at_intersection, on_crosswalk`` (true when it holds in some tagged frame of the window, null when
+never known) and ``junction_kind`` (the most frequent in the window), for filters such as
+``braking == true``. Under ``rules: paper`` both files are exactly those of the paper's rules.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -32,84 +44,53 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 from numpy.typing import NDArray
 
-from captioning.config import CaptioningConfig
+from captioning.assemble import host_captions, neighbor_captions, unique_starts
+from captioning.behavior import NO_MAP_NOTE, SKIP_SHORT, BehaviorTags, behavior_tags
+from captioning.config import CaptioningConfig, RuleSet
 from captioning.errors import TrackDataError
-from captioning.host import host_tags
-from captioning.neighbors import NeighborTags, neighbor_tags
-from captioning.smoothing import BoolArray, FloatArray, IntArray
-from captioning.tags import BASELINE_LANES, HOST_DIRECTIONS, HOST_MOTIONS, LANES, MOTIONS, NO_TAG
-from captioning.text import caption_text, paraphrases
-from captioning.unify import Segment, caption_windows, collapse_codes
-from common.atomic import atomic_path
+from captioning.host import host_kinematics, host_tags_of
+from captioning.map_context import rasterize_map
+from captioning.neighbors import NeighborTags, neighbor_tags, track_motion
+from captioning.publish import publish as publish_outputs
+from captioning.smoothing import BoolArray, FloatArray, IntArray, suppress_flicker
+from captioning.tables import (
+    EGO_CATEGORY,
+    EGO_TRACK_ID,
+    FRAME_TAGS_BEHAVIOR_SCHEMA,
+    FRAME_TAGS_SCHEMA,
+    Caption,
+    behavior_frame_columns,
+    captions_to_table,
+    strings_column,
+)
+from captioning.tags import (
+    ACTIONS,
+    BASELINE_LANES,
+    CONTEXTS,
+    HOST_DIRECTIONS,
+    HOST_MOTIONS,
+    LANES,
+    MOTIONS,
+    NO_TAG,
+    unified_neighbor_tag,
+)
+from captioning.unify import Segment, caption_windows
 from scenes.errors import ScenesError
 from scenes.log import Log
+from scenes.map import VectorMap
 from scenes.tracks import DenseTracks
 
-EGO_TRACK_ID = "ego"
-#: Category value of the ego's rows in both files (the ego is not an object category).
-EGO_CATEGORY = "ego"
 FRAME_TAGS_FILENAME = "frame_tags.parquet"
 #: Why a track gets no tags: no two observations close enough to differentiate.
 SKIP_ISOLATED = "observed only in single frames too far apart to differentiate"
 CAPTIONS_FILENAME = "captions.parquet"
 
-FRAME_TAGS_SCHEMA = pa.schema(
-    [
-        pa.field("log_id", pa.string(), nullable=False),
-        pa.field("timestamp_ns", pa.int64(), nullable=False),
-        pa.field("track_id", pa.string(), nullable=False),
-        pa.field("category", pa.string(), nullable=False),
-        pa.field("x_m", pa.float64()),
-        pa.field("y_m", pa.float64()),
-        pa.field("host_motion", pa.string()),
-        pa.field("host_direction", pa.string()),
-        pa.field("stationary", pa.bool_()),
-        pa.field("baseline_lane", pa.string()),
-        pa.field("lane", pa.string()),
-        pa.field("motion", pa.string()),
-    ]
-)
-CAPTIONS_SCHEMA = pa.schema(
-    [
-        pa.field("log_id", pa.string(), nullable=False),
-        pa.field("track_id", pa.string(), nullable=False),
-        pa.field("category", pa.string(), nullable=False),
-        pa.field("start_ns", pa.int64(), nullable=False),
-        pa.field("end_ns", pa.int64(), nullable=False),
-        pa.field("num_frames", pa.int64(), nullable=False),
-        pa.field("tags", pa.list_(pa.string()), nullable=False),
-        pa.field("host_tags", pa.list_(pa.string()), nullable=False),
-        pa.field("caption", pa.string(), nullable=False),
-        pa.field("canonical_caption", pa.string(), nullable=False),
-        pa.field("paraphrases", pa.list_(pa.string()), nullable=False),
-        pa.field("window", pa.string(), nullable=False),
-    ]
-)
-
-
-_HOST_STRINGS = [f"{m.value}:{d.value}" for m in HOST_MOTIONS for d in HOST_DIRECTIONS]
 _NEIGHBOR_STRINGS = [f"{lane.value}:{m.value}" for lane in LANES for m in MOTIONS]
-
-
-@dataclass(frozen=True)
-class Caption:
-    """One caption row (see the module docstring)."""
-
-    log_id: str
-    track_id: str
-    category: str
-    start_ns: int
-    end_ns: int
-    num_frames: int
-    tags: tuple[str, ...]
-    host_tags: tuple[str, ...]
-    canonical_caption: str
-    paraphrases: tuple[str, ...]
-    window: str
-
-    @property
-    def caption(self) -> str:
-        return self.canonical_caption
+#: Unified tags with action and context: code ((lane·M + motion)·(A + 1) + action + 1)·(C + 1) + context + 1.
+_BEHAVIOR_STRINGS = [
+    unified_neighbor_tag(lane, m, action, context)
+    for lane in LANES for m in MOTIONS for action in [None, *ACTIONS] for context in [None, *CONTEXTS]
+]
 
 
 @dataclass(frozen=True)
@@ -128,7 +109,11 @@ class LogCaptions:
         neighbors: per-frame neighbour tags.
         host_segments: host segments (frame index ranges).
         captions: host captions first, then neighbour captions by window and track.
-        skipped_tracks: track id → why it got no tags.
+        skipped_tracks: track id → why it got no tags (or no own-behaviour tags).
+        behavior: own behaviour and map context (None under ``rules: paper``).
+        notes: statements about the whole log (e.g. that it has no map with lanes).
+        action_code: (K, T) :data:`~captioning.tags.ACTIONS` code in the tags, −1 none (None under ``paper``).
+        context_code: (K, T) :data:`~captioning.tags.CONTEXTS` code in the tags, −1 none.
     """
 
     log_id: str
@@ -143,6 +128,10 @@ class LogCaptions:
     host_segments: list[Segment]
     captions: list[Caption]
     skipped_tracks: dict[str, str] = field(default_factory=dict)
+    behavior: BehaviorTags | None = None
+    notes: list[str] = field(default_factory=list)
+    action_code: IntArray | None = None
+    context_code: IntArray | None = None
 
     @property
     def host_code(self) -> IntArray:
@@ -155,6 +144,16 @@ class LogCaptions:
         """(K, T) unified neighbour codes (index into ``lane:motion`` strings), −1 = none."""
         nb = self.neighbors
         return np.where(nb.tagged, nb.lane.astype(np.int64) * len(MOTIONS) + nb.motion, NO_TAG)
+
+    def tag_codes(self) -> tuple[IntArray, list[str]]:
+        """(K, T) codes of the unified neighbour tags and their strings: ``lane:motion`` under
+        ``rules: paper``, with the own action and context otherwise."""
+        codes = self.neighbor_code
+        if self.action_code is None or self.context_code is None:
+            return codes, _NEIGHBOR_STRINGS
+        a, c = len(ACTIONS) + 1, len(CONTEXTS) + 1
+        return (np.where(codes >= 0, (codes * a + self.action_code + 1) * c + self.context_code + 1, NO_TAG),
+                _BEHAVIOR_STRINGS)
 
     def frame_tags_table(self) -> pa.Table:
         """``frame_tags.parquet`` rows of this log (ego rows first at each timestamp)."""
@@ -180,52 +179,38 @@ class LogCaptions:
         base = np.r_[np.full(t, NO_TAG), nb.baseline_lane[track_idx, frame_idx]][order]
         motion = np.r_[np.full(t, NO_TAG), nb.motion[track_idx, frame_idx]][order]
         n = t + n_obj
-        return pa.table(
-            {
-                "log_id": pa.array([self.log_id] * n, pa.string()),
-                "timestamp_ns": pa.array(self.timestamps_ns[all_frame[order]], pa.int64()),
-                "track_id": pa.array(track_col, pa.string()),
-                "category": pa.array(cat_col, pa.string()),
-                "x_m": pa.array(x, pa.float64(), mask=is_ego),
-                "y_m": pa.array(y, pa.float64(), mask=is_ego),
-                "host_motion": _strings(host_m, [m.value for m in HOST_MOTIONS]),
-                "host_direction": _strings(host_d, [d.value for d in HOST_DIRECTIONS]),
-                "stationary": pa.array(stationary, pa.bool_(), mask=stationary_null),
-                "baseline_lane": _strings(base, [b.value for b in BASELINE_LANES]),
-                "lane": _strings(lane, [lane_.value for lane_ in LANES]),
-                "motion": _strings(motion, [m.value for m in MOTIONS]),
-            },
-            schema=FRAME_TAGS_SCHEMA,
-        )
+        columns = {
+            "log_id": pa.array([self.log_id] * n, pa.string()),
+            "timestamp_ns": pa.array(self.timestamps_ns[all_frame[order]], pa.int64()),
+            "track_id": pa.array(track_col, pa.string()),
+            "category": pa.array(cat_col, pa.string()),
+            "x_m": pa.array(x, pa.float64(), mask=is_ego),
+            "y_m": pa.array(y, pa.float64(), mask=is_ego),
+            "host_motion": strings_column(host_m, [m.value for m in HOST_MOTIONS]),
+            "host_direction": strings_column(host_d, [d.value for d in HOST_DIRECTIONS]),
+            "stationary": pa.array(stationary, pa.bool_(), mask=stationary_null),
+            "baseline_lane": strings_column(base, [b.value for b in BASELINE_LANES]),
+            "lane": strings_column(lane, [lane_.value for lane_ in LANES]),
+            "motion": strings_column(motion, [m.value for m in MOTIONS]),
+        }
+        beh = self.behavior
+        if beh is None:
+            return pa.table(columns, schema=FRAME_TAGS_SCHEMA)
+        columns.update(behavior_frame_columns(beh, t, track_idx, frame_idx, order))
+        return pa.table(columns, schema=FRAME_TAGS_BEHAVIOR_SCHEMA)
 
     def captions_table(self) -> pa.Table:
         """``captions.parquet`` rows of this log."""
-        return captions_to_table(self.captions)
+        return captions_to_table(self.captions, self.behavior is not None)
 
 
-def captions_to_table(captions: Sequence[Caption]) -> pa.Table:
-    return pa.table(
-        {
-            "log_id": pa.array([c.log_id for c in captions], pa.string()),
-            "track_id": pa.array([c.track_id for c in captions], pa.string()),
-            "category": pa.array([c.category for c in captions], pa.string()),
-            "start_ns": pa.array([c.start_ns for c in captions], pa.int64()),
-            "end_ns": pa.array([c.end_ns for c in captions], pa.int64()),
-            "num_frames": pa.array([c.num_frames for c in captions], pa.int64()),
-            "tags": pa.array([list(c.tags) for c in captions], pa.list_(pa.string())),
-            "host_tags": pa.array([list(c.host_tags) for c in captions], pa.list_(pa.string())),
-            "caption": pa.array([c.canonical_caption for c in captions], pa.string()),
-            "canonical_caption": pa.array([c.canonical_caption for c in captions], pa.string()),
-            "paraphrases": pa.array([list(c.paraphrases) for c in captions], pa.list_(pa.string())),
-            "window": pa.array([c.window for c in captions], pa.string()),
-        },
-        schema=CAPTIONS_SCHEMA,
-    )
-
-
-def _strings(codes: IntArray, vocabulary: list[str]) -> pa.Array:
-    lookup = np.array([*vocabulary, None], dtype=object)
-    return pa.array(lookup[np.where(codes == NO_TAG, len(vocabulary), codes)], pa.string())
+def action_context_codes(behavior: BehaviorTags, tagged: BoolArray, min_run_frames: int) -> tuple[IntArray, IntArray]:
+    """(K, T) :data:`~captioning.tags.ACTIONS` and (K, T) :data:`~captioning.tags.CONTEXTS` codes of the
+    tagged frames (−1 none), flicker suppressed on the pair (what the unified tag says)."""
+    width = len(CONTEXTS) + 1
+    pair = (behavior.action.astype(np.int64) + 1) * width + behavior.context + 1
+    pair = suppress_flicker(np.where(tagged, pair, NO_TAG), min_run_frames)
+    return np.where(tagged, pair // width - 1, NO_TAG), np.where(tagged, pair % width - 1, NO_TAG)
 
 
 def check_finite(
@@ -260,6 +245,8 @@ def caption_arrays(
     yaw_ego_rad: FloatArray,
     city_SE3_ego: FloatArray,
     config: CaptioningConfig,
+    vector_map: VectorMap | None = None,
+    length_m: FloatArray | None = None,
 ) -> LogCaptions:
     """Caption in-memory tracks.
 
@@ -272,6 +259,9 @@ def caption_arrays(
         center_ego_xy_m: (K, T, 2) centres in the ego frame.
         yaw_ego_rad: (K, T) headings in the ego frame.
         city_SE3_ego: (T, 4, 4) ego poses.
+        vector_map: the log's map (``rules: behavior``: lanes and context; None: the lane tags are null).
+        length_m: (K, T) box lengths (``rules: behavior``: the box front decides where a vehicle
+            is, and gaps are bumper to bumper; None: the centre, and gaps between centres).
 
     Raises:
         TrackDataError: a NaN or infinite value where a track is observed, or in an ego pose.
@@ -287,97 +277,93 @@ def caption_arrays(
         f = int(np.argmax(np.diff(timestamps_ns) <= 0)) + 1
         raise TrackDataError(log_id, EGO_TRACK_ID, f, int(timestamps_ns[f]), "timestamp_ns", "timestamps must increase")
     check_finite(log_id, timestamps_ns, track_ids, valid, center_ego_xy_m, yaw_ego_rad, city_SE3_ego)
-
-    host_motion, host_direction = host_tags(timestamps_ns, city_SE3_ego, config)
-    nb = neighbor_tags(timestamps_ns, valid, center_ego_xy_m, yaw_ego_rad, city_SE3_ego, config)
-    skipped = {str(tid): SKIP_ISOLATED for tid in track_ids[~nb.taggable]}
-    partial = LogCaptions(
-        log_id, timestamps_ns, track_ids, categories, valid, center_ego_xy_m,
-        host_motion, host_direction, nb, [], [], skipped,
-    )
+    partial = tag_arrays(log_id, timestamps_ns, track_ids, categories, valid, center_ego_xy_m, yaw_ego_rad,
+                         city_SE3_ego, config, vector_map, length_m)
     host_code = partial.host_code
     segments, windows = caption_windows(timestamps_ns, host_code, config)
-    captions = _host_captions(partial, segments, host_code, config)
-    captions += _unique_starts(_neighbor_captions(partial, windows, host_code, config))
+    captions = host_captions(partial, segments, host_code, config)
+    captions += unique_starts(neighbor_captions(partial, windows, host_code, config))
+    return dataclasses.replace(partial, host_segments=segments, captions=captions)
+
+
+def tag_arrays(
+    log_id: str,
+    timestamps_ns: IntArray,
+    track_ids: NDArray[np.str_],
+    categories: NDArray[np.str_],
+    valid: BoolArray,
+    center_ego_xy_m: FloatArray,
+    yaw_ego_rad: FloatArray,
+    city_SE3_ego: FloatArray,
+    config: CaptioningConfig,
+    vector_map: VectorMap | None = None,
+    length_m: FloatArray | None = None,
+) -> LogCaptions:
+    """The per-frame tags of :func:`caption_arrays` (host, neighbour, own behaviour), without windows
+    and captions; the arguments are checked and converted already."""
+    kin = host_kinematics(timestamps_ns, city_SE3_ego, config)
+    host_motion, host_direction = host_tags_of(kin, config)
+    rich = config.rules == RuleSet.BEHAVIOR
+    k, t = valid.shape
+    # The own behaviour starts from the same bridged, differentiated tracks as the neighbour tags.
+    motion = (track_motion(timestamps_ns, valid, center_ego_xy_m, yaw_ego_rad, city_SE3_ego, config)
+              if rich and k and t else None)
+    nb = neighbor_tags(timestamps_ns, valid, center_ego_xy_m, yaw_ego_rad, city_SE3_ego, config,
+                       stationary_objects=rich, tracks=motion)
+    skipped = {str(tid): SKIP_ISOLATED for tid in track_ids[~nb.taggable]}
+    behavior: BehaviorTags | None = None
+    notes: list[str] = []
+    action = context = None
+    if rich:
+        raster = None
+        if vector_map is not None and k and t:
+            raster = rasterize_map(vector_map, _city_xy(center_ego_xy_m, valid, city_SE3_ego), config.map)
+        if raster is None:
+            notes.append(NO_MAP_NOTE)
+        if length_m is not None:
+            length_m = np.asarray(length_m, dtype=np.float64)
+        if motion is None:
+            behavior = BehaviorTags.empty(k, t, raster is not None)
+        else:
+            behavior = behavior_tags(timestamps_ns, motion, length_m, categories, city_SE3_ego, raster, config,
+                                     kin.speed_mps, kin.accel_mps2)
+        short = SKIP_SHORT.format(n=config.behavior.min_run_frames)
+        skipped.update({str(tid): short for tid in track_ids[nb.taggable & ~behavior.taggable]})
+        action, context = action_context_codes(behavior, nb.tagged, config.smoothing.min_run_frames)
     return LogCaptions(
         log_id, timestamps_ns, track_ids, categories, valid, center_ego_xy_m,
-        host_motion, host_direction, nb, segments, captions, skipped,
+        host_motion, host_direction, nb, [], [], skipped, behavior, notes, action, context,
     )
 
 
-def _host_tags_in(host_code: IntArray, segment: Segment) -> tuple[str, ...]:
-    codes = host_code[segment.start : segment.end + 1]
-    return tuple(_HOST_STRINGS[c] for c in collapse_codes(codes[codes != NO_TAG]))
+def _city_xy(center_ego_xy_m: FloatArray, valid: BoolArray, city_SE3_ego: FloatArray) -> FloatArray:
+    """(N, 2) the observed centres in the city frame (``city_SE3_ego · ego_SE3_object``, planar)."""
+    rows, cols = np.nonzero(valid)
+    p = center_ego_xy_m[rows, cols]
+    pose = city_SE3_ego[cols]
+    return np.stack([pose[:, 0, 0] * p[:, 0] + pose[:, 0, 1] * p[:, 1] + pose[:, 0, 3],
+                     pose[:, 1, 0] * p[:, 0] + pose[:, 1, 1] * p[:, 1] + pose[:, 1, 3]], axis=1)
 
 
-def _make_caption(
-    result: LogCaptions, track_id: str, category: str, start: int, end: int, num_frames: int,
-    tags: tuple[str, ...], host: tuple[str, ...], window: str, config: CaptioningConfig,
-) -> Caption:
-    start_ns, end_ns = int(result.timestamps_ns[start]), int(result.timestamps_ns[end])
-    neighbor_category = None if track_id == EGO_TRACK_ID else category
-    canonical = caption_text(neighbor_category, tags, host)
-    variants = paraphrases(
-        neighbor_category, tags, host, config.text.num_paraphrases, config.text.seed,
-        (result.log_id, track_id, start_ns, end_ns), canonical,
-    )
-    return Caption(result.log_id, track_id, category, start_ns, end_ns, num_frames, tags, host, canonical,
-                   tuple(variants), window)
-
-
-def _host_captions(
-    result: LogCaptions, segments: list[Segment], host_code: IntArray, config: CaptioningConfig
-) -> list[Caption]:
-    return [
-        _make_caption(result, EGO_TRACK_ID, EGO_CATEGORY, s.start, s.end, s.num_frames, (_HOST_STRINGS[s.code],),
-                      (_HOST_STRINGS[s.code],), "host_segments", config)
-        for s in segments
-    ]
-
-
-def _neighbor_captions(
-    result: LogCaptions, windows: list[Segment], host_code: IntArray, config: CaptioningConfig
-) -> list[Caption]:
-    codes = result.neighbor_code
-    tagged = result.neighbors.tagged
-    out: list[Caption] = []
-    for window in windows:
-        sub_tagged = tagged[:, window.start : window.end + 1]
-        counts = sub_tagged.sum(axis=1)
-        host = _host_tags_in(host_code, window)
-        for k in np.flatnonzero(counts >= config.segments.min_frames).tolist():
-            frames = np.flatnonzero(sub_tagged[k]) + window.start
-            tags = tuple(_NEIGHBOR_STRINGS[c] for c in collapse_codes(codes[k, frames]))
-            out.append(
-                _make_caption(result, str(result.track_ids[k]), str(result.categories[k]), int(frames[0]),
-                              int(frames[-1]), int(counts[k]), tags, host, config.windows.strategy.value, config)
-            )
-    return out
-
-
-def _unique_starts(captions: list[Caption]) -> list[Caption]:
-    """One caption per (track, start): overlapping sliding windows can clip a track to the same
-    start; downstream clip ids are ``log:track:start_ns``, so keep the longest of such captions."""
-    best: dict[tuple[str, int], Caption] = {}
-    for caption in captions:
-        key = (caption.track_id, caption.start_ns)
-        if key not in best or caption.num_frames > best[key].num_frames:
-            best[key] = caption
-    keep = {id(c) for c in best.values()}
-    return [c for c in captions if id(c) in keep]
-
-
-def caption_dense(log_id: str, dense: DenseTracks, config: CaptioningConfig) -> LogCaptions:
-    """Caption :class:`~scenes.tracks.DenseTracks`."""
+def caption_dense(
+    log_id: str, dense: DenseTracks, config: CaptioningConfig, vector_map: VectorMap | None = None
+) -> LogCaptions:
+    """Caption :class:`~scenes.tracks.DenseTracks` (with the log's map, when it has one)."""
     return caption_arrays(
         log_id, dense.timestamps_ns, dense.track_ids, dense.categories, dense.valid,
         dense.center_ego_xyz_m[..., :2], dense.yaw_ego_rad, dense.city_SE3_ego, config,
+        vector_map=vector_map, length_m=dense.size_lwh_m[..., 0],
     )
 
 
 def caption_log(log: Log, config: CaptioningConfig | None = None) -> LogCaptions:
-    """Caption one opened log (its annotation frame grid; ego poses interpolated onto it)."""
-    return caption_dense(log.log_id, log.dense_tracks(), config or CaptioningConfig())
+    """Caption one opened log (its annotation frame grid; ego poses interpolated onto it).
+
+    Under ``rules: behavior`` the log's map is read (a log without one gets null lane tags).
+    """
+    config = config or CaptioningConfig()
+    vector_map = log.map if config.rules == RuleSet.BEHAVIOR else None
+    return caption_dense(log.log_id, log.dense_tracks(), config, vector_map)
 
 
 @dataclass(frozen=True)
@@ -411,15 +397,15 @@ def caption_logs(log_dirs: Iterable[Path | str], config: CaptioningConfig | None
 
 
 def write_outputs(out_dir: Path | str, results: Sequence[LogCaptions]) -> tuple[Path, Path]:
-    """Write ``frame_tags.parquet`` and ``captions.parquet`` atomically (temp name, then rename)."""
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    frames = (
-        pa.concat_tables([r.frame_tags_table() for r in results]) if results else FRAME_TAGS_SCHEMA.empty_table()
-    )
-    captions = captions_to_table([c for r in results for c in r.captions])
-    paths = (out_dir / FRAME_TAGS_FILENAME, out_dir / CAPTIONS_FILENAME)
-    for path, table in zip(paths, (frames, captions)):
-        with atomic_path(path) as tmp:
-            pq.write_table(table, tmp)
-    return paths
+    """Write ``frame_tags.parquet`` and ``captions.parquet`` and publish them together
+    (:mod:`captioning.publish`: readers never see a new one beside an old one; what an earlier
+    killed write left behind is removed)."""
+    behavior = any(r.behavior is not None for r in results)
+    schema = FRAME_TAGS_BEHAVIOR_SCHEMA if behavior else FRAME_TAGS_SCHEMA
+    frames = pa.concat_tables([r.frame_tags_table() for r in results]) if results else schema.empty_table()
+    captions = captions_to_table([c for r in results for c in r.captions], behavior)
+    paths = publish_outputs(out_dir, {
+        FRAME_TAGS_FILENAME: lambda path: pq.write_table(frames, path),
+        CAPTIONS_FILENAME: lambda path: pq.write_table(captions, path),
+    })
+    return paths[FRAME_TAGS_FILENAME], paths[CAPTIONS_FILENAME]

@@ -37,13 +37,23 @@ BoolArray = NDArray[np.bool_]
 def savgol_derivative_coefficients(window_frames: int, polyorder: int) -> FloatArray:
     """(W, W) row ``o``: weights of the window's W values giving the first derivative (per frame) of
     the least-squares polynomial at window position ``o``."""
+    return savgol_coefficients(window_frames, polyorder, 1)
+
+
+@lru_cache(maxsize=32)
+def savgol_coefficients(window_frames: int, polyorder: int, order: int) -> FloatArray:
+    """(W, W) row ``o``: weights of the window's W values giving the least-squares polynomial's value
+    (``order`` 0) or first derivative per frame (``order`` 1) at window position ``o``."""
     w = window_frames
     u = np.arange(w, dtype=np.float64) - (w - 1) / 2.0  # centred for conditioning
     vander = u[:, None] ** np.arange(polyorder + 1)[None, :]  # (W, P+1)
     pinv = np.linalg.pinv(vander)  # (P+1, W)
     powers = np.arange(polyorder + 1)
-    # d/du of sum_k a_k u^k at u_o is sum_k k a_k u_o^(k-1)
-    dvec = np.where(powers[None, :] > 0, powers[None, :] * u[:, None] ** np.maximum(powers[None, :] - 1, 0), 0.0)
+    if order == 0:
+        dvec = vander
+    else:
+        # d/du of sum_k a_k u^k at u_o is sum_k k a_k u_o^(k-1)
+        dvec = np.where(powers[None, :] > 0, powers[None, :] * u[:, None] ** np.maximum(powers[None, :] - 1, 0), 0.0)
     coeffs = dvec @ pinv  # (W, W)
     coeffs.setflags(write=False)
     return coeffs
@@ -67,25 +77,31 @@ def run_bounds(valid: BoolArray) -> tuple[IntArray, IntArray]:
     return run_start.astype(np.int64), run_end.astype(np.int64)
 
 
-def frame_derivative(values: FloatArray, valid: BoolArray, window_frames: int, polyorder: int) -> FloatArray:
+def frame_derivative(
+    values: FloatArray, valid: BoolArray, window_frames: int, polyorder: int, order: int = 1,
+    runs: tuple[IntArray, IntArray] | None = None,
+) -> FloatArray:
     """Derivative per frame index of each channel, per contiguous run (see module docstring).
 
     Args:
         values: (K, T, C) samples; entries where ``valid`` is false are ignored.
         valid: (K, T) observed mask.
+        order: 1 for the derivative; 0 for the smoothed values themselves (runs shorter than the
+            window keep their samples).
+        runs: :func:`run_bounds` of ``valid``, when known already.
 
     Returns:
-        (K, T, C) derivatives; NaN where not observed or in a single-frame run.
+        (K, T, C) derivatives; NaN where not observed or (order 1) in a single-frame run.
     """
     k, t, c = values.shape
     if k == 0 or t == 0:
         return np.full((k, t, c), np.nan)
     w = window_frames
     half = w // 2
-    sg_coeffs = savgol_derivative_coefficients(w, polyorder)
+    sg_coeffs = savgol_coefficients(w, polyorder, order)
     # Unobserved samples get weight 0, but 0 × NaN is NaN: zero them unless all are finite already.
     flat3 = values if np.isfinite(values).all() else np.where(valid[..., None], values, 0.0)
-    run_start, run_end = run_bounds(valid)
+    run_start, run_end = run_bounds(valid) if runs is None else runs
     frame = np.arange(t)[None, :]
     # Bulk: frames whose centred window lies inside their run, as one correlation over the grid.
     interior = valid & (frame - half >= run_start) & (frame + half <= run_end)
@@ -100,17 +116,22 @@ def frame_derivative(values: FloatArray, valid: BoolArray, window_frames: int, p
     a = run_start[rows, cols]
     b = run_end[rows, cols]
     n = b - a + 1
-    keep = n >= 2
+    keep = n >= (2 if order == 1 else 1)
     rows, cols, a, b, n = rows[keep], cols[keep], a[keep], b[keep], n[keep]
     if rows.size == 0:
         return out
     sg = n >= w
-    start = np.where(sg, np.clip(cols - half, a, b - w + 1), np.where(cols == a, cols, cols - 1))
     fd_rows = np.zeros((3, w))
-    fd_rows[0, :2] = (-1.0, 1.0)  # forward difference at a run's start
-    fd_rows[1, :3] = (-0.5, 0.0, 0.5)  # central difference inside
-    fd_rows[2, :2] = (-1.0, 1.0)  # backward difference at a run's end (window starts one frame before)
-    fd_kind = np.where(cols == a, 0, np.where(cols == b, 2, 1))
+    if order == 1:
+        start = np.where(sg, np.clip(cols - half, a, b - w + 1), np.where(cols == a, cols, cols - 1))
+        fd_rows[0, :2] = (-1.0, 1.0)  # forward difference at a run's start
+        fd_rows[1, :3] = (-0.5, 0.0, 0.5)  # central difference inside
+        fd_rows[2, :2] = (-1.0, 1.0)  # backward difference at a run's end (window starts one frame before)
+        fd_kind = np.where(cols == a, 0, np.where(cols == b, 2, 1))
+    else:
+        start = np.where(sg, np.clip(cols - half, a, b - w + 1), cols)
+        fd_rows[0, 0] = 1.0  # a short run keeps its samples
+        fd_kind = np.zeros_like(cols)
     coeffs = np.where(sg[:, None], sg_coeffs[np.clip(cols - start, 0, w - 1)], fd_rows[fd_kind])  # (N, W)
     flat = flat3.reshape(k * t, c)
     idx = np.minimum((rows * t + start)[:, None] + np.arange(w)[None, :], k * t - 1)  # (N, W)
@@ -128,7 +149,8 @@ def seconds_since_first(timestamps_ns: IntArray) -> FloatArray:
 
 
 def time_derivative(
-    values: FloatArray, valid: BoolArray, t_s: FloatArray, window_frames: int, polyorder: int
+    values: FloatArray, valid: BoolArray, t_s: FloatArray, window_frames: int, polyorder: int,
+    runs: tuple[IntArray, IntArray] | None = None,
 ) -> FloatArray:
     """Derivative per second: ``(dx/di) / (dt/di)``.
 
@@ -136,6 +158,7 @@ def time_derivative(
         values: (K, T, C) samples.
         valid: (K, T) observed mask.
         t_s: (T,) or (K, T) time of each sample in seconds (rows may have their own clocks).
+        runs: :func:`run_bounds` of ``valid``, when known already.
 
     Returns:
         (K, T, C) derivatives per second; NaN where untaggable.
@@ -145,7 +168,7 @@ def time_derivative(
         return np.full((k, t, c), np.nan)
     clock = np.broadcast_to(np.asarray(t_s, dtype=np.float64).reshape(-1, t)[..., None], (k, t, 1))
     stacked = np.concatenate([values, clock], axis=2)
-    d = frame_derivative(stacked, valid, window_frames, polyorder)
+    d = frame_derivative(stacked, valid, window_frames, polyorder, runs=runs)
     return d[..., :-1] / d[..., -1:]
 
 

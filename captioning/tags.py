@@ -14,6 +14,8 @@ from enum import StrEnum
 import numpy as np
 from numpy.typing import NDArray
 
+from scenes.behavior import BehaviorLabel
+
 
 class HostMotion(StrEnum):
     """Eq. 1."""
@@ -61,6 +63,27 @@ class Motion(StrEnum):
     STATIONARY = "stationary"
 
 
+class Context(StrEnum):
+    """Where an object is, from the map (:mod:`captioning.map_context`)."""
+
+    AT_INTERSECTION = "at_intersection"
+    ON_CROSSWALK = "on_crosswalk"
+
+
+#: Own actions that enter a neighbour's unified tags, one per frame: the first that holds, in this order.
+ACTIONS: list[BehaviorLabel] = [
+    BehaviorLabel.PARKED,
+    BehaviorLabel.STOPPED,
+    BehaviorLabel.LEFT_LANE_CHANGE,
+    BehaviorLabel.RIGHT_LANE_CHANGE,
+    BehaviorLabel.LEFT_TURN,
+    BehaviorLabel.RIGHT_TURN,
+    BehaviorLabel.BRAKING,
+]
+#: Actions of an object that stands; their motion tag is the ego's approach or departure.
+STILL_ACTIONS: frozenset[str] = frozenset({BehaviorLabel.PARKED.value, BehaviorLabel.STOPPED.value})
+CONTEXTS: list[Context] = list(Context)
+
 #: Integer codes used in (K, T) arrays: the index into each enum's member list; −1 = no tag.
 NO_TAG = -1
 HOST_MOTIONS: list[HostMotion] = list(HostMotion)
@@ -95,9 +118,36 @@ def paper_lateral_m(y_ego_m: NDArray[np.floating]) -> NDArray[np.float64]:
     return -np.asarray(y_ego_m, dtype=np.float64)
 
 
-def unified_neighbor_tag(lane: Lane | str, motion: Motion | str) -> str:
-    """Eq. 8 neighbour tag ``lane:motion``."""
-    return f"{Lane(lane).value}:{Motion(motion).value}"
+def unified_neighbor_tag(
+    lane: Lane | str, motion: Motion | str, action: BehaviorLabel | str | None = None,
+    context: Context | str | None = None,
+) -> str:
+    """Eq. 8 neighbour tag ``lane:motion``, followed by the own action and the context when there are
+    any: ``left:approach:braking``, ``host:approach:stopped:at_intersection``, ``right:away:on_crosswalk``
+    (a missing part is left out; action and context words never coincide, so the tag stays unambiguous)."""
+    parts = [Lane(lane).value, Motion(motion).value]
+    if action:
+        parts.append(BehaviorLabel(action).value)
+    if context:
+        parts.append(Context(context).value)
+    return ":".join(parts)
+
+
+_CONTEXT_VALUES = frozenset(c.value for c in Context)
+
+
+def split_neighbor_tag(tag: str) -> tuple[str, str, str | None, str | None]:
+    """``"left:approach:braking:on_crosswalk"`` → ``("left", "approach", "braking", "on_crosswalk")``;
+    missing parts are None (actions and contexts have disjoint words)."""
+    parts = tag.split(":")
+    lane, motion = parts[0], parts[1] if len(parts) > 1 else ""
+    action = context = None
+    for part in parts[2:]:
+        if part in _CONTEXT_VALUES:
+            context = part
+        elif part:
+            action = part
+    return lane, motion, action, context
 
 
 def unified_host_tag(motion: HostMotion | str, direction: HostDirection | str) -> str:

@@ -41,6 +41,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from captioning.pipeline import CAPTIONS_FILENAME
+from captioning.tables import BEHAVIOR_CAPTION_FIELDS
 from common.atomic import atomic_directory, recover_directory
 from encoders.clips.layout import clip_id
 from indexes.errors import IndexesError, IndexFileError, ManifestError
@@ -65,7 +66,8 @@ FILES = (METADATA_FILE, TEXTS_FILE, EMBEDDINGS_FILE, "full_offsets.npy", "full_t
          "object_texts.npy")
 #: Columns kept as metadata (and filterable) when present in the caption table.
 METADATA_COLUMNS = ("clip_id", "log_id", "track_id", "category", "start_ns", "end_ns", "caption", "tags",
-                    "host_tags", "window", "split", "time_of_day", "weather", "has_camera", "preview_path")
+                    "host_tags", "window", "split", "time_of_day", "weather", "has_camera", "preview_path",
+                    *(f.name for f in BEHAVIOR_CAPTION_FIELDS))
 HOST_PREFIX = "The ego vehicle"
 
 
@@ -358,7 +360,7 @@ def caption_logs(log_dirs: Sequence[Path | str], config: Any = None) -> tuple[pa
         ValueError: no log gave a caption (the message lists why each was skipped).
     """
     import captioning
-    from captioning.pipeline import captions_to_table
+    from captioning.tables import captions_to_table
 
     batch = captioning.caption_logs([Path(d) for d in log_dirs], config)
     skipped = [Skipped(str(k), v) for k, v in batch.skipped_logs.items()]

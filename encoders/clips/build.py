@@ -286,6 +286,7 @@ def _clip_rows(
                 "weather": weather,
                 "frame_indices": indices.tolist(),
                 "preview_path": None,
+                **row.behavior,
             }
         )
     return out

@@ -4,7 +4,9 @@
 ``log_id, track_id, category, start_ns, end_ns, caption, canonical_caption, paraphrases, tags,
 host_tags, split, has_camera, bev_source, time_of_day, weather, frame_indices`` (T int32 indices
 into the per-log arrays, uniform over the window, repeated when the window has fewer frames) and
-``preview_path`` (relative to CLIPS_DIR, null without a preview).
+``preview_path`` (relative to CLIPS_DIR, null without a preview); when the captions carry the
+objects' own behaviour (``rules: behavior``), also its columns (``parked`` … ``braking_for``,
+``at_intersection``, ``on_crosswalk``, ``junction_kind``), so that searches can filter on them.
 """
 
 from __future__ import annotations
@@ -18,6 +20,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 from numpy.typing import NDArray
 
+from captioning.tables import BEHAVIOR_CAPTION_FIELDS
 from common.atomic import atomic_write_with
 from encoders.clips.layout import CLIPS_FILE, clip_id
 
@@ -67,6 +70,8 @@ class CaptionRow:
     paraphrases: list[str]
     tags: list[str]
     host_tags: list[str]
+    #: The caption's own-behaviour columns, when it has them (see the module docstring).
+    behavior: dict[str, Any] = field(default_factory=dict)
 
     @property
     def clip_id(self) -> str:
@@ -108,6 +113,7 @@ def read_captions(captions_path: Path) -> list[CaptionRow]:
     rows: list[CaptionRow] = []
     categories, canon, para = get("category", "other"), get("canonical_caption", None), get("paraphrases", None)
     tags, host_tags = get("tags", None), get("host_tags", None)
+    behavior = [f.name for f in BEHAVIOR_CAPTION_FIELDS if f.name in cols]
     for i in range(n):
         for name in REQUIRED_CAPTION_COLUMNS:
             if cols[name][i] is None:
@@ -131,6 +137,7 @@ def read_captions(captions_path: Path) -> list[CaptionRow]:
                 paraphrases=[str(p) for p in (para[i] or [])],
                 tags=[str(t) for t in (tags[i] or [])],
                 host_tags=[str(t) for t in (host_tags[i] or [])],
+                behavior={name: cols[name][i] for name in behavior},
             )
         )
     return rows
@@ -158,6 +165,7 @@ def window_frames(
 
 def write_clip_table(clips_dir: Path, rows: list[dict[str, Any]]) -> None:
     """Write ``CLIPS_DIR/clips.parquet`` atomically."""
-    table = pa.Table.from_pylist(rows, schema=CLIP_SCHEMA)
+    extra = [f for f in BEHAVIOR_CAPTION_FIELDS if rows and all(f.name in r for r in rows)]
+    table = pa.Table.from_pylist(rows, schema=pa.schema([*CLIP_SCHEMA, *extra]))
     path = Path(clips_dir) / CLIPS_FILE
     atomic_write_with(path, lambda tmp: pq.write_table(table, tmp))

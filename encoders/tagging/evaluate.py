@@ -19,6 +19,10 @@ from the training split: the median pooled value (continuous, the L1-optimal con
 answering yes, the best a constant can do, else 0).
 
 Table 2's value per attribute is the mean of Table 1's metric over the regions.
+
+The truth of a log is the simulator's behaviour labels where it has them and the captioning rules'
+own-behaviour tags otherwise (:mod:`encoders.tagging.targets`); ``meta.target_sources`` and the
+report say which, per log.
 """
 
 from __future__ import annotations
@@ -55,7 +59,7 @@ from encoders.tagging.scene_tags import (
     region_masks,
     values_of,
 )
-from encoders.tagging.targets import has_targets, open_targets
+from encoders.tagging.targets import has_targets, open_targets, targets_source
 
 Pooled = dict[str, dict[str, NDArray[np.float32]]]
 #: Candidate F1 thresholds: fine at the low end, where hard-negative-mined probabilities of rare attributes lie.
@@ -377,6 +381,7 @@ def evaluate_runs(
         "skill": skills,
         "statistics_by_region": stats,
         "meta": {"split": split, "test_logs": test_truth.logs, "train_logs": train.logs,
+                 "target_sources": {lid: targets_source(clips, lid) for lid in [*test_truth.logs, *train.logs]},
                  "frames": int(next(iter(next(iter(test_truth.truth.values())).values())).shape[0]),
                  "runs": {k: str(Path(rd)) for k, rd in {main.inputs.value: run_dir, **(input_runs or {})}.items()}},
     }
@@ -390,11 +395,22 @@ def has_attribute_targets(clips_dir: Path, name: str) -> bool:
     return False
 
 
+def sources_line(result: dict[str, Any]) -> str:
+    """Where the evaluated logs' targets come from: the simulator's labels or the captioning rules."""
+    sources = result.get("meta", {}).get("target_sources") or {}
+    test = [sources.get(lid, "labels") for lid in result.get("meta", {}).get("test_logs", [])]
+    if not test:
+        return ""
+    counts = {s: test.count(s) for s in dict.fromkeys(test)}
+    said = ", ".join(f"{n} from the {'simulator' if s == 'labels' else 'captioning'} {s}" for s, n in counts.items())
+    return f"\nTruth of the {len(test)} test log(s): {said}.\n"
+
+
 def write_report(out_dir: Path | str, result: dict[str, Any]) -> tuple[Path, Path]:
     """``DIR/tags.json`` and ``DIR/tags.md`` (atomic)."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    md = markdown_tables(result["by_region"], result["inputs"], result["skill"])
+    md = markdown_tables(result["by_region"], result["inputs"], result["skill"]) + sources_line(result)
     atomic_write_text(out / "tags.json", json.dumps(result, indent=2))
     atomic_write_text(out / "tags.md", "# Spatio-temporal tagging\n\n" + md)
     return out / "tags.json", out / "tags.md"

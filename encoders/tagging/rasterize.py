@@ -282,7 +282,8 @@ def junction_masks(log_dir: Path, grid: BevGrid, city_SE3_ego: NDArray[np.floati
 
 
 def rasterize_targets(log: Log, grid: BevGrid, dense: DenseTracks | None = None,
-                      frames: NDArray[np.int64] | None = None) -> NDArray[np.float32]:
+                      frames: NDArray[np.int64] | None = None,
+                      behavior: BehaviorGrid | None = None) -> NDArray[np.float32]:
     """Ground truth of every attribute of :data:`ATTRIBUTES` for a log's frames.
 
     Args:
@@ -290,17 +291,18 @@ def rasterize_targets(log: Log, grid: BevGrid, dense: DenseTracks | None = None,
         grid: the BEV grid (the clip stage's).
         dense: the log's dense tracks (computed when not given).
         frames: (N,) frame indices (default: all F).
+        behavior: the behaviour on the dense grid (default: the log's behaviour labels).
 
     Returns:
         (N, A, H, W) float32.
 
     Raises:
-        TagError: the log has no behaviour labels.
+        TagError: the log has no behaviour labels (and none are given).
     """
     dense = log.dense_tracks() if dense is None else dense
     f = dense.timestamps_ns.shape[0]
     frames = np.arange(f, dtype=np.int64) if frames is None else np.asarray(frames, dtype=np.int64)
-    beh = behavior_grid(log.log_dir, dense)
+    beh = behavior_grid(log.log_dir, dense) if behavior is None else behavior
     cats = np.asarray(dense.categories).astype(str)
     vehicle = np.isin(cats, list(_VEHICLES))
     pedestrian = cats == Category.PEDESTRIAN.value

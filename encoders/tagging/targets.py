@@ -5,7 +5,12 @@ writes, per log::
 
     CLIPS_DIR/logs/<log_id>/bev_attributes.npy    (F, A, H, W) float16
     CLIPS_DIR/logs/<log_id>/bev_attributes.json   {"attributes": [names], "present": (F, A) 0/1 lists,
-                                                  "version": TARGETS_VERSION}
+                                                  "version": TARGETS_VERSION, "source": "labels" | "rules"}
+
+The behaviour attributes come from the simulator's behaviour labels where the log has them
+(``source: labels``) and from the captioning rules' own-behaviour tags otherwise (``source: rules``,
+:mod:`captioning.behavior`: tracks and map only, so every log with tracks gets targets); the junction
+kinds then come from the map (:mod:`captioning.map_context`) instead of ``junctions.feather``.
 
 ``present[f][a]`` says whether attribute ``a`` is non-zero anywhere in frame ``f`` (what the
 task-balanced sampler draws from). Both files are written atomically. Attributes added later
@@ -14,24 +19,46 @@ task-balanced sampler draws from). Both files are written atomically. Attributes
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from enum import StrEnum
 from pathlib import Path
 
 import numpy as np
 import pyarrow.parquet as pq
 from numpy.typing import NDArray
 
+from captioning.behavior import LABELS, BehaviorTags
+from captioning.config import CaptioningConfig, RuleSet
+from captioning.map_context import JUNCTION_KINDS, junction_kind_codes, lookup, rasterize_map
+from captioning.pipeline import tag_arrays
 from common.atomic import atomic_path, atomic_write_text
 from encoders.clips.layout import FRAMES_FILE, TARGETS_STEM, grid_from_manifest, read_manifest, rendered_log_dir
-from encoders.tagging.attributes import ATTRIBUTES, TagError
-from encoders.tagging.rasterize import rasterize_targets
+from encoders.tagging.attributes import ATTRIBUTES, BEHAVIOR_ATTRIBUTES, JUNCTION_ATTRIBUTES, TagError
+from encoders.tagging.rasterize import BehaviorGrid, rasterize_targets
+from scenes.behavior import BEHAVIOR_FILENAME, BehaviorLabel
+from scenes.bev import BevGrid
+from scenes.errors import ScenesError
 from scenes.log import Log
+from scenes.tracks import DenseTracks
 
 #: Version of the target definitions; targets written by another version are recomputed, not reused.
 #: 2: junction kinds cover the junction's approaches, not only its outline.
-TARGETS_VERSION = 2
+#: 3: logs without behaviour labels get targets from the captioning rules; the sidecar names the source.
+TARGETS_VERSION = 3
+#: Frames whose BEV cells are looked up in the map at once (bounds the scratch memory).
+_CHUNK_FRAMES = 16
+
+
+class TargetSource(StrEnum):
+    """Where a log's behaviour targets come from."""
+
+    #: The simulator's behaviour labels (``behavior_labels.feather``) and junction kinds.
+    LABELS = "labels"
+    #: The captioning rules on the log's tracks and map.
+    RULES = "rules"
 
 
 @dataclass
@@ -41,6 +68,16 @@ class TargetsReport:
     written: list[str] = field(default_factory=list)
     reused: list[str] = field(default_factory=list)
     skipped: list[dict[str, str]] = field(default_factory=list)
+    #: log id → :class:`TargetSource` value, for every written or reused log.
+    sources: dict[str, str] = field(default_factory=dict)
+
+    def table(self) -> str:
+        """One line per log: the log, whether written or reused, and where its targets come from."""
+        lines = ["log_id                                  targets  source"]
+        for log_id in [*self.written, *self.reused]:
+            done = "written" if log_id in self.written else "reused"
+            lines.append(f"{log_id:<39} {done:<8} {self.sources.get(log_id, '?')}")
+        return "\n".join(lines)
 
 
 def target_files(folder: Path, stem: str = TARGETS_STEM) -> tuple[Path, Path]:
@@ -52,7 +89,8 @@ def has_targets(clips_dir: Path | str, log_id: str, stem: str = TARGETS_STEM) ->
     return all(path.is_file() for path in target_files(rendered_log_dir(clips_dir, log_id), stem))
 
 
-def write_targets(folder: Path, targets: NDArray[np.floating], names: Sequence[str], stem: str = TARGETS_STEM) -> None:
+def write_targets(folder: Path, targets: NDArray[np.floating], names: Sequence[str], stem: str = TARGETS_STEM,
+                  source: TargetSource = TargetSource.LABELS) -> None:
     """Write ``<stem>.npy`` (float16) and its ``<stem>.json`` sidecar atomically.
 
     Args:
@@ -60,13 +98,15 @@ def write_targets(folder: Path, targets: NDArray[np.floating], names: Sequence[s
         targets: (F, A, H, W) targets.
         names: A attribute names.
         stem: file stem (``bev_attributes``; attributes added later use their own).
+        source: where the behaviour targets come from (recorded in the sidecar).
     """
     arr = np.ascontiguousarray(np.asarray(targets, dtype=np.float16))
     present = (arr.reshape(arr.shape[0], arr.shape[1], -1) != 0).any(axis=2).astype(np.uint8)
     array_path, meta_path = target_files(folder, stem)
     with atomic_path(array_path) as tmp, open(tmp, "wb") as fh:
         np.save(fh, arr, allow_pickle=False)
-    meta = {"attributes": list(names), "present": present.tolist(), "version": TARGETS_VERSION}
+    meta = {"attributes": list(names), "present": present.tolist(), "version": TARGETS_VERSION,
+            "source": TargetSource(source).value}
     atomic_write_text(meta_path, json.dumps(meta))
 
 
@@ -74,6 +114,66 @@ def targets_version(clips_dir: Path | str, log_id: str, stem: str = TARGETS_STEM
     """The :data:`TARGETS_VERSION` a log's targets were written with (1 for files without one)."""
     meta = json.loads(target_files(rendered_log_dir(clips_dir, log_id), stem)[1].read_text())
     return int(meta.get("version", 1))
+
+
+def targets_source(clips_dir: Path | str, log_id: str, stem: str = TARGETS_STEM) -> str:
+    """:class:`TargetSource` value of a log's targets (``labels`` for files written before rules could)."""
+    meta = json.loads(target_files(rendered_log_dir(clips_dir, log_id), stem)[1].read_text())
+    return str(meta.get("source", TargetSource.LABELS.value))
+
+
+def rule_behavior(log: Log, dense: DenseTracks, config: CaptioningConfig | None = None) -> BehaviorGrid:
+    """The captioning rules' own-behaviour tags of a log as a :class:`BehaviorGrid` (tags that could not be
+    computed count as absent; the rules name no leader and give the ego none)."""
+    config = dataclasses.replace(config or CaptioningConfig(), rules=RuleSet.BEHAVIOR)
+    result = tag_arrays(log.log_id, dense.timestamps_ns, dense.track_ids, dense.categories, dense.valid,
+                        dense.center_ego_xyz_m[..., :2], dense.yaw_ego_rad, dense.city_SE3_ego, config,
+                        vector_map=log.map, length_m=dense.size_lwh_m[..., 0])
+    beh = result.behavior
+    assert isinstance(beh, BehaviorTags)
+    k, f = dense.valid.shape
+    order = [LABELS.index(BehaviorLabel(a.value)) for a in BEHAVIOR_ATTRIBUTES]  # the targets' channel order
+    flags = (beh.flags & beh.known)[..., order]
+    return BehaviorGrid(flags=flags, speed_mps=beh.speed_mps, leader_index=np.full((k, f), -1, np.int64),
+                        ego_flags=np.zeros((f, len(BEHAVIOR_ATTRIBUTES)), bool),
+                        ego_leader_index=np.full(f, -1, np.int64))
+
+
+def map_junction_masks(log: Log, grid: BevGrid, city_SE3_ego: NDArray[np.floating], kinds: Sequence[str],
+                       config: CaptioningConfig | None = None) -> NDArray[np.float32]:
+    """Junction areas of each kind in every frame's ego grid, from the map (a junction and the lanes
+    entering it within ``map.junction_approach_m``, as the rules' map context says); zeros without a map.
+
+    Args:
+        log: the log (its vector map).
+        grid: the BEV grid.
+        city_SE3_ego: (F, 4, 4) ego poses.
+        kinds: junction kinds, e.g. ``("three_way", "four_way")``.
+
+    Returns:
+        (F, len(kinds), H, W) float32.
+    """
+    config = config or CaptioningConfig()
+    poses = np.asarray(city_SE3_ego, dtype=np.float64)
+    f = poses.shape[0]
+    h, w = grid.shape
+    out = np.zeros((f, len(kinds), h, w), np.float32)
+    if log.map is None or f == 0:
+        return out
+    cells = grid.cell_centers_xy().reshape(-1, 2)  # (H*W, 2) ego x, y
+    corners = cells[[0, -1]]
+    reach = np.einsum("fij,nj->fni", poses[:, :2, :2], corners) + poses[:, None, :2, 3]
+    raster = rasterize_map(log.map, reach.reshape(-1, 2), config.map)
+    if raster is None:
+        return out
+    codes = [JUNCTION_KINDS.index(next(k for k in JUNCTION_KINDS if k.value == kind)) for kind in kinds]
+    for lo in range(0, f, _CHUNK_FRAMES):
+        p = poses[lo : lo + _CHUNK_FRAMES]
+        xy = np.einsum("fij,nj->fni", p[:, :2, :2], cells) + p[:, None, :2, 3]  # (n, H*W, 2) city
+        kind = junction_kind_codes(raster, lookup(raster, xy), config.map.junction_approach_m)
+        for c, code in enumerate(codes):
+            out[lo : lo + _CHUNK_FRAMES, c] = (kind == code).reshape(-1, h, w)
+    return out
 
 
 def add_attribute_targets(
@@ -84,8 +184,9 @@ def add_attribute_targets(
 ) -> TargetsReport:
     """Write ``bev_attributes.npy`` for every given log that the clips folder has rendered.
 
-    Logs not rendered in ``clips_dir``, without behaviour labels, or whose frames differ from the
-    rendered ones are skipped and reported; nothing is half-written.
+    Logs with behaviour labels get targets from them, the others from the captioning rules (see the
+    module docstring; ``report.sources`` says which). Logs not rendered in ``clips_dir`` or whose
+    frames differ from the rendered ones are skipped and reported; nothing is half-written.
     """
     say = progress or (lambda _line: None)
     clips_dir = Path(clips_dir)
@@ -99,6 +200,7 @@ def add_attribute_targets(
             continue
         if not overwrite and has_targets(clips_dir, log_id) and targets_version(clips_dir, log_id) == TARGETS_VERSION:
             report.reused.append(log_id)
+            report.sources[log_id] = targets_source(clips_dir, log_id)
             continue
         try:
             log = Log.open(log_dir)
@@ -106,13 +208,22 @@ def add_attribute_targets(
             rendered = pq.read_table(folder / FRAMES_FILE, columns=["timestamp_ns"]).column(0).to_numpy()
             if not np.array_equal(rendered, dense.timestamps_ns):
                 raise TagError(f"{folder / FRAMES_FILE}: frame timestamps differ from the log's annotations")
-            targets = rasterize_targets(log, grid, dense)
-        except (TagError, ValueError, OSError) as exc:
+            if (Path(log_dir) / BEHAVIOR_FILENAME).is_file():
+                source = TargetSource.LABELS
+                targets = rasterize_targets(log, grid, dense)
+            else:
+                source = TargetSource.RULES
+                targets = rasterize_targets(log, grid, dense, behavior=rule_behavior(log, dense))
+                kinds = tuple(a.value for a in JUNCTION_ATTRIBUTES)
+                channels = [ATTRIBUTES.index(a) for a in JUNCTION_ATTRIBUTES]
+                targets[:, channels] = map_junction_masks(log, grid, dense.city_SE3_ego, kinds)
+        except (TagError, ScenesError, ValueError, OSError) as exc:
             report.skipped.append({"log_id": log_id, "reason": str(exc)})
             continue
-        write_targets(folder, targets, [a.value for a in ATTRIBUTES])
+        write_targets(folder, targets, [a.value for a in ATTRIBUTES], source=source)
         report.written.append(log_id)
-        say(f"{log_id}: tag targets for {targets.shape[0]} frames")
+        report.sources[log_id] = source.value
+        say(f"{log_id}: tag targets for {targets.shape[0]} frames from the {source.value}")
     return report
 
 

@@ -1,8 +1,10 @@
 """``scenesearch caption LOG_DIR... --out OUT_DIR [--config captioning.yaml]``: rule-based captions.
 
 Writes ``OUT_DIR/frame_tags.parquet`` and ``OUT_DIR/captions.parquet`` (see
-:mod:`captioning.pipeline`). Logs that cannot be read are skipped and listed with the reason;
-so are tracks observed in single frames. Exits 1 when no log could be captioned.
+:mod:`captioning.pipeline`), published together (:mod:`captioning.publish`). Logs that cannot be
+read are skipped and listed with the reason; so are tracks observed in single frames, or too short
+for own-behaviour tags, and a log without a map with lanes is said to have null lane tags, once.
+Exits 1, leaving the previous outputs untouched, when no log could be captioned.
 """
 
 from __future__ import annotations
@@ -21,10 +23,12 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--config", type=Path, help="captioning YAML (thresholds; see captioning.config)")
     parser.add_argument("--strategy", choices=["host_segments", "sliding"], help="override windows.strategy")
     parser.add_argument("--seed", type=int, help="override text.seed (paraphrase choice)")
+    parser.add_argument("--rules", choices=["behavior", "paper"],
+                        help="override rules: paper = the paper's rules only (moving neighbours, no own action)")
 
 
 def run(args: argparse.Namespace) -> int:
-    from captioning.config import CaptioningConfig, WindowStrategy
+    from captioning.config import CaptioningConfig, RuleSet, WindowStrategy
     from captioning.pipeline import caption_logs, write_outputs
 
     config = CaptioningConfig.from_yaml(args.config) if args.config else CaptioningConfig()
@@ -34,8 +38,15 @@ def run(args: argparse.Namespace) -> int:
         )
     if args.seed is not None:
         config = dataclasses.replace(config, text=dataclasses.replace(config.text, seed=args.seed))
+    if args.rules:
+        config = dataclasses.replace(config, rules=RuleSet(args.rules))
     start = time.perf_counter()
     batch = caption_logs(args.log_dirs, config)
+    for log_dir, reason in batch.skipped_logs.items():
+        print(f"skipped log {log_dir}: {reason}")
+    if not batch.results:
+        print(f"no log could be captioned; {args.out} is left as it was")
+        return 1
     frames_path, captions_path = write_outputs(args.out, batch.results)
     elapsed_s = time.perf_counter() - start
     object_frames = sum(int(r.valid.sum()) for r in batch.results)
@@ -46,15 +57,14 @@ def run(args: argparse.Namespace) -> int:
             f"{result.log_id}: {len(result.timestamps_ns)} frames, {len(result.track_ids)} tracks "
             f"({int(result.neighbors.stationary.sum())} stationary), {len(result.captions)} captions"
             + (f", skipped {len(skipped)} tracks: {_reasons(skipped)}" if skipped else "")
+            + "".join(f"; {note}" for note in result.notes)
         )
-    for log_dir, reason in batch.skipped_logs.items():
-        print(f"skipped log {log_dir}: {reason}")
     print(
         f"captioned {len(batch.results)} of {len(batch.results) + len(batch.skipped_logs)} logs: "
         f"{num_captions} captions, {object_frames} object-frames in {elapsed_s:.2f} s; "
         f"wrote {frames_path} and {captions_path}"
     )
-    return 0 if batch.results else 1
+    return 0
 
 
 def _reasons(skipped: dict[str, str]) -> str:

@@ -29,8 +29,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="skip (and report) captions naming logs or tracks that are not given, instead of failing")
     parser.add_argument("--no-reuse", action="store_true", help="re-render logs already rendered with this config")
     parser.add_argument("--tag-targets", action="store_true",
-                        help="also rasterise attribute-tag targets from the logs' behaviour labels (simulated logs), "
-                             "so that `scenesearch train` learns spatio-temporal tags jointly")
+                        help="also rasterise attribute-tag targets, so that `scenesearch train` learns "
+                             "spatio-temporal tags jointly: from the behaviour labels of simulated logs, from the "
+                             "captioning rules on the tracks and map of any other log (the table printed says which)")
     parser.add_argument("--save-config", type=Path, help="also write the effective config as YAML")
 
 
@@ -77,6 +78,7 @@ def run(args: argparse.Namespace) -> int:
 
         targets = add_attribute_targets(args.out, args.log_dirs, progress=print)
         print(f"tag targets: {len(targets.written)} log(s) written, {len(targets.reused)} reused")
+        print(targets.table())
         for item in targets.skipped:
             print(f"  skipped {item.get('log_id', '?')}: {item.get('reason', '')}")
     return 0

@@ -3,7 +3,8 @@
 Writes Table 1 (per attribute × region: L1 for continuous attributes, F1 for discrete ones, on the
 clips folder's test split) and Table 2 (inputs: none = dataset statistics, map, LiDAR, both; one
 run per row, ``RUN_DIR`` is the row its training inputs name) as ``DIR/tags.md`` and ``DIR/tags.json``.
-Logs without tag targets get them first when their folders are given with ``--logs``.
+Logs without tag targets get them first when their folders are given with ``--logs``: from the
+simulator's behaviour labels where a log has them, from the captioning rules otherwise (the report says which).
 """
 
 from __future__ import annotations
@@ -39,6 +40,7 @@ def run(args: argparse.Namespace) -> int:
         runs[parse_inputs(key).value] = Path(path)
     if args.logs:
         report = add_attribute_targets(args.clips_dir, args.logs, progress=print)
+        print(report.table())
         for item in report.skipped:
             print(f"  skipped {item['log_id']}: {item['reason']}")
     result = evaluate_runs(args.run_dir, args.clips_dir, runs, args.split, progress=print)

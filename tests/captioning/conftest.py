@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from numpy.typing import NDArray
 
-from captioning.config import CaptioningConfig
+from captioning.config import CaptioningConfig, RuleSet
 from captioning.pipeline import LogCaptions, caption_arrays
 from scenes.geometry import batch_matrices, quat_to_rotmat, wrap_angle_rad, yaw_to_quat
 
@@ -77,7 +77,9 @@ class Scene:
         )
 
     def caption(self, config: CaptioningConfig | None = None) -> LogCaptions:
-        return caption_arrays(config=config or CaptioningConfig(), **self.arrays())  # type: ignore[arg-type]
+        """Caption under ``config``; by default the paper's rules, which most tests here are about."""
+        config = config or CaptioningConfig(rules=RuleSet.PAPER)
+        return caption_arrays(config=config, **self.arrays())  # type: ignore[arg-type]
 
 
 def ego_path(speed_mps: NDArray | float, yaw_rate_rps: NDArray | float = 0.0, num_frames: int = 60) -> Scene:

@@ -8,9 +8,10 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
-from captioning.config import CaptioningConfig, SmoothingConfig, WindowsConfig, WindowStrategy
+from captioning.config import CaptioningConfig, RuleSet, SmoothingConfig, WindowsConfig, WindowStrategy
 from captioning.errors import TrackDataError
-from captioning.pipeline import CAPTIONS_SCHEMA, FRAME_TAGS_SCHEMA, SKIP_ISOLATED, caption_arrays, write_outputs
+from captioning.pipeline import SKIP_ISOLATED, caption_arrays, write_outputs
+from captioning.tables import CAPTIONS_SCHEMA, FRAME_TAGS_SCHEMA
 
 
 def busy_scene(make_scene):  # type: ignore[no-untyped-def]
@@ -99,7 +100,8 @@ def test_nan_ego_pose_is_an_error(make_scene) -> None:  # type: ignore[no-untype
 def test_write_outputs_atomically(make_scene, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
     result = busy_scene(make_scene).caption()
     frames_path, captions_path = write_outputs(tmp_path / "out", [result, result])
-    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["captions.parquet", "frame_tags.parquet"]
+    published = sorted(p.name for p in (tmp_path / "out").iterdir() if not p.name.startswith("."))
+    assert published == ["captions.parquet", "frame_tags.parquet"]
     frames = pq.read_table(frames_path)
     captions = pq.read_table(captions_path)
     assert frames.num_rows == 2 * result.frame_tags_table().num_rows
@@ -120,7 +122,7 @@ def test_tiny_logs_give_no_captions_and_no_errors(num_frames: int, num_tracks: i
         "tiny", (np.arange(num_frames) * 100_000_000).astype(np.int64),
         np.array([f"t{i}" for i in range(num_tracks)], dtype=np.str_), np.array(["car"] * num_tracks, dtype=np.str_),
         np.ones((num_tracks, num_frames), bool), np.ones((num_tracks, num_frames, 2)),
-        np.zeros((num_tracks, num_frames)), poses, CaptioningConfig(),
+        np.zeros((num_tracks, num_frames)), poses, CaptioningConfig(rules=RuleSet.PAPER),
     )
     assert result.captions == []
     assert result.frame_tags_table().num_rows == num_frames * (1 + num_tracks)

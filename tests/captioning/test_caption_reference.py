@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from captioning.config import CaptioningConfig, SmoothingConfig
+from captioning.config import CaptioningConfig, RuleSet, SmoothingConfig
 from captioning.pipeline import caption_arrays
 from captioning.reference import reference_tags
 from scenes.geometry import batch_matrices, quat_to_rotmat, yaw_to_quat
@@ -50,7 +50,7 @@ def random_log(seed: int, k: int = 20, t: int = 90) -> dict:
     ],
 )
 def test_vectorised_equals_reference(seed: int, smoothing: SmoothingConfig) -> None:
-    config = CaptioningConfig(smoothing=smoothing)
+    config = CaptioningConfig(rules=RuleSet.PAPER, smoothing=smoothing)
     data = random_log(seed)
     fast = caption_arrays(config=config, **data)  # type: ignore[arg-type]
     slow = reference_tags(

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from captioning.tags import Lane, Motion
+from captioning.tags import Lane, Motion, split_neighbor_tag, unified_neighbor_tag
 from captioning.text import caption_text, host_sentence, neighbor_sentence, paraphrases
 
 
@@ -56,3 +56,34 @@ def test_paraphrases_are_seeded_distinct_and_keep_the_class() -> None:
     assert len(set(first)) == 3
     assert caption_text(*args) not in first
     assert all("bus" in p and "then" in p for p in first)
+
+
+def test_own_action_and_context_in_the_neighbour_sentence() -> None:
+    assert neighbor_sentence("car", ["left:approach:braking", "left:approach:left_turn"]) == (
+        "A car in the left lane approaches while braking, then turns left at the intersection.")
+    assert neighbor_sentence("truck", ["host:approach:stopped"]) == (
+        "A truck stands in the ego lane as the ego approaches.")
+    assert neighbor_sentence("car", ["right:constant:parked"]) == "A car is parked on the right."
+    assert neighbor_sentence("car", ["host:approach", "host:approach:braking:on_crosswalk",
+                                     "host:approach:stopped:on_crosswalk", "host:away"]) == (
+        "A car in the ego lane approaches, then brakes on a crosswalk, then stops on a crosswalk as the ego "
+        "approaches, then starts moving and moves away.")
+    # A parked car passed by the ego: its lane relative to the ego changes, it does not.
+    assert neighbor_sentence("car", ["right:approach:parked", "right_lateral:away:parked"]) == (
+        "A car is parked on the right as the ego approaches, then the ego moves away from it.")
+
+
+def test_paraphrases_cover_the_new_words() -> None:
+    tags = ["left:approach:braking", "left:approach:left_turn"]
+    texts = paraphrases("car", tags, ["cruising:heading_straight"], 3, 0, ("log", "t", 0, 1))
+    assert len(set(texts)) == 3
+    assert all(any(w in t for w in ("brak", "slow")) and "left" in t for t in texts)
+    seen = {paraphrases("car", ["host:constant:stopped"], [], 3, seed, ("k",))[0] for seed in range(20)}
+    assert any("is stopped" in t for t in seen) and any("waits" in t for t in seen)
+
+
+def test_neighbour_tags_with_action_and_context_round_trip() -> None:
+    for parts in (("left", "approach", None, None), ("host", "approach", "stopped", "at_intersection"),
+                  ("right", "away", None, "on_crosswalk"), ("oncoming", "constant", "braking", None)):
+        assert split_neighbor_tag(unified_neighbor_tag(*parts)) == parts
+    assert unified_neighbor_tag("right", "away", None, "on_crosswalk") == "right:away:on_crosswalk"

@@ -51,7 +51,6 @@ from captioning.errors import TrackDataError
 from captioning.host import host_kinematics, host_tags_of
 from captioning.map_context import rasterize_map
 from captioning.neighbors import NeighborTags, neighbor_tags, track_motion
-from captioning.publish import publish as publish_outputs
 from captioning.smoothing import BoolArray, FloatArray, IntArray, suppress_flicker
 from captioning.tables import (
     EGO_CATEGORY,
@@ -75,6 +74,7 @@ from captioning.tags import (
     unified_neighbor_tag,
 )
 from captioning.unify import Segment, caption_windows
+from common.publish import publish as publish_outputs
 from scenes.errors import ScenesError
 from scenes.log import Log
 from scenes.map import VectorMap
@@ -398,7 +398,7 @@ def caption_logs(log_dirs: Iterable[Path | str], config: CaptioningConfig | None
 
 def write_outputs(out_dir: Path | str, results: Sequence[LogCaptions]) -> tuple[Path, Path]:
     """Write ``frame_tags.parquet`` and ``captions.parquet`` and publish them together
-    (:mod:`captioning.publish`: readers never see a new one beside an old one; what an earlier
+    (:mod:`common.publish`: readers never see a new one beside an old one; what an earlier
     killed write left behind is removed)."""
     behavior = any(r.behavior is not None for r in results)
     schema = FRAME_TAGS_BEHAVIOR_SCHEMA if behavior else FRAME_TAGS_SCHEMA

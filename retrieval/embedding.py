@@ -11,7 +11,6 @@ trained model.
 
 from __future__ import annotations
 
-import hashlib
 import threading
 from collections import OrderedDict
 from collections.abc import Callable, Mapping, Sequence
@@ -22,6 +21,7 @@ import numpy as np
 
 from encoders.config import BUNDLED_TEXT_MODEL
 from encoders.sentence import shared_sentence_encoder
+from indexes.integrity import sha256_file
 from retrieval.errors import ModelMismatchError
 
 MODEL_FILE = "model.safetensors"
@@ -61,11 +61,7 @@ def model_hash(run_dir: Path | str) -> str:
     if not path.is_file():
         raise FileNotFoundError(f"{path}: no trained model here (expected the {MODEL_FILE} that "
                                 "`scenesearch train` writes)")
-    h = hashlib.sha256()
-    with path.open("rb") as f:
-        while chunk := f.read(8 << 20):
-            h.update(chunk)
-    return h.hexdigest()
+    return sha256_file(path)
 
 
 def l2_normalize(x: np.ndarray) -> np.ndarray:

@@ -1,7 +1,7 @@
 """``scenesearch caption LOG_DIR... --out OUT_DIR [--config captioning.yaml]``: rule-based captions.
 
 Writes ``OUT_DIR/frame_tags.parquet`` and ``OUT_DIR/captions.parquet`` (see
-:mod:`captioning.pipeline`), published together (:mod:`captioning.publish`). Logs that cannot be
+:mod:`captioning.pipeline`), published together (:mod:`common.publish`). Logs that cannot be
 read are skipped and listed with the reason; so are tracks observed in single frames, or too short
 for own-behaviour tags, and a log without a map with lanes is said to have null lane tags, once.
 Exits 1, leaving the previous outputs untouched, when no log could be captioned.

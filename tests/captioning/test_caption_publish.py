@@ -14,7 +14,8 @@ import pyarrow.parquet as pq
 import pytest
 
 from captioning.pipeline import CAPTIONS_FILENAME, FRAME_TAGS_FILENAME, LogCaptions, write_outputs
-from captioning.publish import GENERATIONS_DIR, current_generation, publish
+from common.atomic import machine_tag
+from common.publish import GENERATIONS_DIR, current_generation, publish
 from retrieval.cli import main
 
 from .conftest import Scene
@@ -53,7 +54,11 @@ def test_plain_files_of_an_older_writer_are_replaced_and_stale_temporaries_remov
     out.mkdir()
     (out / FRAME_TAGS_FILENAME).write_bytes(b"old frames")
     (out / CAPTIONS_FILENAME).write_bytes(b"old captions")
-    stale = [out / ".captions.parquet.a1b2.tmp.parquet", out / GENERATIONS_DIR / ".tmp-deadbeef"]
+    # A temporary file of a single-file writer that was killed (its process is gone).
+    gone = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True,
+                          check=True).stdout.strip()
+    stale = [out / f".captions.parquet.{gone}@{machine_tag()}.a1b2c3d4.tmp.parquet",
+             out / GENERATIONS_DIR / ".tmp-deadbeef"]
     stale[1].mkdir(parents=True)
     stale[0].write_bytes(b"half")
     publish(out, {FRAME_TAGS_FILENAME: lambda p: p.write_bytes(b"new frames"),

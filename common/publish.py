@@ -27,6 +27,8 @@ import uuid
 from collections.abc import Callable, Mapping
 from pathlib import Path
 
+from common.atomic import sweep_stale
+
 #: Folder of the generations, inside the output folder.
 GENERATIONS_DIR = ".generations"
 CURRENT = "current"
@@ -61,11 +63,11 @@ def current_generation(out_dir: Path | str) -> Path | None:
     return link.parent / os.readlink(link)
 
 
-def remove_stale(out_dir: Path | str, names: tuple[str, ...]) -> list[Path]:
+def remove_stale(out_dir: Path | str) -> list[Path]:
     """Remove what killed writes left behind; returns what was removed.
 
     Everything in ``.generations`` but the current generation and its link, and the temporary files
-    of a single-file writer (``.<name>.*.tmp*``) beside the outputs.
+    of killed single-file writes beside the outputs (:func:`common.atomic.sweep_stale`).
     """
     out = Path(out_dir)
     removed: list[Path] = []
@@ -81,10 +83,7 @@ def remove_stale(out_dir: Path | str, names: tuple[str, ...]) -> list[Path]:
                 entry.unlink(missing_ok=True)
             removed.append(entry)
     if out.is_dir():
-        for name in names:
-            for entry in out.glob(f".{name}.*.tmp*"):
-                entry.unlink(missing_ok=True)
-                removed.append(entry)
+        removed += sweep_stale(out, force=True)
     return removed
 
 
@@ -119,7 +118,7 @@ def publish(out_dir: Path | str, writers: Mapping[str, Callable[[Path], None]]) 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     names = tuple(writers)
-    remove_stale(out, names)
+    remove_stale(out)
     _adopt_plain_files(out, names)
     gens = out / GENERATIONS_DIR
     gens.mkdir(exist_ok=True)

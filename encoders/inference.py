@@ -19,6 +19,7 @@ import torch
 from torch.utils.data import DataLoader, Dataset
 
 from encoders.config import ConfigError, TrainConfig, check_device_name
+from encoders.data import ClipDataset, collate_clips
 from encoders.model import DualEncoder
 
 
@@ -42,16 +43,12 @@ def resolve_device(name: str) -> torch.device:
 
 def collate(items: list[dict[str, Any]]) -> dict[str, Any]:
     """Items → a batch, by the dataset's :func:`encoders.data.collate_clips`."""
-    from encoders.data import collate_clips
-
     return collate_clips(items)
 
 
 def open_split(clips_dir: Path | str, split: str | None, augment: bool = False,
                seed: int = 0) -> Dataset[dict[str, Any]]:
     """The clips of ``split`` (all when None) in ``clips_dir`` (an :class:`encoders.data.ClipDataset`)."""
-    from encoders.data import ClipDataset
-
     # uint8 views: a quarter of the bytes through the workers; the model converts them on its device.
     return ClipDataset(clips_dir, split=split, augment=augment, seed=seed, as_uint8=True)
 

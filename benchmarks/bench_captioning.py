@@ -106,8 +106,10 @@ def run(quick: bool) -> dict:
 
     fast_rate = object_frames / fast_s
     ref_rate = subset_frames / ref_s
+    real = [p for p in AV2_DEV_LOGS if p.is_dir()]
     return {
         **_simulated_agreement(num_logs=2 if quick else 8, duration_s=40 if quick else 60, repeats=repeats),
+        **(_stage_speed("av2_dev", real, repeats) if real else {"stage_av2_dev": "development logs absent"}),
         "object_frames": object_frames,
         "vectorised_object_frames_per_s": round(fast_rate),
         "paper_rules_tags_object_frames_per_s": round(object_frames / paper_tags_s),
@@ -144,9 +146,37 @@ def _simulated_agreement(num_logs: int, duration_s: int, repeats: int) -> dict:
             return {"agreement_error": f"{type(exc).__name__}: {exc}"}
         log_dirs = sorted(p for p in out.iterdir() if p.is_dir())
         report = agreement_for_logs(log_dirs, CaptioningConfig(rules=RuleSet.PAPER))
-        speed = _simulated_speed(log_dirs, repeats)
+        speed = {**_simulated_speed(log_dirs, repeats), **_stage_speed("simulated", log_dirs, repeats)}
     return {**speed, **{f"agreement_{key}": (round(value, 3) if isinstance(value, float) else value)
                         for key, value in report.to_dict().items()}}
+
+
+#: Development AV2 logs (see ../shared/realdata/README.md), timed when present.
+AV2_DEV_LOGS = [Path(__file__).resolve().parents[2] / "shared" / "realdata" / "av2" / name
+                for name in ("7fab2350-7eaf-3b7e-a39d-6937a4c1bede", "adcf7d18-0510-35b0-a2fa-b4cea13a6d76")]
+
+
+def _stage_speed(name: str, log_dirs: list[Path], repeats: int) -> dict:
+    """The whole caption stage (read logs and maps, tags, captions, both tables written) under the
+    paper's and the default rules; maps are parsed cold in every repeat."""
+    from captioning.pipeline import caption_logs, write_outputs
+    from scenes.av2_io import forget_parsed_maps
+
+    def stage(config: CaptioningConfig) -> None:
+        forget_parsed_maps()
+        with tempfile.TemporaryDirectory() as tmp:
+            write_outputs(tmp, caption_logs(log_dirs, config).results)
+
+    frames = sum(int(r.valid.sum()) for r in caption_logs(log_dirs, CaptioningConfig()).results)
+    paper_s = _best_of(repeats, stage, CaptioningConfig(rules=RuleSet.PAPER))
+    rich_s = _best_of(repeats, stage, CaptioningConfig())
+    return {
+        f"stage_{name}_logs": len(log_dirs),
+        f"stage_{name}_object_frames": frames,
+        f"stage_{name}_paper_object_frames_per_s": round(frames / paper_s),
+        f"stage_{name}_behavior_object_frames_per_s": round(frames / rich_s),
+        f"stage_{name}_behavior_slowdown_vs_paper": round(rich_s / paper_s, 2),
+    }
 
 
 def _simulated_speed(log_dirs: list[Path], repeats: int) -> dict:

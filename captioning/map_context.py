@@ -36,7 +36,7 @@ from captioning.config import MapConfig
 from captioning.smoothing import BoolArray, IntArray
 from scenes.behavior import JunctionKind
 from scenes.geometry import FloatArray
-from scenes.map import LaneSegment, VectorMap, resample_polyline
+from scenes.map import LaneSegment, VectorMap
 
 #: Junction kinds in code order (index = code in :attr:`MapRaster.junction_kind`); −1 = none.
 JUNCTION_KINDS: list[JunctionKind] = list(JunctionKind)
@@ -126,19 +126,100 @@ def _lanes_within(vector_map: VectorMap, lo: FloatArray, hi: FloatArray) -> set[
     return {lid for lid, ok in zip(ids, meets.tolist()) if ok}
 
 
-def _midline(seg: LaneSegment) -> FloatArray:
-    """(5, 2) points along a lane segment (ends, quarter points of its chord-averaged boundaries, middle
-    vertex): cheap samples for telling which junction it lies in."""
-    left, right = seg.left_lane_boundary[:, :2], seg.right_lane_boundary[:, :2]
-    ends = 0.5 * (left[[0, -1]] + right[[0, -1]])
-    middle = 0.5 * (left[len(left) // 2] + right[len(right) // 2])
-    quarter = ends[0] + np.array([[0.25], [0.5], [0.75]]) * (ends[1] - ends[0])
-    return np.asarray(np.concatenate([ends, quarter[[0, 2]], middle[None]]), dtype=np.float64)
+def _groups(counts: IntArray) -> tuple[IntArray, IntArray]:
+    """Polylines of ``counts`` (P,) vertices laid end to end: (N,) polyline of each vertex, (P,) first vertex."""
+    starts = np.r_[0, np.cumsum(counts)[:-1]].astype(np.int64)
+    return np.repeat(np.arange(counts.size), counts), starts
 
 
-def _overlaps(points_xy_m: FloatArray, lo: FloatArray, hi: FloatArray) -> bool:
-    """Whether the box around ``points_xy_m`` (N, 2) meets the box ``lo``..``hi``."""
-    return bool((points_xy_m.max(axis=0) >= lo).all() and (points_xy_m.min(axis=0) <= hi).all())
+def _resample_many(points: FloatArray, counts: IntArray, num_points: IntArray) -> FloatArray:
+    """Resample many polylines at once to evenly spaced points by arc length (what
+    :func:`scenes.map.resample_polyline` does for one).
+
+    Args:
+        points: (N, D) the polylines' vertices laid end to end.
+        counts: (P,) vertices of each polyline (≥ 1).
+        num_points: (P,) points wanted from each (≥ 2).
+
+    Returns:
+        (sum(num_points), D) the resampled polylines, end to end.
+    """
+    group, starts = _groups(counts)
+    step = np.linalg.norm(np.diff(points, axis=0), axis=1)
+    step[starts[1:] - 1] = 0.0  # no arc across the joint of two polylines
+    arc = np.r_[0.0, np.cumsum(step)]
+    arc -= arc[starts][group]
+    total = arc[starts + counts - 1]
+    # One interpolation for all: polyline p occupies [2p, 2p + 1] of a shared non-decreasing axis.
+    axis = 2.0 * group + arc / np.where(total > 0, total, 1.0)[group]
+    out_group, out_starts = _groups(num_points)
+    frac = (np.arange(out_group.size) - out_starts[out_group]) / (num_points[out_group] - 1)
+    target = 2.0 * out_group + np.where(total[out_group] > 0, frac, 0.0)
+    return np.stack([np.interp(target, axis, points[:, d]) for d in range(points.shape[1])], axis=1)
+
+
+def _paired_boundaries(segs: list[LaneSegment]) -> tuple[FloatArray, FloatArray, IntArray]:
+    """Left and right boundaries of lane segments with paired vertices, end to end.
+
+    Quads need paired vertices: a segment whose boundaries have different vertex counts has both
+    resampled to the larger count, walked in step by arc length; the others keep their vertices.
+
+    Returns:
+        left (N, 2), right (N, 2), and (P,) vertices per segment.
+    """
+    n_left = np.array([len(s.left_lane_boundary) for s in segs], dtype=np.int64)
+    n_right = np.array([len(s.right_lane_boundary) for s in segs], dtype=np.int64)
+    counts = np.maximum(n_left, n_right)
+    uneven = n_left != n_right
+    group, starts = _groups(counts)
+    paired = []
+    for boundaries, n in ((np.concatenate([s.left_lane_boundary for s in segs]), n_left),
+                          (np.concatenate([s.right_lane_boundary for s in segs]), n_right)):
+        out = np.empty((int(counts.sum()), 3))
+        keep = ~uneven[group]
+        src_group, src_starts = _groups(n)
+        out[keep] = boundaries[(src_starts[group] + np.arange(group.size) - starts[group])[keep]]
+        if uneven.any():
+            # The uneven segments' rows of ``out`` lie in segment order, as the resampled rows come out.
+            out[~keep] = _resample_many(boundaries[uneven[src_group]], n[uneven], counts[uneven])
+        paired.append(out[:, :2])
+    return paired[0], paired[1], counts
+
+
+def _midlines(segs: list[LaneSegment]) -> FloatArray:
+    """(P, 5, 2) points along each lane segment (ends, quarter points of its chord-averaged boundaries,
+    middle vertex): cheap samples for telling which junction it lies in."""
+    def samples(side: str) -> FloatArray:
+        counts = np.array([len(getattr(s, side)) for s in segs], dtype=np.int64)
+        points = np.concatenate([getattr(s, side) for s in segs])[:, :2]
+        _, starts = _groups(counts)
+        return points[np.stack([starts, starts + counts - 1, starts + counts // 2], axis=1)]  # (P, 3, 2)
+
+    both = 0.5 * (samples("left_lane_boundary") + samples("right_lane_boundary"))
+    first, last, middle = both[:, 0], both[:, 1], both[:, 2]
+    quarter = first[:, None] + np.array([0.25, 0.75])[None, :, None] * (last - first)[:, None]
+    return np.concatenate([first[:, None], last[:, None], quarter, middle[:, None]], axis=1)
+
+
+def _fill_union(canvas: NDArray[np.uint8], polygons: list[FloatArray], origin: FloatArray, resolution_m: float) -> None:
+    """Set the cells of the union of ``polygons`` (each (N, ≥2), city frame) to 1: one call per polygon,
+    because a single :func:`cv2.fillPoly` over several fills even-odd and would leave overlaps empty."""
+    if not polygons:
+        return
+    sizes = np.array([len(p) for p in polygons])
+    for poly in np.split(_cells(np.concatenate(polygons)[:, :2], origin, resolution_m), np.cumsum(sizes)[:-1]):
+        cv2.fillPoly(canvas, [poly], 1, lineType=cv2.LINE_8, shift=_SHIFT)
+
+
+def _boxes_meet(polygons: list[FloatArray], lo: FloatArray, hi: FloatArray) -> list[bool]:
+    """Whether the box around each polygon ((N, ≥2), city frame) meets the box ``lo``..``hi``."""
+    if not polygons:
+        return []
+    points = np.concatenate(polygons)[:, :2]
+    starts = np.r_[0, np.cumsum([len(p) for p in polygons])[:-1]]
+    high, low = np.maximum.reduceat(points, starts), np.minimum.reduceat(points, starts)
+    meets = np.logical_and((high >= lo).all(axis=1), (low <= hi).all(axis=1))
+    return [bool(m) for m in np.atleast_1d(meets)]
 
 
 def _end_direction_rad(seg: LaneSegment, at_start: bool) -> float:
@@ -201,63 +282,56 @@ def rasterize_map(vector_map: VectorMap, center_city_xy_m: FloatArray, config: M
     near = _lanes_within(vector_map, lo, hi)
     road_ids = sorted(lid for lid, s in lanes.items() if not s.is_intersection)
     lane_index = {lid: i for i, lid in enumerate(road_ids)}
-    quad_lane: list[IntArray] = []
-    starts: list[FloatArray] = []
-    dirs: list[FloatArray] = []
-    arcs: list[FloatArray] = []
     lengths = np.full(len(road_ids), np.nan)
-    num_quads = 0
-    for i, lid in enumerate(road_ids):
-        if lid not in near:
-            continue
-        seg = lanes[lid]
-        left, right = seg.left_lane_boundary[:, :2], seg.right_lane_boundary[:, :2]
-        if len(left) != len(right):
-            # Quads need paired vertices; boundaries walked in step are paired by arc length.
-            n = max(len(left), len(right))
-            left, right = resample_polyline(seg.left_lane_boundary, n)[:, :2], resample_polyline(
-                seg.right_lane_boundary, n)[:, :2]
+    drawn = np.array([i for i, lid in enumerate(road_ids) if lid in near], dtype=np.int64)
+    quad_lane = np.zeros(0, np.int64)
+    starts = dirs = np.zeros((0, 2))
+    arcs = np.zeros(0)
+    if drawn.size:
+        left, right, counts = _paired_boundaries([lanes[road_ids[i]] for i in drawn])
+        group, first = _groups(counts)
         center = 0.5 * (left + right)
         step = np.diff(center, axis=0)
         norm = np.linalg.norm(step, axis=1)
-        keep = np.flatnonzero(norm > 1e-6)
+        last = first + counts - 1
+        norm[last[:-1]] = 0.0  # the step from one lane's end to the next lane's start is no piece of either
         arc = np.r_[0.0, np.cumsum(norm)]
-        lengths[i] = arc[-1]
+        arc -= arc[first][group]
+        lengths[drawn] = arc[last]
+        keep = np.flatnonzero(norm > 1e-6)  # quad k spans vertices k, k + 1 of one lane
+        quad_lane = drawn[group[keep]]
+        starts, dirs, arcs = center[keep], step[keep] / norm[keep, None], arc[keep]
         polys = _cells(np.stack([left[keep], left[keep + 1], right[keep + 1], right[keep]], axis=1), lo, res)
-        for j in range(keep.size):
-            cv2.fillPoly(quad, [polys[j]], num_quads + j, lineType=cv2.LINE_8, shift=_SHIFT)
-        num_quads += keep.size
-        quad_lane.append(np.full(keep.size, i, dtype=np.int64))
-        starts.append(center[keep])
-        dirs.append(step[keep] / norm[keep, None])
-        arcs.append(arc[keep])
+        for j, poly in enumerate(polys):
+            cv2.fillPoly(quad, [poly], j, lineType=cv2.LINE_8, shift=_SHIFT)
     intersection_ids = sorted(lid for lid in near if lanes[lid].is_intersection)
-    for lid in intersection_ids:
-        cv2.fillPoly(inter, [_cells(lanes[lid].polygon()[:, :2], lo, res)], 1, lineType=cv2.LINE_8, shift=_SHIFT)
-    for crossing in vector_map.pedestrian_crossings.values():
-        poly = crossing.polygon()[:, :2]
-        if _overlaps(poly, lo, hi):
-            cv2.fillPoly(crosswalk, [_cells(poly, lo, res)], 1, lineType=cv2.LINE_8, shift=_SHIFT)
+    _fill_union(inter, [lanes[lid].polygon() for lid in intersection_ids], lo, res)
+    crossings = [c.polygon() for c in vector_map.pedestrian_crossings.values()]
+    _fill_union(crosswalk, [p for p, ok in zip(crossings, _boxes_meet(crossings, lo, hi)) if ok], lo, res)
 
-    count, components = cv2.connectedComponents(inter, connectivity=8)
-    junction = (components.astype(np.int32) - 1).astype(np.int32)  # background 0 → −1
+    count, components = cv2.connectedComponents(inter, connectivity=8, ltype=cv2.CV_32S)
+    junction = np.asarray(components, dtype=np.int32)
+    junction -= 1  # background 0 → −1
     num_junctions = int(count) - 1
     # Which junction each intersection lane lies in: the most common component along its centre line.
     members: list[list[int]] = [[] for _ in range(num_junctions)]
     lane_junction = np.full(len(road_ids), -1, dtype=np.int64)
-    for lid in intersection_ids:
-        seg = lanes[lid]
-        cells = np.floor((_midline(seg) - lo) / res).astype(np.int64)
-        inside = (cells[:, 0] >= 0) & (cells[:, 0] < shape[1]) & (cells[:, 1] >= 0) & (cells[:, 1] < shape[0])
-        found = junction[cells[inside, 1], cells[inside, 0]]
-        found = found[found >= 0]
-        if found.size == 0:
-            continue
-        j = int(np.bincount(found).argmax())
-        members[j].append(lid)
-        for p in seg.predecessors:
-            if p in lane_index:
-                lane_junction[lane_index[p]] = j
+    if intersection_ids:
+        cells = np.floor((_midlines([lanes[lid] for lid in intersection_ids]) - lo) / res).astype(np.int64)
+        inside = (cells[..., 0] >= 0) & (cells[..., 0] < shape[1]) & (cells[..., 1] >= 0) & (cells[..., 1] < shape[0])
+        found = np.where(inside, junction[np.where(inside, cells[..., 1], 0), np.where(inside, cells[..., 0], 0)], -1)
+        # The most common junction among a lane's samples, the lowest index on ties (I, 5) → (I,).
+        votes = ((found[:, :, None] == found[:, None, :]) & (found[:, None, :] >= 0)).sum(axis=2)
+        best = np.argmax(votes * (num_junctions + 1) - found, axis=1)
+        lane_in = np.take_along_axis(found, best[:, None], axis=1)[:, 0]
+        lane_in[votes.max(axis=1) == 0] = -1
+        for lid, j in zip(intersection_ids, lane_in.tolist()):
+            if j < 0:
+                continue
+            members[j].append(lid)
+            for p in lanes[lid].predecessors:
+                if p in lane_index:
+                    lane_junction[lane_index[p]] = j
     arms = _junction_arms(vector_map, members, lane_index, config.arm_gap_deg)
     kinds = np.array([JUNCTION_KINDS.index(k) if (k := JunctionKind.from_arms(int(a))) is not None else -1
                       for a in arms], dtype=np.int64)
@@ -271,11 +345,11 @@ def rasterize_map(vector_map: VectorMap, center_city_xy_m: FloatArray, config: M
         resolution_m=res,
         quad=quad,
         junction=junction,
-        crosswalk=crosswalk.astype(bool),
-        quad_lane=np.concatenate(quad_lane) if quad_lane else np.zeros(0, np.int64),
-        quad_start_xy_m=np.concatenate(starts) if starts else np.zeros((0, 2)),
-        quad_dir_xy=np.concatenate(dirs) if dirs else np.zeros((0, 2)),
-        quad_arc_m=np.concatenate(arcs) if arcs else np.zeros(0),
+        crosswalk=crosswalk.view(bool),  # 0/1 bytes
+        quad_lane=quad_lane,
+        quad_start_xy_m=starts,
+        quad_dir_xy=dirs,
+        quad_arc_m=arcs,
         lane_ids=np.asarray(road_ids, dtype=np.int64),
         lane_left=np.array([neighbor(lid, "left_neighbor_id") for lid in road_ids], dtype=np.int64),
         lane_right=np.array([neighbor(lid, "right_neighbor_id") for lid in road_ids], dtype=np.int64),

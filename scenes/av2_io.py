@@ -17,7 +17,10 @@ Layout::
 
 from __future__ import annotations
 
+import hashlib
 import json
+import threading
+from collections import OrderedDict
 from dataclasses import replace
 from pathlib import Path
 
@@ -183,16 +186,47 @@ def find_map_file(log_dir: Path) -> Path | None:
     return candidates[0] if candidates else None
 
 
+#: Maps parsed lately, by content digest: the logs of one fleet area (every simulated log of a city)
+#: carry the same map file, and parsing it costs more than captioning a short log. Map elements hold
+#: read-only arrays, so one parsed map can be shared.
+_PARSED_MAPS: OrderedDict[bytes, VectorMap] = OrderedDict()
+_PARSED_MAPS_SIZE = 8
+_PARSED_MAPS_LOCK = threading.Lock()
+
+
+def forget_parsed_maps() -> None:
+    """Empty the cache of parsed maps (timing a cold read, or after rewriting a map in place)."""
+    with _PARSED_MAPS_LOCK:
+        _PARSED_MAPS.clear()
+
+
 def read_map(path: Path) -> VectorMap:
-    """Read a map JSON file; :class:`LogFormatError` names the file and the key of every bad part."""
+    """Read a map JSON file; :class:`LogFormatError` names the file and the key of every bad part.
+
+    Files with the same bytes as one read lately give the same (immutable) :class:`VectorMap`.
+    """
     try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError, RecursionError) as exc:
+        raw = path.read_bytes()
+    except OSError as exc:
+        raise LogFormatError.single(path, f"unreadable map JSON: {exc}") from exc
+    digest = hashlib.blake2b(raw, digest_size=16).digest()
+    with _PARSED_MAPS_LOCK:
+        if (cached := _PARSED_MAPS.get(digest)) is not None:
+            _PARSED_MAPS.move_to_end(digest)
+            return cached
+    try:
+        data = json.loads(raw.decode("utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError, RecursionError) as exc:
         raise LogFormatError.single(path, f"unreadable map JSON: {exc}") from exc
     try:
-        return VectorMap.from_json_dict(data)
+        vector_map = VectorMap.from_json_dict(data)
     except MapFormatError as exc:
         raise LogFormatError(exc.problems(path)) from exc
+    with _PARSED_MAPS_LOCK:
+        _PARSED_MAPS[digest] = vector_map
+        while len(_PARSED_MAPS) > _PARSED_MAPS_SIZE:
+            _PARSED_MAPS.popitem(last=False)
+    return vector_map
 
 
 def write_map(log_dir: Path, vector_map: VectorMap, log_id: str, city_name: str = "SIM") -> Path:

@@ -257,6 +257,12 @@ class _MapParser:
             raise _BadPart(key, f"must be a list of {{x, y, z}} points, got {_kind(values)}")
         if not values:
             raise _BadPart(key, "polyline has no points")
+        try:  # the common, well-formed case in one pass; anything odd goes the slow way for its message
+            rows = [(p["x"], p["y"], p.get("z", 0.0)) for p in values]
+            if all(type(v) is float or type(v) is int for row in rows for v in row):
+                return np.array(rows, dtype=np.float64)
+        except (TypeError, KeyError, AttributeError):
+            pass
         out = np.zeros((len(values), 3), dtype=np.float64)
         for row, point in enumerate(values):
             if not isinstance(point, Mapping):

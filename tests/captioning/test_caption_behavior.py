@@ -241,3 +241,15 @@ def test_tracks_too_short_for_a_derivative_are_reported() -> None:
     assert not flags(result, "glimpse", BehaviorLabel.STOPPED).any()
     rows = [r for r in result.frame_tags_table().to_pylist() if r["track_id"] == "glimpse"]
     assert len(rows) == 3 and all(r["stopped"] is None for r in rows)
+
+
+def test_many_polylines_resample_as_one_at_a_time() -> None:
+    from captioning.map_context import _resample_many
+    from scenes.map import resample_polyline
+
+    rng = np.random.default_rng(3)
+    lines = [np.cumsum(rng.normal(0, 2, (n, 3)), axis=0) for n in (1, 2, 5, 9)] + [np.zeros((3, 3))]
+    wanted = np.array([4, 2, 7, 3, 5])
+    got = _resample_many(np.concatenate(lines), np.array([len(p) for p in lines]), wanted)
+    expected = np.concatenate([resample_polyline(p, n) for p, n in zip(lines, wanted)])
+    np.testing.assert_allclose(got, expected, atol=1e-9)

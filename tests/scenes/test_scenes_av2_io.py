@@ -9,6 +9,7 @@ import pytest
 
 from scenes import av2_io
 from scenes.calibration import Calibration, CameraIntrinsics
+from scenes.errors import MapFormatError
 from scenes.geometry import SE3, yaw_to_quat
 from scenes.log import Log
 from scenes.map import DrivableArea, LaneSegment, PedestrianCrossing, VectorMap
@@ -160,3 +161,37 @@ def test_writes_are_atomic_on_failure(tmp_path: Path) -> None:
         atomic_write_with(path, broken)
     assert path.read_bytes() == before
     assert sorted(p.name for p in tmp_path.iterdir()) == [path.name]  # no temp file left behind
+
+
+def test_map_files_with_the_same_bytes_share_one_parse(tmp_path: Path) -> None:
+    left = np.array([[0.0, 1.75, 0.0], [50.0, 1.75, 0.0]])
+    right = np.array([[0.0, -1.75, 0.0], [50.0, -1.75, 0.0]])
+    lane = LaneSegment(7, False, "VEHICLE", left, right, "NONE", "NONE", (), (), None, None)
+    first = av2_io.write_map(tmp_path / "a", VectorMap({7: lane}), "a")
+    second = tmp_path / "b" / "map" / first.name
+    second.parent.mkdir(parents=True)
+    second.write_bytes(first.read_bytes())
+    av2_io.forget_parsed_maps()
+    shared = av2_io.read_map(first)
+    assert av2_io.read_map(second) is shared
+    with pytest.raises(ValueError):  # shared between logs, so nobody may write into it
+        shared.lane_segments[7].left_lane_boundary[0, 0] = 1.0
+    # Rewritten in place: other bytes, a new parse.
+    moved = LaneSegment(7, False, "VEHICLE", left + 1.0, right + 1.0, "NONE", "NONE", (), (), None, None)
+    av2_io.write_map(tmp_path / "a", VectorMap({7: moved}), "a")
+    np.testing.assert_array_equal(av2_io.read_map(first).lane_segments[7].left_lane_boundary, left + 1.0)
+
+
+def test_map_points_of_every_json_number_kind(tmp_path: Path) -> None:
+    """The fast path takes ints and floats, z optional; bools and strings still get the named error."""
+    good = {"lane_segments": {"1": {"id": 1, "is_intersection": False, "lane_type": "VEHICLE",
+                                    "left_lane_boundary": [{"x": 0, "y": 1.5}, {"x": 10.0, "y": 1, "z": 2}],
+                                    "right_lane_boundary": [{"x": 0, "y": -1, "z": 0.5}, {"x": 10, "y": -1, "z": 0}],
+                                    "left_lane_mark_type": "NONE", "right_lane_mark_type": "NONE",
+                                    "successors": [], "predecessors": []}}}
+    lane = VectorMap.from_json_dict(good).lane_segments[1]
+    np.testing.assert_array_equal(lane.left_lane_boundary, [[0, 1.5, 0], [10, 1, 2]])
+    bad = dict(good["lane_segments"]["1"], right_lane_boundary=[{"x": 0, "y": True}, {"x": "1", "y": 0}])
+    with pytest.raises(MapFormatError, match="right_lane_boundary") as err:
+        VectorMap.from_json_dict({"lane_segments": {"1": bad}})
+    assert "must be a number" in str(err.value)

@@ -114,6 +114,13 @@ class BevTower(nn.Module):
         self.header_time = TimeConv(config.temporal_kernel, d_e)
         self.temporal = TemporalEncoder(config.temporal, 2 * d_e + 8 + config.ego_features)
         self.head = nn.Linear(config.temporal.width, embed_dim)
+        # The object's own track, read by its own temporal model: (T, 2 F + E) → (B, D), added to the
+        # raster stream's vector (see BevConfig.track_features).
+        self.track: TemporalEncoder | None = None
+        self.track_head: nn.Linear | None = None
+        if config.track_features:
+            self.track = TemporalEncoder(config.track, 2 * config.track_features + config.ego_features)
+            self.track_head = nn.Linear(config.track.width, embed_dim)
         self.ego_scale: torch.Tensor
         self.register_buffer("ego_scale", torch.tensor(EGO_MOTION_SCALE[: config.ego_features]), persistent=False)
 
@@ -149,9 +156,25 @@ class BevTower(nn.Module):
         ego = ego_motion[..., : self.config.ego_features] / self.ego_scale  # (B, T, E)
         return torch.cat([pooled, geometry, ego], dim=-1)  # (B, T, 2 D_e + 8 + E)
 
+    def track_features(self, object_track: torch.Tensor, ego_motion: torch.Tensor) -> torch.Tensor:
+        """object_track: (B, T, F); ego_motion: (B, T, 4) → (B, T, 2 F + E): the track, its change since
+        the previous frame, and the ego motion."""
+        ego = ego_motion[..., : self.config.ego_features] / self.ego_scale  # (B, T, E)
+        return torch.cat([with_motion(object_track), ego], dim=-1)
+
     def forward(
-        self, bev_lidar: torch.Tensor, bev_map: torch.Tensor, bev_object: torch.Tensor, ego_motion: torch.Tensor
+        self, bev_lidar: torch.Tensor, bev_map: torch.Tensor, bev_object: torch.Tensor, ego_motion: torch.Tensor,
+        object_track: torch.Tensor | None = None,
     ) -> torch.Tensor:
-        """(B, T, Cl, H, W), (B, T, Cm, H, W), (B, T, 1, H, W), (B, T, 4) → (B, D)."""
+        """(B, T, Cl, H, W), (B, T, Cm, H, W), (B, T, 1, H, W), (B, T, 4), (B, T, F) → (B, D).
+
+        ``object_track`` is required when the tower has a track stream (``track_features`` > 0).
+        """
         e = self.embed_map(bev_lidar, bev_map)  # (B, T, D_e, h, w)
-        return self.head(self.temporal(self.frame_features(e, bev_object, ego_motion)))
+        x = self.head(self.temporal(self.frame_features(e, bev_object, ego_motion)))  # (B, D)
+        if self.track is not None and self.track_head is not None:
+            if object_track is None:
+                raise ValueError("this BEV tower reads the object's track: the batch needs 'object_track' (B, T, "
+                                 f"{self.config.track_features})")
+            x = x + self.track_head(self.track(self.track_features(object_track, ego_motion)))  # (B, D)
+        return x

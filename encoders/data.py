@@ -17,10 +17,12 @@ of the bytes to move; :class:`~encoders.model.DualEncoder` converts them on its 
 - ``bev_object``: (T, 1, Hb, Wb) float32, the object of interest's footprint
 - ``ego_motion``: (T, 4) float32 ``x_m, y_m, yaw_rad, speed_mps`` of each frame's ego pose in the
   clip's first ego frame (every BEV grid is in its own frame's ego frame)
+- ``object_track``: (T, 11) float32, the object's own box through the clip relative to the ego and
+  in the clip's first ego frame (:func:`encoders.clips.views.object_track`)
 
 Augmentation (seeded by ``(seed, epoch, index)``; call :meth:`ClipDataset.set_epoch`): paraphrased
 captions, one small rotation and translation of the whole BEV clip about the ego (``ego_motion`` is
-rotated to match), and colour jitter of the camera frames.
+and ``object_track`` are rotated to match), and colour jitter of the camera frames.
 """
 
 from __future__ import annotations
@@ -37,12 +39,15 @@ from numpy.typing import NDArray
 
 from encoders.clips.layout import grid_from_manifest, read_clip_table, read_manifest
 from encoders.clips.views import (
+    OBJECT_TRACK_FEATURES,
     LogArrays,
     ego_motion,
     gather_cells,
     highlight_camera,
     object_footprint,
+    object_track,
     open_log_arrays,
+    rotate_object_track,
     warp_source_cells,
 )
 
@@ -188,7 +193,8 @@ class ClipDataset(torch.utils.data.Dataset[dict[str, Any]]):
         slots = {key: tensor.numpy() for key, tensor in views.items()}
         t = shapes["camera"][0]
         motion = _empty_batch((len(indices), t, 4), torch.float32)
-        items = [self._fill(i, {key: slot[b] for key, slot in slots.items()}, motion.numpy()[b])
+        track = _empty_batch((len(indices), t, OBJECT_TRACK_FEATURES), torch.float32)
+        items = [self._fill(i, {key: slot[b] for key, slot in slots.items()}, motion.numpy()[b], track.numpy()[b])
                  for b, i in enumerate(indices)]
         batch: dict[str, Any] = {key: [item[key] for item in items] for key in items[0]}
         batch["has_camera"] = torch.tensor(batch["has_camera"], dtype=torch.bool)
@@ -200,11 +206,14 @@ class ClipDataset(torch.utils.data.Dataset[dict[str, Any]]):
                 out.copy_(tensor).mul_(1.0 / 255.0)  # two in-place passes: faster than a promoting mul
                 batch[key] = out
         batch["ego_motion"] = motion
+        batch["object_track"] = track
         return batch
 
-    def _fill(self, index: int, slot: dict[str, NDArray[np.uint8]], motion_out: NDArray[np.float32]) -> dict[str, Any]:
-        """Write item ``index``'s uint8 views into ``slot`` (contiguous (T, C, H, W) arrays) and its
-        ego motion into ``motion_out`` (T, 4); return the item's other fields."""
+    def _fill(self, index: int, slot: dict[str, NDArray[np.uint8]], motion_out: NDArray[np.float32],
+              track_out: NDArray[np.float32]) -> dict[str, Any]:
+        """Write item ``index``'s uint8 views into ``slot`` (contiguous (T, C, H, W) arrays), its
+        ego motion into ``motion_out`` (T, 4) and its track into ``track_out`` (T, 11); return the
+        item's other fields."""
         row = self._rows[index]
         arrays = self._log(row.log_id)
         fi = row.frame_indices
@@ -233,6 +242,7 @@ class ClipDataset(torch.utils.data.Dataset[dict[str, Any]]):
         obj = object_footprint(arrays, self._grid, row.track_id, fi)[:, None]  # (T, 1, H, W), 0/1
         obj *= np.uint8(255)
         motion_out[:] = ego_motion(arrays.pose_xy_yaw, arrays.speed_mps, fi)
+        track_out[:] = object_track(arrays.track_boxes[fi, arrays.track_value[row.track_id] - 1], motion_out)
         if rng is None:
             np.take(arrays.bev_lidar, fi, axis=0, out=slot["bev_lidar"])  # memory map → batch, one copy
             np.take(arrays.bev_map, fi, axis=0, out=slot["bev_map"])
@@ -246,6 +256,7 @@ class ClipDataset(torch.utils.data.Dataset[dict[str, Any]]):
             gather_cells(obj, source, outside, slot["bev_object"])
             c, s = np.cos(theta), np.sin(theta)
             motion_out[:, :2] = motion_out[:, :2] @ np.array([[c, s], [-s, c]], dtype=np.float32)
+            rotate_object_track(track_out, theta)
 
         return {
             "clip_id": row.clip_id,

@@ -66,14 +66,20 @@ def contrastive_loss(
     tag_weight: float = 0.0,
     negatives: torch.Tensor | None = None,
     negative_positives: torch.Tensor | None = None,
+    rows: slice | None = None,
 ) -> torch.Tensor:
     """video: (B, D), text: (B, D) normalised; scale: () ; positives: (B, B) bool → scalar loss.
 
     ``similarity`` (B, B) in [0, 1] weighs non-positive pairs in the ``soft`` variant. ``negatives``
     (M, D) normalised are extra captions for the clip→text side; ``negative_positives`` (B, M) bool
-    marks the ones equal to a clip's own caption (default: none).
+    marks the ones equal to a clip's own caption (default: none). ``rows`` (default all): the mean is
+    over these clips' and captions' terms only, each still against every column; with the batch
+    gathered from several processes (:mod:`encoders.distributed`) each takes its own rows, and the
+    mean of their losses is the loss of the whole batch.
     """
-    logits = scale * video.float() @ text.float().T  # (B, B) clip i vs caption j
+    mine = slice(None) if rows is None else rows
+    clips = video if rows is None else video[rows]  # (B or b, D)
+    logits = scale * clips.float() @ text.float().T  # (B or b, B) clip i vs caption j
     pos = positives.to(logits.device)
     if variant == "multi_positive":
         # −log Σ_{j∈P_i} softmax(s_i)_j = logsumexp(s_i) − logsumexp(s_i over P_i)
@@ -92,10 +98,13 @@ def contrastive_loss(
         target = weight
     else:
         raise ValueError(f"unknown loss variant {variant!r} (choose 'multi_positive' or 'soft')")
-    v2t_logits, v2t_target = logits, target
+    v2t_logits, v2t_target = logits, target[mine]
     if negatives is not None and len(negatives):
         own = (torch.zeros(len(video), len(negatives), dtype=torch.bool) if negative_positives is None
                else negative_positives).to(logits.device)  # (B, M)
-        v2t_logits = torch.cat([logits, scale * video.float() @ negatives.float().T], dim=1)  # (B, B + M)
-        v2t_target = torch.cat([target, own.to(target.dtype)], dim=1)
-    return 0.5 * (side(v2t_logits, v2t_target) + side(logits.T, target.T))
+        v2t_logits = torch.cat([logits, scale * clips.float() @ negatives.float().T], dim=1)  # (B, B + M)
+        v2t_target = torch.cat([target[mine], own[mine].to(target.dtype)], dim=1)
+    v2t = side(v2t_logits, v2t_target)
+    # Built after the clip → text side, as it always was: the gradient sums in the same order.
+    t2v_logits = logits.T if rows is None else scale * text[rows].float() @ video.float().T  # caption i vs clip j
+    return 0.5 * (v2t + side(t2v_logits, target.T[mine]))

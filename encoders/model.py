@@ -69,7 +69,9 @@ class DualEncoder(nn.Module):
             has_camera = torch.as_tensor(batch["has_camera"], dtype=torch.bool, device=self.device).reshape(-1)
             bev = self._bev(batch)  # (B, D)
             camera = torch.zeros_like(bev)
-            if bool(has_camera.any()):
+            # run_camera: in data-parallel training another process's clips may have camera; every process
+            # then runs the tower, whose batch norms share the whole batch's statistics (encoders.distributed).
+            if bool(has_camera.any()) or bool(batch.get("run_camera", False)):
                 camera = self.camera(self._get(batch, "camera"))  # (B, D)
             x = self.fusion(camera, bev, has_camera)
         return F.normalize(x, dim=-1) if normalize else x
@@ -100,6 +102,7 @@ class DualEncoder(nn.Module):
             self._get(batch, "bev_map"),
             self._get(batch, "bev_object"),
             self._get(batch, "ego_motion"),
+            self._get(batch, "object_track") if self.config.bev.track_features else None,
         )
 
     def _get(self, batch: dict[str, Any], key: str) -> torch.Tensor:

@@ -12,8 +12,8 @@ cover the same places.
 
 Items follow the dataset contract of :mod:`encoders.data` (``camera`` (T, 4, Hc, Wc) RGB with the
 object highlighted + mask channel, ``bev_lidar`` (T, Cl, Hb, Wb), ``bev_map`` (T, Cm, Hb, Wb),
-``bev_object`` (T, 1, Hb, Wb), ``ego_motion`` (T, 4), captions and tags). Rendering is vectorised over
-frames; every item is a pure function of (seed, split, index).
+``bev_object`` (T, 1, Hb, Wb), ``ego_motion`` (T, 4), ``object_track`` (T, 11), captions and tags).
+Rendering is vectorised over frames; every item is a pure function of (seed, split, index).
 """
 
 from __future__ import annotations
@@ -27,6 +27,7 @@ import torch
 from torch.utils.data import Dataset
 
 from encoders.clips.layout import clip_id
+from encoders.clips.views import object_track
 
 LANES_Y_M = {"left": 3.5, "host": 0.0, "right": -3.5}
 MOTIONS = ("approach", "recede", "constant")
@@ -179,6 +180,8 @@ class SyntheticClipDataset(Dataset[dict[str, Any]]):
             "bev_map": torch.from_numpy(render_map(s, ego)),
             "bev_object": torch.from_numpy(obj),
             "ego_motion": torch.from_numpy(ego),
+            "object_track": torch.from_numpy(object_track(
+                np.stack([x_m, y_m, np.full(t, length_m), np.full(t, width_m), np.zeros(t)], axis=1), ego)),
         }
 
 

@@ -32,6 +32,9 @@ extended; the cosine schedule then stretches to the new end), ``num_workers``, `
 ``log_every``, which joint training does not use); ``force`` skips the checks (a checkpoint without
 tagging state then starts the head afresh).
 
+With ``distributed`` (:mod:`encoders.distributed`), N processes train as one process with the whole
+batch of N × ``batch_size`` clips: only rank 0 writes files and validates.
+
 Loading a finished run and embedding clips and texts with it is :mod:`encoders.inference`.
 """
 
@@ -62,7 +65,8 @@ from encoders.checkpoints import (
 )
 from encoders.config import TrainConfig
 from encoders.data import AugmentConfig
-from encoders.inference import collate, embed_dataset, embed_texts, open_split, resolve_device, shuffle_time
+from encoders.distributed import Distributed
+from encoders.inference import collate, embed_dataset, embed_texts, open_split, resolve_device
 from encoders.loss import contrastive_loss, positives_matrix, tag_similarity
 from encoders.metrics import relevance_by_caption, text_to_clip_metrics
 from encoders.model import DualEncoder
@@ -229,13 +233,16 @@ def train(
     on_epoch_end: Callable[[int], None] | None = None,
     log: Callable[[str], None] | None = None,
     progress: bool | None = None,
+    distributed: Distributed | None = None,
 ) -> TrainResult:
     """Train a DualEncoder on the 'train' split of ``clips_dir``, validating on 'val'; see the module doc.
 
     ``datasets`` ({"train": ..., "val": ...}) replaces reading the clips folder; ``on_epoch_end(epoch)``
     runs after each epoch's checkpoint and metrics are written; ``progress`` None shows a bar on a terminal.
+    ``distributed``: this process's place in data-parallel training (default: the only process).
     """
-    log = log or (lambda msg: print(msg, file=sys.stderr))
+    dp = distributed or Distributed()
+    log = (log or (lambda msg: print(msg, file=sys.stderr))) if dp.is_main else (lambda _msg: None)
     run_dir = Path(run_dir)
     train_set, val_set = _open_datasets(Path(clips_dir), config, datasets)
     first = train_set[0]
@@ -247,18 +254,21 @@ def train(
     metrics_path = run_dir / "metrics.jsonl"
     if not resume and (ckpt_path.exists() or metrics_path.exists()):
         raise FileExistsError(f"{run_dir} already holds a run; pass --resume to continue it or choose another --out")
-    run_dir.mkdir(parents=True, exist_ok=True)
+    if dp.is_main:
+        run_dir.mkdir(parents=True, exist_ok=True)
 
-    device = resolve_device(config.device)
+    device = dp.device(resolve_device(config.device))
     checkpoint = read_checkpoint(ckpt_path) if resume else None
     if checkpoint is not None and not force:
         check_resume_config(config, checkpoint.config, checkpoint.epoch)
+        dp.check_resume(checkpoint.history)
     seed_everything(config.seed)
     model = DualEncoder(config.model).to(device)
     opt = build_optimizer(model, config)
     # -- tagging hook (encoders/tagging): the tag loss joins the contrastive loss when the clips have tag targets
     tag_config = tagging or TagTrainConfig()
-    tag_objective = attach_tagging(clips_dir, model, tag_config, log) if datasets is None else None
+    tag_objective = attach_tagging(clips_dir, model, tag_config, log, shard=(dp.rank, dp.processes)) \
+        if datasets is None else None
     start_epoch, step = 0, 0
     history: list[dict[str, Any]] = []
     val: dict[str, float] = {}
@@ -276,35 +286,39 @@ def train(
         start_epoch, step, history = checkpoint.epoch, checkpoint.step, list(checkpoint.history)
         val = next((dict(r["val"]) for r in reversed(history) if isinstance(r.get("val"), dict)), {})
         # The checkpoint's rows are the truth: a kill after it was written may have cut the file short.
-        atomic_write_text(metrics_path, "".join(json.dumps(r, sort_keys=True) + "\n" for r in history))
+        if dp.is_main:
+            atomic_write_text(metrics_path, "".join(json.dumps(r, sort_keys=True) + "\n" for r in history))
         log(f"resuming {run_dir} after epoch {start_epoch} (step {step})")
+    dp.prepare(model, tag_objective)  # batch norms over the whole batch, rank 0's weights everywhere
     text_cache = model.text.cache
     cache_path = run_dir / "text_cache.npz"
     if text_cache is not None:
         text_cache.load(cache_path)
-    atomic_write_text(run_dir / "config.json", config.to_json())
+    if dp.is_main:
+        atomic_write_text(run_dir / "config.json", config.to_json())
 
     n = len(train_set)  # type: ignore[arg-type]
-    batches_per_epoch = n // config.batch_size if n >= config.batch_size else 1
+    batches_per_epoch, size = dp.steps_per_epoch(n, config.batch_size, clips_dir)
     if config.max_steps_per_epoch:
         batches_per_epoch = min(batches_per_epoch, config.max_steps_per_epoch)
     total_steps = batches_per_epoch * config.epochs
     use_amp = config.amp and device.type == "cuda"
     # Negatives are paraphrased as often as the positives are.
     negative_paraphrases = AugmentConfig().paraphrase_probability if config.augment else 0.0
-    writer = _tensorboard(run_dir)
-    log(f"training on {n} clips, {batches_per_epoch} steps/epoch, {config.epochs} epochs, device {device}")
+    writer = _tensorboard(run_dir) if dp.is_main else None
+    log(f"training on {n} clips, {batches_per_epoch} steps/epoch, {config.epochs} epochs, device {device}"
+        + (f", {dp.processes} processes × {size} clips per step" if dp.active else ""))
 
     for epoch in range(start_epoch, config.epochs):
         model.train()
         if hasattr(train_set, "set_epoch"):
             train_set.set_epoch(epoch)  # the augmentation draw of this epoch
-        order = np.random.default_rng([config.seed, epoch]).permutation(n)
-        size = min(config.batch_size, n)
-        batch_ids = [order[i * size : (i + 1) * size].tolist() for i in range(batches_per_epoch)]
+        sampler = dp.sampler(train_set, size, batches_per_epoch, config.seed)
+        sampler.set_epoch(epoch)  # the order of this epoch: a permutation seeded by (seed, epoch)
         loader = DataLoader(
             train_set,
-            batch_sampler=batch_ids,
+            batch_size=size,
+            sampler=sampler,
             collate_fn=collate,
             num_workers=config.num_workers,
             worker_init_fn=_seed_worker,
@@ -313,49 +327,55 @@ def train(
         )
         losses: list[float] = []
         seen, t0 = 0, time.perf_counter()
-        bar = _progress(loader, total=len(batch_ids), desc=f"epoch {epoch + 1}/{config.epochs}", enable=progress)
+        bar = _progress(loader, total=batches_per_epoch, desc=f"epoch {epoch + 1}/{config.epochs}",
+                        enable=progress if dp.is_main else False)
         for batch in bar:
             torch.manual_seed(_step_seed(config.seed, step))
             for group in opt.param_groups:
                 group["lr"] = learning_rate(config, step, total_steps)
             batch = mask_inputs(batch, tag_config.inputs)  # tagging hook: input ablation (none/map/lidar/both)
-            if config.shuffle_frames:
-                batch = shuffle_time(batch)
+            batch = dp.align_draws(batch, config.shuffle_frames)  # frames shuffled in time (the baseline)
             keys = batch["canonical_caption"] if config.positives == "caption" else [tuple(t) for t in batch["tags"]]
+            whole, all_keys = dp.whole_batch(batch, keys)  # the text fields of every process's clips
             negative_texts: list[str] = []
             own: list[list[bool]] = []
             if config.hard_negatives:
                 negative_texts, own = batch_negatives(batch, config.hard_negatives, keys, config.positives,
                                                       config.seed, step, negative_paraphrases)
+                if dp.active:  # the whole batch's clips against every process's negatives
+                    own = batch_negatives(whole, config.hard_negatives, all_keys, config.positives, config.seed,
+                                          step, negative_paraphrases)[1]
             with torch.autocast(device_type=device.type, dtype=torch.bfloat16, enabled=use_amp):
                 video, texts, scale = model(batch, list(batch["caption"]) + negative_texts)
                 text, negatives = texts[: len(keys)], texts[len(keys) :]  # (B, D), (M, D)
-                positives = positives_matrix(keys, device)
-                sim = tag_similarity(batch["tags"], device) if config.tag_weight > 0 else None
-                own_mask = torch.tensor(own, dtype=torch.bool, device=device).reshape(len(keys), len(negative_texts))
+                video, text, negatives = dp.gather(video), dp.gather(text), dp.gather(negatives)  # whole batch
+                positives = positives_matrix(all_keys, device)
+                sim = tag_similarity(whole["tags"], device) if config.tag_weight > 0 else None
+                own_mask = torch.tensor(own, dtype=torch.bool, device=device).reshape(len(all_keys), len(negatives))
                 loss = contrastive_loss(video, text, scale, positives, config.loss, sim, config.tag_weight,
-                                        negatives, own_mask)
+                                        negatives, own_mask, rows=dp.rows(len(keys)))
                 if tag_objective is not None:  # tagging hook
                     loss = loss + tag_objective.weight * tag_objective.loss(model.bev_embedding)
-            value = float(loss.detach())
+            value = dp.mean(float(loss.detach()))  # the whole batch's loss
             if not math.isfinite(value):
-                raise NonFiniteLossError(step, epoch, batch["clip_id"], value)
+                raise NonFiniteLossError(step, epoch, whole["clip_id"], value)
             opt.zero_grad(set_to_none=True)
             loss.backward()
+            dp.average_gradients(model, tag_objective)
             if config.grad_clip > 0:
                 torch.nn.utils.clip_grad_norm_(model.parameters(), config.grad_clip)
             opt.step()
             if tag_objective is not None:  # tagging hook
                 tag_objective.step(opt.param_groups[0]["lr"])
             step += 1
-            seen += len(batch["clip_id"])
+            seen += len(batch["clip_id"]) * dp.processes
             losses.append(value)
             rate = seen / max(time.perf_counter() - t0, 1e-9)
             if hasattr(bar, "set_postfix"):
                 bar.set_postfix(loss=f"{value:.3f}", samples_s=f"{rate:.1f}")
         epoch_s = time.perf_counter() - t0
         done = epoch + 1
-        if val_set is not None and (done % config.eval_every == 0 or done == config.epochs):
+        if dp.is_main and val_set is not None and (done % config.eval_every == 0 or done == config.epochs):
             val = evaluate(model, val_set, batch_size=config.eval_batch_size)
         row: dict[str, Any] = {
             "epoch": done,
@@ -368,12 +388,15 @@ def train(
         }
         if val and (done % config.eval_every == 0 or done == config.epochs):
             row["val"] = val
+        if dp.active:
+            row["processes"] = dp.processes
         history.append(row)
-        if text_cache is not None:
-            # Before the checkpoint: a resumed run then finds every caption embedding it had.
-            text_cache.save(cache_path)
-        save_checkpoint(ckpt_path, model, opt, config, done, step, history, tag_objective)
-        _append_metrics(metrics_path, row)
+        if dp.is_main:
+            if text_cache is not None:
+                # Before the checkpoint: a resumed run then finds every caption embedding it had.
+                text_cache.save(cache_path)
+            save_checkpoint(ckpt_path, model, opt, config, done, step, history, tag_objective)
+            _append_metrics(metrics_path, row)
         if writer is not None:
             writer.add_scalar("train/loss", row["train_loss"], step)
             writer.add_scalar("train/samples_per_s", row["samples_per_s"], step)
@@ -385,9 +408,10 @@ def train(
             on_epoch_end(done)
     if writer is not None:
         writer.close()
-    _write_final(run_dir, model, config, history, n, val_set, clips_dir)
-    if tag_objective is not None:  # tagging hook
-        tag_objective.save(run_dir)
+    if dp.is_main:
+        _write_final(run_dir, model, config, history, n, val_set, clips_dir)
+        if tag_objective is not None:  # tagging hook
+            tag_objective.save(run_dir)
     return TrainResult(run_dir=run_dir, epochs=config.epochs, steps=step, val=val, history=history)
 
 

@@ -223,11 +223,16 @@ def rule_caption_scores(rows: Sequence[dict[str, Any]], queries: Sequence[str], 
 # ---------------------------------------------------------------------- orchestration
 
 
+#: The ``split`` of :func:`evaluate` that takes every clip.
+ALL_SPLITS = "all"
+
+
 def evaluate(run_dir: Path | str, clips_dir: Path | str, split: str = "test", embedder: Embedder | None = None,
              seed: int = 0, progress: Callable[[str], None] | None = None,
              index_dir: Path | str | None = None, sentence_encoder: TextEncoder | None = None,
              freeform: Sequence[FreeformQuery] = FREEFORM_QUERIES) -> dict[str, Any]:
-    """Embed the clips of ``split`` with the model of ``run_dir`` and measure every figure.
+    """Embed the clips of ``split`` (``all``: every clip, e.g. logs held out from training as a whole)
+    with the model of ``run_dir`` and measure every figure.
 
     With ``index_dir`` (an index of the same model and clips) the clip embeddings are read from the
     index instead of recomputed; only the shuffled-frames baseline is embedded. ``sentence_encoder``
@@ -242,9 +247,10 @@ def evaluate(run_dir: Path | str, clips_dir: Path | str, split: str = "test", em
     started = time.perf_counter()
     table = read_clip_table(clips_dir)
     splits = sorted(set(table.column("split").to_pylist())) if "split" in table.column_names else []
-    if split not in splits:
-        raise ValueError(f"unknown split {split!r}; the clips have splits: {', '.join(splits) or '(none)'}")
-    rows = [r for r in table.to_pylist() if r["split"] == split]
+    if split not in splits and split != ALL_SPLITS:
+        raise ValueError(f"unknown split {split!r}; the clips have splits: {', '.join(splits) or '(none)'} "
+                         f"(or {ALL_SPLITS!r})")
+    rows = [r for r in table.to_pylist() if split in (ALL_SPLITS, r["split"])]
     if len(rows) < 2:
         raise ValueError(f"split {split!r} holds {len(rows)} clips; evaluation needs at least 2")
     embedder = embedder if embedder is not None else ModelEmbedder(run_dir)
@@ -255,7 +261,8 @@ def evaluate(run_dir: Path | str, clips_dir: Path | str, split: str = "test", em
     def embed(view: str, shuffle: bool = False) -> np.ndarray:
         if not shuffle and view in stored:
             return stored[view]
-        ids, x = embedder.embed_clips(clips_dir, view=view, split=split, shuffle_frames=shuffle)
+        ids, x = embedder.embed_clips(clips_dir, view=view, split=None if split == ALL_SPLITS else split,
+                                      shuffle_frames=shuffle)
         pos = {c: i for i, c in enumerate(ids)}
         missing = [c for c in by_id if c not in pos]
         if missing:

@@ -134,6 +134,52 @@ def ego_motion(pose_xy_yaw: NDArray[np.float64], speed_mps: NDArray[np.float64],
     return np.stack([x, y, yaw, speed_mps[indices]], axis=1).astype(np.float32)
 
 
+#: Per-frame features of the object's own track (:func:`object_track`).
+OBJECT_TRACK_FEATURES = 11
+#: Metres and sizes brought to about unit range.
+_TRACK_POSITION_SCALE_M = 50.0
+_TRACK_SIZE_SCALE_M = 10.0
+
+
+def object_track(box_xy_lw_yaw: NDArray[np.floating], ego: NDArray[np.floating]) -> NDArray[np.float32]:
+    """The object's own track through a clip, as the temporal models read it.
+
+    What an object does (approaches, moves away, changes lane, stands, brakes, turns) is a function of
+    its box over time and of the ego's motion; the box is known for every clip (it is what the clip
+    is cut around), so the track is given directly instead of being recovered from rasterised masks.
+
+    Args:
+        box_xy_lw_yaw: (T, 5) ``x_m, y_m, length_m, width_m, yaw_rad`` in each frame's ego frame, NaN
+            where the object is unobserved.
+        ego: (T, 4) :func:`ego_motion` of the same frames (pose in the clip's first ego frame, speed).
+
+    Returns:
+        (T, 11) float32: position and heading (cos, sin) relative to the ego, then position and heading
+        in the clip's first ego frame (ground-fixed: the object's own motion), length, width, and an
+        observed flag; zeros where unobserved. Positions / 50 m, sizes / 10 m.
+    """
+    box = np.asarray(box_xy_lw_yaw, dtype=np.float64)
+    seen = np.asarray(np.isfinite(box).all(axis=1), dtype=bool)  # (T,)
+    box = np.where(seen[:, None], box, 0.0)
+    x, y, length, width, yaw = box.T
+    ex, ey, eyaw = (np.asarray(ego, dtype=np.float64)[:, i] for i in range(3))
+    c, s = np.cos(eyaw), np.sin(eyaw)
+    fixed_x, fixed_y, fixed_yaw = ex + c * x - s * y, ey + s * x + c * y, eyaw + yaw  # first_ego_SE2_object
+    p, z = _TRACK_POSITION_SCALE_M, _TRACK_SIZE_SCALE_M
+    out = np.stack([x / p, y / p, np.cos(yaw), np.sin(yaw), fixed_x / p, fixed_y / p, np.cos(fixed_yaw),
+                    np.sin(fixed_yaw), length / z, width / z, np.ones_like(x)], axis=1)
+    return (out * seen[:, None]).astype(np.float32)
+
+
+def rotate_object_track(track: NDArray[np.float32], theta_rad: float) -> None:
+    """Rotate :func:`object_track` features in place by ``theta_rad`` about the ego, as the BEV
+    augmentation rotates the rasters and the ego motion (positions and heading vectors alike)."""
+    c, s = np.float32(np.cos(theta_rad)), np.float32(np.sin(theta_rad))
+    rotation = np.array([[c, s], [-s, c]], dtype=np.float32)  # row vectors: (x, y) @ R turns by +theta
+    for first in (0, 2, 4, 6):
+        track[:, first:first + 2] = track[:, first:first + 2] @ rotation
+
+
 def highlight_camera(
     rgb: NDArray[np.uint8], mask: NDArray[np.bool_], color_rgb: tuple[int, int, int], alpha: float, dim: float
 ) -> NDArray[np.uint8]:

@@ -85,11 +85,14 @@ class TaggingObjective(nn.Module):
     The n-th batch drawn is a pure function of (seed, n): draw ``n // BATCHES_PER_DRAW`` of the
     :class:`TaskBalancedSampler`, batch ``n % BATCHES_PER_DRAW`` of it. Drawing touches no global
     random state (training re-seeds torch every step, and must see the same stream whether or not
-    a run was resumed between two batches).
+    a run was resumed between two batches). With ``shard`` (rank, processes) of data-parallel
+    training, the n-th batch of each process is its rank-th part of the n-th batch one process would
+    draw with ``processes`` times the batch size, and the mean of their losses is that batch's loss.
     """
 
     def __init__(self, clips_dir: Path | str, config: TagTrainConfig, embed_channels: int,
-                 targets: TargetSource | None = None, head_config: TagHeadConfig | None = None) -> None:
+                 targets: TargetSource | None = None, head_config: TagHeadConfig | None = None,
+                 shard: tuple[int, int] = (0, 1)) -> None:
         super().__init__()
         self.clips_dir = Path(clips_dir)
         self.config = config
@@ -99,6 +102,7 @@ class TaggingObjective(nn.Module):
             raise TagError(f"head attributes {list(hc.attributes)} differ from the targets' {list(self.dataset.names)}")
         self.head = TagHead(hc)
         self.weight = config.joint_weight
+        self.shard = shard
         self.batches_drawn = 0
         self._it: Iterator[dict[str, Any]] | None = None
         self.last_parts: dict[str, float] = {}
@@ -107,13 +111,16 @@ class TaggingObjective(nn.Module):
     def _batches(self) -> Iterator[dict[str, Any]]:
         """Batches from the ``batches_drawn``-th on."""
         size = self.config.batch_size
-        sampler = TaskBalancedSampler(self.dataset.present, BATCHES_PER_DRAW * size, self.config.seed)
+        rank, processes = self.shard
+        whole = size * processes  # windows of a step over all processes
+        sampler = TaskBalancedSampler(self.dataset.present, BATCHES_PER_DRAW * whole, self.config.seed)
         while True:
             draw, first = divmod(self.batches_drawn, BATCHES_PER_DRAW)
             sampler.set_epoch(draw)
-            items = sampler.draw()[1]  # (BATCHES_PER_DRAW * size,)
+            items = sampler.draw()[1]  # (BATCHES_PER_DRAW * whole,)
             for b in range(first, BATCHES_PER_DRAW):
-                batch = collate_windows([self.dataset[int(i)] for i in items[b * size : (b + 1) * size]])
+                start = b * whole + rank * size
+                batch = collate_windows([self.dataset[int(i)] for i in items[start : start + size]])
                 self.batches_drawn += 1
                 yield batch
 
@@ -299,13 +306,15 @@ def attach_tagging(
     config: TagTrainConfig | None = None,
     log: Callable[[str], None] | None = None,
     optimizer: torch.optim.Optimizer | None = None,
+    shard: tuple[int, int] = (0, 1),
 ) -> TaggingObjective | None:
     """The joint-training hook: a :class:`TaggingObjective` for ``model`` (a DualEncoder).
 
     A and b are trained by ``optimizer`` (added as a parameter group without weight decay) when one is
     given, else by the objective's own AdamW (:meth:`TaggingObjective.step`), which keeps the main
-    optimiser's state, and so its checkpoints, unchanged. Returns None when ``config.mode`` is
-    ``alone`` or the clips folder's training logs have no tag targets (``log`` says why).
+    optimiser's state, and so its checkpoints, unchanged. ``shard``: (rank, processes) of data-parallel
+    training. Returns None when ``config.mode`` is ``alone`` or the clips folder's training logs have
+    no tag targets (``log`` says why).
     """
     from encoders.tagging.data import split_logs
     from encoders.tagging.targets import has_targets
@@ -325,7 +334,7 @@ def attach_tagging(
     if isinstance(bev_cfg, BevConfig):
         # The tags ride on the dual encoder's own tower: record that one, not the default for ``alone``.
         config = dataclasses.replace(config, bev=bev_cfg)
-    objective = TaggingObjective(clips, config, config.bev.embed_channels)
+    objective = TaggingObjective(clips, config, config.bev.embed_channels, shard=shard)
     objective.to(next(model.parameters()).device)
     params = list(objective.head.parameters())
     if optimizer is not None:

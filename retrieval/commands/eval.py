@@ -12,7 +12,7 @@ HELP = "measure text → clip, temporal order and clip → clip figures on a spl
 def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("run_dir", type=Path, metavar="RUN_DIR", help="training run (model.safetensors, config.json)")
     parser.add_argument("clips_dir", type=Path, metavar="CLIPS_DIR", help="clips directory (clips.parquet, logs/)")
-    parser.add_argument("--split", default="test", help="split to evaluate (default test)")
+    parser.add_argument("--split", default="test", help="split to evaluate (default test; 'all': every clip)")
     parser.add_argument("--out", type=Path, default=Path("metrics.json"), help="metrics file (default metrics.json)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the random baseline")
     parser.add_argument("--index", type=Path, metavar="INDEX_DIR",

@@ -1,4 +1,4 @@
-"""``scenesearch train CLIPS_DIR --out RUN_DIR [--config train.yaml] [--resume [--force]]``.
+"""``scenesearch train CLIPS_DIR --out RUN_DIR [--config train.yaml] [--resume [--force]] [--nproc N]``.
 
 Trains the dual text/video encoder contrastively on the 'train' split of a clips folder, validating
 text → clip retrieval on 'val' after every epoch. RUN_DIR receives config.json, metrics.jsonl,
@@ -6,12 +6,19 @@ checkpoints/last.pt (every epoch), model.safetensors, text_cache.npz and model_c
 continues from the last checkpoint exactly (tagging head included); with a different configuration it
 stops unless ``--force``. The checkpoint is read as plain tensors and data only: one that is not (a
 pickled object, a damaged file) is refused with an error naming it.
+
+``--nproc N`` trains data-parallel on N processes of this machine, started by torch's elastic
+launcher (gloo on CPU, NCCL on CUDA: one GPU each); ``--batch-size`` is then per process, and the
+loss is that of the whole batch of N × batch size clips (:mod:`encoders.distributed`). Run under
+``torchrun ... -m retrieval.cli train ...`` (one machine or several), the command joins the
+launcher's process group instead. Data too small for N processes is refused before any starts.
 """
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
+import os
 import sys
 from pathlib import Path
 from typing import Any
@@ -44,6 +51,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="weight of the attribute-tagging loss joined to the contrastive loss (default 1). "
                              "Tagging trains when the clips hold tag targets (eval-tags --logs, or the demo)")
     parser.add_argument("--save-config", type=Path, help="also write the effective config as YAML")
+    parser.add_argument("--nproc", type=int, default=1, metavar="N",
+                        help="train on N processes of this machine (data parallel; --batch-size is per process)")
 
 
 def build_config(args: argparse.Namespace) -> Any:
@@ -94,17 +103,53 @@ def tagging_config(args: argparse.Namespace) -> Any:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.nproc < 1:
+        raise ValueError(f"--nproc must be >= 1, got {args.nproc}")
+    if args.nproc == 1:
+        return _train(args)
+    if int(os.environ.get("WORLD_SIZE", "1")) > 1:
+        raise ValueError("--nproc starts its own processes; under torchrun leave it out (torchrun sets the number)")
+    from encoders.distributed import check_processes, launch
+    from encoders.inference import open_split
+
+    if not args.clips_dir.is_dir():
+        raise FileNotFoundError(f"{args.clips_dir}: clips folder not found")
+    n_train = len(open_split(args.clips_dir, "train"))  # type: ignore[arg-type]
+    check_processes(n_train, build_config(args).batch_size, args.nproc, args.clips_dir)
+    return int(launch(args.nproc, _worker, args))
+
+
+def _worker(args: argparse.Namespace) -> int:
+    """One of the ``--nproc`` processes: errors the command line would report are reported by rank 0."""
+    from scenes.errors import ScenesError
+
+    try:
+        return _train(args)
+    except (ScenesError, FileNotFoundError, FileExistsError, ValueError) as exc:
+        if os.environ.get("RANK", "0") == "0":
+            print(f"scenesearch train: error: {exc}", file=sys.stderr)
+        return 2
+
+
+def _train(args: argparse.Namespace) -> int:
+    """Train in this process: alone, or as one of the processes of a launcher (``--nproc``, torchrun)."""
+    from encoders.distributed import process_group
     from encoders.train import TrainingError, train
 
     config = build_config(args)
-    if args.save_config:
-        config.to_yaml(args.save_config)
     try:
-        result = train(args.clips_dir, args.out, config, resume=args.resume, force=args.force,
-                       tagging=tagging_config(args))
+        # An error leaves the group at once: the other processes' collectives then fail instead of waiting.
+        with process_group(config.device) as dp:
+            if args.save_config and dp.is_main:
+                config.to_yaml(args.save_config)
+            result = train(args.clips_dir, args.out, config, resume=args.resume, force=args.force,
+                           tagging=tagging_config(args), distributed=dp)
     except TrainingError as exc:
-        print(f"scenesearch train: error: {exc}", file=sys.stderr)
+        if os.environ.get("RANK", "0") == "0":
+            print(f"scenesearch train: error: {exc}", file=sys.stderr)
         return 2
+    if not dp.is_main:
+        return 0
     val = ", ".join(f"{k} {v:.3f}" for k, v in result.val.items() if k != "queries")
     print(f"trained {result.epochs} epochs ({result.steps} steps) → {result.run_dir}" + (f"; val {val}" if val else ""))
     return 0

@@ -45,6 +45,7 @@ def test_items_have_the_interface_shapes_and_value_ranges(clips_dir: Path) -> No
     assert item["bev_lidar"].shape == (t, len(manifest["bev"]["lidar_channels"]), hb, wb)
     assert item["bev_map"].shape == (t, len(manifest["bev"]["map_channels"]), hb, wb)
     assert item["bev_object"].shape == (t, 1, hb, wb) and item["ego_motion"].shape == (t, 4)
+    assert item["object_track"].shape == (t, 11) and item["object_track"].dtype == torch.float32
     for key in ("camera", "bev_lidar", "bev_map", "bev_object"):
         assert item[key].dtype == torch.float32 and float(item[key].min()) >= 0.0 and float(item[key].max()) <= 1.0
     assert item["caption"] == item["canonical_caption"]
@@ -97,6 +98,12 @@ def test_augmentation_is_seeded_and_moves_the_bev_consistently(clips_dir: Path) 
     np.testing.assert_allclose(np.linalg.norm(m1[:, :2], axis=1), np.linalg.norm(m0[:, :2], axis=1), atol=1e-4)
     np.testing.assert_allclose(np.arctan2(m1[-1, 1], m1[-1, 0]), theta, atol=1e-4)
     np.testing.assert_allclose(m1[:, 3], m0[:, 3])
+    # The object's track turns with them: positions and headings, relative and ground-fixed alike.
+    k0, k1 = plain[index]["object_track"].numpy(), x["object_track"].numpy()
+    rot = np.array([[np.cos(theta), -np.sin(theta)], [np.sin(theta), np.cos(theta)]])
+    for first in (0, 2, 4, 6):
+        np.testing.assert_allclose(k1[:, first:first + 2], k0[:, first:first + 2] @ rot.T, atol=1e-5)
+    np.testing.assert_array_equal(k1[:, 8:], k0[:, 8:])  # size and observed flag
     # Colour jitter changes the RGB but never the mask channel.
     assert torch.equal(x["camera"][:, 3], plain[index]["camera"][:, 3])
     assert not torch.allclose(x["camera"][:, :3], plain[index]["camera"][:, :3])

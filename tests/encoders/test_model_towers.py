@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from typing import Any
 
 import pytest
@@ -184,3 +185,19 @@ def test_one_block_per_stage_keeps_the_state_dict_layout() -> None:
     keys = set(Backbone(3, (4, 8)).state_dict())
     assert keys == {f"stages.{i}.{j}.{p}" for i in (0, 1) for j, params in ((0, ("weight",)), (1, (
         "weight", "bias", "running_mean", "running_var", "num_batches_tracked"))) for p in params}
+
+
+def test_bev_tower_reads_the_object_track(model: DualEncoder, batch: dict[str, Any]) -> None:
+    """The track stream moves the clip vector; without the track the tower says what is missing, and a
+    tower configured without it needs none."""
+    with torch.no_grad():
+        base = model.encode_video(batch, view="bev")
+        moved = dict(batch, object_track=batch["object_track"].flip(0))  # other clips' tracks
+        assert not torch.allclose(base, model.encode_video(moved, view="bev"), atol=1e-4)
+        with pytest.raises(KeyError, match="object_track"):
+            model.encode_video({k: v for k, v in batch.items() if k != "object_track"}, view="bev")
+    config = tiny_model_config()
+    off = DualEncoder(replace(config, bev=replace(config.bev, track_features=0))).eval()
+    assert not any(name.startswith("bev.track") for name, _ in off.named_parameters())
+    with torch.no_grad():
+        assert off.encode_video({k: v for k, v in batch.items() if k != "object_track"}, view="bev").shape == base.shape

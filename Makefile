@@ -28,7 +28,8 @@ $(STAMP): pyproject.toml | system-deps
 	$(PIP) install -q --upgrade pip wheel setuptools
 	# The CPU build of torch first: a loose requirement would pull several GB of CUDA packages.
 	$(PIP) install -q torch==2.13.0
-	$(PIP) install -q -e '.[dev]'
+	# Ray (the scale extra) too, so that the tests cover the distributed path.
+	$(PIP) install -q -e '.[dev,scale]'
 	# av2-api, the reference readers the tests compare against; its readers' imports are in [dev].
 	$(PIP) install -q --no-deps av2==0.3.6
 	touch $(STAMP)

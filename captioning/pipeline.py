@@ -35,6 +35,7 @@ never known) and ``junction_kind`` (the most frequent in the window), for filter
 from __future__ import annotations
 
 import dataclasses
+import functools
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -75,6 +76,9 @@ from captioning.tags import (
 )
 from captioning.unify import Segment, caption_windows
 from common.publish import publish as publish_outputs
+from common.ray_cluster import Execution
+from common.ray_runner import TaskSkipped, TaskStatus, run_tasks
+from common.storage import staged_input
 from scenes.errors import ScenesError
 from scenes.log import Log
 from scenes.map import VectorMap
@@ -372,40 +376,59 @@ class BatchResult:
 
     Attributes:
         results: captioned logs, in input order.
-        skipped_logs: log folder → reason.
+        skipped_logs: log folder → reason (it cannot be read or captioned).
+        failed_logs: log folder → reason (an unexpected error, or its worker died on every attempt).
     """
 
     results: list[LogCaptions]
     skipped_logs: dict[str, str]
+    failed_logs: dict[str, str] = field(default_factory=dict)
 
 
-def caption_logs(log_dirs: Iterable[Path | str], config: CaptioningConfig | None = None) -> BatchResult:
-    """Caption many log folders; a log that cannot be read or captioned is skipped with its reason."""
-    config = config or CaptioningConfig()
-    results: list[LogCaptions] = []
-    skipped: dict[str, str] = {}
-    for log_dir in log_dirs:
-        try:
-            log = Log.open(log_dir)
-            if log.timestamps_ns.size == 0:
-                skipped[str(log_dir)] = "log has no annotated frames"
-                continue
-            results.append(caption_log(log, config))
-        except (ScenesError, ValueError, OSError) as exc:
-            skipped[str(log_dir)] = str(exc).replace("\n", "; ")
-    return BatchResult(results, skipped)
+def caption_log_dir(log_dir: Path | str, config: CaptioningConfig) -> LogCaptions:
+    """Caption one log folder, a local path or a ``pyarrow.fs`` URI (staged locally): the task of
+    :func:`caption_logs`, in this process or on a Ray worker.
+
+    Raises:
+        TaskSkipped: the log has no annotated frames.
+        ScenesError, ValueError, OSError: the log cannot be read or captioned.
+    """
+    with staged_input(log_dir) as local:
+        log = Log.open(local)
+        if log.timestamps_ns.size == 0:
+            raise TaskSkipped("log has no annotated frames")
+        return caption_log(log, config)
+
+
+def caption_logs(log_dirs: Iterable[Path | str], config: CaptioningConfig | None = None,
+                 execution: Execution | None = None) -> BatchResult:
+    """Caption many log folders, one task per log (serially by default, or on Ray); a log that
+    cannot be read or captioned is skipped with its reason; results keep the input order."""
+    dirs = list(log_dirs)
+    report = run_tasks(caption_log_dir, dirs, execution, labels=[str(d) for d in dirs],
+                       context=config or CaptioningConfig(), skip_on=(ScenesError, ValueError, OSError))
+    return BatchResult(report.values, {o.label: o.reason for o in report.with_status(TaskStatus.SKIPPED)},
+                       {o.label: o.reason for o in report.with_status(TaskStatus.FAILED)})
+
+
+def output_tables(results: Sequence[LogCaptions]) -> dict[str, pa.Table]:
+    """``frame_tags.parquet`` and ``captions.parquet`` of the logs, in their order."""
+    behavior = any(r.behavior is not None for r in results)
+    schema = FRAME_TAGS_BEHAVIOR_SCHEMA if behavior else FRAME_TAGS_SCHEMA
+    frames = pa.concat_tables([r.frame_tags_table() for r in results]) if results else schema.empty_table()
+    captions = captions_to_table([c for r in results for c in r.captions], behavior)
+    return {FRAME_TAGS_FILENAME: frames, CAPTIONS_FILENAME: captions}
 
 
 def write_outputs(out_dir: Path | str, results: Sequence[LogCaptions]) -> tuple[Path, Path]:
     """Write ``frame_tags.parquet`` and ``captions.parquet`` and publish them together
     (:mod:`common.publish`: readers never see a new one beside an old one; what an earlier
     killed write left behind is removed)."""
-    behavior = any(r.behavior is not None for r in results)
-    schema = FRAME_TAGS_BEHAVIOR_SCHEMA if behavior else FRAME_TAGS_SCHEMA
-    frames = pa.concat_tables([r.frame_tags_table() for r in results]) if results else schema.empty_table()
-    captions = captions_to_table([c for r in results for c in r.captions], behavior)
-    paths = publish_outputs(out_dir, {
-        FRAME_TAGS_FILENAME: lambda path: pq.write_table(frames, path),
-        CAPTIONS_FILENAME: lambda path: pq.write_table(captions, path),
-    })
+    tables = output_tables(results)
+    paths = publish_outputs(out_dir, {name: functools.partial(_write_parquet, table)
+                                      for name, table in tables.items()})
     return paths[FRAME_TAGS_FILENAME], paths[CAPTIONS_FILENAME]
+
+
+def _write_parquet(table: pa.Table, path: Path) -> None:
+    pq.write_table(table, path)

@@ -12,6 +12,7 @@ trained model.
 from __future__ import annotations
 
 import threading
+import time
 from collections import OrderedDict
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
@@ -19,6 +20,7 @@ from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
+from common.ray_cluster import Execution, cluster_gpus, import_ray, ray_runtime
 from encoders.config import BUNDLED_TEXT_MODEL
 from encoders.sentence import shared_sentence_encoder
 from indexes.integrity import sha256_file
@@ -162,7 +164,7 @@ class ModelEmbedder:
                     shuffle_frames: bool = False) -> tuple[list[str], np.ndarray]:
         import torch
 
-        from encoders.inference import embed_clips, embed_dataset_views
+        from encoders.inference import embed_clips
 
         if shuffle_frames:
             with torch.inference_mode():
@@ -174,16 +176,23 @@ class ModelEmbedder:
         key = (str(Path(clips_dir).resolve()), split)
         with self._views_lock:  # held while embedding: the clips are encoded once, not once per thread
             if self._views_key != key:
-                from encoders.data import ClipDataset
-
-                with torch.inference_mode():
-                    ids, views = embed_dataset_views(self.model, ClipDataset(clips_dir, split=split, as_uint8=True),
-                                                     batch_size=self.batch_size)
-                self._views_key, self._views = key, ([str(i) for i in ids], views)
+                self._views_key, self._views = key, self._embed_views(Path(clips_dir), split)
             ids, views = self._views
         if view not in views:
             raise ValueError(f"unknown view {view!r}; valid views: {', '.join(views)}")
         return ids, l2_normalize(views[view])
+
+    def _embed_views(self, clips_dir: Path, split: str | None) -> tuple[list[str], dict[str, np.ndarray]]:
+        """Clip ids and every view's (N, D) embeddings of the clips of ``split`` (all when None)."""
+        import torch
+
+        from encoders.data import ClipDataset
+        from encoders.inference import embed_dataset_views
+
+        with torch.inference_mode():
+            ids, views = embed_dataset_views(self.model, ClipDataset(clips_dir, split=split, as_uint8=True),
+                                             batch_size=self.batch_size)
+        return [str(i) for i in ids], views
 
     def embed_arrays(self, clip: Mapping[str, Any], view: str = "fused") -> np.ndarray:
         import torch
@@ -255,3 +264,116 @@ def _encode_sentences(texts: list[str]) -> np.ndarray:
     emb = model.encode(texts, batch_size=64, convert_to_numpy=True, normalize_embeddings=True,
                        show_progress_bar=False)
     return np.asarray(emb, dtype=np.float32)
+
+
+class RayDataEmbedder(ModelEmbedder):
+    """:class:`ModelEmbedder` whose clip embeddings come from Ray Data (``scenesearch index --workers``).
+
+    The clip table becomes a Ray Dataset of row numbers; ``map_batches`` embeds it on a pool of
+    :class:`ClipEmbedActor` (one model per actor; one GPU per actor when the cluster has GPUs), the
+    embeddings are written as Parquet shards under ``shards_dir`` (one file per block: ``row``,
+    ``clip_id`` and one fixed-size list column per view), and the index is built from the shards,
+    read back in clip-table order. Texts, splits and shuffled frames are embedded here, as by
+    :class:`ModelEmbedder`. Every node must read ``run_dir`` and the clips folder at the same path
+    (a shared file system); ``shards_dir`` may be a ``pyarrow.fs`` URI.
+    """
+
+    def __init__(self, run_dir: Path | str, execution: Execution, shards_dir: Path | str,
+                 batch_size: int = 32) -> None:
+        super().__init__(run_dir, batch_size=batch_size)
+        self.execution = execution
+        self.shards_dir = shards_dir
+        #: Figures of the last embedding: actors, GPUs per actor, clips, shard files, seconds.
+        self.last_run: dict[str, float] = {}
+
+    def _embed_views(self, clips_dir: Path, split: str | None) -> tuple[list[str], dict[str, np.ndarray]]:
+        if split is not None:
+            return super()._embed_views(clips_dir, split)
+        return self._embed_on_ray(clips_dir.resolve())
+
+    def _embed_on_ray(self, clips_dir: Path) -> tuple[list[str], dict[str, np.ndarray]]:
+        import pyarrow as pa
+        import pyarrow.dataset as pads
+
+        from encoders.clips.layout import read_clip_table
+
+        start = time.perf_counter()
+        n = read_clip_table(clips_dir, columns=["clip_id"]).num_rows
+        if n == 0:
+            return super()._embed_views(clips_dir, None)
+        ray = import_ray()
+        with ray_runtime(self.execution) as parallelism:
+            gpus = cluster_gpus()
+            batches = -(-n // self.batch_size)
+            actors = max(1, min(gpus or parallelism, batches))
+            # One batch per block, up to 64 blocks per actor, each handed to an actor only when it is
+            # idle: the actors share the work evenly, and one that is up first does not queue it
+            # all. The blocks are made here (no read tasks) and the shards are written by tasks
+            # that reserve no CPU: the actors hold every CPU they are given, and tasks waiting for
+            # one would wait for ever.
+            blocks = min(batches, 64 * actors)
+            _quiet_ray_data(ray, self.execution)
+            parts = [pa.table({"id": part}) for part in np.array_split(np.arange(n, dtype=np.int64), blocks)]
+            ds = ray.data.from_arrow(parts).map_batches(
+                ClipEmbedActor, batch_size=self.batch_size, batch_format="numpy",
+                fn_constructor_kwargs={"run_dir": str(self.run_dir), "clips_dir": str(clips_dir),
+                                       "device": "cuda" if gpus else "cpu"},
+                compute=ray.data.ActorPoolStrategy(size=actors, max_tasks_in_flight_per_actor=1), num_cpus=1,
+                num_gpus=1 if gpus else 0)
+            ds.write_parquet(str(self.shards_dir), mode="overwrite", ray_remote_args={"num_cpus": 0})
+        table = pads.dataset(str(self.shards_dir), format="parquet").to_table().sort_by("row")
+        rows = table.column("row").to_numpy()
+        if not np.array_equal(rows, np.arange(n)):
+            raise RuntimeError(f"{self.shards_dir}: the embedding shards hold {len(rows)} rows, not each of the "
+                               f"{n} clips once; embed again")
+        views = {v: table.column(v).combine_chunks().flatten().to_numpy().reshape(n, -1).astype(np.float32)
+                 for v in table.column_names if v not in ("row", "clip_id")}
+        self.last_run = {"actors": actors, "gpus_per_actor": 1 if gpus else 0, "clips": n,
+                         "shards": len(pads.dataset(str(self.shards_dir), format="parquet").files),
+                         "seconds": time.perf_counter() - start}
+        return [str(c) for c in table.column("clip_id").to_pylist()], views
+
+
+def _quiet_ray_data(ray: Any, execution: Execution) -> None:
+    """Ray Data's progress bars only where :class:`Execution` shows one, and no per-stage log lines."""
+    import logging
+    import os
+    import sys
+    import warnings
+
+    os.environ.setdefault("RAY_DATA_LOG_LEVEL", "ERROR")  # read when Ray Data sets up its loggers
+    logging.getLogger("ray.data").setLevel(logging.ERROR)
+    with warnings.catch_warnings():  # the context warns of its own deprecated fields when copied
+        warnings.simplefilter("ignore", DeprecationWarning)
+        context = ray.data.DataContext.get_current()
+    context.enable_progress_bars = sys.stderr.isatty() if execution.progress is None else execution.progress
+
+
+class ClipEmbedActor:
+    """One model on one device, embedding batches of clip-table rows (a Ray Data actor)."""
+
+    def __init__(self, run_dir: str, clips_dir: str, device: str = "cpu") -> None:
+        import torch
+
+        from encoders.data import ClipDataset
+        from encoders.inference import load_model
+
+        # One CPU per actor: more threads per actor only contend with the other actors.
+        torch.set_num_threads(1)
+        self.model = load_model(run_dir, device=device)
+        self.dataset = ClipDataset(clips_dir, as_uint8=True)
+
+    def __call__(self, batch: dict[str, np.ndarray]) -> Any:
+        import pyarrow as pa
+        import torch
+
+        rows = [int(i) for i in batch["id"]]
+        items = self.dataset.__getitems__(rows)
+        with torch.inference_mode():
+            views = self.model.encode_views(items)
+        columns: dict[str, Any] = {"row": pa.array(rows, pa.int64()),
+                                   "clip_id": pa.array([str(c) for c in items["clip_id"]], pa.string())}
+        for view, x in views.items():
+            flat = x.float().cpu().numpy()
+            columns[view] = pa.FixedSizeListArray.from_arrays(pa.array(flat.reshape(-1)), flat.shape[1])
+        return pa.table(columns)

@@ -2,13 +2,21 @@
 
 >>> report = build_clips([Path("logs/a"), Path("logs/b")], Path("captions"), Path("clips"), ClipsConfig())
 >>> report.num_clips, report.skipped
+
+Each log is one task (:func:`clip_log`: open the log, check its captions' tracks, render its arrays
+into ``CLIPS_DIR/logs/<log_id>/``, cut its clip rows, write its previews), run serially or on Ray
+(:mod:`common.ray_runner`). The driver assigns the splits and writes ``clips.parquet`` and
+``manifest.json`` from the tasks' results in a fixed order, so any number of workers gives the same
+files. Logs, captions and the clips folder may be ``pyarrow.fs`` URIs (:mod:`common.storage`): a
+task stages its log locally and uploads its rendered folder and previews.
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -17,17 +25,22 @@ import numpy as np
 
 from captioning.pipeline import CAPTIONS_FILENAME
 from common.atomic import atomic_write_text
+from common.ray_cluster import Execution
+from common.ray_runner import TaskSkipped, TaskStatus, run_tasks
+from common.storage import Location, copy_to_local, is_uri, join, name_of, read_bytes, staged_input, staged_output
 from encoders.clips.config import ClipsConfig
 from encoders.clips.layout import (
     CAMERA_PIXEL_COUNTS_FILE,
+    LOGS_DIR,
     MANIFEST_FILE,
     PREVIEWS_DIR,
+    RENDER_FILE,
     preview_file_name,
     rendered_log_dir,
 )
 from encoders.clips.raster import MAP_CHANNELS
 from encoders.clips.render import bev_grid, lidar_channel_names, render_log
-from encoders.clips.render_stats import LogRenderStats, read_render_stats, rendered_log_ok
+from encoders.clips.render_stats import LogRenderStats, read_render_stats, render_fingerprint, rendered_log_ok
 from encoders.clips.splits import assign_splits
 from encoders.clips.table import (
     CaptionRow,
@@ -47,9 +60,9 @@ FORMAT_VERSION = 1
 
 @dataclass
 class ClipsReport:
-    """What a run produced and what it skipped (with reasons)."""
+    """What a run produced and what it skipped (with reasons); ``failed``: logs whose task failed."""
 
-    clips_dir: Path
+    clips_dir: Location
     num_clips: int = 0
     logs: dict[str, dict[str, Any]] = field(default_factory=dict)
     skipped: list[dict[str, Any]] = field(default_factory=list)
@@ -57,155 +70,248 @@ class ClipsReport:
     table_s: float = 0.0
     preview_s: float = 0.0
     reused_logs: int = 0
+    failed: dict[str, str] = field(default_factory=dict)
 
 
-def _check_references(
-    captions_path: Path, rows: list[CaptionRow], logs: dict[str, Log], dense: dict[str, DenseTracks],
-    unreadable: set[str], config: ClipsConfig, skipped: Skipped,
-) -> list[CaptionRow]:
-    """Captions whose log and track exist; the others raise (strict) or are skipped."""
-    missing_logs: dict[str, int] = {}
-    missing_tracks: dict[tuple[str, str], int] = {}
-    kept: list[CaptionRow] = []
-    track_sets = {log_id: {str(t) for t in d.track_ids} for log_id, d in dense.items()}
-    for row in rows:
-        if row.log_id in unreadable:
-            skipped.add("log could not be opened", clip=row.clip_id)
-        elif row.log_id not in logs:
-            missing_logs.setdefault(row.log_id, row.row)
-        elif row.track_id not in track_sets[row.log_id]:
-            missing_tracks.setdefault((row.log_id, row.track_id), row.row)
+@dataclass(frozen=True)
+class ClipsTaskContext:
+    """What every log's task shares: where the clips go and how they are made."""
+
+    clips_dir: Location
+    config: ClipsConfig
+    reuse: bool = True
+    #: Only check the captions' tracks against the log (a strict run that will stop anyway).
+    check_only: bool = False
+
+
+@dataclass
+class LogClips:
+    """What :func:`clip_log` made of one log: clip rows (without their split) and what it skipped."""
+
+    log_id: str
+    rows: list[dict[str, Any]] = field(default_factory=list)
+    stats: dict[str, Any] | None = None
+    skipped: list[dict[str, Any]] = field(default_factory=list)
+    missing_tracks: dict[str, int] = field(default_factory=dict)
+    render_s: float = 0.0
+    table_s: float = 0.0
+    preview_s: float = 0.0
+    reused: bool = False
+
+
+def clip_log(job: tuple[Location, tuple[CaptionRow, ...]], ctx: ClipsTaskContext) -> LogClips:
+    """One log's task: ``job`` is (its folder, its caption rows in caption order).
+
+    Raises:
+        TaskSkipped: the log cannot be opened.
+    """
+    log_dir, rows = job
+    log_id, config = name_of(log_dir), ctx.config
+    with staged_input(log_dir) as local_log:
+        try:
+            log = Log.open(local_log)
+        except LogFormatError as exc:
+            raise TaskSkipped(f"log could not be opened: {exc}") from None
+        dense = log.dense_tracks()
+        tracks = {str(t) for t in dense.track_ids}
+        out = LogClips(log_id)
+        for row in rows:
+            if row.track_id not in tracks:
+                out.missing_tracks.setdefault(row.track_id, row.row)
+        if ctx.check_only or (out.missing_tracks and config.strict):
+            return out
+        kept = [row for row in rows if row.track_id in tracks]
+        if not kept:
+            out.skipped.append({"log_id": log_id, "reason": "no neighbour captions for this log"})
+            return out
+        with _local_clips(ctx.clips_dir, log_id, config, ctx.reuse) as clips_dir:
+            _render_and_cut(log, dense, kept, clips_dir, ctx, out)
+    return out
+
+
+@contextlib.contextmanager
+def _local_clips(clips_dir: Location, log_id: str, config: ClipsConfig, reuse: bool) -> Iterator[Path]:
+    """A local clips folder for one log's task: ``clips_dir`` itself, or for a URI a scratch folder
+    (holding the log's earlier rendering when it may be reused) uploaded when the task is done."""
+    if not is_uri(clips_dir):
+        yield Path(clips_dir)
+        return
+    with staged_output(clips_dir) as scratch:
+        remote = join(clips_dir, LOGS_DIR, log_id)
+        with contextlib.suppress(FileNotFoundError, ValueError):
+            if reuse and json.loads(read_bytes(join(remote, RENDER_FILE))).get("fingerprint") == \
+                    render_fingerprint(config):
+                copy_to_local(str(remote), rendered_log_dir(scratch, log_id))
+        yield scratch
+
+
+def _render_and_cut(log: Log, dense: DenseTracks, rows: list[CaptionRow], clips_dir: Path, ctx: ClipsTaskContext,
+                    out: LogClips) -> None:
+    config, skipped = ctx.config, Skipped(out.skipped)
+    folder = rendered_log_dir(clips_dir, log.log_id)
+    t0 = time.perf_counter()
+    try:
+        if ctx.reuse and rendered_log_ok(folder, config, dense):
+            stats, out.reused = read_render_stats(folder), True
         else:
-            kept.append(row)
-    if missing_logs or missing_tracks:
-        parts = []
-        if missing_logs:
-            named = ", ".join(f"{lid} (first at row {r})" for lid, r in list(missing_logs.items())[:10])
-            more = f" and {len(missing_logs) - 10} more" if len(missing_logs) > 10 else ""
-            parts.append(f"field 'log_id': {len(missing_logs)} log(s) not among the given logs: {named}{more}")
-        if missing_tracks:
-            named = ", ".join(f"{lid}/{tid} (row {r})" for (lid, tid), r in list(missing_tracks.items())[:10])
-            more = f" and {len(missing_tracks) - 10} more" if len(missing_tracks) > 10 else ""
-            parts.append(f"field 'track_id': {len(missing_tracks)} track(s) not in their log: {named}{more}")
-        if config.strict:
-            raise ClipsInputError(f"{captions_path}: " + "; ".join(parts))
-        for lid, r in missing_logs.items():
-            skipped.add("log not given", log_id=lid, row=r)
-        for (lid, tid), r in missing_tracks.items():
-            skipped.add("track not in log", log_id=lid, track_id=tid, row=r)
-    return kept
+            stats = render_log(log, config, clips_dir, dense)
+    except LogFormatError as exc:
+        # Files read lazily while rendering (the map, sweeps' folder) can still be bad: skip the log.
+        skipped.add(f"log could not be rendered: {exc}", log_id=log.log_id)
+        return
+    out.render_s = time.perf_counter() - t0
+    t1 = time.perf_counter()
+    out.rows = _clip_rows(log, dense, rows, stats, folder, config, skipped)
+    out.table_s = time.perf_counter() - t1
+    out.stats = stats.to_dict()
+    if config.previews and out.rows:
+        from encoders.clips.preview import write_preview
+
+        t2 = time.perf_counter()
+        for clip in out.rows:
+            rel = f"{PREVIEWS_DIR}/{preview_file_name(clip['clip_id'])}"
+            write_preview(clips_dir, clip, clips_dir / rel, config)
+            clip["preview_path"] = rel
+        out.preview_s = time.perf_counter() - t2
+
+
+def _missing_error(captions_path: Location, missing_logs: dict[str, int],
+                   missing_tracks: dict[tuple[str, str], int]) -> ClipsInputError:
+    parts = []
+    if missing_logs:
+        named = ", ".join(f"{lid} (first at row {r})" for lid, r in list(missing_logs.items())[:10])
+        more = f" and {len(missing_logs) - 10} more" if len(missing_logs) > 10 else ""
+        parts.append(f"field 'log_id': {len(missing_logs)} log(s) not among the given logs: {named}{more}")
+    if missing_tracks:
+        named = ", ".join(f"{lid}/{tid} (row {r})" for (lid, tid), r in list(missing_tracks.items())[:10])
+        more = f" and {len(missing_tracks) - 10} more" if len(missing_tracks) > 10 else ""
+        parts.append(f"field 'track_id': {len(missing_tracks)} track(s) not in their log: {named}{more}")
+    return ClipsInputError(f"{captions_path}: " + "; ".join(parts))
 
 
 def build_clips(
-    log_dirs: Sequence[Path],
-    captions_dir: Path,
-    clips_dir: Path,
+    log_dirs: Sequence[Location],
+    captions_dir: Location,
+    clips_dir: Location,
     config: ClipsConfig,
     progress: Callable[[str], None] | None = None,
     reuse: bool = True,
+    execution: Execution | None = None,
 ) -> ClipsReport:
     """Render every log once, then write ``clips.parquet``, ``manifest.json`` and previews.
 
     Args:
-        log_dirs: log folders (AV2 layout).
+        log_dirs: log folders (AV2 layout), local or URIs.
         captions_dir: folder holding ``captions.parquet`` (or the file itself).
         clips_dir: output folder.
         config: rendering and sampling options.
         progress: called with one line per log.
         reuse: keep a log's rendered arrays when they were made with an equivalent config.
+        execution: where the logs' tasks run (default: serially, here).
 
     Raises:
         ClipsInputError: captions name logs that are not given or tracks not in their log (with
-            ``config.strict``), or a caption row is malformed.
+            ``config.strict``), a caption row is malformed, or no clip could be made.
     """
     say = progress or (lambda _line: None)
-    clips_dir = Path(clips_dir)
-    captions_path = Path(captions_dir)
-    if captions_path.is_dir():
-        captions_path = captions_path / CAPTIONS_FILENAME
-    rows = read_captions(captions_path)
+    captions_path: Location = captions_dir
+    if (not str(captions_dir).endswith(".parquet")) if is_uri(captions_dir) else Path(captions_dir).is_dir():
+        captions_path = join(captions_dir, CAPTIONS_FILENAME)
+    with staged_input(captions_path) as local_captions:
+        rows = read_captions(local_captions)
     report = ClipsReport(clips_dir=clips_dir)
     skipped = Skipped()
 
-    logs: dict[str, Log] = {}
-    dense: dict[str, DenseTracks] = {}
-    unreadable: set[str] = set()
+    given: dict[str, Location] = {}
     for log_dir in log_dirs:
-        try:
-            log = Log.open(log_dir)
-        except LogFormatError as exc:
-            unreadable.add(Path(log_dir).name)
-            skipped.add(f"log could not be opened: {exc}", log_id=Path(log_dir).name)
-            continue
-        if log.log_id in logs:
-            skipped.add(f"log given twice (kept {logs[log.log_id].log_dir})", log_id=log.log_id)
-            continue
-        logs[log.log_id] = log
-        dense[log.log_id] = log.dense_tracks()
-    rows = _check_references(captions_path, rows, logs, dense, unreadable, config, skipped)
-
+        log_id = name_of(log_dir)
+        if log_id in given:
+            skipped.add(f"log given twice (kept {given[log_id]})", log_id=log_id)
+        else:
+            given[log_id] = log_dir
     by_log: dict[str, list[CaptionRow]] = {}
     for row in rows:
         by_log.setdefault(row.log_id, []).append(row)
-    for log_id in logs:
-        if log_id not in by_log:
-            skipped.add("no neighbour captions for this log", log_id=log_id)
-    splits = assign_splits(logs.keys(), config.split)
-    grid = bev_grid(config)
+    missing_logs = {lid: log_rows[0].row for lid, log_rows in by_log.items() if lid not in given}
+    ctx = ClipsTaskContext(clips_dir, config, reuse, check_only=bool(missing_logs) and config.strict)
+    jobs = [(log_dir, tuple(by_log.get(log_id, ()))) for log_id, log_dir in given.items()]
+    run = run_tasks(clip_log, jobs, execution, labels=list(given), context=ctx, noun="log")
+    results: dict[str, LogClips] = {}
+    for log_id, outcome in zip(given, run.outcomes):
+        if outcome.status is TaskStatus.DONE and outcome.value is not None:
+            results[log_id] = outcome.value
+        elif outcome.status is TaskStatus.SKIPPED:
+            skipped.add(outcome.reason, log_id=log_id)
+            for row in by_log.get(log_id, []):
+                skipped.add("log could not be opened", clip=row.clip_id)
+        else:
+            report.failed[log_id] = outcome.reason
+            skipped.add(f"log failed: {outcome.reason}", log_id=log_id)
+    missing_tracks = {(lid, tid): r for lid, res in results.items() for tid, r in res.missing_tracks.items()}
+    if config.strict and (missing_logs or missing_tracks):
+        raise _missing_error(captions_path, missing_logs, missing_tracks)
+    for lid, r in missing_logs.items():
+        skipped.add("log not given", log_id=lid, row=r)
+    for (lid, tid), r in missing_tracks.items():
+        skipped.add("track not in log", log_id=lid, track_id=tid, row=r)
 
+    splits = assign_splits(results, config.split)
     clip_rows: list[dict[str, Any]] = []
-    seen: set[str] = set()
-    for log_id, log_rows in by_log.items():
-        log = logs[log_id]
-        folder = rendered_log_dir(clips_dir, log_id)
-        t0 = time.perf_counter()
-        try:
-            if reuse and rendered_log_ok(folder, config, dense[log_id]):
-                stats = read_render_stats(folder)
-                report.reused_logs += 1
-            else:
-                stats = render_log(log, config, clips_dir, dense[log_id])
-        except LogFormatError as exc:
-            # Files read lazily while rendering (the map, sweeps' folder) can still be bad: skip the log.
-            skipped.add(f"log could not be rendered: {exc}", log_id=log_id)
-            say(f"{log_id}: skipped: {exc}")
+    order = [lid for lid in by_log if lid in results] + [lid for lid in results if lid not in by_log]
+    for log_id in order:
+        res = results[log_id]
+        skipped.items.extend(res.skipped)
+        if res.stats is None:
+            for item in res.skipped:
+                if item.get("log_id") == log_id and "could not be rendered" in item["reason"]:
+                    say(f"{log_id}: skipped: {item['reason'].removeprefix('log could not be rendered: ')}")
             continue
-        report.render_s += time.perf_counter() - t0
-        t1 = time.perf_counter()
-        new_rows = _clip_rows(log, dense[log_id], log_rows, stats, folder, splits[log_id].value, config,
-                              skipped, seen)
-        clip_rows.extend(new_rows)
-        report.table_s += time.perf_counter() - t1
-        entry = stats.to_dict()
-        entry["clips"] = len(new_rows)
-        entry["clips_with_camera"] = int(sum(r["has_camera"] for r in new_rows))
-        entry["split"] = splits[log_id].value
+        split = splits[log_id].value
+        for clip in res.rows:
+            clip["split"] = split
+        clip_rows.extend(res.rows)
+        report.render_s += res.render_s
+        report.table_s += res.table_s
+        report.preview_s += res.preview_s
+        report.reused_logs += int(res.reused)
+        entry = dict(res.stats)
+        entry["clips"] = len(res.rows)
+        entry["clips_with_camera"] = int(sum(r["has_camera"] for r in res.rows))
+        entry["split"] = split
         report.logs[log_id] = entry
-        extra = ""
-        if stats.corrupt_sweeps:
-            extra += f", {len(stats.corrupt_sweeps)} corrupt sweep(s) skipped"
-        if stats.corrupt_camera_frames:
-            extra += f", {len(stats.corrupt_camera_frames)} corrupt camera file(s) skipped"
-        say(f"{log_id}: {len(new_rows)} clips, {stats.frames} frames, bev={stats.bev_source}, "
-            f"camera frames={stats.camera_frames}{extra}")
-
-    if config.previews and clip_rows:
-        from encoders.clips.preview import write_preview
-
-        t2 = time.perf_counter()
-        for clip in clip_rows:
-            rel = f"{PREVIEWS_DIR}/{preview_file_name(clip['clip_id'])}"
-            write_preview(clips_dir, clip, clips_dir / rel, config)
-            clip["preview_path"] = rel
-        report.preview_s = time.perf_counter() - t2
+        say(_log_line(log_id, res))
+    for log_id, reason in report.failed.items():
+        say(f"{log_id}: failed: {reason}")
 
     if not clip_rows:
         # Nothing to publish: keep whatever an earlier run wrote rather than replace it with an empty table.
         reasons = "; ".join(f"{item.get('log_id') or item.get('clip') or '?'}: {item['reason']}"
                             for item in skipped.items[:5])
         raise ClipsInputError(f"no clip could be made from {len(log_dirs)} log(s); {reasons or 'no captions'}")
-    write_clip_table(clips_dir, clip_rows)
-    manifest = {
+    with staged_output(clips_dir) as out:
+        write_clip_table(out, clip_rows)
+        atomic_write_text(Path(out) / MANIFEST_FILE, json.dumps(_manifest(config, report, skipped, clip_rows),
+                                                                indent=2, default=str))
+    report.num_clips = len(clip_rows)
+    report.skipped = skipped.items
+    return report
+
+
+def _log_line(log_id: str, res: LogClips) -> str:
+    stats = res.stats or {}
+    extra = ""
+    if stats.get("corrupt_sweeps"):
+        extra += f", {len(stats['corrupt_sweeps'])} corrupt sweep(s) skipped"
+    if stats.get("corrupt_camera_frames"):
+        extra += f", {len(stats['corrupt_camera_frames'])} corrupt camera file(s) skipped"
+    return (f"{log_id}: {len(res.rows)} clips, {stats.get('frames')} frames, bev={stats.get('bev_source')}, "
+            f"camera frames={stats.get('camera_frames')}{extra}")
+
+
+def _manifest(config: ClipsConfig, report: ClipsReport, skipped: Skipped,
+              clip_rows: list[dict[str, Any]]) -> dict[str, Any]:
+    grid = bev_grid(config)
+    return {
         "format_version": FORMAT_VERSION,
         "frames_per_clip": config.frames_per_clip,
         "camera": {
@@ -233,16 +339,13 @@ def build_clips(
         "skipped": skipped.items,
         "num_clips": len(clip_rows),
     }
-    atomic_write_text(clips_dir / MANIFEST_FILE, json.dumps(manifest, indent=2, default=str))
-    report.num_clips = len(clip_rows)
-    report.skipped = skipped.items
-    return report
 
 
 def _clip_rows(
-    log: Log, dense: DenseTracks, rows: list[CaptionRow], stats: LogRenderStats, folder: Path, split: str,
-    config: ClipsConfig, skipped: Skipped, seen: set[str],
+    log: Log, dense: DenseTracks, rows: list[CaptionRow], stats: LogRenderStats, folder: Path,
+    config: ClipsConfig, skipped: Skipped,
 ) -> list[dict[str, Any]]:
+    """The log's clip rows (``split`` is set by the driver, which knows every log)."""
     frame_ts = dense.timestamps_ns
     track_index = {str(t): i for i, t in enumerate(dense.track_ids)}
     counts = np.load(folder / CAMERA_PIXEL_COUNTS_FILE, mmap_mode="r")
@@ -250,6 +353,7 @@ def _clip_rows(
     appearance = log.metadata.appearance
     time_of_day = str(appearance.get("time_of_day", "unknown"))
     weather = str(appearance.get("weather", "unknown"))
+    seen: set[str] = set()
     out: list[dict[str, Any]] = []
     for row in rows:
         if row.clip_id in seen:
@@ -279,7 +383,7 @@ def _clip_rows(
                 "paraphrases": row.paraphrases,
                 "tags": row.tags,
                 "host_tags": row.host_tags,
-                "split": split,
+                "split": None,
                 "has_camera": has_camera,
                 "bev_source": stats.bev_source,
                 "time_of_day": time_of_day,

@@ -35,6 +35,9 @@ from captioning.config import CaptioningConfig, RuleSet
 from captioning.map_context import JUNCTION_KINDS, junction_kind_codes, lookup, rasterize_map
 from captioning.pipeline import tag_arrays
 from common.atomic import atomic_path, atomic_write_text
+from common.ray_cluster import Execution
+from common.ray_runner import TaskSkipped, TaskStatus, run_tasks
+from common.storage import name_of, staged_input
 from encoders.clips.layout import FRAMES_FILE, TARGETS_STEM, grid_from_manifest, read_manifest, rendered_log_dir
 from encoders.tagging.attributes import ATTRIBUTES, BEHAVIOR_ATTRIBUTES, JUNCTION_ATTRIBUTES, TagError
 from encoders.tagging.rasterize import BehaviorGrid, rasterize_targets
@@ -181,50 +184,67 @@ def add_attribute_targets(
     log_dirs: Sequence[Path | str],
     overwrite: bool = False,
     progress: Callable[[str], None] | None = None,
+    execution: Execution | None = None,
 ) -> TargetsReport:
     """Write ``bev_attributes.npy`` for every given log that the clips folder has rendered.
 
     Logs with behaviour labels get targets from them, the others from the captioning rules (see the
     module docstring; ``report.sources`` says which). Logs not rendered in ``clips_dir`` or whose
-    frames differ from the rendered ones are skipped and reported; nothing is half-written.
+    frames differ from the rendered ones are skipped and reported; nothing is half-written. One
+    task per log (:func:`log_targets`), serially or on Ray (``execution``); the report keeps the
+    input order. Log folders may be ``pyarrow.fs`` URIs; the clips folder is local (or shared).
     """
     say = progress or (lambda _line: None)
     clips_dir = Path(clips_dir)
     grid = grid_from_manifest(read_manifest(clips_dir))
     report = TargetsReport()
-    for log_dir in log_dirs:
-        log_id = Path(log_dir).name
-        folder = rendered_log_dir(clips_dir, log_id)
-        if not (folder / FRAMES_FILE).is_file():
-            report.skipped.append({"log_id": log_id, "reason": "not rendered in the clips folder"})
+    ids = [name_of(d) for d in log_dirs]
+    run = run_tasks(log_targets, list(log_dirs), execution, labels=ids, context=(clips_dir, grid, overwrite),
+                    skip_on=(TagError, ScenesError, ValueError, OSError))
+    for log_id, outcome in zip(ids, run.outcomes):
+        if outcome.status is not TaskStatus.DONE or outcome.value is None:
+            report.skipped.append({"log_id": log_id, "reason": outcome.reason})
             continue
-        if not overwrite and has_targets(clips_dir, log_id) and targets_version(clips_dir, log_id) == TARGETS_VERSION:
-            report.reused.append(log_id)
-            report.sources[log_id] = targets_source(clips_dir, log_id)
-            continue
-        try:
-            log = Log.open(log_dir)
-            dense = log.dense_tracks()
-            rendered = pq.read_table(folder / FRAMES_FILE, columns=["timestamp_ns"]).column(0).to_numpy()
-            if not np.array_equal(rendered, dense.timestamps_ns):
-                raise TagError(f"{folder / FRAMES_FILE}: frame timestamps differ from the log's annotations")
-            if (Path(log_dir) / BEHAVIOR_FILENAME).is_file():
-                source = TargetSource.LABELS
-                targets = rasterize_targets(log, grid, dense)
-            else:
-                source = TargetSource.RULES
-                targets = rasterize_targets(log, grid, dense, behavior=rule_behavior(log, dense))
-                kinds = tuple(a.value for a in JUNCTION_ATTRIBUTES)
-                channels = [ATTRIBUTES.index(a) for a in JUNCTION_ATTRIBUTES]
-                targets[:, channels] = map_junction_masks(log, grid, dense.city_SE3_ego, kinds)
-        except (TagError, ScenesError, ValueError, OSError) as exc:
-            report.skipped.append({"log_id": log_id, "reason": str(exc)})
-            continue
-        write_targets(folder, targets, [a.value for a in ATTRIBUTES], source=source)
-        report.written.append(log_id)
-        report.sources[log_id] = source.value
-        say(f"{log_id}: tag targets for {targets.shape[0]} frames from the {source.value}")
+        source, frames = outcome.value
+        (report.written if frames is not None else report.reused).append(log_id)
+        report.sources[log_id] = source
+        if frames is not None:
+            say(f"{log_id}: tag targets for {frames} frames from the {source}")
     return report
+
+
+def log_targets(log_dir: Path | str, ctx: tuple[Path, BevGrid, bool]) -> tuple[str, int | None]:
+    """One log's task of :func:`add_attribute_targets`: → (its :class:`TargetSource` value, frames
+    written, or None when its targets were reused).
+
+    Raises:
+        TaskSkipped: the log is not rendered in the clips folder.
+        TagError, ScenesError, ValueError, OSError: its targets cannot be made.
+    """
+    clips_dir, grid, overwrite = ctx
+    log_id = name_of(log_dir)
+    folder = rendered_log_dir(clips_dir, log_id)
+    if not (folder / FRAMES_FILE).is_file():
+        raise TaskSkipped("not rendered in the clips folder")
+    if not overwrite and has_targets(clips_dir, log_id) and targets_version(clips_dir, log_id) == TARGETS_VERSION:
+        return targets_source(clips_dir, log_id), None
+    with staged_input(log_dir) as local:
+        log = Log.open(local)
+        dense = log.dense_tracks()
+        rendered = pq.read_table(folder / FRAMES_FILE, columns=["timestamp_ns"]).column(0).to_numpy()
+        if not np.array_equal(rendered, dense.timestamps_ns):
+            raise TagError(f"{folder / FRAMES_FILE}: frame timestamps differ from the log's annotations")
+        if (local / BEHAVIOR_FILENAME).is_file():
+            source = TargetSource.LABELS
+            targets = rasterize_targets(log, grid, dense)
+        else:
+            source = TargetSource.RULES
+            targets = rasterize_targets(log, grid, dense, behavior=rule_behavior(log, dense))
+            kinds = tuple(a.value for a in JUNCTION_ATTRIBUTES)
+            channels = [ATTRIBUTES.index(a) for a in JUNCTION_ATTRIBUTES]
+            targets[:, channels] = map_junction_masks(log, grid, dense.city_SE3_ego, kinds)
+    write_targets(folder, targets, [a.value for a in ATTRIBUTES], source=source)
+    return source.value, int(targets.shape[0])
 
 
 @dataclass(frozen=True)

@@ -4,7 +4,12 @@ Writes ``OUT_DIR/frame_tags.parquet`` and ``OUT_DIR/captions.parquet`` (see
 :mod:`captioning.pipeline`), published together (:mod:`common.publish`). Logs that cannot be
 read are skipped and listed with the reason; so are tracks observed in single frames, or too short
 for own-behaviour tags, and a log without a map with lanes is said to have null lane tags, once.
-Exits 1, leaving the previous outputs untouched, when no log could be captioned.
+Exits 1, leaving the previous outputs untouched, when no log could be captioned, and 1 when a log
+failed (an unexpected error, or its worker died on every attempt; the others are written).
+
+``--workers N`` captions one log per task on a local Ray runtime, ``--ray-address`` on a cluster
+(:mod:`common.ray_runner`); the files are the same as the serial path's. Log folders and ``--out``
+may be ``pyarrow.fs`` URIs (``s3://bucket/logs/*`` lists the logs under a prefix).
 """
 
 from __future__ import annotations
@@ -13,23 +18,33 @@ import argparse
 import dataclasses
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+from common.ray_cluster import Execution
+from common.ray_cluster import add_arguments as add_execution_arguments
+from common.storage import Location, as_location, expand, is_uri, staged_output
+
+if TYPE_CHECKING:
+    from captioning.pipeline import LogCaptions
 
 HELP = "tag host and neighbour behaviour per frame and write temporal captions (Parquet)"
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("log_dirs", nargs="+", type=Path, metavar="LOG_DIR", help="log folders (AV2 layout)")
-    parser.add_argument("--out", type=Path, required=True, metavar="OUT_DIR", help="folder for the Parquet files")
+    parser.add_argument("log_dirs", nargs="+", metavar="LOG_DIR",
+                        help="log folders (AV2 layout): paths or URIs (s3://..., gs://..., PREFIX/* for all)")
+    parser.add_argument("--out", required=True, metavar="OUT_DIR", help="folder (or URI) for the Parquet files")
     parser.add_argument("--config", type=Path, help="captioning YAML (thresholds; see captioning.config)")
     parser.add_argument("--strategy", choices=["host_segments", "sliding"], help="override windows.strategy")
     parser.add_argument("--seed", type=int, help="override text.seed (paraphrase choice)")
     parser.add_argument("--rules", choices=["behavior", "paper"],
                         help="override rules: paper = the paper's rules only (moving neighbours, no own action)")
+    add_execution_arguments(parser)
 
 
 def run(args: argparse.Namespace) -> int:
     from captioning.config import CaptioningConfig, RuleSet, WindowStrategy
-    from captioning.pipeline import caption_logs, write_outputs
+    from captioning.pipeline import caption_logs
 
     config = CaptioningConfig.from_yaml(args.config) if args.config else CaptioningConfig()
     if args.strategy:
@@ -41,13 +56,16 @@ def run(args: argparse.Namespace) -> int:
     if args.rules:
         config = dataclasses.replace(config, rules=RuleSet(args.rules))
     start = time.perf_counter()
-    batch = caption_logs(args.log_dirs, config)
+    out = as_location(args.out)
+    batch = caption_logs(expand(args.log_dirs), config, Execution.from_args(args))
     for log_dir, reason in batch.skipped_logs.items():
         print(f"skipped log {log_dir}: {reason}")
+    for log_dir, reason in batch.failed_logs.items():
+        print(f"failed log {log_dir}: {reason}")
     if not batch.results:
-        print(f"no log could be captioned; {args.out} is left as it was")
+        print(f"no log could be captioned; {out} is left as it was")
         return 1
-    frames_path, captions_path = write_outputs(args.out, batch.results)
+    frames_path, captions_path = _write(out, batch.results)
     elapsed_s = time.perf_counter() - start
     object_frames = sum(int(r.valid.sum()) for r in batch.results)
     num_captions = sum(len(r.captions) for r in batch.results)
@@ -59,12 +77,28 @@ def run(args: argparse.Namespace) -> int:
             + (f", skipped {len(skipped)} tracks: {_reasons(skipped)}" if skipped else "")
             + "".join(f"; {note}" for note in result.notes)
         )
+    total = len(batch.results) + len(batch.skipped_logs) + len(batch.failed_logs)
     print(
-        f"captioned {len(batch.results)} of {len(batch.results) + len(batch.skipped_logs)} logs: "
+        f"captioned {len(batch.results)} of {total} logs: "
         f"{num_captions} captions, {object_frames} object-frames in {elapsed_s:.2f} s; "
         f"wrote {frames_path} and {captions_path}"
+        + (f"; {len(batch.failed_logs)} log(s) failed: {', '.join(batch.failed_logs)}" if batch.failed_logs else "")
     )
-    return 0
+    return 1 if batch.failed_logs else 0
+
+
+def _write(out: Location, results: list[LogCaptions]) -> tuple[Location, Location]:
+    """Publish the two files together in a local folder; upload them to a URI (files, no links)."""
+    import pyarrow.parquet as pq
+
+    from captioning.pipeline import CAPTIONS_FILENAME, FRAME_TAGS_FILENAME, output_tables, write_outputs
+
+    if not is_uri(out):
+        return write_outputs(out, results)
+    with staged_output(out) as local:
+        for name, table in output_tables(results).items():
+            pq.write_table(table, local / name)
+    return f"{str(out).rstrip('/')}/{FRAME_TAGS_FILENAME}", f"{str(out).rstrip('/')}/{CAPTIONS_FILENAME}"
 
 
 def _reasons(skipped: dict[str, str]) -> str:

@@ -3,7 +3,11 @@
 Renders each log's camera and BEV frames once into ``CLIPS_DIR/logs/<log_id>/``, writes
 ``CLIPS_DIR/clips.parquet`` (one clip per neighbour caption), ``manifest.json`` and, unless
 ``--no-previews``, an animated GIF per clip under ``CLIPS_DIR/previews/``. Reports what it skipped
-and why (corrupt sweeps, windows outside a log, unreadable logs).
+and why (corrupt sweeps, windows outside a log, unreadable logs) and which logs failed (exit 1).
+
+``--workers N`` renders one log per task on a local Ray runtime, ``--ray-address`` on a cluster
+(:mod:`common.ray_runner`); the files are the same as the serial path's. Logs, ``--captions`` and
+``--out`` may be ``pyarrow.fs`` URIs (``--tag-targets`` needs a local or shared ``--out``).
 """
 
 from __future__ import annotations
@@ -11,14 +15,23 @@ from __future__ import annotations
 import argparse
 from dataclasses import replace
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+from common.ray_cluster import Execution, held_runtime
+from common.ray_cluster import add_arguments as add_execution_arguments
+from common.storage import Location, as_location, expand, is_uri
+
+if TYPE_CHECKING:
+    from encoders.clips.config import ClipsConfig
 
 HELP = "render camera + BEV clips of every neighbour caption (per-log arrays, clip table, splits, previews)"
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("log_dirs", type=Path, nargs="+", metavar="LOG_DIR", help="log folders (AV2 layout)")
-    parser.add_argument("--captions", type=Path, required=True, help="folder with captions.parquet (or the file)")
-    parser.add_argument("--out", type=Path, required=True, help="clips folder to write")
+    parser.add_argument("log_dirs", nargs="+", metavar="LOG_DIR",
+                        help="log folders (AV2 layout): paths or URIs (s3://..., gs://..., PREFIX/* for all)")
+    parser.add_argument("--captions", required=True, help="folder with captions.parquet (or the file), or a URI")
+    parser.add_argument("--out", required=True, help="clips folder (or URI) to write")
     parser.add_argument("--config", type=Path, help="clips.yaml (ClipsConfig); flags below override it")
     parser.add_argument("--frames-per-clip", type=int, help="T frames sampled over each caption window")
     parser.add_argument("--seed", type=int, help="seed of the train/val/test split by log")
@@ -33,12 +46,11 @@ def configure(parser: argparse.ArgumentParser) -> None:
                              "spatio-temporal tags jointly: from the behaviour labels of simulated logs, from the "
                              "captioning rules on the tracks and map of any other log (the table printed says which)")
     parser.add_argument("--save-config", type=Path, help="also write the effective config as YAML")
+    add_execution_arguments(parser)
 
 
 def run(args: argparse.Namespace) -> int:
-    from encoders.clips.build import build_clips
     from encoders.clips.config import BevSourceChoice, ClipsConfig
-    from encoders.clips.layout import MANIFEST_FILE
 
     config = ClipsConfig.from_yaml(args.config) if args.config else ClipsConfig()
     if args.frames_per_clip is not None:
@@ -55,7 +67,20 @@ def run(args: argparse.Namespace) -> int:
         config = replace(config, strict=False)
     if args.save_config:
         config.to_yaml(args.save_config)
-    report = build_clips(args.log_dirs, args.captions, args.out, config, progress=print, reuse=not args.no_reuse)
+    out, execution = as_location(args.out), Execution.from_args(args)
+    if args.tag_targets and is_uri(out):
+        raise ValueError("--tag-targets needs a clips folder on a local or shared file system, not a URI")
+    with held_runtime(execution):  # one runtime for the clips and their tag targets
+        return _run(args, config, out, execution)
+
+
+def _run(args: argparse.Namespace, config: ClipsConfig, out: Location, execution: Execution) -> int:
+    from encoders.clips.build import build_clips
+    from encoders.clips.layout import MANIFEST_FILE
+
+    log_dirs = expand(args.log_dirs)
+    report = build_clips(log_dirs, as_location(args.captions), out, config, progress=print,
+                         reuse=not args.no_reuse, execution=execution)
     print(
         f"wrote {report.num_clips} clips from {len(report.logs)} log(s) to {args.out} "
         f"(render {report.render_s:.1f} s, {report.reused_logs} log(s) reused; table {report.table_s:.1f} s; "
@@ -67,7 +92,7 @@ def run(args: argparse.Namespace) -> int:
             where = ", ".join(f"{k}={v}" for k, v in item.items() if k != "reason")
             print(f"  {where}: {item['reason']}")
         if len(report.skipped) > 50:
-            print(f"  ... and {len(report.skipped) - 50} more (see {args.out / MANIFEST_FILE})")
+            print(f"  ... and {len(report.skipped) - 50} more (see {out}/{MANIFEST_FILE})")
     for log_id, stats in report.logs.items():
         if stats.get("corrupt_sweeps"):
             print(f"  {log_id}: skipped corrupt sweeps: {', '.join(stats['corrupt_sweeps'][:5])}")
@@ -76,9 +101,11 @@ def run(args: argparse.Namespace) -> int:
     if args.tag_targets:
         from encoders.tagging.targets import add_attribute_targets
 
-        targets = add_attribute_targets(args.out, args.log_dirs, progress=print)
+        targets = add_attribute_targets(Path(out), log_dirs, progress=print, execution=execution)
         print(f"tag targets: {len(targets.written)} log(s) written, {len(targets.reused)} reused")
         print(targets.table())
         for item in targets.skipped:
             print(f"  skipped {item.get('log_id', '?')}: {item.get('reason', '')}")
-    return 0
+    for log_id, reason in report.failed.items():
+        print(f"failed log {log_id}: {reason}")
+    return 1 if report.failed else 0

@@ -2,7 +2,10 @@
 
 Writes N logs of a SUMO-simulated city in the AV2 layout, with behaviour labels and appearance
 metadata (see :mod:`scenes.sim`). Deterministic for a given seed. Flags override the values of
-``--config FILE.yaml`` (a serialised :class:`scenes.sim.SimulationConfig`).
+``--config FILE.yaml`` (a serialised :class:`scenes.sim.SimulationConfig`). SUMO runs once; writing
+each log and rendering its sensors is one task per log, on Ray with ``--workers N`` or
+``--ray-address`` (:mod:`common.ray_runner`), with the same bytes as the serial path. ``--out`` may
+be a ``pyarrow.fs`` URI.
 """
 
 from __future__ import annotations
@@ -12,13 +15,16 @@ import dataclasses
 from pathlib import Path
 from typing import Any
 
+from common.ray_cluster import Execution
+from common.ray_cluster import add_arguments as add_execution_arguments
+from common.storage import as_location
 from scenes.sim import NetworkKind, PostLogHook, SimulationConfig, simulate_tracks_and_map
 
 HELP = "simulate a city with SUMO and write N drive logs (AV2 layout, behaviour labels)"
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--out", type=Path, required=True, help="folder to write the logs into")
+    parser.add_argument("--out", required=True, help="folder (or URI) to write the logs into")
     parser.add_argument("--config", type=Path, help="YAML simulation config; flags override its values")
     parser.add_argument("--logs", type=int, help="number of logs (default 8)")
     parser.add_argument("--duration-s", type=float, help="length of each log in seconds (default 25)")
@@ -37,6 +43,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
                              "the boxes (misses, false positives, noise), for `scenesearch track`")
     parser.add_argument("--cache-dir", help="folder for generated road networks (default: system temp)")
     parser.add_argument("--overwrite", action="store_true", help="replace logs already in --out")
+    add_execution_arguments(parser)
 
 
 def build_config(args: argparse.Namespace) -> SimulationConfig:
@@ -73,7 +80,11 @@ def post_log_hooks(config: SimulationConfig, emit_detections: bool = False,
         from scenes.tracking.simulated import write_simulated_detections
 
         def emit(log_dir: Path) -> None:
-            write_simulated_detections(log_dir, seed=config.seed)
+            # The hook sees the log under its temporary name: seed from the log's own id.
+            from scenes.av2_io import read_metadata
+
+            meta = read_metadata(log_dir)
+            write_simulated_detections(log_dir, seed=config.seed, log_id=meta.log_id if meta else None)
 
         hooks.append(emit)
     return hooks
@@ -82,7 +93,8 @@ def post_log_hooks(config: SimulationConfig, emit_detections: bool = False,
 def run(args: argparse.Namespace) -> int:
     config = build_config(args)
     hooks = post_log_hooks(config, args.emit_detections, args.sensor_config)
-    result = simulate_tracks_and_map(config, args.out, overwrite=args.overwrite, post_log=hooks)
+    result = simulate_tracks_and_map(config, as_location(args.out), overwrite=args.overwrite, post_log=hooks,
+                                     execution=Execution.from_args(args))
     for log_dir in result.log_dirs:
         print(log_dir)
     print(f"wrote {len(result.log_dirs)} logs of {config.duration_s:g} s ({config.network.value}, seed "

@@ -31,6 +31,9 @@ import numpy as np
 import pyarrow as pa
 
 from common.atomic import atomic_directory
+from common.ray_cluster import Execution
+from common.ray_runner import run_tasks
+from common.storage import Location, expand, is_uri, join, name_of, staged_output
 from scenes import av2_io
 from scenes.behavior import BEHAVIOR_SCHEMA, EGO_TRACK_ID, BehaviorLabel, write_behavior_labels, write_junctions
 from scenes.geometry import wrap_angle_rad
@@ -73,7 +76,7 @@ class SimulationResult:
         sumo_cpu_s: CPU seconds spent stepping SUMO and reading its state.
     """
 
-    log_dirs: list[Path]
+    log_dirs: list[Location]
     simulated_s: float
     wall_s: float
     sumo_wall_s: float
@@ -112,17 +115,26 @@ def simulate(config: SimulationConfig, out_dir: Path | str, overwrite: bool = Fa
         FileExistsError: ``out_dir`` already holds logs and ``overwrite`` is false.
         SimulationError: SUMO failed (its message included); nothing was written.
     """
-    return simulate_tracks_and_map(config, out_dir, overwrite, post_log).log_dirs
+    return [Path(p) for p in simulate_tracks_and_map(config, out_dir, overwrite, post_log).log_dirs]
 
 
-def simulate_tracks_and_map(config: SimulationConfig, out_dir: Path | str, overwrite: bool = False,
-                            post_log: Sequence[PostLogHook] = ()) -> SimulationResult:
-    """As :func:`simulate`, with timing figures."""
+def simulate_tracks_and_map(config: SimulationConfig, out_dir: Location, overwrite: bool = False,
+                            post_log: Sequence[PostLogHook] = (),
+                            execution: Execution | None = None) -> SimulationResult:
+    """As :func:`simulate`, with timing figures.
+
+    SUMO runs once, here; writing each log and its ``post_log`` hooks (sensor rendering) is one task
+    per log (:func:`write_log`), serially or on Ray (``execution``). ``out_dir`` may be a
+    ``pyarrow.fs`` URI: each log is then written locally and uploaded.
+
+    Raises:
+        SimulationError: also when a log's task failed (the other logs are written).
+    """
     start, start_cpu = time.perf_counter(), time.process_time()
-    out = Path(out_dir)
-    old = existing_logs(out)
+    out = out_dir if is_uri(out_dir) else Path(out_dir)
+    old: list[Location] = list(existing_logs(out)) if isinstance(out, Path) else expand([f"{out}/*"])
     if old and not overwrite:
-        raise FileExistsError(f"{out} already holds {len(old)} log(s) (e.g. {old[0].name}); "
+        raise FileExistsError(f"{out} already holds {len(old)} log(s) (e.g. {name_of(old[0])}); "
                               f"pass overwrite (--overwrite) to replace them")
     cache = Path(config.cache_dir) if config.cache_dir else None
     net_path = build_network(config.network, config.seed, cache)
@@ -161,19 +173,38 @@ def simulate_tracks_and_map(config: SimulationConfig, out_dir: Path | str, overw
             f"{len(empty)} log(s) would have no objects within {config.range_m:g} m of the ego "
             f"(e.g. {empty[0]}): the city is still empty; raise warmup_s (now {config.warmup_s:g} s)"
         )
-    written: list[Path] = []
-    for content in contents:
-        target = out / content.log_id
-        with atomic_directory(target, overwrite=overwrite) as tmp:
-            content.write(tmp, vector_map, junctions)
-            for hook in post_log:
-                hook(tmp)
-        written.append(target)
+    context = _WriteContext(out, overwrite, vector_map, junctions, tuple(post_log))
+    run = run_tasks(write_log, contents, execution, labels=[c.log_id for c in contents], context=context)
+    if run.problems():
+        raise SimulationError(f"{len(run.problems())} of {len(contents)} log(s) could not be written: "
+                              + "; ".join(run.problems()[:5]))
+    written = [join(out, c.log_id) for c in contents]
     for stale in old:
-        if stale not in written:
+        if stale not in written and isinstance(stale, Path):
             shutil.rmtree(stale, ignore_errors=True)
     return SimulationResult(written, plan.total_steps * config.step_s, time.perf_counter() - start, sumo_wall_s,
                             time.process_time() - start_cpu, sumo_cpu_s)
+
+
+@dataclass(frozen=True)
+class _WriteContext:
+    """What every log's task shares: where logs go, the city's map and junctions, the hooks."""
+
+    out: Location
+    overwrite: bool
+    vector_map: VectorMap
+    junctions: pa.Table
+    post_log: tuple[PostLogHook, ...]
+
+
+def write_log(content: _LogContent, ctx: _WriteContext) -> str:
+    """Write one log (and run the hooks on it) into a temporary folder renamed into place: one
+    task of :func:`simulate_tracks_and_map`, in this process or on a Ray worker."""
+    with staged_output(ctx.out) as local, atomic_directory(local / content.log_id, overwrite=ctx.overwrite) as tmp:
+        content.write(tmp, ctx.vector_map, ctx.junctions)
+        for hook in ctx.post_log:
+            hook(tmp)
+    return content.log_id
 
 
 def _heading_rad(angle_deg: np.ndarray) -> np.ndarray:

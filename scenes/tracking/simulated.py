@@ -103,11 +103,13 @@ def simulate_detections(
 DETECTIONS_FILENAME = "detections.parquet"
 
 
-def write_simulated_detections(log_dir: Path, config: DetectorNoiseConfig | None = None, seed: int = 0) -> Path:
+def write_simulated_detections(log_dir: Path, config: DetectorNoiseConfig | None = None, seed: int = 0,
+                               log_id: str | None = None) -> Path:
     """Simulate detections from a log's annotations and write ``<log_dir>/detections.parquet``.
 
-    The generator is seeded from ``seed`` and the log's folder name, so each log of a run gets its
-    own, reproducible detections.
+    The generator is seeded from ``seed`` and the log's id (default: the folder's name; give it for
+    a log being written under a temporary name), so each log of a run gets its own, reproducible
+    detections.
     """
     from scenes import av2_io
     from scenes.tracking.detections import write_detections_table
@@ -115,7 +117,7 @@ def write_simulated_detections(log_dir: Path, config: DetectorNoiseConfig | None
     log_dir = Path(log_dir)
     annotations = av2_io.read_annotations(log_dir / av2_io.ANNOTATIONS_FILENAME)
     ego = av2_io.read_ego_poses(log_dir / av2_io.POSES_FILENAME)
-    digest = hashlib.sha256(f"{seed}/{log_dir.name}/detections".encode()).digest()
+    digest = hashlib.sha256(f"{seed}/{log_id or log_dir.name}/detections".encode()).digest()
     rng = np.random.default_rng(int.from_bytes(digest[:8], "little"))
     detections = simulate_detections(annotations, ego, config or DetectorNoiseConfig(), rng)
     path = log_dir / DETECTIONS_FILENAME

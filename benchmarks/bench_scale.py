@@ -1,0 +1,209 @@
+"""Scale-out on Ray: per-log stages and batch embedding with 2 workers against 1, Ray's per-task
+overhead, and what each stage costs per log-second (the README's cost model).
+
+Logs: simulated (``scenesearch simulate``; full: 20 logs of 6 s with rendered LiDAR and camera,
+quick: 4 logs of 4 s without sensors), cached between runs. Stages: ``caption``
+(:func:`captioning.pipeline.caption_logs`), ``clips`` (:func:`encoders.clips.build.build_clips`,
+previews included) and ``embed`` (every view of every clip with an untrained model of the default
+size; ``--quick``: the tiny preset, a smoke run: serially by :class:`retrieval.embedding.ModelEmbedder`, on Ray Data by
+:class:`retrieval.embedding.RayDataEmbedder`). Each stage runs three ways in the same run, as the
+commands run them (on a local Ray runtime of as many CPUs as workers; its start, ``ray_start_s``,
+and the first tasks' imports are left out):
+
+- ``serial``: in this process, no Ray (torch's default threads while embedding): the baseline;
+- ``ray_1``: Ray with 1 worker (1 actor of 1 thread while embedding);
+- ``ray_2``: Ray with 2 workers.
+
+Figures: ``speedup_2_vs_1`` (``ray_1`` / ``ray_2`` wall time of the three stages; target ≥ 1.6)
+and ``speedup_2_vs_serial``, per stage and in total; the embedding's share includes starting
+its actors (a model load each). ``overhead``: caption + clips (no previews) of 8 logs of 2 s,
+serially and on Ray with 1 warm worker, in 5 adjacent pairs: ``overhead_fraction`` = the median
+over pairs of ray_1 / serial − 1 (target < 0.10; pairs cancel the load of the moment),
+``overhead_fraction_best_of_each``, ``per_task_ms`` (from the best of each), ``empty_task_ms``
+(a task doing nothing, round trip included) and ``fraction_on_benchmark_logs`` (that per-task
+time against the serial caption + clips time of one of the benchmark's logs). ``cost``:
+log-seconds per CPU-second of each stage (serial, CPU time of this process, which holds all of it)
+and the CPU-hours 10,000 hours of logs take. ``load_average`` says how busy the machine was; other
+work on it slows the parallel runs most.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import time
+from collections.abc import Callable
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+WORK = Path(__file__).resolve().parent / "_work" / "scale"
+HOURS = 10_000
+
+
+def _simulated(out: Path, logs: int, duration_s: float, sensors: bool) -> tuple[list[Path], dict[str, float]]:
+    """Simulated logs, cached; with the CPU seconds simulating them took (SUMO, labels, sensors)."""
+    import json
+
+    from retrieval.commands.simulate import post_log_hooks
+    from scenes.sim import SimulationConfig, simulate_tracks_and_map
+
+    marker = out / ".done.json"
+    if marker.is_file():
+        return sorted(p for p in out.iterdir() if p.is_dir()), json.loads(marker.read_text())
+    shutil.rmtree(out, ignore_errors=True)
+    config = SimulationConfig(logs=logs, duration_s=duration_s, seed=0, sensors=sensors,
+                              cache_dir=str(WORK / "netcache"))
+    result = simulate_tracks_and_map(config, out, post_log=post_log_hooks(config))
+    figures = {"cpu_s": result.cpu_s, "sumo_cpu_s": result.sumo_cpu_s, "log_s": logs * duration_s}
+    marker.write_text(json.dumps(figures))
+    return sorted(Path(p) for p in result.log_dirs), figures
+
+
+def _untrained_run(run_dir: Path, clips_dir: Path, preset: str = "default") -> Path:
+    """A run folder holding a model of the preset's size with its initial weights: embedding costs
+    the same as with trained ones."""
+    from safetensors.torch import save_file
+
+    from common.atomic import atomic_write_text
+    from encoders.config import TrainConfig
+    from encoders.data import ClipDataset
+    from encoders.model import DualEncoder
+    from encoders.train import resolve_channels
+
+    run_dir.mkdir(parents=True, exist_ok=True)  # made anew each run: the model's code may have changed
+    config = resolve_channels(TrainConfig.preset(preset), ClipDataset(clips_dir, as_uint8=True)[0])
+    model = DualEncoder(config.model)
+    save_file({k: v.detach().contiguous() for k, v in model.saved_state_dict().items()},
+              str(run_dir / "model.safetensors"), metadata={"format": "scenesearch.DualEncoder"})
+    atomic_write_text(run_dir / "config.json", config.to_json())
+    return run_dir
+
+
+def _timed(fn: Callable[[], Any]) -> tuple[float, float]:
+    """(wall seconds, CPU seconds of this process)."""
+    wall, cpu = time.perf_counter(), time.process_time()
+    fn()
+    return time.perf_counter() - wall, time.process_time() - cpu
+
+
+def _stages(logs: list[Path], root: Path, run_dir: Path | None, execution: Any, previews: bool,
+            tag: str) -> dict[str, tuple[float, float]]:
+    """Caption, clips and (with a run) embedding of ``logs`` under ``execution``: stage → (wall, CPU)."""
+    from captioning.pipeline import caption_logs, write_outputs
+    from encoders.clips.build import build_clips
+    from encoders.clips.config import ClipsConfig
+    from retrieval.embedding import ModelEmbedder, RayDataEmbedder
+
+    out: dict[str, tuple[float, float]] = {}
+    captions, clips = root / f"captions_{tag}", root / f"clips_{tag}"
+    shutil.rmtree(clips, ignore_errors=True)
+    results: list[Any] = []
+
+    def caption() -> None:
+        batch = caption_logs(logs, execution=execution)
+        results.extend(batch.results)
+        write_outputs(captions, batch.results)
+
+    out["caption"] = _timed(caption)
+    config = replace(ClipsConfig(), previews=previews)
+    out["clips"] = _timed(lambda: build_clips(logs, captions, clips, config, reuse=False, execution=execution))
+    if run_dir is not None:
+        embedder = (ModelEmbedder(run_dir) if execution is None
+                    else RayDataEmbedder(run_dir, execution, root / f"shards_{tag}"))
+        out["embed"] = _timed(lambda: embedder.embed_clips(clips, view="fused"))
+    return out
+
+
+def _noop(item: int) -> int:
+    return item
+
+
+def _ratio(a: float, b: float) -> float:
+    return round(a / b, 3) if b > 0 else 0.0
+
+
+def run(quick: bool) -> dict[str, Any]:
+    import ray
+
+    from common.ray_cluster import Execution
+    from common.ray_runner import run_tasks
+
+    os.environ.setdefault("RAY_DATA_LOG_LEVEL", "ERROR")
+    WORK.mkdir(parents=True, exist_ok=True)
+    n_logs, duration_s, sensors = (4, 4.0, False) if quick else (20, 6.0, True)
+    logs, sim = _simulated(WORK / f"logs_{n_logs}x{duration_s:g}_{'s' if sensors else 'n'}", n_logs, duration_s,
+                           sensors)
+    tiny, _ = _simulated(WORK / "tiny_8x2", 8, 2.0, False)
+    scratch = WORK / "runs"
+    shutil.rmtree(scratch, ignore_errors=True)
+    scratch.mkdir()
+
+    load_before = os.getloadavg()[0]
+    serial = _stages(logs, scratch, None, None, True, "serial")
+    run_dir = _untrained_run(scratch / "run", scratch / "clips_serial", "tiny" if quick else "default")
+    from retrieval.embedding import ModelEmbedder
+
+    serial["embed"] = _timed(lambda: ModelEmbedder(run_dir).embed_clips(scratch / "clips_serial", view="fused"))
+    ray_start_s = 0.0
+    noop = 0.0
+    overhead: list[tuple[float, float]] = []
+    results: dict[int, dict[str, tuple[float, float]]] = {}
+    for workers in (2, 1):  # as `--workers N` runs: a runtime of N CPUs
+        start = time.perf_counter()
+        ray.init(num_cpus=workers, include_dashboard=False, log_to_driver=False, configure_logging=False)
+        ray_start_s = max(ray_start_s, time.perf_counter() - start)
+        try:
+            # Warm the task workers (imports), as any command's first logs do; actors start anew each time.
+            _stages(tiny, scratch, None, Execution(workers=workers), False, "warm")
+            results[workers] = _stages(logs, scratch, run_dir, Execution(workers=workers), True, f"ray{workers}")
+            if workers == 1:
+                for _ in range(5):  # adjacent pairs: other work on the machine varies over time
+                    s = _stages(tiny, scratch, None, None, False, "tiny_serial")
+                    r = _stages(tiny, scratch, None, Execution(workers=1), False, "tiny_ray1")
+                    overhead.append((sum(w for w, _ in s.values()), sum(w for w, _ in r.values())))
+                noop = min(_timed(lambda: run_tasks(_noop, list(range(200)), Execution(workers=1)))[0]
+                           for _ in range(3))
+        finally:
+            ray.shutdown()
+    ray_1, ray_2 = results[1], results[2]
+    load_after = os.getloadavg()[0]
+
+    stages = ("caption", "clips", "embed")
+    figures: dict[str, Any] = {
+        "logs": n_logs, "log_duration_s": duration_s, "sensors": sensors, "ray_start_s": round(ray_start_s, 2),
+        "load_average": [round(load_before, 2), round(load_after, 2)],
+    }
+    for name, result in (("serial", serial), ("ray_1", ray_1), ("ray_2", ray_2)):
+        figures[f"{name}_wall_s"] = {s: round(result[s][0], 2) for s in stages}
+        figures[f"{name}_wall_s"]["total"] = round(sum(result[s][0] for s in stages), 2)
+    total = {name: figures[f"{name}_wall_s"]["total"] for name in ("serial", "ray_1", "ray_2")}
+    figures["speedup_2_vs_1"] = {s: _ratio(ray_1[s][0], ray_2[s][0]) for s in stages} | {
+        "total": _ratio(total["ray_1"], total["ray_2"])}
+    figures["speedup_2_vs_serial"] = {s: _ratio(serial[s][0], ray_2[s][0]) for s in stages} | {
+        "total": _ratio(total["serial"], total["ray_2"])}
+    figures["target_1_6_met"] = figures["speedup_2_vs_1"]["total"] >= 1.6
+    best_serial, best_ray = min(a for a, _ in overhead), min(b for _, b in overhead)
+    tasks = 2 * len(tiny)  # one caption task and one clips task per log
+    figures["overhead"] = {"serial_s": round(best_serial, 3), "ray_1_s": round(best_ray, 3),
+                           "overhead_fraction": round(float(np.median([b / a for a, b in overhead])) - 1.0, 3),
+                           "overhead_fraction_best_of_each": round(best_ray / best_serial - 1.0, 3),
+                           "per_task_ms": round(1000 * (best_ray - best_serial) / tasks, 1),
+                           "empty_task_ms": round(1000 * noop / 200, 2),
+                           "runs": [[round(a, 3), round(b, 3)] for a, b in overhead]}
+    figures["overhead_target_0_10_met"] = figures["overhead"]["overhead_fraction"] < 0.10
+    # The same per-task cost on the benchmark's own logs: two tasks (caption, clips) per log.
+    per_log_s = (serial["caption"][0] + serial["clips"][0]) / n_logs
+    figures["overhead"]["fraction_on_benchmark_logs"] = round(2 * (best_ray - best_serial) / tasks / per_log_s, 4)
+    log_s = n_logs * duration_s
+    cost = {s: log_s / max(serial[s][1], 1e-9) for s in stages}
+    if "cpu_s" in sim:
+        cost["simulate"] = sim["log_s"] / max(sim["cpu_s"], 1e-9)
+    figures["cost"] = {
+        "log_s_per_cpu_s": {s: round(v, 2) for s, v in cost.items()},
+        f"cpu_hours_for_{HOURS}_h": {s: round(HOURS / v, 1) for s, v in cost.items()},
+    }
+    shutil.rmtree(scratch, ignore_errors=True)
+    return figures

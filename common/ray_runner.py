@@ -1,0 +1,216 @@
+"""Run one task per item (one log, usually): serially in this process, or on Ray.
+
+>>> report = run_tasks(caption_one, log_dirs, Execution(workers=2), labels=[str(p) for p in log_dirs])
+>>> [o.value for o in report.outcomes if o.status is TaskStatus.DONE]    # input order, whatever finished first
+
+:class:`~common.ray_cluster.Execution` says where the tasks run: ``Execution()`` in this process,
+one after the other; ``Execution(workers=N)`` on a Ray runtime started here with N CPUs (one task
+per CPU); and ``Execution(address="HOST:PORT" | "auto")`` on an existing Ray cluster (``ray start
+--head`` on its head node). A runtime already started in this process (``ray.init``) is reused and
+left running. Ray is imported only when a task runs on it, so this module works without Ray installed.
+
+Every item gets an :class:`Outcome`, in input order: ``done`` (with the task's value), ``skipped``
+(the task raised :class:`TaskSkipped` or one of the ``skip_on`` errors: bad input, which another
+attempt would not fix), or ``failed`` (any other error, or the worker process died on every
+attempt). A worker that dies (killed, out of memory, a crash in native code) is a *system* failure:
+Ray runs the task again on another worker up to ``max_retries`` times; an exception raised by the
+task itself is not retried. One item's failure never stops the others.
+
+A task's value travels back to the driver (pickled), so tasks return what the driver needs to
+assemble and publish the outputs in input order, and write nothing the driver publishes itself.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import sys
+import time
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass
+from enum import StrEnum
+from typing import Any, Generic, TypeVar
+
+from common.ray_cluster import Execution, cluster_cpus, import_ray, one_line, ray_runtime
+
+R = TypeVar("R")
+
+
+class TaskStatus(StrEnum):
+    """What became of one item."""
+
+    DONE = "done"
+    SKIPPED = "skipped"
+    FAILED = "failed"
+
+
+class TaskSkipped(Exception):
+    """Raised by a task: its item is skipped for the reason given (bad input; not retried)."""
+
+@dataclass(frozen=True)
+class Outcome(Generic[R]):
+    """One item's result: ``value`` when done, ``reason`` when skipped or failed."""
+
+    label: str
+    status: TaskStatus
+    value: R | None = None
+    reason: str = ""
+
+
+@dataclass(frozen=True)
+class RunReport(Generic[R]):
+    """Every item's outcome, in input order."""
+
+    outcomes: list[Outcome[R]]
+    wall_s: float = 0.0
+    execution: str = "serial"
+    noun: str = "item"
+
+    def with_status(self, status: TaskStatus) -> list[Outcome[R]]:
+        return [o for o in self.outcomes if o.status is status]
+
+    @property
+    def values(self) -> list[R]:
+        """The values of the items done, in input order."""
+        return [o.value for o in self.outcomes if o.status is TaskStatus.DONE]  # type: ignore[misc]
+
+    def problems(self) -> list[str]:
+        """One line per item skipped or failed: ``skipped LABEL: reason``."""
+        return [f"{o.status.value} {self.noun} {o.label}: {o.reason}" for o in self.outcomes
+                if o.status is not TaskStatus.DONE]
+
+    def summary(self) -> str:
+        """``3 of 5 logs done, 1 skipped, 1 failed in 2.1 s (Ray, 2 local worker(s))``."""
+        n = len(self.outcomes)
+        done, skipped, failed = (len(self.with_status(s)) for s in TaskStatus)
+        return (f"{done} of {n} {self.noun}s done, {skipped} skipped, {failed} failed in {self.wall_s:.1f} s "
+                f"({self.execution})")
+
+
+def _run_one(fn: Callable[..., Any], item: Any, context: Any, has_context: bool, label: str,
+             skip_on: tuple[type[BaseException], ...]) -> Outcome[Any]:
+    """Run one task and turn what it raised into an outcome (here or in a Ray worker)."""
+    skippable: tuple[type[BaseException], ...] = (TaskSkipped, *skip_on)
+    try:
+        value = fn(item, context) if has_context else fn(item)
+    except skippable as exc:
+        return Outcome(label, TaskStatus.SKIPPED, reason=one_line(exc))
+    except Exception as exc:
+        return Outcome(label, TaskStatus.FAILED, reason=f"{type(exc).__name__}: {one_line(exc)}")
+    return Outcome(label, TaskStatus.DONE, value)
+
+
+def run_tasks(
+    fn: Callable[..., R],
+    items: Sequence[Any],
+    execution: Execution | None = None,
+    *,
+    labels: Sequence[str] | None = None,
+    context: Any = None,
+    skip_on: tuple[type[BaseException], ...] = (),
+    noun: str = "log",
+    num_cpus: float = 1.0,
+) -> RunReport[R]:
+    """Run ``fn(item)`` (``fn(item, context)`` when a context is given) for every item.
+
+    Args:
+        fn: the task; on Ray it must be importable or picklable by cloudpickle (a module-level
+            function is both), and so must its items, context and value.
+        items: one per task.
+        execution: where to run (default: serially, here).
+        labels: how the report names each item (default: ``str(item)``).
+        context: what every task shares (a config, a map), sent to the cluster once.
+        skip_on: errors that mean bad input: the item is skipped with the error's message.
+        noun: what an item is, for the progress bar and the report.
+        num_cpus: CPUs one task reserves on Ray.
+
+    Raises:
+        ClusterError: Ray is not installed, or its cluster cannot be reached.
+    """
+    execution = execution or Execution()
+    names = [str(x) for x in (labels if labels is not None else items)]
+    if len(names) != len(items):
+        raise ValueError(f"{len(names)} labels for {len(items)} items")
+    start = time.perf_counter()
+    has_context = context is not None
+    with _progress(len(items), noun, execution.progress) as advance:
+        if not execution.on_ray or not items:  # nothing to run: no runtime to start
+            outcomes: list[Outcome[Any]] = []
+            for item, name in zip(items, names):
+                outcomes.append(_run_one(fn, item, context, has_context, name, skip_on))
+                advance()
+        else:
+            outcomes = _run_on_ray(fn, items, names, execution, context, has_context, skip_on, num_cpus, advance)
+    return RunReport(outcomes, time.perf_counter() - start, execution.describe(), noun)
+
+
+def _run_on_ray(fn: Callable[..., Any], items: Sequence[Any], names: list[str], execution: Execution,
+                context: Any, has_context: bool, skip_on: tuple[type[BaseException], ...], num_cpus: float,
+                advance: Callable[[], None]) -> list[Outcome[Any]]:
+    ray = import_ray()
+    outcomes: list[Outcome[Any] | None] = [None] * len(items)
+    with ray_runtime(execution) as parallelism:
+        # Where the runtime has no more CPUs than the run's workers, Ray keeps the run to them and a
+        # window twice as wide keeps each worker's next task queued. A cluster, or a runtime started
+        # before, may have more: then the window alone keeps the run to its workers.
+        capped = execution.workers is not None and cluster_cpus(ray) > execution.workers
+        remote = ray.remote(_run_one).options(num_cpus=num_cpus, max_retries=execution.max_retries,
+                                              retry_exceptions=False)
+        fn_ref, context_ref = _shared(ray, fn), _shared(ray, context)
+        # A bounded window of tasks in flight: enough to keep every worker busy, few enough that a
+        # million items do not all sit in the scheduler at once.
+        window = max(1, parallelism if capped else 2 * parallelism)
+        pending: dict[Any, int] = {}
+        submitted = 0
+        while submitted < len(items) or pending:
+            while submitted < len(items) and len(pending) < window:
+                ref = remote.remote(fn_ref, items[submitted], context_ref, has_context, names[submitted], skip_on)
+                pending[ref] = submitted
+                submitted += 1
+            ready, _ = ray.wait(list(pending), num_returns=1)
+            for ref in ready:
+                i = pending.pop(ref)
+                outcomes[i] = _collect(ray, ref, names[i], execution.max_retries)
+                advance()
+    return [o for o in outcomes if o is not None]
+
+
+def _shared(ray: Any, value: Any) -> Any:
+    """What every task gets: small values travel inside each task (Ray inlines them; a reference
+    would cost each task a fetch), large ones are put in the object store once."""
+    import pickle
+
+    try:
+        small = len(ray.cloudpickle.dumps(value, protocol=pickle.HIGHEST_PROTOCOL)) <= _INLINE_BYTES
+    except Exception:  # not picklable here: let Ray say so when it sends the task
+        small = True
+    return value if small else ray.put(value)
+
+
+#: Shared values up to this size travel with each task (Ray inlines arguments below 100 KiB).
+_INLINE_BYTES = 64 * 1024
+
+
+def _collect(ray: Any, ref: Any, label: str, max_retries: int) -> Outcome[Any]:
+    try:
+        outcome: Outcome[Any] = ray.get(ref)
+        return outcome
+    except ray.exceptions.RayTaskError as exc:  # raised outside the task's own handler (unpickling)
+        return Outcome(label, TaskStatus.FAILED, reason=f"{type(exc.cause).__name__}: {one_line(exc.cause)}")
+    except ray.exceptions.RayError as exc:
+        attempts = max_retries + 1
+        return Outcome(label, TaskStatus.FAILED,
+                       reason=f"the worker died on each of {attempts} attempt(s) ({type(exc).__name__}: "
+                              f"{one_line(exc).splitlines()[0][:300]})")
+
+
+@contextlib.contextmanager
+def _progress(total: int, noun: str, show: bool | None) -> Iterator[Callable[[], None]]:
+    enabled = sys.stderr.isatty() if show is None else show
+    if not enabled or total == 0:
+        yield lambda: None
+        return
+    from tqdm import tqdm
+
+    with tqdm(total=total, desc=f"{noun}s", unit=noun, leave=False, file=sys.stderr) as bar:
+        yield lambda: bar.update(1)
+

@@ -1,0 +1,142 @@
+"""One task per item, serially or on Ray: order, skips, failures, retries after a worker died,
+and a clear error for a cluster address that does not answer."""
+
+from __future__ import annotations
+
+import socket
+import sys
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+sys.path.insert(0, str(Path(__file__).parent))
+
+import ray_tasks
+
+from common.ray_cluster import ClusterError, Execution, check_reachable, ray_runtime, split_address
+from common.ray_runner import TaskSkipped, TaskStatus, run_tasks
+
+
+def _square(x: int) -> int:
+    if x == 3:
+        raise TaskSkipped("three is skipped")
+    if x == 4:
+        raise ValueError("four is bad input")
+    if x == 5:
+        raise RuntimeError("five is a bug")
+    return x * x
+
+
+def test_serial_run_keeps_order_and_reports_every_item() -> None:
+    report = run_tasks(_square, [1, 2, 3, 4, 5, 6], labels=list("abcdef"), skip_on=(ValueError,))
+    assert [o.status for o in report.outcomes] == [TaskStatus.DONE] * 2 + [TaskStatus.SKIPPED] * 2 + [
+        TaskStatus.FAILED, TaskStatus.DONE]
+    assert report.values == [1, 4, 36]
+    assert report.problems() == ["skipped log c: three is skipped", "skipped log d: four is bad input",
+                                 "failed log e: RuntimeError: five is a bug"]
+    assert report.summary().startswith("3 of 6 logs done, 2 skipped, 1 failed in ")
+    assert report.execution == "serial"
+
+
+def test_execution_from_flags_and_bad_values() -> None:
+    class Args:
+        workers, ray_address = 3, None
+
+    assert Execution.from_args(Args()) == Execution(workers=3)
+    assert Execution(workers=2).on_ray and not Execution().on_ray
+    with pytest.raises(ValueError, match="--workers must be at least 1"):
+        Execution(workers=0)
+    with pytest.raises(ValueError, match="labels"):
+        run_tasks(_square, [1, 2], labels=["a"])
+
+
+@pytest.mark.parametrize(("address", "expected"), [
+    ("10.0.0.5:6380", ("10.0.0.5", 6380)), ("head", ("head", 6379)), ("ray://head", ("head", 10001)),
+    ("ray://head:1234", ("head", 1234)), ("[::1]:7000", ("::1", 7000)),
+])
+def test_addresses_are_parsed(address: str, expected: tuple[str, int]) -> None:
+    assert split_address(address) == expected
+
+
+def test_bad_addresses_are_named() -> None:
+    with pytest.raises(ClusterError, match="port 'x' is not a number"):
+        split_address("head:x")
+    with pytest.raises(ClusterError, match="expected HOST:PORT"):
+        split_address("http://head:6379")
+
+
+def _closed_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def test_an_unreachable_address_is_a_clear_error_within_seconds() -> None:
+    port = _closed_port()
+    start = time.perf_counter()
+    with pytest.raises(ClusterError, match=rf"cannot reach a Ray cluster at 127.0.0.1:{port}.*ray start --head"):
+        run_tasks(_square, [1], Execution(address=f"127.0.0.1:{port}", connect_timeout_s=2))
+    assert time.perf_counter() - start < 5
+    # A routable address where nothing answers: bounded by the connect timeout, not Ray's minute.
+    start = time.perf_counter()
+    with pytest.raises(ClusterError, match="cannot reach"):
+        check_reachable("192.0.2.1:6379", timeout_s=1.0)  # TEST-NET-1: never routed
+    assert time.perf_counter() - start < 4
+
+
+def test_auto_without_a_cluster_says_how_to_start_one(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
+    monkeypatch.delenv("RAY_ADDRESS", raising=False)
+    monkeypatch.setattr("tempfile.gettempdir", lambda: str(tmp_path))
+    with pytest.raises(ClusterError, match=r"auto: no Ray cluster runs on this machine.*ray start --head"):
+        check_reachable("auto")
+
+
+def test_a_listener_that_is_not_a_ray_head_is_refused_quickly() -> None:
+    pytest.importorskip("ray")
+    server = socket.socket()
+    server.bind(("127.0.0.1", 0))
+    server.listen()
+    port = server.getsockname()[1]
+
+    def answer() -> None:  # an HTTP server, say: it answers, but not in Ray's protocol
+        for _ in range(20):
+            try:
+                conn, _ = server.accept()
+            except OSError:
+                return
+            conn.sendall(b"HTTP/1.1 404 Not Found\r\nContent-Length: 0\r\n\r\n")
+            conn.close()
+
+    thread = threading.Thread(target=answer, daemon=True)
+    thread.start()
+    start = time.perf_counter()
+    try:
+        with pytest.raises(ClusterError, match=f"127.0.0.1:{port}"), \
+                ray_runtime(Execution(address=f"127.0.0.1:{port}", connect_timeout_s=2)):
+            pass
+    finally:
+        server.close()
+    assert time.perf_counter() - start < 8
+
+
+@pytest.mark.usefixtures("ray_local")
+def test_on_ray_order_retries_and_failures(tmp_path: Path) -> None:
+    import ray
+
+    ray.cloudpickle.register_pickle_by_value(ray_tasks)
+    items = ["a", "dies-once", "bad", "dies-always", "bug", "b"]
+    report = run_tasks(ray_tasks.crashing, items, Execution(workers=2, max_retries=1), context=str(tmp_path),
+                       skip_on=(ValueError,))
+    by_label = {o.label: o for o in report.outcomes}
+    assert [o.label for o in report.outcomes] == items
+    # The worker that died on the first attempt was replaced and the task ran again.
+    assert by_label["dies-once"].status is TaskStatus.DONE and (tmp_path / "dies-once.tried").exists()
+    assert by_label["dies-always"].status is TaskStatus.FAILED
+    assert "worker died on each of 2 attempt(s)" in by_label["dies-always"].reason
+    assert (tmp_path / "attempts").read_text() == "xx"
+    assert by_label["bad"].status is TaskStatus.SKIPPED and by_label["bad"].reason == "bad input: no such frame"
+    assert by_label["bug"].status is TaskStatus.FAILED and by_label["bug"].reason == "KeyError: 'oops'"
+    assert by_label["a"].value.startswith("a:") and by_label["b"].value.startswith("b:")  # type: ignore[union-attr]
+    assert "Ray, 2 local worker(s)" in report.summary()

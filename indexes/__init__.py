@@ -3,7 +3,9 @@
 * :class:`VectorIndex` — vectors with the caller's int64 ids (build/search/add/remove/save/load);
 * :class:`ShardedIndex` — the same API over several shards;
 * :class:`ClipIndex` — vectors plus clip metadata, searched with filters such as
-  ``category in {car, truck} and tags contains "left:approach"``.
+  ``category in {car, truck} and tags contains "left:approach"``;
+* :func:`build_on_disk` — a collection larger than memory, from ``.npy`` files, built in parallel
+  shards within a memory budget and merged into one index whose lists stay on disk.
 
 Typical use::
 
@@ -31,6 +33,7 @@ from indexes.errors import (
 )
 from indexes.factory import AutoConfig, FactoryChoice, choose_factory
 from indexes.metadata import MetadataStore
+from indexes.ondisk import MemoryBudgetWarning, OnDiskBuild, OnDiskPlan, build_on_disk, plan_on_disk
 from indexes.sharded import ShardedIndex
 from indexes.vector_index import VectorIndex
 from indexes.vectors import Metric
@@ -49,13 +52,18 @@ __all__ = [
     "InvalidKError",
     "ManifestError",
     "MemoryBudgetError",
+    "MemoryBudgetWarning",
     "MetadataError",
     "MetadataStore",
     "Metric",
+    "OnDiskBuild",
+    "OnDiskPlan",
     "ReadOnlyIndexError",
     "ShardedIndex",
     "UnsupportedFormatError",
     "VectorError",
     "VectorIndex",
+    "build_on_disk",
     "choose_factory",
+    "plan_on_disk",
 ]

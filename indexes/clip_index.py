@@ -26,8 +26,7 @@ from indexes.filters import FilterSpec
 from indexes.integrity import Verify, VerifyLike, verifying
 from indexes.metadata import CLIP_ID, MetadataStore, Rows, rows_to_table
 from indexes.persistence import read_manifest, require_files, resolve_dir, write_manifest, writing_index_dir
-from indexes.vector_index import FILES as VECTOR_FILES
-from indexes.vector_index import VectorIndex, check_k
+from indexes.vector_index import VectorIndex, check_k, files_of
 from indexes.vectors import Metric
 
 KIND = "clip_index"
@@ -229,7 +228,7 @@ class ClipIndex:
         """Load a directory written by :meth:`save`; see :meth:`VectorIndex.load` for the arguments."""
         d = resolve_dir(directory)
         m = read_manifest(d, KIND)
-        require_files(m, d, (*VECTOR_FILES, METADATA_FILE))
+        require_files(m, d, (*files_of(m.extra), METADATA_FILE))
         with verifying(d, m.files, verify):
             vectors = VectorIndex.from_files(d, m.dim, m.metric, m.factory, m.count, m.extra, mmap)
             metadata = MetadataStore.read(d / METADATA_FILE)

@@ -25,6 +25,7 @@ class VectorError(IndexesError, ValueError):
 
     def __init__(self, message: str, row: int | None = None) -> None:
         self.row = row
+        self.reason = message
         super().__init__(message if row is None else f"row {row}: {message}")
 
 

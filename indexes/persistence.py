@@ -177,18 +177,19 @@ def read_faiss_index(path: Path, mmap: bool) -> faiss.Index:
     """Read a FAISS file, memory-mapped on request, turning FAISS's errors into :class:`IndexFileError`."""
     # The returned objects are already of their concrete type; downcasting them again would create
     # a second Python owner-less proxy and is never needed.
-    flags = (faiss.IO_FLAG_MMAP | faiss.IO_FLAG_MMAP_IFC | faiss.IO_FLAG_READ_ONLY) if mmap else 0
-    try:
-        index = faiss.read_index(str(path), flags)
-    except RuntimeError as exc:
-        if mmap:
-            # Kinds FAISS cannot map (e.g. graphs) are read into memory; they stay read-only.
-            try:
-                return faiss.read_index(str(path))
-            except RuntimeError:
-                pass
-        raise IndexFileError(path, f"FAISS cannot read it (truncated or corrupt?): {faiss_message(exc)}") from None
-    return index
+    if not mmap:
+        attempts = [0]
+    else:
+        # Flat codes map with IO_FLAG_MMAP_IFC; IVF lists only with IO_FLAG_MMAP alone (FAISS refuses
+        # the pair for them); kinds FAISS cannot map (e.g. graphs) are read into memory, read-only.
+        read_only = faiss.IO_FLAG_READ_ONLY
+        attempts = [faiss.IO_FLAG_MMAP | faiss.IO_FLAG_MMAP_IFC | read_only, faiss.IO_FLAG_MMAP | read_only, 0]
+    for flags in attempts:
+        try:
+            return faiss.read_index(str(path), flags)
+        except RuntimeError as exc:
+            error = exc
+    raise IndexFileError(path, f"FAISS cannot read it (truncated or corrupt?): {faiss_message(error)}") from None
 
 
 def load_array(path: Path, dtype: type | np.dtype[Any], shape: tuple[int | str, ...]) -> np.ndarray:

@@ -31,9 +31,8 @@ from indexes.persistence import (
     write_manifest,
     writing_index_dir,
 )
-from indexes.vector_index import FILES as SHARD_FILES
 from indexes.vector_index import KIND as SHARD_KIND
-from indexes.vector_index import VectorIndex, check_k
+from indexes.vector_index import VectorIndex, check_k, files_of
 from indexes.vectors import Metric, as_metric, prepare_ids, prepare_vectors
 
 KIND = "sharded_index"
@@ -228,7 +227,7 @@ class ShardedIndex:
             if sha256_file(sub / MANIFEST_NAME) != entry["manifest_sha256"]:
                 raise ManifestError(sub / MANIFEST_NAME, "differs from the checksum in the top manifest")
             sm = read_manifest(sub, SHARD_KIND)
-            require_files(sm, sub, SHARD_FILES)
+            require_files(sm, sub, files_of(sm.extra))
             files.update({f"{name}/{file}": e for file, e in sm.files.items()})
             shard_manifests.append((sub, sm))
         with verifying(d, files, verify):  # one pass over every shard's files, hashed in parallel

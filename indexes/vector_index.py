@@ -28,6 +28,8 @@ closeness; where fewer than k vectors qualify, ``I`` is −1 and ``D`` is −inf
 from __future__ import annotations
 
 import dataclasses
+import os
+import shutil
 from pathlib import Path
 from typing import Any
 
@@ -38,6 +40,14 @@ from indexes.building import IdsLike, prepare_build
 from indexes.errors import IdError, IndexesError, InvalidKError, ManifestError, ReadOnlyIndexError, faiss_message
 from indexes.factory import AutoConfig
 from indexes.integrity import Verify, VerifyLike, verifying
+from indexes.ondisk_lists import (
+    IVFDATA_FILE,
+    LOCATIONS_FILE,
+    ON_DISK,
+    CodeLocator,
+    read_ondisk_index,
+    write_ondisk_index,
+)
 from indexes.persistence import (
     load_ids,
     read_faiss_index,
@@ -66,6 +76,8 @@ IDS_FILE = "ids.npy"
 REMOVED_FILE = "removed.npy"
 TOMBSTONES_FILE = "tombstones.npy"
 FILES = (INDEX_FILE, IDS_FILE, REMOVED_FILE, TOMBSTONES_FILE)
+#: Files an index with on-disk inverted lists has besides :data:`FILES` (see :mod:`indexes.ondisk_lists`).
+ON_DISK_FILES = (IVFDATA_FILE, LOCATIONS_FILE)
 
 # Filters passing at most this many vectors are answered by exact search over just those vectors:
 # cheaper than a selector scan and never short of results.
@@ -82,7 +94,7 @@ class VectorIndex:
 
     def __init__(self, index: faiss.Index, metric: Metric, factory: str, ids: np.ndarray,
                  removed: np.ndarray, tombstones: np.ndarray, info: dict[str, Any] | None = None,
-                 read_only: bool = False) -> None:
+                 read_only: bool = False, locator: CodeLocator | None = None) -> None:
         self._index = index
         self._dim = int(index.d)  # cached: reading a SWIG attribute costs microseconds per query
         self.metric = metric
@@ -91,7 +103,9 @@ class VectorIndex:
         self._removed = np.sort(np.asarray(removed, dtype=np.int64))
         self._tombstones = np.sort(np.asarray(tombstones, dtype=np.int64))
         self.info: dict[str, Any] = dict(info or {})
-        self.read_only = read_only
+        self.read_only = read_only or locator is not None
+        # Set for an index whose inverted lists stay on disk: stored vectors are decoded from there.
+        self._locator = locator
         self._knob = knob_of(index)
         inner = unwrap(index)
         self._is_ivf = faiss.try_extract_index_ivf(inner) is not None
@@ -144,7 +158,15 @@ class VectorIndex:
         """Re-tune ``nprobe``/``efSearch`` on a sample of the vectors now in the index.
 
         Returns the tuning record, also kept in ``info["tuning"]`` and saved in the manifest.
+
+        Raises:
+            IndexesError: the index keeps its lists on disk (it is tuned while it is built, see
+                :func:`indexes.ondisk.build_on_disk`; set :attr:`search_knob` to change it).
         """
+        if self._locator is not None:
+            # Tuning here decodes every vector into memory, which an on-disk collection may not fit.
+            raise IndexesError("an index with on-disk lists is tuned while it is built (build_on_disk(..., "
+                               "tune_recall=True)); set search_knob to change nprobe")
         config = config or AutoConfig()
         if target_recall is not None:
             config = dataclasses.replace(config, target_recall=target_recall)
@@ -180,6 +202,11 @@ class VectorIndex:
     def removed_ids(self) -> np.ndarray:
         """(M,) ids removed so far, sorted; a copy. They are never accepted again."""
         return self._removed.copy()
+
+    @property
+    def on_disk(self) -> bool:
+        """Whether the inverted lists stay on disk (memory-mapped; the index is then read-only)."""
+        return self._locator is not None
 
     @property
     def faiss_index(self) -> faiss.Index:
@@ -330,6 +357,8 @@ class VectorIndex:
             raise IdError("ids not in the index", missing.tolist())
         if len(arr) == 0:
             return np.empty((0, self.dim), dtype=np.float32)
+        if self._locator is not None:
+            return self._locator.reconstruct(np.searchsorted(self._ids, arr))
         try:
             return np.asarray(self._index.reconstruct_batch(arr), dtype=np.float32)
         except RuntimeError as exc:
@@ -393,6 +422,9 @@ class VectorIndex:
         return last + 1
 
     def _check_writable(self) -> None:
+        if self._locator is not None:
+            raise ReadOnlyIndexError("this index keeps its lists on disk and is read-only; build it again with "
+                                     "the new vectors, or serve them beside it (ShardedIndex.from_shards)")
         if self.read_only:
             raise ReadOnlyIndexError("this index was loaded memory-mapped and is read-only; "
                                      "load it with mmap=False to change it")
@@ -407,12 +439,26 @@ class VectorIndex:
 
     def write_files(self, directory: Path) -> dict[str, Any]:
         """Write the index's files into an existing ``directory``; returns the manifest's extra fields."""
-        faiss.write_index(self._index, str(directory / INDEX_FILE))
+        if self._locator is not None:
+            # The lists stay in their file: link it (or copy it, across file systems) beside the new index.
+            for source in self._locator.files:
+                link_or_copy(source, directory / source.name)
+            write_ondisk_index(self._index, directory / INDEX_FILE)
+        else:
+            faiss.write_index(self._index, str(directory / INDEX_FILE))
         np.save(directory / IDS_FILE, self._ids)
         np.save(directory / REMOVED_FILE, self._removed)
         np.save(directory / TOMBSTONES_FILE, self._tombstones)
+        return self.manifest_fields()
+
+    def manifest_fields(self) -> dict[str, Any]:
+        """The manifest's extra fields for this index's files (:meth:`from_files` reads them back)."""
         knob, value = self.search_knob
-        return {"info": self.info, "knob": knob, "knob_value": value, "tombstones": len(self._tombstones)}
+        extra: dict[str, Any] = {"info": self.info, "knob": knob, "knob_value": value,
+                                 "tombstones": len(self._tombstones)}
+        if self._locator is not None:
+            extra["storage"] = ON_DISK
+        return extra
 
     @classmethod
     def load(cls, directory: Path | str, mmap: bool = False, verify: VerifyLike = Verify.CACHED) -> VectorIndex:
@@ -432,7 +478,7 @@ class VectorIndex:
         """
         d = resolve_dir(directory)
         manifest = read_manifest(d, KIND)
-        require_files(manifest, d, FILES)
+        require_files(manifest, d, files_of(manifest.extra))
         with verifying(d, manifest.files, verify):
             return cls.from_files(d, manifest.dim, manifest.metric, manifest.factory, manifest.count,
                                   manifest.extra, mmap)
@@ -446,7 +492,8 @@ class VectorIndex:
             metric = Metric(metric_name)
         except ValueError:
             raise ManifestError(manifest_path, f"unknown metric {metric_name!r}", field="metric") from None
-        index = read_faiss_index(d / INDEX_FILE, mmap)
+        on_disk = extra.get("storage") == ON_DISK
+        index = read_ondisk_index(d / INDEX_FILE) if on_disk else read_faiss_index(d / INDEX_FILE, mmap)
         ids = load_ids(d / IDS_FILE)
         removed = load_ids(d / REMOVED_FILE)
         tombstones = load_ids(d / TOMBSTONES_FILE)
@@ -458,10 +505,24 @@ class VectorIndex:
         if len(ids) != count or index.ntotal != count + len(tombstones):
             raise ManifestError(manifest_path, f"says {count} vectors, {IDS_FILE} has {len(ids)} and "
                                 f"{INDEX_FILE} {index.ntotal} (with {len(tombstones)} tombstones)", field="count")
-        out = cls(index, metric, factory, ids, removed, tombstones, extra.get("info"), read_only=mmap)
+        locator = CodeLocator(d, index, count) if on_disk else None
+        out = cls(index, metric, factory, ids, removed, tombstones, extra.get("info"), read_only=mmap, locator=locator)
         if extra.get("knob") == out._knob.value and extra.get("knob_value"):
             set_knob(index, int(extra["knob_value"]))
         return out
+
+
+def files_of(extra: dict[str, Any]) -> tuple[str, ...]:
+    """The files a manifest with these extra fields must list: :data:`FILES`, plus the on-disk lists'."""
+    return FILES + ON_DISK_FILES if extra.get("storage") == ON_DISK else FILES
+
+
+def link_or_copy(source: Path, target: Path) -> None:
+    """Hard-link ``source`` to ``target`` (instant; both names are only ever read), or copy it."""
+    try:
+        os.link(source, target)
+    except OSError:
+        shutil.copyfile(source, target)
 
 
 def check_k(k: int, size: int) -> None:

@@ -9,6 +9,7 @@ import textwrap
 import time
 from pathlib import Path
 
+import faiss
 import numpy as np
 import pytest
 
@@ -62,6 +63,9 @@ def test_mmap_load_is_read_only_and_equal(tmp_path: Path, data: Data, factory: s
     index.save(tmp_path / "idx")
     mapped = VectorIndex.load(tmp_path / "idx", mmap=True)
     np.testing.assert_array_equal(mapped.search(xq, 5)[1], index.search(xq, 5)[1])
+    ivf = faiss.try_extract_index_ivf(mapped.faiss_index)
+    if ivf is not None:  # the lists are a read-only view of the file, not a copy in memory
+        assert isinstance(faiss.downcast_InvertedLists(ivf.invlists), faiss.OnDiskInvertedLists)
     with pytest.raises(ReadOnlyIndexError):
         mapped.add(xb[:1])
     with pytest.raises(ReadOnlyIndexError):

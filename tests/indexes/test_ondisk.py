@@ -232,7 +232,12 @@ def test_memory_budget_is_checked_up_front() -> None:
 def test_measured_memory_is_reported(built: OnDiskBuild, files: list[Path], tmp_path: Path,
                                      monkeypatch: pytest.MonkeyPatch) -> None:
     assert set(built.peak_memory_bytes) == {"train", "add", "add_task", "merge", "tune"}
-    assert all(0 < b < BUDGET for b in built.peak_memory_bytes.values())
+    # Peaks are the whole process's anonymous memory: whatever this test process held before the build
+    # (other tests' models, in a full run) counts too, so the bound is that plus the budget.
+    from indexes.ondisk_plan import anon_rss_bytes
+
+    held = anon_rss_bytes()
+    assert all(0 < b < held + BUDGET for b in built.peak_memory_bytes.values()), built.peak_memory_bytes
     # A plan that forgets the process itself accepts a budget below what the process already uses:
     # the build finishes and warns with the phases measured above it.
     import indexes.ondisk_plan as ondisk_plan

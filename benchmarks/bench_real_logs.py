@@ -10,6 +10,7 @@ it, or without the fixtures, the benchmark says so and measures nothing.
 
 from __future__ import annotations
 
+import json
 import os
 import tempfile
 from pathlib import Path
@@ -51,8 +52,6 @@ def run(quick: bool) -> dict[str, Any]:
         for argv in steps:
             if main(argv) != 0:
                 return {"error": f"scenesearch {argv[0]} failed"}
-        import json
-
         metrics = json.loads((work / "metrics.json").read_text())
     base = metrics["baselines"]
     figures: dict[str, Any] = {"logs": len(logs), "kitti_sequences": len(sequences), **metrics["counts"]}

@@ -17,8 +17,12 @@ and the first tasks' imports are left out):
 Figures: ``speedup_2_vs_1`` (``ray_1`` / ``ray_2`` wall time of the three stages; target ≥ 1.6)
 and ``speedup_2_vs_serial``, per stage and in total; the embedding's share includes starting
 its actors (a model load each). ``overhead``: caption + clips (no previews) of 8 logs of 2 s,
-serially and on Ray with 1 warm worker, in 5 adjacent pairs: ``overhead_fraction`` = the median
-over pairs of ray_1 / serial − 1 (target < 0.10; pairs cancel the load of the moment),
+serially and on Ray with 1 warm worker, in 9 adjacent pairs (alternating which runs first). The
+serial run is held to one thread (torch, BLAS, OpenMP), as Ray holds a task of 1 CPU, so that the
+figure is what Ray adds and not the second core a serial run's numerics use:
+``overhead_fraction`` = the median over pairs of ray_1 / serial − 1 (target < 0.10; pairs cancel
+the load of the moment); ``overhead_fraction_vs_all_threads`` the same against a serial run with
+torch's default threads, run after each pair,
 ``overhead_fraction_best_of_each``, ``per_task_ms`` (from the best of each), ``empty_task_ms``
 (a task doing nothing, round trip included) and ``fraction_on_benchmark_logs`` (that per-task
 time against the serial caption + clips time of one of the benchmark's logs). ``cost``:
@@ -29,18 +33,22 @@ work on it slows the parallel runs most.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import shutil
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+import torch
 
 WORK = Path(__file__).resolve().parent / "_work" / "scale"
 HOURS = 10_000
+#: Serial / Ray pairs of the overhead measurement.
+PAIRS = 9
 
 
 def _simulated(out: Path, logs: int, duration_s: float, sensors: bool) -> tuple[list[Path], dict[str, float]]:
@@ -117,6 +125,20 @@ def _stages(logs: list[Path], root: Path, run_dir: Path | None, execution: Any, 
     return out
 
 
+@contextlib.contextmanager
+def _threads(n: int) -> Iterator[None]:
+    """Torch's and the native thread pools (BLAS, OpenMP) limited to ``n`` threads inside the block."""
+    from threadpoolctl import threadpool_limits
+
+    before = torch.get_num_threads()
+    torch.set_num_threads(n)
+    try:
+        with threadpool_limits(limits=n):
+            yield
+    finally:
+        torch.set_num_threads(before)
+
+
 def _noop(item: int) -> int:
     return item
 
@@ -149,7 +171,7 @@ def run(quick: bool) -> dict[str, Any]:
     serial["embed"] = _timed(lambda: ModelEmbedder(run_dir).embed_clips(scratch / "clips_serial", view="fused"))
     ray_start_s = 0.0
     noop = 0.0
-    overhead: list[tuple[float, float]] = []
+    overhead: list[tuple[float, float, float]] = []
     results: dict[int, dict[str, tuple[float, float]]] = {}
     for workers in (2, 1):  # as `--workers N` runs: a runtime of N CPUs
         start = time.perf_counter()
@@ -160,10 +182,18 @@ def run(quick: bool) -> dict[str, Any]:
             _stages(tiny, scratch, None, Execution(workers=workers), False, "warm")
             results[workers] = _stages(logs, scratch, run_dir, Execution(workers=workers), True, f"ray{workers}")
             if workers == 1:
-                for _ in range(5):  # adjacent pairs: other work on the machine varies over time
-                    s = _stages(tiny, scratch, None, None, False, "tiny_serial")
-                    r = _stages(tiny, scratch, None, Execution(workers=1), False, "tiny_ray1")
-                    overhead.append((sum(w for w, _ in s.values()), sum(w for w, _ in r.values())))
+                for i in range(PAIRS):  # adjacent pairs, alternating which runs first: the load varies over time
+                    pair: dict[str, dict[str, tuple[float, float]]] = {}
+                    for kind in (("serial", "ray") if i % 2 == 0 else ("ray", "serial")):
+                        if kind == "ray":
+                            pair[kind] = _stages(tiny, scratch, None, Execution(workers=1), False, "tiny_ray1")
+                        else:
+                            with _threads(1):  # the one CPU a Ray task gets (Ray sets its threads to it)
+                                pair[kind] = _stages(tiny, scratch, None, None, False, "tiny_serial")
+                    pair["serial_all_threads"] = _stages(tiny, scratch, None, None, False, "tiny_serial")
+                    serial_s, ray_s, all_s = (sum(w for w, _ in pair[k].values())
+                                              for k in ("serial", "ray", "serial_all_threads"))
+                    overhead.append((serial_s, ray_s, all_s))
                 noop = min(_timed(lambda: run_tasks(_noop, list(range(200)), Execution(workers=1)))[0]
                            for _ in range(3))
         finally:
@@ -185,14 +215,16 @@ def run(quick: bool) -> dict[str, Any]:
     figures["speedup_2_vs_serial"] = {s: _ratio(serial[s][0], ray_2[s][0]) for s in stages} | {
         "total": _ratio(total["serial"], total["ray_2"])}
     figures["target_1_6_met"] = figures["speedup_2_vs_1"]["total"] >= 1.6
-    best_serial, best_ray = min(a for a, _ in overhead), min(b for _, b in overhead)
+    best_serial, best_ray = min(a for a, _, _ in overhead), min(b for _, b, _ in overhead)
     tasks = 2 * len(tiny)  # one caption task and one clips task per log
     figures["overhead"] = {"serial_s": round(best_serial, 3), "ray_1_s": round(best_ray, 3),
-                           "overhead_fraction": round(float(np.median([b / a for a, b in overhead])) - 1.0, 3),
+                           "overhead_fraction": round(float(np.median([b / a for a, b, _ in overhead])) - 1.0, 3),
                            "overhead_fraction_best_of_each": round(best_ray / best_serial - 1.0, 3),
+                           "overhead_fraction_vs_all_threads": round(
+                               float(np.median([b / c for _, b, c in overhead])) - 1.0, 3),
                            "per_task_ms": round(1000 * (best_ray - best_serial) / tasks, 1),
                            "empty_task_ms": round(1000 * noop / 200, 2),
-                           "runs": [[round(a, 3), round(b, 3)] for a, b in overhead]}
+                           "runs": [[round(a, 3), round(b, 3), round(c, 3)] for a, b, c in overhead]}
     figures["overhead_target_0_10_met"] = figures["overhead"]["overhead_fraction"] < 0.10
     # The same per-task cost on the benchmark's own logs: two tasks (caption, clips) per log.
     per_log_s = (serial["caption"][0] + serial["clips"][0]) / n_logs

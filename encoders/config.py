@@ -271,6 +271,10 @@ class TrainConfig(EncodersConfig):
         shuffle_frames: train on clips whose frames are shuffled in time (the bag-of-frames baseline).
         hard_negatives: edits of each clip's steps (``reverse``, ``motion``, ``mirror``) whose captions
             join the batch as extra negatives on the clip → text side (empty: in-batch negatives only).
+        view_weight: weight of the contrastive losses of each view alone (the camera view over the
+            clips with camera, the BEV view over all), added to the fused view's loss (0: fused only).
+            Without them the camera tower, trained only through the fused view where BEV carries
+            most of the signal, barely learns to retrieve alone.
     """
 
     model: DualEncoderConfig = field(default_factory=DualEncoderConfig)
@@ -293,6 +297,7 @@ class TrainConfig(EncodersConfig):
     eval_batch_size: int = 32
     shuffle_frames: bool = False
     hard_negatives: tuple[HardNegative, ...] = ()
+    view_weight: float = 1.0
 
     def __post_init__(self) -> None:
         known = [k.value for k in HardNegative]
@@ -305,7 +310,7 @@ class TrainConfig(EncodersConfig):
         for name in ("epochs", "batch_size", "eval_every", "eval_batch_size"):
             if getattr(self, name) < 1:
                 raise ConfigError(f"TrainConfig.{name} must be >= 1, got {getattr(self, name)}")
-        for name in ("lr", "weight_decay", "warmup_steps", "grad_clip", "num_workers", "tag_weight"):
+        for name in ("lr", "weight_decay", "warmup_steps", "grad_clip", "num_workers", "tag_weight", "view_weight"):
             if getattr(self, name) < 0:
                 raise ConfigError(f"TrainConfig.{name} must be >= 0, got {getattr(self, name)}")
         if self.max_steps_per_epoch < 0:
@@ -328,6 +333,9 @@ class TrainConfig(EncodersConfig):
             data = json.loads(path.read_text(encoding="utf-8"))
         except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
             raise ConfigError(f"{path}: cannot read config ({exc})") from None
+        if isinstance(data, dict):
+            # A run written before the single-view losses trained the fused view only: resume it as it was.
+            data.setdefault("view_weight", 0.0)
         return cls.from_dict(data, source=str(path))
 
     @staticmethod

@@ -66,16 +66,16 @@ def contrastive_loss(
     tag_weight: float = 0.0,
     negatives: torch.Tensor | None = None,
     negative_positives: torch.Tensor | None = None,
-    rows: slice | None = None,
+    rows: slice | torch.Tensor | None = None,
 ) -> torch.Tensor:
     """video: (B, D), text: (B, D) normalised; scale: () ; positives: (B, B) bool → scalar loss.
 
     ``similarity`` (B, B) in [0, 1] weighs non-positive pairs in the ``soft`` variant. ``negatives``
     (M, D) normalised are extra captions for the clip→text side; ``negative_positives`` (B, M) bool
-    marks the ones equal to a clip's own caption (default: none). ``rows`` (default all): the mean is
-    over these clips' and captions' terms only, each still against every column; with the batch
-    gathered from several processes (:mod:`encoders.distributed`) each takes its own rows, and the
-    mean of their losses is the loss of the whole batch.
+    marks the ones equal to a clip's own caption (default: none). ``rows`` (default all; a slice or
+    an index tensor): the mean is over these clips' and captions' terms only, each still against
+    every column; with the batch gathered from several processes (:mod:`encoders.distributed`) each
+    takes its own rows, and the mean of their losses is the loss of the whole batch.
     """
     mine = slice(None) if rows is None else rows
     clips = video if rows is None else video[rows]  # (B or b, D)

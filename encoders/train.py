@@ -214,6 +214,34 @@ def evaluate(
 
 
 # --- training ----------------------------------------------------------------------------------------
+def view_loss(view: torch.Tensor, text: torch.Tensor, scale: torch.Tensor, positives: torch.Tensor,
+              keep: torch.Tensor, dp: Distributed, n_local: int, config: TrainConfig,
+              similarity: torch.Tensor | None, negatives: torch.Tensor, own: torch.Tensor) -> torch.Tensor:
+    """The contrastive loss of one view alone over the whole batch's clips where ``keep`` holds.
+
+    view: (N, D) the whole batch's clip vectors of the view; text: (N, D) their captions; positives,
+    similarity: (N, N); keep: (N,) bool; negatives: (M, D); own: (N, M). Each process takes the mean
+    over its own kept clips, rescaled by its share of them, so that the mean over processes is the
+    loss of the whole batch, as for the fused view. 0 (with a graph) when fewer than 2 clips are kept.
+    """
+    zero = view.sum() * 0.0  # every process's loss reaches every parameter of the view, as in one process
+    index = torch.nonzero(keep).reshape(-1)  # (K,) kept rows of the whole batch
+    if len(index) < 2:
+        return zero
+    mine: torch.Tensor | None = None
+    share = 1.0
+    rows = dp.rows(n_local)
+    if rows is not None:
+        mine = torch.nonzero((index >= rows.start) & (index < rows.stop)).reshape(-1)  # my rows among the kept
+        if len(mine) == 0:
+            return zero
+        share = len(mine) * dp.processes / len(index)
+    loss = contrastive_loss(view[index], text[index], scale, positives[index][:, index], config.loss,
+                            None if similarity is None else similarity[index][:, index], config.tag_weight,
+                            negatives, own[index], rows=mine)
+    return share * loss + zero
+
+
 def _tensorboard(run_dir: Path) -> Any:
     try:
         from torch.utils.tensorboard import SummaryWriter
@@ -346,7 +374,13 @@ def train(
                     own = batch_negatives(whole, config.hard_negatives, all_keys, config.positives, config.seed,
                                           step, negative_paraphrases)[1]
             with torch.autocast(device_type=device.type, dtype=torch.bfloat16, enabled=use_amp):
-                video, texts, scale = model(batch, list(batch["caption"]) + negative_texts)
+                views: dict[str, torch.Tensor] = {}
+                if config.view_weight > 0:  # each tower once; the fused view reuses them
+                    views = model.encode_views(batch)
+                    texts = model.encode_text(list(batch["caption"]) + negative_texts)
+                    video, scale = views["fused"], model.scale()
+                else:
+                    video, texts, scale = model(batch, list(batch["caption"]) + negative_texts)
                 text, negatives = texts[: len(keys)], texts[len(keys) :]  # (B, D), (M, D)
                 video, text, negatives = dp.gather(video), dp.gather(text), dp.gather(negatives)  # whole batch
                 positives = positives_matrix(all_keys, device)
@@ -354,6 +388,13 @@ def train(
                 own_mask = torch.tensor(own, dtype=torch.bool, device=device).reshape(len(all_keys), len(negatives))
                 loss = contrastive_loss(video, text, scale, positives, config.loss, sim, config.tag_weight,
                                         negatives, own_mask, rows=dp.rows(len(keys)))
+                if views:
+                    with_camera = dp.gather(torch.as_tensor(batch["has_camera"], dtype=torch.float32,
+                                                     device=device).reshape(-1)).gt(0.5)  # (B,) whole batch
+                    for name, keep in (("camera", with_camera), ("bev", torch.ones_like(with_camera))):
+                        loss = loss + config.view_weight * view_loss(
+                            dp.gather(views[name]), text, scale, positives, keep, dp, len(keys), config, sim,
+                            negatives, own_mask)
                 if tag_objective is not None:  # tagging hook
                     loss = loss + tag_objective.weight * tag_objective.loss(model.bev_embedding)
             value = dp.mean(float(loss.detach()))  # the whole batch's loss

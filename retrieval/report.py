@@ -145,7 +145,7 @@ def plot_recall_curves(curves: dict[str, Any], out_png: Path) -> bool:
         return False
     plt = _pyplot()
     fig, ax = plt.subplots(figsize=(7, 4.2))
-    styles = {"model": ("fused model", "-", 2.2), "camera": ("camera only", "--", 1.3),
+    styles = {"model": ("fused model", "-", 2.2), "camera": ("camera only (clips it saw)", "--", 1.3),
               "bev": ("BEV only", "--", 1.3), "bag_of_frames": ("bag of frames", ":", 1.6),
               "random": ("random", "-.", 1.3)}
     for key, (label, style, width) in styles.items():
@@ -180,7 +180,7 @@ def metrics_html(metrics: dict[str, Any]) -> str:
     for key in ("R@1", "R@5", "R@10", "median_rank", "mAP"):
         better = "lower is better" if key == "median_rank" else ""
         rows.append((f"text → clip {key} {better}".strip(), _fmt(metrics["text_to_clip"][key]),
-                     _fmt(metrics["views"]["camera"][key]), _fmt(metrics["views"]["bev"][key]),
+                     _fmt((metrics["views"].get("camera") or {}).get(key)), _fmt(metrics["views"]["bev"][key]),
                      _fmt(base["bag_of_frames"]["text_to_clip"][key]), _fmt(base["random"]["text_to_clip"][key])))
     rows.append(("temporal order accuracy", _fmt(metrics["temporal_order_accuracy"]["accuracy"]), "", "",
                  _fmt(base["bag_of_frames"]["temporal_order_accuracy"]["accuracy"]),
@@ -195,6 +195,12 @@ def metrics_html(metrics: dict[str, Any]) -> str:
     out.append(f"<p class='note'>{counts.get('clips')} {html.escape(str(metrics.get('split')))} clips, "
                f"{counts.get('queries')} caption queries, {counts.get('temporal_pairs')} temporal-order pairs. "
                "Queries are the split's unique canonical captions; a clip is relevant when its caption matches.</p>")
+    seen = metrics["views"].get("camera_clips") or {}
+    if seen:
+        out.append(f"<p class='note'>Camera only: over the {seen.get('clips')} clips the camera saw and the "
+                   f"{seen.get('queries')} queries with a relevant one among them; there the fused model's R@5 is "
+                   f"{_fmt((seen.get('fused') or {}).get('R@5'))} and random's "
+                   f"{_fmt((seen.get('random') or {}).get('R@5'))}.</p>")
     return "\n".join(out)
 
 

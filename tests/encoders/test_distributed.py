@@ -52,7 +52,8 @@ B = 4  # clips per process and step (synthetic clips)
 
 class Clips(Dataset[dict[str, Any]]):
     """Synthetic clips with captions, tags and host tags as a clips folder's; camera on a few clips only, so
-    that in the first step one process's share has none and the other's has some."""
+    that in the first step one process's share has none and the other's has some (the camera view's own
+    loss, ``view_weight``, then has kept clips on one process only)."""
 
     def __init__(self, size: int = 16) -> None:
         self.base = SyntheticClipDataset(size, "train", SPEC, seed=1, augment=True)
@@ -83,7 +84,7 @@ def setup(name: str, clips: Path, processes: int) -> tuple[TrainConfig, dict[str
     scale = 2 // processes  # one process takes the whole batch
     if name == "synthetic":
         cfg = dataclasses.replace(tiny, batch_size=B * scale, epochs=3, shuffle_frames=True, loss="soft",
-                                  tag_weight=0.5, hard_negatives=tuple(HardNegative))
+                                  tag_weight=0.5, hard_negatives=tuple(HardNegative), view_weight=0.5)
         return cfg, {"clips_dir": "unused", "datasets": {"train": Clips()}}
     cfg = dataclasses.replace(tiny, batch_size=2 * scale, epochs=2, positives="tags")
     if name == "resumable":

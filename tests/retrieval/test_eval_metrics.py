@@ -25,6 +25,7 @@ from encoders.metrics import (
 )
 from retrieval.embedding import model_hash
 from retrieval.evaluation import (
+    camera_clip_figures,
     caption_generator,
     clip_to_clip_figures,
     evaluate,
@@ -145,7 +146,9 @@ def test_evaluate_with_stand_in_model(tmp_path: Path) -> None:
     for key in ("text_to_clip", "temporal_order_accuracy", "clip_to_clip", "views", "baselines"):
         assert key in metrics
     assert set(metrics["text_to_clip"]) == {"R@1", "R@5", "R@10", "median_rank", "mAP"}
-    assert set(metrics["views"]) == {"camera", "bev"}
+    assert set(metrics["views"]) == {"camera", "bev", "camera_clips"}
+    seen = metrics["views"]["camera_clips"]
+    assert set(seen) == {"clips", "queries", "fused", "random"} and 0 < seen["clips"] <= metrics["counts"]["clips"]
     assert set(metrics["baselines"]) == {"random", "bag_of_frames", "rule_captions"}
     # Rule-caption search over the clips' own captions finds a caption query's words far above chance, but
     # the frozen sentence encoder hardly sees the order of steps, so reversed captions compete at rank 1.
@@ -190,3 +193,17 @@ def test_text_order_and_freeform_figures() -> None:
     relevant = np.array([[1, 0], [0, 0]], dtype=bool)
     assert freeform_figures(np.array([[1.0, 0.0], [0.0, 1.0]]), relevant, k=1) == \
         {"queries": 2, "answered": 1, "precision@1": 1.0}
+
+
+def test_camera_view_is_measured_over_the_clips_the_camera_saw() -> None:
+    # 2 queries, 4 clips; the camera saw clips 0 and 2 only. Query 1's only relevant clip (3) is out of view.
+    relevant = np.array([[1, 0, 1, 0], [0, 0, 0, 1]], dtype=bool)
+    camera = np.array([[0.1, 0.9, 0.8, 0.9], [0.5, 0.5, 0.5, 0.5]])  # clip 1 would outrank clip 0 if it counted
+    fused = np.array([[0.9, 0.1, 0.2, 0.3], [0.1, 0.2, 0.3, 0.9]])
+    out = camera_clip_figures({"camera": camera, "fused": fused}, relevant, [True, False, True, False])
+    assert out["counts"] == {"clips": 2, "queries": 1}
+    assert out["camera"]["R@1"] == 1.0  # among clips 0 and 2, clip 2 (relevant) comes first
+    assert out["camera"]["mAP"] == 1.0 and out["fused"]["mAP"] == 1.0  # both camera clips are relevant
+    assert out["random"]["R@1"] == 1.0 and len(out["curve"]) > 0
+    none = camera_clip_figures({"camera": camera, "fused": fused}, relevant, [False, True, False, False])
+    assert none["camera"] is None and none["counts"] == {"clips": 1, "queries": 0}

@@ -1,0 +1,80 @@
+"""The single-view losses of training (``view_weight``): the camera view over the clips with camera."""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import cast
+
+import pytest
+import torch
+import torch.nn.functional as F
+
+from encoders.config import ConfigError, TrainConfig
+from encoders.distributed import Distributed
+from encoders.loss import contrastive_loss, positives_matrix
+from encoders.train import view_loss
+
+N, D, M = 8, 16, 3  # whole batch, embedding width, extra negatives
+
+
+class Ranks:
+    """The part of :class:`encoders.distributed.Distributed` that ``view_loss`` reads, for process ``rank``."""
+
+    def __init__(self, rank: int, processes: int) -> None:
+        self.rank, self.processes = rank, processes
+
+    def rows(self, n: int) -> slice | None:
+        return slice(self.rank * n, (self.rank + 1) * n) if self.processes > 1 else None
+
+
+def batch() -> dict[str, torch.Tensor]:
+    g = torch.Generator().manual_seed(0)
+    keys = ["a", "b", "a", "c", "d", "b", "e", "f"]
+    return {"view": F.normalize(torch.randn(N, D, generator=g), dim=-1),
+            "text": F.normalize(torch.randn(N, D, generator=g), dim=-1),
+            "negatives": F.normalize(torch.randn(M, D, generator=g), dim=-1),
+            "own": torch.zeros(N, M, dtype=torch.bool), "positives": positives_matrix(keys),
+            "scale": torch.tensor(10.0)}
+
+
+def loss_of(dp: Ranks, keep: torch.Tensor, n_local: int) -> torch.Tensor:
+    b = batch()
+    return view_loss(b["view"], b["text"], b["scale"], b["positives"], keep, cast(Distributed, dp), n_local,
+                     TrainConfig(), None, b["negatives"], b["own"])
+
+
+def test_one_process_takes_the_kept_clips_only() -> None:
+    b = batch()
+    keep = torch.tensor([1, 0, 1, 1, 0, 1, 1, 0], dtype=torch.bool)
+    i = torch.nonzero(keep).reshape(-1)
+    expected = contrastive_loss(b["view"][i], b["text"][i], b["scale"], b["positives"][i][:, i],
+                                negatives=b["negatives"], negative_positives=b["own"][i])
+    assert torch.allclose(loss_of(Ranks(0, 1), keep, N), expected)
+
+
+def test_processes_average_to_the_whole_batch_loss_whatever_their_share() -> None:
+    # Process 0 holds 1 kept clip of its 4, process 1 holds 3: unequal shares must not tilt the mean.
+    keep = torch.tensor([1, 0, 0, 0, 1, 1, 1, 0], dtype=torch.bool)
+    whole = loss_of(Ranks(0, 1), keep, N)
+    parts = [loss_of(Ranks(r, 2), keep, N // 2) for r in range(2)]
+    assert torch.allclose((parts[0] + parts[1]) / 2, whole, atol=1e-6)
+    # A process with no kept clip adds 0, still through the view (every process's graph reaches it).
+    none = torch.tensor([0, 0, 0, 0, 1, 1, 1, 0], dtype=torch.bool)
+    assert float(loss_of(Ranks(0, 2), none, N // 2)) == 0.0
+    assert torch.allclose(loss_of(Ranks(1, 2), none, N // 2) / 2, loss_of(Ranks(0, 1), none, N), atol=1e-6)
+
+
+def test_fewer_than_two_kept_clips_give_zero_with_a_graph() -> None:
+    b = batch()
+    view = b["view"].clone().requires_grad_(True)
+    keep = torch.zeros(N, dtype=torch.bool)
+    keep[3] = True
+    loss = view_loss(view, b["text"], b["scale"], b["positives"], keep, cast(Distributed, Ranks(0, 1)), N,
+                     TrainConfig(), None, b["negatives"], b["own"])
+    loss.backward()
+    assert float(loss.detach()) == 0.0 and view.grad is not None and float(view.grad.abs().sum()) == 0.0
+
+
+def test_view_weight_is_checked() -> None:
+    with pytest.raises(ConfigError, match="view_weight must be >= 0"):
+        dataclasses.replace(TrainConfig(), view_weight=-1.0)

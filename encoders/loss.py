@@ -108,3 +108,32 @@ def contrastive_loss(
     # Built after the clip → text side, as it always was: the gradient sums in the same order.
     t2v_logits = logits.T if rows is None else scale * text[rows].float() @ video.float().T  # caption i vs clip j
     return 0.5 * (v2t + side(t2v_logits, target.T[mine]))
+
+
+def view_loss(view: torch.Tensor, text: torch.Tensor, scale: torch.Tensor, positives: torch.Tensor,
+              keep: torch.Tensor, rows: slice | None, processes: int, variant: str = "multi_positive",
+              similarity: torch.Tensor | None = None, tag_weight: float = 0.0,
+              negatives: torch.Tensor | None = None, own: torch.Tensor | None = None) -> torch.Tensor:
+    """The contrastive loss of one view alone over the whole batch's clips where ``keep`` holds.
+
+    view: (N, D) the whole batch's clip vectors of the view; text: (N, D) their captions; positives,
+    similarity: (N, N); keep: (N,) bool; negatives: (M, D); own: (N, M). ``rows``: this process's
+    rows of the whole batch (None on one process) out of ``processes``. Each process takes the mean
+    over its own kept clips, rescaled by its share of them, so that the mean over processes is the
+    loss of the whole batch, as for the fused view. 0 (with a graph) when fewer than 2 clips are kept.
+    """
+    zero = view.sum() * 0.0  # every process's loss reaches every parameter of the view, as in one process
+    index = torch.nonzero(keep).reshape(-1)  # (K,) kept rows of the whole batch
+    if len(index) < 2:
+        return zero
+    mine: torch.Tensor | None = None
+    share = 1.0
+    if rows is not None:
+        mine = torch.nonzero((index >= rows.start) & (index < rows.stop)).reshape(-1)  # my rows among the kept
+        if len(mine) == 0:
+            return zero
+        share = len(mine) * processes / len(index)
+    loss = contrastive_loss(view[index], text[index], scale, positives[index][:, index], variant,
+                            None if similarity is None else similarity[index][:, index], tag_weight,
+                            negatives, None if own is None else own[index], rows=mine)
+    return share * loss + zero

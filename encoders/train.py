@@ -67,7 +67,7 @@ from encoders.config import TrainConfig
 from encoders.data import AugmentConfig
 from encoders.distributed import Distributed
 from encoders.inference import collate, embed_dataset, embed_texts, open_split, resolve_device
-from encoders.loss import contrastive_loss, positives_matrix, tag_similarity
+from encoders.loss import contrastive_loss, positives_matrix, tag_similarity, view_loss
 from encoders.metrics import relevance_by_caption, text_to_clip_metrics
 from encoders.model import DualEncoder
 from encoders.model_card import model_card
@@ -214,34 +214,6 @@ def evaluate(
 
 
 # --- training ----------------------------------------------------------------------------------------
-def view_loss(view: torch.Tensor, text: torch.Tensor, scale: torch.Tensor, positives: torch.Tensor,
-              keep: torch.Tensor, dp: Distributed, n_local: int, config: TrainConfig,
-              similarity: torch.Tensor | None, negatives: torch.Tensor, own: torch.Tensor) -> torch.Tensor:
-    """The contrastive loss of one view alone over the whole batch's clips where ``keep`` holds.
-
-    view: (N, D) the whole batch's clip vectors of the view; text: (N, D) their captions; positives,
-    similarity: (N, N); keep: (N,) bool; negatives: (M, D); own: (N, M). Each process takes the mean
-    over its own kept clips, rescaled by its share of them, so that the mean over processes is the
-    loss of the whole batch, as for the fused view. 0 (with a graph) when fewer than 2 clips are kept.
-    """
-    zero = view.sum() * 0.0  # every process's loss reaches every parameter of the view, as in one process
-    index = torch.nonzero(keep).reshape(-1)  # (K,) kept rows of the whole batch
-    if len(index) < 2:
-        return zero
-    mine: torch.Tensor | None = None
-    share = 1.0
-    rows = dp.rows(n_local)
-    if rows is not None:
-        mine = torch.nonzero((index >= rows.start) & (index < rows.stop)).reshape(-1)  # my rows among the kept
-        if len(mine) == 0:
-            return zero
-        share = len(mine) * dp.processes / len(index)
-    loss = contrastive_loss(view[index], text[index], scale, positives[index][:, index], config.loss,
-                            None if similarity is None else similarity[index][:, index], config.tag_weight,
-                            negatives, own[index], rows=mine)
-    return share * loss + zero
-
-
 def _tensorboard(run_dir: Path) -> Any:
     try:
         from torch.utils.tensorboard import SummaryWriter
@@ -393,8 +365,8 @@ def train(
                                                      device=device).reshape(-1)).gt(0.5)  # (B,) whole batch
                     for name, keep in (("camera", with_camera), ("bev", torch.ones_like(with_camera))):
                         loss = loss + config.view_weight * view_loss(
-                            dp.gather(views[name]), text, scale, positives, keep, dp, len(keys), config, sim,
-                            negatives, own_mask)
+                            dp.gather(views[name]), text, scale, positives, keep, dp.rows(len(keys)), dp.processes,
+                            config.loss, sim, config.tag_weight, negatives, own_mask)
                 if tag_objective is not None:  # tagging hook
                     loss = loss + tag_objective.weight * tag_objective.loss(model.bev_embedding)
             value = dp.mean(float(loss.detach()))  # the whole batch's loss

@@ -44,6 +44,7 @@ from encoders.metrics import (
     text_to_clip_figures,
 )
 from retrieval.captions_search import CaptionSearch, TextEncoder
+from retrieval.clip_neighbours import clip_to_clip_figures, random_clip_to_clip
 from retrieval.embedding import Embedder, ModelEmbedder, SentenceEncoder
 from retrieval.freeform import FREEFORM_QUERIES, FreeformQuery, freeform_relevance
 
@@ -144,84 +145,6 @@ def caption_generator(category: str, host_tags: Sequence[str]) -> Callable[[Sequ
     from encoders.negatives import render_caption
 
     return lambda tags: render_caption(category, tags, host_tags)
-
-
-# ---------------------------------------------------------------------- clip → clip
-
-
-def clip_to_clip_figures(x: np.ndarray, actions: Sequence[str], appearance: Sequence[str],
-                         k: int = 5, logs: Sequence[str] | None = None) -> dict[str, float | None]:
-    """Action precision@k of each clip's nearest neighbours, and how appearance biases them.
-
-    ``appearance_bias`` is the rate at which neighbours that differ in action share the query's
-    appearance (time of day, weather), divided by that rate among all clips that differ in action:
-    1 means neighbours are no more alike in appearance than chance, lower is better. None when no
-    clip differs from another in appearance. Appearance is drawn per log, so where a split's logs
-    each have their own, sharing appearance is sharing the log, with its place, traffic and ego
-    motion: ``same_log_share_neighbours`` / ``_chance`` (with ``logs``) say how often neighbours
-    that differ in action come from the query's own log, against all such clips.
-
-    Args:
-        x: (N, D) L2-normalised clip embeddings.
-        actions: (N,) each clip's unified tag sequence as one string.
-        appearance: (N,) each clip's appearance key.
-        logs: (N,) each clip's log id.
-    """
-    x = np.asarray(x, dtype=np.float32)
-    n = len(x)
-    if n < 2:
-        raise ValueError(f"clip → clip needs at least 2 clips, got {n}")
-    k = min(k, n - 1)
-    sim = x @ x.T
-    np.fill_diagonal(sim, -np.inf)
-    # Equal scores (clips with the same caption, under rule captions) are ranked in a seeded random
-    # order: table order would favour whichever log comes first.
-    tiebreak = np.broadcast_to(np.random.default_rng(0).random(n), sim.shape)
-    nn = np.lexsort((tiebreak, -sim), axis=1)[:, :k]
-    figures = _neighbour_figures(nn, actions, appearance, k)
-    if logs is not None:
-        same_log = _neighbour_figures(nn, actions, logs, k)
-        figures["same_log_share_neighbours"] = same_log["appearance_share_neighbours"]
-        figures["same_log_share_chance"] = same_log["appearance_share_chance"]
-    return figures
-
-
-def random_clip_to_clip(actions: Sequence[str], appearance: Sequence[str], k: int = 5) -> dict[str, float | None]:
-    """Expected clip → clip figures of random neighbours (analytic)."""
-    act = np.asarray(list(actions), dtype=object)
-    app = np.asarray(list(appearance), dtype=object)
-    n = len(act)
-    same_action = act[:, None] == act[None, :]
-    np.fill_diagonal(same_action, False)
-    precision = float(np.mean(same_action.sum(axis=1) / (n - 1)))
-    has_variety = len(set(app.tolist())) > 1
-    chance = _chance_appearance_rate(act, app)
-    return {f"action_precision@{k}": precision, "appearance_bias": 1.0 if has_variety else None,
-            "appearance_share_neighbours": chance, "appearance_share_chance": chance}
-
-
-def _neighbour_figures(nn: np.ndarray, actions: Sequence[str], appearance: Sequence[str],
-                       k: int) -> dict[str, float | None]:
-    act = np.asarray(list(actions), dtype=object)
-    app = np.asarray(list(appearance), dtype=object)
-    same_action = act[nn] == act[:, None]
-    precision = float(np.mean(same_action))
-    differ = ~same_action
-    share = float(np.mean((app[nn] == app[:, None])[differ])) if differ.any() else None
-    chance = _chance_appearance_rate(act, app)
-    bias = None
-    if share is not None and chance is not None and chance > 0 and len(set(app.tolist())) > 1:
-        bias = share / chance
-    return {f"action_precision@{k}": precision, "appearance_bias": bias,
-            "appearance_share_neighbours": share, "appearance_share_chance": chance}
-
-
-def _chance_appearance_rate(act: np.ndarray, app: np.ndarray) -> float | None:
-    differ = act[:, None] != act[None, :]
-    if not differ.any():
-        return None
-    same_app = app[:, None] == app[None, :]
-    return float(same_app[differ].mean())
 
 
 def text_order_figures(t_true: np.ndarray, t_reversed: np.ndarray) -> dict[str, float | int | None]:

@@ -27,11 +27,9 @@ from retrieval.embedding import model_hash
 from retrieval.evaluation import (
     camera_clip_figures,
     caption_generator,
-    clip_to_clip_figures,
     evaluate,
     freeform_figures,
     metrics_table,
-    random_clip_to_clip,
     random_text_to_clip,
     reverse_steps,
     temporal_order_accuracy,
@@ -116,24 +114,6 @@ def test_reversal_uses_captioning_text() -> None:
     rev = reverse_steps(tags, caption, generate)
     assert rev is not None and rev != caption and rev.startswith("The ego vehicle")
     assert "then" in rev and rev.index("move") < rev.index("approach")
-
-
-def test_clip_to_clip_figures() -> None:
-    # Two actions, two appearances; embeddings cluster by appearance → biased, imprecise neighbours.
-    actions = ["go", "stop"] * 6
-    appearance = ["day"] * 6 + ["night"] * 6
-    x = np.array([[1.0, 0.0] if a == "day" else [0.0, 1.0] for a in appearance]) + \
-        np.random.default_rng(0).normal(0, 0.01, (12, 2))
-    x /= np.linalg.norm(x, axis=1, keepdims=True)
-    by_look = clip_to_clip_figures(x, actions, appearance, k=5)
-    assert by_look["appearance_bias"] is not None and by_look["appearance_bias"] > 1.5
-    y = np.array([[1.0, 0.0] if a == "go" else [0.0, 1.0] for a in actions]) + \
-        np.random.default_rng(1).normal(0, 0.01, (12, 2))
-    by_action = clip_to_clip_figures(y / np.linalg.norm(y, axis=1, keepdims=True), actions, appearance, k=5)
-    assert by_action["action_precision@5"] == 1.0
-    chance = random_clip_to_clip(actions, appearance, k=5)
-    assert chance["action_precision@5"] == pytest.approx(5 / 11)
-    assert chance["appearance_bias"] == 1.0
 
 
 def test_evaluate_with_stand_in_model(tmp_path: Path) -> None:

@@ -3,22 +3,19 @@
 from __future__ import annotations
 
 import dataclasses
-from typing import cast
 
 import pytest
 import torch
 import torch.nn.functional as F
 
 from encoders.config import ConfigError, TrainConfig
-from encoders.distributed import Distributed
-from encoders.loss import contrastive_loss, positives_matrix
-from encoders.train import view_loss
+from encoders.loss import contrastive_loss, positives_matrix, view_loss
 
 N, D, M = 8, 16, 3  # whole batch, embedding width, extra negatives
 
 
 class Ranks:
-    """The part of :class:`encoders.distributed.Distributed` that ``view_loss`` reads, for process ``rank``."""
+    """Process ``rank`` of ``processes``: its rows of the whole batch, as :class:`encoders.distributed.Distributed`."""
 
     def __init__(self, rank: int, processes: int) -> None:
         self.rank, self.processes = rank, processes
@@ -39,8 +36,8 @@ def batch() -> dict[str, torch.Tensor]:
 
 def loss_of(dp: Ranks, keep: torch.Tensor, n_local: int) -> torch.Tensor:
     b = batch()
-    return view_loss(b["view"], b["text"], b["scale"], b["positives"], keep, cast(Distributed, dp), n_local,
-                     TrainConfig(), None, b["negatives"], b["own"])
+    return view_loss(b["view"], b["text"], b["scale"], b["positives"], keep, dp.rows(n_local), dp.processes,
+                     negatives=b["negatives"], own=b["own"])
 
 
 def test_one_process_takes_the_kept_clips_only() -> None:
@@ -69,8 +66,8 @@ def test_fewer_than_two_kept_clips_give_zero_with_a_graph() -> None:
     view = b["view"].clone().requires_grad_(True)
     keep = torch.zeros(N, dtype=torch.bool)
     keep[3] = True
-    loss = view_loss(view, b["text"], b["scale"], b["positives"], keep, cast(Distributed, Ranks(0, 1)), N,
-                     TrainConfig(), None, b["negatives"], b["own"])
+    loss = view_loss(view, b["text"], b["scale"], b["positives"], keep, None, 1, negatives=b["negatives"],
+                     own=b["own"])
     loss.backward()
     assert float(loss.detach()) == 0.0 and view.grad is not None and float(view.grad.abs().sum()) == 0.0
 

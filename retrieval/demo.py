@@ -75,7 +75,7 @@ class DemoConfig:
     bev_resolution_m: float = 1.25
     epochs: int | None = 12
     batch_size: int | None = 16
-    tag_weight: float | None = 0.2
+    tag_weight: float | None = 1.0
     train_preset: str | None = None
     sensors: bool = True
     queries: tuple[str, ...] = DEFAULT_QUERIES

@@ -66,27 +66,36 @@ class DualEncoder(nn.Module):
         elif view == "bev":
             x = self._bev(batch)
         else:
-            has_camera = torch.as_tensor(batch["has_camera"], dtype=torch.bool, device=self.device).reshape(-1)
-            bev = self._bev(batch)  # (B, D)
-            camera = torch.zeros_like(bev)
-            # run_camera: in data-parallel training another process's clips may have camera; every process
-            # then runs the tower, whose batch norms share the whole batch's statistics (encoders.distributed).
-            if bool(has_camera.any()) or bool(batch.get("run_camera", False)):
-                camera = self.camera(self._get(batch, "camera"))  # (B, D)
-            x = self.fusion(camera, bev, has_camera)
+            x = self.fusion(*self._towers(batch, camera_always=False))
         return F.normalize(x, dim=-1) if normalize else x
 
-    def encode_views(self, batch: dict[str, Any], normalize: bool = True) -> dict[str, torch.Tensor]:
+    def encode_views(self, batch: dict[str, Any], normalize: bool = True,
+                     camera_always: bool = True) -> dict[str, torch.Tensor]:
         """All three views of a batch at the cost of one: each tower runs once, fusion reuses them.
 
         Returns ``{"camera": (B, D), "bev": (B, D), "fused": (B, D)}``, equal to
-        :meth:`encode_video` with each view.
+        :meth:`encode_video` with each view. ``camera_always=False`` skips the camera tower when no
+        clip of the batch has camera (training: the camera view then has nothing to learn from);
+        the camera vectors are then zero and the fused ones are still :meth:`encode_video`'s.
         """
-        has_camera = torch.as_tensor(batch["has_camera"], dtype=torch.bool, device=self.device).reshape(-1)
-        camera = self.camera(self._get(batch, "camera"))  # (B, D)
-        bev = self._bev(batch)  # (B, D)
+        camera, bev, has_camera = self._towers(batch, camera_always)
         out = {"camera": camera, "bev": bev, "fused": self.fusion(camera, bev, has_camera)}
         return {k: F.normalize(v, dim=-1) for k, v in out.items()} if normalize else out
+
+    def _towers(self, batch: dict[str, Any], camera_always: bool) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """→ camera (B, D), BEV (B, D) and ``has_camera`` (B,) bool, what the fusion reads.
+
+        The camera tower runs when ``camera_always``, or when some clip has camera, or when the batch
+        says ``run_camera``: in data-parallel training another process's clips may have camera; every
+        process then runs the tower, whose batch norms share the whole batch's statistics
+        (encoders.distributed). Otherwise the camera vectors are zero (the fusion uses BEV alone).
+        """
+        has_camera = torch.as_tensor(batch["has_camera"], dtype=torch.bool, device=self.device).reshape(-1)
+        bev = self._bev(batch)  # (B, D)
+        camera = torch.zeros_like(bev)
+        if camera_always or bool(has_camera.any()) or bool(batch.get("run_camera", False)):
+            camera = self.camera(self._get(batch, "camera"))  # (B, D)
+        return camera, bev, has_camera
 
     def bev_embedding(self, batch: dict[str, Any]) -> torch.Tensor:
         """batch: collated clips → E (B, T, D_e, Hb/r, Wb/r), the universal BEV embedding."""

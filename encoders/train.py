@@ -348,7 +348,7 @@ def train(
             with torch.autocast(device_type=device.type, dtype=torch.bfloat16, enabled=use_amp):
                 views: dict[str, torch.Tensor] = {}
                 if config.view_weight > 0:  # each tower once; the fused view reuses them
-                    views = model.encode_views(batch)
+                    views = model.encode_views(batch, camera_always=False)  # no camera clip: nothing to run it on
                     texts = model.encode_text(list(batch["caption"]) + negative_texts)
                     video, scale = views["fused"], model.scale()
                 else:

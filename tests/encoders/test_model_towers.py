@@ -137,6 +137,24 @@ def test_encode_views_equals_encode_video_per_view() -> None:
             torch.testing.assert_close(views[view], model.encode_video(batch, view=view), rtol=1e-5, atol=1e-5)
 
 
+def test_encode_views_can_skip_the_camera_tower_when_no_clip_has_camera() -> None:
+    torch.manual_seed(0)
+    model = DualEncoder(tiny_model_config()).eval()
+    ds = SyntheticClipDataset(4, spec=SPEC, seed=3)
+    batch = collate_clips([ds[i] for i in range(4)])
+    batch["has_camera"] = torch.zeros(4, dtype=torch.bool)
+    calls: list[int] = []
+    model.camera.register_forward_hook(lambda *_: calls.append(1))
+    with torch.no_grad():
+        views = model.encode_views(batch, camera_always=False)
+        assert not calls and float(views["camera"].abs().sum()) == 0.0
+        torch.testing.assert_close(views["fused"], model.encode_video(batch), rtol=1e-5, atol=1e-5)
+        torch.testing.assert_close(views["bev"], model.encode_video(batch, view="bev"), rtol=1e-5, atol=1e-5)
+        batch["has_camera"] = torch.tensor([False, True, False, False])  # one clip with camera: the tower runs
+        model.encode_views(batch, camera_always=False)
+        assert calls
+
+
 def test_uint8_batches_are_converted_on_the_device(model: DualEncoder, batch: dict[str, Any]) -> None:
     # Quantise the float views to bytes, as `ClipDataset(as_uint8=True)` delivers them.
     as_bytes = dict(batch)

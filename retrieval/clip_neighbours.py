@@ -23,7 +23,10 @@ def clip_to_clip_figures(x: np.ndarray, actions: Sequence[str], appearance: Sequ
     clip differs from another in appearance. Appearance is drawn per log, so where a split's logs
     each have their own, sharing appearance is sharing the log, with its place, traffic and ego
     motion: ``same_log_share_neighbours`` / ``_chance`` (with ``logs``) say how often neighbours
-    that differ in action come from the query's own log, against all such clips.
+    that differ in action come from the query's own log, against all such clips. The look apart from
+    the log is measured among other logs' clips only: ``action_precision@k_other_logs`` and
+    ``appearance_bias_other_logs`` are the same figures for each clip's k nearest neighbours from other
+    logs, against chance among other logs' clips (None where no two logs share an appearance).
 
     Args:
         x: (N, D) L2-normalised clip embeddings.
@@ -47,11 +50,40 @@ def clip_to_clip_figures(x: np.ndarray, actions: Sequence[str], appearance: Sequ
         same_log = _neighbour_figures(nn, actions, logs, k)
         figures["same_log_share_neighbours"] = same_log["appearance_share_neighbours"]
         figures["same_log_share_chance"] = same_log["appearance_share_chance"]
+        figures.update(_other_log_figures(sim, tiebreak, actions, appearance, logs, k))
     return figures
 
 
-def random_clip_to_clip(actions: Sequence[str], appearance: Sequence[str], k: int = 5) -> dict[str, float | None]:
-    """Expected clip → clip figures of random neighbours (analytic)."""
+def _other_log_figures(sim: np.ndarray, tiebreak: np.ndarray, actions: Sequence[str], appearance: Sequence[str],
+                       logs: Sequence[str], k: int) -> dict[str, float | None]:
+    """Action precision@k and appearance bias of each clip's k nearest neighbours from other logs.
+
+    Args:
+        sim: (N, N) clip × clip scores, the diagonal −inf.
+        tiebreak: (N, N) secondary sort key for equal scores.
+    """
+    act = np.asarray(list(actions), dtype=object)
+    app = np.asarray(list(appearance), dtype=object)
+    log = np.asarray(list(logs), dtype=object)
+    other = log[:, None] != log[None, :]  # (N, N)
+    nn = np.lexsort((tiebreak, -np.where(other, sim, -np.inf)), axis=1)[:, :k]  # (N, k)
+    valid = np.take_along_axis(other, nn, axis=1)  # False where a clip has fewer than k other-log clips
+    if not valid.any():
+        return {f"action_precision@{k}_other_logs": None, "appearance_bias_other_logs": None}
+    same_action = act[nn] == act[:, None]
+    differ = valid & ~same_action
+    share = float(np.mean((app[nn] == app[:, None])[differ])) if differ.any() else None
+    pairs = other & (act[:, None] != act[None, :])
+    chance = float((app[:, None] == app[None, :])[pairs].mean()) if pairs.any() else None
+    bias = share / chance if share is not None and chance else None
+    return {f"action_precision@{k}_other_logs": float(same_action[valid].mean()), "appearance_bias_other_logs": bias,
+            "appearance_share_neighbours_other_logs": share, "appearance_share_chance_other_logs": chance}
+
+
+def random_clip_to_clip(actions: Sequence[str], appearance: Sequence[str], k: int = 5,
+                        logs: Sequence[str] | None = None) -> dict[str, float | None]:
+    """Expected clip → clip figures of random neighbours (analytic); with ``logs``, also among other
+    logs' clips."""
     act = np.asarray(list(actions), dtype=object)
     app = np.asarray(list(appearance), dtype=object)
     n = len(act)
@@ -60,8 +92,20 @@ def random_clip_to_clip(actions: Sequence[str], appearance: Sequence[str], k: in
     precision = float(np.mean(same_action.sum(axis=1) / (n - 1)))
     has_variety = len(set(app.tolist())) > 1
     chance = _chance_appearance_rate(act, app)
-    return {f"action_precision@{k}": precision, "appearance_bias": 1.0 if has_variety else None,
-            "appearance_share_neighbours": chance, "appearance_share_chance": chance}
+    figures: dict[str, float | None] = {
+        f"action_precision@{k}": precision, "appearance_bias": 1.0 if has_variety else None,
+        "appearance_share_neighbours": chance, "appearance_share_chance": chance}
+    if logs is not None:
+        log = np.asarray(list(logs), dtype=object)
+        other = log[:, None] != log[None, :]
+        count = other.sum(axis=1)
+        has = count > 0
+        figures[f"action_precision@{k}_other_logs"] = (
+            float(np.mean((same_action & other).sum(axis=1)[has] / count[has])) if has.any() else None)
+        pairs = other & (act[:, None] != act[None, :])
+        shared = bool(pairs.any() and (app[:, None] == app[None, :])[pairs].any())
+        figures["appearance_bias_other_logs"] = 1.0 if shared else None
+    return figures
 
 
 def _neighbour_figures(nn: np.ndarray, actions: Sequence[str], appearance: Sequence[str],

@@ -21,6 +21,9 @@ returns the metrics dictionary written to ``metrics.json``::
     baselines:               random / bag_of_frames / rule_captions: the same figures for random ranking,
                              for the model with frames shuffled in time, and for rule-caption search (the
                              frozen sentence encoder over each clip's rule captions, no trained model)
+    by_facet:                R@5 per lane, motion, own action, context and category of the queries
+                             (:mod:`retrieval.action_breakdown`), for the model, shuffled frames, rule
+                             captions and random, with the queries and clips behind each
     curves:                  recall@K for K = 1 … 50 of the model and the baselines (for plots)
 """
 
@@ -43,6 +46,7 @@ from encoders.metrics import (
     relevance_by_caption,
     text_to_clip_figures,
 )
+from retrieval.action_breakdown import facets, recall_by_facet
 from retrieval.captions_search import CaptionSearch, TextEncoder
 from retrieval.clip_neighbours import clip_to_clip_figures, random_clip_to_clip
 from retrieval.embedding import Embedder, ModelEmbedder, SentenceEncoder
@@ -285,6 +289,10 @@ def evaluate(run_dir: Path | str, clips_dir: Path | str, split: str = "test", em
     free_rule = rule_caption_scores(rows, free_texts, sentence)
     free_random = np.random.default_rng(seed).random(free_relevant.shape)
 
+    clip_facets = [facets(list(r.get("tags") or []), str(r.get("category", ""))) for r in rows]
+    facets_of_caption = dict(zip(captions, clip_facets))
+    by_facet = recall_by_facet({"model": sims["fused"], "bag_of_frames": sim_bag, "rule_captions": sim_rule},
+                               relevant, [facets_of_caption[q] for q in queries], clip_facets)
     camera_view = camera_clip_figures(sims, relevant, [bool(r.get("has_camera")) for r in rows], seed)
     actions = ["|".join(r.get("tags") or []) for r in rows]
     appearance = [f"{r.get('time_of_day', 'unknown')}|{r.get('weather', 'unknown')}" for r in rows]
@@ -305,7 +313,7 @@ def evaluate(run_dir: Path | str, clips_dir: Path | str, split: str = "test", em
             "random": {"text_to_clip": random_figures,
                        "temporal_order_accuracy": {"accuracy": 0.5 if pairs else None, "num_captions": len(pairs)},
                        "freeform": freeform_figures(free_random, free_relevant),
-                       "clip_to_clip": random_clip_to_clip(actions, appearance)},
+                       "clip_to_clip": random_clip_to_clip(actions, appearance, logs=logs)},
             "bag_of_frames": {"text_to_clip": text_to_clip_figures(sim_bag, relevant),
                               "temporal_order_accuracy": {"accuracy": order_bag, "num_captions": len(pairs)},
                               "freeform": freeform_figures(free_bag, free_relevant),
@@ -320,6 +328,7 @@ def evaluate(run_dir: Path | str, clips_dir: Path | str, split: str = "test", em
                                   np.asarray(sentence(captions), dtype=np.float32), actions, appearance,
                                   logs=logs)},
         },
+        "by_facet": by_facet,
         "curves": {"k": list(range(1, min(CURVE_MAX_K, len(rows)) + 1)),
                    "model": recall_curve(sims["fused"], relevant),
                    "camera": camera_view["curve"],
@@ -389,7 +398,8 @@ def metrics_table(metrics: dict[str, Any]) -> str:
     body.append([f"free-form {p_key}", fmt(get(metrics, "freeform", p_key)), "", "",
                  fmt(get(base, "bag_of_frames", "freeform", p_key)), fmt(get(base, "random", "freeform", p_key)),
                  fmt(get(rule, "freeform", p_key))])
-    for key in ("action_precision@5", "appearance_bias", "same_log_share_neighbours"):
+    for key in ("action_precision@5", "appearance_bias", "same_log_share_neighbours", "action_precision@5_other_logs",
+                "appearance_bias_other_logs"):
         body.append([f"clip→clip {key}", fmt(get(metrics, "clip_to_clip", key)), "", "",
                      fmt(get(base, "bag_of_frames", "clip_to_clip", key)),
                      fmt(get(base, "random", "clip_to_clip", key) if key != "same_log_share_neighbours"

@@ -26,8 +26,6 @@ def test_clip_to_clip_figures() -> None:
     assert chance["appearance_bias"] == 1.0
 
 
-
-
 def test_same_log_share_and_ties() -> None:
     # Two logs of 4 clips; every clip embeds the same: all scores tie. Ties are broken in a seeded random
     # order, not table order, so neighbours are not all taken from the first log.
@@ -46,3 +44,33 @@ def test_same_log_share_and_ties() -> None:
     # Appearance follows the log here, so its bias is the same-log share over chance: 1 / 0.5.
     assert by_log["same_log_share_neighbours"] == 1.0 and by_log["appearance_bias"] == pytest.approx(2.0)
     assert "same_log_share_neighbours" not in clip_to_clip_figures(x, actions, appearance, k=3)
+
+
+def test_other_log_figures_measure_appearance_apart_from_the_log() -> None:
+    # Four logs, two per appearance; each log holds actions a and b twice. Embeddings cluster by
+    # appearance: neighbours from other logs are the other log of the same appearance, half of them in
+    # another action → bias 1 / chance.
+    logs = [f"log{i // 4}" for i in range(16)]
+    appearance = ["day" if i < 8 else "night" for i in range(16)]
+    actions = ["a", "b", "a", "b"] * 4
+    rng = np.random.default_rng(0)
+    x = np.array([[1.0, 0.0] if a == "day" else [0.0, 1.0] for a in appearance]) + rng.normal(0, 0.01, (16, 2))
+    figures = clip_to_clip_figures(x / np.linalg.norm(x, axis=1, keepdims=True), actions, appearance, k=3, logs=logs)
+    # Among other logs' clips of the other action (6 per clip), 2 share the appearance: chance 1 / 3.
+    assert figures["appearance_share_chance_other_logs"] == pytest.approx(1 / 3)
+    assert figures["appearance_share_neighbours_other_logs"] == 1.0
+    assert figures["appearance_bias_other_logs"] == pytest.approx(3.0)
+    # Embeddings by action: other logs' neighbours share the action, the bias is undefined (no
+    # differing neighbour) and precision is 1.
+    y = np.array([[1.0, 0.0] if a == "a" else [0.0, 1.0] for a in actions]) + rng.normal(0, 0.01, (16, 2))
+    by_action = clip_to_clip_figures(y / np.linalg.norm(y, axis=1, keepdims=True), actions, appearance, k=3, logs=logs)
+    assert by_action["action_precision@3_other_logs"] == 1.0
+    assert by_action["appearance_bias_other_logs"] is None
+    chance = random_clip_to_clip(actions, appearance, k=3, logs=logs)
+    # 12 clips in other logs, 6 of them in the same action.
+    assert chance["action_precision@3_other_logs"] == pytest.approx(0.5)
+    assert chance["appearance_bias_other_logs"] == 1.0
+    # One appearance per log: the look cannot be told apart from the log among other logs.
+    own = [f"look{i // 4}" for i in range(16)]
+    assert clip_to_clip_figures(x, actions, own, k=3, logs=logs)["appearance_bias_other_logs"] is None
+    assert random_clip_to_clip(actions, own, k=3, logs=logs)["appearance_bias_other_logs"] is None

@@ -50,4 +50,7 @@ Text → clip and clip → clip retrieval of object behaviour in driving logs.
   inherits their errors (tracking noise, lane assignment near junctions).
 - Trained on the clips above only; simulated clips do not cover the look of real cameras.
 - Clips without camera are embedded from BEV alone; camera-only queries are weaker where the object is small.
+- The order of a caption's steps is read weakly: `scenesearch eval` reports `temporal_order_accuracy`
+  beside rule-caption search (`scenesearch search INDEX … --captions`), which is the reference where the
+  order matters, and `by_facet` for rare actions (lane changes, turns), where the model is weakest.
 """

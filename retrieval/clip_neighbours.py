@@ -56,28 +56,19 @@ def clip_to_clip_figures(x: np.ndarray, actions: Sequence[str], appearance: Sequ
 
 def _other_log_figures(sim: np.ndarray, tiebreak: np.ndarray, actions: Sequence[str], appearance: Sequence[str],
                        logs: Sequence[str], k: int) -> dict[str, float | None]:
-    """Action precision@k and appearance bias of each clip's k nearest neighbours from other logs.
+    """:func:`_neighbour_figures` of each clip's k nearest neighbours from other logs, against chance
+    among other logs' clips; keys end in ``_other_logs``.
 
     Args:
         sim: (N, N) clip × clip scores, the diagonal −inf.
         tiebreak: (N, N) secondary sort key for equal scores.
     """
-    act = np.asarray(list(actions), dtype=object)
-    app = np.asarray(list(appearance), dtype=object)
     log = np.asarray(list(logs), dtype=object)
     other = log[:, None] != log[None, :]  # (N, N)
     nn = np.lexsort((tiebreak, -np.where(other, sim, -np.inf)), axis=1)[:, :k]  # (N, k)
     valid = np.take_along_axis(other, nn, axis=1)  # False where a clip has fewer than k other-log clips
-    if not valid.any():
-        return {f"action_precision@{k}_other_logs": None, "appearance_bias_other_logs": None}
-    same_action = act[nn] == act[:, None]
-    differ = valid & ~same_action
-    share = float(np.mean((app[nn] == app[:, None])[differ])) if differ.any() else None
-    pairs = other & (act[:, None] != act[None, :])
-    chance = float((app[:, None] == app[None, :])[pairs].mean()) if pairs.any() else None
-    bias = share / chance if share is not None and chance else None
-    return {f"action_precision@{k}_other_logs": float(same_action[valid].mean()), "appearance_bias_other_logs": bias,
-            "appearance_share_neighbours_other_logs": share, "appearance_share_chance_other_logs": chance}
+    figures = _neighbour_figures(nn, actions, appearance, k, valid=valid, among=other)
+    return {f"{key}_other_logs": value for key, value in figures.items()}
 
 
 def random_clip_to_clip(actions: Sequence[str], appearance: Sequence[str], k: int = 5,
@@ -102,21 +93,26 @@ def random_clip_to_clip(actions: Sequence[str], appearance: Sequence[str], k: in
         has = count > 0
         figures[f"action_precision@{k}_other_logs"] = (
             float(np.mean((same_action & other).sum(axis=1)[has] / count[has])) if has.any() else None)
-        pairs = other & (act[:, None] != act[None, :])
-        shared = bool(pairs.any() and (app[:, None] == app[None, :])[pairs].any())
-        figures["appearance_bias_other_logs"] = 1.0 if shared else None
+        chance_other = _chance_appearance_rate(act, app, among=other)
+        figures["appearance_bias_other_logs"] = 1.0 if chance_other else None
     return figures
 
 
-def _neighbour_figures(nn: np.ndarray, actions: Sequence[str], appearance: Sequence[str],
-                       k: int) -> dict[str, float | None]:
+def _neighbour_figures(nn: np.ndarray, actions: Sequence[str], appearance: Sequence[str], k: int,
+                       valid: np.ndarray | None = None, among: np.ndarray | None = None) -> dict[str, float | None]:
+    """Action precision and appearance bias of neighbours ``nn`` (N, k).
+
+    ``valid`` (N, k) marks the neighbours that count (default all); ``among`` (N, N) the pairs chance
+    is taken over (default all).
+    """
     act = np.asarray(list(actions), dtype=object)
     app = np.asarray(list(appearance), dtype=object)
+    valid = np.ones(nn.shape, dtype=bool) if valid is None else valid
     same_action = act[nn] == act[:, None]
-    precision = float(np.mean(same_action))
-    differ = ~same_action
+    precision = float(np.mean(same_action[valid])) if valid.any() else None
+    differ = valid & ~same_action
     share = float(np.mean((app[nn] == app[:, None])[differ])) if differ.any() else None
-    chance = _chance_appearance_rate(act, app)
+    chance = _chance_appearance_rate(act, app, among)
     bias = None
     if share is not None and chance is not None and chance > 0 and len(set(app.tolist())) > 1:
         bias = share / chance
@@ -124,8 +120,11 @@ def _neighbour_figures(nn: np.ndarray, actions: Sequence[str], appearance: Seque
             "appearance_share_neighbours": share, "appearance_share_chance": chance}
 
 
-def _chance_appearance_rate(act: np.ndarray, app: np.ndarray) -> float | None:
+def _chance_appearance_rate(act: np.ndarray, app: np.ndarray, among: np.ndarray | None = None) -> float | None:
+    """Share of clip pairs that differ in action (within ``among``, (N, N) bool) sharing an appearance."""
     differ = act[:, None] != act[None, :]
+    if among is not None:
+        differ &= among
     if not differ.any():
         return None
     same_app = app[:, None] == app[None, :]

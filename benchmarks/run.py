@@ -15,6 +15,8 @@ import time
 import traceback
 from pathlib import Path
 
+from common.memory import retain_freed_memory
+
 
 def discover() -> list[str]:
     here = Path(__file__).parent
@@ -27,6 +29,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--only", nargs="*", help="benchmark names (without bench_) to run")
     parser.add_argument("--quick", action="store_true", help="smaller sizes, for a smoke run")
     args = parser.parse_args(argv)
+    retain_freed_memory()  # as the command line does: the benchmarks measure what its commands get
     names = discover()
     if args.only:
         names = [n for n in names if n.removeprefix("bench_") in set(args.only)]

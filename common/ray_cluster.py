@@ -106,17 +106,25 @@ def ray_runtime(execution: Execution) -> Iterator[int]:
         address = check_reachable(execution.address, execution.connect_timeout_s)
         _check_gcs(address, execution.connect_timeout_s)
         try:
-            ray.init(address=address, log_to_driver=False, configure_logging=False)
+            ray.init(address=address, log_to_driver=False, configure_logging=False, runtime_env=_worker_env())
         except Exception as exc:  # reachable, but not a Ray head (or another Ray version)
             raise ClusterError(f"--ray-address {execution.address}: could not join the Ray cluster at {address}: "
                                f"{one_line(exc)[:500]}") from None
     else:
         ray.init(address="local", num_cpus=execution.workers, include_dashboard=False, log_to_driver=False,
-                 configure_logging=False)
+                 configure_logging=False, runtime_env=_worker_env())
     try:
         yield execution.workers or cluster_cpus(ray)
     finally:
         ray.shutdown()
+
+
+def _worker_env() -> dict[str, Any]:
+    """The job's runtime environment: workers reuse freed memory (see :mod:`common.memory`), on this
+    machine's runtime and on a cluster's nodes alike."""
+    from common.memory import malloc_tunables
+
+    return {"env_vars": {"GLIBC_TUNABLES": malloc_tunables(os.environ.get("GLIBC_TUNABLES", ""))}}
 
 
 @contextlib.contextmanager
@@ -174,6 +182,11 @@ def _speaks_http2(host: str, port: int, timeout_s: float) -> bool:
 
 def cluster_cpus(ray: Any) -> int:
     return max(1, int(ray.cluster_resources().get("CPU", 1)))
+
+
+def node_cpus(ray: Any) -> list[int]:
+    """CPUs of each live node of the Ray cluster this process is connected to."""
+    return [int(n.get("Resources", {}).get("CPU", 0)) for n in ray.nodes() if n.get("Alive")]
 
 
 def cluster_gpus() -> int:

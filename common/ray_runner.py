@@ -18,18 +18,29 @@ task itself is not retried. One item's failure never stops the others.
 
 A task's value travels back to the driver (pickled), so tasks return what the driver needs to
 assemble and publish the outputs in input order, and write nothing the driver publishes itself.
+
+On Ray, consecutive items share one Ray task where items are small: a task costs a few ms of
+scheduling and messaging whatever it does, as much as captioning a short log. By default the chunk
+size adapts, as joblib's ``batch_size="auto"`` does: the first items run one per task, and later
+chunks hold as many items as take about ``TARGET_TASK_S`` by the mean time an item has taken so far,
+capped so that the items left still spread over every worker. Each item keeps its own outcome. A
+chunk whose worker dies on every attempt runs again one item per task (with its own retries), so
+that only the item that kills its worker fails; the same holds for a chunk whose values cannot travel back.
 """
 
 from __future__ import annotations
 
 import contextlib
+import math
 import sys
 import time
+from collections import deque
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from enum import StrEnum
 from typing import Any, Generic, TypeVar
 
+from common.memory import retain_freed_memory
 from common.ray_cluster import Execution, cluster_cpus, import_ray, one_line, ray_runtime
 
 R = TypeVar("R")
@@ -99,6 +110,51 @@ def _run_one(fn: Callable[..., Any], item: Any, context: Any, has_context: bool,
     return Outcome(label, TaskStatus.DONE, value)
 
 
+def _run_chunk(fn: Callable[..., Any], items: Sequence[Any], context: Any, has_context: bool,
+               labels: Sequence[str], skip_on: tuple[type[BaseException], ...]) -> tuple[list[Outcome[Any]], float]:
+    """Run consecutive items in one Ray task → (their outcomes, the seconds they took together)."""
+    retain_freed_memory()  # a Ray worker does not run the command line's main
+    start = time.perf_counter()
+    outcomes = [_run_one(fn, item, context, has_context, label, skip_on) for item, label in zip(items, labels)]
+    return outcomes, time.perf_counter() - start
+
+
+#: Seconds of work one Ray task aims at when items are chunked: its fixed cost (a few ms) stays a
+#: few percent, and a chunk is still short enough for an even share of the work between workers.
+TARGET_TASK_S = 0.2
+
+
+@dataclass
+class ChunkSizer:
+    """How many items the next Ray task takes, from the mean time an item has taken so far.
+
+    ``fixed`` sets the size once for all (1: one item per task). Otherwise the first items run one
+    per task (nothing is known of them yet), and then a chunk holds about ``target_s`` of work, at
+    most a ``1 / (2 · parallelism)`` share of the items left, so that the last chunks still spread
+    over every worker (a single worker takes all that is left).
+    """
+
+    parallelism: int
+    fixed: int | None = None
+    target_s: float = TARGET_TASK_S
+    items_timed: int = 0
+    seconds: float = 0.0
+
+    def observe(self, items: int, seconds: float) -> None:
+        self.items_timed += items
+        self.seconds += seconds
+
+    def size(self, remaining: int) -> int:
+        if self.fixed is not None:
+            return max(1, min(self.fixed, remaining))
+        if self.items_timed == 0:
+            return 1
+        per_item_s = self.seconds / self.items_timed
+        wanted = int(self.target_s / per_item_s) if per_item_s > 0 else remaining
+        share = remaining if self.parallelism <= 1 else math.ceil(remaining / (2 * self.parallelism))
+        return max(1, min(wanted, share, remaining))
+
+
 def run_tasks(
     fn: Callable[..., R],
     items: Sequence[Any],
@@ -109,6 +165,7 @@ def run_tasks(
     skip_on: tuple[type[BaseException], ...] = (),
     noun: str = "log",
     num_cpus: float = 1.0,
+    items_per_task: int | None = None,
 ) -> RunReport[R]:
     """Run ``fn(item)`` (``fn(item, context)`` when a context is given) for every item.
 
@@ -122,6 +179,8 @@ def run_tasks(
         skip_on: errors that mean bad input: the item is skipped with the error's message.
         noun: what an item is, for the progress bar and the report.
         num_cpus: CPUs one task reserves on Ray.
+        items_per_task: consecutive items one Ray task runs (default: adapted to how long items
+            take, see :class:`ChunkSizer`; 1: one task per item).
 
     Raises:
         ClusterError: Ray is not installed, or its cluster cannot be reached.
@@ -130,6 +189,8 @@ def run_tasks(
     names = [str(x) for x in (labels if labels is not None else items)]
     if len(names) != len(items):
         raise ValueError(f"{len(names)} labels for {len(items)} items")
+    if items_per_task is not None and items_per_task < 1:
+        raise ValueError(f"items_per_task must be at least 1, not {items_per_task}")
     start = time.perf_counter()
     has_context = context is not None
     with _progress(len(items), noun, execution.progress) as advance:
@@ -139,13 +200,14 @@ def run_tasks(
                 outcomes.append(_run_one(fn, item, context, has_context, name, skip_on))
                 advance()
         else:
-            outcomes = _run_on_ray(fn, items, names, execution, context, has_context, skip_on, num_cpus, advance)
+            outcomes = _run_on_ray(fn, items, names, execution, context, has_context, skip_on, num_cpus,
+                                   items_per_task, advance)
     return RunReport(outcomes, time.perf_counter() - start, execution.describe(), noun)
 
 
 def _run_on_ray(fn: Callable[..., Any], items: Sequence[Any], names: list[str], execution: Execution,
                 context: Any, has_context: bool, skip_on: tuple[type[BaseException], ...], num_cpus: float,
-                advance: Callable[[], None]) -> list[Outcome[Any]]:
+                items_per_task: int | None, advance: Callable[[], None]) -> list[Outcome[Any]]:
     ray = import_ray()
     outcomes: list[Outcome[Any] | None] = [None] * len(items)
     with ray_runtime(execution) as parallelism:
@@ -153,24 +215,42 @@ def _run_on_ray(fn: Callable[..., Any], items: Sequence[Any], names: list[str], 
         # window twice as wide keeps each worker's next task queued. A cluster, or a runtime started
         # before, may have more: then the window alone keeps the run to its workers.
         capped = execution.workers is not None and cluster_cpus(ray) > execution.workers
-        remote = ray.remote(_run_one).options(num_cpus=num_cpus, max_retries=execution.max_retries,
-                                              retry_exceptions=False)
+        remote = ray.remote(_run_chunk).options(num_cpus=num_cpus, max_retries=execution.max_retries,
+                                                retry_exceptions=False)
         fn_ref, context_ref = _shared(ray, fn), _shared(ray, context)
+        sizer = ChunkSizer(parallelism, items_per_task)
         # A bounded window of tasks in flight: enough to keep every worker busy, few enough that a
         # million items do not all sit in the scheduler at once.
         window = max(1, parallelism if capped else 2 * parallelism)
-        pending: dict[Any, int] = {}
+        pending: dict[Any, list[int]] = {}
+        alone: deque[int] = deque()  # items of chunks whose worker died: run again one per task
         submitted = 0
-        while submitted < len(items) or pending:
-            while submitted < len(items) and len(pending) < window:
-                ref = remote.remote(fn_ref, items[submitted], context_ref, has_context, names[submitted], skip_on)
-                pending[ref] = submitted
-                submitted += 1
+        while submitted < len(items) or alone or pending:
+            while (submitted < len(items) or alone) and len(pending) < window:
+                if alone:
+                    chunk = [alone.popleft()]
+                else:
+                    size = sizer.size(len(items) - submitted)
+                    chunk = list(range(submitted, submitted + size))
+                    submitted += size
+                ref = remote.remote(fn_ref, [items[i] for i in chunk], context_ref, has_context,
+                                    [names[i] for i in chunk], skip_on)
+                pending[ref] = chunk
             ready, _ = ray.wait(list(pending), num_returns=1)
             for ref in ready:
-                i = pending.pop(ref)
-                outcomes[i] = _collect(ray, ref, names[i], execution.max_retries)
-                advance()
+                chunk = pending.pop(ref)
+                try:
+                    done, seconds = ray.get(ref)
+                except ray.exceptions.RayError as exc:
+                    if len(chunk) > 1:  # which of them kills its worker (or fails to travel): each on its own
+                        alone.extend(chunk)
+                        continue
+                    done = [_failure(ray, exc, names[i], execution.max_retries) for i in chunk]
+                else:
+                    sizer.observe(len(chunk), seconds)
+                for i, outcome in zip(chunk, done):
+                    outcomes[i] = outcome
+                    advance()
     return [o for o in outcomes if o is not None]
 
 
@@ -190,17 +270,14 @@ def _shared(ray: Any, value: Any) -> Any:
 _INLINE_BYTES = 64 * 1024
 
 
-def _collect(ray: Any, ref: Any, label: str, max_retries: int) -> Outcome[Any]:
-    try:
-        outcome: Outcome[Any] = ray.get(ref)
-        return outcome
-    except ray.exceptions.RayTaskError as exc:  # raised outside the task's own handler (unpickling)
+def _failure(ray: Any, exc: Exception, label: str, max_retries: int) -> Outcome[Any]:
+    """The outcome of an item whose task did not return."""
+    if isinstance(exc, ray.exceptions.RayTaskError):  # raised outside the task's own handler (unpickling)
         return Outcome(label, TaskStatus.FAILED, reason=f"{type(exc.cause).__name__}: {one_line(exc.cause)}")
-    except ray.exceptions.RayError as exc:
-        attempts = max_retries + 1
-        return Outcome(label, TaskStatus.FAILED,
-                       reason=f"the worker died on each of {attempts} attempt(s) ({type(exc).__name__}: "
-                              f"{one_line(exc).splitlines()[0][:300]})")
+    attempts = max_retries + 1
+    return Outcome(label, TaskStatus.FAILED,
+                   reason=f"the worker died on each of {attempts} attempt(s) ({type(exc).__name__}: "
+                          f"{one_line(exc).splitlines()[0][:300]})")
 
 
 @contextlib.contextmanager

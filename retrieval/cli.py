@@ -69,6 +69,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    from common.memory import retain_freed_memory
+
+    retain_freed_memory()  # every command moves large arrays: reuse freed memory (see common.memory)
     parser = build_parser()
     args = parser.parse_args(argv)
     try:

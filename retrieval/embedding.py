@@ -20,7 +20,7 @@ from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
-from common.ray_cluster import Execution, cluster_gpus, import_ray, ray_runtime
+from common.ray_cluster import Execution, cluster_gpus, import_ray, node_cpus, ray_runtime
 from encoders.config import BUNDLED_TEXT_MODEL
 from encoders.sentence import shared_sentence_encoder
 from indexes.integrity import sha256_file
@@ -270,7 +270,8 @@ class RayDataEmbedder(ModelEmbedder):
     """:class:`ModelEmbedder` whose clip embeddings come from Ray Data (``scenesearch index --workers``).
 
     The clip table becomes a Ray Dataset of row numbers; ``map_batches`` embeds it on a pool of
-    :class:`ClipEmbedActor` (one model per actor; one GPU per actor when the cluster has GPUs), the
+    :class:`ClipEmbedActor` (one model per actor: one GPU per actor when the cluster has GPUs, else
+    one actor per node running on as many threads as the node has CPUs, see :func:`cpu_actors`), the
     embeddings are written as Parquet shards under ``shards_dir`` (one file per block: ``row``,
     ``clip_id`` and one fixed-size list column per view), and the index is built from the shards,
     read back in clip-table order. Texts, splits and shuffled frames are embedded here, as by
@@ -305,7 +306,8 @@ class RayDataEmbedder(ModelEmbedder):
         with ray_runtime(self.execution) as parallelism:
             gpus = cluster_gpus()
             batches = -(-n // self.batch_size)
-            actors = max(1, min(gpus or parallelism, batches))
+            actors, threads = (gpus, 1) if gpus else cpu_actors(parallelism, node_cpus(ray))
+            actors = max(1, min(actors, batches))
             # One batch per block, up to 64 blocks per actor, each handed to an actor only when it is
             # idle: the actors share the work evenly, and one that is up first does not queue it
             # all. The blocks are made here (no read tasks) and the shards are written by tasks
@@ -317,8 +319,8 @@ class RayDataEmbedder(ModelEmbedder):
             ds = ray.data.from_arrow(parts).map_batches(
                 ClipEmbedActor, batch_size=self.batch_size, batch_format="numpy",
                 fn_constructor_kwargs={"run_dir": str(self.run_dir), "clips_dir": str(clips_dir),
-                                       "device": "cuda" if gpus else "cpu"},
-                compute=ray.data.ActorPoolStrategy(size=actors, max_tasks_in_flight_per_actor=1), num_cpus=1,
+                                       "device": "cuda" if gpus else "cpu", "threads": threads},
+                compute=ray.data.ActorPoolStrategy(size=actors, max_tasks_in_flight_per_actor=1), num_cpus=threads,
                 num_gpus=1 if gpus else 0)
             ds.write_parquet(str(self.shards_dir), mode="overwrite", ray_remote_args={"num_cpus": 0})
         table = pads.dataset(str(self.shards_dir), format="parquet").to_table().sort_by("row")
@@ -328,10 +330,23 @@ class RayDataEmbedder(ModelEmbedder):
                                f"{n} clips once; embed again")
         views = {v: table.column(v).combine_chunks().flatten().to_numpy().reshape(n, -1).astype(np.float32)
                  for v in table.column_names if v not in ("row", "clip_id")}
-        self.last_run = {"actors": actors, "gpus_per_actor": 1 if gpus else 0, "clips": n,
+        self.last_run = {"actors": actors, "gpus_per_actor": 1 if gpus else 0, "threads_per_actor": threads, "clips": n,
                          "shards": len(pads.dataset(str(self.shards_dir), format="parquet").files),
                          "seconds": time.perf_counter() - start}
         return [str(c) for c in table.column("clip_id").to_pylist()], views
+
+
+def cpu_actors(parallelism: int, node_cpus: Sequence[int]) -> tuple[int, int]:
+    """(actors, threads per actor) for embedding on CPUs: one actor per node, on all of its CPUs
+    that the run may use (the smallest node's CPUs: an actor fits on every node).
+
+    One model on k threads embeds faster than k models on one thread each: the threads share one
+    copy of the weights and split each batch's activations, where k models each stream their own
+    through the memory they share (on 2 cores: 1.8× from a second thread, 1.0–1.4× from a second
+    process, ``benchmarks/bench_scale.py``).
+    """
+    per_node = max(1, min(min((c for c in node_cpus if c > 0), default=1), parallelism))
+    return max(1, parallelism // per_node), per_node
 
 
 def _quiet_ray_data(ray: Any, execution: Execution) -> None:
@@ -352,14 +367,16 @@ def _quiet_ray_data(ray: Any, execution: Execution) -> None:
 class ClipEmbedActor:
     """One model on one device, embedding batches of clip-table rows (a Ray Data actor)."""
 
-    def __init__(self, run_dir: str, clips_dir: str, device: str = "cpu") -> None:
+    def __init__(self, run_dir: str, clips_dir: str, device: str = "cpu", threads: int = 1) -> None:
         import torch
 
+        from common.memory import retain_freed_memory
         from encoders.data import ClipDataset
         from encoders.inference import load_model
 
-        # One CPU per actor: more threads per actor only contend with the other actors.
-        torch.set_num_threads(1)
+        # The CPUs the actor reserved: more threads would contend with the other actors.
+        torch.set_num_threads(threads)
+        retain_freed_memory()  # an actor does not run the command line's main (see common.memory)
         self.model = load_model(run_dir, device=device)
         self.dataset = ClipDataset(clips_dir, as_uint8=True)
 

@@ -1,5 +1,5 @@
 """One task per item, serially or on Ray: order, skips, failures, retries after a worker died,
-and a clear error for a cluster address that does not answer."""
+items chunked into shared Ray tasks, and a clear error for a cluster address that does not answer."""
 
 from __future__ import annotations
 
@@ -16,7 +16,7 @@ sys.path.insert(0, str(Path(__file__).parent))
 import ray_tasks
 
 from common.ray_cluster import ClusterError, Execution, check_reachable, ray_runtime, split_address
-from common.ray_runner import TaskSkipped, TaskStatus, run_tasks
+from common.ray_runner import ChunkSizer, TaskSkipped, TaskStatus, run_tasks
 
 
 def _square(x: int) -> int:
@@ -140,3 +140,52 @@ def test_on_ray_order_retries_and_failures(tmp_path: Path) -> None:
     assert by_label["bug"].status is TaskStatus.FAILED and by_label["bug"].reason == "KeyError: 'oops'"
     assert by_label["a"].value.startswith("a:") and by_label["b"].value.startswith("b:")  # type: ignore[union-attr]
     assert "Ray, 2 local worker(s)" in report.summary()
+
+
+def test_chunk_sizes_follow_item_time_and_leave_work_for_every_worker() -> None:
+    sizer = ChunkSizer(parallelism=2, target_s=0.2)
+    assert sizer.size(100) == 1  # nothing known yet: one item per task
+    sizer.observe(items=2, seconds=0.02)  # 10 ms an item: 20 items make a task of 0.2 s
+    assert sizer.size(100) == 20
+    assert sizer.size(24) == 6  # a quarter of what is left: both workers still get work at the end
+    assert sizer.size(1) == 1
+    sizer.observe(items=1, seconds=1.0)  # slow items: back to one per task
+    assert sizer.size(100) == 1
+    alone = ChunkSizer(parallelism=1, target_s=0.2)
+    alone.observe(items=1, seconds=0.01)
+    assert alone.size(7) == 7  # a single worker takes all that is left when it is short
+    fixed = ChunkSizer(parallelism=2, fixed=3)
+    assert [fixed.size(n) for n in (10, 2)] == [3, 2]
+
+
+def test_items_per_task_must_be_positive() -> None:
+    with pytest.raises(ValueError, match="items_per_task"):
+        run_tasks(_square, [1], items_per_task=0)
+
+
+@pytest.mark.usefixtures("ray_local")
+def test_chunked_tasks_keep_each_item_outcome_and_isolate_a_worker_killer(tmp_path: Path) -> None:
+    import ray
+
+    ray.cloudpickle.register_pickle_by_value(ray_tasks)
+    items = ["a", "b", "dies-always", "bad", "c", "d", "bug"]
+    report = run_tasks(ray_tasks.crashing, items, Execution(workers=2, max_retries=1), context=str(tmp_path),
+                       skip_on=(ValueError,), items_per_task=3)
+    by_label = {o.label: o for o in report.outcomes}
+    assert [o.label for o in report.outcomes] == items
+    # Its chunk died twice (one retry), then it ran alone twice: its chunk-mates were run again alone and are done.
+    assert by_label["dies-always"].status is TaskStatus.FAILED
+    assert (tmp_path / "attempts").read_text() == "xxxx"
+    assert [by_label[x].status for x in ("a", "b", "c", "d")] == [TaskStatus.DONE] * 4
+    assert by_label["bad"].status is TaskStatus.SKIPPED and by_label["bug"].status is TaskStatus.FAILED
+    # Chunk-mates ran in one process: a chunk is one task.
+    pid = {x: by_label[x].value.split(":")[1] for x in ("c", "d")}  # type: ignore[union-attr]
+    assert pid["c"] == pid["d"]
+
+
+@pytest.mark.usefixtures("ray_local")
+def test_adaptive_chunks_give_the_serial_results() -> None:
+    items = list(range(40))
+    serial = run_tasks(_square, items)
+    on_ray = run_tasks(_square, items, Execution(workers=2))
+    assert on_ray.outcomes == serial.outcomes

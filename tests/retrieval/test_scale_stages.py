@@ -139,10 +139,22 @@ def test_index_embeddings_on_ray_data_equal_the_serial_ones(data: dict[str, Path
                                text_encoder=HashTextEncoder())
     embedder = RayDataEmbedder(run, Execution(workers=2), shards, batch_size=8)
     on_ray = SceneSearch.build(run, clips, tmp_path / "index_ray", embedder=embedder, text_encoder=HashTextEncoder())
-    assert embedder.last_run["actors"] == 2 and list(shards.glob("*.parquet"))
+    # Both CPUs of this one node, on one model (see cpu_actors).
+    assert embedder.last_run["actors"] * embedder.last_run["threads_per_actor"] == 2
+    assert list(shards.glob("*.parquet"))
     for view in ("fused", "camera", "bev"):
         meta_a, a = serial.embeddings(view)
         meta_b, b = on_ray.embeddings(view)
         assert meta_a.column("clip_id").to_pylist() == meta_b.column("clip_id").to_pylist()
         assert a.shape == b.shape and a.shape[0] > 10
         np.testing.assert_allclose(a, b, atol=1e-4)
+
+
+def test_cpu_actors_take_a_node_each_on_its_cpus() -> None:
+    from retrieval.embedding import cpu_actors
+
+    assert cpu_actors(2, [2]) == (1, 2)  # this machine, --workers 2: one model on 2 threads
+    assert cpu_actors(1, [2]) == (1, 1)  # --workers 1
+    assert cpu_actors(64, [16, 16, 16, 16]) == (4, 16)  # a cluster: an actor per node
+    assert cpu_actors(48, [16, 8, 32]) == (6, 8)  # the smallest node fits an actor everywhere
+    assert cpu_actors(4, []) == (4, 1)  # nodes unknown: one thread per actor

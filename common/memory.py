@@ -17,6 +17,11 @@ no ``mmap``) and never trim that heap's freed top, so freed blocks are reused wi
   reads when a process starts; a joined Ray cluster's workers get it through the job's runtime
   environment (:func:`common.ray_cluster.ray_runtime`).
 
+The command line's ``main`` and the benchmarks call it first; workers and launched processes get it
+from their environment, not by calling it: a worker's task runs on a thread that already has its own
+malloc arena, and ``mallopt`` then would forbid that arena's large mappings without moving the
+thread to the main heap (the benchmark's embedding went 211 → 245 s that way).
+
 A process keeps its peak memory until it exits, which is what a training run, an embedding worker
 or a service does anyway. Results do not change: only where the bytes live does. Where malloc is
 not glibc's (macOS, musl) nothing changes.

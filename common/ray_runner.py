@@ -40,7 +40,6 @@ from dataclasses import dataclass
 from enum import StrEnum
 from typing import Any, Generic, TypeVar
 
-from common.memory import retain_freed_memory
 from common.ray_cluster import Execution, cluster_cpus, import_ray, one_line, ray_runtime
 
 R = TypeVar("R")
@@ -113,7 +112,6 @@ def _run_one(fn: Callable[..., Any], item: Any, context: Any, has_context: bool,
 def _run_chunk(fn: Callable[..., Any], items: Sequence[Any], context: Any, has_context: bool,
                labels: Sequence[str], skip_on: tuple[type[BaseException], ...]) -> tuple[list[Outcome[Any]], float]:
     """Run consecutive items in one Ray task → (their outcomes, the seconds they took together)."""
-    retain_freed_memory()  # a Ray worker does not run the command line's main
     start = time.perf_counter()
     outcomes = [_run_one(fn, item, context, has_context, label, skip_on) for item, label in zip(items, labels)]
     return outcomes, time.perf_counter() - start

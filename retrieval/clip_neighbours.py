@@ -79,8 +79,7 @@ def random_clip_to_clip(actions: Sequence[str], appearance: Sequence[str], k: in
     app = np.asarray(list(appearance), dtype=object)
     n = len(act)
     same_action = act[:, None] == act[None, :]
-    np.fill_diagonal(same_action, False)
-    precision = float(np.mean(same_action.sum(axis=1) / (n - 1)))
+    precision = _random_precision(same_action, ~np.eye(n, dtype=bool))
     has_variety = len(set(app.tolist())) > 1
     chance = _chance_appearance_rate(act, app)
     figures: dict[str, float | None] = {
@@ -89,13 +88,18 @@ def random_clip_to_clip(actions: Sequence[str], appearance: Sequence[str], k: in
     if logs is not None:
         log = np.asarray(list(logs), dtype=object)
         other = log[:, None] != log[None, :]
-        count = other.sum(axis=1)
-        has = count > 0
-        figures[f"action_precision@{k}_other_logs"] = (
-            float(np.mean((same_action & other).sum(axis=1)[has] / count[has])) if has.any() else None)
+        figures[f"action_precision@{k}_other_logs"] = _random_precision(same_action, other)
         chance_other = _chance_appearance_rate(act, app, among=other)
         figures["appearance_bias_other_logs"] = 1.0 if chance_other else None
     return figures
+
+
+def _random_precision(same_action: np.ndarray, among: np.ndarray) -> float | None:
+    """Mean over clips of the chance that a neighbour drawn at random from its row of ``among``
+    (N, N) bool shares its action (``same_action``, (N, N) bool); None when no row has a candidate."""
+    count = among.sum(axis=1)
+    has = count > 0
+    return float(np.mean((same_action & among).sum(axis=1)[has] / count[has])) if has.any() else None
 
 
 def _neighbour_figures(nn: np.ndarray, actions: Sequence[str], appearance: Sequence[str], k: int,

@@ -370,13 +370,11 @@ class ClipEmbedActor:
     def __init__(self, run_dir: str, clips_dir: str, device: str = "cpu", threads: int = 1) -> None:
         import torch
 
-        from common.memory import retain_freed_memory
         from encoders.data import ClipDataset
         from encoders.inference import load_model
 
         # The CPUs the actor reserved: more threads would contend with the other actors.
         torch.set_num_threads(threads)
-        retain_freed_memory()  # an actor does not run the command line's main (see common.memory)
         self.model = load_model(run_dir, device=device)
         self.dataset = ClipDataset(clips_dir, as_uint8=True)
 

@@ -133,11 +133,9 @@ def _worker(args: argparse.Namespace) -> int:
 
 def _train(args: argparse.Namespace) -> int:
     """Train in this process: alone, or as one of the processes of a launcher (``--nproc``, torchrun)."""
-    from common.memory import retain_freed_memory
     from encoders.distributed import process_group
     from encoders.train import TrainingError, train
 
-    retain_freed_memory()  # the launcher's processes start here, not in the command line's main
     config = build_config(args)
     try:
         # An error leaves the group at once: the other processes' collectives then fail instead of waiting.

@@ -28,8 +28,10 @@ of each; tiny logs share Ray tasks, see :mod:`common.ray_runner`), ``empty_task_
 doing nothing, round trip included, one item per task) and ``fraction_on_benchmark_logs`` (that
 per-item time against the serial caption + clips time of one of the benchmark's logs). ``cost``:
 log-seconds per CPU-second of each stage (serial, CPU time of this process, which holds all of it)
-and the CPU-hours 10,000 hours of logs take. ``load_average`` says how busy the machine was; other
-work on it slows the parallel runs most.
+and the CPU-hours 10,000 hours of logs take. ``memory``: the serial embedding again, in a fresh
+process with glibc's default malloc and in one with the settings of :mod:`common.memory` (from its
+environment, as Ray workers and launched processes get them), wall seconds and their ratio.
+``load_average`` says how busy the machine was; other work on it slows the parallel runs most.
 """
 
 from __future__ import annotations
@@ -37,6 +39,8 @@ from __future__ import annotations
 import contextlib
 import os
 import shutil
+import subprocess
+import sys
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import replace
@@ -140,6 +144,31 @@ def _threads(n: int) -> Iterator[None]:
         torch.set_num_threads(before)
 
 
+#: Embeds a clips folder serially in a fresh process; prints the wall seconds.
+_EMBED_CHILD = """
+import sys, time
+from retrieval.embedding import ModelEmbedder
+start = time.perf_counter()
+ModelEmbedder(sys.argv[1]).embed_clips(sys.argv[2], view="fused")
+print(time.perf_counter() - start)
+"""
+
+
+def _embed_with_malloc(run_dir: Path, clips: Path) -> dict[str, float]:
+    """The serial embedding in a fresh process with glibc's default malloc, then with the settings
+    of :mod:`common.memory`: wall seconds each and the ratio."""
+    from common.memory import malloc_tunables
+
+    base = {k: v for k, v in os.environ.items() if k != "GLIBC_TUNABLES"}
+    out: dict[str, float] = {}
+    for name, env in (("default_malloc_s", base), ("kept_memory_s", base | {"GLIBC_TUNABLES": malloc_tunables()})):
+        done = subprocess.run([sys.executable, "-c", _EMBED_CHILD, str(run_dir), str(clips)], env=env,
+                              capture_output=True, text=True, check=True)
+        out[name] = round(float(done.stdout.strip().splitlines()[-1]), 2)
+    out["speedup"] = _ratio(out["default_malloc_s"], out["kept_memory_s"])
+    return out
+
+
 def _noop(item: int) -> int:
     return item
 
@@ -170,6 +199,7 @@ def run(quick: bool) -> dict[str, Any]:
     from retrieval.embedding import ModelEmbedder
 
     serial["embed"] = _timed(lambda: ModelEmbedder(run_dir).embed_clips(scratch / "clips_serial", view="fused"))
+    memory = _embed_with_malloc(run_dir, scratch / "clips_serial")
     ray_start_s = 0.0
     noop = 0.0
     overhead: list[tuple[float, float, float]] = []
@@ -235,6 +265,7 @@ def run(quick: bool) -> dict[str, Any]:
     cost = {s: log_s / max(serial[s][1], 1e-9) for s in stages}
     if "cpu_s" in sim:
         cost["simulate"] = sim["log_s"] / max(sim["cpu_s"], 1e-9)
+    figures["memory"] = memory
     figures["cost"] = {
         "log_s_per_cpu_s": {s: round(v, 2) for s, v in cost.items()},
         f"cpu_hours_for_{HOURS}_h": {s: round(HOURS / v, 1) for s, v in cost.items()},

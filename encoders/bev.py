@@ -27,6 +27,10 @@ from encoders.fusion import TemporalEncoder
 EGO_MOTION_SCALE = (50.0, 50.0, 3.14159, 20.0)
 
 
+#: What ``BevConfig.track_range`` adds to each frame of the track: range, |x| and |y| from the ego.
+RANGE_FEATURES = ("range", "abs_x", "abs_y")
+
+
 class Residual(nn.Module):
     """x + a 3×3 convolution block (optionally dilated) at the same resolution: (N, C, h, w) → the same."""
 
@@ -119,7 +123,8 @@ class BevTower(nn.Module):
         self.track: TemporalEncoder | None = None
         self.track_head: nn.Linear | None = None
         if config.track_features:
-            self.track = TemporalEncoder(config.track, 2 * config.track_features + config.ego_features)
+            per_frame = config.track_features + (len(RANGE_FEATURES) if config.track_range else 0)
+            self.track = TemporalEncoder(config.track, 2 * per_frame + config.ego_features)
             self.track_head = nn.Linear(config.track.width, embed_dim)
         self.ego_scale: torch.Tensor
         self.register_buffer("ego_scale", torch.tensor(EGO_MOTION_SCALE[: config.ego_features]), persistent=False)
@@ -157,9 +162,12 @@ class BevTower(nn.Module):
         return torch.cat([pooled, geometry, ego], dim=-1)  # (B, T, 2 D_e + 8 + E)
 
     def track_features(self, object_track: torch.Tensor, ego_motion: torch.Tensor) -> torch.Tensor:
-        """object_track: (B, T, F); ego_motion: (B, T, 4) → (B, T, 2 F + E): the track, its change since
-        the previous frame, and the ego motion."""
+        """object_track: (B, T, F); ego_motion: (B, T, 4) → (B, T, 2 F' + E): the track (with its range
+        features, F' = F + 3, under ``track_range``), its change since the previous frame, and the ego motion."""
         ego = ego_motion[..., : self.config.ego_features] / self.ego_scale  # (B, T, E)
+        if self.config.track_range:
+            x, y = object_track[..., 0], object_track[..., 1]  # (B, T) ego-relative position / 50 m
+            object_track = torch.cat([object_track, torch.stack([torch.hypot(x, y), x.abs(), y.abs()], dim=-1)], dim=-1)
         return torch.cat([with_motion(object_track), ego], dim=-1)
 
     def forward(

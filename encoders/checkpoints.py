@@ -210,7 +210,7 @@ def _config_differences(a: dict[str, Any], b: dict[str, Any], prefix: str = "") 
 def check_resume_config(new: TrainConfig, saved: dict[str, Any], done_epochs: int) -> None:
     """Raise :class:`ConfigMismatchError` when ``new`` differs from the checkpoint's config beyond RESUMABLE_KEYS."""
     a = {k: v for k, v in new.to_dict().items() if k not in RESUMABLE_KEYS}
-    b = {k: v for k, v in saved.items() if k not in RESUMABLE_KEYS}
+    b = {k: v for k, v in TrainConfig.from_run_dict(saved, "checkpoint").to_dict().items() if k not in RESUMABLE_KEYS}
     diffs = _config_differences(a, b)
     if diffs:
         raise ConfigMismatchError(

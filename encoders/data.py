@@ -27,6 +27,7 @@ and ``object_track`` are rotated to match), and colour jitter of the camera fram
 
 from __future__ import annotations
 
+import random
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -50,6 +51,8 @@ from encoders.clips.views import (
     rotate_object_track,
     warp_source_cells,
 )
+from encoders.negatives import render_caption
+from encoders.time_reversal import reversed_clip_tags
 
 #: The image-like views; uint8 0–255 with ``as_uint8=True``, else float32 in [0, 1].
 UINT8_VIEWS = ("camera", "bev_lidar", "bev_map", "bev_object")
@@ -64,6 +67,8 @@ class AugmentConfig:
         max_translation_m: BEV shift along x and y drawn from U(−max, max).
         brightness, contrast, saturation: camera jitter factors drawn from U(1 − v, 1 + v).
         paraphrase_probability: chance to use a paraphrase instead of the canonical caption.
+        time_reversal_probability: chance to play the clip backwards, captioned by its reversed tags
+            (:mod:`encoders.time_reversal`); 0 leaves every other draw as it was.
     """
 
     max_rotation_rad: float = 0.1
@@ -72,6 +77,7 @@ class AugmentConfig:
     contrast: float = 0.2
     saturation: float = 0.2
     paraphrase_probability: float = 0.8
+    time_reversal_probability: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -221,8 +227,15 @@ class ClipDataset(torch.utils.data.Dataset[dict[str, Any]]):
         rng = np.random.default_rng([self.seed, self.epoch, index]) if self.augment else None
         aug = self.augment_config
 
-        caption = row.caption
-        if rng is not None and row.paraphrases and rng.random() < aug.paraphrase_probability:
+        caption, canonical, tags, host_tags = row.caption, row.canonical_caption, list(row.tags), list(row.host_tags)
+        backwards = _played_backwards(row, rng, aug)
+        if backwards is not None:
+            fi = fi[::-1]
+            canonical, tags, host_tags = backwards
+            caption = canonical
+            if rng is not None and rng.random() < aug.paraphrase_probability:
+                caption = render_caption(row.category, tags, host_tags, random.Random(int(rng.integers(2**63))))
+        elif rng is not None and row.paraphrases and rng.random() < aug.paraphrase_probability:
             caption = row.paraphrases[int(rng.integers(len(row.paraphrases)))]
 
         has_camera = bool(row.has_camera and arrays.camera.shape[0] > 0)
@@ -264,11 +277,24 @@ class ClipDataset(torch.utils.data.Dataset[dict[str, Any]]):
             "track_id": row.track_id,
             "category": row.category,
             "caption": caption,
-            "canonical_caption": row.canonical_caption,
-            "tags": list(row.tags),
-            "host_tags": list(row.host_tags),
+            "canonical_caption": canonical,
+            "tags": tags,
+            "host_tags": host_tags,
             "has_camera": has_camera,
         }
+
+
+def _played_backwards(row: _Row, rng: np.random.Generator | None,
+                      aug: AugmentConfig) -> tuple[str, list[str], list[str]] | None:
+    """(canonical caption, tags, host tags) of the row's clip played backwards when the draw says so,
+    else None. Tags outside captioning's vocabulary have no reversed caption: that clip plays forwards."""
+    if rng is None or aug.time_reversal_probability <= 0 or rng.random() >= aug.time_reversal_probability:
+        return None
+    tags, host_tags = reversed_clip_tags(row.category, row.tags, row.host_tags)
+    try:
+        return render_caption(row.category, tags, host_tags), tags, host_tags
+    except (KeyError, ValueError):
+        return None
 
 
 def _colour_jitter(rgb: NDArray[np.uint8], rng: np.random.Generator, aug: AugmentConfig) -> NDArray[np.uint8]:

@@ -19,7 +19,7 @@ import torch
 from torch.utils.data import DataLoader, Dataset
 
 from encoders.config import ConfigError, TrainConfig, check_device_name
-from encoders.data import ClipDataset, collate_clips
+from encoders.data import AugmentConfig, ClipDataset, collate_clips
 from encoders.model import DualEncoder
 
 
@@ -47,10 +47,11 @@ def collate(items: list[dict[str, Any]]) -> dict[str, Any]:
 
 
 def open_split(clips_dir: Path | str, split: str | None, augment: bool = False,
-               seed: int = 0) -> Dataset[dict[str, Any]]:
+               seed: int = 0, augment_config: AugmentConfig | None = None) -> Dataset[dict[str, Any]]:
     """The clips of ``split`` (all when None) in ``clips_dir`` (an :class:`encoders.data.ClipDataset`)."""
     # uint8 views: a quarter of the bytes through the workers; the model converts them on its device.
-    return ClipDataset(clips_dir, split=split, augment=augment, seed=seed, as_uint8=True)
+    return ClipDataset(clips_dir, split=split, augment=augment, seed=seed, augment_config=augment_config,
+                       as_uint8=True)
 
 
 def shuffle_time(batch: dict[str, Any], generator: torch.Generator | None = None) -> dict[str, Any]:

@@ -136,7 +136,8 @@ def _open_datasets(
     else:
         if not clips_dir.is_dir():
             raise FileNotFoundError(f"{clips_dir}: clips folder not found")
-        train_set = open_split(clips_dir, "train", augment=config.augment, seed=config.seed)
+        train_set = open_split(clips_dir, "train", augment=config.augment, seed=config.seed,
+                               augment_config=AugmentConfig(time_reversal_probability=config.time_reversal))
         val_set = open_split(clips_dir, "val", seed=config.seed)
     if train_set is None or len(train_set) == 0:  # type: ignore[arg-type]
         raise NoTrainingSplitError(f"{clips_dir}: no clips in the 'train' split (clips.parquet column 'split')")

@@ -200,6 +200,6 @@ def synthetic_captions(log_dirs: list[Path], first_frame: int = 5, last_frame: i
                 "tags": ["left:approach"] if track_id == "lead" else ["right:stationary"],
                 "caption": caption, "canonical_caption": caption,
                 "paraphrases": [f"{caption} (paraphrase {i})" for i in range(2)],
-                "window": "whole", "num_frames": int(ts.shape[0]), "host_tags": ["host:constant"],
+                "window": "whole", "num_frames": int(ts.shape[0]), "host_tags": ["cruising:heading_straight"],
             })
     return pa.Table.from_pylist(rows)

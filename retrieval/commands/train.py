@@ -44,6 +44,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--max-steps-per-epoch", type=int, help="cap steps per epoch (smoke runs)")
     parser.add_argument("--text-model", help="sentence-transformers model name or local folder")
     parser.add_argument("--scratch-text", action="store_true", help="train a small text transformer from scratch")
+    parser.add_argument("--time-reversal", type=float, metavar="P",
+                        help="chance that a training clip plays backwards, captioned by its reversed tags")
     parser.add_argument("--shuffle-frames", action="store_true", help="bag-of-frames baseline: shuffle frames in time")
     parser.add_argument("--inputs", choices=["none", "map", "lidar", "both"],
                         help="BEV inputs the model sees (input ablation of the tagging evaluation; default both)")
@@ -74,6 +76,7 @@ def build_config(args: argparse.Namespace) -> Any:
         "device": args.device,
         "num_workers": args.num_workers,
         "max_steps_per_epoch": args.max_steps_per_epoch,
+        "time_reversal": args.time_reversal,
     }
     config = dataclasses.replace(config, **{k: v for k, v in flags.items() if v is not None})
     if args.shuffle_frames:

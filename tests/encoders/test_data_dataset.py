@@ -15,6 +15,8 @@ from encoders.clips.config import ClipsConfig
 from encoders.clips.layout import parse_clip_id, read_clip_table, read_manifest
 from encoders.clips.testing import synthetic_captions, write_synthetic_log
 from encoders.data import AugmentConfig, ClipDataset, collate_clips
+from encoders.negatives import render_caption
+from encoders.time_reversal import reversed_clip_tags
 from scenes.bev import BevGrid
 
 
@@ -137,3 +139,28 @@ def test_uint8_batches_match_the_float_interface(clips_dir: Path) -> None:
         torch.testing.assert_close(raw[indices[1]][key], b[key][1])
     torch.testing.assert_close(a["ego_motion"], b["ego_motion"])
     assert a["caption"] == b["caption"] and a["clip_id"] == [floats.clip_ids[i] for i in indices]
+
+
+def test_time_reversal_plays_the_clip_backwards_under_its_reversed_caption(clips_dir: Path) -> None:
+    still = dict(max_rotation_rad=0.0, max_translation_m=0.0, brightness=0.0, contrast=0.0, saturation=0.0,
+                 paraphrase_probability=0.0)
+    plain = ClipDataset(clips_dir, augment=True, augment_config=AugmentConfig(**still))
+    backwards = ClipDataset(clips_dir, augment=True,
+                            augment_config=AugmentConfig(**still, time_reversal_probability=1.0))
+    for index in range(len(plain)):
+        x, y = plain[index], backwards[index]
+        for key in ("bev_lidar", "bev_map", "bev_object", "camera"):
+            assert torch.equal(y[key], x[key].flip(0)), key
+        tags, host = reversed_clip_tags(x["category"], x["tags"], x["host_tags"])
+        assert (y["tags"], y["host_tags"]) == (tags, host)
+        assert y["caption"] == y["canonical_caption"] == render_caption(x["category"], tags, host)
+        # The ego motion is taken from the new first frame: the ego drives backwards at the same speeds.
+        m0, m1 = x["ego_motion"].numpy(), y["ego_motion"].numpy()
+        np.testing.assert_allclose(m1[0, :3], 0.0, atol=1e-6)
+        np.testing.assert_allclose(m1[:, 3], m0[::-1, 3])
+        np.testing.assert_allclose(np.linalg.norm(m1[-1, :2]), np.linalg.norm(m0[-1, :2]), atol=1e-4)
+        np.testing.assert_array_equal(y["object_track"].numpy()[:, :4], x["object_track"].numpy()[::-1, :4])
+    # Half the clips, drawn per (seed, epoch, clip): a draw like any other augmentation.
+    half = ClipDataset(clips_dir, augment=True, augment_config=AugmentConfig(**still, time_reversal_probability=0.5))
+    flipped = [not torch.equal(half[i]["bev_object"], plain[i]["bev_object"]) for i in range(len(plain))]
+    assert 0 < sum(flipped) < len(plain)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import json
 from pathlib import Path
 
 import pytest
@@ -78,3 +79,20 @@ def test_defaults_of_the_universal_embedding() -> None:
     bev = TrainConfig().model.bev
     assert (bev.embed_channels, bev.downsample) == (64, 2)
     assert dataclasses.asdict(TrainConfig())["model"]["logit_scale_max"] == pytest.approx(4.60517, abs=1e-5)
+
+
+def test_a_run_written_before_newer_keys_loads_and_resumes_as_it_was(tmp_path: Path) -> None:
+    from encoders.checkpoints import check_resume_config
+
+    old = TrainConfig().to_dict()
+    del old["view_weight"], old["time_reversal"], old["model"]["bev"]["track_range"]
+    path = tmp_path / "config.json"
+    path.write_text(json.dumps(old))
+    config = TrainConfig.from_json(path)
+    assert config.view_weight == 0.0 and config.time_reversal == 0.0 and config.model.bev.track_range is False
+    check_resume_config(config, old, done_epochs=1)  # the checkpoint's dict lacks the same keys
+    changed = dataclasses.replace(config.model, bev=dataclasses.replace(config.model.bev, track_range=True))
+    with pytest.raises(ConfigError, match="track_range"):
+        check_resume_config(dataclasses.replace(config, model=changed), old, done_epochs=1)
+    with pytest.raises(ConfigError, match="time_reversal"):
+        TrainConfig(time_reversal=1.5)

@@ -22,7 +22,8 @@ of the bytes to move; :class:`~encoders.model.DualEncoder` converts them on its 
 
 Augmentation (seeded by ``(seed, epoch, index)``; call :meth:`ClipDataset.set_epoch`): paraphrased
 captions, one small rotation and translation of the whole BEV clip about the ego (``ego_motion`` is
-and ``object_track`` are rotated to match), and colour jitter of the camera frames.
+and ``object_track`` are rotated to match), colour jitter of the camera frames, and (with
+``time_reversal_probability``) the clip played backwards under its reversed tags.
 """
 
 from __future__ import annotations

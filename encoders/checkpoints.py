@@ -207,10 +207,15 @@ def _config_differences(a: dict[str, Any], b: dict[str, Any], prefix: str = "") 
     return diffs
 
 
-def check_resume_config(new: TrainConfig, saved: dict[str, Any], done_epochs: int) -> None:
-    """Raise :class:`ConfigMismatchError` when ``new`` differs from the checkpoint's config beyond RESUMABLE_KEYS."""
+def check_resume_config(new: TrainConfig, saved: dict[str, Any], done_epochs: int, source: str = "checkpoint") -> None:
+    """Raise :class:`ConfigMismatchError` when ``new`` differs from the checkpoint's config beyond RESUMABLE_KEYS.
+
+    ``saved`` is read as a run's config (:meth:`TrainConfig.from_run_dict`: keys added since it was
+    written take their earlier values); ``source`` names the checkpoint in errors about it.
+    """
     a = {k: v for k, v in new.to_dict().items() if k not in RESUMABLE_KEYS}
-    b = {k: v for k, v in TrainConfig.from_run_dict(saved, "checkpoint").to_dict().items() if k not in RESUMABLE_KEYS}
+    b = {k: v for k, v in TrainConfig.from_run_dict(saved, f"{source}: config").to_dict().items()
+         if k not in RESUMABLE_KEYS}
     diffs = _config_differences(a, b)
     if diffs:
         raise ConfigMismatchError(

@@ -12,7 +12,6 @@ a from-scratch text tower and a few channels per layer).
 
 from __future__ import annotations
 
-import copy
 import json
 import re
 from dataclasses import dataclass, field
@@ -356,8 +355,7 @@ class TrainConfig(EncodersConfig):
         """A config that a run wrote (its ``config.json``, its checkpoint's): a key it lacks takes the
         value that runs had before the key existed, so that an older run loads and resumes as it was."""
         if isinstance(data, dict):
-            data = copy.deepcopy(data)
-            data.setdefault("view_weight", 0.0)  # before the single-view losses: the fused view only
+            data = {"view_weight": 0.0, **data}  # before the single-view losses: the fused view only
         return cls.from_dict(data, source=source)
 
     @staticmethod

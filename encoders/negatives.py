@@ -24,13 +24,15 @@ from typing import Any
 
 from captioning.tags import Lane, Motion
 from captioning.text import caption_text
+from captioning.unify import collapse
 from encoders.config import HardNegative
 
 #: What a clip (a dataset item) needs for its hard negatives.
 NEGATIVE_FIELDS = ("clip_id", "category", "tags", "host_tags")
 #: Category of the ego's own clips: their tags are host tags and their caption is the host sentence.
 EGO_CATEGORY = "ego"
-_FLIP_MOTION = {Motion.APPROACH.value: Motion.AWAY.value, Motion.AWAY.value: Motion.APPROACH.value}
+#: approach ↔ away: the one motion edit, shared with :mod:`encoders.time_reversal`.
+FLIP_MOTION = {Motion.APPROACH.value: Motion.AWAY.value, Motion.AWAY.value: Motion.APPROACH.value}
 _MIRROR_LANE = {Lane.LEFT.value: Lane.RIGHT.value, Lane.RIGHT.value: Lane.LEFT.value,
                 Lane.LEFT_LATERAL.value: Lane.RIGHT_LATERAL.value, Lane.RIGHT_LATERAL.value: Lane.LEFT_LATERAL.value}
 
@@ -67,10 +69,6 @@ def reversed_steps(tags: Sequence[str]) -> list[str] | None:
     return out if len(out) >= 2 and out != list(tags) else None
 
 
-def _merge_repeats(tags: list[str]) -> list[str]:
-    return [t for i, t in enumerate(tags) if i == 0 or t != tags[i - 1]]
-
-
 def _with_part(tag: str, index: int, table: dict[str, str]) -> str:
     parts = tag.split(":")
     parts[index] = table.get(parts[index], parts[index])
@@ -88,11 +86,11 @@ def edited_steps(tags: Sequence[str], kind: HardNegative | str, key: str = "") -
     if kind == HardNegative.REVERSE:
         return reversed_steps(tags)
     if kind == HardNegative.MOTION:
-        steps = [i for i, t in enumerate(tags) if t.count(":") and t.split(":")[1] in _FLIP_MOTION]
+        steps = [i for i, t in enumerate(tags) if t.count(":") and t.split(":")[1] in FLIP_MOTION]
         if not steps:
             return None
         i = steps[zlib.crc32(key.encode()) % len(steps)]
-        out = _merge_repeats([*tags[:i], _with_part(tags[i], 1, _FLIP_MOTION), *tags[i + 1 :]])
+        out = collapse([*tags[:i], _with_part(tags[i], 1, FLIP_MOTION), *tags[i + 1 :]])
     else:
         out = [_with_part(t, 0, _MIRROR_LANE) for t in tags]
     return out if out != tags else None

@@ -261,7 +261,7 @@ def train(
     device = dp.device(resolve_device(config.device))
     checkpoint = read_checkpoint(ckpt_path) if resume else None
     if checkpoint is not None and not force:
-        check_resume_config(config, checkpoint.config, checkpoint.epoch)
+        check_resume_config(config, checkpoint.config, checkpoint.epoch, str(ckpt_path))
         dp.check_resume(checkpoint.history)
     seed_everything(config.seed)
     model = DualEncoder(config.model).to(device)

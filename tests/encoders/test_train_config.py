@@ -94,5 +94,7 @@ def test_a_run_written_before_newer_keys_loads_and_resumes_as_it_was(tmp_path: P
     changed = dataclasses.replace(config.model, bev=dataclasses.replace(config.model.bev, track_range=True))
     with pytest.raises(ConfigError, match="track_range"):
         check_resume_config(dataclasses.replace(config, model=changed), old, done_epochs=1)
+    with pytest.raises(ConfigError, match=r"run/checkpoints/last.pt: config.*bogus"):
+        check_resume_config(config, {**old, "bogus": 1}, done_epochs=1, source="run/checkpoints/last.pt")
     with pytest.raises(ConfigError, match="time_reversal"):
         TrainConfig(time_reversal=1.5)

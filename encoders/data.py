@@ -19,6 +19,10 @@ of the bytes to move; :class:`~encoders.model.DualEncoder` converts them on its 
   clip's first ego frame (every BEV grid is in its own frame's ego frame)
 - ``object_track``: (T, 11) float32, the object's own box through the clip relative to the ego and
   in the clip's first ego frame (:func:`encoders.clips.views.object_track`)
+- ``object_velocity``: (T, 2) float32 the object's velocity relative to the ego in each frame's ego
+  frame, m/s (:func:`encoders.clips.views.object_velocity`)
+- ``frame_targets``: (T, K) int64, each frame's rule tags as class indices of the K
+  :data:`encoders.dense.DENSE_TASKS`, −1 where untagged (all −1 for a clip table without frame tags)
 
 Augmentation (seeded by ``(seed, epoch, index)``; call :meth:`ClipDataset.set_epoch`): paraphrased
 captions, one small rotation and translation of the whole BEV clip about the ego (``ego_motion`` is
@@ -39,6 +43,7 @@ import pyarrow as pa
 import torch
 from numpy.typing import NDArray
 
+from encoders.clips.frame_tags import FRAME_TAG_COLUMNS
 from encoders.clips.layout import grid_from_manifest, read_clip_table, read_manifest
 from encoders.clips.views import (
     OBJECT_TRACK_FEATURES,
@@ -48,10 +53,12 @@ from encoders.clips.views import (
     highlight_camera,
     object_footprint,
     object_track,
+    object_velocity,
     open_log_arrays,
     rotate_object_track,
     warp_source_cells,
 )
+from encoders.dense import DENSE_TASKS, frame_targets
 from encoders.negatives import render_caption
 from encoders.time_reversal import reversed_clip_tags
 
@@ -94,6 +101,7 @@ class _Row:
     host_tags: tuple[str, ...]
     has_camera: bool
     frame_indices: NDArray[np.int64]
+    frame_targets: NDArray[np.int64]
 
 
 class ClipDataset(torch.utils.data.Dataset[dict[str, Any]]):
@@ -116,6 +124,7 @@ class ClipDataset(torch.utils.data.Dataset[dict[str, Any]]):
                 raise ValueError(f"split must be 'train', 'val', 'test' or None, got {split!r}")
             table = table.filter(pa.compute.equal(table.column("split"), split))
         cols = table.to_pydict()
+        tag_columns = [c for c in FRAME_TAG_COLUMNS if c in cols]
         self._rows = [
             _Row(
                 clip_id=cols["clip_id"][i],
@@ -129,6 +138,7 @@ class ClipDataset(torch.utils.data.Dataset[dict[str, Any]]):
                 host_tags=tuple(cols["host_tags"][i] or ()),
                 has_camera=bool(cols["has_camera"][i]),
                 frame_indices=np.asarray(cols["frame_indices"][i], dtype=np.int64),
+                frame_targets=frame_targets({c: cols[c][i] for c in tag_columns}, len(cols["frame_indices"][i])),
             )
             for i in range(table.num_rows)
         ]
@@ -155,6 +165,11 @@ class ClipDataset(torch.utils.data.Dataset[dict[str, Any]]):
 
     def __len__(self) -> int:
         return len(self._rows)
+
+    @property
+    def has_frame_tags(self) -> bool:
+        """Whether some clip frame has a rule tag (a dense target)."""
+        return any(bool((r.frame_targets >= 0).any()) for r in self._rows)
 
     @property
     def clip_ids(self) -> list[str]:
@@ -201,7 +216,10 @@ class ClipDataset(torch.utils.data.Dataset[dict[str, Any]]):
         t = shapes["camera"][0]
         motion = _empty_batch((len(indices), t, 4), torch.float32)
         track = _empty_batch((len(indices), t, OBJECT_TRACK_FEATURES), torch.float32)
-        items = [self._fill(i, {key: slot[b] for key, slot in slots.items()}, motion.numpy()[b], track.numpy()[b])
+        velocity = _empty_batch((len(indices), t, 2), torch.float32)
+        targets = _empty_batch((len(indices), t, len(DENSE_TASKS)), torch.int64)
+        items = [self._fill(i, {key: slot[b] for key, slot in slots.items()}, motion.numpy()[b], track.numpy()[b],
+                            velocity.numpy()[b], targets.numpy()[b])
                  for b, i in enumerate(indices)]
         batch: dict[str, Any] = {key: [item[key] for item in items] for key in items[0]}
         batch["has_camera"] = torch.tensor(batch["has_camera"], dtype=torch.bool)
@@ -214,12 +232,16 @@ class ClipDataset(torch.utils.data.Dataset[dict[str, Any]]):
                 batch[key] = out
         batch["ego_motion"] = motion
         batch["object_track"] = track
+        batch["object_velocity"] = velocity
+        batch["frame_targets"] = targets
         return batch
 
     def _fill(self, index: int, slot: dict[str, NDArray[np.uint8]], motion_out: NDArray[np.float32],
-              track_out: NDArray[np.float32]) -> dict[str, Any]:
+              track_out: NDArray[np.float32], velocity_out: NDArray[np.float32],
+              targets_out: NDArray[np.int64]) -> dict[str, Any]:
         """Write item ``index``'s uint8 views into ``slot`` (contiguous (T, C, H, W) arrays), its
-        ego motion into ``motion_out`` (T, 4) and its track into ``track_out`` (T, 11); return the
+        ego motion into ``motion_out`` (T, 4), its track into ``track_out`` (T, 11) and
+        ``velocity_out`` (T, 2), and its frames' tag classes into ``targets_out`` (T, K); return the
         item's other fields."""
         row = self._rows[index]
         arrays = self._log(row.log_id)
@@ -230,8 +252,10 @@ class ClipDataset(torch.utils.data.Dataset[dict[str, Any]]):
 
         caption, canonical, tags, host_tags = row.caption, row.canonical_caption, list(row.tags), list(row.host_tags)
         backwards = _played_backwards(row, rng, aug)
+        targets_out[:] = row.frame_targets
         if backwards is not None:
             fi = fi[::-1]
+            targets_out.fill(-1)  # the frames' tags of a clip played backwards are not the rules'; none
             canonical, tags, host_tags = backwards
             caption = canonical
             if rng is not None and rng.random() < aug.paraphrase_probability:
@@ -256,7 +280,10 @@ class ClipDataset(torch.utils.data.Dataset[dict[str, Any]]):
         obj = object_footprint(arrays, self._grid, row.track_id, fi)[:, None]  # (T, 1, H, W), 0/1
         obj *= np.uint8(255)
         motion_out[:] = ego_motion(arrays.pose_xy_yaw, arrays.speed_mps, fi)
-        track_out[:] = object_track(arrays.track_boxes[fi, arrays.track_value[row.track_id] - 1], motion_out)
+        track_out[:] = object_track(arrays.track_boxes[fi, value - 1], motion_out)
+        velocity_out[:] = object_velocity(arrays.track_boxes[:, value - 1, :2], arrays.time_s, fi)
+        if backwards is not None:
+            velocity_out *= -1.0  # played backwards, every velocity turns round
         if rng is None:
             np.take(arrays.bev_lidar, fi, axis=0, out=slot["bev_lidar"])  # memory map → batch, one copy
             np.take(arrays.bev_map, fi, axis=0, out=slot["bev_map"])
@@ -271,6 +298,7 @@ class ClipDataset(torch.utils.data.Dataset[dict[str, Any]]):
             c, s = np.cos(theta), np.sin(theta)
             motion_out[:, :2] = motion_out[:, :2] @ np.array([[c, s], [-s, c]], dtype=np.float32)
             rotate_object_track(track_out, theta)
+            velocity_out[:] = velocity_out @ np.array([[c, s], [-s, c]], dtype=np.float32)
 
         return {
             "clip_id": row.clip_id,

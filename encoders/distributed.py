@@ -329,6 +329,14 @@ class Distributed:
         dist.all_reduce(t)
         return float(t) / self.processes
 
+    def total(self, x: torch.Tensor) -> torch.Tensor:
+        """x (counts, no gradient) summed over processes."""
+        if not self.active:
+            return x
+        out = x.detach().to(self._collective_device(), copy=True)
+        dist.all_reduce(out)
+        return out.to(x.device)
+
     def any(self, flag: bool) -> bool:
         """Whether ``flag`` holds on any process."""
         if not self.active:

@@ -53,14 +53,18 @@ class TemporalEncoder(nn.Module):
 
     def forward(self, frames: torch.Tensor) -> torch.Tensor:
         """frames: (B, T, C_in) → (B, width)."""
+        return self.encode(frames)[0]
+
+    def encode(self, frames: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """frames: (B, T, C_in) → the clip vector (B, width) and the frame tokens (B, T, width)."""
         b, t, _ = frames.shape
         if t > self.config.max_frames:
             raise ValueError(f"clip has {t} frames, the temporal model takes at most {self.config.max_frames}")
         x = self.proj(frames)  # (B, T, W)
         x = x + self.motion(x.transpose(1, 2)).transpose(1, 2) + self.time[:t]  # (B, T, W)
         x = torch.cat([self.query.expand(b, 1, -1), x], dim=1)  # (B, 1 + T, W)
-        x = self.transformer(x)  # (B, 1 + T, W)
-        return self.norm(x[:, 0])  # (B, W)
+        x = self.norm(self.transformer(x))  # (B, 1 + T, W)
+        return x[:, 0], x[:, 1:]  # (B, W), (B, T, W)
 
 
 class ViewFusion(nn.Module):

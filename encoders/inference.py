@@ -20,6 +20,8 @@ from torch.utils.data import DataLoader, Dataset
 
 from encoders.config import ConfigError, TrainConfig, check_device_name
 from encoders.data import AugmentConfig, ClipDataset, collate_clips
+from encoders.dense import DENSE_TASKS, dense_accuracy
+from encoders.metrics import relevance_by_caption, text_to_clip_metrics
 from encoders.model import DualEncoder
 
 
@@ -139,6 +141,91 @@ def embed_clips(
     dataset = open_split(clips_dir, split) if isinstance(clips_dir, str | Path) else clips_dir
     ids, vectors, _ = embed_dataset(model, dataset, view=view, shuffle_frames=shuffle_frames, batch_size=batch_size)
     return ids, vectors
+
+
+def evaluate(
+    model: DualEncoder,
+    dataset: Dataset[dict[str, Any]],
+    view: str = "fused",
+    shuffle_frames: bool = False,
+    batch_size: int = 32,
+    min_steps: int = 1,
+) -> dict[str, float]:
+    """Text → clip retrieval on ``dataset``: queries are the unique canonical captions, relevant clips share it.
+
+    ``min_steps`` keeps only queries whose tag sequence has at least that many steps.
+    """
+    _, vectors, captions = embed_dataset(model, dataset, view, shuffle_frames, batch_size)
+    tags_of: dict[str, int] = {}
+    if min_steps > 1:
+        for i in range(len(dataset)):  # type: ignore[arg-type]
+            item = dataset[i]
+            tags_of[item["canonical_caption"]] = len(item["tags"])
+    queries = sorted({c for c in captions if min_steps <= 1 or tags_of.get(c, 0) >= min_steps})
+    if not queries:
+        return {"queries": 0.0}
+    text = embed_texts(model, queries)  # (Q, D)
+    return text_to_clip_metrics(text @ vectors.T, relevance_by_caption(queries, captions))
+
+
+@torch.no_grad()
+def frame_tag_figures(model: DualEncoder, dataset: Dataset[dict[str, Any]], batch_size: int = 32) -> dict[str, Any]:
+    """How well the dense heads read each frame's rule tags on ``dataset`` (:mod:`encoders.dense`).
+
+    → ``{"streams": {stream: {task: accuracy}}, "majority": {task: accuracy}, "frames": {task: n},
+    "first_last_motion": {stream: [first, last]}}``: accuracy over the tagged frames of each task (the
+    camera stream's over clips with camera), beside always answering the task's most frequent tag in
+    ``dataset``; the last figure is the motion at each clip's first and last tagged frame, the ends a
+    caption's order is made of. Empty without dense heads.
+    """
+    if not model.dense:
+        return {}
+    was_training = model.training
+    model.eval()
+    logits: dict[str, list[torch.Tensor]] = {}
+    targets, has_camera = [], []
+    for batch in _batches(dataset, batch_size):
+        frames: dict[str, torch.Tensor] = {}
+        model.encode_views(batch, frames=frames)
+        for name, x in model.dense_logits(frames).items():
+            logits.setdefault(name, []).append(x.float().cpu())
+        targets.append(torch.as_tensor(batch["frame_targets"]))
+        has_camera.append(torch.as_tensor(batch["has_camera"], dtype=torch.bool).reshape(-1))
+    model.train(was_training)
+    if not targets:
+        return {}
+    target = torch.cat(targets)  # (N, T, K)
+    camera = torch.cat(has_camera)  # (N,)
+    motion = list(DENSE_TASKS).index("motion")
+    offset = sum(len(c) for c in list(DENSE_TASKS.values())[:motion])
+    streams: dict[str, dict[str, float]] = {}
+    ends: dict[str, list[float]] = {}
+    for name, chunks in logits.items():
+        x, y = torch.cat(chunks), target  # (N, T, ΣC), (N, T, K)
+        if name == "camera":
+            x, y = x[camera], y[camera]
+        streams[name] = dense_accuracy(x, y)
+        predicted = x[..., offset : offset + len(DENSE_TASKS["motion"])].argmax(-1)  # (N, T)
+        ends[name] = _end_accuracy(predicted, y[..., motion])
+    valid = target >= 0
+    majority = {task: float(torch.bincount(target[..., k][valid[..., k]]).max()) / max(int(valid[..., k].sum()), 1)
+                if bool(valid[..., k].any()) else float("nan") for k, task in enumerate(DENSE_TASKS)}
+    return {"streams": streams, "majority": majority,
+            "frames": {task: int(valid[..., k].sum()) for k, task in enumerate(DENSE_TASKS)},
+            "first_last_motion": ends}
+
+
+def _end_accuracy(predicted: torch.Tensor, target: torch.Tensor) -> list[float]:
+    """predicted, target: (N, T) (−1: untagged) → accuracy at each clip's first and last tagged frame."""
+    tagged = target >= 0  # (N, T)
+    rows = tagged.any(1)
+    if not bool(rows.any()):
+        return [float("nan"), float("nan")]
+    t = torch.arange(target.shape[1]).expand_as(target)
+    first = torch.where(tagged, t, target.shape[1]).min(1).values[rows]
+    last = torch.where(tagged, t, -1).max(1).values[rows]
+    n = torch.arange(target.shape[0])[rows]
+    return [float((predicted[n, i] == target[n, i]).float().mean()) for i in (first, last)]
 
 
 def load_model(run_dir: Path | str, device: str = "cpu") -> DualEncoder:

@@ -12,6 +12,7 @@ tower's universal embedding E.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 import torch
@@ -21,6 +22,7 @@ from torch import nn
 from encoders.bev import BevTower
 from encoders.camera import CameraTower
 from encoders.config import DualEncoderConfig
+from encoders.dense import DenseHeads, stream_dense_loss
 from encoders.fusion import ViewFusion
 from encoders.text import TextTower
 
@@ -38,6 +40,9 @@ class DualEncoder(nn.Module):
         self.camera = CameraTower(config.camera, d)
         self.bev = BevTower(config.bev, d)
         self.fusion = ViewFusion(config.fusion, d)
+        widths = {"camera": config.camera.temporal.width, "bev": config.bev.temporal.width,
+                  "track": config.bev.track.width}
+        self.dense = nn.ModuleDict({s: DenseHeads(widths[s]) for s in config.dense_streams})
         self.logit_scale = nn.Parameter(torch.tensor(config.logit_scale_init))
 
     @property
@@ -69,20 +74,23 @@ class DualEncoder(nn.Module):
             x = self.fusion(*self._towers(batch, camera_always=False))
         return F.normalize(x, dim=-1) if normalize else x
 
-    def encode_views(self, batch: dict[str, Any], normalize: bool = True,
-                     camera_always: bool = True) -> dict[str, torch.Tensor]:
+    def encode_views(self, batch: dict[str, Any], normalize: bool = True, camera_always: bool = True,
+                     frames: dict[str, torch.Tensor] | None = None) -> dict[str, torch.Tensor]:
         """All three views of a batch at the cost of one: each tower runs once, fusion reuses them.
 
         Returns ``{"camera": (B, D), "bev": (B, D), "fused": (B, D)}``, equal to
         :meth:`encode_video` with each view. ``camera_always=False`` skips the camera tower when no
         clip of the batch has camera (training: the camera view then has nothing to learn from);
         the camera vectors are then zero and the fused ones are still :meth:`encode_video`'s.
+        With a ``frames`` dict, each temporal stream that ran leaves its frame tokens there (see
+        :meth:`dense_logits`).
         """
-        camera, bev, has_camera = self._towers(batch, camera_always)
+        camera, bev, has_camera = self._towers(batch, camera_always, frames)
         out = {"camera": camera, "bev": bev, "fused": self.fusion(camera, bev, has_camera)}
         return {k: F.normalize(v, dim=-1) for k, v in out.items()} if normalize else out
 
-    def _towers(self, batch: dict[str, Any], camera_always: bool) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    def _towers(self, batch: dict[str, Any], camera_always: bool,
+                frames: dict[str, torch.Tensor] | None = None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """→ camera (B, D), BEV (B, D) and ``has_camera`` (B,) bool, what the fusion reads.
 
         The camera tower runs when ``camera_always``, or when some clip has camera, or when the batch
@@ -91,11 +99,24 @@ class DualEncoder(nn.Module):
         (encoders.distributed). Otherwise the camera vectors are zero (the fusion uses BEV alone).
         """
         has_camera = torch.as_tensor(batch["has_camera"], dtype=torch.bool, device=self.device).reshape(-1)
-        bev = self._bev(batch)  # (B, D)
+        bev = self._bev(batch, frames)  # (B, D)
         camera = torch.zeros_like(bev)
         if camera_always or bool(has_camera.any()) or bool(batch.get("run_camera", False)):
-            camera = self.camera(self._get(batch, "camera"))  # (B, D)
+            camera = self.camera(self._get(batch, "camera"), frames)  # (B, D)
         return camera, bev, has_camera
+
+    def dense_logits(self, frames: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+        """Frame tokens that :meth:`encode_views` left → stream → per-frame tag logits (B, T, ΣC) of
+        each stream with dense heads (``config.dense_streams``) that ran."""
+        return {name: head(frames[name]) for name, head in self.dense.items() if name in frames}
+
+    def dense_loss(self, batch: dict[str, Any], frames: dict[str, torch.Tensor],
+                   whole: Callable[[torch.Tensor], torch.Tensor] | None = None) -> torch.Tensor:
+        """The dense loss of ``batch``'s frame tags (``frame_targets`` (B, T, K)) over the frame tokens
+        that :meth:`encode_views` left in ``frames`` (:func:`encoders.dense.stream_dense_loss`; ``whole``
+        sums frame counts over data-parallel processes)."""
+        has_camera = self._get(batch, "has_camera").reshape(-1).bool()
+        return stream_dense_loss(self.dense_logits(frames), self._get(batch, "frame_targets"), has_camera, whole)
 
     def bev_embedding(self, batch: dict[str, Any]) -> torch.Tensor:
         """batch: collated clips → E (B, T, D_e, Hb/r, Wb/r), the universal BEV embedding."""
@@ -105,13 +126,15 @@ class DualEncoder(nn.Module):
         """→ normalised video (B, D), normalised text (B, D) and the clamped scale exp(logit_scale)."""
         return self.encode_video(batch), self.encode_text(texts), self.scale()
 
-    def _bev(self, batch: dict[str, Any]) -> torch.Tensor:
+    def _bev(self, batch: dict[str, Any], frames: dict[str, torch.Tensor] | None = None) -> torch.Tensor:
         return self.bev(
             self._get(batch, "bev_lidar"),
             self._get(batch, "bev_map"),
             self._get(batch, "bev_object"),
             self._get(batch, "ego_motion"),
             self._get(batch, "object_track") if self.config.bev.track_features else None,
+            frames,
+            self._get(batch, "object_velocity") if self.config.bev.track_velocity else None,
         )
 
     def _get(self, batch: dict[str, Any], key: str) -> torch.Tensor:

@@ -12,7 +12,8 @@ cover the same places.
 
 Items follow the dataset contract of :mod:`encoders.data` (``camera`` (T, 4, Hc, Wc) RGB with the
 object highlighted + mask channel, ``bev_lidar`` (T, Cl, Hb, Wb), ``bev_map`` (T, Cm, Hb, Wb),
-``bev_object`` (T, 1, Hb, Wb), ``ego_motion`` (T, 4), ``object_track`` (T, 11), captions and tags).
+``bev_object`` (T, 1, Hb, Wb), ``ego_motion`` (T, 4), ``object_track`` (T, 11), ``object_velocity``
+(T, 2), captions and tags).
 Rendering is vectorised over frames; every item is a pure function of (seed, split, index).
 """
 
@@ -27,7 +28,7 @@ import torch
 from torch.utils.data import Dataset
 
 from encoders.clips.layout import clip_id
-from encoders.clips.views import object_track
+from encoders.clips.views import object_track, object_velocity
 
 LANES_Y_M = {"left": 3.5, "host": 0.0, "right": -3.5}
 MOTIONS = ("approach", "recede", "constant")
@@ -182,6 +183,8 @@ class SyntheticClipDataset(Dataset[dict[str, Any]]):
             "ego_motion": torch.from_numpy(ego),
             "object_track": torch.from_numpy(object_track(
                 np.stack([x_m, y_m, np.full(t, length_m), np.full(t, width_m), np.zeros(t)], axis=1), ego)),
+            "object_velocity": torch.from_numpy(object_velocity(
+                np.stack([x_m, y_m], axis=1), 0.1 * np.arange(t), np.arange(t))),
         }
 
 

@@ -63,12 +63,12 @@ from encoders.checkpoints import (
     restore_rng,
     save_checkpoint,
 )
+from encoders.clips.frame_tags import FRAME_TAG_COLUMNS
 from encoders.config import TrainConfig
 from encoders.data import AugmentConfig
 from encoders.distributed import Distributed
-from encoders.inference import collate, embed_dataset, embed_texts, open_split, resolve_device
+from encoders.inference import collate, evaluate, open_split, resolve_device
 from encoders.loss import contrastive_loss, positives_matrix, tag_similarity, view_loss
-from encoders.metrics import relevance_by_caption, text_to_clip_metrics
 from encoders.model import DualEncoder
 from encoders.model_card import model_card
 from encoders.negatives import NEGATIVE_FIELDS, batch_negatives
@@ -188,32 +188,6 @@ def _append_metrics(path: Path, row: dict[str, Any]) -> None:
         fh.flush()
 
 
-# --- validation --------------------------------------------------------------------------------------
-def evaluate(
-    model: DualEncoder,
-    dataset: Dataset[dict[str, Any]],
-    view: str = "fused",
-    shuffle_frames: bool = False,
-    batch_size: int = 32,
-    min_steps: int = 1,
-) -> dict[str, float]:
-    """Text → clip retrieval on ``dataset``: queries are the unique canonical captions, relevant clips share it.
-
-    ``min_steps`` keeps only queries whose tag sequence has at least that many steps.
-    """
-    _, vectors, captions = embed_dataset(model, dataset, view, shuffle_frames, batch_size)
-    tags_of: dict[str, int] = {}
-    if min_steps > 1:
-        for i in range(len(dataset)):  # type: ignore[arg-type]
-            item = dataset[i]
-            tags_of[item["canonical_caption"]] = len(item["tags"])
-    queries = sorted({c for c in captions if min_steps <= 1 or tags_of.get(c, 0) >= min_steps})
-    if not queries:
-        return {"queries": 0.0}
-    text = embed_texts(model, queries)  # (Q, D)
-    return text_to_clip_metrics(text @ vectors.T, relevance_by_caption(queries, captions))
-
-
 # --- training ----------------------------------------------------------------------------------------
 def _tensorboard(run_dir: Path) -> Any:
     try:
@@ -251,6 +225,10 @@ def train(
     missing = [k for k in NEGATIVE_FIELDS if k not in first] if config.hard_negatives else []
     if missing:
         raise TrainingError(f"{clips_dir}: hard_negatives needs each clip's {', '.join(missing)}, which the clips lack")
+    if config.dense_weight > 0 and not getattr(train_set, "has_frame_tags", "frame_targets" in first):
+        raise TrainingError(f"{clips_dir}: dense_weight needs the clip frames' rule tags "
+                            f"({', '.join(FRAME_TAG_COLUMNS)}), which the clip table lacks: make the clips from "
+                            "captions with their frame_tags.parquet beside")
     ckpt_path = run_dir / "checkpoints" / "last.pt"
     metrics_path = run_dir / "metrics.jsonl"
     if not resume and (ckpt_path.exists() or metrics_path.exists()):
@@ -348,8 +326,9 @@ def train(
                                           step, negative_paraphrases)[1]
             with torch.autocast(device_type=device.type, dtype=torch.bfloat16, enabled=use_amp):
                 views: dict[str, torch.Tensor] = {}
-                if config.view_weight > 0:  # each tower once; the fused view reuses them
-                    views = model.encode_views(batch, camera_always=False)  # no camera clip: nothing to run it on
+                frames: dict[str, torch.Tensor] | None = {} if config.dense_weight > 0 else None
+                if config.view_weight > 0 or frames is not None:  # each tower once; the fused view reuses them
+                    views = model.encode_views(batch, camera_always=False, frames=frames)  # no camera: not run
                     texts = model.encode_text(list(batch["caption"]) + negative_texts)
                     video, scale = views["fused"], model.scale()
                 else:
@@ -361,7 +340,10 @@ def train(
                 own_mask = torch.tensor(own, dtype=torch.bool, device=device).reshape(len(all_keys), len(negatives))
                 loss = contrastive_loss(video, text, scale, positives, config.loss, sim, config.tag_weight,
                                         negatives, own_mask, rows=dp.rows(len(keys)))
-                if views:
+                if frames:  # the frames' rule tags from each stream's frame tokens (encoders.dense)
+                    # Over the whole batch's tagged frames; gradients are averaged over processes, hence the factor.
+                    loss = loss + config.dense_weight * dp.processes * model.dense_loss(batch, frames, dp.total)
+                if config.view_weight > 0:
                     with_camera = dp.gather(torch.as_tensor(batch["has_camera"], dtype=torch.float32,
                                                      device=device).reshape(-1)).gt(0.5)  # (B,) whole batch
                     for name, keep in (("camera", with_camera), ("bev", torch.ones_like(with_camera))):

@@ -25,6 +25,9 @@ returns the metrics dictionary written to ``metrics.json``::
                              (:mod:`retrieval.action_breakdown`), for the model, shuffled frames, rule
                              captions and random, with the queries and clips behind each
     curves:                  recall@K for K = 1 … 50 of the model and the baselines (for plots)
+    frame_tags:              (a model with dense heads, clips with frame tags) each stream's accuracy on
+                             every frame's rule tags beside the most frequent tag, and on the motion at
+                             a clip's first and last tagged frame (:func:`encoders.inference.frame_tag_figures`)
 """
 
 from __future__ import annotations
@@ -337,8 +340,16 @@ def evaluate(run_dir: Path | str, clips_dir: Path | str, split: str = "test", em
                    "bag_of_frames": recall_curve(sim_bag, relevant),
                    "rule_captions": recall_curve(sim_rule, relevant)},
         "model_sha256": embedder.model_id,
-        "wall_s": round(time.perf_counter() - started, 2),
     }
+    model = getattr(embedder, "model", None)  # a trained dual encoder (ModelEmbedder); stand-ins have none
+    if model is not None and getattr(model, "dense", None):
+        from encoders.inference import frame_tag_figures, open_split
+
+        dataset = open_split(clips_dir, None if split == ALL_SPLITS else split)
+        if getattr(dataset, "has_frame_tags", False):
+            metrics["frame_tags"] = frame_tag_figures(model, dataset)
+            say("eval: per-frame tag accuracy of the dense heads")
+    metrics["wall_s"] = round(time.perf_counter() - started, 2)
     return _clean(metrics)
 
 
@@ -413,6 +424,13 @@ def metrics_table(metrics: dict[str, Any]) -> str:
     lines.append(f"({counts.get('clips')} {metrics.get('split')} clips, {counts.get('queries')} caption queries, "
                  f"{counts.get('temporal_pairs')} temporal-order pairs, {free.get('answered')} of "
                  f"{free.get('queries')} free-form queries with a relevant clip)")
+    dense = metrics.get("frame_tags") or {}
+    for stream, figures in (dense.get("streams") or {}).items():
+        tasks = ", ".join(f"{task} {fmt(v)} (majority {fmt(dense['majority'].get(task))})"
+                          for task, v in figures.items())
+        first, last = dense.get("first_last_motion", {}).get(stream, [None, None])
+        lines.append(f"(frame tags from the {stream} stream: {tasks}; motion at the first / last tagged frame "
+                     f"{fmt(first)} / {fmt(last)})")
     seen = get(metrics, "views", "camera_clips") or {}
     if seen:
         lines.append(f"(camera only: over the {seen.get('clips')} clips the camera saw and the {seen.get('queries')} "

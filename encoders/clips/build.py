@@ -23,12 +23,23 @@ from typing import Any
 
 import numpy as np
 
-from captioning.pipeline import CAPTIONS_FILENAME
+from captioning.pipeline import CAPTIONS_FILENAME, FRAME_TAGS_FILENAME
 from common.atomic import atomic_write_text
 from common.ray_cluster import Execution
 from common.ray_runner import TaskSkipped, TaskStatus, run_tasks
-from common.storage import Location, copy_to_local, is_uri, join, name_of, read_bytes, staged_input, staged_output
+from common.storage import (
+    Location,
+    copy_to_local,
+    exists,
+    is_uri,
+    join,
+    name_of,
+    read_bytes,
+    staged_input,
+    staged_output,
+)
 from encoders.clips.config import ClipsConfig
+from encoders.clips.frame_tags import LogFrameTags, empty_clip_columns, read_frame_tags
 from encoders.clips.layout import (
     CAMERA_PIXEL_COUNTS_FILE,
     LOGS_DIR,
@@ -99,13 +110,14 @@ class LogClips:
     reused: bool = False
 
 
-def clip_log(job: tuple[Location, tuple[CaptionRow, ...]], ctx: ClipsTaskContext) -> LogClips:
-    """One log's task: ``job`` is (its folder, its caption rows in caption order).
+def clip_log(job: tuple[Location, tuple[CaptionRow, ...], LogFrameTags | None], ctx: ClipsTaskContext) -> LogClips:
+    """One log's task: ``job`` is (its folder, its caption rows in caption order, its per-frame tags
+    from ``frame_tags.parquet`` or None).
 
     Raises:
         TaskSkipped: the log cannot be opened.
     """
-    log_dir, rows = job
+    log_dir, rows, frame_tags = job
     log_id, config = name_of(log_dir), ctx.config
     with staged_input(log_dir) as local_log:
         try:
@@ -125,7 +137,7 @@ def clip_log(job: tuple[Location, tuple[CaptionRow, ...]], ctx: ClipsTaskContext
             out.skipped.append({"log_id": log_id, "reason": "no neighbour captions for this log"})
             return out
         with _local_clips(ctx.clips_dir, log_id, config, ctx.reuse) as clips_dir:
-            _render_and_cut(log, dense, kept, clips_dir, ctx, out)
+            _render_and_cut(log, dense, kept, clips_dir, ctx, out, frame_tags)
     return out
 
 
@@ -146,7 +158,7 @@ def _local_clips(clips_dir: Location, log_id: str, config: ClipsConfig, reuse: b
 
 
 def _render_and_cut(log: Log, dense: DenseTracks, rows: list[CaptionRow], clips_dir: Path, ctx: ClipsTaskContext,
-                    out: LogClips) -> None:
+                    out: LogClips, frame_tags: LogFrameTags | None) -> None:
     config, skipped = ctx.config, Skipped(out.skipped)
     folder = rendered_log_dir(clips_dir, log.log_id)
     t0 = time.perf_counter()
@@ -161,7 +173,7 @@ def _render_and_cut(log: Log, dense: DenseTracks, rows: list[CaptionRow], clips_
         return
     out.render_s = time.perf_counter() - t0
     t1 = time.perf_counter()
-    out.rows = _clip_rows(log, dense, rows, stats, folder, config, skipped)
+    out.rows = _clip_rows(log, dense, rows, stats, folder, config, skipped, frame_tags)
     out.table_s = time.perf_counter() - t1
     out.stats = stats.to_dict()
     if config.previews and out.rows:
@@ -219,6 +231,7 @@ def build_clips(
         captions_path = join(captions_dir, CAPTIONS_FILENAME)
     with staged_input(captions_path) as local_captions:
         rows = read_captions(local_captions)
+    frame_tags = _read_frame_tags(captions_path)
     report = ClipsReport(clips_dir=clips_dir)
     skipped = Skipped()
 
@@ -234,7 +247,7 @@ def build_clips(
         by_log.setdefault(row.log_id, []).append(row)
     missing_logs = {lid: log_rows[0].row for lid, log_rows in by_log.items() if lid not in given}
     ctx = ClipsTaskContext(clips_dir, config, reuse, check_only=bool(missing_logs) and config.strict)
-    jobs = [(log_dir, tuple(by_log.get(log_id, ()))) for log_id, log_dir in given.items()]
+    jobs = [(log_dir, tuple(by_log.get(log_id, ())), frame_tags.get(log_id)) for log_id, log_dir in given.items()]
     run = run_tasks(clip_log, jobs, execution, labels=list(given), context=ctx, noun="log")
     results: dict[str, LogClips] = {}
     for log_id, outcome in zip(given, run.outcomes):
@@ -341,9 +354,22 @@ def _manifest(config: ClipsConfig, report: ClipsReport, skipped: Skipped,
     }
 
 
+def _read_frame_tags(captions_path: Location) -> dict[str, LogFrameTags]:
+    """The per-frame tags written beside the captions (``frame_tags.parquet``), by log; none when absent."""
+    path = join(str(captions_path).rstrip("/").rsplit("/", 1)[0], FRAME_TAGS_FILENAME) if is_uri(captions_path) \
+        else Path(captions_path).with_name(FRAME_TAGS_FILENAME)
+    if not exists(path):
+        return {}
+    with staged_input(path) as local:
+        try:
+            return read_frame_tags(local)
+        except ValueError as exc:
+            raise ClipsInputError(str(exc)) from None
+
+
 def _clip_rows(
     log: Log, dense: DenseTracks, rows: list[CaptionRow], stats: LogRenderStats, folder: Path,
-    config: ClipsConfig, skipped: Skipped,
+    config: ClipsConfig, skipped: Skipped, frame_tags: LogFrameTags | None = None,
 ) -> list[dict[str, Any]]:
     """The log's clip rows (``split`` is set by the driver, which knows every log)."""
     frame_ts = dense.timestamps_ns
@@ -390,6 +416,8 @@ def _clip_rows(
                 "weather": weather,
                 "frame_indices": indices.tolist(),
                 "preview_path": None,
+                **(frame_tags.clip_columns(row.track_id, frame_ts[indices]) if frame_tags is not None
+                   else empty_clip_columns(len(indices))),
                 **row.behavior,
             }
         )

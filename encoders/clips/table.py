@@ -4,7 +4,9 @@
 ``log_id, track_id, category, start_ns, end_ns, caption, canonical_caption, paraphrases, tags,
 host_tags, split, has_camera, bev_source, time_of_day, weather, frame_indices`` (T int32 indices
 into the per-log arrays, uniform over the window, repeated when the window has fewer frames) and
-``preview_path`` (relative to CLIPS_DIR, null without a preview); when the captions carry the
+``preview_path`` (relative to CLIPS_DIR, null without a preview), the rules' tags at each clip frame
+(``frame_lane, frame_motion, frame_host_motion, frame_host_direction``: :mod:`encoders.clips.frame_tags`,
+null where untagged); when the captions carry the
 objects' own behaviour (``rules: behavior``), also its columns (``parked`` … ``braking_for``,
 ``at_intersection``, ``on_crosswalk``, ``junction_kind``), so that searches can filter on them.
 """
@@ -22,6 +24,7 @@ from numpy.typing import NDArray
 
 from captioning.tables import BEHAVIOR_CAPTION_FIELDS
 from common.atomic import atomic_write_with
+from encoders.clips.frame_tags import FRAME_TAG_COLUMNS
 from encoders.clips.layout import CLIPS_FILE, clip_id
 
 HOST_TRACK_ID = "ego"
@@ -47,6 +50,7 @@ CLIP_SCHEMA = pa.schema(
         ("weather", pa.string()),
         ("frame_indices", pa.list_(pa.int32())),
         ("preview_path", pa.string()),
+        *((name, pa.list_(pa.string())) for name in FRAME_TAG_COLUMNS),
     ]
 )
 

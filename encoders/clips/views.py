@@ -28,6 +28,7 @@ class LogArrays:
         track_value: track id → instance value (1 + index in ``track_ids.json``).
         pose_xy_yaw: (F, 3) ego x, y (city frame, metres) and yaw (radians) per frame.
         speed_mps: (F,) ego speed per frame.
+        time_s: (F,) frame times since the log's first frame.
     """
 
     camera: NDArray[np.uint8]
@@ -39,6 +40,7 @@ class LogArrays:
     track_value: dict[str, int]
     pose_xy_yaw: NDArray[np.float64]
     speed_mps: NDArray[np.float64]
+    time_s: NDArray[np.float64]
 
 
 def open_log_arrays(clips_dir: Path, log_id: str) -> LogArrays:
@@ -48,7 +50,8 @@ def open_log_arrays(clips_dir: Path, log_id: str) -> LogArrays:
         return np.load(folder / name, mmap_mode="r")
 
     ids = json.loads((folder / layout.TRACK_IDS_FILE).read_text())
-    frames = pq.read_table(folder / layout.FRAMES_FILE, columns=["x_m", "y_m", "yaw_rad", "speed_mps"])
+    frames = pq.read_table(folder / layout.FRAMES_FILE, columns=["timestamp_ns", "x_m", "y_m", "yaw_rad", "speed_mps"])
+    stamps_ns = frames.column("timestamp_ns").to_numpy()
     pose = np.stack([frames.column(c).to_numpy() for c in ("x_m", "y_m", "yaw_rad")], axis=1).astype(np.float64)
     return LogArrays(
         camera=load(layout.CAMERA_FILE),  # type: ignore[arg-type]
@@ -60,6 +63,7 @@ def open_log_arrays(clips_dir: Path, log_id: str) -> LogArrays:
         track_value={str(t): i + 1 for i, t in enumerate(ids)},
         pose_xy_yaw=pose,
         speed_mps=frames.column("speed_mps").to_numpy().astype(np.float64),
+        time_s=((stamps_ns - stamps_ns[0]) * 1e-9).astype(np.float64) if stamps_ns.size else np.zeros(0),
     )
 
 
@@ -169,6 +173,37 @@ def object_track(box_xy_lw_yaw: NDArray[np.floating], ego: NDArray[np.floating])
     out = np.stack([x / p, y / p, np.cos(yaw), np.sin(yaw), fixed_x / p, fixed_y / p, np.cos(fixed_yaw),
                     np.sin(fixed_yaw), length / z, width / z, np.ones_like(x)], axis=1)
     return (out * seen[:, None]).astype(np.float32)
+
+
+def object_velocity(center_xy_m: NDArray[np.floating], time_s: NDArray[np.floating],
+                    indices: NDArray[np.integer]) -> NDArray[np.float32]:
+    """The object's velocity relative to the ego, in each sampled frame's ego frame.
+
+    A clip samples T frames of a window of any length, so the change of the track between two clip
+    frames is a velocity times a step the model does not know; the log's own neighbouring frames give
+    the velocity in m/s, the quantity the motion rules threshold (:mod:`captioning.neighbors`).
+
+    Args:
+        center_xy_m: (F, 2) the object's centre in each log frame's ego frame, NaN where unobserved.
+        time_s: (F,) the log frames' times.
+        indices: (T,) sampled frames.
+
+    Returns:
+        (T, 2) float32 ``vx_mps, vy_mps``: central differences over the neighbouring log frames (one-sided
+        at an end or next to an unobserved frame), 0 where neither neighbour is observed.
+    """
+    xy = np.asarray(center_xy_m, dtype=np.float64)
+    t = np.asarray(time_s, dtype=np.float64)
+    i = np.asarray(indices, dtype=np.int64)
+    last = xy.shape[0] - 1
+    prev, nxt = np.maximum(i - 1, 0), np.minimum(i + 1, last)
+    seen: NDArray[np.bool_] = np.asarray(np.isfinite(xy).all(axis=1), dtype=bool)  # (F,)
+    a = np.where(seen[prev], prev, i)
+    b = np.where(seen[nxt], nxt, i)
+    ok = seen[a] & seen[b] & (b > a)
+    dt = np.where(ok, t[b] - t[a], 1.0)
+    v = np.where(ok[:, None], (np.nan_to_num(xy[b]) - np.nan_to_num(xy[a])) / np.maximum(dt, 1e-6)[:, None], 0.0)
+    return v.astype(np.float32)
 
 
 def rotate_object_track(track: NDArray[np.float32], theta_rad: float) -> None:

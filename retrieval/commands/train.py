@@ -46,6 +46,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--scratch-text", action="store_true", help="train a small text transformer from scratch")
     parser.add_argument("--time-reversal", type=float, metavar="P",
                         help="chance that a training clip plays backwards, captioned by its reversed tags")
+    parser.add_argument("--dense-weight", type=float, metavar="W",
+                        help="weight of the per-frame rule-tag loss on the temporal streams' frame tokens (heads on "
+                             "the track stream unless the config names model.dense_streams)")
     parser.add_argument("--shuffle-frames", action="store_true", help="bag-of-frames baseline: shuffle frames in time")
     parser.add_argument("--inputs", choices=["none", "map", "lidar", "both"],
                         help="BEV inputs the model sees (input ablation of the tagging evaluation; default both)")
@@ -81,6 +84,11 @@ def build_config(args: argparse.Namespace) -> Any:
     config = dataclasses.replace(config, **{k: v for k, v in flags.items() if v is not None})
     if args.shuffle_frames:
         config = dataclasses.replace(config, shuffle_frames=True)
+    if args.dense_weight is not None:
+        model = config.model
+        if args.dense_weight > 0 and not model.dense_streams:
+            model = dataclasses.replace(model, dense_streams=("track",) if model.bev.track_features else ("bev",))
+        config = dataclasses.replace(config, model=model, dense_weight=args.dense_weight)
     text = config.model.text
     if args.text_model:
         text = dataclasses.replace(text, kind="pretrained", model=args.text_model)

@@ -41,3 +41,17 @@ def test_track_of_a_turning_ego_and_its_rotation() -> None:
     rotated_box[:, 4] += theta
     expected = object_track(rotated_box, ego)
     np.testing.assert_allclose(turned[:, :4], expected[:, :4], atol=1e-6)
+
+
+def test_object_velocity_from_the_logs_neighbouring_frames() -> None:
+    from encoders.clips.views import object_velocity
+
+    time_s = np.array([0.0, 0.1, 0.2, 0.3, 0.45, 0.6])
+    xy = np.stack([10.0 - 4.0 * time_s, 2.0 + 1.0 * time_s], axis=1)  # closing in at 4 m/s, drifting left at 1
+    xy[5] = np.nan  # unobserved: its neighbour uses a one-sided difference
+    v = object_velocity(xy, time_s, np.array([0, 2, 4, 4, 5]))
+    np.testing.assert_allclose(v[:4], [[-4.0, 1.0]] * 4, atol=1e-5)  # ends and uneven steps alike
+    np.testing.assert_array_equal(v[4], [0.0, 0.0])  # unobserved itself
+    alone = np.full((3, 2), np.nan)
+    alone[1] = (5.0, 5.0)
+    np.testing.assert_array_equal(object_velocity(alone, time_s[:3], np.array([1])), [[0.0, 0.0]])

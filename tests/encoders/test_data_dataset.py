@@ -13,8 +13,9 @@ import torch
 from encoders.clips.build import build_clips
 from encoders.clips.config import ClipsConfig
 from encoders.clips.layout import parse_clip_id, read_clip_table, read_manifest
-from encoders.clips.testing import synthetic_captions, write_synthetic_log
+from encoders.clips.testing import synthetic_captions, synthetic_frame_tags, write_synthetic_log
 from encoders.data import AugmentConfig, ClipDataset, collate_clips
+from encoders.dense import DENSE_TASKS
 from encoders.negatives import render_caption
 from encoders.time_reversal import reversed_clip_tags
 from scenes.bev import BevGrid
@@ -29,6 +30,7 @@ def clips_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
     ]
     (root / "captions").mkdir()
     pq.write_table(synthetic_captions(logs, 2, 21), root / "captions" / "captions.parquet")
+    pq.write_table(synthetic_frame_tags(logs, 24), root / "captions" / "frame_tags.parquet")
     config = replace(ClipsConfig(), previews=False, frames_per_clip=8)
     build_clips(logs, root / "captions", root / "clips", config)
     return root / "clips"
@@ -164,3 +166,41 @@ def test_time_reversal_plays_the_clip_backwards_under_its_reversed_caption(clips
     half = ClipDataset(clips_dir, augment=True, augment_config=AugmentConfig(**still, time_reversal_probability=0.5))
     flipped = [not torch.equal(half[i]["bev_object"], plain[i]["bev_object"]) for i in range(len(plain))]
     assert 0 < sum(flipped) < len(plain)
+
+
+def test_clips_carry_each_frames_rule_tags_as_dense_targets(clips_dir: Path) -> None:
+    table = pq.read_table(clips_dir / "clips.parquet").to_pylist()
+    lead = next(r for r in table if r["track_id"] == "lead")
+    # frame_tags: lead in the left lane for frames 0..11, then in the ego's lane; the clip samples 2..21.
+    assert lead["frame_lane"] == ["left" if f < 12 else "host" for f in lead["frame_indices"]]
+    assert set(lead["frame_motion"]) == {"approach"}
+    assert set(lead["frame_host_motion"]) == {"cruising"}
+    ds = ClipDataset(clips_dir)
+    assert ds.has_frame_tags
+    i = ds.clip_ids.index(lead["clip_id"])
+    targets = ds[i]["frame_targets"]  # (T, K)
+    assert targets.shape == (8, len(DENSE_TASKS))
+    lanes = [DENSE_TASKS["lane"][int(k)] for k in targets[:, 0]]
+    assert lanes == lead["frame_lane"]
+    assert {DENSE_TASKS["motion"][int(k)] for k in targets[:, 1]} == {"approach"}
+
+
+def test_object_velocity_is_relative_to_the_ego_in_metres_per_second(clips_dir: Path) -> None:
+    ds = ClipDataset(clips_dir)
+    by_track = {ds[i]["track_id"]: ds[i] for i in range(len(ds)) if ds[i]["log_id"] == "synthetic_0"}
+    # The ego drives +x at 5 m/s: the parked car comes back at 5 m/s, the follower keeps its distance.
+    np.testing.assert_allclose(by_track["parked"]["object_velocity"].numpy(), [[-5.0, 0.0]] * 8, atol=1e-3)
+    np.testing.assert_allclose(by_track["follower"]["object_velocity"].numpy(), 0.0, atol=1e-3)
+    lead_vy = by_track["lead"]["object_velocity"].numpy()[:, 1]
+    assert lead_vy.min() < -0.5  # the lead moves right, into the ego's lane
+
+
+def test_clips_played_backwards_have_no_dense_targets_and_turn_their_velocity(clips_dir: Path) -> None:
+    aug = AugmentConfig(time_reversal_probability=1.0, max_rotation_rad=0.0, max_translation_m=0.0)
+    forward = ClipDataset(clips_dir)
+    backward = ClipDataset(clips_dir, augment=True, augment_config=aug)
+    i = forward.clip_ids.index(next(c for c in forward.clip_ids if ":parked:" in c))
+    item = backward[i]
+    assert (item["frame_targets"] == -1).all()
+    np.testing.assert_allclose(item["object_velocity"].numpy(), -forward[i]["object_velocity"].numpy()[::-1],
+                               atol=1e-4)

@@ -27,6 +27,7 @@ from safetensors.torch import load_file
 from torch.utils.data import Dataset
 
 from encoders.config import HardNegative, TrainConfig
+from encoders.dense import DENSE_TASKS
 from encoders.distributed import (
     Distributed,
     EpochSampler,
@@ -69,8 +70,12 @@ class Clips(Dataset[dict[str, Any]]):
         caption = render_caption(record["category"], tags, HOST)
         has_camera = index in self.camera
         camera = item["camera"] if has_camera else torch.zeros_like(item["camera"])
+        # Frame tags on some frames only, so that the processes hold unequal shares of the dense targets.
+        rng = np.random.default_rng([2, index])
+        targets = np.stack([rng.integers(-1, len(c), SPEC.frames) for c in DENSE_TASKS.values()], axis=1)
         return {**item, "category": record["category"], "tags": tags, "host_tags": HOST, "canonical_caption": caption,
-                "caption": caption, "has_camera": has_camera, "camera": camera}
+                "caption": caption, "has_camera": has_camera, "camera": camera,
+                "frame_targets": torch.as_tensor(targets, dtype=torch.int64)}
 
 
 def setup(name: str, clips: Path, processes: int) -> tuple[TrainConfig, dict[str, Any]]:
@@ -83,8 +88,11 @@ def setup(name: str, clips: Path, processes: int) -> tuple[TrainConfig, dict[str
     tiny = dataclasses.replace(TrainConfig.preset("tiny"), device="cpu", max_steps_per_epoch=1)
     scale = 2 // processes  # one process takes the whole batch
     if name == "synthetic":
-        cfg = dataclasses.replace(tiny, batch_size=B * scale, epochs=3, shuffle_frames=True, loss="soft",
-                                  tag_weight=0.5, hard_negatives=tuple(HardNegative), view_weight=0.5)
+        model = dataclasses.replace(tiny.model, dense_streams=("camera", "track"),
+                                    bev=dataclasses.replace(tiny.model.bev, track_velocity=True))
+        cfg = dataclasses.replace(tiny, model=model, batch_size=B * scale, epochs=3, shuffle_frames=True, loss="soft",
+                                  tag_weight=0.5, hard_negatives=tuple(HardNegative), view_weight=0.5,
+                                  dense_weight=0.5)
         return cfg, {"clips_dir": "unused", "datasets": {"train": Clips()}}
     cfg = dataclasses.replace(tiny, batch_size=2 * scale, epochs=2, positives="tags")
     if name == "resumable":
@@ -186,8 +194,8 @@ def test_two_processes_give_the_loss_and_gradients_of_one_with_the_whole_batch(r
         assert worst < 1e-5, f"step {step}: gradients differ by {worst}"
     # The gradients are not trivially equal: the camera tower, the batch norms and the tag head train.
     assert any(float(np.abs(g).max()) > 1e-3 for k, g in steps_one[0].items() if ".1.weight" in k)
-    if name == "synthetic":
-        assert any(k.startswith("camera.") for k in steps_one[0])
+    if name == "synthetic":  # the camera tower and both dense heads (camera clips on one process only) train
+        assert all(any(k.startswith(p) for k in steps_one[0]) for p in ("camera.", "dense.camera.", "dense.track."))
     weights = [load_file(str(runs[d] / name / "model.safetensors")) for d in ("two", "one")]
     assert max(float((weights[0][k] - weights[1][k]).abs().max()) for k in weights[1]) < 1e-4
 

@@ -9,7 +9,7 @@ from typing import Any
 import pytest
 import torch
 
-from encoders.config import tiny_model_config
+from encoders.config import ConfigError, tiny_model_config
 from encoders.model import DualEncoder
 from encoders.synthetic import SyntheticClipDataset, SyntheticSpec, collate_clips
 
@@ -239,3 +239,43 @@ def test_track_range_gives_the_track_stream_the_range_and_its_change(batch: dict
     with torch.no_grad():
         assert tower(batch["bev_lidar"], batch["bev_map"], batch["bev_object"], ego, track).shape == (
             track.shape[0], config.embed_dim)
+
+
+def test_track_velocity_gives_the_track_stream_velocity_and_range_rates(batch: dict[str, Any]) -> None:
+    from encoders.bev import VELOCITY_FEATURES, VELOCITY_SCALE_MPS
+
+    config = tiny_model_config()
+    model = DualEncoder(replace(config, bev=replace(config.bev, track_velocity=True))).eval()
+    track, ego, velocity = batch["object_track"], batch["ego_motion"], batch["object_velocity"]
+    features = model.bev.track_features(track, ego, velocity)  # (B, T, 2 (F + 4) + E)
+    f = track.shape[-1] + len(VELOCITY_FEATURES)
+    assert features.shape[-1] == 2 * f + model.bev.config.ego_features
+    v = velocity / VELOCITY_SCALE_MPS
+    torch.testing.assert_close(features[..., f - 4 : f - 2], v)
+    # Range rate along x: negative while the object closes in, whichever side it is on.
+    torch.testing.assert_close(features[..., f - 2], torch.sign(track[..., 0]) * v[..., 0])
+    with torch.no_grad():
+        assert model.encode_video(batch, view="bev").shape == (track.shape[0], config.embed_dim)
+        with pytest.raises(KeyError, match="object_velocity"):
+            model.encode_video({k: x for k, x in batch.items() if k != "object_velocity"}, view="bev")
+
+
+def test_dense_heads_read_the_frame_tokens_of_each_stream(batch: dict[str, Any]) -> None:
+    from encoders.dense import DENSE_TASKS
+
+    config = replace(tiny_model_config(), dense_streams=("track", "camera", "bev"))
+    assert config.dense_streams == ("camera", "bev", "track")  # one order, whatever was written
+    model = DualEncoder(config).eval()
+    frames: dict[str, torch.Tensor] = {}
+    with torch.no_grad():
+        views = model.encode_views(batch, frames=frames)
+        plain = model.encode_views(batch)
+    for name in views:
+        torch.testing.assert_close(views[name], plain[name])  # the tokens change nothing
+    b, t = batch["bev_lidar"].shape[:2]
+    logits = model.dense_logits(frames)
+    assert sorted(logits) == ["bev", "camera", "track"]
+    for x in logits.values():
+        assert x.shape == (b, t, sum(len(c) for c in DENSE_TASKS.values()))
+    with pytest.raises(ConfigError, match="dense_streams: unknown \\['lidar'\\]"):
+        replace(tiny_model_config(), dense_streams=("lidar",))

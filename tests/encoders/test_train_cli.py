@@ -3,29 +3,50 @@
 from __future__ import annotations
 
 import json
+import zlib
+from collections.abc import Sequence
 from dataclasses import replace
 from pathlib import Path
 
+import numpy as np
 import pyarrow.parquet as pq
 import pytest
 import torch
+from torch.utils.data import DataLoader
 
 from encoders.clips.build import build_clips
 from encoders.clips.config import ClipsConfig
-from encoders.clips.testing import synthetic_captions, write_synthetic_log
-from encoders.inference import embed_clips, embed_texts, load_model
+from encoders.clips.testing import synthetic_captions, synthetic_frame_tags, write_synthetic_log
+from encoders.config import TrainConfig
+from encoders.dense import DENSE_TASKS
+from encoders.inference import collate, embed_clips, embed_texts, frame_tag_figures, load_model, open_split
+from encoders.model import DualEncoder
+from encoders.train import resolve_channels
 from retrieval.cli import main
+from retrieval.evaluation import evaluate, metrics_table
+
+
+def make_clips(root: Path, frame_tags: bool) -> Path:
+    """Clips of three synthetic logs; with ``frame_tags`` the captions' frame_tags.parquet is beside them,
+    so each clip frame carries rule tags."""
+    torch.set_num_threads(1)
+    logs = [write_synthetic_log(root / "logs", log_id=f"synthetic_{i}", num_frames=24, seed=i) for i in range(3)]
+    (root / "captions").mkdir()
+    pq.write_table(synthetic_captions(logs, 2, 20), root / "captions" / "captions.parquet")
+    if frame_tags:
+        pq.write_table(synthetic_frame_tags(logs, 24), root / "captions" / "frame_tags.parquet")
+    build_clips(logs, root / "captions", root / "clips", replace(ClipsConfig(), previews=False, frames_per_clip=4))
+    return root / "clips"
 
 
 @pytest.fixture(scope="module")
 def clips_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    torch.set_num_threads(1)
-    root = tmp_path_factory.mktemp("train_cli")
-    logs = [write_synthetic_log(root / "logs", log_id=f"synthetic_{i}", num_frames=24, seed=i) for i in range(3)]
-    (root / "captions").mkdir()
-    pq.write_table(synthetic_captions(logs, 2, 20), root / "captions" / "captions.parquet")
-    build_clips(logs, root / "captions", root / "clips", replace(ClipsConfig(), previews=False, frames_per_clip=4))
-    return root / "clips"
+    return make_clips(tmp_path_factory.mktemp("train_cli"), frame_tags=False)
+
+
+@pytest.fixture(scope="module")
+def tagged_clips_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return make_clips(tmp_path_factory.mktemp("train_cli_dense"), frame_tags=True)
 
 
 def test_train_resume_and_bad_input(clips_dir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
@@ -82,3 +103,56 @@ def test_bad_config_and_missing_split(clips_dir: Path, tmp_path: Path, capsys: p
     pq.write_table(table.filter(not_train), empty / "clips.parquet")
     assert main(["train", str(empty), "--out", str(tmp_path / "b"), "--preset", "tiny"]) == 2
     assert "'train' split" in capsys.readouterr().err
+
+
+def hashed_sentences(texts: Sequence[str]) -> np.ndarray:
+    """A stand-in sentence encoder for the rule-caption reference: one seeded unit vector per text."""
+    rows = [np.random.default_rng(zlib.crc32(t.encode())).standard_normal(16) for t in texts]
+    x = np.asarray(rows, dtype=np.float32).reshape(len(texts), 16)
+    return x / np.linalg.norm(x, axis=1, keepdims=True)
+
+
+def test_dense_weight_trains_frame_tag_heads_and_eval_reports_them(
+        tagged_clips_dir: Path, clips_dir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "run"
+    args = ["--preset", "tiny", "--batch-size", "4", "--epochs", "2", "--dense-weight", "1"]
+    assert main(["train", str(tagged_clips_dir), "--out", str(out), *args]) == 0
+    config = json.loads((out / "config.json").read_text())
+    assert config["dense_weight"] == 1.0 and config["model"]["dense_streams"] == ["track"]
+
+    metrics = evaluate(out, tagged_clips_dir, split="all", sentence_encoder=hashed_sentences)
+    dense = metrics["frame_tags"]
+    assert set(dense["streams"]) == {"track"} and set(dense["streams"]["track"]) == set(DENSE_TASKS)
+    # Every synthetic ego frame cruises straight: the most frequent tag is always right.
+    assert dense["majority"]["host_motion"] == dense["majority"]["host_direction"] == 1.0
+    assert dense["frames"]["lane"] == dense["frames"]["motion"] > 0
+    assert all(0.0 <= v <= 1.0 for v in dense["streams"]["track"].values())
+    assert "frame tags from the track stream: lane" in metrics_table(metrics)
+
+    # Clips without frame tags cannot train dense heads; the error says what is missing.
+    capsys.readouterr()
+    assert main(["train", str(clips_dir), "--out", str(tmp_path / "untagged"), *args]) == 2
+    err = capsys.readouterr().err
+    assert "dense_weight needs the clip frames' rule tags" in err and "frame_tags.parquet" in err
+    assert not (tmp_path / "untagged" / "model.safetensors").exists()
+
+
+def test_frame_tag_figures_of_perfect_heads(tagged_clips_dir: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    dataset = open_split(tagged_clips_dir, None)
+    tiny = resolve_channels(TrainConfig.preset("tiny"), dataset[0]).model
+    model = DualEncoder(replace(tiny, dense_streams=("track",)))
+    targets = iter(torch.as_tensor(b["frame_targets"]) for b in DataLoader(dataset, batch_size=32, collate_fn=collate))
+
+    def perfect(frames: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+        target = next(targets)  # (B, T, K): one-hot logits of each task's tag
+        parts = [torch.nn.functional.one_hot(target[..., k].clamp(min=0), len(c)).float()
+                 for k, c in enumerate(DENSE_TASKS.values())]
+        return {"track": torch.cat(parts, dim=-1)}
+
+    monkeypatch.setattr(model, "dense_logits", perfect)
+    figures = frame_tag_figures(model, dataset)
+    assert figures["streams"]["track"] == dict.fromkeys(DENSE_TASKS, 1.0)
+    assert figures["first_last_motion"]["track"] == [1.0, 1.0]
+    # Lead, parked and follower in every frame: two of three in a lane other than the left.
+    assert figures["majority"]["motion"] == pytest.approx(1 / 3)
+    assert frame_tag_figures(DualEncoder(tiny), dataset) == {}

@@ -1,0 +1,113 @@
+"""Dense supervision: each frame's rule tags, predicted from a temporal stream's frame tokens.
+
+One contrastive target per clip says *what* the object does in order, never *when*: a clip's caption is
+its per-frame tags collapsed (eq. 8), so the frames hold supervision that the caption throws away. The
+tags at each clip frame (:mod:`encoders.clips.frame_tags`) are the targets of four linear heads over a
+stream's frame tokens: the object's lane and its motion relative to the ego, the ego's motion and its
+direction (:data:`DENSE_TASKS`). A frame the rules did not tag has target −1 and adds no loss.
+
+    tokens (B, T, W) ─ DenseHeads ─ (B, T, ΣC) ─ per task: cross-entropy over tagged frames ─ mean
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping, Sequence
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from numpy.typing import NDArray
+from torch import nn
+
+from captioning.tags import HOST_DIRECTIONS, HOST_MOTIONS, LANES, MOTIONS
+from encoders.clips.frame_tags import FRAME_TAG_COLUMNS
+from encoders.config import DENSE_STREAMS
+
+#: Task → its classes, in the order of the heads' outputs; each reads the clip-table column of the same
+#: place in :data:`encoders.clips.frame_tags.FRAME_TAG_COLUMNS`.
+DENSE_TASKS: dict[str, tuple[str, ...]] = {
+    "lane": tuple(v.value for v in LANES),
+    "motion": tuple(v.value for v in MOTIONS),
+    "host_motion": tuple(v.value for v in HOST_MOTIONS),
+    "host_direction": tuple(v.value for v in HOST_DIRECTIONS),
+}
+_TASK_COLUMNS = dict(zip(DENSE_TASKS, FRAME_TAG_COLUMNS))
+__all__ = ["DENSE_STREAMS", "DENSE_TASKS", "DenseHeads", "dense_accuracy", "dense_loss", "frame_targets",
+           "stream_dense_loss"]
+_INDEX = {task: {name: i for i, name in enumerate(classes)} for task, classes in DENSE_TASKS.items()}
+
+
+def frame_targets(columns: Mapping[str, Sequence[str | None] | None], num_frames: int) -> NDArray[np.int64]:
+    """A clip's frame-tag columns → (T, K) class indices of the K :data:`DENSE_TASKS`, −1 where untagged.
+
+    A missing column (a clip table written without frame tags) or an unknown value gives −1.
+    """
+    out = np.full((num_frames, len(DENSE_TASKS)), -1, dtype=np.int64)
+    for k, (task, column) in enumerate(_TASK_COLUMNS.items()):
+        values = columns.get(column)
+        if not values:
+            continue
+        if len(values) != num_frames:
+            raise ValueError(f"{column}: {len(values)} values for a clip of {num_frames} frames")
+        index = _INDEX[task]
+        out[:, k] = [index.get(v, -1) if v is not None else -1 for v in values]
+    return out
+
+
+class DenseHeads(nn.Module):
+    """Frame tokens (B, T, W) → logits (B, T, ΣC) of every task, one linear map."""
+
+    def __init__(self, width: int) -> None:
+        super().__init__()
+        self.proj = nn.Linear(width, sum(len(c) for c in DENSE_TASKS.values()))
+
+    def forward(self, tokens: torch.Tensor) -> torch.Tensor:
+        return self.proj(tokens)  # (B, T, ΣC)
+
+
+def dense_loss(logits: torch.Tensor, targets: torch.Tensor, keep: torch.Tensor | None = None,
+               whole: Callable[[torch.Tensor], torch.Tensor] | None = None) -> torch.Tensor:
+    """logits: (B, T, ΣC); targets: (B, T, K) (−1: no target); keep: (B,) bool clips that count →
+    the mean over tasks of each task's cross-entropy over its tagged frames (a task with none adds 0).
+
+    ``whole`` sums a (K,) count over the processes of a data-parallel step: each task's cross-entropy is
+    then summed here and divided by the whole batch's tagged frames, so that the processes' losses add
+    up to the loss of the whole batch on one process, whatever each one's share of tagged frames.
+    """
+    if keep is not None:
+        targets = targets.masked_fill(~keep.reshape(-1, 1, 1), -1)
+    tagged = (targets >= 0).flatten(0, 1).sum(0)  # (K,)
+    if whole is not None:
+        tagged = whole(tagged)
+    total = logits.sum() * 0.0  # a graph to every head even when no frame is tagged here
+    start = 0
+    for k, classes in enumerate(DENSE_TASKS.values()):
+        part = logits[..., start : start + len(classes)].flatten(0, 1)  # (B*T, C_k)
+        target = targets[..., k].flatten()  # (B*T,)
+        start += len(classes)
+        if int(tagged[k]) > 0:
+            total = total + F.cross_entropy(part.float(), target, ignore_index=-1, reduction="sum") / int(tagged[k])
+    return total / len(DENSE_TASKS)
+
+
+def stream_dense_loss(logits: Mapping[str, torch.Tensor], targets: torch.Tensor, has_camera: torch.Tensor,
+                      whole: Callable[[torch.Tensor], torch.Tensor] | None = None) -> torch.Tensor:
+    """stream → logits (B, T, ΣC); targets (B, T, K); has_camera (B,) bool → the mean of the streams'
+    :func:`dense_loss` (the camera stream's over the clips with camera only); ``whole`` as there."""
+    losses = [dense_loss(x, targets, has_camera.reshape(-1) if name == "camera" else None, whole)
+              for name, x in logits.items()]
+    return torch.stack(losses).mean() if losses else targets.new_zeros((), dtype=torch.float32)
+
+
+@torch.no_grad()
+def dense_accuracy(logits: torch.Tensor, targets: torch.Tensor) -> dict[str, float]:
+    """logits: (B, T, ΣC); targets: (B, T, K) → task → accuracy over its tagged frames (NaN with none)."""
+    out: dict[str, float] = {}
+    start = 0
+    for k, (task, classes) in enumerate(DENSE_TASKS.items()):
+        pred = logits[..., start : start + len(classes)].argmax(-1)  # (B, T)
+        start += len(classes)
+        valid = targets[..., k] >= 0
+        n = int(valid.sum())
+        out[task] = float((pred[valid] == targets[..., k][valid]).float().mean()) if n else float("nan")
+    return out

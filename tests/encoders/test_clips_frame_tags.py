@@ -1,0 +1,52 @@
+"""The rules' tags at each clip frame, read from frame_tags.parquet."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+import pytest
+
+from encoders.clips.frame_tags import FRAME_TAG_COLUMNS, empty_clip_columns, read_frame_tags
+
+
+def _write(path: Path) -> None:
+    rows = [
+        {"log_id": "a", "timestamp_ns": 10, "track_id": "ego", "lane": None, "motion": None,
+         "host_motion": "accelerating", "host_direction": "steering_left"},
+        {"log_id": "a", "timestamp_ns": 10, "track_id": "car", "lane": "left", "motion": "approach",
+         "host_motion": None, "host_direction": None},
+        {"log_id": "a", "timestamp_ns": 20, "track_id": "car", "lane": "host", "motion": "away",
+         "host_motion": None, "host_direction": None},
+        {"log_id": "b", "timestamp_ns": 10, "track_id": "car", "lane": "right", "motion": "constant",
+         "host_motion": None, "host_direction": None},
+    ]
+    pq.write_table(pa.Table.from_pylist(rows), path)
+
+
+def test_clip_columns_give_the_tags_at_each_sampled_frame(tmp_path: Path) -> None:
+    path = tmp_path / "frame_tags.parquet"
+    _write(path)
+    tags = read_frame_tags(path)
+    assert sorted(tags) == ["a", "b"]
+    cols = tags["a"].clip_columns("car", np.array([10, 10, 20, 30]))
+    assert list(cols) == list(FRAME_TAG_COLUMNS)
+    assert cols["frame_lane"] == ["left", "left", "host", None]  # 30: no row, untagged
+    assert cols["frame_motion"] == ["approach", "approach", "away", None]
+    assert cols["frame_host_motion"] == ["accelerating", "accelerating", None, None]
+    assert cols["frame_host_direction"] == ["steering_left", "steering_left", None, None]
+    assert tags["a"].clip_columns("bus", np.array([10]))["frame_lane"] == [None]
+    assert list(read_frame_tags(path, log_ids=["b"])) == ["b"]
+    assert empty_clip_columns(2) == {name: [None, None] for name in FRAME_TAG_COLUMNS}
+
+
+def test_a_frame_tags_file_without_a_column_is_refused_by_name(tmp_path: Path) -> None:
+    path = tmp_path / "frame_tags.parquet"
+    pq.write_table(pa.table({"log_id": ["a"], "timestamp_ns": [1], "track_id": ["car"], "lane": ["left"]}), path)
+    with pytest.raises(ValueError, match=r"frame_tags.parquet: missing column\(s\) \['motion', 'host_motion'"):
+        read_frame_tags(path)
+    path.write_bytes(b"not parquet")
+    with pytest.raises(ValueError, match="frame_tags.parquet: unreadable Parquet file"):
+        read_frame_tags(path)

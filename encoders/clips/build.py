@@ -231,7 +231,6 @@ def build_clips(
         captions_path = join(captions_dir, CAPTIONS_FILENAME)
     with staged_input(captions_path) as local_captions:
         rows = read_captions(local_captions)
-    frame_tags = _read_frame_tags(captions_path)
     report = ClipsReport(clips_dir=clips_dir)
     skipped = Skipped()
 
@@ -242,6 +241,7 @@ def build_clips(
             skipped.add(f"log given twice (kept {given[log_id]})", log_id=log_id)
         else:
             given[log_id] = log_dir
+    frame_tags = _read_frame_tags(captions_path, list(given))
     by_log: dict[str, list[CaptionRow]] = {}
     for row in rows:
         by_log.setdefault(row.log_id, []).append(row)
@@ -354,15 +354,16 @@ def _manifest(config: ClipsConfig, report: ClipsReport, skipped: Skipped,
     }
 
 
-def _read_frame_tags(captions_path: Location) -> dict[str, LogFrameTags]:
-    """The per-frame tags written beside the captions (``frame_tags.parquet``), by log; none when absent."""
+def _read_frame_tags(captions_path: Location, log_ids: list[str]) -> dict[str, LogFrameTags]:
+    """The per-frame tags of ``log_ids`` written beside the captions (``frame_tags.parquet``), by log; none
+    when absent."""
     path = join(str(captions_path).rstrip("/").rsplit("/", 1)[0], FRAME_TAGS_FILENAME) if is_uri(captions_path) \
         else Path(captions_path).with_name(FRAME_TAGS_FILENAME)
     if not exists(path):
         return {}
     with staged_input(path) as local:
         try:
-            return read_frame_tags(local)
+            return read_frame_tags(local, log_ids)
         except ValueError as exc:
             raise ClipsInputError(str(exc)) from None
 

@@ -76,6 +76,8 @@ def read_frame_tags(path: Path, log_ids: Sequence[str] | None = None) -> dict[st
         missing = [c for c in columns if c not in names]
         if missing:
             raise ValueError(f"{path}: missing column(s) {missing}")
+        if log_ids is not None and not log_ids:
+            return {}
         filters = [("log_id", "in", list(log_ids))] if log_ids is not None else None
         table = pq.read_table(path, columns=columns, filters=filters)
     except (OSError, pa.ArrowInvalid) as exc:

@@ -38,7 +38,7 @@ def test_clip_columns_give_the_tags_at_each_sampled_frame(tmp_path: Path) -> Non
     assert cols["frame_host_motion"] == ["accelerating", "accelerating", None, None]
     assert cols["frame_host_direction"] == ["steering_left", "steering_left", None, None]
     assert tags["a"].clip_columns("bus", np.array([10]))["frame_lane"] == [None]
-    assert list(read_frame_tags(path, log_ids=["b"])) == ["b"]
+    assert list(read_frame_tags(path, log_ids=["b"])) == ["b"] and read_frame_tags(path, log_ids=[]) == {}
     assert empty_clip_columns(2) == {name: [None, None] for name in FRAME_TAG_COLUMNS}
 
 

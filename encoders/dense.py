@@ -12,6 +12,7 @@ direction (:data:`DENSE_TASKS`). A frame the rules did not tag has target −1 a
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
+from typing import Any
 
 import numpy as np
 import torch
@@ -21,7 +22,6 @@ from torch import nn
 
 from captioning.tags import HOST_DIRECTIONS, HOST_MOTIONS, LANES, MOTIONS
 from encoders.clips.frame_tags import FRAME_TAG_COLUMNS
-from encoders.config import DENSE_STREAMS
 
 #: Task → its classes, in the order of the heads' outputs; each reads the clip-table column of the same
 #: place in :data:`encoders.clips.frame_tags.FRAME_TAG_COLUMNS`.
@@ -32,8 +32,6 @@ DENSE_TASKS: dict[str, tuple[str, ...]] = {
     "host_direction": tuple(v.value for v in HOST_DIRECTIONS),
 }
 _TASK_COLUMNS = dict(zip(DENSE_TASKS, FRAME_TAG_COLUMNS))
-__all__ = ["DENSE_STREAMS", "DENSE_TASKS", "DenseHeads", "dense_accuracy", "dense_loss", "frame_targets",
-           "stream_dense_loss"]
 _INDEX = {task: {name: i for i, name in enumerate(classes)} for task, classes in DENSE_TASKS.items()}
 
 
@@ -52,6 +50,11 @@ def frame_targets(columns: Mapping[str, Sequence[str | None] | None], num_frames
         index = _INDEX[task]
         out[:, k] = [index.get(v, -1) if v is not None else -1 for v in values]
     return out
+
+
+def task_logits(logits: torch.Tensor) -> dict[str, torch.Tensor]:
+    """logits: (..., ΣC) of :class:`DenseHeads` → task → its logits (..., C_task), in :data:`DENSE_TASKS` order."""
+    return dict(zip(DENSE_TASKS, logits.split([len(c) for c in DENSE_TASKS.values()], dim=-1)))
 
 
 class DenseHeads(nn.Module):
@@ -80,13 +83,11 @@ def dense_loss(logits: torch.Tensor, targets: torch.Tensor, keep: torch.Tensor |
     if whole is not None:
         tagged = whole(tagged)
     total = logits.sum() * 0.0  # a graph to every head even when no frame is tagged here
-    start = 0
-    for k, classes in enumerate(DENSE_TASKS.values()):
-        part = logits[..., start : start + len(classes)].flatten(0, 1)  # (B*T, C_k)
-        target = targets[..., k].flatten()  # (B*T,)
-        start += len(classes)
-        if int(tagged[k]) > 0:
-            total = total + F.cross_entropy(part.float(), target, ignore_index=-1, reduction="sum") / int(tagged[k])
+    for k, (part, n) in enumerate(zip(task_logits(logits).values(), tagged.tolist())):
+        if n > 0:
+            loss = F.cross_entropy(part.flatten(0, 1).float(), targets[..., k].flatten(), ignore_index=-1,
+                                   reduction="sum")
+            total = total + loss / n
     return total / len(DENSE_TASKS)
 
 
@@ -103,11 +104,45 @@ def stream_dense_loss(logits: Mapping[str, torch.Tensor], targets: torch.Tensor,
 def dense_accuracy(logits: torch.Tensor, targets: torch.Tensor) -> dict[str, float]:
     """logits: (B, T, ΣC); targets: (B, T, K) → task → accuracy over its tagged frames (NaN with none)."""
     out: dict[str, float] = {}
-    start = 0
-    for k, (task, classes) in enumerate(DENSE_TASKS.items()):
-        pred = logits[..., start : start + len(classes)].argmax(-1)  # (B, T)
-        start += len(classes)
-        valid = targets[..., k] >= 0
-        n = int(valid.sum())
-        out[task] = float((pred[valid] == targets[..., k][valid]).float().mean()) if n else float("nan")
+    for k, (task, part) in enumerate(task_logits(logits).items()):
+        valid = targets[..., k] >= 0  # (B, T)
+        hits = part.argmax(-1)[valid] == targets[..., k][valid]
+        out[task] = float(hits.float().mean()) if bool(valid.any()) else float("nan")
     return out
+
+
+def frame_tag_report(logits: Mapping[str, torch.Tensor], targets: torch.Tensor,
+                     has_camera: torch.Tensor) -> dict[str, Any]:
+    """stream → logits (N, T, ΣC); targets (N, T, K); has_camera (N,) bool → the dense heads' figures.
+
+    ``{"streams": {stream: {task: accuracy}}, "majority": {task: accuracy}, "frames": {task: n},
+    "first_last_motion": {stream: [first, last]}}``: each stream's :func:`dense_accuracy` (the camera
+    stream's over clips with camera), beside always answering each task's most frequent tag; the motion
+    right at each clip's first and last tagged frame, the ends a caption's order is made of.
+    """
+    counts = [torch.bincount(targets[..., k][targets[..., k] >= 0], minlength=len(c))
+              for k, c in enumerate(DENSE_TASKS.values())]
+    constant = torch.cat([F.one_hot(n.argmax(), len(n)).float() for n in counts])  # (ΣC,) the most frequent
+    motion = list(DENSE_TASKS).index("motion")
+    streams, ends = {}, {}
+    for name, x in logits.items():
+        keep = has_camera.reshape(-1) if name == "camera" else slice(None)
+        x, y = x[keep], targets[keep]
+        streams[name] = dense_accuracy(x, y)
+        ends[name] = _end_accuracy(task_logits(x)["motion"].argmax(-1), y[..., motion])
+    return {"streams": streams, "majority": dense_accuracy(constant.expand(*targets.shape[:2], -1), targets),
+            "frames": dict(zip(DENSE_TASKS, (targets >= 0).flatten(0, 1).sum(0).tolist())),
+            "first_last_motion": ends}
+
+
+def _end_accuracy(predicted: torch.Tensor, target: torch.Tensor) -> list[float]:
+    """predicted, target: (N, T) (−1: untagged) → accuracy at each clip's first and last tagged frame."""
+    tagged = target >= 0  # (N, T)
+    rows = tagged.any(1)
+    if not bool(rows.any()):
+        return [float("nan"), float("nan")]
+    t = torch.arange(target.shape[1]).expand_as(target)
+    first = torch.where(tagged, t, target.shape[1]).min(1).values[rows]
+    last = torch.where(tagged, t, -1).max(1).values[rows]
+    n = torch.arange(target.shape[0])[rows]
+    return [float((predicted[n, i] == target[n, i]).float().mean()) for i in (first, last)]

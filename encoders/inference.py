@@ -20,7 +20,7 @@ from torch.utils.data import DataLoader, Dataset
 
 from encoders.config import ConfigError, TrainConfig, check_device_name
 from encoders.data import AugmentConfig, ClipDataset, collate_clips
-from encoders.dense import DENSE_TASKS, dense_accuracy
+from encoders.dense import frame_tag_report
 from encoders.metrics import relevance_by_caption, text_to_clip_metrics
 from encoders.model import DualEncoder
 
@@ -170,14 +170,8 @@ def evaluate(
 
 @torch.no_grad()
 def frame_tag_figures(model: DualEncoder, dataset: Dataset[dict[str, Any]], batch_size: int = 32) -> dict[str, Any]:
-    """How well the dense heads read each frame's rule tags on ``dataset`` (:mod:`encoders.dense`).
-
-    → ``{"streams": {stream: {task: accuracy}}, "majority": {task: accuracy}, "frames": {task: n},
-    "first_last_motion": {stream: [first, last]}}``: accuracy over the tagged frames of each task (the
-    camera stream's over clips with camera), beside always answering the task's most frequent tag in
-    ``dataset``; the last figure is the motion at each clip's first and last tagged frame, the ends a
-    caption's order is made of. Empty without dense heads.
-    """
+    """How well the dense heads read each frame's rule tags on ``dataset``: the figures of
+    :func:`encoders.dense.frame_tag_report`. Empty without dense heads."""
     if not model.dense:
         return {}
     was_training = model.training
@@ -194,38 +188,8 @@ def frame_tag_figures(model: DualEncoder, dataset: Dataset[dict[str, Any]], batc
     model.train(was_training)
     if not targets:
         return {}
-    target = torch.cat(targets)  # (N, T, K)
-    camera = torch.cat(has_camera)  # (N,)
-    motion = list(DENSE_TASKS).index("motion")
-    offset = sum(len(c) for c in list(DENSE_TASKS.values())[:motion])
-    streams: dict[str, dict[str, float]] = {}
-    ends: dict[str, list[float]] = {}
-    for name, chunks in logits.items():
-        x, y = torch.cat(chunks), target  # (N, T, ΣC), (N, T, K)
-        if name == "camera":
-            x, y = x[camera], y[camera]
-        streams[name] = dense_accuracy(x, y)
-        predicted = x[..., offset : offset + len(DENSE_TASKS["motion"])].argmax(-1)  # (N, T)
-        ends[name] = _end_accuracy(predicted, y[..., motion])
-    valid = target >= 0
-    majority = {task: float(torch.bincount(target[..., k][valid[..., k]]).max()) / max(int(valid[..., k].sum()), 1)
-                if bool(valid[..., k].any()) else float("nan") for k, task in enumerate(DENSE_TASKS)}
-    return {"streams": streams, "majority": majority,
-            "frames": {task: int(valid[..., k].sum()) for k, task in enumerate(DENSE_TASKS)},
-            "first_last_motion": ends}
-
-
-def _end_accuracy(predicted: torch.Tensor, target: torch.Tensor) -> list[float]:
-    """predicted, target: (N, T) (−1: untagged) → accuracy at each clip's first and last tagged frame."""
-    tagged = target >= 0  # (N, T)
-    rows = tagged.any(1)
-    if not bool(rows.any()):
-        return [float("nan"), float("nan")]
-    t = torch.arange(target.shape[1]).expand_as(target)
-    first = torch.where(tagged, t, target.shape[1]).min(1).values[rows]
-    last = torch.where(tagged, t, -1).max(1).values[rows]
-    n = torch.arange(target.shape[0])[rows]
-    return [float((predicted[n, i] == target[n, i]).float().mean()) for i in (first, last)]
+    return frame_tag_report({name: torch.cat(chunks) for name, chunks in logits.items()}, torch.cat(targets),
+                            torch.cat(has_camera))
 
 
 def load_model(run_dir: Path | str, device: str = "cpu") -> DualEncoder:

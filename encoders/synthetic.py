@@ -30,6 +30,8 @@ from torch.utils.data import Dataset
 from encoders.clips.layout import clip_id
 from encoders.clips.views import object_track, object_velocity
 
+#: Seconds between a synthetic clip's frames.
+FRAME_STEP_S = 0.1
 LANES_Y_M = {"left": 3.5, "host": 0.0, "right": -3.5}
 MOTIONS = ("approach", "recede", "constant")
 CATEGORIES = {"car": (4.5, 1.9), "truck": (8.0, 2.5)}  # length_m, width_m
@@ -156,7 +158,7 @@ class SyntheticClipDataset(Dataset[dict[str, Any]]):
         length_m, width_m = CATEGORIES[rec["category"]]
         speed = float(rng.uniform(*s.ego_speed_mps))
         ego = np.zeros((t, 4), np.float32)
-        ego[:, 0] = speed * 0.1 * np.arange(t)
+        ego[:, 0] = speed * FRAME_STEP_S * np.arange(t)
         ego[:, 3] = speed
         # Distractors: static relative to the road, so they move back by the ego's travel.
         d_x = rng.uniform(*s.x_range_m, size=s.distractors)[None, :] - ego[:, :1]  # (T, K)
@@ -184,7 +186,7 @@ class SyntheticClipDataset(Dataset[dict[str, Any]]):
             "object_track": torch.from_numpy(object_track(
                 np.stack([x_m, y_m, np.full(t, length_m), np.full(t, width_m), np.zeros(t)], axis=1), ego)),
             "object_velocity": torch.from_numpy(object_velocity(
-                np.stack([x_m, y_m], axis=1), 0.1 * np.arange(t), np.arange(t))),
+                np.stack([x_m, y_m], axis=1), FRAME_STEP_S * np.arange(t), np.arange(t))),
         }
 
 

@@ -192,18 +192,19 @@ def object_velocity(center_xy_m: NDArray[np.floating], time_s: NDArray[np.floati
         (T, 2) float32 ``vx_mps, vy_mps``: central differences over the neighbouring log frames (one-sided
         at an end or next to an unobserved frame), 0 where neither neighbour is observed.
     """
-    xy = np.asarray(center_xy_m, dtype=np.float64)
-    t = np.asarray(time_s, dtype=np.float64)
     i = np.asarray(indices, dtype=np.int64)
-    last = xy.shape[0] - 1
-    prev, nxt = np.maximum(i - 1, 0), np.minimum(i + 1, last)
-    seen: NDArray[np.bool_] = np.asarray(np.isfinite(xy).all(axis=1), dtype=bool)  # (F,)
-    a = np.where(seen[prev], prev, i)
-    b = np.where(seen[nxt], nxt, i)
-    ok = seen[a] & seen[b] & (b > a)
-    dt = np.where(ok, t[b] - t[a], 1.0)
-    v = np.where(ok[:, None], (np.nan_to_num(xy[b]) - np.nan_to_num(xy[a])) / np.maximum(dt, 1e-6)[:, None], 0.0)
-    return v.astype(np.float32)
+    frames = np.stack([np.maximum(i - 1, 0), i, np.minimum(i + 1, len(center_xy_m) - 1)])  # (3, T) prev, here, next
+    # Only these frames are read: center_xy_m may be a view of a memory map over the whole log.
+    xy = np.asarray(center_xy_m[frames.ravel()], dtype=np.float64).reshape(3, -1, 2)  # (3, T, 2)
+    t = np.asarray(time_s, dtype=np.float64)
+    seen: NDArray[np.bool_] = np.asarray(np.isfinite(xy).all(axis=2), dtype=bool)  # (3, T)
+    cols = np.arange(len(i))
+    a, b = np.where(seen[0], 0, 1), np.where(seen[2], 2, 1)  # the rows each difference starts and ends at
+    start, end = frames[a, cols], frames[b, cols]  # (T,) log frames
+    ok = seen[a, cols] & seen[b, cols] & (end > start)
+    dt = np.where(ok, t[end] - t[start], 1.0)
+    step = np.nan_to_num(xy[b, cols]) - np.nan_to_num(xy[a, cols])  # (T, 2)
+    return np.where(ok[:, None], step / np.maximum(dt, 1e-6)[:, None], 0.0).astype(np.float32)
 
 
 def rotate_object_track(track: NDArray[np.float32], theta_rad: float) -> None:

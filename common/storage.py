@@ -51,6 +51,13 @@ def name_of(location: Location) -> str:
     return Path(str(location).rstrip("/")).name if is_uri(location) else Path(location).name
 
 
+def parent(location: Location) -> Location:
+    """The folder holding ``location``, for paths and URIs alike."""
+    if is_uri(location):
+        return str(location).rstrip("/").rsplit("/", 1)[0]
+    return Path(location).parent
+
+
 def join(location: Location, *parts: str) -> Location:
     """``location / part / ...`` for paths and URIs alike."""
     if is_uri(location):

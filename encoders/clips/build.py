@@ -34,6 +34,7 @@ from common.storage import (
     is_uri,
     join,
     name_of,
+    parent,
     read_bytes,
     staged_input,
     staged_output,
@@ -227,8 +228,9 @@ def build_clips(
     """
     say = progress or (lambda _line: None)
     captions_path: Location = captions_dir
+    captions_folder = parent(captions_dir)
     if (not str(captions_dir).endswith(".parquet")) if is_uri(captions_dir) else Path(captions_dir).is_dir():
-        captions_path = join(captions_dir, CAPTIONS_FILENAME)
+        captions_path, captions_folder = join(captions_dir, CAPTIONS_FILENAME), captions_dir
     with staged_input(captions_path) as local_captions:
         rows = read_captions(local_captions)
     report = ClipsReport(clips_dir=clips_dir)
@@ -241,7 +243,7 @@ def build_clips(
             skipped.add(f"log given twice (kept {given[log_id]})", log_id=log_id)
         else:
             given[log_id] = log_dir
-    frame_tags = _read_frame_tags(captions_path, list(given))
+    frame_tags = _read_frame_tags(join(captions_folder, FRAME_TAGS_FILENAME), list(given))
     by_log: dict[str, list[CaptionRow]] = {}
     for row in rows:
         by_log.setdefault(row.log_id, []).append(row)
@@ -354,11 +356,9 @@ def _manifest(config: ClipsConfig, report: ClipsReport, skipped: Skipped,
     }
 
 
-def _read_frame_tags(captions_path: Location, log_ids: list[str]) -> dict[str, LogFrameTags]:
-    """The per-frame tags of ``log_ids`` written beside the captions (``frame_tags.parquet``), by log; none
-    when absent."""
-    path = join(str(captions_path).rstrip("/").rsplit("/", 1)[0], FRAME_TAGS_FILENAME) if is_uri(captions_path) \
-        else Path(captions_path).with_name(FRAME_TAGS_FILENAME)
+def _read_frame_tags(path: Location, log_ids: list[str]) -> dict[str, LogFrameTags]:
+    """The per-frame tags of ``log_ids`` in ``path`` (the ``frame_tags.parquet`` written beside the
+    captions), by log; none when the file is absent."""
     if not exists(path):
         return {}
     with staged_input(path) as local:

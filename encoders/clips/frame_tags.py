@@ -51,12 +51,8 @@ class LogFrameTags:
         none: FrameTag = (None, None)
         obj = [self.objects.get((int(t), track_id), none) for t in timestamps_ns]
         host = [self.host.get(int(t), none) for t in timestamps_ns]
-        return {
-            "frame_lane": [o[0] for o in obj],
-            "frame_motion": [o[1] for o in obj],
-            "frame_host_motion": [h[0] for h in host],
-            "frame_host_direction": [h[1] for h in host],
-        }
+        values = {**dict(zip(_OBJECT_FIELDS, zip(*obj))), **dict(zip(_HOST_FIELDS, zip(*host)))}
+        return {column: list(values.get(field, ())) for column, field in FRAME_TAG_COLUMNS.items()}
 
 
 def empty_clip_columns(num_frames: int) -> dict[str, list[str | None]]:

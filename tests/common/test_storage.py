@@ -13,6 +13,7 @@ from common.storage import (
     is_uri,
     join,
     name_of,
+    parent,
     read_bytes,
     staged_input,
     staged_output,
@@ -30,6 +31,9 @@ def test_paths_and_uris_are_told_apart() -> None:
     assert name_of("s3://bucket/logs/abc/") == "abc" and name_of(Path("logs/abc")) == "abc"
     assert join("s3://bucket/logs/", "a", "b.json") == "s3://bucket/logs/a/b.json"
     assert join(Path("logs"), "a") == Path("logs/a")
+    assert parent("s3://bucket/captions/captions.parquet") == "s3://bucket/captions"
+    assert parent("s3://bucket/captions/") == "s3://bucket"
+    assert parent(Path("captions/captions.parquet")) == Path("captions")
 
 
 def test_a_uri_folder_is_staged_in_and_out(tmp_path: Path) -> None:

@@ -185,6 +185,15 @@ def test_clips_carry_each_frames_rule_tags_as_dense_targets(clips_dir: Path) -> 
     assert {DENSE_TASKS["motion"][int(k)] for k in targets[:, 1]} == {"approach"}
 
 
+def test_frame_tags_are_found_beside_a_captions_file_given_by_name(clips_dir: Path, tmp_path: Path) -> None:
+    root = clips_dir.parent
+    logs = sorted((root / "logs").iterdir())
+    config = replace(ClipsConfig(), previews=False, frames_per_clip=8)
+    build_clips(logs, root / "captions" / "captions.parquet", tmp_path / "clips", config)
+    lead = next(r for r in pq.read_table(tmp_path / "clips" / "clips.parquet").to_pylist() if r["track_id"] == "lead")
+    assert lead["frame_lane"] == ["left" if f < 12 else "host" for f in lead["frame_indices"]]
+
+
 def test_object_velocity_is_relative_to_the_ego_in_metres_per_second(clips_dir: Path) -> None:
     ds = ClipDataset(clips_dir)
     by_track = {ds[i]["track_id"]: ds[i] for i in range(len(ds)) if ds[i]["log_id"] == "synthetic_0"}

@@ -3,8 +3,9 @@
 Each stage runs one ``scenesearch`` command (in a child process, so memory is returned between
 stages) and prints its progress. A stage whose output is complete — it finished before with the same
 settings, which a marker in ``DIR/.demo/`` records — is skipped, so an interrupted demo resumes
-where it stopped. ``DIR`` then holds ``logs/``, ``captions/``, ``clips/``, ``run/``, ``index/``,
-``metrics.json`` and ``report.html``, and every later command can be pointed at them::
+where it stopped. ``DIR`` then holds ``logs/``, ``extra_logs/`` (training only), ``captions/``,
+``clips/``, ``run/``, ``index/``, ``metrics.json`` and ``report.html``, and every later command can be
+pointed at them::
 
     scenesearch search DIR/index "a car in the left lane approaches, then moves into the ego lane"
     scenesearch serve DIR/index
@@ -33,6 +34,8 @@ DEFAULT_QUERIES = (
 )
 #: Share of the demo's logs in the validation split.
 VAL_FRACTION = 0.15
+#: The extra training logs' seed is the demo's plus this: other drives through another city.
+EXTRA_SEED_OFFSET = 1000
 STAGES = ("simulate", "caption", "clips", "train", "index", "eval", "report")
 MARKERS = ".demo"
 
@@ -59,12 +62,19 @@ class DemoConfig:
             crowds out the contrastive objective.
         train_preset: the trainer's preset (``default``; ``tiny`` for smoke runs), None for the trainer's choice.
         sensors: render LiDAR and cameras (off: BEV clips from boxes, no camera).
+        extra_logs: more simulated logs, from another seed, without sensors (BEV clips from boxes,
+            no camera), that only ever train (``clips --train-only``): the cheapest data there is
+            (24 logs: seconds to simulate, half a minute to cut into clips), and more data is what
+            the model lacks most. They leave the validation and test splits as they were.
+        map_less_share: share of the extra logs written without their map
+            (:attr:`scenes.sim.SimulationConfig.map_less_share`), as track-only real logs come.
         queries: example queries shown and put in the report.
         top_k: results shown per example query.
     """
 
-    # Sized so that the whole demo runs in about 6 minutes on 2 CPU cores: small clip views (the model
-    # trains at about 40 clips/s on them) and enough epochs for it to beat the baselines.
+    # Sized so that the whole demo runs in about 9 minutes on 2 CPU cores: small clip views (the model
+    # trains at about 45 clips/s on them), and the extra logs' clips with 6 epochs rather than 12
+    # epochs of the 12 logs' clips alone: more data beat more passes over the same clips.
     logs: int = 12
     duration_s: float = 20.0
     test_fraction: float = 0.25
@@ -73,11 +83,13 @@ class DemoConfig:
     camera_width_px: int = 64
     camera_height_px: int = 32
     bev_resolution_m: float = 1.25
-    epochs: int | None = 12
+    epochs: int | None = 6
     batch_size: int | None = 16
     tag_weight: float | None = 1.0
     train_preset: str | None = None
     sensors: bool = True
+    extra_logs: int = 24
+    map_less_share: float = 0.5
     queries: tuple[str, ...] = DEFAULT_QUERIES
     top_k: int = 3
 
@@ -90,13 +102,18 @@ class DemoConfig:
         if not 0 < self.test_fraction < 1 - VAL_FRACTION:
             raise ValueError(
                 f"DemoConfig.test_fraction must lie in (0, {1 - VAL_FRACTION:g}), got {self.test_fraction}")
+        if self.extra_logs < 0:
+            raise ValueError(f"DemoConfig.extra_logs must be at least 0, got {self.extra_logs}")
+        if not 0.0 <= self.map_less_share <= 1.0:
+            raise ValueError(f"DemoConfig.map_less_share must lie in [0, 1], got {self.map_less_share}")
         if self.epochs is not None and self.epochs < 1:
             raise ValueError(f"DemoConfig.epochs must be at least 1, got {self.epochs}")
 
     @staticmethod
     def quick() -> DemoConfig:
         """Smallest sizes that still run every stage (a smoke run, not a measurement)."""
-        return DemoConfig(logs=3, duration_s=12.0, frames_per_clip=8, epochs=1, train_preset="tiny", batch_size=None)
+        return DemoConfig(logs=3, duration_s=12.0, frames_per_clip=8, epochs=1, train_preset="tiny", batch_size=None,
+                          extra_logs=2)
 
 
 class DemoStageError(RuntimeError):
@@ -127,19 +144,27 @@ class Demo:
         # One folder (or file) per stage's output; every later command can be pointed at them.
         out = self.out_dir
         self.logs_dir, self.captions_dir, self.clips_dir = out / "logs", out / "captions", out / "clips"
+        self.extra_logs_dir = out / "extra_logs"
         self.run_dir, self.index_dir, self.metrics_path = out / "run", out / "index", out / "metrics.json"
 
-    def log_dirs(self) -> list[Path]:
-        if not self.logs_dir.is_dir():
+    def log_dirs(self, folder: Path | None = None) -> list[Path]:
+        """The logs in ``folder`` (default: the logs to train and evaluate on)."""
+        folder = self.logs_dir if folder is None else folder
+        if not folder.is_dir():
             return []
-        return sorted(p for p in self.logs_dir.iterdir() if p.is_dir() and (p / "annotations.feather").is_file())
+        return sorted(p for p in folder.iterdir() if p.is_dir() and (p / "annotations.feather").is_file())
+
+    def extra_log_dirs(self) -> list[Path]:
+        """The extra logs, which only train."""
+        return self.log_dirs(self.extra_logs_dir) if self.config.extra_logs else []
 
     # ------------------------------------------------------------------ stages
 
     def settings(self, stage: str) -> dict[str, Any]:
         """The settings a stage's output depends on (a changed setting reruns the stage and those after)."""
         c = self.config
-        sim = {"logs": c.logs, "duration_s": c.duration_s, "seed": c.seed, "sensors": c.sensors}
+        sim = {"logs": c.logs, "duration_s": c.duration_s, "seed": c.seed, "sensors": c.sensors,
+               "extra_logs": c.extra_logs, "map_less_share": c.map_less_share}
         upto: dict[str, dict[str, Any]] = {"simulate": sim}
         upto["caption"] = upto["simulate"]
         upto["clips"] = {**upto["caption"], "frames_per_clip": c.frames_per_clip, "camera": [c.camera_width_px,
@@ -210,13 +235,18 @@ class Demo:
         if not c.sensors:
             args.append("--no-sensors")
         self.command(args)
-        return f"{len(self.log_dirs())} logs"
+        shutil.rmtree(self.extra_logs_dir, ignore_errors=True)  # the extra logs of other settings
+        if c.extra_logs:
+            self.command(["simulate", "--out", self.extra_logs_dir, "--logs", c.extra_logs, "--duration-s",
+                          c.duration_s, "--seed", c.seed + EXTRA_SEED_OFFSET, "--no-sensors", "--map-less-share",
+                          c.map_less_share])
+        return f"{len(self.log_dirs())} logs, {len(self.extra_log_dirs())} extra training logs"
 
     def stage_caption(self) -> str:
         logs = self.log_dirs()
         if not logs:
             raise DemoStageError(f"{self.logs_dir}: no logs to caption (the simulation wrote none)")
-        self.command(["caption", *logs, "--out", self.captions_dir])
+        self.command(["caption", *logs, *self.extra_log_dirs(), "--out", self.captions_dir])
         return ""
 
     def stage_clips(self) -> str:
@@ -232,8 +262,10 @@ class Demo:
         ).to_yaml(config_path)
         # --tag-targets: attribute targets from the simulator's behaviour labels; with them, training also
         # learns the spatio-temporal tags on the BEV embedding, so the trained model answers tag queries.
-        self.command(["clips", *self.log_dirs(), "--captions", self.captions_dir, "--out", self.clips_dir,
-                      "--frames-per-clip", c.frames_per_clip, "--config", config_path, "--tag-targets"])
+        extra = self.extra_log_dirs()
+        self.command(["clips", *self.log_dirs(), *(["--train-only", *extra] if extra else []), "--captions",
+                      self.captions_dir, "--out", self.clips_dir, "--frames-per-clip", c.frames_per_clip,
+                      "--config", config_path, "--tag-targets"])
         return ""
 
     def stage_train(self) -> str:
@@ -300,7 +332,8 @@ def config_from_args(args: argparse.Namespace) -> DemoConfig:
     base = DemoConfig.quick() if args.quick else DemoConfig()
     overrides: dict[str, Any] = {}
     for name in ("logs", "duration_s", "test_fraction", "seed", "frames_per_clip", "camera_width_px",
-                 "camera_height_px", "bev_resolution_m", "epochs", "batch_size", "tag_weight"):
+                 "camera_height_px", "bev_resolution_m", "epochs", "batch_size", "tag_weight", "extra_logs",
+                 "map_less_share"):
         value = getattr(args, name, None)
         if value is not None:
             overrides[name] = value

@@ -180,9 +180,13 @@ def write_ego_poses(log_dir: Path, ego: EgoTrajectory) -> Path:
 # Map
 
 
+#: The log's map folder (``log_map_archive_*.json`` inside).
+MAP_DIRNAME = "map"
+
+
 def find_map_file(log_dir: Path) -> Path | None:
     """The log's ``map/log_map_archive_*.json``, or None when the log has no map."""
-    candidates = sorted((Path(log_dir) / "map").glob("log_map_archive_*.json"))
+    candidates = sorted((Path(log_dir) / MAP_DIRNAME).glob("log_map_archive_*.json"))
     return candidates[0] if candidates else None
 
 
@@ -230,7 +234,7 @@ def read_map(path: Path) -> VectorMap:
 
 
 def write_map(log_dir: Path, vector_map: VectorMap, log_id: str, city_name: str = "SIM") -> Path:
-    path = Path(log_dir) / "map" / f"log_map_archive_{log_id}____{city_name}_city_0.json"
+    path = Path(log_dir) / MAP_DIRNAME / f"log_map_archive_{log_id}____{city_name}_city_0.json"
     atomic_write_text(path, json.dumps(vector_map.to_json_dict()))
     return path
 

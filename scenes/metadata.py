@@ -10,6 +10,9 @@ from enum import StrEnum
 from typing import Any
 
 METADATA_FILENAME = "log_metadata.json"
+#: ``extra`` key: true when the producer left the log's map out on purpose (a simulated log written
+#: without it, as track-only real logs come), though the scene was built on one.
+MAP_WITHHELD_KEY = "map_withheld"
 
 
 class TimeOfDay(StrEnum):

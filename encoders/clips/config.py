@@ -104,11 +104,18 @@ class BevClipConfig(ClipsYamlConfig):
 
 @dataclass(frozen=True)
 class SplitConfig(ClipsYamlConfig):
-    """Splits by log: a seeded hash of the log id picks train / val / test."""
+    """Splits by log: a seeded hash of the log id picks train / val / test.
+
+    Attributes:
+        train_only: ids of logs that always train, whatever their hash: extra training data (e.g.
+            cheap simulated logs beside the logs to evaluate on) that must never reach val or test.
+            The other logs split as they would without them.
+    """
 
     seed: int = 0
     train_fraction: float = 0.7
     val_fraction: float = 0.15
+    train_only: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)

@@ -15,13 +15,18 @@ def log_hash_unit(seed: int, log_id: str) -> float:
 
 
 def assign_splits(log_ids: Iterable[str], config: SplitConfig) -> dict[str, Split]:
-    """Split logs by a seeded hash of their id.
+    """Split logs by a seeded hash of their id; the logs in ``config.train_only`` train.
 
     A log's split depends only on ``(seed, log_id)``, so adding logs never moves the others —
-    except that with three or more logs every split gets at least one: when a split is empty, the
-    logs whose hash lies nearest to it are moved into it.
+    except that with three or more (hashed) logs every split gets at least one: when a split is
+    empty, the logs whose hash lies nearest to it are moved into it.
     """
-    ids = sorted(set(log_ids))
+    all_ids = set(log_ids)
+    forced = {log_id: Split.TRAIN for log_id in sorted(all_ids & set(config.train_only))}
+    return forced | _hash_splits(sorted(all_ids - forced.keys()), config)
+
+
+def _hash_splits(ids: list[str], config: SplitConfig) -> dict[str, Split]:
     unit = {log_id: log_hash_unit(config.seed, log_id) for log_id in ids}
     cut_train = config.train_fraction
     cut_val = config.train_fraction + config.val_fraction

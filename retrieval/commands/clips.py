@@ -5,6 +5,8 @@ Renders each log's camera and BEV frames once into ``CLIPS_DIR/logs/<log_id>/``,
 ``--no-previews``, an animated GIF per clip under ``CLIPS_DIR/previews/``. Reports what it skipped
 and why (corrupt sweeps, windows outside a log, unreadable logs) and which logs failed (exit 1).
 
+``--train-only LOG_DIR...`` adds logs that always go to the train split (extra training data).
+
 ``--workers N`` renders one log per task on a local Ray runtime, ``--ray-address`` on a cluster
 (:mod:`common.ray_runner`); the files are the same as the serial path's. Logs, ``--captions`` and
 ``--out`` may be ``pyarrow.fs`` URIs (``--tag-targets`` needs a local or shared ``--out``).
@@ -19,7 +21,7 @@ from typing import TYPE_CHECKING
 
 from common.ray_cluster import Execution, held_runtime
 from common.ray_cluster import add_arguments as add_execution_arguments
-from common.storage import Location, as_location, expand, is_uri
+from common.storage import Location, as_location, expand, is_uri, name_of
 
 if TYPE_CHECKING:
     from encoders.clips.config import ClipsConfig
@@ -35,6 +37,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--config", type=Path, help="clips.yaml (ClipsConfig); flags below override it")
     parser.add_argument("--frames-per-clip", type=int, help="T frames sampled over each caption window")
     parser.add_argument("--seed", type=int, help="seed of the train/val/test split by log")
+    parser.add_argument("--train-only", nargs="+", default=[], metavar="LOG_DIR",
+                        help="more log folders, rendered as the others but always in the train split (extra "
+                             "training data, e.g. simulated logs beside the logs to evaluate on)")
     parser.add_argument("--bev-source", choices=["auto", "lidar", "boxes"], help="BEV occupancy source")
     parser.add_argument("--num-sweeps", type=int, help="sweeps aggregated per BEV frame")
     parser.add_argument("--no-previews", action="store_true", help="do not write animated previews")
@@ -57,6 +62,9 @@ def run(args: argparse.Namespace) -> int:
         config = replace(config, frames_per_clip=args.frames_per_clip)
     if args.seed is not None:
         config = replace(config, split=replace(config.split, seed=args.seed))
+    if args.train_only:
+        train_only = tuple(name_of(log_dir) for log_dir in expand(args.train_only))
+        config = replace(config, split=replace(config.split, train_only=(*config.split.train_only, *train_only)))
     if args.bev_source is not None:
         config = replace(config, bev=replace(config.bev, source=BevSourceChoice(args.bev_source)))
     if args.num_sweeps is not None:
@@ -78,7 +86,7 @@ def _run(args: argparse.Namespace, config: ClipsConfig, out: Location, execution
     from encoders.clips.build import build_clips
     from encoders.clips.layout import MANIFEST_FILE
 
-    log_dirs = expand(args.log_dirs)
+    log_dirs = expand([*args.log_dirs, *args.train_only])
     report = build_clips(log_dirs, as_location(args.captions), out, config, progress=print,
                          reuse=not args.no_reuse, execution=execution)
     print(

@@ -30,6 +30,10 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--tag-weight", type=float,
                         help=f"weight of the tagging loss in training (default {D.tag_weight:g})")
     parser.add_argument("--no-sensors", action="store_true", help="skip LiDAR/camera rendering (BEV from boxes)")
+    parser.add_argument("--extra-logs", type=int, metavar="N",
+                        help=f"extra training-only logs, simulated without sensors (default {D.extra_logs})")
+    parser.add_argument("--map-less-share", type=float, metavar="F",
+                        help=f"share of the extra logs simulated without their map (default {D.map_less_share:g})")
     parser.add_argument("--query", action="append", help="example query (repeatable; replaces the defaults)")
     parser.add_argument("--quick", action="store_true", help="smallest sizes, a smoke run of every stage")
     parser.add_argument("--stages", nargs="+", metavar="STAGE",

@@ -36,6 +36,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="degrade boxes as a LiDAR detector and tracker would (labels stay exact)")
     parser.add_argument("--no-sensors", dest="sensors", action="store_false", default=None,
                         help="skip rendering LiDAR sweeps and camera frames (tracks, map and labels only)")
+    parser.add_argument("--map-less-share", type=float, metavar="F",
+                        help="share of the logs written without their map, as track-only real logs come (default 0)")
     parser.add_argument("--sensor-config", type=Path,
                         help="YAML sensor config (scenes.sensorsim.SensorConfig): beams, resolution, camera size")
     parser.add_argument("--emit-detections", action="store_true",
@@ -50,7 +52,8 @@ def build_config(args: argparse.Namespace) -> SimulationConfig:
     """The config file's values, overridden by the flags given."""
     base = SimulationConfig.from_yaml(args.config) if args.config else SimulationConfig()
     overrides: dict[str, Any] = {}
-    for name in ("logs", "duration_s", "seed", "warmup_s", "egos_per_run", "tracker_noise", "sensors", "cache_dir"):
+    for name in ("logs", "duration_s", "seed", "warmup_s", "egos_per_run", "tracker_noise", "sensors", "map_less_share",
+                 "cache_dir"):
         value = getattr(args, name, None)
         if value is not None:
             overrides[name] = value

@@ -23,9 +23,10 @@ from tqdm import tqdm
 
 from scenes import av2_io
 from scenes.calibration import Calibration
+from scenes.errors import LogFormatError
 from scenes.geometry import SE3
 from scenes.log import Log
-from scenes.metadata import METADATA_FILENAME
+from scenes.metadata import MAP_WITHHELD_KEY, METADATA_FILENAME
 from scenes.sensorsim.appearance import Appearance
 from scenes.sensorsim.camera import CameraRenderer
 from scenes.sensorsim.config import LIDAR_SENSOR_NAME, SensorConfig
@@ -158,6 +159,11 @@ def render_log_sensors(log_dir: Path | str, config: SensorConfig | None = None, 
     config = config or SensorConfig()
     log_dir = Path(log_dir)
     log = Log.open(log_dir)
+    if log.map is None and log.metadata.extra.get(MAP_WITHHELD_KEY):
+        # Rendering on bare ground would silently give other sensor data than the log was made with.
+        raise LogFormatError.single(log_dir / METADATA_FILENAME, "the simulator withheld this log's map, which its "
+                                    "sensors were rendered from; simulate the log again to render them anew",
+                                    field=f"extra.{MAP_WITHHELD_KEY}")
     dense = log.dense_tracks()
     check_objects(dense, config, log_dir / av2_io.ANNOTATIONS_FILENAME)
     frames = frame_timestamps(log)

@@ -5,6 +5,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from enum import StrEnum
 
+import numpy as np
+
 from scenes.config import ScenesConfig, check_at_least, check_positive
 
 
@@ -87,6 +89,11 @@ class SimulationConfig(ScenesConfig):
         noise: the noise model used when ``tracker_noise`` is set.
         sensors: whether sensor data (LiDAR, cameras) is rendered after the tracks; recorded for the
             sensor stage, which runs on the written logs.
+        map_less_share: share of the logs written without their vector map (``map/``), as track-only
+            real logs come (KITTI tracking has no map): their captions then come from the rules'
+            map-less fallback and their BEV clips have empty map channels, so a model trained on a mix
+            knows both kinds. Their sensors are still rendered from the map, and their behaviour labels
+            and junctions (simulator truth, for tag targets) are kept. Which logs: a seeded draw.
         cache_dir: folder for generated networks (default: the system temp folder).
     """
 
@@ -104,6 +111,7 @@ class SimulationConfig(ScenesConfig):
     tracker_noise: bool = False
     noise: TrackerNoiseConfig = field(default_factory=TrackerNoiseConfig)
     sensors: bool = True
+    map_less_share: float = 0.0
     cache_dir: str | None = None
 
     def __post_init__(self) -> None:
@@ -113,6 +121,8 @@ class SimulationConfig(ScenesConfig):
         check_at_least("SimulationConfig", 0, warmup_s=self.warmup_s, vehicles_per_s_per_km=self.vehicles_per_s_per_km,
                        pedestrians_per_s_per_km=self.pedestrians_per_s_per_km, parked_vehicles=self.parked_vehicles)
         check_at_least("SimulationConfig", 1, egos_per_run=self.egos_per_run)
+        if not 0.0 <= self.map_less_share <= 1.0:
+            raise ValueError(f"SimulationConfig.map_less_share must lie in [0, 1], got {self.map_less_share}")
         if self.duration_s < 2 * self.step_s:
             raise ValueError(f"SimulationConfig.duration_s must span at least two steps, got {self.duration_s}")
 
@@ -120,6 +130,12 @@ class SimulationConfig(ScenesConfig):
     def num_windows(self) -> int:
         """Windows each ego drives through."""
         return -(-self.logs // self.egos_per_run)
+
+    def map_less_logs(self) -> frozenset[int]:
+        """Indices of the logs written without their map (``round(map_less_share * logs)`` of them)."""
+        count = round(self.map_less_share * self.logs)
+        order = np.random.default_rng([self.seed, 0x3A9]).permutation(self.logs)
+        return frozenset(int(i) for i in order[:count])
 
     @property
     def num_egos(self) -> int:

@@ -38,7 +38,7 @@ from scenes import av2_io
 from scenes.behavior import BEHAVIOR_SCHEMA, EGO_TRACK_ID, BehaviorLabel, write_behavior_labels, write_junctions
 from scenes.geometry import wrap_angle_rad
 from scenes.map import VectorMap
-from scenes.metadata import LogMetadata
+from scenes.metadata import MAP_WITHHELD_KEY, LogMetadata
 from scenes.sim.appearance import sample_appearance
 from scenes.sim.config import SimulationConfig
 from scenes.sim.demand import ALL_TYPES, make_demand
@@ -163,9 +163,10 @@ def simulate_tracks_and_map(config: SimulationConfig, out_dir: Location, overwri
 
     # Every log is assembled before any is written, so that a log that cannot be valid stops the
     # run with nothing written.
+    map_less = config.map_less_logs()
     contents = [
-        _build_log(log_id, i, recordings[i], config, step_ns, lanes)  # log i: ego i % E, window i // E
-        for i, log_id in enumerate(log_ids(config))
+        _build_log(log_id, i, recordings[i], config, step_ns, lanes, has_map=i not in map_less)
+        for i, log_id in enumerate(log_ids(config))  # log i: ego i % E, window i // E
     ]
     empty = [c.log_id for c in contents if len(c.annotations) == 0]
     if empty:
@@ -204,6 +205,9 @@ def write_log(content: _LogContent, ctx: _WriteContext) -> str:
         content.write(tmp, ctx.vector_map, ctx.junctions)
         for hook in ctx.post_log:
             hook(tmp)
+        if not content.has_map:
+            # Withheld only now: the sensor rendering (a hook) builds the static world from the map.
+            shutil.rmtree(tmp / av2_io.MAP_DIRNAME)
     return content.log_id
 
 
@@ -223,6 +227,7 @@ class _LogContent:
     ego: EgoTrajectory
     labels: pa.Table
     metadata: LogMetadata
+    has_map: bool = True
 
     def write(self, log_dir: Path, vector_map: VectorMap, junctions: pa.Table) -> None:
         av2_io.write_annotations(log_dir, self.annotations)
@@ -234,7 +239,7 @@ class _LogContent:
 
 
 def _build_log(log_id: str, index: int, rec: Recording, config: SimulationConfig, step_ns: int,
-               lanes: LaneInfo) -> _LogContent:
+               lanes: LaneInfo, has_map: bool = True) -> _LogContent:
     # Labels need the margins (lane changes across the window's edge); everything else does not.
     all_rows = _concat(rec.ego, rec.objects)
     labels = compute_labels(all_rows, lanes)
@@ -302,11 +307,12 @@ def _build_log(log_id: str, index: int, rec: Recording, config: SimulationConfig
             "sumo_version": sumo_version(),
             "sensors": config.sensors,
             "tracker_noise": config.tracker_noise,
+            MAP_WITHHELD_KEY: not has_map,
             # Everything that shapes the log; the network cache's location does not.
             "config": {k: v for k, v in config.to_dict().items() if k != "cache_dir"},
         },
     )
-    return _LogContent(log_id, annotations, ego, labels_table, metadata)
+    return _LogContent(log_id, annotations, ego, labels_table, metadata, has_map)
 
 
 def _labels_table(rows: ObjectRows, flags: dict[BehaviorLabel, np.ndarray], leader_id: np.ndarray,

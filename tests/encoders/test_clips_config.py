@@ -22,7 +22,7 @@ def test_config_round_trips_through_yaml(tmp_path: Path) -> None:
         previews=False,
         bev=replace(config.bev, source=BevSourceChoice.BOXES, z_bins_m=(-1.0, 0.5, 3.0), num_sweeps=5),
         camera=replace(config.camera, highlight_rgb=(0, 255, 0), width_px=128),
-        split=SplitConfig(seed=7, train_fraction=0.6, val_fraction=0.2),
+        split=SplitConfig(seed=7, train_fraction=0.6, val_fraction=0.2, train_only=("sim_1", "sim_2")),
     )
     path = tmp_path / "clips.yaml"
     config.to_yaml(path)
@@ -57,6 +57,15 @@ def test_splits_are_by_log_deterministic_and_cover_every_split() -> None:
     for n in (3, 4, 5):
         few = assign_splits([f"x{i}" for i in range(n)], SplitConfig(seed=0))
         assert set(few.values()) == {Split.TRAIN, Split.VAL, Split.TEST}
+
+
+def test_train_only_logs_train_and_leave_the_other_logs_where_they_were() -> None:
+    logs = [f"log_{i:03d}" for i in range(3)]
+    extra = [f"sim_{i}" for i in range(20)]
+    alone = assign_splits(logs, SplitConfig(seed=0))
+    mixed = assign_splits([*logs, *extra], SplitConfig(seed=0, train_only=(*extra, "not_given")))
+    assert {k: mixed[k] for k in logs} == alone  # the few logs still fill every split
+    assert all(mixed[k] is Split.TRAIN for k in extra) and "not_given" not in mixed
 
 
 def test_frame_sampling_is_uniform_and_repeats_short_windows() -> None:

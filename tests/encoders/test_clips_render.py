@@ -14,9 +14,10 @@ import pytest
 from scipy.ndimage import binary_dilation
 
 from encoders.clips.build import build_clips
-from encoders.clips.config import BevSourceChoice, ClipsConfig
+from encoders.clips.config import BevSourceChoice, ClipsConfig, Split, SplitConfig
 from encoders.clips.raster import MAP_CHANNELS
 from encoders.clips.render import render_log
+from encoders.clips.splits import assign_splits
 from encoders.clips.table import ClipsInputError
 from encoders.clips.testing import EGO_SE3_CAMERA, INTRINSICS, synthetic_captions, write_synthetic_log
 from encoders.data import ClipDataset
@@ -226,6 +227,27 @@ def test_cli_writes_clips_and_previews(built: tuple[Path, Path], tmp_path: Path,
     assert all(len(r["frame_indices"]) == 8 for r in rows)
     with Image.open(out / rows[0]["preview_path"]) as gif:
         assert gif.n_frames == 8 and gif.size[0] > gif.size[1]
+
+
+def test_cli_train_only_logs_always_train(tmp_path: Path) -> None:
+    from retrieval.cli import main
+
+    # Three logs to evaluate on fill the three splits; the extra log, hashed alone, would not train.
+    logs = [write_synthetic_log(tmp_path / "logs", log_id=f"eval_{i}", num_frames=40, with_camera=False, seed=i)
+            for i in range(3)]
+    extra = write_synthetic_log(tmp_path / "extra", log_id="extra_0", num_frames=40, with_camera=False, seed=9)
+    splits = SplitConfig(train_fraction=0.01, val_fraction=0.5)
+    assert assign_splits(["extra_0"], splits)["extra_0"] is not Split.TRAIN
+    (tmp_path / "c").mkdir()
+    pq.write_table(synthetic_captions([*logs, extra]), tmp_path / "c" / "captions.parquet")
+    config = tmp_path / "clips.yaml"
+    ClipsConfig(previews=False, split=splits).to_yaml(config)
+    out = tmp_path / "clips"
+    assert main(["clips", *map(str, logs), "--train-only", str(extra), "--captions", str(tmp_path / "c"),
+                 "--out", str(out), "--frames-per-clip", "4", "--config", str(config)]) == 0
+    split_of = dict(zip(*pq.read_table(out / "clips.parquet", columns=["log_id", "split"]).to_pydict().values()))
+    assert split_of["extra_0"] == "train"
+    assert {split_of[p.name] for p in logs} == {"train", "val", "test"}
 
 
 def test_camera_without_instance_masks_projects_the_boxes(tmp_path: Path) -> None:

@@ -12,7 +12,7 @@ import pytest
 from retrieval_fakes import FakeEmbedder, HashTextEncoder
 
 from encoders.clips.config import BevClipConfig, CameraClipConfig, ClipsConfig, SplitConfig
-from retrieval.demo import STAGES, Demo, DemoConfig, config_from_args
+from retrieval.demo import EXTRA_SEED_OFFSET, STAGES, Demo, DemoConfig, config_from_args
 from retrieval.embedding import model_hash
 from retrieval.evaluation import evaluate
 from retrieval.report import Example, write_report
@@ -25,8 +25,9 @@ class RecordingDemo(Demo):
     def command(self, args: Any) -> None:
         self.calls.append([str(a) for a in args])
         if args[0] == "simulate":
-            for i in range(self.config.logs):
-                log = self.logs_dir / f"log{i}"
+            out = Path(args[args.index("--out") + 1])
+            for i in range(int(args[args.index("--logs") + 1])):
+                log = out / f"{out.name}{i}"
                 log.mkdir(parents=True, exist_ok=True)
                 (log / "annotations.feather").write_bytes(b"")
 
@@ -45,22 +46,30 @@ def _demo(tmp_path: Path, config: DemoConfig) -> RecordingDemo:
 
 def test_stages_run_in_order_with_sizes(tmp_path: Path) -> None:
     demo = _demo(tmp_path, DemoConfig(logs=2, duration_s=10, epochs=3, frames_per_clip=8, batch_size=4,
-                                      camera_width_px=40, bev_resolution_m=2.0))
+                                      camera_width_px=40, bev_resolution_m=2.0, extra_logs=3, map_less_share=0.25))
     results = demo.run()
     assert [r.name for r in results] == list(STAGES)
     names = [c[0] for c in demo.calls]
-    assert names == ["simulate", "caption", "clips", "train", "index", "eval", "report"]
-    sim = demo.calls[0]
+    assert names == ["simulate", "simulate", "caption", "clips", "train", "index", "eval", "report"]
+    sim, extra = demo.calls[0], demo.calls[1]
     assert sim[sim.index("--logs") + 1] == "2" and sim[sim.index("--duration-s") + 1] == "10"
-    assert demo.calls[1][1:3] == [str(demo.logs_dir / "log0"), str(demo.logs_dir / "log1")]
-    clips = demo.calls[2]
+    assert "--map-less-share" not in sim  # the logs to evaluate on keep their maps
+    # The extra logs: another seed, no sensors, a quarter without a map, training only.
+    assert extra[extra.index("--out") + 1] == str(demo.extra_logs_dir) and extra[extra.index("--logs") + 1] == "3"
+    assert extra[extra.index("--seed") + 1] == str(DemoConfig().seed + EXTRA_SEED_OFFSET)
+    assert "--no-sensors" in extra and extra[extra.index("--map-less-share") + 1] == "0.25"
+    main_logs = [str(demo.logs_dir / f"logs{i}") for i in range(2)]
+    extra_logs = [str(demo.extra_logs_dir / f"extra_logs{i}") for i in range(3)]
+    assert demo.calls[2][1:6] == [*main_logs, *extra_logs]
+    clips = demo.calls[3]
+    assert clips[1:3] == main_logs and clips[clips.index("--train-only") + 1:][:3] == extra_logs
     assert clips[clips.index("--frames-per-clip") + 1] == "8"
     assert clips[clips.index("--config") + 1] == str(demo.out_dir / "clips.yaml")
     # The test split takes the default quarter, validation 0.15, training the rest.
     assert ClipsConfig.from_yaml(demo.out_dir / "clips.yaml") == ClipsConfig(
         frames_per_clip=8, camera=CameraClipConfig(width_px=40, height_px=DemoConfig().camera_height_px),
         bev=BevClipConfig(resolution_m=2.0), split=SplitConfig(train_fraction=0.6, val_fraction=0.15))
-    train = demo.calls[3]
+    train = demo.calls[4]
     assert train[train.index("--epochs") + 1] == "3" and train[train.index("--batch-size") + 1] == "4"
 
 
@@ -78,18 +87,33 @@ def test_resume_skips_complete_stages_and_reruns_after_a_change(tmp_path: Path) 
     assert [c[0] for c in changed.calls] == ["train", "index", "eval", "report"]
     # The old run is cleared, so `scenesearch train` does not refuse an occupied folder.
     assert not (changed.run_dir / "model.safetensors").exists()
+    # A new share of map-less extra logs is new data: everything reruns.
+    fewer_maps = _demo(tmp_path, DemoConfig(logs=2, duration_s=10, epochs=5, map_less_share=1.0))
+    fewer_maps.run()
+    assert [c[0] for c in fewer_maps.calls] == ["simulate", *STAGES]
+    # Without extra logs, none is simulated, and those of the settings before are gone.
+    assert fewer_maps.extra_logs_dir.is_dir()
+    alone = _demo(tmp_path, DemoConfig(logs=2, duration_s=10, epochs=5, extra_logs=0))
+    alone.run()
+    assert [c[0] for c in alone.calls] == list(STAGES) and not alone.extra_logs_dir.exists()
+    assert "--train-only" not in alone.calls[2]
 
 
 def test_config_from_flags() -> None:
     args = argparse.Namespace(quick=True, logs=None, duration_s=None, seed=None, frames_per_clip=None, epochs=4,
-                              no_sensors=True, query=["a bus stops"])
+                              no_sensors=True, query=["a bus stops"], map_less_share=0.25, extra_logs=5)
     config = config_from_args(args)
-    assert config.logs == DemoConfig.quick().logs and config.epochs == 4
+    assert config.logs == DemoConfig.quick().logs and config.epochs == 4 and config.map_less_share == 0.25
+    assert config.extra_logs == 5
     assert config.sensors is False and config.queries == ("a bus stops",)
     with pytest.raises(ValueError, match="logs must be at least 1"):
         DemoConfig(logs=0)
     with pytest.raises(ValueError, match="test_fraction must lie in"):
         DemoConfig(test_fraction=0.9)
+    with pytest.raises(ValueError, match="map_less_share must lie in"):
+        DemoConfig(map_less_share=2.0)
+    with pytest.raises(ValueError, match="extra_logs must be at least 0"):
+        DemoConfig(extra_logs=-1)
     with pytest.raises(ValueError, match="unknown stage 'deploy'"):
         _demo(Path("/nonexistent"), DemoConfig()).run(["deploy"])
 

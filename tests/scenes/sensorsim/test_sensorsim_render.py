@@ -12,6 +12,7 @@ from retrieval.cli import main as cli_main
 from scenes import av2_io
 from scenes.errors import LogFormatError
 from scenes.log import Log
+from scenes.metadata import MAP_WITHHELD_KEY, METADATA_FILENAME, LogMetadata
 from scenes.sensorsim.config import LIDAR_SENSOR_NAME, SensorConfig
 from scenes.sensorsim.errors import BadObjectError
 from scenes.sensorsim.instance_masks import instance_mask_dir, read_instance_mask
@@ -149,6 +150,14 @@ def test_log_without_map_or_objects_in_view(tmp_path: Path) -> None:
     assert report.empty_camera_frames == 3
     mask, _ = read_instance_mask(log_dir, "ring_front_center", 0)
     assert not mask.any()
+
+
+def test_a_simulated_log_whose_map_was_withheld_is_not_rendered_on_bare_ground(tmp_path: Path) -> None:
+    log_dir = _one_box_log(tmp_path, (10.0, 0.0, 1.0), (4.0, 2.0, 2.0))
+    av2_io.write_metadata(log_dir, LogMetadata("box", source="sumo", extra={MAP_WITHHELD_KEY: True}))
+    with pytest.raises(LogFormatError, match=rf"{METADATA_FILENAME}.*extra.{MAP_WITHHELD_KEY}.*simulate the log again"):
+        render_log_sensors(log_dir, progress=False)
+    assert not (log_dir / "sensors").exists() and not (log_dir / "calibration").exists()
 
 
 def test_cli_renders_and_reports_skipped_logs(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

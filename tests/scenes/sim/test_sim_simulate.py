@@ -3,9 +3,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from scenes.av2_io import ANNOTATIONS_FILENAME
+from scenes.av2_io import ANNOTATIONS_FILENAME, MAP_DIRNAME, find_map_file
 from scenes.behavior import BEHAVIOR_FILENAME, EGO_TRACK_ID, read_behavior_labels, read_junctions
 from scenes.log import Log
+from scenes.metadata import MAP_WITHHELD_KEY
 from scenes.sim import NetworkKind, SimulationConfig, SimulationError, simulate
 from scenes.sim.network import build_network
 from scenes.validate import validate_log
@@ -151,3 +152,39 @@ def test_a_log_without_objects_stops_the_run_before_writing(tmp_path: Path, cach
     with pytest.raises(SimulationError, match="warmup_s"):
         simulate(_config(cache, warmup_s=0.0, duration_s=0.5, range_m=1.0), out)
     assert not out.exists() or not any(out.iterdir())
+
+
+def test_map_less_share_withholds_the_map_of_that_share_after_the_hooks(tmp_path: Path, cache: Path) -> None:
+    maps_seen_by_hooks: list[bool] = []
+
+    def hook(log_dir: Path) -> None:  # e.g. the sensor rendering, which builds the world from the map
+        maps_seen_by_hooks.append(find_map_file(log_dir) is not None)
+
+    config = _config(cache, logs=4, duration_s=1.0, map_less_share=0.5)
+    out = simulate(config, tmp_path / "o", post_log=[hook])
+    assert maps_seen_by_hooks == [True] * 4
+    without = [i for i, log_dir in enumerate(out) if Log.open(log_dir).map is None]
+    assert sorted(without) == sorted(config.map_less_logs()) and len(without) == 2
+    for i, log_dir in enumerate(out):
+        assert not (log_dir / MAP_DIRNAME).exists() if i in without else find_map_file(log_dir) is not None
+        assert read_junctions(log_dir) is not None and read_behavior_labels(log_dir) is not None  # simulator truth
+        assert Log.open(log_dir).metadata.extra[MAP_WITHHELD_KEY] is (i in without)
+        assert validate_log(log_dir).ok
+    # The same logs and bytes as without the option, the map aside.
+    full = simulate(_config(cache, logs=4, duration_s=1.0), tmp_path / "full")
+    for a, b in zip(out, full):
+        assert (a / ANNOTATIONS_FILENAME).read_bytes() == (b / ANNOTATIONS_FILENAME).read_bytes()
+
+
+@pytest.mark.parametrize("share", [-0.1, 1.5])
+def test_map_less_share_outside_zero_one_is_refused(share: float) -> None:
+    with pytest.raises(ValueError, match="map_less_share"):
+        SimulationConfig(map_less_share=share)
+
+
+def test_map_less_logs_are_a_seeded_draw_of_the_share() -> None:
+    assert SimulationConfig(logs=10, map_less_share=0.0).map_less_logs() == frozenset()
+    assert len(SimulationConfig(logs=10, map_less_share=0.3).map_less_logs()) == 3
+    assert SimulationConfig(logs=10, map_less_share=1.0).map_less_logs() == frozenset(range(10))
+    assert SimulationConfig(logs=10, seed=3, map_less_share=0.5).map_less_logs() == \
+        SimulationConfig(logs=10, seed=3, map_less_share=0.5).map_less_logs()

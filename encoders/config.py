@@ -302,6 +302,11 @@ class TrainConfig(EncodersConfig):
             clips with camera, the BEV view over all), added to the fused view's loss (0: fused only).
             Without them the camera tower, trained only through the fused view where BEV carries
             most of the signal, barely learns to retrieve alone.
+        camera_share: when fewer of the training clips than this share have a camera view, every
+            step's batch holds this share of camera clips, drawn again as often as needed
+            (:class:`encoders.distributed.EpochSampler`; 0: batches drawn from one permutation).
+            Logs without sensors (BEV from boxes) thin the camera clips out, and the camera view's
+            loss needs several in a batch.
         time_reversal: chance that a training clip plays backwards, captioned by its reversed tags
             (:mod:`encoders.time_reversal`): the same frames under another caption, so that the
             clip embedding has to read the frames' order (with ``augment`` only). At the demo's
@@ -332,6 +337,7 @@ class TrainConfig(EncodersConfig):
     shuffle_frames: bool = False
     hard_negatives: tuple[HardNegative, ...] = ()
     view_weight: float = 1.0
+    camera_share: float = 0.0
     time_reversal: float = 0.0
     dense_weight: float = 0.0
 
@@ -352,6 +358,8 @@ class TrainConfig(EncodersConfig):
                 raise ConfigError(f"TrainConfig.{name} must be >= 0, got {getattr(self, name)}")
         if self.dense_weight > 0 and not self.model.dense_streams:
             raise ConfigError("TrainConfig.dense_weight > 0 needs dense heads: set model.dense_streams")
+        if not 0.0 <= self.camera_share <= 1.0:
+            raise ConfigError(f"TrainConfig.camera_share must be in [0, 1], got {self.camera_share}")
         if not 0.0 <= self.time_reversal <= 1.0:
             raise ConfigError(f"TrainConfig.time_reversal must be in [0, 1], got {self.time_reversal}")
         if self.max_steps_per_epoch < 0:

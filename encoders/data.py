@@ -175,6 +175,11 @@ class ClipDataset(torch.utils.data.Dataset[dict[str, Any]]):
     def clip_ids(self) -> list[str]:
         return [r.clip_id for r in self._rows]
 
+    @property
+    def camera_flags(self) -> NDArray[np.bool_]:
+        """(N,) whether each clip has a camera view, from the clip table (no clip is read)."""
+        return np.array([r.has_camera for r in self._rows], dtype=bool)
+
     def set_epoch(self, epoch: int) -> None:
         """Change the augmentation draw (before creating the epoch's DataLoader iterator)."""
         self.epoch = int(epoch)

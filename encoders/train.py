@@ -148,6 +148,14 @@ def _open_datasets(
     return train_set, val_set
 
 
+def camera_flags(dataset: Dataset[dict[str, Any]]) -> np.ndarray:
+    """(N,) bool: which of the dataset's clips have a camera view (from the clip table when it has one)."""
+    flags = getattr(dataset, "camera_flags", None)
+    if flags is not None:
+        return np.asarray(flags, dtype=bool)
+    return np.array([bool(dataset[i]["has_camera"]) for i in range(len(dataset))], dtype=bool)  # type: ignore[arg-type]
+
+
 def resolve_channels(config: TrainConfig, item: dict[str, Any]) -> TrainConfig:
     """The config with the BEV and camera channel counts of the data."""
     bev = dataclasses.replace(
@@ -281,6 +289,7 @@ def train(
     if config.max_steps_per_epoch:
         batches_per_epoch = min(batches_per_epoch, config.max_steps_per_epoch)
     total_steps = batches_per_epoch * config.epochs
+    camera = camera_flags(train_set) if config.camera_share > 0 else None
     use_amp = config.amp and device.type == "cuda"
     # Negatives are paraphrased as often as the positives are.
     negative_paraphrases = AugmentConfig().paraphrase_probability if config.augment else 0.0
@@ -292,7 +301,7 @@ def train(
         model.train()
         if hasattr(train_set, "set_epoch"):
             train_set.set_epoch(epoch)  # the augmentation draw of this epoch
-        sampler = dp.sampler(train_set, size, batches_per_epoch, config.seed)
+        sampler = dp.sampler(train_set, size, batches_per_epoch, config.seed, camera, config.camera_share)
         sampler.set_epoch(epoch)  # the order of this epoch: a permutation seeded by (seed, epoch)
         loader = DataLoader(
             train_set,

@@ -60,6 +60,10 @@ class DemoConfig:
         tag_weight: weight of the attribute-tagging loss joined to the contrastive loss (None: the
             trainer's default). Small, because with a few minutes of training a larger weight
             crowds out the contrastive objective.
+        camera_share: share of camera clips in every training batch when fewer clips than that have a
+            camera (``train --camera-share``; None: the trainer's default). The extra logs have no
+            camera, so without it a batch of 16 holds one or two camera clips and the camera view
+            alone learns little.
         train_preset: the trainer's preset (``default``; ``tiny`` for smoke runs), None for the trainer's choice.
         sensors: render LiDAR and cameras (off: BEV clips from boxes, no camera).
         extra_logs: more simulated logs, from another seed, without sensors (BEV clips from boxes,
@@ -86,6 +90,7 @@ class DemoConfig:
     epochs: int | None = 6
     batch_size: int | None = 16
     tag_weight: float | None = 1.0
+    camera_share: float | None = 0.25
     train_preset: str | None = None
     sensors: bool = True
     extra_logs: int = 24
@@ -106,6 +111,8 @@ class DemoConfig:
             raise ValueError(f"DemoConfig.extra_logs must be at least 0, got {self.extra_logs}")
         if not 0.0 <= self.map_less_share <= 1.0:
             raise ValueError(f"DemoConfig.map_less_share must lie in [0, 1], got {self.map_less_share}")
+        if self.camera_share is not None and not 0.0 <= self.camera_share <= 1.0:
+            raise ValueError(f"DemoConfig.camera_share must lie in [0, 1], got {self.camera_share}")
         if self.epochs is not None and self.epochs < 1:
             raise ValueError(f"DemoConfig.epochs must be at least 1, got {self.epochs}")
 
@@ -171,7 +178,7 @@ class Demo:
                          c.camera_height_px], "bev_resolution_m": c.bev_resolution_m,
                          "test_fraction": c.test_fraction}
         upto["train"] = {**upto["clips"], "epochs": c.epochs, "train_preset": c.train_preset,
-                         "batch_size": c.batch_size, "tag_weight": c.tag_weight}
+                         "batch_size": c.batch_size, "tag_weight": c.tag_weight, "camera_share": c.camera_share}
         upto["index"] = upto["train"]
         upto["eval"] = upto["train"]
         upto["report"] = {**upto["train"], "queries": list(c.queries), "top_k": c.top_k}
@@ -282,6 +289,8 @@ class Demo:
             args += ["--batch-size", self.config.batch_size]
         if self.config.tag_weight is not None:
             args += ["--tag-weight", self.config.tag_weight]
+        if self.config.camera_share is not None:
+            args += ["--camera-share", self.config.camera_share]
         self.command(args)
         return ""
 
@@ -333,7 +342,7 @@ def config_from_args(args: argparse.Namespace) -> DemoConfig:
     overrides: dict[str, Any] = {}
     for name in ("logs", "duration_s", "test_fraction", "seed", "frames_per_clip", "camera_width_px",
                  "camera_height_px", "bev_resolution_m", "epochs", "batch_size", "tag_weight", "extra_logs",
-                 "map_less_share"):
+                 "map_less_share", "camera_share"):
         value = getattr(args, name, None)
         if value is not None:
             overrides[name] = value

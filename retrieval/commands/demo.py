@@ -29,6 +29,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         f"validation takes {VAL_FRACTION:g})")
     parser.add_argument("--tag-weight", type=float,
                         help=f"weight of the tagging loss in training (default {D.tag_weight:g})")
+    parser.add_argument("--camera-share", type=float, metavar="F",
+                        help=f"share of camera clips in every training batch (default {D.camera_share:g})")
     parser.add_argument("--no-sensors", action="store_true", help="skip LiDAR/camera rendering (BEV from boxes)")
     parser.add_argument("--extra-logs", type=int, metavar="N",
                         help=f"extra training-only logs, simulated without sensors (default {D.extra_logs})")

@@ -46,6 +46,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--scratch-text", action="store_true", help="train a small text transformer from scratch")
     parser.add_argument("--time-reversal", type=float, metavar="P",
                         help="chance that a training clip plays backwards, captioned by its reversed tags")
+    parser.add_argument("--camera-share", type=float, metavar="F",
+                        help="when fewer training clips than F have a camera view, give every batch that share of "
+                             "camera clips (drawn again as needed)")
     parser.add_argument("--dense-weight", type=float, metavar="W",
                         help="weight of the per-frame rule-tag loss on the temporal streams' frame tokens (heads on "
                              "the track stream unless the config names model.dense_streams)")
@@ -80,6 +83,7 @@ def build_config(args: argparse.Namespace) -> Any:
         "num_workers": args.num_workers,
         "max_steps_per_epoch": args.max_steps_per_epoch,
         "time_reversal": args.time_reversal,
+        "camera_share": args.camera_share,
     }
     config = dataclasses.replace(config, **{k: v for k, v in flags.items() if v is not None})
     if args.shuffle_frames:

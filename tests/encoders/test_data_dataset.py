@@ -56,6 +56,9 @@ def test_items_have_the_interface_shapes_and_value_ranges(clips_dir: Path) -> No
     # The log without sweeps gets a BEV rendered from boxes, flagged in the table.
     sources = dict(zip(table.column("log_id").to_pylist(), table.column("bev_source").to_pylist()))
     assert sources["synthetic_1"] == "boxes" and sources["synthetic_0"] == "lidar"
+    # The camera flags come from the table, as the items say.
+    assert ds.camera_flags.tolist() == table.column("has_camera").to_pylist()
+    assert ds.camera_flags.tolist() == [bool(ds[i]["has_camera"]) for i in range(len(ds))]
 
 
 def test_splits_do_not_share_logs(clips_dir: Path) -> None:

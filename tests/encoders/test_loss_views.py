@@ -75,3 +75,9 @@ def test_fewer_than_two_kept_clips_give_zero_with_a_graph() -> None:
 def test_view_weight_is_checked() -> None:
     with pytest.raises(ConfigError, match="view_weight must be >= 0"):
         dataclasses.replace(TrainConfig(), view_weight=-1.0)
+
+
+@pytest.mark.parametrize("share", [-0.1, 1.5])
+def test_camera_share_is_checked(share: float) -> None:
+    with pytest.raises(ConfigError, match="camera_share must be in"):
+        dataclasses.replace(TrainConfig(), camera_share=share)

@@ -63,6 +63,28 @@ def straight(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return out
 
 
+def test_camera_share_gives_every_batch_its_camera_clips(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    import encoders.train as train_module
+
+    seen: list[list[bool]] = []
+
+    class Spy(train_module.DataLoader):  # type: ignore[misc,type-arg]
+        def __iter__(self) -> Any:
+            for batch in super().__iter__():
+                seen.append(batch["has_camera"].tolist())
+                yield batch
+
+    monkeypatch.setattr(train_module, "DataLoader", Spy)
+    sparse = dataclasses.replace(SPEC, camera_fraction=0.15)
+    data = {"train": SyntheticClipDataset(24, "train", sparse, seed=1, augment=True),
+            "val": SyntheticClipDataset(8, "val", sparse, seed=1)}
+    flags = train_module.camera_flags(data["train"])
+    assert 0 < flags.sum() < 0.5 * len(flags)  # fewer camera clips than the share asks for
+    torch.set_num_threads(1)
+    train("unused", tmp_path / "run", config(camera_share=0.5), datasets=data, progress=False, log=lambda _m: None)
+    assert len(seen) == 6 and all(len(b) == 8 and sum(b) == 4 for b in seen)  # 3 steps × 2 epochs
+
+
 def test_run_writes_its_files_and_loads(straight: Path) -> None:
     for name in ("config.json", "model.safetensors", "metrics.jsonl", "checkpoints/last.pt", "model_card.md"):
         assert (straight / name).is_file(), name

@@ -46,7 +46,8 @@ def _demo(tmp_path: Path, config: DemoConfig) -> RecordingDemo:
 
 def test_stages_run_in_order_with_sizes(tmp_path: Path) -> None:
     demo = _demo(tmp_path, DemoConfig(logs=2, duration_s=10, epochs=3, frames_per_clip=8, batch_size=4,
-                                      camera_width_px=40, bev_resolution_m=2.0, extra_logs=3, map_less_share=0.25))
+                                      camera_width_px=40, bev_resolution_m=2.0, extra_logs=3, map_less_share=0.25,
+                                      camera_share=0.5))
     results = demo.run()
     assert [r.name for r in results] == list(STAGES)
     names = [c[0] for c in demo.calls]
@@ -71,6 +72,7 @@ def test_stages_run_in_order_with_sizes(tmp_path: Path) -> None:
         bev=BevClipConfig(resolution_m=2.0), split=SplitConfig(train_fraction=0.6, val_fraction=0.15))
     train = demo.calls[4]
     assert train[train.index("--epochs") + 1] == "3" and train[train.index("--batch-size") + 1] == "4"
+    assert train[train.index("--camera-share") + 1] == "0.5"
 
 
 def test_resume_skips_complete_stages_and_reruns_after_a_change(tmp_path: Path) -> None:
@@ -91,6 +93,10 @@ def test_resume_skips_complete_stages_and_reruns_after_a_change(tmp_path: Path) 
     fewer_maps = _demo(tmp_path, DemoConfig(logs=2, duration_s=10, epochs=5, map_less_share=1.0))
     fewer_maps.run()
     assert [c[0] for c in fewer_maps.calls] == ["simulate", *STAGES]
+    # Another camera share retrains on the same clips.
+    more_camera = _demo(tmp_path, DemoConfig(logs=2, duration_s=10, epochs=5, map_less_share=1.0, camera_share=0.5))
+    more_camera.run()
+    assert [c[0] for c in more_camera.calls] == ["train", "index", "eval", "report"]
     # Without extra logs, none is simulated, and those of the settings before are gone.
     assert fewer_maps.extra_logs_dir.is_dir()
     alone = _demo(tmp_path, DemoConfig(logs=2, duration_s=10, epochs=5, extra_logs=0))
@@ -101,10 +107,11 @@ def test_resume_skips_complete_stages_and_reruns_after_a_change(tmp_path: Path) 
 
 def test_config_from_flags() -> None:
     args = argparse.Namespace(quick=True, logs=None, duration_s=None, seed=None, frames_per_clip=None, epochs=4,
-                              no_sensors=True, query=["a bus stops"], map_less_share=0.25, extra_logs=5)
+                              no_sensors=True, query=["a bus stops"], map_less_share=0.25, extra_logs=5,
+                              camera_share=0.4)
     config = config_from_args(args)
     assert config.logs == DemoConfig.quick().logs and config.epochs == 4 and config.map_less_share == 0.25
-    assert config.extra_logs == 5
+    assert config.extra_logs == 5 and config.camera_share == 0.4
     assert config.sensors is False and config.queries == ("a bus stops",)
     with pytest.raises(ValueError, match="logs must be at least 1"):
         DemoConfig(logs=0)
@@ -112,6 +119,8 @@ def test_config_from_flags() -> None:
         DemoConfig(test_fraction=0.9)
     with pytest.raises(ValueError, match="map_less_share must lie in"):
         DemoConfig(map_less_share=2.0)
+    with pytest.raises(ValueError, match="camera_share must lie in"):
+        DemoConfig(camera_share=-0.5)
     with pytest.raises(ValueError, match="extra_logs must be at least 0"):
         DemoConfig(extra_logs=-1)
     with pytest.raises(ValueError, match="unknown stage 'deploy'"):

@@ -304,7 +304,7 @@ class TrainConfig(EncodersConfig):
             most of the signal, barely learns to retrieve alone.
         camera_share: when fewer of the training clips than this share have a camera view, every
             step's batch holds this share of camera clips, drawn again as often as needed
-            (:class:`encoders.distributed.EpochSampler`; 0: batches drawn from one permutation).
+            (:class:`encoders.sampler.EpochSampler`; 0: batches drawn from one permutation).
             Logs without sensors (BEV from boxes) thin the camera clips out, and the camera view's
             loss needs several in a batch.
         time_reversal: chance that a training clip plays backwards, captioned by its reversed tags

@@ -62,8 +62,7 @@ class EpochSampler(DistributedSampler[int]):
         assert self.camera is not None
         camera = _dealt(np.flatnonzero(self.camera), self.steps, k, rng)  # (steps, k)
         others = _dealt(np.flatnonzero(~self.camera), self.steps, whole - k, rng)  # (steps, whole − k)
-        batches = np.concatenate([camera, others], axis=1)  # (steps, whole)
-        batches = np.take_along_axis(batches, rng.permuted(np.tile(np.arange(whole), (self.steps, 1)), axis=1), axis=1)
+        batches = rng.permuted(np.concatenate([camera, others], axis=1), axis=1)  # (steps, whole), rows shuffled
         return batches.reshape(-1).astype(np.int64)
 
     def __iter__(self) -> Iterator[int]:

@@ -147,6 +147,11 @@ class SyntheticClipDataset(Dataset[dict[str, Any]]):
             "split": self.split,
         }
 
+    @property
+    def camera_flags(self) -> np.ndarray:
+        """(N,) whether each clip has a camera view, from the table rows (no clip is rendered)."""
+        return np.array([self.record(i)["has_camera"] for i in range(self.size)], dtype=bool)
+
     def __getitem__(self, index: int) -> dict[str, Any]:
         if not 0 <= index < self.size:
             raise IndexError(index)

@@ -149,11 +149,12 @@ def _open_datasets(
 
 
 def camera_flags(dataset: Dataset[dict[str, Any]]) -> np.ndarray:
-    """(N,) bool: which of the dataset's clips have a camera view (from the clip table when it has one)."""
+    """(N,) bool: which of the dataset's clips have a camera view, from its table (``camera_flags``)."""
     flags = getattr(dataset, "camera_flags", None)
-    if flags is not None:
-        return np.asarray(flags, dtype=bool)
-    return np.array([bool(dataset[i]["has_camera"]) for i in range(len(dataset))], dtype=bool)  # type: ignore[arg-type]
+    if flags is None:  # reading every clip to find out would render the whole split once more
+        raise TrainingError(f"camera_share needs the training dataset's camera_flags, which "
+                            f"{type(dataset).__name__} lacks")
+    return np.asarray(flags, dtype=bool)
 
 
 def resolve_channels(config: TrainConfig, item: dict[str, Any]) -> TrainConfig:

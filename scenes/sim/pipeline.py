@@ -205,7 +205,7 @@ def write_log(content: _LogContent, ctx: _WriteContext) -> str:
         content.write(tmp, ctx.vector_map, ctx.junctions)
         for hook in ctx.post_log:
             hook(tmp)
-        if not content.has_map:
+        if content.metadata.extra[MAP_WITHHELD_KEY]:
             # Withheld only now: the sensor rendering (a hook) builds the static world from the map.
             shutil.rmtree(tmp / av2_io.MAP_DIRNAME)
     return content.log_id
@@ -227,7 +227,6 @@ class _LogContent:
     ego: EgoTrajectory
     labels: pa.Table
     metadata: LogMetadata
-    has_map: bool = True
 
     def write(self, log_dir: Path, vector_map: VectorMap, junctions: pa.Table) -> None:
         av2_io.write_annotations(log_dir, self.annotations)
@@ -312,7 +311,7 @@ def _build_log(log_id: str, index: int, rec: Recording, config: SimulationConfig
             "config": {k: v for k, v in config.to_dict().items() if k != "cache_dir"},
         },
     )
-    return _LogContent(log_id, annotations, ego, labels_table, metadata, has_map)
+    return _LogContent(log_id, annotations, ego, labels_table, metadata)
 
 
 def _labels_table(rows: ObjectRows, flags: dict[BehaviorLabel, np.ndarray], leader_id: np.ndarray,

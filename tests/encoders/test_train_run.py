@@ -80,6 +80,9 @@ def test_camera_share_gives_every_batch_its_camera_clips(tmp_path: Path, monkeyp
             "val": SyntheticClipDataset(8, "val", sparse, seed=1)}
     flags = train_module.camera_flags(data["train"])
     assert 0 < flags.sum() < 0.5 * len(flags)  # fewer camera clips than the share asks for
+    assert flags.tolist() == [data["train"][i]["has_camera"] for i in range(len(flags))]
+    with pytest.raises(train_module.TrainingError, match="camera_flags, which list lacks"):
+        train_module.camera_flags([data["train"][0]])  # type: ignore[arg-type]
     torch.set_num_threads(1)
     train("unused", tmp_path / "run", config(camera_share=0.5), datasets=data, progress=False, log=lambda _m: None)
     assert len(seen) == 6 and all(len(b) == 8 and sum(b) == 4 for b in seen)  # 3 steps × 2 epochs

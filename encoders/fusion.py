@@ -70,10 +70,13 @@ class TemporalEncoder(nn.Module):
 class ViewFusion(nn.Module):
     """Camera and BEV clip embeddings (B, D) each → fused (B, D), with modality dropout in training."""
 
-    def __init__(self, config: FusionConfig, dim: int) -> None:
+    def __init__(self, config: FusionConfig, dim: int, slot_dims: int = 0) -> None:
         super().__init__()
         self.config = config
-        self.mlp = nn.Sequential(nn.Linear(dim, config.hidden), nn.GELU(), nn.Linear(config.hidden, dim))
+        # With time slots (encoders.timeline) the MLP writes the global part only: mixing the slots'
+        # dimensions with each other would undo what each slot stands for.
+        self.slot_dims = slot_dims
+        self.mlp = nn.Sequential(nn.Linear(dim, config.hidden), nn.GELU(), nn.Linear(config.hidden, dim - slot_dims))
 
     def forward(self, camera: torch.Tensor, bev: torch.Tensor, has_camera: torch.Tensor) -> torch.Tensor:
         """camera: (B, D); bev: (B, D); has_camera: (B,) bool → (B, D).
@@ -92,4 +95,6 @@ class ViewFusion(nn.Module):
         mixed = (cam_w[:, None] * F.normalize(camera, dim=-1) + bev_w[:, None] * F.normalize(bev, dim=-1)) / (
             cam_w + bev_w
         )[:, None]  # (B, D)
+        if self.slot_dims:
+            return mixed + F.pad(self.mlp(mixed), (0, self.slot_dims))
         return mixed + self.mlp(mixed)

@@ -7,7 +7,8 @@
 
 A learnable ``logit_scale`` (log of the inverse temperature, initialised to log(1/0.07), clamped to
 ln 100) scales the cosine similarities in the contrastive loss. ``bev_embedding`` exposes the BEV
-tower's universal embedding E.
+tower's universal embedding E. With ``time_slots`` K > 0 the last K · ``slot_dim`` dimensions of
+every embedding, text and video alike, are K stretches of the clip in order (:mod:`encoders.timeline`).
 """
 
 from __future__ import annotations
@@ -36,10 +37,11 @@ class DualEncoder(nn.Module):
         super().__init__()
         self.config = config
         d = config.embed_dim
-        self.text = TextTower(config.text, d)
-        self.camera = CameraTower(config.camera, d)
-        self.bev = BevTower(config.bev, d)
-        self.fusion = ViewFusion(config.fusion, d)
+        slots = (config.time_slots, config.slot_dim)
+        self.text = TextTower(config.text, d, *slots)
+        self.camera = CameraTower(config.camera, d, *slots)
+        self.bev = BevTower(config.bev, d, *slots)
+        self.fusion = ViewFusion(config.fusion, d, config.time_slots * config.slot_dim)
         widths = {"camera": config.camera.temporal.width, "bev": config.bev.temporal.width,
                   "track": config.bev.track.width}
         self.dense = nn.ModuleDict({s: DenseHeads(widths[s]) for s in config.dense_streams})

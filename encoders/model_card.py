@@ -16,8 +16,10 @@ def model_card(config: TrainConfig, history: list[dict[str, Any]], n_train: int,
     last_val: dict[str, float] = next((r["val"] for r in reversed(history) if "val" in r), {})
     m = config.model
     metric_lines = "\n".join(f"| {k} | {v:.4g} |" for k, v in last_val.items()) or "| (no validation split) | |"
-    text = {"pretrained": m.text.model, "clauses": f"{m.text.model} over the text and each of its steps "
-            f"(up to {m.text.max_steps})"}.get(m.text.kind, f"scratch transformer ({m.text.scratch_layers} layers)")
+    text = {"pretrained": m.text.model,
+            "clauses": f"{m.text.model} over the text and each of its steps (up to {m.text.max_steps})",
+            "slots": f"{m.text.model} over each sentence's steps in {m.time_slots} time slots of {m.slot_dim} dims",
+            }.get(m.text.kind, f"scratch transformer ({m.text.scratch_layers} layers)")
     frozen = " (frozen, cached)" if m.text.kind != "scratch" and m.text.freeze else ""
     n_val = len(val_set) if val_set is not None else 0  # type: ignore[arg-type]
     return f"""# DualEncoder model card

@@ -12,6 +12,10 @@ With ``finetune_top_layers`` > 0 the top transformer layers train too and the ca
 a caption and the same steps reversed then differ in what each slot holds, where one pooled
 sentence embedding barely changes (cosine ≈ 0.99). Every string goes through the same cache.
 
+``kind: slots`` lays the steps of each sentence out in the time slots of :mod:`encoders.timeline`
+(the video towers read their frames into the same slots), so the order of steps is where in the
+vector they are.
+
 ``kind: scratch`` is a small text transformer over hashed words, trained from scratch: the fallback
 when no pretrained encoder is installed.
 """
@@ -30,6 +34,7 @@ from torch import nn
 
 from encoders.config import ConfigError, TextConfig
 from encoders.sentence import load_sentence_encoder
+from encoders.timeline import SlotTextHead, sentence_steps, slot_of_steps
 
 
 class TextFeatureCache:
@@ -230,15 +235,66 @@ class ClauseText(nn.Module):
         return x.reshape(len(texts), -1)
 
 
-class TextTower(nn.Module):
-    """Captions → (B, D): a sentence encoder (pretrained, clauses or scratch) and a projection head."""
+class SlotText(nn.Module):
+    """The pretrained encoder over a text and its sentences' steps, laid out in time slots →
+    (B, F + K·F): the whole text, then per slot (of K = ``time_slots``) the mean of what each sentence
+    says there (:func:`encoders.timeline.sentence_steps`, :func:`encoders.timeline.slot_of_steps`).
 
-    def __init__(self, config: TextConfig, embed_dim: int) -> None:
+    A mean rather than one place per sentence: a caption's first sentence is the ego's and its second
+    the object's, but a typed query has any number of sentences in any order, and it should land in
+    the slots as a caption of the same content does.
+    """
+
+    def __init__(self, config: TextConfig, time_slots: int) -> None:
         super().__init__()
         self.config = config
+        self.sentence = PretrainedText(config)
+        self.time_slots = time_slots
+        self.features = self.sentence.out_features
+        self.out_features = self.features * (1 + time_slots)
+        self.trainable = self.sentence.trainable
+        self.cache = self.sentence.cache
+
+    def forward(self, texts: list[str], device: torch.device) -> torch.Tensor:
+        """texts: B strings → (B, F + K·F)."""
+        k = self.time_slots
+        index: dict[str, int] = {}
+        places: list[int] = []  # row · (1 + K) + place: 0 the whole text, 1 + k slot k
+        source: list[int] = []
+        for i, text in enumerate(texts):
+            places.append(i * (1 + k))
+            source.append(index.setdefault(text, len(index)))
+            for steps in sentence_steps(text):
+                for slot, step in enumerate(slot_of_steps(len(steps), k)):
+                    places.append(i * (1 + k) + 1 + slot)
+                    source.append(index.setdefault(steps[step], len(index)))
+        vectors = self.sentence(list(index), device)  # (U, F), U distinct strings
+        at = {"device": vectors.device}
+        place, parts = torch.tensor(places, **at), vectors[torch.tensor(source, **at)]  # (P,), (P, F)
+        total = vectors.new_zeros(len(texts) * (1 + k), vectors.shape[1]).index_add_(0, place, parts)
+        count = vectors.new_zeros(len(texts) * (1 + k)).index_add_(0, place, vectors.new_ones(len(place)))
+        return (total / count[:, None]).reshape(len(texts), -1)  # every place holds at least one string
+
+
+class TextTower(nn.Module):
+    """Captions → (B, D): a sentence encoder (pretrained, clauses, slots or scratch) and a projection head.
+
+    With ``time_slots`` K > 0 (and ``kind: slots``) the head is :class:`encoders.timeline.SlotTextHead`:
+    the last K · ``slot_dim`` dimensions of the output are the K time slots.
+    """
+
+    def __init__(self, config: TextConfig, embed_dim: int, time_slots: int = 0, slot_dim: int = 0) -> None:
+        super().__init__()
+        self.config = config
+        self.backbone: PretrainedText | ClauseText | SlotText | ScratchText
+        if config.kind == "slots":
+            self.backbone = SlotText(config, time_slots)
+            self.head: nn.Module = SlotTextHead(self.backbone.features, embed_dim, time_slots, slot_dim,
+                                                config.step_hidden)
+            return
         backbones: dict[str, type[PretrainedText | ClauseText | ScratchText]] = {
             "pretrained": PretrainedText, "clauses": ClauseText, "scratch": ScratchText}
-        self.backbone: PretrainedText | ClauseText | ScratchText = backbones[config.kind](config)
+        self.backbone = backbones[config.kind](config)
         f = self.backbone.out_features
         # The clauses backbone is (1 + max_steps) × wider: a square first layer would be mostly idle weights.
         hidden = config.step_hidden if config.kind == "clauses" else f
@@ -256,6 +312,6 @@ class TextTower(nn.Module):
         """state_dict key prefixes (below this module) that are frozen pretrained weights, not saved in runs."""
         if isinstance(self.backbone, PretrainedText) and not self.backbone.trainable:
             return ["backbone.encoder."]
-        if isinstance(self.backbone, ClauseText) and not self.backbone.trainable:
+        if isinstance(self.backbone, ClauseText | SlotText) and not self.backbone.trainable:
             return ["backbone.sentence.encoder."]
         return []

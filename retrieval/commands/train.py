@@ -49,6 +49,12 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--camera-share", type=float, metavar="F",
                         help="when fewer training clips than F have a camera view, give every batch that share of "
                              "camera clips (drawn again as needed)")
+    parser.add_argument("--time-slots", type=int, metavar="K",
+                        help="K time slots in every embedding, read from the frames and from each sentence's steps "
+                             "(model.time_slots with the slots text tower; 0: one pooled vector)")
+    parser.add_argument("--hard-negatives", nargs="+", metavar="EDIT", choices=["reverse", "motion", "mirror"],
+                        help="edits of each clip's steps whose captions join the batch as negatives "
+                             "(reverse, motion, mirror)")
     parser.add_argument("--dense-weight", type=float, metavar="W",
                         help="weight of the per-frame rule-tag loss on the temporal streams' frame tokens (heads on "
                              "the track stream unless the config names model.dense_streams)")
@@ -88,6 +94,8 @@ def build_config(args: argparse.Namespace) -> Any:
     config = dataclasses.replace(config, **{k: v for k, v in flags.items() if v is not None})
     if args.shuffle_frames:
         config = dataclasses.replace(config, shuffle_frames=True)
+    if args.hard_negatives is not None:
+        config = dataclasses.replace(config, hard_negatives=tuple(args.hard_negatives))
     if args.dense_weight is not None:
         model = config.model
         if args.dense_weight > 0 and not model.dense_streams:
@@ -98,7 +106,12 @@ def build_config(args: argparse.Namespace) -> Any:
         text = dataclasses.replace(text, kind="pretrained", model=args.text_model)
     if args.scratch_text:
         text = dataclasses.replace(text, kind="scratch")
-    return dataclasses.replace(config, model=dataclasses.replace(config.model, text=text))
+    model = dataclasses.replace(config.model, text=text)
+    if args.time_slots is not None:
+        # The slots live on both sides: the text tower lays each sentence's steps out in them.
+        kind = "slots" if args.time_slots else ("pretrained" if text.kind == "slots" else text.kind)
+        model = dataclasses.replace(model, time_slots=args.time_slots, text=dataclasses.replace(text, kind=kind))
+    return dataclasses.replace(config, model=model)
 
 
 def tagging_config(args: argparse.Namespace) -> Any:

@@ -1,0 +1,108 @@
+"""Time slots: embeddings in which *when* something happens is a part of the vector.
+
+A caption says what happens in order ("approaches, then moves away"), never when. One pooled vector
+per side keeps the order weakly: the frozen sentence encoder gives a caption and its steps reversed
+a cosine of 0.99, and a clip's query token mixes all its frames. With ``time_slots: K`` each
+embedding is the concatenation
+
+    [ global (D − K·S) | slot 1 (S) | … | slot K (S) ]
+
+where slot k stands for the k-th of K equal stretches of the clip:
+
+    text   each sentence's steps are stretched over the K slots (step ⌊k·n/K⌋ of n goes to slot k),
+           and one head reads, per slot, the whole text and the mean of what its sentences say there;
+    video  each slot pools the frame tokens of a temporal stream with an attention whose prior is
+           centred on its stretch (a learnable centre and width), and one head maps the pooled token.
+
+Both sides use one head for every slot, so a caption with its steps reversed is the same slot
+vectors in reverse order: the dot product then scores the order directly, and the reversed caption
+matches a clip only where the clip's stretches look alike. Free text of any form still gives one
+vector: a sentence without "then" holds its one step in every slot.
+"""
+
+from __future__ import annotations
+
+import re
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+#: A sentence ends at . ! ? or ; followed by space.
+_SENTENCE_END = re.compile(r"(?<=[.!?;])\s+")
+#: Where a sentence's steps part (as :func:`encoders.text.text_steps` splits them).
+_THEN = re.compile(r",\s*(?=then\b)|\s+then\s+|,\s*(?:and\s+)?(?:after that|afterwards|and then)\s+", re.I)
+
+
+def sentence_steps(text: str) -> list[list[str]]:
+    """The steps of each sentence of ``text``, in order.
+
+    "The ego vehicle stands. A car approaches, then moves away." →
+    ``[["The ego vehicle stands"], ["A car approaches", "then moves away"]]``. A text that does not
+    split is one sentence of one step.
+    """
+    out = []
+    for sentence in _SENTENCE_END.split(text):
+        steps = [s.strip(" ,.;!?") for s in _THEN.split(sentence)]
+        if any(steps):
+            out.append([s for s in steps if s])
+    return out or [[text.strip() or text]]
+
+
+def slot_of_steps(num_steps: int, slots: int) -> list[int]:
+    """(K,) the step each of ``slots`` stretches holds when ``num_steps`` steps share the clip evenly."""
+    return [k * num_steps // slots for k in range(slots)]
+
+
+class SlotTextHead(nn.Module):
+    """Sentence features of a text → (B, D): a global head over the whole text and one shared head per slot.
+
+    Input (B, F + K·F): the whole text's feature, then per slot the feature of what the text says there
+    (:class:`encoders.text.SlotText`). Each slot's head also reads the whole text, which names what a
+    later step leaves out ("then moves away": who does).
+    """
+
+    def __init__(self, features: int, embed_dim: int, slots: int, slot_dim: int, hidden: int) -> None:
+        super().__init__()
+        self.features, self.slots = features, slots
+        self.global_head = nn.Sequential(nn.Linear(features, features), nn.GELU(),
+                                         nn.Linear(features, embed_dim - slots * slot_dim))
+        self.slot_head = nn.Sequential(nn.Linear(2 * features, hidden), nn.GELU(), nn.Linear(hidden, slot_dim))
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        """x: (B, F + K·F) → (B, D)."""
+        f, k = self.features, self.slots
+        whole = x[:, :f]  # (B, F)
+        steps = x[:, f:].reshape(len(x), k, f)  # (B, K, F)
+        per_slot = torch.cat([whole[:, None].expand(-1, k, -1), steps], dim=-1)  # (B, K, 2F)
+        return torch.cat([self.global_head(whole), self.slot_head(per_slot).flatten(1)], dim=-1)  # (B, D)
+
+
+class SlotReadout(nn.Module):
+    """A temporal stream's clip vector and frame tokens → (B, D): global part and K time slots.
+
+    Slot k attends over the frames with logits ``w_k · token_t − (u_t − c_k)² / (2 σ_k²)``, where
+    u_t ∈ [0, 1] is the frame's place in the clip; the centre c_k starts at the middle of the k-th
+    stretch and σ_k at half its length, both learnable, so a slot can follow where a step really is.
+    """
+
+    def __init__(self, width: int, embed_dim: int, slots: int, slot_dim: int) -> None:
+        super().__init__()
+        self.slots = slots
+        self.global_head = nn.Linear(width, embed_dim - slots * slot_dim)
+        self.score = nn.Linear(width, slots)
+        self.centre = nn.Parameter((torch.arange(slots, dtype=torch.float32) + 0.5) / slots)
+        self.log_sigma = nn.Parameter(torch.full((slots,), float(torch.log(torch.tensor(0.5 / slots)))))
+        self.slot_head = nn.Linear(width, slot_dim)
+
+    def attention(self, tokens: torch.Tensor) -> torch.Tensor:
+        """tokens: (B, T, W) → (B, K, T) each slot's weights over the frames."""
+        t = tokens.shape[1]
+        u = torch.linspace(0.0, 1.0, t, device=tokens.device, dtype=tokens.dtype) if t > 1 else tokens.new_zeros(1)
+        prior = -((u[None, :] - self.centre[:, None]) ** 2) / (2 * self.log_sigma.exp()[:, None] ** 2)  # (K, T)
+        return F.softmax(self.score(tokens).transpose(1, 2) + prior, dim=-1)  # (B, K, T)
+
+    def forward(self, clip: torch.Tensor, tokens: torch.Tensor) -> torch.Tensor:
+        """clip: (B, W); tokens: (B, T, W) → (B, D)."""
+        pooled = self.attention(tokens) @ tokens  # (B, K, W)
+        return torch.cat([self.global_head(clip), self.slot_head(pooled).flatten(1)], dim=-1)  # (B, D)

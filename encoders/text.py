@@ -34,7 +34,7 @@ from torch import nn
 
 from encoders.config import ConfigError, TextConfig
 from encoders.sentence import load_sentence_encoder
-from encoders.timeline import SlotTextHead, sentence_steps, slot_of_steps
+from encoders.timeline import SlotTextHead, slot_of_steps
 
 
 class TextFeatureCache:
@@ -201,6 +201,20 @@ def text_steps(text: str, max_steps: int) -> list[str]:
     if len(steps) > max_steps:
         steps = [*steps[: max_steps - 1], " ".join(steps[max_steps - 1 :])]
     return steps
+
+
+_SENTENCE_END = re.compile(r"(?<=[.!?;])\s+")
+
+
+def sentence_steps(text: str) -> list[list[str]]:
+    """The steps of each sentence of ``text``, in order (each sentence split as :func:`text_steps` splits).
+
+    "The ego vehicle stands. A car approaches, then moves away." →
+    ``[["The ego vehicle stands"], ["A car approaches", "then moves away"]]``. A text that does not
+    split is one sentence of one step.
+    """
+    sentences = [s for s in _SENTENCE_END.split(text) if s.strip(" ,.;!?")]
+    return [text_steps(s, len(s)) for s in sentences] or [[text.strip() or text]]
 
 
 class ClauseText(nn.Module):

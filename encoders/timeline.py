@@ -10,7 +10,8 @@ embedding is the concatenation
 where slot k stands for the k-th of K equal stretches of the clip:
 
     text   each sentence's steps are stretched over the K slots (step ⌊k·n/K⌋ of n goes to slot k),
-           and one head reads, per slot, the whole text and the mean of what its sentences say there;
+           (:func:`encoders.text.sentence_steps`), and one head reads, per slot, the whole text and
+           the mean of what its sentences say there;
     video  each slot pools the frame tokens of a temporal stream with an attention whose prior is
            centred on its stretch (a learnable centre and width), and one head maps the pooled token.
 
@@ -22,31 +23,11 @@ vector: a sentence without "then" holds its one step in every slot.
 
 from __future__ import annotations
 
-import re
+import math
 
 import torch
 import torch.nn.functional as F
 from torch import nn
-
-#: A sentence ends at . ! ? or ; followed by space.
-_SENTENCE_END = re.compile(r"(?<=[.!?;])\s+")
-#: Where a sentence's steps part (as :func:`encoders.text.text_steps` splits them).
-_THEN = re.compile(r",\s*(?=then\b)|\s+then\s+|,\s*(?:and\s+)?(?:after that|afterwards|and then)\s+", re.I)
-
-
-def sentence_steps(text: str) -> list[list[str]]:
-    """The steps of each sentence of ``text``, in order.
-
-    "The ego vehicle stands. A car approaches, then moves away." →
-    ``[["The ego vehicle stands"], ["A car approaches", "then moves away"]]``. A text that does not
-    split is one sentence of one step.
-    """
-    out = []
-    for sentence in _SENTENCE_END.split(text):
-        steps = [s.strip(" ,.;!?") for s in _THEN.split(sentence)]
-        if any(steps):
-            out.append([s for s in steps if s])
-    return out or [[text.strip() or text]]
 
 
 def slot_of_steps(num_steps: int, slots: int) -> list[int]:
@@ -92,7 +73,7 @@ class SlotReadout(nn.Module):
         self.global_head = nn.Linear(width, embed_dim - slots * slot_dim)
         self.score = nn.Linear(width, slots)
         self.centre = nn.Parameter((torch.arange(slots, dtype=torch.float32) + 0.5) / slots)
-        self.log_sigma = nn.Parameter(torch.full((slots,), float(torch.log(torch.tensor(0.5 / slots)))))
+        self.log_sigma = nn.Parameter(torch.full((slots,), math.log(0.5 / slots)))
         self.slot_head = nn.Linear(width, slot_dim)
 
     def attention(self, tokens: torch.Tensor) -> torch.Tensor:

@@ -23,6 +23,10 @@ complete previous directory aside and nothing at NAME: :func:`recover_directory`
 readers) and the next :func:`atomic_directory` of NAME move it back. The swap holds an exclusive
 ``flock`` on the parent folder, so that a reader never takes a swap in progress for a killed one;
 the lock is released by the kernel when its holder dies.
+
+**Reading a directory** that another process may replace at any moment: :func:`reading_directory`
+holds a shared ``flock`` on the parent folder while the caller reads its files, so a swap waits for
+the read to finish and a read never mixes files of two versions, nor finds one gone half way.
 """
 
 from __future__ import annotations
@@ -185,8 +189,8 @@ def atomic_write_with(target: Path | str, writer: Callable[[Path], None]) -> Non
 
 
 @contextmanager
-def _folder_lock(folder: Path) -> Iterator[bool]:
-    """Hold an exclusive ``flock`` on ``folder``; yields False where the file system offers none."""
+def _folder_lock(folder: Path, shared: bool = False) -> Iterator[bool]:
+    """Hold an exclusive (or ``shared``) ``flock`` on ``folder``; yields False where the file system offers none."""
     try:
         fd = os.open(folder, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0))
     except OSError:
@@ -194,7 +198,7 @@ def _folder_lock(folder: Path) -> Iterator[bool]:
         return
     try:
         try:
-            fcntl.flock(fd, fcntl.LOCK_EX)
+            fcntl.flock(fd, fcntl.LOCK_SH if shared else fcntl.LOCK_EX)
         except OSError:
             yield False
             return
@@ -234,6 +238,24 @@ def recover_directory(target: Path | str) -> Path:
         if locked and _restore_aside(target):
             return target if target.exists() else aside
     return target if target.exists() else aside
+
+
+@contextmanager
+def reading_directory(target: Path | str) -> Iterator[Path]:
+    """Yield the directory to read at ``target`` (as :func:`recover_directory`), kept in place while the block reads it.
+
+    A shared lock on the parent folder makes a concurrent :func:`atomic_directory` swap of
+    ``target`` wait until the block is done: without it, a reader could take the manifest of one
+    version and the files of the next, or find ``target`` gone between the swap's two renames.
+    Files opened (or memory-mapped) inside the block stay readable after it, whatever a later swap
+    does. Do not write ``target`` inside the block: the swap would wait for its own reader.
+    """
+    target = Path(target)
+    recover_directory(target)  # takes the exclusive lock itself: before ours, never under it
+    with _folder_lock(target.parent, shared=True):
+        # Under the lock no swap is half done unless its writer was killed: then read the aside copy.
+        aside = aside_path(target)
+        yield target if target.exists() or not aside.is_dir() else aside
 
 
 def _trash_name(target: Path) -> Path:

@@ -25,7 +25,7 @@ from indexes.factory import AutoConfig
 from indexes.filters import FilterSpec
 from indexes.integrity import Verify, VerifyLike, verifying
 from indexes.metadata import CLIP_ID, MetadataStore, Rows, rows_to_table
-from indexes.persistence import read_manifest, require_files, resolve_dir, write_manifest, writing_index_dir
+from indexes.persistence import read_manifest, reading_index_dir, require_files, write_manifest, writing_index_dir
 from indexes.vector_index import VectorIndex, check_k, files_of
 from indexes.vectors import Metric
 
@@ -226,12 +226,12 @@ class ClipIndex:
     @classmethod
     def load(cls, directory: Path | str, mmap: bool = False, verify: VerifyLike = Verify.CACHED) -> ClipIndex:
         """Load a directory written by :meth:`save`; see :meth:`VectorIndex.load` for the arguments."""
-        d = resolve_dir(directory)
-        m = read_manifest(d, KIND)
-        require_files(m, d, (*files_of(m.extra), METADATA_FILE))
-        with verifying(d, m.files, verify):
-            vectors = VectorIndex.from_files(d, m.dim, m.metric, m.factory, m.count, m.extra, mmap)
-            metadata = MetadataStore.read(d / METADATA_FILE)
+        with reading_index_dir(directory) as d:
+            m = read_manifest(d, KIND)
+            require_files(m, d, (*files_of(m.extra), METADATA_FILE))
+            with verifying(d, m.files, verify):
+                vectors = VectorIndex.from_files(d, m.dim, m.metric, m.factory, m.count, m.extra, mmap)
+                metadata = MetadataStore.read(d / METADATA_FILE)
         if not np.array_equal(vectors.ids, metadata.ids):
             raise ManifestError(d / METADATA_FILE, "its ids differ from the index's ids", field="id")
         return cls(vectors, metadata)

@@ -12,8 +12,9 @@
 
 The manifest is written last, inside a temporary directory that is renamed onto the target, so a
 reader sees either the previous complete index or the new one. A kill between the two renames of
-that swap leaves the complete previous index aside (see :mod:`common.atomic`); :func:`resolve_dir`
-moves it back, so a kill at any moment leaves a loadable index. Loading checks every file against
+that swap leaves the complete previous index aside (see :mod:`common.atomic`); :func:`reading_index_dir`
+moves it back, so a kill at any moment leaves a loadable index, and holds off a concurrent save
+while a loader reads. Loading checks every file against
 the manifest (:mod:`indexes.integrity`).
 """
 
@@ -29,7 +30,7 @@ from typing import Any
 import faiss
 import numpy as np
 
-from common.atomic import atomic_directory, recover_directory
+from common.atomic import atomic_directory, reading_directory
 from indexes.errors import IndexFileError, ManifestError, UnsupportedFormatError, faiss_message
 from indexes.integrity import FileEntry, check_seal, file_entries, parse_file_entries, seal
 
@@ -101,19 +102,21 @@ def require_files(manifest: Manifest, directory: Path, names: tuple[str, ...]) -
         raise ManifestError(directory / MANIFEST_NAME, f"does not list {', '.join(missing)}", field="files")
 
 
-def resolve_dir(directory: Path | str) -> Path:
-    """The directory to read at ``directory``, after recovering a save whose swap a kill interrupted.
+@contextmanager
+def reading_index_dir(directory: Path | str) -> Iterator[Path]:
+    """Yield the index directory to read at ``directory``, after recovering a save whose swap a kill
+    interrupted; a concurrent save waits until the block has read it (:func:`common.atomic.reading_directory`).
 
     Raises:
         IndexFileError: nothing there.
         ManifestError: a directory without a manifest.
     """
-    directory = recover_directory(Path(directory))
-    if (directory / MANIFEST_NAME).exists():
-        return directory
-    if not directory.exists():
-        raise IndexFileError(directory, "no index directory here")
-    raise ManifestError(directory / MANIFEST_NAME, "missing; this is not a saved index (or its save never finished)")
+    with reading_directory(Path(directory)) as d:
+        if not (d / MANIFEST_NAME).exists():
+            if not d.exists():
+                raise IndexFileError(d, "no index directory here")
+            raise ManifestError(d / MANIFEST_NAME, "missing; this is not a saved index (or its save never finished)")
+        yield d
 
 
 def read_manifest(directory: Path | str, expected_kind: str | None = None) -> Manifest:
@@ -122,7 +125,7 @@ def read_manifest(directory: Path | str, expected_kind: str | None = None) -> Ma
     The files it lists are checked by :func:`indexes.integrity.verifying` while they load.
 
     Args:
-        directory: an index directory (see :func:`resolve_dir`).
+        directory: an index directory (see :func:`reading_index_dir`).
         expected_kind: refuse a manifest of another kind.
 
     Raises:

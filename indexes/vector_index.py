@@ -52,8 +52,8 @@ from indexes.persistence import (
     load_ids,
     read_faiss_index,
     read_manifest,
+    reading_index_dir,
     require_files,
-    resolve_dir,
     write_manifest,
     writing_index_dir,
 )
@@ -476,12 +476,12 @@ class VectorIndex:
             UnsupportedFormatError: the manifest is from a newer format version.
             ManifestError, IndexFileError: missing, truncated, corrupt or inconsistent files.
         """
-        d = resolve_dir(directory)
-        manifest = read_manifest(d, KIND)
-        require_files(manifest, d, files_of(manifest.extra))
-        with verifying(d, manifest.files, verify):
-            return cls.from_files(d, manifest.dim, manifest.metric, manifest.factory, manifest.count,
-                                  manifest.extra, mmap)
+        with reading_index_dir(directory) as d:
+            manifest = read_manifest(d, KIND)
+            require_files(manifest, d, files_of(manifest.extra))
+            with verifying(d, manifest.files, verify):
+                return cls.from_files(d, manifest.dim, manifest.metric, manifest.factory, manifest.count,
+                                      manifest.extra, mmap)
 
     @classmethod
     def from_files(cls, d: Path, dim: int, metric_name: str, factory: str, count: int,

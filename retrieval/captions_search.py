@@ -42,7 +42,7 @@ import pyarrow.parquet as pq
 
 from captioning.pipeline import CAPTIONS_FILENAME
 from captioning.tables import BEHAVIOR_CAPTION_FIELDS
-from common.atomic import atomic_directory, recover_directory
+from common.atomic import atomic_directory, reading_directory, recover_directory
 from encoders.clips.layout import clip_id
 from indexes.errors import IndexesError, IndexFileError, ManifestError
 from indexes.filters import FilterSpec
@@ -298,25 +298,25 @@ class CaptionSearch:
             IndexDirError: not a caption index, an unsupported format, or a missing, corrupt or
                 inconsistent file (the message names it and what was expected).
         """
-        directory = recover_directory(Path(directory))
-        path = directory / MANIFEST
-        if not path.is_file():
-            raise IndexDirError(f"{path}: missing; {directory} is not a caption index (build one with "
-                                "CaptionSearch.build or `scenesearch index`)")
-        try:
-            info = read_json_manifest(path, KIND, FORMAT_VERSION)
-            version = info["format_version"]
-            files = parse_file_entries(info.get("files"), path) if version >= 2 else {}
-            if version >= 2 and (missing := [n for n in FILES if n not in files]):
-                raise ManifestError(path, f"does not list {', '.join(missing)}", field="files")
-            counts = {k: info.get(k) for k in ("count", "texts", "dim")}
-            for key, value in counts.items():
-                if not isinstance(value, int) or value < 0:
-                    raise ManifestError(path, "missing or not a count", field=key)
-            with verifying(directory, files, verify):
-                parts = _read_parts(directory, counts)
-        except IndexesError as exc:
-            raise IndexDirError(str(exc)) from exc
+        with reading_directory(Path(directory)) as directory:
+            path = directory / MANIFEST
+            if not path.is_file():
+                raise IndexDirError(f"{path}: missing; {directory} is not a caption index (build one with "
+                                    "CaptionSearch.build or `scenesearch index`)")
+            try:
+                info = read_json_manifest(path, KIND, FORMAT_VERSION)
+                version = info["format_version"]
+                files = parse_file_entries(info.get("files"), path) if version >= 2 else {}
+                if version >= 2 and (missing := [n for n in FILES if n not in files]):
+                    raise ManifestError(path, f"does not list {', '.join(missing)}", field="files")
+                counts = {k: info.get(k) for k in ("count", "texts", "dim")}
+                for key, value in counts.items():
+                    if not isinstance(value, int) or value < 0:
+                        raise ManifestError(path, "missing or not a count", field=key)
+                with verifying(directory, files, verify):
+                    parts = _read_parts(directory, counts)
+            except IndexesError as exc:
+                raise IndexDirError(str(exc)) from exc
         base = info.get("base_dir")
         return cls(*parts, encoder, info.get("text_encoder"), Path(base) if base else None,
                    [Skipped(s["item"], s["reason"]) for s in info.get("skipped", [])])

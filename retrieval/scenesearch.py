@@ -32,7 +32,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from common.atomic import atomic_directory, recover_directory
+from common.atomic import atomic_directory, reading_directory
 from encoders.clips.layout import read_clip_table
 from indexes.clip_index import ClipIndex
 from indexes.errors import IndexesError, ManifestError
@@ -220,33 +220,34 @@ class SceneSearch:
                 or corrupt file (the message names it).
             ModelMismatchError: ``embedder`` is another model than the index was built with.
         """
-        index_dir = recover_directory(Path(index_dir))
-        manifest = IndexManifest.read(index_dir)
-        if embedder is not None and embedder.model_id != manifest.model_sha256:
-            raise ModelMismatchError(
-                f"index built by another model version: {index_dir} was built with model "
-                f"{manifest.model_sha256[:12]}, the given model is {embedder.model_id[:12]}")
-        unknown = [v for v in views if v not in manifest.views]
-        if unknown:
-            raise UnknownViewError(unknown[0], manifest.views)
-        mode = as_verify(verify)
-        with warnings.catch_warnings():
-            if mode is Verify.OFF:
-                warnings.warn(f"{index_dir}: checksums not verified (verify='off'); only file sizes were checked",
-                              IntegrityWarning, stacklevel=2)
-                warnings.filterwarnings("ignore", message=".*checksums not verified", category=IntegrityWarning)
-            try:
-                _verify_top_files(index_dir, manifest, views, mode)
-                loaded = {v: ClipIndex.load(index_dir / v, verify=mode) for v in views}
-            except IndexesError as exc:
-                raise IndexDirError(str(exc)) from exc
-            captions = CaptionSearch.open(index_dir / CAPTIONS_DIR, encoder=text_encoder, verify=mode)
-        for name, size in [*((v, len(ix)) for v, ix in loaded.items()), ("captions", len(captions))]:
-            if manifest.counts.get(name) not in (None, size):
-                raise IndexDirError(f"{index_dir / name}: holds {size} entries, {index_dir / MANIFEST} says "
-                                    f"{manifest.counts[name]}")
-        captions.base_dir = Path(manifest.clips_dir)
-        return cls(index_dir, manifest, loaded, captions, embedder)
+        # Held until every file is read: a concurrent build of the same directory waits for it.
+        with reading_directory(Path(index_dir)) as index_dir:
+            manifest = IndexManifest.read(index_dir)
+            if embedder is not None and embedder.model_id != manifest.model_sha256:
+                raise ModelMismatchError(
+                    f"index built by another model version: {index_dir} was built with model "
+                    f"{manifest.model_sha256[:12]}, the given model is {embedder.model_id[:12]}")
+            unknown = [v for v in views if v not in manifest.views]
+            if unknown:
+                raise UnknownViewError(unknown[0], manifest.views)
+            mode = as_verify(verify)
+            with warnings.catch_warnings():
+                if mode is Verify.OFF:
+                    warnings.warn(f"{index_dir}: checksums not verified (verify='off'); only file sizes were checked",
+                                  IntegrityWarning, stacklevel=2)
+                    warnings.filterwarnings("ignore", message=".*checksums not verified", category=IntegrityWarning)
+                try:
+                    _verify_top_files(index_dir, manifest, views, mode)
+                    loaded = {v: ClipIndex.load(index_dir / v, verify=mode) for v in views}
+                except IndexesError as exc:
+                    raise IndexDirError(str(exc)) from exc
+                captions = CaptionSearch.open(index_dir / CAPTIONS_DIR, encoder=text_encoder, verify=mode)
+            for name, size in [*((v, len(ix)) for v, ix in loaded.items()), ("captions", len(captions))]:
+                if manifest.counts.get(name) not in (None, size):
+                    raise IndexDirError(f"{index_dir / name}: holds {size} entries, {index_dir / MANIFEST} says "
+                                        f"{manifest.counts[name]}")
+            captions.base_dir = Path(manifest.clips_dir)
+            return cls(index_dir, manifest, loaded, captions, embedder)
 
     # ------------------------------------------------------------------ model
 

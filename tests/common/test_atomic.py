@@ -20,6 +20,7 @@ from common.atomic import (
     atomic_path,
     atomic_write_text,
     machine_tag,
+    reading_directory,
     recover_directory,
     sweep_stale,
 )
@@ -133,6 +134,41 @@ def test_a_reader_waits_for_a_swap_in_progress(tmp_path: Path) -> None:
         aside_path(target).rename(target)  # the writer finishes its swap
     reader.join(10)
     assert result == [target]
+
+
+def test_a_swap_waits_for_a_reader_and_the_reader_sees_one_version(tmp_path: Path) -> None:
+    target = tmp_path / "index"
+    with atomic_directory(target) as tmp:
+        (tmp / "a").write_text("1")
+        (tmp / "b").write_text("1")
+    swapped = threading.Event()
+
+    def write() -> None:
+        with atomic_directory(target, overwrite=True) as tmp:
+            (tmp / "a").write_text("2")
+            (tmp / "b").write_text("2")
+        swapped.set()
+
+    with reading_directory(target) as directory:
+        assert directory == target
+        first = (directory / "a").read_text()
+        writer = threading.Thread(target=write)
+        writer.start()
+        assert not swapped.wait(0.3)  # the new version is complete, but its swap waits for the read
+        assert (directory / "b").read_text() == first == "1"
+    writer.join(10)
+    assert swapped.is_set() and (target / "a").read_text() == "2"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["index"]
+
+
+def test_reading_directory_reads_the_aside_copy_of_a_killed_swap(tmp_path: Path,
+                                                                 monkeypatch: pytest.MonkeyPatch) -> None:
+    target = tmp_path / "index"
+    aside_path(target).mkdir()
+    (aside_path(target) / "v").write_text("old")
+    monkeypatch.setattr(atomic, "recover_directory", lambda t: t)  # a read-only folder: nothing moved
+    with reading_directory(target) as directory:
+        assert directory == aside_path(target) and (directory / "v").read_text() == "old"
 
 
 def test_next_write_finishes_an_interrupted_swap(tmp_path: Path) -> None:

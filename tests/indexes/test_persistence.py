@@ -237,9 +237,10 @@ def test_kill_at_each_point_of_a_clip_index_save(tmp_path: Path, data: Data, poi
     assert len(ClipIndex.load(target)) == len(loaded)
 
 
-def test_concurrent_writers_of_one_index_never_break_each_other(tmp_path: Path, data: Data) -> None:
-    """Two processes saving the same index over and over: every save succeeds, neither removes the
-    other's temporary folder, and what is left is one complete index."""
+def test_concurrent_writers_and_readers_of_one_index_never_break_each_other(tmp_path: Path, data: Data) -> None:
+    """Two processes saving the same index over and over while a third loads it: every save and
+    every load succeeds (a load never meets the gap between a swap's renames, nor files of two
+    versions), no writer removes the other's temporary folder, and what is left is one complete index."""
     target = tmp_path / "idx"
     VectorIndex.build(data[0][:200], factory="Flat").save(target)
     loop = textwrap.dedent(f"""
@@ -252,7 +253,14 @@ def test_concurrent_writers_of_one_index_never_break_each_other(tmp_path: Path, 
         for _ in range(25):
             index.save({str(target)!r})
     """)
-    writers = [subprocess.Popen([sys.executable, "-c", loop]) for _ in range(2)]
-    assert [w.wait(timeout=120) for w in writers] == [0, 0]
+    reads = textwrap.dedent(f"""
+        import sys
+        sys.path.insert(0, {str(ROOT)!r})
+        from indexes.vector_index import VectorIndex
+        for _ in range(50):
+            assert len(VectorIndex.load({str(target)!r})) == 200
+    """)
+    processes = [subprocess.Popen([sys.executable, "-c", code]) for code in (loop, loop, reads)]
+    assert [p.wait(timeout=120) for p in processes] == [0, 0, 0]
     assert len(VectorIndex.load(target)) == 200
     assert sorted(p.name for p in tmp_path.iterdir()) == ["idx"]

@@ -334,6 +334,9 @@ class TrainConfig(EncodersConfig):
         dense_weight: weight of the dense loss: each clip frame's rule tags (lane and motion of the
             object, the ego's motion and direction) predicted from the frame tokens of the streams in
             ``model.dense_streams`` (:mod:`encoders.dense`); needs a clip table with frame tags.
+        calibrate_camera: after the last epoch, weigh the camera view in the fusion by the weight with
+            the best validation mAP (:mod:`encoders.calibration`); off, the fusion keeps the equal
+            mean that training used.
     """
 
     model: DualEncoderConfig = field(default_factory=DualEncoderConfig)
@@ -360,6 +363,7 @@ class TrainConfig(EncodersConfig):
     camera_share: float = 0.0
     time_reversal: float = 0.0
     dense_weight: float = 0.0
+    calibrate_camera: bool = True
 
     def __post_init__(self) -> None:
         known = [k.value for k in HardNegative]

@@ -70,6 +70,8 @@ class TemporalEncoder(nn.Module):
 class ViewFusion(nn.Module):
     """Camera and BEV clip embeddings (B, D) each → fused (B, D), with modality dropout in training."""
 
+    camera_weight: torch.Tensor  # () buffer
+
     def __init__(self, config: FusionConfig, dim: int, slot_dims: int = 0) -> None:
         super().__init__()
         self.config = config
@@ -77,19 +79,29 @@ class ViewFusion(nn.Module):
         # dimensions with each other would undo what each slot stands for.
         self.slot_dims = slot_dims
         self.mlp = nn.Sequential(nn.Linear(dim, config.hidden), nn.GELU(), nn.Linear(config.hidden, dim - slot_dims))
+        # The camera view's weight against BEV's 1 in the mean: 1 in training, then set from the
+        # validation split (encoders.calibration). A buffer, so it travels with the weights.
+        self.register_buffer("camera_weight", torch.ones(()))
+
+    def set_camera_weight(self, weight: float) -> None:
+        """Weigh the camera view by ``weight`` (≥ 0) against the BEV view's 1; 0 fuses BEV alone."""
+        if not weight >= 0.0:
+            raise ValueError(f"the camera weight must be >= 0, got {weight}")
+        self.camera_weight.fill_(float(weight))
 
     def forward(self, camera: torch.Tensor, bev: torch.Tensor, has_camera: torch.Tensor) -> torch.Tensor:
         """camera: (B, D); bev: (B, D); has_camera: (B,) bool → (B, D).
 
-        Clips without camera use BEV only. In training, when both views are present, the camera view is
-        dropped with ``drop_camera_p`` and otherwise the BEV view with ``drop_bev_p``.
+        Clips without camera use BEV only; with camera, the mean weighs the camera view by
+        ``camera_weight`` (see :meth:`set_camera_weight`). In training, when both views are present,
+        the camera view is dropped with ``drop_camera_p`` and otherwise the BEV view with ``drop_bev_p``.
         """
-        cam_w = has_camera.to(camera.dtype)  # (B,)
+        cam_w = has_camera.to(camera.dtype) * self.camera_weight.to(camera.dtype)  # (B,)
         bev_w = torch.ones_like(cam_w)
         if self.training:
             u = torch.rand(cam_w.shape, device=cam_w.device)  # (B,)
             drop_cam = (u < self.config.drop_camera_p) & has_camera
-            drop_bev = (u >= 1.0 - self.config.drop_bev_p) & has_camera
+            drop_bev = (u >= 1.0 - self.config.drop_bev_p) & has_camera & (cam_w > 0)  # one view is always kept
             cam_w = cam_w * (~drop_cam).to(cam_w.dtype)
             bev_w = bev_w * (~drop_bev).to(bev_w.dtype)
         mixed = (cam_w[:, None] * F.normalize(camera, dim=-1) + bev_w[:, None] * F.normalize(bev, dim=-1)) / (

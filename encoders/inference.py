@@ -68,7 +68,8 @@ def shuffle_time(batch: dict[str, Any], generator: torch.Generator | None = None
     return out
 
 
-def _batches(dataset: Dataset[dict[str, Any]], batch_size: int, num_workers: int = 0) -> Iterator[dict[str, Any]]:
+def batches(dataset: Dataset[dict[str, Any]], batch_size: int, num_workers: int = 0) -> Iterator[dict[str, Any]]:
+    """The dataset's items in order, collated in batches of ``batch_size``."""
     loader = DataLoader(dataset, batch_size=batch_size, shuffle=False, num_workers=num_workers, collate_fn=collate)
     yield from loader
 
@@ -89,7 +90,7 @@ def embed_dataset(
     ids: list[str] = []
     captions: list[str] = []
     chunks = []
-    for batch in _batches(dataset, batch_size):
+    for batch in batches(dataset, batch_size):
         if shuffle_frames:
             batch = shuffle_time(batch, gen)
         chunks.append(model.encode_video(batch, view=view).float().cpu().numpy())
@@ -109,7 +110,7 @@ def embed_dataset_views(
     model.eval()
     ids: list[str] = []
     chunks: dict[str, list[np.ndarray]] = {}
-    for batch in _batches(dataset, batch_size):
+    for batch in batches(dataset, batch_size):
         for view, x in model.encode_views(batch).items():
             chunks.setdefault(view, []).append(x.float().cpu().numpy())
         ids += list(batch["clip_id"])
@@ -178,7 +179,7 @@ def frame_tag_figures(model: DualEncoder, dataset: Dataset[dict[str, Any]], batc
     model.eval()
     logits: dict[str, list[torch.Tensor]] = {}
     targets, has_camera = [], []
-    for batch in _batches(dataset, batch_size):
+    for batch in batches(dataset, batch_size):
         frames: dict[str, torch.Tensor] = {}
         model.encode_views(batch, frames=frames)
         for name, x in model.dense_logits(frames).items():

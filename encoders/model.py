@@ -28,6 +28,8 @@ from encoders.fusion import ViewFusion
 from encoders.text import TextTower
 
 VIEWS = ("fused", "camera", "bev")
+#: State that older saved weights lack, with the value that reproduces how those models worked.
+LEGACY_DEFAULTS: dict[str, torch.Tensor] = {"fusion.camera_weight": torch.ones(())}
 
 
 class DualEncoder(nn.Module):
@@ -153,7 +155,11 @@ class DualEncoder(nn.Module):
         return {k: v for k, v in self.state_dict().items() if not any(k.startswith(s) for s in skip)}
 
     def load_saved_state_dict(self, state: dict[str, torch.Tensor]) -> None:
-        """Load what :meth:`saved_state_dict` wrote; any other missing or extra key is an error."""
+        """Load what :meth:`saved_state_dict` wrote; any other missing or extra key is an error.
+
+        Weights saved before the fusion had a camera weight fuse as they did then: an equal mean.
+        """
+        state = {**LEGACY_DEFAULTS, **state}
         result = self.load_state_dict(state, strict=False)
         skip = [f"text.{p}" for p in self.text.frozen_prefixes()]
         missing = [k for k in result.missing_keys if not any(k.startswith(s) for s in skip)]

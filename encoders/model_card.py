@@ -7,12 +7,15 @@ from typing import Any
 
 from torch.utils.data import Dataset
 
+from encoders.calibration import CameraWeightChoice
 from encoders.config import TrainConfig
 
 
 def model_card(config: TrainConfig, history: list[dict[str, Any]], n_train: int,
-               val_set: Dataset[dict[str, Any]] | None, clips_dir: Path | str) -> str:
-    """Markdown for ``run_dir/model_card.md``; ``history`` holds the rows of ``metrics.jsonl``."""
+               val_set: Dataset[dict[str, Any]] | None, clips_dir: Path | str,
+               camera_weight: CameraWeightChoice | None = None) -> str:
+    """Markdown for ``run_dir/model_card.md``; ``history`` holds the rows of ``metrics.jsonl``;
+    ``camera_weight``: how the fusion's camera weight was chosen (None: not calibrated, an equal mean)."""
     last_val: dict[str, float] = next((r["val"] for r in reversed(history) if "val" in r), {})
     m = config.model
     metric_lines = "\n".join(f"| {k} | {v:.4g} |" for k, v in last_val.items()) or "| (no validation split) | |"
@@ -31,7 +34,8 @@ Text → clip and clip → clip retrieval of object behaviour in driving logs.
 - Camera tower: strided CNN {list(m.camera.widths)} over RGB + object mask, temporal transformer over frames.
 - BEV tower: LiDAR and map backbones {list(m.bev.widths)}, universal embedding E with D_e = {m.bev.embed_channels} at
   1/{m.bev.downsample} resolution, object-masked pooling, temporal transformer with ego motion.
-- Fusion: mean of normalised views + MLP; modality dropout camera {m.fusion.drop_camera_p}, BEV {m.fusion.drop_bev_p}.
+- Fusion: mean of normalised views + MLP; modality dropout camera {m.fusion.drop_camera_p}, BEV {m.fusion.drop_bev_p};
+  {camera_weight.describe() if camera_weight is not None else "camera weight 1 in the fusion (an equal mean)"}.
 
 ## Data
 - Clips: `{clips_dir}`; {n_train} training clips, {n_val} validation clips.

@@ -56,6 +56,7 @@ import torch
 from torch.utils.data import DataLoader, Dataset
 
 from common.atomic import atomic_path, atomic_write_text
+from encoders.calibration import CameraWeightChoice, calibrate_camera_weight
 from encoders.checkpoints import (
     check_resume_config,
     check_resume_tagging,
@@ -415,7 +416,12 @@ def train(
     if writer is not None:
         writer.close()
     if dp.is_main:
-        _write_final(run_dir, model, config, history, n, val_set, clips_dir)
+        # After the last checkpoint: a resumed run trains with the equal mean, as this one did.
+        camera_weight = (calibrate_camera_weight(model, val_set, config.eval_batch_size)
+                         if config.calibrate_camera else None)
+        if camera_weight is not None:
+            log(camera_weight.describe())
+        _write_final(run_dir, model, config, history, n, val_set, clips_dir, camera_weight)
         if tag_objective is not None:  # tagging hook
             tag_objective.save(run_dir)
     return TrainResult(run_dir=run_dir, epochs=config.epochs, steps=step, val=val, history=history)
@@ -431,11 +437,13 @@ def _progress(iterable: Any, total: int, desc: str, enable: bool | None) -> Any:
 
 
 def _write_final(run_dir: Path, model: DualEncoder, config: TrainConfig, history: list[dict[str, Any]],
-                 n_train: int, val_set: Dataset[dict[str, Any]] | None, clips_dir: Path | str) -> None:
+                 n_train: int, val_set: Dataset[dict[str, Any]] | None, clips_dir: Path | str,
+                 camera_weight: CameraWeightChoice | None) -> None:
     from safetensors.torch import save_file
 
     state = {k: v.detach().cpu().contiguous().clone() for k, v in model.saved_state_dict().items()}
     with atomic_path(run_dir / "model.safetensors") as tmp:
         save_file(state, str(tmp), metadata={"format": "scenesearch.DualEncoder"})
     atomic_write_text(run_dir / "config.json", config.to_json())
-    atomic_write_text(run_dir / "model_card.md", model_card(config, history, n_train, val_set, clips_dir))
+    atomic_write_text(run_dir / "model_card.md", model_card(config, history, n_train, val_set, clips_dir,
+                                                                  camera_weight))

@@ -15,7 +15,7 @@ ORDER = ("common", "scenes", "captioning", "encoders", "indexes", "retrieval")
 #: `indexes/` is a generic vector store: besides itself it may import the base package alone.
 GENERIC = {"indexes": {"common", "indexes"}}
 #: Training code that later stages must not import (they use the inference modules instead).
-TRAINING_MODULES = {"encoders.train", "encoders.tagging.training"}
+TRAINING_MODULES = {"encoders.train", "encoders.calibration", "encoders.tagging.training"}
 MAX_LINES = 450
 
 

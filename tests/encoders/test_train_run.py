@@ -14,6 +14,7 @@ import pytest
 import torch
 from safetensors.torch import load_file
 
+from encoders.calibration import CAMERA_WEIGHTS
 from encoders.checkpoints import (
     CHECKPOINT_FORMAT,
     CheckpointError,
@@ -96,6 +97,8 @@ def test_run_writes_its_files_and_loads(straight: Path) -> None:
     assert {"R@1", "R@5", "R@10", "median_rank", "mAP"} <= set(rows[-1]["val"])
     assert "R@1" in (straight / "model_card.md").read_text()
     model = load_model(straight)
+    assert float(model.fusion.camera_weight) in CAMERA_WEIGHTS  # chosen after the last epoch
+    model.fusion.set_camera_weight(1.0)  # the equal mean that the epochs trained and validated
     again = evaluate(model, datasets()["val"])
     assert again == pytest.approx(rows[-1]["val"])
 

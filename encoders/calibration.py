@@ -61,27 +61,36 @@ def calibrate_camera_weight(model: DualEncoder, val_set: Dataset[dict[str, Any]]
         return CameraWeightChoice(current, {}, "no validation split")
     was_training = model.training
     model.eval()
+    try:
+        camera, bev, has_camera, captions = _views(model, val_set, batch_size)
+        if not bool(has_camera.any()):
+            return CameraWeightChoice(current, {}, "no camera clip in the validation split")
+        queries = sorted(set(captions))
+        text = embed_texts(model, queries)  # (Q, D)
+        relevant = relevance_by_caption(queries, captions)
+        map_by_weight: dict[float, float] = {}
+        for weight in sorted(weights):
+            model.fusion.set_camera_weight(weight)
+            fused = F.normalize(model.fusion(camera, bev, has_camera), dim=-1).float().cpu().numpy()  # (N, D)
+            map_by_weight[weight] = float(text_to_clip_metrics(text @ fused.T, relevant)["mAP"])
+        best = max(map_by_weight, key=lambda w: (round(map_by_weight[w], 6), w))
+        model.fusion.set_camera_weight(best)
+        return CameraWeightChoice(best, map_by_weight)
+    finally:
+        model.train(was_training)
+
+
+def _views(model: DualEncoder, dataset: Dataset[dict[str, Any]],
+           batch_size: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, list[str]]:
+    """What the fusion reads, once for the whole split: camera (N, D), BEV (N, D), ``has_camera`` (N,),
+    and the clips' canonical captions."""
     cameras, bevs, flags, captions = [], [], [], []
-    for batch in batches(val_set, batch_size):
-        views = model.encode_views(batch, normalize=False)
+    for batch in batches(dataset, batch_size):
+        # A batch without camera clips skips the camera tower: the fusion reads BEV alone for them.
+        views = model.encode_views(batch, normalize=False, camera_always=False)
         cameras.append(views["camera"])  # (B, D)
         bevs.append(views["bev"])  # (B, D)
         flags.append(torch.as_tensor(batch["has_camera"], dtype=torch.bool, device=model.device).reshape(-1))
         captions += list(batch["canonical_caption"])
-    camera, bev, has_camera = torch.cat(cameras), torch.cat(bevs), torch.cat(flags)  # (N, D), (N, D), (N,)
-    if not bool(has_camera.any()):
-        model.train(was_training)
-        return CameraWeightChoice(current, {}, "no camera clip in the validation split")
-    queries = sorted(set(captions))
-    text = embed_texts(model, queries)  # (Q, D)
-    relevant = relevance_by_caption(queries, captions)
-    map_by_weight: dict[float, float] = {}
-    for weight in sorted(weights):
-        model.fusion.set_camera_weight(weight)
-        fused = F.normalize(model.fusion(camera, bev, has_camera), dim=-1).float().cpu().numpy()  # (N, D)
-        map_by_weight[weight] = float(text_to_clip_metrics(text @ fused.T, relevant)["mAP"])
-    best = max(map_by_weight, key=lambda w: (round(map_by_weight[w], 6), w))
-    model.fusion.set_camera_weight(best)
-    model.train(was_training)
-    return CameraWeightChoice(best, map_by_weight)
+    return torch.cat(cameras), torch.cat(bevs), torch.cat(flags), captions
 

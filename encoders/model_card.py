@@ -13,9 +13,9 @@ from encoders.config import TrainConfig
 
 def model_card(config: TrainConfig, history: list[dict[str, Any]], n_train: int,
                val_set: Dataset[dict[str, Any]] | None, clips_dir: Path | str,
-               camera_weight: CameraWeightChoice | None = None) -> str:
+               camera_weight: CameraWeightChoice) -> str:
     """Markdown for ``run_dir/model_card.md``; ``history`` holds the rows of ``metrics.jsonl``;
-    ``camera_weight``: how the fusion's camera weight was chosen (None: not calibrated, an equal mean)."""
+    ``camera_weight``: the fusion's camera weight and how it was chosen."""
     last_val: dict[str, float] = next((r["val"] for r in reversed(history) if "val" in r), {})
     m = config.model
     metric_lines = "\n".join(f"| {k} | {v:.4g} |" for k, v in last_val.items()) or "| (no validation split) | |"
@@ -35,7 +35,7 @@ Text → clip and clip → clip retrieval of object behaviour in driving logs.
 - BEV tower: LiDAR and map backbones {list(m.bev.widths)}, universal embedding E with D_e = {m.bev.embed_channels} at
   1/{m.bev.downsample} resolution, object-masked pooling, temporal transformer with ego motion.
 - Fusion: mean of normalised views + MLP; modality dropout camera {m.fusion.drop_camera_p}, BEV {m.fusion.drop_bev_p};
-  {camera_weight.describe() if camera_weight is not None else "camera weight 1 in the fusion (an equal mean)"}.
+  {camera_weight.describe()}.
 
 ## Data
 - Clips: `{clips_dir}`; {n_train} training clips, {n_val} validation clips.

@@ -252,7 +252,7 @@ class ClauseText(nn.Module):
 class SlotText(nn.Module):
     """The pretrained encoder over a text and its sentences' steps, laid out in time slots →
     (B, F + K·F): the whole text, then per slot (of K = ``time_slots``) the mean of what each sentence
-    says there (:func:`encoders.timeline.sentence_steps`, :func:`encoders.timeline.slot_of_steps`).
+    says there (:func:`sentence_steps`, :func:`encoders.timeline.slot_of_steps`).
 
     A mean rather than one place per sentence: a caption's first sentence is the ego's and its second
     the object's, but a typed query has any number of sentences in any order, and it should land in

@@ -417,10 +417,9 @@ def train(
         writer.close()
     if dp.is_main:
         # After the last checkpoint: a resumed run trains with the equal mean, as this one did.
-        camera_weight = (calibrate_camera_weight(model, val_set, config.eval_batch_size)
-                         if config.calibrate_camera else None)
-        if camera_weight is not None:
-            log(camera_weight.describe())
+        camera_weight = (calibrate_camera_weight(model, val_set, config.eval_batch_size) if config.calibrate_camera
+                         else CameraWeightChoice(float(model.fusion.camera_weight), {}, "calibrate_camera is off"))
+        log(camera_weight.describe())
         _write_final(run_dir, model, config, history, n, val_set, clips_dir, camera_weight)
         if tag_objective is not None:  # tagging hook
             tag_objective.save(run_dir)
@@ -438,7 +437,7 @@ def _progress(iterable: Any, total: int, desc: str, enable: bool | None) -> Any:
 
 def _write_final(run_dir: Path, model: DualEncoder, config: TrainConfig, history: list[dict[str, Any]],
                  n_train: int, val_set: Dataset[dict[str, Any]] | None, clips_dir: Path | str,
-                 camera_weight: CameraWeightChoice | None) -> None:
+                 camera_weight: CameraWeightChoice) -> None:
     from safetensors.torch import save_file
 
     state = {k: v.detach().cpu().contiguous().clone() for k, v in model.saved_state_dict().items()}

@@ -14,8 +14,7 @@ The manifest is written last, inside a temporary directory that is renamed onto 
 reader sees either the previous complete index or the new one. A kill between the two renames of
 that swap leaves the complete previous index aside (see :mod:`common.atomic`); :func:`reading_index_dir`
 moves it back, so a kill at any moment leaves a loadable index, and holds off a concurrent save
-while a loader reads. Loading checks every file against
-the manifest (:mod:`indexes.integrity`).
+while a loader reads. Loading checks every file against the manifest (:mod:`indexes.integrity`).
 """
 
 from __future__ import annotations

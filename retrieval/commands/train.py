@@ -23,6 +23,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from encoders.config import HardNegative
+
 HELP = "train the dual text/video encoder on a clips folder (contrastive, multi-positive)"
 
 
@@ -52,9 +54,10 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--time-slots", type=int, metavar="K",
                         help="K time slots in every embedding, read from the frames and from each sentence's steps "
                              "(model.time_slots with the slots text tower; 0: one pooled vector)")
-    parser.add_argument("--hard-negatives", nargs="+", metavar="EDIT", choices=["reverse", "motion", "mirror"],
-                        help="edits of each clip's steps whose captions join the batch as negatives "
-                             "(reverse, motion, mirror)")
+    edits = [k.value for k in HardNegative]
+    parser.add_argument("--hard-negatives", nargs="+", metavar="EDIT", choices=edits,
+                        help=f"edits of each clip's steps whose captions join the batch as negatives "
+                             f"({', '.join(edits)})")
     parser.add_argument("--dense-weight", type=float, metavar="W",
                         help="weight of the per-frame rule-tag loss on the temporal streams' frame tokens (heads on "
                              "the track stream unless the config names model.dense_streams)")

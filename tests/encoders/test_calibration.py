@@ -94,3 +94,5 @@ def test_training_saves_the_calibrated_weight_and_old_weights_load_as_an_equal_m
     train("unused", tmp_path / "off", dataclasses.replace(cfg, calibrate_camera=False), datasets=data,
           progress=False, log=lambda _m: None)
     assert float(load_model(tmp_path / "off").fusion.camera_weight) == 1.0
+    assert "camera weight 1 in the fusion (not calibrated: calibrate_camera is off)" in \
+        (tmp_path / "off" / "model_card.md").read_text()

@@ -25,6 +25,7 @@ from pathlib import Path
 from typing import Any
 
 from common.atomic import atomic_write_text
+from encoders.config import HardNegative
 
 DEFAULT_QUERIES = (
     "a car in the left lane approaches, then moves into the ego lane",
@@ -64,6 +65,12 @@ class DemoConfig:
             camera (``train --camera-share``; None: the trainer's default). The extra logs have no
             camera, so without it a batch of 16 holds one or two camera clips and the camera view
             alone learns little.
+        time_slots: K time slots in every embedding (``train --time-slots``, :mod:`encoders.timeline`):
+            the clip's stretches in order, so that retrieval reads what happens first and what after
+            (0 or None: one pooled vector).
+        hard_negatives: edits of each clip's steps whose captions train as extra negatives
+            (``train --hard-negatives``; empty: in-batch negatives only). With the slots, the caption
+            with its steps reversed is what teaches them order.
         train_preset: the trainer's preset (``default``; ``tiny`` for smoke runs), None for the trainer's choice.
         sensors: render LiDAR and cameras (off: BEV clips from boxes, no camera).
         extra_logs: more simulated logs, from another seed, without sensors (BEV clips from boxes,
@@ -91,6 +98,8 @@ class DemoConfig:
     batch_size: int | None = 16
     tag_weight: float | None = 1.0
     camera_share: float | None = 0.25
+    time_slots: int | None = 4
+    hard_negatives: tuple[str, ...] = ("reverse",)
     train_preset: str | None = None
     sensors: bool = True
     extra_logs: int = 24
@@ -115,12 +124,19 @@ class DemoConfig:
             raise ValueError(f"DemoConfig.camera_share must lie in [0, 1], got {self.camera_share}")
         if self.epochs is not None and self.epochs < 1:
             raise ValueError(f"DemoConfig.epochs must be at least 1, got {self.epochs}")
+        if self.time_slots is not None and self.time_slots < 0:
+            raise ValueError(f"DemoConfig.time_slots must be at least 0, got {self.time_slots}")
+        known = [k.value for k in HardNegative]
+        wrong = [k for k in self.hard_negatives if k not in known]
+        if wrong:
+            raise ValueError(f"DemoConfig.hard_negatives: unknown {wrong} (choose from {known})")
 
     @staticmethod
     def quick() -> DemoConfig:
         """Smallest sizes that still run every stage (a smoke run, not a measurement)."""
+        # The tiny model's 32 dimensions hold no time slots, and its scratch text tower no steps.
         return DemoConfig(logs=3, duration_s=12.0, frames_per_clip=8, epochs=1, train_preset="tiny", batch_size=None,
-                          extra_logs=2)
+                          extra_logs=2, time_slots=None, hard_negatives=())
 
 
 class DemoStageError(RuntimeError):
@@ -178,7 +194,8 @@ class Demo:
                          c.camera_height_px], "bev_resolution_m": c.bev_resolution_m,
                          "test_fraction": c.test_fraction}
         upto["train"] = {**upto["clips"], "epochs": c.epochs, "train_preset": c.train_preset,
-                         "batch_size": c.batch_size, "tag_weight": c.tag_weight, "camera_share": c.camera_share}
+                         "batch_size": c.batch_size, "tag_weight": c.tag_weight, "camera_share": c.camera_share,
+                         "time_slots": c.time_slots, "hard_negatives": list(c.hard_negatives)}
         upto["index"] = upto["train"]
         upto["eval"] = upto["train"]
         upto["report"] = {**upto["train"], "queries": list(c.queries), "top_k": c.top_k}
@@ -291,6 +308,10 @@ class Demo:
             args += ["--tag-weight", self.config.tag_weight]
         if self.config.camera_share is not None:
             args += ["--camera-share", self.config.camera_share]
+        if self.config.time_slots is not None:
+            args += ["--time-slots", self.config.time_slots]
+        if self.config.hard_negatives:
+            args += ["--hard-negatives", *self.config.hard_negatives]
         self.command(args)
         return ""
 
@@ -342,7 +363,7 @@ def config_from_args(args: argparse.Namespace) -> DemoConfig:
     overrides: dict[str, Any] = {}
     for name in ("logs", "duration_s", "test_fraction", "seed", "frames_per_clip", "camera_width_px",
                  "camera_height_px", "bev_resolution_m", "epochs", "batch_size", "tag_weight", "extra_logs",
-                 "map_less_share", "camera_share"):
+                 "map_less_share", "camera_share", "time_slots"):
         value = getattr(args, name, None)
         if value is not None:
             overrides[name] = value
@@ -350,4 +371,6 @@ def config_from_args(args: argparse.Namespace) -> DemoConfig:
         overrides["sensors"] = False
     if args.query:
         overrides["queries"] = tuple(args.query)
+    if getattr(args, "hard_negatives", None) is not None:
+        overrides["hard_negatives"] = tuple(e for e in args.hard_negatives if e != "none")
     return replace(base, **overrides)

@@ -9,6 +9,7 @@ HELP = "simulate, caption, build clips, train, index and evaluate a small city; 
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
+    from encoders.config import HardNegative
     from retrieval.demo import VAL_FRACTION
     from retrieval.demo import DemoConfig as D  # the defaults the help shows
 
@@ -31,6 +32,12 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help=f"weight of the tagging loss in training (default {D.tag_weight:g})")
     parser.add_argument("--camera-share", type=float, metavar="F",
                         help=f"share of camera clips in every training batch (default {D.camera_share:g})")
+    parser.add_argument("--time-slots", type=int, metavar="K",
+                        help=f"time slots in every embedding (default {D.time_slots}; 0: one pooled vector)")
+    edits = [k.value for k in HardNegative]
+    parser.add_argument("--hard-negatives", nargs="+", metavar="EDIT", choices=[*edits, "none"],
+                        help=f"edits of a clip's steps trained as extra negatives (default "
+                        f"{' '.join(D.hard_negatives)}; none: in-batch negatives only)")
     parser.add_argument("--no-sensors", action="store_true", help="skip LiDAR/camera rendering (BEV from boxes)")
     parser.add_argument("--extra-logs", type=int, metavar="N",
                         help=f"extra training-only logs, simulated without sensors (default {D.extra_logs})")

@@ -73,6 +73,9 @@ def test_stages_run_in_order_with_sizes(tmp_path: Path) -> None:
     train = demo.calls[4]
     assert train[train.index("--epochs") + 1] == "3" and train[train.index("--batch-size") + 1] == "4"
     assert train[train.index("--camera-share") + 1] == "0.5"
+    # The demo's model: time slots, trained with the reversed-step captions as negatives.
+    assert train[train.index("--time-slots") + 1] == "4"
+    assert train[train.index("--hard-negatives") + 1:][:1] == ["reverse"]
 
 
 def test_resume_skips_complete_stages_and_reruns_after_a_change(tmp_path: Path) -> None:
@@ -97,6 +100,13 @@ def test_resume_skips_complete_stages_and_reruns_after_a_change(tmp_path: Path) 
     more_camera = _demo(tmp_path, DemoConfig(logs=2, duration_s=10, epochs=5, map_less_share=1.0, camera_share=0.5))
     more_camera.run()
     assert [c[0] for c in more_camera.calls] == ["train", "index", "eval", "report"]
+    # So does one pooled vector instead of time slots, with in-batch negatives only.
+    one_vector = _demo(tmp_path, DemoConfig(logs=2, duration_s=10, epochs=5, map_less_share=1.0, camera_share=0.5,
+                                            time_slots=0, hard_negatives=()))
+    one_vector.run()
+    assert [c[0] for c in one_vector.calls] == ["train", "index", "eval", "report"]
+    train = one_vector.calls[0]
+    assert train[train.index("--time-slots") + 1] == "0" and "--hard-negatives" not in train
     # Without extra logs, none is simulated, and those of the settings before are gone.
     assert fewer_maps.extra_logs_dir.is_dir()
     alone = _demo(tmp_path, DemoConfig(logs=2, duration_s=10, epochs=5, extra_logs=0))
@@ -108,10 +118,16 @@ def test_resume_skips_complete_stages_and_reruns_after_a_change(tmp_path: Path) 
 def test_config_from_flags() -> None:
     args = argparse.Namespace(quick=True, logs=None, duration_s=None, seed=None, frames_per_clip=None, epochs=4,
                               no_sensors=True, query=["a bus stops"], map_less_share=0.25, extra_logs=5,
-                              camera_share=0.4)
+                              camera_share=0.4, time_slots=None, hard_negatives=None)
     config = config_from_args(args)
     assert config.logs == DemoConfig.quick().logs and config.epochs == 4 and config.map_less_share == 0.25
     assert config.extra_logs == 5 and config.camera_share == 0.4
+    # --quick trains the tiny model: one vector, no step edits.
+    assert config.time_slots is None and config.hard_negatives == ()
+    flags = argparse.Namespace(**{**vars(args), "quick": False, "time_slots": 6, "hard_negatives": ["none"]})
+    assert config_from_args(flags).time_slots == 6 and config_from_args(flags).hard_negatives == ()
+    assert config_from_args(argparse.Namespace(**{**vars(flags), "hard_negatives": None})).hard_negatives == (
+        "reverse",)
     assert config.sensors is False and config.queries == ("a bus stops",)
     with pytest.raises(ValueError, match="logs must be at least 1"):
         DemoConfig(logs=0)
@@ -123,6 +139,10 @@ def test_config_from_flags() -> None:
         DemoConfig(camera_share=-0.5)
     with pytest.raises(ValueError, match="extra_logs must be at least 0"):
         DemoConfig(extra_logs=-1)
+    with pytest.raises(ValueError, match="time_slots must be at least 0"):
+        DemoConfig(time_slots=-1)
+    with pytest.raises(ValueError, match=r"hard_negatives: unknown \['backwards'\]"):
+        DemoConfig(hard_negatives=("backwards",))
     with pytest.raises(ValueError, match="unknown stage 'deploy'"):
         _demo(Path("/nonexistent"), DemoConfig()).run(["deploy"])
 

@@ -61,6 +61,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--dense-weight", type=float, metavar="W",
                         help="weight of the per-frame rule-tag loss on the temporal streams' frame tokens (heads on "
                              "the track stream unless the config names model.dense_streams)")
+    parser.add_argument("--track-velocity", action="store_true",
+                        help="give the track stream the object's velocity relative to the ego and its range rates "
+                             "(model.bev.track_velocity; what the dense heads read motion from)")
     parser.add_argument("--shuffle-frames", action="store_true", help="bag-of-frames baseline: shuffle frames in time")
     parser.add_argument("--inputs", choices=["none", "map", "lidar", "both"],
                         help="BEV inputs the model sees (input ablation of the tagging evaluation; default both)")
@@ -110,6 +113,8 @@ def build_config(args: argparse.Namespace) -> Any:
     if args.scratch_text:
         text = dataclasses.replace(text, kind="scratch")
     model = dataclasses.replace(config.model, text=text)
+    if args.track_velocity:
+        model = dataclasses.replace(model, bev=dataclasses.replace(model.bev, track_velocity=True))
     if args.time_slots is not None:
         # The slots live on both sides: the text tower lays each sentence's steps out in them.
         kind = "slots" if args.time_slots else ("pretrained" if text.kind == "slots" else text.kind)

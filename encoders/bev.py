@@ -19,9 +19,10 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from encoders.camera import clip_head, conv_block, mask_geometry, masked_mean, read_clip, with_motion
+from encoders.camera import conv_block, mask_geometry, masked_mean, with_motion
 from encoders.config import BevConfig
 from encoders.fusion import TemporalEncoder
+from encoders.timeline import clip_head, read_clip
 
 #: Scales that bring ego_motion (x_m, y_m, yaw_rad, speed_mps) to about unit range.
 EGO_MOTION_SCALE = (50.0, 50.0, 3.14159, 20.0)

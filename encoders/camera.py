@@ -16,7 +16,7 @@ from torch import nn
 
 from encoders.config import CameraConfig
 from encoders.fusion import TemporalEncoder
-from encoders.timeline import SlotReadout
+from encoders.timeline import clip_head, read_clip
 
 
 def conv_block(c_in: int, c_out: int, kernel: int, stride: int, dilation: int = 1) -> nn.Sequential:
@@ -56,19 +56,6 @@ def masked_mean(features: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
     """features: (N, C, h, w); mask: (N, 1, h, w) weights → (N, C) mean under the mask (0 where empty)."""
     weight = mask.sum(dim=(2, 3)).clamp_min(1e-6)  # (N, 1)
     return (features * mask).sum(dim=(2, 3)) / weight  # (N, C)
-
-
-def clip_head(width: int, embed_dim: int, time_slots: int, slot_dim: int) -> nn.Module:
-    """A temporal stream's clip vector (and frame tokens) → (B, D): a linear map, or with ``time_slots``
-    K > 0 a :class:`encoders.timeline.SlotReadout` (global part + K time slots)."""
-    if time_slots:
-        return SlotReadout(width, embed_dim, time_slots, slot_dim)
-    return nn.Linear(width, embed_dim)
-
-
-def read_clip(head: nn.Module, clip: torch.Tensor, tokens: torch.Tensor) -> torch.Tensor:
-    """clip: (B, W); tokens: (B, T, W) → (B, D) through a :func:`clip_head`."""
-    return head(clip, tokens) if isinstance(head, SlotReadout) else head(clip)
 
 
 class CameraTower(nn.Module):

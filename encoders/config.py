@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import json
 import re
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from enum import StrEnum
 from pathlib import Path
@@ -290,6 +291,16 @@ class HardNegative(StrEnum):
     MIRROR = "mirror"  #: lanes mirrored left ↔ right
 
 
+def hard_negative_kinds(names: Sequence[str], where: str) -> tuple[HardNegative, ...]:
+    """``names`` as :class:`HardNegative` edits in the enum's order, without repeats (resume compares them)."""
+    known = [k.value for k in HardNegative]
+    wrong = [str(k) for k in names if k not in known]
+    if wrong:
+        raise ConfigError(f"{where}: unknown {wrong} (choose from {known})")
+    kinds = {HardNegative(str(k)) for k in names}
+    return tuple(k for k in HardNegative if k in kinds)
+
+
 @dataclass(frozen=True)
 class TrainConfig(EncodersConfig):
     """A training run.
@@ -366,13 +377,8 @@ class TrainConfig(EncodersConfig):
     calibrate_camera: bool = True
 
     def __post_init__(self) -> None:
-        known = [k.value for k in HardNegative]
-        wrong = [str(k) for k in self.hard_negatives if k not in known]
-        if wrong:
-            raise ConfigError(f"TrainConfig.hard_negatives: unknown {wrong} (choose from {known})")
-        # Sorted and without repeats: the same set of edits is the same config (resume compares them).
-        kinds = tuple(HardNegative(str(k)) for k in self.hard_negatives)
-        object.__setattr__(self, "hard_negatives", tuple(k for k in HardNegative if k in kinds))
+        kinds = hard_negative_kinds(self.hard_negatives, "TrainConfig.hard_negatives")
+        object.__setattr__(self, "hard_negatives", kinds)
         for name in ("epochs", "batch_size", "eval_every", "eval_batch_size"):
             if getattr(self, name) < 1:
                 raise ConfigError(f"TrainConfig.{name} must be >= 1, got {getattr(self, name)}")

@@ -107,6 +107,4 @@ class ViewFusion(nn.Module):
         mixed = (cam_w[:, None] * F.normalize(camera, dim=-1) + bev_w[:, None] * F.normalize(bev, dim=-1)) / (
             cam_w + bev_w
         )[:, None]  # (B, D)
-        if self.slot_dims:
-            return mixed + F.pad(self.mlp(mixed), (0, self.slot_dims))
-        return mixed + self.mlp(mixed)
+        return mixed + F.pad(self.mlp(mixed), (0, self.slot_dims))  # the slots' dimensions pass as they are

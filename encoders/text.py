@@ -214,6 +214,7 @@ def sentence_steps(text: str) -> list[list[str]]:
     split is one sentence of one step.
     """
     sentences = [s for s in _SENTENCE_END.split(text) if s.strip(" ,.;!?")]
+    # A sentence has fewer steps than characters: len(s) leaves every step on its own.
     return [text_steps(s, len(s)) for s in sentences] or [[text.strip() or text]]
 
 

@@ -87,3 +87,16 @@ class SlotReadout(nn.Module):
         """clip: (B, W); tokens: (B, T, W) → (B, D)."""
         pooled = self.attention(tokens) @ tokens  # (B, K, W)
         return torch.cat([self.global_head(clip), self.slot_head(pooled).flatten(1)], dim=-1)  # (B, D)
+
+
+def clip_head(width: int, embed_dim: int, time_slots: int, slot_dim: int) -> nn.Module:
+    """A temporal stream's clip vector (and frame tokens) → (B, D): a linear map, or with ``time_slots``
+    K > 0 :class:`SlotReadout` (global part + K time slots)."""
+    if time_slots:
+        return SlotReadout(width, embed_dim, time_slots, slot_dim)
+    return nn.Linear(width, embed_dim)
+
+
+def read_clip(head: nn.Module, clip: torch.Tensor, tokens: torch.Tensor) -> torch.Tensor:
+    """clip: (B, W); tokens: (B, T, W) → (B, D) through a :func:`clip_head`."""
+    return head(clip, tokens) if isinstance(head, SlotReadout) else head(clip)

@@ -22,9 +22,10 @@ import numpy as np
 from indexes.building import IdsLike, prepare_build
 from indexes.errors import IdError, ManifestError
 from indexes.factory import AutoConfig
-from indexes.integrity import Verify, VerifyLike, sha256_file, verifying
+from indexes.integrity import FileEntry, Verify, VerifyLike, sha256_file, verifying
 from indexes.persistence import (
     MANIFEST_NAME,
+    Manifest,
     read_manifest,
     reading_index_dir,
     require_files,
@@ -209,35 +210,42 @@ class ShardedIndex:
         checked against the top manifest. Arguments as :meth:`VectorIndex.load`."""
         with reading_index_dir(directory) as d:
             m = read_manifest(d, KIND)
-            entries = m.extra.get("shards")
-            top = d / MANIFEST_NAME
-            if not isinstance(entries, list) or not entries:
-                raise ManifestError(top, "lists no shards", field="extra.shards")
-            files = dict(m.files)
-            shard_manifests = []
-            for entry in entries:
-                name = entry.get("name") if isinstance(entry, dict) else None
-                if not isinstance(name, str) or Path(name).name != name or name in ("", ".", "..") or \
-                        not isinstance(entry.get("manifest_sha256"), str):
-                    raise ManifestError(top, f"bad shard entry {entry!r}", field="extra.shards")
-                sub = d / name
-                if not (sub / MANIFEST_NAME).is_file():
-                    raise ManifestError(sub / MANIFEST_NAME, "shard manifest missing")
-                # A shard manifest is a few hundred bytes: always compared with the top manifest.
-                if sha256_file(sub / MANIFEST_NAME) != entry["manifest_sha256"]:
-                    raise ManifestError(sub / MANIFEST_NAME, "differs from the checksum in the top manifest")
-                sm = read_manifest(sub, SHARD_KIND)
-                require_files(sm, sub, files_of(sm.extra))
-                files.update({f"{name}/{file}": e for file, e in sm.files.items()})
-                shard_manifests.append((sub, sm))
+            files, shard_manifests = _shard_manifests(d, m)
             with verifying(d, files, verify):  # one pass over every shard's files, hashed in parallel
                 shards = [VectorIndex.from_files(sub, sm.dim, sm.metric, sm.factory, sm.count, sm.extra, mmap)
                           for sub, sm in shard_manifests]
-            out = cls(shards, int(m.extra.get("shard_size", DEFAULT_SHARD_SIZE)), m.extra.get("info"))
-            if len(out) != m.count or out.dim != m.dim:
-                raise ManifestError(top, f"says {m.count} vectors of dimension {m.dim}, the shards hold "
-                                    f"{len(out)} of dimension {out.dim}", field="count")
-            return out
+        out = cls(shards, int(m.extra.get("shard_size", DEFAULT_SHARD_SIZE)), m.extra.get("info"))
+        if len(out) != m.count or out.dim != m.dim:
+            raise ManifestError(d / MANIFEST_NAME, f"says {m.count} vectors of dimension {m.dim}, the shards hold "
+                                f"{len(out)} of dimension {out.dim}", field="count")
+        return out
+
+
+def _shard_manifests(d: Path, m: Manifest) -> tuple[dict[str, FileEntry], list[tuple[Path, Manifest]]]:
+    """The files of a sharded index at ``d`` (its own and every shard's, by path below ``d``) and each
+    shard's folder and manifest, every shard manifest checked against the top manifest ``m``."""
+    entries = m.extra.get("shards")
+    top = d / MANIFEST_NAME
+    if not isinstance(entries, list) or not entries:
+        raise ManifestError(top, "lists no shards", field="extra.shards")
+    files = dict(m.files)
+    shard_manifests = []
+    for entry in entries:
+        name = entry.get("name") if isinstance(entry, dict) else None
+        if not isinstance(name, str) or Path(name).name != name or name in ("", ".", "..") or \
+                not isinstance(entry.get("manifest_sha256"), str):
+            raise ManifestError(top, f"bad shard entry {entry!r}", field="extra.shards")
+        sub = d / name
+        if not (sub / MANIFEST_NAME).is_file():
+            raise ManifestError(sub / MANIFEST_NAME, "shard manifest missing")
+        # A shard manifest is a few hundred bytes: always compared with the top manifest.
+        if sha256_file(sub / MANIFEST_NAME) != entry["manifest_sha256"]:
+            raise ManifestError(sub / MANIFEST_NAME, "differs from the checksum in the top manifest")
+        sm = read_manifest(sub, SHARD_KIND)
+        require_files(sm, sub, files_of(sm.extra))
+        files.update({f"{name}/{file}": e for file, e in sm.files.items()})
+        shard_manifests.append((sub, sm))
+    return files, shard_manifests
 
 
 def merge_results(parts_d: list[np.ndarray], parts_i: list[np.ndarray], k: int,

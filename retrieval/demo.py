@@ -25,7 +25,7 @@ from pathlib import Path
 from typing import Any
 
 from common.atomic import atomic_write_text
-from encoders.config import HardNegative
+from encoders.config import hard_negative_kinds
 
 DEFAULT_QUERIES = (
     "a car in the left lane approaches, then moves into the ego lane",
@@ -126,10 +126,8 @@ class DemoConfig:
             raise ValueError(f"DemoConfig.epochs must be at least 1, got {self.epochs}")
         if self.time_slots is not None and self.time_slots < 0:
             raise ValueError(f"DemoConfig.time_slots must be at least 0, got {self.time_slots}")
-        known = [k.value for k in HardNegative]
-        wrong = [k for k in self.hard_negatives if k not in known]
-        if wrong:
-            raise ValueError(f"DemoConfig.hard_negatives: unknown {wrong} (choose from {known})")
+        # Refused here, before the stages run, rather than by `train` half way through the demo.
+        hard_negative_kinds(self.hard_negatives, "DemoConfig.hard_negatives")
 
     @staticmethod
     def quick() -> DemoConfig:

@@ -242,12 +242,12 @@ class SceneSearch:
                 except IndexesError as exc:
                     raise IndexDirError(str(exc)) from exc
                 captions = CaptionSearch.open(index_dir / CAPTIONS_DIR, encoder=text_encoder, verify=mode)
-            for name, size in [*((v, len(ix)) for v, ix in loaded.items()), ("captions", len(captions))]:
-                if manifest.counts.get(name) not in (None, size):
-                    raise IndexDirError(f"{index_dir / name}: holds {size} entries, {index_dir / MANIFEST} says "
-                                        f"{manifest.counts[name]}")
-            captions.base_dir = Path(manifest.clips_dir)
-            return cls(index_dir, manifest, loaded, captions, embedder)
+        for name, size in [*((v, len(ix)) for v, ix in loaded.items()), ("captions", len(captions))]:
+            if manifest.counts.get(name) not in (None, size):
+                raise IndexDirError(f"{index_dir / name}: holds {size} entries, {index_dir / MANIFEST} says "
+                                    f"{manifest.counts[name]}")
+        captions.base_dir = Path(manifest.clips_dir)
+        return cls(index_dir, manifest, loaded, captions, embedder)
 
     # ------------------------------------------------------------------ model
 

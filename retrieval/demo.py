@@ -71,6 +71,11 @@ class DemoConfig:
         hard_negatives: edits of each clip's steps whose captions train as extra negatives
             (``train --hard-negatives``; empty: in-batch negatives only). With the slots, the caption
             with its steps reversed is what teaches them order.
+        dense_weight: weight of the per-frame rule-tag loss on the track stream's frame tokens
+            (``train --dense-weight``; 0 or None: no dense heads). The tags of every frame make the
+            tokens that the slots pool carry the motion, not only the clip's one caption.
+        track_velocity: give the track stream the object's velocity relative to the ego
+            (``train --track-velocity``): what the dense heads read the motion from.
         train_preset: the trainer's preset (``default``; ``tiny`` for smoke runs), None for the trainer's choice.
         sensors: render LiDAR and cameras (off: BEV clips from boxes, no camera).
         extra_logs: more simulated logs, from another seed, without sensors (BEV clips from boxes,
@@ -83,8 +88,8 @@ class DemoConfig:
         top_k: results shown per example query.
     """
 
-    # Sized so that the whole demo runs in about 9 minutes on 2 CPU cores: small clip views (the model
-    # trains at about 45 clips/s on them), and the extra logs' clips with 6 epochs rather than 12
+    # Sized so that the whole demo runs in about 11 minutes on 2 CPU cores: small clip views (the model
+    # trains at about 32 clips/s on them), and the extra logs' clips with 6 epochs rather than 12
     # epochs of the 12 logs' clips alone: more data beat more passes over the same clips.
     logs: int = 12
     duration_s: float = 20.0
@@ -100,6 +105,8 @@ class DemoConfig:
     camera_share: float | None = 0.25
     time_slots: int | None = 4
     hard_negatives: tuple[str, ...] = ("reverse",)
+    dense_weight: float | None = 1.0
+    track_velocity: bool = True
     train_preset: str | None = None
     sensors: bool = True
     extra_logs: int = 24
@@ -126,6 +133,8 @@ class DemoConfig:
             raise ValueError(f"DemoConfig.epochs must be at least 1, got {self.epochs}")
         if self.time_slots is not None and self.time_slots < 0:
             raise ValueError(f"DemoConfig.time_slots must be at least 0, got {self.time_slots}")
+        if self.dense_weight is not None and self.dense_weight < 0:
+            raise ValueError(f"DemoConfig.dense_weight must be at least 0, got {self.dense_weight}")
         # Refused here, before the stages run, rather than by `train` half way through the demo.
         hard_negative_kinds(self.hard_negatives, "DemoConfig.hard_negatives")
 
@@ -134,7 +143,8 @@ class DemoConfig:
         """Smallest sizes that still run every stage (a smoke run, not a measurement)."""
         # The tiny model's 32 dimensions hold no time slots, and its scratch text tower no steps.
         return DemoConfig(logs=3, duration_s=12.0, frames_per_clip=8, epochs=1, train_preset="tiny", batch_size=None,
-                          extra_logs=2, time_slots=None, hard_negatives=())
+                          extra_logs=2, time_slots=None, hard_negatives=(), dense_weight=None,
+                          track_velocity=False)
 
 
 class DemoStageError(RuntimeError):
@@ -193,7 +203,8 @@ class Demo:
                          "test_fraction": c.test_fraction}
         upto["train"] = {**upto["clips"], "epochs": c.epochs, "train_preset": c.train_preset,
                          "batch_size": c.batch_size, "tag_weight": c.tag_weight, "camera_share": c.camera_share,
-                         "time_slots": c.time_slots, "hard_negatives": list(c.hard_negatives)}
+                         "time_slots": c.time_slots, "hard_negatives": list(c.hard_negatives),
+                         "dense_weight": c.dense_weight, "track_velocity": c.track_velocity}
         upto["index"] = upto["train"]
         upto["eval"] = upto["train"]
         upto["report"] = {**upto["train"], "queries": list(c.queries), "top_k": c.top_k}
@@ -310,6 +321,10 @@ class Demo:
             args += ["--time-slots", self.config.time_slots]
         if self.config.hard_negatives:
             args += ["--hard-negatives", *self.config.hard_negatives]
+        if self.config.dense_weight is not None:
+            args += ["--dense-weight", self.config.dense_weight]
+        if self.config.track_velocity:
+            args.append("--track-velocity")
         self.command(args)
         return ""
 
@@ -361,7 +376,7 @@ def config_from_args(args: argparse.Namespace) -> DemoConfig:
     overrides: dict[str, Any] = {}
     for name in ("logs", "duration_s", "test_fraction", "seed", "frames_per_clip", "camera_width_px",
                  "camera_height_px", "bev_resolution_m", "epochs", "batch_size", "tag_weight", "extra_logs",
-                 "map_less_share", "camera_share", "time_slots"):
+                 "map_less_share", "camera_share", "time_slots", "dense_weight", "track_velocity"):
         value = getattr(args, name, None)
         if value is not None:
             overrides[name] = value

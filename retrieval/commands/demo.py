@@ -38,6 +38,12 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--hard-negatives", nargs="+", metavar="EDIT", choices=[*edits, "none"],
                         help=f"edits of a clip's steps trained as extra negatives (default "
                         f"{' '.join(D.hard_negatives)}; none: in-batch negatives only)")
+    parser.add_argument("--dense-weight", type=float, metavar="W",
+                        help=f"weight of the per-frame tag loss on the track stream (default {D.dense_weight:g}; "
+                        f"0: no dense heads)")
+    parser.add_argument("--track-velocity", action=argparse.BooleanOptionalAction,
+                        help=f"give the track stream the object's velocity relative to the ego "
+                        f"(default {'on' if D.track_velocity else 'off'})")
     parser.add_argument("--no-sensors", action="store_true", help="skip LiDAR/camera rendering (BEV from boxes)")
     parser.add_argument("--extra-logs", type=int, metavar="N",
                         help=f"extra training-only logs, simulated without sensors (default {D.extra_logs})")

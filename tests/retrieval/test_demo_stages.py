@@ -12,6 +12,7 @@ import pytest
 from retrieval_fakes import FakeEmbedder, HashTextEncoder
 
 from encoders.clips.config import BevClipConfig, CameraClipConfig, ClipsConfig, SplitConfig
+from retrieval.commands import demo as demo_command
 from retrieval.demo import EXTRA_SEED_OFFSET, STAGES, Demo, DemoConfig, config_from_args
 from retrieval.embedding import model_hash
 from retrieval.evaluation import evaluate
@@ -76,6 +77,8 @@ def test_stages_run_in_order_with_sizes(tmp_path: Path) -> None:
     # The demo's model: time slots, trained with the reversed-step captions as negatives.
     assert train[train.index("--time-slots") + 1] == "4"
     assert train[train.index("--hard-negatives") + 1:][:1] == ["reverse"]
+    # ... with per-frame tag heads on the track stream, which reads the object's velocity.
+    assert train[train.index("--dense-weight") + 1] == "1.0" and "--track-velocity" in train
 
 
 def test_resume_skips_complete_stages_and_reruns_after_a_change(tmp_path: Path) -> None:
@@ -107,6 +110,12 @@ def test_resume_skips_complete_stages_and_reruns_after_a_change(tmp_path: Path) 
     assert [c[0] for c in one_vector.calls] == ["train", "index", "eval", "report"]
     train = one_vector.calls[0]
     assert train[train.index("--time-slots") + 1] == "0" and "--hard-negatives" not in train
+    # Without the dense heads and the velocity features: retrained, and neither flag reaches `train`.
+    sparse = _demo(tmp_path, DemoConfig(logs=2, duration_s=10, epochs=5, map_less_share=1.0, camera_share=0.5,
+                                        time_slots=0, hard_negatives=(), dense_weight=None, track_velocity=False))
+    sparse.run()
+    assert [c[0] for c in sparse.calls] == ["train", "index", "eval", "report"]
+    assert "--dense-weight" not in sparse.calls[0] and "--track-velocity" not in sparse.calls[0]
     # Without extra logs, none is simulated, and those of the settings before are gone.
     assert fewer_maps.extra_logs_dir.is_dir()
     alone = _demo(tmp_path, DemoConfig(logs=2, duration_s=10, epochs=5, extra_logs=0))
@@ -118,12 +127,23 @@ def test_resume_skips_complete_stages_and_reruns_after_a_change(tmp_path: Path) 
 def test_config_from_flags() -> None:
     args = argparse.Namespace(quick=True, logs=None, duration_s=None, seed=None, frames_per_clip=None, epochs=4,
                               no_sensors=True, query=["a bus stops"], map_less_share=0.25, extra_logs=5,
-                              camera_share=0.4, time_slots=None, hard_negatives=None)
+                              camera_share=0.4, time_slots=None, hard_negatives=None, dense_weight=None,
+                              track_velocity=None)
     config = config_from_args(args)
     assert config.logs == DemoConfig.quick().logs and config.epochs == 4 and config.map_less_share == 0.25
     assert config.extra_logs == 5 and config.camera_share == 0.4
     # --quick trains the tiny model: one vector, no step edits.
     assert config.time_slots is None and config.hard_negatives == ()
+    assert config.dense_weight is None and config.track_velocity is False
+    dense = config_from_args(argparse.Namespace(**{**vars(args), "dense_weight": 0.5, "track_velocity": True}))
+    assert dense.dense_weight == 0.5 and dense.track_velocity is True
+    plain = config_from_args(argparse.Namespace(**{**vars(args), "quick": False, "track_velocity": False}))
+    assert plain.track_velocity is False and plain.dense_weight == DemoConfig().dense_weight
+    parser = argparse.ArgumentParser()
+    demo_command.configure(parser)
+    parsed = config_from_args(parser.parse_args(["--out", "x", "--dense-weight", "0", "--no-track-velocity"]))
+    assert parsed.dense_weight == 0.0 and parsed.track_velocity is False
+    assert config_from_args(parser.parse_args(["--out", "x"])) == DemoConfig()
     flags = argparse.Namespace(**{**vars(args), "quick": False, "time_slots": 6, "hard_negatives": ["none"]})
     assert config_from_args(flags).time_slots == 6 and config_from_args(flags).hard_negatives == ()
     assert config_from_args(argparse.Namespace(**{**vars(flags), "hard_negatives": None})).hard_negatives == (
@@ -141,6 +161,8 @@ def test_config_from_flags() -> None:
         DemoConfig(extra_logs=-1)
     with pytest.raises(ValueError, match="time_slots must be at least 0"):
         DemoConfig(time_slots=-1)
+    with pytest.raises(ValueError, match="dense_weight must be at least 0"):
+        DemoConfig(dense_weight=-1.0)
     with pytest.raises(ValueError, match=r"hard_negatives: unknown \['backwards'\]"):
         DemoConfig(hard_negatives=("backwards",))
     with pytest.raises(ValueError, match="unknown stage 'deploy'"):

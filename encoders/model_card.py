@@ -25,6 +25,16 @@ def model_card(config: TrainConfig, history: list[dict[str, Any]], n_train: int,
             }.get(m.text.kind, f"scratch transformer ({m.text.scratch_layers} layers)")
     frozen = " (frozen, cached)" if m.text.kind != "scratch" and m.text.freeze else ""
     n_val = len(val_set) if val_set is not None else 0  # type: ignore[arg-type]
+    track = ""
+    if m.bev.track_features:
+        extra = [name for name, on in (("range", m.bev.track_range), ("velocity relative to the ego",
+                                                                      m.bev.track_velocity)) if on]
+        track = (f";\n  the object's own track ({m.bev.track_features} features per frame"
+                 f"{' + ' + ' and '.join(extra) if extra else ''}) through its own temporal transformer")
+    slots = (f"\n- Video time slots: each temporal stream pools its frame tokens into {m.time_slots} stretches of the "
+             f"clip, in order ({m.slot_dim} dims each)." if m.time_slots else "")
+    dense = (f";\n  per-frame rule tags (lane, motion, ego motion and direction) on the {', '.join(m.dense_streams)} "
+             f"stream's frame tokens, weight {config.dense_weight:g}" if config.dense_weight > 0 else "")
     return f"""# DualEncoder model card
 
 Text → clip and clip → clip retrieval of object behaviour in driving logs.
@@ -33,7 +43,7 @@ Text → clip and clip → clip retrieval of object behaviour in driving logs.
 - Text tower: {text}{frozen}, projection to D = {m.embed_dim}.
 - Camera tower: strided CNN {list(m.camera.widths)} over RGB + object mask, temporal transformer over frames.
 - BEV tower: LiDAR and map backbones {list(m.bev.widths)}, universal embedding E with D_e = {m.bev.embed_channels} at
-  1/{m.bev.downsample} resolution, object-masked pooling, temporal transformer with ego motion.
+  1/{m.bev.downsample} resolution, object-masked pooling, temporal transformer with ego motion{track}.{slots}
 - Fusion: mean of normalised views + MLP; modality dropout camera {m.fusion.drop_camera_p}, BEV {m.fusion.drop_bev_p};
   {camera_weight.describe()}.
 
@@ -41,7 +51,7 @@ Text → clip and clip → clip retrieval of object behaviour in driving logs.
 - Clips: `{clips_dir}`; {n_train} training clips, {n_val} validation clips.
 - Supervision: rule-based canonical captions{" (paraphrases as augmentation)" if config.augment else ""};
   positives: equal {config.positives}; loss: {config.loss};
-  hard negatives (edited steps): {", ".join(config.hard_negatives) or "none"}.
+  hard negatives (edited steps): {", ".join(config.hard_negatives) or "none"}{dense}.
 
 ## Training
 - {len(history)} epochs, batch {config.batch_size}, AdamW lr {config.lr}, seed {config.seed}.

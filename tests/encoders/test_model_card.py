@@ -1,0 +1,29 @@
+"""The model card says what the run trained: the track stream's inputs, the slots and the dense heads."""
+
+from __future__ import annotations
+
+import dataclasses
+
+from encoders.calibration import CameraWeightChoice
+from encoders.config import BevConfig, DualEncoderConfig, HardNegative, TextConfig, TrainConfig
+from encoders.model_card import model_card
+
+
+def _card(config: TrainConfig) -> str:
+    return model_card(config, [{"epoch": 1, "val": {"R@5": 0.5}}], 10, None, "clips/",
+                      CameraWeightChoice(0.0, {0.0: 0.7, 1.0: 0.6}))
+
+
+def test_card_names_the_track_inputs_the_time_slots_and_the_dense_heads() -> None:
+    model = DualEncoderConfig(time_slots=4, slot_dim=48, text=TextConfig(kind="slots"), dense_streams=("track",),
+                              bev=BevConfig(track_velocity=True))
+    card = _card(TrainConfig(model=model, dense_weight=1.0, hard_negatives=(HardNegative.REVERSE,)))
+    assert "the object's own track (11 features per frame + velocity relative to the ego)" in card
+    assert "pools its frame tokens into 4 stretches of the clip, in order (48 dims each)" in card
+    assert "per-frame rule tags (lane, motion, ego motion and direction) on the track stream's frame tokens, " \
+           "weight 1" in card
+    assert "hard negatives (edited steps): reverse" in card
+    plain = _card(TrainConfig(model=dataclasses.replace(model, time_slots=0, text=TextConfig(), dense_streams=(),
+                                                        bev=BevConfig(track_features=0))))
+    assert "own track" not in plain and "time slots" not in plain and "per-frame" not in plain
+    assert "hard negatives (edited steps): none." in plain

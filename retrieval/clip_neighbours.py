@@ -2,12 +2,13 @@
 
 Pure functions on (N, D) L2-normalised clip embeddings and each clip's action (its unified tag
 sequence as one string), appearance key (time of day, weather) and log, beside the analytic figures
-of random neighbours. :mod:`retrieval.evaluation` reports them for the model, its shuffled frames and
-the clips' own rule captions.
+of random neighbours and the ceiling a perfect ranking reaches. :mod:`retrieval.evaluation` reports them
+for the model, its shuffled frames and the clips' own rule captions.
 """
 
 from __future__ import annotations
 
+from collections import Counter
 from collections.abc import Sequence
 
 import numpy as np
@@ -46,12 +47,22 @@ def clip_to_clip_figures(x: np.ndarray, actions: Sequence[str], appearance: Sequ
     tiebreak = np.broadcast_to(np.random.default_rng(0).random(n), sim.shape)
     nn = np.lexsort((tiebreak, -sim), axis=1)[:, :k]
     figures = _neighbour_figures(nn, actions, appearance, k)
+    figures[f"action_precision@{k}_ceiling"] = action_precision_ceiling(actions, k)
     if logs is not None:
         same_log = _neighbour_figures(nn, actions, logs, k)
         figures["same_log_share_neighbours"] = same_log["appearance_share_neighbours"]
         figures["same_log_share_chance"] = same_log["appearance_share_chance"]
         figures.update(_other_log_figures(sim, tiebreak, actions, appearance, logs, k))
     return figures
+
+
+def action_precision_ceiling(actions: Sequence[str], k: int = 5) -> float:
+    """The action precision@k of a perfect ranking: a clip whose action n − 1 other clips share finds at
+    most min(k, n − 1) of them among its k neighbours, so where many actions occur once, even a perfect
+    embedding stays far below 1 (the figure to read ``action_precision@k`` against)."""
+    counts = Counter(actions)
+    k = min(k, len(actions) - 1)
+    return float(np.mean([min(k, counts[a] - 1) / k for a in actions])) if k > 0 else 0.0
 
 
 def _other_log_figures(sim: np.ndarray, tiebreak: np.ndarray, actions: Sequence[str], appearance: Sequence[str],

@@ -416,6 +416,8 @@ def metrics_table(metrics: dict[str, Any]) -> str:
                      fmt(get(base, "random", "clip_to_clip", key) if key != "same_log_share_neighbours"
                          else get(metrics, "clip_to_clip", "same_log_share_chance")),
                      fmt(get(rule, "clip_to_clip", key))])
+    ceiling = get(metrics, "clip_to_clip", "action_precision@5_ceiling")  # a perfect ranking's precision
+    body.append(["clip→clip action_precision@5 ceiling", fmt(ceiling), "", "", "", "", ""])
     widths = [max(len(r[i]) for r in [header, *body]) for i in range(len(header))]
     lines = ["  ".join(h.ljust(w) for h, w in zip(header, widths)), "  ".join("-" * w for w in widths)]
     lines.extend("  ".join(c.ljust(w) for c, w in zip(r, widths)).rstrip() for r in body)

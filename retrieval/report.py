@@ -185,7 +185,9 @@ def metrics_html(metrics: dict[str, Any]) -> str:
     rows.append(("temporal order accuracy", _fmt(metrics["temporal_order_accuracy"]["accuracy"]), "", "",
                  _fmt(base["bag_of_frames"]["temporal_order_accuracy"]["accuracy"]),
                  _fmt(base["random"]["temporal_order_accuracy"]["accuracy"])))
-    for key, note in (("action_precision@5", ""), ("appearance_bias", "lower is better")):
+    ceiling = metrics["clip_to_clip"].get("action_precision@5_ceiling")
+    best = f"(a perfect ranking: {_fmt(ceiling)})" if ceiling is not None else ""
+    for key, note in (("action_precision@5", best), ("appearance_bias", "lower is better")):
         rows.append((f"clip → clip {key} {note}".strip(), _fmt(metrics["clip_to_clip"][key]), "", "",
                      _fmt(base["bag_of_frames"]["clip_to_clip"][key]), _fmt(base["random"]["clip_to_clip"][key])))
     out = ["<table class='metrics'><tr>" + "".join(f"<th>{h}</th>" for h in head) + "</tr>"]

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from retrieval.clip_neighbours import clip_to_clip_figures, random_clip_to_clip
+from retrieval.clip_neighbours import action_precision_ceiling, clip_to_clip_figures, random_clip_to_clip
 
 
 def test_clip_to_clip_figures() -> None:
@@ -74,3 +74,15 @@ def test_other_log_figures_measure_appearance_apart_from_the_log() -> None:
     own = [f"look{i // 4}" for i in range(16)]
     assert clip_to_clip_figures(x, actions, own, k=3, logs=logs)["appearance_bias_other_logs"] is None
     assert random_clip_to_clip(actions, own, k=3, logs=logs)["appearance_bias_other_logs"] is None
+
+
+def test_ceiling_is_what_a_perfect_ranking_reaches() -> None:
+    # Three clips of "go", one of "stop", one of "turn": with k = 2 a "go" clip finds its two others, a
+    # "stop" or "turn" clip none, whatever the embedding.
+    actions = ["go", "go", "go", "stop", "turn"]
+    assert action_precision_ceiling(actions, k=2) == pytest.approx(3 / 5)
+    assert action_precision_ceiling(actions, k=5) == pytest.approx((3 * 2 / 4) / 5)  # k shrinks to N − 1 = 4
+    perfect = np.array([[1.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
+    figures = clip_to_clip_figures(perfect, actions, ["day"] * 5, k=2)
+    assert figures["action_precision@2"] == pytest.approx(figures["action_precision@2_ceiling"])
+    assert action_precision_ceiling(["go"], k=5) == 0.0

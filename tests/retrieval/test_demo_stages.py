@@ -189,6 +189,8 @@ def test_report(built: dict[str, Any], tmp_path: Path) -> None:
         assert (out / "plots" / png).stat().st_size > 1000
         assert f"plots/{png}" in page
     assert "text → clip R@1" in page and "bag of frames" in page
+    ceiling = metrics["clip_to_clip"]["action_precision@5_ceiling"]
+    assert f"clip → clip action_precision@5 (a perfect ranking: {ceiling:.3f})" in page
     # Previews are linked relative to the page.
     assert "../" in page and preview.name in page
     assert np.isfinite(x).all()

@@ -141,7 +141,9 @@ def test_evaluate_with_stand_in_model(tmp_path: Path) -> None:
     free = metrics["freeform"]
     assert free["queries"] == len(FREEFORM_QUERIES) and 0 < free["answered"] <= free["queries"]
     assert 0.0 <= free["precision@10"] <= 1.0
-    assert "action_precision@5" in metrics["clip_to_clip"] and "appearance_bias" in metrics["clip_to_clip"]
+    c2c = metrics["clip_to_clip"]
+    assert "action_precision@5" in c2c and "appearance_bias" in c2c
+    assert c2c["action_precision@5"] <= c2c["action_precision@5_ceiling"] <= 1.0  # no ranking beats a perfect one
     model, rnd = metrics["text_to_clip"], metrics["baselines"]["random"]["text_to_clip"]
     assert model["R@1"] > rnd["R@1"] + 0.3 and model["mAP"] > rnd["mAP"]
     order = metrics["temporal_order_accuracy"]

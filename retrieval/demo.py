@@ -25,7 +25,7 @@ from pathlib import Path
 from typing import Any
 
 from common.atomic import atomic_write_text
-from encoders.config import hard_negative_kinds
+from encoders.config import DENSE_STREAMS, hard_negative_kinds
 
 DEFAULT_QUERIES = (
     "a car in the left lane approaches, then moves into the ego lane",
@@ -71,9 +71,12 @@ class DemoConfig:
         hard_negatives: edits of each clip's steps whose captions train as extra negatives
             (``train --hard-negatives``; empty: in-batch negatives only). With the slots, the caption
             with its steps reversed is what teaches them order.
-        dense_weight: weight of the per-frame rule-tag loss on the track stream's frame tokens
+        dense_weight: weight of the per-frame rule-tag loss on the frame tokens of ``dense_streams``
             (``train --dense-weight``; 0 or None: no dense heads). The tags of every frame make the
             tokens that the slots pool carry the motion, not only the clip's one caption.
+        dense_streams: the temporal streams whose frame tokens carry those heads (``train
+            --dense-streams``): on the camera stream too, the camera tower alone learns the motion
+            that its one contrastive target hardly teaches it.
         track_velocity: give the track stream the object's velocity relative to the ego
             (``train --track-velocity``): what the dense heads read the motion from.
         train_preset: the trainer's preset (``default``; ``tiny`` for smoke runs), None for the trainer's choice.
@@ -106,6 +109,7 @@ class DemoConfig:
     time_slots: int | None = 4
     hard_negatives: tuple[str, ...] = ("reverse",)
     dense_weight: float | None = 1.0
+    dense_streams: tuple[str, ...] = ("camera", "track")
     track_velocity: bool = True
     train_preset: str | None = None
     sensors: bool = True
@@ -137,6 +141,9 @@ class DemoConfig:
             raise ValueError(f"DemoConfig.dense_weight must be at least 0, got {self.dense_weight}")
         # Refused here, before the stages run, rather than by `train` half way through the demo.
         hard_negative_kinds(self.hard_negatives, "DemoConfig.hard_negatives")
+        wrong = [s for s in self.dense_streams if s not in DENSE_STREAMS]
+        if wrong:
+            raise ValueError(f"DemoConfig.dense_streams: unknown {wrong} (choose from {list(DENSE_STREAMS)})")
 
     @staticmethod
     def quick() -> DemoConfig:
@@ -204,7 +211,8 @@ class Demo:
         upto["train"] = {**upto["clips"], "epochs": c.epochs, "train_preset": c.train_preset,
                          "batch_size": c.batch_size, "tag_weight": c.tag_weight, "camera_share": c.camera_share,
                          "time_slots": c.time_slots, "hard_negatives": list(c.hard_negatives),
-                         "dense_weight": c.dense_weight, "track_velocity": c.track_velocity}
+                         "dense_weight": c.dense_weight, "dense_streams": list(c.dense_streams),
+                         "track_velocity": c.track_velocity}
         upto["index"] = upto["train"]
         upto["eval"] = upto["train"]
         upto["report"] = {**upto["train"], "queries": list(c.queries), "top_k": c.top_k}
@@ -323,6 +331,8 @@ class Demo:
             args += ["--hard-negatives", *self.config.hard_negatives]
         if self.config.dense_weight is not None:
             args += ["--dense-weight", self.config.dense_weight]
+            if self.config.dense_weight > 0 and self.config.dense_streams:
+                args += ["--dense-streams", *self.config.dense_streams]
         if self.config.track_velocity:
             args.append("--track-velocity")
         self.command(args)
@@ -384,6 +394,8 @@ def config_from_args(args: argparse.Namespace) -> DemoConfig:
         overrides["sensors"] = False
     if args.query:
         overrides["queries"] = tuple(args.query)
+    if getattr(args, "dense_streams", None) is not None:
+        overrides["dense_streams"] = tuple(args.dense_streams)
     if getattr(args, "hard_negatives", None) is not None:
         overrides["hard_negatives"] = tuple(e for e in args.hard_negatives if e != "none")
     return replace(base, **overrides)

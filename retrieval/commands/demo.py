@@ -9,7 +9,7 @@ HELP = "simulate, caption, build clips, train, index and evaluate a small city; 
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
-    from encoders.config import HardNegative
+    from encoders.config import DENSE_STREAMS, HardNegative
     from retrieval.demo import VAL_FRACTION
     from retrieval.demo import DemoConfig as D  # the defaults the help shows
 
@@ -39,8 +39,11 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help=f"edits of a clip's steps trained as extra negatives (default "
                         f"{' '.join(D.hard_negatives)}; none: in-batch negatives only)")
     parser.add_argument("--dense-weight", type=float, metavar="W",
-                        help=f"weight of the per-frame tag loss on the track stream (default {D.dense_weight:g}; "
-                        f"0: no dense heads)")
+                        help=f"weight of the per-frame tag loss on the streams' frame tokens (default "
+                        f"{D.dense_weight:g}; 0: no dense heads)")
+    parser.add_argument("--dense-streams", nargs="+", metavar="STREAM", choices=list(DENSE_STREAMS),
+                        help=f"streams whose frame tokens carry the per-frame tag heads (default "
+                        f"{' '.join(D.dense_streams)})")
     parser.add_argument("--track-velocity", action=argparse.BooleanOptionalAction,
                         help=f"give the track stream the object's velocity relative to the ego "
                         f"(default {'on' if D.track_velocity else 'off'})")

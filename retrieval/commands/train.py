@@ -23,7 +23,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from encoders.config import HardNegative
+from encoders.config import DENSE_STREAMS, HardNegative
 
 HELP = "train the dual text/video encoder on a clips folder (contrastive, multi-positive)"
 
@@ -61,6 +61,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--dense-weight", type=float, metavar="W",
                         help="weight of the per-frame rule-tag loss on the temporal streams' frame tokens (heads on "
                              "the track stream unless the config names model.dense_streams)")
+    parser.add_argument("--dense-streams", nargs="+", metavar="STREAM", choices=list(DENSE_STREAMS),
+                        help=f"temporal streams whose frame tokens carry the per-frame tag heads "
+                             f"({', '.join(DENSE_STREAMS)}; model.dense_streams)")
     parser.add_argument("--track-velocity", action="store_true",
                         help="give the track stream the object's velocity relative to the ego and its range rates "
                              "(model.bev.track_velocity; what the dense heads read motion from)")
@@ -102,6 +105,9 @@ def build_config(args: argparse.Namespace) -> Any:
         config = dataclasses.replace(config, shuffle_frames=True)
     if args.hard_negatives is not None:
         config = dataclasses.replace(config, hard_negatives=tuple(args.hard_negatives))
+    if args.dense_streams is not None:
+        config = dataclasses.replace(config, model=dataclasses.replace(config.model,
+                                                                       dense_streams=tuple(args.dense_streams)))
     if args.dense_weight is not None:
         model = config.model
         if args.dense_weight > 0 and not model.dense_streams:

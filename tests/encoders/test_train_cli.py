@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import json
 import zlib
 from collections.abc import Sequence
@@ -157,3 +158,16 @@ def test_frame_tag_figures_of_perfect_heads(tagged_clips_dir: Path, monkeypatch:
     # Lead, parked and follower in every frame: two of three in a lane other than the left.
     assert figures["majority"]["motion"] == pytest.approx(1 / 3)
     assert frame_tag_figures(DualEncoder(tiny), dataset) == {}
+
+
+def test_dense_streams_flag_names_the_streams_with_heads(tmp_path: Path) -> None:
+    from retrieval.commands import train as train_command
+
+    parser = argparse.ArgumentParser()
+    train_command.configure(parser)
+    base = ["clips", "--out", str(tmp_path / "run"), "--dense-weight", "1"]
+    assert train_command.build_config(parser.parse_args(base)).model.dense_streams == ("track",)  # the default
+    both = train_command.build_config(parser.parse_args([*base, "--dense-streams", "track", "camera"]))
+    assert both.model.dense_streams == ("camera", "track") and both.dense_weight == 1.0  # in DENSE_STREAMS order
+    with pytest.raises(SystemExit):
+        parser.parse_args([*base, "--dense-streams", "lidar"])

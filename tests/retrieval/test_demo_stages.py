@@ -77,8 +77,9 @@ def test_stages_run_in_order_with_sizes(tmp_path: Path) -> None:
     # The demo's model: time slots, trained with the reversed-step captions as negatives.
     assert train[train.index("--time-slots") + 1] == "4"
     assert train[train.index("--hard-negatives") + 1:][:1] == ["reverse"]
-    # ... with per-frame tag heads on the track stream, which reads the object's velocity.
+    # ... with per-frame tag heads on the camera and track streams; the track stream reads the velocity.
     assert train[train.index("--dense-weight") + 1] == "1.0" and "--track-velocity" in train
+    assert train[train.index("--dense-streams") + 1:][:2] == ["camera", "track"]
 
 
 def test_resume_skips_complete_stages_and_reruns_after_a_change(tmp_path: Path) -> None:
@@ -116,6 +117,14 @@ def test_resume_skips_complete_stages_and_reruns_after_a_change(tmp_path: Path) 
     sparse.run()
     assert [c[0] for c in sparse.calls] == ["train", "index", "eval", "report"]
     assert "--dense-weight" not in sparse.calls[0] and "--track-velocity" not in sparse.calls[0]
+    assert "--dense-streams" not in sparse.calls[0]
+    # Heads on the track stream alone: another model, retrained.
+    track_only = _demo(tmp_path, DemoConfig(logs=2, duration_s=10, epochs=5, map_less_share=1.0, camera_share=0.5,
+                                            time_slots=0, hard_negatives=(), dense_streams=("track",)))
+    track_only.run()
+    assert [c[0] for c in track_only.calls] == ["train", "index", "eval", "report"]
+    train = track_only.calls[0]
+    assert train[train.index("--dense-streams") + 1:][:2] == ["track", "--track-velocity"]
     # Without extra logs, none is simulated, and those of the settings before are gone.
     assert fewer_maps.extra_logs_dir.is_dir()
     alone = _demo(tmp_path, DemoConfig(logs=2, duration_s=10, epochs=5, extra_logs=0))
@@ -128,7 +137,7 @@ def test_config_from_flags() -> None:
     args = argparse.Namespace(quick=True, logs=None, duration_s=None, seed=None, frames_per_clip=None, epochs=4,
                               no_sensors=True, query=["a bus stops"], map_less_share=0.25, extra_logs=5,
                               camera_share=0.4, time_slots=None, hard_negatives=None, dense_weight=None,
-                              track_velocity=None)
+                              track_velocity=None, dense_streams=None)
     config = config_from_args(args)
     assert config.logs == DemoConfig.quick().logs and config.epochs == 4 and config.map_less_share == 0.25
     assert config.extra_logs == 5 and config.camera_share == 0.4
@@ -143,6 +152,7 @@ def test_config_from_flags() -> None:
     demo_command.configure(parser)
     parsed = config_from_args(parser.parse_args(["--out", "x", "--dense-weight", "0", "--no-track-velocity"]))
     assert parsed.dense_weight == 0.0 and parsed.track_velocity is False
+    assert config_from_args(parser.parse_args(["--out", "x", "--dense-streams", "track"])).dense_streams == ("track",)
     assert config_from_args(parser.parse_args(["--out", "x"])) == DemoConfig()
     flags = argparse.Namespace(**{**vars(args), "quick": False, "time_slots": 6, "hard_negatives": ["none"]})
     assert config_from_args(flags).time_slots == 6 and config_from_args(flags).hard_negatives == ()
@@ -163,6 +173,8 @@ def test_config_from_flags() -> None:
         DemoConfig(time_slots=-1)
     with pytest.raises(ValueError, match="dense_weight must be at least 0"):
         DemoConfig(dense_weight=-1.0)
+    with pytest.raises(ValueError, match=r"dense_streams: unknown \['lidar'\]"):
+        DemoConfig(dense_streams=("lidar",))
     with pytest.raises(ValueError, match=r"hard_negatives: unknown \['backwards'\]"):
         DemoConfig(hard_negatives=("backwards",))
     with pytest.raises(ValueError, match="unknown stage 'deploy'"):

@@ -39,6 +39,14 @@ class ConfigMismatchError(ConfigError):
     """A run is resumed with a configuration different from the one it was started with."""
 
 
+def dense_stream_names(names: Sequence[str], where: str) -> tuple[str, ...]:
+    """``names`` in :data:`DENSE_STREAMS` order, without repeats; :class:`ConfigError` names an unknown one."""
+    wrong = [str(s) for s in names if s not in DENSE_STREAMS]
+    if wrong:
+        raise ConfigError(f"{where}: unknown {wrong} (choose from {list(DENSE_STREAMS)})")
+    return tuple(s for s in DENSE_STREAMS if s in names)
+
+
 def check_device_name(name: str, what: str = "device") -> None:
     """Raise :class:`ConfigError` unless ``name`` is ``auto``, ``cpu`` or ``cuda[:i]``."""
     if re.fullmatch(r"auto|cpu|cuda(:\d+)?", name) is None:
@@ -274,13 +282,10 @@ class DualEncoderConfig(EncodersConfig):
         if (self.time_slots > 0) != (self.text.kind == "slots"):
             raise ConfigError("DualEncoderConfig: time_slots > 0 and model.text.kind: slots go together "
                               f"(got time_slots {self.time_slots}, text kind {self.text.kind!r})")
-        streams = tuple(str(s) for s in self.dense_streams)
-        wrong = [s for s in streams if s not in DENSE_STREAMS]
-        if wrong:
-            raise ConfigError(f"DualEncoderConfig.dense_streams: unknown {wrong} (choose from {list(DENSE_STREAMS)})")
+        streams = dense_stream_names(self.dense_streams, "DualEncoderConfig.dense_streams")
         if "track" in streams and not self.bev.track_features:
             raise ConfigError("DualEncoderConfig.dense_streams: 'track' needs the track stream (bev.track_features)")
-        object.__setattr__(self, "dense_streams", tuple(s for s in DENSE_STREAMS if s in streams))
+        object.__setattr__(self, "dense_streams", streams)
 
 
 class HardNegative(StrEnum):
@@ -439,12 +444,7 @@ def tiny_model_config(lidar_channels: int = 5, map_channels: int = 6) -> DualEnc
         embed_dim=32,
         text=TextConfig(kind="scratch", scratch_vocab=512, scratch_width=32, scratch_layers=1),
         camera=CameraConfig(widths=(8, 16), temporal=temporal),
-        bev=BevConfig(
-            lidar_channels=lidar_channels,
-            map_channels=map_channels,
-            widths=(8, 16),
-            embed_channels=16,
-            temporal=temporal,
-        ),
+        bev=BevConfig(lidar_channels=lidar_channels, map_channels=map_channels, widths=(8, 16), embed_channels=16,
+                      temporal=temporal),
         fusion=FusionConfig(hidden=64),
     )

@@ -25,7 +25,7 @@ from pathlib import Path
 from typing import Any
 
 from common.atomic import atomic_write_text
-from encoders.config import DENSE_STREAMS, hard_negative_kinds
+from encoders.config import dense_stream_names, hard_negative_kinds
 
 DEFAULT_QUERIES = (
     "a car in the left lane approaches, then moves into the ego lane",
@@ -141,9 +141,7 @@ class DemoConfig:
             raise ValueError(f"DemoConfig.dense_weight must be at least 0, got {self.dense_weight}")
         # Refused here, before the stages run, rather than by `train` half way through the demo.
         hard_negative_kinds(self.hard_negatives, "DemoConfig.hard_negatives")
-        wrong = [s for s in self.dense_streams if s not in DENSE_STREAMS]
-        if wrong:
-            raise ValueError(f"DemoConfig.dense_streams: unknown {wrong} (choose from {list(DENSE_STREAMS)})")
+        dense_stream_names(self.dense_streams, "DemoConfig.dense_streams")
 
     @staticmethod
     def quick() -> DemoConfig:

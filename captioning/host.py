@@ -36,15 +36,31 @@ def host_kinematics(
         timestamps_ns: (T,) frame timestamps.
         city_SE3_ego: (T, 4, 4) ego poses at the frames.
     """
-    t = timestamps_ns.shape[0]
-    yaw_rad = np.unwrap(np.arctan2(city_SE3_ego[:, 1, 0], city_SE3_ego[:, 0, 0]))
-    values = np.stack([city_SE3_ego[:, 0, 3], city_SE3_ego[:, 1, 3], yaw_rad], axis=1)[None]  # (1, T, 3)
+    yaw_rad = np.arctan2(city_SE3_ego[:, 1, 0], city_SE3_ego[:, 0, 0])
+    return planar_kinematics(seconds_since_first(timestamps_ns), city_SE3_ego[:, :2, 3], yaw_rad,
+                             config.smoothing.window_frames, config.smoothing.polyorder)
+
+
+def planar_kinematics(t_s: FloatArray, xy_m: FloatArray, yaw_rad: FloatArray, window_frames: int,
+                      polyorder: int) -> HostKinematics:
+    """Speed, acceleration and yaw rate of a planar path, as the host rules see them.
+
+    The one home of the host's kinematics: the rules threshold them (:func:`classify_host`), and the
+    encoders read the same values (:mod:`encoders.clips.views`), so that pose noise a real log's
+    odometry adds is smoothed away alike for both.
+
+    Args:
+        t_s: (T,) sample times in seconds.
+        xy_m: (T, 2) positions.
+        yaw_rad: (T,) headings (unwrapped here).
+        window_frames, polyorder: the Savitzky–Golay filter (``smoothing`` of :class:`CaptioningConfig`).
+    """
+    t = xy_m.shape[0]
+    values = np.concatenate([xy_m, np.unwrap(yaw_rad)[:, None]], axis=1)[None]  # (1, T, 3)
     valid = np.ones((1, t), dtype=bool)
-    w, p = config.smoothing.window_frames, config.smoothing.polyorder
-    t_s = seconds_since_first(timestamps_ns)
-    d = time_derivative(values, valid, t_s, w, p)[0]  # (T, 3)
+    d = time_derivative(values, valid, t_s, window_frames, polyorder)[0]  # (T, 3)
     speed = np.hypot(d[:, 0], d[:, 1])
-    accel = time_derivative(speed[None, :, None], valid, t_s, w, p)[0, :, 0]
+    accel = time_derivative(speed[None, :, None], valid, t_s, window_frames, polyorder)[0, :, 0]
     return HostKinematics(speed_mps=speed, accel_mps2=accel, yaw_rate_rps=d[:, 2])
 
 

@@ -24,8 +24,8 @@ from encoders.config import BevConfig
 from encoders.fusion import TemporalEncoder
 from encoders.timeline import clip_head, read_clip
 
-#: Scales that bring ego_motion (x_m, y_m, yaw_rad, speed_mps) to about unit range.
-EGO_MOTION_SCALE = (50.0, 50.0, 3.14159, 20.0)
+#: Scales that bring ego_motion (x_m, y_m, yaw_rad, speed_mps, accel_mps2, yaw_rate_rps) to about unit range.
+EGO_MOTION_SCALE = (50.0, 50.0, 3.14159, 20.0, 2.0, 0.5)
 
 
 #: What ``BevConfig.track_range`` adds to each frame of the track: range, |x| and |y| from the ego.

@@ -166,23 +166,23 @@ class BevConfig(EncodersConfig):
         embed_channels: D_e, channels of E.
         downsample: r, E is at (H/r, W/r); 1, 2, 4 or 8 and at most the first stage's stride.
         temporal_kernel: kernel of the depthwise temporal convolution in the header (odd; 1 disables).
-        ego_features: per-frame ego-motion features fed to the temporal model (x, y, yaw, speed).
+        ego_features: the first of ``ego_motion``'s x, y, yaw, speed, smoothed acceleration and yaw rate
+            (:func:`encoders.clips.views.ego_motion`) that the temporal models read.
         temporal: the temporal model over frames.
         track_features: per-frame features of the object's own track (``object_track`` of a batch,
-            :func:`encoders.clips.views.object_track`) read by a second temporal model, whose clip
-            vector is added to the BEV one; 0 turns the track stream off. Without it the clip vector
-            must recover the object's motion from pooled raster features, where the scene's look
-            drowns it: text → clip R@5 on the demo's test split went 0.20 → 0.7 with it.
+            :func:`encoders.clips.views.object_track`) read by a second temporal model, whose clip vector is added to
+            the BEV one; 0 turns the track stream off. Without it the clip vector must recover the object's motion from
+            pooled raster features, where the scene's look drowns it: text → clip R@5 on the demo's test split went
+            0.20 → 0.7 with it.
         track: the temporal model over the track.
-        track_range: also give the track stream the object's range and its distances along and
-            across the ego's heading (and, as for every track feature, their change since the previous
-            frame). Approaching and moving away are signs of the range's change: a boosted-tree probe
-            on the demo's tracks needs these to read a clip's first and last motion (0.69 / 0.75 → 0.85
-            / 0.92 on the test split). In the dual encoder they moved the demo's figures less than one
-            seed's spread, so they are off by default.
-        track_velocity: also give the track stream the object's velocity relative to the ego (m/s,
-            ``object_velocity`` of a batch) and its range rates along x and y (velocity times the sign
-            of the position): what the motion rules threshold, whatever the clip's frame step.
+        track_range: also give the track stream the object's range and its distances along and across the ego's heading
+            (and, as for every track feature, their change since the previous frame). Approaching and moving away are
+            signs of the range's change: a boosted-tree probe on the demo's tracks needs these to read a clip's first
+            and last motion (0.69 / 0.75 → 0.85 / 0.92 on the test split). In the dual encoder they moved the demo's
+            figures less than one seed's spread, so they are off by default.
+        track_velocity: also give the track stream the object's velocity relative to the ego (m/s, ``object_velocity``
+            of a batch) and its range rates along x and y (velocity times the sign of the position): what the motion
+            rules threshold, whatever the clip's frame step.
     """
 
     lidar_channels: int = 5
@@ -193,7 +193,7 @@ class BevConfig(EncodersConfig):
     embed_channels: int = 64
     downsample: int = 2
     temporal_kernel: int = 3
-    ego_features: int = 4
+    ego_features: int = 6
     temporal: TemporalConfig = field(default_factory=TemporalConfig)
     track_features: int = 11
     track: TemporalConfig = field(default_factory=TemporalConfig)
@@ -211,11 +211,12 @@ class BevConfig(EncodersConfig):
             raise ConfigError(f"BevConfig.downsample must be 1, 2, 4 or 8 (<= 2**stages), got {self.downsample}")
         if self.temporal_kernel < 1 or self.temporal_kernel % 2 == 0:
             raise ConfigError(f"BevConfig.temporal_kernel must be odd and >= 1, got {self.temporal_kernel}")
+        if not 0 <= self.ego_features <= 6:
+            raise ConfigError(f"BevConfig.ego_features must be 0 to 6, got {self.ego_features}")
         if self.track_velocity and not self.track_features:
             raise ConfigError("BevConfig.track_velocity needs the track stream (track_features 11)")
         if self.track_features not in (0, 11):
-            raise ConfigError(f"BevConfig.track_features must be 11 (the object track) or 0 (off), "
-                              f"got {self.track_features}")
+            raise ConfigError(f"BevConfig.track_features must be 11 (the track) or 0 (off), got {self.track_features}")
         if self.lidar_channels < 1 or self.map_channels < 1 or self.embed_channels < 1:
             raise ConfigError("BevConfig.lidar_channels, map_channels and embed_channels must be >= 1")
 
@@ -274,8 +275,7 @@ class DualEncoderConfig(EncodersConfig):
         if self.embed_dim < 1:
             raise ConfigError(f"DualEncoderConfig.embed_dim must be >= 1, got {self.embed_dim}")
         if self.time_slots < 0 or self.slot_dim < 1:
-            raise ConfigError(f"DualEncoderConfig.time_slots must be >= 0 and slot_dim >= 1, got "
-                              f"{self.time_slots} and {self.slot_dim}")
+            raise ConfigError(f"DualEncoderConfig: time_slots {self.time_slots} < 0 or slot_dim {self.slot_dim} < 1")
         if self.time_slots and self.embed_dim - self.time_slots * self.slot_dim < 1:
             raise ConfigError(f"DualEncoderConfig: time_slots × slot_dim ({self.time_slots} × {self.slot_dim}) must "
                               f"leave global dimensions of embed_dim ({self.embed_dim})")

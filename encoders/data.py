@@ -15,8 +15,9 @@ of the bytes to move; :class:`~encoders.model.DualEncoder` converts them on its 
 - ``bev_lidar``: (T, Cl, Hb, Wb) float32 occupancy in [0, 1] per height bin
 - ``bev_map``: (T, Cm, Hb, Wb) float32 map layers in [0, 1]
 - ``bev_object``: (T, 1, Hb, Wb) float32, the object of interest's footprint
-- ``ego_motion``: (T, 4) float32 ``x_m, y_m, yaw_rad, speed_mps`` of each frame's ego pose in the
-  clip's first ego frame (every BEV grid is in its own frame's ego frame)
+- ``ego_motion``: (T, 6) float32 ``x_m, y_m, yaw_rad, speed_mps, accel_mps2, yaw_rate_rps``: each
+  frame's ego pose in the clip's first ego frame (every BEV grid is in its own frame's ego frame), its
+  speed, and its smoothed rates (:func:`encoders.clips.views.ego_motion`)
 - ``object_track``: (T, 11) float32, the object's own box through the clip relative to the ego and
   in the clip's first ego frame (:func:`encoders.clips.views.object_track`)
 - ``object_velocity``: (T, 2) float32 the object's velocity relative to the ego in each frame's ego
@@ -25,7 +26,7 @@ of the bytes to move; :class:`~encoders.model.DualEncoder` converts them on its 
   :data:`encoders.dense.DENSE_TASKS`, −1 where untagged (all −1 for a clip table without frame tags)
 
 Augmentation (seeded by ``(seed, epoch, index)``; call :meth:`ClipDataset.set_epoch`): paraphrased
-captions, one small rotation and translation of the whole BEV clip about the ego (``ego_motion`` is
+captions, one small rotation and translation of the whole BEV clip about the ego (``ego_motion``
 and ``object_track`` are rotated to match), colour jitter of the camera frames, and (with
 ``time_reversal_probability``) the clip played backwards under its reversed tags.
 """
@@ -46,6 +47,7 @@ from numpy.typing import NDArray
 from encoders.clips.frame_tags import FRAME_TAG_COLUMNS
 from encoders.clips.layout import grid_from_manifest, read_clip_table, read_manifest
 from encoders.clips.views import (
+    EGO_MOTION_FEATURES,
     OBJECT_TRACK_FEATURES,
     LogArrays,
     ego_motion,
@@ -219,7 +221,7 @@ class ClipDataset(torch.utils.data.Dataset[dict[str, Any]]):
         views = {key: _empty_batch((len(indices), *shape), torch.uint8) for key, shape in shapes.items()}
         slots = {key: tensor.numpy() for key, tensor in views.items()}
         t = shapes["camera"][0]
-        motion = _empty_batch((len(indices), t, 4), torch.float32)
+        motion = _empty_batch((len(indices), t, EGO_MOTION_FEATURES), torch.float32)
         track = _empty_batch((len(indices), t, OBJECT_TRACK_FEATURES), torch.float32)
         velocity = _empty_batch((len(indices), t, 2), torch.float32)
         targets = _empty_batch((len(indices), t, len(DENSE_TASKS)), torch.int64)
@@ -284,11 +286,12 @@ class ClipDataset(torch.utils.data.Dataset[dict[str, Any]]):
 
         obj = object_footprint(arrays, self._grid, row.track_id, fi)[:, None]  # (T, 1, H, W), 0/1
         obj *= np.uint8(255)
-        motion_out[:] = ego_motion(arrays.pose_xy_yaw, arrays.speed_mps, fi)
+        motion_out[:] = ego_motion(arrays.pose_xy_yaw, arrays.speed_mps, fi, arrays.accel_mps2, arrays.yaw_rate_rps)
         track_out[:] = object_track(arrays.track_boxes[fi, value - 1], motion_out)
         velocity_out[:] = object_velocity(arrays.track_boxes[:, value - 1, :2], arrays.time_s, fi)
         if backwards is not None:
             velocity_out *= -1.0  # played backwards, every velocity turns round
+            motion_out[:, 4:] *= -1.0  # and the ego's rates with it (accelerating ↔ decelerating, left ↔ right)
         if rng is None:
             np.take(arrays.bev_lidar, fi, axis=0, out=slot["bev_lidar"])  # memory map → batch, one copy
             np.take(arrays.bev_map, fi, axis=0, out=slot["bev_map"])

@@ -8,6 +8,7 @@ from typing import Any
 from torch.utils.data import Dataset
 
 from encoders.calibration import CameraWeightChoice
+from encoders.clips.views import EGO_MOTION_COLUMNS
 from encoders.config import TrainConfig
 
 
@@ -31,6 +32,7 @@ def model_card(config: TrainConfig, history: list[dict[str, Any]], n_train: int,
                                                                       m.bev.track_velocity)) if on]
         track = (f";\n  the object's own track ({m.bev.track_features} features per frame"
                  f"{' + ' + ' and '.join(extra) if extra else ''}) through its own temporal transformer")
+    ego = f"ego motion ({', '.join(EGO_MOTION_COLUMNS[: m.bev.ego_features]) or 'none'})"
     slots = (f"\n- Video time slots: each temporal stream pools its frame tokens into {m.time_slots} stretches of the "
              f"clip, in order ({m.slot_dim} dims each)." if m.time_slots else "")
     dense = (f";\n  per-frame rule tags (lane, motion, ego motion and direction) on the {', '.join(m.dense_streams)} "
@@ -43,7 +45,7 @@ Text → clip and clip → clip retrieval of object behaviour in driving logs.
 - Text tower: {text}{frozen}, projection to D = {m.embed_dim}.
 - Camera tower: strided CNN {list(m.camera.widths)} over RGB + object mask, temporal transformer over frames.
 - BEV tower: LiDAR and map backbones {list(m.bev.widths)}, universal embedding E with D_e = {m.bev.embed_channels} at
-  1/{m.bev.downsample} resolution, object-masked pooling, temporal transformer with ego motion{track}.{slots}
+  1/{m.bev.downsample} resolution, object-masked pooling, temporal transformer with {ego}{track}.{slots}
 - Fusion: mean of normalised views + MLP; modality dropout camera {m.fusion.drop_camera_p}, BEV {m.fusion.drop_bev_p};
   {camera_weight.describe()}.
 

@@ -12,7 +12,7 @@ cover the same places.
 
 Items follow the dataset contract of :mod:`encoders.data` (``camera`` (T, 4, Hc, Wc) RGB with the
 object highlighted + mask channel, ``bev_lidar`` (T, Cl, Hb, Wb), ``bev_map`` (T, Cm, Hb, Wb),
-``bev_object`` (T, 1, Hb, Wb), ``ego_motion`` (T, 4), ``object_track`` (T, 11), ``object_velocity``
+``bev_object`` (T, 1, Hb, Wb), ``ego_motion`` (T, 6), ``object_track`` (T, 11), ``object_velocity``
 (T, 2), captions and tags).
 Rendering is vectorised over frames; every item is a pure function of (seed, split, index).
 """
@@ -28,7 +28,7 @@ import torch
 from torch.utils.data import Dataset
 
 from encoders.clips.layout import clip_id
-from encoders.clips.views import object_track, object_velocity
+from encoders.clips.views import EGO_MOTION_FEATURES, object_track, object_velocity
 
 #: Seconds between a synthetic clip's frames.
 FRAME_STEP_S = 0.1
@@ -162,7 +162,7 @@ class SyntheticClipDataset(Dataset[dict[str, Any]]):
         x_m, y_m = trajectory(rec["steps"], t, rng)  # (T,), (T,)
         length_m, width_m = CATEGORIES[rec["category"]]
         speed = float(rng.uniform(*s.ego_speed_mps))
-        ego = np.zeros((t, 4), np.float32)
+        ego = np.zeros((t, EGO_MOTION_FEATURES), np.float32)  # constant speed, straight: no rates
         ego[:, 0] = speed * FRAME_STEP_S * np.arange(t)
         ego[:, 3] = speed
         # Distractors: static relative to the road, so they move back by the ego's travel.
@@ -245,7 +245,7 @@ def render_bev(s: SyntheticSpec, boxes: ClipBoxes, rng: np.random.Generator) -> 
 
 
 def render_map(s: SyntheticSpec, ego: np.ndarray) -> np.ndarray:
-    """ego: (T, 4) → bev_map (T, Cm, H, W): drivable area, lane boundaries, dashed markings moving with the ego."""
+    """ego: (T, 6) → bev_map (T, Cm, H, W): drivable area, lane boundaries, dashed markings moving with the ego."""
     gx, gy = _grid(s)
     t = len(ego)
     out = np.zeros((t, s.map_channels, *s.bev_hw), np.float32)

@@ -1,10 +1,14 @@
-"""The object's own track through a clip (encoders.clips.views.object_track)."""
+"""A clip's track and ego-motion features (encoders.clips.views: object_track, object_velocity, ego_motion)."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from encoders.clips.views import object_track, rotate_object_track
+from captioning.config import CaptioningConfig
+from captioning.host import classify_host, host_kinematics
+from captioning.tags import HOST_DIRECTIONS, HOST_MOTIONS, HostDirection, HostMotion
+from encoders.clips.views import EGO_MOTION_FEATURES, ego_motion, ego_rates, object_track, rotate_object_track
+from scenes.geometry import SE3
 
 
 def test_track_relative_and_ground_fixed() -> None:
@@ -55,3 +59,48 @@ def test_object_velocity_from_the_logs_neighbouring_frames() -> None:
     alone = np.full((3, 2), np.nan)
     alone[1] = (5.0, 5.0)
     np.testing.assert_array_equal(object_velocity(alone, time_s[:3], np.array([1])), [[0.0, 0.0]])
+
+
+def _arc(t_s: np.ndarray, speed_mps: np.ndarray, yaw_rate_rps: float) -> np.ndarray:
+    """(F, 3) x, y, yaw of a path at the given speeds turning at a constant rate."""
+    dt = np.diff(t_s, prepend=t_s[0])
+    yaw = yaw_rate_rps * t_s
+    x = np.cumsum(speed_mps * np.cos(yaw) * dt)
+    y = np.cumsum(speed_mps * np.sin(yaw) * dt)
+    return np.stack([x, y, yaw], axis=1)
+
+
+def test_ego_rates_are_the_host_rules_kinematics() -> None:
+    """Braking at 2 m/s² through a left bend at 0.2 rad/s, with 5 cm of odometry noise: the smoothed rates are
+    the true ones, where differencing the raw speed between a clip's frames gives nothing usable; and they are
+    exactly what the captioning rules threshold (captioning.host), so a model reads what the tags are made of."""
+    t_s = np.arange(80) * 0.1
+    pose = _arc(t_s, 20.0 - 2.0 * t_s, 0.2)
+    pose[:, :2] += np.random.default_rng(0).normal(0.0, 0.05, size=(len(t_s), 2))
+    accel, yaw_rate = ego_rates(t_s, pose)
+    inner = slice(10, -10)
+    np.testing.assert_allclose(accel[inner], -2.0, atol=0.6)
+    np.testing.assert_allclose(yaw_rate[inner], 0.2, atol=0.01)
+    raw_speed = np.linalg.norm(np.gradient(pose[:, :2], t_s, axis=0), axis=1)
+    assert np.abs(np.gradient(raw_speed, t_s)[inner] + 2.0).max() > 3.0  # the raw derivative: noise
+    city_SE3_ego = np.stack([SE3.from_yaw(yaw, np.array([x, y, 0.0])).matrix for x, y, yaw in pose])
+    kin = host_kinematics((t_s * 1e9).astype(np.int64), city_SE3_ego, CaptioningConfig())
+    np.testing.assert_allclose(accel, kin.accel_mps2, atol=1e-9)
+    np.testing.assert_allclose(yaw_rate, kin.yaw_rate_rps, atol=1e-9)
+    motion, direction = classify_host(kin, CaptioningConfig())
+    assert set(motion[inner]) == {HOST_MOTIONS.index(HostMotion.DECELERATING)}
+    assert set(direction[inner]) == {HOST_DIRECTIONS.index(HostDirection.STEERING_LEFT)}
+
+
+def test_ego_motion_samples_the_rates_at_the_clip_frames() -> None:
+    t_s = np.arange(40) * 0.1
+    pose = _arc(t_s, np.full(40, 10.0), -0.1)
+    accel, yaw_rate = ego_rates(t_s, pose)
+    indices = np.arange(0, 40, 4)
+    m = ego_motion(pose, np.full(40, 10.0), indices, accel, yaw_rate)
+    assert m.shape == (10, EGO_MOTION_FEATURES) and m.dtype == np.float32
+    np.testing.assert_allclose(m[:, 4:], np.stack([accel, yaw_rate], axis=1)[indices], atol=1e-6)
+    np.testing.assert_allclose(m[:, 5], -0.1, atol=1e-4)
+    np.testing.assert_array_equal(ego_motion(pose, np.full(40, 10.0), indices)[:, 4:], 0.0)  # rates not given
+    # A log of one frame has nothing to differentiate: zeros, not NaN.
+    assert [r.tolist() for r in ego_rates(np.zeros(1), pose[:1])] == [[0.0], [0.0]]

@@ -14,6 +14,7 @@ from encoders.clips.build import build_clips
 from encoders.clips.config import ClipsConfig
 from encoders.clips.layout import parse_clip_id, read_clip_table, read_manifest
 from encoders.clips.testing import synthetic_captions, synthetic_frame_tags, write_synthetic_log
+from encoders.clips.views import EGO_MOTION_FEATURES
 from encoders.data import AugmentConfig, ClipDataset, collate_clips
 from encoders.dense import DENSE_TASKS
 from encoders.negatives import render_caption
@@ -48,7 +49,7 @@ def test_items_have_the_interface_shapes_and_value_ranges(clips_dir: Path) -> No
     assert item["camera"].shape == (t, 4, manifest["camera"]["height_px"], manifest["camera"]["width_px"])
     assert item["bev_lidar"].shape == (t, len(manifest["bev"]["lidar_channels"]), hb, wb)
     assert item["bev_map"].shape == (t, len(manifest["bev"]["map_channels"]), hb, wb)
-    assert item["bev_object"].shape == (t, 1, hb, wb) and item["ego_motion"].shape == (t, 4)
+    assert item["bev_object"].shape == (t, 1, hb, wb) and item["ego_motion"].shape == (t, EGO_MOTION_FEATURES)
     assert item["object_track"].shape == (t, 11) and item["object_track"].dtype == torch.float32
     for key in ("camera", "bev_lidar", "bev_map", "bev_object"):
         assert item[key].dtype == torch.float32 and float(item[key].min()) >= 0.0 and float(item[key].max()) <= 1.0
@@ -104,7 +105,7 @@ def test_augmentation_is_seeded_and_moves_the_bev_consistently(clips_dir: Path) 
     m0, m1 = plain[index]["ego_motion"].numpy(), x["ego_motion"].numpy()
     np.testing.assert_allclose(np.linalg.norm(m1[:, :2], axis=1), np.linalg.norm(m0[:, :2], axis=1), atol=1e-4)
     np.testing.assert_allclose(np.arctan2(m1[-1, 1], m1[-1, 0]), theta, atol=1e-4)
-    np.testing.assert_allclose(m1[:, 3], m0[:, 3])
+    np.testing.assert_allclose(m1[:, 3:], m0[:, 3:])  # speed and rates: the rotation changes none of them
     # The object's track turns with them: positions and headings, relative and ground-fixed alike.
     k0, k1 = plain[index]["object_track"].numpy(), x["object_track"].numpy()
     rot = np.array([[np.cos(theta), -np.sin(theta)], [np.sin(theta), np.cos(theta)]])
@@ -163,6 +164,7 @@ def test_time_reversal_plays_the_clip_backwards_under_its_reversed_caption(clips
         m0, m1 = x["ego_motion"].numpy(), y["ego_motion"].numpy()
         np.testing.assert_allclose(m1[0, :3], 0.0, atol=1e-6)
         np.testing.assert_allclose(m1[:, 3], m0[::-1, 3])
+        np.testing.assert_allclose(m1[:, 4:], -m0[::-1, 4:])  # accelerating ↔ decelerating, left ↔ right
         np.testing.assert_allclose(np.linalg.norm(m1[-1, :2]), np.linalg.norm(m0[-1, :2]), atol=1e-4)
         np.testing.assert_array_equal(y["object_track"].numpy()[:, :4], x["object_track"].numpy()[::-1, :4])
     # Half the clips, drawn per (seed, epoch, clip): a draw like any other augmentation.

@@ -1,4 +1,4 @@
-"""The model card says what the run trained: the track stream's inputs, the slots and the dense heads."""
+"""The model card says what the run trained: the ego and track inputs, the slots and the dense heads."""
 
 from __future__ import annotations
 
@@ -23,7 +23,10 @@ def test_card_names_the_track_inputs_the_time_slots_and_the_dense_heads() -> Non
     assert "per-frame rule tags (lane, motion, ego motion and direction) on the track stream's frame tokens, " \
            "weight 1" in card
     assert "hard negatives (edited steps): reverse" in card
+    assert "temporal transformer with ego motion (x_m, y_m, yaw_rad, speed_mps, accel_mps2, yaw_rate_rps)" in card
     plain = _card(TrainConfig(model=dataclasses.replace(model, time_slots=0, text=TextConfig(), dense_streams=(),
                                                         bev=BevConfig(track_features=0))))
     assert "own track" not in plain and "time slots" not in plain and "per-frame" not in plain
     assert "hard negatives (edited steps): none." in plain
+    older = _card(TrainConfig(model=dataclasses.replace(model, bev=BevConfig(ego_features=4))))
+    assert "temporal transformer with ego motion (x_m, y_m, yaw_rad, speed_mps);" in older

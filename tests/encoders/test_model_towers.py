@@ -279,3 +279,25 @@ def test_dense_heads_read_the_frame_tokens_of_each_stream(batch: dict[str, Any])
         assert x.shape == (b, t, sum(len(c) for c in DENSE_TASKS.values()))
     with pytest.raises(ConfigError, match="dense_streams: unknown \\['lidar'\\]"):
         replace(tiny_model_config(), dense_streams=("lidar",))
+
+
+def test_ego_rates_reach_the_bev_tower_and_older_models_read_the_pose_and_speed_only(batch: dict[str, Any]) -> None:
+    """With ``ego_features`` 6 the temporal models read the ego's smoothed acceleration and yaw rate (scaled to
+    about unit range); a model configured before them (4) reads the first four columns of the same batch."""
+    from encoders.bev import EGO_MOTION_SCALE
+
+    config = tiny_model_config()
+    assert config.bev.ego_features == 6 == batch["ego_motion"].shape[-1] == len(EGO_MOTION_SCALE)
+    new = DualEncoder(config).eval()
+    old = DualEncoder(replace(config, bev=replace(config.bev, ego_features=4))).eval()
+    track, ego = batch["object_track"], batch["ego_motion"].clone()
+    ego[..., 4], ego[..., 5] = -2.0, 0.25  # braking at 2 m/s² through a left bend
+    features = new.bev.track_features(track, ego)  # (B, T, 2 F + 6)
+    torch.testing.assert_close(features[..., -2:], torch.tensor([-1.0, 0.5]).expand_as(features[..., -2:]))
+    assert old.bev.track_features(track, ego).shape[-1] == features.shape[-1] - 2
+    steady = {**batch, "ego_motion": ego * torch.tensor([1.0, 1, 1, 1, 0, 0])}
+    with torch.no_grad():
+        assert not torch.allclose(new.encode_video({**batch, "ego_motion": ego}, view="bev"),
+                                  new.encode_video(steady, view="bev"))
+        torch.testing.assert_close(old.encode_video({**batch, "ego_motion": ego}, view="bev"),
+                                   old.encode_video(steady, view="bev"))

@@ -63,7 +63,7 @@ def test_unknown_keys_are_listed_with_their_path() -> None:
     ("text", "field"),
     [("loss: hinge", "loss"), ("positives: words", "positives"), ("batch_size: 0", "batch_size"),
      ("device: tpu", "device"), ("model:\n  bev:\n    downsample: 3", "downsample"),
-     ("model:\n  text:\n    kind: lstm", "kind")],
+     ("model:\n  text:\n    kind: lstm", "kind"), ("model:\n  bev:\n    ego_features: 7", "ego_features")],
 )
 def test_bad_values(text: str, field: str) -> None:
     with pytest.raises(ConfigError, match=field):

@@ -84,9 +84,8 @@ def ego_rates(time_s: NDArray[np.float64], pose_xy_yaw: NDArray[np.float64]) -> 
     A clip's frames are too far apart, and a real log's odometry too noisy, for a model to
     difference the speed and the heading reliably: a small per-frame probe trained on simulated clips
     reads the ego's motion tag on real KITTI and AV2 logs right in 0.66 of frames from the raw speed,
-    and in 0.89 with these. The
-    Savitzky–Golay filter is the captioning default's (:class:`captioning.config.SmoothingConfig`);
-    a log too short to differentiate gives zeros.
+    and in 0.89 with these. The Savitzky–Golay filter is the captioning default's
+    (:class:`captioning.config.SmoothingConfig`); a log too short to differentiate gives zeros.
     """
     if time_s.shape[0] < 2:
         return np.zeros(time_s.shape[0]), np.zeros(time_s.shape[0])
@@ -151,15 +150,14 @@ EGO_MOTION_FEATURES = len(EGO_MOTION_COLUMNS)
 
 
 def ego_motion(pose_xy_yaw: NDArray[np.float64], speed_mps: NDArray[np.float64], indices: NDArray[np.integer],
-               accel_mps2: NDArray[np.float64] | None = None,
-               yaw_rate_rps: NDArray[np.float64] | None = None) -> NDArray[np.float32]:
+               accel_mps2: NDArray[np.float64], yaw_rate_rps: NDArray[np.float64]) -> NDArray[np.float32]:
     """Each sampled frame's ego pose in the clip's first ego frame, its speed, acceleration and yaw rate.
 
     Args:
         pose_xy_yaw: (F, 3) city-frame ego x, y, yaw.
         speed_mps: (F,) ego speeds.
         indices: (T,) sampled frames.
-        accel_mps2, yaw_rate_rps: (F,) the smoothed rates of :func:`ego_rates` (zeros when not given).
+        accel_mps2, yaw_rate_rps: (F,) the smoothed rates of :func:`ego_rates`.
 
     Returns:
         (T, 6) ``x_m, y_m, yaw_rad, speed_mps, accel_mps2, yaw_rate_rps``; row 0 is ``(0, 0, 0, speed, …)``.
@@ -170,10 +168,8 @@ def ego_motion(pose_xy_yaw: NDArray[np.float64], speed_mps: NDArray[np.float64],
     x = c * d[:, 0] + s * d[:, 1]
     y = -s * d[:, 0] + c * d[:, 1]
     yaw = wrap_angle_rad(p[:, 2] - p[0, 2])
-    zeros = np.zeros(len(indices))
-    accel = zeros if accel_mps2 is None else np.asarray(accel_mps2)[indices]
-    yaw_rate = zeros if yaw_rate_rps is None else np.asarray(yaw_rate_rps)[indices]
-    return np.stack([x, y, yaw, speed_mps[indices], accel, yaw_rate], axis=1).astype(np.float32)
+    return np.stack([x, y, yaw, speed_mps[indices], accel_mps2[indices], yaw_rate_rps[indices]],
+                    axis=1).astype(np.float32)
 
 
 #: Per-frame features of the object's own track (:func:`object_track`).

@@ -7,7 +7,7 @@ Every figure comes with its baselines from the same run (random ranking, the mod
 frames, rule-caption search). Recall is also broken down per facet of the queried action (lane,
 motion, own action, context, category); ``rare_facets`` lists the facets with the fewest test clips.
 The stages run fresh into ``benchmarks/_work/quality`` (kept afterwards for inspection), about
-23 minutes on 2 CPU cores (22.5 measured).
+22 minutes on 2 CPU cores (21.7 measured).
 """
 
 from __future__ import annotations

@@ -45,30 +45,25 @@ caller states this once per log.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.ndimage import correlate1d
 
 from captioning.config import CaptioningConfig
 from captioning.leaders import leader_tags, wrap_rad
 from captioning.map_context import MapRaster, junction_kind_codes, lookup
-from captioning.neighbors import CompactGrid, TrackMotion
+from captioning.neighbors import TrackMotion
+from captioning.object_motion import object_kinematics, scatter_to_log_grid
 from captioning.smoothing import (
     BoolArray,
     IntArray,
     frame_derivative,
-    savgol_coefficients,
     suppress_flicker,
-    time_derivative,
 )
 from captioning.tags import ACTIONS, CONTEXTS, NO_TAG, Context
 from scenes.behavior import BehaviorLabel
 from scenes.categories import Category
 from scenes.geometry import FloatArray
-
-_G = TypeVar("_G", bound=np.generic)
 
 #: The labels in column order (index into the last axis of :attr:`BehaviorTags.flags`).
 LABELS: list[BehaviorLabel] = list(BehaviorLabel)
@@ -138,13 +133,6 @@ class BehaviorTags:
         return np.asarray(self.flags[..., i] & self.known_cell & self.label_known[i], dtype=bool)
 
 
-def _scatter(grid: CompactGrid, values: NDArray[_G], shape: tuple[int, int], fill: object) -> NDArray[_G]:
-    """(K, L, ...) compact values → (K, T, ...) on the log grid, ``fill`` outside observed cells."""
-    out = np.full(shape + values.shape[2:], fill, dtype=values.dtype)
-    out[grid.rows, grid.frame[grid.rows, grid.cols]] = values[grid.rows, grid.cols]
-    return out
-
-
 @dataclass(frozen=True)
 class _Runs:
     """Runs of True along axis 1 of a (K, L) mask, over its True cells only (sparse masks stay cheap).
@@ -195,43 +183,6 @@ def _turned_rad(runs: _Runs, yaw_rad: FloatArray) -> FloatArray:
     c = runs.cells[inner]
     step[inner] = wrap_rad(flat[c] - flat[c - 1])
     return np.asarray(np.bincount(runs.run, weights=np.nan_to_num(step), minlength=runs.count), np.float64)
-
-
-def _yaw_rate_rps(yaw_rad: FloatArray, ok: BoolArray, t_s: FloatArray, window_frames: int) -> FloatArray:
-    """(K, L) heading rate from the wrapped heading change across ``window_frames`` frames centred on each
-    cell (NaN where either end is unusable): cheap, and a turn lasts far longer than the window."""
-    h = window_frames // 2
-    out = np.full(yaw_rad.shape, np.nan)
-    if yaw_rad.shape[1] <= 2 * h:
-        return out
-    both = ok[:, 2 * h :] & ok[:, : -2 * h]
-    with np.errstate(invalid="ignore", divide="ignore"):
-        rate = wrap_rad(yaw_rad[:, 2 * h :] - yaw_rad[:, : -2 * h]) / (t_s[:, 2 * h :] - t_s[:, : -2 * h])
-    out[:, h:-h] = np.where(both, rate, np.nan)
-    return out
-
-
-def _interior_rate(
-    values: FloatArray, t_s: FloatArray, run_start: IntArray, run_end: IntArray, window_frames: int, polyorder: int
-) -> FloatArray:
-    """(K, L) Savitzky–Golay rate of change of ``values`` where the centred window lies inside the cell's run
-    (NaN elsewhere, e.g. the first and last ``window_frames // 2`` frames of a run): one correlation along
-    time, no per-window gathering at run ends.
-
-    Args:
-        values: (K, L) samples (NaN outside runs).
-        t_s: (K, L) sample times.
-        run_start: (K, L) first column of each cell's run (:func:`~captioning.smoothing.run_bounds`).
-        run_end: (K, L) its last column.
-    """
-    h = window_frames // 2
-    weights = savgol_coefficients(window_frames, polyorder, 1)[h]
-    both = np.stack([np.nan_to_num(values), t_s], axis=2)
-    d = correlate1d(both, weights, axis=1, mode="constant", cval=0.0)
-    col = np.arange(values.shape[1])[None, :]
-    inside = (col - h >= run_start) & (col + h <= run_end)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return np.where(inside, d[..., 0] / d[..., 1], np.nan)
 
 
 def _parked(
@@ -314,29 +265,18 @@ def behavior_tags(
     grid = motion.grid
     k, t = grid.frame.shape[0], timestamps_ns.shape[0]
     t_s = motion.t_s
-    bridged = motion.bridged
-    start, end = motion.run_start, motion.run_end
-    enough = bridged & (end - start + 1 >= b.min_run_frames)
+    kin = object_kinematics(motion, city_SE3_ego, config)
+    enough, speed, accel_mps2, yaw = kin.enough, kin.speed_mps, kin.accel_mps2, kin.yaw_rad
     taggable = np.asarray((enough & grid.valid).any(axis=1), dtype=bool)
     vehicle = ~np.isin(np.asarray(categories).astype(str), list(NON_VEHICLES))  # (K,)
     vehicle_cell = vehicle[:, None] & enough
-    # City frame: one rigid transform of the host-compensated centres; headings from the ego's.
+    # City frame: one rigid transform of the host-compensated centres.
     first = motion.positions[..., :2]
     r, o = motion.city_SE3_first[:2, :2], motion.city_SE3_first[:2, 3]
     xy = np.empty(first.shape)
     xy[..., 0] = r[0, 0] * first[..., 0] + r[0, 1] * first[..., 1] + o[0]
     xy[..., 1] = r[1, 0] * first[..., 0] + r[1, 1] * first[..., 1] + o[1]
-    ego_yaw = np.arctan2(city_SE3_ego[:, 1, 0], city_SE3_ego[:, 0, 0])
-    yaw = motion.yaw_ego_rad + ego_yaw[grid.frame]
-
-    # Kinematics: speed (the neighbour tags' derivatives when the windows agree), then its rate of change.
     w, p = b.window_frames, b.polyorder
-    if (w, p) == (config.smoothing.window_frames, config.smoothing.polyorder):
-        vel = motion.derivative[..., :2]
-    else:
-        vel = time_derivative(first, enough, t_s, w, p)
-    speed = np.where(enough, np.hypot(vel[..., 0], vel[..., 1]), np.nan)
-    accel_mps2 = _interior_rate(speed, t_s, start, end, b.accel_window_frames, min(p, b.accel_window_frames - 1))
     m = config.smoothing.min_run_frames
     with np.errstate(invalid="ignore"):
         moving_code = np.where(enough, (speed >= b.stopped_speed_mps).astype(np.int64), NO_TAG)
@@ -379,7 +319,7 @@ def behavior_tags(
     if has_map:
         turning = vehicle_cell & in_junction
     else:
-        turning = vehicle_cell & (np.abs(np.nan_to_num(_yaw_rate_rps(yaw, enough, t_s, w))) >= b.turn_yaw_rate_rps)
+        turning = vehicle_cell & (np.abs(np.nan_to_num(kin.yaw_rate_rps)) >= b.turn_yaw_rate_rps)
     runs = _Runs.of(turning)
     turned = _turned_rad(runs, yaw)
     turn_min = np.radians(b.turn_min_deg)
@@ -424,18 +364,18 @@ def behavior_tags(
     stacked &= enough[..., None]
     shape = (k, t)
     n_labels = len(LABELS)
-    grid_bools = _scatter(grid, stacked, shape, False)
+    grid_bools = scatter_to_log_grid(grid, stacked, shape, False)
     label_known = np.array([has_map or label not in MAP_LABELS for label in LABELS])
     return BehaviorTags(
         flags=grid_bools[..., :n_labels],
         known_cell=grid_bools[..., n_labels],
         label_known=label_known,
-        speed_mps=_scatter(grid, speed, shape, np.nan),
+        speed_mps=scatter_to_log_grid(grid, speed, shape, np.nan),
         at_intersection=grid_bools[..., n_labels + 1],
         on_crosswalk=grid_bools[..., n_labels + 2],
-        junction_kind=_scatter(grid, kind.astype(np.int8), shape, np.int8(NO_TAG)),
+        junction_kind=scatter_to_log_grid(grid, kind.astype(np.int8), shape, np.int8(NO_TAG)),
         has_map=has_map,
         taggable=taggable,
-        action=_scatter(grid, action, shape, np.int8(NO_TAG)),
-        context=_scatter(grid, context, shape, np.int8(NO_TAG)),
+        action=scatter_to_log_grid(grid, action, shape, np.int8(NO_TAG)),
+        context=scatter_to_log_grid(grid, context, shape, np.int8(NO_TAG)),
     )

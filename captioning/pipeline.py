@@ -16,7 +16,9 @@ single frames), ``baseline_lane, lane, motion`` (tagged object rows, else null).
 left_lane_change, right_lane_change, blocked_by, braking_for`` (bool) and ``speed_mps``, and its map
 context (:mod:`captioning.map_context`): ``at_intersection, on_crosswalk`` (bool) and
 ``junction_kind`` (``three_way``, ``four_way``, ``multi_way`` or null); null where a tag could not be
-computed (frames of too short runs; lane tags and context on a log without a map).
+computed (frames of too short runs; lane tags and context on a log without a map); and ``action``,
+``context``: the own action and the context that the frame's unified tag carries (``left:approach:braking``:
+``braking``, ``none``), flicker suppressed as in the captions, null on untagged frames.
 
 ``captions.parquet``: one row per caption: ``log_id, track_id, category, start_ns, end_ns,
 num_frames, tags`` (the unified sequence), ``host_tags`` (the host's over the same window),
@@ -62,6 +64,7 @@ from captioning.tables import (
     behavior_frame_columns,
     captions_to_table,
     strings_column,
+    unified_action_columns,
 )
 from captioning.tags import (
     ACTIONS,
@@ -201,6 +204,10 @@ class LogCaptions:
         if beh is None:
             return pa.table(columns, schema=FRAME_TAGS_SCHEMA)
         columns.update(behavior_frame_columns(beh, t, track_idx, frame_idx, order))
+        assert self.action_code is not None and self.context_code is not None  # set with ``behavior``
+        columns.update(unified_action_columns(self.action_code[track_idx, frame_idx],
+                                              self.context_code[track_idx, frame_idx],
+                                              nb.tagged[track_idx, frame_idx], t, order))
         return pa.table(columns, schema=FRAME_TAGS_BEHAVIOR_SCHEMA)
 
     def captions_table(self) -> pa.Table:

@@ -15,7 +15,7 @@ import pyarrow as pa
 from captioning.behavior import LABELS, BehaviorTags
 from captioning.map_context import JUNCTION_KINDS
 from captioning.smoothing import BoolArray, IntArray
-from captioning.tags import HOST_DIRECTIONS, HOST_MOTIONS, NO_TAG
+from captioning.tags import ACTIONS, CONTEXTS, HOST_DIRECTIONS, HOST_MOTIONS, NO_TAG, NOTHING_NAMED
 from captioning.unify import Segment
 
 #: Track id of the ego's rows in both files.
@@ -41,11 +41,13 @@ FRAME_TAGS_SCHEMA = pa.schema(
         pa.field("motion", pa.string()),
     ]
 )
-#: Columns of object rows under ``rules: behavior`` (after :data:`FRAME_TAGS_SCHEMA`'s).
+#: Columns of object rows under ``rules: behavior`` (after :data:`FRAME_TAGS_SCHEMA`'s); ``action`` and
+#: ``context`` are what the frame's unified tag carries (:func:`unified_action_columns`).
 BEHAVIOR_FRAME_FIELDS = (
     [pa.field(label.value, pa.bool_()) for label in LABELS]
     + [pa.field("speed_mps", pa.float64()), pa.field("at_intersection", pa.bool_()),
-       pa.field("on_crosswalk", pa.bool_()), pa.field("junction_kind", pa.string())]
+       pa.field("on_crosswalk", pa.bool_()), pa.field("junction_kind", pa.string()),
+       pa.field("action", pa.string()), pa.field("context", pa.string())]
 )
 FRAME_TAGS_BEHAVIOR_SCHEMA = pa.schema(list(FRAME_TAGS_SCHEMA) + BEHAVIOR_FRAME_FIELDS)
 CAPTIONS_SCHEMA = pa.schema(
@@ -126,6 +128,27 @@ def captions_to_table(captions: Sequence[Caption], behavior: bool | None = None)
 def strings_column(codes: IntArray, vocabulary: list[str]) -> pa.Array:
     lookup = np.array([*vocabulary, None], dtype=object)
     return pa.array(lookup[np.where(codes == NO_TAG, len(vocabulary), codes)], pa.string())
+
+
+def unified_action_columns(action_code: IntArray, context_code: IntArray, tagged: BoolArray, t: int,
+                           order: IntArray) -> dict[str, pa.Array]:
+    """``frame_tags.parquet``'s ``action`` and ``context``: the own action and the map context of each
+    object row's unified tag (flicker suppressed, as in its caption), :data:`~captioning.tags.NOTHING_NAMED`
+    where the tag names none, null on the ego's rows and on untagged frames.
+
+    Args:
+        action_code: (N,) :data:`~captioning.tags.ACTIONS` code of each object row, −1 none.
+        context_code: (N,) :data:`~captioning.tags.CONTEXTS` code of each object row, −1 none.
+        tagged: (N,) whether the row's frame is tagged.
+        t: number of frames (the ego's rows come first, one per frame).
+        order: (T + N,) the rows' order in the file.
+    """
+    columns: dict[str, pa.Array] = {}
+    for name, codes, vocabulary in (("action", action_code, [a.value for a in ACTIONS]),
+                                    ("context", context_code, [c.value for c in CONTEXTS])):
+        named = np.where(tagged, np.where(codes >= 0, codes, len(vocabulary)), NO_TAG)  # the last: none
+        columns[name] = strings_column(np.r_[np.full(t, NO_TAG), named][order], [*vocabulary, NOTHING_NAMED])
+    return columns
 
 
 def window_attributes(

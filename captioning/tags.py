@@ -83,6 +83,8 @@ ACTIONS: list[BehaviorLabel] = [
 #: Actions of an object that stands; their motion tag is the ego's approach or departure.
 STILL_ACTIONS: frozenset[str] = frozenset({BehaviorLabel.PARKED.value, BehaviorLabel.STOPPED.value})
 CONTEXTS: list[Context] = list(Context)
+#: ``frame_tags.parquet``'s ``action`` / ``context`` on a tagged frame whose unified tag names none.
+NOTHING_NAMED = "none"
 
 #: Integer codes used in (K, T) arrays: the index into each enum's member list; −1 = no tag.
 NO_TAG = -1

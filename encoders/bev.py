@@ -34,6 +34,9 @@ RANGE_FEATURES = ("range", "abs_x", "abs_y")
 VELOCITY_FEATURES = ("vx", "vy", "range_rate_x", "range_rate_y")
 #: m/s brought to about unit range.
 VELOCITY_SCALE_MPS = 10.0
+#: What ``BevConfig.track_rates`` adds (:func:`encoders.clips.views.object_rates`), and the scales that bring
+#: them to about unit range.
+RATES_SCALE = (10.0, 2.0, 0.5)
 
 
 class Residual(nn.Module):
@@ -129,11 +132,14 @@ class BevTower(nn.Module):
         self.track_head: nn.Module | None = None
         if config.track_features:
             per_frame = (config.track_features + (len(RANGE_FEATURES) if config.track_range else 0)
-                         + (len(VELOCITY_FEATURES) if config.track_velocity else 0))
+                         + (len(VELOCITY_FEATURES) if config.track_velocity else 0)
+                         + (len(RATES_SCALE) if config.track_rates else 0))
             self.track = TemporalEncoder(config.track, 2 * per_frame + config.ego_features)
             self.track_head = clip_head(config.track.width, embed_dim, time_slots, slot_dim)
         self.ego_scale: torch.Tensor
         self.register_buffer("ego_scale", torch.tensor(EGO_MOTION_SCALE[: config.ego_features]), persistent=False)
+        self.rates_scale: torch.Tensor
+        self.register_buffer("rates_scale", torch.tensor(RATES_SCALE), persistent=False)
 
     #: state_dict prefixes of the parameters that compute E (the rest pools E into the clip embedding).
     EMBEDDING_PREFIXES = ("lidar.", "map.", "lateral.", "header_space.", "header_time.")
@@ -168,11 +174,12 @@ class BevTower(nn.Module):
         return torch.cat([pooled, geometry, ego], dim=-1)  # (B, T, 2 D_e + 8 + E)
 
     def track_features(self, object_track: torch.Tensor, ego_motion: torch.Tensor,
-                       object_velocity: torch.Tensor | None = None) -> torch.Tensor:
-        """object_track: (B, T, F); ego_motion: (B, T, 4); object_velocity: (B, T, 2) m/s →
-        (B, T, 2 F' + E): the track (with :data:`RANGE_FEATURES` under ``track_range`` and
-        :data:`VELOCITY_FEATURES` under ``track_velocity``), its change since the previous frame, and
-        the ego motion."""
+                       object_velocity: torch.Tensor | None = None,
+                       object_rates: torch.Tensor | None = None) -> torch.Tensor:
+        """object_track: (B, T, F); ego_motion: (B, T, 6); object_velocity: (B, T, 2) m/s; object_rates:
+        (B, T, 3) → (B, T, 2 F' + E): the track (with :data:`RANGE_FEATURES` under ``track_range``,
+        :data:`VELOCITY_FEATURES` under ``track_velocity`` and the object's own rates under
+        ``track_rates``), its change since the previous frame, and the ego motion."""
         ego = ego_motion[..., : self.config.ego_features] / self.ego_scale  # (B, T, E)
         x, y = object_track[..., 0], object_track[..., 1]  # (B, T) ego-relative position / 50 m
         parts = [object_track]
@@ -185,17 +192,23 @@ class BevTower(nn.Module):
             v = object_velocity / VELOCITY_SCALE_MPS  # (B, T, 2)
             rates = torch.stack([torch.sign(x) * v[..., 0], torch.sign(y) * v[..., 1]], dim=-1)  # (B, T, 2)
             parts += [v, rates]
+        if self.config.track_rates:
+            if object_rates is None:
+                raise ValueError("this BEV tower reads the object's own rates: the batch needs "
+                                 "'object_rates' (B, T, 3)")
+            parts.append(object_rates / self.rates_scale)
         return torch.cat([with_motion(torch.cat(parts, dim=-1)), ego], dim=-1)
 
     def forward(
         self, bev_lidar: torch.Tensor, bev_map: torch.Tensor, bev_object: torch.Tensor, ego_motion: torch.Tensor,
         object_track: torch.Tensor | None = None, frames: dict[str, torch.Tensor] | None = None,
-        object_velocity: torch.Tensor | None = None,
+        object_velocity: torch.Tensor | None = None, object_rates: torch.Tensor | None = None,
     ) -> torch.Tensor:
         """(B, T, Cl, H, W), (B, T, Cm, H, W), (B, T, 1, H, W), (B, T, 4), (B, T, F) → (B, D).
 
         ``object_track`` is required when the tower has a track stream (``track_features`` > 0),
-        ``object_velocity`` (B, T, 2) when it reads velocities (``track_velocity``). With a
+        ``object_velocity`` (B, T, 2) when it reads velocities (``track_velocity``), ``object_rates``
+        (B, T, 3) when it reads the object's own rates (``track_rates``). With a
         ``frames`` dict, the temporal models' frame tokens (B, T, W) go to ``frames["bev"]`` and
         ``frames["track"]`` (dense supervision, :mod:`encoders.dense`).
         """
@@ -208,7 +221,8 @@ class BevTower(nn.Module):
             if object_track is None:
                 raise ValueError("this BEV tower reads the object's track: the batch needs 'object_track' (B, T, "
                                  f"{self.config.track_features})")
-            clip, tokens = self.track.encode(self.track_features(object_track, ego_motion, object_velocity))
+            clip, tokens = self.track.encode(self.track_features(object_track, ego_motion, object_velocity,
+                                                                 object_rates))
             x = x + read_clip(self.track_head, clip, tokens)  # (B, D)
             if frames is not None:
                 frames["track"] = tokens

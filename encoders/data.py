@@ -22,6 +22,8 @@ of the bytes to move; :class:`~encoders.model.DualEncoder` converts them on its 
   in the clip's first ego frame (:func:`encoders.clips.views.object_track`)
 - ``object_velocity``: (T, 2) float32 the object's velocity relative to the ego in each frame's ego
   frame, m/s (:func:`encoders.clips.views.object_velocity`)
+- ``object_rates``: (T, 3) float32 the object's own ``speed_mps, accel_mps2, yaw_rate_rps`` over ground,
+  as the behaviour rules compute them (:func:`encoders.clips.views.object_rates`)
 - ``frame_targets``: (T, K) int64, each frame's rule tags as class indices of the K
   :data:`encoders.dense.DENSE_TASKS`, −1 where untagged (all −1 for a clip table without frame tags)
 
@@ -48,12 +50,14 @@ from encoders.clips.frame_tags import FRAME_TAG_COLUMNS
 from encoders.clips.layout import grid_from_manifest, read_clip_table, read_manifest
 from encoders.clips.views import (
     EGO_MOTION_FEATURES,
+    OBJECT_RATES_COLUMNS,
     OBJECT_TRACK_FEATURES,
     LogArrays,
     ego_motion,
     gather_cells,
     highlight_camera,
     object_footprint,
+    object_rates,
     object_track,
     object_velocity,
     open_log_arrays,
@@ -158,11 +162,12 @@ class ClipDataset(torch.utils.data.Dataset[dict[str, Any]]):
         )
         self._grid = grid_from_manifest(self.manifest)
         self._arrays: dict[str, LogArrays] = {}
+        self._rates: dict[tuple[str, str], NDArray[np.float32]] = {}  # (log, track) → (F, 3), once per track
 
     # Memory maps are opened lazily in each process, never pickled to workers.
     def __getstate__(self) -> dict[str, Any]:
         state = dict(self.__dict__)
-        state["_arrays"] = {}
+        state["_arrays"], state["_rates"] = {}, {}
         return state
 
     def __len__(self) -> int:
@@ -192,6 +197,13 @@ class ClipDataset(torch.utils.data.Dataset[dict[str, Any]]):
             arrays = open_log_arrays(self.clips_dir, log_id)
             self._arrays[log_id] = arrays
         return arrays
+
+    def _object_rates(self, log_id: str, track_id: str, arrays: LogArrays, value: int) -> NDArray[np.float32]:
+        rates = self._rates.get((log_id, track_id))
+        if rates is None:
+            rates = object_rates(arrays.track_boxes[:, value - 1], arrays.pose_xy_yaw, arrays.time_s)
+            self._rates[(log_id, track_id)] = rates
+        return rates
 
     def _view_shapes(self, index: int) -> dict[str, tuple[int, ...]]:
         """Per-item shapes of the image-like views (all clips share T)."""
@@ -224,9 +236,10 @@ class ClipDataset(torch.utils.data.Dataset[dict[str, Any]]):
         motion = _empty_batch((len(indices), t, EGO_MOTION_FEATURES), torch.float32)
         track = _empty_batch((len(indices), t, OBJECT_TRACK_FEATURES), torch.float32)
         velocity = _empty_batch((len(indices), t, 2), torch.float32)
+        rates = _empty_batch((len(indices), t, len(OBJECT_RATES_COLUMNS)), torch.float32)
         targets = _empty_batch((len(indices), t, len(DENSE_TASKS)), torch.int64)
         items = [self._fill(i, {key: slot[b] for key, slot in slots.items()}, motion.numpy()[b], track.numpy()[b],
-                            velocity.numpy()[b], targets.numpy()[b])
+                            velocity.numpy()[b], rates.numpy()[b], targets.numpy()[b])
                  for b, i in enumerate(indices)]
         batch: dict[str, Any] = {key: [item[key] for item in items] for key in items[0]}
         batch["has_camera"] = torch.tensor(batch["has_camera"], dtype=torch.bool)
@@ -240,16 +253,17 @@ class ClipDataset(torch.utils.data.Dataset[dict[str, Any]]):
         batch["ego_motion"] = motion
         batch["object_track"] = track
         batch["object_velocity"] = velocity
+        batch["object_rates"] = rates
         batch["frame_targets"] = targets
         return batch
 
     def _fill(self, index: int, slot: dict[str, NDArray[np.uint8]], motion_out: NDArray[np.float32],
-              track_out: NDArray[np.float32], velocity_out: NDArray[np.float32],
+              track_out: NDArray[np.float32], velocity_out: NDArray[np.float32], rates_out: NDArray[np.float32],
               targets_out: NDArray[np.int64]) -> dict[str, Any]:
         """Write item ``index``'s uint8 views into ``slot`` (contiguous (T, C, H, W) arrays), its
-        ego motion into ``motion_out`` (T, 4), its track into ``track_out`` (T, 11) and
-        ``velocity_out`` (T, 2), and its frames' tag classes into ``targets_out`` (T, K); return the
-        item's other fields."""
+        ego motion into ``motion_out`` (T, 6), its track into ``track_out`` (T, 11), ``velocity_out``
+        (T, 2) and ``rates_out`` (T, 3), and its frames' tag classes into ``targets_out`` (T, K); return
+        the item's other fields."""
         row = self._rows[index]
         arrays = self._log(row.log_id)
         fi = row.frame_indices
@@ -289,9 +303,11 @@ class ClipDataset(torch.utils.data.Dataset[dict[str, Any]]):
         motion_out[:] = ego_motion(arrays.pose_xy_yaw, arrays.speed_mps, fi, arrays.accel_mps2, arrays.yaw_rate_rps)
         track_out[:] = object_track(arrays.track_boxes[fi, value - 1], motion_out)
         velocity_out[:] = object_velocity(arrays.track_boxes[:, value - 1, :2], arrays.time_s, fi)
+        rates_out[:] = self._object_rates(row.log_id, row.track_id, arrays, value)[fi]
         if backwards is not None:
             velocity_out *= -1.0  # played backwards, every velocity turns round
             motion_out[:, 4:] *= -1.0  # and the ego's rates with it (accelerating ↔ decelerating, left ↔ right)
+            rates_out[:, 1:] *= -1.0  # and the object's (its speed stays)
         if rng is None:
             np.take(arrays.bev_lidar, fi, axis=0, out=slot["bev_lidar"])  # memory map → batch, one copy
             np.take(arrays.bev_map, fi, axis=0, out=slot["bev_map"])

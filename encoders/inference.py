@@ -190,7 +190,7 @@ def frame_tag_figures(model: DualEncoder, dataset: Dataset[dict[str, Any]], batc
     if not targets:
         return {}
     return frame_tag_report({name: torch.cat(chunks) for name, chunks in logits.items()}, torch.cat(targets),
-                            torch.cat(has_camera))
+                            torch.cat(has_camera), model.config.dense_tasks)
 
 
 def load_model(run_dir: Path | str, device: str = "cpu") -> DualEncoder:

@@ -46,7 +46,7 @@ class DualEncoder(nn.Module):
         self.fusion = ViewFusion(config.fusion, d, config.time_slots * config.slot_dim)
         widths = {"camera": config.camera.temporal.width, "bev": config.bev.temporal.width,
                   "track": config.bev.track.width}
-        self.dense = nn.ModuleDict({s: DenseHeads(widths[s]) for s in config.dense_streams})
+        self.dense = nn.ModuleDict({s: DenseHeads(widths[s], config.dense_tasks) for s in config.dense_streams})
         self.logit_scale = nn.Parameter(torch.tensor(config.logit_scale_init))
 
     @property
@@ -120,7 +120,8 @@ class DualEncoder(nn.Module):
         that :meth:`encode_views` left in ``frames`` (:func:`encoders.dense.stream_dense_loss`; ``whole``
         sums frame counts over data-parallel processes)."""
         has_camera = self._get(batch, "has_camera").reshape(-1).bool()
-        return stream_dense_loss(self.dense_logits(frames), self._get(batch, "frame_targets"), has_camera, whole)
+        return stream_dense_loss(self.dense_logits(frames), self._get(batch, "frame_targets"), has_camera, whole,
+                                 self.config.dense_tasks)
 
     def bev_embedding(self, batch: dict[str, Any]) -> torch.Tensor:
         """batch: collated clips → E (B, T, D_e, Hb/r, Wb/r), the universal BEV embedding."""
@@ -139,6 +140,8 @@ class DualEncoder(nn.Module):
             self._get(batch, "object_track") if self.config.bev.track_features else None,
             frames,
             self._get(batch, "object_velocity") if self.config.bev.track_velocity else None,
+            self._get(batch, "object_rates") if self.config.bev.track_features and self.config.bev.track_rates
+            else None,
         )
 
     def _get(self, batch: dict[str, Any], key: str) -> torch.Tensor:

@@ -29,13 +29,14 @@ def model_card(config: TrainConfig, history: list[dict[str, Any]], n_train: int,
     track = ""
     if m.bev.track_features:
         extra = [name for name, on in (("range", m.bev.track_range), ("velocity relative to the ego",
-                                                                      m.bev.track_velocity)) if on]
+                                                                      m.bev.track_velocity),
+                                       ("own speed, acceleration and yaw rate", m.bev.track_rates)) if on]
         track = (f";\n  the object's own track ({m.bev.track_features} features per frame"
                  f"{' + ' + ' and '.join(extra) if extra else ''}) through its own temporal transformer")
     ego = f"ego motion ({', '.join(EGO_MOTION_COLUMNS[: m.bev.ego_features]) or 'none'})"
     slots = (f"\n- Video time slots: each temporal stream pools its frame tokens into {m.time_slots} stretches of the "
              f"clip, in order ({m.slot_dim} dims each)." if m.time_slots else "")
-    dense = (f";\n  per-frame rule tags (lane, motion, ego motion and direction) on the {', '.join(m.dense_streams)} "
+    dense = (f";\n  per-frame rule tags ({', '.join(m.dense_tasks)}) on the {', '.join(m.dense_streams)} "
              f"stream's frame tokens, weight {config.dense_weight:g}" if config.dense_weight > 0 else "")
     return f"""# DualEncoder model card
 

@@ -13,7 +13,7 @@ cover the same places.
 Items follow the dataset contract of :mod:`encoders.data` (``camera`` (T, 4, Hc, Wc) RGB with the
 object highlighted + mask channel, ``bev_lidar`` (T, Cl, Hb, Wb), ``bev_map`` (T, Cm, Hb, Wb),
 ``bev_object`` (T, 1, Hb, Wb), ``ego_motion`` (T, 6), ``object_track`` (T, 11), ``object_velocity``
-(T, 2), captions and tags).
+(T, 2), ``object_rates`` (T, 3), captions and tags).
 Rendering is vectorised over frames; every item is a pure function of (seed, split, index).
 """
 
@@ -28,7 +28,7 @@ import torch
 from torch.utils.data import Dataset
 
 from encoders.clips.layout import clip_id
-from encoders.clips.views import EGO_MOTION_FEATURES, object_track, object_velocity
+from encoders.clips.views import EGO_MOTION_FEATURES, object_rates, object_track, object_velocity
 
 #: Seconds between a synthetic clip's frames.
 FRAME_STEP_S = 0.1
@@ -192,6 +192,9 @@ class SyntheticClipDataset(Dataset[dict[str, Any]]):
                 np.stack([x_m, y_m, np.full(t, length_m), np.full(t, width_m), np.zeros(t)], axis=1), ego)),
             "object_velocity": torch.from_numpy(object_velocity(
                 np.stack([x_m, y_m], axis=1), FRAME_STEP_S * np.arange(t), np.arange(t))),
+            "object_rates": torch.from_numpy(object_rates(  # the ego stands at the origin: ego frame = ground
+                np.stack([x_m, y_m, np.full(t, length_m), np.full(t, width_m), np.zeros(t)], axis=1),
+                np.zeros((t, 3)), FRAME_STEP_S * np.arange(t, dtype=np.float64))),
         }
 
 

@@ -13,7 +13,8 @@ where slot k stands for the k-th of K equal stretches of the clip:
            (:func:`encoders.text.sentence_steps`), and one head reads, per slot, the whole text and
            the mean of what its sentences say there;
     video  each slot pools the frame tokens of a temporal stream with an attention whose prior is
-           centred on its stretch (a learnable centre and width), and one head maps the pooled token.
+           centred on a point of the clip, the first slot's on its first frame and the last slot's on
+           its last (a learnable centre and width), and one head maps the pooled token.
 
 Both sides use one head for every slot, so a caption with its steps reversed is the same slot
 vectors in reverse order: the dot product then scores the order directly, and the reversed caption
@@ -63,8 +64,14 @@ class SlotReadout(nn.Module):
     """A temporal stream's clip vector and frame tokens → (B, D): global part and K time slots.
 
     Slot k attends over the frames with logits ``w_k · token_t − (u_t − c_k)² / (2 σ_k²)``, where
-    u_t ∈ [0, 1] is the frame's place in the clip; the centre c_k starts at the middle of the k-th
-    stretch and σ_k at half its length, both learnable, so a slot can follow where a step really is.
+    u_t ∈ [0, 1] is the frame's place in the clip; the centres start evenly from the first frame to the
+    last (c_k = k / (K − 1)) and σ_k at half a stretch's length, both learnable, so a slot can follow where
+    a step really is. The ends, not the middles of the stretches: a caption's first step holds at the
+    clip's first frame and its last step at the last frame whatever the steps' durations, where the
+    middle of the first stretch may already show the second step (a step of one frame). With the rules'
+    own per-frame tags for the video slots, a caption beats its reversed steps on 100% of the demo's
+    test pairs with centres at the ends and 97.7% at the middles of the stretches; trained, the change
+    is within one seed's spread (README, "Action and context per frame").
     """
 
     def __init__(self, width: int, embed_dim: int, slots: int, slot_dim: int) -> None:
@@ -72,7 +79,7 @@ class SlotReadout(nn.Module):
         self.slots = slots
         self.global_head = nn.Linear(width, embed_dim - slots * slot_dim)
         self.score = nn.Linear(width, slots)
-        self.centre = nn.Parameter((torch.arange(slots, dtype=torch.float32) + 0.5) / slots)
+        self.centre = nn.Parameter(torch.linspace(0.0, 1.0, slots) if slots > 1 else torch.full((1,), 0.5))
         self.log_sigma = nn.Parameter(torch.full((slots,), math.log(0.5 / slots)))
         self.slot_head = nn.Linear(width, slot_dim)
 

@@ -25,7 +25,7 @@ from pathlib import Path
 from typing import Any
 
 from common.atomic import atomic_write_text
-from encoders.config import dense_stream_names, hard_negative_kinds
+from encoders.config import DENSE_STREAMS, hard_negative_kinds, ordered_names
 
 DEFAULT_QUERIES = (
     "a car in the left lane approaches, then moves into the ego lane",
@@ -141,7 +141,7 @@ class DemoConfig:
             raise ValueError(f"DemoConfig.dense_weight must be at least 0, got {self.dense_weight}")
         # Refused here, before the stages run, rather than by `train` half way through the demo.
         hard_negative_kinds(self.hard_negatives, "DemoConfig.hard_negatives")
-        dense_stream_names(self.dense_streams, "DemoConfig.dense_streams")
+        ordered_names(self.dense_streams, "DemoConfig.dense_streams", DENSE_STREAMS)
 
     @staticmethod
     def quick() -> DemoConfig:

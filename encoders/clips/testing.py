@@ -205,9 +205,9 @@ def synthetic_captions(log_dirs: list[Path], first_frame: int = 5, last_frame: i
     return pa.Table.from_pylist(rows)
 
 
-#: Lane and motion of each synthetic track in the frame tags: ``lead`` is in the left lane for the
-#: first half of the log, then in the ego's lane.
-SYNTHETIC_FRAME_TAGS = {"parked": ("right", "stationary"), "follower": ("host", "constant")}
+#: Lane, motion and own action of each synthetic track in the frame tags (no map context): ``lead`` is in
+#: the left lane for the first half of the log, then in the ego's lane.
+SYNTHETIC_FRAME_TAGS = {"parked": ("right", "stationary", "parked"), "follower": ("host", "constant", "none")}
 
 
 def synthetic_frame_tags(log_dirs: list[Path], num_frames: int) -> pa.Table:
@@ -217,9 +217,11 @@ def synthetic_frame_tags(log_dirs: list[Path], num_frames: int) -> pa.Table:
         for f in range(num_frames):
             t = START_NS + f * FRAME_PERIOD_NS
             rows.append({"log_id": log_dir.name, "timestamp_ns": t, "track_id": "ego", "lane": None, "motion": None,
-                         "host_motion": "cruising", "host_direction": "heading_straight"})
-            tags = {"lead": ("left" if f < num_frames // 2 else "host", "approach"), **SYNTHETIC_FRAME_TAGS}
-            for track_id, (lane, motion) in tags.items():
+                         "host_motion": "cruising", "host_direction": "heading_straight", "action": None,
+                         "context": None})
+            tags = {"lead": ("left" if f < num_frames // 2 else "host", "approach", "none"), **SYNTHETIC_FRAME_TAGS}
+            for track_id, (lane, motion, action) in tags.items():
                 rows.append({"log_id": log_dir.name, "timestamp_ns": t, "track_id": track_id, "lane": lane,
-                             "motion": motion, "host_motion": None, "host_direction": None})
+                             "motion": motion, "host_motion": None, "host_direction": None, "action": action,
+                             "context": "none"})
     return pa.Table.from_pylist(rows)

@@ -67,6 +67,10 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--track-velocity", action="store_true",
                         help="give the track stream the object's velocity relative to the ego and its range rates "
                              "(model.bev.track_velocity; what the dense heads read motion from)")
+    parser.add_argument("--track-rates", action=argparse.BooleanOptionalAction, default=None,
+                        help="give the track stream the object's own speed, acceleration and yaw rate over ground "
+                             "(model.bev.track_rates, on by default; what the rules read braking, standing and "
+                             "turning from)")
     parser.add_argument("--shuffle-frames", action="store_true", help="bag-of-frames baseline: shuffle frames in time")
     parser.add_argument("--inputs", choices=["none", "map", "lidar", "both"],
                         help="BEV inputs the model sees (input ablation of the tagging evaluation; default both)")
@@ -121,6 +125,8 @@ def build_config(args: argparse.Namespace) -> Any:
     model = dataclasses.replace(config.model, text=text)
     if args.track_velocity:
         model = dataclasses.replace(model, bev=dataclasses.replace(model.bev, track_velocity=True))
+    if args.track_rates is not None:
+        model = dataclasses.replace(model, bev=dataclasses.replace(model.bev, track_rates=args.track_rates))
     if args.time_slots is not None:
         # The slots live on both sides: the text tower lays each sentence's steps out in them.
         kind = "slots" if args.time_slots else ("pretrained" if text.kind == "slots" else text.kind)

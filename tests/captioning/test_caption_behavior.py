@@ -10,6 +10,7 @@ from captioning.behavior import NO_MAP_NOTE, SKIP_SHORT, BehaviorTags
 from captioning.config import CaptioningConfig
 from captioning.map_context import JUNCTION_KINDS, junction_kind_codes, lookup, rasterize_map
 from captioning.pipeline import LogCaptions, caption_arrays
+from captioning.unify import collapse
 from scenes.behavior import BehaviorLabel, JunctionKind
 from scenes.map import LaneSegment, PedestrianCrossing, VectorMap
 
@@ -188,6 +189,28 @@ def test_context_columns_and_caption_attributes(with_map: LogCaptions) -> None:
     assert by_track["turner"].attributes["junction_kind"] == "four_way"
     table = with_map.captions_table()
     assert {"braking", "parked", "junction_kind", "at_intersection"} <= set(table.column_names)
+
+
+def test_frame_action_and_context_collapse_into_each_caption(with_map: LogCaptions) -> None:
+    """frame_tags.parquet's action and context are what each frame's unified tag carries: a caption's
+    tags are its frames' lane:motion[:action][:context] collapsed, so a dense head can learn when a step
+    that differs in its action alone ("moves away, then moves away braking") holds."""
+    rows = with_map.frame_tags_table().to_pylist()
+    assert all(r["action"] is None and r["context"] is None for r in rows if r["track_id"] == "ego")
+    assert all((r["action"] is None) == (r["lane"] is None) for r in rows if r["track_id"] != "ego")
+    checked = 0
+    for cap in with_map.captions:
+        if cap.track_id == "ego":
+            continue
+        frames = [r for r in rows if r["track_id"] == cap.track_id and r["lane"] is not None
+                  and cap.start_ns <= r["timestamp_ns"] <= cap.end_ns]
+        steps = [":".join([r["lane"], r["motion"], *(x for x in (r["action"], r["context"]) if x != "none")])
+                 for r in frames]
+        assert collapse(steps) == list(cap.tags), cap.track_id
+        checked += 1
+    assert checked >= 4
+    actions = {r["action"] for r in rows} - {None}
+    assert {"none", "braking", "stopped"} <= actions and "on_crosswalk" in {r["context"] for r in rows}
 
 
 def test_filters_read_the_new_columns(with_map: LogCaptions) -> None:

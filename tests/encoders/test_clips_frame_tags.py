@@ -12,7 +12,7 @@ import pytest
 from encoders.clips.frame_tags import FRAME_TAG_COLUMNS, empty_clip_columns, read_frame_tags
 
 
-def _write(path: Path) -> None:
+def _write(path: Path, actions: bool = False) -> None:
     rows = [
         {"log_id": "a", "timestamp_ns": 10, "track_id": "ego", "lane": None, "motion": None,
          "host_motion": "accelerating", "host_direction": "steering_left"},
@@ -23,6 +23,10 @@ def _write(path: Path) -> None:
         {"log_id": "b", "timestamp_ns": 10, "track_id": "car", "lane": "right", "motion": "constant",
          "host_motion": None, "host_direction": None},
     ]
+    if actions:
+        actions_contexts = [(None, None), ("braking", "none"), ("none", "on_crosswalk"), ("parked", "none")]
+        for row, (action, context) in zip(rows, actions_contexts):
+            row.update(action=action, context=context)
     pq.write_table(pa.Table.from_pylist(rows), path)
 
 
@@ -37,9 +41,20 @@ def test_clip_columns_give_the_tags_at_each_sampled_frame(tmp_path: Path) -> Non
     assert cols["frame_motion"] == ["approach", "approach", "away", None]
     assert cols["frame_host_motion"] == ["accelerating", "accelerating", None, None]
     assert cols["frame_host_direction"] == ["steering_left", "steering_left", None, None]
+    # A file from before the action and context columns (or under rules: paper): null there.
+    assert cols["frame_action"] == cols["frame_context"] == [None] * 4
     assert tags["a"].clip_columns("bus", np.array([10]))["frame_lane"] == [None]
     assert list(read_frame_tags(path, log_ids=["b"])) == ["b"] and read_frame_tags(path, log_ids=[]) == {}
     assert empty_clip_columns(2) == {name: [None, None] for name in FRAME_TAG_COLUMNS}
+
+
+def test_clip_columns_carry_the_unified_tags_action_and_context(tmp_path: Path) -> None:
+    path = tmp_path / "frame_tags.parquet"
+    _write(path, actions=True)
+    cols = read_frame_tags(path)["a"].clip_columns("car", np.array([10, 20, 30]))
+    assert cols["frame_action"] == ["braking", "none", None]
+    assert cols["frame_context"] == ["none", "on_crosswalk", None]
+    assert cols["frame_lane"] == ["left", "host", None]
 
 
 def test_a_frame_tags_file_without_a_column_is_refused_by_name(tmp_path: Path) -> None:

@@ -103,3 +103,37 @@ def test_ego_motion_samples_the_rates_at_the_clip_frames() -> None:
     np.testing.assert_allclose(m[:, 5], -0.1, atol=1e-4)
     # A log of one frame has nothing to differentiate: zeros, not NaN.
     assert [r.tolist() for r in ego_rates(np.zeros(1), pose[:1])] == [[0.0], [0.0]]
+
+
+def test_object_rates_are_its_own_motion_over_ground_as_the_behaviour_rules_see_it() -> None:
+    """The ego cruises at 10 m/s while a car ahead brakes at 1.5 m/s² through a left bend at 0.2 rad/s: in the
+    ego's frame the car's box hardly moves, yet its own speed, acceleration and yaw rate over ground come out
+    (what the rules threshold for braking and turning), with the ego's own motion taken out; unobserved frames
+    and runs too short for the rules give zeros."""
+    from captioning.object_motion import track_kinematics
+    from encoders.clips.views import OBJECT_RATES_COLUMNS, object_rates
+
+    t_s = np.arange(80) * 0.1
+    ego = _arc(t_s, np.full(80, 10.0), 0.0)
+    car = _arc(t_s, 15.0 - 1.5 * t_s, 0.2)
+    car[:, 0] += 20.0
+    dx, dy = car[:, 0] - ego[:, 0], car[:, 1] - ego[:, 1]
+    c, s = np.cos(ego[:, 2]), np.sin(ego[:, 2])
+    boxes = np.stack([c * dx + s * dy, -s * dx + c * dy, np.full(80, 4.5), np.full(80, 1.9), car[:, 2] - ego[:, 2]], 1)
+    boxes[40:43] = np.nan  # three unobserved frames, bridged by the rules
+    boxes[70:] = np.nan
+    boxes[79] = boxes[0]  # a lone observation after a long gap: no run long enough
+    rates = object_rates(boxes.astype(np.float32), ego, t_s)
+    assert rates.shape == (80, len(OBJECT_RATES_COLUMNS)) and rates.dtype == np.float32
+    inner = np.r_[10:35, 48:62]  # the bridged gap blurs the heading rate next to it
+    np.testing.assert_allclose(rates[inner, 0], (15.0 - 1.5 * t_s)[inner], atol=0.25)
+    np.testing.assert_allclose(rates[inner, 1], -1.5, atol=0.2)
+    np.testing.assert_allclose(rates[inner, 2], 0.2, atol=0.01)
+    assert (rates[70:] == 0).all()
+    # The one home of these kinematics: the rules' own function on the same track.
+    city_SE3_ego = np.stack([SE3.from_yaw(yaw, np.array([x, y, 0.0])).matrix for x, y, yaw in ego])
+    valid = np.isfinite(boxes[:, 0])
+    kin = track_kinematics((t_s * 1e9).round().astype(np.int64), valid[None], np.nan_to_num(boxes[None, :, :2]),
+                           np.nan_to_num(boxes[None, :, 4]), city_SE3_ego, CaptioningConfig())[0]
+    np.testing.assert_allclose(rates, np.nan_to_num(kin), atol=1e-4)
+    assert object_rates(np.full((5, 5), np.nan), ego[:5], t_s[:5]).tolist() == [[0.0] * 3] * 5

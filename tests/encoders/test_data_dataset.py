@@ -209,6 +209,16 @@ def test_object_velocity_is_relative_to_the_ego_in_metres_per_second(clips_dir: 
     assert lead_vy.min() < -0.5  # the lead moves right, into the ego's lane
 
 
+def test_object_rates_are_the_objects_own_motion_over_ground(clips_dir: Path) -> None:
+    """The ego drives at 5 m/s: the parked car stands (its own speed 0, though it comes back at 5 m/s relative to
+    the ego), the follower drives with the ego at 5 m/s."""
+    ds = ClipDataset(clips_dir)
+    by_track = {ds[i]["track_id"]: ds[i] for i in range(len(ds)) if ds[i]["log_id"] == "synthetic_0"}
+    assert by_track["parked"]["object_rates"].shape == (8, 3)
+    np.testing.assert_allclose(by_track["parked"]["object_rates"].numpy(), 0.0, atol=1e-3)
+    np.testing.assert_allclose(by_track["follower"]["object_rates"].numpy()[:, 0], 5.0, atol=1e-2)
+
+
 def test_clips_played_backwards_have_no_dense_targets_and_turn_their_velocity(clips_dir: Path) -> None:
     aug = AugmentConfig(time_reversal_probability=1.0, max_rotation_rad=0.0, max_translation_m=0.0)
     forward = ClipDataset(clips_dir)
@@ -218,3 +228,6 @@ def test_clips_played_backwards_have_no_dense_targets_and_turn_their_velocity(cl
     assert (item["frame_targets"] == -1).all()
     np.testing.assert_allclose(item["object_velocity"].numpy(), -forward[i]["object_velocity"].numpy()[::-1],
                                atol=1e-4)
+    # The object's own rates: its speed stays, its acceleration and yaw rate turn round.
+    rates = forward[i]["object_rates"].numpy()[::-1]
+    np.testing.assert_allclose(item["object_rates"].numpy(), rates * np.array([1.0, -1.0, -1.0]), atol=1e-5)

@@ -18,10 +18,11 @@ def test_card_names_the_track_inputs_the_time_slots_and_the_dense_heads() -> Non
     model = DualEncoderConfig(time_slots=4, slot_dim=48, text=TextConfig(kind="slots"), dense_streams=("track",),
                               bev=BevConfig(track_velocity=True))
     card = _card(TrainConfig(model=model, dense_weight=1.0, hard_negatives=(HardNegative.REVERSE,)))
-    assert "the object's own track (11 features per frame + velocity relative to the ego)" in card
+    assert ("the object's own track (11 features per frame + velocity relative to the ego and own speed, "
+            "acceleration and yaw rate)") in card
     assert "pools its frame tokens into 4 stretches of the clip, in order (48 dims each)" in card
-    assert "per-frame rule tags (lane, motion, ego motion and direction) on the track stream's frame tokens, " \
-           "weight 1" in card
+    assert "per-frame rule tags (lane, motion, host_motion, host_direction, action, context) on the track " \
+           "stream's frame tokens, weight 1" in card
     assert "hard negatives (edited steps): reverse" in card
     assert "temporal transformer with ego motion (x_m, y_m, yaw_rad, speed_mps, accel_mps2, yaw_rate_rps)" in card
     plain = _card(TrainConfig(model=dataclasses.replace(model, time_slots=0, text=TextConfig(), dense_streams=(),

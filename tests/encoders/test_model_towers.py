@@ -225,7 +225,7 @@ def test_track_range_gives_the_track_stream_the_range_and_its_change(batch: dict
     from encoders.bev import RANGE_FEATURES
 
     config = tiny_model_config()
-    tower = DualEncoder(replace(config, bev=replace(config.bev, track_range=True))).bev.eval()
+    tower = DualEncoder(replace(config, bev=replace(config.bev, track_range=True, track_rates=False))).bev.eval()
     track, ego = batch["object_track"], batch["ego_motion"]
     features = tower.track_features(track, ego)  # (B, T, 2 (F + 3) + E)
     f = track.shape[-1] + len(RANGE_FEATURES)
@@ -245,7 +245,7 @@ def test_track_velocity_gives_the_track_stream_velocity_and_range_rates(batch: d
     from encoders.bev import VELOCITY_FEATURES, VELOCITY_SCALE_MPS
 
     config = tiny_model_config()
-    model = DualEncoder(replace(config, bev=replace(config.bev, track_velocity=True))).eval()
+    model = DualEncoder(replace(config, bev=replace(config.bev, track_velocity=True, track_rates=False))).eval()
     track, ego, velocity = batch["object_track"], batch["ego_motion"], batch["object_velocity"]
     features = model.bev.track_features(track, ego, velocity)  # (B, T, 2 (F + 4) + E)
     f = track.shape[-1] + len(VELOCITY_FEATURES)
@@ -258,6 +258,29 @@ def test_track_velocity_gives_the_track_stream_velocity_and_range_rates(batch: d
         assert model.encode_video(batch, view="bev").shape == (track.shape[0], config.embed_dim)
         with pytest.raises(KeyError, match="object_velocity"):
             model.encode_video({k: x for k, x in batch.items() if k != "object_velocity"}, view="bev")
+
+
+def test_track_rates_give_the_track_stream_the_objects_own_motion(batch: dict[str, Any]) -> None:
+    from encoders.bev import RATES_SCALE
+
+    config = tiny_model_config()
+    assert config.bev.track_rates  # the default
+    model = DualEncoder(config).eval()
+    plain = DualEncoder(replace(config, bev=replace(config.bev, track_rates=False))).eval()
+    track, ego = batch["object_track"], batch["ego_motion"]
+    rates = torch.zeros(*track.shape[:2], 3)
+    rates[..., 1] = -3.0  # braking at 3 m/s²
+    features = model.bev.track_features(track, ego, object_rates=rates)  # (B, T, 2 (F + 3) + E)
+    f = track.shape[-1] + len(RATES_SCALE)
+    assert features.shape[-1] == 2 * f + config.bev.ego_features
+    assert plain.bev.track_features(track, ego).shape[-1] == features.shape[-1] - 6
+    torch.testing.assert_close(features[..., f - 2], torch.full(track.shape[:2], -3.0 / RATES_SCALE[1]))
+    with torch.no_grad():
+        moving = model.encode_video({**batch, "object_rates": rates}, view="bev")
+        still = model.encode_video({**batch, "object_rates": torch.zeros_like(rates)}, view="bev")
+        assert not torch.allclose(moving, still)
+        with pytest.raises(KeyError, match="object_rates"):
+            model.encode_video({k: x for k, x in batch.items() if k != "object_rates"}, view="bev")
 
 
 def test_dense_heads_read_the_frame_tokens_of_each_stream(batch: dict[str, Any]) -> None:
@@ -286,7 +309,7 @@ def test_ego_rates_reach_the_bev_tower_and_older_models_read_the_pose_and_speed_
     about unit range); a model configured before them (4) reads the first four columns of the same batch."""
     from encoders.bev import EGO_MOTION_SCALE
 
-    config = tiny_model_config()
+    config = replace(tiny_model_config(), bev=replace(tiny_model_config().bev, track_rates=False))
     assert config.bev.ego_features == 6 == batch["ego_motion"].shape[-1] == len(EGO_MOTION_SCALE)
     new = DualEncoder(config).eval()
     old = DualEncoder(replace(config, bev=replace(config.bev, ego_features=4))).eval()

@@ -63,7 +63,8 @@ def test_unknown_keys_are_listed_with_their_path() -> None:
     ("text", "field"),
     [("loss: hinge", "loss"), ("positives: words", "positives"), ("batch_size: 0", "batch_size"),
      ("device: tpu", "device"), ("model:\n  bev:\n    downsample: 3", "downsample"),
-     ("model:\n  text:\n    kind: lstm", "kind"), ("model:\n  bev:\n    ego_features: 7", "ego_features")],
+     ("model:\n  text:\n    kind: lstm", "kind"), ("model:\n  bev:\n    ego_features: 7", "ego_features"),
+     ("model:\n  dense_tasks: [lane, speed]", "dense_tasks.*speed"), ("model:\n  dense_tasks: []", "dense_tasks")],
 )
 def test_bad_values(text: str, field: str) -> None:
     with pytest.raises(ConfigError, match=field):
@@ -85,11 +86,14 @@ def test_a_run_written_before_newer_keys_loads_and_resumes_as_it_was(tmp_path: P
     from encoders.checkpoints import check_resume_config
 
     old = TrainConfig().to_dict()
-    del old["view_weight"], old["time_reversal"], old["model"]["bev"]["track_range"]
+    del old["view_weight"], old["time_reversal"], old["model"]["bev"]["track_range"], old["model"]["dense_tasks"]
     path = tmp_path / "config.json"
     path.write_text(json.dumps(old))
     config = TrainConfig.from_json(path)
     assert config.view_weight == 0.0 and config.time_reversal == 0.0 and config.model.bev.track_range is False
+    # Dense heads from before the action and context tasks predict the first four.
+    assert config.model.dense_tasks == ("lane", "motion", "host_motion", "host_direction")
+    assert TrainConfig().model.dense_tasks[4:] == ("action", "context")
     check_resume_config(config, old, done_epochs=1)  # the checkpoint's dict lacks the same keys
     changed = dataclasses.replace(config.model, bev=dataclasses.replace(config.model.bev, track_range=True))
     with pytest.raises(ConfigError, match="track_range"):

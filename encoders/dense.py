@@ -42,7 +42,6 @@ DENSE_TASKS: dict[str, tuple[str, ...]] = {task: _CLASSES[task] for task in DENS
 #: Task → the clip-table column that holds it.
 _TASK_COLUMNS = {task: column for column, task in FRAME_TAG_COLUMNS.items()}
 _INDEX = {task: {name: i for i, name in enumerate(classes)} for task, classes in DENSE_TASKS.items()}
-ALL_TASKS = tuple(DENSE_TASKS)
 
 
 def frame_targets(columns: Mapping[str, Sequence[str | None] | None], num_frames: int) -> NDArray[np.int64]:
@@ -63,23 +62,22 @@ def frame_targets(columns: Mapping[str, Sequence[str | None] | None], num_frames
     return out
 
 
-def task_logits(logits: torch.Tensor, tasks: Sequence[str] = ALL_TASKS) -> dict[str, torch.Tensor]:
+def task_logits(logits: torch.Tensor, tasks: Sequence[str] = DENSE_TASK_NAMES) -> dict[str, torch.Tensor]:
     """logits: (..., ΣC) of :class:`DenseHeads` over ``tasks`` → task → its logits (..., C_task)."""
     return dict(zip(tasks, logits.split([len(DENSE_TASKS[t]) for t in tasks], dim=-1)))
 
 
 def task_targets(targets: torch.Tensor, tasks: Sequence[str]) -> torch.Tensor:
     """targets: (..., K) of every :data:`DENSE_TASKS` (:func:`frame_targets`) → (..., len(tasks)) of ``tasks``."""
-    return targets[..., [ALL_TASKS.index(t) for t in tasks]]
+    return targets[..., [DENSE_TASK_NAMES.index(t) for t in tasks]]
 
 
 class DenseHeads(nn.Module):
     """Frame tokens (B, T, W) → logits (B, T, ΣC) of each of ``tasks``, one linear map."""
 
-    def __init__(self, width: int, tasks: Sequence[str] = ALL_TASKS) -> None:
+    def __init__(self, width: int, tasks: Sequence[str] = DENSE_TASK_NAMES) -> None:
         super().__init__()
-        self.tasks = tuple(tasks)
-        self.proj = nn.Linear(width, sum(len(DENSE_TASKS[t]) for t in self.tasks))
+        self.proj = nn.Linear(width, sum(len(DENSE_TASKS[t]) for t in tasks))
 
     def forward(self, tokens: torch.Tensor) -> torch.Tensor:
         return self.proj(tokens)  # (B, T, ΣC)
@@ -87,7 +85,7 @@ class DenseHeads(nn.Module):
 
 def dense_loss(logits: torch.Tensor, targets: torch.Tensor, keep: torch.Tensor | None = None,
                whole: Callable[[torch.Tensor], torch.Tensor] | None = None,
-               tasks: Sequence[str] = ALL_TASKS) -> torch.Tensor:
+               tasks: Sequence[str] = DENSE_TASK_NAMES) -> torch.Tensor:
     """logits: (B, T, ΣC) over ``tasks``; targets: (B, T, K) of every task (−1: no target); keep: (B,) bool
     clips that count → the mean over ``tasks`` of each one's cross-entropy over its tagged frames (a task
     with none adds 0).
@@ -113,7 +111,7 @@ def dense_loss(logits: torch.Tensor, targets: torch.Tensor, keep: torch.Tensor |
 
 def stream_dense_loss(logits: Mapping[str, torch.Tensor], targets: torch.Tensor, has_camera: torch.Tensor,
                       whole: Callable[[torch.Tensor], torch.Tensor] | None = None,
-                      tasks: Sequence[str] = ALL_TASKS) -> torch.Tensor:
+                      tasks: Sequence[str] = DENSE_TASK_NAMES) -> torch.Tensor:
     """stream → logits (B, T, ΣC) over ``tasks``; targets (B, T, K); has_camera (B,) bool → the mean of the
     streams' :func:`dense_loss` (the camera stream's over the clips with camera only); ``whole`` as there."""
     losses = [dense_loss(x, targets, has_camera.reshape(-1) if name == "camera" else None, whole, tasks)
@@ -122,7 +120,8 @@ def stream_dense_loss(logits: Mapping[str, torch.Tensor], targets: torch.Tensor,
 
 
 @torch.no_grad()
-def dense_accuracy(logits: torch.Tensor, targets: torch.Tensor, tasks: Sequence[str] = ALL_TASKS) -> dict[str, float]:
+def dense_accuracy(logits: torch.Tensor, targets: torch.Tensor,
+                   tasks: Sequence[str] = DENSE_TASK_NAMES) -> dict[str, float]:
     """logits: (B, T, ΣC) over ``tasks``; targets: (B, T, K) of every task → task → accuracy over its tagged
     frames (NaN with none)."""
     targets = task_targets(targets, tasks)
@@ -135,7 +134,7 @@ def dense_accuracy(logits: torch.Tensor, targets: torch.Tensor, tasks: Sequence[
 
 
 def frame_tag_report(logits: Mapping[str, torch.Tensor], targets: torch.Tensor,
-                     has_camera: torch.Tensor, tasks: Sequence[str] = ALL_TASKS) -> dict[str, Any]:
+                     has_camera: torch.Tensor, tasks: Sequence[str] = DENSE_TASK_NAMES) -> dict[str, Any]:
     """stream → logits (N, T, ΣC) over ``tasks``; targets (N, T, K) of every task; has_camera (N,) bool →
     the dense heads' figures.
 
@@ -148,7 +147,7 @@ def frame_tag_report(logits: Mapping[str, torch.Tensor], targets: torch.Tensor,
     counts = [torch.bincount(own[..., k][own[..., k] >= 0], minlength=len(DENSE_TASKS[t]))
               for k, t in enumerate(tasks)]
     constant = torch.cat([F.one_hot(n.argmax(), len(n)).float() for n in counts])  # (ΣC,) the most frequent
-    motion = ALL_TASKS.index("motion")
+    motion = DENSE_TASK_NAMES.index("motion")
     streams, ends = {}, {}
     for name, x in logits.items():
         keep = has_camera.reshape(-1) if name == "camera" else slice(None)

@@ -86,8 +86,7 @@ def read_frame_tags(path: Path, log_ids: Sequence[str] | None = None) -> dict[st
         raise ValueError(f"{path}: unreadable Parquet file ({exc})") from exc
     cols = {name: table.column(name).to_pylist() for name in columns}
     null: list[str | None] = [None] * table.num_rows
-    for name in _OPTIONAL_FIELDS:
-        cols.setdefault(name, null)
+    objects = list(zip(*(cols.get(name, null) for name in _OBJECT_FIELDS)))  # (lane, motion, action, context)
     out: dict[str, LogFrameTags] = {}
     for i in range(table.num_rows):
         log_id, t, track = cols["log_id"][i], cols["timestamp_ns"][i], cols["track_id"][i]
@@ -99,5 +98,5 @@ def read_frame_tags(path: Path, log_ids: Sequence[str] | None = None) -> dict[st
         if track == _HOST_TRACK_ID:
             tags.host[int(t)] = (cols["host_motion"][i], cols["host_direction"][i])
         else:
-            tags.objects[(int(t), str(track))] = tuple(cols[name][i] for name in _OBJECT_FIELDS)
+            tags.objects[(int(t), str(track))] = objects[i]
     return out

@@ -20,7 +20,7 @@ from captioning.object_motion import track_kinematics
 from encoders.clips import layout
 from encoders.clips.raster import grid_affine_from, rasterize_track
 from scenes.bev import BevGrid
-from scenes.geometry import wrap_angle_rad
+from scenes.geometry import batch_matrices, wrap_angle_rad, yaw_to_rotmat
 
 
 @dataclass(frozen=True)
@@ -120,10 +120,7 @@ def object_rates(box_xy_lw_yaw: NDArray[np.floating], pose_xy_yaw: NDArray[np.fl
     valid: NDArray[np.bool_] = np.asarray(np.isfinite(boxes).all(axis=1), dtype=bool)
     if f < 2 or not valid.any():
         return np.zeros((f, len(OBJECT_RATES_COLUMNS)), np.float32)
-    c, s = np.cos(pose_xy_yaw[:, 2]), np.sin(pose_xy_yaw[:, 2])
-    city_SE3_ego = np.tile(np.eye(4), (f, 1, 1))
-    city_SE3_ego[:, 0, 0], city_SE3_ego[:, 0, 1], city_SE3_ego[:, 1, 0], city_SE3_ego[:, 1, 1] = c, -s, s, c
-    city_SE3_ego[:, :2, 3] = pose_xy_yaw[:, :2]
+    city_SE3_ego = batch_matrices(yaw_to_rotmat(pose_xy_yaw[:, 2]), np.c_[pose_xy_yaw[:, :2], np.zeros(f)])
     timestamps_ns = np.round((time_s - time_s[0]) * 1e9).astype(np.int64)
     boxes = np.nan_to_num(boxes)
     kin = track_kinematics(timestamps_ns, valid[None], boxes[None, :, :2], boxes[None, :, 4], city_SE3_ego,

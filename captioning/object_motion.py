@@ -1,8 +1,10 @@
 """The objects' own motion over ground: speed, its rate of change and the heading rate of each track.
 
 What the own-behaviour rules (:mod:`captioning.behavior`) threshold for standing, braking and turning,
-and what the encoders read per clip frame (:func:`encoders.clips.views.object_rates`): one computation
-for both, so that a model reads exactly the quantities the tags are made of.
+and, with the velocity relative to the ego that the neighbour motion rules threshold
+(:func:`captioning.neighbors.motion_codes`), what the encoders read per clip frame
+(:func:`encoders.clips.views.object_rates_and_velocity`): one computation for both, so that a model reads
+exactly the quantities the tags are made of.
 """
 
 from __future__ import annotations
@@ -111,10 +113,18 @@ def object_kinematics(motion: TrackMotion, city_SE3_ego: FloatArray, config: Cap
     return ObjectKinematics(enough, speed, accel, yaw, _yaw_rate_rps(yaw, enough, motion.t_s, w))
 
 
+#: What :func:`track_kinematics` gives per frame: the object's own motion over ground (the behaviour rules'
+#: quantities), then its velocity relative to the ego in that frame's ego frame (the neighbour rules').
+TRACK_KINEMATICS_COLUMNS = ("speed_mps", "accel_mps2", "yaw_rate_rps", "rel_vx_mps", "rel_vy_mps")
+
+
 def track_kinematics(timestamps_ns: IntArray, valid: BoolArray, center_ego_xy_m: FloatArray, yaw_ego_rad: FloatArray,
                      city_SE3_ego: FloatArray, config: CaptioningConfig) -> FloatArray:
-    """(K, T, 3) each track's ``speed_mps, accel_mps2, yaw_rate_rps`` over ground on the log grid, NaN where
-    unknown (unobserved, or a run too short): :func:`object_kinematics` of the tracks.
+    """(K, T, 5) each track's :data:`TRACK_KINEMATICS_COLUMNS` on the log grid: ``speed_mps, accel_mps2,
+    yaw_rate_rps`` over ground (:func:`object_kinematics`; NaN where unobserved or in a run too short for
+    the behaviour rules), then ``rel_vx_mps, rel_vy_mps``, the smoothed derivative of the centre in the ego
+    frame that :func:`captioning.neighbors.motion_codes` thresholds for approach / away (NaN where
+    unobserved or not differentiable).
 
     Args:
         timestamps_ns: (T,) frame timestamps.
@@ -124,8 +134,10 @@ def track_kinematics(timestamps_ns: IntArray, valid: BoolArray, center_ego_xy_m:
         city_SE3_ego: (T, 4, 4) ego poses.
     """
     if not valid.any():
-        return np.full((*valid.shape, 3), np.nan)
+        return np.full((*valid.shape, len(TRACK_KINEMATICS_COLUMNS)), np.nan)
     motion = track_motion(timestamps_ns, valid, center_ego_xy_m, yaw_ego_rad, city_SE3_ego, config)
     kin = object_kinematics(motion, city_SE3_ego, config)
-    stacked = np.stack([kin.speed_mps, kin.accel_mps2, kin.yaw_rate_rps], axis=2)  # (K, L, 3)
-    return scatter_to_log_grid(motion.grid, np.where(kin.enough[..., None], stacked, np.nan), valid.shape, np.nan)
+    own = np.stack([kin.speed_mps, kin.accel_mps2, kin.yaw_rate_rps], axis=2)  # (K, L, 3)
+    relative = np.where(motion.bridged[..., None], motion.derivative[..., 2:], np.nan)  # (K, L, 2), the ego frame
+    stacked = np.concatenate([np.where(kin.enough[..., None], own, np.nan), relative], axis=2)  # (K, L, 5)
+    return scatter_to_log_grid(motion.grid, stacked, valid.shape, np.nan)

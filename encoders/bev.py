@@ -34,8 +34,8 @@ RANGE_FEATURES = ("range", "abs_x", "abs_y")
 VELOCITY_FEATURES = ("vx", "vy", "range_rate_x", "range_rate_y")
 #: m/s brought to about unit range.
 VELOCITY_SCALE_MPS = 10.0
-#: What ``BevConfig.track_rates`` adds (:func:`encoders.clips.views.object_rates`), and the scales that bring
-#: them to about unit range.
+#: What ``BevConfig.track_rates`` adds (:func:`encoders.clips.views.object_rates_and_velocity`), and the
+#: scales that bring them to about unit range.
 RATES_SCALE = (10.0, 2.0, 0.5)
 
 

@@ -21,9 +21,9 @@ of the bytes to move; :class:`~encoders.model.DualEncoder` converts them on its 
 - ``object_track``: (T, 11) float32, the object's own box through the clip relative to the ego and
   in the clip's first ego frame (:func:`encoders.clips.views.object_track`)
 - ``object_velocity``: (T, 2) float32 the object's velocity relative to the ego in each frame's ego
-  frame, m/s (:func:`encoders.clips.views.object_velocity`)
+  frame, m/s, as the motion rules compute it (:func:`encoders.clips.views.object_rates_and_velocity`)
 - ``object_rates``: (T, 3) float32 the object's own ``speed_mps, accel_mps2, yaw_rate_rps`` over ground,
-  as the behaviour rules compute them (:func:`encoders.clips.views.object_rates`)
+  as the behaviour rules compute them (the same function)
 - ``frame_targets``: (T, K) int64, each frame's rule tags as class indices of the K
   :data:`encoders.dense.DENSE_TASKS`, −1 where untagged (all −1 for a clip table without frame tags)
 
@@ -52,14 +52,14 @@ from encoders.clips.views import (
     EGO_MOTION_FEATURES,
     OBJECT_RATES_COLUMNS,
     OBJECT_TRACK_FEATURES,
+    OBJECT_VELOCITY_COLUMNS,
     LogArrays,
     ego_motion,
     gather_cells,
     highlight_camera,
     object_footprint,
-    object_rates,
+    object_rates_and_velocity,
     object_track,
-    object_velocity,
     open_log_arrays,
     rotate_object_track,
     warp_source_cells,
@@ -162,7 +162,7 @@ class ClipDataset(torch.utils.data.Dataset[dict[str, Any]]):
         )
         self._grid = grid_from_manifest(self.manifest)
         self._arrays: dict[str, LogArrays] = {}
-        self._rates: dict[tuple[str, str], NDArray[np.float32]] = {}  # (log, track) → (F, 3), once per track
+        self._rates: dict[tuple[str, str], NDArray[np.float32]] = {}  # (log, track) → (F, 5), once per track
 
     # Memory maps are opened lazily in each process, never pickled to workers.
     def __getstate__(self) -> dict[str, Any]:
@@ -199,9 +199,10 @@ class ClipDataset(torch.utils.data.Dataset[dict[str, Any]]):
         return arrays
 
     def _object_rates(self, log_id: str, track_id: str, arrays: LogArrays, value: int) -> NDArray[np.float32]:
+        """(F, 5) :func:`object_rates_and_velocity` of the track over the whole log, computed once per track."""
         rates = self._rates.get((log_id, track_id))
         if rates is None:
-            rates = object_rates(arrays.track_boxes[:, value - 1], arrays.pose_xy_yaw, arrays.time_s)
+            rates = object_rates_and_velocity(arrays.track_boxes[:, value - 1], arrays.pose_xy_yaw, arrays.time_s)
             self._rates[(log_id, track_id)] = rates
         return rates
 
@@ -235,7 +236,7 @@ class ClipDataset(torch.utils.data.Dataset[dict[str, Any]]):
         t = shapes["camera"][0]
         motion = _empty_batch((len(indices), t, EGO_MOTION_FEATURES), torch.float32)
         track = _empty_batch((len(indices), t, OBJECT_TRACK_FEATURES), torch.float32)
-        velocity = _empty_batch((len(indices), t, 2), torch.float32)
+        velocity = _empty_batch((len(indices), t, len(OBJECT_VELOCITY_COLUMNS)), torch.float32)
         rates = _empty_batch((len(indices), t, len(OBJECT_RATES_COLUMNS)), torch.float32)
         targets = _empty_batch((len(indices), t, len(DENSE_TASKS)), torch.int64)
         items = [self._fill(i, {key: slot[b] for key, slot in slots.items()}, motion.numpy()[b], track.numpy()[b],
@@ -302,8 +303,9 @@ class ClipDataset(torch.utils.data.Dataset[dict[str, Any]]):
         obj *= np.uint8(255)
         motion_out[:] = ego_motion(arrays.pose_xy_yaw, arrays.speed_mps, fi, arrays.accel_mps2, arrays.yaw_rate_rps)
         track_out[:] = object_track(arrays.track_boxes[fi, value - 1], motion_out)
-        velocity_out[:] = object_velocity(arrays.track_boxes[:, value - 1, :2], arrays.time_s, fi)
-        rates_out[:] = self._object_rates(row.log_id, row.track_id, arrays, value)[fi]
+        rates_and_velocity = self._object_rates(row.log_id, row.track_id, arrays, value)[fi]  # (T, 5)
+        rates_out[:] = rates_and_velocity[:, : len(OBJECT_RATES_COLUMNS)]
+        velocity_out[:] = rates_and_velocity[:, len(OBJECT_RATES_COLUMNS):]
         if backwards is not None:
             velocity_out *= -1.0  # played backwards, every velocity turns round
             motion_out[:, 4:] *= -1.0  # and the ego's rates with it (accelerating ↔ decelerating, left ↔ right)

@@ -28,7 +28,7 @@ import torch
 from torch.utils.data import Dataset
 
 from encoders.clips.layout import clip_id
-from encoders.clips.views import EGO_MOTION_FEATURES, object_rates, object_track, object_velocity
+from encoders.clips.views import EGO_MOTION_FEATURES, OBJECT_RATES_COLUMNS, object_rates_and_velocity, object_track
 
 #: Seconds between a synthetic clip's frames.
 FRAME_STEP_S = 0.1
@@ -173,6 +173,11 @@ class SyntheticClipDataset(Dataset[dict[str, Any]]):
         camera = np.zeros((t, 4, *s.camera_hw), np.float32)
         if rec["has_camera"]:
             camera = render_camera(s, boxes, rng)
+        box = np.stack([x_m, y_m, np.full(t, length_m), np.full(t, width_m), np.zeros(t)], axis=1)  # (T, 5)
+        # A zero pose reads the ego frame as the ground: the rates are the box's, the relative velocity
+        # is the ego-frame derivative either way.
+        time_s = FRAME_STEP_S * np.arange(t, dtype=np.float64)
+        rates_and_velocity = object_rates_and_velocity(box, np.zeros((t, 3)), time_s)  # (T, 5)
         caption = rec["canonical_caption"]
         if self.augment:
             choices = [caption, *rec["paraphrases"]]
@@ -188,13 +193,9 @@ class SyntheticClipDataset(Dataset[dict[str, Any]]):
             "bev_map": torch.from_numpy(render_map(s, ego)),
             "bev_object": torch.from_numpy(obj),
             "ego_motion": torch.from_numpy(ego),
-            "object_track": torch.from_numpy(object_track(
-                np.stack([x_m, y_m, np.full(t, length_m), np.full(t, width_m), np.zeros(t)], axis=1), ego)),
-            "object_velocity": torch.from_numpy(object_velocity(
-                np.stack([x_m, y_m], axis=1), FRAME_STEP_S * np.arange(t), np.arange(t))),
-            "object_rates": torch.from_numpy(object_rates(  # the ego stands at the origin: ego frame = ground
-                np.stack([x_m, y_m, np.full(t, length_m), np.full(t, width_m), np.zeros(t)], axis=1),
-                np.zeros((t, 3)), FRAME_STEP_S * np.arange(t, dtype=np.float64))),
+            "object_track": torch.from_numpy(object_track(box, ego)),
+            "object_velocity": torch.from_numpy(rates_and_velocity[:, len(OBJECT_RATES_COLUMNS):]),
+            "object_rates": torch.from_numpy(rates_and_velocity[:, : len(OBJECT_RATES_COLUMNS)]),
         }
 
 

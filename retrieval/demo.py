@@ -73,7 +73,9 @@ class DemoConfig:
             with its steps reversed is what teaches them order.
         dense_weight: weight of the per-frame rule-tag loss on the frame tokens of ``dense_streams``
             (``train --dense-weight``; 0 or None: no dense heads). The tags of every frame make the
-            tokens that the slots pool carry the motion, not only the clip's one caption.
+            tokens that the slots pool carry the motion, not only the clip's one caption; at 1 the
+            contrastive loss outweighs them and the track stream reads its frames' tags worse than its
+            inputs allow (README, "Dense weight and the rules' relative velocity"), hence 3.
         dense_streams: the temporal streams whose frame tokens carry those heads (``train
             --dense-streams``): on the camera stream too, the camera tower alone learns the motion
             that its one contrastive target hardly teaches it.
@@ -108,7 +110,7 @@ class DemoConfig:
     camera_share: float | None = 0.25
     time_slots: int | None = 4
     hard_negatives: tuple[str, ...] = ("reverse",)
-    dense_weight: float | None = 1.0
+    dense_weight: float | None = 3.0
     dense_streams: tuple[str, ...] = ("camera", "track")
     track_velocity: bool = True
     train_preset: str | None = None

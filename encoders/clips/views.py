@@ -95,20 +95,27 @@ def ego_rates(time_s: NDArray[np.float64], pose_xy_yaw: NDArray[np.float64]) -> 
     return np.nan_to_num(kin.accel_mps2), np.nan_to_num(kin.yaw_rate_rps)
 
 
-#: What :func:`object_rates` gives per frame: the object's own motion over ground.
+#: What :func:`object_rates_and_velocity` gives per frame: the object's own motion over ground (the
+#: batches' ``object_rates``), then its velocity relative to the ego in that frame's ego frame
+#: (``object_velocity``).
 OBJECT_RATES_COLUMNS = ("speed_mps", "accel_mps2", "yaw_rate_rps")
+OBJECT_VELOCITY_COLUMNS = ("rel_vx_mps", "rel_vy_mps")
 
 
-def object_rates(box_xy_lw_yaw: NDArray[np.floating], pose_xy_yaw: NDArray[np.float64],
-                 time_s: NDArray[np.float64]) -> NDArray[np.float32]:
-    """(F, 3) the object's own speed, acceleration and yaw rate over ground in every log frame, as the
-    behaviour rules compute them (:func:`captioning.object_motion.track_kinematics`, the captioning default's
+def object_rates_and_velocity(box_xy_lw_yaw: NDArray[np.floating], pose_xy_yaw: NDArray[np.float64],
+                              time_s: NDArray[np.float64]) -> NDArray[np.float32]:
+    """(F, 5) the object's own speed, acceleration and yaw rate over ground, then its velocity relative to the
+    ego in each log frame's ego frame (:data:`OBJECT_RATES_COLUMNS`, :data:`OBJECT_VELOCITY_COLUMNS`), as the
+    rules compute them (:func:`captioning.object_motion.track_kinematics`, the captioning default's
     filters); 0 where unknown (unobserved, or in a run too short for the rules).
 
-    Braking, standing and turning are rates of the object's own motion: its ego-relative boxes and
-    velocity, half a second apart at the clip's frames, leave the ego's motion in them to subtract and
-    two differences to take. A temporal model trained on the demo's track inputs alone reads the
-    action that the caption names right in 0.61 of the test frames, and in 0.75 given these.
+    Braking, standing and turning are rates of the object's own motion: its ego-relative boxes,
+    half a second apart at the clip's frames, leave the ego's motion in them to subtract and two
+    differences to take. A temporal model trained on the demo's track inputs alone reads the action
+    that the caption names right in 0.61 of the test frames, and in 0.75 given the rates. Approach and
+    away threshold the relative velocity: the rules' Savitzky–Golay derivative over the log's frames
+    rather than a central difference of two neighbouring frames, whose noise near the threshold the
+    model would otherwise have to learn (README, "Dense weight and the rules' relative velocity").
 
     Args:
         box_xy_lw_yaw: (F, 5) the object's box in each log frame's ego frame, NaN where unobserved.
@@ -118,13 +125,14 @@ def object_rates(box_xy_lw_yaw: NDArray[np.floating], pose_xy_yaw: NDArray[np.fl
     boxes = np.asarray(box_xy_lw_yaw, dtype=np.float64)
     f = boxes.shape[0]
     valid: NDArray[np.bool_] = np.asarray(np.isfinite(boxes).all(axis=1), dtype=bool)
+    width = len(OBJECT_RATES_COLUMNS) + len(OBJECT_VELOCITY_COLUMNS)
     if f < 2 or not valid.any():
-        return np.zeros((f, len(OBJECT_RATES_COLUMNS)), np.float32)
+        return np.zeros((f, width), np.float32)
     city_SE3_ego = batch_matrices(yaw_to_rotmat(pose_xy_yaw[:, 2]), np.c_[pose_xy_yaw[:, :2], np.zeros(f)])
     timestamps_ns = np.round((time_s - time_s[0]) * 1e9).astype(np.int64)
     boxes = np.nan_to_num(boxes)
     kin = track_kinematics(timestamps_ns, valid[None], boxes[None, :, :2], boxes[None, :, 4], city_SE3_ego,
-                           CaptioningConfig())[0]  # (F, 3)
+                           CaptioningConfig())[0]  # (F, 5)
     return np.nan_to_num(kin).astype(np.float32)
 
 
@@ -241,38 +249,6 @@ def object_track(box_xy_lw_yaw: NDArray[np.floating], ego: NDArray[np.floating])
     out = np.stack([x / p, y / p, np.cos(yaw), np.sin(yaw), fixed_x / p, fixed_y / p, np.cos(fixed_yaw),
                     np.sin(fixed_yaw), length / z, width / z, np.ones_like(x)], axis=1)
     return (out * seen[:, None]).astype(np.float32)
-
-
-def object_velocity(center_xy_m: NDArray[np.floating], time_s: NDArray[np.floating],
-                    indices: NDArray[np.integer]) -> NDArray[np.float32]:
-    """The object's velocity relative to the ego, in each sampled frame's ego frame.
-
-    A clip samples T frames of a window of any length, so the change of the track between two clip
-    frames is a velocity times a step the model does not know; the log's own neighbouring frames give
-    the velocity in m/s, the quantity the motion rules threshold (:mod:`captioning.neighbors`).
-
-    Args:
-        center_xy_m: (F, 2) the object's centre in each log frame's ego frame, NaN where unobserved.
-        time_s: (F,) the log frames' times.
-        indices: (T,) sampled frames.
-
-    Returns:
-        (T, 2) float32 ``vx_mps, vy_mps``: central differences over the neighbouring log frames (one-sided
-        at an end or next to an unobserved frame), 0 where neither neighbour is observed.
-    """
-    i = np.asarray(indices, dtype=np.int64)
-    frames = np.stack([np.maximum(i - 1, 0), i, np.minimum(i + 1, len(center_xy_m) - 1)])  # (3, T) prev, here, next
-    # Only these frames are read: center_xy_m may be a view of a memory map over the whole log.
-    xy = np.asarray(center_xy_m[frames.ravel()], dtype=np.float64).reshape(3, -1, 2)  # (3, T, 2)
-    t = np.asarray(time_s, dtype=np.float64)
-    seen: NDArray[np.bool_] = np.asarray(np.isfinite(xy).all(axis=2), dtype=bool)  # (3, T)
-    cols = np.arange(len(i))
-    a, b = np.where(seen[0], 0, 1), np.where(seen[2], 2, 1)  # the rows each difference starts and ends at
-    start, end = frames[a, cols], frames[b, cols]  # (T,) log frames
-    ok = seen[a, cols] & seen[b, cols] & (end > start)
-    dt = np.where(ok, t[end] - t[start], 1.0)
-    step = np.nan_to_num(xy[b, cols]) - np.nan_to_num(xy[a, cols])  # (T, 2)
-    return np.where(ok[:, None], step / np.maximum(dt, 1e-6)[:, None], 0.0).astype(np.float32)
 
 
 def rotate_object_track(track: NDArray[np.float32], theta_rad: float) -> None:

@@ -47,20 +47,6 @@ def test_track_of_a_turning_ego_and_its_rotation() -> None:
     np.testing.assert_allclose(turned[:, :4], expected[:, :4], atol=1e-6)
 
 
-def test_object_velocity_from_the_logs_neighbouring_frames() -> None:
-    from encoders.clips.views import object_velocity
-
-    time_s = np.array([0.0, 0.1, 0.2, 0.3, 0.45, 0.6])
-    xy = np.stack([10.0 - 4.0 * time_s, 2.0 + 1.0 * time_s], axis=1)  # closing in at 4 m/s, drifting left at 1
-    xy[5] = np.nan  # unobserved: its neighbour uses a one-sided difference
-    v = object_velocity(xy, time_s, np.array([0, 2, 4, 4, 5]))
-    np.testing.assert_allclose(v[:4], [[-4.0, 1.0]] * 4, atol=1e-5)  # ends and uneven steps alike
-    np.testing.assert_array_equal(v[4], [0.0, 0.0])  # unobserved itself
-    alone = np.full((3, 2), np.nan)
-    alone[1] = (5.0, 5.0)
-    np.testing.assert_array_equal(object_velocity(alone, time_s[:3], np.array([1])), [[0.0, 0.0]])
-
-
 def _arc(t_s: np.ndarray, speed_mps: np.ndarray, yaw_rate_rps: float) -> np.ndarray:
     """(F, 3) x, y, yaw of a path at the given speeds turning at a constant rate."""
     dt = np.diff(t_s, prepend=t_s[0])
@@ -105,13 +91,14 @@ def test_ego_motion_samples_the_rates_at_the_clip_frames() -> None:
     assert [r.tolist() for r in ego_rates(np.zeros(1), pose[:1])] == [[0.0], [0.0]]
 
 
-def test_object_rates_are_its_own_motion_over_ground_as_the_behaviour_rules_see_it() -> None:
+def test_object_rates_and_velocity_are_what_the_rules_threshold() -> None:
     """The ego cruises at 10 m/s while a car ahead brakes at 1.5 m/s² through a left bend at 0.2 rad/s: in the
     ego's frame the car's box hardly moves, yet its own speed, acceleration and yaw rate over ground come out
-    (what the rules threshold for braking and turning), with the ego's own motion taken out; unobserved frames
-    and runs too short for the rules give zeros."""
+    (what the rules threshold for braking and turning), with the ego's own motion taken out, and its velocity
+    relative to the ego is the derivative of its box in the ego frame (what they threshold for approach and
+    away); unobserved frames and runs too short for the rules give zeros."""
     from captioning.object_motion import track_kinematics
-    from encoders.clips.views import OBJECT_RATES_COLUMNS, object_rates
+    from encoders.clips.views import OBJECT_RATES_COLUMNS, OBJECT_VELOCITY_COLUMNS, object_rates_and_velocity
 
     t_s = np.arange(80) * 0.1
     ego = _arc(t_s, np.full(80, 10.0), 0.0)
@@ -123,17 +110,20 @@ def test_object_rates_are_its_own_motion_over_ground_as_the_behaviour_rules_see_
     boxes[40:43] = np.nan  # three unobserved frames, bridged by the rules
     boxes[70:] = np.nan
     boxes[79] = boxes[0]  # a lone observation after a long gap: no run long enough
-    rates = object_rates(boxes.astype(np.float32), ego, t_s)
-    assert rates.shape == (80, len(OBJECT_RATES_COLUMNS)) and rates.dtype == np.float32
+    both = object_rates_and_velocity(boxes.astype(np.float32), ego, t_s)
+    assert both.shape == (80, len(OBJECT_RATES_COLUMNS) + len(OBJECT_VELOCITY_COLUMNS)) and both.dtype == np.float32
+    rates, velocity = both[:, :3], both[:, 3:]
     inner = np.r_[10:35, 48:62]  # the bridged gap blurs the heading rate next to it
     np.testing.assert_allclose(rates[inner, 0], (15.0 - 1.5 * t_s)[inner], atol=0.25)
     np.testing.assert_allclose(rates[inner, 1], -1.5, atol=0.2)
     np.testing.assert_allclose(rates[inner, 2], 0.2, atol=0.01)
-    assert (rates[70:] == 0).all()
+    step = np.gradient(boxes[:, :2], t_s, axis=0)  # (F, 2) the box's own change in the ego frame
+    np.testing.assert_allclose(velocity[inner], step[inner], atol=0.05)
+    assert (both[70:] == 0).all()
     # The one home of these kinematics: the rules' own function on the same track.
     city_SE3_ego = np.stack([SE3.from_yaw(yaw, np.array([x, y, 0.0])).matrix for x, y, yaw in ego])
     valid = np.isfinite(boxes[:, 0])
     kin = track_kinematics((t_s * 1e9).round().astype(np.int64), valid[None], np.nan_to_num(boxes[None, :, :2]),
                            np.nan_to_num(boxes[None, :, 4]), city_SE3_ego, CaptioningConfig())[0]
-    np.testing.assert_allclose(rates, np.nan_to_num(kin), atol=1e-4)
-    assert object_rates(np.full((5, 5), np.nan), ego[:5], t_s[:5]).tolist() == [[0.0] * 3] * 5
+    np.testing.assert_allclose(both, np.nan_to_num(kin), atol=1e-4)
+    assert object_rates_and_velocity(np.full((5, 5), np.nan), ego[:5], t_s[:5]).tolist() == [[0.0] * 5] * 5

@@ -16,7 +16,7 @@ from numpy.typing import NDArray
 
 from captioning.config import CaptioningConfig, SmoothingConfig
 from captioning.host import planar_kinematics
-from captioning.object_motion import track_kinematics
+from captioning.object_motion import TRACK_KINEMATICS_COLUMNS, track_kinematics
 from encoders.clips import layout
 from encoders.clips.raster import grid_affine_from, rasterize_track
 from scenes.bev import BevGrid
@@ -98,8 +98,8 @@ def ego_rates(time_s: NDArray[np.float64], pose_xy_yaw: NDArray[np.float64]) -> 
 #: What :func:`object_rates_and_velocity` gives per frame: the object's own motion over ground (the
 #: batches' ``object_rates``), then its velocity relative to the ego in that frame's ego frame
 #: (``object_velocity``).
-OBJECT_RATES_COLUMNS = ("speed_mps", "accel_mps2", "yaw_rate_rps")
-OBJECT_VELOCITY_COLUMNS = ("rel_vx_mps", "rel_vy_mps")
+OBJECT_RATES_COLUMNS = TRACK_KINEMATICS_COLUMNS[:3]
+OBJECT_VELOCITY_COLUMNS = TRACK_KINEMATICS_COLUMNS[3:]
 
 
 def object_rates_and_velocity(box_xy_lw_yaw: NDArray[np.floating], pose_xy_yaw: NDArray[np.float64],
@@ -125,9 +125,8 @@ def object_rates_and_velocity(box_xy_lw_yaw: NDArray[np.floating], pose_xy_yaw: 
     boxes = np.asarray(box_xy_lw_yaw, dtype=np.float64)
     f = boxes.shape[0]
     valid: NDArray[np.bool_] = np.asarray(np.isfinite(boxes).all(axis=1), dtype=bool)
-    width = len(OBJECT_RATES_COLUMNS) + len(OBJECT_VELOCITY_COLUMNS)
     if f < 2 or not valid.any():
-        return np.zeros((f, width), np.float32)
+        return np.zeros((f, len(TRACK_KINEMATICS_COLUMNS)), np.float32)
     city_SE3_ego = batch_matrices(yaw_to_rotmat(pose_xy_yaw[:, 2]), np.c_[pose_xy_yaw[:, :2], np.zeros(f)])
     timestamps_ns = np.round((time_s - time_s[0]) * 1e9).astype(np.int64)
     boxes = np.nan_to_num(boxes)

@@ -78,7 +78,7 @@ def test_stages_run_in_order_with_sizes(tmp_path: Path) -> None:
     assert train[train.index("--time-slots") + 1] == "4"
     assert train[train.index("--hard-negatives") + 1:][:1] == ["reverse"]
     # ... with per-frame tag heads on the camera and track streams; the track stream reads the velocity.
-    assert train[train.index("--dense-weight") + 1] == "3.0" and "--track-velocity" in train
+    assert train[train.index("--dense-weight") + 1] == "5.0" and "--track-velocity" in train
     assert train[train.index("--dense-streams") + 1:][:2] == ["camera", "track"]
 
 

@@ -38,6 +38,11 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="skip rendering LiDAR sweeps and camera frames (tracks, map and labels only)")
     parser.add_argument("--map-less-share", type=float, metavar="F",
                         help="share of the logs written without their map, as track-only real logs come (default 0)")
+    parser.add_argument("--furniture-per-km", type=float, metavar="R",
+                        help="groups of cones, bollards, barrels and signs (category other) per km of sidewalk "
+                             "(default 1.5; 0: none)")
+    parser.add_argument("--standing-pedestrians-per-km", type=float, metavar="R",
+                        help="groups of people standing still per km of sidewalk (default 1; 0: none)")
     parser.add_argument("--sensor-config", type=Path,
                         help="YAML sensor config (scenes.sensorsim.SensorConfig): beams, resolution, camera size")
     parser.add_argument("--emit-detections", action="store_true",
@@ -53,7 +58,7 @@ def build_config(args: argparse.Namespace) -> SimulationConfig:
     base = SimulationConfig.from_yaml(args.config) if args.config else SimulationConfig()
     overrides: dict[str, Any] = {}
     for name in ("logs", "duration_s", "seed", "warmup_s", "egos_per_run", "tracker_noise", "sensors", "map_less_share",
-                 "cache_dir"):
+                 "furniture_per_km", "standing_pedestrians_per_km", "cache_dir"):
         value = getattr(args, name, None)
         if value is not None:
             overrides[name] = value

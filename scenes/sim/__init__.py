@@ -6,6 +6,7 @@
 Modules, in the order data flows: :mod:`~scenes.sim.network` (netgenerate, cached),
 :mod:`~scenes.sim.netparse` (read the network), :mod:`~scenes.sim.map_export` (AV2 map, junction
 kinds), :mod:`~scenes.sim.demand` (seeded traffic), :mod:`~scenes.sim.runner` (libsumo at 10 Hz),
+:mod:`~scenes.sim.props` (street furniture and standing people, which SUMO does not have),
 :mod:`~scenes.sim.labels` (behaviour labels), :mod:`~scenes.sim.noise` (detector and tracker
 noise), :mod:`~scenes.sim.appearance`, and :mod:`~scenes.sim.pipeline` (writes the logs).
 SUMO itself is imported only when a simulation runs.

@@ -85,6 +85,9 @@ class SimulationConfig(ScenesConfig):
             counted), so that every layout is about as busy.
         pedestrians_per_s_per_km: mean rate of pedestrian walks starting, per km of road.
         parked_vehicles: vehicles parked at the roadside for the whole run.
+        furniture_per_km: mean groups of street furniture (cones, bollards, barrels, signs; category
+            ``other``) per km of sidewalk, placed at the curb (:mod:`scenes.sim.props`).
+        standing_pedestrians_per_km: mean groups of people standing still per km of sidewalk.
         tracker_noise: apply :class:`TrackerNoiseConfig` to the written annotations (labels stay exact).
         noise: the noise model used when ``tracker_noise`` is set.
         sensors: whether sensor data (LiDAR, cameras) is rendered after the tracks; recorded for the
@@ -108,6 +111,8 @@ class SimulationConfig(ScenesConfig):
     vehicles_per_s_per_km: float = 0.17
     pedestrians_per_s_per_km: float = 0.06
     parked_vehicles: int = 30
+    furniture_per_km: float = 1.5
+    standing_pedestrians_per_km: float = 1.0
     tracker_noise: bool = False
     noise: TrackerNoiseConfig = field(default_factory=TrackerNoiseConfig)
     sensors: bool = True
@@ -119,7 +124,9 @@ class SimulationConfig(ScenesConfig):
         check_at_least("SimulationConfig", 1, logs=self.logs)
         check_positive("SimulationConfig", duration_s=self.duration_s, step_s=self.step_s, range_m=self.range_m)
         check_at_least("SimulationConfig", 0, warmup_s=self.warmup_s, vehicles_per_s_per_km=self.vehicles_per_s_per_km,
-                       pedestrians_per_s_per_km=self.pedestrians_per_s_per_km, parked_vehicles=self.parked_vehicles)
+                       pedestrians_per_s_per_km=self.pedestrians_per_s_per_km, parked_vehicles=self.parked_vehicles,
+                       furniture_per_km=self.furniture_per_km,
+                       standing_pedestrians_per_km=self.standing_pedestrians_per_km)
         check_at_least("SimulationConfig", 1, egos_per_run=self.egos_per_run)
         if not 0.0 <= self.map_less_share <= 1.0:
             raise ValueError(f"SimulationConfig.map_less_share must lie in [0, 1], got {self.map_less_share}")

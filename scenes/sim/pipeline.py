@@ -24,7 +24,7 @@ import tempfile
 import time
 import uuid
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -41,14 +41,15 @@ from scenes.map import VectorMap
 from scenes.metadata import MAP_WITHHELD_KEY, LogMetadata
 from scenes.sim.appearance import sample_appearance
 from scenes.sim.config import SimulationConfig
-from scenes.sim.demand import ALL_TYPES, make_demand
+from scenes.sim.demand import ALL_TYPES, VehicleType, make_demand
 from scenes.sim.errors import SimulationError
 from scenes.sim.labels import LaneInfo, compute_labels
 from scenes.sim.map_export import export_map, junction_table
 from scenes.sim.netparse import read_net
 from scenes.sim.network import build_network, demand_factor, sumo_version
 from scenes.sim.noise import apply_tracker_noise
-from scenes.sim.runner import MARGIN_S, ObjectRows, Recording, RunPlan, run_sumo
+from scenes.sim.props import PROP_TYPES, PropType, place_props, prop_rows
+from scenes.sim.runner import CONTEXT_RADIUS_M, MARGIN_S, ObjectRows, Recording, RunPlan, run_sumo
 from scenes.tracks import Annotations, EgoTrajectory
 
 #: Timestamp of simulation time 0 (2023-11-14T22:13:20Z): fixed, so that logs are reproducible.
@@ -57,6 +58,8 @@ BASE_TIMESTAMP_NS = 1_700_000_000_000_000_000
 EGO_ORIGIN_BEHIND_FRONT_M = 3.6
 CITY_NAME = "SIM"
 _LOG_NAMESPACE = uuid.UUID("0d9b6f4e-8a51-4c1e-b7f2-5d3e9c2a7b64")
+#: Box size and AV2 label of every object type a recording holds: SUMO's and the placed ones.
+OBJECT_TYPES: dict[str, VehicleType | PropType] = {**ALL_TYPES, **PROP_TYPES}
 
 #: Called with each log folder after its tracks and map are written and before it is renamed
 #: into place; what it writes there appears atomically with the log (e.g. sensor rendering).
@@ -160,6 +163,9 @@ def simulate_tracks_and_map(config: SimulationConfig, out_dir: Location, overwri
                               demand.road_edges, plan, config.seed, Path(work))
     sumo_wall_s = time.perf_counter() - sumo_start
     sumo_cpu_s = time.process_time() - sumo_start_cpu
+    props = place_props(net, config.seed, config.furniture_per_km, config.standing_pedestrians_per_km)
+    recordings = [replace(r, objects=_concat(r.objects, prop_rows(props, r.ego, CONTEXT_RADIUS_M)))
+                  for r in recordings]
 
     # Every log is assembled before any is written, so that a log that cannot be valid stops the
     # run with nothing written.
@@ -255,7 +261,7 @@ def _build_log(log_id: str, index: int, rec: Recording, config: SimulationConfig
     in_window = (obj.step >= rec.first_step) & (obj.step <= rec.last_step) & np.isin(obj.step, ego_rows.step)
     # Per-row lookups go through the few distinct values.
     types, type_of_row = np.unique(obj.type_id, return_inverse=True)
-    sizes = np.array([[ALL_TYPES[str(t)].length_m, ALL_TYPES[str(t)].width_m, ALL_TYPES[str(t)].height_m]
+    sizes = np.array([[OBJECT_TYPES[str(t)].length_m, OBJECT_TYPES[str(t)].width_m, OBJECT_TYPES[str(t)].height_m]
                       for t in types]).reshape(-1, 3)[type_of_row]
     yaw_city = _heading_rad(obj.angle_deg)
     center_city = obj.front_xy_m - 0.5 * sizes[:, :1] * np.stack([np.cos(yaw_city), np.sin(yaw_city)], axis=1)
@@ -269,7 +275,7 @@ def _build_log(log_id: str, index: int, rec: Recording, config: SimulationConfig
 
     sumo_ids, id_of_row = np.unique(obj.sumo_id, return_inverse=True)
     track_ids = np.array([track_uuid(config.seed, str(sid)) for sid in sumo_ids], dtype=np.str_)[id_of_row]
-    categories = np.array([ALL_TYPES[str(t)].av2_label for t in types], dtype=np.str_)[type_of_row]
+    categories = np.array([OBJECT_TYPES[str(t)].av2_label for t in types], dtype=np.str_)[type_of_row]
     annotations = Annotations.from_yaw(
         timestamp_ns=BASE_TIMESTAMP_NS + obj.step[keep] * step_ns,
         track_id=track_ids[keep],

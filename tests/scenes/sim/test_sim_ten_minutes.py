@@ -39,4 +39,6 @@ def test_ten_simulated_minutes_contain_every_action(tmp_path: Path) -> None:
         for kind in (JunctionKind.THREE_WAY, JunctionKind.FOUR_WAY):
             assert (turn, kind.value) in turns, f"no {turn} at a {kind.value} junction"
     assert blocked_with_leader == counts[BehaviorLabel.BLOCKED_BY]
-    assert categories == {"REGULAR_VEHICLE", "BOX_TRUCK", "BUS", "MOTORCYCLIST", "BICYCLIST", "PEDESTRIAN"}
+    # SUMO's traffic and the street furniture placed beside it (scenes.sim.props).
+    assert categories == {"REGULAR_VEHICLE", "BOX_TRUCK", "BUS", "MOTORCYCLIST", "BICYCLIST", "PEDESTRIAN",
+                          "CONSTRUCTION_CONE", "BOLLARD", "CONSTRUCTION_BARREL", "SIGN"}

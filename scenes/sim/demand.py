@@ -68,10 +68,6 @@ def _vtype_xml(t: VehicleType) -> str:
     return f"    <vType {common} {behaviour}/>"
 
 
-def _lane_length_m(shape: np.ndarray) -> float:
-    return float(np.sum(np.linalg.norm(np.diff(shape, axis=0), axis=1)))
-
-
 @dataclass(frozen=True)
 class Demand:
     """SUMO input files as text, plus the ids of the egos."""
@@ -138,7 +134,7 @@ def make_demand(
         same_edge = [ln for ln in net.lanes.values() if ln.edge_id == lane.edge_id and "passenger" in ln.allowed]
         if lane.index != min(ln.index for ln in same_edge):
             continue
-        length = _lane_length_m(lane.shape_xy_m)
+        length = lane.length_m
         if length >= MIN_PARKING_LANE_M:
             candidates.append((lane, length))
     parked = 0

@@ -53,7 +53,7 @@ class LaneInfo:
                 junction[lid] = lane.junction_id
             elif lane.edge_function == "" and lane.edge_id in net.edges:
                 junction[lid] = net.edges[lane.edge_id].to_junction
-                length[lid] = float(np.sum(np.linalg.norm(np.diff(lane.shape_xy_m, axis=0), axis=1)))
+                length[lid] = lane.length_m
         return LaneInfo(direction, junction, length)
 
 

@@ -43,6 +43,11 @@ class SumoLane:
     edge_function: str  # "" (road), "internal", "crossing", "walkingarea"
 
     @property
+    def length_m(self) -> float:
+        """Length of the centre line."""
+        return float(np.sum(np.linalg.norm(np.diff(self.shape_xy_m, axis=0), axis=1)))
+
+    @property
     def is_road(self) -> bool:
         return self.edge_function in ("", "internal") and bool(self.allowed & ROAD_CLASSES)
 
@@ -136,7 +141,7 @@ class SumoNet:
         for lane in self.lanes.values():
             if lane.edge_function == "" and vclass in lane.allowed:
                 # Lanes of one edge are about as long as each other: count the edge once.
-                length[lane.edge_id] = float(np.sum(np.linalg.norm(np.diff(lane.shape_xy_m, axis=0), axis=1)))
+                length[lane.edge_id] = lane.length_m
         return float(sum(length.values()))
 
 

@@ -118,10 +118,8 @@ def place_props(net: SumoNet, seed: int, furniture_per_km: float, standing_per_k
     and the seed.
     """
     rng = np.random.default_rng([seed, 0x960])
-    walks = sidewalks(net)
-    walk_lengths = np.array([np.linalg.norm(np.diff(lane.shape_xy_m, axis=0), axis=1).sum() for lane in walks])
-    long_enough = walk_lengths > 2 * END_MARGIN_M
-    lanes, lengths = [lane for lane, ok in zip(walks, long_enough) if ok], walk_lengths[long_enough]
+    lanes = [lane for lane in sidewalks(net) if lane.length_m > 2 * END_MARGIN_M]
+    lengths = np.array([lane.length_m for lane in lanes])
     ids: list[str] = []
     types: list[str] = []
     centers: list[FloatArray] = []
@@ -167,7 +165,7 @@ def prop_rows(props: Props, ego: ObjectRows, radius_m: float) -> ObjectRows:
     clockwise from north, speed 0, no lane and no leader. People are persons (``is_person``).
     """
     if len(props) == 0 or ego.step.shape[0] == 0:
-        return ObjectRows(**{k: v[:0] for k, v in ego.__dict__.items()})
+        return ego.select(np.zeros(0, dtype=np.int64))
     near = np.linalg.norm(props.center_xy_m[None, :, :] - ego.front_xy_m[:, None, :], axis=2) <= radius_m  # (S, P)
     step_idx, prop_idx = np.nonzero(near)
     n = prop_idx.shape[0]

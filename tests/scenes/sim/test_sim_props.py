@@ -22,6 +22,7 @@ from scenes.sim.props import (
     sidewalks,
 )
 from scenes.sim.runner import ObjectRows
+from scenes.womd.roadmap import point_polyline_distance
 
 
 @pytest.fixture(scope="module")
@@ -35,13 +36,6 @@ def net(cache: Path) -> SumoNet:
     return read_net(build_network(config.network, config.seed, cache))
 
 
-def _distance_to_polyline(xy: np.ndarray, shape: np.ndarray) -> float:
-    a, b = shape[:-1], shape[1:]
-    ab = b - a
-    t = np.clip(np.einsum("ij,ij->i", xy - a, ab) / np.maximum(np.einsum("ij,ij->i", ab, ab), 1e-12), 0.0, 1.0)
-    return float(np.min(np.linalg.norm(a + t[:, None] * ab - xy, axis=1)))
-
-
 def test_furniture_stands_at_the_curb_and_people_on_the_sidewalk(net: SumoNet) -> None:
     props = place_props(net, seed=1, furniture_per_km=20.0, standing_per_km=10.0)
     walks = sidewalks(net)
@@ -50,8 +44,8 @@ def test_furniture_stands_at_the_curb_and_people_on_the_sidewalk(net: SumoNet) -
     assert set(props.type_id.tolist()) == set(PROP_TYPES)
     for xy, type_id in zip(props.center_xy_m, props.type_id):
         kind = PROP_TYPES[str(type_id)]
-        to_walk = min(_distance_to_polyline(xy, lane.shape_xy_m) for lane in walks)
-        to_road = min(_distance_to_polyline(xy, lane.shape_xy_m) for lane in roads)
+        to_walk = min(float(point_polyline_distance(xy[None], lane.shape_xy_m)[0]) for lane in walks)
+        to_road = min(float(point_polyline_distance(xy[None], lane.shape_xy_m)[0]) for lane in roads)
         assert to_walk <= 1.0 + 1e-6  # inside a 2 m sidewalk
         if kind.at_curb:
             assert to_walk == pytest.approx(1.0 - CURB_INSET_M, abs=1e-6)

@@ -90,6 +90,9 @@ class DemoConfig:
             the model lacks most. They leave the validation and test splits as they were.
         map_less_share: share of the extra logs written without their map
             (:attr:`scenes.sim.SimulationConfig.map_less_share`), as track-only real logs come.
+        jitter_share: share of the extra logs whose boxes scatter from frame to frame as real labels
+            do (:attr:`scenes.sim.SimulationConfig.jitter_share`), so that a standing object whose
+            boxes wobble still reads as standing.
         queries: example queries shown and put in the report.
         top_k: results shown per example query.
     """
@@ -118,6 +121,7 @@ class DemoConfig:
     sensors: bool = True
     extra_logs: int = 24
     map_less_share: float = 0.5
+    jitter_share: float = 0.5
     queries: tuple[str, ...] = DEFAULT_QUERIES
     top_k: int = 3
 
@@ -132,8 +136,9 @@ class DemoConfig:
                 f"DemoConfig.test_fraction must lie in (0, {1 - VAL_FRACTION:g}), got {self.test_fraction}")
         if self.extra_logs < 0:
             raise ValueError(f"DemoConfig.extra_logs must be at least 0, got {self.extra_logs}")
-        if not 0.0 <= self.map_less_share <= 1.0:
-            raise ValueError(f"DemoConfig.map_less_share must lie in [0, 1], got {self.map_less_share}")
+        for name, share in (("map_less_share", self.map_less_share), ("jitter_share", self.jitter_share)):
+            if not 0.0 <= share <= 1.0:
+                raise ValueError(f"DemoConfig.{name} must lie in [0, 1], got {share}")
         if self.camera_share is not None and not 0.0 <= self.camera_share <= 1.0:
             raise ValueError(f"DemoConfig.camera_share must lie in [0, 1], got {self.camera_share}")
         if self.epochs is not None and self.epochs < 1:
@@ -203,7 +208,8 @@ class Demo:
         """The settings a stage's output depends on (a changed setting reruns the stage and those after)."""
         c = self.config
         sim = {"logs": c.logs, "duration_s": c.duration_s, "seed": c.seed, "sensors": c.sensors,
-               "extra_logs": c.extra_logs, "map_less_share": c.map_less_share}
+               "extra_logs": c.extra_logs, "map_less_share": c.map_less_share,
+               "jitter_share": c.jitter_share}
         upto: dict[str, dict[str, Any]] = {"simulate": sim}
         upto["caption"] = upto["simulate"]
         upto["clips"] = {**upto["caption"], "frames_per_clip": c.frames_per_clip, "camera": [c.camera_width_px,
@@ -281,7 +287,7 @@ class Demo:
         if c.extra_logs:
             self.command(["simulate", "--out", self.extra_logs_dir, "--logs", c.extra_logs, "--duration-s",
                           c.duration_s, "--seed", c.seed + EXTRA_SEED_OFFSET, "--no-sensors", "--map-less-share",
-                          c.map_less_share])
+                          c.map_less_share, "--jitter-share", c.jitter_share])
         return f"{len(self.log_dirs())} logs, {len(self.extra_log_dirs())} extra training logs"
 
     def stage_caption(self) -> str:
@@ -387,7 +393,8 @@ def config_from_args(args: argparse.Namespace) -> DemoConfig:
     overrides: dict[str, Any] = {}
     for name in ("logs", "duration_s", "test_fraction", "seed", "frames_per_clip", "camera_width_px",
                  "camera_height_px", "bev_resolution_m", "epochs", "batch_size", "tag_weight", "extra_logs",
-                 "map_less_share", "camera_share", "time_slots", "dense_weight", "track_velocity"):
+                 "map_less_share", "jitter_share", "camera_share", "time_slots", "dense_weight",
+                 "track_velocity"):
         value = getattr(args, name, None)
         if value is not None:
             overrides[name] = value

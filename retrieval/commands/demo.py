@@ -52,6 +52,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help=f"extra training-only logs, simulated without sensors (default {D.extra_logs})")
     parser.add_argument("--map-less-share", type=float, metavar="F",
                         help=f"share of the extra logs simulated without their map (default {D.map_less_share:g})")
+    parser.add_argument("--jitter-share", type=float, metavar="F",
+                        help=f"share of the extra logs whose boxes scatter as real labels do (default "
+                        f"{D.jitter_share:g})")
     parser.add_argument("--query", action="append", help="example query (repeatable; replaces the defaults)")
     parser.add_argument("--quick", action="store_true", help="smallest sizes, a smoke run of every stage")
     parser.add_argument("--stages", nargs="+", metavar="STAGE",

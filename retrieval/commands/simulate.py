@@ -38,6 +38,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="skip rendering LiDAR sweeps and camera frames (tracks, map and labels only)")
     parser.add_argument("--map-less-share", type=float, metavar="F",
                         help="share of the logs written without their map, as track-only real logs come (default 0)")
+    parser.add_argument("--jitter-share", type=float, metavar="F",
+                        help="share of the logs whose boxes scatter from frame to frame as real labels do "
+                             "(default 0)")
     parser.add_argument("--furniture-per-km", type=float, metavar="R",
                         help="groups of cones, bollards, barrels and signs (category other) per km of sidewalk "
                              "(default 1.5; 0: none)")
@@ -58,7 +61,7 @@ def build_config(args: argparse.Namespace) -> SimulationConfig:
     base = SimulationConfig.from_yaml(args.config) if args.config else SimulationConfig()
     overrides: dict[str, Any] = {}
     for name in ("logs", "duration_s", "seed", "warmup_s", "egos_per_run", "tracker_noise", "sensors", "map_less_share",
-                 "furniture_per_km", "standing_pedestrians_per_km", "cache_dir"):
+                 "jitter_share", "furniture_per_km", "standing_pedestrians_per_km", "cache_dir"):
         value = getattr(args, name, None)
         if value is not None:
             overrides[name] = value

@@ -97,6 +97,11 @@ class SimulationConfig(ScenesConfig):
             map-less fallback and their BEV clips have empty map channels, so a model trained on a mix
             knows both kinds. Their sensors are still rendered from the map, and their behaviour labels
             and junctions (simulator truth, for tag targets) are kept. Which logs: a seeded draw.
+        jitter_share: share of the logs whose boxes scatter from frame to frame as real labels do
+            (:func:`scenes.sim.noise.jitter_boxes` with ``noise``'s centre and heading noise, nothing
+            else): a standing car's speed through the rules then reads 0.1–0.4 m/s, as on KITTI, instead of
+            the simulator's exact 0. Captions follow the jittered boxes; behaviour labels stay exact.
+            Which logs: a seeded draw, apart from the map-less one. Ignored with ``tracker_noise``.
         cache_dir: folder for generated networks (default: the system temp folder).
     """
 
@@ -117,6 +122,7 @@ class SimulationConfig(ScenesConfig):
     noise: TrackerNoiseConfig = field(default_factory=TrackerNoiseConfig)
     sensors: bool = True
     map_less_share: float = 0.0
+    jitter_share: float = 0.0
     cache_dir: str | None = None
 
     def __post_init__(self) -> None:
@@ -128,8 +134,9 @@ class SimulationConfig(ScenesConfig):
                        furniture_per_km=self.furniture_per_km,
                        standing_pedestrians_per_km=self.standing_pedestrians_per_km)
         check_at_least("SimulationConfig", 1, egos_per_run=self.egos_per_run)
-        if not 0.0 <= self.map_less_share <= 1.0:
-            raise ValueError(f"SimulationConfig.map_less_share must lie in [0, 1], got {self.map_less_share}")
+        for name, share in (("map_less_share", self.map_less_share), ("jitter_share", self.jitter_share)):
+            if not 0.0 <= share <= 1.0:
+                raise ValueError(f"SimulationConfig.{name} must lie in [0, 1], got {share}")
         if self.duration_s < 2 * self.step_s:
             raise ValueError(f"SimulationConfig.duration_s must span at least two steps, got {self.duration_s}")
 
@@ -140,8 +147,15 @@ class SimulationConfig(ScenesConfig):
 
     def map_less_logs(self) -> frozenset[int]:
         """Indices of the logs written without their map (``round(map_less_share * logs)`` of them)."""
-        count = round(self.map_less_share * self.logs)
-        order = np.random.default_rng([self.seed, 0x3A9]).permutation(self.logs)
+        return self._drawn_logs(self.map_less_share, 0x3A9)
+
+    def jittered_logs(self) -> frozenset[int]:
+        """Indices of the logs whose boxes carry label jitter (``round(jitter_share * logs)`` of them)."""
+        return self._drawn_logs(self.jitter_share, 0x717)
+
+    def _drawn_logs(self, share: float, salt: int) -> frozenset[int]:
+        count = round(share * self.logs)
+        order = np.random.default_rng([self.seed, salt]).permutation(self.logs)
         return frozenset(int(i) for i in order[:count])
 
     @property

@@ -8,7 +8,8 @@ Applied in this order, each step seeded by the caller's generator:
 3. misses: each remaining box is missed with ``miss_probability``;
 4. id switches: events arrive per track as a Poisson process of rate ``id_switch_rate_per_s``;
    after the k-th one the track continues under a new id;
-5. jitter: Gaussian noise on the centre (x, y) and on the yaw.
+5. jitter: Gaussian noise on the centre (x, y) and on the yaw (:func:`jitter_boxes`, which alone is
+   what real labels carry: the simulator's ``jitter_share`` logs).
 """
 
 from __future__ import annotations
@@ -140,8 +141,25 @@ def apply_tracker_noise(
                 new_id = str(uuid.uuid5(_SWITCH_NAMESPACE, f"{uniq[k]}/{g}"))
                 track_ids[rows[generation == g]] = new_id
 
+    ann = Annotations(ann.timestamp_ns, track_ids, ann.category, ann.center_xyz_m, ann.size_lwh_m, ann.quat_wxyz,
+                      ann.num_interior_pts)
+    return jitter_boxes(ann, config, rng)
+
+
+def jitter_boxes(annotations: Annotations, config: TrackerNoiseConfig, rng: np.random.Generator) -> Annotations:
+    """Every box with Gaussian noise on its centre (x, y; ``center_std_m``) and heading (``yaw_std_rad``),
+    and nothing else: the frame-to-frame scatter of real labels, hand-drawn or automatic.
+
+    The noise is drawn row by row in the given order, so the same generator state and rows give the
+    same boxes.
+
+    Returns:
+        New annotations, sorted by (timestamp, track id); the input is not changed.
+    """
+    ann = annotations
+    n = len(ann)
     noisy_center = ann.center_xyz_m.copy()
     noisy_center[:, :2] += rng.normal(0.0, config.center_std_m, size=(n, 2))
     noisy_yaw = wrap_angle_rad(quat_to_yaw(ann.quat_wxyz) + rng.normal(0.0, config.yaw_std_rad, size=n))
-    return Annotations(ann.timestamp_ns, track_ids, ann.category, noisy_center, ann.size_lwh_m,
+    return Annotations(ann.timestamp_ns, ann.track_id, ann.category, noisy_center, ann.size_lwh_m,
                        yaw_to_quat(noisy_yaw), ann.num_interior_pts).sorted()

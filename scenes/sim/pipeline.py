@@ -11,7 +11,8 @@ Per log folder (see ARCHITECTURE.md for the AV2 part)::
 
 The ego frame's origin is the ego's rear axle on the ground (:data:`EGO_ORIGIN_BEHIND_FRONT_M`
 behind its front bumper). With ``tracker_noise`` the annotations are what a detector and tracker
-would report (:mod:`scenes.sim.noise`) while the behaviour labels stay keyed by the true track ids.
+would report (:mod:`scenes.sim.noise`) while the behaviour labels stay keyed by the true track ids;
+the ``jitter_share`` logs' boxes scatter from frame to frame as real labels do, their labels exact.
 
 SUMO runs to the end before anything is written, and each log is assembled in a temporary folder
 renamed into place, so a failure leaves no partial log behind.
@@ -47,7 +48,7 @@ from scenes.sim.labels import LaneInfo, compute_labels
 from scenes.sim.map_export import export_map, junction_table
 from scenes.sim.netparse import read_net
 from scenes.sim.network import build_network, demand_factor, sumo_version
-from scenes.sim.noise import apply_tracker_noise
+from scenes.sim.noise import apply_tracker_noise, jitter_boxes
 from scenes.sim.props import PROP_TYPES, PropType, place_props, prop_rows
 from scenes.sim.runner import CONTEXT_RADIUS_M, MARGIN_S, ObjectRows, Recording, RunPlan, run_sumo
 from scenes.tracks import Annotations, EgoTrajectory
@@ -169,9 +170,10 @@ def simulate_tracks_and_map(config: SimulationConfig, out_dir: Location, overwri
 
     # Every log is assembled before any is written, so that a log that cannot be valid stops the
     # run with nothing written.
-    map_less = config.map_less_logs()
+    map_less, jittered = config.map_less_logs(), config.jittered_logs()
     contents = [
-        _build_log(log_id, i, recordings[i], config, step_ns, lanes, has_map=i not in map_less)
+        _build_log(log_id, i, recordings[i], config, step_ns, lanes, has_map=i not in map_less,
+                   jitter=i in jittered)
         for i, log_id in enumerate(log_ids(config))  # log i: ego i % E, window i // E
     ]
     empty = [c.log_id for c in contents if len(c.annotations) == 0]
@@ -244,7 +246,7 @@ class _LogContent:
 
 
 def _build_log(log_id: str, index: int, rec: Recording, config: SimulationConfig, step_ns: int,
-               lanes: LaneInfo, has_map: bool = True) -> _LogContent:
+               lanes: LaneInfo, has_map: bool = True, jitter: bool = False) -> _LogContent:
     # Labels need the margins (lane changes across the window's edge); everything else does not.
     all_rows = _concat(rec.ego, rec.objects)
     labels = compute_labels(all_rows, lanes)
@@ -287,6 +289,8 @@ def _build_log(log_id: str, index: int, rec: Recording, config: SimulationConfig
     if config.tracker_noise:
         noise_rng = np.random.default_rng([config.seed, index, 0x7AC])
         annotations = apply_tracker_noise(annotations, ego, config.noise, noise_rng)
+    elif jitter:
+        annotations = jitter_boxes(annotations, config.noise, np.random.default_rng([config.seed, index, 0x717]))
 
     # Label rows: the ego's and the annotated objects' rows of the window (true ids, before noise).
     label_keep = np.r_[ego_in, keep]
@@ -312,6 +316,7 @@ def _build_log(log_id: str, index: int, rec: Recording, config: SimulationConfig
             "sumo_version": sumo_version(),
             "sensors": config.sensors,
             "tracker_noise": config.tracker_noise,
+            "box_jitter": jitter and not config.tracker_noise,
             MAP_WITHHELD_KEY: not has_map,
             # Everything that shapes the log; the network cache's location does not.
             "config": {k: v for k, v in config.to_dict().items() if k != "cache_dir"},

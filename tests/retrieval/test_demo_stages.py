@@ -48,7 +48,7 @@ def _demo(tmp_path: Path, config: DemoConfig) -> RecordingDemo:
 def test_stages_run_in_order_with_sizes(tmp_path: Path) -> None:
     demo = _demo(tmp_path, DemoConfig(logs=2, duration_s=10, epochs=3, frames_per_clip=8, batch_size=4,
                                       camera_width_px=40, bev_resolution_m=2.0, extra_logs=3, map_less_share=0.25,
-                                      camera_share=0.5))
+                                      jitter_share=0.75, camera_share=0.5))
     results = demo.run()
     assert [r.name for r in results] == list(STAGES)
     names = [c[0] for c in demo.calls]
@@ -60,6 +60,7 @@ def test_stages_run_in_order_with_sizes(tmp_path: Path) -> None:
     assert extra[extra.index("--out") + 1] == str(demo.extra_logs_dir) and extra[extra.index("--logs") + 1] == "3"
     assert extra[extra.index("--seed") + 1] == str(DemoConfig().seed + EXTRA_SEED_OFFSET)
     assert "--no-sensors" in extra and extra[extra.index("--map-less-share") + 1] == "0.25"
+    assert extra[extra.index("--jitter-share") + 1] == "0.75" and "--jitter-share" not in sim
     main_logs = [str(demo.logs_dir / f"logs{i}") for i in range(2)]
     extra_logs = [str(demo.extra_logs_dir / f"extra_logs{i}") for i in range(3)]
     assert demo.calls[2][1:6] == [*main_logs, *extra_logs]
@@ -136,11 +137,11 @@ def test_resume_skips_complete_stages_and_reruns_after_a_change(tmp_path: Path) 
 def test_config_from_flags() -> None:
     args = argparse.Namespace(quick=True, logs=None, duration_s=None, seed=None, frames_per_clip=None, epochs=4,
                               no_sensors=True, query=["a bus stops"], map_less_share=0.25, extra_logs=5,
-                              camera_share=0.4, time_slots=None, hard_negatives=None, dense_weight=None,
-                              track_velocity=None, dense_streams=None)
+                              jitter_share=0.2, camera_share=0.4, time_slots=None,
+                              hard_negatives=None, dense_weight=None, track_velocity=None, dense_streams=None)
     config = config_from_args(args)
     assert config.logs == DemoConfig.quick().logs and config.epochs == 4 and config.map_less_share == 0.25
-    assert config.extra_logs == 5 and config.camera_share == 0.4
+    assert config.extra_logs == 5 and config.camera_share == 0.4 and config.jitter_share == 0.2
     # --quick trains the tiny model: one vector, no step edits.
     assert config.time_slots is None and config.hard_negatives == ()
     assert config.dense_weight is None and config.track_velocity is False

@@ -33,7 +33,8 @@ def test_simulate_writes_valid_logs_and_refuses_to_overwrite(
     ("flags", "message"),
     [(["--network", "hexagon"], "unknown network kind"), (["--duration-s", "0"], "duration_s"),
      (["--logs", "-1"], "logs"), (["--furniture-per-km", "-1"], "furniture_per_km"),
-     (["--standing-pedestrians-per-km", "-0.5"], "standing_pedestrians_per_km")],
+     (["--standing-pedestrians-per-km", "-0.5"], "standing_pedestrians_per_km"),
+     (["--jitter-share", "2"], "jitter_share")],
 )
 def test_bad_input_exits_2_with_a_message(
     tmp_path: Path, capsys: pytest.CaptureFixture[str], flags: list[str], message: str
@@ -54,13 +55,13 @@ def test_flags_override_the_config_file(tmp_path: Path) -> None:
     assert (config.logs, config.seed, config.network.value) == (5, 2, "spider")
 
 
-def test_street_furniture_and_standing_people_densities_are_flags(tmp_path: Path) -> None:
+def test_street_furniture_standing_people_and_jitter_are_flags(tmp_path: Path) -> None:
     from retrieval.cli import build_parser
     from retrieval.commands.simulate import build_config
 
     args = build_parser().parse_args(["simulate", "--out", "x", "--furniture-per-km", "0",
-                                      "--standing-pedestrians-per-km", "3.5"])
+                                      "--standing-pedestrians-per-km", "3.5", "--jitter-share", "0.5"])
     config = build_config(args)
-    assert (config.furniture_per_km, config.standing_pedestrians_per_km) == (0.0, 3.5)
+    assert (config.furniture_per_km, config.standing_pedestrians_per_km, config.jitter_share) == (0.0, 3.5, 0.5)
     defaults = build_config(build_parser().parse_args(["simulate", "--out", "x"]))
-    assert (defaults.furniture_per_km, defaults.standing_pedestrians_per_km) == (1.5, 1.0)
+    assert (defaults.furniture_per_km, defaults.standing_pedestrians_per_km, defaults.jitter_share) == (1.5, 1.0, 0.0)

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from scenes.sim.config import TrackerNoiseConfig
-from scenes.sim.noise import apply_tracker_noise, occluded_mask
+from scenes.sim.noise import apply_tracker_noise, jitter_boxes, occluded_mask
 from scenes.tracks import Annotations, EgoTrajectory
 
 NO_NOISE = TrackerNoiseConfig(center_std_m=0.0, yaw_std_rad=0.0, miss_probability=0.0, id_switch_rate_per_s=0.0,
@@ -76,6 +76,29 @@ def test_jitter_has_the_configured_spread() -> None:
     assert abs(err.std() - 0.2) < 0.02
     assert abs(out.yaw_rad.std() - 0.05) < 0.01
     np.testing.assert_allclose(out.center_xyz_m[:, 2], 0.75)
+
+
+def test_jitter_alone_keeps_every_box_and_id() -> None:
+    # Far, hidden and pose-less boxes all stay: real labels scatter but are not dropped.
+    ann = _cars(400, [(10.0, 0.0), (20.0, 0.0), (150.0, 3.0)])
+    out = jitter_boxes(ann, TrackerNoiseConfig(center_std_m=0.15, yaw_std_rad=0.03), np.random.default_rng(4))
+    assert len(out) == len(ann)
+    np.testing.assert_array_equal(out.track_id, ann.sorted().track_id)
+    np.testing.assert_array_equal(out.size_lwh_m, ann.sorted().size_lwh_m)
+    err = out.center_xyz_m[:, :2] - ann.sorted().center_xyz_m[:, :2]
+    assert abs(err.std() - 0.15) < 0.01 and abs(err.mean()) < 0.01
+    assert abs(out.yaw_rad.std() - 0.03) < 0.005
+
+
+def test_jitter_alone_is_seeded_and_leaves_its_input() -> None:
+    ann = _cars(30, [(10.0, 0.0), (0.0, 12.0)])
+    before = ann.center_xyz_m.copy()
+    a = jitter_boxes(ann, TrackerNoiseConfig(), np.random.default_rng(5))
+    b = jitter_boxes(ann, TrackerNoiseConfig(), np.random.default_rng(5))
+    np.testing.assert_array_equal(a.center_xyz_m, b.center_xyz_m)
+    np.testing.assert_array_equal(a.quat_wxyz, b.quat_wxyz)
+    np.testing.assert_array_equal(ann.center_xyz_m, before)
+    assert not np.array_equal(a.center_xyz_m, ann.sorted().center_xyz_m)
 
 
 def test_id_switches_start_new_ids_and_keep_rows() -> None:

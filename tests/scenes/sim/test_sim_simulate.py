@@ -188,3 +188,35 @@ def test_map_less_logs_are_a_seeded_draw_of_the_share() -> None:
     assert SimulationConfig(logs=10, map_less_share=1.0).map_less_logs() == frozenset(range(10))
     assert SimulationConfig(logs=10, seed=3, map_less_share=0.5).map_less_logs() == \
         SimulationConfig(logs=10, seed=3, map_less_share=0.5).map_less_logs()
+
+
+def test_jitter_share_scatters_the_boxes_of_that_share_and_keeps_the_labels(tmp_path: Path, cache: Path) -> None:
+    config = _config(cache, logs=4, duration_s=1.0, jitter_share=0.5)
+    out = simulate(config, tmp_path / "o")
+    exact = simulate(_config(cache, logs=4, duration_s=1.0), tmp_path / "exact")
+    assert len(config.jittered_logs()) == 2
+    for i, (a, b) in enumerate(zip(out, exact)):
+        jittered, ann, ann_exact = i in config.jittered_logs(), Log.open(a).annotations, Log.open(b).annotations
+        assert Log.open(a).metadata.extra["box_jitter"] is jittered
+        np.testing.assert_array_equal(ann.track_id, ann_exact.track_id)  # every box kept, under its id
+        shift = np.linalg.norm(ann.center_xyz_m[:, :2] - ann_exact.center_xyz_m[:, :2], axis=1)
+        if jittered:
+            assert 0.1 < np.median(shift) < 0.3  # ~ sqrt(2 ln 2) * 0.15 m for 2-D Gaussian noise
+        else:
+            assert (a / ANNOTATIONS_FILENAME).read_bytes() == (b / ANNOTATIONS_FILENAME).read_bytes()
+        assert (a / BEHAVIOR_FILENAME).read_bytes() == (b / BEHAVIOR_FILENAME).read_bytes()  # labels stay exact
+
+
+@pytest.mark.parametrize("share", [-0.1, 1.5])
+def test_jitter_share_outside_zero_one_is_refused(share: float) -> None:
+    with pytest.raises(ValueError, match="jitter_share"):
+        SimulationConfig(jitter_share=share)
+
+
+def test_jittered_logs_are_a_seeded_draw_apart_from_the_map_less_one() -> None:
+    assert SimulationConfig(logs=10, jitter_share=0.0).jittered_logs() == frozenset()
+    assert len(SimulationConfig(logs=10, jitter_share=0.3).jittered_logs()) == 3
+    config = SimulationConfig(logs=40, seed=3, jitter_share=0.5, map_less_share=0.5)
+    assert config.jittered_logs() == SimulationConfig(logs=40, seed=3, jitter_share=0.5).jittered_logs()
+    assert config.jittered_logs() != config.map_less_logs()
+

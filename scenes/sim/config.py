@@ -150,8 +150,9 @@ class SimulationConfig(ScenesConfig):
         return self._drawn_logs(self.map_less_share, 0x3A9)
 
     def jittered_logs(self) -> frozenset[int]:
-        """Indices of the logs whose boxes carry label jitter (``round(jitter_share * logs)`` of them)."""
-        return self._drawn_logs(self.jitter_share, 0x717)
+        """Indices of the logs whose boxes carry label jitter (``round(jitter_share * logs)`` of them;
+        none with ``tracker_noise``, whose own jitter every log then has)."""
+        return frozenset() if self.tracker_noise else self._drawn_logs(self.jitter_share, 0x717)
 
     def _drawn_logs(self, share: float, salt: int) -> frozenset[int]:
         count = round(share * self.logs)

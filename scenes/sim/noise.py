@@ -156,10 +156,9 @@ def jitter_boxes(annotations: Annotations, config: TrackerNoiseConfig, rng: np.r
     Returns:
         New annotations, sorted by (timestamp, track id); the input is not changed.
     """
-    ann = annotations
-    n = len(ann)
-    noisy_center = ann.center_xyz_m.copy()
+    a, n = annotations, len(annotations)
+    noisy_center = a.center_xyz_m.copy()
     noisy_center[:, :2] += rng.normal(0.0, config.center_std_m, size=(n, 2))
-    noisy_yaw = wrap_angle_rad(quat_to_yaw(ann.quat_wxyz) + rng.normal(0.0, config.yaw_std_rad, size=n))
-    return Annotations(ann.timestamp_ns, ann.track_id, ann.category, noisy_center, ann.size_lwh_m,
-                       yaw_to_quat(noisy_yaw), ann.num_interior_pts).sorted()
+    noisy_yaw = wrap_angle_rad(quat_to_yaw(a.quat_wxyz) + rng.normal(0.0, config.yaw_std_rad, size=n))
+    return Annotations(a.timestamp_ns, a.track_id, a.category, noisy_center, a.size_lwh_m,
+                       yaw_to_quat(noisy_yaw), a.num_interior_pts).sorted()

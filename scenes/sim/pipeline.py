@@ -316,7 +316,7 @@ def _build_log(log_id: str, index: int, rec: Recording, config: SimulationConfig
             "sumo_version": sumo_version(),
             "sensors": config.sensors,
             "tracker_noise": config.tracker_noise,
-            "box_jitter": jitter and not config.tracker_noise,
+            "box_jitter": jitter,
             MAP_WITHHELD_KEY: not has_map,
             # Everything that shapes the log; the network cache's location does not.
             "config": {k: v for k, v in config.to_dict().items() if k != "cache_dir"},

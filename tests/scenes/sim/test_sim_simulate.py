@@ -177,9 +177,10 @@ def test_map_less_share_withholds_the_map_of_that_share_after_the_hooks(tmp_path
 
 
 @pytest.mark.parametrize("share", [-0.1, 1.5])
-def test_map_less_share_outside_zero_one_is_refused(share: float) -> None:
-    with pytest.raises(ValueError, match="map_less_share"):
-        SimulationConfig(map_less_share=share)
+@pytest.mark.parametrize("name", ["map_less_share", "jitter_share"])
+def test_a_share_outside_zero_one_is_refused(name: str, share: float) -> None:
+    with pytest.raises(ValueError, match=name):
+        SimulationConfig(**{name: share})  # type: ignore[arg-type]
 
 
 def test_map_less_logs_are_a_seeded_draw_of_the_share() -> None:
@@ -196,8 +197,9 @@ def test_jitter_share_scatters_the_boxes_of_that_share_and_keeps_the_labels(tmp_
     exact = simulate(_config(cache, logs=4, duration_s=1.0), tmp_path / "exact")
     assert len(config.jittered_logs()) == 2
     for i, (a, b) in enumerate(zip(out, exact)):
-        jittered, ann, ann_exact = i in config.jittered_logs(), Log.open(a).annotations, Log.open(b).annotations
-        assert Log.open(a).metadata.extra["box_jitter"] is jittered
+        jittered, log, ann_exact = i in config.jittered_logs(), Log.open(a), Log.open(b).annotations
+        ann = log.annotations
+        assert log.metadata.extra["box_jitter"] is jittered
         np.testing.assert_array_equal(ann.track_id, ann_exact.track_id)  # every box kept, under its id
         shift = np.linalg.norm(ann.center_xyz_m[:, :2] - ann_exact.center_xyz_m[:, :2], axis=1)
         if jittered:
@@ -207,16 +209,11 @@ def test_jitter_share_scatters_the_boxes_of_that_share_and_keeps_the_labels(tmp_
         assert (a / BEHAVIOR_FILENAME).read_bytes() == (b / BEHAVIOR_FILENAME).read_bytes()  # labels stay exact
 
 
-@pytest.mark.parametrize("share", [-0.1, 1.5])
-def test_jitter_share_outside_zero_one_is_refused(share: float) -> None:
-    with pytest.raises(ValueError, match="jitter_share"):
-        SimulationConfig(jitter_share=share)
-
-
 def test_jittered_logs_are_a_seeded_draw_apart_from_the_map_less_one() -> None:
     assert SimulationConfig(logs=10, jitter_share=0.0).jittered_logs() == frozenset()
     assert len(SimulationConfig(logs=10, jitter_share=0.3).jittered_logs()) == 3
     config = SimulationConfig(logs=40, seed=3, jitter_share=0.5, map_less_share=0.5)
     assert config.jittered_logs() == SimulationConfig(logs=40, seed=3, jitter_share=0.5).jittered_logs()
     assert config.jittered_logs() != config.map_less_logs()
-
+    # The tracker's noise already jitters every box: no log is jittered twice.
+    assert SimulationConfig(logs=10, jitter_share=1.0, tracker_noise=True).jittered_logs() == frozenset()

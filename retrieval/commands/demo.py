@@ -12,6 +12,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     from encoders.config import DENSE_STREAMS, HardNegative
     from retrieval.demo import VAL_FRACTION
     from retrieval.demo import DemoConfig as D  # the defaults the help shows
+    from scenes.sim.config import NetworkKind
 
     parser.add_argument("--out", type=Path, required=True, metavar="DIR", help="folder for everything the demo makes")
     parser.add_argument("--logs", type=int, help=f"simulated logs (default {D.logs})")
@@ -55,6 +56,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--jitter-share", type=float, metavar="F",
                         help=f"share of the extra logs whose boxes scatter as real labels do (default "
                         f"{D.jitter_share:g})")
+    parser.add_argument("--extra-networks", nargs="+", metavar="LAYOUT", choices=[k.value for k in NetworkKind],
+                        help=f"road networks that share the extra logs evenly (default "
+                        f"{' '.join(D.extra_networks)})")
     parser.add_argument("--query", action="append", help="example query (repeatable; replaces the defaults)")
     parser.add_argument("--quick", action="store_true", help="smallest sizes, a smoke run of every stage")
     parser.add_argument("--stages", nargs="+", metavar="STAGE",

@@ -48,23 +48,27 @@ def _demo(tmp_path: Path, config: DemoConfig) -> RecordingDemo:
 def test_stages_run_in_order_with_sizes(tmp_path: Path) -> None:
     demo = _demo(tmp_path, DemoConfig(logs=2, duration_s=10, epochs=3, frames_per_clip=8, batch_size=4,
                                       camera_width_px=40, bev_resolution_m=2.0, extra_logs=3, map_less_share=0.25,
-                                      jitter_share=0.75, camera_share=0.5))
+                                      jitter_share=0.75, camera_share=0.5,
+                                      extra_networks=("grid", "spider")))
     results = demo.run()
     assert [r.name for r in results] == list(STAGES)
     names = [c[0] for c in demo.calls]
-    assert names == ["simulate", "simulate", "caption", "clips", "train", "index", "eval", "report"]
-    sim, extra = demo.calls[0], demo.calls[1]
+    assert names == ["simulate", "simulate", "simulate", "caption", "clips", "train", "index", "eval", "report"]
+    sim, grid, spider = demo.calls[:3]
     assert sim[sim.index("--logs") + 1] == "2" and sim[sim.index("--duration-s") + 1] == "10"
-    assert "--map-less-share" not in sim  # the logs to evaluate on keep their maps
-    # The extra logs: another seed, no sensors, a quarter without a map, training only.
-    assert extra[extra.index("--out") + 1] == str(demo.extra_logs_dir) and extra[extra.index("--logs") + 1] == "3"
-    assert extra[extra.index("--seed") + 1] == str(DemoConfig().seed + EXTRA_SEED_OFFSET)
-    assert "--no-sensors" in extra and extra[extra.index("--map-less-share") + 1] == "0.25"
-    assert extra[extra.index("--jitter-share") + 1] == "0.75" and "--jitter-share" not in sim
+    assert "--map-less-share" not in sim and "--network" not in sim  # the logs to evaluate on: a grid, with maps
+    # The extra logs: another seed, no sensors, a quarter without a map, training only, shared by the networks
+    # (the first takes the remainder), each in its own folder.
+    for extra, network, count in ((grid, "grid", "2"), (spider, "spider", "1")):
+        assert extra[extra.index("--out") + 1] == str(demo.extra_logs_dir / network)
+        assert extra[extra.index("--network") + 1] == network and extra[extra.index("--logs") + 1] == count
+        assert extra[extra.index("--seed") + 1] == str(DemoConfig().seed + EXTRA_SEED_OFFSET)
+        assert "--no-sensors" in extra and extra[extra.index("--map-less-share") + 1] == "0.25"
+        assert extra[extra.index("--jitter-share") + 1] == "0.75" and "--jitter-share" not in sim
     main_logs = [str(demo.logs_dir / f"logs{i}") for i in range(2)]
-    extra_logs = [str(demo.extra_logs_dir / f"extra_logs{i}") for i in range(3)]
-    assert demo.calls[2][1:6] == [*main_logs, *extra_logs]
-    clips = demo.calls[3]
+    extra_logs = [str(demo.extra_logs_dir / net / f"{net}{i}") for net, i in (("grid", 0), ("grid", 1), ("spider", 0))]
+    assert demo.calls[3][1:6] == [*main_logs, *extra_logs]
+    clips = demo.calls[4]
     assert clips[1:3] == main_logs and clips[clips.index("--train-only") + 1:][:3] == extra_logs
     assert clips[clips.index("--frames-per-clip") + 1] == "8"
     assert clips[clips.index("--config") + 1] == str(demo.out_dir / "clips.yaml")
@@ -72,7 +76,7 @@ def test_stages_run_in_order_with_sizes(tmp_path: Path) -> None:
     assert ClipsConfig.from_yaml(demo.out_dir / "clips.yaml") == ClipsConfig(
         frames_per_clip=8, camera=CameraClipConfig(width_px=40, height_px=DemoConfig().camera_height_px),
         bev=BevClipConfig(resolution_m=2.0), split=SplitConfig(train_fraction=0.6, val_fraction=0.15))
-    train = demo.calls[4]
+    train = demo.calls[5]
     assert train[train.index("--epochs") + 1] == "3" and train[train.index("--batch-size") + 1] == "4"
     assert train[train.index("--camera-share") + 1] == "0.5"
     # The demo's model: time slots, trained with the reversed-step captions as negatives.
@@ -137,11 +141,12 @@ def test_resume_skips_complete_stages_and_reruns_after_a_change(tmp_path: Path) 
 def test_config_from_flags() -> None:
     args = argparse.Namespace(quick=True, logs=None, duration_s=None, seed=None, frames_per_clip=None, epochs=4,
                               no_sensors=True, query=["a bus stops"], map_less_share=0.25, extra_logs=5,
-                              jitter_share=0.2, camera_share=0.4, time_slots=None,
+                              jitter_share=0.2, extra_networks=["random"], camera_share=0.4, time_slots=None,
                               hard_negatives=None, dense_weight=None, track_velocity=None, dense_streams=None)
     config = config_from_args(args)
     assert config.logs == DemoConfig.quick().logs and config.epochs == 4 and config.map_less_share == 0.25
     assert config.extra_logs == 5 and config.camera_share == 0.4 and config.jitter_share == 0.2
+    assert config.extra_networks == ("random",)
     # --quick trains the tiny model: one vector, no step edits.
     assert config.time_slots is None and config.hard_negatives == ()
     assert config.dense_weight is None and config.track_velocity is False
@@ -166,6 +171,12 @@ def test_config_from_flags() -> None:
         DemoConfig(test_fraction=0.9)
     with pytest.raises(ValueError, match="map_less_share must lie in"):
         DemoConfig(map_less_share=2.0)
+    with pytest.raises(ValueError, match="extra_networks: unknown network kind 'ring'"):
+        DemoConfig(extra_networks=("grid", "ring"))
+    with pytest.raises(ValueError, match="extra_networks must name distinct layouts"):
+        DemoConfig(extra_networks=("grid", "grid"))
+    with pytest.raises(ValueError, match="extra_networks must name distinct layouts"):
+        DemoConfig(extra_networks=())
     with pytest.raises(ValueError, match="camera_share must lie in"):
         DemoConfig(camera_share=-0.5)
     with pytest.raises(ValueError, match="extra_logs must be at least 0"):

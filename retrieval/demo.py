@@ -157,7 +157,8 @@ class DemoConfig:
         if self.dense_weight is not None and self.dense_weight < 0:
             raise ValueError(f"DemoConfig.dense_weight must be at least 0, got {self.dense_weight}")
         if not self.extra_networks or len(set(self.extra_networks)) != len(self.extra_networks):
-            raise ValueError(f"DemoConfig.extra_networks must name distinct layouts, got {list(self.extra_networks)}")
+            raise ValueError(f"DemoConfig.extra_networks must name one or more distinct layouts, got "
+                             f"{list(self.extra_networks)}")
         try:
             for network in self.extra_networks:
                 NetworkKind.parse(network)
@@ -215,9 +216,10 @@ class Demo:
         return sorted(p for p in folder.iterdir() if p.is_dir() and (p / "annotations.feather").is_file())
 
     def extra_logs_per_network(self) -> dict[str, int]:
-        """How many extra logs each network of ``extra_networks`` simulates (none left out)."""
-        n, networks = self.config.extra_logs, self.config.extra_networks
-        counts = {net: n // len(networks) + (i < n % len(networks)) for i, net in enumerate(networks)}
+        """How many of the ``extra_logs`` each network simulates: an even share, the first networks one
+        more while a remainder lasts; networks left with none are not listed."""
+        share, remainder = divmod(self.config.extra_logs, len(self.config.extra_networks))
+        counts = {net: share + int(i < remainder) for i, net in enumerate(self.config.extra_networks)}
         return {net: count for net, count in counts.items() if count}
 
     def extra_log_dirs(self) -> list[Path]:

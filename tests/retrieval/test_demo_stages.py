@@ -173,9 +173,9 @@ def test_config_from_flags() -> None:
         DemoConfig(map_less_share=2.0)
     with pytest.raises(ValueError, match="extra_networks: unknown network kind 'ring'"):
         DemoConfig(extra_networks=("grid", "ring"))
-    with pytest.raises(ValueError, match="extra_networks must name distinct layouts"):
+    with pytest.raises(ValueError, match="extra_networks must name one or more distinct layouts"):
         DemoConfig(extra_networks=("grid", "grid"))
-    with pytest.raises(ValueError, match="extra_networks must name distinct layouts"):
+    with pytest.raises(ValueError, match="extra_networks must name one or more distinct layouts"):
         DemoConfig(extra_networks=())
     with pytest.raises(ValueError, match="camera_share must lie in"):
         DemoConfig(camera_share=-0.5)

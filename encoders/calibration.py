@@ -19,7 +19,7 @@ import torch.nn.functional as F
 from torch.utils.data import Dataset
 
 from encoders.inference import batches, embed_texts
-from encoders.metrics import relevance_by_caption, text_to_clip_metrics
+from encoders.metrics import caption_queries, text_to_clip_metrics
 from encoders.model import DualEncoder
 
 #: Weights tried, camera against BEV's 1; 1 is what training used (an equal mean).
@@ -65,9 +65,8 @@ def calibrate_camera_weight(model: DualEncoder, val_set: Dataset[dict[str, Any]]
         camera, bev, has_camera, captions = _views(model, val_set, batch_size)
         if not bool(has_camera.any()):
             return CameraWeightChoice(current, {}, "no camera clip in the validation split")
-        queries = sorted(set(captions))
+        queries, relevant = caption_queries(captions)
         text = embed_texts(model, queries)  # (Q, D)
-        relevant = relevance_by_caption(queries, captions)
         map_by_weight: dict[float, float] = {}
         for weight in sorted(weights):
             model.fusion.set_camera_weight(weight)

@@ -21,7 +21,7 @@ from torch.utils.data import DataLoader, Dataset
 from encoders.config import ConfigError, TrainConfig, check_device_name
 from encoders.data import AugmentConfig, ClipDataset, collate_clips
 from encoders.dense import frame_tag_report
-from encoders.metrics import relevance_by_caption, text_to_clip_metrics
+from encoders.metrics import caption_queries, text_to_clip_metrics
 from encoders.model import DualEncoder
 
 
@@ -157,16 +157,18 @@ def evaluate(
     ``min_steps`` keeps only queries whose tag sequence has at least that many steps.
     """
     _, vectors, captions = embed_dataset(model, dataset, view, shuffle_frames, batch_size)
-    tags_of: dict[str, int] = {}
+    queries, relevant = caption_queries(captions)
     if min_steps > 1:
+        tags_of: dict[str, int] = {}
         for i in range(len(dataset)):  # type: ignore[arg-type]
             item = dataset[i]
             tags_of[item["canonical_caption"]] = len(item["tags"])
-    queries = sorted({c for c in captions if min_steps <= 1 or tags_of.get(c, 0) >= min_steps})
+        keep = [q for q, c in enumerate(queries) if tags_of.get(c, 0) >= min_steps]
+        queries, relevant = [queries[q] for q in keep], relevant[keep]
     if not queries:
         return {"queries": 0.0}
     text = embed_texts(model, queries)  # (Q, D)
-    return text_to_clip_metrics(text @ vectors.T, relevance_by_caption(queries, captions))
+    return text_to_clip_metrics(text @ vectors.T, relevant)
 
 
 @torch.no_grad()

@@ -131,3 +131,13 @@ def relevance_by_caption(query_captions: Sequence[str], clip_captions: Sequence[
     q = np.asarray(list(query_captions), dtype=object)
     c = np.asarray(list(clip_captions), dtype=object)
     return np.asarray(q[:, None] == c[None, :], dtype=bool)
+
+
+def caption_queries(clip_captions: Sequence[str]) -> tuple[list[str], np.ndarray]:
+    """The text queries of a set of clips: their distinct canonical captions, sorted, and (Q, N) relevance.
+
+    Every evaluation of text → clip retrieval asks this way (validation, the camera weight's choice,
+    ``scenesearch eval``), so that their figures count the same queries.
+    """
+    queries = sorted(set(clip_captions))
+    return queries, relevance_by_caption(queries, clip_captions)

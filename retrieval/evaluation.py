@@ -44,9 +44,9 @@ from encoders.clips.layout import read_clip_table
 from encoders.metrics import (
     CURVE_MAX_K,
     KS,
+    caption_queries,
     precision_at_k,
     recall_curve,
-    relevance_by_caption,
     text_to_clip_figures,
 )
 from retrieval.action_breakdown import facets, recall_by_facet
@@ -245,8 +245,7 @@ def evaluate(run_dir: Path | str, clips_dir: Path | str, split: str = "test", em
     x_bag = embed("fused", shuffle=True)
     say(f"eval: embedded {len(rows)} {split} clips (fused, camera, bev, shuffled frames)")
     captions = [str(r.get("canonical_caption") or r["caption"]) for r in rows]
-    queries = sorted(set(captions))
-    relevant = relevance_by_caption(queries, captions)
+    queries, relevant = caption_queries(captions)
     t = np.asarray(embedder.embed_texts(queries), dtype=np.float32)
     sims = {view: t @ xv.T for view, xv in x.items()}
     sim_bag = t @ x_bag.T

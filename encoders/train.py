@@ -19,8 +19,8 @@ stopped (on CPU; CUDA kernels may add their own non-determinism), with or withou
 with a trained or a frozen text tower.
 
 With ``hard_negatives`` (:mod:`encoders.negatives`), each clip's captions with its steps edited
-(reversed, one approach ↔ away flipped, lanes mirrored) are encoded with the batch's captions and
-join the clip → text side of the loss as extra negatives.
+(reversed, one approach ↔ away flipped, lanes mirrored) join the clip → text side of the loss as
+extra negatives; ``order_weight`` adds a pairwise term on the reversed ones (:mod:`encoders.loss`).
 
 Checkpoints (:mod:`encoders.checkpoints`) hold every optimiser's state (the tagging head's own
 included), the random states and the metrics rows so far, as plain tensors and data read with
@@ -69,7 +69,7 @@ from encoders.config import TrainConfig
 from encoders.data import AugmentConfig
 from encoders.distributed import Distributed
 from encoders.inference import collate, evaluate, open_split, resolve_device
-from encoders.loss import contrastive_loss, positives_matrix, tag_similarity, view_loss
+from encoders.loss import contrastive_loss, order_loss, positives_matrix, tag_similarity, view_loss
 from encoders.model import DualEncoder
 from encoders.model_card import model_card
 from encoders.negatives import NEGATIVE_FIELDS, batch_negatives
@@ -94,10 +94,8 @@ class NonFiniteLossError(TrainingError):
         self.epoch = epoch
         self.clip_ids = list(clip_ids)
         shown = ", ".join(self.clip_ids[:8]) + (" …" if len(self.clip_ids) > 8 else "")
-        super().__init__(
-            f"loss is {value} at step {step} (epoch {epoch + 1}), batch clips: {shown}; "
-            "stopped, the last good checkpoint is kept"
-        )
+        super().__init__(f"loss is {value} at step {step} (epoch {epoch + 1}), batch clips: {shown}; "
+                         "stopped, the last good checkpoint is kept")
 
 
 @dataclass
@@ -124,9 +122,8 @@ def _step_seed(seed: int, step: int, stream: int = 0) -> int:
 
 
 def _seed_worker(worker_id: int) -> None:
-    s = torch.initial_seed() % 2**32
-    np.random.seed(s)
-    random.seed(s)
+    np.random.seed(torch.initial_seed() % 2**32)
+    random.seed(torch.initial_seed() % 2**32)
 
 
 def _open_datasets(
@@ -329,12 +326,13 @@ def train(
             whole, all_keys = dp.whole_batch(batch, keys)  # the text fields of every process's clips
             negative_texts: list[str] = []
             own: list[list[bool]] = []
+            reversed_of: list[int] = []
             if config.hard_negatives:
-                negative_texts, own = batch_negatives(batch, config.hard_negatives, keys, config.positives,
-                                                      config.seed, step, negative_paraphrases)
-                if dp.active:  # the whole batch's clips against every process's negatives
-                    own = batch_negatives(whole, config.hard_negatives, all_keys, config.positives, config.seed,
-                                          step, negative_paraphrases)[1]
+                negative_texts, own, reversed_of = batch_negatives(
+                    batch, config.hard_negatives, keys, config.positives, config.seed, step, negative_paraphrases)
+                if dp.active:  # the whole batch's clips against every process's negatives, in the same order
+                    _, own, reversed_of = batch_negatives(whole, config.hard_negatives, all_keys, config.positives,
+                                                          config.seed, step, negative_paraphrases)
             with torch.autocast(device_type=device.type, dtype=torch.bfloat16, enabled=use_amp):
                 views: dict[str, torch.Tensor] = {}
                 frames: dict[str, torch.Tensor] | None = {} if config.dense_weight > 0 else None
@@ -351,6 +349,10 @@ def train(
                 own_mask = torch.tensor(own, dtype=torch.bool, device=device).reshape(len(all_keys), len(negatives))
                 loss = contrastive_loss(video, text, scale, positives, config.loss, sim, config.tag_weight,
                                         negatives, own_mask, rows=dp.rows(len(keys)))
+                if config.order_weight > 0:  # each clip against its steps reversed; gradients are averaged
+                    pairs = torch.tensor(reversed_of, dtype=torch.long, device=device)  # (M,) of the whole batch
+                    loss = loss + config.order_weight * dp.processes * order_loss(video, text, negatives, pairs,
+                                                                                  own_mask, scale, dp.rows(len(keys)))
                 if frames:  # the frames' rule tags from each stream's frame tokens (encoders.dense)
                     # Over the whole batch's tagged frames; gradients are averaged over processes, hence the factor.
                     loss = loss + config.dense_weight * dp.processes * model.dense_loss(batch, frames, dp.total)

@@ -39,6 +39,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--hard-negatives", nargs="+", metavar="EDIT", choices=[*edits, "none"],
                         help=f"edits of a clip's steps trained as extra negatives (default "
                         f"{' '.join(D.hard_negatives)}; none: in-batch negatives only)")
+    parser.add_argument("--order-weight", type=float, metavar="W",
+                        help=f"weight of the pairwise order loss, each clip against its steps reversed (default "
+                        f"{D.order_weight or 0:g}; 0: none)")
     parser.add_argument("--dense-weight", type=float, metavar="W",
                         help=f"weight of the per-frame tag loss on the streams' frame tokens (default "
                         f"{D.dense_weight:g}; 0: no dense heads)")

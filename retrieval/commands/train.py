@@ -58,6 +58,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--hard-negatives", nargs="+", metavar="EDIT", choices=edits,
                         help=f"edits of each clip's steps whose captions join the batch as negatives "
                              f"({', '.join(edits)})")
+    parser.add_argument("--order-weight", type=float, metavar="W",
+                        help="weight of the pairwise order loss: each clip against its caption's steps reversed "
+                             "(needs the reverse edit among the hard negatives)")
     parser.add_argument("--dense-weight", type=float, metavar="W",
                         help="weight of the per-frame rule-tag loss on the temporal streams' frame tokens (heads on "
                              "the track stream unless the config names model.dense_streams)")
@@ -109,6 +112,8 @@ def build_config(args: argparse.Namespace) -> Any:
         config = dataclasses.replace(config, shuffle_frames=True)
     if args.hard_negatives is not None:
         config = dataclasses.replace(config, hard_negatives=tuple(args.hard_negatives))
+    if args.order_weight is not None:
+        config = dataclasses.replace(config, order_weight=args.order_weight)
     if args.dense_streams is not None:
         config = dataclasses.replace(config, model=dataclasses.replace(config.model,
                                                                        dense_streams=tuple(args.dense_streams)))

@@ -76,15 +76,27 @@ def test_batch_negatives_mark_a_negative_equal_to_a_batch_caption_as_its_positiv
     batch: dict[str, Any] = {
         "clip_id": ["a", "b"], "category": ["car", "car"], "tags": [a, b], "host_tags": [HOST, HOST],
         "canonical_caption": [render_caption("car", a, HOST), render_caption("car", b, HOST)]}
-    texts, own = batch_negatives(batch, [HardNegative.REVERSE], batch["canonical_caption"])
+    texts, own, reversed_of = batch_negatives(batch, [HardNegative.REVERSE], batch["canonical_caption"])
     assert texts == batch["canonical_caption"][::-1]
     assert own == [[False, True], [True, False]]  # a's negative is b's caption: b's positive, and vice versa
-    _, own_by_tags = batch_negatives(batch, [HardNegative.REVERSE], [tuple(a), tuple(b)], by="tags")
+    assert reversed_of == [0, 1]
+    _, own_by_tags, _ = batch_negatives(batch, [HardNegative.REVERSE], [tuple(a), tuple(b)], by="tags")
     assert own_by_tags == own
     first = batch_negatives(batch, ALL, batch["canonical_caption"], seed=3, step=7, paraphrase_probability=0.8)
     assert first == batch_negatives(batch, ALL, batch["canonical_caption"], seed=3, step=7, paraphrase_probability=0.8)
     with pytest.raises(KeyError, match="host_tags"):
         batch_negatives({k: v for k, v in batch.items() if k != "host_tags"}, ALL, batch["canonical_caption"])
+
+
+def test_batch_negatives_say_which_clip_each_reversal_belongs_to() -> None:
+    a, b = ["left:approach", "host:away"], ["left:approach"]  # b has one step: nothing to reverse
+    batch: dict[str, Any] = {"clip_id": ["a", "b"], "category": ["car", "car"], "tags": [a, b],
+                             "host_tags": [HOST, HOST]}
+    got = batch_negatives(batch, ALL, [render_caption("car", t, HOST) for t in (a, b)])
+    kinds = [n.kind for key, t in (("a", a), ("b", b)) for n in hard_negatives("car", t, HOST, ALL, key=key)]
+    assert len(got.reversed_of) == len(got.texts) == len(kinds)
+    assert got.reversed_of == [0 if k == HardNegative.REVERSE else -1 for k in kinds]
+    assert got.reversed_of.count(0) == 1 and 1 not in got.reversed_of
 
 
 def test_config_key() -> None:

@@ -18,7 +18,7 @@ from torch.utils.data import DataLoader
 from encoders.clips.build import build_clips
 from encoders.clips.config import ClipsConfig
 from encoders.clips.testing import synthetic_captions, synthetic_frame_tags, write_synthetic_log
-from encoders.config import TrainConfig
+from encoders.config import ConfigError, HardNegative, TrainConfig
 from encoders.dense import DENSE_TASKS
 from encoders.inference import collate, embed_clips, embed_texts, frame_tag_figures, load_model, open_split
 from encoders.model import DualEncoder
@@ -172,3 +172,15 @@ def test_dense_streams_flag_names_the_streams_with_heads(tmp_path: Path) -> None
     assert both.model.dense_streams == ("camera", "track") and both.dense_weight == 1.0  # in DENSE_STREAMS order
     with pytest.raises(SystemExit):
         parser.parse_args([*base, "--dense-streams", "lidar"])
+
+
+def test_order_weight_flag_needs_the_reversed_steps(tmp_path: Path) -> None:
+    from retrieval.commands import train as train_command
+
+    parser = argparse.ArgumentParser()
+    train_command.configure(parser)
+    base = ["clips", "--out", str(tmp_path / "run"), "--order-weight", "0.5"]
+    config = train_command.build_config(parser.parse_args([*base, "--hard-negatives", "reverse"]))
+    assert config.order_weight == 0.5 and config.hard_negatives == (HardNegative.REVERSE,)
+    with pytest.raises(ConfigError, match="order_weight > 0 needs 'reverse'"):
+        train_command.build_config(parser.parse_args([*base, "--hard-negatives", "mirror"]))

@@ -82,6 +82,8 @@ def test_stages_run_in_order_with_sizes(tmp_path: Path) -> None:
     # The demo's model: time slots, trained with the reversed-step captions as negatives.
     assert train[train.index("--time-slots") + 1] == "4"
     assert train[train.index("--hard-negatives") + 1:][:1] == ["reverse"]
+    # ... and each clip against its own reversed steps in the pairwise order loss.
+    assert train[train.index("--order-weight") + 1] == "0.3"
     # ... with per-frame tag heads on the camera and track streams; the track stream reads the velocity.
     assert train[train.index("--dense-weight") + 1] == "5.0" and "--track-velocity" in train
     assert train[train.index("--dense-streams") + 1:][:2] == ["camera", "track"]
@@ -111,25 +113,34 @@ def test_resume_skips_complete_stages_and_reruns_after_a_change(tmp_path: Path) 
     assert [c[0] for c in more_camera.calls] == ["train", "index", "eval", "report"]
     # So does one pooled vector instead of time slots, with in-batch negatives only.
     one_vector = _demo(tmp_path, DemoConfig(logs=2, duration_s=10, epochs=5, map_less_share=1.0, camera_share=0.5,
-                                            time_slots=0, hard_negatives=()))
+                                            time_slots=0, hard_negatives=(), order_weight=None))
     one_vector.run()
     assert [c[0] for c in one_vector.calls] == ["train", "index", "eval", "report"]
     train = one_vector.calls[0]
     assert train[train.index("--time-slots") + 1] == "0" and "--hard-negatives" not in train
+    assert "--order-weight" not in train
     # Without the dense heads and the velocity features: retrained, and neither flag reaches `train`.
     sparse = _demo(tmp_path, DemoConfig(logs=2, duration_s=10, epochs=5, map_less_share=1.0, camera_share=0.5,
-                                        time_slots=0, hard_negatives=(), dense_weight=None, track_velocity=False))
+                                        time_slots=0, hard_negatives=(), order_weight=None, dense_weight=None,
+                                        track_velocity=False))
     sparse.run()
     assert [c[0] for c in sparse.calls] == ["train", "index", "eval", "report"]
     assert "--dense-weight" not in sparse.calls[0] and "--track-velocity" not in sparse.calls[0]
     assert "--dense-streams" not in sparse.calls[0]
     # Heads on the track stream alone: another model, retrained.
     track_only = _demo(tmp_path, DemoConfig(logs=2, duration_s=10, epochs=5, map_less_share=1.0, camera_share=0.5,
-                                            time_slots=0, hard_negatives=(), dense_streams=("track",)))
+                                            time_slots=0, hard_negatives=(), order_weight=None,
+                                            dense_streams=("track",)))
     track_only.run()
     assert [c[0] for c in track_only.calls] == ["train", "index", "eval", "report"]
     train = track_only.calls[0]
     assert train[train.index("--dense-streams") + 1:][:2] == ["track", "--track-velocity"]
+    # Another weight of the pairwise order loss: another model, retrained, the weight passed to `train`.
+    ordered = _demo(tmp_path, DemoConfig(logs=2, duration_s=10, epochs=5, map_less_share=1.0, camera_share=0.5,
+                                         time_slots=0, dense_streams=("track",), order_weight=0.5))
+    ordered.run()
+    assert [c[0] for c in ordered.calls] == ["train", "index", "eval", "report"]
+    assert ordered.calls[0][ordered.calls[0].index("--order-weight") + 1] == "0.5"
     # Without extra logs, none is simulated, and those of the settings before are gone.
     assert fewer_maps.extra_logs_dir.is_dir()
     alone = _demo(tmp_path, DemoConfig(logs=2, duration_s=10, epochs=5, extra_logs=0))
@@ -160,6 +171,13 @@ def test_config_from_flags() -> None:
     assert parsed.dense_weight == 0.0 and parsed.track_velocity is False
     assert config_from_args(parser.parse_args(["--out", "x", "--dense-streams", "track"])).dense_streams == ("track",)
     assert config_from_args(parser.parse_args(["--out", "x"])) == DemoConfig()
+    assert config_from_args(parser.parse_args(["--out", "x", "--order-weight", "0.5"])).order_weight == 0.5
+    # Without the reversed steps the order loss has no pairs: off unless asked for (then refused).
+    assert config_from_args(parser.parse_args(["--out", "x", "--hard-negatives", "none"])).order_weight is None
+    assert config_from_args(parser.parse_args(["--out", "x", "--hard-negatives", "mirror", "reverse"])
+                            ).order_weight == DemoConfig().order_weight
+    with pytest.raises(ValueError, match="order_weight needs 'reverse'"):
+        config_from_args(parser.parse_args(["--out", "x", "--hard-negatives", "none", "--order-weight", "1"]))
     flags = argparse.Namespace(**{**vars(args), "quick": False, "time_slots": 6, "hard_negatives": ["none"]})
     assert config_from_args(flags).time_slots == 6 and config_from_args(flags).hard_negatives == ()
     assert config_from_args(argparse.Namespace(**{**vars(flags), "hard_negatives": None})).hard_negatives == (
@@ -185,6 +203,10 @@ def test_config_from_flags() -> None:
         DemoConfig(time_slots=-1)
     with pytest.raises(ValueError, match="dense_weight must be at least 0"):
         DemoConfig(dense_weight=-1.0)
+    with pytest.raises(ValueError, match="order_weight must be at least 0"):
+        DemoConfig(order_weight=-1.0)
+    with pytest.raises(ValueError, match="order_weight needs 'reverse' among hard_negatives"):
+        DemoConfig(order_weight=1.0, hard_negatives=("mirror",))
     with pytest.raises(ValueError, match=r"dense_streams: unknown \['lidar'\]"):
         DemoConfig(dense_streams=("lidar",))
     with pytest.raises(ValueError, match=r"hard_negatives: unknown \['backwards'\]"):

@@ -142,8 +142,10 @@ def view_loss(view: torch.Tensor, text: torch.Tensor, scale: torch.Tensor, posit
     return share * loss + zero
 
 
-def order_loss(video: torch.Tensor, text: torch.Tensor, negatives: torch.Tensor, reversed_of: torch.Tensor,
-               own: torch.Tensor, scale: torch.Tensor, rows: slice | None = None) -> torch.Tensor:
+def order_loss(
+    video: torch.Tensor, text: torch.Tensor, negatives: torch.Tensor, reversed_of: Sequence[int] | torch.Tensor,
+    scale: torch.Tensor, rows: slice | None = None,
+) -> torch.Tensor:
     """Each clip against its caption's steps reversed: mean over pairs of softplus(−scale · (v·t − v·t_rev)).
 
     In the contrastive loss a clip's reversed caption is one column among the batch's, and its pull
@@ -151,22 +153,20 @@ def order_loss(video: torch.Tensor, text: torch.Tensor, negatives: torch.Tensor,
     only 0.895 of its own training pairs in order. This term keeps pushing each pair apart.
 
     video, text: (B, D) the whole batch's clips and captions, normalised; negatives: (M, D);
-    reversed_of: (M,) long, the clip whose steps negative m reverses (−1: another edit); own: (B, M)
-    bool, negatives equal to a clip's caption (not a pair of that clip). ``rows``: this process's rows
-    of the whole batch; its pairs' sum is divided by the whole batch's pair count, so that the
-    processes' losses sum to the whole batch's. 0 (with a graph) when no clip has a pair.
+    reversed_of: (M,) the clip whose steps negative m reverses (−1: another edit; a reversal
+    never renders as its clip's own caption, :func:`encoders.negatives.hard_negatives` drops those).
+    ``rows``: this process's rows of the whole batch; its pairs' sum is divided by the whole batch's
+    pair count, so that the processes' losses sum to the whole batch's. 0 (with a graph) without pairs.
     """
-    zero = video.sum() * 0.0 + text.sum() * 0.0 + negatives.sum() * 0.0
-    m = torch.nonzero(reversed_of >= 0).reshape(-1)  # (P,) negatives that reverse a clip's steps
-    clip = reversed_of[m]
-    keep = ~own.to(m.device)[clip, m]
-    m, clip = m[keep], clip[keep]
+    owners = torch.as_tensor(reversed_of, dtype=torch.long, device=video.device)  # (M,)
+    m = torch.nonzero(owners >= 0).reshape(-1)  # (P,) negatives that reverse a clip's steps
+    clip = owners[m]
     total = len(m)
     if rows is not None:
         mine = (clip >= (rows.start or 0)) & (clip < rows.stop)
         m, clip = m[mine], clip[mine]
     if len(m) == 0:
-        return zero
+        return video.sum() * 0.0
     v = video[clip].float()  # (P, D)
     margin = (v * text[clip].float()).sum(-1) - (v * negatives[m].float()).sum(-1)  # (P,)
-    return F.softplus(-scale * margin).sum() / total + zero
+    return F.softplus(-scale * margin).sum() / total

@@ -122,8 +122,9 @@ def _step_seed(seed: int, step: int, stream: int = 0) -> int:
 
 
 def _seed_worker(worker_id: int) -> None:
-    np.random.seed(torch.initial_seed() % 2**32)
-    random.seed(torch.initial_seed() % 2**32)
+    s = torch.initial_seed() % 2**32
+    np.random.seed(s)
+    random.seed(s)
 
 
 def _open_datasets(
@@ -350,9 +351,8 @@ def train(
                 loss = contrastive_loss(video, text, scale, positives, config.loss, sim, config.tag_weight,
                                         negatives, own_mask, rows=dp.rows(len(keys)))
                 if config.order_weight > 0:  # each clip against its steps reversed; gradients are averaged
-                    pairs = torch.tensor(reversed_of, dtype=torch.long, device=device)  # (M,) of the whole batch
-                    loss = loss + config.order_weight * dp.processes * order_loss(video, text, negatives, pairs,
-                                                                                  own_mask, scale, dp.rows(len(keys)))
+                    loss = loss + config.order_weight * dp.processes * order_loss(video, text, negatives, reversed_of,
+                                                                                  scale, dp.rows(len(keys)))
                 if frames:  # the frames' rule tags from each stream's frame tokens (encoders.dense)
                     # Over the whole batch's tagged frames; gradients are averaged over processes, hence the factor.
                     loss = loss + config.dense_weight * dp.processes * model.dense_loss(batch, frames, dp.total)

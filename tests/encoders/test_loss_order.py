@@ -22,37 +22,33 @@ def _batch(seed: int = 0, b: int = 6, m: int = 5, d: int = 8) -> tuple[torch.Ten
 
 def test_the_loss_is_the_mean_softplus_of_each_pair_margin() -> None:
     video, text, negatives = _batch()
-    reversed_of = torch.tensor([0, -1, 2, 3, 5])  # negative 1 is another edit: no pair
-    own = torch.zeros(6, 5, dtype=torch.bool)
-    own[3, 3] = True  # negative 3 renders as clip 3's own caption: no pair
+    reversed_of = torch.tensor([0, -1, 2, -1, 5])  # negatives 1 and 3 are other edits: no pair
     scale = torch.tensor(10.0)
     pairs = [(0, 0), (2, 2), (5, 4)]
     expected = sum(F.softplus(-scale * (video[i] @ text[i] - video[i] @ negatives[j])) for i, j in pairs) / len(pairs)
-    assert torch.allclose(order_loss(video, text, negatives, reversed_of, own, scale), expected)
+    assert torch.allclose(order_loss(video, text, negatives, reversed_of, scale), expected)
 
 
 def test_a_clip_closer_to_its_caption_than_to_the_reversal_costs_little() -> None:
     t = torch.tensor([[1.0, 0.0]])
     n = torch.tensor([[0.0, 1.0]])
     pair = torch.tensor([0])
-    own = torch.zeros(1, 1, dtype=torch.bool)
     scale = torch.tensor(20.0)
-    right = order_loss(torch.tensor([[1.0, 0.0]]), t, n, pair, own, scale)
-    tie = order_loss(F.normalize(torch.tensor([[1.0, 1.0]]), dim=-1), t, n, pair, own, scale)
-    wrong = order_loss(torch.tensor([[0.0, 1.0]]), t, n, pair, own, scale)
+    right = order_loss(torch.tensor([[1.0, 0.0]]), t, n, pair, scale)
+    tie = order_loss(F.normalize(torch.tensor([[1.0, 1.0]]), dim=-1), t, n, pair, scale)
+    wrong = order_loss(torch.tensor([[0.0, 1.0]]), t, n, pair, scale)
     assert float(right) < 1e-6 and float(tie) == pytest.approx(math.log(2)) and float(wrong) > 19
 
 
 def test_a_step_against_the_gradient_keeps_more_pairs_in_order() -> None:
     video, text, negatives = _batch(seed=1)
     reversed_of = torch.tensor([0, 1, 2, 3, 4])
-    own = torch.zeros(6, 5, dtype=torch.bool)
     scale = torch.tensor(5.0)
 
     def margins(v: torch.Tensor) -> torch.Tensor:
         return (v[:5] * text[:5]).sum(-1) - (v[:5] * negatives).sum(-1)
 
-    (grad,) = torch.autograd.grad(order_loss(video, text, negatives, reversed_of, own, scale), video)
+    (grad,) = torch.autograd.grad(order_loss(video, text, negatives, reversed_of, scale), video)
     moved = video.detach() - 0.5 * grad
     assert bool((margins(moved) > margins(video.detach())).all())
     assert torch.count_nonzero(grad[5]) == 0  # clip 5 has no reversal: untouched
@@ -60,18 +56,16 @@ def test_a_step_against_the_gradient_keeps_more_pairs_in_order() -> None:
 
 def test_without_pairs_the_loss_is_zero_with_a_graph() -> None:
     video, text, negatives = _batch()
-    loss = order_loss(video, text, negatives, torch.full((5,), -1), torch.zeros(6, 5, dtype=torch.bool),
-                      torch.tensor(10.0))
+    loss = order_loss(video, text, negatives, torch.full((5,), -1), torch.tensor(10.0))
     assert float(loss.detach()) == 0.0 and loss.requires_grad
 
 
 def test_each_process_rows_sum_to_the_whole_batch_loss() -> None:
     video, text, negatives = _batch(seed=2)
     reversed_of = torch.tensor([0, 1, 3, 4, 5])
-    own = torch.zeros(6, 5, dtype=torch.bool)
     scale = torch.tensor(10.0)
-    whole = order_loss(video, text, negatives, reversed_of, own, scale)
-    parts = [order_loss(video, text, negatives, reversed_of, own, scale, rows=rows)
+    whole = order_loss(video, text, negatives, reversed_of, scale)
+    parts = [order_loss(video, text, negatives, reversed_of, scale, rows=rows)
              for rows in (slice(0, 3), slice(3, 6))]
     assert torch.allclose(whole, parts[0] + parts[1], atol=1e-6)
     grads = [torch.autograd.grad(loss, (video, text, negatives)) for loss in (whole, parts[0] + parts[1])]

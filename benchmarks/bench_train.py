@@ -103,6 +103,45 @@ def text_cache_speedup(batch_size: int, steps: int) -> dict[str, float]:
     return figures
 
 
+def grouped_encoding_speedup(captions_per_step: int, steps: int) -> dict[str, float]:
+    """The sentence encoder on the strings of a training step's captions, by length in groups of
+    :data:`encoders.text.ENCODE_GROUP` against one call (every string padded to the longest).
+
+    Like the slot text tower, a step encodes each caption whole and each of its steps: an ego
+    sentence and an object sentence of one to three steps, 3 to 30 words a string.
+    """
+    import encoders.text as text_module
+    from encoders.config import TextConfig
+    from encoders.synthetic import behaviours, caption_of
+
+    hosts = ("stationary", "cruising straight", "accelerating while steering left", "decelerating straight")
+    captions = [f"The ego vehicle is {h}. {caption_of(c, b).capitalize()}."
+                for h in hosts for c in ("car", "truck", "pedestrian") for b in behaviours()]
+    rng = np.random.default_rng(0)
+    batches = []
+    for _ in range(steps):
+        picked = [captions[i] for i in rng.choice(len(captions), captions_per_step, replace=False)]
+        batches.append(list(dict.fromkeys(s for c in picked for s in (c, *(x for sentence in
+                                          text_module.sentence_steps(c) for x in sentence)))))
+    backbone = text_module.PretrainedText(TextConfig(cache=False)).eval()
+    dev, group = torch.device("cpu"), text_module.ENCODE_GROUP
+    figures: dict[str, float] = {}
+    try:
+        for name, size in (("one_call", max(map(len, batches))), ("grouped", group)):
+            text_module.ENCODE_GROUP = size
+            with torch.no_grad():
+                backbone._run(batches[0], dev)  # warm-up
+                cpu0 = time.process_time()
+                for texts in batches:
+                    backbone._run(texts, dev)
+            figures[f"{name}_ms_per_step"] = round(1000 * (time.process_time() - cpu0) / steps, 1)
+    finally:
+        text_module.ENCODE_GROUP = group
+    figures["speedup"] = round(figures["one_call_ms_per_step"] / figures["grouped_ms_per_step"], 2)
+    figures.update(strings_per_step=round(float(np.mean([len(b) for b in batches])), 1), group=group)
+    return figures
+
+
 def run(quick: bool) -> dict[str, Any]:
     os.environ.setdefault("HF_HUB_OFFLINE", "1")
     torch.set_num_threads(1)
@@ -115,6 +154,7 @@ def run(quick: bool) -> dict[str, Any]:
         out["small_resolution"]["samples_per_cpu_s"] / out["default_resolution"]["samples_per_cpu_s"], 2
     )
     out["text_cache"] = text_cache_speedup(32, 3 if quick else 10)
+    out["grouped_text_encoding"] = grouped_encoding_speedup(16, 2 if quick else 10)
     return out
 
 

@@ -23,6 +23,7 @@ from encoders.data import AugmentConfig, ClipDataset, collate_clips
 from encoders.dense import frame_tag_report
 from encoders.metrics import caption_queries, text_to_clip_metrics
 from encoders.model import DualEncoder
+from encoders.text import TEXT_CACHE_FILE
 
 
 def resolve_device(name: str) -> torch.device:
@@ -207,5 +208,5 @@ def load_model(run_dir: Path | str, device: str = "cpu") -> DualEncoder:
     model = DualEncoder(TrainConfig.from_json(config_path).model)
     model.load_saved_state_dict(load_file(str(weights_path)))
     if model.text.cache is not None:
-        model.text.cache.load(run_dir / "text_cache.npz")
+        model.text.cache.load(run_dir / TEXT_CACHE_FILE)
     return model.to(resolve_device(device)).eval()

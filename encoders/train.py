@@ -33,9 +33,8 @@ extended; the cosine schedule then stretches to the new end), ``num_workers``, `
 tagging state then starts the head afresh).
 
 With ``distributed`` (:mod:`encoders.distributed`), N processes train as one process with the whole
-batch of N × ``batch_size`` clips: only rank 0 writes files and validates.
-
-Loading a finished run and embedding clips and texts with it is :mod:`encoders.inference`.
+batch of N × ``batch_size`` clips: only rank 0 writes files and validates. Loading a finished run and
+embedding clips and texts with it is :mod:`encoders.inference`.
 """
 
 from __future__ import annotations
@@ -76,6 +75,7 @@ from encoders.negatives import NEGATIVE_FIELDS, batch_negatives
 from encoders.tagging.ablation import mask_inputs
 from encoders.tagging.config import TagTrainConfig
 from encoders.tagging.training import attach_tagging
+from encoders.text import TEXT_CACHE_FILE
 
 
 class TrainingError(RuntimeError):
@@ -278,7 +278,7 @@ def train(
         log(f"resuming {run_dir} after epoch {start_epoch} (step {step})")
     dp.prepare(model, tag_objective)  # batch norms over the whole batch, rank 0's weights everywhere
     text_cache = model.text.cache
-    cache_path = run_dir / "text_cache.npz"
+    cache_path = run_dir / TEXT_CACHE_FILE
     if text_cache is not None:
         text_cache.load(cache_path)
     if dp.is_main:

@@ -261,7 +261,7 @@ def evaluate(run_dir: Path | str, clips_dir: Path | str, split: str = "test", em
     order: dict[str, float | int | None] = {"num_captions": len(pairs)}
     order_bag: float | None = None
     order_rule: float | None = None
-    sentence = sentence_encoder if sentence_encoder is not None else SentenceEncoder()
+    sentence = sentence_encoder if sentence_encoder is not None else SentenceEncoder.for_run(run_dir)
     text_order = text_order_figures(np.zeros((0, 1)), np.zeros((0, 1)))
     text_order_frozen = dict(text_order)
     if pairs:

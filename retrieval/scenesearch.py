@@ -49,7 +49,7 @@ from indexes.integrity import (
 )
 from indexes.persistence import read_json_manifest
 from retrieval.captions_search import CaptionSearch, Skipped, TextEncoder, caption_rows
-from retrieval.embedding import CONFIG_FILE, Embedder, ModelEmbedder
+from retrieval.embedding import CONFIG_FILE, Embedder, ModelEmbedder, SentenceEncoder
 from retrieval.errors import IndexDirError, ModelMismatchError, UnknownClipError, UnknownViewError
 from retrieval.querying import MAX_K, build_query, check_query, hits_to_results, preview_of
 from retrieval.records import SearchResult
@@ -145,7 +145,8 @@ class SceneSearch:
             clips_dir: the clips the run was trained on (``clips.parquet`` + per-log arrays).
             out_dir: the index directory; replaced atomically when it exists.
             embedder: the model (default: :class:`ModelEmbedder` of ``run_dir``).
-            text_encoder: the sentence encoder of the caption index (default: all-MiniLM-L6-v2).
+            text_encoder: the sentence encoder of the caption index (default: all-MiniLM-L6-v2, seeded with
+                the run's own text cache, :meth:`SentenceEncoder.for_run`).
             progress: called with one line per step.
 
         Raises:
@@ -172,7 +173,8 @@ class SceneSearch:
             say(f"index: embedded {len(x_view)} clips, view {view} ({x_view.shape[1]}-D) in "
                 f"{time.perf_counter() - start:.1f} s")
         start = time.perf_counter()
-        captions = CaptionSearch.build(rows, encoder=text_encoder, base_dir=clips_dir)
+        sentence = text_encoder if text_encoder is not None else SentenceEncoder.for_run(run_dir)
+        captions = CaptionSearch.build(rows, encoder=sentence, base_dir=clips_dir)
         say(f"index: embedded {len(captions)} rule captions in {time.perf_counter() - start:.1f} s")
         split_counts: dict[str, int] = {}
         if "split" in rows.column_names:

@@ -63,6 +63,7 @@ from encoders.clips.table import (
     window_frames,
     write_clip_table,
 )
+from encoders.clips.views import open_log_arrays
 from scenes.errors import LogFormatError
 from scenes.log import Log
 from scenes.tracks import DenseTracks
@@ -181,9 +182,10 @@ def _render_and_cut(log: Log, dense: DenseTracks, rows: list[CaptionRow], clips_
         from encoders.clips.preview import write_preview
 
         t2 = time.perf_counter()
+        arrays = open_log_arrays(clips_dir, log.log_id)
         for clip in out.rows:
             rel = f"{PREVIEWS_DIR}/{preview_file_name(clip['clip_id'])}"
-            write_preview(clips_dir, clip, clips_dir / rel, config)
+            write_preview(clips_dir, clip, clips_dir / rel, config, arrays)
             clip["preview_path"] = rel
         out.preview_s = time.perf_counter() - t2
 

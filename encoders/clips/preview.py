@@ -90,15 +90,21 @@ def render_preview_frames(arrays: LogArrays, clip: Mapping[str, Any], config: Cl
 
 
 def write_preview(
-    clips_dir: Path | str, clip: str | Mapping[str, Any], out_path: Path | str, config: ClipsConfig | None = None
+    clips_dir: Path | str, clip: str | Mapping[str, Any], out_path: Path | str, config: ClipsConfig | None = None,
+    arrays: LogArrays | None = None,
 ) -> Path:
-    """Write an animated GIF of one clip (by id or by its clip-table row) atomically."""
+    """Write an animated GIF of one clip (by id or by its clip-table row) atomically.
+
+    ``arrays``: the clip's log, opened once by a caller that previews many of its clips (opening it
+    reads its frames table and track ids: a third of a preview's time).
+    """
     from PIL import Image
 
     clips_dir = Path(clips_dir)
     row = read_clip_rows(clips_dir, [clip])[0] if isinstance(clip, str) else clip
     config = config or _config(clips_dir)
-    frames = render_preview_frames(open_log_arrays(clips_dir, str(row["log_id"])), row, config)
+    arrays = arrays if arrays is not None else open_log_arrays(clips_dir, str(row["log_id"]))
+    frames = render_preview_frames(arrays, row, config)
     # One palette for the whole clip, from a mosaic of a few frames: much faster than a palette per frame.
     picks = np.unique(np.linspace(0, len(frames) - 1, 4).round().astype(int))
     palette = Image.fromarray(np.concatenate(frames[picks], axis=0)).quantize(
@@ -133,8 +139,11 @@ def write_preview_grid(
     clips_dir = Path(clips_dir)
     config = _config(clips_dir)
     tiles = []
+    logs: dict[str, LogArrays] = {}
     for row in read_clip_rows(clips_dir, clip_ids):
-        arrays = open_log_arrays(clips_dir, row["log_id"])
+        if row["log_id"] not in logs:  # a grid often shows several clips of one log
+            logs[row["log_id"]] = open_log_arrays(clips_dir, row["log_id"])
+        arrays = logs[row["log_id"]]
         frames = render_preview_frames(arrays, row, config)
         if frame_fraction is None:
             tiles.append(frames[best_frame(arrays, row, config)])

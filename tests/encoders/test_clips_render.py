@@ -227,6 +227,11 @@ def test_cli_writes_clips_and_previews(built: tuple[Path, Path], tmp_path: Path,
     assert all(len(r["frame_indices"]) == 8 for r in rows)
     with Image.open(out / rows[0]["preview_path"]) as gif:
         assert gif.n_frames == 8 and gif.size[0] > gif.size[1]
+    # The build opens each log once for all its previews; a preview on its own opens it itself.
+    from encoders.clips.preview import write_preview
+
+    alone = write_preview(out, rows[-1]["clip_id"], tmp_path / "alone.gif")
+    assert alone.read_bytes() == (out / rows[-1]["preview_path"]).read_bytes()
 
 
 def test_cli_train_only_logs_always_train(tmp_path: Path) -> None:

@@ -11,7 +11,7 @@ import torch
 
 from encoders.config import TextConfig
 from encoders.sentence import TextModelUnavailableError, load_sentence_encoder, shared_sentence_encoder
-from encoders.text import TextTower, hash_tokens
+from encoders.text import ENCODE_GROUP, TextTower, hash_tokens
 
 os.environ["HF_HUB_OFFLINE"] = "1"
 CAPTIONS = [
@@ -53,6 +53,22 @@ def test_cache_serves_repeats_and_matches_the_encoder(pretrained: TextTower, tmp
     assert fresh.load(path) == 2
     np.testing.assert_array_equal(fresh.get(CAPTIONS[1]), cache.get(CAPTIONS[1]))
     assert type(cache)("another-model").load(path) == 0  # entries are keyed by the model
+
+
+def test_strings_encode_in_groups_by_length_and_come_back_in_order(pretrained: TextTower) -> None:
+    backbone, cpu = pretrained.backbone, torch.device("cpu")
+    cache = pretrained.cache
+    assert cache is not None
+    texts = [f"a car {'then approaches ' * (i % 7)}in lane {i}" for i in range(ENCODE_GROUP * 2 + 3)]
+    cache.entries.clear()
+    grouped = backbone(texts, cpu)  # every string missing: one call of the encoder, in groups
+    one_by_one = []
+    for t in texts:
+        cache.entries.clear()
+        one_by_one.append(backbone([t], cpu))
+    assert grouped.shape == (len(texts), 384)
+    torch.testing.assert_close(grouped, torch.cat(one_by_one), atol=1e-5, rtol=0)
+    assert backbone._run([], cpu).shape == (0, 384)  # type: ignore[union-attr]
 
 
 def test_finetune_top_layers_trains_them_without_cache() -> None:

@@ -1,0 +1,44 @@
+"""The frozen sentence encoder of rule-caption search, seeded with a run's own text cache."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from encoders.config import BUNDLED_TEXT_MODEL
+from encoders.text import TEXT_CACHE_FILE, TextFeatureCache
+from retrieval.embedding import SentenceEncoder
+
+os.environ["HF_HUB_OFFLINE"] = "1"
+
+
+def _planted_cache(run_dir: Path, model: str, text: str) -> np.ndarray:
+    row = np.zeros(384, np.float32)
+    row[7] = 1.0  # no sentence encodes to this: a row from the cache is recognisable
+    cache = TextFeatureCache(model)
+    cache.put(text, row)
+    run_dir.mkdir(parents=True, exist_ok=True)
+    cache.save(run_dir / TEXT_CACHE_FILE)
+    return row
+
+
+def test_known_rows_come_from_the_run_and_the_rest_is_encoded(tmp_path: Path) -> None:
+    row = _planted_cache(tmp_path / "run", BUNDLED_TEXT_MODEL, "a car approaches")
+    texts = ["a truck moves away", "a car approaches", "a truck moves away"]
+    xq = SentenceEncoder.for_run(tmp_path / "run")(texts)
+    assert xq.shape == (3, 384)
+    np.testing.assert_array_equal(xq[1], row)
+    reference = SentenceEncoder()(["a truck moves away"])[0]
+    np.testing.assert_allclose(xq[0], reference, atol=1e-6)
+    np.testing.assert_array_equal(xq[0], xq[2])
+
+
+def test_a_cache_of_another_model_or_none_is_not_used(tmp_path: Path) -> None:
+    _planted_cache(tmp_path / "other", "another-model", "a car approaches")
+    reference = SentenceEncoder()(["a car approaches"])[0]
+    for run_dir in (tmp_path / "other", tmp_path / "no-run"):
+        xq = SentenceEncoder.for_run(run_dir)(["a car approaches"])
+        np.testing.assert_allclose(xq[0], reference, atol=1e-6)
+        assert abs(float(np.linalg.norm(xq[0])) - 1.0) < 1e-5

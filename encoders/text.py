@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import hashlib
 import re
+import zipfile
 import zlib
 from pathlib import Path
 from typing import Any
@@ -75,15 +76,30 @@ class TextFeatureCache:
             np.savez(fh, keys=np.array(keys, dtype=str), vectors=vectors, model=np.array(self.model_name))
 
     def load(self, path: Path) -> int:
-        """Add the entries of ``path`` made with the same model; returns how many were added."""
+        """Add the entries of ``path`` made with the same model; returns how many were added.
+
+        Raises:
+            ValueError: ``path`` is not a text cache; the message names the file and the field at fault.
+        """
         if not path.exists():
             return 0
-        with np.load(path) as data:
-            if str(data["model"]) != self.model_name:
-                return 0
-            for k, v in zip(data["keys"].tolist(), data["vectors"]):
-                self.entries[str(k)] = v.astype(np.float32)
-            return len(data["keys"])
+        fix = "delete it and its texts are encoded again"
+        try:
+            with np.load(path) as data:  # plain arrays only: a pickle in the file is refused
+                fields = {f: data[f] for f in ("model", "keys", "vectors") if f in data.files}
+        except (OSError, EOFError, ValueError, zipfile.BadZipFile, zlib.error) as exc:
+            raise ValueError(f"{path}: unreadable text cache ({exc}); {fix}") from exc
+        missing = [f for f in ("model", "keys", "vectors") if f not in fields]
+        if missing:
+            raise ValueError(f"{path}: field {missing[0]!r} is missing: not a text cache; {fix}")
+        if str(fields["model"]) != self.model_name:
+            return 0
+        keys, vectors = fields["keys"], fields["vectors"]
+        if keys.ndim != 1 or vectors.ndim != 2 or (len(keys) and vectors.shape[0] != len(keys)):
+            raise ValueError(f"{path}: field 'vectors' has shape {vectors.shape} for {keys.shape} keys; {fix}")
+        for k, v in zip(keys.tolist(), vectors):
+            self.entries[str(k)] = v.astype(np.float32)
+        return len(keys)
 
 
 #: Strings per call of the sentence encoder. Small groups of similar length pad little, and their

@@ -11,7 +11,7 @@ import torch
 
 from encoders.config import TextConfig
 from encoders.sentence import TextModelUnavailableError, load_sentence_encoder, shared_sentence_encoder
-from encoders.text import ENCODE_GROUP, TextTower, hash_tokens
+from encoders.text import ENCODE_GROUP, PretrainedText, TextFeatureCache, TextTower, hash_tokens
 
 os.environ["HF_HUB_OFFLINE"] = "1"
 CAPTIONS = [
@@ -68,7 +68,25 @@ def test_strings_encode_in_groups_by_length_and_come_back_in_order(pretrained: T
         one_by_one.append(backbone([t], cpu))
     assert grouped.shape == (len(texts), 384)
     torch.testing.assert_close(grouped, torch.cat(one_by_one), atol=1e-5, rtol=0)
-    assert backbone._run([], cpu).shape == (0, 384)  # type: ignore[union-attr]
+    assert isinstance(backbone, PretrainedText)
+    assert backbone._run([], cpu).shape == (0, 384)
+
+
+@pytest.mark.parametrize(("content", "field"), [
+    (b"not a cache", "unreadable"),
+    ({"keys": np.array(["k"]), "vectors": np.zeros((1, 4), np.float32)}, "'model'"),
+    ({"model": np.array("m"), "keys": np.array(["a", "b"]), "vectors": np.zeros((3, 4), np.float32)}, "'vectors'"),
+])
+def test_a_broken_text_cache_names_its_file_and_field(tmp_path: Path, content: object, field: str) -> None:
+    path = tmp_path / "text_cache.npz"
+    if isinstance(content, bytes):
+        path.write_bytes(content)
+    else:
+        np.savez(path, **content)  # type: ignore[arg-type]
+    cache = TextFeatureCache("m")
+    with pytest.raises(ValueError, match=field) as err:
+        cache.load(path)
+    assert str(path) in str(err.value) and len(cache) == 0
 
 
 def test_finetune_top_layers_trains_them_without_cache() -> None:

@@ -134,21 +134,20 @@ class PretrainedText(nn.Module):
             raise ConfigError("finetune_top_layers needs a BERT-like encoder (auto_model.encoder.layer)")
         return list(layers)
 
-    def _run(self, texts: list[str], device: torch.device) -> torch.Tensor:
-        """texts: B strings → (B, F), encoded shortest first in groups of :data:`ENCODE_GROUP`.
+    def _run(self, texts: list[str], device: torch.device, group: int = ENCODE_GROUP) -> torch.Tensor:
+        """texts: B strings → (B, F), encoded shortest first in groups of ``group``.
 
         One call pads every string to the longest: a batch's captions, their steps and its negatives
-        run from about 5 to 50 tokens, so much of one call's work was padding (2 cores, 50 of the
-        demo's caption texts at a time: 65 strings/s in one call, 134/s in groups of 16; 1.25–1.4× on
-        the training benchmark's caption batches).
+        run from about 5 to 50 tokens, so much of one call's work was padding (``make bench``,
+        ``train.grouped_text_encoding``: groups of 16 1.25× one call on caption batches).
         """
         encoder: Any = self.encoder
         if not texts:
             return torch.zeros(0, self.out_features, device=device)
         order = sorted(range(len(texts)), key=lambda i: len(texts[i]))  # characters track tokens closely
         parts = []
-        for start in range(0, len(order), ENCODE_GROUP):
-            features = encoder.preprocess([texts[i] for i in order[start : start + ENCODE_GROUP]])
+        for start in range(0, len(order), group):
+            features = encoder.preprocess([texts[i] for i in order[start : start + group]])
             features = {k: v.to(device) if isinstance(v, torch.Tensor) else v for k, v in features.items()}
             parts.append(self.encoder(features)["sentence_embedding"].float())  # (G, F)
         inverse = torch.empty(len(order), dtype=torch.long)

@@ -15,11 +15,13 @@ and runs the :class:`TemporalEncoder` over the frames to give the object's clip 
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import torch
 import torch.nn.functional as F
 from torch import nn
 
-from encoders.camera import conv_block, mask_geometry, masked_mean, with_motion
+from encoders.camera import conv_block, mask_geometry, with_motion
 from encoders.config import BevConfig
 from encoders.fusion import TemporalEncoder
 from encoders.timeline import clip_head, read_clip
@@ -37,6 +39,35 @@ VELOCITY_SCALE_MPS = 10.0
 #: What ``BevConfig.track_rates`` adds (:func:`encoders.clips.views.object_rates_and_velocity`), and the
 #: scales that bring them to about unit range.
 RATES_SCALE = (10.0, 2.0, 0.5)
+
+
+def distinct_frames(*views: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """views: each (N, ...), frame i of each view belonging together → (first (U,), inverse (N,)).
+
+    ``first``: the index of each distinct frame's first occurrence, in order; ``inverse[i]``: the
+    position in ``first`` of frame i's equal. Frames are equal when every view is bit-equal. A random
+    projection proposes candidates (equal frames always project alike: same values, same arithmetic);
+    each candidate is then compared in full, so a projection collision never merges different frames.
+    """
+    n = views[0].shape[0]
+    flat = [v.reshape(n, -1) for v in views]
+    gen = torch.Generator(device="cpu").manual_seed(0)
+    keys = torch.stack([
+        (f.float() @ torch.rand(f.shape[1], generator=gen).to(f.device)).cpu() for f in flat
+    ], dim=1).tolist()  # (N, V) fingerprints
+    first: list[int] = []
+    inverse: list[int] = []
+    seen: dict[tuple[float, ...], list[int]] = {}  # fingerprint → positions in ``first``
+    for i, key in enumerate(map(tuple, keys)):
+        found = next((u for u in seen.get(key, ())
+                      if all(torch.equal(f[i], f[first[u]]) for f in flat)), None)
+        if found is None:
+            found = len(first)
+            first.append(i)
+            seen.setdefault(key, []).append(found)
+        inverse.append(found)
+    device = views[0].device
+    return torch.tensor(first, dtype=torch.long, device=device), torch.tensor(inverse, dtype=torch.long, device=device)
 
 
 class Residual(nn.Module):
@@ -89,20 +120,47 @@ class Lateral(nn.Module):
         self.map = nn.ModuleList(nn.Conv2d(w, channels, 1) for w in widths)
 
 
+def shift_time(x: torch.Tensor, offset: int) -> torch.Tensor:
+    """x: (B, T, ...) → y of the same shape with y[:, t] = x[:, t + offset], zero outside the clip."""
+    t = x.shape[1]
+    lo, hi = max(0, -offset), t - max(0, offset)  # the frames t whose t + offset lies in the clip
+    if hi <= lo:
+        return torch.zeros_like(x)
+    return F.pad(x[:, lo + offset : hi + offset], (0, 0) * (x.dim() - 2) + (lo, t - hi))
+
+
 class TimeConv(nn.Module):
-    """x + a depthwise convolution over time, zero-padded: (B, T, C, h, w) → the same; starts as identity."""
+    """x + a depthwise convolution over time, zero-padded: (B, T, C, ...) → the same; starts as identity."""
 
     def __init__(self, kernel: int, channels: int) -> None:
         super().__init__()
         self.kernel = kernel
         self.weight = nn.Parameter(torch.zeros(kernel, channels))
+        #: Tap j reads frame t + offsets[j].
+        self.offsets = tuple(j - kernel // 2 for j in range(kernel))
+
+    def _weight(self, j: int, dims: int) -> torch.Tensor:
+        """Tap j's (C,) weights shaped to broadcast over a (B, T, C, ...) tensor of ``dims`` dimensions."""
+        return self.weight[j].reshape(-1, *([1] * (dims - 3)))
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         k, t = self.kernel, x.shape[1]
         if k == 1:
-            return x + self.weight[0, :, None, None] * x
-        pad = F.pad(x, (0, 0, 0, 0, 0, 0, k // 2, k // 2))  # (B, T + k - 1, C, h, w)
-        return x + sum(self.weight[j, :, None, None] * pad[:, j : j + t] for j in range(k))
+            return x + self._weight(0, x.dim()) * x
+        pad = F.pad(x, (0, 0) * (x.dim() - 2) + (k // 2, k // 2))  # (B, T + k - 1, C, ...)
+        return x + sum(self._weight(j, x.dim()) * pad[:, j : j + t] for j in range(k))
+
+    def mix(self, at_offset: Callable[[int], torch.Tensor]) -> torch.Tensor:
+        """The convolution of a quantity linear in x, from ``at_offset(d)``, that quantity with x shifted
+        by d frames (:func:`shift_time`), for d in −k//2 … k − 1 − k//2: (B, T, C, ...) → the same.
+
+        For a linear f applied frame by frame, f(self(x)) = self.mix(lambda d: f(shift_time(x, d))),
+        so pooling the features of every frame needs no convolved (B, T, C, h, w) tensor at all.
+        """
+        out = at_offset(0)
+        for j, offset in enumerate(self.offsets):
+            out = out + self._weight(j, out.dim()) * at_offset(offset)
+        return out
 
 
 class BevTower(nn.Module):
@@ -146,32 +204,69 @@ class BevTower(nn.Module):
 
     def embed_map(self, bev_lidar: torch.Tensor, bev_map: torch.Tensor) -> torch.Tensor:
         """bev_lidar: (B, T, Cl, H, W); bev_map: (B, T, Cm, H, W) → E (B, T, D_e, H/r, W/r)."""
+        return self.header_time(self.embed_space(bev_lidar, bev_map))
+
+    def embed_space(self, bev_lidar: torch.Tensor, bev_map: torch.Tensor) -> torch.Tensor:
+        """bev_lidar: (B, T, Cl, H, W); bev_map: (B, T, Cm, H, W) → S (B, T, D_e, H/r, W/r), E before
+        its convolution over time (E = ``header_time(S)``): each frame on its own.
+
+        In eval mode, frames that are equal in both rasters go through the backbones once: the
+        rasters are centred on the ego, so every clip of a log at a frame holds the same ones (a
+        batch of 32 clips in table order holds about 5 times fewer distinct frames than frames).
+        With batch norm's running statistics each frame's features do not depend on the others,
+        so S is the same. In training each clip's rasters are warped on their own and batch norm
+        reads the batch, so every frame runs.
+        """
         b, t, _, h, w = bev_lidar.shape
         r = self.config.downsample
         size = (h // r, w // r)
-        lidar = self.lidar(bev_lidar.flatten(0, 1))  # stages of (B*T, C_i, H / 2**(i+1), W / 2**(i+1))
-        maps = self.map(bev_map.flatten(0, 1))
+        lidar_in, map_in = bev_lidar.flatten(0, 1), bev_map.flatten(0, 1)  # (B*T, Cl, H, W), (B*T, Cm, H, W)
+        inverse: torch.Tensor | None = None
+        if not self.training:
+            first, inverse = distinct_frames(lidar_in, map_in)  # (U,), (B*T,)
+            if len(first) < len(inverse):
+                lidar_in, map_in = lidar_in[first], map_in[first]
+            else:
+                inverse = None
+        lidar = self.lidar(lidar_in)  # stages of (N, C_i, H / 2**(i+1), W / 2**(i+1))
+        maps = self.map(map_in)
         x: torch.Tensor | None = None
         for i in reversed(range(len(lidar))):
-            p = self.lateral.lidar[i](lidar[i]) + self.lateral.map[i](maps[i])  # (B*T, D_e, h_i, w_i)
+            p = self.lateral.lidar[i](lidar[i]) + self.lateral.map[i](maps[i])  # (N, D_e, h_i, w_i)
             x = p if x is None else p + F.interpolate(x, size=p.shape[-2:], mode="bilinear")
         assert x is not None
         if x.shape[-2:] != size:
             x = F.interpolate(x, size=size, mode="bilinear")
-        x = F.relu(x)  # (B*T, D_e, h, w)
-        x = x + self.header_space(x)  # (B*T, D_e, h, w)
-        return self.header_time(x.reshape(b, t, *x.shape[1:]))  # (B, T, D_e, h, w)
+        x = F.relu(x)  # (N, D_e, h, w)
+        x = x + self.header_space(x)  # (N, D_e, h, w)
+        if inverse is not None:
+            x = x[inverse]  # (B*T, D_e, h, w)
+        return x.reshape(b, t, *x.shape[1:])  # (B, T, D_e, h, w)
 
-    def frame_features(self, e: torch.Tensor, bev_object: torch.Tensor, ego_motion: torch.Tensor) -> torch.Tensor:
-        """e: (B, T, D_e, h, w); bev_object: (B, T, 1, H, W); ego_motion: (B, T, 4) → (B, T, 2 D_e + 8 + E)."""
-        b, t = e.shape[:2]
-        e_flat = e.flatten(0, 1)  # (B*T, D_e, h, w)
+    def frame_features(self, s: torch.Tensor, bev_object: torch.Tensor, ego_motion: torch.Tensor) -> torch.Tensor:
+        """s: (B, T, D_e, h, w), :meth:`embed_space`'s S; bev_object: (B, T, 1, H, W); ego_motion: (B, T, 4)
+        → (B, T, 2 D_e + 8 + E): E = ``header_time(S)`` pooled under the object's mask and over the
+        whole grid, the mask's geometry and the ego motion.
+
+        Both means are linear in E, and E is S convolved over time, so they are taken of S and
+        convolved after (:meth:`TimeConv.mix`): no convolved (B, T, D_e, h, w) tensor is made, nor its
+        gradient, which were most of the tower's cost.
+        """
+        b, t, c, h, w = s.shape
         obj = bev_object.flatten(0, 1)  # (B*T, 1, H, W)
-        small = F.adaptive_avg_pool2d(obj, (e.shape[-2], e.shape[-1]))  # (B*T, 1, h, w)
-        pooled = torch.cat([masked_mean(e_flat, small), e_flat.mean(dim=(2, 3))], dim=-1).reshape(b, t, -1)
+        small = F.adaptive_avg_pool2d(obj, (h, w)).reshape(b, t, h * w)  # (B, T, hw)
+        under = small / small.sum(dim=-1, keepdim=True).clamp_min(1e-6)  # (B, T, hw): the masked mean's weights
+        offsets = self.header_time.offsets
+        # masks[:, u, :, i] = frame u − offsets[i]'s mask: frame u's S under it is what frame u − offsets[i]
+        # pools at that offset. One batched product reads S once for every offset.
+        masks = torch.stack([shift_time(under, -d) for d in offsets], dim=-1)  # (B, T, hw, K)
+        flat = s.reshape(b * t, c, h * w)
+        pooled = torch.bmm(flat, masks.flatten(0, 1)).reshape(b, t, c, len(offsets))  # (B, T, D_e, K)
+        masked = self.header_time.mix(lambda d: shift_time(pooled[..., offsets.index(d)], d))  # (B, T, D_e)
+        mean = self.header_time(flat.mean(dim=-1).reshape(b, t, c))  # (B, T, D_e)
         geometry = with_motion(mask_geometry(obj).reshape(b, t, -1))  # (B, T, 8)
         ego = ego_motion[..., : self.config.ego_features] / self.ego_scale  # (B, T, E)
-        return torch.cat([pooled, geometry, ego], dim=-1)  # (B, T, 2 D_e + 8 + E)
+        return torch.cat([masked, mean, geometry, ego], dim=-1)  # (B, T, 2 D_e + 8 + E)
 
     def track_features(self, object_track: torch.Tensor, ego_motion: torch.Tensor,
                        object_velocity: torch.Tensor | None = None,
@@ -212,8 +307,8 @@ class BevTower(nn.Module):
         ``frames`` dict, the temporal models' frame tokens (B, T, W) go to ``frames["bev"]`` and
         ``frames["track"]`` (dense supervision, :mod:`encoders.dense`).
         """
-        e = self.embed_map(bev_lidar, bev_map)  # (B, T, D_e, h, w)
-        clip, tokens = self.temporal.encode(self.frame_features(e, bev_object, ego_motion))  # (B, W), (B, T, W)
+        space = self.embed_space(bev_lidar, bev_map)  # (B, T, D_e, h, w)
+        clip, tokens = self.temporal.encode(self.frame_features(space, bev_object, ego_motion))  # (B, W), (B, T, W)
         x = read_clip(self.head, clip, tokens)  # (B, D)
         if frames is not None:
             frames["bev"] = tokens

@@ -63,6 +63,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help=f"road networks that share the extra logs evenly (default "
                         f"{' '.join(D.extra_networks)})")
     parser.add_argument("--query", action="append", help="example query (repeatable; replaces the defaults)")
+    parser.add_argument("--workers", type=int, metavar="N",
+                        help="Ray workers of the simulation and the clips (default: one per CPU core when Ray is "
+                             "installed; 0 or 1: serially); the outputs are the same")
     parser.add_argument("--quick", action="store_true", help="smallest sizes, a smoke run of every stage")
     parser.add_argument("--stages", nargs="+", metavar="STAGE",
                         help="run only these stages (simulate caption clips train index eval report)")

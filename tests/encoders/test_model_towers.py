@@ -324,3 +324,60 @@ def test_ego_rates_reach_the_bev_tower_and_older_models_read_the_pose_and_speed_
                                   new.encode_video(steady, view="bev"))
         torch.testing.assert_close(old.encode_video({**batch, "ego_motion": ego}, view="bev"),
                                    old.encode_video(steady, view="bev"))
+
+
+@pytest.mark.parametrize("kernel", [1, 3, 5])
+@pytest.mark.parametrize("training", [True, False])
+def test_bev_frame_features_pool_the_time_convolved_embedding(kernel: int, training: bool) -> None:
+    """The tower pools S and convolves over time after; that equals pooling E = header_time(S) itself."""
+    import torch.nn.functional as F
+
+    from encoders.bev import BevTower
+    from encoders.camera import masked_mean
+    from encoders.config import BevConfig
+
+    torch.manual_seed(0)
+    config = BevConfig(widths=(4, 8), embed_channels=8, temporal_kernel=kernel, track_features=0)
+    tower = BevTower(config, 16).train(training)
+    with torch.no_grad():
+        tower.header_time.weight.normal_()  # it starts as the identity
+    b, t, h, w = 3, 6, 32, 16
+    lidar, bev_map = torch.rand(b, t, config.lidar_channels, h, w), torch.rand(b, t, config.map_channels, h, w)
+    obj = (torch.rand(b, t, 1, h, w) > 0.7).float()
+    obj[0, 2] = 0.0  # a frame where the object is not seen: its masked mean is 0
+    space = tower.embed_space(lidar, bev_map)
+    e = tower.header_time(space).flatten(0, 1)  # (B*T, D_e, h', w')
+    small = F.adaptive_avg_pool2d(obj.flatten(0, 1), e.shape[-2:])
+    expected = torch.cat([masked_mean(e, small), e.mean(dim=(2, 3))], dim=-1).reshape(b, t, -1)
+    got = tower.frame_features(space, obj, torch.rand(b, t, 6))[..., : expected.shape[-1]]
+    torch.testing.assert_close(got, expected, atol=1e-5, rtol=1e-5)
+    assert torch.equal(tower.embed_map(lidar, bev_map), tower.header_time(space))
+
+
+def test_bev_tower_embeds_equal_frames_once_in_eval_mode(monkeypatch: pytest.MonkeyPatch) -> None:
+    from encoders.bev import BevTower, distinct_frames
+    from encoders.config import BevConfig
+
+    torch.manual_seed(0)
+    config = BevConfig(widths=(4, 8), embed_channels=8, track_features=0)
+    tower = BevTower(config, 16).eval()
+    lidar, bev_map = torch.rand(3, 4, config.lidar_channels, 16, 8), torch.rand(3, 4, config.map_channels, 16, 8)
+    lidar[1, :3], bev_map[1, :3] = lidar[0, 1:], bev_map[0, 1:]  # two clips of a log, one frame apart
+    lidar[2, 0] = lidar[0, 0]  # the same LiDAR over another map: another frame
+    first, inverse = distinct_frames(lidar.flatten(0, 1), bev_map.flatten(0, 1))
+    assert len(first) == 12 - 3 and inverse[4:7].tolist() == inverse[1:4].tolist()
+    assert inverse[8] != inverse[0]
+    off_by_one = lidar.flatten(0, 1).clone()
+    off_by_one[1].view(-1)[5] += 1e-6  # one value of one frame: not the same frame
+    assert len(distinct_frames(off_by_one, bev_map.flatten(0, 1))[0]) == 12 - 2
+    ran: list[int] = []
+    backbone = tower.lidar.forward
+    monkeypatch.setattr(tower.lidar, "forward", lambda x: ran.append(len(x)) or backbone(x))
+    with torch.no_grad():
+        shared = tower.embed_space(lidar, bev_map)
+        alone = torch.cat([tower.embed_space(lidar[i : i + 1], bev_map[i : i + 1]) for i in range(3)])
+    assert ran == [9, 4, 4, 4]
+    torch.testing.assert_close(shared, alone, atol=1e-6, rtol=1e-6)
+    tower.train()  # batch norm reads the batch: every frame runs
+    tower.embed_space(lidar, bev_map)
+    assert ran[-1] == 12

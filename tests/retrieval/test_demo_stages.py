@@ -89,6 +89,41 @@ def test_stages_run_in_order_with_sizes(tmp_path: Path) -> None:
     assert train[train.index("--dense-streams") + 1:][:2] == ["camera", "track"]
 
 
+def test_workers_run_the_sensor_logs_and_the_clips_on_ray(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    import importlib.util
+
+    def commands(config: DemoConfig) -> dict[str, list[list[str]]]:
+        demo = _demo(tmp_path / str(len(list(tmp_path.iterdir()))), config)
+        demo.run(("simulate", "caption", "clips"))
+        out: dict[str, list[list[str]]] = {}
+        for call in demo.calls:
+            out.setdefault(call[0], []).append(call)
+        return out
+
+    two = commands(DemoConfig(logs=2, duration_s=10, extra_logs=1, workers=2))
+    sensor_logs, extra_logs = two["simulate"]
+    assert sensor_logs[sensor_logs.index("--workers") + 1] == "2" and "--workers" not in extra_logs  # seconds
+    assert two["clips"][0][two["clips"][0].index("--workers") + 1] == "2" and "--workers" not in two["caption"][0]
+    for serial in (0, 1):
+        calls = commands(DemoConfig(logs=2, duration_s=10, extra_logs=1, workers=serial))
+        assert not any("--workers" in c for cs in calls.values() for c in cs)
+    # By default one worker per core, where Ray is installed and there is more than one core.
+    monkeypatch.setattr("os.cpu_count", lambda: 4)
+    assert Demo(tmp_path, DemoConfig()).workers() == (4 if importlib.util.find_spec("ray") else 1)
+    monkeypatch.setattr("importlib.util.find_spec", lambda _name: None)
+    assert Demo(tmp_path, DemoConfig()).workers() == 1
+    monkeypatch.undo()
+    monkeypatch.setattr("os.cpu_count", lambda: 1)
+    assert Demo(tmp_path, DemoConfig()).workers() == 1
+    # Where the work runs does not change what it makes: a demo resumed with other workers skips what is done.
+    demo = _demo(tmp_path / "resume", DemoConfig(logs=2, duration_s=10, workers=2))
+    demo.run(("simulate",))
+    again = _demo(tmp_path / "resume", DemoConfig(logs=2, duration_s=10, workers=0))
+    assert again.run(("simulate",))[0].skipped
+    with pytest.raises(ValueError, match="workers must be at least 0"):
+        DemoConfig(workers=-1)
+
+
 def test_resume_skips_complete_stages_and_reruns_after_a_change(tmp_path: Path) -> None:
     demo = _demo(tmp_path, DemoConfig(logs=2, duration_s=10))
     demo.run()

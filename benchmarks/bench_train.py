@@ -6,7 +6,12 @@ Figures:
   default clip sizes (T = 16, camera 4 × 96 × 160, BEV 5 + 6 channels × 160 × 80) and at a small
   resolution (camera 48 × 80, BEV 80 × 40);
 - the text side of a training step with the frozen MiniLM's embeddings cached per caption against
-  re-encoding the captions every step (ratio).
+  re-encoding the captions every step (ratio);
+- the BEV tower's raster stream at the demo's clip sizes, forward and backward: the masked and
+  whole-grid means of each frame's features convolved over time after (what the tower does) against
+  the same means of the convolved map (ratio; equal within float rounding);
+- the BEV tower at inference on clips cut from a few logs, whose frames repeat from clip to clip,
+  against as many clips whose frames all differ (ratio; equal frames run once).
 
 Rates are given per CPU second of this process (``time.process_time``, one torch thread), so that other
 work on a shared machine does not count, and per wall second. The device is recorded.
@@ -45,6 +50,9 @@ SMALL_SPEC = SyntheticSpec(camera_hw=(48, 80), bev_hw=(80, 40))
 #: The acceptance check's clips: small enough to train twice in minutes on a shared 2-core machine.
 #: The ego stands still: a moving ego's odometry counts time and would let a bag of frames sort itself.
 ACCEPTANCE_SPEC = SyntheticSpec(frames=12, camera_hw=(32, 64), bev_hw=(64, 32), ego_speed_mps=(0.0, 0.0))
+#: The acceptance check's figures (``--acceptance``, tens of minutes) are not rerun by ``make bench``,
+#: which keeps them in ``results.json`` beside this run's.
+FIGURES_FROM_OTHER_RUNS = ("acceptance_synthetic_clips",)
 
 
 def _device() -> dict[str, Any]:
@@ -138,6 +146,91 @@ def grouped_encoding_speedup(captions_per_step: int, steps: int) -> dict[str, fl
     return figures
 
 
+def _bev_batch(clips: int, frames: int, logs: int | None, seed: int = 0) -> dict[str, torch.Tensor]:
+    """BEV inputs of ``clips`` clips at the demo's grid (64 × 32 cells) and the default model's channels:
+    with ``logs``, windows of ``frames`` frames at random starts in that many logs of 40 frames, as a
+    clip table's batch holds; None: every frame its own."""
+    gen = torch.Generator().manual_seed(seed)
+    h, w = 64, 32
+    bev = TrainConfig().model.bev
+    cl, cm = bev.lidar_channels, bev.map_channels
+    if logs is None:
+        lidar, bev_map = torch.rand(clips, frames, cl, h, w, generator=gen), torch.rand(clips, frames, cm, h, w,
+                                                                                       generator=gen)
+    else:
+        log_lidar = torch.rand(logs, 40, cl, h, w, generator=gen)
+        log_map = torch.rand(logs, 40, cm, h, w, generator=gen)
+        which = torch.randint(logs, (clips,), generator=gen).sort().values
+        start = torch.randint(40 - frames + 1, (clips,), generator=gen)
+        lidar = torch.stack([log_lidar[int(i), int(s) : int(s) + frames] for i, s in zip(which, start)])
+        bev_map = torch.stack([log_map[int(i), int(s) : int(s) + frames] for i, s in zip(which, start)])
+    return {"bev_lidar": lidar, "bev_map": bev_map,
+            "bev_object": (torch.rand(clips, frames, 1, h, w, generator=gen) > 0.95).float(),
+            "ego_motion": torch.rand(clips, frames, 6, generator=gen)}
+
+
+def bev_pooling_speedup(batch_size: int, steps: int) -> dict[str, float]:
+    """The raster stream's frame features, forward and backward, at the demo's sizes: pooled from each
+    frame's features and convolved over time after, against pooled from the convolved map."""
+    import torch.nn.functional as F
+
+    from encoders.bev import BevTower
+    from encoders.camera import masked_mean
+
+    torch.manual_seed(0)
+    tower = BevTower(TrainConfig().model.bev, 256).train()
+    with torch.no_grad():
+        tower.header_time.weight.normal_(std=0.1)
+    batch = _bev_batch(batch_size, 12, None)
+
+    def of_convolved_map(space: torch.Tensor) -> torch.Tensor:
+        b, t = space.shape[:2]
+        e = tower.header_time(space).flatten(0, 1)  # (B*T, D_e, h, w)
+        small = F.adaptive_avg_pool2d(batch["bev_object"].flatten(0, 1), e.shape[-2:])
+        return torch.cat([masked_mean(e, small), e.mean(dim=(2, 3))], dim=-1).reshape(b, t, -1)
+
+    def after(space: torch.Tensor) -> torch.Tensor:
+        return tower.frame_features(space, batch["bev_object"], batch["ego_motion"])[..., : 2 * space.shape[2]]
+
+    figures: dict[str, float] = {}
+    outputs = {}
+    for name, pool in (("convolved_map", of_convolved_map), ("convolved_after", after)):
+        for i in range(steps + 1):  # the first is a warm-up
+            if i == 1:
+                cpu0 = time.process_time()
+            out = pool(tower.embed_space(batch["bev_lidar"], batch["bev_map"]))
+            out.square().mean().backward()
+        figures[f"{name}_ms_per_step"] = round(1000 * (time.process_time() - cpu0) / steps, 1)
+        outputs[name] = out.detach()
+    figures["speedup"] = round(figures["convolved_map_ms_per_step"] / figures["convolved_after_ms_per_step"], 2)
+    figures["max_abs_difference"] = float((outputs["convolved_map"] - outputs["convolved_after"]).abs().max())
+    figures["batch_size"] = batch_size
+    return figures
+
+
+def distinct_frames_speedup(batch_size: int, steps: int, logs: int = 4) -> dict[str, float]:
+    """The BEV tower's backbones at inference (:meth:`encoders.bev.BevTower.embed_space`, eval mode) on a
+    batch of clips cut from ``logs`` logs against a batch of clips whose frames all differ."""
+    from encoders.bev import BevTower, distinct_frames
+
+    torch.manual_seed(0)
+    tower = BevTower(TrainConfig().model.bev, 256).eval()
+    figures: dict[str, float] = {}
+    for name, batch_logs in (("all_distinct", None), ("cut_from_logs", logs)):
+        batch = _bev_batch(batch_size, 12, batch_logs)
+        with torch.no_grad():
+            for i in range(steps + 1):  # the first is a warm-up
+                if i == 1:
+                    cpu0 = time.process_time()
+                tower.embed_space(batch["bev_lidar"], batch["bev_map"])
+        figures[f"{name}_ms_per_batch"] = round(1000 * (time.process_time() - cpu0) / steps, 1)
+        first, inverse = distinct_frames(batch["bev_lidar"].flatten(0, 1), batch["bev_map"].flatten(0, 1))
+        figures[f"{name}_distinct_frames_share"] = round(len(first) / len(inverse), 3)
+    figures["speedup"] = round(figures["all_distinct_ms_per_batch"] / figures["cut_from_logs_ms_per_batch"], 2)
+    figures.update(batch_size=batch_size, logs=logs)
+    return figures
+
+
 def run(quick: bool) -> dict[str, Any]:
     os.environ.setdefault("HF_HUB_OFFLINE", "1")
     torch.set_num_threads(1)
@@ -151,6 +244,8 @@ def run(quick: bool) -> dict[str, Any]:
     )
     out["text_cache"] = text_cache_speedup(32, 3 if quick else 10)
     out["grouped_text_encoding"] = grouped_encoding_speedup(16, 2 if quick else 10)
+    out["bev_pooling"] = bev_pooling_speedup(16, 2 if quick else 10)
+    out["bev_distinct_frames"] = distinct_frames_speedup(32, 2 if quick else 10)
     return out
 
 

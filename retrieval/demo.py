@@ -239,9 +239,19 @@ class Demo:
         cores = os.cpu_count() or 1
         return cores if cores > 1 and importlib.util.find_spec("ray") is not None else 1
 
-    def _execution(self) -> list[object]:
+    def per_log_command(self, args: Sequence[object]) -> None:
+        """:meth:`command` on :meth:`workers` Ray workers; serially when there is one, or when the
+        command fails there (a Ray runtime that cannot start on this machine does not stop the demo;
+        the outputs are the same either way)."""
         workers = self.workers()
-        return ["--workers", workers] if workers > 1 else []
+        if workers <= 1:
+            self.command(args)
+            return
+        try:
+            self.command([*args, "--workers", workers])
+        except DemoStageError:
+            self.say(f"  `scenesearch {args[0]}` failed on {workers} Ray workers; running it serially")
+            self.command(args)
 
     def extra_logs_per_network(self) -> dict[str, int]:
         """How many of the ``extra_logs`` each network simulates: an even share, the first networks one
@@ -332,10 +342,10 @@ class Demo:
     def stage_simulate(self) -> str:
         c = self.config
         args: list[object] = ["simulate", "--out", self.logs_dir, "--logs", c.logs, "--duration-s", c.duration_s,
-                "--seed", c.seed, "--overwrite", *self._execution()]
+                "--seed", c.seed, "--overwrite"]
         if not c.sensors:
             args.append("--no-sensors")
-        self.command(args)
+        self.per_log_command(args)
         shutil.rmtree(self.extra_logs_dir, ignore_errors=True)  # the extra logs of other settings
         for network, count in self.extra_logs_per_network().items():
             self.command(["simulate", "--out", self.extra_logs_dir / network, "--logs", count, "--duration-s",
@@ -364,9 +374,9 @@ class Demo:
         # --tag-targets: attribute targets from the simulator's behaviour labels; with them, training also
         # learns the spatio-temporal tags on the BEV embedding, so the trained model answers tag queries.
         extra = self.extra_log_dirs()
-        self.command(["clips", *self.log_dirs(), *(["--train-only", *extra] if extra else []), "--captions",
-                      self.captions_dir, "--out", self.clips_dir, "--frames-per-clip", c.frames_per_clip,
-                      "--config", config_path, "--tag-targets", *self._execution()])
+        self.per_log_command(["clips", *self.log_dirs(), *(["--train-only", *extra] if extra else []), "--captions",
+                              self.captions_dir, "--out", self.clips_dir, "--frames-per-clip", c.frames_per_clip,
+                              "--config", config_path, "--tag-targets"])
         return ""
 
     def stage_train(self) -> str:

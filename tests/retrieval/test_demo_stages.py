@@ -13,7 +13,7 @@ from retrieval_fakes import FakeEmbedder, HashTextEncoder
 
 from encoders.clips.config import BevClipConfig, CameraClipConfig, ClipsConfig, SplitConfig
 from retrieval.commands import demo as demo_command
-from retrieval.demo import EXTRA_SEED_OFFSET, STAGES, Demo, DemoConfig, config_from_args
+from retrieval.demo import EXTRA_SEED_OFFSET, STAGES, Demo, DemoConfig, DemoStageError, config_from_args
 from retrieval.embedding import model_hash
 from retrieval.evaluation import evaluate
 from retrieval.report import Example, write_report
@@ -122,6 +122,21 @@ def test_workers_run_the_sensor_logs_and_the_clips_on_ray(tmp_path: Path, monkey
     assert again.run(("simulate",))[0].skipped
     with pytest.raises(ValueError, match="workers must be at least 0"):
         DemoConfig(workers=-1)
+
+
+def test_a_stage_that_fails_on_ray_runs_again_serially(tmp_path: Path) -> None:
+    class NoRay(RecordingDemo):
+        def command(self, args: Any) -> None:
+            if "--workers" in [str(a) for a in args]:
+                self.calls.append(["failed", *map(str, args)])
+                raise DemoStageError("exit status 1")
+            super().command(args)
+
+    demo = NoRay(tmp_path / "demo", DemoConfig(logs=2, duration_s=10, extra_logs=0, workers=2), say=lambda _m: None)
+    demo.calls = []
+    demo.run(("simulate", "caption", "clips"))
+    assert [c[0] for c in demo.calls] == ["failed", "simulate", "caption", "failed", "clips"]
+    assert demo.calls[0][1:-2] == demo.calls[1]  # the same command, without the workers
 
 
 def test_resume_skips_complete_stages_and_reruns_after_a_change(tmp_path: Path) -> None:

@@ -31,7 +31,8 @@ def run(quick: bool) -> dict[str, Any]:
     from dataclasses import replace
 
     from encoders.clips.layout import read_clip_table
-    from retrieval.demo import Demo, DemoConfig
+    from retrieval.demo import Demo
+    from retrieval.demo_config import DemoConfig
 
     config = replace(DemoConfig.quick(), logs=6) if quick else replace(DemoConfig(), logs=LOGS)
     if WORK.exists():

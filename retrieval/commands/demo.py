@@ -10,8 +10,8 @@ HELP = "simulate, caption, build clips, train, index and evaluate a small city; 
 
 def configure(parser: argparse.ArgumentParser) -> None:
     from encoders.config import DENSE_STREAMS, HardNegative
-    from retrieval.demo import VAL_FRACTION
-    from retrieval.demo import DemoConfig as D  # the defaults the help shows
+    from retrieval.demo_config import VAL_FRACTION
+    from retrieval.demo_config import DemoConfig as D  # the defaults the help shows
     from scenes.sim.config import NetworkKind
 
     parser.add_argument("--out", type=Path, required=True, metavar="DIR", help="folder for everything the demo makes")

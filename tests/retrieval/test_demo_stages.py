@@ -13,7 +13,8 @@ from retrieval_fakes import FakeEmbedder, HashTextEncoder
 
 from encoders.clips.config import BevClipConfig, CameraClipConfig, ClipsConfig, SplitConfig
 from retrieval.commands import demo as demo_command
-from retrieval.demo import EXTRA_SEED_OFFSET, STAGES, Demo, DemoConfig, DemoStageError, config_from_args
+from retrieval.demo import EXTRA_SEED_OFFSET, STAGES, Demo, DemoStageError, config_from_args
+from retrieval.demo_config import DemoConfig
 from retrieval.embedding import model_hash
 from retrieval.evaluation import evaluate
 from retrieval.report import Example, write_report
@@ -120,8 +121,6 @@ def test_workers_run_the_sensor_logs_and_the_clips_on_ray(tmp_path: Path, monkey
     demo.run(("simulate",))
     again = _demo(tmp_path / "resume", DemoConfig(logs=2, duration_s=10, workers=0))
     assert again.run(("simulate",))[0].skipped
-    with pytest.raises(ValueError, match="workers must be at least 0"):
-        DemoConfig(workers=-1)
 
 
 def test_a_stage_that_fails_on_ray_runs_again_serially(tmp_path: Path) -> None:
@@ -233,32 +232,6 @@ def test_config_from_flags() -> None:
     assert config_from_args(argparse.Namespace(**{**vars(flags), "hard_negatives": None})).hard_negatives == (
         "reverse",)
     assert config.sensors is False and config.queries == ("a bus stops",)
-    with pytest.raises(ValueError, match="logs must be at least 1"):
-        DemoConfig(logs=0)
-    with pytest.raises(ValueError, match="test_fraction must lie in"):
-        DemoConfig(test_fraction=0.9)
-    with pytest.raises(ValueError, match="map_less_share must lie in"):
-        DemoConfig(map_less_share=2.0)
-    with pytest.raises(ValueError, match="extra_networks: unknown network kind 'ring'"):
-        DemoConfig(extra_networks=("grid", "ring"))
-    with pytest.raises(ValueError, match="extra_networks must name one or more distinct layouts"):
-        DemoConfig(extra_networks=("grid", "grid"))
-    with pytest.raises(ValueError, match="extra_networks must name one or more distinct layouts"):
-        DemoConfig(extra_networks=())
-    with pytest.raises(ValueError, match="camera_share must lie in"):
-        DemoConfig(camera_share=-0.5)
-    with pytest.raises(ValueError, match="extra_logs must be at least 0"):
-        DemoConfig(extra_logs=-1)
-    with pytest.raises(ValueError, match="time_slots must be at least 0"):
-        DemoConfig(time_slots=-1)
-    with pytest.raises(ValueError, match="dense_weight must be at least 0"):
-        DemoConfig(dense_weight=-1.0)
-    with pytest.raises(ValueError, match="order_weight must be at least 0"):
-        DemoConfig(order_weight=-1.0)
-    with pytest.raises(ValueError, match="order_weight needs 'reverse' among hard_negatives"):
-        DemoConfig(order_weight=1.0, hard_negatives=("mirror",))
-    with pytest.raises(ValueError, match=r"dense_streams: unknown \['lidar'\]"):
-        DemoConfig(dense_streams=("lidar",))
     with pytest.raises(ValueError, match=r"hard_negatives: unknown \['backwards'\]"):
         DemoConfig(hard_negatives=("backwards",))
     with pytest.raises(ValueError, match="unknown stage 'deploy'"):

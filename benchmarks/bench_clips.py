@@ -37,6 +37,8 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from common.ray_cluster import usable_cpus
+
 WORK = Path(__file__).resolve().parent / "_work" / "clips"
 
 
@@ -243,7 +245,7 @@ def run(quick: bool) -> dict[str, Any]:
         "kb_per_frame": round(log_bytes / max(frames, 1) / 1e3, 1),
         "kb_per_clip": round(log_bytes / max(num_clips, 1) / 1e3, 1),
         "kb_per_preview": round(preview_bytes / max(len(rows), 1) / 1e3, 1),
-        "cpus": len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count(),
+        "cpus": usable_cpus(),
     }
 
 

@@ -16,6 +16,7 @@ import traceback
 from pathlib import Path
 
 from common.memory import retain_freed_memory
+from common.ray_cluster import usable_cpus
 
 
 def discover() -> list[str]:
@@ -56,7 +57,7 @@ def main(argv: list[str] | None = None) -> int:
         results[name.removeprefix("bench_")] = figures
         print(json.dumps(figures, indent=2), flush=True)
     payload = {
-        "machine": {"platform": platform.platform(), "python": sys.version.split()[0], "cpus": _cpus()},
+        "machine": {"platform": platform.platform(), "python": sys.version.split()[0], "cpus": usable_cpus()},
         "benchmarks": results,
     }
     args.out.parent.mkdir(parents=True, exist_ok=True)
@@ -65,12 +66,6 @@ def main(argv: list[str] | None = None) -> int:
     tmp.replace(args.out)
     print(f"wrote {args.out}")
     return 1 if failed else 0
-
-
-def _cpus() -> int:
-    import os
-
-    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
 
 
 if __name__ == "__main__":

@@ -180,6 +180,11 @@ def _speaks_http2(host: str, port: int, timeout_s: float) -> bool:
     return header[3] == 4  # the frame type of SETTINGS
 
 
+def usable_cpus() -> int:
+    """CPUs this process may run on (its affinity, as a container's CPU set limits it; else all)."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+
+
 def cluster_cpus(ray: Any) -> int:
     return max(1, int(ray.cluster_resources().get("CPU", 1)))
 

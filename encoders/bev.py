@@ -46,28 +46,21 @@ def distinct_frames(*views: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
 
     ``first``: the index of each distinct frame's first occurrence, in order; ``inverse[i]``: the
     position in ``first`` of frame i's equal. Frames are equal when every view is bit-equal. A random
-    projection proposes candidates (equal frames always project alike: same values, same arithmetic);
-    each candidate is then compared in full, so a projection collision never merges different frames.
+    projection groups candidates (equal frames project alike: same values, same arithmetic); each frame
+    is then compared in full with its group's first, and one that differs (a projection collision)
+    stands alone, so different frames are never merged.
     """
     n = views[0].shape[0]
     flat = [v.reshape(n, -1) for v in views]
     gen = torch.Generator(device="cpu").manual_seed(0)
-    keys = torch.stack([
-        (f.float() @ torch.rand(f.shape[1], generator=gen).to(f.device)).cpu() for f in flat
-    ], dim=1).tolist()  # (N, V) fingerprints
-    first: list[int] = []
-    inverse: list[int] = []
-    seen: dict[tuple[float, ...], list[int]] = {}  # fingerprint → positions in ``first``
-    for i, key in enumerate(map(tuple, keys)):
-        found = next((u for u in seen.get(key, ())
-                      if all(torch.equal(f[i], f[first[u]]) for f in flat)), None)
-        if found is None:
-            found = len(first)
-            first.append(i)
-            seen.setdefault(key, []).append(found)
-        inverse.append(found)
-    device = views[0].device
-    return torch.tensor(first, dtype=torch.long, device=device), torch.tensor(inverse, dtype=torch.long, device=device)
+    keys = torch.stack([f.float() @ torch.rand(f.shape[1], generator=gen).to(f.device) for f in flat], dim=1)
+    _, group = torch.unique(keys, dim=0, return_inverse=True)  # (N,) candidate group of each frame
+    index = torch.arange(n, device=group.device)
+    lead = torch.full((n,), n, dtype=torch.long, device=group.device).scatter_reduce(0, group, index, "amin")
+    rep = lead[group]  # (N,) the group's first frame
+    same = torch.stack([(f == f[rep]).all(dim=1) for f in flat]).all(dim=0)  # (N,)
+    first, inverse = torch.unique(torch.where(same, rep, index), return_inverse=True)  # sorted: first occurrences
+    return first, inverse
 
 
 class Residual(nn.Module):

@@ -150,9 +150,8 @@ class PretrainedText(nn.Module):
             features = encoder.preprocess([texts[i] for i in order[start : start + group]])
             features = {k: v.to(device) if isinstance(v, torch.Tensor) else v for k, v in features.items()}
             parts.append(self.encoder(features)["sentence_embedding"].float())  # (G, F)
-        inverse = torch.empty(len(order), dtype=torch.long)
-        inverse[torch.tensor(order, dtype=torch.long)] = torch.arange(len(order))
-        return torch.cat(parts)[inverse.to(device)]  # (B, F) in the order of ``texts``
+        inverse = torch.argsort(torch.tensor(order)).to(device)  # where each text landed
+        return torch.cat(parts)[inverse]  # (B, F) in the order of ``texts``
 
     def forward(self, texts: list[str], device: torch.device) -> torch.Tensor:
         """texts: B strings → (B, F)."""

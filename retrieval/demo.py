@@ -16,7 +16,6 @@ from __future__ import annotations
 import argparse
 import importlib.util
 import json
-import os
 import shutil
 import subprocess
 import sys
@@ -27,6 +26,7 @@ from pathlib import Path
 from typing import Any
 
 from common.atomic import atomic_write_text
+from common.ray_cluster import usable_cpus
 from retrieval.demo_config import VAL_FRACTION, DemoConfig
 
 #: The extra training logs' seed is the demo's plus this: other drives through another city.
@@ -77,7 +77,7 @@ class Demo:
         """Ray workers of the per-log stages (:attr:`DemoConfig.workers`); 1: serially, in the command's process."""
         if self.config.workers is not None:
             return max(self.config.workers, 1)
-        cores = os.cpu_count() or 1
+        cores = usable_cpus()
         return cores if cores > 1 and importlib.util.find_spec("ray") is not None else 1
 
     def per_log_command(self, args: Sequence[object]) -> None:

@@ -85,7 +85,7 @@ class DemoConfig:
         workers: Ray workers of the per-log stages that take most of their time in one process: the
             simulation of the sensor logs and the clips (``--workers``; outputs are the same bytes as
             without). None: one per CPU core when Ray is installed and there is more than one core;
-            0 or 1: serially. On 2 cores they took 109 → 73 s and 95 → 67 s (README, "Time").
+            0 or 1: serially. ``make bench`` (``scale``): clips 1.75× on 2 workers against 1 (README, "Time").
     """
 
     # Sized so that the whole demo runs in 13 to 15 minutes on 2 CPU cores: small clip views (the model

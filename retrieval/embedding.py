@@ -22,7 +22,7 @@ import numpy as np
 
 from common.ray_cluster import Execution, cluster_gpus, import_ray, node_cpus, ray_runtime
 from encoders.config import BUNDLED_TEXT_MODEL
-from encoders.sentence import shared_sentence_encoder
+from encoders.sentence import cache_name, inference_autocast, inference_dtype, shared_sentence_encoder
 from encoders.text import TEXT_CACHE_FILE, TextFeatureCache
 from indexes.integrity import sha256_file
 from retrieval.errors import ModelMismatchError
@@ -250,10 +250,15 @@ class SentenceEncoder:
 
     name = "all-MiniLM-L6-v2"
 
-    def __init__(self, cache_size: int = 100_000, known: TextFeatureCache | None = None) -> None:
-        """``known``: rows already computed by the same model (a run's text cache); others are encoded."""
+    def __init__(self, cache_size: int = 100_000, known: TextFeatureCache | None = None,
+                 precision: str = "auto") -> None:
+        """``known``: rows already computed by the same model in the same precision (a run's text
+        cache); others are encoded. ``precision``: of the encoder's matrix products
+        (:func:`encoders.sentence.inference_dtype`)."""
         self._cache = EmbeddingCache(cache_size)
-        self._known = known if known is not None and known.model_name == BUNDLED_TEXT_MODEL and len(known) else None
+        self.dtype = inference_dtype(precision)
+        name = cache_name(BUNDLED_TEXT_MODEL, self.dtype)
+        self._known = known if known is not None and known.model_name == name and len(known) else None
 
     @classmethod
     def for_run(cls, run_dir: Path | str) -> SentenceEncoder:
@@ -264,9 +269,11 @@ class SentenceEncoder:
         texts), and they cost the demo's index stage most of its time. The rows are the same up to
         float rounding of a different batch (≤ 1e-7).
         """
-        known = TextFeatureCache(BUNDLED_TEXT_MODEL)
+        encoder = cls()
+        known = TextFeatureCache(cache_name(BUNDLED_TEXT_MODEL, encoder.dtype))
         known.load(Path(run_dir) / TEXT_CACHE_FILE)
-        return cls(known=known)
+        encoder._known = known if len(known) else None
+        return encoder
 
     def __call__(self, texts: Sequence[str]) -> np.ndarray:
         texts = list(texts)
@@ -276,17 +283,18 @@ class SentenceEncoder:
 
     def _embed(self, texts: list[str]) -> np.ndarray:
         if self._known is None:
-            return _encode_sentences(texts)
+            return _encode_sentences(texts, self.dtype)
         rows = [self._known.get(t) for t in texts]
         missing = [t for t, row in zip(texts, rows) if row is None]
-        fresh = iter(_encode_sentences(missing)) if missing else iter(())
+        fresh = iter(_encode_sentences(missing, self.dtype)) if missing else iter(())
         return np.stack([row if row is not None else next(fresh) for row in rows])
 
 
-def _encode_sentences(texts: list[str]) -> np.ndarray:
+def _encode_sentences(texts: list[str], dtype: Any) -> np.ndarray:
     model = shared_sentence_encoder(BUNDLED_TEXT_MODEL, device="cpu")  # loaded once, under its own lock
-    emb = model.encode(texts, batch_size=64, convert_to_numpy=True, normalize_embeddings=True,
-                       show_progress_bar=False)
+    with inference_autocast("cpu", dtype):
+        emb = model.encode(texts, batch_size=64, convert_to_numpy=True, normalize_embeddings=True,
+                           show_progress_bar=False)
     return np.asarray(emb, dtype=np.float32)
 
 

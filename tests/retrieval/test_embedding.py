@@ -6,12 +6,16 @@ import os
 from pathlib import Path
 
 import numpy as np
+import torch
 
 from encoders.config import BUNDLED_TEXT_MODEL
+from encoders.sentence import cache_name, inference_dtype
 from encoders.text import TEXT_CACHE_FILE, TextFeatureCache
 from retrieval.embedding import SentenceEncoder
 
 os.environ["HF_HUB_OFFLINE"] = "1"
+#: What a run trained on this machine files its cache under (the precision follows the CPU).
+HERE = cache_name(BUNDLED_TEXT_MODEL, inference_dtype("auto"))
 
 
 def _planted_cache(run_dir: Path, model: str, text: str) -> np.ndarray:
@@ -25,7 +29,7 @@ def _planted_cache(run_dir: Path, model: str, text: str) -> np.ndarray:
 
 
 def test_known_rows_come_from_the_run_and_the_rest_is_encoded(tmp_path: Path) -> None:
-    row = _planted_cache(tmp_path / "run", BUNDLED_TEXT_MODEL, "a car approaches")
+    row = _planted_cache(tmp_path / "run", HERE, "a car approaches")
     texts = ["a truck moves away", "a car approaches", "a truck moves away"]
     xq = SentenceEncoder.for_run(tmp_path / "run")(texts)
     assert xq.shape == (3, 384)
@@ -37,8 +41,11 @@ def test_known_rows_come_from_the_run_and_the_rest_is_encoded(tmp_path: Path) ->
 
 def test_a_cache_of_another_model_or_none_is_not_used(tmp_path: Path) -> None:
     _planted_cache(tmp_path / "other", "another-model", "a car approaches")
+    # The same model in the other precision: its rows differ from this machine's by up to ~1e-3.
+    other = torch.float32 if inference_dtype("auto") == torch.bfloat16 else torch.bfloat16
+    _planted_cache(tmp_path / "precision", cache_name(BUNDLED_TEXT_MODEL, other), "a car approaches")
     reference = SentenceEncoder()(["a car approaches"])[0]
-    for run_dir in (tmp_path / "other", tmp_path / "no-run"):
+    for run_dir in (tmp_path / "other", tmp_path / "precision", tmp_path / "no-run"):
         xq = SentenceEncoder.for_run(run_dir)(["a car approaches"])
         np.testing.assert_allclose(xq[0], reference, atol=1e-6)
         assert abs(float(np.linalg.norm(xq[0])) - 1.0) < 1e-5

@@ -24,7 +24,14 @@ def model_card(config: TrainConfig, history: list[dict[str, Any]], n_train: int,
             "clauses": f"{m.text.model} over the text and each of its steps (up to {m.text.max_steps})",
             "slots": f"{m.text.model} over each sentence's steps in {m.time_slots} time slots of {m.slot_dim} dims",
             }.get(m.text.kind, f"scratch transformer ({m.text.scratch_layers} layers)")
-    frozen = " (frozen, cached)" if m.text.kind != "scratch" and m.text.freeze else ""
+    frozen = ""
+    if m.text.kind != "scratch" and m.text.freeze and m.text.finetune_top_layers:
+        frozen = f" (frozen below its top {m.text.finetune_top_layers} layers, float32)"
+    elif m.text.kind != "scratch" and m.text.freeze:
+        from encoders.sentence import inference_dtype
+
+        dtype = str(inference_dtype(m.text.precision)).removeprefix("torch.")
+        frozen = f" (frozen, cached; precision {m.text.precision}: {dtype} on the machine that trained it)"
     n_val = len(val_set) if val_set is not None else 0  # type: ignore[arg-type]
     track = ""
     if m.bev.track_features:

@@ -267,7 +267,8 @@ class SentenceEncoder:
         A run whose text tower is this frozen model has encoded its captions and their steps already:
         the rule captions of an index over its clips are then mostly known (7038 of the demo's 16765
         texts), and they cost the demo's index stage most of its time. The rows are the same up to
-        float rounding of a different batch (≤ 1e-7).
+        the rounding of a different batch (≤ 1e-7 in float32, ≤ 1e-3 in bfloat16); a cache of the
+        other precision is not used.
         """
         encoder = cls()
         known = TextFeatureCache(cache_name(BUNDLED_TEXT_MODEL, encoder.dtype))

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import dataclasses
 
+import pytest
+
 from encoders.calibration import CameraWeightChoice
 from encoders.config import BevConfig, DualEncoderConfig, HardNegative, TextConfig, TrainConfig
 from encoders.model_card import model_card
@@ -31,3 +33,16 @@ def test_card_names_the_track_inputs_the_time_slots_and_the_dense_heads() -> Non
     assert "hard negatives (edited steps): none." in plain
     older = _card(TrainConfig(model=dataclasses.replace(model, bev=BevConfig(ego_features=4))))
     assert "temporal transformer with ego motion (x_m, y_m, yaw_rad, speed_mps);" in older
+
+
+def test_card_says_in_which_precision_the_frozen_text_encoder_ran(monkeypatch: pytest.MonkeyPatch) -> None:
+    import encoders.sentence as sentence
+
+    monkeypatch.setattr(sentence, "native_bfloat16", lambda: True)
+    assert "(frozen, cached; precision auto: bfloat16 on the machine that trained it)" in _card(TrainConfig())
+    monkeypatch.setattr(sentence, "native_bfloat16", lambda: False)
+    assert "precision auto: float32" in _card(TrainConfig())
+    forced = TrainConfig(model=DualEncoderConfig(text=TextConfig(precision="bfloat16")))
+    assert "precision bfloat16: bfloat16" in _card(forced)
+    tuned = TrainConfig(model=DualEncoderConfig(text=TextConfig(finetune_top_layers=2)))
+    assert "(frozen below its top 2 layers, float32)" in _card(tuned)

@@ -25,13 +25,12 @@ def model_card(config: TrainConfig, history: list[dict[str, Any]], n_train: int,
             "slots": f"{m.text.model} over each sentence's steps in {m.time_slots} time slots of {m.slot_dim} dims",
             }.get(m.text.kind, f"scratch transformer ({m.text.scratch_layers} layers)")
     frozen = ""
-    if m.text.kind != "scratch" and m.text.freeze and m.text.finetune_top_layers:
-        frozen = f" (frozen below its top {m.text.finetune_top_layers} layers, float32)"
-    elif m.text.kind != "scratch" and m.text.freeze:
-        from encoders.sentence import inference_dtype
+    if m.text.kind != "scratch" and m.text.freeze:
+        from encoders.sentence import text_encoder_dtype
 
-        dtype = str(inference_dtype(m.text.precision)).removeprefix("torch.")
-        frozen = f" (frozen, cached; precision {m.text.precision}: {dtype} on the machine that trained it)"
+        dtype = str(text_encoder_dtype(m.text)).removeprefix("torch.")
+        frozen = (f" (frozen below its top {m.text.finetune_top_layers} layers, {dtype})" if m.text.finetune_top_layers
+                  else f" (frozen, cached; precision {m.text.precision}: {dtype} on the machine that trained it)")
     n_val = len(val_set) if val_set is not None else 0  # type: ignore[arg-type]
     track = ""
     if m.bev.track_features:

@@ -29,7 +29,7 @@ from typing import Any
 
 import torch
 
-from encoders.config import BUNDLED_TEXT_MODEL, TEXT_PRECISIONS, ConfigError
+from encoders.config import BUNDLED_TEXT_MODEL, TEXT_PRECISIONS, ConfigError, TextConfig
 
 #: Loaded models by (resolved model path, device).
 _MODELS: dict[tuple[str, str], Any] = {}
@@ -62,6 +62,14 @@ def inference_dtype(precision: str = "auto") -> torch.dtype:
     if precision == "auto":
         return torch.bfloat16 if native_bfloat16() else torch.float32
     return torch.bfloat16 if precision == "bfloat16" else torch.float32
+
+
+def text_encoder_dtype(config: TextConfig) -> torch.dtype:
+    """The dtype a text tower's pretrained encoder runs in: float32 where any of it trains (``freeze``
+    off, or ``finetune_top_layers``), else :func:`inference_dtype` of ``config.precision``."""
+    if not config.freeze or config.finetune_top_layers:
+        return torch.float32
+    return inference_dtype(config.precision)
 
 
 def inference_autocast(device: torch.device | str, dtype: torch.dtype) -> contextlib.AbstractContextManager[Any]:

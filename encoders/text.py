@@ -36,7 +36,7 @@ import torch
 from torch import nn
 
 from encoders.config import ConfigError, TextConfig
-from encoders.sentence import cache_name, inference_autocast, inference_dtype, load_sentence_encoder
+from encoders.sentence import cache_name, inference_autocast, load_sentence_encoder, text_encoder_dtype
 from encoders.timeline import SlotTextHead, slot_of_steps
 
 #: The file of a run that holds its :class:`TextFeatureCache` (frozen sentence embeddings per string).
@@ -128,8 +128,7 @@ class PretrainedText(nn.Module):
                 for p in layer.parameters():
                     p.requires_grad_(True)
         self.trainable = any(p.requires_grad for p in self.encoder.parameters())
-        # A frozen encoder infers in bfloat16 where the CPU does it in hardware; a trained one stays float32.
-        self.dtype = torch.float32 if self.trainable else inference_dtype(config.precision)
+        self.dtype = text_encoder_dtype(config)  # bfloat16 only when frozen and the CPU does it in hardware
         self.cache = (TextFeatureCache(cache_name(config.model, self.dtype))
                       if config.cache and not self.trainable else None)
 

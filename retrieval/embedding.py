@@ -16,7 +16,7 @@ import time
 from collections import OrderedDict
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
-from typing import Any, Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -26,6 +26,9 @@ from encoders.sentence import cache_name, inference_autocast, inference_dtype, s
 from encoders.text import TEXT_CACHE_FILE, TextFeatureCache
 from indexes.integrity import sha256_file
 from retrieval.errors import ModelMismatchError
+
+if TYPE_CHECKING:
+    import torch
 
 MODEL_FILE = "model.safetensors"
 CONFIG_FILE = "config.json"
@@ -261,20 +264,18 @@ class SentenceEncoder:
         self._known = known if known is not None and known.model_name == name and len(known) else None
 
     @classmethod
-    def for_run(cls, run_dir: Path | str) -> SentenceEncoder:
+    def for_run(cls, run_dir: Path | str, precision: str = "auto") -> SentenceEncoder:
         """The encoder, seeded with the sentence embeddings a run's training computed (``RUN_DIR/text_cache.npz``).
 
         A run whose text tower is this frozen model has encoded its captions and their steps already:
         the rule captions of an index over its clips are then mostly known (7038 of the demo's 16765
         texts), and they cost the demo's index stage most of its time. The rows are the same up to
         the rounding of a different batch (≤ 1e-7 in float32, ≤ 1e-3 in bfloat16); a cache of the
-        other precision is not used.
+        other ``precision`` is not used.
         """
-        encoder = cls()
-        known = TextFeatureCache(cache_name(BUNDLED_TEXT_MODEL, encoder.dtype))
+        known = TextFeatureCache(cache_name(BUNDLED_TEXT_MODEL, inference_dtype(precision)))
         known.load(Path(run_dir) / TEXT_CACHE_FILE)
-        encoder._known = known if len(known) else None
-        return encoder
+        return cls(known=known, precision=precision)
 
     def __call__(self, texts: Sequence[str]) -> np.ndarray:
         texts = list(texts)
@@ -291,7 +292,7 @@ class SentenceEncoder:
         return np.stack([row if row is not None else next(fresh) for row in rows])
 
 
-def _encode_sentences(texts: list[str], dtype: Any) -> np.ndarray:
+def _encode_sentences(texts: list[str], dtype: torch.dtype) -> np.ndarray:
     model = shared_sentence_encoder(BUNDLED_TEXT_MODEL, device="cpu")  # loaded once, under its own lock
     with inference_autocast("cpu", dtype):
         emb = model.encode(texts, batch_size=64, convert_to_numpy=True, normalize_embeddings=True,

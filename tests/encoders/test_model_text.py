@@ -17,6 +17,7 @@ from encoders.sentence import (
     inference_dtype,
     load_sentence_encoder,
     shared_sentence_encoder,
+    text_encoder_dtype,
 )
 from encoders.text import ENCODE_GROUP, PretrainedText, TextFeatureCache, TextTower, hash_tokens
 
@@ -93,6 +94,10 @@ def test_precision_follows_the_cpu_and_the_config(monkeypatch: pytest.MonkeyPatc
         TextConfig(precision="float16")
     with pytest.raises(ConfigError, match="precision"):
         inference_dtype("half")
+    # An encoder that trains, wholly or its top layers, stays in float32 whatever the precision says.
+    assert text_encoder_dtype(TextConfig(precision="bfloat16")) == torch.bfloat16
+    assert text_encoder_dtype(TextConfig(precision="bfloat16", freeze=False)) == torch.float32
+    assert text_encoder_dtype(TextConfig(precision="bfloat16", finetune_top_layers=1)) == torch.float32
     assert cache_name(BUNDLED_TEXT_MODEL, torch.float32) == BUNDLED_TEXT_MODEL
     assert cache_name(BUNDLED_TEXT_MODEL, torch.bfloat16) == f"{BUNDLED_TEXT_MODEL}@bfloat16"
 

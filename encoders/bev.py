@@ -21,14 +21,10 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from encoders.camera import conv_block, mask_geometry, with_motion
+from encoders.camera import EGO_MOTION_SCALE, conv_block, mask_geometry, with_motion
 from encoders.config import BevConfig
 from encoders.fusion import TemporalEncoder
 from encoders.timeline import clip_head, read_clip
-
-#: Scales that bring ego_motion (x_m, y_m, yaw_rad, speed_mps, accel_mps2, yaw_rate_rps) to about unit range.
-EGO_MOTION_SCALE = (50.0, 50.0, 3.14159, 20.0, 2.0, 0.5)
-
 
 #: What ``BevConfig.track_range`` adds to each frame of the track: range, |x| and |y| from the ego.
 RANGE_FEATURES = ("range", "abs_x", "abs_y")

@@ -151,16 +151,25 @@ class CameraConfig(EncodersConfig):
         in_channels: input channels per frame (RGB + object mask).
         widths: channels of the CNN stages; the stem divides the resolution by 4, each later stage by 2.
         temporal: the temporal model over frames.
+        ego_features: the first of ``ego_motion``'s x, y, yaw, speed, smoothed acceleration and yaw rate
+            (from the log's ego poses, as the BEV tower reads them) that the camera's temporal model
+            also reads; 0: the camera's pixels alone.
+        mask_scale: also read the object's size on a log scale and its change since the previous frame
+            (:func:`encoders.camera.mask_scale`).
     """
 
     in_channels: int = 4
     widths: tuple[int, ...] = (16, 32, 64)
     temporal: TemporalConfig = field(default_factory=TemporalConfig)
+    ego_features: int = 0
+    mask_scale: bool = False
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "widths", tuple(int(w) for w in self.widths))
         if not self.widths or min(self.widths) < 1:
             raise ConfigError(f"CameraConfig.widths must be non-empty positive, got {self.widths}")
+        if not 0 <= self.ego_features <= 6:
+            raise ConfigError(f"CameraConfig.ego_features must be 0 to 6, got {self.ego_features}")
 
 
 @dataclass(frozen=True)

@@ -71,7 +71,7 @@ class DualEncoder(nn.Module):
         if view not in VIEWS:
             raise ValueError(f"view must be one of {VIEWS}, got {view!r}")
         if view == "camera":
-            x = self.camera(self._get(batch, "camera"))
+            x = self.camera(self._get(batch, "camera"), ego_motion=self._camera_ego(batch))
         elif view == "bev":
             x = self._bev(batch)
         else:
@@ -106,7 +106,7 @@ class DualEncoder(nn.Module):
         bev = self._bev(batch, frames)  # (B, D)
         camera = torch.zeros_like(bev)
         if camera_always or bool(has_camera.any()) or bool(batch.get("run_camera", False)):
-            camera = self.camera(self._get(batch, "camera"), frames)  # (B, D)
+            camera = self.camera(self._get(batch, "camera"), frames, self._camera_ego(batch))  # (B, D)
         return camera, bev, has_camera
 
     def dense_logits(self, frames: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
@@ -143,6 +143,9 @@ class DualEncoder(nn.Module):
             self._get(batch, "object_rates") if self.config.bev.track_features and self.config.bev.track_rates
             else None,
         )
+
+    def _camera_ego(self, batch: dict[str, Any]) -> torch.Tensor | None:
+        return self._get(batch, "ego_motion") if self.config.camera.ego_features else None
 
     def _get(self, batch: dict[str, Any], key: str) -> torch.Tensor:
         if key not in batch:

@@ -40,6 +40,11 @@ def model_card(config: TrainConfig, history: list[dict[str, Any]], n_train: int,
         track = (f";\n  the object's own track ({m.bev.track_features} features per frame"
                  f"{' + ' + ' and '.join(extra) if extra else ''}) through its own temporal transformer")
     ego = f"ego motion ({', '.join(EGO_MOTION_COLUMNS[: m.bev.ego_features]) or 'none'})"
+    camera_reads = ([f"the ego motion ({', '.join(EGO_MOTION_COLUMNS[: m.camera.ego_features])})"]
+                    if m.camera.ego_features else []) + (["the object's size on a log scale"] if m.camera.mask_scale
+                                                          else [])
+    camera = (f"strided CNN {list(m.camera.widths)} over RGB + object mask, temporal transformer over frames"
+              + (f" that also reads {' and '.join(camera_reads)}" if camera_reads else ""))
     slots = (f"\n- Video time slots: each temporal stream pools its frame tokens into {m.time_slots} stretches of the "
              f"clip, in order ({m.slot_dim} dims each)." if m.time_slots else "")
     dense = (f";\n  per-frame rule tags ({', '.join(m.dense_tasks)}) on the {', '.join(m.dense_streams)} "
@@ -50,7 +55,7 @@ Text → clip and clip → clip retrieval of object behaviour in driving logs.
 
 ## Model
 - Text tower: {text}{frozen}, projection to D = {m.embed_dim}.
-- Camera tower: strided CNN {list(m.camera.widths)} over RGB + object mask, temporal transformer over frames.
+- Camera tower: {camera}.
 - BEV tower: LiDAR and map backbones {list(m.bev.widths)}, universal embedding E with D_e = {m.bev.embed_channels} at
   1/{m.bev.downsample} resolution, object-masked pooling, temporal transformer with {ego}{track}.{slots}
 - Fusion: mean of normalised views + MLP; modality dropout camera {m.fusion.drop_camera_p}, BEV {m.fusion.drop_bev_p};

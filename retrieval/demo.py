@@ -123,7 +123,8 @@ class Demo:
                          "time_slots": c.time_slots, "hard_negatives": list(c.hard_negatives),
                          "order_weight": c.order_weight,
                          "dense_weight": c.dense_weight, "dense_streams": list(c.dense_streams),
-                         "track_velocity": c.track_velocity}
+                         "track_velocity": c.track_velocity, "camera_ego": c.camera_ego,
+                         "camera_mask_scale": c.camera_mask_scale}
         upto["index"] = upto["train"]
         upto["eval"] = upto["train"]
         upto["report"] = {**upto["train"], "queries": list(c.queries), "top_k": c.top_k}
@@ -248,6 +249,10 @@ class Demo:
                 args += ["--dense-streams", *self.config.dense_streams]
         if self.config.track_velocity:
             args.append("--track-velocity")
+        if self.config.camera_ego:
+            args.append("--camera-ego")
+        if self.config.camera_mask_scale:
+            args.append("--camera-mask-scale")
         self.command(args)
         return ""
 
@@ -300,7 +305,8 @@ def config_from_args(args: argparse.Namespace) -> DemoConfig:
     for name in ("logs", "duration_s", "test_fraction", "seed", "frames_per_clip", "camera_width_px",
                  "camera_height_px", "bev_resolution_m", "epochs", "batch_size", "tag_weight", "extra_logs",
                  "map_less_share", "jitter_share", "camera_share", "time_slots", "dense_weight",
-                 "order_weight", "track_velocity", "workers"):
+                 "order_weight", "track_velocity", "camera_ego",
+                 "camera_mask_scale", "workers"):
         value = getattr(args, name, None)
         if value is not None:
             overrides[name] = value

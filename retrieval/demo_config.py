@@ -62,6 +62,13 @@ class DemoConfig:
             that its one contrastive target hardly teaches it.
         track_velocity: give the track stream the object's velocity relative to the ego
             (``train --track-velocity``): what the dense heads read the motion from.
+        camera_ego: give the camera's temporal model the ego's motion from the log's poses
+            (``train --camera-ego``), as the BEV tower has it: a caption's first sentence is the ego's
+            own motion, which 64 × 32 pixels barely show (README, "The camera: the ego's motion and the
+            object's size").
+        camera_mask_scale: give the camera's temporal model the object's size in the image on a log
+            scale and its change (``train --camera-mask-scale``): most camera objects cover a few of
+            the 64 × 32 pixels, a size that as a fraction of the image reads as 0.
         train_preset: the trainer's preset (``default``; ``tiny`` for smoke runs), None for the trainer's choice.
         sensors: render LiDAR and cameras (off: BEV clips from boxes, no camera).
         extra_logs: more simulated logs, from another seed, without sensors (BEV clips from boxes,
@@ -109,6 +116,8 @@ class DemoConfig:
     dense_weight: float | None = 5.0
     dense_streams: tuple[str, ...] = ("camera", "track")
     track_velocity: bool = True
+    camera_ego: bool = True
+    camera_mask_scale: bool = True
     train_preset: str | None = None
     sensors: bool = True
     extra_logs: int = 24
@@ -164,4 +173,5 @@ class DemoConfig:
         # The tiny model's 32 dimensions hold no time slots, and its scratch text tower no steps.
         return DemoConfig(logs=3, duration_s=12.0, frames_per_clip=8, epochs=1, train_preset="tiny", batch_size=None,
                           extra_logs=2, time_slots=None, hard_negatives=(), order_weight=None, dense_weight=None,
-                          track_velocity=False)
+                          track_velocity=False, camera_ego=False,
+                          camera_mask_scale=False)

@@ -51,6 +51,12 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--track-velocity", action=argparse.BooleanOptionalAction,
                         help=f"give the track stream the object's velocity relative to the ego "
                         f"(default {'on' if D.track_velocity else 'off'})")
+    parser.add_argument("--camera-ego", action=argparse.BooleanOptionalAction,
+                        help=f"give the camera's temporal model the ego's motion from the log's poses "
+                        f"(default {'on' if D.camera_ego else 'off'})")
+    parser.add_argument("--camera-mask-scale", action=argparse.BooleanOptionalAction,
+                        help=f"give the camera's temporal model the object's size in the image on a log scale "
+                        f"(default {'on' if D.camera_mask_scale else 'off'})")
     parser.add_argument("--no-sensors", action="store_true", help="skip LiDAR/camera rendering (BEV from boxes)")
     parser.add_argument("--extra-logs", type=int, metavar="N",
                         help=f"extra training-only logs, simulated without sensors (default {D.extra_logs})")

@@ -70,6 +70,12 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--track-velocity", action="store_true",
                         help="give the track stream the object's velocity relative to the ego and its range rates "
                              "(model.bev.track_velocity; what the dense heads read motion from)")
+    parser.add_argument("--camera-ego", action="store_true",
+                        help="give the camera's temporal model the ego's motion from the log's poses, as the BEV "
+                             "tower reads it (model.camera.ego_features 6)")
+    parser.add_argument("--camera-mask-scale", action="store_true",
+                        help="give the camera's temporal model the object's size in the image on a log scale and its "
+                             "change (model.camera.mask_scale)")
     parser.add_argument("--track-rates", action=argparse.BooleanOptionalAction, default=None,
                         help="give the track stream the object's own speed, acceleration and yaw rate over ground "
                              "(model.bev.track_rates, on by default; what the rules read braking, standing and "
@@ -130,6 +136,13 @@ def build_config(args: argparse.Namespace) -> Any:
     model = dataclasses.replace(config.model, text=text)
     if args.track_velocity:
         model = dataclasses.replace(model, bev=dataclasses.replace(model.bev, track_velocity=True))
+    if args.camera_ego:
+        from encoders.camera import EGO_MOTION_SCALE
+
+        model = dataclasses.replace(model, camera=dataclasses.replace(model.camera,
+                                                                      ego_features=len(EGO_MOTION_SCALE)))
+    if args.camera_mask_scale:
+        model = dataclasses.replace(model, camera=dataclasses.replace(model.camera, mask_scale=True))
     if args.track_rates is not None:
         model = dataclasses.replace(model, bev=dataclasses.replace(model.bev, track_rates=args.track_rates))
     if args.time_slots is not None:

@@ -7,7 +7,7 @@ import dataclasses
 import pytest
 
 from encoders.calibration import CameraWeightChoice
-from encoders.config import BevConfig, DualEncoderConfig, HardNegative, TextConfig, TrainConfig
+from encoders.config import BevConfig, CameraConfig, DualEncoderConfig, HardNegative, TextConfig, TrainConfig
 from encoders.model_card import model_card
 
 
@@ -33,6 +33,16 @@ def test_card_names_the_track_inputs_the_time_slots_and_the_dense_heads() -> Non
     assert "hard negatives (edited steps): none." in plain
     older = _card(TrainConfig(model=dataclasses.replace(model, bev=BevConfig(ego_features=4))))
     assert "temporal transformer with ego motion (x_m, y_m, yaw_rad, speed_mps);" in older
+    assert "temporal transformer over frames." in plain
+
+
+def test_card_names_what_the_camera_reads_besides_its_pixels() -> None:
+    camera = CameraConfig(ego_features=6, mask_scale=True)
+    card = _card(TrainConfig(model=DualEncoderConfig(camera=camera)))
+    assert ("temporal transformer over frames that also reads the ego motion (x_m, y_m, yaw_rad, speed_mps, "
+            "accel_mps2, yaw_rate_rps) and the object's size on a log scale.") in card
+    ego_only = _card(TrainConfig(model=DualEncoderConfig(camera=CameraConfig(ego_features=6))))
+    assert "log scale" not in ego_only and "over frames that also reads the ego motion (x_m," in ego_only
 
 
 def test_card_says_in_which_precision_the_frozen_text_encoder_ran(monkeypatch: pytest.MonkeyPatch) -> None:

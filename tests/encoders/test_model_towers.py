@@ -307,7 +307,7 @@ def test_dense_heads_read_the_frame_tokens_of_each_stream(batch: dict[str, Any])
 def test_ego_rates_reach_the_bev_tower_and_older_models_read_the_pose_and_speed_only(batch: dict[str, Any]) -> None:
     """With ``ego_features`` 6 the temporal models read the ego's smoothed acceleration and yaw rate (scaled to
     about unit range); a model configured before them (4) reads the first four columns of the same batch."""
-    from encoders.bev import EGO_MOTION_SCALE
+    from encoders.camera import EGO_MOTION_SCALE
 
     config = replace(tiny_model_config(), bev=replace(tiny_model_config().bev, track_rates=False))
     assert config.bev.ego_features == 6 == batch["ego_motion"].shape[-1] == len(EGO_MOTION_SCALE)
@@ -381,3 +381,48 @@ def test_bev_tower_embeds_equal_frames_once_in_eval_mode(monkeypatch: pytest.Mon
     tower.train()  # batch norm reads the batch: every frame runs
     tower.embed_space(lidar, bev_map)
     assert ran[-1] == 12
+
+
+def test_camera_tower_reads_the_ego_motion_only_when_configured(batch: dict[str, Any]) -> None:
+    """With ``camera.ego_features`` 6 the camera's frame vectors end in the ego's motion scaled to about unit
+    range, and the camera view changes with it; the default camera (0) reads its pixels alone."""
+    from encoders.camera import EGO_MOTION_SCALE
+
+    torch.manual_seed(0)
+    config = tiny_model_config()
+    assert config.camera.ego_features == 0
+    with_ego = DualEncoder(replace(config, camera=replace(config.camera, ego_features=6))).eval()
+    pixels_only = DualEncoder(config).eval()
+    ego = batch["ego_motion"].clone()
+    ego[..., 3], ego[..., 4] = 10.0, -2.0  # 10 m/s, braking at 2 m/s²
+    features = with_ego.camera.frame_features(batch["camera"], ego)  # (B, T, 2F + 8 + 6)
+    assert features.shape[-1] == pixels_only.camera.frame_features(batch["camera"]).shape[-1] + 6
+    torch.testing.assert_close(features[..., -6:], ego / torch.tensor(EGO_MOTION_SCALE))
+    still = {**batch, "ego_motion": torch.zeros_like(ego)}
+    with torch.no_grad():
+        assert not torch.allclose(with_ego.encode_video({**batch, "ego_motion": ego}, view="camera"),
+                                  with_ego.encode_video(still, view="camera"))
+        torch.testing.assert_close(pixels_only.encode_video({**batch, "ego_motion": ego}, view="camera"),
+                                   pixels_only.encode_video(still, view="camera"))
+    with pytest.raises(ValueError, match="needs the clips' ego_motion"):
+        with_ego.camera.frame_features(batch["camera"])
+    with pytest.raises(ConfigError, match="CameraConfig.ego_features must be 0 to 6"):
+        replace(config.camera, ego_features=7)
+
+
+def test_mask_scale_reads_the_objects_size_on_a_log_scale(batch: dict[str, Any]) -> None:
+    """One pixel and the whole image are 1/log(1 + H·W) and 1 apart from an empty mask's 0, and with
+    ``camera.mask_scale`` the camera's frame vectors carry that scale and its change since the previous frame."""
+    from encoders.camera import mask_scale
+
+    mask = torch.zeros(3, 1, 4, 8)
+    mask[1, 0, 0, 0] = 1.0
+    mask[2] = 1.0
+    torch.testing.assert_close(mask_scale(mask), torch.tensor([[0.0], [math.log(2) / math.log(33)], [1.0]]))
+    config = tiny_model_config()
+    scaled = DualEncoder(replace(config, camera=replace(config.camera, mask_scale=True))).eval()
+    features = scaled.camera.frame_features(batch["camera"])  # (B, T, 2F + 8 + 2)
+    b, t = batch["camera"].shape[:2]
+    expected = mask_scale(batch["camera"][:, :, -1:].flatten(0, 1)).reshape(b, t)
+    torch.testing.assert_close(features[..., -2], expected)
+    torch.testing.assert_close(features[:, 1:, -1], (expected[:, 1:] - expected[:, :-1]) * t)

@@ -87,6 +87,7 @@ def test_stages_run_in_order_with_sizes(tmp_path: Path) -> None:
     assert train[train.index("--order-weight") + 1] == "0.3"
     # ... with per-frame tag heads on the camera and track streams; the track stream reads the velocity.
     assert train[train.index("--dense-weight") + 1] == "5.0" and "--track-velocity" in train
+    assert "--camera-ego" in train and "--camera-mask-scale" in train  # the ego's motion, the object's size
     assert train[train.index("--dense-streams") + 1:][:2] == ["camera", "track"]
 
 
@@ -171,11 +172,13 @@ def test_resume_skips_complete_stages_and_reruns_after_a_change(tmp_path: Path) 
     # Without the dense heads and the velocity features: retrained, and neither flag reaches `train`.
     sparse = _demo(tmp_path, DemoConfig(logs=2, duration_s=10, epochs=5, map_less_share=1.0, camera_share=0.5,
                                         time_slots=0, hard_negatives=(), order_weight=None, dense_weight=None,
-                                        track_velocity=False))
+                                        track_velocity=False, camera_ego=False,
+                                        camera_mask_scale=False))
     sparse.run()
     assert [c[0] for c in sparse.calls] == ["train", "index", "eval", "report"]
     assert "--dense-weight" not in sparse.calls[0] and "--track-velocity" not in sparse.calls[0]
-    assert "--dense-streams" not in sparse.calls[0]
+    assert "--dense-streams" not in sparse.calls[0] and "--camera-ego" not in sparse.calls[0]
+    assert "--camera-mask-scale" not in sparse.calls[0]
     # Heads on the track stream alone: another model, retrained.
     track_only = _demo(tmp_path, DemoConfig(logs=2, duration_s=10, epochs=5, map_less_share=1.0, camera_share=0.5,
                                             time_slots=0, hard_negatives=(), order_weight=None,
@@ -216,8 +219,10 @@ def test_config_from_flags() -> None:
     assert plain.track_velocity is False and plain.dense_weight == DemoConfig().dense_weight
     parser = argparse.ArgumentParser()
     demo_command.configure(parser)
-    parsed = config_from_args(parser.parse_args(["--out", "x", "--dense-weight", "0", "--no-track-velocity"]))
+    parsed = config_from_args(parser.parse_args(["--out", "x", "--dense-weight", "0", "--no-track-velocity",
+                                                 "--no-camera-ego", "--no-camera-mask-scale"]))
     assert parsed.dense_weight == 0.0 and parsed.track_velocity is False
+    assert parsed.camera_ego is False and parsed.camera_mask_scale is False
     assert config_from_args(parser.parse_args(["--out", "x", "--dense-streams", "track"])).dense_streams == ("track",)
     assert config_from_args(parser.parse_args(["--out", "x"])) == DemoConfig()
     assert config_from_args(parser.parse_args(["--out", "x", "--order-weight", "0.5"])).order_weight == 0.5

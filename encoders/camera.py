@@ -60,8 +60,8 @@ def with_motion(geometry: torch.Tensor) -> torch.Tensor:
 def mask_scale(mask: torch.Tensor) -> torch.Tensor:
     """mask: (N, 1, H, W) in [0, 1] → (N, 1): log(1 + pixels under the mask) / log(1 + H·W), in [0, 1].
 
-    A camera object at demo resolution covers a few pixels (median area fraction 0.0005 over the
-    demo's test clips, a quarter above 0.0035): as a fraction, its size and how that changes
+    A camera object at demo resolution covers a few pixels (median area fraction 0.0005 over 60 of
+    the demo's test clips with a camera, a quarter above 0.0035): as a fraction, its size and how that changes
     (approaching, moving away) are invisible next to unit-range inputs; on a log scale one pixel
     and a tenth of the image both count.
     """
@@ -108,7 +108,7 @@ class CameraTower(nn.Module):
             if ego_motion is None:
                 raise ValueError("CameraTower: ego_features > 0 needs the clips' ego_motion")
             parts.append(ego_motion[..., : self.config.ego_features] / self.ego_scale)  # (B, T, E)
-        return torch.cat(parts, dim=-1)  # (B, T, 2F + 8 + E)
+        return torch.cat(parts, dim=-1)  # (B, T, 2F + 8 (+ 2) + E)
 
     def forward(self, camera: torch.Tensor, frames: dict[str, torch.Tensor] | None = None,
                 ego_motion: torch.Tensor | None = None) -> torch.Tensor:

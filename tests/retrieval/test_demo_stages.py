@@ -87,7 +87,7 @@ def test_stages_run_in_order_with_sizes(tmp_path: Path) -> None:
     assert train[train.index("--order-weight") + 1] == "0.3"
     # ... with per-frame tag heads on the camera and track streams; the track stream reads the velocity.
     assert train[train.index("--dense-weight") + 1] == "5.0" and "--track-velocity" in train
-    assert "--camera-ego" in train and "--camera-mask-scale" in train  # the ego's motion, the object's size
+    assert "--camera-ego" not in train and "--camera-mask-scale" not in train  # the camera reads its pixels
     assert train[train.index("--dense-streams") + 1:][:2] == ["camera", "track"]
 
 
@@ -172,13 +172,11 @@ def test_resume_skips_complete_stages_and_reruns_after_a_change(tmp_path: Path) 
     # Without the dense heads and the velocity features: retrained, and neither flag reaches `train`.
     sparse = _demo(tmp_path, DemoConfig(logs=2, duration_s=10, epochs=5, map_less_share=1.0, camera_share=0.5,
                                         time_slots=0, hard_negatives=(), order_weight=None, dense_weight=None,
-                                        track_velocity=False, camera_ego=False,
-                                        camera_mask_scale=False))
+                                        track_velocity=False))
     sparse.run()
     assert [c[0] for c in sparse.calls] == ["train", "index", "eval", "report"]
     assert "--dense-weight" not in sparse.calls[0] and "--track-velocity" not in sparse.calls[0]
-    assert "--dense-streams" not in sparse.calls[0] and "--camera-ego" not in sparse.calls[0]
-    assert "--camera-mask-scale" not in sparse.calls[0]
+    assert "--dense-streams" not in sparse.calls[0]
     # Heads on the track stream alone: another model, retrained.
     track_only = _demo(tmp_path, DemoConfig(logs=2, duration_s=10, epochs=5, map_less_share=1.0, camera_share=0.5,
                                             time_slots=0, hard_negatives=(), order_weight=None,
@@ -193,6 +191,13 @@ def test_resume_skips_complete_stages_and_reruns_after_a_change(tmp_path: Path) 
     ordered.run()
     assert [c[0] for c in ordered.calls] == ["train", "index", "eval", "report"]
     assert ordered.calls[0][ordered.calls[0].index("--order-weight") + 1] == "0.5"
+    # The camera's ego motion and object size: another model, retrained, both flags passed to `train`.
+    camera = _demo(tmp_path, DemoConfig(logs=2, duration_s=10, epochs=5, map_less_share=1.0, camera_share=0.5,
+                                        time_slots=0, dense_streams=("track",), order_weight=0.5, camera_ego=True,
+                                        camera_mask_scale=True))
+    camera.run()
+    assert [c[0] for c in camera.calls] == ["train", "index", "eval", "report"]
+    assert "--camera-ego" in camera.calls[0] and "--camera-mask-scale" in camera.calls[0]
     # Without extra logs, none is simulated, and those of the settings before are gone.
     assert fewer_maps.extra_logs_dir.is_dir()
     alone = _demo(tmp_path, DemoConfig(logs=2, duration_s=10, epochs=5, extra_logs=0))
@@ -220,9 +225,9 @@ def test_config_from_flags() -> None:
     parser = argparse.ArgumentParser()
     demo_command.configure(parser)
     parsed = config_from_args(parser.parse_args(["--out", "x", "--dense-weight", "0", "--no-track-velocity",
-                                                 "--no-camera-ego", "--no-camera-mask-scale"]))
+                                                 "--camera-ego", "--camera-mask-scale"]))
     assert parsed.dense_weight == 0.0 and parsed.track_velocity is False
-    assert parsed.camera_ego is False and parsed.camera_mask_scale is False
+    assert parsed.camera_ego is True and parsed.camera_mask_scale is True
     assert config_from_args(parser.parse_args(["--out", "x", "--dense-streams", "track"])).dense_streams == ("track",)
     assert config_from_args(parser.parse_args(["--out", "x"])) == DemoConfig()
     assert config_from_args(parser.parse_args(["--out", "x", "--order-weight", "0.5"])).order_weight == 0.5

@@ -123,8 +123,9 @@ class Demo:
                          "time_slots": c.time_slots, "hard_negatives": list(c.hard_negatives),
                          "order_weight": c.order_weight,
                          "dense_weight": c.dense_weight, "dense_streams": list(c.dense_streams),
-                         "track_velocity": c.track_velocity, "camera_ego": c.camera_ego,
-                         "camera_mask_scale": c.camera_mask_scale}
+                         "track_velocity": c.track_velocity}
+        # Named only when on, so that a demo folder made before these options resumes without retraining.
+        upto["train"].update({name: True for name in ("camera_ego", "camera_mask_scale") if getattr(c, name)})
         upto["index"] = upto["train"]
         upto["eval"] = upto["train"]
         upto["report"] = {**upto["train"], "queries": list(c.queries), "top_k": c.top_k}

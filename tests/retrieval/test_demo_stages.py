@@ -198,6 +198,8 @@ def test_resume_skips_complete_stages_and_reruns_after_a_change(tmp_path: Path) 
     camera.run()
     assert [c[0] for c in camera.calls] == ["train", "index", "eval", "report"]
     assert "--camera-ego" in camera.calls[0] and "--camera-mask-scale" in camera.calls[0]
+    # Off, they are not among the settings: a demo folder made before them does not retrain.
+    assert not {"camera_ego", "camera_mask_scale"} & set(Demo(tmp_path, DemoConfig()).settings("train"))
     # Without extra logs, none is simulated, and those of the settings before are gone.
     assert fewer_maps.extra_logs_dir.is_dir()
     alone = _demo(tmp_path, DemoConfig(logs=2, duration_s=10, epochs=5, extra_logs=0))

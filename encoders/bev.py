@@ -21,7 +21,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from encoders.camera import EGO_MOTION_SCALE, conv_block, mask_geometry, with_motion
+from encoders.camera import conv_block, mask_geometry, unit_ego_motion, with_motion
 from encoders.config import BevConfig
 from encoders.fusion import TemporalEncoder
 from encoders.timeline import clip_head, read_clip
@@ -183,8 +183,6 @@ class BevTower(nn.Module):
                          + (len(RATES_SCALE) if config.track_rates else 0))
             self.track = TemporalEncoder(config.track, 2 * per_frame + config.ego_features)
             self.track_head = clip_head(config.track.width, embed_dim, time_slots, slot_dim)
-        self.ego_scale: torch.Tensor
-        self.register_buffer("ego_scale", torch.tensor(EGO_MOTION_SCALE[: config.ego_features]), persistent=False)
         self.rates_scale: torch.Tensor
         self.register_buffer("rates_scale", torch.tensor(RATES_SCALE), persistent=False)
 
@@ -254,7 +252,7 @@ class BevTower(nn.Module):
         masked = self.header_time.mix(lambda d: shift_time(pooled[..., offsets.index(d)], d))  # (B, T, D_e)
         mean = self.header_time(flat.mean(dim=-1).reshape(b, t, c))  # (B, T, D_e)
         geometry = with_motion(mask_geometry(obj).reshape(b, t, -1))  # (B, T, 8)
-        ego = ego_motion[..., : self.config.ego_features] / self.ego_scale  # (B, T, E)
+        ego = unit_ego_motion(ego_motion, self.config.ego_features)  # (B, T, E)
         return torch.cat([masked, mean, geometry, ego], dim=-1)  # (B, T, 2 D_e + 8 + E)
 
     def track_features(self, object_track: torch.Tensor, ego_motion: torch.Tensor,
@@ -264,7 +262,7 @@ class BevTower(nn.Module):
         (B, T, 3) → (B, T, 2 F' + E): the track (with :data:`RANGE_FEATURES` under ``track_range``,
         :data:`VELOCITY_FEATURES` under ``track_velocity`` and the object's own rates under
         ``track_rates``), its change since the previous frame, and the ego motion."""
-        ego = ego_motion[..., : self.config.ego_features] / self.ego_scale  # (B, T, E)
+        ego = unit_ego_motion(ego_motion, self.config.ego_features)  # (B, T, E)
         x, y = object_track[..., 0], object_track[..., 1]  # (B, T) ego-relative position / 50 m
         parts = [object_track]
         if self.config.track_range:

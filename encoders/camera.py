@@ -24,6 +24,12 @@ from encoders.timeline import clip_head, read_clip
 EGO_MOTION_SCALE = (50.0, 50.0, 3.14159, 20.0, 2.0, 0.5)
 
 
+def unit_ego_motion(ego_motion: torch.Tensor, features: int) -> torch.Tensor:
+    """ego_motion: (B, T, 6) → (B, T, ``features``): its first columns divided by :data:`EGO_MOTION_SCALE`,
+    what every temporal model that reads the ego's motion reads."""
+    return ego_motion[..., :features] / ego_motion.new_tensor(EGO_MOTION_SCALE[:features])
+
+
 def conv_block(c_in: int, c_out: int, kernel: int, stride: int, dilation: int = 1) -> nn.Sequential:
     """Convolution ("same" padding for stride 1), batch norm, ReLU."""
     return nn.Sequential(
@@ -88,8 +94,6 @@ class CameraTower(nn.Module):
         self.temporal = TemporalEncoder(config.temporal,
                                         2 * widths[-1] + 8 + 2 * config.mask_scale + config.ego_features)
         self.head = clip_head(config.temporal.width, embed_dim, time_slots, slot_dim)
-        self.ego_scale: torch.Tensor
-        self.register_buffer("ego_scale", torch.tensor(EGO_MOTION_SCALE[: config.ego_features]), persistent=False)
 
     def frame_features(self, camera: torch.Tensor, ego_motion: torch.Tensor | None = None) -> torch.Tensor:
         """camera: (B, T, C, H, W); ego_motion: (B, T, 6), read when ``config.ego_features`` > 0
@@ -107,7 +111,7 @@ class CameraTower(nn.Module):
         if self.config.ego_features:
             if ego_motion is None:
                 raise ValueError("CameraTower: ego_features > 0 needs the clips' ego_motion")
-            parts.append(ego_motion[..., : self.config.ego_features] / self.ego_scale)  # (B, T, E)
+            parts.append(unit_ego_motion(ego_motion, self.config.ego_features))  # (B, T, E)
         return torch.cat(parts, dim=-1)  # (B, T, 2F + 8 (+ 2) + E)
 
     def forward(self, camera: torch.Tensor, frames: dict[str, torch.Tensor] | None = None,

@@ -40,9 +40,11 @@ def model_card(config: TrainConfig, history: list[dict[str, Any]], n_train: int,
         track = (f";\n  the object's own track ({m.bev.track_features} features per frame"
                  f"{' + ' + ' and '.join(extra) if extra else ''}) through its own temporal transformer")
     ego = f"ego motion ({', '.join(EGO_MOTION_COLUMNS[: m.bev.ego_features]) or 'none'})"
-    camera_reads = ([f"the ego motion ({', '.join(EGO_MOTION_COLUMNS[: m.camera.ego_features])})"]
-                    if m.camera.ego_features else []) + (["the object's size on a log scale"] if m.camera.mask_scale
-                                                          else [])
+    camera_reads = []
+    if m.camera.ego_features:
+        camera_reads.append(f"the ego motion ({', '.join(EGO_MOTION_COLUMNS[: m.camera.ego_features])})")
+    if m.camera.mask_scale:
+        camera_reads.append("the object's size on a log scale")
     camera = (f"strided CNN {list(m.camera.widths)} over RGB + object mask, temporal transformer over frames"
               + (f" that also reads {' and '.join(camera_reads)}" if camera_reads else ""))
     slots = (f"\n- Video time slots: each temporal stream pools its frame tokens into {m.time_slots} stretches of the "

@@ -306,8 +306,7 @@ def config_from_args(args: argparse.Namespace) -> DemoConfig:
     for name in ("logs", "duration_s", "test_fraction", "seed", "frames_per_clip", "camera_width_px",
                  "camera_height_px", "bev_resolution_m", "epochs", "batch_size", "tag_weight", "extra_logs",
                  "map_less_share", "jitter_share", "camera_share", "time_slots", "dense_weight",
-                 "order_weight", "track_velocity", "camera_ego",
-                 "camera_mask_scale", "workers"):
+                 "order_weight", "track_velocity", "camera_ego", "camera_mask_scale", "workers"):
         value = getattr(args, name, None)
         if value is not None:
             overrides[name] = value

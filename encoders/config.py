@@ -366,6 +366,11 @@ class TrainConfig(EncodersConfig):
         calibrate_camera: after the last epoch, weigh the camera view in the fusion by the weight with
             the best validation mAP (:mod:`encoders.calibration`); off, the fusion keeps the equal
             mean that training used.
+        camera_apart: the camera tower learns beside the shared space, not in it: its own view loss
+            against captions whose vectors it does not move, and its dense heads; the fused view reads
+            its vectors without their gradient. Otherwise what the camera explains of a caption is asked
+            less of the BEV tower and the text tower bends towards what the camera sees, which costs
+            clips without a camera (needs ``view_weight`` > 0: the camera's one contrastive loss).
     """
 
     model: DualEncoderConfig = field(default_factory=DualEncoderConfig)
@@ -394,6 +399,7 @@ class TrainConfig(EncodersConfig):
     time_reversal: float = 0.0
     dense_weight: float = 0.0
     calibrate_camera: bool = True
+    camera_apart: bool = False
 
     def __post_init__(self) -> None:
         kinds = hard_negative_kinds(self.hard_negatives, "TrainConfig.hard_negatives")
@@ -407,6 +413,9 @@ class TrainConfig(EncodersConfig):
                 raise ConfigError(f"TrainConfig.{name} must be >= 0, got {getattr(self, name)}")
         if self.order_weight > 0 and HardNegative.REVERSE not in self.hard_negatives:
             raise ConfigError("TrainConfig.order_weight > 0 needs 'reverse' among hard_negatives")
+        if self.camera_apart and self.view_weight <= 0:
+            raise ConfigError("TrainConfig.camera_apart needs view_weight > 0: the camera view's own loss is then "
+                              "all that trains it contrastively")
         if self.dense_weight > 0 and not self.model.dense_streams:
             raise ConfigError("TrainConfig.dense_weight > 0 needs dense heads: set model.dense_streams")
         for name in ("camera_share", "time_reversal"):

@@ -79,7 +79,8 @@ class DualEncoder(nn.Module):
         return F.normalize(x, dim=-1) if normalize else x
 
     def encode_views(self, batch: dict[str, Any], normalize: bool = True, camera_always: bool = True,
-                     frames: dict[str, torch.Tensor] | None = None) -> dict[str, torch.Tensor]:
+                     frames: dict[str, torch.Tensor] | None = None,
+                     detach_camera: bool = False) -> dict[str, torch.Tensor]:
         """All three views of a batch at the cost of one: each tower runs once, fusion reuses them.
 
         Returns ``{"camera": (B, D), "bev": (B, D), "fused": (B, D)}``, equal to
@@ -87,10 +88,12 @@ class DualEncoder(nn.Module):
         clip of the batch has camera (training: the camera view then has nothing to learn from);
         the camera vectors are then zero and the fused ones are still :meth:`encode_video`'s.
         With a ``frames`` dict, each temporal stream that ran leaves its frame tokens there (see
-        :meth:`dense_logits`).
+        :meth:`dense_logits`). ``detach_camera``: the fused view reads the camera vectors without their
+        gradient (training with ``TrainConfig.camera_apart``); the camera view keeps it.
         """
         camera, bev, has_camera = self._towers(batch, camera_always, frames)
-        out = {"camera": camera, "bev": bev, "fused": self.fusion(camera, bev, has_camera)}
+        fused = self.fusion(camera.detach() if detach_camera else camera, bev, has_camera)
+        out = {"camera": camera, "bev": bev, "fused": fused}
         return {k: F.normalize(v, dim=-1) for k, v in out.items()} if normalize else out
 
     def _towers(self, batch: dict[str, Any], camera_always: bool,

@@ -51,6 +51,8 @@ def model_card(config: TrainConfig, history: list[dict[str, Any]], n_train: int,
              f"clip, in order ({m.slot_dim} dims each)." if m.time_slots else "")
     dense = (f";\n  per-frame rule tags ({', '.join(m.dense_tasks)}) on the {', '.join(m.dense_streams)} "
              f"stream's frame tokens, weight {config.dense_weight:g}" if config.dense_weight > 0 else "")
+    apart = ("\n- The camera tower trained apart: its own view loss against the captions' vectors, which it does not "
+             "move, and no gradient through the fusion." if config.camera_apart else "")
     return f"""# DualEncoder model card
 
 Text → clip and clip → clip retrieval of object behaviour in driving logs.
@@ -61,7 +63,7 @@ Text → clip and clip → clip retrieval of object behaviour in driving logs.
 - BEV tower: LiDAR and map backbones {list(m.bev.widths)}, universal embedding E with D_e = {m.bev.embed_channels} at
   1/{m.bev.downsample} resolution, object-masked pooling, temporal transformer with {ego}{track}.{slots}
 - Fusion: mean of normalised views + MLP; modality dropout camera {m.fusion.drop_camera_p}, BEV {m.fusion.drop_bev_p};
-  {camera_weight.describe()}.
+  {camera_weight.describe()}.{apart}
 
 ## Data
 - Clips: `{clips_dir}`; {n_train} training clips, {n_val} validation clips.

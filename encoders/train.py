@@ -338,7 +338,8 @@ def train(
                 views: dict[str, torch.Tensor] = {}
                 frames: dict[str, torch.Tensor] | None = {} if config.dense_weight > 0 else None
                 if config.view_weight > 0 or frames is not None:  # each tower once; the fused view reuses them
-                    views = model.encode_views(batch, camera_always=False, frames=frames)  # no camera: not run
+                    views = model.encode_views(batch, camera_always=False, frames=frames,  # no camera: not run
+                                               detach_camera=config.camera_apart)
                     texts = model.encode_text(list(batch["caption"]) + negative_texts)
                     video, scale = views["fused"], model.scale()
                 else:
@@ -360,9 +361,12 @@ def train(
                     with_camera = dp.gather(torch.as_tensor(batch["has_camera"], dtype=torch.float32,
                                                      device=device).reshape(-1)).gt(0.5)  # (B,) whole batch
                     for name, keep in (("camera", with_camera), ("bev", torch.ones_like(with_camera))):
+                        # Apart, the camera meets the captions where the fused and BEV views put them.
+                        fixed = config.camera_apart and name == "camera"
                         loss = loss + config.view_weight * view_loss(
-                            dp.gather(views[name]), text, scale, positives, keep, dp.rows(len(keys)), dp.processes,
-                            config.loss, sim, config.tag_weight, negatives, own_mask)
+                            dp.gather(views[name]), text.detach() if fixed else text,
+                            scale.detach() if fixed else scale, positives, keep, dp.rows(len(keys)), dp.processes,
+                            config.loss, sim, config.tag_weight, negatives.detach() if fixed else negatives, own_mask)
                 if tag_objective is not None:  # tagging hook
                     loss = loss + tag_objective.weight * tag_objective.loss(model.bev_embedding)
             value = dp.mean(float(loss.detach()))  # the whole batch's loss

@@ -125,7 +125,8 @@ class Demo:
                          "dense_weight": c.dense_weight, "dense_streams": list(c.dense_streams),
                          "track_velocity": c.track_velocity}
         # Named only when on, so that a demo folder made before these options resumes without retraining.
-        upto["train"].update({name: True for name in ("camera_ego", "camera_mask_scale") if getattr(c, name)})
+        upto["train"].update({name: True for name in ("camera_ego", "camera_mask_scale", "camera_apart")
+                              if getattr(c, name)})
         upto["index"] = upto["train"]
         upto["eval"] = upto["train"]
         upto["report"] = {**upto["train"], "queries": list(c.queries), "top_k": c.top_k}
@@ -254,6 +255,8 @@ class Demo:
             args.append("--camera-ego")
         if self.config.camera_mask_scale:
             args.append("--camera-mask-scale")
+        if self.config.camera_apart:
+            args.append("--camera-apart")
         self.command(args)
         return ""
 
@@ -306,7 +309,7 @@ def config_from_args(args: argparse.Namespace) -> DemoConfig:
     for name in ("logs", "duration_s", "test_fraction", "seed", "frames_per_clip", "camera_width_px",
                  "camera_height_px", "bev_resolution_m", "epochs", "batch_size", "tag_weight", "extra_logs",
                  "map_less_share", "jitter_share", "camera_share", "time_slots", "dense_weight",
-                 "order_weight", "track_velocity", "camera_ego", "camera_mask_scale", "workers"):
+                 "order_weight", "track_velocity", "camera_ego", "camera_mask_scale", "camera_apart", "workers"):
         value = getattr(args, name, None)
         if value is not None:
             overrides[name] = value

@@ -57,6 +57,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--camera-mask-scale", action=argparse.BooleanOptionalAction,
                         help=f"give the camera's temporal model the object's size in the image on a log scale "
                         f"(default {'on' if D.camera_mask_scale else 'off'})")
+    parser.add_argument("--camera-apart", action=argparse.BooleanOptionalAction,
+                        help=f"train the camera tower beside the shared space, so that it does not move the captions "
+                        f"or the BEV view (default {'on' if D.camera_apart else 'off'})")
     parser.add_argument("--no-sensors", action="store_true", help="skip LiDAR/camera rendering (BEV from boxes)")
     parser.add_argument("--extra-logs", type=int, metavar="N",
                         help=f"extra training-only logs, simulated without sensors (default {D.extra_logs})")

@@ -76,6 +76,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--camera-mask-scale", action="store_true",
                         help="give the camera's temporal model the object's size in the image on a log scale and its "
                              "change (model.camera.mask_scale)")
+    parser.add_argument("--camera-apart", action="store_true",
+                        help="train the camera tower beside the shared space: its own view loss against captions "
+                             "it does not move, no gradient through the fused view (camera_apart)")
     parser.add_argument("--track-rates", action=argparse.BooleanOptionalAction, default=None,
                         help="give the track stream the object's own speed, acceleration and yaw rate over ground "
                              "(model.bev.track_rates, on by default; what the rules read braking, standing and "
@@ -116,6 +119,8 @@ def build_config(args: argparse.Namespace) -> Any:
     config = dataclasses.replace(config, **{k: v for k, v in flags.items() if v is not None})
     if args.shuffle_frames:
         config = dataclasses.replace(config, shuffle_frames=True)
+    if args.camera_apart:
+        config = dataclasses.replace(config, camera_apart=True)
     if args.hard_negatives is not None:
         config = dataclasses.replace(config, hard_negatives=tuple(args.hard_negatives))
     if args.order_weight is not None:

@@ -81,3 +81,9 @@ def test_view_weight_is_checked() -> None:
 def test_camera_share_is_checked(share: float) -> None:
     with pytest.raises(ConfigError, match="camera_share must be in"):
         dataclasses.replace(TrainConfig(), camera_share=share)
+
+
+def test_camera_apart_needs_the_view_losses() -> None:
+    with pytest.raises(ConfigError, match="camera_apart needs view_weight > 0"):
+        dataclasses.replace(TrainConfig(), camera_apart=True, view_weight=0.0)
+    assert dataclasses.replace(TrainConfig(), camera_apart=True).camera_apart

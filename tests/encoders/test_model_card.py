@@ -43,6 +43,9 @@ def test_card_names_what_the_camera_reads_besides_its_pixels() -> None:
             "accel_mps2, yaw_rate_rps) and the object's size on a log scale.") in card
     ego_only = _card(TrainConfig(model=DualEncoderConfig(camera=CameraConfig(ego_features=6))))
     assert "log scale" not in ego_only and "over frames that also reads the ego motion (x_m," in ego_only
+    assert "trained apart" not in card
+    apart = _card(TrainConfig(model=DualEncoderConfig(camera=camera), camera_apart=True))
+    assert "- The camera tower trained apart: its own view loss" in apart
 
 
 def test_card_says_in_which_precision_the_frozen_text_encoder_ran(monkeypatch: pytest.MonkeyPatch) -> None:

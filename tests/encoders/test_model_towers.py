@@ -137,6 +137,22 @@ def test_encode_views_equals_encode_video_per_view() -> None:
             torch.testing.assert_close(views[view], model.encode_video(batch, view=view), rtol=1e-5, atol=1e-5)
 
 
+def test_encode_views_detach_camera_keeps_the_values_and_cuts_the_fused_gradient() -> None:
+    torch.manual_seed(0)
+    model = DualEncoder(tiny_model_config()).eval()
+    ds = SyntheticClipDataset(4, spec=SPEC, seed=3)
+    batch = collate_clips([ds[i] for i in range(4)])
+    batch["has_camera"] = torch.ones(4, dtype=torch.bool)
+    attached, detached = model.encode_views(batch), model.encode_views(batch, detach_camera=True)
+    for view in ("camera", "bev", "fused"):
+        torch.testing.assert_close(attached[view], detached[view], rtol=0, atol=0)
+    detached["fused"].sum().backward()
+    assert all(p.grad is None for p in model.camera.parameters())  # the fused view does not train the camera
+    assert any(p.grad is not None for p in model.bev.parameters())
+    detached["camera"].sum().backward()
+    assert any(p.grad is not None for p in model.camera.parameters())  # its own view does
+
+
 def test_encode_views_can_skip_the_camera_tower_when_no_clip_has_camera() -> None:
     torch.manual_seed(0)
     model = DualEncoder(tiny_model_config()).eval()

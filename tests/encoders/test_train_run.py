@@ -263,3 +263,48 @@ def test_shuffle_time_permutes_every_view_alike() -> None:
     assert torch.equal(out["camera"][:, :, 0, 0, 0], order) and torch.equal(out["ego_motion"][:, :, 0], order)
     assert torch.equal(order.sort(dim=1).values, frame.expand(b, t)) and not torch.equal(order, frame.expand(b, t))
     assert out["clip_id"] == batch["clip_id"]
+
+
+class DimmedCamera(torch.utils.data.Dataset):  # type: ignore[type-arg]
+    """A dataset's clips with their camera pixels halved: the same draws, other camera inputs."""
+
+    def __init__(self, base: SyntheticClipDataset) -> None:
+        self.base = base
+
+    def __len__(self) -> int:
+        return len(self.base)
+
+    def __getitem__(self, i: int) -> dict[str, Any]:
+        item = dict(self.base[i])
+        item["camera"] = item["camera"] * 0.5
+        return item
+
+    def __getattr__(self, name: str) -> Any:  # camera_flags and the rest of the dataset's attributes
+        return getattr(self.base, name)
+
+
+@pytest.mark.parametrize("apart", [True, False])
+def test_camera_apart_leaves_the_shared_towers_to_the_captions_and_bev(tmp_path: Path, apart: bool) -> None:
+    # The fused view never sees the camera here (dropped whenever both views are present), so only the
+    # camera view's own loss could carry the camera's pixels into the text and BEV towers; no gradient
+    # clipping, whose global norm would mix the towers' gradients.
+    model = TrainConfig.preset("tiny").model
+    model = dataclasses.replace(model, fusion=dataclasses.replace(model.fusion, drop_camera_p=1.0, drop_bev_p=0.0))
+    cfg = config(model=model, camera_apart=apart, grad_clip=0.0, calibrate_camera=False)
+    shared = ("text.", "bev.", "fusion.mlp.")
+    weights = []
+    for name, dim in (("plain", False), ("dimmed", True)):
+        data = datasets()
+        if dim:
+            data = {split: DimmedCamera(d) for split, d in data.items()}
+        torch.set_num_threads(1)
+        train("unused", tmp_path / name, cfg, datasets=data, progress=False, log=lambda _m: None)
+        weights.append(load_file(str(tmp_path / name / "model.safetensors")))
+    plain, dimmed = weights
+    same = [k for k in plain if k.startswith(shared) and torch.equal(plain[k], dimmed[k])]
+    assert any(k.startswith(shared) for k in plain)
+    if apart:  # the camera's pixels reach its own tower only
+        assert same == [k for k in plain if k.startswith(shared)]
+        assert not all(torch.equal(plain[k], dimmed[k]) for k in plain if k.startswith("camera."))
+    else:  # its view loss moves the captions' vectors towards what it sees
+        assert not all(torch.equal(plain[k], dimmed[k]) for k in plain if k.startswith("text."))

@@ -87,7 +87,8 @@ def test_stages_run_in_order_with_sizes(tmp_path: Path) -> None:
     assert train[train.index("--order-weight") + 1] == "0.3"
     # ... with per-frame tag heads on the camera and track streams; the track stream reads the velocity.
     assert train[train.index("--dense-weight") + 1] == "5.0" and "--track-velocity" in train
-    assert "--camera-ego" not in train and "--camera-mask-scale" not in train  # the camera reads its pixels
+    # ... and the camera reads the ego's motion and the object's size, trained beside the shared space.
+    assert {"--camera-ego", "--camera-mask-scale", "--camera-apart"} <= set(train)
     assert train[train.index("--dense-streams") + 1:][:2] == ["camera", "track"]
 
 
@@ -191,15 +192,17 @@ def test_resume_skips_complete_stages_and_reruns_after_a_change(tmp_path: Path) 
     ordered.run()
     assert [c[0] for c in ordered.calls] == ["train", "index", "eval", "report"]
     assert ordered.calls[0][ordered.calls[0].index("--order-weight") + 1] == "0.5"
-    # The camera's ego motion and object size: another model, retrained, both flags passed to `train`.
+    # The camera on its pixels alone: another model, retrained, none of the camera's flags passed to `train`.
     camera = _demo(tmp_path, DemoConfig(logs=2, duration_s=10, epochs=5, map_less_share=1.0, camera_share=0.5,
-                                        time_slots=0, dense_streams=("track",), order_weight=0.5, camera_ego=True,
-                                        camera_mask_scale=True))
+                                        time_slots=0, dense_streams=("track",), order_weight=0.5, camera_ego=False,
+                                        camera_mask_scale=False, camera_apart=False))
     camera.run()
     assert [c[0] for c in camera.calls] == ["train", "index", "eval", "report"]
-    assert "--camera-ego" in camera.calls[0] and "--camera-mask-scale" in camera.calls[0]
-    # Off, they are not among the settings: a demo folder made before them does not retrain.
-    assert not {"camera_ego", "camera_mask_scale"} & set(Demo(tmp_path, DemoConfig()).settings("train"))
+    assert not {"--camera-ego", "--camera-mask-scale", "--camera-apart"} & set(camera.calls[0])
+    # Off, they are not among the settings: a demo folder made before them resumes as it was.
+    off = DemoConfig(camera_ego=False, camera_mask_scale=False, camera_apart=False)
+    assert not {"camera_ego", "camera_mask_scale", "camera_apart"} & set(Demo(tmp_path, off).settings("train"))
+    assert {"camera_ego", "camera_mask_scale", "camera_apart"} <= set(Demo(tmp_path, DemoConfig()).settings("train"))
     # Without extra logs, none is simulated, and those of the settings before are gone.
     assert fewer_maps.extra_logs_dir.is_dir()
     alone = _demo(tmp_path, DemoConfig(logs=2, duration_s=10, epochs=5, extra_logs=0))
@@ -227,9 +230,12 @@ def test_config_from_flags() -> None:
     parser = argparse.ArgumentParser()
     demo_command.configure(parser)
     parsed = config_from_args(parser.parse_args(["--out", "x", "--dense-weight", "0", "--no-track-velocity",
-                                                 "--camera-ego", "--camera-mask-scale"]))
+                                                 "--camera-ego", "--camera-mask-scale", "--camera-apart"]))
     assert parsed.dense_weight == 0.0 and parsed.track_velocity is False
-    assert parsed.camera_ego is True and parsed.camera_mask_scale is True
+    assert parsed.camera_ego is True and parsed.camera_mask_scale is True and parsed.camera_apart is True
+    bare = config_from_args(parser.parse_args(["--out", "x", "--no-camera-ego", "--no-camera-mask-scale",
+                                               "--no-camera-apart"]))
+    assert not (bare.camera_ego or bare.camera_mask_scale or bare.camera_apart)
     assert config_from_args(parser.parse_args(["--out", "x", "--dense-streams", "track"])).dense_streams == ("track",)
     assert config_from_args(parser.parse_args(["--out", "x"])) == DemoConfig()
     assert config_from_args(parser.parse_args(["--out", "x", "--order-weight", "0.5"])).order_weight == 0.5

@@ -116,7 +116,8 @@ def contrastive_loss(
 def view_loss(view: torch.Tensor, text: torch.Tensor, scale: torch.Tensor, positives: torch.Tensor,
               keep: torch.Tensor, rows: slice | None, processes: int, variant: str = "multi_positive",
               similarity: torch.Tensor | None = None, tag_weight: float = 0.0,
-              negatives: torch.Tensor | None = None, own: torch.Tensor | None = None) -> torch.Tensor:
+              negatives: torch.Tensor | None = None, own: torch.Tensor | None = None,
+              move_text: bool = True) -> torch.Tensor:
     """The contrastive loss of one view alone over the whole batch's clips where ``keep`` holds.
 
     view: (N, D) the whole batch's clip vectors of the view; text: (N, D) their captions; positives,
@@ -124,8 +125,13 @@ def view_loss(view: torch.Tensor, text: torch.Tensor, scale: torch.Tensor, posit
     rows of the whole batch (None on one process) out of ``processes``. Each process takes the mean
     over its own kept clips, rescaled by its share of them, so that the mean over processes is the
     loss of the whole batch, as for the fused view. 0 (with a graph) when fewer than 2 clips are kept.
+    ``move_text`` False: the captions' side (text, negatives, scale) passes no gradient, so the view
+    meets the captions where the other views put them (``TrainConfig.camera_apart``).
     """
     zero = view.sum() * 0.0  # every process's loss reaches every parameter of the view, as in one process
+    if not move_text:
+        text, scale = text.detach(), scale.detach()
+        negatives = None if negatives is None else negatives.detach()
     index = torch.nonzero(keep).reshape(-1)  # (K,) kept rows of the whole batch
     if len(index) < 2:
         return zero

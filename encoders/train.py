@@ -158,11 +158,8 @@ def camera_flags(dataset: Dataset[dict[str, Any]]) -> np.ndarray:
 
 def resolve_channels(config: TrainConfig, item: dict[str, Any]) -> TrainConfig:
     """The config with the BEV and camera channel counts of the data."""
-    bev = dataclasses.replace(
-        config.model.bev,
-        lidar_channels=int(item["bev_lidar"].shape[1]),
-        map_channels=int(item["bev_map"].shape[1]),
-    )
+    bev = dataclasses.replace(config.model.bev, lidar_channels=int(item["bev_lidar"].shape[1]),
+                              map_channels=int(item["bev_map"].shape[1]))
     camera = dataclasses.replace(config.model.camera, in_channels=int(item["camera"].shape[1]))
     model = dataclasses.replace(config.model, bev=bev, camera=camera)
     return dataclasses.replace(config, model=model)
@@ -361,12 +358,10 @@ def train(
                     with_camera = dp.gather(torch.as_tensor(batch["has_camera"], dtype=torch.float32,
                                                      device=device).reshape(-1)).gt(0.5)  # (B,) whole batch
                     for name, keep in (("camera", with_camera), ("bev", torch.ones_like(with_camera))):
-                        # Apart, the camera meets the captions where the fused and BEV views put them.
-                        fixed = config.camera_apart and name == "camera"
                         loss = loss + config.view_weight * view_loss(
-                            dp.gather(views[name]), text.detach() if fixed else text,
-                            scale.detach() if fixed else scale, positives, keep, dp.rows(len(keys)), dp.processes,
-                            config.loss, sim, config.tag_weight, negatives.detach() if fixed else negatives, own_mask)
+                            dp.gather(views[name]), text, scale, positives, keep, dp.rows(len(keys)), dp.processes,
+                            config.loss, sim, config.tag_weight, negatives, own_mask,
+                            move_text=not (config.camera_apart and name == "camera"))  # apart: as the others put them
                 if tag_objective is not None:  # tagging hook
                     loss = loss + tag_objective.weight * tag_objective.loss(model.bev_embedding)
             value = dp.mean(float(loss.detach()))  # the whole batch's loss

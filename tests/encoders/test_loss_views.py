@@ -87,3 +87,20 @@ def test_camera_apart_needs_the_view_losses() -> None:
     with pytest.raises(ConfigError, match="camera_apart needs view_weight > 0"):
         dataclasses.replace(TrainConfig(), camera_apart=True, view_weight=0.0)
     assert dataclasses.replace(TrainConfig(), camera_apart=True).camera_apart
+
+
+def test_a_view_that_does_not_move_the_text_has_the_same_loss_and_view_gradient() -> None:
+    b = batch()
+    keep = torch.ones(N, dtype=torch.bool)
+    grads = []
+    for move_text in (True, False):
+        view, text = b["view"].clone().requires_grad_(True), b["text"].clone().requires_grad_(True)
+        negatives, scale = b["negatives"].clone().requires_grad_(True), b["scale"].clone().requires_grad_(True)
+        loss = view_loss(view, text, scale, b["positives"], keep, None, 1, negatives=negatives, own=b["own"],
+                         move_text=move_text)
+        loss.backward()
+        grads.append((float(loss.detach()), view.grad, text.grad, negatives.grad, scale.grad))
+    (moved, v1, t1, n1, s1), (fixed, v2, t2, n2, s2) = grads
+    assert moved == fixed and v1 is not None and v2 is not None and torch.equal(v1, v2)
+    assert t1 is not None and n1 is not None and s1 is not None  # the captions' side moves ...
+    assert t2 is None and n2 is None and s2 is None  # ... unless the view only meets it

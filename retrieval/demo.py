@@ -27,7 +27,7 @@ from typing import Any
 
 from common.atomic import atomic_write_text
 from common.ray_cluster import usable_cpus
-from retrieval.demo_config import VAL_FRACTION, DemoConfig
+from retrieval.demo_config import CAMERA_OPTIONS, VAL_FRACTION, DemoConfig
 
 #: The extra training logs' seed is the demo's plus this: other drives through another city.
 EXTRA_SEED_OFFSET = 1000
@@ -125,8 +125,7 @@ class Demo:
                          "dense_weight": c.dense_weight, "dense_streams": list(c.dense_streams),
                          "track_velocity": c.track_velocity}
         # Named only when on, so that a demo folder made before these options resumes without retraining.
-        upto["train"].update({name: True for name in ("camera_ego", "camera_mask_scale", "camera_apart")
-                              if getattr(c, name)})
+        upto["train"].update({name: True for name in CAMERA_OPTIONS if getattr(c, name)})
         upto["index"] = upto["train"]
         upto["eval"] = upto["train"]
         upto["report"] = {**upto["train"], "queries": list(c.queries), "top_k": c.top_k}
@@ -251,12 +250,7 @@ class Demo:
                 args += ["--dense-streams", *self.config.dense_streams]
         if self.config.track_velocity:
             args.append("--track-velocity")
-        if self.config.camera_ego:
-            args.append("--camera-ego")
-        if self.config.camera_mask_scale:
-            args.append("--camera-mask-scale")
-        if self.config.camera_apart:
-            args.append("--camera-apart")
+        args += [f"--{name.replace('_', '-')}" for name in CAMERA_OPTIONS if getattr(self.config, name)]
         self.command(args)
         return ""
 
@@ -309,7 +303,7 @@ def config_from_args(args: argparse.Namespace) -> DemoConfig:
     for name in ("logs", "duration_s", "test_fraction", "seed", "frames_per_clip", "camera_width_px",
                  "camera_height_px", "bev_resolution_m", "epochs", "batch_size", "tag_weight", "extra_logs",
                  "map_less_share", "jitter_share", "camera_share", "time_slots", "dense_weight",
-                 "order_weight", "track_velocity", "camera_ego", "camera_mask_scale", "camera_apart", "workers"):
+                 "order_weight", "track_velocity", *CAMERA_OPTIONS, "workers"):
         value = getattr(args, name, None)
         if value is not None:
             overrides[name] = value

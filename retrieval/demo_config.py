@@ -15,6 +15,9 @@ DEFAULT_QUERIES = (
 )
 #: Share of the demo's logs in the validation split.
 VAL_FRACTION = 0.15
+#: The camera's training options: each a :class:`DemoConfig` field, a ``demo`` switch and a ``train`` flag
+#: of the same name.
+CAMERA_OPTIONS = ("camera_ego", "camera_mask_scale", "camera_apart")
 
 
 @dataclass(frozen=True)

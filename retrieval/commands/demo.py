@@ -10,7 +10,7 @@ HELP = "simulate, caption, build clips, train, index and evaluate a small city; 
 
 def configure(parser: argparse.ArgumentParser) -> None:
     from encoders.config import DENSE_STREAMS, HardNegative
-    from retrieval.demo_config import VAL_FRACTION
+    from retrieval.demo_config import CAMERA_OPTIONS, VAL_FRACTION
     from retrieval.demo_config import DemoConfig as D  # the defaults the help shows
     from scenes.sim.config import NetworkKind
 
@@ -51,15 +51,14 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--track-velocity", action=argparse.BooleanOptionalAction,
                         help=f"give the track stream the object's velocity relative to the ego "
                         f"(default {'on' if D.track_velocity else 'off'})")
-    parser.add_argument("--camera-ego", action=argparse.BooleanOptionalAction,
-                        help=f"give the camera's temporal model the ego's motion from the log's poses "
-                        f"(default {'on' if D.camera_ego else 'off'})")
-    parser.add_argument("--camera-mask-scale", action=argparse.BooleanOptionalAction,
-                        help=f"give the camera's temporal model the object's size in the image on a log scale "
-                        f"(default {'on' if D.camera_mask_scale else 'off'})")
-    parser.add_argument("--camera-apart", action=argparse.BooleanOptionalAction,
-                        help=f"train the camera tower beside the shared space, so that it does not move the captions "
-                        f"or the BEV view (default {'on' if D.camera_apart else 'off'})")
+    camera_help = {"camera_ego": "give the camera's temporal model the ego's motion from the log's poses",
+                   "camera_mask_scale": "give the camera's temporal model the object's size in the image on a log "
+                                        "scale",
+                   "camera_apart": "train the camera tower beside the shared space, so that it does not move the "
+                                   "captions or the BEV view"}
+    for name in CAMERA_OPTIONS:
+        parser.add_argument(f"--{name.replace('_', '-')}", action=argparse.BooleanOptionalAction,
+                            help=f"{camera_help[name]} (default {'on' if getattr(D, name) else 'off'})")
     parser.add_argument("--no-sensors", action="store_true", help="skip LiDAR/camera rendering (BEV from boxes)")
     parser.add_argument("--extra-logs", type=int, metavar="N",
                         help=f"extra training-only logs, simulated without sensors (default {D.extra_logs})")

@@ -125,12 +125,18 @@ def test_embedding_prefixes_name_exactly_the_parameters_behind_e(batch: dict[str
         assert behind_e == (p.grad is not None), name
 
 
-def test_encode_views_equals_encode_video_per_view() -> None:
+def views_model_and_batch(has_camera: list[bool]) -> tuple[DualEncoder, dict[str, Any]]:
+    """A seeded tiny model in eval mode and 4 synthetic clips whose camera flags are ``has_camera``."""
     torch.manual_seed(0)
     model = DualEncoder(tiny_model_config()).eval()
     ds = SyntheticClipDataset(4, spec=SPEC, seed=3)
     batch = collate_clips([ds[i] for i in range(4)])
-    batch["has_camera"] = torch.tensor([True, False, True, True])  # fusion must mask per clip
+    batch["has_camera"] = torch.tensor(has_camera)
+    return model, batch
+
+
+def test_encode_views_equals_encode_video_per_view() -> None:
+    model, batch = views_model_and_batch([True, False, True, True])  # fusion must mask per clip
     with torch.no_grad():
         views = model.encode_views(batch)
         for view in ("camera", "bev", "fused"):
@@ -138,11 +144,7 @@ def test_encode_views_equals_encode_video_per_view() -> None:
 
 
 def test_encode_views_detach_camera_keeps_the_values_and_cuts_the_fused_gradient() -> None:
-    torch.manual_seed(0)
-    model = DualEncoder(tiny_model_config()).eval()
-    ds = SyntheticClipDataset(4, spec=SPEC, seed=3)
-    batch = collate_clips([ds[i] for i in range(4)])
-    batch["has_camera"] = torch.ones(4, dtype=torch.bool)
+    model, batch = views_model_and_batch([True] * 4)
     attached, detached = model.encode_views(batch), model.encode_views(batch, detach_camera=True)
     for view in ("camera", "bev", "fused"):
         torch.testing.assert_close(attached[view], detached[view], rtol=0, atol=0)
@@ -154,11 +156,7 @@ def test_encode_views_detach_camera_keeps_the_values_and_cuts_the_fused_gradient
 
 
 def test_encode_views_can_skip_the_camera_tower_when_no_clip_has_camera() -> None:
-    torch.manual_seed(0)
-    model = DualEncoder(tiny_model_config()).eval()
-    ds = SyntheticClipDataset(4, spec=SPEC, seed=3)
-    batch = collate_clips([ds[i] for i in range(4)])
-    batch["has_camera"] = torch.zeros(4, dtype=torch.bool)
+    model, batch = views_model_and_batch([False] * 4)
     calls: list[int] = []
     model.camera.register_forward_hook(lambda *_: calls.append(1))
     with torch.no_grad():

@@ -27,7 +27,7 @@ from typing import Any
 
 from common.atomic import atomic_write_text
 from common.ray_cluster import usable_cpus
-from retrieval.demo_config import CAMERA_OPTIONS, VAL_FRACTION, DemoConfig
+from retrieval.demo_config import CAMERA_OPTIONS, VAL_FRACTION, DemoConfig, option_flag
 
 #: The extra training logs' seed is the demo's plus this: other drives through another city.
 EXTRA_SEED_OFFSET = 1000
@@ -250,7 +250,7 @@ class Demo:
                 args += ["--dense-streams", *self.config.dense_streams]
         if self.config.track_velocity:
             args.append("--track-velocity")
-        args += [f"--{name.replace('_', '-')}" for name in CAMERA_OPTIONS if getattr(self.config, name)]
+        args += [option_flag(name) for name in CAMERA_OPTIONS if getattr(self.config, name)]
         self.command(args)
         return ""
 

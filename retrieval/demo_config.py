@@ -20,6 +20,12 @@ VAL_FRACTION = 0.15
 CAMERA_OPTIONS = ("camera_ego", "camera_mask_scale", "camera_apart")
 
 
+def option_flag(name: str) -> str:
+    """The command-line switch of a :class:`DemoConfig` field, the same for ``demo`` and ``train``:
+    ``camera_ego`` → ``--camera-ego``."""
+    return "--" + name.replace("_", "-")
+
+
 @dataclass(frozen=True)
 class DemoConfig:
     """Sizes and seeds of the demo; every field is a flag of ``scenesearch demo``.

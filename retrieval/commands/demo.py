@@ -10,7 +10,7 @@ HELP = "simulate, caption, build clips, train, index and evaluate a small city; 
 
 def configure(parser: argparse.ArgumentParser) -> None:
     from encoders.config import DENSE_STREAMS, HardNegative
-    from retrieval.demo_config import CAMERA_OPTIONS, VAL_FRACTION
+    from retrieval.demo_config import CAMERA_OPTIONS, VAL_FRACTION, option_flag
     from retrieval.demo_config import DemoConfig as D  # the defaults the help shows
     from scenes.sim.config import NetworkKind
 
@@ -57,7 +57,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
                    "camera_apart": "train the camera tower beside the shared space, so that it does not move the "
                                    "captions or the BEV view"}
     for name in CAMERA_OPTIONS:
-        parser.add_argument(f"--{name.replace('_', '-')}", action=argparse.BooleanOptionalAction,
+        parser.add_argument(option_flag(name), action=argparse.BooleanOptionalAction,
                             help=f"{camera_help[name]} (default {'on' if getattr(D, name) else 'off'})")
     parser.add_argument("--no-sensors", action="store_true", help="skip LiDAR/camera rendering (BEV from boxes)")
     parser.add_argument("--extra-logs", type=int, metavar="N",

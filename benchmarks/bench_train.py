@@ -13,7 +13,9 @@ Figures:
   whole-grid means of each frame's features convolved over time after (what the tower does) against
   the same means of the convolved map (ratio; equal within float rounding);
 - the BEV tower at inference on clips cut from a few logs, whose frames repeat from clip to clip,
-  against as many clips whose frames all differ (ratio; equal frames run once).
+  against as many clips whose frames all differ (ratio; equal frames run once); the same clips with
+  their rasters as bytes against as floats, and pooled once per distinct frame against per frame
+  (ratios, see :func:`distinct_frames_speedup`).
 
 Rates are given per CPU second of this process (``time.process_time``, one torch thread), so that other
 work on a shared machine does not count, and per wall second. The device is recorded.
@@ -33,6 +35,7 @@ import platform
 import sys
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -248,24 +251,61 @@ def bev_pooling_speedup(batch_size: int, steps: int) -> dict[str, float]:
 
 
 def distinct_frames_speedup(batch_size: int, steps: int, logs: int = 4) -> dict[str, float]:
-    """The BEV tower's backbones at inference (:meth:`encoders.bev.BevTower.embed_space`, eval mode) on a
-    batch of clips cut from ``logs`` logs against a batch of clips whose frames all differ."""
+    """The BEV tower's raster stream at inference (eval mode: :meth:`encoders.bev.BevTower.embed_distinct`
+    and :meth:`~encoders.bev.BevTower.frame_features`) on rasters as bytes, as a batch of
+    ``ClipDataset(as_uint8=True)`` gives them, same run:
+
+    - ``speedup``: clips cut from ``logs`` logs (their frames repeat from clip to clip) against as many
+      clips whose frames all differ: equal frames run once;
+    - ``bytes_vs_float_speedup``: the clips cut from logs given as bytes against the same rasters
+      converted to float before the tower: equal frames are found on a quarter of the bytes, and only
+      the distinct ones are converted;
+    - ``pooled_once_speedup``: each distinct frame's features pooled once for all its clips against a
+      copy of them made for every frame first (:meth:`~encoders.bev.BevTower.embed_space`), with
+      ``max_abs_difference`` between the two.
+    """
     from encoders.bev import BevTower, distinct_frames
+    from encoders.camera import unit_pixels
 
     torch.manual_seed(0)
     tower = BevTower(TrainConfig().model.bev, 256).eval()
+
+    def as_bytes(batch: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+        return batch | {k: (batch[k] * 255).round().to(torch.uint8) for k in ("bev_lidar", "bev_map")}
+
+    def pooled_once(batch: dict[str, torch.Tensor]) -> torch.Tensor:
+        space, inverse = tower.embed_distinct(batch["bev_lidar"], batch["bev_map"])
+        return tower.frame_features(space, batch["bev_object"], batch["ego_motion"], inverse)
+
+    def copied_per_frame(batch: dict[str, torch.Tensor]) -> torch.Tensor:
+        space = tower.embed_space(batch["bev_lidar"], batch["bev_map"])
+        return tower.frame_features(space, batch["bev_object"], batch["ego_motion"])
+
+    cut = as_bytes(_bev_batch(batch_size, 12, logs))
+    runs: dict[str, tuple[Callable[[dict[str, torch.Tensor]], torch.Tensor], dict[str, torch.Tensor]]] = {
+        "all_distinct": (pooled_once, as_bytes(_bev_batch(batch_size, 12, None))),
+        "cut_from_logs": (pooled_once, cut),
+        "cut_from_logs_float": (pooled_once, cut | {k: unit_pixels(cut[k]) for k in ("bev_lidar", "bev_map")}),
+        "cut_from_logs_copied": (copied_per_frame, cut),
+    }
     figures: dict[str, float] = {}
-    for name, batch_logs in (("all_distinct", None), ("cut_from_logs", logs)):
-        batch = _bev_batch(batch_size, 12, batch_logs)
+    outputs = {}
+    for name, (fn, batch) in runs.items():
         with torch.no_grad():
             for i in range(steps + 1):  # the first is a warm-up
                 if i == 1:
                     cpu0 = time.process_time()
-                tower.embed_space(batch["bev_lidar"], batch["bev_map"])
+                outputs[name] = fn(batch)
         figures[f"{name}_ms_per_batch"] = round(1000 * (time.process_time() - cpu0) / steps, 1)
+    for name in ("all_distinct", "cut_from_logs"):
+        batch = runs[name][1]
         first, inverse = distinct_frames(batch["bev_lidar"].flatten(0, 1), batch["bev_map"].flatten(0, 1))
         figures[f"{name}_distinct_frames_share"] = round(len(first) / len(inverse), 3)
-    figures["speedup"] = round(figures["all_distinct_ms_per_batch"] / figures["cut_from_logs_ms_per_batch"], 2)
+    ms = {k[: -len("_ms_per_batch")]: v for k, v in figures.items() if k.endswith("_ms_per_batch")}
+    figures["speedup"] = round(ms["all_distinct"] / ms["cut_from_logs"], 2)
+    figures["bytes_vs_float_speedup"] = round(ms["cut_from_logs_float"] / ms["cut_from_logs"], 2)
+    figures["pooled_once_speedup"] = round(ms["cut_from_logs_copied"] / ms["cut_from_logs"], 2)
+    figures["max_abs_difference"] = float((outputs["cut_from_logs"] - outputs["cut_from_logs_copied"]).abs().max())
     figures.update(batch_size=batch_size, logs=logs)
     return figures
 

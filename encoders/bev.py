@@ -21,7 +21,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from encoders.camera import conv_block, mask_geometry, unit_ego_motion, with_motion
+from encoders.camera import conv_block, mask_geometry, unit_ego_motion, unit_pixels, with_motion
 from encoders.config import BevConfig
 from encoders.fusion import TemporalEncoder
 from encoders.timeline import clip_head, read_clip
@@ -41,22 +41,61 @@ def distinct_frames(*views: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """views: each (N, ...), frame i of each view belonging together → (first (U,), inverse (N,)).
 
     ``first``: the index of each distinct frame's first occurrence, in order; ``inverse[i]``: the
-    position in ``first`` of frame i's equal. Frames are equal when every view is bit-equal. A random
-    projection groups candidates (equal frames project alike: same values, same arithmetic); each frame
-    is then compared in full with its group's first, and one that differs (a projection collision)
-    stands alone, so different frames are never merged.
+    position in ``first`` of frame i's equal. Frames are equal when every view is bit-equal. A hash of
+    each frame's bytes groups candidates (equal frames hash alike); each frame is then compared in full
+    with its group's first, and one that differs (a hash collision) stands alone, so different frames
+    are never merged.
+
+    Both steps read each frame as 64-bit words, 8 bytes at a time: on a batch's uint8 rasters that is
+    4× faster than hashing them as floats and comparing them byte by byte (``benchmarks/bench_train.py``).
     """
     n = views[0].shape[0]
-    flat = [v.reshape(n, -1) for v in views]
+    words = [_words(v.reshape(n, -1)) for v in views]  # each (N, M_i) int64
     gen = torch.Generator(device="cpu").manual_seed(0)
-    keys = torch.stack([f.float() @ torch.rand(f.shape[1], generator=gen).to(f.device) for f in flat], dim=1)
+    # A random linear hash over the 64-bit words; integer products and sums wrap around, which keeps
+    # the hash exact (the same for equal frames whatever the summation order).
+    keys = torch.stack([(w * torch.randint(-2**62, 2**62, (w.shape[1],), generator=gen).to(w.device)).sum(dim=1)
+                        for w in words], dim=1)  # (N, V)
     _, group = torch.unique(keys, dim=0, return_inverse=True)  # (N,) candidate group of each frame
     index = torch.arange(n, device=group.device)
     lead = torch.full((n,), n, dtype=torch.long, device=group.device).scatter_reduce(0, group, index, "amin")
     rep = lead[group]  # (N,) the group's first frame
-    same = torch.stack([(f == f[rep]).all(dim=1) for f in flat]).all(dim=0)  # (N,)
-    first, inverse = torch.unique(torch.where(same, rep, index), return_inverse=True)  # sorted: first occurrences
+    # Only frames that are not their group's first need the full comparison.
+    checked = torch.nonzero(rep != index).squeeze(1)  # (C,)
+    same = torch.ones_like(checked, dtype=torch.bool)
+    for w in words:
+        same &= (w.index_select(0, checked) == w.index_select(0, rep[checked])).all(dim=1)
+    rep = rep.index_put((checked[~same],), checked[~same])  # a collision stands alone
+    first, inverse = torch.unique(rep, return_inverse=True)  # sorted: first occurrences
     return first, inverse
+
+
+def _words(rows: torch.Tensor) -> torch.Tensor:
+    """rows: (N, M) of any dtype → (N, ⌈M·bytes/8⌉) int64: each row's bytes, zero-padded to whole words."""
+    raw = rows.contiguous().view(torch.uint8)  # (N, M·bytes)
+    if raw.shape[1] % 8:
+        raw = F.pad(raw, (0, -raw.shape[1] % 8))
+    return raw.view(torch.int64)
+
+
+def pool_frames(s: torch.Tensor, weights: torch.Tensor, inverse: torch.Tensor | None = None) -> torch.Tensor:
+    """s: (N, C, P) frames' features; weights: (M, P, K) pooling weights of M frames; inverse: (M,) frame
+    i's row of ``s`` (None: M = N, row i) → (M, C, K): ``s[inverse[i]] @ weights[i]``.
+
+    With ``inverse``, each distinct frame's features meet the weights of all its frames in one product,
+    instead of being copied once per frame that shares them.
+    """
+    if inverse is None:
+        return torch.bmm(s, weights)
+    m, p, k = weights.shape
+    order = torch.argsort(inverse, stable=True)  # frames grouped by their row of s
+    counts = torch.bincount(inverse, minlength=s.shape[0]).tolist()
+    out = weights.new_empty(m, s.shape[1], k)
+    for row, frames in enumerate(torch.split(order, counts)):
+        if len(frames):
+            together = weights.index_select(0, frames).permute(1, 0, 2).reshape(p, -1)  # (P, n·K)
+            out[frames] = (s[row] @ together).reshape(-1, len(frames), k).transpose(0, 1)  # (n, C, K)
+    return out
 
 
 class Residual(nn.Module):
@@ -194,17 +233,30 @@ class BevTower(nn.Module):
         return self.header_time(self.embed_space(bev_lidar, bev_map))
 
     def embed_space(self, bev_lidar: torch.Tensor, bev_map: torch.Tensor) -> torch.Tensor:
-        """bev_lidar: (B, T, Cl, H, W); bev_map: (B, T, Cm, H, W) → S (B, T, D_e, H/r, W/r), E before
-        its convolution over time (E = ``header_time(S)``): each frame on its own.
+        """bev_lidar: (B, T, Cl, H, W); bev_map: (B, T, Cm, H, W), float in [0, 1] or uint8 0–255 (see
+        :func:`encoders.camera.unit_pixels`) → S (B, T, D_e, H/r, W/r), E before its convolution over
+        time (E = ``header_time(S)``): each frame on its own."""
+        b, t = bev_lidar.shape[:2]
+        x, inverse = self.embed_distinct(bev_lidar, bev_map)
+        if inverse is not None:
+            x = x.index_select(0, inverse)  # (B*T, D_e, h, w)
+        return x.reshape(b, t, *x.shape[1:])
+
+    def embed_distinct(self, bev_lidar: torch.Tensor,
+                       bev_map: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """As :meth:`embed_space`, but each distinct frame once: → (S of the U distinct frames (U, D_e,
+        H/r, W/r), inverse (B*T,): frame i's row in it), or (S (B*T, D_e, H/r, W/r), None).
 
         In eval mode, frames that are equal in both rasters go through the backbones once: the
         rasters are centred on the ego, so every clip of a log at a frame holds the same ones (a
         batch of 32 clips in table order holds about 5 times fewer distinct frames than frames).
         With batch norm's running statistics each frame's features do not depend on the others,
-        so S is the same. In training each clip's rasters are warped on their own and batch norm
-        reads the batch, so every frame runs.
+        so S is the same. The equal frames are found on the rasters as they come (bytes, from
+        ``ClipDataset(as_uint8=True)``), and only the distinct ones are converted to float. In
+        training each clip's rasters are warped on their own and batch norm reads the batch, so
+        every frame runs.
         """
-        b, t, _, h, w = bev_lidar.shape
+        h, w = bev_lidar.shape[-2:]
         r = self.config.downsample
         size = (h // r, w // r)
         lidar_in, map_in = bev_lidar.flatten(0, 1), bev_map.flatten(0, 1)  # (B*T, Cl, H, W), (B*T, Cm, H, W)
@@ -212,11 +264,11 @@ class BevTower(nn.Module):
         if not self.training:
             first, inverse = distinct_frames(lidar_in, map_in)  # (U,), (B*T,)
             if len(first) < len(inverse):
-                lidar_in, map_in = lidar_in[first], map_in[first]
+                lidar_in, map_in = lidar_in.index_select(0, first), map_in.index_select(0, first)
             else:
                 inverse = None
-        lidar = self.lidar(lidar_in)  # stages of (N, C_i, H / 2**(i+1), W / 2**(i+1))
-        maps = self.map(map_in)
+        lidar = self.lidar(unit_pixels(lidar_in))  # stages of (N, C_i, H / 2**(i+1), W / 2**(i+1))
+        maps = self.map(unit_pixels(map_in))
         x: torch.Tensor | None = None
         for i in reversed(range(len(lidar))):
             p = self.lateral.lidar[i](lidar[i]) + self.lateral.map[i](maps[i])  # (N, D_e, h_i, w_i)
@@ -225,21 +277,22 @@ class BevTower(nn.Module):
         if x.shape[-2:] != size:
             x = F.interpolate(x, size=size, mode="bilinear")
         x = F.relu(x)  # (N, D_e, h, w)
-        x = x + self.header_space(x)  # (N, D_e, h, w)
-        if inverse is not None:
-            x = x[inverse]  # (B*T, D_e, h, w)
-        return x.reshape(b, t, *x.shape[1:])  # (B, T, D_e, h, w)
+        return x + self.header_space(x), inverse  # (N, D_e, h, w)
 
-    def frame_features(self, s: torch.Tensor, bev_object: torch.Tensor, ego_motion: torch.Tensor) -> torch.Tensor:
-        """s: (B, T, D_e, h, w), :meth:`embed_space`'s S; bev_object: (B, T, 1, H, W); ego_motion: (B, T, 4)
-        → (B, T, 2 D_e + 8 + E): E = ``header_time(S)`` pooled under the object's mask and over the
-        whole grid, the mask's geometry and the ego motion.
+    def frame_features(self, s: torch.Tensor, bev_object: torch.Tensor, ego_motion: torch.Tensor,
+                       inverse: torch.Tensor | None = None) -> torch.Tensor:
+        """s: (B, T, D_e, h, w), :meth:`embed_space`'s S, or with ``inverse`` (B*T,) the (U, D_e, h, w) S of
+        the distinct frames and each frame's row in it (:meth:`embed_distinct`); bev_object: (B, T, 1, H, W);
+        ego_motion: (B, T, 4) → (B, T, 2 D_e + 8 + E): E = ``header_time(S)`` pooled under the object's
+        mask and over the whole grid, the mask's geometry and the ego motion.
 
         Both means are linear in E, and E is S convolved over time, so they are taken of S and
         convolved after (:meth:`TimeConv.mix`): no convolved (B, T, D_e, h, w) tensor is made, nor its
-        gradient, which were most of the tower's cost.
+        gradient, which were most of the tower's cost. Given the distinct frames, S is read once per
+        distinct frame: no (B*T, D_e, h, w) copy of it is made either.
         """
-        b, t, c, h, w = s.shape
+        b, t = bev_object.shape[:2]
+        c, h, w = s.shape[-3:]
         obj = bev_object.flatten(0, 1)  # (B*T, 1, H, W)
         small = F.adaptive_avg_pool2d(obj, (h, w)).reshape(b, t, h * w)  # (B, T, hw)
         under = small / small.sum(dim=-1, keepdim=True).clamp_min(1e-6)  # (B, T, hw): the masked mean's weights
@@ -247,10 +300,13 @@ class BevTower(nn.Module):
         # masks[:, u, :, i] = frame u − offsets[i]'s mask: frame u's S under it is what frame u − offsets[i]
         # pools at that offset. One batched product reads S once for every offset.
         masks = torch.stack([shift_time(under, -d) for d in offsets], dim=-1)  # (B, T, hw, K)
-        flat = s.reshape(b * t, c, h * w)
-        pooled = torch.bmm(flat, masks.flatten(0, 1)).reshape(b, t, c, len(offsets))  # (B, T, D_e, K)
+        flat = s.reshape(-1, c, h * w)  # (B*T or U, D_e, hw)
+        pooled = pool_frames(flat, masks.flatten(0, 1), inverse).reshape(b, t, c, len(offsets))  # (B, T, D_e, K)
         masked = self.header_time.mix(lambda d: shift_time(pooled[..., offsets.index(d)], d))  # (B, T, D_e)
-        mean = self.header_time(flat.mean(dim=-1).reshape(b, t, c))  # (B, T, D_e)
+        mean = flat.mean(dim=-1)  # (B*T or U, D_e)
+        if inverse is not None:
+            mean = mean.index_select(0, inverse)
+        mean = self.header_time(mean.reshape(b, t, c))  # (B, T, D_e)
         geometry = with_motion(mask_geometry(obj).reshape(b, t, -1))  # (B, T, 8)
         ego = unit_ego_motion(ego_motion, self.config.ego_features)  # (B, T, E)
         return torch.cat([masked, mean, geometry, ego], dim=-1)  # (B, T, 2 D_e + 8 + E)
@@ -286,7 +342,8 @@ class BevTower(nn.Module):
         object_track: torch.Tensor | None = None, frames: dict[str, torch.Tensor] | None = None,
         object_velocity: torch.Tensor | None = None, object_rates: torch.Tensor | None = None,
     ) -> torch.Tensor:
-        """(B, T, Cl, H, W), (B, T, Cm, H, W), (B, T, 1, H, W), (B, T, 4), (B, T, F) → (B, D).
+        """(B, T, Cl, H, W), (B, T, Cm, H, W), (B, T, 1, H, W), (B, T, 4), (B, T, F) → (B, D); the two
+        rasters float in [0, 1] or uint8 0–255 (:meth:`embed_distinct` converts them).
 
         ``object_track`` is required when the tower has a track stream (``track_features`` > 0),
         ``object_velocity`` (B, T, 2) when it reads velocities (``track_velocity``), ``object_rates``
@@ -294,8 +351,9 @@ class BevTower(nn.Module):
         ``frames`` dict, the temporal models' frame tokens (B, T, W) go to ``frames["bev"]`` and
         ``frames["track"]`` (dense supervision, :mod:`encoders.dense`).
         """
-        space = self.embed_space(bev_lidar, bev_map)  # (B, T, D_e, h, w)
-        clip, tokens = self.temporal.encode(self.frame_features(space, bev_object, ego_motion))  # (B, W), (B, T, W)
+        space, inverse = self.embed_distinct(bev_lidar, bev_map)  # (U, D_e, h, w), (B*T,) or (B*T, …), None
+        features = self.frame_features(space, bev_object, ego_motion, inverse)  # (B, T, 2 D_e + 8 + E)
+        clip, tokens = self.temporal.encode(features)  # (B, W), (B, T, W)
         x = read_clip(self.head, clip, tokens)  # (B, D)
         if frames is not None:
             frames["bev"] = tokens

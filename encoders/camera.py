@@ -30,6 +30,12 @@ def unit_ego_motion(ego_motion: torch.Tensor, features: int) -> torch.Tensor:
     return ego_motion[..., :features] / ego_motion.new_tensor(EGO_MOTION_SCALE[:features])
 
 
+def unit_pixels(x: torch.Tensor) -> torch.Tensor:
+    """An image-like view as the towers read it: uint8 0–255 (``ClipDataset(as_uint8=True)``, moved as
+    bytes) → float32 in [0, 1], the dataset's float items bit for bit; float views pass through."""
+    return x.to(torch.float32).mul_(1.0 / 255.0) if x.dtype == torch.uint8 else x
+
+
 def conv_block(c_in: int, c_out: int, kernel: int, stride: int, dilation: int = 1) -> nn.Sequential:
     """Convolution ("same" padding for stride 1), batch norm, ReLU."""
     return nn.Sequential(

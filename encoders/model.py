@@ -21,7 +21,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from encoders.bev import BevTower
-from encoders.camera import CameraTower
+from encoders.camera import CameraTower, unit_pixels
 from encoders.config import DualEncoderConfig
 from encoders.dense import DenseHeads, stream_dense_loss
 from encoders.fusion import ViewFusion
@@ -135,9 +135,11 @@ class DualEncoder(nn.Module):
         return self.encode_video(batch), self.encode_text(texts), self.scale()
 
     def _bev(self, batch: dict[str, Any], frames: dict[str, torch.Tensor] | None = None) -> torch.Tensor:
+        # The rasters stay bytes: in eval mode the tower finds the frames that clips share on them and
+        # converts only those (encoders.bev.BevTower.embed_distinct).
         return self.bev(
-            self._get(batch, "bev_lidar"),
-            self._get(batch, "bev_map"),
+            self._get(batch, "bev_lidar", as_bytes=True),
+            self._get(batch, "bev_map", as_bytes=True),
             self._get(batch, "bev_object"),
             self._get(batch, "ego_motion"),
             self._get(batch, "object_track") if self.config.bev.track_features else None,
@@ -150,13 +152,13 @@ class DualEncoder(nn.Module):
     def _camera_ego(self, batch: dict[str, Any]) -> torch.Tensor | None:
         return self._get(batch, "ego_motion") if self.config.camera.ego_features else None
 
-    def _get(self, batch: dict[str, Any], key: str) -> torch.Tensor:
+    def _get(self, batch: dict[str, Any], key: str, as_bytes: bool = False) -> torch.Tensor:
+        """The batch's ``key`` on the model's device; a uint8 view (a batch loaded with ``as_uint8``,
+        moved as bytes) converted to float unless ``as_bytes`` (the tower converts what it reads)."""
         if key not in batch:
             raise KeyError(f"batch has no {key!r} (keys: {sorted(batch)})")
         x = torch.as_tensor(batch[key]).to(self.device, non_blocking=True)
-        if x.dtype == torch.uint8:  # a batch loaded with ``as_uint8``: moved as bytes, converted here
-            x = x.to(torch.float32).mul_(1.0 / 255.0)
-        return x
+        return x if as_bytes else unit_pixels(x)
 
     def saved_state_dict(self) -> dict[str, torch.Tensor]:
         """state_dict without frozen pretrained text weights (they are loaded from ``text.model``)."""

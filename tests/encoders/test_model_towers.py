@@ -397,6 +397,74 @@ def test_bev_tower_embeds_equal_frames_once_in_eval_mode(monkeypatch: pytest.Mon
     assert ran[-1] == 12
 
 
+def test_distinct_frames_on_bytes_match_floats_and_never_merge_different_frames() -> None:
+    from encoders.bev import distinct_frames
+
+    gen = torch.Generator().manual_seed(0)
+    lidar = torch.randint(0, 256, (4, 5, 3, 8, 6), generator=gen, dtype=torch.uint8)
+    bev_map = torch.randint(0, 256, (4, 5, 2, 8, 6), generator=gen, dtype=torch.uint8)
+    lidar[1, :4], bev_map[1, :4] = lidar[0, 1:], bev_map[0, 1:]
+    lidar[3], bev_map[3] = lidar[2], bev_map[2]
+    as_bytes = distinct_frames(lidar.flatten(0, 1), bev_map.flatten(0, 1))
+    as_floats = distinct_frames(lidar.flatten(0, 1).float() / 255, bev_map.flatten(0, 1).float() / 255)
+    assert len(as_bytes[0]) == 20 - 4 - 5
+    for a, b in zip(as_bytes, as_floats):
+        assert torch.equal(a, b)
+    # Rows whose byte count is not a whole number of 64-bit words are padded, not misread.
+    odd = torch.randint(0, 256, (6, 3, 5), generator=gen, dtype=torch.uint8)
+    odd[4] = odd[1]
+    first, inverse = distinct_frames(odd)
+    assert first.tolist() == [0, 1, 2, 3, 5] and inverse[4] == inverse[1]
+
+
+def test_distinct_frames_keep_frames_whose_hash_collides_apart(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Every frame hashing alike (a forced collision): only the frames equal in full are merged."""
+    from encoders import bev
+
+    frames = torch.tensor([[1, 2], [3, 4], [1, 2], [3, 4], [5, 6]], dtype=torch.uint8)
+    monkeypatch.setattr(bev.torch, "randint", lambda *a, **k: torch.zeros(a[-1], dtype=torch.long))
+    _, inverse = bev.distinct_frames(frames)
+    # Frame 1 differs from its group's first (frame 0): it and its equal, frame 3, each stand alone.
+    assert inverse[2] == inverse[0] and len(set(inverse.tolist())) == 4
+
+
+def test_pool_frames_from_distinct_frames_equals_pooling_every_frame() -> None:
+    from encoders.bev import pool_frames
+
+    gen = torch.Generator().manual_seed(0)
+    s = torch.randn(4, 6, 10, generator=gen)  # (U, C, P)
+    inverse = torch.tensor([2, 0, 2, 3, 0, 0, 2])  # frame 1 of the 4 distinct ones is never used
+    weights = torch.rand(7, 10, 3, generator=gen)  # (M, P, K)
+    expected = torch.bmm(s[inverse], weights)
+    torch.testing.assert_close(pool_frames(s, weights, inverse), expected)
+    torch.testing.assert_close(pool_frames(s[inverse], weights), expected)
+
+
+def test_bev_tower_reads_rasters_as_bytes_as_it_reads_them_as_floats() -> None:
+    """Eval mode finds equal frames on the bytes and converts only those: the embedding is the same
+    bit for bit as from float rasters, and so are the frame features from the distinct frames."""
+    from encoders.bev import BevTower
+    from encoders.camera import unit_pixels
+    from encoders.config import BevConfig
+
+    torch.manual_seed(0)
+    config = BevConfig(widths=(4, 8), embed_channels=8, track_features=0)
+    tower = BevTower(config, 16).eval()
+    lidar = torch.randint(0, 256, (3, 4, config.lidar_channels, 16, 8), dtype=torch.uint8)
+    bev_map = torch.randint(0, 256, (3, 4, config.map_channels, 16, 8), dtype=torch.uint8)
+    lidar[1, :3], bev_map[1, :3] = lidar[0, 1:], bev_map[0, 1:]
+    obj = (torch.rand(3, 4, 1, 16, 8) > 0.7).float()
+    ego = torch.rand(3, 4, 6)
+    with torch.no_grad():
+        as_bytes = tower(lidar, bev_map, obj, ego)
+        as_floats = tower(unit_pixels(lidar), unit_pixels(bev_map), obj, ego)
+        space, inverse = tower.embed_distinct(lidar, bev_map)
+        every_frame = tower.frame_features(tower.embed_space(lidar, bev_map), obj, ego)
+    assert inverse is not None and len(space) == 12 - 3
+    assert torch.equal(as_bytes, as_floats)
+    torch.testing.assert_close(tower.frame_features(space, obj, ego, inverse), every_frame)
+
+
 def test_camera_tower_reads_the_ego_motion_only_when_configured(batch: dict[str, Any]) -> None:
     """With ``camera.ego_features`` 6 the camera's frame vectors end in the ego's motion scaled to about unit
     range, and the camera view changes with it; the default camera (0) reads its pixels alone."""

@@ -196,8 +196,12 @@ def frame_tag_figures(model: DualEncoder, dataset: Dataset[dict[str, Any]], batc
                             torch.cat(has_camera), model.config.dense_tasks)
 
 
-def load_model(run_dir: Path | str, device: str = "cpu") -> DualEncoder:
-    """The trained DualEncoder of ``run_dir`` (config.json + model.safetensors), in eval mode."""
+def load_model(run_dir: Path | str, device: str = "cpu", text: bool = True) -> DualEncoder:
+    """The trained DualEncoder of ``run_dir`` (config.json + model.safetensors), in eval mode.
+
+    ``text=False``: without its text tower (:class:`encoders.text.UnloadedText`), for processes that
+    embed clips only: the sentence encoder, most of the load's time, is not read.
+    """
     from safetensors.torch import load_file
 
     run_dir = Path(run_dir)
@@ -205,7 +209,7 @@ def load_model(run_dir: Path | str, device: str = "cpu") -> DualEncoder:
     for path in (config_path, weights_path):
         if not path.exists():
             raise FileNotFoundError(f"{path}: not found (is {run_dir} a finished training run?)")
-    model = DualEncoder(TrainConfig.from_json(config_path).model)
+    model = DualEncoder(TrainConfig.from_json(config_path).model, text=text)
     model.load_saved_state_dict(load_file(str(weights_path)))
     if model.text.cache is not None:
         model.text.cache.load(run_dir / TEXT_CACHE_FILE)

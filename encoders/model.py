@@ -25,7 +25,7 @@ from encoders.camera import CameraTower, unit_pixels
 from encoders.config import DualEncoderConfig
 from encoders.dense import DenseHeads, stream_dense_loss
 from encoders.fusion import ViewFusion
-from encoders.text import TextTower
+from encoders.text import TextTower, UnloadedText
 
 VIEWS = ("fused", "camera", "bev")
 #: State that older saved weights lack, with the value that reproduces how those models worked.
@@ -35,12 +35,14 @@ LEGACY_DEFAULTS: dict[str, torch.Tensor] = {"fusion.camera_weight": torch.ones((
 class DualEncoder(nn.Module):
     """Text tower + camera and BEV towers fused into one clip embedding."""
 
-    def __init__(self, config: DualEncoderConfig) -> None:
+    def __init__(self, config: DualEncoderConfig, text: bool = True) -> None:
+        """``text=False``: the text tower is not built (:class:`encoders.text.UnloadedText`); the model
+        embeds clips only, as a process that never encodes text needs it."""
         super().__init__()
         self.config = config
         d = config.embed_dim
         slots = (config.time_slots, config.slot_dim)
-        self.text = TextTower(config.text, d, *slots)
+        self.text = TextTower(config.text, d, *slots) if text else UnloadedText(config.text)
         self.camera = CameraTower(config.camera, d, *slots)
         self.bev = BevTower(config.bev, d, *slots)
         self.fusion = ViewFusion(config.fusion, d, config.time_slots * config.slot_dim)
@@ -171,6 +173,8 @@ class DualEncoder(nn.Module):
         Weights saved before the fusion had a camera weight fuse as they did then: an equal mean.
         """
         state = {**LEGACY_DEFAULTS, **state}
+        if isinstance(self.text, UnloadedText):  # built without its text tower: the text weights stay unread
+            state = {k: v for k, v in state.items() if not k.startswith("text.")}
         result = self.load_state_dict(state, strict=False)
         skip = [f"text.{p}" for p in self.text.frozen_prefixes()]
         missing = [k for k in result.missing_keys if not any(k.startswith(s) for s in skip)]

@@ -372,3 +372,28 @@ class TextTower(nn.Module):
         if isinstance(self.backbone, ClauseText | SlotText) and not self.backbone.trainable:
             return ["backbone.sentence.encoder."]
         return []
+
+
+class UnloadedText(TextTower):
+    """The text tower of a model loaded for its clip towers alone (:func:`encoders.inference.load_model`
+    with ``text=False``): no weights, and encoding text is an error.
+
+    Building a pretrained text tower loads its sentence encoder, most of a model's load (about 3 s of
+    3.4 s on 2 cores, more under load); a process that only embeds clips, a Ray Data actor of
+    ``index --workers``, never runs it.
+    """
+
+    def __init__(self, config: TextConfig) -> None:
+        nn.Module.__init__(self)  # no backbone, no head: nothing of TextTower's to build
+        self.config = config
+
+    @property
+    def cache(self) -> TextFeatureCache | None:
+        return None
+
+    def forward(self, texts: list[str], device: torch.device) -> torch.Tensor:
+        raise RuntimeError("this model was loaded without its text tower (load_model(..., text=False)), "
+                           "for embedding clips; load it with text=True to encode text")
+
+    def frozen_prefixes(self) -> list[str]:
+        return [""]  # every text weight: none is loaded, none is saved

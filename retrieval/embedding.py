@@ -409,7 +409,7 @@ class ClipEmbedActor:
 
         # The CPUs the actor reserved: more threads would contend with the other actors.
         torch.set_num_threads(threads)
-        self.model = load_model(run_dir, device=device)
+        self.model = load_model(run_dir, device=device, text=False)  # clips only: no sentence encoder to load
         self.dataset = ClipDataset(clips_dir, as_uint8=True)
 
     def __call__(self, batch: dict[str, np.ndarray]) -> Any:

@@ -127,5 +127,5 @@ def load_tagger(run_dir: Path | str, device: str = "cpu") -> Tagger:
         bev = BevTower(config.bev, 32)
         load_embedding_weights(bev, load_file(str(run / BACKBONE_FILE)), run / BACKBONE_FILE)
     else:
-        bev = load_model(run, device="cpu").bev
+        bev = load_model(run, device="cpu", text=False).bev  # the BEV tower alone: no sentence encoder
     return Tagger(bev, head, config, meta, dev)

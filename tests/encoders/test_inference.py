@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 import torch
 
@@ -40,3 +42,38 @@ def test_with_cuda_auto_picks_it_and_indexes_are_checked(monkeypatch: pytest.Mon
     assert resolve_device("cuda:0") == torch.device("cuda", 0)
     with pytest.raises(ConfigError, match="only 1 CUDA devices"):
         resolve_device("cuda:1")
+
+
+def test_a_model_loaded_without_its_text_tower_embeds_clips_alike_and_never_reads_the_sentence_encoder(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """``load_model(..., text=False)``, as the clip-embedding actors load it: the clip views are the
+    full model's bit for bit, the sentence encoder is not built, and encoding text is a clear error."""
+    from dataclasses import replace
+
+    from safetensors.torch import save_file
+
+    from encoders.config import TextConfig, TrainConfig, tiny_model_config
+    from encoders.inference import load_model
+    from encoders.model import DualEncoder
+    from encoders.synthetic import SyntheticClipDataset, SyntheticSpec, collate_clips
+
+    torch.manual_seed(0)
+    torch.set_num_threads(1)
+    config = replace(TrainConfig(), model=replace(tiny_model_config(), text=TextConfig(kind="pretrained")))
+    full = DualEncoder(config.model).eval()
+    save_file({k: v.contiguous() for k, v in full.saved_state_dict().items()}, str(tmp_path / "model.safetensors"))
+    (tmp_path / "config.json").write_text(config.to_json())
+    ds = SyntheticClipDataset(3, spec=SyntheticSpec(frames=6, camera_hw=(32, 48), bev_hw=(32, 16)), seed=1)
+    batch = collate_clips([ds[i] for i in range(3)])
+
+    def no_encoder(name: str) -> None:
+        raise AssertionError(f"the sentence encoder {name} was loaded")
+
+    monkeypatch.setattr("encoders.text.load_sentence_encoder", no_encoder)
+    clips_only = load_model(tmp_path, text=False)
+    with torch.no_grad():
+        expected, got = full.encode_views(batch), clips_only.encode_views(batch)
+    assert all(torch.equal(expected[view], got[view]) for view in expected)
+    assert not any(k.startswith("text.") for k in clips_only.saved_state_dict())
+    with pytest.raises(RuntimeError, match=r"loaded without its text tower .*text=True to encode text"):
+        clips_only.encode_text(["a car turns left"])

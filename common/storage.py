@@ -17,9 +17,11 @@ import contextlib
 import re
 import shutil
 import tempfile
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
+
+from common.atomic import atomic_write_with
 
 _URI = re.compile(r"^[A-Za-z][A-Za-z0-9+.-]*://")
 
@@ -117,6 +119,51 @@ def upload(local: Path, uri: str) -> None:
     if local.is_dir():
         fs.create_dir(path, recursive=True)
     pafs.copy_files(str(local), path, source_filesystem=pafs.LocalFileSystem(), destination_filesystem=fs)
+
+
+def list_files(location: Location, pattern: str) -> list[Location]:
+    """The files directly in the folder ``location`` whose names match the glob ``pattern``, sorted
+    (none when the folder does not exist)."""
+    import fnmatch
+
+    if not is_uri(location):
+        folder = Path(location)
+        return sorted(p for p in folder.glob(pattern) if p.is_file()) if folder.is_dir() else []
+    import pyarrow.fs as pafs
+
+    fs, path = _filesystem(str(location))
+    infos = fs.get_file_info(pafs.FileSelector(path, recursive=False, allow_not_found=True))
+    return sorted(join(location, Path(i.path).name) for i in infos
+                  if i.type == pafs.FileType.File and fnmatch.fnmatchcase(Path(i.path).name, pattern))
+
+
+def remove_files(location: Location, pattern: str) -> None:
+    """Create the folder ``location`` if missing, and remove the files directly in it whose names
+    match the glob ``pattern`` (nothing else: it may hold a user's other files)."""
+    if not is_uri(location):
+        Path(location).mkdir(parents=True, exist_ok=True)
+        for path in list_files(location, pattern):
+            Path(path).unlink(missing_ok=True)
+        return
+    fs, path = _filesystem(str(location))
+    fs.create_dir(path, recursive=True)
+    for uri in list_files(location, pattern):
+        fs.delete_file(_filesystem(str(uri))[1])
+
+
+def write_file(location: Location, writer: Callable[[Path], None]) -> None:
+    """Have ``writer`` write a local file, then make it ``location`` whole: by an atomic rename on a
+    local path (readers never see part of it), by one upload to a URI (an object appears whole)."""
+    if not is_uri(location):
+        atomic_write_with(location, writer)
+        return
+    scratch = Path(tempfile.mkdtemp(prefix="scenesearch-out-"))
+    try:
+        local = scratch / name_of(location)
+        writer(local)
+        upload(local, str(location))
+    finally:
+        shutil.rmtree(scratch, ignore_errors=True)
 
 
 def read_bytes(location: Location) -> bytes:

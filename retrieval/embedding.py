@@ -21,6 +21,7 @@ from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 import numpy as np
 
 from common.ray_cluster import Execution, cluster_gpus, import_ray, node_cpus, ray_runtime
+from common.storage import as_location, join, list_files, remove_files, write_file
 from encoders.config import BUNDLED_TEXT_MODEL
 from encoders.sentence import cache_name, inference_autocast, inference_dtype, shared_sentence_encoder
 from encoders.text import TEXT_CACHE_FILE, TextFeatureCache
@@ -31,6 +32,8 @@ if TYPE_CHECKING:
     import torch
 
 MODEL_FILE = "model.safetensors"
+#: The embedding shards that :class:`RayDataEmbedder`'s actors write (``part-<first row>.parquet``).
+SHARD_PATTERN = "part-*.parquet"
 CONFIG_FILE = "config.json"
 
 
@@ -305,12 +308,13 @@ class RayDataEmbedder(ModelEmbedder):
 
     The clip table becomes a Ray Dataset of row numbers; ``map_batches`` embeds it on a pool of
     :class:`ClipEmbedActor` (one model per actor: one GPU per actor when the cluster has GPUs, else
-    one actor per node running on as many threads as the node has CPUs, see :func:`cpu_actors`), the
-    embeddings are written as Parquet shards under ``shards_dir`` (one file per block: ``row``,
-    ``clip_id`` and one fixed-size list column per view), and the index is built from the shards,
-    read back in clip-table order. Texts, splits and shuffled frames are embedded here, as by
+    one actor per node running on as many threads as the node has CPUs, see :func:`cpu_actors`).
+    Each actor writes the embeddings of every block of rows it embeds as a Parquet shard
+    ``shards_dir/part-<first row>.parquet`` (``row``, ``clip_id`` and one fixed-size list column per
+    view; the shards of an earlier run there are removed first), and the index is built from the
+    shards, read back in clip-table order. Texts, splits and shuffled frames are embedded here, as by
     :class:`ModelEmbedder`. Every node must read ``run_dir`` and the clips folder at the same path
-    (a shared file system); ``shards_dir`` may be a ``pyarrow.fs`` URI.
+    (a shared file system) and write ``shards_dir``: a shared folder or a ``pyarrow.fs`` URI.
     """
 
     def __init__(self, run_dir: Path | str, execution: Execution, shards_dir: Path | str,
@@ -328,7 +332,7 @@ class RayDataEmbedder(ModelEmbedder):
 
     def _embed_on_ray(self, clips_dir: Path) -> tuple[list[str], dict[str, np.ndarray]]:
         import pyarrow as pa
-        import pyarrow.dataset as pads
+        import pyarrow.parquet as pq
 
         from encoders.clips.layout import read_clip_table
 
@@ -342,22 +346,26 @@ class RayDataEmbedder(ModelEmbedder):
             batches = -(-n // self.batch_size)
             actors, threads = (gpus, 1) if gpus else cpu_actors(parallelism, node_cpus(ray))
             actors = max(1, min(actors, batches))
-            # One batch per block, up to 64 blocks per actor, each handed to an actor only when it is
+            # Blocks of whole batches, up to 64 per actor, each handed to an actor only when it is
             # idle: the actors share the work evenly, and one that is up first does not queue it
-            # all. The blocks are made here (no read tasks) and the shards are written by tasks
-            # that reserve no CPU: the actors hold every CPU they are given, and tasks waiting for
-            # one would wait for ever.
+            # all. The blocks are made here (no read tasks), and each actor writes the shard of a
+            # block itself: Ray Data's write tasks started worker processes of their own beside the
+            # actors, 2 s of the 834 clips' 16 s on 2 cores (benchmarks/bench_scale.py).
             blocks = min(batches, 64 * actors)
             _quiet_ray_data(ray, self.execution)
-            parts = [pa.table({"id": part}) for part in np.array_split(np.arange(n, dtype=np.int64), blocks)]
+            remove_files(self.shards_dir, SHARD_PATTERN)
+            starts = [int(b[0]) * self.batch_size for b in np.array_split(np.arange(batches), blocks)]
+            parts = [pa.table({"id": np.arange(a, b, dtype=np.int64)}) for a, b in zip(starts, [*starts[1:], n])]
             ds = ray.data.from_arrow(parts).map_batches(
-                ClipEmbedActor, batch_size=self.batch_size, batch_format="numpy",
+                ClipEmbedActor, batch_size=None, batch_format="numpy",  # a block per call: a shard each
                 fn_constructor_kwargs={"run_dir": str(self.run_dir), "clips_dir": str(clips_dir),
+                                       "shards_dir": str(self.shards_dir), "batch_size": self.batch_size,
                                        "device": "cuda" if gpus else "cpu", "threads": threads},
                 compute=ray.data.ActorPoolStrategy(size=actors, max_tasks_in_flight_per_actor=1), num_cpus=threads,
                 num_gpus=1 if gpus else 0)
-            ds.write_parquet(str(self.shards_dir), mode="overwrite", ray_remote_args={"num_cpus": 0})
-        table = pads.dataset(str(self.shards_dir), format="parquet").to_table().sort_by("row")
+            ds.materialize()  # runs the pipeline; what it keeps is each shard's row numbers
+        shards = list_files(self.shards_dir, SHARD_PATTERN)
+        table = pa.concat_tables([pq.read_table(str(path)) for path in shards]).sort_by("row")
         rows = table.column("row").to_numpy()
         if not np.array_equal(rows, np.arange(n)):
             raise RuntimeError(f"{self.shards_dir}: the embedding shards hold {len(rows)} rows, not each of the "
@@ -365,8 +373,7 @@ class RayDataEmbedder(ModelEmbedder):
         views = {v: table.column(v).combine_chunks().flatten().to_numpy().reshape(n, -1).astype(np.float32)
                  for v in table.column_names if v not in ("row", "clip_id")}
         self.last_run = {"actors": actors, "gpus_per_actor": 1 if gpus else 0, "threads_per_actor": threads, "clips": n,
-                         "shards": len(pads.dataset(str(self.shards_dir), format="parquet").files),
-                         "seconds": time.perf_counter() - start}
+                         "shards": len(shards), "seconds": time.perf_counter() - start}
         return [str(c) for c in table.column("clip_id").to_pylist()], views
 
 
@@ -399,9 +406,10 @@ def _quiet_ray_data(ray: Any, execution: Execution) -> None:
 
 
 class ClipEmbedActor:
-    """One model on one device, embedding batches of clip-table rows (a Ray Data actor)."""
+    """One model on one device, embedding blocks of clip-table rows into Parquet shards (a Ray Data actor)."""
 
-    def __init__(self, run_dir: str, clips_dir: str, device: str = "cpu", threads: int = 1) -> None:
+    def __init__(self, run_dir: str, clips_dir: str, shards_dir: str, batch_size: int = 32, device: str = "cpu",
+                 threads: int = 1) -> None:
         import torch
 
         from encoders.data import ClipDataset
@@ -411,18 +419,31 @@ class ClipEmbedActor:
         torch.set_num_threads(threads)
         self.model = load_model(run_dir, device=device, text=False)  # clips only: no sentence encoder to load
         self.dataset = ClipDataset(clips_dir, as_uint8=True)
+        self.shards_dir = shards_dir
+        self.batch_size = batch_size
 
-    def __call__(self, batch: dict[str, np.ndarray]) -> Any:
+    def __call__(self, block: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+        """Embed the rows ``block["id"]``, ``batch_size`` at a time, and write them as the shard
+        ``part-<first row>.parquet``; → the rows. A block retried after a failure writes the same
+        shard again, whole."""
         import pyarrow as pa
+        import pyarrow.parquet as pq
         import torch
 
-        rows = [int(i) for i in batch["id"]]
-        items = self.dataset.__getitems__(rows)
-        with torch.inference_mode():
-            views = self.model.encode_views(items)
-        columns: dict[str, Any] = {"row": pa.array(rows, pa.int64()),
-                                   "clip_id": pa.array([str(c) for c in items["clip_id"]], pa.string())}
-        for view, x in views.items():
-            flat = x.float().cpu().numpy()
+        rows = [int(i) for i in block["id"]]
+        ids: list[str] = []
+        chunks: dict[str, list[np.ndarray]] = {}
+        for start in range(0, len(rows), self.batch_size):
+            items = self.dataset.__getitems__(rows[start:start + self.batch_size])
+            with torch.inference_mode():
+                for view, x in self.model.encode_views(items).items():
+                    chunks.setdefault(view, []).append(x.float().cpu().numpy())
+            ids += [str(c) for c in items["clip_id"]]
+        columns: dict[str, Any] = {"row": pa.array(rows, pa.int64()), "clip_id": pa.array(ids, pa.string())}
+        for view, parts in chunks.items():
+            flat = np.concatenate(parts)
             columns[view] = pa.FixedSizeListArray.from_arrays(pa.array(flat.reshape(-1)), flat.shape[1])
-        return pa.table(columns)
+        table = pa.table(columns)
+        write_file(join(as_location(self.shards_dir), f"part-{rows[0]:010d}.parquet"),
+                   lambda path: pq.write_table(table, path))
+        return {"row": np.asarray(rows, np.int64)}

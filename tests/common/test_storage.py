@@ -12,11 +12,14 @@ from common.storage import (
     expand,
     is_uri,
     join,
+    list_files,
     name_of,
     parent,
     read_bytes,
+    remove_files,
     staged_input,
     staged_output,
+    write_file,
 )
 
 
@@ -76,3 +79,28 @@ def test_a_prefix_expands_to_its_folders(tmp_path: Path) -> None:
         expand([f"file://{tmp_path / 'none'}/*"])
     with pytest.raises(FileNotFoundError, match="not found"), staged_input(f"file://{tmp_path / 'none'}"):
         pass
+
+
+@pytest.mark.parametrize("as_uri", [False, True])
+def test_files_are_written_whole_listed_and_removed_by_pattern(tmp_path: Path, as_uri: bool) -> None:
+    folder = tmp_path / "shards"
+    location = f"file://{folder}" if as_uri else folder
+    assert list_files(location, "part-*") == []  # no folder yet
+    remove_files(location, "part-*")  # creates it
+    assert folder.is_dir()
+    for name in ("part-2.bin", "part-1.bin", "notes.txt"):
+        write_file(join(location, name), lambda path, name=name: path.write_bytes(name.encode()))
+    (folder / "part-sub").mkdir()  # a folder, not a file: never listed or removed
+    assert list_files(location, "part-*") == [join(location, "part-1.bin"), join(location, "part-2.bin")]
+    assert read_bytes(join(location, "part-2.bin")) == b"part-2.bin"
+    assert sorted(p.name for p in folder.iterdir()) == ["notes.txt", "part-1.bin", "part-2.bin", "part-sub"]
+
+    def fails(path: Path) -> None:
+        path.write_bytes(b"half")
+        raise RuntimeError("killed")
+
+    with pytest.raises(RuntimeError, match="killed"):
+        write_file(join(location, "part-3.bin"), fails)
+    assert sorted(p.name for p in folder.iterdir()) == ["notes.txt", "part-1.bin", "part-2.bin", "part-sub"]
+    remove_files(location, "part-*")
+    assert sorted(p.name for p in folder.iterdir()) == ["notes.txt", "part-sub"]  # the user's other files stay

@@ -135,13 +135,21 @@ def test_index_embeddings_on_ray_data_equal_the_serial_ones(data: dict[str, Path
     run = tmp_path / "run"
     assert main(["train", str(clips), "--out", str(run), "--preset", "tiny", "--epochs", "1"]) == 0
     shards = tmp_path / "shards"
+    shards.mkdir()
+    (shards / "part-0000009999.parquet").write_bytes(b"a shard of an earlier run")  # replaced
+    (shards / "notes.txt").write_text("the user's")  # kept
     serial = SceneSearch.build(run, clips, tmp_path / "index_serial", embedder=ModelEmbedder(run),
                                text_encoder=HashTextEncoder())
     embedder = RayDataEmbedder(run, Execution(workers=2), shards, batch_size=8)
     on_ray = SceneSearch.build(run, clips, tmp_path / "index_ray", embedder=embedder, text_encoder=HashTextEncoder())
     # Both CPUs of this one node, on one model (see cpu_actors).
     assert embedder.last_run["actors"] * embedder.last_run["threads_per_actor"] == 2
-    assert list(shards.glob("*.parquet"))
+    # One shard per block of whole batches, named by its first row, written by the actors.
+    n = int(embedder.last_run["clips"])
+    names = sorted(p.name for p in shards.glob("part-*.parquet"))
+    assert len(names) == embedder.last_run["shards"] == min(-(-n // 8), 64)
+    assert all(int(name[5:15]) % 8 == 0 for name in names) and names[0] == "part-0000000000.parquet"
+    assert (shards / "notes.txt").read_text() == "the user's"
     for view in ("fused", "camera", "bev"):
         meta_a, a = serial.embeddings(view)
         meta_b, b = on_ray.embeddings(view)

@@ -39,8 +39,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
                              "time); exit status 2 and the file named when one differs")
     add_execution_arguments(parser)
     parser.add_argument("--embeddings-dir", metavar="DIR",
-                        help="with --workers/--ray-address: keep the embedding shards (Parquet) here, a path or a "
-                             "URI every node can write (default: a temporary folder, removed afterwards)")
+                        help="with --workers/--ray-address: keep the embedding shards (Parquet, part-*.parquet, "
+                             "replacing those of an earlier run) here, a path or a URI every node can write "
+                             "(default: a temporary folder, removed afterwards)")
 
 
 def run(args: argparse.Namespace) -> int:

@@ -39,6 +39,15 @@ class UnknownClipError(RetrievalError):
         super().__init__(f"unknown clip id {clip_id!r}{hint} (list them with `scenesearch export`)")
 
 
+class NoCameraError(RetrievalError):
+    """A clip without camera frames, searched from in the camera view."""
+
+    def __init__(self, clip_id: str) -> None:
+        self.clip_id = clip_id
+        super().__init__(f"clip {clip_id!r} has no camera frames, so the camera view has nothing of it to search "
+                         "from; search from it in the fused or bev view")
+
+
 class UnknownViewError(RetrievalError):
     """A view name other than the indexed ones."""
 

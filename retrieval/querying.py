@@ -17,9 +17,9 @@ import numpy as np
 
 from indexes.clip_index import ClipIndex
 from indexes.errors import FilterError
-from indexes.filters import Condition, FilterSpec, check, conditions_of
+from indexes.filters import Condition, FilterSpec, Op, check, conditions_of
 from indexes.metadata import MetadataStore
-from retrieval.errors import EmptyQueryError, FilterSyntaxError, InvalidKError
+from retrieval.errors import EmptyQueryError, FilterSyntaxError, InvalidKError, NoCameraError
 from retrieval.records import SearchResult
 
 #: The most results one query may ask for (the service lowers it with its own limit).
@@ -65,6 +65,25 @@ def build_query(k: object, filters: FilterSpec, metadata: MetadataStore, size: i
             operator its field does not take (the message lists the valid fields).
     """
     return Query(min(check_k(k, max_k), size), _checked_filters(filters, metadata))
+
+
+def in_view(query: Query, view: str, metadata: MetadataStore) -> Query:
+    """``query`` kept to the clips that ``view`` can show: the camera view to the clips the camera
+    saw (``has_camera``, where the index records it).
+
+    A clip without camera frames has no camera embedding worth ranking: the tower ran on blank
+    frames, and the evaluation's camera figures leave such clips out for that reason. Other views
+    show every clip.
+    """
+    if view != "camera" or "has_camera" not in metadata.fields:
+        return query
+    return Query(query.k, (*(query.filters or ()), Condition("has_camera", Op.EQ, True)))
+
+
+def check_camera_clip(row: dict[str, Any], view: str) -> None:
+    """Raise :class:`NoCameraError` when ``view`` is the camera and the indexed clip ``row`` has none."""
+    if view == "camera" and row.get("has_camera") is False:
+        raise NoCameraError(str(row.get("clip_id")))
 
 
 def check_k(k: object, max_k: int = MAX_K) -> int:

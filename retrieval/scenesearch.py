@@ -51,7 +51,7 @@ from indexes.persistence import read_json_manifest
 from retrieval.captions_search import CaptionSearch, Skipped, TextEncoder, caption_rows
 from retrieval.embedding import CONFIG_FILE, Embedder, ModelEmbedder, SentenceEncoder
 from retrieval.errors import IndexDirError, ModelMismatchError, UnknownClipError, UnknownViewError
-from retrieval.querying import MAX_K, build_query, check_query, hits_to_results, preview_of
+from retrieval.querying import MAX_K, build_query, check_camera_clip, check_query, hits_to_results, in_view, preview_of
 from retrieval.records import SearchResult
 
 #: 2: the manifest holds checksums (``files``, ``content_sha256``); version 1 is still read, with a warning.
@@ -288,7 +288,8 @@ class SceneSearch:
             k: results, 1 … ``max_k`` (fewer when the index or the filter holds fewer clips).
             filters: ``{"category": "car"}``, ``{"category": ["car", "bus"]}`` or a filter string
                 (``"category in {car, bus} and tags contains 'left:approach'"``, see ``indexes.filters``).
-            view: ``fused``, ``camera`` or ``bev``.
+            view: ``fused``, ``camera`` or ``bev``; ``camera`` searches the clips the camera saw
+                (:func:`retrieval.querying.in_view`).
 
         Raises:
             EmptyQueryError, InvalidKError, FilterSyntaxError, UnknownViewError: bad arguments.
@@ -296,7 +297,7 @@ class SceneSearch:
         """
         index = self._view(view)
         query = check_query(query)
-        checked = build_query(k, filters, index.metadata, len(index), max_k)  # before the model loads
+        checked = in_view(build_query(k, filters, index.metadata, len(index), max_k), view, index.metadata)
         t0 = time.perf_counter()
         xq = np.asarray(self.embedder.embed_texts([query]), dtype=np.float32)
         t1 = time.perf_counter()
@@ -315,16 +316,18 @@ class SceneSearch:
 
         Raises:
             UnknownClipError: the clip id is not indexed (the message shows valid ones).
+            NoCameraError: the camera view, from a clip id without camera frames.
         """
         index = self._view(view)
         if isinstance(clip, str):
             if clip not in index:
                 examples = index.metadata.table.column("clip_id").slice(0, 3).to_pylist()
                 raise UnknownClipError(clip, examples)
-            checked = build_query(k, filters, index.metadata, len(index) - 1, max_k)
+            check_camera_clip(index.get(clip), view)
+            checked = in_view(build_query(k, filters, index.metadata, len(index) - 1, max_k), view, index.metadata)
             return hits_to_results(index, np.zeros((1, index.dim), np.float32), checked, view, self.clips_dir,
                                    exclude_clip=clip)
-        checked = build_query(k, filters, index.metadata, len(index), max_k)
+        checked = in_view(build_query(k, filters, index.metadata, len(index), max_k), view, index.metadata)
         xq = np.asarray(self.embedder.embed_arrays(clip, view=view), dtype=np.float32)[:1]
         return hits_to_results(index, xq, checked, view, self.clips_dir)
 

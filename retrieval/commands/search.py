@@ -17,7 +17,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="keep clips whose FIELD equals VALUE (repeatable; VALUE may be a,b for any of "
                              "several); any clause of the filter language also works, e.g. 'start_ns >= 5'")
     parser.add_argument("--view", choices=["fused", "camera", "bev"], default="fused",
-                        help="which clip embedding to search (default fused)")
+                        help="which clip embedding to search (default fused; camera: the clips the camera saw)")
     parser.add_argument("--captions", action="store_true",
                         help="search the rule captions with the frozen sentence encoder instead of the model")
     parser.add_argument("--json", action="store_true", help="print JSON for scripts instead of a table")

@@ -16,7 +16,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--filter", action="append", metavar="FIELD=VALUE", dest="filters",
                         help="keep clips whose FIELD equals VALUE (repeatable)")
     parser.add_argument("--view", choices=["fused", "camera", "bev"], default="fused",
-                        help="which clip embedding to compare (default fused)")
+                        help="which clip embedding to compare (default fused; camera: the clips the camera saw)")
     parser.add_argument("--json", action="store_true", help="print JSON for scripts instead of a table")
 
 

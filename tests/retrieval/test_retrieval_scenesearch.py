@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 import pyarrow.parquet as pq
 import pytest
-from retrieval_fakes import FakeEmbedder, HashTextEncoder, caption_of
+from retrieval_fakes import FakeEmbedder, HashTextEncoder, caption_of, make_clips_dir, make_run_dir
 
 from common.atomic import sweep_stale
 from indexes.integrity import seal
@@ -25,6 +25,7 @@ from retrieval.errors import (
     IndexDirError,
     InvalidKError,
     ModelMismatchError,
+    NoCameraError,
     UnknownClipError,
     UnknownViewError,
 )
@@ -107,6 +108,36 @@ def test_search_clip_excludes_itself_and_prefers_same_action(built: dict[str, An
     assert sum(r.caption == query["caption"] for r in fused) >= 4
     arrays = search.search_clip({"caption": query["caption"], "camera": np.zeros((16, 4, 8, 8), np.float32)}, k=3)
     assert arrays[0].caption == query["caption"]
+
+
+def test_the_camera_view_searches_the_clips_the_camera_saw(tmp_path: Path) -> None:
+    import pyarrow as pa
+
+    clips = make_clips_dir(tmp_path / "clips")
+    table = pq.read_table(clips / "clips.parquet")
+    seen = [i % 3 != 0 for i in range(table.num_rows)]  # a third of the clips without camera frames
+    table = table.set_column(table.column_names.index("has_camera"), "has_camera", pa.array(seen))
+    pq.write_table(table, clips / "clips.parquet")
+    run = make_run_dir(tmp_path / "run")
+    embedder = FakeEmbedder(model_hash(run))
+    search = SceneSearch.build(run, clips, tmp_path / "index", embedder=embedder, text_encoder=HashTextEncoder())
+    rows = {r["clip_id"]: r for r in table.to_pylist()}
+    n, n_seen = table.num_rows, sum(seen)
+
+    everything = search.search_text("a car", k=n, view="camera")
+    assert len(everything) == n_seen and all(rows[r.clip_id]["has_camera"] for r in everything)
+    assert len(search.search_text("a car", k=n, view="fused")) == n  # other views show every clip
+    assert len(search.search_text("a car", k=n, view="bev")) == n
+    cars = search.search_text("a car", k=n, view="camera", filters="category == car")  # with the user's filter
+    assert cars and len(cars) == sum(s and r["category"] == "car" for s, r in zip(seen, rows.values()))
+    assert all(rows[r.clip_id]["has_camera"] and r.category == "car" for r in cars)
+
+    with_camera, without = table.column("clip_id")[1].as_py(), table.column("clip_id")[0].as_py()
+    neighbours = search.search_clip(with_camera, k=n, view="camera")
+    assert len(neighbours) == n_seen - 1 and all(rows[r.clip_id]["has_camera"] for r in neighbours)
+    with pytest.raises(NoCameraError, match=f"{without!r} has no camera frames.*fused or bev"):
+        search.search_clip(without, k=5, view="camera")
+    assert len(search.search_clip(without, k=n, view="fused")) == n - 1
 
 
 def test_search_captions(built: dict[str, Any]) -> None:

@@ -124,17 +124,11 @@ def upload(local: Path, uri: str) -> None:
 def list_files(location: Location, pattern: str) -> list[Location]:
     """The files directly in the folder ``location`` whose names match the glob ``pattern``, sorted
     (none when the folder does not exist)."""
-    import fnmatch
-
     if not is_uri(location):
         folder = Path(location)
         return sorted(p for p in folder.glob(pattern) if p.is_file()) if folder.is_dir() else []
-    import pyarrow.fs as pafs
-
     fs, path = _filesystem(str(location))
-    infos = fs.get_file_info(pafs.FileSelector(path, recursive=False, allow_not_found=True))
-    return sorted(join(location, Path(i.path).name) for i in infos
-                  if i.type == pafs.FileType.File and fnmatch.fnmatchcase(Path(i.path).name, pattern))
+    return sorted(join(location, Path(i.path).name) for i in _matching_files(fs, path, pattern))
 
 
 def remove_files(location: Location, pattern: str) -> None:
@@ -147,8 +141,18 @@ def remove_files(location: Location, pattern: str) -> None:
         return
     fs, path = _filesystem(str(location))
     fs.create_dir(path, recursive=True)
-    for uri in list_files(location, pattern):
-        fs.delete_file(_filesystem(str(uri))[1])
+    for info in _matching_files(fs, path, pattern):
+        fs.delete_file(info.path)
+
+
+def _matching_files(fs: Any, path: str, pattern: str) -> list[Any]:
+    """``pyarrow.fs.FileInfo`` of the files directly in ``path`` on ``fs`` whose names match ``pattern``."""
+    import fnmatch
+
+    import pyarrow.fs as pafs
+
+    infos = fs.get_file_info(pafs.FileSelector(path, recursive=False, allow_not_found=True))
+    return [i for i in infos if i.type == pafs.FileType.File and fnmatch.fnmatchcase(Path(i.path).name, pattern)]
 
 
 def write_file(location: Location, writer: Callable[[Path], None]) -> None:

@@ -1,10 +1,13 @@
-"""Fixtures shared by test folders: one Ray runtime for every test of a session that needs one."""
+"""Fixtures shared by test folders: one Ray runtime for the tests that need one, none for those that must have none."""
 
 from __future__ import annotations
 
 from collections.abc import Iterator
 
 import pytest
+
+#: The session's local runtime: 2 CPUs, quiet.
+_LOCAL = {"num_cpus": 2, "include_dashboard": False, "log_to_driver": False, "configure_logging": False}
 
 
 @pytest.fixture(scope="session")
@@ -15,8 +18,28 @@ def ray_local() -> Iterator[None]:
     runs on this one; ``Execution(workers=1)`` keeps to one task at a time on it.
     """
     ray = pytest.importorskip("ray", reason="Ray is not installed (pip install 'scenesearch[scale]')")
-    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False, configure_logging=False)
+    ray.init(**_LOCAL)
     try:
         yield
     finally:
         ray.shutdown()
+
+
+@pytest.fixture
+def ray_stopped() -> Iterator[None]:
+    """No Ray runtime in this process during the test: one that ``ray_local`` started is stopped, and
+    started again afterwards. :mod:`common.ray_cluster` reuses a running runtime whatever address it
+    is given, so a test of joining a cluster would otherwise depend on which tests ran before it."""
+    try:
+        import ray
+    except ImportError:
+        yield
+        return
+    running = ray.is_initialized()
+    if running:
+        ray.shutdown()
+    try:
+        yield
+    finally:
+        if running and not ray.is_initialized():
+            ray.init(**_LOCAL)

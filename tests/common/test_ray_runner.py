@@ -73,6 +73,7 @@ def _closed_port() -> int:
         return int(s.getsockname()[1])
 
 
+@pytest.mark.usefixtures("ray_stopped")
 def test_an_unreachable_address_is_a_clear_error_within_seconds() -> None:
     port = _closed_port()
     start = time.perf_counter()
@@ -93,6 +94,7 @@ def test_auto_without_a_cluster_says_how_to_start_one(monkeypatch: pytest.Monkey
         check_reachable("auto")
 
 
+@pytest.mark.usefixtures("ray_stopped")
 def test_a_listener_that_is_not_a_ray_head_is_refused_quickly() -> None:
     pytest.importorskip("ray")
     server = socket.socket()

@@ -22,3 +22,18 @@ def dying_on(real: Callable[..., Any], marker_dir: str, dies_once: str, dies_alw
         return real(log_dir, context)
 
     return task
+
+
+def dying_actor(base: type, marker_dir: str) -> type:
+    """``base`` (the embedding actor), except that its first block kills its process (a marker file
+    says it was tried): Ray Data starts the actor anew and gives it the block again."""
+
+    class DyingActor(base):  # type: ignore[misc, valid-type]
+        def __call__(self, block: dict[str, Any]) -> Any:
+            marker = Path(marker_dir) / "embed.tried"
+            if not marker.exists():
+                marker.write_text("tried")
+                os._exit(1)
+            return super().__call__(block)
+
+    return DyingActor

@@ -124,7 +124,8 @@ def test_a_worker_dying_mid_log_is_retried_then_reported(data: dict[str, Path], 
     assert once in written and always not in written and len(written) == len(logs) - 1
 
 
-def test_index_embeddings_on_ray_data_equal_the_serial_ones(data: dict[str, Path], tmp_path: Path) -> None:
+def test_index_embeddings_on_ray_data_equal_the_serial_ones(data: dict[str, Path], tmp_path: Path,
+                                                            monkeypatch: pytest.MonkeyPatch) -> None:
     from common.ray_cluster import Execution
     from retrieval.embedding import ModelEmbedder, RayDataEmbedder
     from retrieval.scenesearch import SceneSearch
@@ -156,6 +157,22 @@ def test_index_embeddings_on_ray_data_equal_the_serial_ones(data: dict[str, Path
         assert meta_a.column("clip_id").to_pylist() == meta_b.column("clip_id").to_pylist()
         assert a.shape == b.shape and a.shape[0] > 10
         np.testing.assert_allclose(a, b, atol=1e-4)
+
+    # An actor dying mid-block: started anew, it embeds the block again and writes its shard whole.
+    import ray
+
+    import retrieval.embedding as embedding
+
+    ray.cloudpickle.register_pickle_by_value(scale_faults)
+    monkeypatch.setattr(embedding, "ClipEmbedActor", scale_faults.dying_actor(embedding.ClipEmbedActor, str(tmp_path)))
+    again = RayDataEmbedder(run, Execution(workers=2), shards, batch_size=8)
+    for view in ("fused", "camera", "bev"):
+        ids_a, a = embedder.embed_clips(clips, view=view)
+        ids_b, b = again.embed_clips(clips, view=view)
+        assert ids_a == ids_b
+        np.testing.assert_allclose(a, b, atol=1e-6)
+    assert (tmp_path / "embed.tried").exists()  # the actor did die
+    assert sorted(p.name for p in shards.glob("part-*.parquet")) == names
 
 
 def test_cpu_actors_take_a_node_each_on_its_cpus() -> None:

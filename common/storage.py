@@ -161,13 +161,8 @@ def write_file(location: Location, writer: Callable[[Path], None]) -> None:
     if not is_uri(location):
         atomic_write_with(location, writer)
         return
-    scratch = Path(tempfile.mkdtemp(prefix="scenesearch-out-"))
-    try:
-        local = scratch / name_of(location)
-        writer(local)
-        upload(local, str(location))
-    finally:
-        shutil.rmtree(scratch, ignore_errors=True)
+    with staged_output(parent(location)) as folder:
+        writer(folder / name_of(location))
 
 
 def read_bytes(location: Location) -> bytes:

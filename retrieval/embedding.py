@@ -429,19 +429,16 @@ class ClipEmbedActor:
         import pyarrow as pa
         import pyarrow.parquet as pq
         import torch
+        from torch.utils.data import Subset
+
+        from encoders.inference import embed_dataset_views
 
         rows = [int(i) for i in block["id"]]
-        ids: list[str] = []
-        chunks: dict[str, list[np.ndarray]] = {}
-        for start in range(0, len(rows), self.batch_size):
-            items = self.dataset.__getitems__(rows[start:start + self.batch_size])
-            with torch.inference_mode():
-                for view, x in self.model.encode_views(items).items():
-                    chunks.setdefault(view, []).append(x.float().cpu().numpy())
-            ids += [str(c) for c in items["clip_id"]]
-        columns: dict[str, Any] = {"row": pa.array(rows, pa.int64()), "clip_id": pa.array(ids, pa.string())}
-        for view, parts in chunks.items():
-            flat = np.concatenate(parts)
+        with torch.inference_mode():  # the serial path's embedding, on this block's rows
+            ids, views = embed_dataset_views(self.model, Subset(self.dataset, rows), self.batch_size)
+        columns: dict[str, Any] = {"row": pa.array(rows, pa.int64()),
+                                   "clip_id": pa.array([str(c) for c in ids], pa.string())}
+        for view, flat in views.items():
             columns[view] = pa.FixedSizeListArray.from_arrays(pa.array(flat.reshape(-1)), flat.shape[1])
         table = pa.table(columns)
         write_file(join(as_location(self.shards_dir), f"part-{rows[0]:010d}.parquet"),

@@ -47,7 +47,8 @@ class Query:
     filters: tuple[Condition, ...] | None
 
 
-def build_query(k: object, filters: FilterSpec, metadata: MetadataStore, size: int, max_k: int = MAX_K) -> Query:
+def build_query(k: object, filters: FilterSpec, metadata: MetadataStore, size: int, max_k: int = MAX_K,
+                view: str | None = None) -> Query:
     """Check ``k`` and ``filters`` against the searched ``metadata``; the only place either is checked.
 
     Args:
@@ -58,26 +59,20 @@ def build_query(k: object, filters: FilterSpec, metadata: MetadataStore, size: i
         metadata: the rows searched; filters may name its fields except ``id``.
         size: how many items the search can return.
         max_k: the most results a query may ask for.
+        view: the clip embedding searched. ``camera`` keeps to the clips the camera saw (``has_camera``,
+            where the index records it): a clip without camera frames has no camera embedding worth
+            ranking (the tower ran on blank frames), and the evaluation's camera figures leave such
+            clips out for that reason.
 
     Raises:
         InvalidKError: ``k`` is not an integer in 1 … ``max_k``.
         FilterSyntaxError: the filter cannot be read, names an unknown field, or holds a value or an
             operator its field does not take (the message lists the valid fields).
     """
-    return Query(min(check_k(k, max_k), size), _checked_filters(filters, metadata))
-
-
-def in_view(query: Query, view: str, metadata: MetadataStore) -> Query:
-    """``query`` kept to the clips that ``view`` can show: the camera view to the clips the camera
-    saw (``has_camera``, where the index records it).
-
-    A clip without camera frames has no camera embedding worth ranking: the tower ran on blank
-    frames, and the evaluation's camera figures leave such clips out for that reason. Other views
-    show every clip.
-    """
-    if view != "camera" or "has_camera" not in metadata.fields:
-        return query
-    return Query(query.k, (*(query.filters or ()), Condition("has_camera", Op.EQ, True)))
+    checked = _checked_filters(filters, metadata)
+    if view == "camera" and "has_camera" in metadata.fields:
+        checked = (*(checked or ()), Condition("has_camera", Op.EQ, True))
+    return Query(min(check_k(k, max_k), size), checked)
 
 
 def check_camera_clip(row: dict[str, Any], view: str) -> None:

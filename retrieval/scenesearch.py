@@ -51,7 +51,7 @@ from indexes.persistence import read_json_manifest
 from retrieval.captions_search import CaptionSearch, Skipped, TextEncoder, caption_rows
 from retrieval.embedding import CONFIG_FILE, Embedder, ModelEmbedder, SentenceEncoder
 from retrieval.errors import IndexDirError, ModelMismatchError, UnknownClipError, UnknownViewError
-from retrieval.querying import MAX_K, build_query, check_camera_clip, check_query, hits_to_results, in_view, preview_of
+from retrieval.querying import MAX_K, build_query, check_camera_clip, check_query, hits_to_results, preview_of
 from retrieval.records import SearchResult
 
 #: 2: the manifest holds checksums (``files``, ``content_sha256``); version 1 is still read, with a warning.
@@ -289,7 +289,7 @@ class SceneSearch:
             filters: ``{"category": "car"}``, ``{"category": ["car", "bus"]}`` or a filter string
                 (``"category in {car, bus} and tags contains 'left:approach'"``, see ``indexes.filters``).
             view: ``fused``, ``camera`` or ``bev``; ``camera`` searches the clips the camera saw
-                (:func:`retrieval.querying.in_view`).
+                (:func:`retrieval.querying.build_query`).
 
         Raises:
             EmptyQueryError, InvalidKError, FilterSyntaxError, UnknownViewError: bad arguments.
@@ -297,7 +297,7 @@ class SceneSearch:
         """
         index = self._view(view)
         query = check_query(query)
-        checked = in_view(build_query(k, filters, index.metadata, len(index), max_k), view, index.metadata)
+        checked = build_query(k, filters, index.metadata, len(index), max_k, view)
         t0 = time.perf_counter()
         xq = np.asarray(self.embedder.embed_texts([query]), dtype=np.float32)
         t1 = time.perf_counter()
@@ -324,10 +324,10 @@ class SceneSearch:
                 examples = index.metadata.table.column("clip_id").slice(0, 3).to_pylist()
                 raise UnknownClipError(clip, examples)
             check_camera_clip(index.get(clip), view)
-            checked = in_view(build_query(k, filters, index.metadata, len(index) - 1, max_k), view, index.metadata)
+            checked = build_query(k, filters, index.metadata, len(index) - 1, max_k, view)
             return hits_to_results(index, np.zeros((1, index.dim), np.float32), checked, view, self.clips_dir,
                                    exclude_clip=clip)
-        checked = in_view(build_query(k, filters, index.metadata, len(index), max_k), view, index.metadata)
+        checked = build_query(k, filters, index.metadata, len(index), max_k, view)
         xq = np.asarray(self.embedder.embed_arrays(clip, view=view), dtype=np.float32)[:1]
         return hits_to_results(index, xq, checked, view, self.clips_dir)
 

@@ -77,3 +77,14 @@ def test_hits_come_from_the_checked_query(metadata: MetadataStore) -> None:
                              exclude_clip="c0")
     assert len(others) == len(ROWS) - 1 and "c0" not in {r.clip_id for r in others}
     assert hits_to_results(index, x[:1], Query(0, None), "fused", None, exclude_clip="c0") == []
+
+
+def test_the_camera_view_keeps_to_the_clips_the_camera_saw(metadata: MetadataStore) -> None:
+    seen = MetadataStore.from_rows(pa.Table.from_pylist([r | {"has_camera": i % 2 == 0} for i, r in enumerate(ROWS)]),
+                                   np.arange(len(ROWS)))
+    camera = Condition("has_camera", Op.EQ, True)
+    assert build_query(3, None, seen, 6, view="camera").filters == (camera,)
+    assert build_query(3, {"category": "car"}, seen, 6, view="camera").filters == (
+        Condition("category", Op.EQ, "car"), camera)
+    assert build_query(3, None, seen, 6, view="fused").filters is None  # other views: every clip
+    assert build_query(3, None, metadata, 6, view="camera").filters is None  # an index that does not record it

@@ -16,6 +16,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from encoders.clips.views import CAMERA_BOX_FEATURES
 from encoders.config import CameraConfig
 from encoders.fusion import TemporalEncoder
 from encoders.timeline import clip_head, read_clip
@@ -81,6 +82,11 @@ def mask_scale(mask: torch.Tensor) -> torch.Tensor:
     return torch.log1p(mask.sum(dim=(1, 2, 3)))[:, None] / math.log1p(h * w)  # (N, 1)
 
 
+def _frames(clip: torch.Tensor) -> torch.Tensor:
+    """(B, T, C, H, W) → (B*T, C, H, W)."""
+    return clip.reshape(-1, *clip.shape[2:])
+
+
 def masked_mean(features: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
     """features: (N, C, h, w); mask: (N, 1, h, w) weights → (N, C) mean under the mask (0 where empty)."""
     weight = mask.sum(dim=(2, 3)).clamp_min(1e-6)  # (N, 1)
@@ -97,35 +103,55 @@ class CameraTower(nn.Module):
         stages = [conv_block(config.in_channels, widths[0], 5, 4)]
         stages += [conv_block(a, b, 3, 2) for a, b in zip(widths[:-1], widths[1:])]
         self.cnn = nn.Sequential(*stages)
-        self.temporal = TemporalEncoder(config.temporal,
-                                        2 * widths[-1] + 8 + 2 * config.mask_scale + config.ego_features)
+        crop_features = 0
+        if config.object_crop:
+            # The object fills the crop: a finer stem (stride 2, not 4) keeps the few pixels it has.
+            crop_stages = [conv_block(config.in_channels, widths[0], 3, 2)]
+            crop_stages += [conv_block(a, b, 3, 2) for a, b in zip(widths[:-1], widths[1:])]
+            self.crop_cnn = nn.Sequential(*crop_stages)
+            crop_features = 2 * widths[-1] + 2 * CAMERA_BOX_FEATURES
+        self.temporal = TemporalEncoder(config.temporal, 2 * widths[-1] + 8 + 2 * config.mask_scale
+                                        + config.ego_features + crop_features)
         self.head = clip_head(config.temporal.width, embed_dim, time_slots, slot_dim)
 
-    def frame_features(self, camera: torch.Tensor, ego_motion: torch.Tensor | None = None) -> torch.Tensor:
-        """camera: (B, T, C, H, W); ego_motion: (B, T, 6), read when ``config.ego_features`` > 0
-        → (B, T, 2 * widths[-1] + 8 (+ 2) + E) per-frame vectors (+ 2 with ``config.mask_scale``)."""
-        b, t, c, h, w = camera.shape
-        x = camera.reshape(b * t, c, h, w)  # (B*T, C, H, W)
-        mask = x[:, -1:]  # (B*T, 1, H, W)
-        f = self.cnn(x)  # (B*T, F, h, w)
-        small = F.adaptive_avg_pool2d(mask, (f.shape[-2], f.shape[-1]))  # (B*T, 1, h, w)
-        pooled = torch.cat([masked_mean(f, small), f.mean(dim=(2, 3))], dim=-1).reshape(b, t, -1)  # (B, T, 2F)
-        geometry = with_motion(mask_geometry(mask).reshape(b, t, -1))  # (B, T, 8)
-        parts = [pooled, geometry]
+    def frame_features(self, camera: torch.Tensor, ego_motion: torch.Tensor | None = None,
+                       crop: torch.Tensor | None = None, box: torch.Tensor | None = None) -> torch.Tensor:
+        """camera: (B, T, C, H, W); ego_motion: (B, T, 6), read when ``config.ego_features`` > 0; crop:
+        (B, T, C, H, W) and box: (B, T, 4), read with ``config.object_crop``
+        → (B, T, 2 * widths[-1] + 8 (+ 2) + E (+ 2 * widths[-1] + 8)) per-frame vectors (+ 2 with
+        ``config.mask_scale``)."""
+        b, t = camera.shape[:2]
+        mask = _frames(camera)[:, -1:]  # (B*T, 1, H, W)
+        parts = [self._pooled(self.cnn, camera), with_motion(mask_geometry(mask).reshape(b, t, -1))]  # 2F, 8
         if self.config.mask_scale:
             parts.append(with_motion(mask_scale(mask).reshape(b, t, 1)))  # (B, T, 2)
         if self.config.ego_features:
             if ego_motion is None:
                 raise ValueError("CameraTower: ego_features > 0 needs the clips' ego_motion")
             parts.append(unit_ego_motion(ego_motion, self.config.ego_features))  # (B, T, E)
-        return torch.cat(parts, dim=-1)  # (B, T, 2F + 8 (+ 2) + E)
+        if self.config.object_crop:
+            if crop is None or box is None:
+                raise ValueError("CameraTower: object_crop needs the clips' camera_crop and camera_box (clips "
+                                 "rendered with object crops)")
+            parts += [self._pooled(self.crop_cnn, crop), with_motion(box)]  # (B, T, 2F), (B, T, 8)
+        return torch.cat(parts, dim=-1)  # (B, T, 2F + 8 (+ 2) + E (+ 2F + 8))
+
+    @staticmethod
+    def _pooled(cnn: nn.Module, frames: torch.Tensor) -> torch.Tensor:
+        """frames: (B, T, C, H, W), object mask last → (B, T, 2F): the CNN's features under the mask and overall."""
+        b, t = frames.shape[:2]
+        x = _frames(frames)  # (B*T, C, H, W)
+        f = cnn(x)  # (B*T, F, h, w)
+        small = F.adaptive_avg_pool2d(x[:, -1:], (f.shape[-2], f.shape[-1]))  # (B*T, 1, h, w)
+        return torch.cat([masked_mean(f, small), f.mean(dim=(2, 3))], dim=-1).reshape(b, t, -1)
 
     def forward(self, camera: torch.Tensor, frames: dict[str, torch.Tensor] | None = None,
-                ego_motion: torch.Tensor | None = None) -> torch.Tensor:
-        """camera: (B, T, C, H, W); ego_motion: (B, T, 6) (see :meth:`frame_features`) → (B, D); the
+                ego_motion: torch.Tensor | None = None, crop: torch.Tensor | None = None,
+                box: torch.Tensor | None = None) -> torch.Tensor:
+        """camera: (B, T, C, H, W); ego_motion, crop, box: see :meth:`frame_features` → (B, D); the
         temporal model's frame tokens (B, T, W) go to ``frames["camera"]`` when a dict is given (dense
         supervision, :mod:`encoders.dense`)."""
-        clip, tokens = self.temporal.encode(self.frame_features(camera, ego_motion))  # (B, W), (B, T, W)
+        clip, tokens = self.temporal.encode(self.frame_features(camera, ego_motion, crop, box))  # (B, W), (B, T, W)
         if frames is not None:
             frames["camera"] = tokens
         return read_clip(self.head, clip, tokens)

@@ -156,6 +156,9 @@ class CameraConfig(EncodersConfig):
             also reads; 0: the camera's pixels alone.
         mask_scale: also read the object's size on a log scale and its change since the previous frame
             (:func:`encoders.camera.mask_scale`).
+        object_crop: also read the object's crop at full resolution (the batches' ``camera_crop``, from
+            clips rendered with crops) through a CNN of its own, with where the crop lies in the image and
+            how many pixels the object covers (``camera_box``) and their change since the previous frame.
     """
 
     in_channels: int = 4
@@ -163,6 +166,7 @@ class CameraConfig(EncodersConfig):
     temporal: TemporalConfig = field(default_factory=TemporalConfig)
     ego_features: int = 0
     mask_scale: bool = False
+    object_crop: bool = False
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "widths", tuple(int(w) for w in self.widths))

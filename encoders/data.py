@@ -12,6 +12,11 @@ of the bytes to move; :class:`~encoders.model.DualEncoder` converts them on its 
 - ``camera``: (T, 4, Hc, Wc) float32: RGB in [0, 1] with the object highlighted (coloured overlay,
   the rest dimmed) and its binary mask as channel 3; zeros when ``has_camera`` is false
 - ``has_camera``: bool
+- ``camera_crop``: (T, 4, Hc, Wc) float32, only from a clips folder with object crops (its manifest's
+  ``camera.object_crops``): the object's crop at full resolution (:mod:`encoders.clips.crops`), RGB in
+  [0, 1] (jittered with the frames) and its mask as channel 3; zeros in frames without a crop
+- ``camera_box``: (T, 4) float32 beside ``camera_crop``: the crop's centre x, y in the full image in
+  [−1, 1], the object's full-resolution pixels on a log scale, and whether it was seen
 - ``bev_lidar``: (T, Cl, Hb, Wb) float32 occupancy in [0, 1] per height bin
 - ``bev_map``: (T, Cm, Hb, Wb) float32 map layers in [0, 1]
 - ``bev_object``: (T, 1, Hb, Wb) float32, the object of interest's footprint
@@ -46,9 +51,11 @@ import pyarrow as pa
 import torch
 from numpy.typing import NDArray
 
+from encoders.clips import layout
 from encoders.clips.frame_tags import FRAME_TAG_COLUMNS
 from encoders.clips.layout import grid_from_manifest, read_clip_table, read_manifest
 from encoders.clips.views import (
+    CAMERA_BOX_FEATURES,
     EGO_MOTION_FEATURES,
     OBJECT_RATES_COLUMNS,
     OBJECT_TRACK_FEATURES,
@@ -57,6 +64,7 @@ from encoders.clips.views import (
     ego_motion,
     gather_cells,
     highlight_camera,
+    object_crops,
     object_footprint,
     object_rates_and_velocity,
     object_track,
@@ -69,7 +77,7 @@ from encoders.negatives import render_caption
 from encoders.time_reversal import reversed_clip_tags
 
 #: The image-like views; uint8 0–255 with ``as_uint8=True``, else float32 in [0, 1].
-UINT8_VIEWS = ("camera", "bev_lidar", "bev_map", "bev_object")
+UINT8_VIEWS = ("camera", "camera_crop", "bev_lidar", "bev_map", "bev_object")
 
 
 @dataclass(frozen=True)
@@ -155,6 +163,8 @@ class ClipDataset(torch.utils.data.Dataset[dict[str, Any]]):
         self.as_uint8 = as_uint8
         cam = self.manifest["camera"]
         self._camera_shape = (int(cam["height_px"]), int(cam["width_px"]))
+        #: Whether the clips hold object crops (``camera_crop`` and ``camera_box`` in every item).
+        self.has_crops = bool(cam.get("object_crops", False))
         self._highlight = (
             tuple(cam.get("highlight_rgb", (255, 0, 255))),
             float(cam.get("highlight_alpha", 0.5)),
@@ -214,6 +224,7 @@ class ClipDataset(torch.utils.data.Dataset[dict[str, Any]]):
         hb, wb = self._grid.shape
         return {
             "camera": (t, 4, *self._camera_shape),
+            **({"camera_crop": (t, 4, *self._camera_shape)} if self.has_crops else {}),
             "bev_lidar": (t, arrays.bev_lidar.shape[1], hb, wb),
             "bev_map": (t, arrays.bev_map.shape[1], hb, wb),
             "bev_object": (t, 1, hb, wb),
@@ -236,12 +247,14 @@ class ClipDataset(torch.utils.data.Dataset[dict[str, Any]]):
         slots = {key: tensor.numpy() for key, tensor in views.items()}
         t = shapes["camera"][0]
         motion = _empty_batch((len(indices), t, EGO_MOTION_FEATURES), torch.float32)
+        box = _empty_batch((len(indices), t, CAMERA_BOX_FEATURES), torch.float32) if self.has_crops else None
         track = _empty_batch((len(indices), t, OBJECT_TRACK_FEATURES), torch.float32)
         velocity = _empty_batch((len(indices), t, len(OBJECT_VELOCITY_COLUMNS)), torch.float32)
         rates = _empty_batch((len(indices), t, len(OBJECT_RATES_COLUMNS)), torch.float32)
         targets = _empty_batch((len(indices), t, len(DENSE_TASKS)), torch.int64)
         items = [self._fill(i, {key: slot[b] for key, slot in slots.items()}, motion.numpy()[b], track.numpy()[b],
-                            velocity.numpy()[b], rates.numpy()[b], targets.numpy()[b])
+                            velocity.numpy()[b], rates.numpy()[b], targets.numpy()[b],
+                            None if box is None else box.numpy()[b])
                  for b, i in enumerate(indices)]
         batch: dict[str, Any] = {key: [item[key] for item in items] for key in items[0]}
         batch["has_camera"] = torch.tensor(batch["has_camera"], dtype=torch.bool)
@@ -253,19 +266,39 @@ class ClipDataset(torch.utils.data.Dataset[dict[str, Any]]):
                 out.copy_(tensor).mul_(1.0 / 255.0)  # two in-place passes: faster than a promoting mul
                 batch[key] = out
         batch["ego_motion"] = motion
+        if box is not None:
+            batch["camera_box"] = box
         batch["object_track"] = track
         batch["object_velocity"] = velocity
         batch["object_rates"] = rates
         batch["frame_targets"] = targets
         return batch
 
+    def _fill_crop(self, log_id: str, arrays: LogArrays, value: int, indices: NDArray[np.int64],
+                   factors: tuple[float, float, float] | None, crop_out: NDArray[np.uint8],
+                   box_out: NDArray[np.float32]) -> None:
+        """Write a clip's object crops into ``crop_out`` (T, 4, Hc, Wc), jittered by the frames' colour
+        ``factors``, and their box features into ``box_out`` (T, 4)."""
+        if arrays.crops is None:
+            raise FileNotFoundError(f"{layout.rendered_log_dir(self.clips_dir, log_id)}: the manifest promises "
+                                    f"object crops and {layout.CAMERA_CROP_INDEX_FILE} is missing; render the clips "
+                                    "again (scenesearch clips)")
+        t, _, h, w = crop_out.shape
+        rgb = np.empty((t, h, w, 3), np.uint8)
+        mask = np.empty((t, h, w), np.uint8)
+        object_crops(arrays.crops, value - 1, indices, rgb, mask, box_out)
+        if factors is not None:
+            rgb = _colour_jitter(rgb, factors)
+        crop_out[:, :3] = rgb.transpose(0, 3, 1, 2)
+        np.multiply(mask, np.uint8(255), out=crop_out[:, 3], casting="unsafe")
+
     def _fill(self, index: int, slot: dict[str, NDArray[np.uint8]], motion_out: NDArray[np.float32],
               track_out: NDArray[np.float32], velocity_out: NDArray[np.float32], rates_out: NDArray[np.float32],
-              targets_out: NDArray[np.int64]) -> dict[str, Any]:
+              targets_out: NDArray[np.int64], box_out: NDArray[np.float32] | None = None) -> dict[str, Any]:
         """Write item ``index``'s uint8 views into ``slot`` (contiguous (T, C, H, W) arrays), its
         ego motion into ``motion_out`` (T, 6), its track into ``track_out`` (T, 11), ``velocity_out``
-        (T, 2) and ``rates_out`` (T, 3), and its frames' tag classes into ``targets_out`` (T, K); return
-        the item's other fields."""
+        (T, 2) and ``rates_out`` (T, 3), its frames' tag classes into ``targets_out`` (T, K), and with
+        crops its crop's box features into ``box_out`` (T, 4); return the item's other fields."""
         row = self._rows[index]
         arrays = self._log(row.log_id)
         fi = row.frame_indices
@@ -288,17 +321,24 @@ class ClipDataset(torch.utils.data.Dataset[dict[str, Any]]):
 
         has_camera = bool(row.has_camera and arrays.camera.shape[0] > 0)
         camera = slot["camera"]
+        crop = slot.get("camera_crop") if box_out is not None else None
         if has_camera:
             rgb = np.asarray(arrays.camera[fi])  # (T, H, W, 3) uint8
             mask = np.asarray(arrays.camera_instances[fi]) == value  # (T, H, W)
-            if rng is not None:
-                rgb = _colour_jitter(rgb, rng, aug)
+            factors = _jitter_factors(rng, aug) if rng is not None else None
+            if factors is not None:
+                rgb = _colour_jitter(rgb, factors)
             color, alpha, dim = self._highlight
             shown = highlight_camera(rgb, mask, color, alpha, dim)  # (T, H, W, 3)
             camera[:, :3] = shown.transpose(0, 3, 1, 2)
             np.multiply(mask, np.uint8(255), out=camera[:, 3], casting="unsafe")
+            if crop is not None and box_out is not None:
+                self._fill_crop(row.log_id, arrays, value, fi, factors, crop, box_out)
         else:
             camera.fill(0)
+            if crop is not None and box_out is not None:
+                crop.fill(0)
+                box_out.fill(0.0)
 
         obj = object_footprint(arrays, self._grid, row.track_id, fi)[:, None]  # (T, 1, H, W), 0/1
         obj *= np.uint8(255)
@@ -353,14 +393,20 @@ def _played_backwards(row: _Row, rng: np.random.Generator | None,
         return None
 
 
-def _colour_jitter(rgb: NDArray[np.uint8], rng: np.random.Generator, aug: AugmentConfig) -> NDArray[np.uint8]:
-    """(T, H, W, 3) → the same, with one brightness / contrast / saturation draw for the whole clip.
+def _jitter_factors(rng: np.random.Generator, aug: AugmentConfig) -> tuple[float, float, float]:
+    """One clip's brightness, contrast and saturation factors."""
+    return (float(rng.uniform(1 - aug.brightness, 1 + aug.brightness)),
+            float(rng.uniform(1 - aug.contrast, 1 + aug.contrast)),
+            float(rng.uniform(1 - aug.saturation, 1 + aug.saturation)))
+
+
+def _colour_jitter(rgb: NDArray[np.uint8], factors: tuple[float, float, float]) -> NDArray[np.uint8]:
+    """(T, H, W, 3) → the same, with one brightness / contrast / saturation draw (:func:`_jitter_factors`)
+    for the whole clip.
 
     Brightness and contrast are one lookup table; saturation blends with the luminance image.
     """
-    b = rng.uniform(1 - aug.brightness, 1 + aug.brightness)
-    c = rng.uniform(1 - aug.contrast, 1 + aug.contrast)
-    s = rng.uniform(1 - aug.saturation, 1 + aug.saturation)
+    b, c, s = factors
     flat = np.ascontiguousarray(rgb).reshape(-1, rgb.shape[-2], 3)  # frames stacked into one image
     mean = float(flat.mean()) * b
     lut = np.clip((np.arange(256) * b - mean) * c + mean + 0.5, 0, 255).astype(np.uint8)

@@ -73,7 +73,7 @@ class DualEncoder(nn.Module):
         if view not in VIEWS:
             raise ValueError(f"view must be one of {VIEWS}, got {view!r}")
         if view == "camera":
-            x = self.camera(self._get(batch, "camera"), ego_motion=self._camera_ego(batch))
+            x = self.camera(self._get(batch, "camera"), ego_motion=self._camera_ego(batch), **self._camera_crop(batch))
         elif view == "bev":
             x = self._bev(batch)
         else:
@@ -111,7 +111,8 @@ class DualEncoder(nn.Module):
         bev = self._bev(batch, frames)  # (B, D)
         camera = torch.zeros_like(bev)
         if camera_always or bool(has_camera.any()) or bool(batch.get("run_camera", False)):
-            camera = self.camera(self._get(batch, "camera"), frames, self._camera_ego(batch))  # (B, D)
+            camera = self.camera(self._get(batch, "camera"), frames, self._camera_ego(batch),
+                                 **self._camera_crop(batch))  # (B, D)
         return camera, bev, has_camera
 
     def dense_logits(self, frames: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
@@ -150,6 +151,16 @@ class DualEncoder(nn.Module):
             self._get(batch, "object_rates") if self.config.bev.track_features and self.config.bev.track_rates
             else None,
         )
+
+    def _camera_crop(self, batch: dict[str, Any]) -> dict[str, torch.Tensor]:
+        """The object crops the camera tower reads with ``camera.object_crop`` (none without)."""
+        if not self.config.camera.object_crop:
+            return {}
+        if "camera_crop" not in batch or "camera_box" not in batch:
+            raise ValueError("this model reads object crops (model.camera.object_crop) and the clips have none: "
+                             "render them again with `scenesearch clips` (clips folders from before crops lack "
+                             "camera_crops.npy)")
+        return {"crop": self._get(batch, "camera_crop"), "box": self._get(batch, "camera_box")}
 
     def _camera_ego(self, batch: dict[str, Any]) -> torch.Tensor | None:
         return self._get(batch, "ego_motion") if self.config.camera.ego_features else None

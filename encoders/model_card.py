@@ -45,6 +45,8 @@ def model_card(config: TrainConfig, history: list[dict[str, Any]], n_train: int,
         camera_reads.append(f"the ego motion ({', '.join(EGO_MOTION_COLUMNS[: m.camera.ego_features])})")
     if m.camera.mask_scale:
         camera_reads.append("the object's size on a log scale")
+    if m.camera.object_crop:
+        camera_reads.append("the object's crop at full resolution (a CNN of its own) with where it lies in the image")
     camera = (f"strided CNN {list(m.camera.widths)} over RGB + object mask, temporal transformer over frames"
               + (f" that also reads {' and '.join(camera_reads)}" if camera_reads else ""))
     slots = (f"\n- Video time slots: each temporal stream pools its frame tokens into {m.time_slots} stretches of the "

@@ -138,6 +138,9 @@ def _open_datasets(
         train_set = open_split(clips_dir, "train", augment=config.augment, seed=config.seed,
                                augment_config=AugmentConfig(time_reversal_probability=config.time_reversal))
         val_set = open_split(clips_dir, "val", seed=config.seed)
+    if config.model.camera.object_crop and not getattr(train_set, "has_crops", True):
+        raise TrainingError(f"{clips_dir}: model.camera.object_crop (--camera-crop) reads object crops and these "
+                            "clips have none; render them again with `scenesearch clips`")
     if train_set is None or len(train_set) == 0:  # type: ignore[arg-type]
         raise NoTrainingSplitError(f"{clips_dir}: no clips in the 'train' split (clips.parquet column 'split')")
     if train_set is not None and len(train_set) < 2:  # type: ignore[arg-type]
@@ -203,17 +206,10 @@ def _tensorboard(run_dir: Path) -> Any:
 
 
 def train(
-    clips_dir: Path | str,
-    run_dir: Path | str,
-    config: TrainConfig,
-    resume: bool = False,
-    force: bool = False,
-    datasets: dict[str, Dataset[dict[str, Any]]] | None = None,
-    tagging: TagTrainConfig | None = None,
-    on_epoch_end: Callable[[int], None] | None = None,
-    log: Callable[[str], None] | None = None,
-    progress: bool | None = None,
-    distributed: Distributed | None = None,
+    clips_dir: Path | str, run_dir: Path | str, config: TrainConfig, resume: bool = False, force: bool = False,
+    datasets: dict[str, Dataset[dict[str, Any]]] | None = None, tagging: TagTrainConfig | None = None,
+    on_epoch_end: Callable[[int], None] | None = None, log: Callable[[str], None] | None = None,
+    progress: bool | None = None, distributed: Distributed | None = None,
 ) -> TrainResult:
     """Train a DualEncoder on the 'train' split of ``clips_dir``, validating on 'val'; see the module doc.
 

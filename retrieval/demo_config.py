@@ -17,7 +17,7 @@ DEFAULT_QUERIES = (
 VAL_FRACTION = 0.15
 #: The camera's training options: each a :class:`DemoConfig` field, a ``demo`` switch and a ``train`` flag
 #: of the same name.
-CAMERA_OPTIONS = ("camera_ego", "camera_mask_scale", "camera_apart")
+CAMERA_OPTIONS = ("camera_ego", "camera_mask_scale", "camera_apart", "camera_crop")
 
 
 def option_flag(name: str) -> str:
@@ -82,6 +82,11 @@ class DemoConfig:
             R@5 passed 0.5 but the BEV view lost recall on the quality benchmark (0.816 → 0.781) and
             the real logs (0.533 → 0.511); apart, the BEV view keeps its recall (README, "The camera
             trained apart").
+        camera_crop: give the camera tower each object's crop at full resolution
+            (``train --camera-crop``, :mod:`encoders.clips.crops`): at 64 × 32 half the test objects
+            cover under a pixel; with the crop, camera-only R@5 rose from 0.43-0.53 to 0.58-0.68 over
+            six trainings, and on the quality benchmark from 0.38 to 0.51 (README, "Object crops for the
+            camera").
         train_preset: the trainer's preset (``default``; ``tiny`` for smoke runs), None for the trainer's choice.
         sensors: render LiDAR and cameras (off: BEV clips from boxes, no camera).
         extra_logs: more simulated logs, from another seed, without sensors (BEV clips from boxes,
@@ -132,6 +137,7 @@ class DemoConfig:
     camera_ego: bool = True
     camera_mask_scale: bool = True
     camera_apart: bool = True
+    camera_crop: bool = True
     train_preset: str | None = None
     sensors: bool = True
     extra_logs: int = 24

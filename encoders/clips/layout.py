@@ -17,6 +17,12 @@ file                      shape, dtype           content
 camera.npy                (F, Hc, Wc, 3) uint8   front camera RGB, resized (F = 0 when the log has no camera)
 camera_instances.npy      (F, Hc, Wc) uint16     instance masks: v ≥ 1 ↔ ``track_ids[v − 1]``, 0 = none
 camera_pixel_counts.npy   (F, K) int32           mask pixels of every track at the camera's full resolution
+camera_crops.npy          (N, Hc, Wc, 3) uint8   every seen track's crop around its box at full resolution
+                                                 (:mod:`encoders.clips.crops`), one row per (frame, track)
+camera_crop_masks.npy     (N, Hc, Wc) uint8      the track's mask in its crop (1 = the object)
+camera_crop_index.npy     (F, K) int32           each (frame, track)'s row in the crops, −1 where none
+camera_crop_box.npy       (F, K, 3) float32      the crop's centre in the full image (x, y in [−1, 1]) and the
+                                                 track's pixels there, log(1 + px) / log(1 + image px)
 bev_lidar.npy             (F, Z, Hb, Wb) uint8   occupancy per height bin (log-scaled point density)
 bev_map.npy               (F, Cm, Hb, Wb) uint8  map layers (:data:`~encoders.clips.raster.MAP_CHANNELS`)
 bev_instances.npy         (F, Hb, Wb) uint16     box footprints: v ≥ 1 ↔ ``track_ids[v − 1]`` (overlaps: the
@@ -64,6 +70,10 @@ LOGS_DIR = "logs"
 CAMERA_FILE = "camera.npy"
 CAMERA_INSTANCES_FILE = "camera_instances.npy"
 CAMERA_PIXEL_COUNTS_FILE = "camera_pixel_counts.npy"
+CAMERA_CROPS_FILE = "camera_crops.npy"
+CAMERA_CROP_MASKS_FILE = "camera_crop_masks.npy"
+CAMERA_CROP_INDEX_FILE = "camera_crop_index.npy"
+CAMERA_CROP_BOX_FILE = "camera_crop_box.npy"
 BEV_LIDAR_FILE = "bev_lidar.npy"
 BEV_MAP_FILE = "bev_map.npy"
 BEV_INSTANCES_FILE = "bev_instances.npy"

@@ -1,13 +1,17 @@
 """The front camera of a log, one image per frame: resized RGB and instance masks (from the log's
-masks, else from its boxes projected into the camera), and every track's pixel count."""
+masks, else from its boxes projected into the camera), every track's pixel count, and every seen
+track's crop at full resolution (:mod:`encoders.clips.crops`)."""
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
 from numpy.typing import NDArray
 
 from encoders.clips.config import ClipsConfig
+from encoders.clips.crops import ObjectCrops, crop_instances, crop_projected
 from encoders.clips.render_stats import LogRenderStats
 from scenes import av2_io
 from scenes.errors import LogFormatError
@@ -16,13 +20,27 @@ from scenes.sensorsim.instance_masks import read_instance_mask
 from scenes.tracks import DenseTracks
 
 
-def project_masks(
-    log: Log, config: ClipsConfig, dense: DenseTracks, frame_ok: NDArray[np.bool_]
-) -> tuple[NDArray[np.uint16], NDArray[np.int32]] | None:
+@dataclass(frozen=True)
+class ProjectedMasks:
     """Instance masks from the boxes projected into the camera (logs with images but no masks).
 
-    Returns (F, Hc, Wc) masks and (F, K) full-resolution pixel counts, or None without calibration.
+    Attributes:
+        masks: (F, Hc, Wc) uint16 instance values at the clips' camera size (near objects occlude far ones).
+        pixels: (F, K) int32 each track's pixels in them, counted at the camera's full resolution.
+        corners_uv_px: (K, F, 8, 2) each track's box corners in full-resolution pixels.
+        in_front: (K, F) whether the whole box lies in front of the camera.
     """
+
+    masks: NDArray[np.uint16]
+    pixels: NDArray[np.int32]
+    corners_uv_px: NDArray[np.float64]
+    in_front: NDArray[np.bool_]
+
+
+def project_masks(
+    log: Log, config: ClipsConfig, dense: DenseTracks, frame_ok: NDArray[np.bool_]
+) -> ProjectedMasks | None:
+    """:class:`ProjectedMasks` of the frames ``frame_ok``, or None without calibration."""
     cam = config.camera
     calib = log.calibration
     if cam.camera_name not in calib.intrinsics or cam.camera_name not in calib.ego_SE3_sensor:
@@ -34,7 +52,7 @@ def project_masks(
     masks = np.zeros((f, cam.height_px, cam.width_px), dtype=np.uint16)
     counts = np.zeros((f, k), dtype=np.int32)
     if k == 0:
-        return masks, counts
+        return ProjectedMasks(masks, counts, np.zeros((0, f, 8, 2)), np.zeros((0, f), bool))
     signs = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], dtype=np.float64)
     half = 0.5 * np.nan_to_num(dense.size_lwh_m)  # (K, F, 3)
     yaw = np.nan_to_num(dense.yaw_ego_rad)
@@ -47,9 +65,10 @@ def project_masks(
     depth = pts_cam[..., 2]
     in_front = (depth > 0.5).all(axis=-1) & dense.valid  # (K, F)
     z = np.where(depth > 0.5, depth, 1.0)
-    u = small.fx_px * pts_cam[..., 0] / z + small.cx_px
-    v = small.fy_px * pts_cam[..., 1] / z + small.cy_px
-    uv = np.stack([u, v], axis=-1)
+    u = intr.fx_px * pts_cam[..., 0] / z + intr.cx_px
+    v = intr.fy_px * pts_cam[..., 1] / z + intr.cy_px
+    corners_uv_px = np.stack([u, v], axis=-1)  # (K, F, 8, 2) full resolution
+    uv = corners_uv_px * np.array([small.width_px / intr.width_px, small.height_px / intr.height_px])
     scale_area = (intr.width_px / cam.width_px) * (intr.height_px / cam.height_px)
     mean_depth = depth.mean(axis=-1)
     for fi in np.flatnonzero(frame_ok):
@@ -59,15 +78,33 @@ def project_masks(
             cv2.fillConvexPoly(masks[fi], hull, int(ki) + 1, lineType=cv2.LINE_8, shift=4)
         if ks.size:
             counts[fi] = np.bincount(masks[fi].ravel(), minlength=k + 1)[1:].astype(np.float64) * scale_area
-    return masks, counts
+    return ProjectedMasks(masks, counts, corners_uv_px, in_front)
+
+
+@dataclass(frozen=True)
+class RenderedCamera:
+    """A log's camera arrays (:mod:`encoders.clips.layout`).
+
+    Attributes:
+        rgb: (F, Hc, Wc, 3) uint8 resized frames (F = 0 without images).
+        masks: (F, Hc, Wc) uint16 instance masks (F = 0 without images).
+        pixels: (F, K) int32 each track's pixels at the camera's full resolution.
+        frame_ok: (F,) whether each frame has an image.
+        crops: every seen track's crop (:class:`encoders.clips.crops.ObjectCrops`).
+    """
+
+    rgb: NDArray[np.uint8]
+    masks: NDArray[np.uint16]
+    pixels: NDArray[np.int32]
+    frame_ok: NDArray[np.bool_]
+    crops: ObjectCrops
 
 
 def render_camera(
     log: Log, config: ClipsConfig, dense: DenseTracks, cam_ts: NDArray[np.int64], pick: NDArray[np.int64],
     stats: LogRenderStats,
-) -> tuple[NDArray[np.uint8], NDArray[np.uint16], NDArray[np.int32], NDArray[np.bool_]]:
-    """Resized RGB frames (F or 0 of them), instance masks, full-resolution pixel counts (F, K), and
-    (F,) whether each frame has an image.
+) -> RenderedCamera:
+    """Resize a log's camera images to the clips' size, with its instance masks and every track's crop.
 
     Args:
         log: the log.
@@ -79,19 +116,19 @@ def render_camera(
     """
     cam = config.camera
     k, f = dense.valid.shape
-    empty = (
-        np.zeros((0, cam.height_px, cam.width_px, 3), np.uint8),
-        np.zeros((0, cam.height_px, cam.width_px), np.uint16),
-        np.zeros((f, k), np.int32),
-        np.zeros(f, bool),
-    )
+    crops = ObjectCrops(f, k, cam.height_px, cam.width_px)
     if not (pick >= 0).any():
-        return empty
+        return RenderedCamera(np.zeros((0, cam.height_px, cam.width_px, 3), np.uint8),
+                              np.zeros((0, cam.height_px, cam.width_px), np.uint16), np.zeros((f, k), np.int32),
+                              np.zeros(f, bool), crops)
     mask_dir = log.log_dir / av2_io.CAMERAS_DIR / f"{cam.camera_name}{INSTANCE_SUFFIX}"
     use_masks = mask_dir.is_dir()
     rgb = np.zeros((f, cam.height_px, cam.width_px, 3), np.uint8)
     masks = np.zeros((f, cam.height_px, cam.width_px), np.uint16)
     counts = np.zeros((f, k), np.int32)
+    # Without instance masks the boxes are projected first (they need no image), so that each image is
+    # cropped while it is read; a frame whose image turns out unreadable is cleared after (it has no crops).
+    projected = None if use_masks else project_masks(log, config, dense, pick >= 0)
     frame_ok = np.zeros(f, dtype=bool)
     track_index = {str(t): i for i, t in enumerate(dense.track_ids)}
     lut: NDArray[np.uint16] | None = None
@@ -106,6 +143,9 @@ def render_camera(
         rgb[fi] = cv2.cvtColor(cv2.resize(bgr, (cam.width_px, cam.height_px), interpolation=cv2.INTER_AREA),
                                cv2.COLOR_BGR2RGB)
         frame_ok[fi] = True
+        if projected is not None:
+            crop_projected(crops, int(fi), bgr, projected.corners_uv_px[:, fi],
+                           np.flatnonzero(projected.in_front[:, fi]), projected.pixels[fi])
         if not use_masks:
             continue
         try:
@@ -123,14 +163,14 @@ def render_camera(
         remapped = lut[full]
         counts[fi] = np.bincount(remapped.ravel(), minlength=k + 1)[1 : k + 1]
         masks[fi] = cv2.resize(remapped, (cam.width_px, cam.height_px), interpolation=cv2.INTER_NEAREST)
+        crop_instances(crops, int(fi), bgr, remapped, counts[fi])
     stats.camera_frames = int(frame_ok.sum())
     stats.camera_frames_missing = int(f - frame_ok.sum())
     if use_masks:
         stats.camera_mask_source = "instance_masks"
-    else:
-        projected = project_masks(log, config, dense, frame_ok)
-        if projected is not None:
-            masks, counts = projected
-            stats.camera_mask_source = "projected_boxes"
-    return rgb, masks, counts, frame_ok
-
+    elif projected is not None:
+        masks, counts = projected.masks, projected.pixels
+        masks[~frame_ok] = 0
+        counts[~frame_ok] = 0
+        stats.camera_mask_source = "projected_boxes"
+    return RenderedCamera(rgb, masks, counts, frame_ok, crops)

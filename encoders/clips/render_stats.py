@@ -19,7 +19,7 @@ from encoders.clips.layout import RENDER_FILE
 from scenes.tracks import DenseTracks
 
 #: Version of the per-log files; bump when their content changes.
-RENDER_VERSION = 4
+RENDER_VERSION = 5
 
 
 def render_fingerprint(config: ClipsConfig) -> str:

@@ -24,6 +24,23 @@ from scenes.geometry import batch_matrices, wrap_angle_rad, yaw_to_rotmat
 
 
 @dataclass(frozen=True)
+class CropArrays:
+    """A log's object crops (:mod:`encoders.clips.crops`), memory-mapped.
+
+    Attributes:
+        rgb: (N, Hc, Wc, 3) uint8 crops.
+        mask: (N, Hc, Wc) uint8 the object's mask in each (1 = the object).
+        index: (F, K) int32 each (frame, track)'s crop, −1 where none.
+        box: (F, K, 3) float32 :data:`encoders.clips.crops.CROP_BOX_COLUMNS`.
+    """
+
+    rgb: NDArray[np.uint8]
+    mask: NDArray[np.uint8]
+    index: NDArray[np.int32]
+    box: NDArray[np.float32]
+
+
+@dataclass(frozen=True)
 class LogArrays:
     """A rendered log opened with ``mmap_mode='r'``; see :mod:`encoders.clips.layout` for shapes.
 
@@ -34,6 +51,7 @@ class LogArrays:
         time_s: (F,) frame times since the log's first frame.
         accel_mps2: (F,) ego acceleration per frame, smoothed as the host rules smooth it.
         yaw_rate_rps: (F,) ego yaw rate per frame (positive = left), smoothed alike.
+        crops: the object crops; None for a log rendered before crops were (no ``camera_crop_index.npy``).
     """
 
     camera: NDArray[np.uint8]
@@ -48,6 +66,7 @@ class LogArrays:
     time_s: NDArray[np.float64]
     accel_mps2: NDArray[np.float64]
     yaw_rate_rps: NDArray[np.float64]
+    crops: CropArrays | None = None
 
 
 def open_log_arrays(clips_dir: Path, log_id: str) -> LogArrays:
@@ -75,6 +94,9 @@ def open_log_arrays(clips_dir: Path, log_id: str) -> LogArrays:
         time_s=time_s,
         accel_mps2=accel_mps2,
         yaw_rate_rps=yaw_rate_rps,
+        crops=CropArrays(load(layout.CAMERA_CROPS_FILE), load(layout.CAMERA_CROP_MASKS_FILE),  # type: ignore[arg-type]
+                         load(layout.CAMERA_CROP_INDEX_FILE), load(layout.CAMERA_CROP_BOX_FILE))  # type: ignore[arg-type]
+        if (folder / layout.CAMERA_CROP_INDEX_FILE).is_file() else None,
     )
 
 
@@ -257,6 +279,34 @@ def rotate_object_track(track: NDArray[np.float32], theta_rad: float) -> None:
     rotation = np.array([[c, s], [-s, c]], dtype=np.float32)  # row vectors: (x, y) @ R turns by +theta
     for first in (0, 2, 4, 6):
         track[:, first:first + 2] = track[:, first:first + 2] @ rotation
+
+
+#: Per frame of a clip, what the camera tower reads beside the crop: the crop's
+#: :data:`encoders.clips.crops.CROP_BOX_COLUMNS`, then whether the object was seen.
+CAMERA_BOX_FEATURES = 4
+
+
+def object_crops(crops: CropArrays, track: int, indices: NDArray[np.integer], rgb_out: NDArray[np.uint8],
+                 mask_out: NDArray[np.uint8], box_out: NDArray[np.float32]) -> None:
+    """Write a clip's crops of one track: (T, Hc, Wc, 3) RGB and (T, Hc, Wc) masks (0 or 1), and its
+    (T, :data:`CAMERA_BOX_FEATURES`) box features; zeros in the frames without a crop.
+
+    Args:
+        crops: the log's crops.
+        track: the track's index (instance value − 1).
+        indices: (T,) the clip's frames.
+    """
+    rows = np.asarray(crops.index[indices, track])  # (T,)
+    seen = rows >= 0
+    rgb_out.fill(0)
+    mask_out.fill(0)
+    box_out.fill(0.0)
+    if not seen.any():
+        return
+    rgb_out[seen] = crops.rgb[rows[seen]]
+    mask_out[seen] = crops.mask[rows[seen]]
+    box_out[:, :-1] = crops.box[indices, track]
+    box_out[:, -1] = seen
 
 
 def highlight_camera(

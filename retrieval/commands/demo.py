@@ -55,7 +55,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
                    "camera_mask_scale": "give the camera's temporal model the object's size in the image on a log "
                                         "scale",
                    "camera_apart": "train the camera tower beside the shared space, so that it does not move the "
-                                   "captions or the BEV view"}
+                                   "captions or the BEV view",
+                   "camera_crop": "give the camera tower each object's crop at full resolution"}
     for name in CAMERA_OPTIONS:
         parser.add_argument(option_flag(name), action=argparse.BooleanOptionalAction,
                             help=f"{camera_help[name]} (default {'on' if getattr(D, name) else 'off'})")

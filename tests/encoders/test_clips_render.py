@@ -3,6 +3,7 @@ and the marked BEV cell follow the right track, LiDAR is motion-compensated, bad
 
 from __future__ import annotations
 
+import json
 import shutil
 from dataclasses import replace
 from pathlib import Path
@@ -82,6 +83,60 @@ def test_camera_mask_follows_the_track(built: tuple[Path, Path]) -> None:
     assert (inside[0] > inside[1] + 0.3).all() and (inside[2] > inside[1] + 0.3).all()
     sky = rgb[0, :, 2, 2]  # the synthetic sky is RGB (120, 170, 200), dimmed by 0.7
     np.testing.assert_allclose(sky, 0.7 * np.array([120, 170, 200]) / 255.0, atol=0.03)
+
+
+def _crop_centres_and_colours(item: dict) -> tuple[np.ndarray, np.ndarray]:
+    """(T, 2) the object mask's centroid in each crop and (T, 3) the mean RGB under it (0-255)."""
+    crop = item["camera_crop"].numpy()  # (T, 4, H, W) in [0, 1]
+    centres, colours = [], []
+    for frame in crop:
+        ys, xs = np.nonzero(frame[3] > 0.5)
+        centres.append((xs.mean(), ys.mean()))
+        colours.append(frame[:3, ys, xs].mean(axis=1) * 255.0)
+    return np.array(centres), np.array(colours)
+
+
+def test_object_crops_centre_each_track_in_its_own_colours(built: tuple[Path, Path]) -> None:
+    _, clips_dir = built
+    for track_id, colour_bgr in (("lead", (40, 40, 220)), ("parked", (220, 120, 30))):
+        item = _item(clips_dir, track_id)
+        box = item["camera_box"].numpy()  # (T, 4)
+        assert (box[:, 3] == 1).all()  # seen in every frame
+        centres, colours = _crop_centres_and_colours(item)
+        h, w = item["camera_crop"].shape[-2:]
+        assert np.abs(centres - [(w - 1) / 2, (h - 1) / 2]).max() < 0.05 * w  # a hull is not symmetric in its box
+        np.testing.assert_allclose(colours, np.broadcast_to(colour_bgr[::-1], colours.shape), atol=25)
+    # The lead car moves from the left lane into the ego's: its crop's centre moves right in the image.
+    lead_box = _item(clips_dir, "lead")["camera_box"].numpy()
+    assert lead_box[-1, 0] - lead_box[0, 0] > 0.2
+    # The follower is behind the camera: no crop, all zeros.
+    follower = _item(clips_dir, "follower")
+    assert not follower["camera_crop"].any() and not follower["camera_box"].any()
+
+
+def test_clips_without_their_crops_are_named_and_a_crop_model_refuses_clips_from_before_crops(
+        built: tuple[Path, Path], tmp_path: Path) -> None:
+    from encoders.config import TrainConfig
+    from encoders.train import TrainingError, train
+
+    _, clips_dir = built
+    damaged = tmp_path / "damaged"
+    shutil.copytree(clips_dir, damaged)
+    log_folder = next((damaged / "logs").iterdir())
+    (log_folder / "camera_crop_index.npy").unlink()
+    with pytest.raises(FileNotFoundError, match=rf"{log_folder.name}.*camera_crop_index\.npy is missing"):
+        _item(damaged, "lead")
+    # A clips folder from before crops (no manifest flag): no crop views, and a model that reads them says why.
+    old = tmp_path / "old"
+    shutil.copytree(clips_dir, old)
+    manifest = json.loads((old / "manifest.json").read_text())
+    del manifest["camera"]["object_crops"]
+    (old / "manifest.json").write_text(json.dumps(manifest))
+    assert "camera_crop" not in _item(old, "lead") and "camera_box" not in _item(old, "lead")
+    tiny = TrainConfig.preset("tiny")
+    crop_config = replace(tiny, model=replace(tiny.model, camera=replace(tiny.model.camera, object_crop=True)))
+    with pytest.raises(TrainingError, match="object_crop.*render them again"):
+        train(old, tmp_path / "run", crop_config)
 
 
 def test_bev_marks_the_track_over_time(built: tuple[Path, Path]) -> None:
@@ -271,6 +326,12 @@ def test_camera_without_instance_masks_projects_the_boxes(tmp_path: Path) -> Non
     uv = _project_small(_annotation_centres(log_dir, "lead", fi), mask.shape[2], mask.shape[1])
     assert mask[np.arange(len(fi)), uv[:, 1].astype(int), uv[:, 0].astype(int)].all()
     assert not _item(tmp_path / "clips", "follower")["has_camera"]
+    # The crops come from the projected boxes: the lead car in the middle, in its colour.
+    lead = _item(tmp_path / "clips", "lead")
+    centres, colours = _crop_centres_and_colours(lead)
+    h, w = lead["camera_crop"].shape[-2:]
+    assert np.abs(centres - [(w - 1) / 2, (h - 1) / 2]).max() < 0.05 * w  # a hull is not symmetric in its box
+    assert (colours[:, 0] > colours[:, 1] + 100).all()  # red (BGR 40, 40, 220)
 
 
 def test_track_footprints_match_scenes_bev_and_highlight_blends() -> None:

@@ -508,3 +508,34 @@ def test_mask_scale_reads_the_objects_size_on_a_log_scale(batch: dict[str, Any])
     expected = mask_scale(batch["camera"][:, :, -1:].flatten(0, 1)).reshape(b, t)
     torch.testing.assert_close(features[..., -2], expected)
     torch.testing.assert_close(features[:, 1:, -1], (expected[:, 1:] - expected[:, :-1]) * t)
+
+
+def _with_crops(batch: dict[str, Any], seed: int = 0) -> dict[str, Any]:
+    """The batch with object crops (B, T, 4, Hc, Wc) and their box features (B, T, 4)."""
+    g = torch.Generator().manual_seed(seed)
+    b, t, _, h, w = batch["camera"].shape
+    crop = torch.rand(b, t, 4, h, w, generator=g)
+    crop[:, :, 3] = (crop[:, :, 3] > 0.7).float()
+    return {**batch, "camera_crop": crop, "camera_box": torch.rand(b, t, 4, generator=g)}
+
+
+def test_object_crops_reach_the_camera_view_and_a_model_without_them_ignores_them(
+        model: DualEncoder, batch: dict[str, Any]) -> None:
+    config = tiny_model_config()
+    torch.manual_seed(0)
+    crop_model = DualEncoder(replace(config, camera=replace(config.camera, object_crop=True))).eval()
+    with torch.no_grad():
+        one = crop_model.encode_video(_with_crops(batch, 0), view="camera")
+        other = crop_model.encode_video(_with_crops(batch, 1), view="camera")
+        assert one.shape == (4, 32) and not torch.allclose(one, other, atol=1e-4)
+        views = crop_model.encode_views(_with_crops(batch, 0))
+        torch.testing.assert_close(views["camera"], one)
+        # The crop's own CNN and the box features widen the camera's frame vectors.
+        frames = crop_model.camera.frame_features(batch["camera"], batch["ego_motion"],
+                                                  _with_crops(batch)["camera_crop"], _with_crops(batch)["camera_box"])
+        plain = model.camera.frame_features(batch["camera"], batch["ego_motion"])
+        assert frames.shape[-1] == plain.shape[-1] + 2 * config.camera.widths[-1] + 8
+        torch.testing.assert_close(model.encode_video(_with_crops(batch), view="camera"),
+                                   model.encode_video(batch, view="camera"))
+    with pytest.raises(ValueError, match="object crops.*scenesearch clips"):
+        crop_model.encode_video(batch, view="camera")

@@ -195,14 +195,15 @@ def test_resume_skips_complete_stages_and_reruns_after_a_change(tmp_path: Path) 
     # The camera on its pixels alone: another model, retrained, none of the camera's flags passed to `train`.
     camera = _demo(tmp_path, DemoConfig(logs=2, duration_s=10, epochs=5, map_less_share=1.0, camera_share=0.5,
                                         time_slots=0, dense_streams=("track",), order_weight=0.5, camera_ego=False,
-                                        camera_mask_scale=False, camera_apart=False))
+                                        camera_mask_scale=False, camera_apart=False, camera_crop=False))
     camera.run()
     assert [c[0] for c in camera.calls] == ["train", "index", "eval", "report"]
-    assert not {"--camera-ego", "--camera-mask-scale", "--camera-apart"} & set(camera.calls[0])
+    assert not {"--camera-ego", "--camera-mask-scale", "--camera-apart", "--camera-crop"} & set(camera.calls[0])
     # Off, they are not among the settings: a demo folder made before them resumes as it was.
-    off = DemoConfig(camera_ego=False, camera_mask_scale=False, camera_apart=False)
-    assert not {"camera_ego", "camera_mask_scale", "camera_apart"} & set(Demo(tmp_path, off).settings("train"))
-    assert {"camera_ego", "camera_mask_scale", "camera_apart"} <= set(Demo(tmp_path, DemoConfig()).settings("train"))
+    off = DemoConfig(camera_ego=False, camera_mask_scale=False, camera_apart=False, camera_crop=False)
+    names = {"camera_ego", "camera_mask_scale", "camera_apart", "camera_crop"}
+    assert not names & set(Demo(tmp_path, off).settings("train"))
+    assert names <= set(Demo(tmp_path, DemoConfig()).settings("train"))
     # Without extra logs, none is simulated, and those of the settings before are gone.
     assert fewer_maps.extra_logs_dir.is_dir()
     alone = _demo(tmp_path, DemoConfig(logs=2, duration_s=10, epochs=5, extra_logs=0))
@@ -230,12 +231,14 @@ def test_config_from_flags() -> None:
     parser = argparse.ArgumentParser()
     demo_command.configure(parser)
     parsed = config_from_args(parser.parse_args(["--out", "x", "--dense-weight", "0", "--no-track-velocity",
-                                                 "--camera-ego", "--camera-mask-scale", "--camera-apart"]))
+                                                 "--camera-ego", "--camera-mask-scale", "--camera-apart",
+                                                 "--camera-crop"]))
     assert parsed.dense_weight == 0.0 and parsed.track_velocity is False
     assert parsed.camera_ego is True and parsed.camera_mask_scale is True and parsed.camera_apart is True
+    assert parsed.camera_crop is True
     bare = config_from_args(parser.parse_args(["--out", "x", "--no-camera-ego", "--no-camera-mask-scale",
-                                               "--no-camera-apart"]))
-    assert not (bare.camera_ego or bare.camera_mask_scale or bare.camera_apart)
+                                               "--no-camera-apart", "--no-camera-crop"]))
+    assert not (bare.camera_ego or bare.camera_mask_scale or bare.camera_apart or bare.camera_crop)
     assert config_from_args(parser.parse_args(["--out", "x", "--dense-streams", "track"])).dense_streams == ("track",)
     assert config_from_args(parser.parse_args(["--out", "x"])) == DemoConfig()
     assert config_from_args(parser.parse_args(["--out", "x", "--order-weight", "0.5"])).order_weight == 0.5

@@ -104,14 +104,15 @@ def embed_dataset(
 
 @torch.no_grad()
 def embed_dataset_views(
-    model: DualEncoder, dataset: Dataset[dict[str, Any]], batch_size: int = 32
+    model: DualEncoder, dataset: Dataset[dict[str, Any]], batch_size: int = 32, num_workers: int = 0
 ) -> tuple[list[str], dict[str, np.ndarray]]:
-    """→ clip ids and, per view (camera, bev, fused), (N, D) float32 normalised embeddings, in one pass."""
+    """→ clip ids and, per view (camera, bev, fused), (N, D) float32 normalised embeddings, in one pass
+    (the clips loaded in ``num_workers`` processes, 0: this one)."""
     was_training = model.training
     model.eval()
     ids: list[str] = []
     chunks: dict[str, list[np.ndarray]] = {}
-    for batch in batches(dataset, batch_size):
+    for batch in batches(dataset, batch_size, num_workers):
         for view, x in model.encode_views(batch).items():
             chunks.setdefault(view, []).append(x.float().cpu().numpy())
         ids += list(batch["clip_id"])

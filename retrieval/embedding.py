@@ -22,7 +22,7 @@ import numpy as np
 
 from common.ray_cluster import Execution, cluster_gpus, import_ray, node_cpus, ray_runtime
 from common.storage import as_location, join, list_files, remove_files, write_file
-from encoders.config import BUNDLED_TEXT_MODEL
+from encoders.config import BUNDLED_TEXT_MODEL, check_device_name
 from encoders.sentence import cache_name, inference_autocast, inference_dtype, shared_sentence_encoder
 from encoders.text import TEXT_CACHE_FILE, TextFeatureCache
 from indexes.integrity import sha256_file
@@ -115,11 +115,14 @@ class EmbeddingCache:
 
 
 class ModelEmbedder:
-    """The trained dual encoder of ``run_dir``, loaded on first use (CPU)."""
+    """The dual encoder of ``run_dir``, loaded on first use on ``device``; clips load in ``num_workers`` processes."""
 
     def __init__(self, run_dir: Path | str, expected_model_id: str | None = None,
-                 batch_size: int = 32, cache_size: int = 1024) -> None:
-        self.run_dir = Path(run_dir)
+                 batch_size: int = 32, cache_size: int = 1024, device: str = "cpu", num_workers: int = 0) -> None:
+        check_device_name(device)  # auto (CUDA when available), cpu or cuda[:i]
+        if batch_size < 1 or num_workers < 0:
+            raise ValueError(f"batch_size must be at least 1 and num_workers ≥ 0, got {batch_size}, {num_workers}")
+        self.run_dir, self.device, self.num_workers = Path(run_dir), device, num_workers
         self._model_id = model_hash(self.run_dir)
         if expected_model_id is not None and expected_model_id != self._model_id:
             raise ModelMismatchError(
@@ -146,7 +149,7 @@ class ModelEmbedder:
                 if self._model is None:
                     from encoders.inference import load_model
 
-                    model = load_model(self.run_dir, device="cpu")
+                    model = load_model(self.run_dir, device=self.device)
                     model.eval()  # every call below also runs under torch.inference_mode()
                     self._model = model
         return self._model
@@ -198,7 +201,7 @@ class ModelEmbedder:
 
         with torch.inference_mode():
             ids, views = embed_dataset_views(self.model, ClipDataset(clips_dir, split=split, as_uint8=True),
-                                             batch_size=self.batch_size)
+                                             batch_size=self.batch_size, num_workers=self.num_workers)
         return [str(i) for i in ids], views
 
     def embed_arrays(self, clip: Mapping[str, Any], view: str = "fused") -> np.ndarray:

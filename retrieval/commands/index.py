@@ -37,6 +37,13 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="instead: hash every file of an index and compare with its manifests (ignores the "
                              "record of files verified before, so it also finds corruption that changed no file "
                              "time); exit status 2 and the file named when one differs")
+    parser.add_argument("--device", default="auto",
+                        help="where the model embeds the clips: auto (CUDA when available, the default), cpu or "
+                             "cuda[:i]; with --workers/--ray-address each actor takes a GPU when the cluster has them")
+    parser.add_argument("--batch-size", type=int, default=32, metavar="N", help="clips embedded at a time (default 32)")
+    parser.add_argument("--num-workers", type=int, default=0, metavar="N",
+                        help="processes that load the clips beside the model's (default 0: the model's own); on a "
+                             "GPU, loading is what limits the embedding")
     add_execution_arguments(parser)
     parser.add_argument("--embeddings-dir", metavar="DIR",
                         help="with --workers/--ray-address: keep the embedding shards (Parquet, part-*.parquet, "
@@ -71,7 +78,12 @@ def run(args: argparse.Namespace) -> int:
     if not execution.on_ray:
         if args.embeddings_dir is not None:
             raise ValueError("--embeddings-dir goes with --workers N or --ray-address ADDR")
-        search = SceneSearch.build(args.run_dir, args.clips_dir, args.out, progress=lambda m: print(m, flush=True))
+        from retrieval.embedding import ModelEmbedder
+
+        embedder = ModelEmbedder(args.run_dir, batch_size=args.batch_size, device=args.device,
+                                 num_workers=args.num_workers)
+        search = SceneSearch.build(args.run_dir, args.clips_dir, args.out, embedder=embedder,
+                                   progress=lambda m: print(m, flush=True))
     else:
         search = _build_on_ray(args, execution)
     for item in search.manifest.skipped[:20]:
@@ -92,7 +104,7 @@ def _build_on_ray(args: argparse.Namespace, execution: Execution) -> SceneSearch
     shards = args.embeddings_dir or str(scratch)
     try:
         with held_runtime(execution):
-            embedder = RayDataEmbedder(args.run_dir, execution, shards)
+            embedder = RayDataEmbedder(args.run_dir, execution, shards, batch_size=args.batch_size)
             search = SceneSearch.build(args.run_dir, args.clips_dir, args.out, embedder=embedder,
                                        progress=lambda m: print(m, flush=True))
         run = embedder.last_run

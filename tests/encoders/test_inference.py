@@ -1,9 +1,11 @@
-"""The one device resolver of training and inference: names it accepts and the errors it gives."""
+"""The one device resolver of training and inference: names it accepts and the errors it gives; clips loaded
+in worker processes embed as in the model's own."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 
@@ -77,3 +79,19 @@ def test_a_model_loaded_without_its_text_tower_embeds_clips_alike_and_never_read
     assert not any(k.startswith("text.") for k in clips_only.saved_state_dict())
     with pytest.raises(RuntimeError, match=r"loaded without its text tower .*text=True to encode text"):
         clips_only.encode_text(["a car turns left"])
+
+
+def test_clips_loaded_in_worker_processes_embed_alike() -> None:
+    from encoders.config import tiny_model_config
+    from encoders.inference import embed_dataset_views
+    from encoders.model import DualEncoder
+    from encoders.synthetic import SyntheticClipDataset, SyntheticSpec
+
+    torch.manual_seed(0)
+    model = DualEncoder(tiny_model_config()).eval()
+    ds = SyntheticClipDataset(7, spec=SyntheticSpec(frames=4, camera_hw=(32, 48), bev_hw=(32, 16)), seed=1)
+    ids, views = embed_dataset_views(model, ds, batch_size=3)
+    ids_w, views_w = embed_dataset_views(model, ds, batch_size=3, num_workers=2)
+    assert ids_w == ids
+    for view, x in views.items():
+        np.testing.assert_array_equal(views_w[view], x)

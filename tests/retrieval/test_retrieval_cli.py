@@ -20,6 +20,13 @@ def stand_in(monkeypatch: pytest.MonkeyPatch, built: dict[str, Any]) -> dict[str
     """Commands load the stand-in model and the hashing sentence encoder instead of the real ones."""
     monkeypatch.setattr(scenesearch, "ModelEmbedder",
                         lambda run_dir, expected_model_id=None: FakeEmbedder(embedding.model_hash(run_dir)))
+    real = embedding.ModelEmbedder
+
+    def checked(run_dir: Path, **options: Any) -> FakeEmbedder:
+        real(run_dir, **options)  # the options are checked as the real one checks them (it loads nothing yet)
+        return FakeEmbedder(embedding.model_hash(run_dir))
+
+    monkeypatch.setattr(embedding, "ModelEmbedder", checked)
     monkeypatch.setattr("retrieval.captions_search.SentenceEncoder", HashTextEncoder)
     monkeypatch.setattr("retrieval.evaluation.ModelEmbedder",
                         lambda run_dir: FakeEmbedder(embedding.model_hash(run_dir)))
@@ -28,7 +35,8 @@ def stand_in(monkeypatch: pytest.MonkeyPatch, built: dict[str, Any]) -> dict[str
 
 def test_index_command(stand_in: dict[str, Any], tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     out = tmp_path / "index"
-    assert main(["index", str(stand_in["run"]), str(stand_in["clips"]), "--out", str(out)]) == 0
+    assert main(["index", str(stand_in["run"]), str(stand_in["clips"]), "--out", str(out), "--device", "cpu",
+                 "--batch-size", "16", "--num-workers", "1"]) == 0
     printed = capsys.readouterr().out
     assert "view fused" in printed and f"wrote {out}" in printed
     assert json.loads((out / "manifest.json").read_text())["counts"]["fused"] == 84
@@ -55,6 +63,8 @@ def test_search_table_and_json(stand_in: dict[str, Any], capsys: pytest.CaptureF
     (["similar", "{index}", "no:such:clip"], "unknown clip id 'no:such:clip'"),
     (["export", "{index}", "--out", "x.csv"], "use .parquet or .npy"),
     (["eval", "{run}", "{clips}", "--split", "dev"], "unknown split 'dev'"),
+    (["index", "{run}", "{clips}", "--out", "{index}_x", "--device", "gpu"], "must be 'auto', 'cpu' or 'cuda[:i]'"),
+    (["index", "{run}", "{clips}", "--out", "{index}_x", "--batch-size", "0"], "batch_size must be at least 1"),
 ])
 def test_bad_input_exits_2(stand_in: dict[str, Any], capsys: pytest.CaptureFixture[str], argv: list[str],
                            message: str) -> None:

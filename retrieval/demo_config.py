@@ -84,8 +84,8 @@ class DemoConfig:
             trained apart").
         camera_crop: give the camera tower each object's crop at full resolution
             (``train --camera-crop``, :mod:`encoders.clips.crops`): at 64 × 32 half the test objects
-            cover under a pixel; with the crop, camera-only R@5 rose from 0.43-0.53 to 0.58-0.68 over
-            six trainings, and on the quality benchmark from 0.38 to 0.51 (README, "Object crops for the
+            cover under a pixel; with the crop, camera-only R@5 rose from 0.43-0.54 to 0.58-0.68 over
+            eight trainings, and on the quality benchmark from 0.38 to 0.51 (README, "Object crops for the
             camera").
         train_preset: the trainer's preset (``default``; ``tiny`` for smoke runs), None for the trainer's choice.
         sensors: render LiDAR and cameras (off: BEV clips from boxes, no camera).

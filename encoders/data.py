@@ -321,7 +321,6 @@ class ClipDataset(torch.utils.data.Dataset[dict[str, Any]]):
 
         has_camera = bool(row.has_camera and arrays.camera.shape[0] > 0)
         camera = slot["camera"]
-        crop = slot.get("camera_crop") if box_out is not None else None
         if has_camera:
             rgb = np.asarray(arrays.camera[fi])  # (T, H, W, 3) uint8
             mask = np.asarray(arrays.camera_instances[fi]) == value  # (T, H, W)
@@ -332,12 +331,12 @@ class ClipDataset(torch.utils.data.Dataset[dict[str, Any]]):
             shown = highlight_camera(rgb, mask, color, alpha, dim)  # (T, H, W, 3)
             camera[:, :3] = shown.transpose(0, 3, 1, 2)
             np.multiply(mask, np.uint8(255), out=camera[:, 3], casting="unsafe")
-            if crop is not None and box_out is not None:
-                self._fill_crop(row.log_id, arrays, value, fi, factors, crop, box_out)
+            if box_out is not None:  # the folder has crops: so does the slot
+                self._fill_crop(row.log_id, arrays, value, fi, factors, slot["camera_crop"], box_out)
         else:
             camera.fill(0)
-            if crop is not None and box_out is not None:
-                crop.fill(0)
+            if box_out is not None:
+                slot["camera_crop"].fill(0)
                 box_out.fill(0.0)
 
         obj = object_footprint(arrays, self._grid, row.track_id, fi)[:, None]  # (T, 1, H, W), 0/1

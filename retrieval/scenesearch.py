@@ -297,7 +297,7 @@ class SceneSearch:
         """
         index = self._view(view)
         query = check_query(query)
-        checked = build_query(k, filters, index.metadata, len(index), max_k, view)
+        checked = build_query(k, filters, index.metadata, len(index), max_k, view)  # before the model loads
         t0 = time.perf_counter()
         xq = np.asarray(self.embedder.embed_texts([query]), dtype=np.float32)
         t1 = time.perf_counter()

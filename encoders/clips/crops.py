@@ -14,6 +14,7 @@ high on each side of its centre, at the camera's aspect (Wc / Hc); parts outside
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import TypeVar
 
 import cv2
 import numpy as np
@@ -27,6 +28,8 @@ CROP_MIN_HALF_HEIGHT_PX = 8.0
 #: Per (frame, track): the crop's centre in the full image (x and y in [−1, 1]) and the object's
 #: full-resolution pixels on a log scale, log(1 + pixels) / log(1 + image pixels).
 CROP_BOX_COLUMNS = ("center_x", "center_y", "log_pixels")
+
+Pixel = TypeVar("Pixel", np.uint8, np.uint16)
 
 
 def crop_affine(box_xyxy_px: tuple[float, float, float, float], height_px: int, width_px: int) -> NDArray[np.float64]:
@@ -44,16 +47,16 @@ def crop_affine(box_xyxy_px: tuple[float, float, float, float], height_px: int, 
     return np.array([[scale, 0.0, -scale * (cx - half_w)], [0.0, scale, -scale * (cy - half_h)]])
 
 
-def crop_image(image: NDArray[np.uint8], affine: NDArray[np.float64], height_px: int, width_px: int,
-               nearest: bool = False) -> NDArray[np.uint8]:
-    """Cut ``image`` (H, W[, 3]) through ``affine`` into (height_px, width_px[, 3]): area averaging where
-    the crop shrinks the image, bilinear where it magnifies, nearest for masks."""
+def crop_image(image: NDArray[Pixel], affine: NDArray[np.float64], height_px: int, width_px: int,
+               nearest: bool = False) -> NDArray[Pixel]:
+    """Cut ``image`` (H, W[, 3]) through ``affine`` into (height_px, width_px[, 3]) of its dtype: area
+    averaging where the crop shrinks the image, bilinear where it magnifies, nearest for labels."""
     if nearest:
         flags = cv2.INTER_NEAREST
     else:
         flags = cv2.INTER_AREA if affine[0, 0] < 1.0 else cv2.INTER_LINEAR
     return np.asarray(cv2.warpAffine(image, affine, (width_px, height_px), flags=flags,
-                                     borderMode=cv2.BORDER_CONSTANT, borderValue=0), dtype=np.uint8)
+                                     borderMode=cv2.BORDER_CONSTANT, borderValue=0), dtype=image.dtype)
 
 
 def box_columns(box_xyxy_px: tuple[float, float, float, float], pixels: float, image_hw: tuple[int, int]
@@ -123,10 +126,8 @@ def crop_instances(crops: ObjectCrops, frame: int, bgr: NDArray[np.uint8], insta
         box = (float(where[1].start), float(where[0].start), float(where[1].stop), float(where[0].stop))
         affine = crop_affine(box, crops.height_px, crops.width_px)
         rgb = cv2.cvtColor(crop_image(bgr, affine, crops.height_px, crops.width_px), cv2.COLOR_BGR2RGB)
-        # The mask is cut from a full-size image like the RGB, so that both round alike at the crop's pixels.
-        own = np.zeros(instances.shape, np.uint8)
-        own[where] = instances[where] == k + 1
-        mask = crop_image(own, affine, crops.height_px, crops.width_px, nearest=True)
+        # The labels are cut through the RGB's own map, so that both sample the same pixels.
+        mask = crop_image(instances, affine, crops.height_px, crops.width_px, nearest=True) == k + 1
         crops.add(frame, k, np.asarray(rgb, np.uint8), mask, box_columns(box, float(pixels[k]), instances.shape))
 
 

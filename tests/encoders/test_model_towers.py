@@ -531,8 +531,9 @@ def test_object_crops_reach_the_camera_view_and_a_model_without_them_ignores_the
         views = crop_model.encode_views(_with_crops(batch, 0))
         torch.testing.assert_close(views["camera"], one)
         # The crop's own CNN and the box features widen the camera's frame vectors.
-        frames = crop_model.camera.frame_features(batch["camera"], batch["ego_motion"],
-                                                  _with_crops(batch)["camera_crop"], _with_crops(batch)["camera_box"])
+        cropped = _with_crops(batch)
+        frames = crop_model.camera.frame_features(batch["camera"], batch["ego_motion"], cropped["camera_crop"],
+                                                  cropped["camera_box"])
         plain = model.camera.frame_features(batch["camera"], batch["ego_motion"])
         assert frames.shape[-1] == plain.shape[-1] + 2 * config.camera.widths[-1] + 8
         torch.testing.assert_close(model.encode_video(_with_crops(batch), view="camera"),

@@ -62,7 +62,7 @@ def calibrate_camera_weight(model: DualEncoder, val_set: Dataset[dict[str, Any]]
     was_training = model.training
     model.eval()
     try:
-        camera, bev, has_camera, captions = _views(model, val_set, batch_size)
+        camera, bev, has_camera, category, captions = _views(model, val_set, batch_size)
         if not bool(has_camera.any()):
             return CameraWeightChoice(current, {}, "no camera clip in the validation split")
         queries, relevant = caption_queries(captions)
@@ -70,7 +70,7 @@ def calibrate_camera_weight(model: DualEncoder, val_set: Dataset[dict[str, Any]]
         map_by_weight: dict[float, float] = {}
         for weight in sorted(weights):
             model.fusion.set_camera_weight(weight)
-            fused = F.normalize(model.fusion(camera, bev, has_camera), dim=-1).float().cpu().numpy()  # (N, D)
+            fused = F.normalize(model.fusion(camera, bev, has_camera, category), dim=-1).float().cpu().numpy()  # (N, D)
             map_by_weight[weight] = float(text_to_clip_metrics(text @ fused.T, relevant)["mAP"])
         best = max(map_by_weight, key=lambda w: (round(map_by_weight[w], 6), w))
         model.fusion.set_camera_weight(best)
@@ -80,10 +80,11 @@ def calibrate_camera_weight(model: DualEncoder, val_set: Dataset[dict[str, Any]]
 
 
 def _views(model: DualEncoder, dataset: Dataset[dict[str, Any]],
-           batch_size: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, list[str]]:
+           batch_size: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor | None, list[str]]:
     """What the fusion reads, once for the whole split: camera (N, D), BEV (N, D), ``has_camera`` (N,),
-    and the clips' canonical captions."""
+    the object categories (N,) (None for a fusion without them), and the clips' canonical captions."""
     cameras, bevs, flags, captions = [], [], [], []
+    categories: list[torch.Tensor] = []
     for batch in batches(dataset, batch_size):
         # A batch without camera clips skips the camera tower: the fusion reads BEV alone for them.
         views = model.encode_views(batch, normalize=False, camera_always=False)
@@ -91,5 +92,9 @@ def _views(model: DualEncoder, dataset: Dataset[dict[str, Any]],
         bevs.append(views["bev"])  # (B, D)
         flags.append(torch.as_tensor(batch["has_camera"], dtype=torch.bool, device=model.device).reshape(-1))
         captions += list(batch["canonical_caption"])
-    return torch.cat(cameras), torch.cat(bevs), torch.cat(flags), captions
+        category = model.category(batch)
+        if category is not None:
+            categories.append(category)
+    category_rows = torch.cat(categories) if categories else None
+    return torch.cat(cameras), torch.cat(bevs), torch.cat(flags), category_rows, captions
 

@@ -250,14 +250,20 @@ class FusionConfig(EncodersConfig):
         hidden: hidden width of the fusion MLP.
         drop_camera_p: in training, chance of dropping the camera view when both views are present.
         drop_bev_p: in training, chance of dropping the BEV view when both are present (and camera is kept).
+        object_category: the fused view also reads the clip's object category (the track's label, as
+            the clip table names it): a learned vector per category joins the fusion MLP's input.
+        category_drop_p: in training, chance of withholding a clip's category (the "unknown" vector),
+            so that the views keep reading the category from what they see.
     """
 
     hidden: int = 512
     drop_camera_p: float = 0.3
     drop_bev_p: float = 0.15
+    object_category: bool = False
+    category_drop_p: float = 0.0
 
     def __post_init__(self) -> None:
-        for name in ("drop_camera_p", "drop_bev_p"):
+        for name in ("drop_camera_p", "drop_bev_p", "category_drop_p"):
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise ConfigError(f"FusionConfig.{name} must be in [0, 1], got {getattr(self, name)}")
         if self.drop_camera_p + self.drop_bev_p > 1.0:

@@ -3,18 +3,44 @@
 :class:`TemporalEncoder` is shared by the camera and BEV towers: a temporal convolution, learned time
 positions and a small transformer read out by a learned query token, so its output depends on frame
 order (a mean over frames would not). :class:`ViewFusion` merges the two views' normalised embeddings and drops one view
-at random in training, so that camera-only and BEV-only inputs embed well too.
+at random in training, so that camera-only and BEV-only inputs embed well too; with
+``FusionConfig.object_category`` it also reads the clip's object category (:func:`category_indices`).
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable
 
 import torch
 import torch.nn.functional as F
 from torch import nn
 
 from encoders.config import FusionConfig, TemporalConfig
+from scenes.categories import Category
+
+#: The categories the fusion has a vector for, in the order of its embedding's rows; one more row,
+#: :data:`UNKNOWN_CATEGORY`, stands for "not told" (withheld in training, or absent from a batch).
+CATEGORY_VOCABULARY: tuple[str, ...] = tuple(c.value for c in Category)
+UNKNOWN_CATEGORY = len(CATEGORY_VOCABULARY)
+
+
+def category_indices(categories: Iterable[str] | None, batch_size: int, device: torch.device) -> torch.Tensor:
+    """Object categories (the clip table's ``category`` strings) → (B,) rows of the fusion's category
+    embedding; ``None`` (a batch without categories) → all :data:`UNKNOWN_CATEGORY`.
+
+    Raises:
+        ValueError: a category outside :class:`scenes.categories.Category`, or not one per clip.
+    """
+    if categories is None:
+        return torch.full((batch_size,), UNKNOWN_CATEGORY, dtype=torch.long, device=device)
+    names = [str(c) for c in categories]
+    unknown = sorted({c for c in names if c not in CATEGORY_VOCABULARY})
+    if unknown:
+        raise ValueError(f"batch 'category': {unknown} not among the object categories {list(CATEGORY_VOCABULARY)}")
+    if len(names) != batch_size:
+        raise ValueError(f"batch 'category': {len(names)} categories for {batch_size} clips")
+    return torch.tensor([CATEGORY_VOCABULARY.index(c) for c in names], dtype=torch.long, device=device)
 
 
 def sinusoids(length: int, width: int) -> torch.Tensor:
@@ -79,6 +105,12 @@ class ViewFusion(nn.Module):
         # dimensions with each other would undo what each slot stands for.
         self.slot_dims = slot_dims
         self.mlp = nn.Sequential(nn.Linear(dim, config.hidden), nn.GELU(), nn.Linear(config.hidden, dim - slot_dims))
+        # The category joins the MLP's input as a learned vector, zero at first so that training starts
+        # from the fusion without it; the last row ("not told") is never trained away from zero unless
+        # training withholds categories (category_drop_p).
+        self.category = nn.Embedding(len(CATEGORY_VOCABULARY) + 1, dim) if config.object_category else None
+        if self.category is not None:
+            nn.init.zeros_(self.category.weight)
         # The camera view's weight against BEV's 1 in the mean: 1 in training, then set from the
         # validation split (encoders.calibration). A buffer, so it travels with the weights.
         self.register_buffer("camera_weight", torch.ones(()))
@@ -89,12 +121,15 @@ class ViewFusion(nn.Module):
             raise ValueError(f"the camera weight must be >= 0, got {weight}")
         self.camera_weight.fill_(float(weight))
 
-    def forward(self, camera: torch.Tensor, bev: torch.Tensor, has_camera: torch.Tensor) -> torch.Tensor:
-        """camera: (B, D); bev: (B, D); has_camera: (B,) bool → (B, D).
+    def forward(self, camera: torch.Tensor, bev: torch.Tensor, has_camera: torch.Tensor,
+                category: torch.Tensor | None = None) -> torch.Tensor:
+        """camera: (B, D); bev: (B, D); has_camera: (B,) bool; category: (B,) rows of
+        :data:`CATEGORY_VOCABULARY` (read with ``object_category``; None: not told) → (B, D).
 
         Clips without camera use BEV only; with camera, the mean weighs the camera view by
         ``camera_weight`` (see :meth:`set_camera_weight`). In training, when both views are present,
-        the camera view is dropped with ``drop_camera_p`` and otherwise the BEV view with ``drop_bev_p``.
+        the camera view is dropped with ``drop_camera_p`` and otherwise the BEV view with ``drop_bev_p``;
+        a category is withheld with ``category_drop_p``.
         """
         cam_w = has_camera.to(camera.dtype) * self.camera_weight.to(camera.dtype)  # (B,)
         bev_w = torch.ones_like(cam_w)
@@ -107,4 +142,12 @@ class ViewFusion(nn.Module):
         mixed = (cam_w[:, None] * F.normalize(camera, dim=-1) + bev_w[:, None] * F.normalize(bev, dim=-1)) / (
             cam_w + bev_w
         )[:, None]  # (B, D)
-        return mixed + F.pad(self.mlp(mixed), (0, self.slot_dims))  # the slots' dimensions pass as they are
+        told = mixed
+        if self.category is not None:
+            if category is None:
+                category = torch.full(cam_w.shape, UNKNOWN_CATEGORY, dtype=torch.long, device=mixed.device)
+            if self.training and self.config.category_drop_p > 0:
+                withheld = torch.rand(category.shape, device=category.device) < self.config.category_drop_p
+                category = torch.where(withheld, torch.full_like(category, UNKNOWN_CATEGORY), category)
+            told = mixed + self.category(category).to(mixed.dtype)  # (B, D)
+        return mixed + F.pad(self.mlp(told), (0, self.slot_dims))  # the slots' dimensions pass as they are

@@ -4,6 +4,7 @@
     camera (B,T,4,Hc,Wc) ─ CameraTower ─┐
                                         ├ ViewFusion ─ (B, D)  encode_video(view="fused")
     bev_* (B,T,C,Hb,Wb) ── BevTower ────┘          camera / bev alone: view="camera" / "bev"
+    category (B,) ────────────────────── into ViewFusion (the fused view only; ``fusion.object_category``)
 
 A learnable ``logit_scale`` (log of the inverse temperature, initialised to log(1/0.07), clamped to
 ln 100) scales the cosine similarities in the contrastive loss. ``bev_embedding`` exposes the BEV
@@ -24,7 +25,7 @@ from encoders.bev import BevTower
 from encoders.camera import CameraTower, unit_pixels
 from encoders.config import DualEncoderConfig
 from encoders.dense import DenseHeads, stream_dense_loss
-from encoders.fusion import ViewFusion
+from encoders.fusion import ViewFusion, category_indices
 from encoders.text import TextTower, UnloadedText
 
 VIEWS = ("fused", "camera", "bev")
@@ -77,7 +78,7 @@ class DualEncoder(nn.Module):
         elif view == "bev":
             x = self._bev(batch)
         else:
-            x = self.fusion(*self._towers(batch, camera_always=False))
+            x = self.fusion(*self._towers(batch, camera_always=False), self.category(batch))
         return F.normalize(x, dim=-1) if normalize else x
 
     def encode_views(self, batch: dict[str, Any], normalize: bool = True, camera_always: bool = True,
@@ -94,7 +95,7 @@ class DualEncoder(nn.Module):
         gradient (training with ``TrainConfig.camera_apart``); the camera view keeps it.
         """
         camera, bev, has_camera = self._towers(batch, camera_always, frames)
-        fused = self.fusion(camera.detach() if detach_camera else camera, bev, has_camera)
+        fused = self.fusion(camera.detach() if detach_camera else camera, bev, has_camera, self.category(batch))
         out = {"camera": camera, "bev": bev, "fused": fused}
         return {k: F.normalize(v, dim=-1) for k, v in out.items()} if normalize else out
 
@@ -151,6 +152,14 @@ class DualEncoder(nn.Module):
             self._get(batch, "object_rates") if self.config.bev.track_features and self.config.bev.track_rates
             else None,
         )
+
+    def category(self, batch: dict[str, Any]) -> torch.Tensor | None:
+        """(B,) the batch's object categories as the fusion reads them (``fusion.object_category``;
+        None without). A batch without ``category`` is "not told" for every clip."""
+        if self.fusion.category is None:
+            return None
+        size = int(torch.as_tensor(batch["has_camera"]).reshape(-1).shape[0])
+        return category_indices(batch.get("category"), size, self.device)
 
     def _camera_crop(self, batch: dict[str, Any]) -> dict[str, torch.Tensor]:
         """The object crops the camera tower reads with ``camera.object_crop`` (none without)."""

@@ -55,6 +55,10 @@ def model_card(config: TrainConfig, history: list[dict[str, Any]], n_train: int,
              f"stream's frame tokens, weight {config.dense_weight:g}" if config.dense_weight > 0 else "")
     apart = ("\n- The camera tower trained apart: its own view loss against the captions' vectors, which it does not "
              "move, and no gradient through the fusion." if config.camera_apart else "")
+    category = ""
+    if m.fusion.object_category:
+        withheld = f", withheld in training with p {m.fusion.category_drop_p:g}" if m.fusion.category_drop_p else ""
+        category = f" that also reads the object's category (the track's label{withheld})"
     return f"""# DualEncoder model card
 
 Text → clip and clip → clip retrieval of object behaviour in driving logs.
@@ -64,8 +68,8 @@ Text → clip and clip → clip retrieval of object behaviour in driving logs.
 - Camera tower: {camera}.
 - BEV tower: LiDAR and map backbones {list(m.bev.widths)}, universal embedding E with D_e = {m.bev.embed_channels} at
   1/{m.bev.downsample} resolution, object-masked pooling, temporal transformer with {ego}{track}.{slots}
-- Fusion: mean of normalised views + MLP; modality dropout camera {m.fusion.drop_camera_p}, BEV {m.fusion.drop_bev_p};
-  {camera_weight.describe()}.{apart}
+- Fusion: mean of normalised views + MLP{category}; modality dropout camera {m.fusion.drop_camera_p}, BEV
+  {m.fusion.drop_bev_p}; {camera_weight.describe()}.{apart}
 
 ## Data
 - Clips: `{clips_dir}`; {n_train} training clips, {n_val} validation clips.

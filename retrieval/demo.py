@@ -125,7 +125,7 @@ class Demo:
                          "dense_weight": c.dense_weight, "dense_streams": list(c.dense_streams),
                          "track_velocity": c.track_velocity}
         # Named only when on, so that a demo folder made before these options resumes without retraining.
-        upto["train"].update({name: True for name in CAMERA_OPTIONS if getattr(c, name)})
+        upto["train"].update({name: True for name in (*CAMERA_OPTIONS, "object_category") if getattr(c, name)})
         upto["index"] = upto["train"]
         upto["eval"] = upto["train"]
         upto["report"] = {**upto["train"], "queries": list(c.queries), "top_k": c.top_k}
@@ -250,6 +250,8 @@ class Demo:
                 args += ["--dense-streams", *self.config.dense_streams]
         if self.config.track_velocity:
             args.append("--track-velocity")
+        if self.config.object_category:
+            args.append("--object-category")
         args += [option_flag(name) for name in CAMERA_OPTIONS if getattr(self.config, name)]
         self.command(args)
         return ""
@@ -303,7 +305,7 @@ def config_from_args(args: argparse.Namespace) -> DemoConfig:
     for name in ("logs", "duration_s", "test_fraction", "seed", "frames_per_clip", "camera_width_px",
                  "camera_height_px", "bev_resolution_m", "epochs", "batch_size", "tag_weight", "extra_logs",
                  "map_less_share", "jitter_share", "camera_share", "time_slots", "dense_weight",
-                 "order_weight", "track_velocity", *CAMERA_OPTIONS, "workers"):
+                 "order_weight", "track_velocity", "object_category", *CAMERA_OPTIONS, "workers"):
         value = getattr(args, name, None)
         if value is not None:
             overrides[name] = value

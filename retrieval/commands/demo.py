@@ -51,6 +51,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--track-velocity", action=argparse.BooleanOptionalAction,
                         help=f"give the track stream the object's velocity relative to the ego "
                         f"(default {'on' if D.track_velocity else 'off'})")
+    parser.add_argument("--object-category", action=argparse.BooleanOptionalAction,
+                        help=f"let the fused view read each clip's object category (default "
+                        f"{'on' if D.object_category else 'off'})")
     camera_help = {"camera_ego": "give the camera's temporal model the ego's motion from the log's poses",
                    "camera_mask_scale": "give the camera's temporal model the object's size in the image on a log "
                                         "scale",

@@ -79,6 +79,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--camera-crop", action="store_true",
                         help="give the camera tower the object's crop at full resolution and where it lies in the "
                              "image (model.camera.object_crop; needs clips rendered with crops)")
+    parser.add_argument("--object-category", action="store_true",
+                        help="let the fused view read each clip's object category, the track's label "
+                             "(model.fusion.object_category)")
     parser.add_argument("--camera-apart", action="store_true",
                         help="train the camera tower beside the shared space: its own view loss against captions "
                              "it does not move, no gradient through the fused view (camera_apart)")
@@ -153,6 +156,8 @@ def build_config(args: argparse.Namespace) -> Any:
         model = dataclasses.replace(model, camera=dataclasses.replace(model.camera, mask_scale=True))
     if args.camera_crop:
         model = dataclasses.replace(model, camera=dataclasses.replace(model.camera, object_crop=True))
+    if args.object_category:
+        model = dataclasses.replace(model, fusion=dataclasses.replace(model.fusion, object_category=True))
     if args.track_rates is not None:
         model = dataclasses.replace(model, bev=dataclasses.replace(model.bev, track_rates=args.track_rates))
     if args.time_slots is not None:

@@ -235,6 +235,13 @@ def test_bad_input_is_named_or_reported(built: tuple[Path, Path], tmp_path: Path
     reasons = " | ".join(s["reason"] for s in report.skipped)
     assert "log not given" in reasons and "track not in log" in reasons and "outside the log's time range" in reasons
     assert report.num_clips == 3
+    # A category outside the vocabulary the model reads is refused, named by file, row and field.
+    pq.write_table(pa.Table.from_pylist([*captions, {**captions[0], "category": "lorry"}]),
+                   tmp_path / "c" / "captions.parquet")
+    with pytest.raises(ClipsInputError, match=rf"captions.parquet, row {len(captions)}, field 'category': 'lorry' is "
+                                              "not one of"):
+        build_clips([log_dir], tmp_path / "c", tmp_path / "out2", replace(CONFIG, strict=False))
+    assert not (tmp_path / "out2" / "clips.parquet").exists()
 
 
 def test_corrupt_sweep_is_skipped_counted_and_reported(tmp_path: Path) -> None:

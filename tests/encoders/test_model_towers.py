@@ -10,6 +10,7 @@ import pytest
 import torch
 
 from encoders.config import ConfigError, tiny_model_config
+from encoders.fusion import CATEGORY_VOCABULARY, UNKNOWN_CATEGORY, category_indices
 from encoders.model import DualEncoder
 from encoders.synthetic import SyntheticClipDataset, SyntheticSpec, collate_clips
 
@@ -94,6 +95,56 @@ def test_modality_dropout_only_in_training(batch: dict[str, Any]) -> None:
     changed = (trained - evaluated).abs().amax(dim=1) > 1e-6
     # drop_camera_p + drop_bev_p = 0.45 of the clips lose one view
     assert 10 <= int(changed.sum()) <= 48
+
+
+def category_model(drop_p: float = 0.0) -> DualEncoder:
+    tiny = tiny_model_config()
+    torch.manual_seed(0)
+    return DualEncoder(replace(tiny, fusion=replace(tiny.fusion, object_category=True, category_drop_p=drop_p)))
+
+
+def test_category_indices_follow_the_vocabulary_and_name_what_they_cannot_read() -> None:
+    cpu = torch.device("cpu")
+    idx = category_indices(["car", "pedestrian", "other"], 3, cpu)
+    assert idx.tolist() == [CATEGORY_VOCABULARY.index(c) for c in ("car", "pedestrian", "other")]
+    assert category_indices(None, 2, cpu).tolist() == [UNKNOWN_CATEGORY] * 2
+    with pytest.raises(ValueError, match=r"'category'.*\['lorry'\] not among the object categories"):
+        category_indices(["car", "lorry"], 2, cpu)
+    with pytest.raises(ValueError, match="1 categories for 2 clips"):
+        category_indices(["car"], 2, cpu)
+
+
+def test_object_category_reaches_the_fused_view_only(batch: dict[str, Any]) -> None:
+    model = category_model().eval()
+    cars, trucks = dict(batch, category=["car"] * 4), dict(batch, category=["truck"] * 4)
+    untold = {k: v for k, v in batch.items() if k != "category"}
+    with torch.no_grad():
+        # Zero at first: the fusion starts as it was without categories.
+        torch.testing.assert_close(model.encode_video(cars), model.encode_video(untold))
+        model.fusion.category.weight.normal_()  # type: ignore[union-attr]
+        assert not torch.allclose(model.encode_video(cars), model.encode_video(trucks), atol=1e-4)
+        views_car, views_truck = model.encode_views(cars), model.encode_views(trucks)
+    for view in ("camera", "bev"):
+        torch.testing.assert_close(views_car[view], views_truck[view])
+    torch.testing.assert_close(views_car["fused"], model.encode_video(cars), atol=1e-6, rtol=1e-5)
+    # A model without the option reads no category: its fusion has no vectors for them.
+    plain = DualEncoder(tiny_model_config()).eval()
+    assert plain.fusion.category is None and plain.category(cars) is None
+
+
+def test_category_dropout_withholds_categories_in_training_only(batch: dict[str, Any]) -> None:
+    model = category_model(drop_p=1.0)
+    with torch.no_grad():
+        model.fusion.category.weight.normal_()  # type: ignore[union-attr]
+    cam, bev, has = torch.randn(4, 32), torch.randn(4, 32), torch.zeros(4, dtype=torch.bool)
+    cars = category_indices(["car"] * 4, 4, torch.device("cpu"))
+    model.fusion.train()
+    torch.manual_seed(1)
+    withheld = model.fusion(cam, bev, has, cars)
+    torch.manual_seed(1)
+    torch.testing.assert_close(withheld, model.fusion(cam, bev, has, None))
+    model.fusion.eval()
+    assert not torch.allclose(model.fusion(cam, bev, has, cars), model.fusion(cam, bev, has, None), atol=1e-4)
 
 
 def test_logit_scale_init_and_clamp() -> None:

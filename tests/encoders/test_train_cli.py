@@ -117,13 +117,15 @@ def test_dense_weight_trains_frame_tag_heads_and_eval_reports_them(
         tagged_clips_dir: Path, clips_dir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     out = tmp_path / "run"
     args = ["--preset", "tiny", "--batch-size", "4", "--epochs", "2", "--dense-weight", "1", "--track-velocity",
-            "--track-rates", "--camera-ego", "--camera-mask-scale", "--camera-apart", "--camera-crop"]
+            "--track-rates", "--camera-ego", "--camera-mask-scale", "--camera-apart", "--camera-crop",
+            "--object-category"]
     assert main(["train", str(tagged_clips_dir), "--out", str(out), *args]) == 0
     config = json.loads((out / "config.json").read_text())
     assert config["dense_weight"] == 1.0 and config["model"]["dense_streams"] == ["track"]
     assert config["model"]["bev"]["track_velocity"] is True and config["model"]["bev"]["track_rates"] is True
     assert config["model"]["camera"]["ego_features"] == 6 and config["model"]["camera"]["mask_scale"] is True
     assert config["camera_apart"] is True and config["model"]["camera"]["object_crop"] is True
+    assert config["model"]["fusion"]["object_category"] is True
 
     metrics = evaluate(out, tagged_clips_dir, split="all", sentence_encoder=hashed_sentences)
     dense = metrics["frame_tags"]

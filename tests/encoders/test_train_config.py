@@ -74,6 +74,8 @@ def test_bad_values(text: str, field: str) -> None:
 def test_modality_dropout_keeps_one_view() -> None:
     with pytest.raises(ConfigError, match="drop_camera_p"):
         FusionConfig(drop_camera_p=0.7, drop_bev_p=0.5)
+    with pytest.raises(ConfigError, match="category_drop_p"):
+        FusionConfig(object_category=True, category_drop_p=1.5)
 
 
 def test_defaults_of_the_universal_embedding() -> None:

@@ -170,13 +170,15 @@ def test_resume_skips_complete_stages_and_reruns_after_a_change(tmp_path: Path) 
     train = one_vector.calls[0]
     assert train[train.index("--time-slots") + 1] == "0" and "--hard-negatives" not in train
     assert "--order-weight" not in train
-    # Without the dense heads and the velocity features: retrained, and neither flag reaches `train`.
+    assert "--object-category" in one_vector.calls[0]
+    # Without the dense heads, the velocity features and the category: retrained, and no flag reaches `train`.
     sparse = _demo(tmp_path, DemoConfig(logs=2, duration_s=10, epochs=5, map_less_share=1.0, camera_share=0.5,
                                         time_slots=0, hard_negatives=(), order_weight=None, dense_weight=None,
-                                        track_velocity=False))
+                                        track_velocity=False, object_category=False))
     sparse.run()
     assert [c[0] for c in sparse.calls] == ["train", "index", "eval", "report"]
     assert "--dense-weight" not in sparse.calls[0] and "--track-velocity" not in sparse.calls[0]
+    assert "--object-category" not in sparse.calls[0]
     assert "--dense-streams" not in sparse.calls[0]
     # Heads on the track stream alone: another model, retrained.
     track_only = _demo(tmp_path, DemoConfig(logs=2, duration_s=10, epochs=5, map_less_share=1.0, camera_share=0.5,
@@ -200,8 +202,9 @@ def test_resume_skips_complete_stages_and_reruns_after_a_change(tmp_path: Path) 
     assert [c[0] for c in camera.calls] == ["train", "index", "eval", "report"]
     assert not {"--camera-ego", "--camera-mask-scale", "--camera-apart", "--camera-crop"} & set(camera.calls[0])
     # Off, they are not among the settings: a demo folder made before them resumes as it was.
-    off = DemoConfig(camera_ego=False, camera_mask_scale=False, camera_apart=False, camera_crop=False)
-    names = {"camera_ego", "camera_mask_scale", "camera_apart", "camera_crop"}
+    off = DemoConfig(camera_ego=False, camera_mask_scale=False, camera_apart=False, camera_crop=False,
+                     object_category=False)
+    names = {"camera_ego", "camera_mask_scale", "camera_apart", "camera_crop", "object_category"}
     assert not names & set(Demo(tmp_path, off).settings("train"))
     assert names <= set(Demo(tmp_path, DemoConfig()).settings("train"))
     # Without extra logs, none is simulated, and those of the settings before are gone.
@@ -237,8 +240,9 @@ def test_config_from_flags() -> None:
     assert parsed.camera_ego is True and parsed.camera_mask_scale is True and parsed.camera_apart is True
     assert parsed.camera_crop is True
     bare = config_from_args(parser.parse_args(["--out", "x", "--no-camera-ego", "--no-camera-mask-scale",
-                                               "--no-camera-apart", "--no-camera-crop"]))
+                                               "--no-camera-apart", "--no-camera-crop", "--no-object-category"]))
     assert not (bare.camera_ego or bare.camera_mask_scale or bare.camera_apart or bare.camera_crop)
+    assert bare.object_category is False and DemoConfig().object_category is True
     assert config_from_args(parser.parse_args(["--out", "x", "--dense-streams", "track"])).dense_streams == ("track",)
     assert config_from_args(parser.parse_args(["--out", "x"])) == DemoConfig()
     assert config_from_args(parser.parse_args(["--out", "x", "--order-weight", "0.5"])).order_weight == 0.5

@@ -82,7 +82,8 @@ def calibrate_camera_weight(model: DualEncoder, val_set: Dataset[dict[str, Any]]
 def _views(model: DualEncoder, dataset: Dataset[dict[str, Any]],
            batch_size: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor | None, list[str]]:
     """What the fusion reads, once for the whole split: camera (N, D), BEV (N, D), ``has_camera`` (N,),
-    the object categories (N,) (None for a fusion without them), and the clips' canonical captions."""
+    the object categories (N,) (None for a fusion without them, or clips without any), and the clips'
+    canonical captions."""
     cameras, bevs, flags, captions = [], [], [], []
     categories: list[torch.Tensor] = []
     for batch in batches(dataset, batch_size):

@@ -17,30 +17,26 @@ import torch.nn.functional as F
 from torch import nn
 
 from encoders.config import FusionConfig, TemporalConfig
-from scenes.categories import Category
+from scenes.categories import CATEGORY_NAMES
 
-#: The categories the fusion has a vector for, in the order of its embedding's rows; one more row,
-#: :data:`UNKNOWN_CATEGORY`, stands for "not told" (withheld in training, or absent from a batch).
-CATEGORY_VOCABULARY: tuple[str, ...] = tuple(c.value for c in Category)
-UNKNOWN_CATEGORY = len(CATEGORY_VOCABULARY)
+#: The fusion's category table has a row per :data:`scenes.categories.CATEGORY_NAMES`, in order, and one
+#: more, this one, for "not told" (withheld in training, or absent from a batch).
+UNKNOWN_CATEGORY = len(CATEGORY_NAMES)
 
 
-def category_indices(categories: Iterable[str] | None, batch_size: int, device: torch.device) -> torch.Tensor:
-    """Object categories (the clip table's ``category`` strings) → (B,) rows of the fusion's category
-    embedding; ``None`` (a batch without categories) → all :data:`UNKNOWN_CATEGORY`.
+def category_indices(categories: Iterable[str], batch_size: int, device: torch.device) -> torch.Tensor:
+    """Object categories (the clip table's ``category`` strings) → (B,) rows of the fusion's category table.
 
     Raises:
-        ValueError: a category outside :class:`scenes.categories.Category`, or not one per clip.
+        ValueError: a category outside :data:`scenes.categories.CATEGORY_NAMES`, or not one per clip.
     """
-    if categories is None:
-        return torch.full((batch_size,), UNKNOWN_CATEGORY, dtype=torch.long, device=device)
     names = [str(c) for c in categories]
-    unknown = sorted({c for c in names if c not in CATEGORY_VOCABULARY})
+    unknown = sorted({c for c in names if c not in CATEGORY_NAMES})
     if unknown:
-        raise ValueError(f"batch 'category': {unknown} not among the object categories {list(CATEGORY_VOCABULARY)}")
+        raise ValueError(f"batch 'category': {unknown} not among the object categories {list(CATEGORY_NAMES)}")
     if len(names) != batch_size:
         raise ValueError(f"batch 'category': {len(names)} categories for {batch_size} clips")
-    return torch.tensor([CATEGORY_VOCABULARY.index(c) for c in names], dtype=torch.long, device=device)
+    return torch.tensor([CATEGORY_NAMES.index(c) for c in names], dtype=torch.long, device=device)
 
 
 def sinusoids(length: int, width: int) -> torch.Tensor:
@@ -108,7 +104,7 @@ class ViewFusion(nn.Module):
         # The category joins the MLP's input as a learned vector, zero at first so that training starts
         # from the fusion without it; the last row ("not told") is never trained away from zero unless
         # training withholds categories (category_drop_p).
-        self.category = nn.Embedding(len(CATEGORY_VOCABULARY) + 1, dim) if config.object_category else None
+        self.category = nn.Embedding(len(CATEGORY_NAMES) + 1, dim) if config.object_category else None
         if self.category is not None:
             nn.init.zeros_(self.category.weight)
         # The camera view's weight against BEV's 1 in the mean: 1 in training, then set from the
@@ -123,8 +119,8 @@ class ViewFusion(nn.Module):
 
     def forward(self, camera: torch.Tensor, bev: torch.Tensor, has_camera: torch.Tensor,
                 category: torch.Tensor | None = None) -> torch.Tensor:
-        """camera: (B, D); bev: (B, D); has_camera: (B,) bool; category: (B,) rows of
-        :data:`CATEGORY_VOCABULARY` (read with ``object_category``; None: not told) → (B, D).
+        """camera: (B, D); bev: (B, D); has_camera: (B,) bool; category: (B,) rows of the category table
+        (:func:`category_indices`; read with ``object_category``; None: not told) → (B, D).
 
         Clips without camera use BEV only; with camera, the mean weighs the camera view by
         ``camera_weight`` (see :meth:`set_camera_weight`). In training, when both views are present,

@@ -154,12 +154,12 @@ class DualEncoder(nn.Module):
         )
 
     def category(self, batch: dict[str, Any]) -> torch.Tensor | None:
-        """(B,) the batch's object categories as the fusion reads them (``fusion.object_category``;
-        None without). A batch without ``category`` is "not told" for every clip."""
-        if self.fusion.category is None:
+        """(B,) the batch's object categories as the fusion reads them; None for a model without
+        ``fusion.object_category``, or a batch without ``category`` (the fusion then is "not told")."""
+        if self.fusion.category is None or "category" not in batch:
             return None
         size = int(torch.as_tensor(batch["has_camera"]).reshape(-1).shape[0])
-        return category_indices(batch.get("category"), size, self.device)
+        return category_indices(batch["category"], size, self.device)
 
     def _camera_crop(self, batch: dict[str, Any]) -> dict[str, torch.Tensor]:
         """The object crops the camera tower reads with ``camera.object_crop`` (none without)."""

@@ -21,6 +21,9 @@ class Category(StrEnum):
     OTHER = "other"
 
 
+#: The public vocabulary in its fixed order (files, filters, and the rows of the model's category table).
+CATEGORY_NAMES: tuple[str, ...] = tuple(c.value for c in Category)
+
 #: The ego's own box in some AV2 annotation tables. It is never a neighbour.
 EGO_VEHICLE_LABEL = "EGO_VEHICLE"
 

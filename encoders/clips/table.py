@@ -26,10 +26,7 @@ from captioning.tables import BEHAVIOR_CAPTION_FIELDS
 from common.atomic import atomic_write_with
 from encoders.clips.frame_tags import FRAME_TAG_COLUMNS
 from encoders.clips.layout import CLIPS_FILE, clip_id
-from scenes.categories import Category
-
-#: The object categories a captions file may name (the vocabulary the fusion reads, encoders.fusion).
-CATEGORY_VALUES = frozenset(c.value for c in Category)
+from scenes.categories import CATEGORY_NAMES, Category
 
 HOST_TRACK_ID = "ego"
 REQUIRED_CAPTION_COLUMNS = ("log_id", "track_id", "start_ns", "end_ns", "caption")
@@ -132,9 +129,9 @@ def read_captions(captions_path: Path) -> list[CaptionRow]:
         if end < start:
             raise ClipsInputError(f"{captions_path}, row {i}, field 'end_ns': {end} is before start_ns {start}")
         category = str(categories[i] or Category.OTHER.value)
-        if category not in CATEGORY_VALUES:
+        if category not in CATEGORY_NAMES:
             raise ClipsInputError(f"{captions_path}, row {i}, field 'category': {category!r} is not one of "
-                                  f"{sorted(CATEGORY_VALUES)}")
+                                  f"{list(CATEGORY_NAMES)}")
         caption = str(cols["caption"][i])
         rows.append(
             CaptionRow(

@@ -27,6 +27,18 @@ from encoders.config import DENSE_STREAMS, HardNegative
 
 HELP = "train the dual text/video encoder on a clips folder (contrastive, multi-positive)"
 
+#: Switches that turn one boolean of the model's config on: flag → (config part, field, what it does).
+MODEL_SWITCHES: dict[str, tuple[str, str, str]] = {
+    "--track-velocity": ("bev", "track_velocity", "give the track stream the object's velocity relative to the ego "
+                         "and its range rates (what the dense heads read motion from)"),
+    "--camera-mask-scale": ("camera", "mask_scale", "give the camera's temporal model the object's size in the "
+                            "image on a log scale and its change"),
+    "--camera-crop": ("camera", "object_crop", "give the camera tower the object's crop at full resolution and "
+                      "where it lies in the image (needs clips rendered with crops)"),
+    "--object-category": ("fusion", "object_category", "let the fused view read each clip's object category, "
+                          "the track's label"),
+}
+
 
 def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("clips_dir", type=Path, metavar="CLIPS_DIR", help="clips folder (scenesearch clips)")
@@ -67,21 +79,11 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--dense-streams", nargs="+", metavar="STREAM", choices=list(DENSE_STREAMS),
                         help=f"temporal streams whose frame tokens carry the per-frame tag heads "
                              f"({', '.join(DENSE_STREAMS)}; model.dense_streams)")
-    parser.add_argument("--track-velocity", action="store_true",
-                        help="give the track stream the object's velocity relative to the ego and its range rates "
-                             "(model.bev.track_velocity; what the dense heads read motion from)")
+    for flag, (part, field, what) in MODEL_SWITCHES.items():
+        parser.add_argument(flag, action="store_true", help=f"{what} (model.{part}.{field})")
     parser.add_argument("--camera-ego", action="store_true",
                         help="give the camera's temporal model the ego's motion from the log's poses, as the BEV "
                              "tower reads it (model.camera.ego_features 6)")
-    parser.add_argument("--camera-mask-scale", action="store_true",
-                        help="give the camera's temporal model the object's size in the image on a log scale and its "
-                             "change (model.camera.mask_scale)")
-    parser.add_argument("--camera-crop", action="store_true",
-                        help="give the camera tower the object's crop at full resolution and where it lies in the "
-                             "image (model.camera.object_crop; needs clips rendered with crops)")
-    parser.add_argument("--object-category", action="store_true",
-                        help="let the fused view read each clip's object category, the track's label "
-                             "(model.fusion.object_category)")
     parser.add_argument("--camera-apart", action="store_true",
                         help="train the camera tower beside the shared space: its own view loss against captions "
                              "it does not move, no gradient through the fused view (camera_apart)")
@@ -145,19 +147,14 @@ def build_config(args: argparse.Namespace) -> Any:
     if args.scratch_text:
         text = dataclasses.replace(text, kind="scratch")
     model = dataclasses.replace(config.model, text=text)
-    if args.track_velocity:
-        model = dataclasses.replace(model, bev=dataclasses.replace(model.bev, track_velocity=True))
+    for flag, (part, field, _) in MODEL_SWITCHES.items():
+        if getattr(args, flag[2:].replace("-", "_")):
+            model = dataclasses.replace(model, **{part: dataclasses.replace(getattr(model, part), **{field: True})})
     if args.camera_ego:
         from encoders.camera import EGO_MOTION_SCALE
 
         model = dataclasses.replace(model, camera=dataclasses.replace(model.camera,
                                                                       ego_features=len(EGO_MOTION_SCALE)))
-    if args.camera_mask_scale:
-        model = dataclasses.replace(model, camera=dataclasses.replace(model.camera, mask_scale=True))
-    if args.camera_crop:
-        model = dataclasses.replace(model, camera=dataclasses.replace(model.camera, object_crop=True))
-    if args.object_category:
-        model = dataclasses.replace(model, fusion=dataclasses.replace(model.fusion, object_category=True))
     if args.track_rates is not None:
         model = dataclasses.replace(model, bev=dataclasses.replace(model.bev, track_rates=args.track_rates))
     if args.time_slots is not None:

@@ -10,9 +10,10 @@ import pytest
 import torch
 
 from encoders.config import ConfigError, tiny_model_config
-from encoders.fusion import CATEGORY_VOCABULARY, UNKNOWN_CATEGORY, category_indices
+from encoders.fusion import UNKNOWN_CATEGORY, category_indices
 from encoders.model import DualEncoder
 from encoders.synthetic import SyntheticClipDataset, SyntheticSpec, collate_clips
+from scenes.categories import CATEGORY_NAMES
 
 SPEC = SyntheticSpec(frames=8, camera_hw=(32, 48), bev_hw=(32, 16), camera_fraction=1.0)
 
@@ -106,8 +107,8 @@ def category_model(drop_p: float = 0.0) -> DualEncoder:
 def test_category_indices_follow_the_vocabulary_and_name_what_they_cannot_read() -> None:
     cpu = torch.device("cpu")
     idx = category_indices(["car", "pedestrian", "other"], 3, cpu)
-    assert idx.tolist() == [CATEGORY_VOCABULARY.index(c) for c in ("car", "pedestrian", "other")]
-    assert category_indices(None, 2, cpu).tolist() == [UNKNOWN_CATEGORY] * 2
+    assert idx.tolist() == [CATEGORY_NAMES.index(c) for c in ("car", "pedestrian", "other")]
+    assert len(CATEGORY_NAMES) == UNKNOWN_CATEGORY and UNKNOWN_CATEGORY not in idx.tolist()
     with pytest.raises(ValueError, match=r"'category'.*\['lorry'\] not among the object categories"):
         category_indices(["car", "lorry"], 2, cpu)
     with pytest.raises(ValueError, match="1 categories for 2 clips"):
@@ -118,10 +119,15 @@ def test_object_category_reaches_the_fused_view_only(batch: dict[str, Any]) -> N
     model = category_model().eval()
     cars, trucks = dict(batch, category=["car"] * 4), dict(batch, category=["truck"] * 4)
     untold = {k: v for k, v in batch.items() if k != "category"}
+    assert model.category(untold) is None
     with torch.no_grad():
         # Zero at first: the fusion starts as it was without categories.
         torch.testing.assert_close(model.encode_video(cars), model.encode_video(untold))
         model.fusion.category.weight.normal_()  # type: ignore[union-attr]
+        # A batch without categories reads the "not told" row, as the fusion does when given none.
+        cam, bev, has = torch.randn(4, 32), torch.randn(4, 32), torch.ones(4, dtype=torch.bool)
+        unknown = torch.full((4,), UNKNOWN_CATEGORY, dtype=torch.long)
+        torch.testing.assert_close(model.fusion(cam, bev, has, unknown), model.fusion(cam, bev, has, None))
         assert not torch.allclose(model.encode_video(cars), model.encode_video(trucks), atol=1e-4)
         views_car, views_truck = model.encode_views(cars), model.encode_views(trucks)
     for view in ("camera", "bev"):

@@ -3,9 +3,9 @@
 Each stage runs one ``scenesearch`` command (in a child process, so memory is returned between
 stages) and prints its progress. A stage whose output is complete — it finished before with the same
 settings, which a marker in ``DIR/.demo/`` records — is skipped, so an interrupted demo resumes
-where it stopped. ``DIR`` then holds ``logs/``, ``extra_logs/`` (training only), ``captions/``,
-``clips/``, ``run/``, ``index/``, ``metrics.json`` and ``report.html``, and every later command can be
-pointed at them::
+where it stopped. ``DIR`` then holds ``logs/``, ``val_logs/`` (validation only), ``extra_logs/``
+(training only), ``captions/``, ``clips/``, ``run/``, ``index/``, ``metrics.json`` and ``report.html``, and
+every later command can be pointed at them::
 
     scenesearch search DIR/index "a car in the left lane approaches, then moves into the ego lane"
     scenesearch serve DIR/index
@@ -31,6 +31,8 @@ from retrieval.demo_config import CAMERA_OPTIONS, VAL_FRACTION, DemoConfig, opti
 
 #: The extra training logs' seed is the demo's plus this: other drives through another city.
 EXTRA_SEED_OFFSET = 1000
+#: The validation-only logs' seed is the demo's plus this: other drives, rendered as the logs to evaluate on.
+VAL_SEED_OFFSET = 2000
 STAGES = ("simulate", "caption", "clips", "train", "index", "eval", "report")
 MARKERS = ".demo"
 
@@ -63,7 +65,7 @@ class Demo:
         # One folder (or file) per stage's output; every later command can be pointed at them.
         out = self.out_dir
         self.logs_dir, self.captions_dir, self.clips_dir = out / "logs", out / "captions", out / "clips"
-        self.extra_logs_dir = out / "extra_logs"
+        self.extra_logs_dir, self.val_logs_dir = out / "extra_logs", out / "val_logs"
         self.run_dir, self.index_dir, self.metrics_path = out / "run", out / "index", out / "metrics.json"
 
     def log_dirs(self, folder: Path | None = None) -> list[Path]:
@@ -105,6 +107,10 @@ class Demo:
         """The extra logs, which only train (network by network)."""
         return [log for net in self.extra_logs_per_network() for log in self.log_dirs(self.extra_logs_dir / net)]
 
+    def val_log_dirs(self) -> list[Path]:
+        """The validation-only logs (:attr:`DemoConfig.val_logs`)."""
+        return self.log_dirs(self.val_logs_dir)
+
     # ------------------------------------------------------------------ stages
 
     def settings(self, stage: str) -> dict[str, Any]:
@@ -113,6 +119,8 @@ class Demo:
         sim = {"logs": c.logs, "duration_s": c.duration_s, "seed": c.seed, "sensors": c.sensors,
                "extra_logs": c.extra_logs, "map_less_share": c.map_less_share,
                "jitter_share": c.jitter_share, "extra_networks": list(c.extra_networks)}
+        if c.val_logs:  # named only when there are some, so that a demo folder made before resumes
+            sim["val_logs"] = c.val_logs
         upto: dict[str, dict[str, Any]] = {"simulate": sim}
         upto["caption"] = upto["simulate"]
         upto["clips"] = {**upto["caption"], "frames_per_clip": c.frames_per_clip, "camera": [c.camera_width_px,
@@ -184,23 +192,30 @@ class Demo:
 
     def stage_simulate(self) -> str:
         c = self.config
-        args: list[object] = ["simulate", "--out", self.logs_dir, "--logs", c.logs, "--duration-s", c.duration_s,
-                "--seed", c.seed, "--overwrite"]
-        if not c.sensors:
-            args.append("--no-sensors")
-        self.per_log_command(args)
+
+        def sensor_logs(out: Path, logs: int, seed: int) -> list[object]:
+            args: list[object] = ["simulate", "--out", out, "--logs", logs, "--duration-s", c.duration_s,
+                                  "--seed", seed, "--overwrite"]
+            return args if c.sensors else [*args, "--no-sensors"]
+
+        self.per_log_command(sensor_logs(self.logs_dir, c.logs, c.seed))
+        shutil.rmtree(self.val_logs_dir, ignore_errors=True)  # the validation logs of other settings
+        if c.val_logs:
+            # Drawn as the logs to evaluate on (same city, sensors), from another seed: only their split differs.
+            self.per_log_command(sensor_logs(self.val_logs_dir, c.val_logs, c.seed + VAL_SEED_OFFSET))
         shutil.rmtree(self.extra_logs_dir, ignore_errors=True)  # the extra logs of other settings
         for network, count in self.extra_logs_per_network().items():
             self.command(["simulate", "--out", self.extra_logs_dir / network, "--logs", count, "--duration-s",
                           c.duration_s, "--seed", c.seed + EXTRA_SEED_OFFSET, "--no-sensors", "--map-less-share",
                           c.map_less_share, "--jitter-share", c.jitter_share, "--network", network])
-        return f"{len(self.log_dirs())} logs, {len(self.extra_log_dirs())} extra training logs"
+        return (f"{len(self.log_dirs())} logs, {len(self.val_log_dirs())} validation logs, "
+                f"{len(self.extra_log_dirs())} extra training logs")
 
     def stage_caption(self) -> str:
         logs = self.log_dirs()
         if not logs:
             raise DemoStageError(f"{self.logs_dir}: no logs to caption (the simulation wrote none)")
-        self.command(["caption", *logs, *self.extra_log_dirs(), "--out", self.captions_dir])
+        self.command(["caption", *logs, *self.val_log_dirs(), *self.extra_log_dirs(), "--out", self.captions_dir])
         return ""
 
     def stage_clips(self) -> str:
@@ -216,10 +231,11 @@ class Demo:
         ).to_yaml(config_path)
         # --tag-targets: attribute targets from the simulator's behaviour labels; with them, training also
         # learns the spatio-temporal tags on the BEV embedding, so the trained model answers tag queries.
-        extra = self.extra_log_dirs()
-        self.per_log_command(["clips", *self.log_dirs(), *(["--train-only", *extra] if extra else []), "--captions",
-                              self.captions_dir, "--out", self.clips_dir, "--frames-per-clip", c.frames_per_clip,
-                              "--config", config_path, "--tag-targets"])
+        extra, val = self.extra_log_dirs(), self.val_log_dirs()
+        self.per_log_command(["clips", *self.log_dirs(), *(["--train-only", *extra] if extra else []),
+                              *(["--val-only", *val] if val else []), "--captions", self.captions_dir, "--out",
+                              self.clips_dir, "--frames-per-clip", c.frames_per_clip, "--config", config_path,
+                              "--tag-targets"])
         return ""
 
     def stage_train(self) -> str:
@@ -292,7 +308,8 @@ class Demo:
         path = write_report(self.out_dir, metrics, examples, run_dir=self.run_dir, embedding_map=(x, actions),
                             stage_timings_s=timings, notes=[f"settings: {settings}",
                                                             f"index: {self.index_dir} ({len(search)} clips)"],
-                            sections=tag_sections(self.run_dir, self.clips_dir, self.log_dirs(), meta,
+                            sections=tag_sections(self.run_dir, self.clips_dir, [*self.log_dirs(),
+                                                                                 *self.val_log_dirs()], meta,
                                                   self.out_dir, self.say))
         self.say(f"\nwrote {path}")
         return str(path)
@@ -303,7 +320,7 @@ def config_from_args(args: argparse.Namespace) -> DemoConfig:
     base = DemoConfig.quick() if args.quick else DemoConfig()
     overrides: dict[str, Any] = {}
     for name in ("logs", "duration_s", "test_fraction", "seed", "frames_per_clip", "camera_width_px",
-                 "camera_height_px", "bev_resolution_m", "epochs", "batch_size", "tag_weight", "extra_logs",
+                 "camera_height_px", "bev_resolution_m", "epochs", "batch_size", "tag_weight", "extra_logs", "val_logs",
                  "map_less_share", "jitter_share", "camera_share", "time_slots", "dense_weight",
                  "order_weight", "track_velocity", "object_category", *CAMERA_OPTIONS, "workers"):
         value = getattr(args, name, None)

@@ -97,6 +97,12 @@ class DemoConfig:
             no camera), that only ever train (``clips --train-only``): the cheapest data there is
             (24 logs: seconds to simulate, half a minute to cut into clips), and more data is what
             the model lacks most. They leave the validation and test splits as they were.
+        val_logs: more simulated logs, from another seed, drawn as ``logs`` are (sensors, the same city),
+            that only ever validate (``clips --val-only``). The hashed split gives the demo's logs one
+            validation log; a tag that log never shows (a stopped vehicle behind, ``blocked_by``, a
+            lane change) then takes its F1 threshold from training logs, where the model is sure of
+            itself, and the tagging head fails on it while it reads the tag. Four logs are one
+            simulator run of its four egos. They leave the train and test splits as they were.
         map_less_share: share of the extra logs written without their map
             (:attr:`scenes.sim.SimulationConfig.map_less_share`), as track-only real logs come.
         jitter_share: share of the extra logs whose boxes scatter from frame to frame as real labels
@@ -146,6 +152,7 @@ class DemoConfig:
     train_preset: str | None = None
     sensors: bool = True
     extra_logs: int = 24
+    val_logs: int = 4
     map_less_share: float = 0.5
     jitter_share: float = 0.5
     extra_networks: tuple[str, ...] = ("grid",)
@@ -164,8 +171,9 @@ class DemoConfig:
         if not 0 < self.test_fraction < 1 - VAL_FRACTION:
             raise ValueError(
                 f"DemoConfig.test_fraction must lie in (0, {1 - VAL_FRACTION:g}), got {self.test_fraction}")
-        if self.extra_logs < 0:
-            raise ValueError(f"DemoConfig.extra_logs must be at least 0, got {self.extra_logs}")
+        for name in ("extra_logs", "val_logs"):
+            if getattr(self, name) < 0:
+                raise ValueError(f"DemoConfig.{name} must be at least 0, got {getattr(self, name)}")
         for name, share in (("map_less_share", self.map_less_share), ("jitter_share", self.jitter_share)):
             if not 0.0 <= share <= 1.0:
                 raise ValueError(f"DemoConfig.{name} must lie in [0, 1], got {share}")
@@ -197,5 +205,5 @@ class DemoConfig:
         """Smallest sizes that still run every stage (a smoke run, not a measurement)."""
         # The tiny model's 32 dimensions hold no time slots, and its scratch text tower no steps.
         return DemoConfig(logs=3, duration_s=12.0, frames_per_clip=8, epochs=1, train_preset="tiny", batch_size=None,
-                          extra_logs=2, time_slots=None, hard_negatives=(), order_weight=None, dense_weight=None,
-                          track_velocity=False)
+                          extra_logs=2, val_logs=0, time_slots=None, hard_negatives=(), order_weight=None,
+                          dense_weight=None, track_velocity=False)

@@ -6,6 +6,7 @@
 
 from __future__ import annotations
 
+from collections import Counter
 from dataclasses import dataclass, field
 from enum import StrEnum
 
@@ -110,12 +111,23 @@ class SplitConfig(ClipsYamlConfig):
         train_only: ids of logs that always train, whatever their hash: extra training data (e.g.
             cheap simulated logs beside the logs to evaluate on) that must never reach val or test.
             The other logs split as they would without them.
+        val_only: ids of logs that always validate: more logs to choose thresholds and calibrations on
+            (a validation split of one or two hashed logs may hold no frame of a rare tag) without
+            moving a hashed log, so the train and test splits stay as they were.
+        test_only: ids of logs that are always held out for test (e.g. the logs a team reports on).
     """
 
     seed: int = 0
     train_fraction: float = 0.7
     val_fraction: float = 0.15
     train_only: tuple[str, ...] = ()
+    val_only: tuple[str, ...] = ()
+    test_only: tuple[str, ...] = ()
+
+    def forced(self) -> dict[str, Split]:
+        """``{log_id: split}`` of the logs whose split is given rather than hashed."""
+        return {log_id: split for split, ids in ((Split.TRAIN, self.train_only), (Split.VAL, self.val_only),
+                                                 (Split.TEST, self.test_only)) for log_id in ids}
 
 
 @dataclass(frozen=True)
@@ -156,5 +168,10 @@ class ClipsConfig(ClipsYamlConfig):
         s = self.split
         if not (s.train_fraction > 0 and s.val_fraction >= 0 and s.train_fraction + s.val_fraction <= 1):
             problems.append("split fractions must be positive and sum to ≤ 1")
+        named = Counter([*s.train_only, *s.val_only, *s.test_only])
+        if any(n > 1 for n in named.values()):
+            twice = sorted(log_id for log_id, n in named.items() if n > 1)
+            problems.append(f"split: log(s) {', '.join(twice[:3])} named more than once in train_only / val_only / "
+                            f"test_only (a log has one split)")
         if problems:
             raise ClipsConfigError("; ".join(problems))

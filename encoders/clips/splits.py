@@ -15,14 +15,15 @@ def log_hash_unit(seed: int, log_id: str) -> float:
 
 
 def assign_splits(log_ids: Iterable[str], config: SplitConfig) -> dict[str, Split]:
-    """Split logs by a seeded hash of their id; the logs in ``config.train_only`` train.
+    """Split logs by a seeded hash of their id; the logs in ``config.train_only`` train, those in
+    ``config.val_only`` validate and those in ``config.test_only`` are held out for test.
 
     A log's split depends only on ``(seed, log_id)``, so adding logs never moves the others —
     except that with three or more (hashed) logs every split gets at least one: when a split is
     empty, the logs whose hash lies nearest to it are moved into it.
     """
     all_ids = set(log_ids)
-    forced = {log_id: Split.TRAIN for log_id in sorted(all_ids & set(config.train_only))}
+    forced = {log_id: split for log_id, split in sorted(config.forced().items()) if log_id in all_ids}
     return forced | _hash_splits(sorted(all_ids - forced.keys()), config)
 
 

@@ -5,7 +5,9 @@ Renders each log's camera and BEV frames once into ``CLIPS_DIR/logs/<log_id>/``,
 ``--no-previews``, an animated GIF per clip under ``CLIPS_DIR/previews/``. Reports what it skipped
 and why (corrupt sweeps, windows outside a log, unreadable logs) and which logs failed (exit 1).
 
-``--train-only LOG_DIR...`` adds logs that always go to the train split (extra training data).
+``--train-only LOG_DIR...`` adds logs that always go to the train split (extra training data);
+``--val-only`` and ``--test-only`` add logs that always validate or are always held out for test. The
+logs given plainly split by a seeded hash of their id, as they would without the others.
 
 ``--workers N`` renders one log per task on a local Ray runtime, ``--ray-address`` on a cluster
 (:mod:`common.ray_runner`); the files are the same as the serial path's. Logs, ``--captions`` and
@@ -26,6 +28,8 @@ from common.storage import Location, as_location, expand, is_uri, name_of
 if TYPE_CHECKING:
     from encoders.clips.config import ClipsConfig
 
+#: The ``SplitConfig`` fields of the logs whose split is given, each a flag: ``--train-only`` and so on.
+FORCED_SPLIT_FIELDS = ("train_only", "val_only", "test_only")
 HELP = "render camera + BEV clips of every neighbour caption (per-log arrays, clip table, splits, previews)"
 
 
@@ -40,6 +44,11 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--train-only", nargs="+", default=[], metavar="LOG_DIR",
                         help="more log folders, rendered as the others but always in the train split (extra "
                              "training data, e.g. simulated logs beside the logs to evaluate on)")
+    parser.add_argument("--val-only", nargs="+", default=[], metavar="LOG_DIR",
+                        help="more log folders, always in the val split (where tag thresholds and the camera "
+                             "weight are chosen)")
+    parser.add_argument("--test-only", nargs="+", default=[], metavar="LOG_DIR",
+                        help="more log folders, always held out in the test split")
     parser.add_argument("--bev-source", choices=["auto", "lidar", "boxes"], help="BEV occupancy source")
     parser.add_argument("--num-sweeps", type=int, help="sweeps aggregated per BEV frame")
     parser.add_argument("--no-previews", action="store_true", help="do not write animated previews")
@@ -62,9 +71,10 @@ def run(args: argparse.Namespace) -> int:
         config = replace(config, frames_per_clip=args.frames_per_clip)
     if args.seed is not None:
         config = replace(config, split=replace(config.split, seed=args.seed))
-    if args.train_only:
-        train_only = tuple(name_of(log_dir) for log_dir in expand(args.train_only))
-        config = replace(config, split=replace(config.split, train_only=(*config.split.train_only, *train_only)))
+    for field in FORCED_SPLIT_FIELDS:
+        if getattr(args, field):
+            named = tuple(name_of(log_dir) for log_dir in expand(getattr(args, field)))
+            config = replace(config, split=replace(config.split, **{field: (*getattr(config.split, field), *named)}))
     if args.bev_source is not None:
         config = replace(config, bev=replace(config.bev, source=BevSourceChoice(args.bev_source)))
     if args.num_sweeps is not None:
@@ -86,7 +96,7 @@ def _run(args: argparse.Namespace, config: ClipsConfig, out: Location, execution
     from encoders.clips.build import build_clips
     from encoders.clips.layout import MANIFEST_FILE
 
-    log_dirs = expand([*args.log_dirs, *args.train_only])
+    log_dirs = expand([*args.log_dirs, *(log_dir for field in FORCED_SPLIT_FIELDS for log_dir in getattr(args, field))])
     report = build_clips(log_dirs, as_location(args.captions), out, config, progress=print,
                          reuse=not args.no_reuse, execution=execution)
     print(

@@ -66,6 +66,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-sensors", action="store_true", help="skip LiDAR/camera rendering (BEV from boxes)")
     parser.add_argument("--extra-logs", type=int, metavar="N",
                         help=f"extra training-only logs, simulated without sensors (default {D.extra_logs})")
+    parser.add_argument("--val-logs", type=int, metavar="N",
+                        help=f"validation-only logs, simulated with sensors from another seed, where the tag "
+                             f"thresholds and the camera weight are chosen (default {D.val_logs})")
     parser.add_argument("--map-less-share", type=float, metavar="F",
                         help=f"share of the extra logs simulated without their map (default {D.map_less_share:g})")
     parser.add_argument("--jitter-share", type=float, metavar="F",

@@ -22,7 +22,8 @@ def test_config_round_trips_through_yaml(tmp_path: Path) -> None:
         previews=False,
         bev=replace(config.bev, source=BevSourceChoice.BOXES, z_bins_m=(-1.0, 0.5, 3.0), num_sweeps=5),
         camera=replace(config.camera, highlight_rgb=(0, 255, 0), width_px=128),
-        split=SplitConfig(seed=7, train_fraction=0.6, val_fraction=0.2, train_only=("sim_1", "sim_2")),
+        split=SplitConfig(seed=7, train_fraction=0.6, val_fraction=0.2, train_only=("sim_1", "sim_2"),
+                          val_only=("val_1",), test_only=("kept_1",)),
     )
     path = tmp_path / "clips.yaml"
     config.to_yaml(path)
@@ -66,6 +67,30 @@ def test_train_only_logs_train_and_leave_the_other_logs_where_they_were() -> Non
     mixed = assign_splits([*logs, *extra], SplitConfig(seed=0, train_only=(*extra, "not_given")))
     assert {k: mixed[k] for k in logs} == alone  # the few logs still fill every split
     assert all(mixed[k] is Split.TRAIN for k in extra) and "not_given" not in mixed
+
+
+def test_val_and_test_only_logs_keep_their_split_and_leave_the_others_where_they_were() -> None:
+    logs = [f"log_{i:03d}" for i in range(12)]
+    val, test = [f"val_{i}" for i in range(4)], ["kept_0"]
+    alone = assign_splits(logs, SplitConfig(seed=0))
+    mixed = assign_splits([*logs, *val, *test, "extra_0"], SplitConfig(seed=0, train_only=("extra_0",),
+                                                                      val_only=(*val, "not_given"), test_only=test))
+    assert {k: mixed[k] for k in logs} == alone
+    assert all(mixed[k] is Split.VAL for k in val) and mixed["kept_0"] is Split.TEST
+    assert mixed["extra_0"] is Split.TRAIN and "not_given" not in mixed
+    # A hashed split left without a log still takes one from the hashed logs, not from the forced ones.
+    few = assign_splits(["a", "b", "c", *val], SplitConfig(seed=0, val_only=tuple(val)))
+    assert {few[k] for k in "abc"} == {Split.TRAIN, Split.VAL, Split.TEST}
+
+
+def test_a_log_named_for_two_splits_is_refused(tmp_path: Path) -> None:
+    with pytest.raises(ClipsConfigError, match=r"log\(s\) both named more than once"):
+        ClipsConfig(split=SplitConfig(train_only=("both",), test_only=("both",)))
+    path = tmp_path / "clips.yaml"
+    path.write_text("split:\n  val_only: [x]\n  test_only: [x]\n")
+    with pytest.raises(ClipsConfigError, match="x named more than once") as info:
+        ClipsConfig.from_yaml(path)
+    assert str(path) in str(info.value)
 
 
 def test_frame_sampling_is_uniform_and_repeats_short_windows() -> None:

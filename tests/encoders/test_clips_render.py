@@ -296,25 +296,33 @@ def test_cli_writes_clips_and_previews(built: tuple[Path, Path], tmp_path: Path,
     assert alone.read_bytes() == (out / rows[-1]["preview_path"]).read_bytes()
 
 
-def test_cli_train_only_logs_always_train(tmp_path: Path) -> None:
+def test_cli_train_val_and_test_only_logs_keep_their_split(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     from retrieval.cli import main
 
-    # Three logs to evaluate on fill the three splits; the extra log, hashed alone, would not train.
+    # Three logs to evaluate on fill the three splits; each extra log, hashed alone, would land elsewhere.
     logs = [write_synthetic_log(tmp_path / "logs", log_id=f"eval_{i}", num_frames=40, with_camera=False, seed=i)
             for i in range(3)]
-    extra = write_synthetic_log(tmp_path / "extra", log_id="extra_0", num_frames=40, with_camera=False, seed=9)
+    extra, val, test = (write_synthetic_log(tmp_path / folder, log_id=name, num_frames=40, with_camera=False, seed=9)
+                        for folder, name in (("extra", "extra_0"), ("val", "val_0"), ("test", "test_0")))
     splits = SplitConfig(train_fraction=0.01, val_fraction=0.5)
-    assert assign_splits(["extra_0"], splits)["extra_0"] is not Split.TRAIN
+    assert [assign_splits([n], splits)[n] for n in ("extra_0", "val_0", "test_0")] == [Split.VAL, Split.TEST, Split.VAL]
     (tmp_path / "c").mkdir()
-    pq.write_table(synthetic_captions([*logs, extra]), tmp_path / "c" / "captions.parquet")
+    pq.write_table(synthetic_captions([*logs, extra, val, test]), tmp_path / "c" / "captions.parquet")
     config = tmp_path / "clips.yaml"
     ClipsConfig(previews=False, split=splits).to_yaml(config)
     out = tmp_path / "clips"
-    assert main(["clips", *map(str, logs), "--train-only", str(extra), "--captions", str(tmp_path / "c"),
-                 "--out", str(out), "--frames-per-clip", "4", "--config", str(config)]) == 0
+    assert main(["clips", *map(str, logs), "--train-only", str(extra), "--val-only", str(val), "--test-only",
+                 str(test), "--captions", str(tmp_path / "c"), "--out", str(out), "--frames-per-clip", "4",
+                 "--config", str(config)]) == 0
     split_of = dict(zip(*pq.read_table(out / "clips.parquet", columns=["log_id", "split"]).to_pydict().values()))
-    assert split_of["extra_0"] == "train"
+    assert (split_of["extra_0"], split_of["val_0"], split_of["test_0"]) == ("train", "val", "test")
     assert {split_of[p.name] for p in logs} == {"train", "val", "test"}
+    # A log given for two splits is refused before anything is rendered.
+    capsys.readouterr()
+    assert main(["clips", *map(str, logs), "--val-only", str(val), "--test-only", str(val), "--captions",
+                 str(tmp_path / "c"), "--out", str(tmp_path / "refused"), "--config", str(config)]) == 2
+    assert "log(s) val_0 named more than once in train_only / val_only / test_only" in capsys.readouterr().err
+    assert not (tmp_path / "refused").exists()
 
 
 def test_camera_without_instance_masks_projects_the_boxes(tmp_path: Path) -> None:

@@ -24,6 +24,8 @@ def test_invalid_settings_are_refused() -> None:
         DemoConfig(camera_share=-0.5)
     with pytest.raises(ValueError, match="extra_logs must be at least 0"):
         DemoConfig(extra_logs=-1)
+    with pytest.raises(ValueError, match="val_logs must be at least 0"):
+        DemoConfig(val_logs=-1)
     with pytest.raises(ValueError, match="time_slots must be at least 0"):
         DemoConfig(time_slots=-1)
     with pytest.raises(ValueError, match="dense_weight must be at least 0"):

@@ -13,7 +13,7 @@ from retrieval_fakes import FakeEmbedder, HashTextEncoder
 
 from encoders.clips.config import BevClipConfig, CameraClipConfig, ClipsConfig, SplitConfig
 from retrieval.commands import demo as demo_command
-from retrieval.demo import EXTRA_SEED_OFFSET, STAGES, Demo, DemoStageError, config_from_args
+from retrieval.demo import EXTRA_SEED_OFFSET, STAGES, VAL_SEED_OFFSET, Demo, DemoStageError, config_from_args
 from retrieval.demo_config import DemoConfig
 from retrieval.embedding import model_hash
 from retrieval.evaluation import evaluate
@@ -49,15 +49,20 @@ def _demo(tmp_path: Path, config: DemoConfig) -> RecordingDemo:
 def test_stages_run_in_order_with_sizes(tmp_path: Path) -> None:
     demo = _demo(tmp_path, DemoConfig(logs=2, duration_s=10, epochs=3, frames_per_clip=8, batch_size=4,
                                       camera_width_px=40, bev_resolution_m=2.0, extra_logs=3, map_less_share=0.25,
-                                      jitter_share=0.75, camera_share=0.5,
+                                      jitter_share=0.75, camera_share=0.5, val_logs=2,
                                       extra_networks=("grid", "spider")))
     results = demo.run()
     assert [r.name for r in results] == list(STAGES)
     names = [c[0] for c in demo.calls]
-    assert names == ["simulate", "simulate", "simulate", "caption", "clips", "train", "index", "eval", "report"]
-    sim, grid, spider = demo.calls[:3]
+    assert names == ["simulate"] * 4 + ["caption", "clips", "train", "index", "eval", "report"]
+    sim, val, grid, spider = demo.calls[:4]
     assert sim[sim.index("--logs") + 1] == "2" and sim[sim.index("--duration-s") + 1] == "10"
     assert "--map-less-share" not in sim and "--network" not in sim  # the logs to evaluate on: a grid, with maps
+    # The validation logs: drawn as those (sensors, the same city), from another seed, into a folder of their own.
+    assert val[val.index("--out") + 1] == str(demo.val_logs_dir) and val[val.index("--logs") + 1] == "2"
+    assert val[val.index("--seed") + 1] == str(DemoConfig().seed + VAL_SEED_OFFSET)
+    assert [a for i, a in enumerate(val) if val[i - 1] not in ("--out", "--logs", "--seed")] == [
+        a for i, a in enumerate(sim) if sim[i - 1] not in ("--out", "--logs", "--seed")]
     # The extra logs: another seed, no sensors, a quarter without a map, training only, shared by the networks
     # (the first takes the remainder), each in its own folder.
     for extra, network, count in ((grid, "grid", "2"), (spider, "spider", "1")):
@@ -68,16 +73,18 @@ def test_stages_run_in_order_with_sizes(tmp_path: Path) -> None:
         assert extra[extra.index("--jitter-share") + 1] == "0.75" and "--jitter-share" not in sim
     main_logs = [str(demo.logs_dir / f"logs{i}") for i in range(2)]
     extra_logs = [str(demo.extra_logs_dir / net / f"{net}{i}") for net, i in (("grid", 0), ("grid", 1), ("spider", 0))]
-    assert demo.calls[3][1:6] == [*main_logs, *extra_logs]
-    clips = demo.calls[4]
+    val_logs = [str(demo.val_logs_dir / f"val_logs{i}") for i in range(2)]
+    assert demo.calls[4][1:8] == [*main_logs, *val_logs, *extra_logs]
+    clips = demo.calls[5]
     assert clips[1:3] == main_logs and clips[clips.index("--train-only") + 1:][:3] == extra_logs
+    assert clips[clips.index("--val-only") + 1:][:3] == [*val_logs, "--captions"]
     assert clips[clips.index("--frames-per-clip") + 1] == "8"
     assert clips[clips.index("--config") + 1] == str(demo.out_dir / "clips.yaml")
     # The test split takes the default quarter, validation 0.15, training the rest.
     assert ClipsConfig.from_yaml(demo.out_dir / "clips.yaml") == ClipsConfig(
         frames_per_clip=8, camera=CameraClipConfig(width_px=40, height_px=DemoConfig().camera_height_px),
         bev=BevClipConfig(resolution_m=2.0), split=SplitConfig(train_fraction=0.6, val_fraction=0.15))
-    train = demo.calls[5]
+    train = demo.calls[6]
     assert train[train.index("--epochs") + 1] == "3" and train[train.index("--batch-size") + 1] == "4"
     assert train[train.index("--camera-share") + 1] == "0.5"
     # The demo's model: time slots, trained with the reversed-step captions as negatives.
@@ -104,8 +111,9 @@ def test_workers_run_the_sensor_logs_and_the_clips_on_ray(tmp_path: Path, monkey
         return out
 
     two = commands(DemoConfig(logs=2, duration_s=10, extra_logs=1, workers=2))
-    sensor_logs, extra_logs = two["simulate"]
+    sensor_logs, val_logs, extra_logs = two["simulate"]
     assert sensor_logs[sensor_logs.index("--workers") + 1] == "2" and "--workers" not in extra_logs  # seconds
+    assert val_logs[val_logs.index("--workers") + 1] == "2"  # rendered with sensors: minutes
     assert two["clips"][0][two["clips"][0].index("--workers") + 1] == "2" and "--workers" not in two["caption"][0]
     for serial in (0, 1):
         calls = commands(DemoConfig(logs=2, duration_s=10, extra_logs=1, workers=serial))
@@ -136,8 +144,9 @@ def test_a_stage_that_fails_on_ray_runs_again_serially(tmp_path: Path) -> None:
     demo = NoRay(tmp_path / "demo", DemoConfig(logs=2, duration_s=10, extra_logs=0, workers=2), say=lambda _m: None)
     demo.calls = []
     demo.run(("simulate", "caption", "clips"))
-    assert [c[0] for c in demo.calls] == ["failed", "simulate", "caption", "failed", "clips"]
+    assert [c[0] for c in demo.calls] == ["failed", "simulate", "failed", "simulate", "caption", "failed", "clips"]
     assert demo.calls[0][1:-2] == demo.calls[1]  # the same command, without the workers
+    assert demo.calls[2][1:-2] == demo.calls[3]  # the validation logs' too
 
 
 def test_resume_skips_complete_stages_and_reruns_after_a_change(tmp_path: Path) -> None:
@@ -157,7 +166,7 @@ def test_resume_skips_complete_stages_and_reruns_after_a_change(tmp_path: Path) 
     # A new share of map-less extra logs is new data: everything reruns.
     fewer_maps = _demo(tmp_path, DemoConfig(logs=2, duration_s=10, epochs=5, map_less_share=1.0))
     fewer_maps.run()
-    assert [c[0] for c in fewer_maps.calls] == ["simulate", *STAGES]
+    assert [c[0] for c in fewer_maps.calls] == ["simulate", "simulate", *STAGES]  # with the validation logs
     # Another camera share retrains on the same clips.
     more_camera = _demo(tmp_path, DemoConfig(logs=2, duration_s=10, epochs=5, map_less_share=1.0, camera_share=0.5))
     more_camera.run()
@@ -211,8 +220,16 @@ def test_resume_skips_complete_stages_and_reruns_after_a_change(tmp_path: Path) 
     assert fewer_maps.extra_logs_dir.is_dir()
     alone = _demo(tmp_path, DemoConfig(logs=2, duration_s=10, epochs=5, extra_logs=0))
     alone.run()
-    assert [c[0] for c in alone.calls] == list(STAGES) and not alone.extra_logs_dir.exists()
-    assert "--train-only" not in alone.calls[2]
+    assert [c[0] for c in alone.calls] == ["simulate", *STAGES] and not alone.extra_logs_dir.exists()
+    assert "--train-only" not in alone.calls[3]
+    # Without validation logs likewise; and then they are not among the settings, so a demo folder made
+    # before them resumes as it was.
+    assert alone.val_logs_dir.is_dir()
+    no_val = _demo(tmp_path, DemoConfig(logs=2, duration_s=10, epochs=5, extra_logs=0, val_logs=0))
+    no_val.run()
+    assert [c[0] for c in no_val.calls] == list(STAGES) and not no_val.val_logs_dir.exists()
+    assert "--val-only" not in no_val.calls[2]
+    assert "val_logs" not in no_val.settings("simulate") and DemoConfig().val_logs > 0
 
 
 def test_config_from_flags() -> None:
@@ -245,6 +262,7 @@ def test_config_from_flags() -> None:
     assert bare.object_category is False and DemoConfig().object_category is True
     assert config_from_args(parser.parse_args(["--out", "x", "--dense-streams", "track"])).dense_streams == ("track",)
     assert config_from_args(parser.parse_args(["--out", "x"])) == DemoConfig()
+    assert config_from_args(parser.parse_args(["--out", "x", "--val-logs", "0"])).val_logs == 0
     assert config_from_args(parser.parse_args(["--out", "x", "--order-weight", "0.5"])).order_weight == 0.5
     # Without the reversed steps the order loss has no pairs: off unless asked for (then refused).
     assert config_from_args(parser.parse_args(["--out", "x", "--hard-negatives", "none"])).order_weight is None

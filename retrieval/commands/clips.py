@@ -28,8 +28,6 @@ from common.storage import Location, as_location, expand, is_uri, name_of
 if TYPE_CHECKING:
     from encoders.clips.config import ClipsConfig
 
-#: The ``SplitConfig`` fields of the logs whose split is given, each a flag: ``--train-only`` and so on.
-FORCED_SPLIT_FIELDS = ("train_only", "val_only", "test_only")
 HELP = "render camera + BEV clips of every neighbour caption (per-log arrays, clip table, splits, previews)"
 
 
@@ -71,10 +69,13 @@ def run(args: argparse.Namespace) -> int:
         config = replace(config, frames_per_clip=args.frames_per_clip)
     if args.seed is not None:
         config = replace(config, split=replace(config.split, seed=args.seed))
-    for field in FORCED_SPLIT_FIELDS:
-        if getattr(args, field):
-            named = tuple(name_of(log_dir) for log_dir in expand(getattr(args, field)))
-            config = replace(config, split=replace(config.split, **{field: (*getattr(config.split, field), *named)}))
+    def named(log_dirs: list[str]) -> tuple[str, ...]:
+        return tuple(name_of(log_dir) for log_dir in expand(log_dirs)) if log_dirs else ()
+
+    s = config.split
+    config = replace(config, split=replace(s, train_only=(*s.train_only, *named(args.train_only)),
+                                           val_only=(*s.val_only, *named(args.val_only)),
+                                           test_only=(*s.test_only, *named(args.test_only))))
     if args.bev_source is not None:
         config = replace(config, bev=replace(config.bev, source=BevSourceChoice(args.bev_source)))
     if args.num_sweeps is not None:
@@ -96,7 +97,7 @@ def _run(args: argparse.Namespace, config: ClipsConfig, out: Location, execution
     from encoders.clips.build import build_clips
     from encoders.clips.layout import MANIFEST_FILE
 
-    log_dirs = expand([*args.log_dirs, *(log_dir for field in FORCED_SPLIT_FIELDS for log_dir in getattr(args, field))])
+    log_dirs = expand([*args.log_dirs, *args.train_only, *args.val_only, *args.test_only])
     report = build_clips(log_dirs, as_location(args.captions), out, config, progress=print,
                          reuse=not args.no_reuse, execution=execution)
     print(

@@ -1,5 +1,5 @@
 """Retrieval quality on a simulated city larger than the demo's: the demo's pipeline and training
-recipe (its extra training-only logs included) on 40 logs instead of 12, so that the test split (logs
+recipe (its extra training-only and validation-only logs included) on 40 logs instead of 12, so that the test split (logs
 drawn by a seeded hash of their id: 15 here) holds several logs per appearance (time of day,
 weather), which measures appearance apart from the log, and rare actions have tens of test clips.
 

@@ -1,13 +1,14 @@
 """Retrieval quality on a simulated city larger than the demo's: the demo's pipeline and training
-recipe (its extra training-only and validation-only logs included) on 40 logs instead of 12, so that the test split (logs
-drawn by a seeded hash of their id: 15 here) holds several logs per appearance (time of day,
-weather), which measures appearance apart from the log, and rare actions have tens of test clips.
+recipe (its extra training-only and validation-only logs included) on 40 logs instead of 12, so that
+the test split (logs drawn by a seeded hash of their id: 15 here) holds several logs per appearance
+(time of day, weather), which measures appearance apart from the log, and rare actions have tens of
+test clips.
 
 Every figure comes with its baselines from the same run (random ranking, the model on shuffled
 frames, rule-caption search). Recall is also broken down per facet of the queried action (lane,
 motion, own action, context, category); ``rare_facets`` lists the facets with the fewest test clips.
 The stages run fresh into ``benchmarks/_work/quality`` (kept afterwards for inspection), about
-22 minutes on 2 CPU cores (21.7 measured).
+16-27 minutes on 2 CPU cores (15.9 measured last, with the validation-only logs).
 """
 
 from __future__ import annotations

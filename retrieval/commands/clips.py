@@ -69,13 +69,10 @@ def run(args: argparse.Namespace) -> int:
         config = replace(config, frames_per_clip=args.frames_per_clip)
     if args.seed is not None:
         config = replace(config, split=replace(config.split, seed=args.seed))
-    def named(log_dirs: list[str]) -> tuple[str, ...]:
-        return tuple(name_of(log_dir) for log_dir in expand(log_dirs)) if log_dirs else ()
-
     s = config.split
-    config = replace(config, split=replace(s, train_only=(*s.train_only, *named(args.train_only)),
-                                           val_only=(*s.val_only, *named(args.val_only)),
-                                           test_only=(*s.test_only, *named(args.test_only))))
+    config = replace(config, split=replace(s, train_only=(*s.train_only, *_log_ids(args.train_only)),
+                                           val_only=(*s.val_only, *_log_ids(args.val_only)),
+                                           test_only=(*s.test_only, *_log_ids(args.test_only))))
     if args.bev_source is not None:
         config = replace(config, bev=replace(config.bev, source=BevSourceChoice(args.bev_source)))
     if args.num_sweeps is not None:
@@ -91,6 +88,11 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError("--tag-targets needs a clips folder on a local or shared file system, not a URI")
     with held_runtime(execution):  # one runtime for the clips and their tag targets
         return _run(args, config, out, execution)
+
+
+def _log_ids(log_dirs: list[str]) -> tuple[str, ...]:
+    """The log ids (folder names) of log folders given on the command line."""
+    return tuple(name_of(log_dir) for log_dir in expand(log_dirs)) if log_dirs else ()
 
 
 def _run(args: argparse.Namespace, config: ClipsConfig, out: Location, execution: Execution) -> int:

@@ -33,8 +33,8 @@ class DemoConfig:
     Attributes:
         logs: simulated logs.
         duration_s: length of each log, seconds.
-        test_fraction: share of the logs held out for the test split (validation: 0.15, the rest
-            trains). A quarter, so that the test split spans several logs and so several
+        test_fraction: share of the logs held out for the test split (validation: 0.15, beside the
+            ``val_logs``; the rest trains). A quarter, so that the test split spans several logs and so several
             appearances (time of day, weather): the clip → clip appearance bias needs them.
         seed: seed of the simulation (and so of everything after it).
         frames_per_clip: T frames per clip.

@@ -27,14 +27,9 @@ if TYPE_CHECKING:
 ROOT = Path(__file__).resolve().parents[1]
 WORK = ROOT / "benchmarks" / "_work" / "quality"
 LOGS = 40
-#: The demo has 15 minutes on 2 cores and this benchmark about 45, spent on more passes or more data.
-#: One run each (Intel Xeon, 2 cores; test R@5 / order, minutes end to end): the demo's 24 extra logs
-#: and 6 epochs 0.876 / 0.914, 20 min (validation R@5 levels off at 0.913 from epoch 5); 12 epochs
-#: 0.885 / 0.941, 35 min; 80 extra logs (the demo's 2 per log) and 6 epochs 0.919 / 0.951, 56.5 min,
-#: past the budget; 80 extra logs and 4 epochs 0.899 / 0.943, 40.6 min; 80 extra logs and 5 epochs
-#: 0.909 / 0.956, 42.1 min, and the same figures in 54.5 min from a fresh folder an hour later (the machine
-#: trained at 28-30 clips/s, then 19-25).
-#: More data is the stronger lever.
+#: The demo has 15 minutes on 2 cores and this benchmark about 45, spent on more data rather than more
+#: passes: 80 extra logs for 5 epochs is the smallest recipe measured that meets :data:`TARGETS` (the curve,
+#: one run per recipe: README, "More passes or more data").
 EXTRA_LOGS = 80
 EPOCHS = 5
 #: Facets listed as rare: the ones with the fewest test clips.

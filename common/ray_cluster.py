@@ -95,11 +95,13 @@ def import_ray() -> Any:
 def ray_runtime(execution: Execution) -> Iterator[int]:
     """A Ray runtime for ``execution``; yields how many tasks run at once.
 
-    Reuses a runtime this process started already (and leaves it running); otherwise starts a local
-    one or connects to the cluster, and shuts it down at the end.
+    Reuses a runtime this process started already (and leaves it running), unless ``execution`` names
+    a cluster address that runtime is not on (:func:`check_joined`); otherwise starts a local one or
+    connects to the cluster, and shuts it down at the end.
     """
     ray = import_ray()
     if ray.is_initialized():
+        check_joined(ray, execution)
         yield execution.workers or cluster_cpus(ray)
         return
     if execution.address is not None:
@@ -117,6 +119,36 @@ def ray_runtime(execution: Execution) -> Iterator[int]:
         yield execution.workers or cluster_cpus(ray)
     finally:
         ray.shutdown()
+
+
+def check_joined(ray: Any, execution: Execution) -> None:
+    """Raise a :class:`ClusterError` when this process's Ray runtime is not the cluster at
+    ``execution.address`` (a ``HOST:PORT`` of a GCS): the tasks would run elsewhere than asked.
+
+    ``auto``, Ray Client addresses (``ray://``, whose server is not the GCS) and no address accept the
+    runtime there is. A loopback host means this machine: the runtime's GCS on this node matches it.
+    """
+    address = execution.address
+    if address is None or address.strip() == "auto" or address.strip().startswith("ray://"):
+        return
+    host, port = split_address(address)
+    gcs = str(ray.get_runtime_context().gcs_address)
+    gcs_host, gcs_port = split_address(gcs)
+    wanted = _host_ips(host)
+    if any(ip.startswith("127.") or ip == "::1" for ip in wanted):
+        wanted |= {str(ray.util.get_node_ip_address())}
+    if port != gcs_port or not (wanted & (_host_ips(gcs_host) | {gcs_host})):
+        raise ClusterError(f"--ray-address {address}: this process already runs on the Ray runtime at {gcs}, "
+                           "not on that cluster; stop it first (`ray.shutdown()`), or leave --ray-address out "
+                           "to run there")
+
+
+def _host_ips(host: str) -> set[str]:
+    """The addresses a host name resolves to (the name itself when it does not resolve)."""
+    try:
+        return {str(info[4][0]) for info in socket.getaddrinfo(host, None)}
+    except OSError:
+        return {host}
 
 
 def _worker_env() -> dict[str, Any]:

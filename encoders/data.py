@@ -138,6 +138,7 @@ class ClipDataset(torch.utils.data.Dataset[dict[str, Any]]):
                 raise ValueError(f"split must be 'train', 'val', 'test' or None, got {split!r}")
             table = table.filter(pa.compute.equal(table.column("split"), split))
         cols = table.to_pydict()
+        layout.check_categories(self.clips_dir, cols["clip_id"], cols["category"])
         tag_columns = [c for c in FRAME_TAG_COLUMNS if c in cols]
         self._rows = [
             _Row(

@@ -24,10 +24,12 @@ when no pretrained encoder is installed.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import re
 import zipfile
 import zlib
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -55,16 +57,42 @@ class TextFeatureCache:
         self.entries: dict[str, np.ndarray] = {}
         self.hits = 0
         self.misses = 0
+        self._apart: dict[str, np.ndarray] | None = None
 
     def key(self, text: str) -> str:
         return hashlib.sha1(f"{self.model_name}\0{text}".encode()).hexdigest()
 
     def get(self, text: str) -> np.ndarray | None:
-        return self.entries.get(self.key(text))
+        key = self.key(text)
+        found = self.entries.get(key)
+        if found is None and self._apart is not None:
+            found = self._apart.get(key)
+        return found
 
     def put(self, text: str, vector: np.ndarray) -> None:
         """vector: (F,) float32."""
-        self.entries[self.key(text)] = np.asarray(vector, dtype=np.float32)
+        (self.entries if self._apart is None else self._apart)[self.key(text)] = np.asarray(vector, dtype=np.float32)
+
+    @contextlib.contextmanager
+    def kept_apart(self, store: dict[str, np.ndarray]) -> Iterator[None]:
+        """Within it, what is encoded goes to ``store`` (and is read back from there), not to the cache.
+
+        The encoder's float rounding of a string depends on the strings it is encoded with (a group of
+        :data:`ENCODE_GROUP` padded to its longest), and a training step encodes only the strings the
+        cache lacks. Validation between epochs runs within it, so that what training finds cached, and
+        so the model it trains, does not depend on the validation split or how often it runs.
+        """
+        self._apart = store
+        try:
+            yield
+        finally:
+            self._apart = None
+
+    def merge(self, store: dict[str, np.ndarray]) -> TextFeatureCache:
+        """Add the entries of ``store`` that the cache lacks (a kept-apart store, once training is done)."""
+        for key, vector in store.items():
+            self.entries.setdefault(key, vector)
+        return self
 
     def __len__(self) -> int:
         return len(self.entries)
@@ -103,6 +131,11 @@ class TextFeatureCache:
         for k, v in zip(keys.tolist(), vectors):
             self.entries[str(k)] = v.astype(np.float32)
         return len(keys)
+
+
+def kept_apart(cache: TextFeatureCache | None, store: dict[str, np.ndarray]) -> contextlib.AbstractContextManager[None]:
+    """:meth:`TextFeatureCache.kept_apart` of ``cache``; nothing to keep apart without one."""
+    return contextlib.nullcontext() if cache is None else cache.kept_apart(store)
 
 
 #: Strings per call of the sentence encoder. Small groups of similar length pad little, and their

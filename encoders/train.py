@@ -75,7 +75,7 @@ from encoders.negatives import NEGATIVE_FIELDS, batch_negatives
 from encoders.tagging.ablation import mask_inputs
 from encoders.tagging.config import TagTrainConfig
 from encoders.tagging.training import attach_tagging
-from encoders.text import TEXT_CACHE_FILE
+from encoders.text import TEXT_CACHE_FILE, kept_apart
 
 
 class TrainingError(RuntimeError):
@@ -274,6 +274,7 @@ def train(
     cache_path = run_dir / TEXT_CACHE_FILE
     if text_cache is not None:
         text_cache.load(cache_path)
+    val_texts: dict[str, np.ndarray] = {}  # what validation encodes, kept out of training's cache (kept_apart)
     if dp.is_main:
         atomic_write_text(run_dir / "config.json", config.to_json())
 
@@ -380,7 +381,8 @@ def train(
         epoch_s = time.perf_counter() - t0
         done = epoch + 1
         if dp.is_main and val_set is not None and (done % config.eval_every == 0 or done == config.epochs):
-            val = evaluate(model, val_set, batch_size=config.eval_batch_size)
+            with kept_apart(text_cache, val_texts):
+                val = evaluate(model, val_set, batch_size=config.eval_batch_size)
         row: dict[str, Any] = {
             "epoch": done,
             "step": step,
@@ -414,8 +416,11 @@ def train(
         writer.close()
     if dp.is_main:
         # After the last checkpoint: a resumed run trains with the equal mean, as this one did.
-        camera_weight = (calibrate_camera_weight(model, val_set, config.eval_batch_size) if config.calibrate_camera
-                         else CameraWeightChoice(float(model.fusion.camera_weight), {}, "calibrate_camera is off"))
+        with kept_apart(text_cache, val_texts):
+            camera_weight = (calibrate_camera_weight(model, val_set, config.eval_batch_size) if config.calibrate_camera
+                             else CameraWeightChoice(float(model.fusion.camera_weight), {}, "calibrate_camera is off"))
+        if text_cache is not None and val_texts:  # training is done: the run's cache serves validation's captions too
+            text_cache.merge(val_texts).save(cache_path)
         log(camera_weight.describe())
         _write_final(run_dir, model, config, history, n, val_set, clips_dir, camera_weight)
         if tag_objective is not None:  # tagging hook

@@ -28,8 +28,8 @@ def ray_local() -> Iterator[None]:
 @pytest.fixture
 def ray_stopped() -> Iterator[None]:
     """No Ray runtime in this process during the test: one that ``ray_local`` started is stopped, and
-    started again afterwards. :mod:`common.ray_cluster` reuses a running runtime whatever address it
-    is given, so a test of joining a cluster would otherwise depend on which tests ran before it."""
+    started again afterwards. :mod:`common.ray_cluster` reuses a running runtime (or refuses an address
+    it is not on), so a test of joining a cluster would otherwise depend on which tests ran before it."""
     try:
         import ray
     except ImportError:

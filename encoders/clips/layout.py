@@ -59,6 +59,7 @@ import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
 from scenes.bev import BevGrid
+from scenes.categories import CATEGORY_NAMES
 
 CLIPS_FILE = "clips.parquet"
 MANIFEST_FILE = "manifest.json"
@@ -169,3 +170,18 @@ def read_clip_rows(clips_dir: Path | str, clip_ids: Sequence[str]) -> list[dict[
         if cid not in found:
             raise KeyError(f"{Path(clips_dir) / CLIPS_FILE}: no clip with clip_id {cid!r}")
     return [found[cid] for cid in clip_ids]
+
+
+def check_categories(clips_dir: Path | str, clip_ids: Sequence[str], categories: Sequence[str]) -> None:
+    """Every clip's ``category`` is one of the object categories (the captions and the model's category
+    table know no other).
+
+    Raises:
+        ValueError: names the clip table, the field, the values outside and the first clip holding one.
+    """
+    unknown = sorted({str(c) for c in categories} - set(CATEGORY_NAMES))
+    if unknown:
+        first = next(cid for cid, c in zip(clip_ids, categories) if str(c) in unknown)
+        raise ValueError(f"{Path(clips_dir) / CLIPS_FILE}: field 'category' holds {unknown} (first at clip "
+                         f"{first!r}), not among the object categories {list(CATEGORY_NAMES)}; "
+                         "cut the clips again with `scenesearch clips`")

@@ -127,7 +127,8 @@ def add_attributes(
     trained = load_tagger(out)
     new_head = trained.head
     merged = TagHead(TagHeadConfig(attributes=base.names + names, embed_channels=base.head.config.embed_channels,
-                                   kinds={**base.head.config.kinds, **{n: "discrete" for n in names}}))
+                                   kinds={**base.head.config.kinds, **{n: "discrete" for n in names}},
+                                   scales={**base.head.config.scales, **new_head.config.scales}))
     with torch.no_grad():
         merged.attributes.copy_(torch.cat([base.head.attributes.detach().cpu(), new_head.attributes.detach().cpu()]))
         merged.bias.copy_(torch.cat([base.head.bias.detach().cpu(), new_head.bias.detach().cpu()]))

@@ -6,7 +6,9 @@
 parameter-free, so every attribute shares the backbone (Segal et al.). ``b`` (|T|,) is a learned
 per-attribute bias (equivalently a constant channel of E), which absorbs each attribute's base rate
 so that A only has to encode *where*. ``s`` is a fixed output scale (1, or 10 for ``vehicle_speed``
-so that V is in m/s while the dot product stays near unit range).
+so that V is in m/s while the dot product stays near unit range); the head's config records every
+attribute's scale, so a saved head means what it meant when it was trained whatever the defaults
+(:data:`~encoders.tagging.attributes.OUTPUT_SCALE`) become.
 
 For discrete attributes V is a logit (probability = sigmoid(V)); for continuous ones V is the value.
 """
@@ -14,6 +16,7 @@ For discrete attributes V is a logit (probability = sigmoid(V)); for continuous 
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
@@ -34,12 +37,17 @@ class TagHeadConfig:
         kinds: kind per added attribute not in the built-in vocabulary (name → ``discrete`` or
             ``continuous``); built-ins take theirs from :class:`~encoders.tagging.attributes.Attribute`.
         init_std: standard deviation of the initial rows of A.
+        scales: output scale s per attribute; an attribute not named takes its default
+            (:data:`~encoders.tagging.attributes.OUTPUT_SCALE`, else 1). Filled in for every attribute
+            on construction, so ``tagging.json`` records them (files written before it had them read
+            back with the defaults, which they were trained with).
     """
 
     attributes: tuple[str, ...] = tuple(a.value for a in ATTRIBUTES)
     embed_channels: int = 64
     kinds: dict[str, str] = field(default_factory=dict)
     init_std: float = 0.02
+    scales: dict[str, float] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "attributes", tuple(str(a) for a in self.attributes))
@@ -52,6 +60,14 @@ class TagHeadConfig:
         for name, kind in self.kinds.items():
             if kind not in (AttributeKind.CONTINUOUS.value, AttributeKind.DISCRETE.value):
                 raise TagError(f"TagHeadConfig.kinds[{name!r}] must be 'continuous' or 'discrete', got {kind!r}")
+        stray = sorted(set(self.scales) - set(self.attributes))
+        if stray:
+            raise TagError(f"TagHeadConfig.scales names attributes the head does not have: {stray}")
+        scales = {a: float(self.scales.get(a, OUTPUT_SCALE.get(a, 1.0))) for a in self.attributes}
+        bad = sorted(a for a, v in scales.items() if not (math.isfinite(v) and v > 0))
+        if bad:
+            raise TagError(f"TagHeadConfig.scales must be finite and > 0, got {[(a, scales[a]) for a in bad]}")
+        object.__setattr__(self, "scales", scales)
 
     def kind(self, name: str) -> AttributeKind:
         if name in self.kinds:
@@ -65,7 +81,7 @@ class TagHeadConfig:
 
     @staticmethod
     def from_dict(data: dict[str, Any]) -> TagHeadConfig:
-        known = {"attributes", "embed_channels", "kinds", "init_std"}
+        known = {"attributes", "embed_channels", "kinds", "init_std", "scales"}
         unknown = sorted(set(data) - known)
         if unknown:
             raise TagError(f"TagHeadConfig: unknown keys {unknown}")
@@ -85,7 +101,7 @@ class TagHead(nn.Module):
         n = len(config.attributes)
         self.attributes = nn.Parameter(torch.randn(n, config.embed_channels) * config.init_std)  # A
         self.bias = nn.Parameter(torch.zeros(n))
-        scale = [OUTPUT_SCALE.get(a, 1.0) for a in config.attributes]
+        scale = [config.scales[a] for a in config.attributes]
         self.scale: torch.Tensor
         self.register_buffer("scale", torch.tensor(scale, dtype=torch.float32), persistent=False)
 

@@ -191,3 +191,18 @@ def test_adaptive_chunks_give_the_serial_results() -> None:
     serial = run_tasks(_square, items)
     on_ray = run_tasks(_square, items, Execution(workers=2))
     assert on_ray.outcomes == serial.outcomes
+
+
+@pytest.mark.usefixtures("ray_local")
+def test_a_running_runtime_is_not_taken_for_another_cluster() -> None:
+    import ray
+
+    gcs = ray.get_runtime_context().gcs_address
+    host, port = split_address(gcs)
+    for same in (gcs, f"127.0.0.1:{port}", "auto", None):  # its own address, this machine, any cluster
+        with ray_runtime(Execution(address=same, workers=1)) as at_once:
+            assert at_once == 1
+    with pytest.raises(ClusterError, match=f"already runs on the Ray runtime at {gcs}, not on that cluster"), \
+            ray_runtime(Execution(address=f"{host}:{port + 1}")):
+        pass
+    assert ray.is_initialized()  # refused, not stopped: the runtime stays for the rest of the session

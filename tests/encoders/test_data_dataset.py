@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+import re
+import shutil
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
+import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 import torch
@@ -231,3 +234,18 @@ def test_clips_played_backwards_have_no_dense_targets_and_turn_their_velocity(cl
     # The object's own rates: its speed stays, its acceleration and yaw rate turn round.
     rates = forward[i]["object_rates"].numpy()[::-1]
     np.testing.assert_allclose(item["object_rates"].numpy(), rates * np.array([1.0, -1.0, -1.0]), atol=1e-5)
+
+
+def test_a_category_outside_the_vocabulary_names_the_table_the_field_and_the_clip(
+        clips_dir: Path, tmp_path: Path) -> None:
+    copy = tmp_path / "clips"
+    shutil.copytree(clips_dir, copy, symlinks=True)
+    table = read_clip_table(copy)
+    cats = table.column("category").to_pylist()
+    cats[2] = "lorry"
+    pq.write_table(table.set_column(table.schema.get_field_index("category"), "category",
+                                    pa.array(cats, pa.string())), copy / "clips.parquet")
+    first = table.column("clip_id").to_pylist()[2]
+    expected = f"clips.parquet: field 'category' holds ['lorry'] (first at clip '{first}')"
+    with pytest.raises(ValueError, match=re.escape(expected)):
+        ClipDataset(copy)

@@ -10,9 +10,9 @@ import torch
 import torch.nn.functional as F
 
 from encoders.tagging.ablation import mask_inputs
-from encoders.tagging.attributes import TagError
+from encoders.tagging.attributes import OUTPUT_SCALE, TagError
 from encoders.tagging.config import TagTrainConfig
-from encoders.tagging.head import TagHeadConfig
+from encoders.tagging.head import TagHead, TagHeadConfig
 from encoders.tagging.losses import (
     TagLossConfig,
     TaskBalancedSampler,
@@ -138,3 +138,20 @@ def test_configs_round_trip_yaml_and_reject_unknown_keys() -> None:
         TagTrainConfig(inputs="radar")
     with pytest.raises(TagError, match="repeats"):
         TagHeadConfig(attributes=("parked", "parked"))
+
+
+def test_head_config_records_every_output_scale(monkeypatch: pytest.MonkeyPatch) -> None:
+    saved = TagHeadConfig(attributes=("parked", "vehicle_speed", "pedestrian_density"), embed_channels=4,
+                          scales={"pedestrian_density": 0.05}).to_dict()
+    assert saved["scales"] == {"parked": 1.0, "vehicle_speed": 10.0, "pedestrian_density": 0.05}
+    # The defaults change later: a saved head keeps the scales it was trained with.
+    monkeypatch.setitem(OUTPUT_SCALE, "vehicle_speed", 5.0)
+    head = TagHead(TagHeadConfig.from_dict(saved))
+    assert head.scale.tolist() == pytest.approx([1.0, 10.0, 0.05])
+    # A file written before the scales were recorded reads back with the defaults.
+    legacy = {k: v for k, v in saved.items() if k != "scales"}
+    assert TagHeadConfig.from_dict(legacy).scales["vehicle_speed"] == 5.0
+    with pytest.raises(TagError, match="does not have"):
+        TagHeadConfig(attributes=("parked",), scales={"stopped": 2.0})
+    with pytest.raises(TagError, match="finite and > 0"):
+        TagHeadConfig(attributes=("parked",), scales={"parked": 0.0})

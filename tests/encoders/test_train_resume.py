@@ -117,3 +117,30 @@ def test_resume_refuses_another_tagging_setup_unless_forced(clips: Path, tmp_pat
         run(clips, other, cfg, TAGS, resume=True)
     lines = run(clips, other, cfg, TAGS, resume=True, force=True)
     assert any("tagging head starts afresh" in line for line in lines)
+
+
+def test_validation_between_epochs_does_not_change_the_training(clips: Path, tmp_path: Path) -> None:
+    # Validation encodes its captions with the frozen encoder; kept out of training's text cache, it
+    # cannot change which strings a later step encodes together, and so their rounding.
+    import numpy as np
+
+    from encoders.text import TEXT_CACHE_FILE
+
+    def cached(run_dir: Path) -> set[str]:
+        with np.load(run_dir / TEXT_CACHE_FILE) as f:
+            return set(f["keys"].tolist())
+
+    runs = {every: tmp_path / f"every_{every}" for every in (1, 2)}
+    for every, out in runs.items():
+        with pytest.raises(Killed):
+            run(clips, out, dataclasses.replace(config("frozen"), eval_every=every), NO_TAGS,
+                on_epoch_end=kill_after_first_epoch)
+    assert "val" in metrics(runs[1])[0] and "val" not in metrics(runs[2])[0]
+    first_epoch = cached(runs[2])
+    assert cached(runs[1]) == first_epoch  # what the second epoch starts from
+    for every, out in runs.items():
+        run(clips, out, dataclasses.replace(config("frozen"), eval_every=every), NO_TAGS, resume=True)
+    assert metrics(runs[1])[1] == metrics(runs[2])[1]
+    assert_same_weights(runs[1] / "model.safetensors", runs[2] / "model.safetensors")
+    # Once training is done, the run's cache serves the validation captions too.
+    assert cached(runs[1]) == cached(runs[2]) > first_epoch

@@ -181,6 +181,10 @@ def category_noun(category: str) -> str:
     return f"{'an' if word[0] in 'aeiou' else 'a'} {word}"
 
 
+#: How every ego sentence opens (:func:`host_sentence`), and so every caption (:func:`caption_halves`).
+HOST_SENTENCE_START = "The ego vehicle "
+
+
 def host_sentence(host_tags: Sequence[str], rng: random.Random | None = None) -> str:
     """One sentence for the host's unified tags (``motion:direction``); empty for no tags."""
     clauses: list[str] = []
@@ -195,7 +199,7 @@ def host_sentence(host_tags: Sequence[str], rng: random.Random | None = None) ->
         clauses.append(clause if i == 0 else "then " + clause)
     if not clauses:
         return ""
-    return "The ego vehicle " + ", ".join(clauses) + "."
+    return HOST_SENTENCE_START + ", ".join(clauses) + "."
 
 
 def neighbor_sentence(category: str, tags: Sequence[str], rng: random.Random | None = None) -> str:
@@ -282,6 +286,23 @@ def caption_text(
     if category is not None:
         parts.append(neighbor_sentence(category, tags, rng))
     return " ".join(p for p in parts if p)
+
+
+#: Index of each half in :func:`caption_halves`' pair: the ego's sentence, the object's.
+HOST_HALF, OBJECT_HALF = 0, 1
+
+
+def caption_halves(caption: str) -> tuple[str | None, str | None]:
+    """A caption's two halves, as :func:`caption_text` joins them: the ego's sentence and the object's
+    ("The ego vehicle is cruising straight.", "A car in the left lane approaches."). An ego clip's
+    caption is its ego sentence alone (object None); a text that does not open with an ego sentence has
+    neither (None, None)."""
+    if not caption.startswith(HOST_SENTENCE_START):
+        return None, None
+    if ". " not in caption:
+        return caption, None
+    host, rest = caption.split(". ", 1)
+    return host + ".", rest.strip() or None
 
 
 def paraphrase_rng(seed: int, *key: object) -> random.Random:

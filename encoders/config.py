@@ -381,6 +381,13 @@ class TrainConfig(EncodersConfig):
             its vectors without their gradient. Otherwise what the camera explains of a caption is asked
             less of the BEV tower and the text tower bends towards what the camera sees, which costs
             clips without a camera (needs ``view_weight`` > 0: the camera's one contrastive loss).
+        partial_weight: weight of :func:`encoders.loss.partial_query_loss`: the halves of the clips'
+            captions (the object's sentence, the ego's) as queries of their own beside the whole captions
+            (:mod:`encoders.partial_queries`; 0: none). People type one half ("a stopped car in the ego
+            lane"); a model that only ever read whole captions finds the clips of a half much worse.
+        partial_object_share: share of a step's clips whose object sentence trains as a query.
+        partial_host_share: share of a step's clips whose ego sentence trains as a query (the clips of a log
+            at one time share it, so a few carry it).
     """
 
     model: DualEncoderConfig = field(default_factory=DualEncoderConfig)
@@ -410,6 +417,9 @@ class TrainConfig(EncodersConfig):
     dense_weight: float = 0.0
     calibrate_camera: bool = True
     camera_apart: bool = False
+    partial_weight: float = 0.0
+    partial_object_share: float = 1.0
+    partial_host_share: float = 0.25
 
     def __post_init__(self) -> None:
         kinds = hard_negative_kinds(self.hard_negatives, "TrainConfig.hard_negatives")
@@ -418,7 +428,7 @@ class TrainConfig(EncodersConfig):
             if getattr(self, name) < 1:
                 raise ConfigError(f"TrainConfig.{name} must be >= 1, got {getattr(self, name)}")
         for name in ("lr", "weight_decay", "warmup_steps", "grad_clip", "num_workers", "tag_weight", "view_weight",
-                     "dense_weight", "order_weight"):
+                     "dense_weight", "order_weight", "partial_weight"):
             if getattr(self, name) < 0:
                 raise ConfigError(f"TrainConfig.{name} must be >= 0, got {getattr(self, name)}")
         if self.order_weight > 0 and HardNegative.REVERSE not in self.hard_negatives:
@@ -428,7 +438,7 @@ class TrainConfig(EncodersConfig):
                               "all that trains it contrastively")
         if self.dense_weight > 0 and not self.model.dense_streams:
             raise ConfigError("TrainConfig.dense_weight > 0 needs dense heads: set model.dense_streams")
-        for name in ("camera_share", "time_reversal"):
+        for name in ("camera_share", "time_reversal", "partial_object_share", "partial_host_share"):
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise ConfigError(f"TrainConfig.{name} must be in [0, 1], got {getattr(self, name)}")
         if self.max_steps_per_epoch < 0:

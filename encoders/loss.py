@@ -59,6 +59,18 @@ def tag_similarity(tags: Sequence[Sequence[str]], device: torch.device | None = 
     return sim.to(device)
 
 
+def row_losses(logits: torch.Tensor, target: torch.Tensor, variant: str = "multi_positive") -> torch.Tensor:
+    """The loss of each row of ``logits`` (R, C) against its ``target`` (R, C): bool positives
+    (``multi_positive``, −log of the softmax mass on them) or weights (``soft``, cross-entropy with the
+    weights normalised) → (R,)."""
+    if variant == "multi_positive":
+        # −log Σ_{j∈P_i} softmax(s_i)_j = logsumexp(s_i) − logsumexp(s_i over P_i)
+        return torch.logsumexp(logits, dim=1) - torch.logsumexp(logits.masked_fill(~target, float("-inf")), dim=1)
+    if variant == "soft":
+        return -(target / target.sum(dim=1, keepdim=True) * F.log_softmax(logits, dim=1)).sum(dim=1)
+    raise ValueError(f"unknown loss variant {variant!r} (choose 'multi_positive' or 'soft')")
+
+
 def contrastive_loss(
     video: torch.Tensor,
     text: torch.Tensor,
@@ -84,23 +96,14 @@ def contrastive_loss(
     clips = video if rows is None else video[rows]  # (B or b, D)
     logits = scale * clips.float() @ text.float().T  # (B or b, B) clip i vs caption j
     pos = positives.to(logits.device)
-    if variant == "multi_positive":
-        # −log Σ_{j∈P_i} softmax(s_i)_j = logsumexp(s_i) − logsumexp(s_i over P_i)
-        def side(s: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
-            return (torch.logsumexp(s, dim=1) - torch.logsumexp(s.masked_fill(~t, float("-inf")), dim=1)).mean()
-
-        target = pos
-    elif variant == "soft":
-        weight = pos.float()  # (B, B), symmetric: the same targets serve both directions
+    target: torch.Tensor = pos
+    if variant == "soft":
+        target = pos.float()  # (B, B), symmetric: the same targets serve both directions
         if similarity is not None and tag_weight > 0:
-            weight = weight + tag_weight * similarity.to(logits.device).float() * (~pos).float()
+            target = target + tag_weight * similarity.to(logits.device).float() * (~pos).float()
 
-        def side(s: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
-            return -(t / t.sum(dim=1, keepdim=True) * F.log_softmax(s, dim=1)).sum(dim=1).mean()
-
-        target = weight
-    else:
-        raise ValueError(f"unknown loss variant {variant!r} (choose 'multi_positive' or 'soft')")
+    def side(s: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
+        return row_losses(s, t, variant).mean()
     v2t_logits, v2t_target = logits, target[mine]
     if negatives is not None and len(negatives):
         own = (torch.zeros(len(video), len(negatives), dtype=torch.bool) if negative_positives is None
@@ -176,3 +179,25 @@ def order_loss(
     v = video[clip].float()  # (P, D)
     margin = (v * text[clip].float()).sum(-1) - (v * negatives[m].float()).sum(-1)  # (P,)
     return F.softplus(-scale * margin).sum() / total
+
+
+def partial_query_loss(video: torch.Tensor, partial: torch.Tensor, scale: torch.Tensor, positives: torch.Tensor,
+                       variant: str = "multi_positive") -> torch.Tensor:
+    """The batch's clips against the halves of their captions (:mod:`encoders.partial_queries`).
+
+    video: (B, D) the whole batch's clips, normalised; partial: (M, D) the whole batch's halves,
+    normalised; positives: (B, M) bool, clip i answers half m. Symmetric as :func:`contrastive_loss`:
+    each half against the batch's clips (the retrieval a typed half asks for) and each clip against the
+    halves, over the clips that answer one (ego clips have no half). Every process computes the whole
+    batch's loss: gathered rows pass their gradients back summed over processes, which the gradients'
+    average over processes undoes. 0 (with a graph) without halves.
+    """
+    if partial.shape[0] == 0:
+        return video.sum() * 0.0
+    logits = scale * video.float() @ partial.float().T  # (B, M) clip i vs half m
+    pos = positives.to(device=logits.device, dtype=torch.bool)
+    target = pos if variant == "multi_positive" else pos.float()
+    answered = pos.any(dim=1)  # (B,) clips that answer some half
+    clip_side = row_losses(logits[answered], target[answered], variant).mean()
+    half_side = row_losses(logits.T, target.T, variant).mean()
+    return 0.5 * (clip_side + half_side)

@@ -14,6 +14,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from captioning.text import caption_halves
+
 KS = (1, 5, 10)
 CURVE_MAX_K = 50
 
@@ -141,3 +143,12 @@ def caption_queries(clip_captions: Sequence[str]) -> tuple[list[str], np.ndarray
     """
     queries = sorted(set(clip_captions))
     return queries, relevance_by_caption(queries, clip_captions)
+
+
+def half_queries(clip_captions: Sequence[str], half: int) -> tuple[list[str], np.ndarray]:
+    """The queries of one half of a set of clips' canonical captions (0 the ego's sentence, 1 the
+    object's: :func:`captioning.text.caption_halves`), as people type one: its distinct values, sorted,
+    and (Q, N) relevance, a clip answering a half its caption has whatever its other half says."""
+    said = [caption_halves(c)[half] for c in clip_captions]
+    queries = sorted({s for s in said if s is not None})
+    return queries, relevance_by_caption(queries, [s or "" for s in said])

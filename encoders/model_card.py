@@ -1,4 +1,5 @@
-"""The ``model_card.md`` of a training run: the model, the data it saw, its validation metrics and its limits."""
+"""The ``model_card.md`` of a training run: the model, the data it saw, its validation metrics and its limits;
+``scenesearch eval --model-card`` adds a section of test figures beside their baselines (:func:`with_section`)."""
 
 from __future__ import annotations
 
@@ -90,7 +91,29 @@ Text → clip and clip → clip retrieval of object behaviour in driving logs.
   inherits their errors (tracking noise, lane assignment near junctions).
 - Trained on the clips above only; simulated clips do not cover the look of real cameras.
 - Clips without camera are embedded from BEV alone; camera-only queries are weaker where the object is small.
-- The order of a caption's steps is read weakly: `scenesearch eval` reports `temporal_order_accuracy`
-  beside rule-caption search (`scenesearch search INDEX … --captions`), which is the reference where the
-  order matters, and `by_facet` for rare actions (lane changes, turns), where the model is weakest.
+- Rare actions (lane changes, turns) are where the model is weakest: `scenesearch eval` reports them per facet
+  (`by_facet`), and its temporal order, free-form queries and each half of a caption asked alone beside
+  rule-caption search (`scenesearch search INDEX … --captions`), the reference where the model falls short;
+  `scenesearch eval --model-card` writes those figures below.
 """
+
+
+#: The file of a run that holds its model card.
+MODEL_CARD_FILE = "model_card.md"
+
+
+def with_section(card: str, heading: str, body: str) -> str:
+    """``card`` (Markdown) with the level-2 section ``heading`` holding ``body``: in place of a section of
+    that heading (up to the next level-2 heading), else at the end, so that evaluating again on the same
+    clips and split replaces the figures rather than piling them up."""
+    title = f"## {heading}"
+    lines = card.rstrip("\n").split("\n")
+    section = [title, "", *body.rstrip("\n").split("\n")]
+    if title in lines:
+        start = lines.index(title)
+        end = next((i for i in range(start + 1, len(lines)) if lines[i].startswith("## ")), len(lines))
+        tail = ["", *lines[end:]] if end < len(lines) else []
+        lines = [*lines[:start], *section, *tail]
+    else:
+        lines = [*lines, "", *section]
+    return "\n".join(lines) + "\n"

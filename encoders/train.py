@@ -21,6 +21,12 @@ with a trained or a frozen text tower.
 With ``hard_negatives`` (:mod:`encoders.negatives`), each clip's captions with its steps edited
 (reversed, one approach ↔ away flipped, lanes mirrored) join the clip → text side of the loss as
 extra negatives; ``order_weight`` adds a pairwise term on the reversed ones (:mod:`encoders.loss`).
+With ``partial_weight`` (:mod:`encoders.partial_queries`), each caption's halves (the object's sentence,
+the ego's) join the text batch as queries of their own, in a loss beside the captions'.
+
+This module is one job, the training loop; it is long because every loss above joins the same step.
+What each computes lives in :mod:`encoders.loss`, :mod:`encoders.negatives` and
+:mod:`encoders.partial_queries`, the checkpoints in :mod:`encoders.checkpoints`.
 
 Checkpoints (:mod:`encoders.checkpoints`) hold every optimiser's state (the tagging head's own
 included), the random states and the metrics rows so far, as plain tensors and data read with
@@ -68,10 +74,18 @@ from encoders.config import TrainConfig
 from encoders.data import AugmentConfig
 from encoders.distributed import Distributed
 from encoders.inference import collate, evaluate, open_split, resolve_device
-from encoders.loss import contrastive_loss, order_loss, positives_matrix, tag_similarity, view_loss
+from encoders.loss import (
+    contrastive_loss,
+    order_loss,
+    partial_query_loss,
+    positives_matrix,
+    tag_similarity,
+    view_loss,
+)
 from encoders.model import DualEncoder
-from encoders.model_card import model_card
+from encoders.model_card import MODEL_CARD_FILE, model_card
 from encoders.negatives import NEGATIVE_FIELDS, batch_negatives
+from encoders.partial_queries import PARTIAL_FIELDS, batch_partials
 from encoders.tagging.ablation import mask_inputs
 from encoders.tagging.config import TagTrainConfig
 from encoders.tagging.training import attach_tagging
@@ -226,6 +240,9 @@ def train(
     missing = [k for k in NEGATIVE_FIELDS if k not in first] if config.hard_negatives else []
     if missing:
         raise TrainingError(f"{clips_dir}: hard_negatives needs each clip's {', '.join(missing)}, which the clips lack")
+    missing = [k for k in PARTIAL_FIELDS if k not in first] if config.partial_weight > 0 else []
+    if missing:
+        raise TrainingError(f"{clips_dir}: partial_weight needs each clip's {', '.join(missing)}, which the clips lack")
     if config.dense_weight > 0 and not getattr(train_set, "has_frame_tags", "frame_targets" in first):
         raise TrainingError(f"{clips_dir}: dense_weight needs the clip frames' rule tags "
                             f"({', '.join(FRAME_TAG_COLUMNS)}), which the clip table lacks: make the clips from "
@@ -328,23 +345,33 @@ def train(
                 if dp.active:  # the whole batch's clips against every process's negatives, in the same order
                     _, own, reversed_of = batch_negatives(whole, config.hard_negatives, all_keys, config.positives,
                                                           config.seed, step, negative_paraphrases)
+            partials = None
+            if config.partial_weight > 0:  # halves of the captions as queries of their own
+                partials = batch_partials(batch, config.seed, step, config.partial_object_share,
+                                          config.partial_host_share, whole if dp.active else None)
+            queries = list(batch["caption"]) + negative_texts + (partials.texts if partials else [])
             with torch.autocast(device_type=device.type, dtype=torch.bfloat16, enabled=use_amp):
                 views: dict[str, torch.Tensor] = {}
                 frames: dict[str, torch.Tensor] | None = {} if config.dense_weight > 0 else None
                 if config.view_weight > 0 or frames is not None:  # each tower once; the fused view reuses them
                     views = model.encode_views(batch, camera_always=False, frames=frames,  # no camera: not run
                                                detach_camera=config.camera_apart)
-                    texts = model.encode_text(list(batch["caption"]) + negative_texts)
+                    texts = model.encode_text(queries)
                     video, scale = views["fused"], model.scale()
                 else:
-                    video, texts, scale = model(batch, list(batch["caption"]) + negative_texts)
-                text, negatives = texts[: len(keys)], texts[len(keys) :]  # (B, D), (M, D)
+                    video, texts, scale = model(batch, queries)
+                split = [len(keys), len(negative_texts)]
+                text, negatives, partial = texts.split([*split, len(texts) - sum(split)])  # (B, D), (M, D), (H, D)
                 video, text, negatives = dp.gather(video), dp.gather(text), dp.gather(negatives)  # whole batch
                 positives = positives_matrix(all_keys, device)
                 sim = tag_similarity(whole["tags"], device) if config.tag_weight > 0 else None
                 own_mask = torch.tensor(own, dtype=torch.bool, device=device).reshape(len(all_keys), len(negatives))
                 loss = contrastive_loss(video, text, scale, positives, config.loss, sim, config.tag_weight,
                                         negatives, own_mask, rows=dp.rows(len(keys)))
+                if partials is not None:  # the whole batch's loss on every process (see partial_query_loss)
+                    partial_positives = torch.tensor(partials.positives, dtype=torch.bool).reshape(len(all_keys), -1)
+                    loss = loss + config.partial_weight * partial_query_loss(video, dp.gather(partial), scale,
+                                                                             partial_positives, config.loss)
                 if config.order_weight > 0:  # each clip against its steps reversed; gradients are averaged
                     loss = loss + config.order_weight * dp.processes * order_loss(video, text, negatives, reversed_of,
                                                                                   scale, dp.rows(len(keys)))
@@ -446,5 +473,5 @@ def _write_final(run_dir: Path, model: DualEncoder, config: TrainConfig, history
     with atomic_path(run_dir / "model.safetensors") as tmp:
         save_file(state, str(tmp), metadata={"format": "scenesearch.DualEncoder"})
     atomic_write_text(run_dir / "config.json", config.to_json())
-    atomic_write_text(run_dir / "model_card.md", model_card(config, history, n_train, val_set, clips_dir,
+    atomic_write_text(run_dir / MODEL_CARD_FILE, model_card(config, history, n_train, val_set, clips_dir,
                                                                   camera_weight))

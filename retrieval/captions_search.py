@@ -42,6 +42,7 @@ import pyarrow.parquet as pq
 
 from captioning.pipeline import CAPTIONS_FILENAME
 from captioning.tables import BEHAVIOR_CAPTION_FIELDS
+from captioning.text import caption_halves
 from common.atomic import atomic_directory, reading_directory, recover_directory
 from encoders.clips.layout import clip_id
 from indexes.errors import IndexesError, IndexFileError, ManifestError
@@ -68,7 +69,6 @@ FILES = (METADATA_FILE, TEXTS_FILE, EMBEDDINGS_FILE, "full_offsets.npy", "full_t
 METADATA_COLUMNS = ("clip_id", "log_id", "track_id", "category", "start_ns", "end_ns", "caption", "tags",
                     "host_tags", "window", "split", "time_of_day", "weather", "has_camera", "preview_path",
                     *(f.name for f in BEHAVIOR_CAPTION_FIELDS))
-HOST_PREFIX = "The ego vehicle"
 
 
 @dataclass(frozen=True)
@@ -126,10 +126,7 @@ def is_caption_index(directory: Path | str) -> bool:
 
 def object_sentence(caption: str) -> str | None:
     """The caption without its leading host sentence, or None when there is no second sentence."""
-    if caption.startswith(HOST_PREFIX) and ". " in caption:
-        rest = caption.split(". ", 1)[1].strip()
-        return rest or None
-    return None
+    return caption_halves(caption)[1]
 
 
 def text_variants(row: dict[str, Any]) -> tuple[list[str], list[str]]:

@@ -134,6 +134,8 @@ class Demo:
                          "track_velocity": c.track_velocity}
         # Named only when on, so that a demo folder made before these options resumes without retraining.
         upto["train"].update({name: True for name in (*CAMERA_OPTIONS, "object_category") if getattr(c, name)})
+        if c.partial_weight:
+            upto["train"]["partial_weight"] = c.partial_weight
         upto["index"] = upto["train"]
         upto["eval"] = upto["train"]
         upto["report"] = {**upto["train"], "queries": list(c.queries), "top_k": c.top_k}
@@ -260,6 +262,8 @@ class Demo:
             args += ["--hard-negatives", *self.config.hard_negatives]
         if self.config.order_weight:
             args += ["--order-weight", self.config.order_weight]
+        if self.config.partial_weight:
+            args += ["--partial-weight", self.config.partial_weight]
         if self.config.dense_weight is not None:
             args += ["--dense-weight", self.config.dense_weight]
             if self.config.dense_weight > 0 and self.config.dense_streams:
@@ -278,11 +282,11 @@ class Demo:
 
     def stage_eval(self) -> str:
         self.command(["eval", self.run_dir, self.clips_dir, "--split", "test", "--out", self.metrics_path,
-                      "--index", self.index_dir])
+                      "--index", self.index_dir, "--model-card"])
         return ""
 
     def stage_report(self) -> str:
-        from retrieval.evaluation import metrics_table
+        from retrieval.metrics_tables import metrics_table
         from retrieval.records import format_table
         from retrieval.report import Example, write_report
         from retrieval.scenesearch import SceneSearch
@@ -322,7 +326,7 @@ def config_from_args(args: argparse.Namespace) -> DemoConfig:
     for name in ("logs", "duration_s", "test_fraction", "seed", "frames_per_clip", "camera_width_px",
                  "camera_height_px", "bev_resolution_m", "epochs", "batch_size", "tag_weight", "extra_logs", "val_logs",
                  "map_less_share", "jitter_share", "camera_share", "time_slots", "dense_weight",
-                 "order_weight", "track_velocity", "object_category", *CAMERA_OPTIONS, "workers"):
+                 "order_weight", "partial_weight", "track_velocity", "object_category", *CAMERA_OPTIONS, "workers"):
         value = getattr(args, name, None)
         if value is not None:
             overrides[name] = value

@@ -12,6 +12,9 @@ returns the metrics dictionary written to ``metrics.json``::
                                                                 embedding is from its reversed steps')
     freeform:                queries, answered, precision@10    (held-out everyday sentences, relevance from
                                                                 each clip's tags: :mod:`retrieval.freeform`)
+    halves:                  object / ego: the text_to_clip figures of each half of the captions asked alone
+                             (queries = the split's distinct object sentences, or ego sentences; a clip is
+                             relevant when its caption has that half: :func:`encoders.metrics.half_queries`)
     clip_to_clip:            action_precision@5, appearance_bias (+ the rates behind the bias)
     views:                   camera / bev: the text_to_clip figures of each single view. The camera
                              view is measured over the clips the camera saw (``has_camera``), for
@@ -28,6 +31,8 @@ returns the metrics dictionary written to ``metrics.json``::
     frame_tags:              (a model with dense heads, clips with frame tags) each stream's accuracy on
                              every frame's rule tags beside the most frequent tag, and on the motion at
                              a clip's first and last tagged frame (:func:`encoders.inference.frame_tag_figures`)
+
+The figures as a table beside their baselines are :mod:`retrieval.metrics_tables`.
 """
 
 from __future__ import annotations
@@ -40,11 +45,13 @@ from typing import Any
 
 import numpy as np
 
+from captioning.text import HOST_HALF, OBJECT_HALF
 from encoders.clips.layout import read_clip_table
 from encoders.metrics import (
     CURVE_MAX_K,
     KS,
     caption_queries,
+    half_queries,
     precision_at_k,
     recall_curve,
     text_to_clip_figures,
@@ -291,6 +298,20 @@ def evaluate(run_dir: Path | str, clips_dir: Path | str, split: str = "test", em
     free_rule = rule_caption_scores(rows, free_texts, sentence)
     free_random = np.random.default_rng(seed).random(free_relevant.shape)
 
+    # Each half of the captions alone, as people type one ("a stopped car in the ego lane"): every view's figures.
+    halves: dict[str, dict[str, Any]] = {name: {} for name in ("model", "bag_of_frames", "random", "rule_captions")}
+    for name, half in (("object", OBJECT_HALF), ("ego", HOST_HALF)):
+        half_texts, half_relevant = half_queries(captions, half)
+        if not half_texts:
+            continue
+        t_half = np.asarray(embedder.embed_texts(half_texts), dtype=np.float32)
+        halves["model"][name] = {**text_to_clip_figures(t_half @ x["fused"].T, half_relevant),
+                                 "queries": len(half_texts)}
+        halves["bag_of_frames"][name] = text_to_clip_figures(t_half @ x_bag.T, half_relevant)
+        halves["random"][name] = random_text_to_clip(half_relevant, seed=seed)[0]
+        halves["rule_captions"][name] = text_to_clip_figures(rule_caption_scores(rows, half_texts, sentence),
+                                                             half_relevant)
+
     clip_facets = [facets(list(r.get("tags") or []), str(r.get("category", ""))) for r in rows]
     facets_of_caption = dict(zip(captions, clip_facets))
     by_facet = recall_by_facet({"model": sims["fused"], "bag_of_frames": sim_bag, "rule_captions": sim_rule},
@@ -307,6 +328,7 @@ def evaluate(run_dir: Path | str, clips_dir: Path | str, split: str = "test", em
         "temporal_order_accuracy": order,
         "text_order": text_order,
         "freeform": freeform_figures(free_model, free_relevant),
+        "halves": halves["model"],
         "clip_to_clip": clip_to_clip_figures(x["fused"], actions, appearance, logs=logs),
         "views": {"camera": camera_view["camera"], "bev": text_to_clip_figures(sims["bev"], relevant),
                   "camera_clips": camera_view["counts"] | {"fused": camera_view["fused"],
@@ -315,15 +337,18 @@ def evaluate(run_dir: Path | str, clips_dir: Path | str, split: str = "test", em
             "random": {"text_to_clip": random_figures,
                        "temporal_order_accuracy": {"accuracy": 0.5 if pairs else None, "num_captions": len(pairs)},
                        "freeform": freeform_figures(free_random, free_relevant),
+                       "halves": halves["random"],
                        "clip_to_clip": random_clip_to_clip(actions, appearance, logs=logs)},
             "bag_of_frames": {"text_to_clip": text_to_clip_figures(sim_bag, relevant),
                               "temporal_order_accuracy": {"accuracy": order_bag, "num_captions": len(pairs)},
                               "freeform": freeform_figures(free_bag, free_relevant),
+                              "halves": halves["bag_of_frames"],
                               "clip_to_clip": clip_to_clip_figures(x_bag, actions, appearance, logs=logs)},
             "rule_captions": {"text_to_clip": text_to_clip_figures(sim_rule, relevant),
                               "temporal_order_accuracy": {"accuracy": order_rule, "num_captions": len(pairs)},
                               "text_order": text_order_frozen,
                               "freeform": freeform_figures(free_rule, free_relevant),
+                              "halves": halves["rule_captions"],
                               # Neighbours by the clips' own captions: what a retriever by the captions'
                               # content alone does on the clip → clip figures (the bias included).
                               "clip_to_clip": clip_to_clip_figures(
@@ -376,65 +401,3 @@ def _clean(value: Any) -> Any:
     if isinstance(value, float) and math.isnan(value):
         return None
     return value
-
-
-def metrics_table(metrics: dict[str, Any]) -> str:
-    """The headline figures against the baselines, as a plain-text table."""
-    base = metrics["baselines"]
-    rule = base.get("rule_captions", {})
-    header = ["figure", "model", "camera only", "bev only", "bag of frames", "random", "rule captions"]
-
-    def fmt(v: Any) -> str:
-        return "—" if v is None else (f"{v:.3f}" if isinstance(v, float) else str(v))
-
-    def get(d: dict[str, Any], *keys: str) -> Any:
-        for key in keys:
-            d = d.get(key, {}) if isinstance(d, dict) else {}
-        return None if d == {} else d
-
-    body: list[list[str]] = []
-    for key in ("R@1", "R@5", "R@10", "median_rank", "mAP"):
-        body.append([f"text→clip {key}", fmt(metrics["text_to_clip"][key]), fmt(get(metrics, "views", "camera", key)),
-                     fmt(metrics["views"]["bev"][key]), fmt(base["bag_of_frames"]["text_to_clip"][key]),
-                     fmt(base["random"]["text_to_clip"][key]), fmt(get(rule, "text_to_clip", key))])
-    body.append(["temporal order acc.", fmt(metrics["temporal_order_accuracy"]["accuracy"]), "", "",
-                 fmt(base["bag_of_frames"]["temporal_order_accuracy"]["accuracy"]),
-                 fmt(base["random"]["temporal_order_accuracy"]["accuracy"]),
-                 fmt(get(rule, "temporal_order_accuracy", "accuracy"))])
-    for key in ("mean_cosine", "kept_apart"):
-        body.append([f"text order {key}", fmt(get(metrics, "text_order", key)), "", "", "", "",
-                     fmt(get(rule, "text_order", key))])
-    p_key = f"precision@{FREEFORM_K}"
-    body.append([f"free-form {p_key}", fmt(get(metrics, "freeform", p_key)), "", "",
-                 fmt(get(base, "bag_of_frames", "freeform", p_key)), fmt(get(base, "random", "freeform", p_key)),
-                 fmt(get(rule, "freeform", p_key))])
-    for key in ("action_precision@5", "appearance_bias", "same_log_share_neighbours", "action_precision@5_other_logs",
-                "appearance_bias_other_logs"):
-        body.append([f"clip→clip {key}", fmt(get(metrics, "clip_to_clip", key)), "", "",
-                     fmt(get(base, "bag_of_frames", "clip_to_clip", key)),
-                     fmt(get(base, "random", "clip_to_clip", key) if key != "same_log_share_neighbours"
-                         else get(metrics, "clip_to_clip", "same_log_share_chance")),
-                     fmt(get(rule, "clip_to_clip", key))])
-    ceiling = get(metrics, "clip_to_clip", "action_precision@5_ceiling")  # a perfect ranking's precision
-    body.append(["clip→clip action_precision@5 ceiling", fmt(ceiling), "", "", "", "", ""])
-    widths = [max(len(r[i]) for r in [header, *body]) for i in range(len(header))]
-    lines = ["  ".join(h.ljust(w) for h, w in zip(header, widths)), "  ".join("-" * w for w in widths)]
-    lines.extend("  ".join(c.ljust(w) for c, w in zip(r, widths)).rstrip() for r in body)
-    counts = metrics.get("counts", {})
-    free = metrics.get("freeform", {})
-    lines.append(f"({counts.get('clips')} {metrics.get('split')} clips, {counts.get('queries')} caption queries, "
-                 f"{counts.get('temporal_pairs')} temporal-order pairs, {free.get('answered')} of "
-                 f"{free.get('queries')} free-form queries with a relevant clip)")
-    dense = metrics.get("frame_tags") or {}
-    for stream, figures in (dense.get("streams") or {}).items():
-        tasks = ", ".join(f"{task} {fmt(v)} (majority {fmt(dense['majority'].get(task))})"
-                          for task, v in figures.items())
-        first, last = dense.get("first_last_motion", {}).get(stream, [None, None])
-        lines.append(f"(frame tags from the {stream} stream: {tasks}; motion at the first / last tagged frame "
-                     f"{fmt(first)} / {fmt(last)})")
-    seen = get(metrics, "views", "camera_clips") or {}
-    if seen:
-        lines.append(f"(camera only: over the {seen.get('clips')} clips the camera saw and the {seen.get('queries')} "
-                     f"queries with a relevant one among them; there the fused model's R@5 is "
-                     f"{fmt(get(seen, 'fused', 'R@5'))} and random's {fmt(get(seen, 'random', 'R@5'))})")
-    return "\n".join(lines)

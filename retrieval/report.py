@@ -167,42 +167,20 @@ def _short(text: str, n: int) -> str:
     return text if len(text) <= n else text[: n - 1] + "…"
 
 
-def _fmt(v: Any) -> str:
-    if v is None:
-        return "—"
-    return f"{v:.3f}" if isinstance(v, float) else html.escape(str(v))
-
-
 def metrics_html(metrics: dict[str, Any]) -> str:
-    base = metrics["baselines"]
-    head = ("figure", "model", "camera only", "BEV only", "bag of frames", "random")
-    rows: list[tuple[str, ...]] = []
-    for key in ("R@1", "R@5", "R@10", "median_rank", "mAP"):
-        better = "lower is better" if key == "median_rank" else ""
-        rows.append((f"text → clip {key} {better}".strip(), _fmt(metrics["text_to_clip"][key]),
-                     _fmt((metrics["views"].get("camera") or {}).get(key)), _fmt(metrics["views"]["bev"][key]),
-                     _fmt(base["bag_of_frames"]["text_to_clip"][key]), _fmt(base["random"]["text_to_clip"][key])))
-    rows.append(("temporal order accuracy", _fmt(metrics["temporal_order_accuracy"]["accuracy"]), "", "",
-                 _fmt(base["bag_of_frames"]["temporal_order_accuracy"]["accuracy"]),
-                 _fmt(base["random"]["temporal_order_accuracy"]["accuracy"])))
-    ceiling = metrics["clip_to_clip"].get("action_precision@5_ceiling")
-    best = f"(a perfect ranking: {_fmt(ceiling)})" if ceiling is not None else ""
-    for key, note in (("action_precision@5", best), ("appearance_bias", "lower is better")):
-        rows.append((f"clip → clip {key} {note}".strip(), _fmt(metrics["clip_to_clip"][key]), "", "",
-                     _fmt(base["bag_of_frames"]["clip_to_clip"][key]), _fmt(base["random"]["clip_to_clip"][key])))
-    out = ["<table class='metrics'><tr>" + "".join(f"<th>{h}</th>" for h in head) + "</tr>"]
-    out += ["<tr>" + "".join(f"<td>{c}</td>" for c in row) + "</tr>" for row in rows]
+    """The figures of ``scenesearch eval`` against its baselines (rule-caption search among them), the same
+    rows as its printed table (:func:`retrieval.metrics_tables.metrics_rows`)."""
+    from retrieval.metrics_tables import metrics_rows
+
+    rows = metrics_rows(metrics)
+    out = ["<table class='metrics'><tr>" + "".join(f"<th>{html.escape(h)}</th>" for h in rows.header) + "</tr>"]
+    out += ["<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in row) + "</tr>" for row in rows.body]
     out.append("</table>")
-    counts = metrics.get("counts", {})
-    out.append(f"<p class='note'>{counts.get('clips')} {html.escape(str(metrics.get('split')))} clips, "
-               f"{counts.get('queries')} caption queries, {counts.get('temporal_pairs')} temporal-order pairs. "
-               "Queries are the split's unique canonical captions; a clip is relevant when its caption matches.</p>")
-    seen = metrics["views"].get("camera_clips") or {}
-    if seen:
-        out.append(f"<p class='note'>Camera only: over the {seen.get('clips')} clips the camera saw and the "
-                   f"{seen.get('queries')} queries with a relevant one among them; there the fused model's R@5 is "
-                   f"{_fmt((seen.get('fused') or {}).get('R@5'))} and random's "
-                   f"{_fmt((seen.get('random') or {}).get('R@5'))}.</p>")
+    notes = ["Queries are the split's unique canonical captions (or one half of them: the object's sentence, the "
+             "ego's); a clip is relevant when its caption matches. Free-form queries are held-out everyday "
+             "sentences whose relevance comes from each clip's tags. Lower is better for the median rank and the "
+             "appearance bias", *rows.notes]
+    out += [f"<p class='note'>{html.escape(note[0].upper() + note[1:])}.</p>" for note in notes]
     return "\n".join(out)
 
 

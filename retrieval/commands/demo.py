@@ -42,6 +42,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--order-weight", type=float, metavar="W",
                         help=f"weight of the pairwise order loss, each clip against its steps reversed (default "
                         f"{D.order_weight or 0:g}; 0: none)")
+    parser.add_argument("--partial-weight", type=float, metavar="W",
+                        help=f"weight of the partial-query loss, the halves of each caption as queries of their own "
+                        f"(default {D.partial_weight or 0:g}; 0: none)")
     parser.add_argument("--dense-weight", type=float, metavar="W",
                         help=f"weight of the per-frame tag loss on the streams' frame tokens (default "
                         f"{D.dense_weight:g}; 0: no dense heads)")

@@ -18,15 +18,27 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--index", type=Path, metavar="INDEX_DIR",
                         help="an index of the same model and clips: reuse its clip embeddings")
     parser.add_argument("--json", action="store_true", help="print the metrics as JSON instead of a table")
+    parser.add_argument("--model-card", action="store_true",
+                        help="also write the figures, beside their baselines, into the run's model_card.md (a "
+                             "section per clips folder and split, replaced when evaluated again)")
 
 
 def run(args: argparse.Namespace) -> int:
     from common.atomic import atomic_write_text
-    from retrieval.evaluation import evaluate, metrics_table
+    from encoders.model_card import MODEL_CARD_FILE, with_section
+    from retrieval.evaluation import evaluate
+    from retrieval.metrics_tables import metrics_markdown, metrics_table
 
     metrics = evaluate(args.run_dir, args.clips_dir, split=args.split, seed=args.seed,
                        progress=lambda m: print(m, flush=True), index_dir=args.index)
     atomic_write_text(args.out, json.dumps(metrics, indent=2))
     print(json.dumps(metrics, indent=2) if args.json else metrics_table(metrics))
     print(f"wrote {args.out}")
+    if args.model_card:
+        card = Path(args.run_dir) / MODEL_CARD_FILE
+        heading = f"Evaluation: split {args.split} of `{Path(args.clips_dir).resolve()}`"
+        body = ("Text → clip and the other figures of `scenesearch eval`, each beside its baselines from the same "
+                "run (`metrics.json` holds every figure).\n\n" + metrics_markdown(metrics))
+        atomic_write_text(card, with_section(card.read_text(encoding="utf-8") if card.is_file() else "", heading, body))
+        print(f"wrote the figures into {card}")
     return 0

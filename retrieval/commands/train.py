@@ -73,6 +73,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--order-weight", type=float, metavar="W",
                         help="weight of the pairwise order loss: each clip against its caption's steps reversed "
                              "(needs the reverse edit among the hard negatives)")
+    parser.add_argument("--partial-weight", type=float, metavar="W",
+                        help="weight of the partial-query loss: each clip's object sentence, and for some clips the "
+                             "ego sentence, as queries of their own beside the whole captions (0: none)")
     parser.add_argument("--dense-weight", type=float, metavar="W",
                         help="weight of the per-frame rule-tag loss on the temporal streams' frame tokens (heads on "
                              "the track stream unless the config names model.dense_streams)")
@@ -133,6 +136,8 @@ def build_config(args: argparse.Namespace) -> Any:
         config = dataclasses.replace(config, hard_negatives=tuple(args.hard_negatives))
     if args.order_weight is not None:
         config = dataclasses.replace(config, order_weight=args.order_weight)
+    if args.partial_weight is not None:
+        config = dataclasses.replace(config, partial_weight=args.partial_weight)
     if args.dense_streams is not None:
         config = dataclasses.replace(config, model=dataclasses.replace(config.model,
                                                                        dense_streams=tuple(args.dense_streams)))

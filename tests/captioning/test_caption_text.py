@@ -87,3 +87,17 @@ def test_neighbour_tags_with_action_and_context_round_trip() -> None:
                   ("right", "away", None, "on_crosswalk"), ("oncoming", "constant", "braking", None)):
         assert split_neighbor_tag(unified_neighbor_tag(*parts)) == parts
     assert unified_neighbor_tag("right", "away", None, "on_crosswalk") == "right:away:on_crosswalk"
+
+
+def test_caption_halves_are_the_two_sentences_that_caption_text_joins() -> None:
+    from captioning.text import caption_halves
+
+    host = ["decelerating:heading_straight", "stationary:heading_straight"]
+    tags = ["left:approach", "host:constant"]
+    caption = caption_text("car", tags, host)
+    assert caption_halves(caption) == (host_sentence(host), neighbor_sentence("car", tags))
+    for paraphrase in paraphrases("car", tags, host, count=3, seed=0, key=("log", "track")):
+        ego, obj = caption_halves(paraphrase)
+        assert ego is not None and obj is not None and f"{ego} {obj}" == paraphrase
+    assert caption_halves(caption_text(None, host, host)) == (host_sentence(host), None)  # an ego clip's caption
+    assert caption_halves("A car approaches. Then it stops.") == (None, None)  # no ego sentence first

@@ -91,7 +91,7 @@ def setup(name: str, clips: Path, processes: int) -> tuple[TrainConfig, dict[str
                                     bev=dataclasses.replace(tiny.model.bev, track_velocity=True))
         cfg = dataclasses.replace(tiny, model=model, batch_size=B * scale, epochs=3, shuffle_frames=True, loss="soft",
                                   tag_weight=0.5, hard_negatives=tuple(HardNegative), view_weight=0.5,
-                                  dense_weight=0.5, order_weight=0.5)
+                                  dense_weight=0.5, order_weight=0.5, partial_weight=0.5)
         return cfg, {"clips_dir": "unused", "datasets": {"train": Clips()}}
     cfg = dataclasses.replace(tiny, batch_size=2 * scale, epochs=2, positives="tags")
     if name == "resumable":

@@ -59,3 +59,16 @@ def test_card_says_in_which_precision_the_frozen_text_encoder_ran(monkeypatch: p
     assert "precision bfloat16: bfloat16" in _card(forced)
     tuned = TrainConfig(model=DualEncoderConfig(text=TextConfig(finetune_top_layers=2)))
     assert "(frozen below its top 2 layers, float32)" in _card(tuned)
+
+
+def test_an_evaluation_section_is_added_once_and_replaced_when_evaluated_again() -> None:
+    from encoders.model_card import with_section
+
+    card = _card(TrainConfig())
+    first = with_section(card, "Evaluation: split test of `clips`", "| figure | model |\n| R@5 | 0.123 |")
+    assert first.startswith(card.rstrip("\n")) and first.count("## Evaluation: split test of `clips`") == 1
+    other = with_section(first, "Evaluation: split all of `real`", "| R@5 | 0.7 |")
+    again = with_section(other, "Evaluation: split test of `clips`", "| figure | model |\n| R@5 | 0.9 |")
+    assert again.count("## Evaluation") == 2 and "0.123" not in again and "| R@5 | 0.9 |" in again
+    assert again.index("split test") < again.index("split all") and "| R@5 | 0.7 |" in again
+    assert again.endswith("\n") and "## Limits" in again

@@ -24,7 +24,8 @@ from encoders.inference import collate, embed_clips, embed_texts, frame_tag_figu
 from encoders.model import DualEncoder
 from encoders.train import resolve_channels
 from retrieval.cli import main
-from retrieval.evaluation import evaluate, metrics_table
+from retrieval.evaluation import evaluate
+from retrieval.metrics_tables import metrics_table
 
 
 def make_clips(root: Path, frame_tags: bool) -> Path:
@@ -188,3 +189,18 @@ def test_order_weight_flag_needs_the_reversed_steps(tmp_path: Path) -> None:
     assert config.order_weight == 0.5 and config.hard_negatives == (HardNegative.REVERSE,)
     with pytest.raises(ConfigError, match="order_weight > 0 needs 'reverse'"):
         train_command.build_config(parser.parse_args([*base, "--hard-negatives", "mirror"]))
+
+
+def test_partial_weight_flag_reaches_the_config(tmp_path: Path) -> None:
+    from retrieval.commands import train as train_command
+
+    parser = argparse.ArgumentParser()
+    train_command.configure(parser)
+    base = ["clips", "--out", str(tmp_path / "run")]
+    assert train_command.build_config(parser.parse_args(base)).partial_weight == 0.0
+    config = train_command.build_config(parser.parse_args([*base, "--partial-weight", "0.5"]))
+    assert config.partial_weight == 0.5 and config.partial_object_share == 1.0 and config.partial_host_share == 0.25
+    with pytest.raises(ConfigError, match="partial_weight must be >= 0"):
+        train_command.build_config(parser.parse_args([*base, "--partial-weight", "-1"]))
+    with pytest.raises(ConfigError, match="partial_host_share must be in"):
+        TrainConfig(partial_host_share=1.5)

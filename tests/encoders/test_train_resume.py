@@ -99,6 +99,56 @@ def test_resume_reproduces_the_straight_run(clips: Path, tmp_path: Path, tags: b
         assert checkpoint.tagging["state"]["optimizer"]["state"]  # AdamW moments of the head
 
 
+class WithEgoSentence(torch.utils.data.Dataset[dict[str, Any]]):
+    """The training clips with captions of two sentences, as captioning writes them: the fixture's
+    one-sentence captions after an ego sentence."""
+
+    def __init__(self, clips: Path) -> None:
+        from encoders.data import ClipDataset
+
+        self.base = ClipDataset(clips, split="train", augment=True)
+
+    def __len__(self) -> int:
+        return len(self.base)
+
+    def __getattr__(self, name: str) -> Any:  # set_epoch, camera_flags, …: the clips' own
+        return getattr(self.__dict__["base"], name)
+
+    @staticmethod
+    def two_sentences(index: int, caption: str) -> str:
+        ego = "The ego vehicle is cruising straight." if index % 2 else "The ego vehicle is stationary."
+        return f"{ego} {caption.capitalize()}."
+
+    def __getitem__(self, index: int) -> dict[str, Any]:
+        item = self.base[index]
+        return {**item, **{k: self.two_sentences(index, str(item[k])) for k in ("caption", "canonical_caption")}}
+
+    def __getitems__(self, indices: list[int]) -> dict[str, Any]:  # what the DataLoader asks for
+        batch = self.base.__getitems__(indices)
+        for key in ("caption", "canonical_caption"):
+            batch[key] = [self.two_sentences(i, str(c)) for i, c in zip(indices, batch[key])]
+        return batch
+
+
+def test_resume_with_partial_queries_reproduces_the_straight_run(clips: Path, tmp_path: Path) -> None:
+    from encoders.partial_queries import batch_partials
+
+    data = WithEgoSentence(clips)
+    assert batch_partials(data.__getitems__([0, 1]), 0, 0, 1.0, 0.0).texts  # the captions have halves to ask
+    cfg = dataclasses.replace(config("scratch"), partial_weight=0.5)
+    straight, resumed = tmp_path / "straight", tmp_path / "resumed"
+    run(clips, straight, cfg, NO_TAGS, datasets={"train": data})
+    with pytest.raises(Killed):
+        run(clips, resumed, cfg, NO_TAGS, on_epoch_end=kill_after_first_epoch, datasets={"train": data})
+    run(clips, resumed, cfg, NO_TAGS, resume=True, datasets={"train": data})
+    assert metrics(resumed) == metrics(straight)
+    assert_same_weights(resumed / "model.safetensors", straight / "model.safetensors")
+    # The halves change the training: the same run without them ends elsewhere.
+    without = tmp_path / "without"
+    run(clips, without, config("scratch"), NO_TAGS, datasets={"train": data})
+    assert metrics(without)[0]["train_loss"] != metrics(straight)[0]["train_loss"]
+
+
 def test_resume_refuses_another_tagging_setup_unless_forced(clips: Path, tmp_path: Path) -> None:
     out, cfg = tmp_path / "run", config("scratch")
     with pytest.raises(Killed):

@@ -32,6 +32,8 @@ def test_invalid_settings_are_refused() -> None:
         DemoConfig(dense_weight=-1.0)
     with pytest.raises(ValueError, match="order_weight must be at least 0"):
         DemoConfig(order_weight=-1.0)
+    with pytest.raises(ValueError, match="partial_weight must be at least 0"):
+        DemoConfig(partial_weight=-0.5)
     with pytest.raises(ValueError, match="order_weight needs 'reverse' among hard_negatives"):
         DemoConfig(order_weight=1.0, hard_negatives=("mirror",))
     with pytest.raises(ValueError, match=r"dense_streams: unknown \['lidar'\]"):
@@ -43,3 +45,4 @@ def test_invalid_settings_are_refused() -> None:
 def test_quick_is_a_valid_config() -> None:
     quick = DemoConfig.quick()
     assert quick.logs < DemoConfig().logs and quick.train_preset == "tiny" and quick.order_weight is None
+    assert quick.partial_weight is None

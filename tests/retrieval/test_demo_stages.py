@@ -92,11 +92,15 @@ def test_stages_run_in_order_with_sizes(tmp_path: Path) -> None:
     assert train[train.index("--hard-negatives") + 1:][:1] == ["reverse"]
     # ... and each clip against its own reversed steps in the pairwise order loss.
     assert train[train.index("--order-weight") + 1] == "0.3"
+    # ... and each caption's halves, the object's sentence and the ego's, as queries of their own.
+    assert train[train.index("--partial-weight") + 1] == "0.5"
     # ... with per-frame tag heads on the camera and track streams; the track stream reads the velocity.
     assert train[train.index("--dense-weight") + 1] == "5.0" and "--track-velocity" in train
     # ... and the camera reads the ego's motion and the object's size, trained beside the shared space.
     assert {"--camera-ego", "--camera-mask-scale", "--camera-apart"} <= set(train)
     assert train[train.index("--dense-streams") + 1:][:2] == ["camera", "track"]
+    # The test split's figures, with their baselines, go into the model card too.
+    assert "--model-card" in demo.calls[8] and demo.calls[8][demo.calls[8].index("--split") + 1] == "test"
 
 
 def test_workers_run_the_sensor_logs_and_the_clips_on_ray(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
@@ -203,6 +207,13 @@ def test_resume_skips_complete_stages_and_reruns_after_a_change(tmp_path: Path) 
     ordered.run()
     assert [c[0] for c in ordered.calls] == ["train", "index", "eval", "report"]
     assert ordered.calls[0][ordered.calls[0].index("--order-weight") + 1] == "0.5"
+    # Without the partial queries: another model, retrained, and no flag reaches `train`.
+    whole = _demo(tmp_path, DemoConfig(logs=2, duration_s=10, epochs=5, map_less_share=1.0, camera_share=0.5,
+                                       time_slots=0, dense_streams=("track",), order_weight=0.5, partial_weight=None))
+    whole.run()
+    assert [c[0] for c in whole.calls] == ["train", "index", "eval", "report"]
+    assert "--partial-weight" not in whole.calls[0]
+    assert "partial_weight" not in whole.settings("train") and "partial_weight" in ordered.settings("train")
     # The camera on its pixels alone: another model, retrained, none of the camera's flags passed to `train`.
     camera = _demo(tmp_path, DemoConfig(logs=2, duration_s=10, epochs=5, map_less_share=1.0, camera_share=0.5,
                                         time_slots=0, dense_streams=("track",), order_weight=0.5, camera_ego=False,
@@ -300,9 +311,11 @@ def test_report(built: dict[str, Any], tmp_path: Path) -> None:
     for png in ("training_curves.png", "embedding_map.png", "recall_at_k.png"):
         assert (out / "plots" / png).stat().st_size > 1000
         assert f"plots/{png}" in page
-    assert "text → clip R@1" in page and "bag of frames" in page
+    # The same rows as `scenesearch eval` prints, rule-caption search among the baselines.
+    assert "text→clip R@1" in page and "bag of frames" in page and "rule captions" in page
+    assert "object sentence alone mAP" in page
     ceiling = metrics["clip_to_clip"]["action_precision@5_ceiling"]
-    assert f"clip → clip action_precision@5 (a perfect ranking: {ceiling:.3f})" in page
+    assert f"<td>clip→clip action_precision@5 ceiling</td><td>{ceiling:.3f}</td>" in page
     # Previews are linked relative to the page.
     assert "../" in page and preview.name in page
     assert np.isfinite(x).all()

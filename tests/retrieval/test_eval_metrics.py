@@ -30,13 +30,13 @@ from retrieval.evaluation import (
     caption_generator,
     evaluate,
     freeform_figures,
-    metrics_table,
     random_text_to_clip,
     reverse_steps,
     temporal_order_accuracy,
     text_order_figures,
 )
 from retrieval.freeform import FREEFORM_QUERIES
+from retrieval.metrics_tables import metrics_table
 
 
 def test_ranks_and_average_precision_by_hand() -> None:
@@ -158,8 +158,15 @@ def test_evaluate_with_stand_in_model(tmp_path: Path) -> None:
     # Shuffled frames lose the order of steps: the stand-in then cannot tell a caption from its reverse.
     assert metrics["baselines"]["bag_of_frames"]["temporal_order_accuracy"]["accuracy"] < order["accuracy"]
     assert metrics["counts"]["clips"] == 42
-    table = metrics_table(metrics)
+    # Each half of the captions asked alone: every clip of a half answers it, whatever its other half says.
+    halves = metrics["halves"]
+    assert set(halves) == {"object", "ego"} and halves["object"]["queries"] > 0
+    for name in ("bag_of_frames", "random", "rule_captions"):
+        assert set(metrics["baselines"][name]["halves"]) == {"object", "ego"}
+    assert halves["object"]["mAP"] > metrics["baselines"]["random"]["halves"]["object"]["mAP"]
+    table = metrics_table(metrics)  # every figure of a real evaluation renders
     assert "text→clip R@1" in table and "temporal order" in table and "free-form precision@10" in table
+    assert "object sentence alone mAP" in table and "rule captions" in table
     with pytest.raises(ValueError, match="unknown split 'dev'; the clips have splits: test, train, val"):
         evaluate(run, clips, split="dev", embedder=embedder)
 
@@ -196,3 +203,18 @@ def test_camera_view_is_measured_over_the_clips_the_camera_saw() -> None:
     assert out["random"]["R@1"] == 1.0 and len(out["curve"]) > 0
     none = camera_clip_figures({"camera": camera, "fused": fused}, relevant, [False, True, False, False])
     assert none["camera"] is None and none["counts"] == {"clips": 1, "queries": 0}
+
+
+def test_half_queries_ask_each_half_alone_and_a_clip_answers_the_halves_its_caption_has() -> None:
+    from encoders.metrics import half_queries
+
+    captions = ["The ego vehicle is stationary. A car stands in the ego lane.",
+                "The ego vehicle is cruising straight. A car stands in the ego lane.",
+                "The ego vehicle is cruising straight. A car in the left lane approaches.",
+                "The ego vehicle is stationary."]  # an ego clip's caption: its ego sentence alone
+    queries, relevant = half_queries(captions, 1)
+    assert queries == ["A car in the left lane approaches.", "A car stands in the ego lane."]
+    assert relevant.tolist() == [[False, False, True, False], [True, True, False, False]]
+    queries, relevant = half_queries(captions, 0)
+    assert queries == ["The ego vehicle is cruising straight.", "The ego vehicle is stationary."]
+    assert relevant.tolist() == [[False, True, True, False], [True, False, False, True]]

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 from typing import Any
 
@@ -12,6 +13,7 @@ from retrieval_fakes import FakeEmbedder, HashTextEncoder, caption_of
 
 import retrieval.embedding as embedding
 import retrieval.scenesearch as scenesearch
+from encoders.model_card import MODEL_CARD_FILE
 from retrieval.cli import main
 
 
@@ -98,6 +100,26 @@ def test_eval_command(stand_in: dict[str, Any], tmp_path: Path, capsys: pytest.C
     assert json.loads(reused.read_text())["text_to_clip"] == metrics["text_to_clip"]
     assert metrics["split"] == "test" and "baselines" in metrics
     assert "text→clip R@1" in capsys.readouterr().out
+
+
+def test_eval_writes_its_figures_into_the_model_card(stand_in: dict[str, Any], tmp_path: Path) -> None:
+    run = tmp_path / "run"
+    shutil.copytree(stand_in["run"], run)
+    card = run / MODEL_CARD_FILE
+    before = card.read_text() if card.is_file() else ""
+    out = tmp_path / "metrics.json"
+    assert main(["eval", str(run), str(stand_in["clips"]), "--out", str(out)]) == 0
+    assert (card.read_text() if card.is_file() else "") == before  # only when asked
+    for _ in range(2):  # evaluated again: the section is replaced, not added twice
+        assert main(["eval", str(run), str(stand_in["clips"]), "--out", str(out), "--model-card"]) == 0
+    text = card.read_text()
+    assert text.startswith(before.rstrip("\n"))
+    heading = f"## Evaluation: split test of `{Path(stand_in['clips']).resolve()}`"
+    assert text.count(heading) == 1 and text.count("## Evaluation") == 1
+    section = text[text.index(heading):]
+    assert "| figure | model | camera only | bev only | bag of frames | random | rule captions |" in section
+    r1 = json.loads(out.read_text())["text_to_clip"]["R@1"]
+    assert f"| text→clip R@1 | {r1:.3f} |" in section
 
 
 def test_caption_only_index(stand_in: dict[str, Any], tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

@@ -8,9 +8,10 @@ appearance apart from the log, and rare actions have tens of test clips.
 Every figure comes with its baselines from the same run (random ranking, the model on shuffled
 frames, rule-caption search). Recall is also broken down per facet of the queried action (lane,
 motion, own action, context, category); ``rare_facets`` lists the facets with the fewest test clips.
-The stages run fresh into ``benchmarks/_work/quality`` (kept afterwards for inspection), 42 to 55
+The stages run fresh into ``benchmarks/_work/quality`` (kept afterwards for inspection), 42 to 58
 minutes on 2 CPU cores as the machine's speed varied (Intel Xeon: simulate 201–225 s, clips 132–148 s,
-train 2020–2699 s at 30 to 19 clips/s, index and eval 169–189 s).
+train 2020–2699 s at 30 to 19 clips/s, index and eval 169–189 s; an AMD EPYC without AVX512-BF16:
+simulate 272 s, clips 216 s, train 2682 s, index and eval 311 s).
 """
 
 from __future__ import annotations

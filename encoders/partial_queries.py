@@ -71,13 +71,14 @@ def batch_partials(batch: Mapping[str, Any], seed: int, step: int, object_share:
     missing = [k for k in PARTIAL_FIELDS if k not in batch]
     if missing:
         raise KeyError(f"partial queries need the clips' {missing} (the batch has {sorted(batch)})")
+    mine = _halves(batch, seed, step, object_share, host_share)
     texts: list[str] = []
-    for i, half in _halves(batch, seed, step, object_share, host_share):
+    for i, half in mine:
         # A paraphrase has both halves as its canonical caption has; the canonical half should one not.
         texts.append(caption_halves(str(batch["caption"][i]))[half] or
                      str(caption_halves(str(batch["canonical_caption"][i]))[half]))
-    rows = batch if whole is None else whole
+    rows, chosen = (batch, mine) if whole is None else (whole, _halves(whole, seed, step, object_share, host_share))
     answers = [caption_halves(str(c)) for c in rows["canonical_caption"]]  # an ego clip answers its ego sentence
-    keys = [(half, answers[i][half]) for i, half in _halves(rows, seed, step, object_share, host_share)]
+    keys = [(half, answers[i][half]) for i, half in chosen]
     positives = [[key is not None and a[half] == key for half, key in keys] for a in answers]
     return BatchPartials(texts, positives)

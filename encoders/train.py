@@ -369,7 +369,7 @@ def train(
                 loss = contrastive_loss(video, text, scale, positives, config.loss, sim, config.tag_weight,
                                         negatives, own_mask, rows=dp.rows(len(keys)))
                 if partials is not None:  # the whole batch's loss on every process (see partial_query_loss)
-                    partial_positives = torch.tensor(partials.positives, dtype=torch.bool).reshape(len(all_keys), -1)
+                    partial_positives = torch.tensor(partials.positives, dtype=torch.bool)  # (whole B, whole M)
                     loss = loss + config.partial_weight * partial_query_loss(video, dp.gather(partial), scale,
                                                                              partial_positives, config.loss)
                 if config.order_weight > 0:  # each clip against its steps reversed; gradients are averaged

@@ -42,7 +42,7 @@ import pyarrow.parquet as pq
 
 from captioning.pipeline import CAPTIONS_FILENAME
 from captioning.tables import BEHAVIOR_CAPTION_FIELDS
-from captioning.text import caption_halves
+from captioning.text import OBJECT_HALF, caption_halves
 from common.atomic import atomic_directory, reading_directory, recover_directory
 from encoders.clips.layout import clip_id
 from indexes.errors import IndexesError, IndexFileError, ManifestError
@@ -124,11 +124,6 @@ def is_caption_index(directory: Path | str) -> bool:
         return False
 
 
-def object_sentence(caption: str) -> str | None:
-    """The caption without its leading host sentence, or None when there is no second sentence."""
-    return caption_halves(caption)[1]
-
-
 def text_variants(row: dict[str, Any]) -> tuple[list[str], list[str]]:
     """The full texts and the object texts that describe one caption row (see the module docstring)."""
     texts = [str(row["caption"])]
@@ -138,7 +133,7 @@ def text_variants(row: dict[str, Any]) -> tuple[list[str], list[str]]:
     full = list(dict.fromkeys(t.strip() for t in texts if t.strip()))
     objects: list[str] = []
     if str(row.get("track_id")) != "ego":
-        objects = list(dict.fromkeys(o for o in (object_sentence(t) for t in full) if o))
+        objects = list(dict.fromkeys(o for o in (caption_halves(t)[OBJECT_HALF] for t in full) if o))
     return full, objects or full
 
 

@@ -36,6 +36,8 @@ DENSE_TASK_NAMES = ("lane", "motion", "host_motion", "host_direction", "action",
 TEXT_KINDS = ("pretrained", "clauses", "slots", "scratch")
 #: Precisions of the frozen sentence encoder's inference (:func:`encoders.sentence.inference_dtype`).
 TEXT_PRECISIONS = ("auto", "float32", "bfloat16")
+#: How the ``slots`` text tower encodes a whole text (:class:`encoders.text.SlotText`).
+WHOLE_TEXT_KINDS = ("text", "sentences")
 
 
 class ConfigError(common.config.ConfigError):
@@ -91,6 +93,9 @@ class TextConfig(EncodersConfig):
         precision: the frozen encoder's matrix products: ``auto`` (bfloat16 where the CPU multiplies
             it in hardware, 1.7–1.8× faster; else float32), ``float32`` or ``bfloat16``. ``auto`` is
             resolved on the machine that runs the model, so a run trained on one serves on the other.
+        whole_text: ``slots``: the whole-text place is the text encoded in one piece (``text``) or the
+            mean of its sentences, each encoded alone (``sentences``: fewer and shorter distinct strings
+            to encode in training, see :class:`encoders.text.SlotText`).
     """
 
     kind: str = "pretrained"
@@ -105,9 +110,10 @@ class TextConfig(EncodersConfig):
     max_steps: int = 6
     step_hidden: int = 512
     precision: str = "auto"
+    whole_text: str = "sentences"
 
     def __post_init__(self) -> None:
-        for name, allowed in (("kind", TEXT_KINDS), ("precision", TEXT_PRECISIONS)):
+        for name, allowed in (("kind", TEXT_KINDS), ("precision", TEXT_PRECISIONS), ("whole_text", WHOLE_TEXT_KINDS)):
             if getattr(self, name) not in allowed:
                 raise ConfigError(f"TextConfig.{name} must be one of {list(allowed)}, got {getattr(self, name)!r}")
         if self.finetune_top_layers < 0:
@@ -470,9 +476,11 @@ class TrainConfig(EncodersConfig):
         if isinstance(data, dict):
             data = {"view_weight": 0.0, **data}  # before the single-view losses: the fused view only
             if isinstance(data.get("model"), dict):  # before the action and context heads and the object's rates
-                bev = data["model"].get("bev")
+                bev, text = data["model"].get("bev"), data["model"].get("text")
                 data["model"] = {"dense_tasks": list(DENSE_TASK_NAMES[:4]), **data["model"],
-                                 **({"bev": {"track_rates": False, **bev}} if isinstance(bev, dict) else {})}
+                                 **({"bev": {"track_rates": False, **bev}} if isinstance(bev, dict) else {}),
+                                 # before the sentences made up the whole text: it was encoded in one piece
+                                 **({"text": {"whole_text": "text", **text}} if isinstance(text, dict) else {})}
         return cls.from_dict(data, source=source)
 
     @staticmethod

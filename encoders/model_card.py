@@ -23,7 +23,8 @@ def model_card(config: TrainConfig, history: list[dict[str, Any]], n_train: int,
     metric_lines = "\n".join(f"| {k} | {v:.4g} |" for k, v in last_val.items()) or "| (no validation split) | |"
     text = {"pretrained": m.text.model,
             "clauses": f"{m.text.model} over the text and each of its steps (up to {m.text.max_steps})",
-            "slots": f"{m.text.model} over each sentence's steps in {m.time_slots} time slots of {m.slot_dim} dims",
+            "slots": f"{m.text.model} over each sentence's steps in {m.time_slots} time slots of {m.slot_dim} dims"
+                     + (", the whole text as the mean of its sentences" if m.text.whole_text == "sentences" else ""),
             }.get(m.text.kind, f"scratch transformer ({m.text.scratch_layers} layers)")
     frozen = ""
     if m.text.kind != "scratch" and m.text.freeze:

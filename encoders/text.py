@@ -293,6 +293,16 @@ def sentence_steps(text: str) -> list[list[str]]:
     return [text_steps(s, len(s)) for s in sentences] or [[text.strip() or text]]
 
 
+def text_sentences(text: str) -> list[str]:
+    """The sentences of ``text`` as written, each with its own full stop: "We stop. A car passes." →
+    ``["We stop.", "A car passes."]``; a text of one sentence is itself (spaces trimmed).
+
+    A caption's sentences are then the very strings of its halves (:func:`captioning.text.caption_halves`),
+    which the partial queries train on and rule-caption search embeds: one encoding serves all three.
+    """
+    return [s.strip() for s in _SENTENCE_END.split(text) if s.strip(" ,.;!?")] or [text.strip() or text]
+
+
 class ClauseText(nn.Module):
     """The pretrained encoder over a text and its steps → (B, (1 + max_steps) · F): slot 0 the whole
     text, slot 1 + j its step j, empty slots zero. Each distinct string of a batch is encoded (or
@@ -333,6 +343,13 @@ class SlotText(nn.Module):
     A mean rather than one place per sentence: a caption's first sentence is the ego's and its second
     the object's, but a typed query has any number of sentences in any order, and it should land in
     the slots as a caption of the same content does.
+
+    The whole text is, by ``TextConfig.whole_text``, the text encoded in one piece (``text``) or the
+    mean of its sentences encoded each alone (``sentences``, :func:`text_sentences`; a text of one
+    sentence, as most typed queries are, is encoded as before). The sentences are what a caption
+    shares with others (a few dozen ego sentences; object sentences that are also the partial
+    queries), whereas nearly every whole caption, and each of its paraphrases, is a string of its own:
+    half of what training encoded, and the longest strings.
     """
 
     def __init__(self, config: TextConfig, time_slots: int) -> None:
@@ -351,9 +368,11 @@ class SlotText(nn.Module):
         index: dict[str, int] = {}
         places: list[int] = []  # row · (1 + K) + place: 0 the whole text, 1 + k slot k
         source: list[int] = []
+        sentences = self.config.whole_text == "sentences"
         for i, text in enumerate(texts):
-            places.append(i * (1 + k))
-            source.append(index.setdefault(text, len(index)))
+            for whole in text_sentences(text) if sentences else [text]:
+                places.append(i * (1 + k))
+                source.append(index.setdefault(whole, len(index)))
             for steps in sentence_steps(text):
                 for slot, step in enumerate(slot_of_steps(len(steps), k)):
                     places.append(i * (1 + k) + 1 + slot)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import os
 from pathlib import Path
 
@@ -10,6 +11,7 @@ import pytest
 import torch
 import torch.nn.functional as F
 
+from captioning.text import caption_halves
 from encoders.config import (
     ConfigError,
     DualEncoderConfig,
@@ -22,7 +24,7 @@ from encoders.fusion import ViewFusion
 from encoders.model import DualEncoder
 from encoders.sentence import TextModelUnavailableError
 from encoders.synthetic import SyntheticClipDataset, SyntheticSpec, collate_clips
-from encoders.text import SlotText, sentence_steps
+from encoders.text import SlotText, sentence_steps, text_sentences
 from encoders.timeline import SlotReadout, SlotTextHead, slot_of_steps
 
 os.environ["HF_HUB_OFFLINE"] = "1"
@@ -38,6 +40,15 @@ def test_sentences_keep_their_own_steps() -> None:
                                                                       ["C waits", "then goes"]]
     assert sentence_steps("it brakes, after that it turns") == [["it brakes", "it turns"]]
     assert sentence_steps("") == [[""]] and sentence_steps("...") == [["..."]] and sentence_steps(". a.") == [["a"]]
+
+
+def test_a_captions_sentences_are_its_halves_as_written() -> None:
+    assert text_sentences(CAPTION) == list(caption_halves(CAPTION))
+    assert text_sentences(CAPTION) == ["The ego vehicle is cruising straight.",
+                                       "A car in the left lane approaches, then moves away."]
+    assert text_sentences(" we brake and stop ") == ["we brake and stop"]  # one sentence: the text itself
+    assert text_sentences("A car cuts in!  Then it stops?") == ["A car cuts in!", "Then it stops?"]
+    assert text_sentences("") == [""] and text_sentences("...") == ["..."] and text_sentences(". a.") == ["a."]
 
 
 def test_steps_share_the_slots_evenly() -> None:
@@ -125,12 +136,24 @@ def test_text_slots_hold_each_sentences_steps_in_order(model: DualEncoder) -> No
         x = backbone([CAPTION, REVERSED], torch.device("cpu")).reshape(2, 5, 384)
     steps = ("The ego vehicle is cruising straight", "A car in the left lane approaches", "then moves away")
     host, first, then = (torch.from_numpy(cache.get(s)) for s in steps)
-    torch.testing.assert_close(x[0, 0], torch.from_numpy(cache.get(CAPTION)))
+    # The whole text: the mean of its sentences, each encoded alone; the caption itself is not encoded.
+    sentences = [torch.from_numpy(cache.get(s)) for s in caption_halves(CAPTION)]
+    torch.testing.assert_close(x[0, 0], (sentences[0] + sentences[1]) / 2)
+    assert cache.get(CAPTION) is None
     # Slot k at 1 + k: the host sentence in every slot, the object's two steps over two slots each, averaged.
     for k, step in enumerate([first, first, then, then]):
         torch.testing.assert_close(x[0, 1 + k], (host + step) / 2)
     one = backbone(["we brake and stop"], torch.device("cpu")).reshape(5, 384)
     assert torch.equal(one[1], one[4]) and torch.equal(one[0], one[1])  # one sentence, one step: every slot
+
+
+def test_the_whole_text_in_one_piece_as_runs_before_the_sentences(model: DualEncoder) -> None:
+    config = dataclasses.replace(model.config.text, whole_text="text")
+    backbone = SlotText(config, time_slots=4)
+    with torch.no_grad():
+        x = backbone([CAPTION], torch.device("cpu")).reshape(5, 384)
+    assert backbone.cache is not None
+    torch.testing.assert_close(x[0], torch.from_numpy(backbone.cache.get(CAPTION)))
 
 
 @pytest.mark.parametrize("view", ["fused", "camera", "bev"])

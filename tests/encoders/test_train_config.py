@@ -89,10 +89,13 @@ def test_a_run_written_before_newer_keys_loads_and_resumes_as_it_was(tmp_path: P
 
     old = TrainConfig().to_dict()
     del old["view_weight"], old["time_reversal"], old["model"]["bev"]["track_range"], old["model"]["dense_tasks"]
+    del old["model"]["text"]["whole_text"]
     path = tmp_path / "config.json"
     path.write_text(json.dumps(old))
     config = TrainConfig.from_json(path)
     assert config.view_weight == 0.0 and config.time_reversal == 0.0 and config.model.bev.track_range is False
+    # The whole text was encoded in one piece before its sentences made it up.
+    assert config.model.text.whole_text == "text" and TrainConfig().model.text.whole_text == "sentences"
     # Dense heads from before the action and context tasks predict the first four.
     assert config.model.dense_tasks == ("lane", "motion", "host_motion", "host_direction")
     assert TrainConfig().model.dense_tasks[4:] == ("action", "context")

@@ -294,12 +294,9 @@ def sentence_steps(text: str) -> list[list[str]]:
 
 
 def text_sentences(text: str) -> list[str]:
-    """The sentences of ``text`` as written, each with its own full stop: "We stop. A car passes." →
-    ``["We stop.", "A car passes."]``; a text of one sentence is itself (spaces trimmed).
-
-    A caption's sentences are then the very strings of its halves (:func:`captioning.text.caption_halves`),
-    which the partial queries train on and rule-caption search embeds: one encoding serves all three.
-    """
+    """The sentences of ``text`` as written: "We stop. A car passes." → ``["We stop.", "A car passes."]``;
+    a caption's are the strings of :func:`captioning.text.caption_halves`, which the partial queries
+    and rule-caption search encode too: one encoding serves all three."""
     return [s.strip() for s in _SENTENCE_END.split(text) if s.strip(" ,.;!?")] or [text.strip() or text]
 
 

@@ -288,9 +288,8 @@ def sentence_steps(text: str) -> list[list[str]]:
     ``[["The ego vehicle stands"], ["A car approaches", "then moves away"]]``. A text that does not
     split is one sentence of one step.
     """
-    sentences = [s for s in _SENTENCE_END.split(text) if s.strip(" ,.;!?")]
     # A sentence has fewer steps than characters: len(s) leaves every step on its own.
-    return [text_steps(s, len(s)) for s in sentences] or [[text.strip() or text]]
+    return [text_steps(s, len(s)) for s in text_sentences(text)]
 
 
 def text_sentences(text: str) -> list[str]:
@@ -365,12 +364,13 @@ class SlotText(nn.Module):
         index: dict[str, int] = {}
         places: list[int] = []  # row · (1 + K) + place: 0 the whole text, 1 + k slot k
         source: list[int] = []
-        sentences = self.config.whole_text == "sentences"
+        by_sentences = self.config.whole_text == "sentences"
         for i, text in enumerate(texts):
-            for whole in text_sentences(text) if sentences else [text]:
+            sentences = text_sentences(text)
+            for whole in sentences if by_sentences else [text]:
                 places.append(i * (1 + k))
                 source.append(index.setdefault(whole, len(index)))
-            for steps in sentence_steps(text):
+            for steps in (text_steps(s, len(s)) for s in sentences):  # sentence_steps(text), split once
                 for slot, step in enumerate(slot_of_steps(len(steps), k)):
                     places.append(i * (1 + k) + 1 + slot)
                     source.append(index.setdefault(steps[step], len(index)))

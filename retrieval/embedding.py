@@ -4,9 +4,8 @@
 of a run directory (``encoders.inference.load_model``). Tests and benchmarks pass stand-ins that
 implement the same four members, so retrieval can be exercised without training a model.
 
-:class:`SentenceEncoder` is the frozen pretrained sentence encoder (all-MiniLM-L6-v2, packaged for
-offline use, loaded by :mod:`encoders.sentence`) that embeds rule captions directly, without a
-trained model.
+The frozen sentence encoder of rule-caption search, which needs no trained model, is
+:class:`retrieval.sentence_encoder.SentenceEncoder`.
 """
 
 from __future__ import annotations
@@ -16,20 +15,15 @@ import time
 from collections import OrderedDict
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
 from common.ray_cluster import Execution, cluster_gpus, import_ray, node_cpus, ray_runtime
 from common.storage import as_location, join, list_files, remove_files, write_file
-from encoders.config import BUNDLED_TEXT_MODEL, check_device_name
-from encoders.sentence import cache_name, inference_autocast, inference_dtype, shared_sentence_encoder
-from encoders.text import TEXT_CACHE_FILE, TextFeatureCache
+from encoders.config import check_device_name
 from indexes.integrity import sha256_file
 from retrieval.errors import ModelMismatchError
-
-if TYPE_CHECKING:
-    import torch
 
 MODEL_FILE = "model.safetensors"
 #: The embedding shards that :class:`RayDataEmbedder`'s actors write (``part-<first row>.parquet``).
@@ -248,62 +242,6 @@ def _to_numpy(x: Any) -> np.ndarray:
     if hasattr(x, "detach"):
         x = x.detach().cpu().numpy()
     return np.asarray(x, dtype=np.float32)
-
-
-class SentenceEncoder:
-    """The frozen sentence encoder (all-MiniLM-L6-v2, 384-D) with a cache of the texts it has seen.
-
-    The model is the process's shared instance (:func:`encoders.sentence.shared_sentence_encoder`),
-    loaded on first use. Calls return (N, 384) L2-normalised float32 rows.
-    """
-
-    name = "all-MiniLM-L6-v2"
-
-    def __init__(self, cache_size: int = 100_000, known: TextFeatureCache | None = None,
-                 precision: str = "auto") -> None:
-        """``known``: rows already computed by the same model in the same precision (a run's text
-        cache); others are encoded. ``precision``: of the encoder's matrix products
-        (:func:`encoders.sentence.inference_dtype`)."""
-        self._cache = EmbeddingCache(cache_size)
-        self.dtype = inference_dtype(precision)
-        name = cache_name(BUNDLED_TEXT_MODEL, self.dtype)
-        self._known = known if known is not None and known.model_name == name and len(known) else None
-
-    @classmethod
-    def for_run(cls, run_dir: Path | str, precision: str = "auto") -> SentenceEncoder:
-        """The encoder, seeded with the sentence embeddings a run's training computed (``RUN_DIR/text_cache.npz``).
-
-        A run whose text tower is this frozen model has encoded its captions and their steps already:
-        the rule captions of an index over its clips are then mostly known (7038 of the demo's 16765
-        texts), and they cost the demo's index stage most of its time. The rows are the same up to
-        the rounding of a different batch (≤ 1e-7 in float32, ≤ 1e-3 in bfloat16); a cache of the
-        other ``precision`` is not used.
-        """
-        known = TextFeatureCache(cache_name(BUNDLED_TEXT_MODEL, inference_dtype(precision)))
-        known.load(Path(run_dir) / TEXT_CACHE_FILE)
-        return cls(known=known, precision=precision)
-
-    def __call__(self, texts: Sequence[str]) -> np.ndarray:
-        texts = list(texts)
-        if not texts:
-            return np.zeros((0, 384), np.float32)
-        return np.stack(self._cache.get_or_embed(texts, self._embed))
-
-    def _embed(self, texts: list[str]) -> np.ndarray:
-        if self._known is None:
-            return _encode_sentences(texts, self.dtype)
-        rows = [self._known.get(t) for t in texts]
-        missing = [t for t, row in zip(texts, rows) if row is None]
-        fresh = iter(_encode_sentences(missing, self.dtype)) if missing else iter(())
-        return np.stack([row if row is not None else next(fresh) for row in rows])
-
-
-def _encode_sentences(texts: list[str], dtype: torch.dtype) -> np.ndarray:
-    model = shared_sentence_encoder(BUNDLED_TEXT_MODEL, device="cpu")  # loaded once, under its own lock
-    with inference_autocast("cpu", dtype):
-        emb = model.encode(texts, batch_size=64, convert_to_numpy=True, normalize_embeddings=True,
-                           show_progress_bar=False)
-    return np.asarray(emb, dtype=np.float32)
 
 
 class RayDataEmbedder(ModelEmbedder):

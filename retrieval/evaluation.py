@@ -59,8 +59,9 @@ from encoders.metrics import (
 from retrieval.action_breakdown import facets, recall_by_facet
 from retrieval.captions_search import CaptionSearch, TextEncoder
 from retrieval.clip_neighbours import clip_to_clip_figures, random_clip_to_clip
-from retrieval.embedding import Embedder, ModelEmbedder, SentenceEncoder
+from retrieval.embedding import Embedder, ModelEmbedder
 from retrieval.freeform import FREEFORM_QUERIES, FreeformQuery, freeform_relevance
+from retrieval.sentence_encoder import SentenceEncoder
 
 #: A caption and its reversed steps count as kept apart by a text tower when their cosine is below this.
 #: Frozen mean-pooled sentence encoders give 0.98–0.99 for such pairs; 0.95 asks for a visible gap.

@@ -49,10 +49,11 @@ from indexes.integrity import (
 )
 from indexes.persistence import read_json_manifest
 from retrieval.captions_search import CaptionSearch, Skipped, TextEncoder, caption_rows
-from retrieval.embedding import CONFIG_FILE, Embedder, ModelEmbedder, SentenceEncoder
+from retrieval.embedding import CONFIG_FILE, Embedder, ModelEmbedder
 from retrieval.errors import IndexDirError, ModelMismatchError, UnknownClipError, UnknownViewError
 from retrieval.querying import MAX_K, build_query, check_camera_clip, check_query, hits_to_results, preview_of
 from retrieval.records import SearchResult
+from retrieval.sentence_encoder import SentenceEncoder
 
 #: 2: the manifest holds checksums (``files``, ``content_sha256``); version 1 is still read, with a warning.
 FORMAT_VERSION = 2

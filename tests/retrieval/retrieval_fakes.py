@@ -57,8 +57,9 @@ def hash_embed(texts: Sequence[str], dim: int = DIM) -> np.ndarray:
 class HashTextEncoder:
     name = "hash-test"
 
-    def __init__(self) -> None:
+    def __init__(self, whole_text: str = "text") -> None:
         self.calls = 0
+        self.whole_text = whole_text  # recorded by the caption index, as SentenceEncoder's
 
     def __call__(self, texts: Sequence[str]) -> np.ndarray:
         self.calls += 1

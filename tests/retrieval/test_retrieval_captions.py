@@ -179,3 +179,18 @@ def test_interrupted_swap_of_a_caption_index_is_recovered(tmp_path: Path) -> Non
     directory.rename(tmp_path / ".cap.old")  # killed between the swap's two renames
     assert is_caption_index(directory)
     assert len(CaptionSearch.open(directory, encoder=HashTextEncoder())) == 4
+
+
+def test_queries_are_embedded_as_the_index_embedded_its_texts(tmp_path: Path) -> None:
+    directory = tmp_path / "cap"
+    CaptionSearch.build(_table(), directory, encoder=HashTextEncoder(whole_text="sentences"))
+    manifest = json.loads((directory / "manifest.json").read_text())
+    assert manifest["whole_text"] == "sentences"
+    assert CaptionSearch.open(directory).encoder.whole_text == "sentences"  # type: ignore[attr-defined]
+    # An index from before the field embedded its texts in one piece: so are its queries.
+    manifest.pop("whole_text")
+    (directory / "manifest.json").write_text(json.dumps(seal(manifest)))
+    assert CaptionSearch.open(directory).encoder.whole_text == "text"  # type: ignore[attr-defined]
+    (directory / "manifest.json").write_text(json.dumps(seal({**manifest, "whole_text": "words"})))
+    with pytest.raises(IndexDirError, match=r"manifest.json, field 'whole_text': must be one of"):
+        CaptionSearch.open(directory)

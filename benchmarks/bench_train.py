@@ -224,7 +224,8 @@ class _CountedRun:
     """Stands in for a sentence encoder's ``_run`` and keeps the strings it encodes."""
 
     def __init__(self, backbone: Any) -> None:
-        self.run, self.strings = backbone._run, list[str]()
+        self.run = backbone._run
+        self.strings: list[str] = []
         backbone._run = self
 
     def __call__(self, texts: list[str], device: torch.device, group: int = ENCODE_GROUP) -> torch.Tensor:
@@ -234,9 +235,10 @@ class _CountedRun:
 
 def whole_text_speedup(clips_per_step: int, steps: int) -> dict[str, Any]:
     """The slots text tower (4 time slots, cache on, cold) over the caption texts of a run of training
-    steps, with the whole text in one piece against as the mean of its sentences
-    (``TextConfig.whole_text``): the distinct strings the sentence encoder ran, their characters and its
-    CPU seconds. Each caption is nearly a string of its own, whereas its sentences recur across captions.
+    steps, with the whole text as the mean of its sentences against in one piece
+    (``TextConfig.whole_text``; ``speedup``: the seconds in one piece over those as sentences): the
+    distinct strings the sentence encoder ran, their characters and its CPU seconds. Each caption is
+    nearly a string of its own, whereas its sentences recur across captions.
     """
     import encoders.text as text_module
     from encoders.config import TextConfig
@@ -257,7 +259,7 @@ def whole_text_speedup(clips_per_step: int, steps: int) -> dict[str, Any]:
                 tower(texts, dev)
         figures[whole] = {"cpu_s": round(time.process_time() - cpu0, 2), "strings": len(counted.strings),
                           "characters": sum(map(len, counted.strings))}
-    figures["speedup"] = round(figures["text"]["cpu_s"] / figures["sentences"]["cpu_s"], 2)
+    figures["speedup"] = round(figures["text"]["cpu_s"] / max(figures["sentences"]["cpu_s"], 0.01), 2)
     for what in ("strings", "characters"):
         figures[f"{what}_ratio"] = round(figures["text"][what] / figures["sentences"][what], 2)
     figures.update(clips_per_step=clips_per_step, steps=steps,

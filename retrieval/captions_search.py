@@ -206,7 +206,7 @@ class CaptionSearch:
     def __init__(self, metadata: MetadataStore, texts: list[str], text_embeddings: np.ndarray,
                  full: _Groups, objects: _Groups, encoder: TextEncoder | None = None,
                  encoder_name: str | None = None, base_dir: Path | None = None,
-                 skipped: Sequence[Skipped] = ()) -> None:
+                 skipped: Sequence[Skipped] = (), whole_text: str | None = None) -> None:
         self.metadata = metadata
         self.texts = texts
         self.text_embeddings = np.ascontiguousarray(text_embeddings, dtype=np.float32)
@@ -215,7 +215,7 @@ class CaptionSearch:
         self.encoder: TextEncoder = encoder if encoder is not None else SentenceEncoder()
         self.encoder_name = str(encoder_name or getattr(self.encoder, "name", type(self.encoder).__name__))
         # How the texts were embedded (SentenceEncoder.whole_text): the queries have to be embedded alike.
-        self.whole_text = str(getattr(self.encoder, "whole_text", "text"))
+        self.whole_text = whole_text or str(getattr(self.encoder, "whole_text", "text"))
         self.base_dir = base_dir
         self.skipped = list(skipped)
 
@@ -319,10 +319,14 @@ class CaptionSearch:
                     parts = _read_parts(directory, counts)
             except IndexesError as exc:
                 raise IndexDirError(str(exc)) from exc
+        given = getattr(encoder, "whole_text", whole_text)
+        if given != whole_text:  # queries embedded unlike the texts would rank by the difference
+            raise IndexDirError(f"{path}, field 'whole_text': the index embedded its texts as {whole_text!r}, "
+                                f"the given encoder embeds a text as {given!r}")
         encoder = encoder if encoder is not None else SentenceEncoder(whole_text=whole_text)
         base = info.get("base_dir")
         return cls(*parts, encoder, info.get("text_encoder"), Path(base) if base else None,
-                   [Skipped(s["item"], s["reason"]) for s in info.get("skipped", [])])
+                   [Skipped(s["item"], s["reason"]) for s in info.get("skipped", [])], whole_text)
 
     def scores(self, xq: np.ndarray) -> np.ndarray:
         """(N,) score of every row for one query embedding (D,): mean of its best full and best object text."""

@@ -7,14 +7,17 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-import torch
 
 from encoders.config import BUNDLED_TEXT_MODEL, WHOLE_TEXT_KINDS
 from encoders.sentence import cache_name, inference_autocast, inference_dtype, shared_sentence_encoder
 from encoders.text import TEXT_CACHE_FILE, TextFeatureCache, text_sentences
 from retrieval.embedding import EmbeddingCache
+
+if TYPE_CHECKING:
+    import torch
 
 
 class SentenceEncoder:
@@ -28,7 +31,8 @@ class SentenceEncoder:
     (``text``). Mean-pooled over a whole caption, the ego's sentence and the object's blur into one
     another; as sentences a caption meets a caption sentence by sentence (rule-caption search on the
     quality benchmark's test split: R@5 0.826 → 0.958, order 0.923 → 0.984), and the sentences are
-    what training's text cache holds. A text of one sentence is embedded the same either way.
+    what training's text cache holds. A text of one sentence (as :func:`encoders.text.text_sentences` splits
+    it: also at ``;``) is embedded the same either way.
     """
 
     name = "all-MiniLM-L6-v2"
@@ -78,7 +82,8 @@ class SentenceEncoder:
         rows = np.stack(self._cache.get_or_embed(distinct, self._embed))  # (S, 384)
         pos = {s: i for i, s in enumerate(distinct)}
         mean = np.stack([rows[[pos[s] for s in parts]].mean(axis=0) for parts in sentences])  # (N, 384)
-        return (mean / np.linalg.norm(mean, axis=1, keepdims=True)).astype(np.float32)
+        # Sentences that cancel out would leave no direction: a zero row, never a NaN one.
+        return (mean / np.maximum(np.linalg.norm(mean, axis=1, keepdims=True), 1e-12)).astype(np.float32)
 
     def _embed(self, texts: list[str]) -> np.ndarray:
         if self._known is None:

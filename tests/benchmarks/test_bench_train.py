@@ -1,8 +1,11 @@
-"""The training benchmark's caption texts: seeded, and made of sentences that recur across captions."""
+"""The training benchmark's whole-text case: seeded caption texts whose sentences recur, and both forms
+run through the text tower."""
 
 from __future__ import annotations
 
-from benchmarks.bench_train import _training_texts
+import os
+
+from benchmarks.bench_train import _training_texts, whole_text_speedup
 from encoders.text import text_sentences
 
 
@@ -15,3 +18,14 @@ def test_training_texts_are_seeded_and_their_sentences_recur() -> None:
     assert all(len(text_sentences(t)) == 2 for t in texts)  # an ego sentence and an object sentence
     # What the whole text as its sentences saves on: fewer distinct sentences than the texts have.
     assert len(sentences) < 2 * len(texts) * 0.8
+
+
+def test_whole_text_speedup_runs_both_forms_over_the_same_texts() -> None:
+    os.environ.setdefault("HF_HUB_OFFLINE", "1")
+    figures = whole_text_speedup(4, 2)
+    assert figures["texts"] == sum(map(len, _training_texts(4, 2)))
+    text, sentences = figures["text"], figures["sentences"]
+    assert text["strings"] > 0 and sentences["strings"] > 0
+    # In one piece every caption is encoded as written; as sentences none of them is (two sentences each).
+    assert text["characters"] > sentences["characters"]
+    assert figures["strings_ratio"] == round(text["strings"] / sentences["strings"], 2)

@@ -187,6 +187,11 @@ def test_queries_are_embedded_as_the_index_embedded_its_texts(tmp_path: Path) ->
     manifest = json.loads((directory / "manifest.json").read_text())
     assert manifest["whole_text"] == "sentences"
     assert CaptionSearch.open(directory).encoder.whole_text == "sentences"  # type: ignore[attr-defined]
+    # An encoder that embeds queries otherwise than the index embedded its texts is refused.
+    with pytest.raises(IndexDirError, match=r"manifest.json, field 'whole_text': the index embedded its texts as "
+                                            r"'sentences', the given encoder embeds a text as 'text'"):
+        CaptionSearch.open(directory, encoder=HashTextEncoder())
+    assert CaptionSearch.open(directory, encoder=HashTextEncoder("sentences")).whole_text == "sentences"
     # An index from before the field embedded its texts in one piece: so are its queries.
     manifest.pop("whole_text")
     (directory / "manifest.json").write_text(json.dumps(seal(manifest)))

@@ -346,6 +346,8 @@ def evaluate(run_dir: Path | str, clips_dir: Path | str, split: str = "test", em
                               "halves": halves["bag_of_frames"],
                               "clip_to_clip": clip_to_clip_figures(x_bag, actions, appearance, logs=logs)},
             "rule_captions": {"text_to_clip": text_to_clip_figures(sim_rule, relevant),
+                              # How the frozen encoder embedded a text of several sentences (SentenceEncoder).
+                              "whole_text": getattr(sentence, "whole_text", None),
                               "temporal_order_accuracy": {"accuracy": order_rule, "num_captions": len(pairs)},
                               "text_order": text_order_frozen,
                               "freeform": freeform_figures(free_rule, free_relevant),

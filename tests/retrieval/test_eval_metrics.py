@@ -140,6 +140,7 @@ def test_evaluate_with_stand_in_model(tmp_path: Path) -> None:
     # Rule-caption search over the clips' own captions finds a caption query's words far above chance, but
     # the frozen sentence encoder hardly sees the order of steps, so reversed captions compete at rank 1.
     rule = metrics["baselines"]["rule_captions"]["text_to_clip"]
+    assert metrics["baselines"]["rule_captions"]["whole_text"] == "sentences"  # the default frozen encoder's form
     assert rule["R@5"] > metrics["baselines"]["random"]["text_to_clip"]["R@5"] + 0.3
     # The frozen sentence encoder barely tells a caption from its reversed steps.
     frozen = metrics["baselines"]["rule_captions"]["text_order"]

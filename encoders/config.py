@@ -36,7 +36,9 @@ DENSE_TASK_NAMES = ("lane", "motion", "host_motion", "host_direction", "action",
 TEXT_KINDS = ("pretrained", "clauses", "slots", "scratch")
 #: Precisions of the frozen sentence encoder's inference (:func:`encoders.sentence.inference_dtype`).
 TEXT_PRECISIONS = ("auto", "float32", "bfloat16")
-#: How the ``slots`` text tower encodes a whole text (:class:`encoders.text.SlotText`).
+#: How a text of several sentences is encoded whole: in one piece or as the mean of its sentences
+#: (the ``slots`` text tower, :class:`encoders.text.SlotText`; rule-caption search,
+#: :class:`retrieval.sentence_encoder.SentenceEncoder`).
 WHOLE_TEXT_KINDS = ("text", "sentences")
 
 

@@ -62,9 +62,8 @@ class SentenceEncoder:
         A run whose text tower is this frozen model has encoded its captions' sentences and their steps
         already: the rule captions of an index over its clips are then mostly known (5,066 of the 7,437
         sentences of the demo's 19,036 caption texts), and they cost the demo's index stage most of its
-        time. The rows are the same up to
-        the rounding of a different batch (≤ 1e-7 in float32, ≤ 1e-3 in bfloat16); a cache of the
-        other ``precision`` is not used.
+        time. The rows are the same up to the rounding of a different batch (≤ 1e-7 in float32, ≤ 1e-3
+        in bfloat16); a cache of the other ``precision`` is not used.
         """
         known = TextFeatureCache(cache_name(BUNDLED_TEXT_MODEL, inference_dtype(precision)))
         known.load(Path(run_dir) / TEXT_CACHE_FILE)

@@ -84,6 +84,13 @@ def measure(work: Path, config: DemoConfig, fresh: bool = True) -> dict[str, Any
         for key, value in block.get("clip_to_clip", {}).items():
             if key.startswith(("action_precision", "appearance_bias", "same_log_share_neighbours")):
                 figures[f"{name}_clip_to_clip_{key}"] = _round(value)
+    hybrid = metrics.get("hybrid") or {}
+    if hybrid:  # the model and rule captions mixed, at the weight the index chose on the validation clips
+        figures["hybrid_weight"] = hybrid["weight"]
+        for key in ("R@1", "R@5", "mAP"):
+            figures[f"hybrid_{key}"] = _round(hybrid["text_to_clip"][key])
+        figures["hybrid_temporal_order_accuracy"] = _round(hybrid["temporal_order_accuracy"]["accuracy"])
+        figures["hybrid_freeform_precision@10"] = _round(hybrid["freeform"].get("precision@10"))
     figures["model_text_order_kept_apart"] = _round(metrics["text_order"]["kept_apart"])
     figures["model_camera_only_R@5"] = _round(metrics["views"]["camera"]["R@5"])
     figures["camera_clips_random_R@5"] = _round(metrics["views"]["camera_clips"]["random"]["R@5"])

@@ -330,7 +330,9 @@ class CaptionSearch:
 
     def scores(self, xq: np.ndarray) -> np.ndarray:
         """(N,) score of every row for one query embedding (D,): mean of its best full and best object text."""
-        per_text = self.text_embeddings @ np.asarray(xq, dtype=np.float32).reshape(-1)
+        # einsum, not @: a BLAS product this size wakes OpenBLAS's threads, whose spinning slows the text
+        # encoders of the next query (see retrieval.hybrid).
+        per_text = np.einsum("td,d->t", self.text_embeddings, np.asarray(xq, dtype=np.float32).reshape(-1))
         return np.asarray(0.5 * (self.full.best(per_text) + self.objects.best(per_text)))
 
     def search(self, query: str, k: int = 10, filters: FilterSpec = None,

@@ -21,6 +21,9 @@ returns the metrics dictionary written to ``metrics.json``::
                              the queries with a relevant one among them: a clip outside the camera's
                              field of view has nothing to show it. ``camera_clips`` holds their
                              counts and the fused model's and random ranking's figures on them
+    hybrid:                  weight, chosen_on and the text_to_clip, temporal_order_accuracy and freeform
+                             figures of hybrid search (the model's and rule-caption scores mixed with the
+                             index's weight, or one chosen on the validation clips: :mod:`retrieval.hybrid`)
     baselines:               random / bag_of_frames / rule_captions: the same figures for random ranking,
                              for the model with frames shuffled in time, and for rule-caption search (the
                              frozen sentence encoder over each clip's rule captions, no trained model)
@@ -52,7 +55,6 @@ from encoders.metrics import (
     KS,
     caption_queries,
     half_queries,
-    precision_at_k,
     recall_curve,
     text_to_clip_figures,
 )
@@ -60,14 +62,13 @@ from retrieval.action_breakdown import facets, recall_by_facet
 from retrieval.captions_search import CaptionSearch, TextEncoder
 from retrieval.clip_neighbours import clip_to_clip_figures, random_clip_to_clip
 from retrieval.embedding import Embedder, ModelEmbedder
-from retrieval.freeform import FREEFORM_QUERIES, FreeformQuery, freeform_relevance
+from retrieval.freeform import FREEFORM_QUERIES, FreeformQuery, freeform_figures, freeform_relevance
+from retrieval.hybrid import CHOICE_SPLIT, DEFAULT_WEIGHT, WeightChoice, choose_for_rows, mix
 from retrieval.sentence_encoder import SentenceEncoder
 
 #: A caption and its reversed steps count as kept apart by a text tower when their cosine is below this.
 #: Frozen mean-pooled sentence encoders give 0.98–0.99 for such pairs; 0.95 asks for a visible gap.
 ORDER_COSINE_MAX = 0.95
-#: Precision is read in the top this-many clips of each free-form query.
-FREEFORM_K = 10
 
 # ---------------------------------------------------------------------- text → clip
 
@@ -176,19 +177,6 @@ def text_order_figures(t_true: np.ndarray, t_reversed: np.ndarray) -> dict[str, 
             "kept_apart": float((cosine < ORDER_COSINE_MAX).mean())}
 
 
-def freeform_figures(sim: np.ndarray, relevant: np.ndarray, k: int = FREEFORM_K) -> dict[str, float | int | None]:
-    """Mean precision@k over the free-form queries that have at least one relevant clip.
-
-    Args:
-        sim: (Q, N) scores of the free-form queries against the clips.
-        relevant: (Q, N) bool from :func:`retrieval.freeform.freeform_relevance`.
-    """
-    answered = np.asarray(np.asarray(relevant, dtype=bool).any(axis=1))  # (Q,)
-    precision = precision_at_k(sim, relevant, k)
-    return {"queries": int(answered.shape[0]), "answered": int(answered.sum()),
-            f"precision@{k}": float(np.nanmean(precision)) if answered.any() else None}
-
-
 def rule_caption_scores(rows: Sequence[dict[str, Any]], queries: Sequence[str], encoder: TextEncoder) -> np.ndarray:
     """(Q, N) scores of rule-caption search (:class:`retrieval.captions_search.CaptionSearch`) over ``rows``."""
     import pyarrow as pa
@@ -210,13 +198,15 @@ ALL_SPLITS = "all"
 def evaluate(run_dir: Path | str, clips_dir: Path | str, split: str = "test", embedder: Embedder | None = None,
              seed: int = 0, progress: Callable[[str], None] | None = None,
              index_dir: Path | str | None = None, sentence_encoder: TextEncoder | None = None,
-             freeform: Sequence[FreeformQuery] = FREEFORM_QUERIES) -> dict[str, Any]:
+             freeform: Sequence[FreeformQuery] = FREEFORM_QUERIES,
+             hybrid: WeightChoice | None = None) -> dict[str, Any]:
     """Embed the clips of ``split`` (``all``: every clip, e.g. logs held out from training as a whole)
     with the model of ``run_dir`` and measure every figure.
 
     With ``index_dir`` (an index of the same model and clips) the clip embeddings are read from the
     index instead of recomputed; only the shuffled-frames baseline is embedded. ``sentence_encoder``
-    (default: the frozen sentence encoder) serves the rule-caption search reference.
+    (default: the frozen sentence encoder) serves the rule-caption search reference. Hybrid search takes
+    the weight of ``hybrid``, else the index's, else one chosen on the clips' validation split.
 
     Raises:
         FileNotFoundError: no model or no clip table.
@@ -236,7 +226,8 @@ def evaluate(run_dir: Path | str, clips_dir: Path | str, split: str = "test", em
     embedder = embedder if embedder is not None else ModelEmbedder(run_dir)
     by_id = {r["clip_id"]: r for r in rows}
 
-    stored = _stored_views(index_dir, embedder.model_id, list(by_id)) if index_dir is not None else {}
+    stored, index_choice = _stored_views(index_dir, embedder.model_id, list(by_id)) if index_dir is not None \
+        else ({}, None)
 
     def embed(view: str, shuffle: bool = False) -> np.ndarray:
         if not shuffle and view in stored:
@@ -268,6 +259,7 @@ def evaluate(run_dir: Path | str, clips_dir: Path | str, split: str = "test", em
             pairs.append((i, caption, rev))
     order: dict[str, float | int | None] = {"num_captions": len(pairs)}
     order_bag: float | None = None
+    order_scores: tuple[np.ndarray, ...] = ()
     order_rule: float | None = None
     sentence = sentence_encoder if sentence_encoder is not None else SentenceEncoder.for_run(run_dir)
     text_order = text_order_figures(np.zeros((0, 1)), np.zeros((0, 1)))
@@ -286,6 +278,7 @@ def evaluate(run_dir: Path | str, clips_dir: Path | str, split: str = "test", em
         rule_true = rule_caption_scores(rows, [p[1] for p in pairs], sentence)  # (M, N)
         rule_rev = rule_caption_scores(rows, [p[2] for p in pairs], sentence)
         order_rule = temporal_order_accuracy(rule_true[np.arange(len(idx)), idx], rule_rev[np.arange(len(idx)), idx])
+        order_scores = (t_true @ x["fused"].T, rule_true, t_rev @ x["fused"].T, rule_rev, idx)
     else:
         order["accuracy"] = None
     say(f"eval: {len(queries)} text queries, {len(pairs)} temporal-order pairs")
@@ -298,6 +291,14 @@ def evaluate(run_dir: Path | str, clips_dir: Path | str, split: str = "test", em
     free_model, free_bag = t_free @ x["fused"].T, t_free @ x_bag.T
     free_rule = rule_caption_scores(rows, free_texts, sentence)
     free_random = np.random.default_rng(seed).random(free_relevant.shape)
+    choice = hybrid or index_choice or _choose_on_val(table, clips_dir, split, embedder, sentence)
+    mixed = mix(sims["fused"], sim_rule, choice.weight)
+    hybrid_order: float | None = None
+    if pairs:  # each clip's hybrid score with its caption against the reversed steps, as the search would rank
+        m_true, r_true, m_rev, r_rev, idx = order_scores
+        at = np.arange(len(idx))
+        hybrid_order = temporal_order_accuracy(mix(m_true, r_true, choice.weight)[at, idx],
+                                               mix(m_rev, r_rev, choice.weight)[at, idx])
 
     # Each half of the captions alone, as people type one ("a stopped car in the ego lane"): every view's figures.
     halves: dict[str, dict[str, Any]] = {name: {} for name in ("model", "bag_of_frames", "random", "rule_captions")}
@@ -334,6 +335,10 @@ def evaluate(run_dir: Path | str, clips_dir: Path | str, split: str = "test", em
         "views": {"camera": camera_view["camera"], "bev": text_to_clip_figures(sims["bev"], relevant),
                   "camera_clips": camera_view["counts"] | {"fused": camera_view["fused"],
                                                            "random": camera_view["random"]}},
+        "hybrid": {"weight": choice.weight, "chosen_on": choice.split,
+                   "text_to_clip": text_to_clip_figures(mixed, relevant),
+                   "temporal_order_accuracy": {"accuracy": hybrid_order, "num_captions": len(pairs)},
+                   "freeform": freeform_figures(mix(free_model, free_rule, choice.weight), free_relevant)},
         "baselines": {
             "random": {"text_to_clip": random_figures,
                        "temporal_order_accuracy": {"accuracy": 0.5 if pairs else None, "num_captions": len(pairs)},
@@ -365,7 +370,8 @@ def evaluate(run_dir: Path | str, clips_dir: Path | str, split: str = "test", em
                    "bev": recall_curve(sims["bev"], relevant),
                    "random": random_curve,
                    "bag_of_frames": recall_curve(sim_bag, relevant),
-                   "rule_captions": recall_curve(sim_rule, relevant)},
+                   "rule_captions": recall_curve(sim_rule, relevant),
+                   "hybrid": recall_curve(mixed, relevant)},
         "model_sha256": embedder.model_id,
     }
     model = getattr(embedder, "model", None)  # a trained dual encoder (ModelEmbedder); stand-ins have none
@@ -380,17 +386,33 @@ def evaluate(run_dir: Path | str, clips_dir: Path | str, split: str = "test", em
     return _clean(metrics)
 
 
-def _stored_views(index_dir: Path | str, model_id: str, clip_ids: list[str]) -> dict[str, np.ndarray]:
-    """(N, D) embeddings of ``clip_ids`` per view from an index of the same model; {} when it cannot serve."""
+def _stored_views(index_dir: Path | str, model_id: str,
+                  clip_ids: list[str]) -> tuple[dict[str, np.ndarray], WeightChoice | None]:
+    """(N, D) embeddings of ``clip_ids`` per view from an index of the same model, and the index's hybrid
+    weight; ({}, None) when it cannot serve."""
     from retrieval.scenesearch import SceneSearch
 
     try:
         search = SceneSearch.open(index_dir)
     except (ValueError, OSError):
-        return {}
+        return {}, None
     if search.manifest.model_sha256 != model_id or any(c not in search.views["fused"] for c in clip_ids):
-        return {}
-    return {view: np.asarray(index.reconstruct(clip_ids), dtype=np.float32) for view, index in search.views.items()}
+        return {}, None
+    return ({view: np.asarray(index.reconstruct(clip_ids), dtype=np.float32) for view, index in search.views.items()},
+            search.hybrid)
+
+
+def _choose_on_val(table: Any, clips_dir: Path, split: str, embedder: Embedder, sentence: TextEncoder) -> WeightChoice:
+    """The hybrid weight chosen on the validation clips (:func:`retrieval.hybrid.choose_for_rows`); the
+    default when there are none, or when they are the clips evaluated."""
+    rows = [r for r in table.to_pylist() if r.get("split") == CHOICE_SPLIT]
+    if split in (CHOICE_SPLIT, ALL_SPLITS) or len(rows) < 2:
+        return WeightChoice(DEFAULT_WEIGHT)
+    ids, x = embedder.embed_clips(clips_dir, view="fused", split=CHOICE_SPLIT)
+    pos = {c: i for i, c in enumerate(ids)}
+    rows = [r for r in rows if r["clip_id"] in pos]
+    return choose_for_rows(rows, np.asarray(x, dtype=np.float32)[[pos[r["clip_id"]] for r in rows]],
+                           embedder.embed_texts, lambda texts: rule_caption_scores(rows, texts, sentence))
 
 
 def _clean(value: Any) -> Any:

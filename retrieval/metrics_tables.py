@@ -10,7 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-from retrieval.evaluation import FREEFORM_K
+from retrieval.freeform import FREEFORM_K
 
 
 @dataclass(frozen=True)
@@ -34,7 +34,8 @@ def metrics_rows(metrics: dict[str, Any]) -> MetricsRows:
     :func:`metrics_markdown`, :func:`retrieval.report.metrics_html`)."""
     base = metrics["baselines"]
     rule = base.get("rule_captions", {})
-    header = ("figure", "model", "camera only", "bev only", "bag of frames", "random", "rule captions")
+    hybrid = metrics.get("hybrid") or {}
+    header = ("figure", "model", "camera only", "bev only", "bag of frames", "random", "rule captions", "hybrid")
 
     def fmt(v: Any) -> str:
         return "—" if v is None else (f"{v:.3f}" if isinstance(v, float) else str(v))
@@ -74,11 +75,21 @@ def metrics_rows(metrics: dict[str, Any]) -> MetricsRows:
                      fmt(get(rule, "clip_to_clip", key))))
     ceiling = get(metrics, "clip_to_clip", "action_precision@5_ceiling")  # a perfect ranking's precision
     body.append(("clip→clip action_precision@5 ceiling", fmt(ceiling), "", "", "", "", ""))
+    # Hybrid search answers text queries only: its cells on the text → clip, order and free-form rows.
+    hybrid_cells = {**{f"text→clip {key}": get(hybrid, "text_to_clip", key) for key in ("R@1", "R@5", "R@10",
+                                                                                        "median_rank", "mAP")},
+                    "temporal order acc.": get(hybrid, "temporal_order_accuracy", "accuracy"),
+                    f"free-form {p_key}": get(hybrid, "freeform", p_key)}
+    body = [(*row, fmt(hybrid_cells[row[0]]) if hybrid and row[0] in hybrid_cells else "") for row in body]
     counts = metrics.get("counts", {})
     free = metrics.get("freeform", {})
     notes = [f"{counts.get('clips')} {metrics.get('split')} clips, {counts.get('queries')} caption queries, "
              f"{counts.get('temporal_pairs')} temporal-order pairs, {free.get('answered')} of "
              f"{free.get('queries')} free-form queries with a relevant clip"]
+    if hybrid:
+        chosen = f"chosen on the {hybrid.get('chosen_on')} clips" if hybrid.get("chosen_on") else "the default"
+        notes.append(f"hybrid: the model's and rule-caption scores, each standardised per query, mixed with the rule "
+                     f"captions' share {fmt(hybrid.get('weight'))} ({chosen})")
     dense = metrics.get("frame_tags") or {}
     for stream, figures in (dense.get("streams") or {}).items():
         tasks = ", ".join(f"{task} {fmt(v)} (majority {fmt(dense['majority'].get(task))})"

@@ -139,7 +139,7 @@ def plot_embedding_map(x: np.ndarray, actions: Sequence[str], out_png: Path, tit
 
 
 def plot_recall_curves(curves: dict[str, Any], out_png: Path) -> bool:
-    """Recall@K of the model, the single views and the baselines."""
+    """Recall@K of the model, the single views, the baselines and hybrid search."""
     ks = curves.get("k") or []
     if not ks:
         return False
@@ -147,7 +147,8 @@ def plot_recall_curves(curves: dict[str, Any], out_png: Path) -> bool:
     fig, ax = plt.subplots(figsize=(7, 4.2))
     styles = {"model": ("fused model", "-", 2.2), "camera": ("camera only (clips it saw)", "--", 1.3),
               "bev": ("BEV only", "--", 1.3), "bag_of_frames": ("bag of frames", ":", 1.6),
-              "random": ("random", "-.", 1.3)}
+              "random": ("random", "-.", 1.3), "rule_captions": ("rule captions", ":", 1.3),
+              "hybrid": ("hybrid (model + rule captions)", "-", 1.3)}
     for key, (label, style, width) in styles.items():
         ys = curves.get(key)
         if ys:

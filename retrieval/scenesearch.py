@@ -14,6 +14,7 @@ An index directory holds everything a search needs::
 >>> search.search_text("a car in the left lane approaches", k=5, filters={"category": "car"})
 >>> search.search_clip("log:track:1700000000", k=5, view="bev")
 >>> search.search_captions("stopped car")
+>>> search.search_hybrid("a car cuts in front of us from the left")  # model and rule captions mixed
 """
 
 from __future__ import annotations
@@ -51,6 +52,7 @@ from indexes.persistence import read_json_manifest
 from retrieval.captions_search import CaptionSearch, Skipped, TextEncoder, caption_rows
 from retrieval.embedding import CONFIG_FILE, Embedder, ModelEmbedder
 from retrieval.errors import IndexDirError, ModelMismatchError, UnknownClipError, UnknownViewError
+from retrieval.hybrid import HybridScorer, InvalidWeightError, WeightChoice, check_weight, choose_for_index
 from retrieval.querying import MAX_K, build_query, check_camera_clip, check_query, hits_to_results, preview_of
 from retrieval.records import SearchResult
 from retrieval.sentence_encoder import SentenceEncoder
@@ -83,6 +85,8 @@ class IndexManifest:
         skipped: clips left out, with the reason.
         files: size and SHA-256 of ``<view>/manifest.json``, ``captions/manifest.json`` and
             ``run/config.json`` (each sub-manifest in turn covers its own files).
+        hybrid: the weight of hybrid search and how it was chosen (:class:`retrieval.hybrid.WeightChoice`;
+            absent in an index from before it: the default weight).
     """
 
     format_version: int
@@ -97,6 +101,7 @@ class IndexManifest:
     created: str
     skipped: list[dict[str, str]] = field(default_factory=list)
     files: dict[str, dict[str, Any]] = field(default_factory=dict)
+    hybrid: dict[str, Any] = field(default_factory=dict)
 
     @staticmethod
     def read(index_dir: Path) -> IndexManifest:
@@ -113,9 +118,13 @@ class IndexManifest:
         except IndexesError as exc:
             raise IndexDirError(str(exc)) from exc
         names = {f for f in IndexManifest.__dataclass_fields__}
-        missing = sorted(n for n in names if n not in raw and n not in ("skipped", "files"))
+        missing = sorted(n for n in names if n not in raw and n not in ("skipped", "files", "hybrid"))
         if missing:
             raise IndexDirError(f"{path}: missing fields {missing}")
+        try:
+            WeightChoice.from_json(raw.get("hybrid"))
+        except (InvalidWeightError, TypeError, ValueError, AttributeError) as exc:
+            raise IndexDirError(f"{path}, field 'hybrid': {exc}") from None
         return IndexManifest(**{k: v for k, v in raw.items() if k in names})
 
 
@@ -130,6 +139,9 @@ class SceneSearch:
         self.captions = captions
         self._embedder = embedder
         self.clips_dir = Path(manifest.clips_dir)
+        #: The weight of hybrid search (rule captions' share) and how it was chosen.
+        self.hybrid = WeightChoice.from_json(manifest.hybrid)
+        self._scorers: dict[str, HybridScorer] = {}
         #: Seconds spent in each step of the last ``search_text`` call (encode, search, records).
         self.last_timings_s: dict[str, float] = {}
 
@@ -177,6 +189,9 @@ class SceneSearch:
         sentence = text_encoder if text_encoder is not None else SentenceEncoder.for_run(run_dir)
         captions = CaptionSearch.build(rows, encoder=sentence, base_dir=clips_dir)
         say(f"index: embedded {len(captions)} rule captions in {time.perf_counter() - start:.1f} s")
+        hybrid = choose_for_index(rows, views["fused"], captions, embedder.embed_texts)
+        say(f"index: hybrid weight {hybrid.weight:g} (rule captions' share), chosen on "
+            f"{f'{hybrid.clips} {hybrid.split} clips' if hybrid.split else 'nothing: no validation clips'}")
         split_counts: dict[str, int] = {}
         if "split" in rows.column_names:
             for s in rows.column("split").to_pylist():
@@ -196,7 +211,7 @@ class SceneSearch:
                 counts={**{v: len(ix) for v, ix in views.items()}, "captions": len(captions), **split_counts},
                 text_encoder=captions.encoder_name, created=datetime.now(UTC).isoformat(timespec="seconds"),
                 skipped=[{"item": s.item, "reason": s.reason} for s in skipped],
-                files={n: e.to_json() for n, e in file_entries(tmp, covered).items()})
+                files={n: e.to_json() for n, e in file_entries(tmp, covered).items()}, hybrid=hybrid.to_json())
             (tmp / MANIFEST).write_text(json.dumps(seal(asdict(manifest)), indent=2))
         say(f"index: wrote {out_dir} ({len(clip_ids)} clips, {len(skipped)} skipped)")
         return cls(out_dir, manifest, views, captions, embedder)
@@ -336,6 +351,24 @@ class SceneSearch:
                         max_k: int = MAX_K) -> list[SearchResult]:
         """Track-based search over the rule captions, with the frozen sentence encoder (no trained model)."""
         return self.captions.search(query, k, filters, max_k)
+
+    def search_hybrid(self, query: str, k: int = 10, filters: FilterSpec = None, view: str = "fused",
+                      weight: float | None = None, max_k: int = MAX_K) -> list[SearchResult]:
+        """The k clips best by the model's and the rule captions' scores mixed (:mod:`retrieval.hybrid`);
+        ``weight`` is the rule captions' share in [0, 1] (default: the index's, chosen on its validation
+        clips; :class:`InvalidWeightError` outside), the rest as in :meth:`search_text`."""
+        index = self._view(view)
+        query = check_query(query)
+        w = self.hybrid.weight if weight is None else check_weight(weight)
+        checked = build_query(k, filters, index.metadata, len(index), max_k, view)
+        if view not in self._scorers:  # once per view: the moment sample and each clip's caption row
+            self._scorers[view] = HybridScorer(index, self.captions.metadata.table.column("clip_id").to_pylist())
+        xq = np.asarray(self.embedder.embed_texts([query]), dtype=np.float32)[0]
+        rules = self.captions.scores(np.asarray(self.captions.encoder([query]), dtype=np.float32)[0])
+        ids, scores = self._scorers[view].top_k(xq, rules, checked, w)
+        rows = index.metadata.rows(ids)
+        return [SearchResult.from_row(rank, row, float(score), view, preview_of(row, self.clips_dir))
+                for rank, (row, score) in enumerate(zip(rows, scores), start=1)]
 
     def get(self, clip_id: str) -> SearchResult:
         """The record of one indexed clip (score 1, rank 0)."""

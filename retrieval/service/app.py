@@ -4,7 +4,7 @@ Endpoints (OpenAPI at ``/openapi.json``, interactive docs at ``/docs``)::
 
     GET /health                         liveness and what is served
     GET /api/fields                     filter fields and the values the page offers
-    GET /api/search?q=&k=&filter=&view=&mode=
+    GET /api/search?q=&k=&filter=&view=&mode=&weight=
     GET /api/similar/{clip_id}?k=&filter=&view=
     GET /api/clips/{clip_id}            metadata, caption, tags and the tag timeline
     GET /api/clips/{clip_id}/preview    the animated preview (GIF)
@@ -43,6 +43,7 @@ from retrieval.errors import (
     UnknownClipError,
     UnknownViewError,
 )
+from retrieval.hybrid import check_weight
 from retrieval.querying import parse_cli_filters
 from retrieval.records import SearchResult
 from retrieval.scenesearch import SceneSearch
@@ -56,10 +57,11 @@ VIEWS = ("fused", "camera", "bev")
 
 
 class SearchMode(StrEnum):
-    """What answers a text query: the trained encoder, or the rule captions (no trained model)."""
+    """What answers a text query: the trained encoder, the rule captions (no trained model), or both mixed."""
 
     MODEL = "model"
     CAPTIONS = "captions"
+    HYBRID = "hybrid"
 
 
 MODES = tuple(m.value for m in SearchMode)
@@ -206,23 +208,32 @@ def create_app(search: SceneSearch, limits: ServiceLimits | None = None) -> Fast
         k: Annotated[int, Query(description="number of results")] = 10,
         filter: Annotated[list[str] | None, Query(description="FIELD=VALUE or a filter expression")] = None,
         view: Annotated[str, Query(description="fused, camera or bev (model mode)")] = "fused",
-        mode: Annotated[SearchMode, Query(description="model (trained encoder) or captions (rule captions)")]
-        = SearchMode.MODEL,
+        mode: Annotated[SearchMode, Query(description="model (trained encoder), captions (rule captions) or "
+                                                      "hybrid (both scores mixed)")] = SearchMode.MODEL,
+        weight: Annotated[float | None, Query(description="hybrid mode: the rule captions' share in [0, 1] "
+                                                          "(default: the index's, chosen on its validation clips)")]
+        = None,
     ) -> dict[str, Any]:
         check_chars("q", q, limits)
         spec = filters_of(filter)
         check_view(view)  # in every mode: a view the index does not serve is an error, never echoed
+        if weight is not None and mode is not SearchMode.HYBRID:
+            raise HTTPException(422, "parameter 'weight': the weight of hybrid search; add mode=hybrid")
+        mixed = search.hybrid.weight if weight is None else check_weight(weight)
 
         def work() -> dict[str, Any]:
             start = time.perf_counter()
             if mode is SearchMode.CAPTIONS:
                 results = search.search_captions(q, k=k, filters=spec, max_k=limits.max_k)
+            elif mode is SearchMode.HYBRID:
+                results = search.search_hybrid(q, k=k, filters=spec, view=view, weight=mixed, max_k=limits.max_k)
             else:
                 results = search.search_text(q, k=k, filters=spec, view=view, max_k=limits.max_k)
             elapsed_ms = (time.perf_counter() - start) * 1e3
             # Caption search uses no clip view: the answer says so rather than echoing the parameter.
-            return {"query": q, "k": k, "view": view if mode is SearchMode.MODEL else None, "mode": mode.value,
-                    "elapsed_ms": round(elapsed_ms, 2), "results": [_result_json(r) for r in results]}
+            out = {"query": q, "k": k, "view": None if mode is SearchMode.CAPTIONS else view, "mode": mode.value,
+                   "elapsed_ms": round(elapsed_ms, 2), "results": [_result_json(r) for r in results]}
+            return out | ({"hybrid_weight": mixed} if mode is SearchMode.HYBRID else {})
 
         return await gate.run(work)
 

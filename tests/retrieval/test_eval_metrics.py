@@ -10,6 +10,7 @@ import pytest
 from retrieval_fakes import (
     CAPTIONING_SEQUENCES,
     FakeEmbedder,
+    HashTextEncoder,
     captioning_caption,
     make_clips_dir,
     make_run_dir,
@@ -29,13 +30,13 @@ from retrieval.evaluation import (
     camera_clip_figures,
     caption_generator,
     evaluate,
-    freeform_figures,
     random_text_to_clip,
     reverse_steps,
     temporal_order_accuracy,
     text_order_figures,
 )
-from retrieval.freeform import FREEFORM_QUERIES
+from retrieval.freeform import FREEFORM_QUERIES, freeform_figures
+from retrieval.hybrid import WEIGHTS, WeightChoice
 from retrieval.metrics_tables import metrics_table
 
 
@@ -165,11 +166,30 @@ def test_evaluate_with_stand_in_model(tmp_path: Path) -> None:
     for name in ("bag_of_frames", "random", "rule_captions"):
         assert set(metrics["baselines"][name]["halves"]) == {"object", "ego"}
     assert halves["object"]["mAP"] > metrics["baselines"]["random"]["halves"]["object"]["mAP"]
+    # Hybrid search without an index: its weight chosen on the validation clips, never on the test clips.
+    mixed = metrics["hybrid"]
+    assert mixed["chosen_on"] == "val" and mixed["weight"] in WEIGHTS
+    assert set(mixed) == {"weight", "chosen_on", "text_to_clip", "temporal_order_accuracy", "freeform"}
+    assert mixed["text_to_clip"]["R@5"] > metrics["baselines"]["random"]["text_to_clip"]["R@5"] + 0.3
     table = metrics_table(metrics)  # every figure of a real evaluation renders
     assert "text→clip R@1" in table and "temporal order" in table and "free-form precision@10" in table
-    assert "object sentence alone mAP" in table and "rule captions" in table
+    assert "object sentence alone mAP" in table and "rule captions" in table and "hybrid" in table
     with pytest.raises(ValueError, match="unknown split 'dev'; the clips have splits: test, train, val"):
         evaluate(run, clips, split="dev", embedder=embedder)
+
+
+@pytest.mark.parametrize("weight, source", [(0.0, "model"), (1.0, "rule_captions")])
+def test_hybrid_at_either_end_of_the_weight_is_that_source(tmp_path: Path, weight: float, source: str) -> None:
+    clips = make_clips_dir(tmp_path / "clips", sequences=CAPTIONING_SEQUENCES, caption=captioning_caption)
+    run = make_run_dir(tmp_path / "run")
+    metrics = evaluate(run, clips, embedder=FakeEmbedder(model_hash(run)), sentence_encoder=HashTextEncoder(),
+                       hybrid=WeightChoice(weight))
+    figures = metrics if source == "model" else metrics["baselines"]["rule_captions"]
+    assert metrics["hybrid"]["weight"] == weight and metrics["hybrid"]["chosen_on"] is None
+    assert metrics["hybrid"]["text_to_clip"] == pytest.approx(figures["text_to_clip"])
+    assert metrics["hybrid"]["freeform"] == pytest.approx(figures["freeform"])
+    assert metrics["hybrid"]["temporal_order_accuracy"]["accuracy"] == \
+        pytest.approx(figures["temporal_order_accuracy"]["accuracy"])
 
 
 def test_precision_at_k_counts_ties_against_the_query() -> None:

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from retrieval.freeform import FREEFORM_QUERIES, FreeformQuery, freeform_relevance
+from retrieval.freeform import DEV_FREEFORM_QUERIES, FREEFORM_QUERIES, FreeformQuery, freeform_relevance
 
 
 def _row(category: str, tags: list[str], host: list[str]) -> dict[str, object]:
@@ -34,3 +34,14 @@ def test_the_held_out_set_is_written_in_everyday_words() -> None:
     # Unlike the caption templates: no query starts with the host sentence or says "host lane".
     assert not any(t.lower().startswith("the ego vehicle") or "host" in t.lower() for t in texts)
     assert all(q.categories or q.steps or q.host for q in FREEFORM_QUERIES)
+
+
+def test_the_development_set_is_apart_from_the_held_out_set() -> None:
+    dev = [q.text for q in DEV_FREEFORM_QUERIES]
+    assert len(dev) == len(set(dev)) >= 30 and not set(dev) & {q.text for q in FREEFORM_QUERIES}
+    assert not any(t.lower().startswith("the ego vehicle") or "host" in t.lower() for t in dev)
+    assert all(q.categories or q.steps or q.host for q in DEV_FREEFORM_QUERIES)
+    # A pattern ending in '*' takes the object's own action and context that captioning appends to a step.
+    parked = next(q for q in DEV_FREEFORM_QUERIES if q.text == "a parked vehicle on the left")
+    assert parked.matches(_row("car", ["left_lateral:constant:parked"], []))
+    assert not parked.matches(_row("car", ["left:constant:stopped"], []))

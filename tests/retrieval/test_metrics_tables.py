@@ -23,6 +23,8 @@ def _metrics() -> dict[str, Any]:
         "freeform": {"queries": 4, "answered": 3, "precision@10": 0.3}, "halves": halves, "clip_to_clip": c2c,
         "views": {"camera": _figures(0.0625), "bev": _figures(0.1),
                   "camera_clips": {"clips": 6, "queries": 2, "fused": {"R@5": 0.5}, "random": {"R@5": 0.25}}},
+        "hybrid": {"weight": 0.4, "chosen_on": "val", "text_to_clip": _figures(0.75),
+                   "temporal_order_accuracy": {"accuracy": 0.9375}, "freeform": {"precision@10": 0.4}},
         "baselines": {
             "random": {"text_to_clip": _figures(0.01), "temporal_order_accuracy": {"accuracy": 0.5},
                        "freeform": {"precision@10": 0.05}, "halves": {}, "clip_to_clip": {"appearance_bias": 1.0}},
@@ -36,22 +38,33 @@ def _metrics() -> dict[str, Any]:
 
 def test_the_rows_hold_every_figure_beside_its_baselines() -> None:
     rows = metrics_rows(_metrics())
-    assert rows.header == ("figure", "model", "camera only", "bev only", "bag of frames", "random", "rule captions")
+    assert rows.header == ("figure", "model", "camera only", "bev only", "bag of frames", "random", "rule captions",
+                           "hybrid")
     assert all(len(row) == len(rows.header) for row in rows.body)
     by_name = {row[0]: row[1:] for row in rows.body}
-    assert by_name["text→clip R@1"] == ("0.125", "0.062", "0.100", "0.050", "0.010", "0.700")
+    assert by_name["text→clip R@1"] == ("0.125", "0.062", "0.100", "0.050", "0.010", "0.700", "0.750")
     assert by_name["text→clip median_rank"][0] == "4"
-    assert by_name["temporal order acc."] == ("0.875", "", "", "0.600", "0.500", "0.950")
+    assert by_name["temporal order acc."] == ("0.875", "", "", "0.600", "0.500", "0.950", "0.938")
     # Each half asked alone; a figure a baseline lacks is a dash, not a blank or a zero.
-    assert by_name["object sentence alone mAP"] == ("0.375", "", "", "0.375", "—", "0.969")
-    assert by_name["ego sentence alone R@5"][-1] == "—"
-    assert by_name["free-form precision@10"] == ("0.300", "", "", "—", "0.050", "—")
+    assert by_name["object sentence alone mAP"] == ("0.375", "", "", "0.375", "—", "0.969", "")
+    assert by_name["ego sentence alone R@5"][-2] == "—"
+    assert by_name["free-form precision@10"] == ("0.300", "", "", "—", "0.050", "—", "0.400")
+    # Hybrid search answers text only: no clip → clip cells.
+    assert by_name["clip→clip action_precision@5"][-1] == ""
+    assert "rule captions' share 0.400 (chosen on the val clips)" in rows.notes[1]
     # How often neighbours share the query's log is compared with the share by chance.
     assert by_name["clip→clip same_log_share_neighbours"][4] == "0.400"
     assert by_name["clip→clip action_precision@5 ceiling"][0] == "0.500"
     assert rows.notes[0] == "12 test clips, 5 caption queries, 3 temporal-order pairs, 3 of 4 free-form queries " \
                             "with a relevant clip"
-    assert "over the 6 clips the camera saw" in rows.notes[1]
+    assert "over the 6 clips the camera saw" in rows.notes[2]
+
+
+def test_metrics_from_before_hybrid_search_leave_its_column_blank() -> None:
+    metrics = _metrics()
+    del metrics["hybrid"]
+    rows = metrics_rows(metrics)
+    assert all(row[-1] == "" for row in rows.body) and not any("hybrid" in note for note in rows.notes)
 
 
 def test_the_three_renderings_show_the_same_rows() -> None:

@@ -58,6 +58,23 @@ def test_search_table_and_json(stand_in: dict[str, Any], capsys: pytest.CaptureF
     assert all(r["view"] == "captions" for r in json.loads(capsys.readouterr().out)["results"])
 
 
+def test_search_hybrid(stand_in: dict[str, Any], capsys: pytest.CaptureFixture[str]) -> None:
+    index, query = str(stand_in["index"]), caption_of(["left:approach", "left:cut_in"])
+    assert main(["search", index, query, "--hybrid", "--json", "-k", "3"]) == 0
+    payload = json.loads(capsys.readouterr().out)
+    recorded = json.loads((stand_in["index"] / "manifest.json").read_text())["hybrid"]["weight"]
+    assert payload["hybrid_weight"] == recorded and len(payload["results"]) == 3
+    assert payload["results"][0]["caption"] == query
+    # The weight's ends: the model alone ranks as plain search does.
+    assert main(["search", index, query, "--hybrid", "--weight", "0", "--json", "-k", "5"]) == 0
+    mixed = [r["clip_id"] for r in json.loads(capsys.readouterr().out)["results"]]
+    assert main(["search", index, query, "--json", "-k", "5"]) == 0
+    assert mixed == [r["clip_id"] for r in json.loads(capsys.readouterr().out)["results"]]
+    for args, message in ((["--weight", "0.5"], "add --hybrid"), (["--hybrid", "--weight", "1.5"], "in [0, 1]")):
+        assert main(["search", index, query, *args]) == 2
+        assert message in capsys.readouterr().err
+
+
 @pytest.mark.parametrize(("argv", "message"), [
     (["search", "{index}", "  "], "the query is empty"),
     (["search", "{index}", "a car", "-k", "0"], "k must be an integer in 1"),
@@ -134,5 +151,7 @@ def test_caption_only_index(stand_in: dict[str, Any], tmp_path: Path, capsys: py
     assert main(["search", str(out), "stops ahead of the host", "-k", "3", "--filter", "category=car", "--json"]) == 0
     results = json.loads(capsys.readouterr().out)["results"]
     assert len(results) == 3 and all(r["category"] == "car" and "stops ahead" in r["caption"] for r in results)
+    assert main(["search", str(out), "stops ahead of the host", "--hybrid"]) == 2
+    assert "hybrid search needs the model's clip embeddings" in capsys.readouterr().err
     assert main(["index", str(stand_in["run"]), "--out", str(out)]) == 2
     assert "give RUN_DIR and CLIPS_DIR" in capsys.readouterr().err

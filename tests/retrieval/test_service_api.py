@@ -74,6 +74,19 @@ def test_filters_restrict_results(served: dict[str, Any]) -> None:
     assert tagged["results"] and all("right:overtake" in r["tags"] for r in tagged["results"])
 
 
+def test_hybrid_mode(served: dict[str, Any]) -> None:
+    client = served["client"]
+    body = client.get("/api/search", params={"q": "overtakes on the right", "mode": "hybrid", "k": 5}).json()
+    assert body["mode"] == "hybrid" and body["view"] == "fused" and len(body["results"]) == 5
+    assert body["results"][0]["caption"] == "overtakes on the right"
+    assert body["hybrid_weight"] == served["search"].hybrid.weight
+    model_only = client.get("/api/search", params={"q": "overtakes on the right", "mode": "hybrid", "weight": 0,
+                                                   "k": 6}).json()
+    plain = client.get("/api/search", params={"q": "overtakes on the right", "k": 6}).json()
+    assert [r["clip_id"] for r in model_only["results"]] == [r["clip_id"] for r in plain["results"]]
+    assert "hybrid" in client.get("/api/fields").json()["modes"]
+
+
 def test_caption_mode_needs_no_model(served: dict[str, Any]) -> None:
     body = served["client"].get("/api/search", params={"q": "overtakes on the right", "mode": "captions",
                                                        "k": 3}).json()
@@ -152,6 +165,9 @@ def test_export_by_ids_and_by_query(served: dict[str, Any]) -> None:
         ({"q": "car", "filter": "colour=red"}, 422, "valid fields"),
         ({"q": "car", "view": "lidar"}, 422, "lidar"),
         ({"q": "car", "mode": "guess"}, 422, "parameter 'mode'"),
+        ({"q": "car", "weight": 0.5}, 422, "add mode=hybrid"),
+        ({"q": "car", "mode": "hybrid", "weight": 1.5}, 422, "in [0, 1]"),
+        ({"q": "car", "mode": "hybrid", "weight": "nan"}, 422, "in [0, 1]"),
     ],
 )
 def test_bad_parameters_get_clear_errors(served: dict[str, Any], params: dict[str, Any], status: int,

@@ -1,0 +1,315 @@
+"""Hybrid text search: the trained model's scores and rule-caption scores, mixed.
+
+The trained dual encoder reads the clips themselves and understands everyday words; rule-caption
+search (:mod:`retrieval.captions_search`) reads the captions the rules wrote from the tracks, which
+name lanes, steps and own actions exactly. Each is better at part of what users type, so a hybrid
+query scores every clip by both and mixes them::
+
+    s = (1 − w) · z_model + w · z_rules
+
+where each source's scores for the query are standardised over the indexed clips (``z``: minus their
+mean, over their standard deviation; the two towers' cosines have different offsets and spreads).
+
+The weight ``w`` is chosen on the validation clips, never on test clips or held-out queries
+(:func:`choose_weight`): among :data:`WEIGHTS`, the one with the best mean of caption-query R@5 and
+precision@10 on the development free-form queries (:data:`retrieval.freeform.DEV_FREEFORM_QUERIES`).
+``scenesearch index`` records the choice and its curve in the index manifest (``hybrid``).
+
+Search over an index (:class:`HybridScorer`) is exact, without scoring every clip with the model:
+rule-caption scores are cheap for every clip (one dot product per distinct caption text), the model's
+come from the vector index's top ``K``; a clip outside that top ``K`` scores at most
+``(1 − w) · z_K + w · z_rules(clip)`` (``z_K``: the K-th model score), so only clips whose bound
+reaches the k-th best mixed score are scored by the model too (the threshold algorithm of Fagin et al.).
+"""
+
+# D and I are FAISS's names for the (nq, k) score and id tables.
+# ruff: noqa: E741
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.compute as pc
+
+from encoders.metrics import caption_queries, text_to_clip_figures
+from indexes.clip_index import ClipIndex
+from retrieval.captions_search import CaptionSearch
+from retrieval.errors import RetrievalError
+from retrieval.freeform import (
+    DEV_FREEFORM_QUERIES,
+    FREEFORM_K,
+    FreeformQuery,
+    freeform_figures,
+    freeform_relevance,
+)
+from retrieval.querying import Query
+
+#: Weights tried on the validation clips: 0 is the model alone, 1 rule captions alone.
+WEIGHTS: tuple[float, ...] = tuple(round(0.1 * i, 1) for i in range(11))
+#: The weight of an index without validation clips (or built before hybrid search).
+DEFAULT_WEIGHT = 0.5
+#: The split the weight is chosen on.
+CHOICE_SPLIT = "val"
+#: Model scores are standardised with moments from at most this many indexed clips (all of them when fewer).
+MOMENT_SAMPLE = 4096
+#: The model's top K before the bound is checked: ``max(CANDIDATE_FACTOR · k, MIN_CANDIDATES)``.
+CANDIDATE_FACTOR = 4
+MIN_CANDIDATES = 64
+Texts = Callable[[Sequence[str]], np.ndarray]
+
+
+class InvalidWeightError(RetrievalError):
+    """A hybrid weight outside [0, 1]."""
+
+    def __init__(self, weight: object) -> None:
+        super().__init__(f"the hybrid weight must be a number in [0, 1] (0: the model alone, 1: rule captions "
+                         f"alone), got {weight!r}")
+
+
+def check_weight(weight: object) -> float:
+    """``weight`` as a float in [0, 1]; raises :class:`InvalidWeightError` otherwise."""
+    if isinstance(weight, bool) or not isinstance(weight, int | float | np.floating | np.integer):
+        raise InvalidWeightError(weight)
+    if not 0.0 <= float(weight) <= 1.0:  # NaN fails too
+        raise InvalidWeightError(weight)
+    return float(weight)
+
+
+def standardise(scores: np.ndarray) -> np.ndarray:
+    """(Q, N) scores minus each row's mean, over its standard deviation (rows without spread become 0)."""
+    s = np.asarray(scores, dtype=np.float64)
+    std = s.std(axis=-1, keepdims=True)
+    return np.asarray((s - s.mean(axis=-1, keepdims=True)) / np.where(std > 0, std, 1.0))
+
+
+def mix(model: np.ndarray, rules: np.ndarray, weight: float) -> np.ndarray:
+    """(Q, N) hybrid scores of the same queries and clips: ``(1 − w)·z(model) + w·z(rules)``.
+
+    Args:
+        model: (Q, N) the trained model's scores.
+        rules: (Q, N) rule-caption scores.
+        weight: ``w`` in [0, 1].
+    """
+    model, rules = np.asarray(model), np.asarray(rules)
+    if model.shape != rules.shape:
+        raise ValueError(f"model scores {model.shape} and rule-caption scores {rules.shape} must both be (Q, N)")
+    w = check_weight(weight)
+    return (1.0 - w) * standardise(model) + w * standardise(rules)
+
+
+# ---------------------------------------------------------------------- the weight
+
+
+@dataclass(frozen=True)
+class WeightChoice:
+    """The hybrid weight of an index and how it was chosen.
+
+    Attributes:
+        weight: ``w`` in [0, 1].
+        split: the clips it was chosen on; None when it is :data:`DEFAULT_WEIGHT` for want of them.
+        clips: clips of that split.
+        caption_queries: distinct captions of those clips, asked as queries.
+        freeform_queries: development free-form queries with a relevant clip among them.
+        curve: per weight tried: ``weight``, ``caption_R@5``, ``freeform_P@10`` and their mean ``objective``.
+    """
+
+    weight: float
+    split: str | None = None
+    clips: int = 0
+    caption_queries: int = 0
+    freeform_queries: int = 0
+    curve: tuple[dict[str, float], ...] = ()
+
+    def to_json(self) -> dict[str, Any]:
+        out = asdict(self)
+        out["curve"] = [dict(point) for point in self.curve]
+        return out
+
+    @staticmethod
+    def from_json(raw: Mapping[str, Any] | None) -> WeightChoice:
+        """The choice recorded in a manifest (the default for an index written before hybrid search).
+
+        Raises:
+            InvalidWeightError: a recorded weight outside [0, 1].
+        """
+        if not raw:
+            return WeightChoice(DEFAULT_WEIGHT)
+        return WeightChoice(weight=check_weight(raw.get("weight")), split=raw.get("split"),
+                            clips=int(raw.get("clips") or 0), caption_queries=int(raw.get("caption_queries") or 0),
+                            freeform_queries=int(raw.get("freeform_queries") or 0),
+                            curve=tuple(dict(p) for p in raw.get("curve") or ()))
+
+
+def choose_weight(captions: tuple[np.ndarray, np.ndarray, np.ndarray],
+                  freeform: tuple[np.ndarray, np.ndarray, np.ndarray],
+                  weights: Sequence[float] = WEIGHTS, split: str = CHOICE_SPLIT) -> WeightChoice:
+    """The weight with the best mean of caption R@5 and free-form precision@10 (ties: the smaller weight).
+
+    Args:
+        captions: (model, rules, relevant), each (Qc, N): the caption queries' scores and relevance.
+        freeform: (model, rules, relevant), each (Qf, N): the development free-form queries'.
+        weights: the weights to try.
+        split: the name of the clips scored, recorded in the choice.
+    """
+    cap_model, cap_rules, cap_relevant = captions
+    free_model, free_rules, free_relevant = freeform
+    answered = np.asarray(free_relevant, dtype=bool).any(axis=1)
+    curve: list[dict[str, float]] = []
+    for w in weights:
+        r5 = text_to_clip_figures(mix(cap_model, cap_rules, w), cap_relevant)["R@5"] if len(cap_model) else 0.0
+        p10 = freeform_figures(mix(free_model, free_rules, w), free_relevant)[f"precision@{FREEFORM_K}"] \
+            if answered.any() else None
+        parts = [r5] if len(cap_model) else []
+        parts += [float(p10)] if p10 is not None else []
+        curve.append({"weight": float(w), "caption_R@5": float(r5), f"freeform_P@{FREEFORM_K}": float(p10 or 0.0),
+                      "objective": float(np.mean(parts)) if parts else 0.0})
+    best = max(curve, key=lambda p: (p["objective"], -p["weight"]))
+    return WeightChoice(best["weight"], split, int(np.asarray(cap_relevant).shape[1]), len(cap_model),
+                        int(answered.sum()), tuple(curve))
+
+
+def choose_for_rows(rows: Sequence[Mapping[str, Any]], x_model: np.ndarray, embed_texts: Texts,
+                    rule_scores: Callable[[Sequence[str]], np.ndarray],
+                    freeform: Sequence[FreeformQuery] = DEV_FREEFORM_QUERIES,
+                    split: str = CHOICE_SPLIT) -> WeightChoice:
+    """:func:`choose_weight` over clips ``rows``: their caption queries and the development free-form queries.
+
+    Args:
+        rows: clip-table rows (caption, canonical_caption, category, tags, host_tags).
+        x_model: (N, D) the model's clip embeddings of ``rows``, L2-normalised.
+        embed_texts: texts → (Q, D) the model's normalised text embeddings.
+        rule_scores: texts → (Q, N) rule-caption scores of ``rows``.
+    """
+    if len(rows) < 2:
+        return WeightChoice(DEFAULT_WEIGHT)
+    captions = [str(r.get("canonical_caption") or r.get("caption")) for r in rows]
+    queries, relevant = caption_queries(captions)
+    free_texts = [q.text for q in freeform]
+    x = np.asarray(x_model, dtype=np.float32)
+    cap_model = np.asarray(embed_texts(queries), dtype=np.float32) @ x.T
+    free_model = np.asarray(embed_texts(free_texts), dtype=np.float32) @ x.T if free_texts else np.zeros((0, len(x)))
+    return choose_weight((cap_model, np.asarray(rule_scores(queries)), relevant),
+                         (free_model, np.asarray(rule_scores(free_texts)).reshape(len(free_texts), len(x)),
+                          freeform_relevance(freeform, rows)), split=split)
+
+
+# ---------------------------------------------------------------------- search over an index
+
+
+class HybridScorer:
+    """Exact top-k hybrid search over one view of an index and its rule captions.
+
+    Args:
+        index: the view's clip index (cosine).
+        caption_clip_ids: (Nc,) the clip ids of the rule-caption rows, in row order.
+    """
+
+    def __init__(self, index: ClipIndex, caption_clip_ids: Sequence[str]) -> None:
+        self.index = index
+        table = index.metadata.table
+        self.ids = np.asarray(table.column("id").to_numpy(), dtype=np.int64)  # (N,) view ids, row order
+        row_of_caption = {c: i for i, c in enumerate(caption_clip_ids)}
+        clip_ids = table.column("clip_id").to_pylist()
+        missing = [c for c in clip_ids if c not in row_of_caption]
+        if missing:
+            raise ValueError(f"{len(missing)} indexed clips have no rule caption, e.g. {missing[:3]}")
+        self.caption_rows = np.asarray([row_of_caption[c] for c in clip_ids], dtype=np.int64)  # (N,)
+        # As `scenesearch index` writes them, caption rows and view rows are the same clips in the same order.
+        self._same_rows = len(caption_clip_ids) == len(clip_ids) and \
+            bool(np.array_equal(self.caption_rows, np.arange(len(clip_ids))))
+        # id → row position, as an array: a filter can pass a million ids.
+        self._position = np.full(int(self.ids.max(initial=-1)) + 1, -1, dtype=np.int64)
+        self._position[self.ids] = np.arange(len(self.ids))
+        step = max(1, len(self.ids) // MOMENT_SAMPLE)
+        self._sample = index.vectors.reconstruct(self.ids[::step][:MOMENT_SAMPLE])  # (S, D)
+        #: Clips the model scored beyond its top K in the last call (what the bound let through).
+        self.last_extra = 0
+
+    def top_k(self, xq: np.ndarray, rule_scores: np.ndarray, query: Query,
+              weight: float) -> tuple[np.ndarray, np.ndarray]:
+        """The k best clips by hybrid score.
+
+        Args:
+            xq: (D,) the model's text embedding of the query.
+            rule_scores: (Nc,) the query's rule-caption score of every caption row.
+            query: the checked k and filter (:func:`retrieval.querying.build_query`).
+            weight: ``w`` in [0, 1].
+        Returns:
+            ids: (M,) view ids, best first (M ≤ k: fewer when the filter passes fewer).
+            scores: (M,) their hybrid scores.
+        """
+        w = check_weight(weight)
+        xq = np.asarray(xq, dtype=np.float32).reshape(-1)
+        xq = xq / max(float(np.linalg.norm(xq)), 1e-12)  # the index compares normalised vectors
+        rules = np.asarray(rule_scores, dtype=np.float32)
+        rules = rules if self._same_rows else rules[self.caption_rows]  # (N,) in view row order
+        r_mean, r_std = float(rules.mean(dtype=np.float64)), float(rules.std(dtype=np.float64)) or 1.0
+        # einsum, not @: a BLAS product this size wakes OpenBLAS's threads, whose spinning afterwards halves
+        # the speed of the next query's text encoders on a small machine (bench_retrieval's hybrid figures).
+        sample = np.einsum("sd,d->s", self._sample, xq)
+        m_mean, m_std = float(sample.mean()), float(sample.std()) or 1.0
+        allowed = None if query.filters is None else self._position[self.index.select(query.filters)]  # positions
+        n_allowed = len(self.ids) if allowed is None else len(allowed)
+        if query.k == 0 or n_allowed == 0:
+            return np.zeros(0, np.int64), np.zeros(0)
+        K = min(n_allowed, max(CANDIDATE_FACTOR * query.k, MIN_CANDIDATES))
+        D, I = self.index.vectors.search(xq[None], K, None if allowed is None else self.ids[allowed])
+        found = I[0] >= 0
+        ids, pos = I[0][found], self._position[I[0][found]]
+        z_model = (D[0][found].astype(np.float64) - m_mean) / m_std
+
+        def z_rules(at: np.ndarray) -> np.ndarray:
+            return np.asarray((rules[at].astype(np.float64) - r_mean) / r_std)
+
+        mixed = (1 - w) * z_model + w * z_rules(pos)
+        self.last_extra = 0
+        if len(ids) < n_allowed:
+            # A clip outside the model's top K scores at most (1 − w)·z_K + w·z(its rules): only those whose
+            # bound reaches the k-th best mixed score can enter the results. In raw rule scores the bound is a
+            # threshold (a hair lower: a clip let through is only scored, never wrongly kept).
+            kth = np.sort(mixed)[-query.k] if len(mixed) >= query.k else -np.inf
+            floor = (1 - w) * z_model.min()
+            if w > 0:
+                cut = r_mean + r_std * ((kth - floor) / w - 1e-6)
+                rest = np.flatnonzero(rules >= cut) if allowed is None else allowed[rules[allowed] >= cut]
+            else:  # the model alone: only a tie with the K-th score could still enter
+                everything = np.arange(len(self.ids)) if allowed is None else allowed
+                rest = everything if floor >= kth else everything[:0]
+            rest = rest[~np.isin(rest, pos)]
+            self.last_extra = len(rest)
+            if len(rest):
+                z_rest = (np.einsum("md,d->m", self.index.vectors.reconstruct(self.ids[rest]), xq) - m_mean) / m_std
+                ids = np.concatenate([ids, self.ids[rest]])
+                mixed = np.concatenate([mixed, (1 - w) * z_rest + w * z_rules(rest)])
+        order = np.lexsort((ids, -mixed))[: query.k]  # best first, ties by id
+        return ids[order], mixed[order]
+
+
+def choose_for_index(rows: pa.Table, index: ClipIndex, captions: CaptionSearch, embed_texts: Texts,
+                     split: str = CHOICE_SPLIT) -> WeightChoice:
+    """The weight of an index: :func:`choose_for_rows` over its clips of ``split`` (the default without any).
+
+    Args:
+        rows: the indexed clip rows (:func:`retrieval.captions_search.caption_rows`: with ``split`` and
+            ``canonical_caption``).
+        index: the fused view's clip index (the clips' model embeddings).
+        captions: the rule-caption index of the same rows.
+        embed_texts: the model's text embedder.
+    """
+    if "split" not in rows.column_names:
+        return WeightChoice(DEFAULT_WEIGHT)
+    chosen = [r for r in rows.filter(pc.equal(rows.column("split"), split)).to_pylist() if r["clip_id"] in index]
+    if len(chosen) < 2:
+        return WeightChoice(DEFAULT_WEIGHT)
+    clip_ids = [r["clip_id"] for r in chosen]
+    caption_pos = captions.metadata.positions(captions.metadata.ids_of(clip_ids))  # (N,) their caption rows
+
+    def rule_scores(texts: Sequence[str]) -> np.ndarray:
+        xq = np.asarray(captions.encoder(list(texts)), dtype=np.float32) if texts else np.zeros((0, 1))
+        return np.stack([captions.scores(q)[caption_pos] for q in xq]) if len(xq) else np.zeros((0, len(chosen)))
+
+    return choose_for_rows(chosen, index.reconstruct(clip_ids), embed_texts, rule_scores, split=split)

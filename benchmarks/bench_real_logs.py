@@ -3,7 +3,8 @@ development AV2 logs (``../shared/realdata``, development files only), BEV rende
 
 The logs are imported (KITTI), captioned and cut into clips with the demo's clip settings
 (``demo_out/clips.yaml``), then every clip is evaluated (``eval --split all``): text → clip over the
-logs' own captions, with random ranking, shuffled frames and rule-caption search from the same run.
+logs' own captions, with random ranking, shuffled frames and rule-caption search from the same run, and
+hybrid search (both mixed at the default weight: real logs have no validation clips to choose one on).
 The model is the one ``make demo`` trained (``SCENESEARCH_RUN``, default ``demo_out/run``); without
 it, or without the fixtures, the benchmark says so and measures nothing.
 """
@@ -56,11 +57,14 @@ def run(quick: bool) -> dict[str, Any]:
     base = metrics["baselines"]
     figures: dict[str, Any] = {"logs": len(logs), "kitti_sequences": len(sequences), **metrics["counts"]}
     for name, block in [("model", metrics), ("bag_of_frames", base["bag_of_frames"]), ("random", base["random"]),
-                        ("rule_captions", base.get("rule_captions", {}))]:
+                        ("rule_captions", base.get("rule_captions", {})), ("hybrid", metrics.get("hybrid", {}))]:
         t2c = block.get("text_to_clip", {})
         for key in ("R@1", "R@5", "mAP"):
             if key in t2c:
                 figures[f"{name}_{key}"] = round(float(t2c[key]), 4)
     figures["model_temporal_order_accuracy"] = round(float(metrics["temporal_order_accuracy"]["accuracy"]), 4)
+    if metrics.get("hybrid"):
+        figures["hybrid_weight"] = metrics["hybrid"]["weight"]
+        figures["hybrid_temporal_order_accuracy"] = metrics["hybrid"]["temporal_order_accuracy"]["accuracy"]
     figures["model_over_random_R@5"] = round(figures["model_R@5"] / max(figures["random_R@5"], 1e-9), 1)
     return figures

@@ -335,7 +335,7 @@ def evaluate(run_dir: Path | str, clips_dir: Path | str, split: str = "test", em
         "views": {"camera": camera_view["camera"], "bev": text_to_clip_figures(sims["bev"], relevant),
                   "camera_clips": camera_view["counts"] | {"fused": camera_view["fused"],
                                                            "random": camera_view["random"]}},
-        "hybrid": {"weight": choice.weight, "chosen_on": choice.split,
+        "hybrid": {"weight": choice.weight, "chosen_on": choice.split, "given": choice.given,
                    "text_to_clip": text_to_clip_figures(mixed, relevant),
                    "temporal_order_accuracy": {"accuracy": hybrid_order, "num_captions": len(pairs)},
                    "freeform": freeform_figures(mix(free_model, free_rule, choice.weight), free_relevant)},

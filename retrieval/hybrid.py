@@ -110,11 +110,12 @@ class WeightChoice:
 
     Attributes:
         weight: ``w`` in [0, 1].
-        split: the clips it was chosen on; None when it is :data:`DEFAULT_WEIGHT` for want of them.
+        split: the clips it was chosen on; None when it was given, or is :data:`DEFAULT_WEIGHT` for want of them.
         clips: clips of that split.
         caption_queries: distinct captions of those clips, asked as queries.
         freeform_queries: development free-form queries with a relevant clip among them.
         curve: per weight tried: ``weight``, ``caption_R@5``, ``freeform_P@10`` and their mean ``objective``.
+        given: set by whoever built the index (``scenesearch index --hybrid-weight``), not chosen.
     """
 
     weight: float
@@ -123,6 +124,14 @@ class WeightChoice:
     caption_queries: int = 0
     freeform_queries: int = 0
     curve: tuple[dict[str, float], ...] = ()
+    given: bool = False
+
+    @property
+    def origin(self) -> str:
+        """Where the weight comes from, in words."""
+        if self.given:
+            return "given when the index was built"
+        return f"chosen on {self.clips} {self.split} clips" if self.split else "the default (no validation clips)"
 
     def to_json(self) -> dict[str, Any]:
         out = asdict(self)
@@ -141,7 +150,7 @@ class WeightChoice:
         return WeightChoice(weight=check_weight(raw.get("weight")), split=raw.get("split"),
                             clips=int(raw.get("clips") or 0), caption_queries=int(raw.get("caption_queries") or 0),
                             freeform_queries=int(raw.get("freeform_queries") or 0),
-                            curve=tuple(dict(p) for p in raw.get("curve") or ()))
+                            curve=tuple(dict(p) for p in raw.get("curve") or ()), given=raw.get("given") is True)
 
 
 def choose_weight(captions: tuple[np.ndarray, np.ndarray, np.ndarray],
@@ -290,8 +299,9 @@ class HybridScorer:
 
 
 def choose_for_index(rows: pa.Table, index: ClipIndex, captions: CaptionSearch, embed_texts: Texts,
-                     split: str = CHOICE_SPLIT) -> WeightChoice:
-    """The weight of an index: :func:`choose_for_rows` over its clips of ``split`` (the default without any).
+                     split: str = CHOICE_SPLIT, given: float | None = None) -> WeightChoice:
+    """The weight of an index: ``given``, else :func:`choose_for_rows` over its clips of ``split`` (the
+    default without any).
 
     Args:
         rows: the indexed clip rows (:func:`retrieval.captions_search.caption_rows`: with ``split`` and
@@ -299,7 +309,10 @@ def choose_for_index(rows: pa.Table, index: ClipIndex, captions: CaptionSearch, 
         index: the fused view's clip index (the clips' model embeddings).
         captions: the rule-caption index of the same rows.
         embed_texts: the model's text embedder.
+        given: a weight set by the user (``InvalidWeightError`` outside [0, 1]).
     """
+    if given is not None:
+        return WeightChoice(check_weight(given), given=True)
     if "split" not in rows.column_names:
         return WeightChoice(DEFAULT_WEIGHT)
     chosen = [r for r in rows.filter(pc.equal(rows.column("split"), split)).to_pylist() if r["clip_id"] in index]

@@ -150,7 +150,7 @@ class SceneSearch:
     @classmethod
     def build(cls, run_dir: Path | str, clips_dir: Path | str, out_dir: Path | str,
               embedder: Embedder | None = None, text_encoder: TextEncoder | None = None,
-              progress: Progress | None = None) -> SceneSearch:
+              progress: Progress | None = None, hybrid_weight: float | None = None) -> SceneSearch:
         """Embed every clip (fused, camera-only, BEV-only) and its rule caption; write ``out_dir``.
 
         Args:
@@ -161,6 +161,7 @@ class SceneSearch:
             text_encoder: the sentence encoder of the caption index (default: all-MiniLM-L6-v2, seeded with
                 the run's own text cache, :meth:`SentenceEncoder.for_run`).
             progress: called with one line per step.
+            hybrid_weight: the weight of hybrid search (default: chosen on the validation clips).
 
         Raises:
             FileNotFoundError: no model in ``run_dir`` or no ``clips.parquet`` in ``clips_dir``.
@@ -189,9 +190,8 @@ class SceneSearch:
         sentence = text_encoder if text_encoder is not None else SentenceEncoder.for_run(run_dir)
         captions = CaptionSearch.build(rows, encoder=sentence, base_dir=clips_dir)
         say(f"index: embedded {len(captions)} rule captions in {time.perf_counter() - start:.1f} s")
-        hybrid = choose_for_index(rows, views["fused"], captions, embedder.embed_texts)
-        say(f"index: hybrid weight {hybrid.weight:g} (rule captions' share), chosen on "
-            f"{f'{hybrid.clips} {hybrid.split} clips' if hybrid.split else 'nothing: no validation clips'}")
+        hybrid = choose_for_index(rows, views["fused"], captions, embedder.embed_texts, given=hybrid_weight)
+        say(f"index: hybrid weight {hybrid.weight:g} (rule captions' share), {hybrid.origin}")
         split_counts: dict[str, int] = {}
         if "split" in rows.column_names:
             for s in rows.column("split").to_pylist():

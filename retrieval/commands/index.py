@@ -44,6 +44,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--num-workers", type=int, default=0, metavar="N",
                         help="processes that load the clips beside the model's (default 0: the model's own); on a "
                              "GPU, loading is what limits the embedding")
+    parser.add_argument("--hybrid-weight", type=float, metavar="W",
+                        help="the weight of hybrid search recorded in the index, the rule captions' share in [0, 1] "
+                             "(default: chosen on the clips' validation split, 0.5 without one)")
     add_execution_arguments(parser)
     parser.add_argument("--embeddings-dir", metavar="DIR",
                         help="with --workers/--ray-address: keep the embedding shards (Parquet, part-*.parquet, "
@@ -63,6 +66,9 @@ def run(args: argparse.Namespace) -> int:
     if args.captions is not None:
         if args.run_dir is not None or args.clips_dir is not None:
             raise ValueError("give either RUN_DIR CLIPS_DIR or --captions CAPTIONS_DIR, not both")
+        if args.hybrid_weight is not None:
+            raise ValueError("--hybrid-weight goes with RUN_DIR CLIPS_DIR: a caption index has no model embeddings "
+                             "to mix with")
         from retrieval.captions_search import CaptionSearch
 
         captions = CaptionSearch.build(args.captions, args.out)
@@ -73,6 +79,10 @@ def run(args: argparse.Namespace) -> int:
         return 0
     if args.run_dir is None or args.clips_dir is None:
         raise ValueError("give RUN_DIR and CLIPS_DIR (a trained model and its clips), or --captions CAPTIONS_DIR")
+    if args.hybrid_weight is not None:
+        from retrieval.hybrid import check_weight
+
+        check_weight(args.hybrid_weight)  # before anything is embedded
 
     execution = Execution.from_args(args)
     if not execution.on_ray:
@@ -83,7 +93,7 @@ def run(args: argparse.Namespace) -> int:
         embedder = ModelEmbedder(args.run_dir, batch_size=args.batch_size, device=args.device,
                                  num_workers=args.num_workers)
         search = SceneSearch.build(args.run_dir, args.clips_dir, args.out, embedder=embedder,
-                                   progress=lambda m: print(m, flush=True))
+                                   progress=lambda m: print(m, flush=True), hybrid_weight=args.hybrid_weight)
     else:
         search = _build_on_ray(args, execution)
     for item in search.manifest.skipped[:20]:
@@ -106,7 +116,7 @@ def _build_on_ray(args: argparse.Namespace, execution: Execution) -> SceneSearch
         with held_runtime(execution):
             embedder = RayDataEmbedder(args.run_dir, execution, shards, batch_size=args.batch_size)
             search = SceneSearch.build(args.run_dir, args.clips_dir, args.out, embedder=embedder,
-                                       progress=lambda m: print(m, flush=True))
+                                       progress=lambda m: print(m, flush=True), hybrid_weight=args.hybrid_weight)
         run = embedder.last_run
         print(f"embedded {run.get('clips', 0):.0f} clips on {run.get('actors', 0):.0f} Ray actor(s) "
               f"({'one GPU each' if run.get('gpus_per_actor') else 'CPU'}) in {run.get('seconds', 0.0):.1f} s; "

@@ -169,7 +169,8 @@ def test_evaluate_with_stand_in_model(tmp_path: Path) -> None:
     # Hybrid search without an index: its weight chosen on the validation clips, never on the test clips.
     mixed = metrics["hybrid"]
     assert mixed["chosen_on"] == "val" and mixed["weight"] in WEIGHTS
-    assert set(mixed) == {"weight", "chosen_on", "text_to_clip", "temporal_order_accuracy", "freeform"}
+    assert set(mixed) == {"weight", "chosen_on", "given", "text_to_clip", "temporal_order_accuracy", "freeform"}
+    assert mixed["given"] is False
     assert mixed["text_to_clip"]["R@5"] > metrics["baselines"]["random"]["text_to_clip"]["R@5"] + 0.3
     table = metrics_table(metrics)  # every figure of a real evaluation renders
     assert "text→clip R@1" in table and "temporal order" in table and "free-form precision@10" in table

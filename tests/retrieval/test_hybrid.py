@@ -79,6 +79,10 @@ def test_the_weight_is_chosen_by_both_query_sets() -> None:
 def test_the_choice_round_trips_and_an_old_index_takes_the_default() -> None:
     choice = WeightChoice(0.3, "val", 10, 4, 2, ({"weight": 0.3, "objective": 0.5},))
     assert WeightChoice.from_json(json.loads(json.dumps(choice.to_json()))) == choice
+    assert choice.origin == "chosen on 10 val clips"
+    given = WeightChoice(1.0, given=True)
+    assert WeightChoice.from_json(given.to_json()) == given and given.origin == "given when the index was built"
+    assert WeightChoice(DEFAULT_WEIGHT).origin == "the default (no validation clips)"
     assert WeightChoice.from_json(None) == WeightChoice(DEFAULT_WEIGHT) == WeightChoice.from_json({})
     with pytest.raises(InvalidWeightError):
         WeightChoice.from_json({"weight": 2})

@@ -65,6 +65,9 @@ def test_metrics_from_before_hybrid_search_leave_its_column_blank() -> None:
     del metrics["hybrid"]
     rows = metrics_rows(metrics)
     assert all(row[-1] == "" for row in rows.body) and not any("hybrid" in note for note in rows.notes)
+    metrics = _metrics()
+    metrics["hybrid"] |= {"chosen_on": None, "given": True}
+    assert "(given when the index was built)" in metrics_rows(metrics).notes[1]
 
 
 def test_the_three_renderings_show_the_same_rows() -> None:

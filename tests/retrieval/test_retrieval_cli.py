@@ -42,6 +42,16 @@ def test_index_command(stand_in: dict[str, Any], tmp_path: Path, capsys: pytest.
     printed = capsys.readouterr().out
     assert "view fused" in printed and f"wrote {out}" in printed
     assert json.loads((out / "manifest.json").read_text())["counts"]["fused"] == 84
+    assert "hybrid weight" in printed and "chosen on 14 val clips" in printed
+    given = tmp_path / "given"
+    assert main(["index", str(stand_in["run"]), str(stand_in["clips"]), "--out", str(given),
+                 "--hybrid-weight", "0.9"]) == 0
+    assert "hybrid weight 0.9 (rule captions' share), given when the index was built" in capsys.readouterr().out
+    recorded = json.loads((given / "manifest.json").read_text())["hybrid"]
+    assert recorded["weight"] == 0.9 and recorded["given"] is True and recorded["curve"] == []
+    assert main(["index", str(stand_in["run"]), str(stand_in["clips"]), "--out", str(tmp_path / "bad"),
+                 "--hybrid-weight", "2"]) == 2
+    assert "in [0, 1]" in capsys.readouterr().err and not (tmp_path / "bad").exists()
 
 
 def test_search_table_and_json(stand_in: dict[str, Any], capsys: pytest.CaptureFixture[str]) -> None:
@@ -155,3 +165,5 @@ def test_caption_only_index(stand_in: dict[str, Any], tmp_path: Path, capsys: py
     assert "hybrid search needs the model's clip embeddings" in capsys.readouterr().err
     assert main(["index", str(stand_in["run"]), "--out", str(out)]) == 2
     assert "give RUN_DIR and CLIPS_DIR" in capsys.readouterr().err
+    assert main(["index", "--captions", str(captions), "--out", str(out), "--hybrid-weight", "1"]) == 2
+    assert "a caption index has no model embeddings" in capsys.readouterr().err

@@ -117,6 +117,23 @@ def test_query_previews_and_more_like_this(server: dict[str, Any], browser: Any)
     assert browser.save_screenshot(str(shot_dir / "web_page.png"))
 
 
+def test_hybrid_mode_from_the_page(server: dict[str, Any], browser: Any) -> None:
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.support.ui import Select
+
+    browser.get(server["url"])
+    _wait(lambda: len(browser.find_elements(By.CSS_SELECTOR, "#f-category option")) > 1)
+    Select(browser.find_element(By.ID, "mode")).select_by_value("hybrid")
+    query = caption_of(["left:approach", "left:cut_in"])
+    box = browser.find_element(By.ID, "query")
+    box.clear()
+    box.send_keys(query)
+    browser.find_element(By.ID, "search-button").click()
+    cards = _wait(lambda: browser.find_elements(By.CSS_SELECTOR, "#results .card"))
+    assert cards[0].find_element(By.CSS_SELECTOR, ".caption").text.endswith(query)
+    Select(browser.find_element(By.ID, "mode")).select_by_value("model")
+
+
 def test_errors_are_shown_on_the_page(server: dict[str, Any], browser: Any) -> None:
     from selenium.webdriver.common.by import By
 

@@ -291,6 +291,8 @@ def evaluate(run_dir: Path | str, clips_dir: Path | str, split: str = "test", em
     free_model, free_bag = t_free @ x["fused"].T, t_free @ x_bag.T
     free_rule = rule_caption_scores(rows, free_texts, sentence)
     free_random = np.random.default_rng(seed).random(free_relevant.shape)
+    if index_choice is not None and index_choice.split is not None and split in (index_choice.split, ALL_SPLITS):
+        index_choice = None  # chosen on the clips evaluated here: no figure of a tuned weight on its own data
     choice = hybrid or index_choice or _choose_on_val(table, clips_dir, split, embedder, sentence)
     mixed = mix(sims["fused"], sim_rule, choice.weight)
     hybrid_order: float | None = None
@@ -335,7 +337,7 @@ def evaluate(run_dir: Path | str, clips_dir: Path | str, split: str = "test", em
         "views": {"camera": camera_view["camera"], "bev": text_to_clip_figures(sims["bev"], relevant),
                   "camera_clips": camera_view["counts"] | {"fused": camera_view["fused"],
                                                            "random": camera_view["random"]}},
-        "hybrid": {"weight": choice.weight, "chosen_on": choice.split, "given": choice.given,
+        "hybrid": {"weight": choice.weight, "chosen_on": choice.split, "given": choice.given, "origin": choice.origin,
                    "text_to_clip": text_to_clip_figures(mixed, relevant),
                    "temporal_order_accuracy": {"accuracy": hybrid_order, "num_captions": len(pairs)},
                    "freeform": freeform_figures(mix(free_model, free_rule, choice.weight), free_relevant)},

@@ -27,6 +27,7 @@ reaches the k-th best mixed score are scored by the model too (the threshold alg
 
 from __future__ import annotations
 
+import threading
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict, dataclass
 from typing import Any
@@ -38,7 +39,7 @@ import pyarrow.compute as pc
 from encoders.metrics import caption_queries, text_to_clip_figures
 from indexes.clip_index import ClipIndex
 from retrieval.captions_search import CaptionSearch
-from retrieval.errors import RetrievalError
+from retrieval.errors import IndexDirError, RetrievalError
 from retrieval.freeform import (
     DEV_FREEFORM_QUERIES,
     FREEFORM_K,
@@ -59,6 +60,7 @@ MOMENT_SAMPLE = 4096
 #: The model's top K before the bound is checked: ``max(CANDIDATE_FACTOR · k, MIN_CANDIDATES)``.
 CANDIDATE_FACTOR = 4
 MIN_CANDIDATES = 64
+#: texts → (Q, D) embeddings.
 Texts = Callable[[Sequence[str]], np.ndarray]
 
 
@@ -134,23 +136,38 @@ class WeightChoice:
         return f"chosen on {self.clips} {self.split} clips" if self.split else "the default (no validation clips)"
 
     def to_json(self) -> dict[str, Any]:
+        """The record of a manifest (:meth:`from_json` reads it back)."""
         out = asdict(self)
         out["curve"] = [dict(point) for point in self.curve]
         return out
 
     @staticmethod
-    def from_json(raw: Mapping[str, Any] | None) -> WeightChoice:
+    def from_json(raw: object) -> WeightChoice:
         """The choice recorded in a manifest (the default for an index written before hybrid search).
 
         Raises:
             InvalidWeightError: a recorded weight outside [0, 1].
+            ValueError: a malformed record (the message names the sub-field).
         """
+        if raw is None:
+            return WeightChoice(DEFAULT_WEIGHT)
+        if not isinstance(raw, Mapping):
+            raise ValueError(f"must be an object with 'weight', got {type(raw).__name__}")
         if not raw:
             return WeightChoice(DEFAULT_WEIGHT)
-        return WeightChoice(weight=check_weight(raw.get("weight")), split=raw.get("split"),
-                            clips=int(raw.get("clips") or 0), caption_queries=int(raw.get("caption_queries") or 0),
-                            freeform_queries=int(raw.get("freeform_queries") or 0),
-                            curve=tuple(dict(p) for p in raw.get("curve") or ()), given=raw.get("given") is True)
+        counts = {key: raw.get(key, 0) for key in ("clips", "caption_queries", "freeform_queries")}
+        for key, value in counts.items():
+            if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+                raise ValueError(f"'{key}' must be a count, got {value!r}")
+        split, given, curve = raw.get("split"), raw.get("given", False), raw.get("curve") or []
+        if split is not None and not isinstance(split, str):
+            raise ValueError(f"'split' must be a split name or null, got {split!r}")
+        if not isinstance(given, bool):
+            raise ValueError(f"'given' must be true or false, got {given!r}")
+        if not isinstance(curve, list) or not all(isinstance(point, Mapping) for point in curve):
+            raise ValueError("'curve' must be a list of objects")
+        return WeightChoice(weight=check_weight(raw.get("weight")), split=split, curve=tuple(dict(p) for p in curve),
+                            given=given, **counts)
 
 
 def choose_weight(captions: tuple[np.ndarray, np.ndarray, np.ndarray],
@@ -192,6 +209,8 @@ def choose_for_rows(rows: Sequence[Mapping[str, Any]], x_model: np.ndarray, embe
         x_model: (N, D) the model's clip embeddings of ``rows``, L2-normalised.
         embed_texts: texts → (Q, D) the model's normalised text embeddings.
         rule_scores: texts → (Q, N) rule-caption scores of ``rows``.
+        freeform: the development free-form queries (never the held-out ones).
+        split: the name of ``rows``' split, recorded in the choice.
     """
     if len(rows) < 2:
         return WeightChoice(DEFAULT_WEIGHT)
@@ -210,11 +229,18 @@ def choose_for_rows(rows: Sequence[Mapping[str, Any]], x_model: np.ndarray, embe
 
 
 class HybridScorer:
-    """Exact top-k hybrid search over one view of an index and its rule captions.
+    """Top-k hybrid search over one view of an index and its rule captions.
+
+    Exact on an exact (``Flat``) vector index. On an approximate one (HNSW, IVF, PQ) the model's candidates
+    come from the index's own approximate search, as :meth:`SceneSearch.search_text`'s results do, so a clip
+    the index misses and the rule captions do not lift can be missed here too.
 
     Args:
         index: the view's clip index (cosine).
         caption_clip_ids: (Nc,) the clip ids of the rule-caption rows, in row order.
+
+    Raises:
+        IndexDirError: an indexed clip without a rule caption.
     """
 
     def __init__(self, index: ClipIndex, caption_clip_ids: Sequence[str]) -> None:
@@ -225,7 +251,8 @@ class HybridScorer:
         clip_ids = table.column("clip_id").to_pylist()
         missing = [c for c in clip_ids if c not in row_of_caption]
         if missing:
-            raise ValueError(f"{len(missing)} indexed clips have no rule caption, e.g. {missing[:3]}")
+            raise IndexDirError(f"{len(missing)} indexed clips have no rule caption in the caption index, e.g. "
+                                f"{missing[:3]}: rebuild the index (`scenesearch index`)")
         self.caption_rows = np.asarray([row_of_caption[c] for c in clip_ids], dtype=np.int64)  # (N,)
         # As `scenesearch index` writes them, caption rows and view rows are the same clips in the same order.
         self._same_rows = len(caption_clip_ids) == len(clip_ids) and \
@@ -233,10 +260,20 @@ class HybridScorer:
         # id → row position, as an array: a filter can pass a million ids.
         self._position = np.full(int(self.ids.max(initial=-1)) + 1, -1, dtype=np.int64)
         self._position[self.ids] = np.arange(len(self.ids))
-        step = max(1, len(self.ids) // MOMENT_SAMPLE)
-        self._sample = index.vectors.reconstruct(self.ids[::step][:MOMENT_SAMPLE])  # (S, D)
-        #: Clips the model scored beyond its top K in the last call (what the bound let through).
+        step = -(-len(self.ids) // MOMENT_SAMPLE)  # rounded up: the sample spreads over every log and split
+        self._sample = index.vectors.reconstruct(self.ids[::step])  # (S, D), S ≤ MOMENT_SAMPLE
+        #: Clips the model scored beyond its top K in the last call (what the bound let through), and that K.
         self.last_extra = 0
+        self.last_candidates = 0
+
+    def _model_z(self, positions: np.ndarray, xq: np.ndarray, mean: float, std: float) -> np.ndarray:
+        """(M,) standardised model scores of the clips at ``positions``, all computed alike (so ties stay ties).
+
+        einsum, not @: a BLAS product wakes OpenBLAS's threads, whose spinning afterwards halves the speed
+        of the next query's text encoders on a small machine (bench_retrieval's hybrid figures).
+        """
+        x = self.index.vectors.reconstruct(self.ids[positions])  # (M, D)
+        return np.asarray((np.einsum("md,d->m", x, xq).astype(np.float64) - mean) / std)
 
     def top_k(self, xq: np.ndarray, rule_scores: np.ndarray, query: Query,
               weight: float) -> tuple[np.ndarray, np.ndarray]:
@@ -248,7 +285,7 @@ class HybridScorer:
             query: the checked k and filter (:func:`retrieval.querying.build_query`).
             weight: ``w`` in [0, 1].
         Returns:
-            ids: (M,) view ids, best first (M ≤ k: fewer when the filter passes fewer).
+            ids: (M,) view ids, best first, ties by id (M ≤ k: fewer when the filter passes fewer).
             scores: (M,) their hybrid scores.
         """
         w = check_weight(weight)
@@ -257,45 +294,66 @@ class HybridScorer:
         rules = np.asarray(rule_scores, dtype=np.float32)
         rules = rules if self._same_rows else rules[self.caption_rows]  # (N,) in view row order
         r_mean, r_std = float(rules.mean(dtype=np.float64)), float(rules.std(dtype=np.float64)) or 1.0
-        # einsum, not @: a BLAS product this size wakes OpenBLAS's threads, whose spinning afterwards halves
-        # the speed of the next query's text encoders on a small machine (bench_retrieval's hybrid figures).
         sample = np.einsum("sd,d->s", self._sample, xq)
         m_mean, m_std = float(sample.mean()), float(sample.std()) or 1.0
         allowed = None if query.filters is None else self._position[self.index.select(query.filters)]  # positions
         n_allowed = len(self.ids) if allowed is None else len(allowed)
         if query.k == 0 or n_allowed == 0:
             return np.zeros(0, np.int64), np.zeros(0)
-        K = min(n_allowed, max(CANDIDATE_FACTOR * query.k, MIN_CANDIDATES))
-        D, I = self.index.vectors.search(xq[None], K, None if allowed is None else self.ids[allowed])
-        found = I[0] >= 0
-        ids, pos = I[0][found], self._position[I[0][found]]
-        z_model = (D[0][found].astype(np.float64) - m_mean) / m_std
 
         def z_rules(at: np.ndarray) -> np.ndarray:
             return np.asarray((rules[at].astype(np.float64) - r_mean) / r_std)
 
-        mixed = (1 - w) * z_model + w * z_rules(pos)
-        self.last_extra = 0
-        if len(ids) < n_allowed:
-            # A clip outside the model's top K scores at most (1 − w)·z_K + w·z(its rules): only those whose
-            # bound reaches the k-th best mixed score can enter the results. In raw rule scores the bound is a
-            # threshold (a hair lower: a clip let through is only scored, never wrongly kept).
+        K = min(n_allowed, max(CANDIDATE_FACTOR * query.k, MIN_CANDIDATES))
+        while True:
+            _, I = self.index.vectors.search(xq[None], K, None if allowed is None else self.ids[allowed])
+            pos = self._position[I[0][I[0] >= 0]]
+            z_model = self._model_z(pos, xq, m_mean, m_std)
+            mixed = (1 - w) * z_model + w * z_rules(pos)
+            if len(pos) == 0:  # an approximate filtered search found nothing: score what the filter passes
+                rest = np.arange(len(self.ids)) if allowed is None else allowed
+                break
+            if len(pos) >= n_allowed:
+                rest = pos[:0]
+                break
+            # A clip outside the model's top K scores at most (1 − w)·z_K + w·z(its rules) (z_K a hair higher,
+            # as the index's scores and ours may differ in the last bits): only clips whose bound reaches the
+            # k-th best mixed score can enter. In raw rule scores that bound is a threshold.
             kth = np.sort(mixed)[-query.k] if len(mixed) >= query.k else -np.inf
-            floor = (1 - w) * z_model.min()
+            floor = (1 - w) * (z_model.min() + 1e-5)
             if w > 0:
                 cut = r_mean + r_std * ((kth - floor) / w - 1e-6)
                 rest = np.flatnonzero(rules >= cut) if allowed is None else allowed[rules[allowed] >= cut]
-            else:  # the model alone: only a tie with the K-th score could still enter
-                everything = np.arange(len(self.ids)) if allowed is None else allowed
-                rest = everything if floor >= kth else everything[:0]
+            elif floor >= kth:  # the model alone: only a tie with the K-th score could still enter
+                rest = np.arange(len(self.ids)) if allowed is None else allowed
+            else:
+                rest = pos[:0]
             rest = rest[~np.isin(rest, pos)]
-            self.last_extra = len(rest)
-            if len(rest):
-                z_rest = (np.einsum("md,d->m", self.index.vectors.reconstruct(self.ids[rest]), xq) - m_mean) / m_std
-                ids = np.concatenate([ids, self.ids[rest]])
-                mixed = np.concatenate([mixed, (1 - w) * z_rest + w * z_rules(rest)])
+            if len(rest) <= len(pos) or n_allowed <= K:
+                break
+            # The sources disagree: a deeper model list lowers the bound for less than scoring every clip let in.
+            K = min(n_allowed, CANDIDATE_FACTOR * K)
+        self.last_candidates, self.last_extra = K, len(rest)
+        if len(rest):
+            pos = np.concatenate([pos, rest])
+            mixed = np.concatenate([mixed, (1 - w) * self._model_z(rest, xq, m_mean, m_std) + w * z_rules(rest)])
+        ids = self.ids[pos]
         order = np.lexsort((ids, -mixed))[: query.k]  # best first, ties by id
         return ids[order], mixed[order]
+
+
+class Scorers:
+    """One :class:`HybridScorer` per view, built on first use (once, whatever the concurrent requests)."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._by_view: dict[str, HybridScorer] = {}
+
+    def get(self, view: str, index: ClipIndex, captions: CaptionSearch) -> HybridScorer:
+        with self._lock:
+            if view not in self._by_view:
+                self._by_view[view] = HybridScorer(index, captions.metadata.table.column("clip_id").to_pylist())
+            return self._by_view[view]
 
 
 def choose_for_index(rows: pa.Table, index: ClipIndex, captions: CaptionSearch, embed_texts: Texts,

@@ -87,8 +87,7 @@ def metrics_rows(metrics: dict[str, Any]) -> MetricsRows:
              f"{counts.get('temporal_pairs')} temporal-order pairs, {free.get('answered')} of "
              f"{free.get('queries')} free-form queries with a relevant clip"]
     if hybrid:
-        chosen = "given when the index was built" if hybrid.get("given") else \
-            f"chosen on the {hybrid.get('chosen_on')} clips" if hybrid.get("chosen_on") else "the default"
+        chosen = hybrid.get("origin") or "the default"  # WeightChoice.origin, in words
         notes.append(f"hybrid: the model's and rule-caption scores, each standardised per query, mixed with the rule "
                      f"captions' share {fmt(hybrid.get('weight'))} ({chosen})")
     dense = metrics.get("frame_tags") or {}

@@ -52,7 +52,7 @@ from indexes.persistence import read_json_manifest
 from retrieval.captions_search import CaptionSearch, Skipped, TextEncoder, caption_rows
 from retrieval.embedding import CONFIG_FILE, Embedder, ModelEmbedder
 from retrieval.errors import IndexDirError, ModelMismatchError, UnknownClipError, UnknownViewError
-from retrieval.hybrid import HybridScorer, InvalidWeightError, WeightChoice, check_weight, choose_for_index
+from retrieval.hybrid import InvalidWeightError, Scorers, WeightChoice, check_weight, choose_for_index
 from retrieval.querying import MAX_K, build_query, check_camera_clip, check_query, hits_to_results, preview_of
 from retrieval.records import SearchResult
 from retrieval.sentence_encoder import SentenceEncoder
@@ -123,7 +123,7 @@ class IndexManifest:
             raise IndexDirError(f"{path}: missing fields {missing}")
         try:
             WeightChoice.from_json(raw.get("hybrid"))
-        except (InvalidWeightError, TypeError, ValueError, AttributeError) as exc:
+        except (InvalidWeightError, ValueError) as exc:
             raise IndexDirError(f"{path}, field 'hybrid': {exc}") from None
         return IndexManifest(**{k: v for k, v in raw.items() if k in names})
 
@@ -141,7 +141,7 @@ class SceneSearch:
         self.clips_dir = Path(manifest.clips_dir)
         #: The weight of hybrid search (rule captions' share) and how it was chosen.
         self.hybrid = WeightChoice.from_json(manifest.hybrid)
-        self._scorers: dict[str, HybridScorer] = {}
+        self._scorers = Scorers()
         #: Seconds spent in each step of the last ``search_text`` call (encode, search, records).
         self.last_timings_s: dict[str, float] = {}
 
@@ -361,14 +361,16 @@ class SceneSearch:
         query = check_query(query)
         w = self.hybrid.weight if weight is None else check_weight(weight)
         checked = build_query(k, filters, index.metadata, len(index), max_k, view)
-        if view not in self._scorers:  # once per view: the moment sample and each clip's caption row
-            self._scorers[view] = HybridScorer(index, self.captions.metadata.table.column("clip_id").to_pylist())
+        scorer = self._scorers.get(view, index, self.captions)  # the first time: each clip's caption row
+        t0 = time.perf_counter()
         xq = np.asarray(self.embedder.embed_texts([query]), dtype=np.float32)[0]
         rules = self.captions.scores(np.asarray(self.captions.encoder([query]), dtype=np.float32)[0])
-        ids, scores = self._scorers[view].top_k(xq, rules, checked, w)
-        rows = index.metadata.rows(ids)
-        return [SearchResult.from_row(rank, row, float(score), view, preview_of(row, self.clips_dir))
-                for rank, (row, score) in enumerate(zip(rows, scores), start=1)]
+        t1 = time.perf_counter()
+        ids, scores = scorer.top_k(xq, rules, checked, w)
+        results = [SearchResult.from_row(rank, row, float(score), view, preview_of(row, self.clips_dir))
+                   for rank, (row, score) in enumerate(zip(index.metadata.rows(ids), scores), start=1)]
+        self.last_timings_s = {"encode_text": t1 - t0, "search_and_records": time.perf_counter() - t1}
+        return results
 
     def get(self, clip_id: str) -> SearchResult:
         """The record of one indexed clip (score 1, rank 0)."""

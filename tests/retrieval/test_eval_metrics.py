@@ -169,7 +169,8 @@ def test_evaluate_with_stand_in_model(tmp_path: Path) -> None:
     # Hybrid search without an index: its weight chosen on the validation clips, never on the test clips.
     mixed = metrics["hybrid"]
     assert mixed["chosen_on"] == "val" and mixed["weight"] in WEIGHTS
-    assert set(mixed) == {"weight", "chosen_on", "given", "text_to_clip", "temporal_order_accuracy", "freeform"}
+    assert set(mixed) == {"weight", "chosen_on", "given", "origin", "text_to_clip", "temporal_order_accuracy",
+                          "freeform"}
     assert mixed["given"] is False
     assert mixed["text_to_clip"]["R@5"] > metrics["baselines"]["random"]["text_to_clip"]["R@5"] + 0.3
     table = metrics_table(metrics)  # every figure of a real evaluation renders
@@ -177,6 +178,21 @@ def test_evaluate_with_stand_in_model(tmp_path: Path) -> None:
     assert "object sentence alone mAP" in table and "rule captions" in table and "hybrid" in table
     with pytest.raises(ValueError, match="unknown split 'dev'; the clips have splits: test, train, val"):
         evaluate(run, clips, split="dev", embedder=embedder)
+
+
+def test_an_index_weight_chosen_on_the_clips_evaluated_is_not_used(tmp_path: Path) -> None:
+    from retrieval.scenesearch import SceneSearch
+
+    clips = make_clips_dir(tmp_path / "clips", sequences=CAPTIONING_SEQUENCES, caption=captioning_caption)
+    run = make_run_dir(tmp_path / "run")
+    embedder, sentences = FakeEmbedder(model_hash(run)), HashTextEncoder()
+    SceneSearch.build(run, clips, tmp_path / "index", embedder=embedder, text_encoder=sentences)
+    on_test = evaluate(run, clips, embedder=embedder, sentence_encoder=sentences, index_dir=tmp_path / "index")
+    assert on_test["hybrid"]["chosen_on"] == "val" and on_test["hybrid"]["origin"] == "chosen on 14 val clips"
+    for split in ("val", "all"):  # the weight was chosen on (some of) these clips: the default instead
+        metrics = evaluate(run, clips, split=split, embedder=embedder, sentence_encoder=sentences,
+                           index_dir=tmp_path / "index")
+        assert metrics["hybrid"]["chosen_on"] is None and metrics["hybrid"]["weight"] == 0.5
 
 
 @pytest.mark.parametrize("weight, source", [(0.0, "model"), (1.0, "rule_captions")])

@@ -39,6 +39,9 @@ def test_the_held_out_set_is_written_in_everyday_words() -> None:
 def test_the_development_set_is_apart_from_the_held_out_set() -> None:
     dev = [q.text for q in DEV_FREEFORM_QUERIES]
     assert len(dev) == len(set(dev)) >= 30 and not set(dev) & {q.text for q in FREEFORM_QUERIES}
+    # Nor the same question in other words: no development query decides relevance as a held-out one does.
+    held_out = {(q.categories, q.steps, q.host) for q in FREEFORM_QUERIES}
+    assert not [q.text for q in DEV_FREEFORM_QUERIES if (q.categories, q.steps, q.host) in held_out]
     assert not any(t.lower().startswith("the ego vehicle") or "host" in t.lower() for t in dev)
     assert all(q.categories or q.steps or q.host for q in DEV_FREEFORM_QUERIES)
     # A pattern ending in '*' takes the object's own action and context that captioning appends to a step.

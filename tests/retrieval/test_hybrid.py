@@ -89,10 +89,13 @@ def test_the_choice_round_trips_and_an_old_index_takes_the_default() -> None:
 
 
 def _brute_force(xb: np.ndarray, rules: np.ndarray, xq: np.ndarray, allowed: np.ndarray, k: int,
-                 w: float) -> np.ndarray:
-    """The reference: every clip scored by both, standardised over the whole index, mixed, sorted."""
+                 w: float, step: int = 1) -> np.ndarray:
+    """The reference: every clip scored by both, standardised over the whole index (the model's moments
+    from every ``step``-th clip), mixed, sorted (ties by id)."""
     xb = xb / np.linalg.norm(xb, axis=1, keepdims=True)
-    mixed = mix((xb @ (xq / np.linalg.norm(xq)))[None], rules[None], w)[0]
+    model = xb @ (xq / np.linalg.norm(xq))
+    z_model = (model - model[::step].mean()) / model[::step].std()
+    mixed = (1 - w) * z_model + w * standardise(rules[None])[0]
     order = np.lexsort((allowed, -mixed[allowed]))
     return allowed[order][:k]
 
@@ -125,13 +128,47 @@ def test_top_k_equals_brute_force_mixing(min_candidates: int, permuted: bool, mo
     assert max(scored_beyond) > 0 and max(scored_beyond) < n
 
 
+def test_ties_go_to_the_smaller_id_and_the_moments_sample_spreads(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(hybrid, "MOMENT_SAMPLE", 64)  # 300 clips: every 5th in the sample, from first to last
+    rng = np.random.default_rng(3)
+    n, d = 300, 16
+    distinct = rng.normal(size=(10, d)).astype(np.float32)
+    group = rng.integers(10, size=n)
+    xb = distinct[group]  # 10 distinct vectors: many clips tie on the model's score
+    index = ClipIndex.build(xb, [{"clip_id": f"c{i:03d}"} for i in range(n)], metric="cosine")
+    scorer = HybridScorer(index, [f"c{i:03d}" for i in range(n)])
+    assert len(scorer._sample) == 60
+    for trial in range(8):
+        xq = rng.normal(size=d).astype(np.float32)
+        rules = rng.normal(size=10)[group]  # and on the rules' (one caption per vector)
+        w, k = [0.0, 0.4, 0.7, 1.0][trial % 4], [3, 12][trial % 2]
+        ids, _ = scorer.top_k(xq, rules, Query(k, None), w)
+        assert ids.tolist() == _brute_force(xb, rules, xq, np.arange(n), k, w, step=5).tolist()
+
+
+def test_sources_that_disagree_deepen_the_model_list() -> None:
+    rng = np.random.default_rng(4)
+    n, d = 2000, 16
+    xb = rng.normal(size=(n, d)).astype(np.float32)
+    index = ClipIndex.build(xb, [{"clip_id": f"c{i:04d}"} for i in range(n)], metric="cosine")
+    scorer = HybridScorer(index, [f"c{i:04d}" for i in range(n)])
+    deepened = []
+    for _ in range(6):
+        xq, rules = rng.normal(size=d).astype(np.float32), rng.normal(size=n)  # rules unrelated to the model
+        ids, _ = scorer.top_k(xq, rules, Query(5, None), 0.7)
+        assert ids.tolist() == _brute_force(xb, rules, xq, np.arange(n), 5, 0.7).tolist()
+        deepened.append(scorer.last_candidates)
+        assert scorer.last_extra <= scorer.last_candidates  # never more rescoring than the list it searched
+    assert max(deepened) > hybrid.MIN_CANDIDATES
+
+
 def test_top_k_with_nothing_allowed_and_a_clip_without_caption() -> None:
     xb = np.eye(4, dtype=np.float32)
     index = ClipIndex.build(xb, [{"clip_id": f"c{i}", "category": "car"} for i in range(4)], metric="cosine")
     scorer = HybridScorer(index, ["c0", "c1", "c2", "c3"])
     ids, scores = scorer.top_k(xb[0], np.zeros(4), build_query(3, {"category": "bus"}, index.metadata, 4), 0.5)
     assert len(ids) == len(scores) == 0
-    with pytest.raises(ValueError, match="no rule caption"):
+    with pytest.raises(IndexDirError, match="no rule caption"):
         HybridScorer(index, ["c0", "c1"])
 
 
@@ -184,6 +221,12 @@ def test_an_index_from_before_searches_with_the_default_weight(built: dict[str, 
     assert len(search.search_hybrid("a car in the left lane approaches", k=3)) == 3
 
 
-def test_a_bad_recorded_weight_is_refused_naming_the_field(built: dict[str, Any], tmp_path: Path) -> None:
-    with pytest.raises(IndexDirError, match=r"manifest.json, field 'hybrid': .*\[0, 1\]"):
-        SceneSearch.open(_with_hybrid(built, tmp_path, {"weight": 7}))
+@pytest.mark.parametrize(("value", "message"), [
+    ({"weight": 7}, r"\[0, 1\]"), ({"weight": "0.5"}, r"\[0, 1\]"), (0.5, "must be an object"),
+    ({"weight": 0.5, "clips": "x"}, "'clips' must be a count"), ({"weight": 0.5, "given": "yes"}, "'given'"),
+    ({"weight": 0.5, "split": 3}, "'split'"), ({"weight": 0.5, "curve": [1]}, "'curve'"),
+])
+def test_a_bad_recorded_weight_is_refused_naming_the_field(built: dict[str, Any], tmp_path: Path, value: Any,
+                                                           message: str) -> None:
+    with pytest.raises(IndexDirError, match=rf"manifest.json, field 'hybrid': .*{message}"):
+        SceneSearch.open(_with_hybrid(built, tmp_path, value))

@@ -23,7 +23,7 @@ def _metrics() -> dict[str, Any]:
         "freeform": {"queries": 4, "answered": 3, "precision@10": 0.3}, "halves": halves, "clip_to_clip": c2c,
         "views": {"camera": _figures(0.0625), "bev": _figures(0.1),
                   "camera_clips": {"clips": 6, "queries": 2, "fused": {"R@5": 0.5}, "random": {"R@5": 0.25}}},
-        "hybrid": {"weight": 0.4, "chosen_on": "val", "text_to_clip": _figures(0.75),
+        "hybrid": {"weight": 0.4, "chosen_on": "val", "origin": "chosen on 9 val clips", "text_to_clip": _figures(0.75),
                    "temporal_order_accuracy": {"accuracy": 0.9375}, "freeform": {"precision@10": 0.4}},
         "baselines": {
             "random": {"text_to_clip": _figures(0.01), "temporal_order_accuracy": {"accuracy": 0.5},
@@ -51,7 +51,7 @@ def test_the_rows_hold_every_figure_beside_its_baselines() -> None:
     assert by_name["free-form precision@10"] == ("0.300", "", "", "—", "0.050", "—", "0.400")
     # Hybrid search answers text only: no clip → clip cells.
     assert by_name["clip→clip action_precision@5"][-1] == ""
-    assert "rule captions' share 0.400 (chosen on the val clips)" in rows.notes[1]
+    assert "rule captions' share 0.400 (chosen on 9 val clips)" in rows.notes[1]
     # How often neighbours share the query's log is compared with the share by chance.
     assert by_name["clip→clip same_log_share_neighbours"][4] == "0.400"
     assert by_name["clip→clip action_precision@5 ceiling"][0] == "0.500"
@@ -66,8 +66,8 @@ def test_metrics_from_before_hybrid_search_leave_its_column_blank() -> None:
     rows = metrics_rows(metrics)
     assert all(row[-1] == "" for row in rows.body) and not any("hybrid" in note for note in rows.notes)
     metrics = _metrics()
-    metrics["hybrid"] |= {"chosen_on": None, "given": True}
-    assert "(given when the index was built)" in metrics_rows(metrics).notes[1]
+    metrics["hybrid"].pop("origin")  # metrics.json written before the origin was recorded
+    assert "(the default)" in metrics_rows(metrics).notes[1]
 
 
 def test_the_three_renderings_show_the_same_rows() -> None:

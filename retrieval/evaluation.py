@@ -259,9 +259,12 @@ def evaluate(run_dir: Path | str, clips_dir: Path | str, split: str = "test", em
             pairs.append((i, caption, rev))
     order: dict[str, float | int | None] = {"num_captions": len(pairs)}
     order_bag: float | None = None
-    order_scores: tuple[np.ndarray, ...] = ()
     order_rule: float | None = None
+    order_hybrid: float | None = None
     sentence = sentence_encoder if sentence_encoder is not None else SentenceEncoder.for_run(run_dir)
+    if index_choice is not None and index_choice.split is not None and split in (index_choice.split, ALL_SPLITS):
+        index_choice = None  # chosen on the clips evaluated here: no figure of a tuned weight on its own data
+    choice = hybrid or index_choice or _choose_on_val(table, clips_dir, split, embedder, sentence)
     text_order = text_order_figures(np.zeros((0, 1)), np.zeros((0, 1)))
     text_order_frozen = dict(text_order)
     if pairs:
@@ -278,7 +281,10 @@ def evaluate(run_dir: Path | str, clips_dir: Path | str, split: str = "test", em
         rule_true = rule_caption_scores(rows, [p[1] for p in pairs], sentence)  # (M, N)
         rule_rev = rule_caption_scores(rows, [p[2] for p in pairs], sentence)
         order_rule = temporal_order_accuracy(rule_true[np.arange(len(idx)), idx], rule_rev[np.arange(len(idx)), idx])
-        order_scores = (t_true @ x["fused"].T, rule_true, t_rev @ x["fused"].T, rule_rev, idx)
+        # Hybrid: each clip's mixed score with its caption against the reversed steps, as the search would rank.
+        at = np.arange(len(idx))
+        order_hybrid = temporal_order_accuracy(mix(t_true @ x["fused"].T, rule_true, choice.weight)[at, idx],
+                                               mix(t_rev @ x["fused"].T, rule_rev, choice.weight)[at, idx])
     else:
         order["accuracy"] = None
     say(f"eval: {len(queries)} text queries, {len(pairs)} temporal-order pairs")
@@ -291,16 +297,7 @@ def evaluate(run_dir: Path | str, clips_dir: Path | str, split: str = "test", em
     free_model, free_bag = t_free @ x["fused"].T, t_free @ x_bag.T
     free_rule = rule_caption_scores(rows, free_texts, sentence)
     free_random = np.random.default_rng(seed).random(free_relevant.shape)
-    if index_choice is not None and index_choice.split is not None and split in (index_choice.split, ALL_SPLITS):
-        index_choice = None  # chosen on the clips evaluated here: no figure of a tuned weight on its own data
-    choice = hybrid or index_choice or _choose_on_val(table, clips_dir, split, embedder, sentence)
     mixed = mix(sims["fused"], sim_rule, choice.weight)
-    hybrid_order: float | None = None
-    if pairs:  # each clip's hybrid score with its caption against the reversed steps, as the search would rank
-        m_true, r_true, m_rev, r_rev, idx = order_scores
-        at = np.arange(len(idx))
-        hybrid_order = temporal_order_accuracy(mix(m_true, r_true, choice.weight)[at, idx],
-                                               mix(m_rev, r_rev, choice.weight)[at, idx])
 
     # Each half of the captions alone, as people type one ("a stopped car in the ego lane"): every view's figures.
     halves: dict[str, dict[str, Any]] = {name: {} for name in ("model", "bag_of_frames", "random", "rule_captions")}
@@ -339,7 +336,7 @@ def evaluate(run_dir: Path | str, clips_dir: Path | str, split: str = "test", em
                                                            "random": camera_view["random"]}},
         "hybrid": {"weight": choice.weight, "chosen_on": choice.split, "given": choice.given, "origin": choice.origin,
                    "text_to_clip": text_to_clip_figures(mixed, relevant),
-                   "temporal_order_accuracy": {"accuracy": hybrid_order, "num_captions": len(pairs)},
+                   "temporal_order_accuracy": {"accuracy": order_hybrid, "num_captions": len(pairs)},
                    "freeform": freeform_figures(mix(free_model, free_rule, choice.weight), free_relevant)},
         "baselines": {
             "random": {"text_to_clip": random_figures,

@@ -296,7 +296,8 @@ class HybridScorer:
         r_mean, r_std = float(rules.mean(dtype=np.float64)), float(rules.std(dtype=np.float64)) or 1.0
         sample = np.einsum("sd,d->s", self._sample, xq)
         m_mean, m_std = float(sample.mean()), float(sample.std()) or 1.0
-        allowed = None if query.filters is None else self._position[self.index.select(query.filters)]  # positions
+        allowed_ids = None if query.filters is None else self.index.select(query.filters)
+        allowed = None if allowed_ids is None else self._position[allowed_ids]  # their row positions
         n_allowed = len(self.ids) if allowed is None else len(allowed)
         if query.k == 0 or n_allowed == 0:
             return np.zeros(0, np.int64), np.zeros(0)
@@ -306,7 +307,7 @@ class HybridScorer:
 
         K = min(n_allowed, max(CANDIDATE_FACTOR * query.k, MIN_CANDIDATES))
         while True:
-            _, I = self.index.vectors.search(xq[None], K, None if allowed is None else self.ids[allowed])
+            _, I = self.index.vectors.search(xq[None], K, allowed_ids)
             pos = self._position[I[0][I[0] >= 0]]
             z_model = self._model_z(pos, xq, m_mean, m_std)
             mixed = (1 - w) * z_model + w * z_rules(pos)

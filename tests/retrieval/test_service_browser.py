@@ -80,17 +80,26 @@ def _wait(predicate: Any, timeout_s: float = 15.0) -> Any:
     raise AssertionError("condition not met within the time limit")
 
 
-def test_query_previews_and_more_like_this(server: dict[str, Any], browser: Any) -> None:
+def _open_and_search(browser: Any, url: str, query: str, mode: str = "model") -> list[Any]:
+    """Load the page, choose the search mode, type ``query``, search; the result cards."""
     from selenium.webdriver.common.by import By
+    from selenium.webdriver.support.ui import Select
 
-    browser.get(server["url"])
+    browser.get(url)
     _wait(lambda: len(browser.find_elements(By.CSS_SELECTOR, "#f-category option")) > 1)
-    query = caption_of(["host:constant", "host:stop"])
+    Select(browser.find_element(By.ID, "mode")).select_by_value(mode)
     box = browser.find_element(By.ID, "query")
     box.clear()
     box.send_keys(query)
     browser.find_element(By.ID, "search-button").click()
-    cards = _wait(lambda: browser.find_elements(By.CSS_SELECTOR, "#results .card"))
+    return list(_wait(lambda: browser.find_elements(By.CSS_SELECTOR, "#results .card")))
+
+
+def test_query_previews_and_more_like_this(server: dict[str, Any], browser: Any) -> None:
+    from selenium.webdriver.common.by import By
+
+    query = caption_of(["host:constant", "host:stop"])
+    cards = _open_and_search(browser, server["url"], query)
     assert len(cards) == 12
     assert cards[0].find_element(By.CSS_SELECTOR, ".caption").text.endswith(query)
     # Every preview image really loaded (decoded, non-zero size), not just an <img> tag.
@@ -119,19 +128,10 @@ def test_query_previews_and_more_like_this(server: dict[str, Any], browser: Any)
 
 def test_hybrid_mode_from_the_page(server: dict[str, Any], browser: Any) -> None:
     from selenium.webdriver.common.by import By
-    from selenium.webdriver.support.ui import Select
 
-    browser.get(server["url"])
-    _wait(lambda: len(browser.find_elements(By.CSS_SELECTOR, "#f-category option")) > 1)
-    Select(browser.find_element(By.ID, "mode")).select_by_value("hybrid")
     query = caption_of(["left:approach", "left:cut_in"])
-    box = browser.find_element(By.ID, "query")
-    box.clear()
-    box.send_keys(query)
-    browser.find_element(By.ID, "search-button").click()
-    cards = _wait(lambda: browser.find_elements(By.CSS_SELECTOR, "#results .card"))
+    cards = _open_and_search(browser, server["url"], query, mode="hybrid")
     assert cards[0].find_element(By.CSS_SELECTOR, ".caption").text.endswith(query)
-    Select(browser.find_element(By.ID, "mode")).select_by_value("model")
 
 
 def test_errors_are_shown_on_the_page(server: dict[str, Any], browser: Any) -> None:

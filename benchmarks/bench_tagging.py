@@ -56,6 +56,9 @@ returns 1 span over the 12 test logs, confirmed by the labels (span precision 10
 model (0.05) the same query returned 5 spans, 2 confirmed. ``causes_ego_braking`` (F1 in front, 87
 positive test frames in the full scene): added to the trained model with a frozen backbone 0.132,
 with the backbone fine-tuned 0.182, trained from scratch 0.212 (1000 steps each).
+
+These figures predate pedestrian density learned as presence (``FOOTPRINT_M2`` in
+:mod:`encoders.tagging.attributes`; regressed here, hence its row's near-statistics L1); not re-run since.
 """
 
 from __future__ import annotations

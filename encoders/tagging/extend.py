@@ -128,7 +128,9 @@ def add_attributes(
     new_head = trained.head
     merged = TagHead(TagHeadConfig(attributes=base.names + names, embed_channels=base.head.config.embed_channels,
                                    kinds={**base.head.config.kinds, **{n: "discrete" for n in names}},
-                                   scales={**base.head.config.scales, **new_head.config.scales}))
+                                   scales={**base.head.config.scales, **new_head.config.scales},
+                                   footprints={**(base.head.config.footprints or {}),
+                                               **(new_head.config.footprints or {})}))
     with torch.no_grad():
         merged.attributes.copy_(torch.cat([base.head.attributes.detach().cpu(), new_head.attributes.detach().cpu()]))
         merged.bias.copy_(torch.cat([base.head.bias.detach().cpu(), new_head.bias.detach().cpu()]))

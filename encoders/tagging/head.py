@@ -10,7 +10,9 @@ so that V is in m/s while the dot product stays near unit range); the head's con
 attribute's scale, so a saved head means what it meant when it was trained whatever the defaults
 (:data:`~encoders.tagging.attributes.OUTPUT_SCALE`) become.
 
-For discrete attributes V is a logit (probability = sigmoid(V)); for continuous ones V is the value.
+For discrete attributes V is a logit (probability = sigmoid(V)); for continuous ones V is the value,
+except for densities learned as presence (``footprints``, see
+:data:`~encoders.tagging.attributes.FOOTPRINT_M2`), whose V is the logit that such an object is in the cell.
 """
 
 from __future__ import annotations
@@ -23,7 +25,15 @@ from typing import Any
 import torch
 from torch import nn
 
-from encoders.tagging.attributes import ATTRIBUTES, OUTPUT_SCALE, AttributeKind, TagError, attribute_kind
+from encoders.tagging.attributes import (
+    ATTRIBUTES,
+    FOOTPRINT_M2,
+    OUTPUT_SCALE,
+    AttributeKind,
+    TagError,
+    attribute_kind,
+    is_density,
+)
 
 
 @dataclass(frozen=True)
@@ -41,6 +51,9 @@ class TagHeadConfig:
             (:data:`~encoders.tagging.attributes.OUTPUT_SCALE`, else 1). Filled in for every attribute
             on construction, so ``tagging.json`` records them (files written before it had them read
             back with the defaults, which they were trained with).
+        footprints: densities learned as presence, name → footprint (m²) of one object; None takes
+            :data:`~encoders.tagging.attributes.FOOTPRINT_M2` for the attributes the head has. Files
+            written before it read back with none (their densities were regressed).
     """
 
     attributes: tuple[str, ...] = tuple(a.value for a in ATTRIBUTES)
@@ -48,6 +61,7 @@ class TagHeadConfig:
     kinds: dict[str, str] = field(default_factory=dict)
     init_std: float = 0.02
     scales: dict[str, float] = field(default_factory=dict)
+    footprints: dict[str, float] | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "attributes", tuple(str(a) for a in self.attributes))
@@ -68,11 +82,26 @@ class TagHeadConfig:
         if bad:
             raise TagError(f"TagHeadConfig.scales must be finite and > 0, got {[(a, scales[a]) for a in bad]}")
         object.__setattr__(self, "scales", scales)
+        footprints = ({a: FOOTPRINT_M2[a] for a in self.attributes if a in FOOTPRINT_M2}
+                      if self.footprints is None else {str(a): float(v) for a, v in self.footprints.items()})
+        wrong = sorted(a for a in footprints if a not in self.attributes or not is_density(a))
+        if wrong:
+            raise TagError(f"TagHeadConfig.footprints must name densities the head has, got {wrong}")
+        bad = sorted(a for a, v in footprints.items() if not (math.isfinite(v) and v > 0))
+        if bad:
+            raise TagError(f"TagHeadConfig.footprints must be finite and > 0 m², "
+                           f"got {[(a, footprints[a]) for a in bad]}")
+        object.__setattr__(self, "footprints", footprints)
 
     def kind(self, name: str) -> AttributeKind:
         if name in self.kinds:
             return AttributeKind(self.kinds[name])
         return attribute_kind(name)
+
+    def footprint_share(self, name: str, cell_area_m2: float) -> float | None:
+        """The share of a cell of ``cell_area_m2`` one object covers, for a density learned as presence; else None."""
+        assert self.footprints is not None  # filled in on construction
+        return self.footprints[name] / cell_area_m2 if name in self.footprints else None
 
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)
@@ -81,11 +110,12 @@ class TagHeadConfig:
 
     @staticmethod
     def from_dict(data: dict[str, Any]) -> TagHeadConfig:
-        known = {"attributes", "embed_channels", "kinds", "init_std", "scales"}
+        known = {"attributes", "embed_channels", "kinds", "init_std", "scales", "footprints"}
         unknown = sorted(set(data) - known)
         if unknown:
             raise TagError(f"TagHeadConfig: unknown keys {unknown}")
         args: dict[str, Any] = {k: (tuple(v) if k == "attributes" else v) for k, v in data.items()}
+        args.setdefault("footprints", {})  # written before presence densities: all densities were regressed
         return TagHeadConfig(**args)
 
     def to_json(self) -> str:
@@ -117,6 +147,12 @@ class TagHead(nn.Module):
     def discrete_mask(self) -> torch.Tensor:
         """(|T|,) bool, true for discrete attributes."""
         return torch.tensor([self.config.kind(a) == AttributeKind.DISCRETE for a in self.config.attributes],
+                            device=self.attributes.device)
+
+    def presence_mask(self) -> torch.Tensor:
+        """(|T|,) bool, true for densities learned as presence."""
+        assert self.config.footprints is not None
+        return torch.tensor([a in self.config.footprints for a in self.config.attributes],
                             device=self.attributes.device)
 
     def forward(self, e: torch.Tensor) -> torch.Tensor:

@@ -5,6 +5,8 @@
   contribute; a frame without positives still contributes its ``min_negatives`` hardest negatives
   (otherwise nothing would ever push an empty scene down). The loss of a (frame, attribute) is the
   mean over its selected pixels; the loss is the mean over the (frame, attribute) pairs.
+- **Densities learned as presence** (:data:`~encoders.tagging.attributes.FOOTPRINT_M2`): the discrete
+  loss on "an object is in the cell" (target > 0).
 - **Continuous** attributes: smooth L1 per pixel (mean over pixels) on V / s (the head's output
   scale); for densities also smooth L1 between the scene sums (sum over the pixels of a frame) of
   prediction and target, divided by ``scene_norm`` so that a frame's sum is near unit range.
@@ -116,6 +118,7 @@ def tag_loss(
     config: TagLossConfig,
     valid: torch.Tensor | None = None,
     density: torch.Tensor | None = None,
+    presence: torch.Tensor | None = None,
 ) -> tuple[torch.Tensor, dict[str, float]]:
     """The tagging loss of a batch.
 
@@ -127,6 +130,8 @@ def tag_loss(
         config: weights.
         valid: (A,) bool, attributes that have targets in this batch (default all).
         density: (A,) bool, the attributes whose scene sums are compared too (default: every continuous one).
+        presence: (A,) bool, densities learned as presence (default none): their V is a logit trained
+            like a discrete attribute's on "the target is above 0 in the cell".
 
     Returns:
         The scalar loss and its parts as floats (``discrete``, ``pixel_l1``, ``scene_l1``).
@@ -139,13 +144,15 @@ def tag_loss(
     tt = tt.transpose(0, 1).reshape_as(vv)
     total = v.sum() * 0.0
     parts = {"discrete": 0.0, "pixel_l1": 0.0, "scene_l1": 0.0}
-    dis = discrete & valid
+    pres = torch.zeros_like(discrete) if presence is None else presence & ~discrete
+    dis = (discrete | pres) & valid
     if bool(dis.any()):
-        d = hard_negative_bce(vv[dis].flatten(0, 1), tt[dis].flatten(0, 1), config.hard_negatives,
+        t_dis = torch.where(pres[:, None, None], (tt > 0).to(tt.dtype), tt)  # presence: any object in the cell
+        d = hard_negative_bce(vv[dis].flatten(0, 1), t_dis[dis].flatten(0, 1), config.hard_negatives,
                               config.min_negatives)
         total = total + config.discrete_weight * d
         parts["discrete"] = float(d.detach())
-    con = ~discrete & valid
+    con = ~discrete & ~pres & valid
     if bool(con.any()):
         s = scale[con][:, None, None]
         pred, tgt = vv[con] / s, tt[con] / s  # (Ac, B*T, P)

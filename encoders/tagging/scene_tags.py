@@ -4,7 +4,8 @@
 - :func:`region_masks`: the regions of :class:`~encoders.tagging.attributes.Region` on a grid.
 - :func:`pool`: f_p over a region: **sum** for densities (times the cell area: m² covered), **max**
   for everything else (for discrete attributes over probabilities sigmoid(V); ``vehicle_speed``: the
-  fastest vehicle in the region, m/s). An empty region pools to 0.
+  fastest vehicle in the region, m/s; a density learned as presence: its probability where at least
+  0.5, times the object's share of the cell). An empty region pools to 0.
 - :func:`compose`: g_AND = Π h(V_τ), g_OR = Σ h − AND for two operands (inclusion–exclusion
   1 − Π(1 − h) for any number, the same for two), with h the identity or the indicator 1{V ≥ κ}.
   Compositions are formed per cell, then pooled: "blocked_by & four_way" in front is the largest,
@@ -25,6 +26,7 @@ from encoders.tagging.attributes import (
     AROUND_RADIUS_M,
     BEHIND_X_M,
     FRONT_X_M,
+    PRESENCE_THRESHOLD,
     SIDE_Y_ABS_M,
     AttributeKind,
     Region,
@@ -150,8 +152,18 @@ def region_mask(masks: dict[Region, NDArray[np.bool_]], region: Region | str, wh
     return masks[r]
 
 
-def values_of(v: NDArray[np.floating], attribute: str, kind: AttributeKind | None = None) -> FloatArray:
-    """What is pooled and composed: sigmoid(V) for discrete attributes, V itself for continuous ones."""
+def values_of(v: NDArray[np.floating], attribute: str, kind: AttributeKind | None = None,
+              footprint_share: float | None = None) -> FloatArray:
+    """What is pooled and composed: sigmoid(V) for discrete attributes, V itself for continuous ones.
+
+    ``footprint_share`` (a density learned as presence, :meth:`TagHeadConfig.footprint_share`): V is the
+    logit that such an object is in the cell; the value is the covered share of the cell expected from
+    it, p · share where p ≥ :data:`PRESENCE_THRESHOLD`, else 0 (summing every cell's small p over a
+    region would add up to objects that are not there).
+    """
+    if footprint_share is not None:
+        p = sigmoid(v)
+        return np.asarray(np.where(p >= PRESENCE_THRESHOLD, p * footprint_share, 0.0), dtype=np.float32)
     k = kind if kind is not None else attribute_kind(attribute)
     return sigmoid(v) if k == AttributeKind.DISCRETE else np.asarray(v, dtype=np.float32)
 
@@ -187,9 +199,13 @@ def reduction_of(attributes: Sequence[str]) -> str:
 
 
 def pool(v: NDArray[np.floating], mask: NDArray[np.bool_], attribute: str, cell_area_m2: float = 1.0,
-         kind: AttributeKind | None = None) -> FloatArray:
-    """Scene tag of one attribute: (..., H, W) tag tensor V (logits for discrete) → (...) pooled over ``mask``."""
-    return pool_values(values_of(v, attribute, kind), mask, reduction_of([attribute]), cell_area_m2)
+         kind: AttributeKind | None = None, footprint_m2: float | None = None) -> FloatArray:
+    """Scene tag of one attribute: (..., H, W) tag tensor V (logits for discrete) → (...) pooled over ``mask``.
+
+    ``footprint_m2``: one object's footprint, for a density learned as presence.
+    """
+    share = None if footprint_m2 is None else footprint_m2 / cell_area_m2
+    return pool_values(values_of(v, attribute, kind, share), mask, reduction_of([attribute]), cell_area_m2)
 
 
 def compose(tensors: Sequence[NDArray[np.floating]], op: str = "and", h: str = "identity",

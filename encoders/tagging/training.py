@@ -39,7 +39,7 @@ from encoders.clips.layout import read_manifest
 from encoders.config import BevConfig
 from encoders.inference import resolve_device
 from encoders.tagging.ablation import mask_inputs
-from encoders.tagging.attributes import TagError, is_density
+from encoders.tagging.attributes import FOOTPRINT_M2, TagError, is_density
 from encoders.tagging.config import TagTrainConfig
 from encoders.tagging.data import TagWindowDataset, TargetSource, collate_windows
 from encoders.tagging.head import TagHead, TagHeadConfig
@@ -68,7 +68,7 @@ def window_loss(
     small = downsample_targets(tg.flatten(0, 1), r, _area_mask(head.names, device))  # (B*T, A, h, w)
     small = small.reshape(b, t, a, *small.shape[-2:])
     return tag_loss(v, small, head.discrete_mask(), head.scale, config.loss,
-                    density=_area_mask(head.names, device))
+                    density=_area_mask(head.names, device), presence=head.presence_mask())
 
 
 #: Batches of one task-balanced draw of :class:`TaggingObjective` (the draw is seeded by its number).
@@ -97,7 +97,12 @@ class TaggingObjective(nn.Module):
         self.clips_dir = Path(clips_dir)
         self.config = config
         self.dataset = TagWindowDataset(self.clips_dir, "train", config.window_frames, config.frame_stride, targets)
-        hc = head_config or TagHeadConfig(attributes=self.dataset.names, embed_channels=embed_channels)
+        # Joint training regresses every density: learned as presence beside the contrastive losses, the
+        # pedestrian row read nothing either way (the shared E holds no pedestrians, linear probe 0.10 per
+        # cell) and the other tags lost (demo clips, skill 0.384 against 0.404 at seed 0, 0.345 against
+        # 0.375 at seed 1), while for tags alone presence is what makes the row read pedestrians.
+        hc = head_config or TagHeadConfig(attributes=self.dataset.names, embed_channels=embed_channels,
+                                          footprints={})
         if hc.attributes != self.dataset.names:
             raise TagError(f"head attributes {list(hc.attributes)} differ from the targets' {list(self.dataset.names)}")
         self.head = TagHead(hc)
@@ -250,7 +255,13 @@ def train_tags(
                                      frame_stride=init.config.frame_stride)
     ds = TagWindowDataset(clips_dir, "train", config.window_frames, config.frame_stride, targets)
     bev = BevTower(config.bev, 32) if init is None else init.bev
-    head = TagHead(TagHeadConfig(attributes=ds.names, embed_channels=config.bev.embed_channels))
+    footprints = None
+    if init is not None:
+        # A row copied from the model built on keeps the reading it was trained for (presence or regression).
+        base = init.head.config.footprints or {}
+        footprints = {a: FOOTPRINT_M2[a] for a in ds.names if a in FOOTPRINT_M2 and a not in init.head.names}
+        footprints.update({a: f for a, f in base.items() if a in ds.names})
+    head = TagHead(TagHeadConfig(attributes=ds.names, embed_channels=config.bev.embed_channels, footprints=footprints))
     if init is not None:
         with torch.no_grad():
             for i, name in enumerate(ds.names):

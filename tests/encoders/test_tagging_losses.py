@@ -10,7 +10,7 @@ import torch
 import torch.nn.functional as F
 
 from encoders.tagging.ablation import mask_inputs
-from encoders.tagging.attributes import OUTPUT_SCALE, TagError
+from encoders.tagging.attributes import FOOTPRINT_M2, OUTPUT_SCALE, TagError
 from encoders.tagging.config import TagTrainConfig
 from encoders.tagging.head import TagHead, TagHeadConfig
 from encoders.tagging.losses import (
@@ -85,6 +85,46 @@ def test_tag_loss_separates_discrete_and_continuous_terms() -> None:
     _, with_scene = tag_loss(v, t, kinds, ones, cfg2, density=torch.tensor([True, False]))
     _, without = tag_loss(v, t, kinds, ones, cfg2, density=torch.tensor([False, False]))
     assert with_scene["scene_l1"] == pytest.approx(0.5 - 0.05) and without["scene_l1"] == 0.0  # sums 0.5 vs 0
+
+
+def test_a_density_learned_as_presence_takes_the_discrete_loss_on_any_object_in_the_cell() -> None:
+    g = torch.Generator().manual_seed(0)
+    v = torch.randn(2, 3, 2, 4, 4, generator=g, requires_grad=True)  # A = [pedestrian-like density, discrete]
+    t = torch.zeros(2, 3, 2, 4, 4)
+    t[:, :, 0, 1, 2] = 0.04  # a small object covers 4 % of one cell
+    t[0, :, 1, 3, 3] = 1.0
+    cfg = TagLossConfig(scene_weight=1.0, scene_norm=1.0)
+    discrete = torch.tensor([False, True])
+    loss, parts = tag_loss(v, t, discrete, torch.ones(2), cfg, density=torch.tensor([True, False]),
+                           presence=torch.tensor([True, False]))
+    # Both rows go through the hard-negative BCE, the density's on target > 0; no continuous term is left.
+    logits = v.detach().transpose(1, 2).reshape(2, 2, 3, 16).transpose(0, 1).reshape(2, 6, 16)
+    binary = (t.transpose(1, 2).reshape(2, 2, 3, 16).transpose(0, 1).reshape(2, 6, 16) > 0).float()
+    want = hard_negative_bce(logits.reshape(12, 16), binary.reshape(12, 16), cfg.hard_negatives, cfg.min_negatives)
+    assert parts["discrete"] == pytest.approx(float(want), rel=1e-6)
+    assert parts["pixel_l1"] == 0.0 and parts["scene_l1"] == 0.0
+    loss.backward()
+    assert v.grad is not None and float(v.grad[:, :, 0].abs().sum()) > 0
+    # Without the presence mask the same density is regressed.
+    _, regressed = tag_loss(v, t, discrete, torch.ones(2), cfg, density=torch.tensor([True, False]))
+    assert regressed["pixel_l1"] > 0.0
+
+
+def test_head_config_records_densities_learned_as_presence() -> None:
+    head = TagHeadConfig(attributes=("parked", "vehicle_density", "pedestrian_density"), embed_channels=4)
+    assert head.footprints == {"pedestrian_density": FOOTPRINT_M2["pedestrian_density"]}
+    assert head.footprint_share("pedestrian_density", 4.0) == pytest.approx(FOOTPRINT_M2["pedestrian_density"] / 4)
+    assert head.footprint_share("vehicle_density", 4.0) is None
+    assert TagHead(head).presence_mask().tolist() == [False, False, True]
+    saved = head.to_dict()
+    assert TagHeadConfig.from_dict(saved) == head
+    # A head saved before presence densities regressed every density: it reads back so.
+    legacy = {k: v for k, v in saved.items() if k != "footprints"}
+    assert TagHeadConfig.from_dict(legacy).footprints == {}
+    with pytest.raises(TagError, match="densities the head has"):
+        TagHeadConfig(attributes=("parked", "pedestrian_density"), footprints={"parked": 0.36})
+    with pytest.raises(TagError, match="finite and > 0"):
+        TagHeadConfig(attributes=("pedestrian_density",), footprints={"pedestrian_density": float("nan")})
 
 
 def test_task_balanced_sampler_is_uniform_over_attributes() -> None:

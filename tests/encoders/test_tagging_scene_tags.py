@@ -18,6 +18,7 @@ from encoders.tagging.scene_tags import (
     region_masks,
     sigmoid,
     tag_tensor,
+    values_of,
 )
 from scenes.bev import BevGrid
 
@@ -78,6 +79,19 @@ def test_pooling_sums_densities_and_maxes_probabilities_exactly() -> None:
     np.testing.assert_allclose(speed, [8.0, -7.0])
     # Empty region → 0 for max.
     np.testing.assert_array_equal(pool_values(v, np.zeros((4, 2), bool), "max"), [0.0, 0.0])
+
+
+def test_a_density_learned_as_presence_sums_its_confident_cells_times_the_footprint() -> None:
+    logits = np.log(np.array([[0.9, 0.2], [0.5, 0.49], [0.7, 0.1], [0.95, 0.0001]]) /
+                    (1 - np.array([[0.9, 0.2], [0.5, 0.49], [0.7, 0.1], [0.95, 0.0001]])))
+    front = ego_region_mask(GRID, Region.FRONT)  # the first three rows
+    got = pool(logits.astype(np.float32), front, "pedestrian_density", cell_area_m2=100.0, footprint_m2=0.36)
+    # Cells below p = 0.5 count nothing (else a region's many small p add up to absent pedestrians).
+    assert float(got) == pytest.approx(0.36 * (0.9 + 0.5 + 0.7), rel=1e-5)
+    share = values_of(logits.astype(np.float32), "pedestrian_density", footprint_share=0.0036)
+    assert share[0, 1] == 0.0 and share[0, 0] == pytest.approx(0.9 * 0.0036, rel=1e-5)
+    # Regressed (no footprint): V itself is the covered fraction.
+    np.testing.assert_allclose(values_of(logits, "pedestrian_density"), logits, rtol=1e-6)
 
 
 def test_map_regions_follow_the_map_layers_and_fail_without_a_map() -> None:

@@ -62,6 +62,7 @@ def test_joint_hook_adds_the_head_to_the_optimiser_and_gives_a_loss(fixture: dic
     objective = attach_tagging(fixture["clips"], model, TagTrainConfig(batch_size=2, window_frames=3), optimizer=opt)
     assert objective is not None and len(opt.param_groups) == 2 and objective.optimizer is None
     assert objective.config.bev == tiny_bev_config()  # the run records the tower the tags ride on
+    assert objective.head.config.footprints == {}  # joint training regresses every density
     loss = objective.loss(model.bev_embedding)
     loss.backward()
     assert torch.isfinite(loss) and objective.head.attributes.grad is not None
@@ -82,6 +83,7 @@ def test_new_attribute_keeps_old_rows_with_a_frozen_backbone(fixture: dict[str, 
                              mode="alone", steps=2, batch_size=2, window_frames=3, device="cpu", warmup_steps=1))
     ext = load_tagger(res.run_dir)
     assert ext.names == (*base.names, CAUSES_EGO_BRAKING)
+    assert ext.head.config.footprints == base.head.config.footprints  # old rows keep their reading
     torch.testing.assert_close(ext.head.attributes[:-1], base.head.attributes)
     for k, v in base.bev.state_dict().items():
         if k.startswith(EMBEDDING_PREFIXES):  # the part of the tower behind E
@@ -91,6 +93,22 @@ def test_new_attribute_keeps_old_rows_with_a_frozen_backbone(fixture: dict[str, 
     with pytest.raises(TagError, match="new and distinct"):
         add_attributes(fixture["run"], ["parked"], ego_brake_cause_targets, tmp_path / "x", fixture["clips"],
                        fixture["logs"])
+
+
+def test_a_model_built_on_a_regressed_density_keeps_regressing_it(fixture: dict[str, Any], tmp_path: Path) -> None:
+    """A row copied from a head saved before presence densities keeps the reading it was trained for."""
+    from encoders.tagging.head import TagHead, TagHeadConfig
+    from encoders.tagging.training import train_tags
+
+    base = load_tagger(fixture["run"])
+    assert "pedestrian_density" in base.head.config.footprints  # trained now: learned as presence
+    legacy = TagHead(TagHeadConfig.from_dict({k: v for k, v in base.head.config.to_dict().items()
+                                              if k != "footprints"}))
+    legacy.load_state_dict(base.head.state_dict())
+    base.head = legacy
+    train_tags(fixture["clips"], tmp_path / "re", TagTrainConfig(
+        mode="alone", steps=1, batch_size=2, window_frames=3, device="cpu", warmup_steps=1), init=base)
+    assert load_tagger(tmp_path / "re").head.config.footprints == {}
 
 
 def test_evaluation_writes_both_tables(fixture: dict[str, Any], tmp_path: Path) -> None:

@@ -176,10 +176,9 @@ class TagSearch:
         if todo:
             rows = [self.tagger.names.index(n) for n in todo]
             v = self.tagger.tag_frames(fr.bev_lidar, fr.bev_map, attributes=rows)  # (F, len(todo), h, w)
+            head, cell_m2 = self.tagger.head.config, self.grid.resolution_m**2
             for i, n in enumerate(todo):
-                head = self.tagger.head.config
-                self._values[(fr.log_id, n)] = values_of(v[:, i], n, head.kind(n),
-                                                         head.footprint_share(n, self.grid.resolution_m**2))
+                self._values[(fr.log_id, n)] = values_of(v[:, i], n, head.kind(n), head.footprint_share(n, cell_m2))
         return [self._values[(fr.log_id, n)] for n in names]
 
     def mask(self, log_dir: Path | str, region: str | Region) -> NDArray[np.bool_]:

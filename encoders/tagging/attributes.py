@@ -10,7 +10,7 @@ attribute              kind        ground truth per BEV cell (rasterised from th
 vehicle_density        continuous  fraction of the cell covered by vehicle boxes (car, truck, bus,
                                    motorcycle), in [0, 1]
 pedestrian_density     continuous  fraction of the cell covered by pedestrian boxes, in [0, 1] (learned
-                                   as presence, see :data:`FOOTPRINT_M2`)
+                                   as presence when tags train alone, see :data:`FOOTPRINT_M2`)
 vehicle_speed          continuous  speed (m/s) of the vehicle whose box holds the cell centre, 0 elsewhere
 parked … braking_for   discrete    1 inside the box of a vehicle with that behaviour label
 three_way, four_way    discrete    1 in the area of a junction of that kind (``junctions.feather``): its

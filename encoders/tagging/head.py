@@ -100,8 +100,8 @@ class TagHeadConfig:
 
     def footprint_share(self, name: str, cell_area_m2: float) -> float | None:
         """The share of a cell of ``cell_area_m2`` one object covers, for a density learned as presence; else None."""
-        assert self.footprints is not None  # filled in on construction
-        return self.footprints[name] / cell_area_m2 if name in self.footprints else None
+        footprint = (self.footprints or {}).get(name)  # filled in on construction
+        return None if footprint is None else footprint / cell_area_m2
 
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)
@@ -151,9 +151,8 @@ class TagHead(nn.Module):
 
     def presence_mask(self) -> torch.Tensor:
         """(|T|,) bool, true for densities learned as presence."""
-        assert self.config.footprints is not None
-        return torch.tensor([a in self.config.footprints for a in self.config.attributes],
-                            device=self.attributes.device)
+        presence = self.config.footprints or {}
+        return torch.tensor([a in presence for a in self.config.attributes], device=self.attributes.device)
 
     def forward(self, e: torch.Tensor) -> torch.Tensor:
         """e: (B, T, D_e, h, w) → V (B, T, |T|, h, w)."""

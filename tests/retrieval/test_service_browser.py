@@ -138,5 +138,6 @@ def test_errors_are_shown_on_the_page(server: dict[str, Any], browser: Any) -> N
     from selenium.webdriver.common.by import By
 
     browser.get(server["url"] + "?q=" + "x" * 600)  # longer than the server's limit: the page says so
-    status = _wait(lambda: browser.find_element(By.ID, "status").text)
+    # The page says "Searching…" while the request is out: wait for the answer, not the first text.
+    status = _wait(lambda: (text := browser.find_element(By.ID, "status").text) and "Searching" not in text and text)
     assert "413" in status

@@ -120,16 +120,15 @@ SIDE_Y_ABS_M = 10.0
 AROUND_RADIUS_M = 15.0
 
 #: Densities of objects much smaller than a cell of E, learned as *presence*: the head's row is a logit that
-#: such an object is in the cell (cross entropy with hard negatives, as for discrete attributes), read as
-#: its probability p where p ≥ :data:`PRESENCE_THRESHOLD` (0 elsewhere) times the object's footprint, a
-#: share of the cell. Why: a pedestrian covers about 6 % of a 2.5 m cell of E, in 0.3 % of the cells, so
-#: regressing the covered fraction (smooth L1 over every cell) left the row at noise whatever its scale,
-#: and the sum of that noise over a region drowned the few pedestrians. The same demo tower trained
-#: for tags alone on the demo's clips (1200 steps, seed 0): regressed, the test frames' pedestrian area
-#: correlated with the truth at −0.30 to 0.09 per region and the validation calibration kept a constant
-#: (L1 0.205 against the statistics' 0.192); as presence 0.44–0.76 on test and 0.27–0.63 on validation,
-#: calibrated L1 0.157, below the statistics in all six regions. Joint training (beside the contrastive
-#: losses) keeps regressing: there the shared E held no pedestrians either way (see TaggingObjective).
+#: such an object is in the cell (cross entropy with hard negatives, as for discrete attributes, in a loss
+#: term of its own), read as its probability p where p ≥ :data:`PRESENCE_THRESHOLD` (0 elsewhere) times the
+#: object's footprint, a share of the cell. Why: a pedestrian covers about 6 % of a 2.5 m cell of E, in
+#: 0.3 % of the cells, so regressing the covered fraction (smooth L1 over every cell) left the row at noise
+#: whatever its scale, and the sum of that noise over a region drowned the few pedestrians. The demo's
+#: tower trained for tags alone on the demo's clips (1200 steps, seed 0): regressed, the validation
+#: calibration kept a constant (L1 0.205 against the statistics' 0.192); as presence, calibrated L1 0.152,
+#: below the statistics in all six regions. Joint training (beside the contrastive losses) keeps
+#: regressing: there the row did not learn presence (see TaggingObjective).
 FOOTPRINT_M2: dict[str, float] = {Attribute.PEDESTRIAN_DENSITY.value: 0.36}  # a 0.6 m × 0.6 m pedestrian box
 #: A cell counts an object learned as presence where its probability is at least this.
 PRESENCE_THRESHOLD = 0.5

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -87,7 +88,7 @@ def test_tag_loss_separates_discrete_and_continuous_terms() -> None:
     assert with_scene["scene_l1"] == pytest.approx(0.5 - 0.05) and without["scene_l1"] == 0.0  # sums 0.5 vs 0
 
 
-def test_a_density_learned_as_presence_takes_the_discrete_loss_on_any_object_in_the_cell() -> None:
+def test_a_density_learned_as_presence_takes_its_own_bce_term_on_any_object_in_the_cell() -> None:
     g = torch.Generator().manual_seed(0)
     v = torch.randn(2, 3, 2, 4, 4, generator=g, requires_grad=True)  # A = [pedestrian-like density, discrete]
     t = torch.zeros(2, 3, 2, 4, 4)
@@ -95,19 +96,36 @@ def test_a_density_learned_as_presence_takes_the_discrete_loss_on_any_object_in_
     t[0, :, 1, 3, 3] = 1.0
     cfg = TagLossConfig(scene_weight=1.0, scene_norm=1.0)
     discrete = torch.tensor([False, True])
-    loss, parts = tag_loss(v, t, discrete, torch.ones(2), cfg, density=torch.tensor([True, False]),
-                           presence=torch.tensor([True, False]))
-    # Both rows go through the hard-negative BCE, the density's on target > 0; no continuous term is left.
-    logits = v.detach().transpose(1, 2).reshape(2, 2, 3, 16).transpose(0, 1).reshape(2, 6, 16)
-    binary = (t.transpose(1, 2).reshape(2, 2, 3, 16).transpose(0, 1).reshape(2, 6, 16) > 0).float()
-    want = hard_negative_bce(logits.reshape(12, 16), binary.reshape(12, 16), cfg.hard_negatives, cfg.min_negatives)
-    assert parts["discrete"] == pytest.approx(float(want), rel=1e-6)
+    density = torch.tensor([True, False])
+    loss, parts = tag_loss(v, t, discrete, torch.ones(2), cfg, density=density, presence=torch.tensor([True, False]))
+    # Each row through the hard-negative BCE on its own, the density's on target > 0; no continuous term is left.
+    logits = v.detach().transpose(1, 2).reshape(2, 2, 3, 16).transpose(0, 1).reshape(2, 6, 16)  # (A, B*T, P)
+    targets = t.transpose(1, 2).reshape(2, 2, 3, 16).transpose(0, 1).reshape(2, 6, 16)
+    want_presence = hard_negative_bce(logits[0], (targets[0] > 0).float(), cfg.hard_negatives, cfg.min_negatives)
+    want_discrete = hard_negative_bce(logits[1], targets[1], cfg.hard_negatives, cfg.min_negatives)
+    assert parts["presence"] == pytest.approx(float(want_presence), rel=1e-6)
+    assert parts["discrete"] == pytest.approx(float(want_discrete), rel=1e-6)
     assert parts["pixel_l1"] == 0.0 and parts["scene_l1"] == 0.0
+    assert float(loss.detach()) == pytest.approx(float(want_presence + want_discrete), rel=1e-6)
     loss.backward()
     assert v.grad is not None and float(v.grad[:, :, 0].abs().sum()) > 0
+    # Its weight is its own: the discrete attributes do not dilute it.
+    heavy, _ = tag_loss(v, t, discrete, torch.ones(2), dataclasses.replace(cfg, presence_weight=3.0),
+                        density=density, presence=torch.tensor([True, False]))
+    assert float(heavy.detach()) == pytest.approx(float(3 * want_presence + want_discrete), rel=1e-6)
+    # Nor does their number: with two more discrete rows the presence row's gradient is the same.
+    v4 = torch.cat([v.detach(), v.detach()[:, :, 1:].repeat(1, 1, 2, 1, 1)], dim=2).requires_grad_(True)
+    t4 = torch.cat([t, t[:, :, 1:].repeat(1, 1, 2, 1, 1)], dim=2)
+    more, _ = tag_loss(v4, t4, torch.tensor([False, True, True, True]), torch.ones(4), cfg,
+                       density=torch.tensor([True, False, False, False]),
+                       presence=torch.tensor([True, False, False, False]))
+    more.backward()
+    assert v4.grad is not None and torch.allclose(v4.grad[:, :, 0], v.grad[:, :, 0])
     # Without the presence mask the same density is regressed.
-    _, regressed = tag_loss(v, t, discrete, torch.ones(2), cfg, density=torch.tensor([True, False]))
-    assert regressed["pixel_l1"] > 0.0
+    _, regressed = tag_loss(v, t, discrete, torch.ones(2), cfg, density=density)
+    assert regressed["pixel_l1"] > 0.0 and "presence" not in regressed
+    with pytest.raises(TagError, match="presence_weight"):
+        TagLossConfig(presence_weight=-1.0)
 
 
 def test_head_config_records_densities_learned_as_presence() -> None:

@@ -58,7 +58,8 @@ positive test frames in the full scene): added to the trained model with a froze
 with the backbone fine-tuned 0.182, trained from scratch 0.212 (1000 steps each).
 
 These figures predate pedestrian density learned as presence (``FOOTPRINT_M2`` in
-:mod:`encoders.tagging.attributes`; regressed here, hence its row's near-statistics L1); not re-run since.
+:mod:`encoders.tagging.attributes`, a loss term of its own; regressed here, hence its row's near-statistics
+L1); not re-run since (about 37 minutes).
 """
 
 from __future__ import annotations

@@ -191,7 +191,8 @@ class BevConfig(EncodersConfig):
     Attributes:
         lidar_channels: LiDAR occupancy channels (Cl).
         map_channels: map raster channels (Cm).
-        widths: channels of each backbone's stages (strides 2, 4, 8, ...).
+        widths: channels of each backbone's stages (strides 2, 4, 8, ...). The first stage has 16: with 8,
+            jointly trained E held no pedestrians (see ``TagTrainConfig.joint_presence_weight``).
         blocks_per_stage: 3×3 convolutions per stage (the strided one, then residual ones); more
             blocks widen the receptive field (see :class:`encoders.bev.Backbone`).
         context_blocks: dilated residual 3×3 convolutions after the last stage (wide context, cheap).
@@ -215,7 +216,7 @@ class BevConfig(EncodersConfig):
 
     lidar_channels: int = 5
     map_channels: int = 6
-    widths: tuple[int, ...] = (8, 16, 32)
+    widths: tuple[int, ...] = (16, 32, 64)
     blocks_per_stage: int = 1
     context_blocks: int = 0
     embed_channels: int = 64

@@ -97,14 +97,12 @@ class TaggingObjective(nn.Module):
         self.clips_dir = Path(clips_dir)
         self.config = config
         self.dataset = TagWindowDataset(self.clips_dir, "train", config.window_frames, config.frame_stride, targets)
-        # Joint training regresses every density. Learned as presence beside the contrastive losses, the
-        # pedestrian row did not reach the reading threshold on the demo's clips (seed 0, presence a term of
-        # its own): at weight 1 its probability in pedestrian cells of the test logs averaged 0.15 against
-        # 0.08 elsewhere, never 0.5; at weight 5 0.17 (train 0.27), L1 0.200 against the statistics' 0.192,
-        # and the other tags lost (skill 0.359 and 0.378 against 0.404 regressed). Trained for tags alone,
-        # presence is what makes the row read pedestrians (FOOTPRINT_M2).
-        hc = head_config or TagHeadConfig(attributes=self.dataset.names, embed_channels=embed_channels,
-                                          footprints={})
+        # Densities small against a cell are learned as presence here too, with the presence term at
+        # ``joint_presence_weight`` (see TagTrainConfig): at the weight that suits tags alone the row
+        # stayed below the reading threshold beside the contrastive losses.
+        self._window_config = dataclasses.replace(
+            config, loss=dataclasses.replace(config.loss, presence_weight=config.joint_presence_weight))
+        hc = head_config or TagHeadConfig(attributes=self.dataset.names, embed_channels=embed_channels)
         if hc.attributes != self.dataset.names:
             raise TagError(f"head attributes {list(hc.attributes)} differ from the targets' {list(self.dataset.names)}")
         self.head = TagHead(hc)
@@ -136,7 +134,7 @@ class TaggingObjective(nn.Module):
         if self._it is None:
             self._it = self._batches()
         device = self.head.attributes.device
-        loss, self.last_parts = window_loss(embed, self.head, next(self._it), self.config, device)
+        loss, self.last_parts = window_loss(embed, self.head, next(self._it), self._window_config, device)
         return loss
 
     def step(self, lr: float) -> None:
@@ -151,12 +149,13 @@ class TaggingObjective(nn.Module):
     def training_state(self) -> dict[str, Any]:
         """What a checkpoint keeps to resume exactly: tensors and plain data only (loads with ``weights_only``).
 
-        ``{"attributes": [names], "head": head state dict, "optimizer": own optimiser state or None,
-        "batches_drawn": int}``; the learning rate is not state: :meth:`step` receives it from the
-        training loop's schedule.
+        ``{"attributes": [names], "footprints": {density learned as presence: m²}, "head": head state dict,
+        "optimizer": own optimiser state or None, "batches_drawn": int}``; the learning rate is not state:
+        :meth:`step` receives it from the training loop's schedule.
         """
         return {
             "attributes": list(self.head.names),
+            "footprints": dict(self.head.config.footprints or {}),
             "head": {k: v.detach().cpu().clone() for k, v in self.head.state_dict().items()},
             "optimizer": self.optimizer.state_dict() if self.optimizer is not None else None,
             "batches_drawn": self.batches_drawn,
@@ -169,6 +168,11 @@ class TaggingObjective(nn.Module):
             raise TagError(f"the saved tagging head has attributes {saved}, the clips' tag targets "
                            f"{list(self.head.names)}")
         self.head.load_state_dict(state["head"])
+        # Each row goes on being trained for the reading it was trained for; states saved before heads
+        # recorded it regressed every density.
+        footprints = {str(a): float(v) for a, v in (state.get("footprints") or {}).items()}
+        if footprints != self.head.config.footprints:
+            self.head.config = dataclasses.replace(self.head.config, footprints=footprints)
         if (state["optimizer"] is None) != (self.optimizer is None):
             raise TagError("the saved tagging state and this objective differ in who steps the head "
                            "(its own optimiser or the training loop's)")

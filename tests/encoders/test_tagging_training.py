@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import torch
 
-from encoders.tagging.attributes import ATTRIBUTES, TagError
+from encoders.tagging.attributes import ATTRIBUTES, FOOTPRINT_M2, TagError
 from encoders.tagging.config import TagTrainConfig
 from encoders.tagging.evaluate import evaluate_runs, write_report
 from encoders.tagging.extend import CAUSES_EGO_BRAKING, add_attributes, ego_brake_cause_targets
@@ -62,10 +62,26 @@ def test_joint_hook_adds_the_head_to_the_optimiser_and_gives_a_loss(fixture: dic
     objective = attach_tagging(fixture["clips"], model, TagTrainConfig(batch_size=2, window_frames=3), optimizer=opt)
     assert objective is not None and len(opt.param_groups) == 2 and objective.optimizer is None
     assert objective.config.bev == tiny_bev_config()  # the run records the tower the tags ride on
-    assert objective.head.config.footprints == {}  # joint training regresses every density
+    # Joint training learns small densities as presence too, with the presence term at its own weight.
+    assert objective.head.config.footprints == {"pedestrian_density": FOOTPRINT_M2["pedestrian_density"]}
     loss = objective.loss(model.bev_embedding)
     loss.backward()
     assert torch.isfinite(loss) and objective.head.attributes.grad is not None
+    parts = objective.last_parts
+    without = attach_tagging(fixture["clips"], model, TagTrainConfig(batch_size=2, window_frames=3,
+                                                                     joint_presence_weight=0.0),
+                             optimizer=torch.optim.AdamW(model.parameters(), lr=1e-3))
+    assert without is not None
+    without.head.load_state_dict(objective.head.state_dict())
+    with torch.no_grad():  # the same first batch and head: the losses differ by the weighted presence term
+        loss_0 = without.loss(model.bev_embedding)
+    assert float(loss.detach()) == pytest.approx(float(loss_0) + 5.0 * parts["presence"], rel=1e-5)
+    # A state saved before heads recorded their reading resumes with every density regressed.
+    state = objective.training_state()
+    assert state["footprints"] == objective.head.config.footprints
+    del state["footprints"]
+    without.load_training_state(state)
+    assert without.head.config.footprints == {} and not bool(without.head.presence_mask().any())
     assert attach_tagging(fixture["clips"], model, TagTrainConfig(mode="alone")) is None
     # Without an optimiser the objective trains its head itself.
     own = attach_tagging(fixture["clips"], model, TagTrainConfig(batch_size=2, window_frames=3))

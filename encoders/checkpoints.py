@@ -9,7 +9,7 @@ the step, so no scheduler holds state. It is plain tensors and data, with the me
 configs, metrics rows, the numbers of the random states) as one JSON string::
 
     {"format": 2, "meta": "<JSON>", "model": {name: tensor}, "optimizer": AdamW state dict,
-     "tagging": None | {"attributes", "head", "optimizer", "batches_drawn"}, "rng": {name: tensor}}
+     "tagging": None | {"attributes", "footprints", "head", "optimizer", "batches_drawn"}, "rng": {name: tensor}}
 
 so :func:`read_checkpoint` loads it with ``torch.load(weights_only=True)``: a run folder cannot make
 a resume unpickle arbitrary objects. A file that does not load that way is refused with
@@ -239,8 +239,13 @@ def check_resume_tagging(new: TaggingObjective | None, saved: dict[str, Any] | N
             "--tag-weight, tagging mode); resuming would not continue the same training (use --force to resume "
             "anyway)"
         )
+    from encoders.tagging.config import TagTrainConfig
+
     a = {k: v for k, v in new.config.to_dict().items() if k not in TAG_RESUMABLE_KEYS}
-    b = {k: v for k, v in saved.items() if k not in TAG_RESUMABLE_KEYS}
+    # Keys added since the checkpoint was written take their defaults: what they weigh (the presence terms)
+    # has no row in an older head, whose state resumes with every density regressed.
+    b = {k: v for k, v in TagTrainConfig.from_dict(saved, "checkpoint: tagging config").to_dict().items()
+         if k not in TAG_RESUMABLE_KEYS}
     diffs = _config_differences(a, b, "tagging.")
     if diffs:
         raise ConfigMismatchError(

@@ -10,7 +10,7 @@ attribute              kind        ground truth per BEV cell (rasterised from th
 vehicle_density        continuous  fraction of the cell covered by vehicle boxes (car, truck, bus,
                                    motorcycle), in [0, 1]
 pedestrian_density     continuous  fraction of the cell covered by pedestrian boxes, in [0, 1] (learned
-                                   as presence when tags train alone, see :data:`FOOTPRINT_M2`)
+                                   as presence, see :data:`FOOTPRINT_M2`)
 vehicle_speed          continuous  speed (m/s) of the vehicle whose box holds the cell centre, 0 elsewhere
 parked … braking_for   discrete    1 inside the box of a vehicle with that behaviour label
 three_way, four_way    discrete    1 in the area of a junction of that kind (``junctions.feather``): its
@@ -127,8 +127,9 @@ AROUND_RADIUS_M = 15.0
 #: whatever its scale, and the sum of that noise over a region drowned the few pedestrians. The demo's
 #: tower trained for tags alone on the demo's clips (1200 steps, seed 0): regressed, the validation
 #: calibration kept a constant (L1 0.205 against the statistics' 0.192); as presence, calibrated L1 0.152,
-#: below the statistics in all six regions. Joint training (beside the contrastive losses) keeps
-#: regressing: there the row did not learn presence (see TaggingObjective).
+#: below the statistics in all six regions. Joint training (beside the contrastive losses) learns it so too,
+#: with a stronger presence term (``TagTrainConfig.joint_presence_weight``) on a tower whose first stage
+#: has 16 channels (``BevConfig.widths``).
 FOOTPRINT_M2: dict[str, float] = {Attribute.PEDESTRIAN_DENSITY.value: 0.36}  # a 0.6 m × 0.6 m pedestrian box
 #: A cell counts an object learned as presence where its probability is at least this.
 PRESENCE_THRESHOLD = 0.5

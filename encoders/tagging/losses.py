@@ -45,7 +45,8 @@ class TagLossConfig:
         scene_norm: scene sums are divided by this before the smooth L1.
         discrete_weight: weight of the discrete term.
         continuous_weight: weight of the continuous terms.
-        presence_weight: weight of the presence term (densities learned as presence).
+        presence_weight: weight of the presence term (densities learned as presence); joint training
+            uses ``TagTrainConfig.joint_presence_weight`` in its place.
     """
 
     hard_negatives: int = 3
@@ -142,8 +143,7 @@ def tag_loss(
             like a discrete attribute's on "the target is above 0 in the cell", in a term of its own.
 
     Returns:
-        The scalar loss and its parts as floats (``discrete``, ``pixel_l1``, ``scene_l1``, and ``presence``
-        when some valid attribute is learned as presence).
+        The scalar loss and its parts as floats (``discrete``, ``presence``, ``pixel_l1``, ``scene_l1``).
     """
     a = v.shape[2]
     valid = torch.ones(a, dtype=torch.bool, device=v.device) if valid is None else valid
@@ -152,7 +152,7 @@ def tag_loss(
     vv = vv.transpose(0, 1).reshape(a, -1, vv.shape[-1])  # (A, B*T, P)
     tt = tt.transpose(0, 1).reshape_as(vv)
     total = v.sum() * 0.0
-    parts = {"discrete": 0.0, "pixel_l1": 0.0, "scene_l1": 0.0}
+    parts = {"discrete": 0.0, "presence": 0.0, "pixel_l1": 0.0, "scene_l1": 0.0}
     pres = torch.zeros_like(discrete) if presence is None else presence & ~discrete
     dis = discrete & valid
     if bool(dis.any()):

@@ -7,7 +7,7 @@ Two ways to train, chosen by :attr:`TagTrainConfig.mode`:
   parameters (A and b) to the optimiser, adds ``weight × objective.loss(model)`` to every step's
   loss (the objective draws its own task-balanced batch of tag windows and calls
   ``model.bev_embedding``), and calls ``objective.save(run_dir)`` with the weights. Its checkpoints
-  hold :meth:`TaggingObjective.training_state` (head, optimiser, windows drawn), so a resumed run
+  hold :meth:`TaggingObjective.training_state` (head and its reading, optimiser, windows drawn), so a resumed run
   draws the same windows and takes the same steps as one that never stopped.
 - ``alone``: :func:`train_tags` trains a :class:`~encoders.bev.BevTower` and the head on the tag
   loss only (``scenesearch eval-tags --train`` and the benchmarks use it for the input ablation).

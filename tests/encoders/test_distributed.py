@@ -189,9 +189,9 @@ def test_two_processes_give_the_loss_and_gradients_of_one_with_the_whole_batch(r
     assert len(steps_two) == len(steps_one) == len(one)
     for step, (g2, g1) in enumerate(zip(steps_two, steps_one)):
         assert g2.keys() == g1.keys(), step
-        # Within float32 summation noise, which grows with the loss's scale (the first LiDAR stages sum their
-        # gradients over every BEV cell of every window: worst 2.5e-6 with the presence term at weight 1,
-        # 1.2e-5 at 5, of gradients up to 0.017); a wrong reduction would be off by a factor.
+        # Within float32 noise (summation order over every BEV cell of every window, and the near-tied hard
+        # negatives it can reorder), which grows with the loss's scale: worst 2.5e-6 with the presence term
+        # at weight 1, 1.2e-5 at 5, on gradients up to 0.017. A wrong reduction would be off by a factor.
         bound = {k: 1e-5 + 1e-3 * float(np.abs(g1[k]).max()) for k in g1}
         diff = {k: float(np.abs(g2[k] - g1[k]).max()) for k in g1}
         where = max(g1, key=lambda k: diff[k] - bound[k])

@@ -123,7 +123,7 @@ def test_a_density_learned_as_presence_takes_its_own_bce_term_on_any_object_in_t
     assert v4.grad is not None and torch.allclose(v4.grad[:, :, 0], v.grad[:, :, 0])
     # Without the presence mask the same density is regressed.
     _, regressed = tag_loss(v, t, discrete, torch.ones(2), cfg, density=density)
-    assert regressed["pixel_l1"] > 0.0 and "presence" not in regressed
+    assert regressed["pixel_l1"] > 0.0 and regressed["presence"] == 0.0
     with pytest.raises(TagError, match="presence_weight"):
         TagLossConfig(presence_weight=-1.0)
 

@@ -107,3 +107,17 @@ def test_a_run_written_before_newer_keys_loads_and_resumes_as_it_was(tmp_path: P
         check_resume_config(config, {**old, "bogus": 1}, done_epochs=1, source="run/checkpoints/last.pt")
     with pytest.raises(ConfigError, match="time_reversal"):
         TrainConfig(time_reversal=1.5)
+
+
+def test_a_tagging_checkpoint_written_before_the_presence_weights_resumes() -> None:
+    from types import SimpleNamespace
+
+    from encoders.checkpoints import check_resume_tagging
+    from encoders.tagging.config import TagTrainConfig
+
+    new = SimpleNamespace(config=TagTrainConfig())
+    old = TagTrainConfig().to_dict()
+    del old["joint_presence_weight"], old["loss"]["presence_weight"]
+    check_resume_tagging(new, old)  # type: ignore[arg-type]  # what the keys weigh has no row in an older head
+    with pytest.raises(ConfigError, match="tagging.joint_weight"):
+        check_resume_tagging(new, {**old, "joint_weight": 2.0})  # type: ignore[arg-type]

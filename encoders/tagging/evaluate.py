@@ -104,8 +104,7 @@ def pooled_truth_and_pred(
         red = reduction_of([a])
         t = small[:, i] if kind == AttributeKind.CONTINUOUS else (small[:, i] >= 0.5).astype(np.float32)
         truth[a] = {r.value: pool_values(t, m, red, cell) for r, m in masks.items()}
-        if v is not None:
-            assert tagger is not None
+        if tagger is not None and v is not None:
             x = values_of(v[:, i], a, kind, tagger.head.config.footprint_share(a, cell))
             pred[a] = {r.value: pool_values(x, m, red, cell) for r, m in masks.items()}
     return truth, (pred if v is not None else None)

@@ -153,14 +153,13 @@ def tag_loss(
     tt = tt.transpose(0, 1).reshape_as(vv)
     total = v.sum() * 0.0
     parts = {"discrete": 0.0, "presence": 0.0, "pixel_l1": 0.0, "scene_l1": 0.0}
-    pres = torch.zeros_like(discrete) if presence is None else presence & ~discrete
+    pres = (torch.zeros_like(discrete) if presence is None else presence & ~discrete) & valid
     dis = discrete & valid
     if bool(dis.any()):
         d = hard_negative_bce(vv[dis].flatten(0, 1), tt[dis].flatten(0, 1), config.hard_negatives,
                               config.min_negatives)
         total = total + config.discrete_weight * d
         parts["discrete"] = float(d.detach())
-    pres = pres & valid
     if bool(pres.any()):
         t_pres = (tt[pres] > 0).to(tt.dtype)  # any object in the cell
         pr = hard_negative_bce(vv[pres].flatten(0, 1), t_pres.flatten(0, 1), config.hard_negatives,

@@ -171,8 +171,7 @@ class TaggingObjective(nn.Module):
         # Each row goes on being trained for the reading it was trained for; states saved before heads
         # recorded it regressed every density.
         footprints = {str(a): float(v) for a, v in (state.get("footprints") or {}).items()}
-        if footprints != self.head.config.footprints:
-            self.head.config = dataclasses.replace(self.head.config, footprints=footprints)
+        self.head.config = dataclasses.replace(self.head.config, footprints=footprints)
         if (state["optimizer"] is None) != (self.optimizer is None):
             raise TagError("the saved tagging state and this objective differ in who steps the head "
                            "(its own optimiser or the training loop's)")

@@ -100,6 +100,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--tag-weight", type=float,
                         help="weight of the attribute-tagging loss joined to the contrastive loss (default 1). "
                              "Tagging trains when the clips hold tag targets (eval-tags --logs, or the demo)")
+    parser.add_argument("--tag-presence-weight", type=float, metavar="W",
+                        help="weight of the presence term of densities learned as presence (pedestrians) within "
+                             "the tagging loss (TagTrainConfig.joint_presence_weight, default 5)")
     parser.add_argument("--save-config", type=Path, help="also write the effective config as YAML")
     parser.add_argument("--nproc", type=int, default=1, metavar="N",
                         help="train on N processes of this machine (data parallel; --batch-size is per process)")
@@ -170,10 +173,11 @@ def build_config(args: argparse.Namespace) -> Any:
 
 
 def tagging_config(args: argparse.Namespace) -> Any:
-    """The tagging part of training, from ``--inputs`` and ``--tag-weight`` (None: the defaults)."""
+    """The tagging part of training, from ``--inputs``, ``--tag-weight`` and ``--tag-presence-weight`` (None:
+    the defaults)."""
     from encoders.tagging.config import TagTrainConfig
 
-    if args.inputs is None and args.tag_weight is None:
+    if args.inputs is None and args.tag_weight is None and args.tag_presence_weight is None:
         return None
     overrides: dict[str, Any] = {}
     if args.inputs is not None:
@@ -182,6 +186,8 @@ def tagging_config(args: argparse.Namespace) -> Any:
         if args.tag_weight < 0:
             raise ValueError(f"--tag-weight must be >= 0, got {args.tag_weight}")
         overrides["joint_weight"] = args.tag_weight
+    if args.tag_presence_weight is not None:
+        overrides["joint_presence_weight"] = args.tag_presence_weight  # TagTrainConfig checks it
     return dataclasses.replace(TagTrainConfig(), **overrides)
 
 

@@ -204,3 +204,17 @@ def test_partial_weight_flag_reaches_the_config(tmp_path: Path) -> None:
         train_command.build_config(parser.parse_args([*base, "--partial-weight", "-1"]))
     with pytest.raises(ConfigError, match="partial_host_share must be in"):
         TrainConfig(partial_host_share=1.5)
+
+
+def test_tag_presence_weight_flag_reaches_the_tagging_config(tmp_path: Path) -> None:
+    from encoders.tagging.config import TagTrainConfig
+    from retrieval.commands import train as train_command
+
+    parser = argparse.ArgumentParser()
+    train_command.configure(parser)
+    base = ["clips", "--out", str(tmp_path / "run")]
+    assert train_command.tagging_config(parser.parse_args(base)) is None  # the defaults
+    config = train_command.tagging_config(parser.parse_args([*base, "--tag-presence-weight", "2"]))
+    assert config == TagTrainConfig(joint_presence_weight=2.0)
+    with pytest.raises(ConfigError, match="joint_presence_weight"):
+        train_command.tagging_config(parser.parse_args([*base, "--tag-presence-weight", "-1"]))

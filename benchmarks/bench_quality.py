@@ -84,7 +84,7 @@ def measure(work: Path, config: DemoConfig, fresh: bool = True) -> dict[str, Any
         figures[f"{name}_temporal_order_accuracy"] = _round(block["temporal_order_accuracy"]["accuracy"])
         figures[f"{name}_freeform_precision@10"] = _round(block.get("freeform", {}).get("precision@10"))
         for key, value in block.get("clip_to_clip", {}).items():
-            if key.startswith(("action_precision", "appearance_bias", "same_log_share_neighbours")):
+            if key.startswith(("action_precision", "appearance_bias", "same_log_share_", "same_moment_share_")):
                 figures[f"{name}_clip_to_clip_{key}"] = _round(value)
     hybrid = metrics.get("hybrid") or {}
     if hybrid:  # the model and rule captions mixed, at the weight the index chose on the validation clips

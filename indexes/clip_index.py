@@ -153,22 +153,25 @@ class ClipIndex:
         return IndexHits(D, I, self._hits(D, I))
 
     def search_clip(self, clip_id: str, k: int, filter: FilterSpec = None,
-                    exclude_self: bool = True) -> IndexHits:
-        """Clips closest to ``clip_id``'s own vector (clip → clip); the clip itself left out by default."""
+                    exclude_self: bool = True, exclude: Sequence[str] = ()) -> IndexHits:
+        """Clips closest to ``clip_id``'s own vector (clip → clip); the clip itself left out by default,
+        and the clips ``exclude`` names (ids the index does not hold are ignored). As with a filter,
+        fewer than k come back when fewer are left."""
         x = self.reconstruct(clip_id)[None, :]
-        if not exclude_self:
+        names = [*exclude, clip_id] if exclude_self else list(exclude)
+        left_out = self.metadata.ids_of([c for c in dict.fromkeys(names) if c in self])  # (M,)
+        if not len(left_out):
             return self.search(x, k, filter)
-        check_k(k, len(self) - 1)
-        (own,) = self.metadata.ids_of([clip_id])
+        check_k(k, len(self) - 1 if exclude_self else len(self))
         if filter is None:
-            # One more result than asked, then drop the clip itself (or the last one if absent):
-            # cheaper than an "everything but one" filter.
-            D, I = self.vectors.search(x, k + 1)
-            keep = np.flatnonzero(I[0] != own)[:k]
+            # A few more results than asked, then drop the ones left out: cheaper than an "everything but
+            # these" filter.
+            D, I = self.vectors.search(x, min(k + len(left_out), len(self)))
+            keep = np.flatnonzero(~np.isin(I[0], left_out))[:k]
             D, I = D[:, keep], I[:, keep]
         else:
             allowed = self.metadata.select(filter)
-            D, I = self.vectors.search(x, k, allowed[allowed != own])
+            D, I = self.vectors.search(x, k, allowed[~np.isin(allowed, left_out)])
         return IndexHits(D, I, self._hits(D, I))
 
     def _hits(self, D: np.ndarray, I: np.ndarray) -> list[list[Hit]]:

@@ -1,21 +1,21 @@
 """Clip → clip figures: how alike in action a clip's nearest neighbours are, and how alike in look.
 
 Pure functions on (N, D) L2-normalised clip embeddings and each clip's action (its unified tag
-sequence as one string), appearance key (time of day, weather) and log, beside the analytic figures
+sequence as one string), appearance key (time of day, weather), log and time window, beside the analytic figures
 of random neighbours and the ceiling a perfect ranking reaches. :mod:`retrieval.evaluation` reports them
 for the model, its shuffled frames and the clips' own rule captions.
 """
 
 from __future__ import annotations
 
-from collections import Counter
 from collections.abc import Sequence
 
 import numpy as np
 
 
 def clip_to_clip_figures(x: np.ndarray, actions: Sequence[str], appearance: Sequence[str],
-                         k: int = 5, logs: Sequence[str] | None = None) -> dict[str, float | None]:
+                         k: int = 5, logs: Sequence[str] | None = None,
+                         windows_ns: Sequence[tuple[int, int]] | None = None) -> dict[str, float | None]:
     """Action precision@k of each clip's nearest neighbours, and how appearance biases them.
 
     ``appearance_bias`` is the rate at which neighbours that differ in action share the query's
@@ -29,11 +29,20 @@ def clip_to_clip_figures(x: np.ndarray, actions: Sequence[str], appearance: Sequ
     ``appearance_bias_other_logs`` are the same figures for each clip's k nearest neighbours from other
     logs, against chance among other logs' clips (None where no two logs share an appearance).
 
+    Several objects are in view at once, and at one moment they share the log, its place, the ego's
+    motion and the look. With ``windows_ns`` beside ``logs``, ``same_moment_share_neighbours`` /
+    ``_chance`` say how often neighbours that differ in action are clips of the query's own moment (its
+    log, windows that overlap its own), and the figures ending in ``_other_moments`` are those of each
+    clip's k nearest neighbours outside its moment, against chance and the ceiling among those clips:
+    what a search for *other* moments like this one (``SceneSearch.search_clip(..., other_moments=True)``)
+    returns.
+
     Args:
         x: (N, D) L2-normalised clip embeddings.
         actions: (N,) each clip's unified tag sequence as one string.
         appearance: (N,) each clip's appearance key.
         logs: (N,) each clip's log id.
+        windows_ns: (N,) each clip's (start, end) timestamps, ns; used with ``logs``.
     """
     x = np.asarray(x, dtype=np.float32)
     n = len(x)
@@ -49,59 +58,84 @@ def clip_to_clip_figures(x: np.ndarray, actions: Sequence[str], appearance: Sequ
     figures = _neighbour_figures(nn, actions, appearance, k)
     figures[f"action_precision@{k}_ceiling"] = action_precision_ceiling(actions, k)
     if logs is not None:
-        same_log = _neighbour_figures(nn, actions, logs, k)
-        figures["same_log_share_neighbours"] = same_log["appearance_share_neighbours"]
-        figures["same_log_share_chance"] = same_log["appearance_share_chance"]
-        figures.update(_other_log_figures(sim, tiebreak, actions, appearance, logs, k))
+        groups = {"log": _same_key(logs)}
+        if windows_ns is not None:
+            groups["moment"] = same_moment(logs, windows_ns)
+        for name, same in groups.items():
+            figures[f"same_{name}_share_neighbours"] = _pair_share(nn, actions, same)
+            figures[f"same_{name}_share_chance"] = _pair_chance(actions, same)
+            figures.update(_figures_among(sim, tiebreak, actions, appearance, ~same, k, f"_other_{name}s"))
+        if windows_ns is not None:
+            figures[f"action_precision@{k}_ceiling_other_moments"] = action_precision_ceiling(
+                actions, k, among=~groups["moment"])
     return figures
 
 
-def action_precision_ceiling(actions: Sequence[str], k: int = 5) -> float:
+def action_precision_ceiling(actions: Sequence[str], k: int = 5, among: np.ndarray | None = None) -> float:
     """The action precision@k of a perfect ranking: a clip whose action n − 1 other clips share finds at
     most min(k, n − 1) of them among its k neighbours, so where many actions occur once, even a perfect
-    embedding stays far below 1 (the figure to read ``action_precision@k`` against)."""
-    counts = Counter(actions)
-    k = min(k, len(actions) - 1)
-    return float(np.mean([min(k, counts[a] - 1) / k for a in actions])) if k > 0 else 0.0
+    embedding stays far below 1 (the figure to read ``action_precision@k`` against). ``among`` (N, N)
+    bool: the clips each clip may take as neighbours (default all others)."""
+    act = np.asarray(list(actions), dtype=object)
+    n = len(act)
+    k = min(k, n - 1)
+    if k <= 0:
+        return 0.0
+    among = ~np.eye(n, dtype=bool) if among is None else among
+    peers = ((act[:, None] == act[None, :]) & among).sum(axis=1)  # (N,)
+    return float(np.mean(np.minimum(k, peers) / k))
 
 
-def _other_log_figures(sim: np.ndarray, tiebreak: np.ndarray, actions: Sequence[str], appearance: Sequence[str],
-                       logs: Sequence[str], k: int) -> dict[str, float | None]:
-    """:func:`_neighbour_figures` of each clip's k nearest neighbours from other logs, against chance
-    among other logs' clips; keys end in ``_other_logs``.
+def same_moment(logs: Sequence[str], windows_ns: Sequence[tuple[int, int]]) -> np.ndarray:
+    """(N, N) bool: clips of the same log whose (start, end) windows overlap, each clip with itself
+    included (clips that touch end to start are apart)."""
+    log = np.asarray(list(logs), dtype=object)
+    window = np.asarray(list(windows_ns), dtype=np.int64).reshape(len(log), 2)  # (N, 2)
+    start, end = window[:, 0], window[:, 1]
+    overlap = (start[:, None] < end[None, :]) & (start[None, :] < end[:, None])
+    return (log[:, None] == log[None, :]) & (overlap | np.eye(len(log), dtype=bool))
+
+
+def _figures_among(sim: np.ndarray, tiebreak: np.ndarray, actions: Sequence[str], appearance: Sequence[str],
+                   among: np.ndarray, k: int, suffix: str) -> dict[str, float | None]:
+    """:func:`_neighbour_figures` of each clip's k nearest neighbours within its row of ``among``, against
+    chance among the same pairs; keys end in ``suffix``.
 
     Args:
         sim: (N, N) clip × clip scores, the diagonal −inf.
         tiebreak: (N, N) secondary sort key for equal scores.
+        among: (N, N) bool, the clips each clip may take as neighbours.
     """
-    log = np.asarray(list(logs), dtype=object)
-    other = log[:, None] != log[None, :]  # (N, N)
-    nn = np.lexsort((tiebreak, -np.where(other, sim, -np.inf)), axis=1)[:, :k]  # (N, k)
-    valid = np.take_along_axis(other, nn, axis=1)  # False where a clip has fewer than k other-log clips
-    figures = _neighbour_figures(nn, actions, appearance, k, valid=valid, among=other)
-    return {f"{key}_other_logs": value for key, value in figures.items()}
+    among = among & ~np.eye(len(among), dtype=bool)
+    nn = np.lexsort((tiebreak, -np.where(among, sim, -np.inf)), axis=1)[:, :k]  # (N, k)
+    valid = np.take_along_axis(among, nn, axis=1)  # False where a clip has fewer than k candidates
+    figures = _neighbour_figures(nn, actions, appearance, k, valid=valid, among=among)
+    return {f"{key}{suffix}": value for key, value in figures.items()}
 
 
 def random_clip_to_clip(actions: Sequence[str], appearance: Sequence[str], k: int = 5,
-                        logs: Sequence[str] | None = None) -> dict[str, float | None]:
+                        logs: Sequence[str] | None = None,
+                        windows_ns: Sequence[tuple[int, int]] | None = None) -> dict[str, float | None]:
     """Expected clip → clip figures of random neighbours (analytic); with ``logs``, also among other
-    logs' clips."""
+    logs' clips, and with ``windows_ns`` too, among other moments' clips."""
     act = np.asarray(list(actions), dtype=object)
     app = np.asarray(list(appearance), dtype=object)
     n = len(act)
     same_action = act[:, None] == act[None, :]
     precision = _random_precision(same_action, ~np.eye(n, dtype=bool))
     has_variety = len(set(app.tolist())) > 1
-    chance = _chance_appearance_rate(act, app)
+    chance = _pair_chance(actions, _same_key(appearance))
     figures: dict[str, float | None] = {
         f"action_precision@{k}": precision, "appearance_bias": 1.0 if has_variety else None,
         "appearance_share_neighbours": chance, "appearance_share_chance": chance}
     if logs is not None:
-        log = np.asarray(list(logs), dtype=object)
-        other = log[:, None] != log[None, :]
-        figures[f"action_precision@{k}_other_logs"] = _random_precision(same_action, other)
-        chance_other = _chance_appearance_rate(act, app, among=other)
-        figures["appearance_bias_other_logs"] = 1.0 if chance_other else None
+        groups = {"_other_logs": ~_same_key(logs)}
+        if windows_ns is not None:
+            groups["_other_moments"] = ~same_moment(logs, windows_ns)
+        for suffix, among in groups.items():
+            figures[f"action_precision@{k}{suffix}"] = _random_precision(same_action, among)
+            defined = has_variety and _pair_chance(actions, _same_key(appearance), among)
+            figures[f"appearance_bias{suffix}"] = 1.0 if defined else None
     return figures
 
 
@@ -121,26 +155,40 @@ def _neighbour_figures(nn: np.ndarray, actions: Sequence[str], appearance: Seque
     is taken over (default all).
     """
     act = np.asarray(list(actions), dtype=object)
-    app = np.asarray(list(appearance), dtype=object)
     valid = np.ones(nn.shape, dtype=bool) if valid is None else valid
     same_action = act[nn] == act[:, None]
     precision = float(np.mean(same_action[valid])) if valid.any() else None
-    differ = valid & ~same_action
-    share = float(np.mean((app[nn] == app[:, None])[differ])) if differ.any() else None
-    chance = _chance_appearance_rate(act, app, among)
+    same_look = _same_key(appearance)
+    share = _pair_share(nn, actions, same_look, valid)
+    chance = _pair_chance(actions, same_look, among)
     bias = None
-    if share is not None and chance is not None and chance > 0 and len(set(app.tolist())) > 1:
+    if share is not None and chance and len(set(appearance)) > 1:
         bias = share / chance
     return {f"action_precision@{k}": precision, "appearance_bias": bias,
             "appearance_share_neighbours": share, "appearance_share_chance": chance}
 
 
-def _chance_appearance_rate(act: np.ndarray, app: np.ndarray, among: np.ndarray | None = None) -> float | None:
-    """Share of clip pairs that differ in action (within ``among``, (N, N) bool) sharing an appearance."""
-    differ = act[:, None] != act[None, :]
+def _same_key(keys: Sequence[str]) -> np.ndarray:
+    """(N, N) bool: the pairs that share a key."""
+    key = np.asarray(list(keys), dtype=object)
+    return key[:, None] == key[None, :]
+
+
+def _pair_share(nn: np.ndarray, actions: Sequence[str], shared: np.ndarray,
+                valid: np.ndarray | None = None) -> float | None:
+    """Share of the neighbours ``nn`` (N, k) that differ from their query in action (and are ``valid``,
+    (N, k) bool) to which ``shared`` (N, N) bool holds; None when no neighbour differs in action."""
+    act = np.asarray(list(actions), dtype=object)
+    differ = act[nn] != act[:, None]
+    if valid is not None:
+        differ &= valid
+    return float(np.mean(np.take_along_axis(shared, nn, axis=1)[differ])) if differ.any() else None
+
+
+def _pair_chance(actions: Sequence[str], shared: np.ndarray, among: np.ndarray | None = None) -> float | None:
+    """Share of clip pairs that differ in action (within ``among``, (N, N) bool) to which ``shared``
+    (N, N) bool holds; None when no such pair."""
+    differ = ~_same_key(actions)
     if among is not None:
         differ &= among
-    if not differ.any():
-        return None
-    same_app = app[:, None] == app[None, :]
-    return float(same_app[differ].mean())
+    return float(shared[differ].mean()) if differ.any() else None

@@ -48,6 +48,14 @@ class NoCameraError(RetrievalError):
                          "from; search from it in the fused or bev view")
 
 
+class OtherMomentsError(RetrievalError):
+    """Other moments asked of a search from clip arrays, whose log and time window the index does not know."""
+
+    def __init__(self) -> None:
+        super().__init__("other_moments needs an indexed clip id: the index knows the log and time window of its "
+                         "own clips only")
+
+
 class UnknownViewError(RetrievalError):
     """A view name other than the indexed ones."""
 

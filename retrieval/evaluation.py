@@ -15,7 +15,9 @@ returns the metrics dictionary written to ``metrics.json``::
     halves:                  object / ego: the text_to_clip figures of each half of the captions asked alone
                              (queries = the split's distinct object sentences, or ego sentences; a clip is
                              relevant when its caption has that half: :func:`encoders.metrics.half_queries`)
-    clip_to_clip:            action_precision@5, appearance_bias (+ the rates behind the bias)
+    clip_to_clip:            action_precision@5, appearance_bias (+ the rates behind the bias), the share
+                             of neighbours from the query's own log and own moment, and the same figures
+                             among other logs' and other moments' clips (:mod:`retrieval.clip_neighbours`)
     views:                   camera / bev: the text_to_clip figures of each single view. The camera
                              view is measured over the clips the camera saw (``has_camera``), for
                              the queries with a relevant one among them: a clip outside the camera's
@@ -321,6 +323,7 @@ def evaluate(run_dir: Path | str, clips_dir: Path | str, split: str = "test", em
     actions = ["|".join(r.get("tags") or []) for r in rows]
     appearance = [f"{r.get('time_of_day', 'unknown')}|{r.get('weather', 'unknown')}" for r in rows]
     logs = [str(r.get("log_id", "")) for r in rows]
+    windows_ns = [(int(r["start_ns"]), int(r["end_ns"])) for r in rows]
     metrics: dict[str, Any] = {
         "split": split,
         "counts": {"clips": len(rows), "queries": len(queries), "temporal_pairs": len(pairs),
@@ -330,7 +333,7 @@ def evaluate(run_dir: Path | str, clips_dir: Path | str, split: str = "test", em
         "text_order": text_order,
         "freeform": freeform_figures(free_model, free_relevant),
         "halves": halves["model"],
-        "clip_to_clip": clip_to_clip_figures(x["fused"], actions, appearance, logs=logs),
+        "clip_to_clip": clip_to_clip_figures(x["fused"], actions, appearance, logs=logs, windows_ns=windows_ns),
         "views": {"camera": camera_view["camera"], "bev": text_to_clip_figures(sims["bev"], relevant),
                   "camera_clips": camera_view["counts"] | {"fused": camera_view["fused"],
                                                            "random": camera_view["random"]}},
@@ -343,12 +346,14 @@ def evaluate(run_dir: Path | str, clips_dir: Path | str, split: str = "test", em
                        "temporal_order_accuracy": {"accuracy": 0.5 if pairs else None, "num_captions": len(pairs)},
                        "freeform": freeform_figures(free_random, free_relevant),
                        "halves": halves["random"],
-                       "clip_to_clip": random_clip_to_clip(actions, appearance, logs=logs)},
+                       "clip_to_clip": random_clip_to_clip(actions, appearance, logs=logs,
+                                                                 windows_ns=windows_ns)},
             "bag_of_frames": {"text_to_clip": text_to_clip_figures(sim_bag, relevant),
                               "temporal_order_accuracy": {"accuracy": order_bag, "num_captions": len(pairs)},
                               "freeform": freeform_figures(free_bag, free_relevant),
                               "halves": halves["bag_of_frames"],
-                              "clip_to_clip": clip_to_clip_figures(x_bag, actions, appearance, logs=logs)},
+                              "clip_to_clip": clip_to_clip_figures(x_bag, actions, appearance, logs=logs,
+                                                                   windows_ns=windows_ns)},
             "rule_captions": {"text_to_clip": text_to_clip_figures(sim_rule, relevant),
                               # How the frozen encoder embedded a text of several sentences (SentenceEncoder).
                               "whole_text": getattr(sentence, "whole_text", None),
@@ -360,7 +365,7 @@ def evaluate(run_dir: Path | str, clips_dir: Path | str, split: str = "test", em
                               # content alone does on the clip → clip figures (the bias included).
                               "clip_to_clip": clip_to_clip_figures(
                                   np.asarray(sentence(captions), dtype=np.float32), actions, appearance,
-                                  logs=logs)},
+                                  logs=logs, windows_ns=windows_ns)},
         },
         "by_facet": by_facet,
         "curves": {"k": list(range(1, min(CURVE_MAX_K, len(rows)) + 1)),

@@ -67,14 +67,17 @@ def metrics_rows(metrics: dict[str, Any]) -> MetricsRows:
                          fmt(get(base, "bag_of_frames", "halves", name, key)),
                          fmt(get(base, "random", "halves", name, key)), fmt(get(rule, "halves", name, key))))
     for key in ("action_precision@5", "appearance_bias", "same_log_share_neighbours", "action_precision@5_other_logs",
-                "appearance_bias_other_logs"):
+                "appearance_bias_other_logs", "same_moment_share_neighbours", "action_precision@5_other_moments",
+                "appearance_bias_other_moments"):
+        # A share of neighbours is read against the share among all clips, in the random column.
+        chance = (get(metrics, "clip_to_clip", key.replace("_neighbours", "_chance")) if key.endswith("_neighbours")
+                  else get(base, "random", "clip_to_clip", key))
         body.append((f"clip→clip {key}", fmt(get(metrics, "clip_to_clip", key)), "", "",
-                     fmt(get(base, "bag_of_frames", "clip_to_clip", key)),
-                     fmt(get(base, "random", "clip_to_clip", key) if key != "same_log_share_neighbours"
-                         else get(metrics, "clip_to_clip", "same_log_share_chance")),
+                     fmt(get(base, "bag_of_frames", "clip_to_clip", key)), fmt(chance),
                      fmt(get(rule, "clip_to_clip", key))))
-    ceiling = get(metrics, "clip_to_clip", "action_precision@5_ceiling")  # a perfect ranking's precision
-    body.append(("clip→clip action_precision@5 ceiling", fmt(ceiling), "", "", "", "", ""))
+    for suffix in ("", "_other_moments"):  # a perfect ranking's precision
+        ceiling = get(metrics, "clip_to_clip", f"action_precision@5_ceiling{suffix}")
+        body.append((f"clip→clip action_precision@5 ceiling{suffix}", fmt(ceiling), "", "", "", "", ""))
     # Hybrid search answers text queries only: its cells on the text → clip, order and free-form rows.
     hybrid_cells = {**{f"text→clip {key}": get(hybrid, "text_to_clip", key) for key in ("R@1", "R@5", "R@10",
                                                                                         "median_rank", "mAP")},

@@ -8,7 +8,7 @@ layers below (:func:`hits_to_results`, :mod:`indexes`) take the query as it is.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -132,17 +132,23 @@ def parse_cli_filters(items: Sequence[str] | None) -> FilterSpec:
 
 
 def hits_to_results(index: ClipIndex, xq: np.ndarray, query: Query, view: str, base_dir: Path | None,
-                    exclude_clip: str | None = None) -> list[SearchResult]:
-    """Search ``index`` with one query vector (1, D), or from ``exclude_clip``'s own vector, and turn the
-    hits into records."""
+                    exclude_clip: str | None = None, exclude: Sequence[str] = ()) -> list[SearchResult]:
+    """Search ``index`` with one query vector (1, D), or from ``exclude_clip``'s own vector leaving out
+    it and the clips ``exclude`` names, and turn the hits into records."""
     if query.k == 0:
         return []
     if exclude_clip is not None:
-        found = index.search_clip(exclude_clip, query.k, query.filters)
+        found = index.search_clip(exclude_clip, query.k, query.filters, exclude=exclude)
     else:
         found = index.search(xq, query.k, query.filters)
     return [SearchResult.from_row(rank, hit.metadata, hit.score, view, preview_of(hit.metadata, base_dir))
             for rank, hit in enumerate(found.hits[0], start=1)]
+
+
+def moment_of(index: ClipIndex, row: Mapping[str, Any]) -> list[str]:
+    """The clip ids of ``row``'s moment: the clips of its log whose windows overlap its own, itself included."""
+    window = {"log_id": row["log_id"], "start_ns": {"<": int(row["end_ns"])}, "end_ns": {">": int(row["start_ns"])}}
+    return index.metadata.clip_ids(index.select(window))
 
 
 def preview_of(row: dict[str, Any], base_dir: Path | None) -> str | None:

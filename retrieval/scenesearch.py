@@ -24,7 +24,7 @@ import shutil
 import time
 import warnings
 from collections.abc import Callable, Mapping
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
@@ -48,84 +48,27 @@ from indexes.integrity import (
     seal,
     verify_files,
 )
-from indexes.persistence import read_json_manifest
 from retrieval.captions_search import CaptionSearch, Skipped, TextEncoder, caption_rows
 from retrieval.embedding import CONFIG_FILE, Embedder, ModelEmbedder
-from retrieval.errors import IndexDirError, ModelMismatchError, UnknownClipError, UnknownViewError
-from retrieval.hybrid import InvalidWeightError, Scorers, WeightChoice, check_weight, choose_for_index
-from retrieval.querying import MAX_K, build_query, check_camera_clip, check_query, hits_to_results, preview_of
+from retrieval.errors import IndexDirError, ModelMismatchError, OtherMomentsError, UnknownClipError, UnknownViewError
+from retrieval.hybrid import Scorers, WeightChoice, check_weight, choose_for_index
+from retrieval.index_manifest import FORMAT_VERSION, KIND, MANIFEST, IndexManifest
+from retrieval.querying import (
+    MAX_K,
+    build_query,
+    check_camera_clip,
+    check_query,
+    hits_to_results,
+    moment_of,
+    preview_of,
+)
 from retrieval.records import SearchResult
 from retrieval.sentence_encoder import SentenceEncoder
 
-#: 2: the manifest holds checksums (``files``, ``content_sha256``); version 1 is still read, with a warning.
-FORMAT_VERSION = 2
-KIND = "scenesearch_index"
-MANIFEST = "manifest.json"
 VIEWS = ("fused", "camera", "bev")
 CAPTIONS_DIR = "captions"
 RUN_CONFIG = f"run/{CONFIG_FILE}"
 Progress = Callable[[str], None]
-
-
-@dataclass(frozen=True)
-class IndexManifest:
-    """Contents of ``INDEX_DIR/manifest.json``.
-
-    Attributes:
-        format_version: layout version; newer ones are refused.
-        kind: always ``scenesearch_index``.
-        model_sha256: SHA-256 of the ``model.safetensors`` the clip and text embeddings came from.
-        run_dir: absolute path of the training run (its model encodes text queries).
-        clips_dir: absolute path of the clips directory (previews are relative to it).
-        embed_dim: dimension of the clip embeddings.
-        views: the indexed views (subdirectories).
-        counts: clips per view, captions, and clips per split.
-        text_encoder: the sentence encoder of the caption index.
-        created: UTC time of the build, ISO 8601.
-        skipped: clips left out, with the reason.
-        files: size and SHA-256 of ``<view>/manifest.json``, ``captions/manifest.json`` and
-            ``run/config.json`` (each sub-manifest in turn covers its own files).
-        hybrid: the weight of hybrid search and how it was chosen (:class:`retrieval.hybrid.WeightChoice`;
-            absent in an index from before it: the default weight).
-    """
-
-    format_version: int
-    kind: str
-    model_sha256: str
-    run_dir: str
-    clips_dir: str
-    embed_dim: int
-    views: list[str]
-    counts: dict[str, int]
-    text_encoder: str
-    created: str
-    skipped: list[dict[str, str]] = field(default_factory=list)
-    files: dict[str, dict[str, Any]] = field(default_factory=dict)
-    hybrid: dict[str, Any] = field(default_factory=dict)
-
-    @staticmethod
-    def read(index_dir: Path) -> IndexManifest:
-        path = index_dir / MANIFEST
-        if not index_dir.is_dir():
-            raise IndexDirError(f"{index_dir}: no index directory here (build one with `scenesearch index`)")
-        if not path.is_file():
-            raise IndexDirError(f"{path}: missing; {index_dir} is not a scenesearch index (or its build never "
-                                "finished)")
-        try:
-            raw = read_json_manifest(path, KIND, FORMAT_VERSION)
-            if raw["format_version"] >= 2:
-                parse_file_entries(raw.get("files"), path)
-        except IndexesError as exc:
-            raise IndexDirError(str(exc)) from exc
-        names = {f for f in IndexManifest.__dataclass_fields__}
-        missing = sorted(n for n in names if n not in raw and n not in ("skipped", "files", "hybrid"))
-        if missing:
-            raise IndexDirError(f"{path}: missing fields {missing}")
-        try:
-            WeightChoice.from_json(raw.get("hybrid"))
-        except (InvalidWeightError, ValueError) as exc:
-            raise IndexDirError(f"{path}, field 'hybrid': {exc}") from None
-        return IndexManifest(**{k: v for k, v in raw.items() if k in names})
 
 
 class SceneSearch:
@@ -323,26 +266,34 @@ class SceneSearch:
         return results
 
     def search_clip(self, clip: str | Mapping[str, Any], k: int = 10, filters: FilterSpec = None,
-                    view: str = "fused", max_k: int = MAX_K) -> list[SearchResult]:
+                    view: str = "fused", max_k: int = MAX_K, other_moments: bool = False) -> list[SearchResult]:
         """The k clips most like ``clip``: an indexed clip id (left out of its own results) or clip arrays.
 
         Args:
             clip: a clip id, or a clip item / batch as ``encoders.data`` builds it (arrays of one clip).
             k, filters, view, max_k: as in :meth:`search_text`.
+            other_moments: leave out the clips of the query's own moment, the other objects in view at the
+                same time (its log, windows that overlap its own), which share its place, the ego's
+                motion and the look: on the demo's test split they are a third of the neighbours that
+                differ in action (README, "Other moments"). Needs a clip id.
 
         Raises:
             UnknownClipError: the clip id is not indexed (the message shows valid ones).
             NoCameraError: the camera view, from a clip id without camera frames.
+            OtherMomentsError: ``other_moments`` with clip arrays, whose time window the index does not know.
         """
         index = self._view(view)
         if isinstance(clip, str):
             if clip not in index:
                 examples = index.metadata.table.column("clip_id").slice(0, 3).to_pylist()
                 raise UnknownClipError(clip, examples)
-            check_camera_clip(index.get(clip), view)
+            row = index.get(clip)
+            check_camera_clip(row, view)
             checked = build_query(k, filters, index.metadata, len(index) - 1, max_k, view)
             return hits_to_results(index, np.zeros((1, index.dim), np.float32), checked, view, self.clips_dir,
-                                   exclude_clip=clip)
+                                   exclude_clip=clip, exclude=moment_of(index, row) if other_moments else ())
+        if other_moments:
+            raise OtherMomentsError()
         checked = build_query(k, filters, index.metadata, len(index), max_k, view)
         xq = np.asarray(self.embedder.embed_arrays(clip, view=view), dtype=np.float32)[:1]
         return hits_to_results(index, xq, checked, view, self.clips_dir)

@@ -17,6 +17,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="keep clips whose FIELD equals VALUE (repeatable)")
     parser.add_argument("--view", choices=["fused", "camera", "bev"], default="fused",
                         help="which clip embedding to compare (default fused; camera: the clips the camera saw)")
+    parser.add_argument("--other-moments", action="store_true",
+                        help="leave out the clips of the query's own moment: the other objects in view at the same "
+                             "time in its log")
     parser.add_argument("--json", action="store_true", help="print JSON for scripts instead of a table")
 
 
@@ -26,7 +29,8 @@ def run(args: argparse.Namespace) -> int:
     from retrieval.scenesearch import SceneSearch
 
     search = SceneSearch.open(args.index_dir, views=(args.view,))
-    results = search.search_clip(args.clip_id, k=args.k, filters=parse_cli_filters(args.filters), view=args.view)
+    results = search.search_clip(args.clip_id, k=args.k, filters=parse_cli_filters(args.filters), view=args.view,
+                                 other_moments=args.other_moments)
     if args.json:
         print(json.dumps({"clip_id": args.clip_id, "results": [r.to_dict() for r in results]}, indent=2))
     else:

@@ -243,13 +243,17 @@ def create_app(search: SceneSearch, limits: ServiceLimits | None = None) -> Fast
         k: Annotated[int, Query(description="number of results")] = 10,
         filter: Annotated[list[str] | None, Query(description="FIELD=VALUE or a filter expression")] = None,
         view: Annotated[str, Query(description="fused, camera or bev")] = "fused",
+        other_moments: Annotated[bool, Query(description="leave out the other objects in view at the same time "
+                                                         "in the clip's log")] = False,
     ) -> dict[str, Any]:
         spec = filters_of(filter)
         check_view(view)
 
         def work() -> dict[str, Any]:
-            results = search.search_clip(clip_id, k=k, filters=spec, view=view, max_k=limits.max_k)
-            return {"clip_id": clip_id, "k": k, "view": view, "results": [_result_json(r) for r in results]}
+            results = search.search_clip(clip_id, k=k, filters=spec, view=view, max_k=limits.max_k,
+                                         other_moments=other_moments)
+            return {"clip_id": clip_id, "k": k, "view": view, "other_moments": other_moments,
+                    "results": [_result_json(r) for r in results]}
 
         return await gate.run(work)
 

@@ -94,6 +94,25 @@ def test_clip_to_clip_excludes_itself(index: ClipIndex) -> None:
     assert all(h.metadata["category"] == "truck" for h in res.hits[0])
 
 
+def test_clip_to_clip_leaves_out_the_clips_named(index: ClipIndex, vectors: np.ndarray) -> None:
+    # Exact search as the reference: the clip's nearest neighbours by cosine, the named ones dropped.
+    xb = vectors[:N] / np.linalg.norm(vectors[:N], axis=1, keepdims=True)
+    k = 5
+    order = np.argsort(-(xb @ xb[10]), kind="stable")
+    nearest = [f"clip-{i:05d}" for i in order]
+    left_out = [nearest[1], nearest[3], "no-such-clip"]  # two of its own neighbours, and an id not held
+    res = index.search_clip("clip-00010", k, exclude=left_out)
+    assert [h.clip_id for h in res.hits[0]] == [c for c in nearest if c not in {"clip-00010", *left_out}][:k]
+    kept = index.search_clip("clip-00010", k, exclude=left_out, exclude_self=False)
+    assert [h.clip_id for h in kept.hits[0]] == [c for c in nearest if c not in left_out][:k]
+    trucks = index.search_clip("clip-00010", k, filter="category == truck", exclude=left_out)
+    truck_ids = [c for c in nearest if int(c[5:]) % 4 == 1 and c not in {"clip-00010", *left_out}]
+    assert [h.clip_id for h in trucks.hits[0]] == truck_ids[:k]
+    # Fewer than k left: fewer come back, as with a filter.
+    few = index.search_clip("clip-00010", 10, exclude=[f"clip-{i:05d}" for i in range(N) if i not in (10, 20, 30)])
+    assert sorted(h.clip_id for h in few.hits[0]) == ["clip-00020", "clip-00030"]
+
+
 def test_add_remove_and_stable_ids(index: ClipIndex, vectors: np.ndarray) -> None:
     removed = [f"clip-{i:05d}" for i in range(0, 30)]
     assert index.remove(removed) == 30

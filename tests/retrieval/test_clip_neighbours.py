@@ -1,11 +1,12 @@
-"""Clip → clip figures: action precision of neighbours, appearance bias, the share from the query's own log."""
+"""Clip → clip figures: action precision of neighbours, appearance bias, the share from the query's own log
+and own moment."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from retrieval.clip_neighbours import action_precision_ceiling, clip_to_clip_figures, random_clip_to_clip
+from retrieval.clip_neighbours import action_precision_ceiling, clip_to_clip_figures, random_clip_to_clip, same_moment
 
 
 def test_clip_to_clip_figures() -> None:
@@ -86,3 +87,47 @@ def test_ceiling_is_what_a_perfect_ranking_reaches() -> None:
     figures = clip_to_clip_figures(perfect, actions, ["day"] * 5, k=2)
     assert figures["action_precision@2"] == pytest.approx(figures["action_precision@2_ceiling"])
     assert action_precision_ceiling(["go"], k=5) == 0.0
+
+
+def test_same_moment_is_the_same_log_with_overlapping_windows() -> None:
+    logs = ["a", "a", "a", "b"]
+    windows_ns = [(0, 10), (5, 15), (10, 20), (0, 10)]
+    expected = np.array([[1, 1, 0, 0], [1, 1, 1, 0], [0, 1, 1, 0], [0, 0, 0, 1]], dtype=bool)
+    np.testing.assert_array_equal(same_moment(logs, windows_ns), expected)  # touching windows are apart
+
+
+def test_other_moment_figures_leave_out_the_objects_seen_at_the_same_time() -> None:
+    # Two logs, each with two moments (windows 0-10 and 20-30) of four objects: actions a, b, c, d in every
+    # moment, one appearance per log. Embeddings cluster by moment, and moments by log, so every neighbour
+    # is another object of the query's own moment, in another action, and after them those of the log's
+    # other moment.
+    logs = [f"log{i // 8}" for i in range(16)]
+    appearance = [f"look{i // 8}" for i in range(16)]
+    actions = ["a", "b", "c", "d"] * 4
+    windows_ns = [(0, 10) if i % 8 < 4 else (20, 30) for i in range(16)]
+    rng = np.random.default_rng(0)
+    moment = np.eye(4)[[i // 4 for i in range(16)]]
+    x = np.hstack([np.eye(2)[[i // 8 for i in range(16)]], 0.5 * moment]) + rng.normal(0, 0.01, (16, 6))
+    x /= np.linalg.norm(x, axis=1, keepdims=True)
+    figures = clip_to_clip_figures(x, actions, appearance, k=3, logs=logs, windows_ns=windows_ns)
+    # Each clip differs in action from 12 others, 3 of them in its moment.
+    assert figures["same_moment_share_chance"] == pytest.approx(3 / 12)
+    assert figures["same_moment_share_neighbours"] == 1.0
+    assert figures["action_precision@3"] == 0.0 and figures["appearance_bias"] == pytest.approx(2.0)
+    # Outside its moment a clip has 3 others of its action, so a perfect ranking reaches 1.
+    assert figures["action_precision@3_ceiling_other_moments"] == 1.0
+    # Outside the moment the nearest clips are the log's other moment, in its look; among other moments'
+    # clips in another action (9 per clip) 3 share the look: chance 1 / 3.
+    assert figures["appearance_share_chance_other_moments"] == pytest.approx(3 / 9)
+    assert figures["appearance_share_neighbours_other_moments"] == 1.0
+    assert figures["appearance_bias_other_moments"] == pytest.approx(3.0)
+    # Embedded by action (and a little by moment), the neighbours outside the moment share the action.
+    y = np.eye(4)[[i % 4 for i in range(16)]] + 0.3 * moment + rng.normal(0, 0.01, (16, 4))  # (16, 4)
+    by_action = clip_to_clip_figures(y / np.linalg.norm(y, axis=1, keepdims=True), actions, appearance, k=3,
+                                     logs=logs, windows_ns=windows_ns)
+    assert by_action["action_precision@3_other_moments"] == 1.0
+    assert by_action["same_moment_share_neighbours"] is None  # no neighbour differs in action
+    chance = random_clip_to_clip(actions, appearance, k=3, logs=logs, windows_ns=windows_ns)
+    assert chance["action_precision@3_other_moments"] == pytest.approx(3 / 12)
+    assert chance["appearance_bias_other_moments"] == 1.0
+    assert "same_moment_share_neighbours" not in clip_to_clip_figures(x, actions, appearance, k=3, logs=logs)

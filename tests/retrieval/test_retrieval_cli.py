@@ -107,6 +107,12 @@ def test_similar_and_export(stand_in: dict[str, Any], tmp_path: Path, capsys: py
     assert main(["similar", str(stand_in["index"]), clip_id, "-k", "3", "--json"]) == 0
     results = json.loads(capsys.readouterr().out)["results"]
     assert len(results) == 3 and clip_id not in {r["clip_id"] for r in results}
+    # Its log's clips at the same time (windows 1.5 s long, a second apart: the one before and after) left out.
+    assert main(["similar", str(stand_in["index"]), clip_id, "-k", "83", "--other-moments", "--json"]) == 0
+    others = {r["clip_id"] for r in json.loads(capsys.readouterr().out)["results"]}
+    log_id, _, start = clip_id.split(":")
+    assert len(others) == 81 and not any(c.startswith(log_id) and abs(int(c.split(":")[2]) - int(start)) <= 1e9
+                                         for c in others)
     assert main(["similar", str(stand_in["index"]), clip_id, "--view", "bev"]) == 0
     assert capsys.readouterr().out.startswith(f"query: {clip_id}")
     out = tmp_path / "emb.parquet"

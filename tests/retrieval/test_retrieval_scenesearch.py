@@ -26,6 +26,7 @@ from retrieval.errors import (
     InvalidKError,
     ModelMismatchError,
     NoCameraError,
+    OtherMomentsError,
     UnknownClipError,
     UnknownViewError,
 )
@@ -108,6 +109,24 @@ def test_search_clip_excludes_itself_and_prefers_same_action(built: dict[str, An
     assert sum(r.caption == query["caption"] for r in fused) >= 4
     arrays = search.search_clip({"caption": query["caption"], "camera": np.zeros((16, 4, 8, 8), np.float32)}, k=3)
     assert arrays[0].caption == query["caption"]
+
+
+def test_search_clip_from_other_moments_leaves_out_the_objects_seen_at_the_same_time(built: dict[str, Any]) -> None:
+    search = _open(built)
+    table = pq.read_table(built["clips"] / "clips.parquet").to_pylist()
+    query = table[5]  # windows of 1.5 s a second apart: it overlaps the clips before and after it in its log
+    same_time = {r["clip_id"] for r in table if r["log_id"] == query["log_id"]
+                 and r["start_ns"] < query["end_ns"] and r["end_ns"] > query["start_ns"]}
+    assert len(same_time) == 3
+    everywhere = [r.clip_id for r in search.search_clip(query["clip_id"], k=83)]
+    assert same_time - {query["clip_id"]} <= set(everywhere)
+    others = [r.clip_id for r in search.search_clip(query["clip_id"], k=83, other_moments=True)]
+    assert others == [c for c in everywhere if c not in same_time]  # the rest in the same order
+    in_its_log = search.search_clip(query["clip_id"], k=20, filters={"log_id": query["log_id"]}, other_moments=True)
+    assert len(in_its_log) == 14 - 3 and not same_time & {r.clip_id for r in in_its_log}
+    with pytest.raises(OtherMomentsError, match="needs an indexed clip id"):
+        search.search_clip({"caption": query["caption"], "camera": np.zeros((16, 4, 8, 8), np.float32)},
+                           other_moments=True)
 
 
 def test_the_camera_view_searches_the_clips_the_camera_saw(tmp_path: Path) -> None:

@@ -101,6 +101,18 @@ def test_similar_excludes_the_query_clip(served: dict[str, Any]) -> None:
     assert body["results"][0]["caption"] == served["rows"][0]["caption"]
 
 
+def test_similar_from_other_moments(served: dict[str, Any]) -> None:
+    row = served["rows"][5]
+    same_time = {r["clip_id"] for r in served["rows"] if r["log_id"] == row["log_id"]
+                 and r["start_ns"] < row["end_ns"] and r["end_ns"] > row["start_ns"]}
+    in_its_log = {"k": 20, "filter": f"log_id={row['log_id']}"}
+    everywhere = served["client"].get(f"/api/similar/{row['clip_id']}", params=in_its_log).json()
+    assert same_time - {row["clip_id"]} <= {r["clip_id"] for r in everywhere["results"]}
+    body = served["client"].get(f"/api/similar/{row['clip_id']}", params=in_its_log | {"other_moments": "true"}).json()
+    ids = {r["clip_id"] for r in body["results"]}
+    assert body["other_moments"] is True and len(ids) == 14 - len(same_time) and not ids & same_time
+
+
 def test_clip_metadata_and_timeline(served: dict[str, Any]) -> None:
     row = next(r for r in served["rows"] if len(r["tags"]) == 2)
     body = served["client"].get(f"/api/clips/{row['clip_id']}").json()

@@ -87,7 +87,8 @@ async function search(event) {
 }
 
 async function similar(clipId, caption) {
-  const params = new URLSearchParams({ k: $("k").value, view: $("view").value });
+  const params = new URLSearchParams({ k: $("k").value, view: $("view").value,
+                                       other_moments: $("other-moments").value });
   for (const f of filterParams()) params.append("filter", f);
   setStatus("Finding similar moments…");
   try {

@@ -156,7 +156,13 @@ class ClipIndex:
                     exclude_self: bool = True, exclude: Sequence[str] = ()) -> IndexHits:
         """Clips closest to ``clip_id``'s own vector (clip → clip); the clip itself left out by default,
         and the clips ``exclude`` names (ids the index does not hold are ignored). As with a filter,
-        fewer than k come back when fewer are left."""
+        fewer than k come back when fewer are left (``D`` and ``I`` padded as :class:`IndexHits` says).
+
+        Raises:
+            TypeError: ``exclude`` is a single string rather than a sequence of clip ids.
+        """
+        if isinstance(exclude, str):
+            raise TypeError(f"exclude takes a sequence of clip ids, got the string {exclude!r}")
         x = self.reconstruct(clip_id)[None, :]
         names = [*exclude, clip_id] if exclude_self else list(exclude)
         left_out = self.metadata.ids_of([c for c in dict.fromkeys(names) if c in self])  # (M,)
@@ -168,7 +174,9 @@ class ClipIndex:
             # these" filter.
             D, I = self.vectors.search(x, min(k + len(left_out), len(self)))
             keep = np.flatnonzero(~np.isin(I[0], left_out))[:k]
-            D, I = D[:, keep], I[:, keep]
+            pad = k - len(keep)
+            D = np.pad(D[:, keep], ((0, 0), (0, pad)), constant_values=self.vectors.metric.missing_score)
+            I = np.pad(I[:, keep], ((0, 0), (0, pad)), constant_values=-1)
         else:
             allowed = self.metadata.select(filter)
             D, I = self.vectors.search(x, k, allowed[~np.isin(allowed, left_out)])

@@ -32,7 +32,7 @@ def clip_to_clip_figures(x: np.ndarray, actions: Sequence[str], appearance: Sequ
     Several objects are in view at once, and at one moment they share the log, its place, the ego's
     motion and the look. With ``windows_ns`` beside ``logs``, ``same_moment_share_neighbours`` /
     ``_chance`` say how often neighbours that differ in action are clips of the query's own moment (its
-    log, windows that overlap its own), and the figures ending in ``_other_moments`` are those of each
+    log, windows that share an instant with its own), and the figures ending in ``_other_moments`` are those of each
     clip's k nearest neighbours outside its moment, against chance and the ceiling among those clips:
     what a search for *other* moments like this one (``SceneSearch.search_clip(..., other_moments=True)``)
     returns.
@@ -42,12 +42,16 @@ def clip_to_clip_figures(x: np.ndarray, actions: Sequence[str], appearance: Sequ
         actions: (N,) each clip's unified tag sequence as one string.
         appearance: (N,) each clip's appearance key.
         logs: (N,) each clip's log id.
-        windows_ns: (N,) each clip's (start, end) timestamps, ns; used with ``logs``.
+        windows_ns: (N,) each clip's first and last timestamps, ns; needs ``logs``.
+
+    Raises:
+        ValueError: fewer than 2 clips, or ``windows_ns`` without ``logs``.
     """
     x = np.asarray(x, dtype=np.float32)
     n = len(x)
     if n < 2:
         raise ValueError(f"clip → clip needs at least 2 clips, got {n}")
+    act, app = _keys(actions), _keys(appearance)
     k = min(k, n - 1)
     sim = x @ x.T
     np.fill_diagonal(sim, -np.inf)
@@ -55,48 +59,57 @@ def clip_to_clip_figures(x: np.ndarray, actions: Sequence[str], appearance: Sequ
     # order: table order would favour whichever log comes first.
     tiebreak = np.broadcast_to(np.random.default_rng(0).random(n), sim.shape)
     nn = np.lexsort((tiebreak, -sim), axis=1)[:, :k]
-    figures = _neighbour_figures(nn, actions, appearance, k)
-    figures[f"action_precision@{k}_ceiling"] = action_precision_ceiling(actions, k)
-    if logs is not None:
-        groups = {"log": _same_key(logs)}
-        if windows_ns is not None:
-            groups["moment"] = same_moment(logs, windows_ns)
-        for name, same in groups.items():
-            figures[f"same_{name}_share_neighbours"] = _pair_share(nn, actions, same)
-            figures[f"same_{name}_share_chance"] = _pair_chance(actions, same)
-            figures.update(_figures_among(sim, tiebreak, actions, appearance, ~same, k, f"_other_{name}s"))
-        if windows_ns is not None:
-            figures[f"action_precision@{k}_ceiling_other_moments"] = action_precision_ceiling(
-                actions, k, among=~groups["moment"])
+    figures = _neighbour_figures(nn, act, app, k)
+    figures[f"action_precision@{k}_ceiling"] = action_precision_ceiling(act, k)
+    for name, same in _groups(logs, windows_ns).items():
+        figures[f"same_{name}_share_neighbours"] = _pair_share(nn, act, same)
+        figures[f"same_{name}_share_chance"] = _pair_chance(act, same)
+        figures.update(_figures_among(sim, tiebreak, act, app, ~same, k, f"_other_{name}s"))
+        if name == "moment":
+            figures[f"action_precision@{k}_ceiling_other_moments"] = action_precision_ceiling(act, k, among=~same)
     return figures
 
 
-def action_precision_ceiling(actions: Sequence[str], k: int = 5, among: np.ndarray | None = None) -> float:
+def action_precision_ceiling(actions: Sequence[str] | np.ndarray, k: int = 5, among: np.ndarray | None = None) -> float:
     """The action precision@k of a perfect ranking: a clip whose action n − 1 other clips share finds at
     most min(k, n − 1) of them among its k neighbours, so where many actions occur once, even a perfect
     embedding stays far below 1 (the figure to read ``action_precision@k`` against). ``among`` (N, N)
-    bool: the clips each clip may take as neighbours (default all others)."""
-    act = np.asarray(list(actions), dtype=object)
+    bool: the clips each clip may take as neighbours (default all others); a clip with fewer than k
+    of them has fewer neighbours, pooled as the precision pools them."""
+    act = _keys(actions)
     n = len(act)
-    k = min(k, n - 1)
-    if k <= 0:
+    if min(k, n - 1) <= 0:
         return 0.0
-    among = ~np.eye(n, dtype=bool) if among is None else among
-    peers = ((act[:, None] == act[None, :]) & among).sum(axis=1)  # (N,)
-    return float(np.mean(np.minimum(k, peers) / k))
+    among = (np.ones((n, n), dtype=bool) if among is None else among) & ~np.eye(n, dtype=bool)
+    candidates = np.minimum(k, among.sum(axis=1))  # (N,) neighbours each clip has
+    peers = np.minimum(candidates, ((act[:, None] == act[None, :]) & among).sum(axis=1))  # (N,)
+    return float(peers.sum() / candidates.sum()) if candidates.sum() else 0.0
 
 
 def same_moment(logs: Sequence[str], windows_ns: Sequence[tuple[int, int]]) -> np.ndarray:
-    """(N, N) bool: clips of the same log whose (start, end) windows overlap, each clip with itself
-    included (clips that touch end to start are apart)."""
-    log = np.asarray(list(logs), dtype=object)
+    """(N, N) bool: clips of the same log whose windows share an instant (a window runs from its first
+    timestamp to its last, both included, as ``start_ns`` and ``end_ns`` of a clip do), the diagonal True."""
+    log = _keys(logs)
     window = np.asarray(list(windows_ns), dtype=np.int64).reshape(len(log), 2)  # (N, 2)
     start, end = window[:, 0], window[:, 1]
-    overlap = (start[:, None] < end[None, :]) & (start[None, :] < end[:, None])
+    overlap = (start[:, None] <= end[None, :]) & (start[None, :] <= end[:, None])
     return (log[:, None] == log[None, :]) & (overlap | np.eye(len(log), dtype=bool))
 
 
-def _figures_among(sim: np.ndarray, tiebreak: np.ndarray, actions: Sequence[str], appearance: Sequence[str],
+def _groups(logs: Sequence[str] | None, windows_ns: Sequence[tuple[int, int]] | None) -> dict[str, np.ndarray]:
+    """The (N, N) bool "same" matrices the figures are split by: ``log`` with ``logs``, ``moment`` with
+    ``windows_ns`` too."""
+    if logs is None:
+        if windows_ns is not None:
+            raise ValueError("clip → clip: windows_ns needs logs (a moment is a time window in one log)")
+        return {}
+    groups = {"log": _same_key(_keys(logs))}
+    if windows_ns is not None:
+        groups["moment"] = same_moment(logs, windows_ns)
+    return groups
+
+
+def _figures_among(sim: np.ndarray, tiebreak: np.ndarray, act: np.ndarray, app: np.ndarray,
                    among: np.ndarray, k: int, suffix: str) -> dict[str, float | None]:
     """:func:`_neighbour_figures` of each clip's k nearest neighbours within its row of ``among``, against
     chance among the same pairs; keys end in ``suffix``.
@@ -109,7 +122,7 @@ def _figures_among(sim: np.ndarray, tiebreak: np.ndarray, actions: Sequence[str]
     among = among & ~np.eye(len(among), dtype=bool)
     nn = np.lexsort((tiebreak, -np.where(among, sim, -np.inf)), axis=1)[:, :k]  # (N, k)
     valid = np.take_along_axis(among, nn, axis=1)  # False where a clip has fewer than k candidates
-    figures = _neighbour_figures(nn, actions, appearance, k, valid=valid, among=among)
+    figures = _neighbour_figures(nn, act, app, k, valid=valid, among=among)
     return {f"{key}{suffix}": value for key, value in figures.items()}
 
 
@@ -117,25 +130,22 @@ def random_clip_to_clip(actions: Sequence[str], appearance: Sequence[str], k: in
                         logs: Sequence[str] | None = None,
                         windows_ns: Sequence[tuple[int, int]] | None = None) -> dict[str, float | None]:
     """Expected clip → clip figures of random neighbours (analytic); with ``logs``, also among other
-    logs' clips, and with ``windows_ns`` too, among other moments' clips."""
-    act = np.asarray(list(actions), dtype=object)
-    app = np.asarray(list(appearance), dtype=object)
+    logs' clips, and with ``windows_ns`` too, among other moments' clips. A bias is None where the
+    clips have one appearance, as the model's is."""
+    act, app = _keys(actions), _keys(appearance)
     n = len(act)
     same_action = act[:, None] == act[None, :]
+    same_look = _same_key(app)
     precision = _random_precision(same_action, ~np.eye(n, dtype=bool))
     has_variety = len(set(app.tolist())) > 1
-    chance = _pair_chance(actions, _same_key(appearance))
+    chance = _pair_chance(act, same_look)
     figures: dict[str, float | None] = {
         f"action_precision@{k}": precision, "appearance_bias": 1.0 if has_variety else None,
         "appearance_share_neighbours": chance, "appearance_share_chance": chance}
-    if logs is not None:
-        groups = {"_other_logs": ~_same_key(logs)}
-        if windows_ns is not None:
-            groups["_other_moments"] = ~same_moment(logs, windows_ns)
-        for suffix, among in groups.items():
-            figures[f"action_precision@{k}{suffix}"] = _random_precision(same_action, among)
-            defined = has_variety and _pair_chance(actions, _same_key(appearance), among)
-            figures[f"appearance_bias{suffix}"] = 1.0 if defined else None
+    for name, same in _groups(logs, windows_ns).items():
+        figures[f"action_precision@{k}_other_{name}s"] = _random_precision(same_action, ~same)
+        defined = has_variety and _pair_chance(act, same_look, ~same)
+        figures[f"appearance_bias_other_{name}s"] = 1.0 if defined else None
     return figures
 
 
@@ -147,48 +157,51 @@ def _random_precision(same_action: np.ndarray, among: np.ndarray) -> float | Non
     return float(np.mean((same_action & among).sum(axis=1)[has] / count[has])) if has.any() else None
 
 
-def _neighbour_figures(nn: np.ndarray, actions: Sequence[str], appearance: Sequence[str], k: int,
+def _neighbour_figures(nn: np.ndarray, act: np.ndarray, app: np.ndarray, k: int,
                        valid: np.ndarray | None = None, among: np.ndarray | None = None) -> dict[str, float | None]:
-    """Action precision and appearance bias of neighbours ``nn`` (N, k).
+    """Action precision and appearance bias of neighbours ``nn`` (N, k) of clips whose actions and
+    appearances are ``act`` and ``app`` ((N,) each).
 
     ``valid`` (N, k) marks the neighbours that count (default all); ``among`` (N, N) the pairs chance
     is taken over (default all).
     """
-    act = np.asarray(list(actions), dtype=object)
     valid = np.ones(nn.shape, dtype=bool) if valid is None else valid
     same_action = act[nn] == act[:, None]
     precision = float(np.mean(same_action[valid])) if valid.any() else None
-    same_look = _same_key(appearance)
-    share = _pair_share(nn, actions, same_look, valid)
-    chance = _pair_chance(actions, same_look, among)
+    same_look = _same_key(app)
+    share = _pair_share(nn, act, same_look, valid)
+    chance = _pair_chance(act, same_look, among)
     bias = None
-    if share is not None and chance and len(set(appearance)) > 1:
+    if share is not None and chance and len(set(app.tolist())) > 1:
         bias = share / chance
     return {f"action_precision@{k}": precision, "appearance_bias": bias,
             "appearance_share_neighbours": share, "appearance_share_chance": chance}
 
 
-def _same_key(keys: Sequence[str]) -> np.ndarray:
-    """(N, N) bool: the pairs that share a key."""
-    key = np.asarray(list(keys), dtype=object)
+def _keys(values: Sequence[str] | np.ndarray) -> np.ndarray:
+    """(N,) object array of a sequence of keys, read once (the callers' sequences may be iterators)."""
+    return np.asarray(list(values), dtype=object)
+
+
+def _same_key(key: np.ndarray) -> np.ndarray:
+    """(N, N) bool: the pairs of ``key`` (N,) that share a key."""
     return key[:, None] == key[None, :]
 
 
-def _pair_share(nn: np.ndarray, actions: Sequence[str], shared: np.ndarray,
+def _pair_share(nn: np.ndarray, act: np.ndarray, shared: np.ndarray,
                 valid: np.ndarray | None = None) -> float | None:
-    """Share of the neighbours ``nn`` (N, k) that differ from their query in action (and are ``valid``,
-    (N, k) bool) to which ``shared`` (N, N) bool holds; None when no neighbour differs in action."""
-    act = np.asarray(list(actions), dtype=object)
+    """Share of the neighbours ``nn`` (N, k) that differ from their query in action (``act``, (N,)) and
+    are ``valid`` ((N, k) bool) to which ``shared`` (N, N) bool holds; None when no neighbour differs."""
     differ = act[nn] != act[:, None]
     if valid is not None:
         differ &= valid
     return float(np.mean(np.take_along_axis(shared, nn, axis=1)[differ])) if differ.any() else None
 
 
-def _pair_chance(actions: Sequence[str], shared: np.ndarray, among: np.ndarray | None = None) -> float | None:
-    """Share of clip pairs that differ in action (within ``among``, (N, N) bool) to which ``shared``
-    (N, N) bool holds; None when no such pair."""
-    differ = ~_same_key(actions)
+def _pair_chance(act: np.ndarray, shared: np.ndarray, among: np.ndarray | None = None) -> float | None:
+    """Share of clip pairs that differ in action (``act``, (N,); within ``among``, (N, N) bool) to which
+    ``shared`` (N, N) bool holds; None when no such pair."""
+    differ = ~_same_key(act)
     if among is not None:
         differ &= among
     return float(shared[differ].mean()) if differ.any() else None

@@ -146,8 +146,10 @@ def hits_to_results(index: ClipIndex, xq: np.ndarray, query: Query, view: str, b
 
 
 def moment_of(index: ClipIndex, row: Mapping[str, Any]) -> list[str]:
-    """The clip ids of ``row``'s moment: the clips of its log whose windows overlap its own, itself included."""
-    window = {"log_id": row["log_id"], "start_ns": {"<": int(row["end_ns"])}, "end_ns": {">": int(row["start_ns"])}}
+    """The clip ids of ``row``'s moment: the clips of its log whose windows share an instant with its own
+    (first and last timestamps included, as :func:`retrieval.clip_neighbours.same_moment` reads them),
+    itself included."""
+    window = {"log_id": row["log_id"], "start_ns": {"<=": int(row["end_ns"])}, "end_ns": {">=": int(row["start_ns"])}}
     return index.metadata.clip_ids(index.select(window))
 
 

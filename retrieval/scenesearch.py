@@ -273,9 +273,10 @@ class SceneSearch:
             clip: a clip id, or a clip item / batch as ``encoders.data`` builds it (arrays of one clip).
             k, filters, view, max_k: as in :meth:`search_text`.
             other_moments: leave out the clips of the query's own moment, the other objects in view at the
-                same time (its log, windows that overlap its own), which share its place, the ego's
+                same time (its log, windows that share an instant with its own), which share its place, the ego's
                 motion and the look: on the demo's test split they are a third of the neighbours that
-                differ in action (README, "Other moments"). Needs a clip id.
+                differ in action (README, "Other moments"). Needs a clip id; fewer than k come back when
+                fewer clips are left.
 
         Raises:
             UnknownClipError: the clip id is not indexed (the message shows valid ones).

@@ -244,7 +244,7 @@ def create_app(search: SceneSearch, limits: ServiceLimits | None = None) -> Fast
         filter: Annotated[list[str] | None, Query(description="FIELD=VALUE or a filter expression")] = None,
         view: Annotated[str, Query(description="fused, camera or bev")] = "fused",
         other_moments: Annotated[bool, Query(description="leave out the other objects in view at the same time "
-                                                         "in the clip's log")] = False,
+                                                         "in the clip's log (fewer than k may come back)")] = False,
     ) -> dict[str, Any]:
         spec = filters_of(filter)
         check_view(view)

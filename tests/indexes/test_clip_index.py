@@ -111,6 +111,9 @@ def test_clip_to_clip_leaves_out_the_clips_named(index: ClipIndex, vectors: np.n
     # Fewer than k left: fewer come back, as with a filter.
     few = index.search_clip("clip-00010", 10, exclude=[f"clip-{i:05d}" for i in range(N) if i not in (10, 20, 30)])
     assert sorted(h.clip_id for h in few.hits[0]) == ["clip-00020", "clip-00030"]
+    assert few.I.shape == (1, 10) and (few.I[0, 2:] == -1).all() and np.isneginf(few.D[0, 2:]).all()
+    with pytest.raises(TypeError, match="sequence of clip ids"):
+        index.search_clip("clip-00010", k, exclude="clip-00011")
 
 
 def test_add_remove_and_stable_ids(index: ClipIndex, vectors: np.ndarray) -> None:

@@ -8,6 +8,17 @@ import pytest
 
 from retrieval.clip_neighbours import action_precision_ceiling, clip_to_clip_figures, random_clip_to_clip, same_moment
 
+#: Figures of the fixed set of ``test_the_log_figures_keep_their_values`` from the implementation before
+#: the moment figures, which shares its helpers with the log figures now.
+SNAPSHOT = {
+    "action_precision@3": 0.3611111111111111, "appearance_bias": 0.9130434782608696,
+    "appearance_share_neighbours": 0.30434782608695654, "appearance_share_chance": 0.3333333333333333,
+    "action_precision@3_ceiling": 1.0, "same_log_share_neighbours": 0.30434782608695654,
+    "same_log_share_chance": 0.25, "action_precision@3_other_logs": 0.4166666666666667,
+    "appearance_bias_other_logs": 0.8571428571428571, "appearance_share_neighbours_other_logs": 0.2857142857142857,
+    "appearance_share_chance_other_logs": 0.3333333333333333,
+}
+
 
 def test_clip_to_clip_figures() -> None:
     # Two actions, two appearances; embeddings cluster by appearance → biased, imprecise neighbours.
@@ -89,11 +100,15 @@ def test_ceiling_is_what_a_perfect_ranking_reaches() -> None:
     assert action_precision_ceiling(["go"], k=5) == 0.0
 
 
-def test_same_moment_is_the_same_log_with_overlapping_windows() -> None:
-    logs = ["a", "a", "a", "b"]
-    windows_ns = [(0, 10), (5, 15), (10, 20), (0, 10)]
-    expected = np.array([[1, 1, 0, 0], [1, 1, 1, 0], [0, 1, 1, 0], [0, 0, 0, 1]], dtype=bool)
-    np.testing.assert_array_equal(same_moment(logs, windows_ns), expected)  # touching windows are apart
+def test_same_moment_is_the_same_log_with_windows_sharing_an_instant() -> None:
+    # A window holds its first and last timestamps: windows that meet at one share that frame.
+    logs = ["a", "a", "a", "b", "a"]
+    windows_ns = [(0, 10), (10, 15), (16, 20), (0, 10), (16, 16)]
+    expected = np.array([[1, 1, 0, 0, 0], [1, 1, 0, 0, 0], [0, 0, 1, 0, 1], [0, 0, 0, 1, 0], [0, 0, 1, 0, 1]],
+                        dtype=bool)
+    np.testing.assert_array_equal(same_moment(logs, windows_ns), expected)
+    with pytest.raises(ValueError, match="windows_ns needs logs"):
+        clip_to_clip_figures(np.eye(5), ["x"] * 5, ["day"] * 5, windows_ns=windows_ns)
 
 
 def test_other_moment_figures_leave_out_the_objects_seen_at_the_same_time() -> None:
@@ -131,3 +146,31 @@ def test_other_moment_figures_leave_out_the_objects_seen_at_the_same_time() -> N
     assert chance["action_precision@3_other_moments"] == pytest.approx(3 / 12)
     assert chance["appearance_bias_other_moments"] == 1.0
     assert "same_moment_share_neighbours" not in clip_to_clip_figures(x, actions, appearance, k=3, logs=logs)
+
+
+def test_the_ceiling_pools_as_the_precision_does_where_a_clip_has_fewer_candidates() -> None:
+    # One log: moment 0-3 (actions a a b b) and moment 4-5 (a b). Outside its moment a clip of the second
+    # moment has 4 candidates, one of the first only 2, fewer than k = 3.
+    logs = ["log"] * 6
+    windows_ns = [(0, 10)] * 4 + [(20, 30)] * 2
+    actions = ["a", "a", "b", "b", "a", "b"]
+    perfect = np.array([[1.0, 0.0] if a == "a" else [0.0, 1.0] for a in actions])
+    figures = clip_to_clip_figures(perfect, actions, ["day"] * 6, k=3, logs=logs, windows_ns=windows_ns)
+    # Found 1 of 2 by each clip of the first moment, 2 of 3 by each of the second: 8 of 14 neighbours.
+    assert figures["action_precision@3_other_moments"] == pytest.approx(8 / 14)
+    assert figures["action_precision@3_ceiling_other_moments"] == pytest.approx(8 / 14)
+
+
+def test_the_log_figures_keep_their_values() -> None:
+    # Figures of a fixed small set, as the evaluation reported them before the moments joined them.
+    rng = np.random.default_rng(3)
+    x = rng.normal(size=(12, 3))
+    x /= np.linalg.norm(x, axis=1, keepdims=True)
+    actions = ["a", "b", "c"] * 4
+    appearance = ["day", "day", "night"] * 4
+    logs = [f"log{i % 4}" for i in range(12)]
+    figures = clip_to_clip_figures(x, actions, appearance, k=3, logs=logs)
+    assert figures == pytest.approx(SNAPSHOT)
+    # Random neighbours of clips of one look have no bias, in other logs as everywhere.
+    chance = random_clip_to_clip(actions, ["day"] * 12, k=3, logs=logs)
+    assert chance["appearance_bias"] is None and chance["appearance_bias_other_logs"] is None

@@ -86,6 +86,24 @@ def action_precision_ceiling(actions: Sequence[str] | np.ndarray, k: int = 5, am
     return float(peers.sum() / candidates.sum()) if candidates.sum() else 0.0
 
 
+def perfect_ranking_figures(actions: Sequence[str], egos: Sequence[str], appearance: Sequence[str], k: int = 5,
+                            logs: Sequence[str] | None = None,
+                            windows_ns: Sequence[tuple[int, int]] | None = None) -> dict[str, float | None]:
+    """The appearance biases of a perfect ranking by what the captions say, keys ending in
+    ``_perfect_ranking``: each clip's neighbours are the clips of its action (the object's unified tags)
+    and the ego's motion (``egos``, the ego's unified tags as one string), then of its action, then of
+    the ego's motion, then the rest, ties in a seeded random order. A caption opens with the ego's motion,
+    so a model that reads it well ranks so; where the ego's motion is the log's, the bias of this ranking
+    is what the captions' content alone gives, the figure to read ``appearance_bias`` against."""
+    act, ego = _keys(actions), _keys(egos)
+    one_hot = [np.unique(key, return_inverse=True)[1] for key in (act, ego)]
+    # Same action and ego: 1; same action: 0.8; same ego: 0.2; neither: 0 (cosines of the rows below).
+    x = np.hstack([np.eye(one_hot[0].max() + 1)[one_hot[0]], 0.5 * np.eye(one_hot[1].max() + 1)[one_hot[1]]])
+    x /= np.linalg.norm(x, axis=1, keepdims=True)
+    figures = clip_to_clip_figures(x, act.tolist(), appearance, k, logs, windows_ns)
+    return {f"{key}_perfect_ranking": value for key, value in figures.items() if key.startswith("appearance_bias")}
+
+
 def same_moment(logs: Sequence[str], windows_ns: Sequence[tuple[int, int]]) -> np.ndarray:
     """(N, N) bool: clips of the same log whose windows share an instant (a window runs from its first
     timestamp to its last, both included, as ``start_ns`` and ``end_ns`` of a clip do), the diagonal True."""

@@ -17,7 +17,8 @@ returns the metrics dictionary written to ``metrics.json``::
                              relevant when its caption has that half: :func:`encoders.metrics.half_queries`)
     clip_to_clip:            action_precision@5, appearance_bias (+ the rates behind the bias), the share
                              of neighbours from the query's own log and own moment, and the same figures
-                             among other logs' and other moments' clips (:mod:`retrieval.clip_neighbours`)
+                             among other logs' and other moments' clips, beside the biases of a perfect
+                             ranking by the captions' content (``*_perfect_ranking``, :mod:`retrieval.clip_neighbours`)
     views:                   camera / bev: the text_to_clip figures of each single view. The camera
                              view is measured over the clips the camera saw (``has_camera``), for
                              the queries with a relevant one among them: a clip outside the camera's
@@ -62,7 +63,7 @@ from encoders.metrics import (
 )
 from retrieval.action_breakdown import facets, recall_by_facet
 from retrieval.captions_search import CaptionSearch, TextEncoder
-from retrieval.clip_neighbours import clip_to_clip_figures, random_clip_to_clip
+from retrieval.clip_neighbours import clip_to_clip_figures, perfect_ranking_figures, random_clip_to_clip
 from retrieval.embedding import Embedder, ModelEmbedder
 from retrieval.freeform import FREEFORM_QUERIES, FreeformQuery, freeform_figures, freeform_relevance
 from retrieval.hybrid import CHOICE_SPLIT, DEFAULT_WEIGHT, WeightChoice, choose_for_rows, mix
@@ -324,6 +325,9 @@ def evaluate(run_dir: Path | str, clips_dir: Path | str, split: str = "test", em
     appearance = [f"{r.get('time_of_day', 'unknown')}|{r.get('weather', 'unknown')}" for r in rows]
     logs = [str(r.get("log_id", "")) for r in rows]
     windows_ns = [(int(r["start_ns"]), int(r["end_ns"])) for r in rows]
+    clip_to_clip = clip_to_clip_figures(x["fused"], actions, appearance, logs=logs, windows_ns=windows_ns)
+    egos = ["|".join(r.get("host_tags") or []) for r in rows]
+    clip_to_clip |= perfect_ranking_figures(actions, egos, appearance, logs=logs, windows_ns=windows_ns)
     metrics: dict[str, Any] = {
         "split": split,
         "counts": {"clips": len(rows), "queries": len(queries), "temporal_pairs": len(pairs),
@@ -333,7 +337,7 @@ def evaluate(run_dir: Path | str, clips_dir: Path | str, split: str = "test", em
         "text_order": text_order,
         "freeform": freeform_figures(free_model, free_relevant),
         "halves": halves["model"],
-        "clip_to_clip": clip_to_clip_figures(x["fused"], actions, appearance, logs=logs, windows_ns=windows_ns),
+        "clip_to_clip": clip_to_clip,
         "views": {"camera": camera_view["camera"], "bev": text_to_clip_figures(sims["bev"], relevant),
                   "camera_clips": camera_view["counts"] | {"fused": camera_view["fused"],
                                                            "random": camera_view["random"]}},

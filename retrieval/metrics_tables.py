@@ -75,9 +75,11 @@ def metrics_rows(metrics: dict[str, Any]) -> MetricsRows:
         body.append((f"clip→clip {key}", fmt(get(metrics, "clip_to_clip", key)), "", "",
                      fmt(get(base, "bag_of_frames", "clip_to_clip", key)), fmt(chance),
                      fmt(get(rule, "clip_to_clip", key))))
-    for suffix in ("", "_other_moments"):  # a perfect ranking's precision
+    for suffix in ("", "_other_moments"):  # what a perfect ranking reaches
         ceiling = get(metrics, "clip_to_clip", f"action_precision@5_ceiling{suffix}")
         body.append((f"clip→clip action_precision@5 ceiling{suffix}", fmt(ceiling), "", "", "", "", ""))
+        bias = get(metrics, "clip_to_clip", f"appearance_bias{suffix}_perfect_ranking")
+        body.append((f"clip→clip appearance_bias{suffix} of a perfect ranking", fmt(bias), "", "", "", "", ""))
     # Hybrid search answers text queries only: its cells on the text → clip, order and free-form rows.
     hybrid_cells = {**{f"text→clip {key}": get(hybrid, "text_to_clip", key) for key in ("R@1", "R@5", "R@10",
                                                                                         "median_rank", "mAP")},

@@ -6,7 +6,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from retrieval.clip_neighbours import action_precision_ceiling, clip_to_clip_figures, random_clip_to_clip, same_moment
+from retrieval.clip_neighbours import (
+    action_precision_ceiling,
+    clip_to_clip_figures,
+    perfect_ranking_figures,
+    random_clip_to_clip,
+    same_moment,
+)
 
 #: Figures of the fixed set of ``test_the_log_figures_keep_their_values`` from the implementation before
 #: the moment figures, which shares its helpers with the log figures now.
@@ -174,3 +180,18 @@ def test_the_log_figures_keep_their_values() -> None:
     # Random neighbours of clips of one look have no bias, in other logs as everywhere.
     chance = random_clip_to_clip(actions, ["day"] * 12, k=3, logs=logs)
     assert chance["appearance_bias"] is None and chance["appearance_bias_other_logs"] is None
+
+
+def test_a_perfect_ranking_by_the_captions_takes_the_ego_motion_with_it() -> None:
+    # Two logs, one look each; in each, the ego does one thing and its four objects do a, b, c, d. A
+    # perfect ranking by what the captions say fills a clip's neighbours after its action with clips of the
+    # ego's motion: its own log, its own look, bias 2 (chance 1 / 2).
+    logs = ["log0"] * 4 + ["log1"] * 4
+    looks = ["day"] * 4 + ["night"] * 4
+    egos = ["cruising"] * 4 + ["stopping"] * 4
+    actions = ["a", "b", "c", "d"] * 2
+    figures = perfect_ranking_figures(actions, egos, looks, k=3, logs=logs)
+    assert figures["appearance_bias_perfect_ranking"] == pytest.approx(2.0)
+    assert set(figures) == {"appearance_bias_perfect_ranking", "appearance_bias_other_logs_perfect_ranking"}
+    # The action comes first: a clip's one nearest neighbour is the clip of its action in the other log.
+    assert perfect_ranking_figures(actions, egos, looks, k=1)["appearance_bias_perfect_ranking"] is None

@@ -153,6 +153,8 @@ def test_evaluate_with_stand_in_model(tmp_path: Path) -> None:
     c2c = metrics["clip_to_clip"]
     assert "action_precision@5" in c2c and "appearance_bias" in c2c
     assert c2c["action_precision@5"] <= c2c["action_precision@5_ceiling"] <= 1.0  # no ranking beats a perfect one
+    assert c2c["action_precision@5_other_moments"] <= c2c["action_precision@5_ceiling_other_moments"]
+    assert 0.0 <= c2c["same_moment_share_neighbours"] <= 1.0 and "appearance_bias_perfect_ranking" in c2c
     model, rnd = metrics["text_to_clip"], metrics["baselines"]["random"]["text_to_clip"]
     assert model["R@1"] > rnd["R@1"] + 0.3 and model["mAP"] > rnd["mAP"]
     order = metrics["temporal_order_accuracy"]

@@ -17,7 +17,8 @@ def _metrics() -> dict[str, Any]:
     c2c = {"action_precision@5": 0.3, "appearance_bias": 1.5, "same_log_share_neighbours": 0.9,
            "same_log_share_chance": 0.4, "action_precision@5_ceiling": 0.5, "same_moment_share_neighbours": 0.3,
            "same_moment_share_chance": 0.0625, "action_precision@5_other_moments": 0.2,
-           "appearance_bias_other_moments": 1.25, "action_precision@5_ceiling_other_moments": 0.375}
+           "appearance_bias_other_moments": 1.25, "action_precision@5_ceiling_other_moments": 0.375,
+           "appearance_bias_perfect_ranking": 1.5625}
     return {
         "split": "test", "counts": {"clips": 12, "queries": 5, "temporal_pairs": 3},
         "text_to_clip": _figures(0.125), "temporal_order_accuracy": {"accuracy": 0.875},
@@ -61,6 +62,8 @@ def test_the_rows_hold_every_figure_beside_its_baselines() -> None:
     assert by_name["clip→clip same_moment_share_neighbours"][::4] == ("0.300", "0.062")
     assert by_name["clip→clip appearance_bias_other_moments"][0] == "1.250"
     assert by_name["clip→clip action_precision@5 ceiling_other_moments"][0] == "0.375"
+    assert by_name["clip→clip appearance_bias of a perfect ranking"][0] == "1.562"
+    assert by_name["clip→clip appearance_bias_other_moments of a perfect ranking"][0] == "—"
     assert rows.notes[0] == "12 test clips, 5 caption queries, 3 temporal-order pairs, 3 of 4 free-form queries " \
                             "with a relevant clip"
     assert "over the 6 clips the camera saw" in rows.notes[2]

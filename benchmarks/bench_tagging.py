@@ -53,7 +53,9 @@ pedestrian density 0.211 → 0.079, left turn 0.656 → 0.743, right turn 0.222 
 0.503; but four-way junctions 0.805 → 0.351 (map alone 0.741 → 0.302, the statistics 0.300), ``blocked_by``
 0.344 → 0.197, ``braking_for`` 0.242 → 0.188 and the left lane change 0.165 → 0.053, the skill level (0.482).
 Not explained yet: the map-only model does read the map (its logits move by 0.78 on average when the map
-is blanked) yet scores the statistics on every attribute, where it read junctions before. The query
+is blanked) yet scores the statistics on every attribute, where it read junctions before; without the
+presence term (600 steps) it scores the same (four-way 0.302), and the junction targets lie on the map's
+junction cells, so neither is the cause. The query
 "blocked_by & four_way" in front (threshold 0.02, best frame F1 on the validation logs) returns 7 spans
 over the 12 test logs, 1 confirmed by the labels (span precision 14%, frame precision 6%; the test logs
 hold 17 such frames, 35% of them found); on 2026-11-21 it returned 1 span, confirmed. ``causes_ego_braking``

@@ -55,7 +55,9 @@ pedestrian density 0.211 → 0.079, left turn 0.656 → 0.743, right turn 0.222 
 Not explained yet: the map-only model does read the map (its logits move by 0.78 on average when the map
 is blanked) yet scores the statistics on every attribute, where it read junctions before; without the
 presence term (600 steps) it scores the same (four-way 0.302), and the junction targets lie on the map's
-junction cells, so neither is the cause. The query
+junction cells, so neither is the cause. At commit 7f83740 (2026-11-25, before the street furniture) the
+same map-only run (2000 steps, data made by that commit's code) scores four-way 0.874 against the statistics'
+0.300 on the same test frames: the regression came after it. The query
 "blocked_by & four_way" in front (threshold 0.02, best frame F1 on the validation logs) returns 7 spans
 over the 12 test logs, 1 confirmed by the labels (span precision 14%, frame precision 6%; the test logs
 hold 17 such frames, 35% of them found); on 2026-11-21 it returned 1 span, confirmed. ``causes_ego_braking``

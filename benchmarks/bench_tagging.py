@@ -17,7 +17,7 @@ One run, all on this machine's CPU:
 ``python -m benchmarks.bench_tagging --out DIR`` writes ``DIR/tags.md``, ``DIR/tags.json`` and
 ``DIR/bench_tagging.json``; ``run(quick)`` returns the figures for ``benchmarks/run.py``.
 
-Last measured (2026-12-04, 2 CPU cores, 32.5 min; 60 simulated logs × 30 s, split 35 / 13 / 12 logs, 3600 test
+Last measured (2026-12-04, 2 CPU cores, 33.8 min; 60 simulated logs × 30 s, split 35 / 13 / 12 logs, 3600 test
 frames; the default tower for tags, ``tagging_bev_config``: widths (8, 16, 32, 64), two dilated
 context blocks — a receptive field of about 80 m — D_e = 64, r = 2; 2000 steps × 4 windows of 5
 frames, about 390 s per model; pedestrian density learned as presence (``FOOTPRINT_M2`` in
@@ -31,38 +31,45 @@ attribute              metric  none     map      lidar    both
 vehicle_density        L1 m²   10.46    9.86     1.28     1.38
 pedestrian_density     L1 m²   0.219    0.230    0.090    0.079
 vehicle_speed          L1 m/s  3.52     3.59     2.71     2.52
-parked                 F1      0.242    0.242    0.757    0.998
-stopped                F1      0.261    0.262    0.394    0.503
-braking                F1      0.195    0.195    0.274    0.313
-keeping_lane           F1      0.550    0.552    0.743    0.776
-left_turn              F1      0.312    0.314    0.571    0.743
-right_turn             F1      0.085    0.086    0.202    0.332
-left_lane_change       F1      0.027    0.027    0.044    0.053
-right_lane_change      F1      0.040    0.040    0.078    0.082
-blocked_by             F1      0.118    0.118    0.126    0.197
-braking_for            F1      0.083    0.083    0.109    0.188
-three_way              F1      0.892    0.896    0.896    0.896
-four_way               F1      0.300    0.302    0.308    0.351
-skill (mean)                   0.207    0.207    0.413    0.482
+parked                 F1      0.242    0.202    0.760    0.998
+stopped                F1      0.261    0.270    0.431    0.502
+braking                F1      0.195    0.195    0.291    0.322
+keeping_lane           F1      0.550    0.549    0.744    0.775
+left_turn              F1      0.312    0.327    0.592    0.747
+right_turn             F1      0.085    0.132    0.224    0.317
+left_lane_change       F1      0.027    0.022    0.045    0.046
+right_lane_change      F1      0.040    0.037    0.098    0.083
+blocked_by             F1      0.118    0.059    0.136    0.190
+braking_for            F1      0.083    0.078    0.128    0.187
+three_way              F1      0.892    0.907    0.896    0.895
+four_way               F1      0.300    0.622    0.390    0.356
+skill (mean)                   0.207    0.226    0.429    0.481
 =====================  ======  =======  =======  =======  =======
 
-``both`` beats the statistics on all 15 attributes, and LiDAR + map is best overall (skill 0.482 vs
-LiDAR 0.413, map 0.207). Against the run of 2026-11-21 (same seeds and logs; the city has had street
-furniture and people standing on its sidewalks since, and pedestrian density is learned as presence):
-pedestrian density 0.211 → 0.079, left turn 0.656 → 0.743, right turn 0.222 → 0.332, stopped 0.473 →
-0.503; but four-way junctions 0.805 → 0.351 (map alone 0.741 → 0.302, the statistics 0.300), ``blocked_by``
-0.344 → 0.197, ``braking_for`` 0.242 → 0.188 and the left lane change 0.165 → 0.053, the skill level (0.482).
-Not explained yet: the map-only model does read the map (its logits move by 0.78 on average when the map
-is blanked) yet scores the statistics on every attribute, where it read junctions before; without the
-presence term (600 steps) it scores the same (four-way 0.302), and the junction targets lie on the map's
-junction cells, so neither is the cause. At commit 7f83740 (2026-11-25, before the street furniture) the
-same map-only run (2000 steps, data made by that commit's code) scores four-way 0.874 against the statistics'
-0.300 on the same test frames: the regression came after it. The query
-"blocked_by & four_way" in front (threshold 0.02, best frame F1 on the validation logs) returns 7 spans
-over the 12 test logs, 1 confirmed by the labels (span precision 14%, frame precision 6%; the test logs
-hold 17 such frames, 35% of them found); on 2026-11-21 it returned 1 span, confirmed. ``causes_ego_braking``
-(F1 in front, 87 positive test frames in the full scene): added to the trained model with a frozen
-backbone 0.092, with the backbone fine-tuned 0.193, trained from scratch 0.258 (1000 steps each).
+``both`` beats the statistics on all 15 attributes, and LiDAR + map is best overall (skill 0.481 vs
+LiDAR 0.429, map 0.226). F1 thresholds are now the midpoints between the validation scores that split
+them best (``best_threshold``), not a fixed grid; the models are the same as in the run before (same
+seeds, same training), so the changes are the thresholds': the map alone on four-way junctions 0.302 →
+0.622 (statistics 0.300; it ranks the test frames by them with AUC 0.76, but its mean probability is
+0.186 on positive frames and 0.184 on the others), LiDAR alone 0.308 → 0.390, three-way 0.896 → 0.907
+(map); where a model has no signal the finer threshold can do worse than "always" on the test logs (map
+alone: ``blocked_by`` 0.118 → 0.059, parked 0.242 → 0.202). The map-only regression after commit 7f83740
+(four-way 0.874 there, 0.378 one commit later at 1b37f87, which only added street furniture and standing
+people and changed no target but pedestrian density) was mostly this: the 1b37f87 model still ranks the
+test frames by four-way junction with AUC 0.88 (0.90 at 7f83740), but its pooled probabilities average
+0.23 on positive frames and 0.21 on the others (0.63 and 0.13 at 7f83740), which no grid step separated;
+with the midpoints the two score 0.715 and 0.892 (13 validation logs), and the rest of the gap, like
+this run's lower AUC, is a weaker ranking. Not this: LiDAR + map on four-way junctions, 0.805 on
+2026-11-21, 0.356 here with the new thresholds; that model does not rank the test frames by junction
+kind (AUC 0.56 over the whole grid, 0.75 on the junction cells), so it no longer learns to read them,
+cause not found. Against 2026-11-21 also: pedestrian density 0.211 → 0.079, left turn 0.656 → 0.747,
+right turn 0.222 → 0.317; ``blocked_by`` 0.344 → 0.190, ``braking_for`` 0.242 → 0.187, left lane change
+0.165 → 0.046. The query "blocked_by & four_way" in front (threshold 0.0195, best frame F1 on the
+validation logs) returns 8 spans over the 12 test logs, 2 confirmed by the labels (span precision 25%,
+frame precision 5%; the test logs hold 17 such frames, 41% of them found); on 2026-11-21 it returned 1
+span, confirmed. ``causes_ego_braking`` (F1 in front, 87 positive test frames in the full scene): added
+to the trained model with a frozen backbone 0.098, with the backbone fine-tuned 0.201, trained from
+scratch 0.260 (1000 steps each).
 """
 
 from __future__ import annotations

@@ -62,10 +62,6 @@ from encoders.tagging.scene_tags import (
 from encoders.tagging.targets import has_targets, open_targets, targets_source
 
 Pooled = dict[str, dict[str, NDArray[np.float32]]]
-#: Candidate F1 thresholds: fine at the low end, where hard-negative-mined probabilities of rare attributes lie.
-THRESHOLDS = np.round(np.concatenate([np.arange(0.01, 0.05, 0.01), np.arange(0.05, 0.96, 0.05)]), 2)
-
-
 def log_has_map(bev_map: NDArray[np.uint8]) -> bool:
     """Whether a rendered log has map layers (a log rendered without a map has all-zero layers)."""
     return bool(np.asarray(bev_map[:: max(1, bev_map.shape[0] // 8)]).any())
@@ -133,17 +129,39 @@ def f1_score(pred: NDArray[np.bool_], truth: NDArray[np.bool_]) -> float:
 
 
 def best_threshold(prob: NDArray[np.floating], truth: NDArray[np.bool_], allow_always: bool = False) -> float:
-    """The threshold of :data:`THRESHOLDS` with the best F1 (0.5 when nothing is positive).
+    """The threshold with the best F1 on ``prob`` (0.5 when nothing is positive).
+
+    The candidates are the midpoints between consecutive distinct scores, so every split of the
+    frames by score is tried, whatever the scale of the probabilities. A fixed grid is not enough:
+    hard-negative mining leaves a model's pooled probabilities uncalibrated. A map-only tagger (tagging
+    benchmark data, 2000 steps) ranked the test frames by four-way junction with AUC 0.88, but its
+    probabilities averaged 0.23 on the positive frames and 0.21 on the others: the former grid of
+    0.01–0.04 and 0.05 steps found no split and its F1 fell to near the statistics' (0.38 against
+    0.30); the midpoints give 0.72. Over that model's 12 discrete tags the mean F1 rose 0.264 → 0.294,
+    and over a second model's 0.319 → 0.318 (no loss). Ties keep the lower threshold.
 
     ``allow_always`` adds 0, "present in every frame" — the constant answer of the
     dataset-statistics row — as the last candidate, so a tag whose scores do not separate the
     frames falls back to it rather than to a worse threshold (ties keep the real threshold).
     """
+    truth = np.asarray(truth, dtype=bool)
     if not truth.any():
         return 0.5
-    candidates = np.concatenate([THRESHOLDS, [0.0]]) if allow_always else THRESHOLDS
-    scores = [f1_score(prob >= t, truth) for t in candidates]
-    return float(candidates[int(np.argmax(scores))])
+    scores = np.asarray(prob, dtype=np.float64)
+    order = np.argsort(-scores, kind="stable")
+    s, t = scores[order], truth[order]  # (N,) descending
+    tp = np.cumsum(t)  # (N,) true positives when the top i + 1 frames are called positive
+    last = np.flatnonzero(np.r_[s[1:] != s[:-1], True])  # (K,) last index of each distinct score
+    f1 = 2 * tp[last] / (np.arange(1, s.size + 1)[last] + t.sum())  # (K,) 2 TP / (2 TP + FP + FN)
+    lower = np.r_[s[last[:-1] + 1], -np.inf]  # (K,) the next lower distinct score
+    cuts = np.where(np.isfinite(lower), (s[last] + lower) / 2, s[last])  # midpoints; the last: all frames
+    # With "always" a candidate, calling every frame positive is its job (and generalises to frames
+    # scoring below the lowest one seen), so the real thresholds are the splits that leave some out.
+    real = f1[:-1] if allow_always else f1
+    if real.size == 0 or (allow_always and f1[-1] > real.max()):
+        return 0.0
+    best = int(np.flatnonzero(real == real.max())[-1])  # the lowest threshold among ties
+    return float(cuts[best])
 
 
 def held_out_threshold(

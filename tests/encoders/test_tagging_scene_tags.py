@@ -153,11 +153,11 @@ def test_thresholds_fall_back_to_always_present_and_to_training_logs() -> None:
     from encoders.tagging.evaluate import SplitPooled, best_threshold, metrics_by_region
 
     truth = np.array([1, 1, 1, 1, 0], bool)  # present in most frames
-    useless = np.array([0.2, 0.0, 0.9, 0.1, 0.95], np.float32)  # scores that do not separate them
-    assert best_threshold(useless, truth) != 0.0
+    useless = np.array([0.2, 0.05, 0.9, 0.1, 0.95], np.float32)  # scores that do not separate them
+    assert best_threshold(useless, truth) == pytest.approx(0.05)  # every frame, as a real threshold
     assert best_threshold(useless, truth, allow_always=True) == 0.0  # F1 8/9: answering "always"
     separating = np.array([0.9, 0.8, 0.7, 0.6, 0.1], np.float32)
-    assert best_threshold(separating, truth, allow_always=True) == 0.15  # the first with F1 1
+    assert best_threshold(separating, truth, allow_always=True) == pytest.approx(0.35)  # midway in the gap
 
     def split(t: list[float], p: list[float]) -> SplitPooled:
         return SplitPooled({"stopped": {"front": np.array(t, np.float32)}},
@@ -167,7 +167,7 @@ def test_thresholds_fall_back_to_always_present_and_to_training_logs() -> None:
     no_positives = split([0, 0], [0.1, 0.2])
     train = split([1, 0, 0, 1], [0.3, 0.1, 0.2, 0.4])
     cell = metrics_by_region(test, no_positives, train)["stopped"]["front"]
-    assert cell["threshold_from"] == "train" and cell["threshold"] == 0.25 and cell["value"] == 1.0
+    assert cell["threshold_from"] == "train" and cell["threshold"] == pytest.approx(0.25) and cell["value"] == 1.0
     cell = metrics_by_region(test, no_positives)["stopped"]["front"]
     assert cell["threshold_from"] == "default" and cell["value"] == 0.0  # 0.5 finds nothing
 
@@ -190,3 +190,18 @@ def test_f1_is_undefined_where_no_test_frame_is_positive() -> None:
     assert "n/a" in markdown_tables(by_region, {"both": row}, {"both": 1.0})
     only_undefined = table2_row({"stopped": {"front": by_region["stopped"]["front"]}})
     assert only_undefined["stopped"]["value"] is None and np.isnan(skill(only_undefined, {}))
+
+
+def test_thresholds_split_scores_whatever_their_scale() -> None:
+    """Squashed but well-ranked probabilities (all within 0.20–0.24) still get the separating
+    threshold: the candidates come from the scores, not from a fixed grid."""
+    from encoders.tagging.evaluate import best_threshold, f1_score
+
+    rng = np.random.default_rng(0)
+    xq_truth = rng.random(400) < 0.2  # (N,) a rare tag
+    prob = np.where(xq_truth, 0.23, 0.21) + rng.uniform(-0.009, 0.009, 400)  # (N,) ranked, squashed
+    threshold = best_threshold(prob, xq_truth, allow_always=True)
+    assert 0.21 < threshold < 0.23
+    assert f1_score(prob >= threshold, xq_truth) == 1.0
+    # Ties in the scores are one candidate, not several.
+    assert best_threshold(np.array([0.3, 0.3, 0.1]), np.array([True, False, False])) == pytest.approx(0.2)

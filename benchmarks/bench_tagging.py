@@ -66,15 +66,16 @@ Where it came from (same data recipe, 2000 steps, 13 validation logs, midpoint t
 street furniture already in, LiDAR + map scores four-way 0.756 (``blocked_by`` 0.266, ``braking_for``
 0.258); at this commit on logs simulated without furniture and standing people 0.451 (0.200, 0.175), and
 without the presence term as well 0.437 (0.159, 0.197). So the street furniture costs about 0.1 (0.451 →
-0.356) and the presence term nothing; the rest came with a code change after 1b37f87 in the BEV tower or
-the tag training, not found yet. Against 2026-11-21 also: pedestrian density 0.211 → 0.079, left turn
-0.656 → 0.747, right turn 0.222 → 0.317; ``blocked_by`` 0.344 → 0.190, ``braking_for`` 0.242 → 0.187,
-left lane change 0.165 → 0.046. The query "blocked_by & four_way" in front (threshold 0.0195, best frame
-F1 on the validation logs) returns 8 spans over the 12 test logs, 2 confirmed by the labels (span
-precision 25%, frame precision 5%; the test logs hold 17 such frames, 41% of them found); on 2026-11-21
-it returned 1 span, confirmed. ``causes_ego_braking`` (F1 in front, 87 positive test frames in the full
-scene): added to the trained model with a frozen backbone 0.098, with the backbone fine-tuned 0.201,
-trained from scratch 0.260 (1000 steps each).
+0.356) and the presence term nothing; the rest came with a code change: 37b7268 scores exactly as
+1b37f87 (0.756), so it is 13106bc (the BEV tower's per-frame means convolved in time) or a later commit
+in the BEV tower or the tag training, not found yet. Against 2026-11-21 also: pedestrian density 0.211 →
+0.079, left turn 0.656 → 0.747, right turn 0.222 → 0.317; ``blocked_by`` 0.344 → 0.190, ``braking_for``
+0.242 → 0.187, left lane change 0.165 → 0.046. The query "blocked_by & four_way" in front (threshold
+0.0195, best frame F1 on the validation logs) returns 8 spans over the 12 test logs, 2 confirmed by the
+labels (span precision 25%, frame precision 5%; the test logs hold 17 such frames, 41% of them found);
+on 2026-11-21 it returned 1 span, confirmed. ``causes_ego_braking`` (F1 in front, 87 positive test
+frames in the full scene): added to the trained model with a frozen backbone 0.098, with the backbone
+fine-tuned 0.201, trained from scratch 0.260 (1000 steps each).
 """
 
 from __future__ import annotations

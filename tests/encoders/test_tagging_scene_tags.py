@@ -198,10 +198,10 @@ def test_thresholds_split_scores_whatever_their_scale() -> None:
     from encoders.tagging.evaluate import best_threshold, f1_score
 
     rng = np.random.default_rng(0)
-    xq_truth = rng.random(400) < 0.2  # (N,) a rare tag
-    prob = np.where(xq_truth, 0.23, 0.21) + rng.uniform(-0.009, 0.009, 400)  # (N,) ranked, squashed
-    threshold = best_threshold(prob, xq_truth, allow_always=True)
+    truth = rng.random(400) < 0.2  # (N,) a rare tag
+    prob = np.where(truth, 0.23, 0.21) + rng.uniform(-0.009, 0.009, 400)  # (N,) ranked, squashed
+    threshold = best_threshold(prob, truth, allow_always=True)
     assert 0.21 < threshold < 0.23
-    assert f1_score(prob >= threshold, xq_truth) == 1.0
+    assert f1_score(prob >= threshold, truth) == 1.0
     # Ties in the scores are one candidate, not several.
     assert best_threshold(np.array([0.3, 0.3, 0.1]), np.array([True, False, False])) == pytest.approx(0.2)

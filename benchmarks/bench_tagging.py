@@ -184,16 +184,6 @@ def span_precision(clips: Path, log_dirs: list[Path], spans: list[Any], factor: 
             "positive_frames_in_logs": positives}
 
 
-def _beats(model: dict[str, Any], statistics: dict[str, Any]) -> bool | None:
-    """Whether a Table 2 cell beats the statistics row's (higher F1, lower L1); None when either is
-    undefined (no positive test frame anywhere)."""
-    if model["value"] is None or statistics["value"] is None:
-        return None
-    if model["metric"] == "F1":
-        return bool(model["value"] > statistics["value"])
-    return bool(model["value"] < statistics["value"])
-
-
 def run(quick: bool = False, out: Path | None = None, steps: int | None = None,
         work: Path | None = None) -> dict[str, Any]:
     import dataclasses
@@ -208,6 +198,7 @@ def run(quick: bool = False, out: Path | None = None, steps: int | None = None,
     from encoders.tagging.inference import load_tagger
     from encoders.tagging.targets import open_targets
     from encoders.tagging.training import train_tags
+    from encoders.tagging.versus_statistics import beats_statistics
     from retrieval.tagging import TagSearch
 
     torch.set_num_threads(2)
@@ -232,7 +223,7 @@ def run(quick: bool = False, out: Path | None = None, steps: int | None = None,
     result = evaluate_runs(runs["both"], clips, {"map": runs["map"], "lidar": runs["lidar"]})
     write_report(out, result)
     rows = result["inputs"]
-    beats = {a: _beats(m, rows["none"][a]) for a, m in rows["both"].items()}
+    beats = {a: beats_statistics(m, rows["none"][a]) for a, m in rows["both"].items()}
 
     # The query of the issue, over the test logs.
     test_ids = set(split_logs(read_manifest(clips), "test"))

@@ -314,7 +314,8 @@ class Demo:
                                                             f"index: {self.index_dir} ({len(search)} clips)"],
                             sections=tag_sections(self.run_dir, self.clips_dir, [*self.log_dirs(),
                                                                                  *self.val_log_dirs()], meta,
-                                                  self.out_dir, self.say))
+                                                  self.out_dir, self.say,
+                                                  (metrics or {}).get("tagging")))
         self.say(f"\nwrote {path}")
         return str(path)
 

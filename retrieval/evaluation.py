@@ -390,6 +390,12 @@ def evaluate(run_dir: Path | str, clips_dir: Path | str, split: str = "test", em
         if getattr(dataset, "has_frame_tags", False):
             metrics["frame_tags"] = frame_tag_figures(model, dataset)
             say("eval: per-frame tag accuracy of the dense heads")
+    if split != ALL_SPLITS:  # the tagging head against the dataset statistics, for a run that has one
+        from encoders.tagging.versus_statistics import tagging_against_statistics
+
+        tagging = tagging_against_statistics(run_dir, clips_dir, split, say)
+        if tagging is not None:
+            metrics["tagging"] = tagging
     metrics["wall_s"] = round(time.perf_counter() - started, 2)
     return _clean(metrics)
 

@@ -107,6 +107,10 @@ def metrics_rows(metrics: dict[str, Any]) -> MetricsRows:
         notes.append(f"camera only: over the {seen.get('clips')} clips the camera saw and the {seen.get('queries')} "
                      f"queries with a relevant one among them; there the fused model's R@5 is "
                      f"{fmt(get(seen, 'fused', 'R@5'))} and random's {fmt(get(seen, 'random', 'R@5'))}")
+    if metrics.get("tagging"):
+        from encoders.tagging.versus_statistics import against_statistics_summary
+
+        notes.append(f"{against_statistics_summary(metrics['tagging'])}; per region: `scenesearch eval-tags`")
     return MetricsRows(header, tuple(body), tuple(notes))
 
 

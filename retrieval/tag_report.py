@@ -1,7 +1,9 @@
-"""The report's section on spatio-temporal tags: pooled tags over a test log, and the spans ``find`` ranks.
+"""The report's section on spatio-temporal tags: the head against the dataset statistics, pooled tags
+over a test log, and the spans ``find`` ranks.
 
 A trained run with a tagging model answers tag queries from the universal BEV embedding. This
-section shows what it says about held-out logs: four pooled tags over time (a plot beside the page)
+section shows what it says about held-out logs: the head's figures per attribute against the dataset
+statistics (as ``scenesearch eval`` measured them), four pooled tags over time (a plot beside the page)
 and the spans where a vehicle is stopped in front, each checked against the simulator's behaviour
 labels where the clips carry them. The span threshold is the one with the best frame F1 on the
 validation logs (on the training logs when no validation frame is positive), never on the test logs.
@@ -11,9 +13,9 @@ The fragments go into :func:`retrieval.report.write_report` as ``sections``.
 from __future__ import annotations
 
 import html
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pyarrow as pa
@@ -33,7 +35,7 @@ SOURCE_NAMES = {"val": "validation logs", "train": "training logs", "default": "
 
 
 def tag_sections(run_dir: Path, clips_dir: Path, log_dirs: Sequence[Path], meta: pa.Table, out_dir: Path,
-                 say: Callable[[str], None] = print) -> list[str]:
+                 say: Callable[[str], None] = print, versus: Mapping[str, Any] | None = None) -> list[str]:
     """HTML fragments of the tag section (empty when the run has no tagging model).
 
     Args:
@@ -43,6 +45,7 @@ def tag_sections(run_dir: Path, clips_dir: Path, log_dirs: Sequence[Path], meta:
         meta: the indexed clips' metadata (``log_id`` and ``split`` columns).
         out_dir: the report's folder; the plot goes to ``out_dir/plots/tags_over_time.png``.
         say: prints one summary line.
+        versus: the head against the dataset statistics (``metrics.json``'s ``tagging``), tabled when given.
     """
     if not (run_dir / "tagging.json").is_file():
         return []
@@ -74,6 +77,7 @@ def tag_sections(run_dir: Path, clips_dir: Path, log_dirs: Sequence[Path], meta:
     say(f"tags: {len(spans)} spans where a vehicle is stopped in front, in {len(logs)} test log(s) "
         f"(threshold {threshold:.2f} from the {source}{precision})")
     return ["<h2>Spatio-temporal tags from the universal BEV embedding</h2>",
+            *statistics_section(versus),
             "<p>Pooled attribute values over a held-out log (densities in m², probabilities otherwise):</p>",
             "<img src='plots/tags_over_time.png' alt='tags over time'>",
             "<h3>scenesearch find RUN LOG... --tag stopped --region front</h3>",
@@ -82,6 +86,30 @@ def tag_sections(run_dir: Path, clips_dir: Path, log_dirs: Sequence[Path], meta:
             f"in front{html.escape(precision)}.</p>",
             "<table><tr><th>log</th><th>start (s into the log)</th><th>duration (s)</th><th>score</th>"
             f"<th>labelled</th></tr>{table_rows}</table>" if spans else f"<p>no span above {threshold:.2f}</p>"]
+
+
+def statistics_section(versus: Mapping[str, Any] | None) -> list[str]:
+    """The tagging head against the dataset statistics (``metrics.json``'s ``tagging``, from ``scenesearch
+    eval``) as a table; empty without it."""
+    if not versus:
+        return []
+    from encoders.tagging.versus_statistics import against_statistics_summary
+
+    def cell(value: float | None) -> str:
+        return "n/a" if value is None else f"{value:.3f}"
+
+    rows = "".join(
+        f"<tr><td>{html.escape(a)}</td><td>{html.escape(versus['metric'][a])}</td>"
+        f"<td>{cell(versus['statistics'][a])}</td><td>{cell(versus['model'][a])}</td>"
+        f"<td>{'n/a' if above is None else 'yes' if above else 'no'}</td></tr>"
+        for a, above in versus["above_statistics"].items())
+    return ["<h3>The head against the dataset statistics</h3>",
+            f"<p>{html.escape(versus['split'].capitalize())} logs; mean over regions of F1 (higher is better) or L1 "
+            "(lower is better; densities in m², speed in m/s), thresholds and calibrations from the validation logs; "
+            f"{html.escape(against_statistics_summary(versus))}. Per region: <code>scenesearch eval-tags RUN CLIPS "
+            "--out DIR</code>.</p>",
+            "<table><tr><th>attribute</th><th>metric</th><th>statistics</th><th>model</th><th>beats them</th></tr>"
+            f"{rows}</table>"]
 
 
 def _plot_tags_over_time(tags: TagSearch, log_dir: Path, out_png: Path) -> None:

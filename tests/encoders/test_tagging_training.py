@@ -142,6 +142,26 @@ def test_evaluation_writes_both_tables(fixture: dict[str, Any], tmp_path: Path) 
     assert "Table 1" in md_path.read_text() and "| vehicle_density | L1 |" in md_path.read_text()
 
 
+def test_the_run_against_the_statistics_is_table_2_compared_row_by_row(fixture: dict[str, Any],
+                                                                       tmp_path: Path) -> None:
+    from encoders.tagging.versus_statistics import beats_statistics, evaluate_against_statistics
+
+    versus = evaluate_against_statistics(fixture["run"], fixture["clips"], tmp_path / "tags")
+    assert versus is not None
+    rows = json.loads((tmp_path / "tags" / "tags.json").read_text())["inputs"]  # eval-tags' report, written
+    assert (tmp_path / "tags" / "tags.md").is_file()
+    expected = {a: beats_statistics(cell, rows["none"][a]) for a, cell in rows["both"].items()}
+    assert versus["above_statistics"] == expected
+    assert versus["statistics"]["parked"] == rows["none"]["parked"]["value"]
+    defined = [a for a, above in versus["above_statistics"].items() if above is not None]
+    assert versus["defined"] == len(defined) > 0
+    assert versus["above_statistics_count"] + len(versus["below_statistics"]) == versus["defined"]
+    assert versus["test_logs"] >= 1
+    (tmp_path / "plain").mkdir()
+    assert evaluate_against_statistics(tmp_path / "plain", fixture["clips"], tmp_path / "x") is None  # no tagging
+    assert not (tmp_path / "x").exists()
+
+
 def test_a_joint_run_takes_the_backbone_from_the_dual_encoder(fixture: dict[str, Any], tmp_path: Path) -> None:
     from safetensors.torch import save_file
 
@@ -179,3 +199,24 @@ def test_scenesearch_training_adds_the_tag_loss_and_writes_the_head(fixture: dic
     assert any(line.startswith("tagging on") for line in lines)
     tagger = load_tagger(tmp_path / "joint")
     assert tagger.inputs.value == "lidar" and len(tagger.names) == len(ATTRIBUTES)
+
+    # `scenesearch eval` scores the head against the dataset statistics beside the retrieval figures.
+    from encoders.tagging.versus_statistics import evaluate_against_statistics
+    from retrieval.evaluation import evaluate
+    from retrieval.metrics_tables import metrics_table
+
+    metrics = evaluate(tmp_path / "joint", fixture["clips"], split="test", sentence_encoder=_hashed_sentences)
+    assert metrics["tagging"] == evaluate_against_statistics(tmp_path / "joint", fixture["clips"])
+    assert metrics["tagging"]["defined"] > 0
+    assert "the tagging head beats the dataset statistics on" in metrics_table(metrics)
+    assert "tagging" not in evaluate(tmp_path / "joint", fixture["clips"], split="all",
+                                     sentence_encoder=_hashed_sentences)  # logs held out whole: no statistics
+
+
+def _hashed_sentences(texts: list[str]) -> np.ndarray:
+    """A stand-in sentence encoder for the rule-caption reference: one seeded unit vector per text."""
+    import zlib
+
+    x = np.asarray([np.random.default_rng(zlib.crc32(t.encode())).standard_normal(16) for t in texts],
+                   dtype=np.float32).reshape(len(texts), 16)
+    return x / np.linalg.norm(x, axis=1, keepdims=True)

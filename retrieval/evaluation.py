@@ -390,7 +390,9 @@ def evaluate(run_dir: Path | str, clips_dir: Path | str, split: str = "test", em
         if getattr(dataset, "has_frame_tags", False):
             metrics["frame_tags"] = frame_tag_figures(model, dataset)
             say("eval: per-frame tag accuracy of the dense heads")
-    if split != ALL_SPLITS:  # the tagging head against the dataset statistics, for a run that has one
+    # The tagging head against the dataset statistics, for a run that has one; its thresholds come from the
+    # validation logs, so not on those (nor on every log at once).
+    if split not in (CHOICE_SPLIT, ALL_SPLITS):
         from encoders.tagging.versus_statistics import tagging_against_statistics
 
         tagging = tagging_against_statistics(run_dir, clips_dir, split, say)

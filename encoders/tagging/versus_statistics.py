@@ -8,7 +8,7 @@ from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
-from encoders.tagging.evaluate import evaluate_runs, write_report
+from encoders.tagging.evaluate import evaluate_runs
 from encoders.tagging.inference import TAGGING_FILE
 
 
@@ -59,33 +59,22 @@ def against_statistics_summary(versus: Mapping[str, Any]) -> str:
             f"{versus['skill']['model']:.3f} against {versus['skill']['statistics']:.3f}; below: {below})")
 
 
-def evaluate_against_statistics(run_dir: Path | str, clips_dir: Path | str, out_dir: Path | str | None = None,
-                                split: str = "test", progress: Callable[[str], None] | None = None,
-                                ) -> dict[str, Any] | None:
+def tagging_against_statistics(run_dir: Path | str, clips_dir: Path | str, split: str = "test",
+                               say: Callable[[str], None] | None = None) -> dict[str, Any] | None:
     """The run's tagging head against the dataset statistics on a split (:func:`against_statistics` of
-    :func:`evaluate_runs`); None for a run trained without tagging. With ``out_dir``, ``eval-tags``'s
-    report (both tables per region) is written there too.
+    :func:`~encoders.tagging.evaluate.evaluate_runs`, whose F1 thresholds and calibrations come from the
+    validation logs); ``say`` gets its summary line.
 
-    Raises:
-        FileNotFoundError: no log of the split has tag targets.
+    None for a run trained without tagging, and (saying why) when no log of the split has tag targets,
+    so that an evaluation of retrieval goes on without it.
     """
+    tell = say or (lambda _line: None)
     if not (Path(run_dir) / TAGGING_FILE).is_file():
         return None
-    result = evaluate_runs(run_dir, clips_dir, split=split, progress=progress)
-    if out_dir is not None:
-        write_report(out_dir, result)
-    return against_statistics(result)
-
-
-def tagging_against_statistics(run_dir: Path | str, clips_dir: Path | str, split: str,
-                               say: Callable[[str], None]) -> dict[str, Any] | None:
-    """:func:`evaluate_against_statistics` for an evaluation that goes on without it: None, and a line
-    saying why, when no log of the split has tag targets (and None for a run without tagging)."""
     try:
-        versus = evaluate_against_statistics(run_dir, clips_dir, split=split)
+        versus = against_statistics(evaluate_runs(run_dir, clips_dir, split=split))
     except FileNotFoundError as err:
-        say(f"eval: the tagging head is not scored ({err})")
+        tell(f"eval: the tagging head is not scored ({err})")
         return None
-    if versus is not None:
-        say(f"eval: {against_statistics_summary(versus)}")
+    tell(f"eval: {against_statistics_summary(versus)}")
     return versus

@@ -205,4 +205,3 @@ def test_thresholds_split_scores_whatever_their_scale() -> None:
     assert f1_score(prob >= threshold, truth) == 1.0
     # Ties in the scores are one candidate, not several.
     assert best_threshold(np.array([0.3, 0.3, 0.1]), np.array([True, False, False])) == pytest.approx(0.2)
-

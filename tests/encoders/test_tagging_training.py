@@ -142,14 +142,15 @@ def test_evaluation_writes_both_tables(fixture: dict[str, Any], tmp_path: Path) 
     assert "Table 1" in md_path.read_text() and "| vehicle_density | L1 |" in md_path.read_text()
 
 
-def test_the_run_against_the_statistics_is_table_2_compared_row_by_row(fixture: dict[str, Any],
-                                                                       tmp_path: Path) -> None:
-    from encoders.tagging.versus_statistics import beats_statistics, evaluate_against_statistics
+def test_the_run_against_the_statistics_is_table_2_compared_row_by_row(
+        fixture: dict[str, Any], tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    import encoders.tagging.versus_statistics as versus_statistics
+    from encoders.tagging.versus_statistics import beats_statistics, tagging_against_statistics
 
-    versus = evaluate_against_statistics(fixture["run"], fixture["clips"], tmp_path / "tags")
+    lines: list[str] = []
+    versus = tagging_against_statistics(fixture["run"], fixture["clips"], say=lines.append)
     assert versus is not None
-    rows = json.loads((tmp_path / "tags" / "tags.json").read_text())["inputs"]  # eval-tags' report, written
-    assert (tmp_path / "tags" / "tags.md").is_file()
+    rows = evaluate_runs(fixture["run"], fixture["clips"])["inputs"]  # eval-tags' Table 2
     expected = {a: beats_statistics(cell, rows["none"][a]) for a, cell in rows["both"].items()}
     assert versus["above_statistics"] == expected
     assert versus["statistics"]["parked"] == rows["none"]["parked"]["value"]
@@ -157,9 +158,20 @@ def test_the_run_against_the_statistics_is_table_2_compared_row_by_row(fixture: 
     assert versus["defined"] == len(defined) > 0
     assert versus["above_statistics_count"] + len(versus["below_statistics"]) == versus["defined"]
     assert versus["test_logs"] >= 1
+    assert lines == [f"eval: the tagging head beats the dataset statistics on {versus['above_statistics_count']} "
+                     f"of the {versus['defined']} attributes defined on the {versus['test_logs']} test log(s) "
+                     f"(skill {versus['skill']['model']:.3f} against {versus['skill']['statistics']:.3f}; below: "
+                     f"{', '.join(versus['below_statistics']) or 'none'})"]
     (tmp_path / "plain").mkdir()
-    assert evaluate_against_statistics(tmp_path / "plain", fixture["clips"], tmp_path / "x") is None  # no tagging
-    assert not (tmp_path / "x").exists()
+    assert tagging_against_statistics(tmp_path / "plain", fixture["clips"]) is None  # trained without tagging
+
+    def no_targets(*args: object, **kwargs: object) -> None:
+        raise FileNotFoundError("clips: no test logs with tag targets")
+
+    monkeypatch.setattr(versus_statistics, "evaluate_runs", no_targets)
+    lines.clear()
+    assert tagging_against_statistics(fixture["run"], fixture["clips"], say=lines.append) is None
+    assert lines == ["eval: the tagging head is not scored (clips: no test logs with tag targets)"]
 
 
 def test_a_joint_run_takes_the_backbone_from_the_dual_encoder(fixture: dict[str, Any], tmp_path: Path) -> None:
@@ -201,23 +213,15 @@ def test_scenesearch_training_adds_the_tag_loss_and_writes_the_head(fixture: dic
     assert tagger.inputs.value == "lidar" and len(tagger.names) == len(ATTRIBUTES)
 
     # `scenesearch eval` scores the head against the dataset statistics beside the retrieval figures.
-    from encoders.tagging.versus_statistics import evaluate_against_statistics
+    from encoders.tagging.versus_statistics import tagging_against_statistics
     from retrieval.evaluation import evaluate
     from retrieval.metrics_tables import metrics_table
+    from tests.retrieval.retrieval_fakes import HashTextEncoder
 
-    metrics = evaluate(tmp_path / "joint", fixture["clips"], split="test", sentence_encoder=_hashed_sentences)
-    assert metrics["tagging"] == evaluate_against_statistics(tmp_path / "joint", fixture["clips"])
+    metrics = evaluate(tmp_path / "joint", fixture["clips"], split="test", sentence_encoder=HashTextEncoder())
+    assert metrics["tagging"] == tagging_against_statistics(tmp_path / "joint", fixture["clips"])
     assert metrics["tagging"]["defined"] > 0
     assert "the tagging head beats the dataset statistics on" in metrics_table(metrics)
     for split in ("all", "val"):  # no thresholds chosen on the logs scored
         assert "tagging" not in evaluate(tmp_path / "joint", fixture["clips"], split=split,
-                                         sentence_encoder=_hashed_sentences)
-
-
-def _hashed_sentences(texts: list[str]) -> np.ndarray:
-    """A stand-in sentence encoder for the rule-caption reference: one seeded unit vector per text."""
-    import zlib
-
-    x = np.asarray([np.random.default_rng(zlib.crc32(t.encode())).standard_normal(16) for t in texts],
-                   dtype=np.float32).reshape(len(texts), 16)
-    return x / np.linalg.norm(x, axis=1, keepdims=True)
+                                         sentence_encoder=HashTextEncoder())

@@ -4,12 +4,9 @@ from __future__ import annotations
 
 import argparse
 import json
-import zlib
-from collections.abc import Sequence
 from dataclasses import replace
 from pathlib import Path
 
-import numpy as np
 import pyarrow.parquet as pq
 import pytest
 import torch
@@ -26,6 +23,7 @@ from encoders.train import resolve_channels
 from retrieval.cli import main
 from retrieval.evaluation import evaluate
 from retrieval.metrics_tables import metrics_table
+from tests.retrieval.retrieval_fakes import HashTextEncoder
 
 
 def make_clips(root: Path, frame_tags: bool) -> Path:
@@ -107,13 +105,6 @@ def test_bad_config_and_missing_split(clips_dir: Path, tmp_path: Path, capsys: p
     assert "'train' split" in capsys.readouterr().err
 
 
-def hashed_sentences(texts: Sequence[str]) -> np.ndarray:
-    """A stand-in sentence encoder for the rule-caption reference: one seeded unit vector per text."""
-    rows = [np.random.default_rng(zlib.crc32(t.encode())).standard_normal(16) for t in texts]
-    x = np.asarray(rows, dtype=np.float32).reshape(len(texts), 16)
-    return x / np.linalg.norm(x, axis=1, keepdims=True)
-
-
 def test_dense_weight_trains_frame_tag_heads_and_eval_reports_them(
         tagged_clips_dir: Path, clips_dir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     out = tmp_path / "run"
@@ -128,7 +119,7 @@ def test_dense_weight_trains_frame_tag_heads_and_eval_reports_them(
     assert config["camera_apart"] is True and config["model"]["camera"]["object_crop"] is True
     assert config["model"]["fusion"]["object_category"] is True
 
-    metrics = evaluate(out, tagged_clips_dir, split="all", sentence_encoder=hashed_sentences)
+    metrics = evaluate(out, tagged_clips_dir, split="all", sentence_encoder=HashTextEncoder())
     dense = metrics["frame_tags"]
     assert set(dense["streams"]) == {"track"} and set(dense["streams"]["track"]) == set(DENSE_TASKS)
     # Every synthetic ego frame cruises straight: the most frequent tag is always right.

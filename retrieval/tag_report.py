@@ -93,14 +93,12 @@ def statistics_section(versus: Mapping[str, Any] | None) -> list[str]:
     eval``) as a table; empty without it."""
     if not versus:
         return []
+    from encoders.tagging.evaluate import cell_text
     from encoders.tagging.versus_statistics import against_statistics_summary
-
-    def cell(value: float | None) -> str:
-        return "n/a" if value is None else f"{value:.3f}"
 
     rows = "".join(
         f"<tr><td>{html.escape(a)}</td><td>{html.escape(versus['metric'][a])}</td>"
-        f"<td>{cell(versus['statistics'][a])}</td><td>{cell(versus['model'][a])}</td>"
+        f"<td>{cell_text(versus['statistics'][a])}</td><td>{cell_text(versus['model'][a])}</td>"
         f"<td>{'n/a' if above is None else 'yes' if above else 'no'}</td></tr>"
         for a, above in versus["above_statistics"].items())
     return ["<h3>The head against the dataset statistics</h3>",

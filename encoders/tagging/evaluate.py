@@ -311,7 +311,8 @@ def skill(row: dict[str, dict[str, Any]], statistics: dict[str, dict[str, Any]])
     return round(float(np.mean(vals)), 4) if vals else float("nan")
 
 
-def _cell(value: float | None) -> str:
+def cell_text(value: float | None) -> str:
+    """A Table 1 / 2 value as printed: three decimals, ``n/a`` where undefined."""
     return "n/a" if value is None else f"{value:.3f}"
 
 
@@ -324,7 +325,7 @@ def markdown_tables(by_region: dict[str, dict[str, dict[str, Any]]], inputs: dic
              "|---|---|" + "---|" * len(regions)]
     for a, regs in by_region.items():
         metric = next(iter(regs.values()))["metric"] if regs else ""
-        cells = [_cell(regs[r]["value"]) if r in regs else "–" for r in regions]
+        cells = [cell_text(regs[r]["value"]) if r in regs else "–" for r in regions]
         lines.append(f"| {a} | {metric} | " + " | ".join(cells) + " |")
     rows = [k for k in ("none", "map", "lidar", "both") if k in inputs]
     lines += ["", "L1: lower is better (densities in m² covered, speed in m/s); F1: higher is better; "
@@ -334,7 +335,7 @@ def markdown_tables(by_region: dict[str, dict[str, dict[str, Any]]], inputs: dic
     attrs = list(next(iter(inputs.values())).keys()) if inputs else []
     for a in attrs:
         metric = inputs[rows[0]][a]["metric"]
-        cells = [_cell(inputs[k][a]["value"]) if a in inputs[k] else "–" for k in rows]
+        cells = [cell_text(inputs[k][a]["value"]) if a in inputs[k] else "–" for k in rows]
         lines.append(f"| {a} | {metric} | " + " | ".join(cells) + " |")
     lines.append("| **skill** (mean of F1 and 1 − L1/L1_none clipped to ±1) | | " + " | ".join(
         f"{skills.get(k, float('nan')):.3f}" for k in rows) + " |")

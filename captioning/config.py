@@ -14,17 +14,20 @@ The YAML file mirrors the nesting (every key optional, defaults below)::
     map:       {resolution_m: 0.5, margin_m: 10.0, arm_gap_deg: 30.0, junction_approach_m: 20.0}
 
 Reading and writing go through :mod:`common.config` (``CaptioningConfig.from_yaml(path)``,
-``to_yaml(path)``): unknown keys (all listed), values of the wrong type and contradicting thresholds
-raise :class:`~captioning.errors.ConfigError`. :data:`DEFAULT_CONFIG_PATH` is the annotated default
+``to_yaml(path)``): unknown keys (all listed), values of the wrong type, contradicting thresholds and
+sizes above their upper bounds (windows, counts; each part's docstring lists them) raise
+:class:`~captioning.errors.ConfigError`. :data:`DEFAULT_CONFIG_PATH` is the annotated default
 file, equal to ``CaptioningConfig()``.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from enum import StrEnum
 from pathlib import Path
+from typing import ClassVar
 
 from captioning.errors import ConfigError
 from common.config import YamlConfig
@@ -116,7 +119,12 @@ class SmoothingConfig(CaptioningYamlConfig):
             tracker's occasional miss does not cut a track into short, noisy runs; tags are still
             reported on observed frames only. 3 frames (0.3 s) covers typical misses and occlusions
             by a passing object; 0 differentiates each contiguous run on its own.
+
+    Upper bounds: ``window_frames`` 1001, ``min_run_frames`` and ``max_gap_frames`` 100000.
     """
+
+    upper_bounds: ClassVar[Mapping[str, float]] = {"window_frames": 1001, "min_run_frames": 100_000,
+                                                   "max_gap_frames": 100_000}
 
     window_frames: int = 9
     polyorder: int = 2
@@ -130,7 +138,11 @@ class SegmentsConfig(CaptioningYamlConfig):
 
     Runs shorter than ``min_frames`` are dropped; longer than ``max_frames`` are split into equal parts,
     which is why ``max_frames`` must be at least twice ``min_frames`` (no part may fall below the minimum).
+
+    Upper bounds: ``min_frames`` 50000, ``max_frames`` 100000 (almost three hours at 10 Hz).
     """
+
+    upper_bounds: ClassVar[Mapping[str, float]] = {"min_frames": 50_000, "max_frames": 100_000}
 
     min_frames: int = 8
     max_frames: int = 300
@@ -144,7 +156,11 @@ class WindowsConfig(CaptioningYamlConfig):
         strategy: ``host_segments`` (paper) or ``sliding``.
         length_s: sliding window length.
         stride_s: sliding window step.
+
+    Upper bounds: ``length_s`` and ``stride_s`` 3600.
     """
+
+    upper_bounds: ClassVar[Mapping[str, float]] = {"length_s": 3600, "stride_s": 3600}
 
     strategy: WindowStrategy = WindowStrategy.HOST_SEGMENTS
     length_s: float = 5.0
@@ -158,7 +174,11 @@ class TextConfig(CaptioningYamlConfig):
     Attributes:
         num_paraphrases: seeded paraphrase variants per caption (besides the canonical one).
         seed: base seed of the paraphrase choice.
+
+    Upper bounds: ``num_paraphrases`` 100.
     """
+
+    upper_bounds: ClassVar[Mapping[str, float]] = {"num_paraphrases": 100}
 
     num_paraphrases: int = 3
     seed: int = 0
@@ -208,7 +228,12 @@ class BehaviorConfig(CaptioningYamlConfig):
         leader_max_heading_deg: and heads within this angle of the follower (crossing traffic is no leader).
         ego_front_m: the ego's front bumper ahead of its origin (rear axle), for the ego as a leader.
         ego_rear_m: its rear bumper behind the origin.
+
+    Upper bounds: ``window_frames`` and ``accel_window_frames`` 1001, ``min_run_frames`` 100000.
     """
+
+    upper_bounds: ClassVar[Mapping[str, float]] = {"window_frames": 1001, "accel_window_frames": 1001,
+                                                   "min_run_frames": 100_000}
 
     window_frames: int = 9
     polyorder: int = 2
@@ -246,7 +271,11 @@ class MapConfig(CaptioningYamlConfig):
             different roads (roads of a junction meet at 45° or more; lanes of one road are parallel).
         junction_approach_m: an object on a lane entering a junction, at most this far from the
             lane's end, is at that junction (its kind applies), as in the simulator's labels.
+
+    Upper bounds: ``margin_m`` 1000 (the rasters grow with the square of their extent).
     """
+
+    upper_bounds: ClassVar[Mapping[str, float]] = {"margin_m": 1000}
 
     resolution_m: float = 0.5
     margin_m: float = 10.0
@@ -276,6 +305,7 @@ class CaptioningConfig(CaptioningYamlConfig):
     map: MapConfig = field(default_factory=MapConfig)
 
     def __post_init__(self) -> None:
+        super().__post_init__()
         self.validate()
 
     def validate(self) -> None:

@@ -78,10 +78,11 @@ from captioning.tags import (
     unified_neighbor_tag,
 )
 from captioning.unify import Segment, caption_windows
-from common.publish import publish as publish_outputs
+from common.folders import FolderKind, claim_folder, mark_folder
+from common.publish import GENERATIONS_DIR, publish
 from common.ray_cluster import Execution
 from common.ray_runner import TaskSkipped, TaskStatus, run_tasks
-from common.storage import staged_input
+from common.storage import distinct_by_name, staged_input
 from scenes.errors import ScenesError
 from scenes.log import Log
 from scenes.map import VectorMap
@@ -91,6 +92,8 @@ FRAME_TAGS_FILENAME = "frame_tags.parquet"
 #: Why a track gets no tags: no two observations close enough to differentiate.
 SKIP_ISOLATED = "observed only in single frames too far apart to differentiate"
 CAPTIONS_FILENAME = "captions.parquet"
+#: The folder ``scenesearch caption`` writes (:mod:`common.folders`).
+CAPTIONS_FOLDER = FolderKind("captions", CAPTIONS_FILENAME, (CAPTIONS_FILENAME, FRAME_TAGS_FILENAME, GENERATIONS_DIR))
 
 _NEIGHBOR_STRINGS = [f"{lane.value}:{m.value}" for lane in LANES for m in MOTIONS]
 #: Unified tags with action and context: code ((lane·M + motion)·(A + 1) + action + 1)·(C + 1) + context + 1.
@@ -410,11 +413,13 @@ def caption_log_dir(log_dir: Path | str, config: CaptioningConfig) -> LogCaption
 def caption_logs(log_dirs: Iterable[Path | str], config: CaptioningConfig | None = None,
                  execution: Execution | None = None) -> BatchResult:
     """Caption many log folders, one task per log (serially by default, or on Ray); a log that
-    cannot be read or captioned is skipped with its reason; results keep the input order."""
-    dirs = list(log_dirs)
+    cannot be read or captioned, or given twice, is skipped with its reason; results keep the input order."""
+    given, repeated = distinct_by_name(list(log_dirs))
+    dirs = list(given.values())
     report = run_tasks(caption_log_dir, dirs, execution, labels=[str(d) for d in dirs],
                        context=config or CaptioningConfig(), skip_on=(ScenesError, ValueError, OSError))
-    return BatchResult(report.values, {o.label: o.reason for o in report.with_status(TaskStatus.SKIPPED)},
+    skipped = {o.label: o.reason for o in report.with_status(TaskStatus.SKIPPED)}
+    return BatchResult(report.values, {**skipped, **repeated},
                        {o.label: o.reason for o in report.with_status(TaskStatus.FAILED)})
 
 
@@ -427,13 +432,17 @@ def output_tables(results: Sequence[LogCaptions]) -> dict[str, pa.Table]:
     return {FRAME_TAGS_FILENAME: frames, CAPTIONS_FILENAME: captions}
 
 
-def write_outputs(out_dir: Path | str, results: Sequence[LogCaptions]) -> tuple[Path, Path]:
+def write_outputs(out_dir: Path | str, results: Sequence[LogCaptions],
+                  inputs: Sequence[Path | str] = ()) -> tuple[Path, Path]:
     """Write ``frame_tags.parquet`` and ``captions.parquet`` and publish them together
     (:mod:`common.publish`: readers never see a new one beside an old one; what an earlier
-    killed write left behind is removed)."""
+    killed write left behind is removed). ``out_dir`` must be new, empty or a captions folder, and not
+    one of ``inputs`` (the log folders) nor inside one, else :class:`FolderClaimError`."""
+    claim_folder(out_dir, CAPTIONS_FOLDER, inputs)
+    mark_folder(out_dir, CAPTIONS_FOLDER, CAPTIONS_FOLDER.entries)  # first: a killed write leaves its kind
     tables = output_tables(results)
-    paths = publish_outputs(out_dir, {name: functools.partial(_write_parquet, table)
-                                      for name, table in tables.items()})
+    paths = publish(out_dir, {name: functools.partial(_write_parquet, table)
+                               for name, table in tables.items()})
     return paths[FRAME_TAGS_FILENAME], paths[CAPTIONS_FILENAME]
 
 

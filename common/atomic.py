@@ -101,6 +101,12 @@ def _alive(pid: int) -> bool:
     return True
 
 
+def is_temporary(name: str) -> bool:
+    """Whether a folder entry of this name is a temporary entry of this module (a write in progress or
+    killed, or the aside copy of a directory swap), not content of the folder."""
+    return bool(_TEMP_RE.match(name)) or (name.startswith(".") and name.endswith(".old"))
+
+
 def is_stale(entry: Path, now_s: float | None = None) -> bool:
     """Whether ``entry`` is a temporary entry of this module whose writer is gone (see the module docstring)."""
     match = _TEMP_RE.match(entry.name)

@@ -15,6 +15,15 @@ dataclasses), and an error names the file, the dotted key and the type expected:
 
 Checks that relate several fields stay in each dataclass's ``__post_init__``; a ``ValueError`` raised
 there is reported with the file name in front.
+
+**Plausibility bounds.** A size-like field (frames, pixels, cells, items, epochs) declares its upper
+bound in the class's ``upper_bounds``, so that an absurd value is refused when the config is made,
+before anything is allocated for it (``frames_per_clip: 1000000000`` would otherwise ask for gigabytes
+before any check)::
+
+    clips.yaml: key 'frames_per_clip': 1000000000 is above its upper bound 256
+
+:meth:`YamlConfig.__post_init__` checks them; a subclass with checks of its own calls it first.
 """
 
 from __future__ import annotations
@@ -46,6 +55,12 @@ class YamlConfig:
     """
 
     config_error: ClassVar[type[ConfigError]] = ConfigError
+    #: Field name → the largest value it may take (see the module docstring).
+    upper_bounds: ClassVar[Mapping[str, float]] = {}
+
+    def __post_init__(self) -> None:
+        """Refuse a value above its field's upper bound, naming the key and the bound."""
+        check_upper_bounds(self, self.upper_bounds, self.config_error)
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any] | None, source: str = "<dict>") -> Self:
@@ -67,6 +82,33 @@ class YamlConfig:
 
     def to_yaml_text(self) -> str:
         return to_yaml_text(self)
+
+
+def check_upper_bounds(config: Any, bounds: Mapping[str, float], error: type[ValueError] = ConfigError) -> None:
+    """Refuse each field of ``config`` named in ``bounds`` whose value is above its bound.
+
+    A tuple's elements are each checked (e.g. layer widths).
+
+    Raises:
+        error: ``key 'NAME': VALUE is above its upper bound BOUND`` for each field out of bounds.
+    """
+    problems = []
+    for name, bound in bounds.items():
+        value = getattr(config, name)
+        values = value if isinstance(value, tuple) else (value,)
+        if any(isinstance(v, int | float) and not isinstance(v, bool) and v > bound for v in values):
+            problems.append(f"key '{name}': {value} is above its upper bound {bound:g}")
+    if problems:
+        raise error("; ".join(problems))
+
+
+def with_option(config: T, option: str, **changes: Any) -> T:
+    """``dataclasses.replace(config, **changes)`` for a command-line ``option``; a value the config
+    refuses is reported as the option's (``--frames-per-clip 1000000000: key 'frames_per_clip': …``)."""
+    try:
+        return dataclasses.replace(config, **changes)  # type: ignore[type-var]
+    except ValueError as exc:
+        raise type(exc)(f"{option} {', '.join(str(v) for v in changes.values())}: {exc}") from None
 
 
 # --- writing ----------------------------------------------------------------------------------------
@@ -179,7 +221,8 @@ def _build(cls: type[T], data: Mapping[str, Any], prefix: str, source: str, erro
     try:
         return cls(**values)
     except ConfigError as exc:
-        raise error(f"{source}: {exc}") from None
+        message = str(exc).replace("key '", f"key '{prefix}")  # a nested config's keys named from the top
+        raise error(f"{source}: {message}") from None
     except (TypeError, ValueError) as exc:
         where = f"key '{prefix.rstrip('.')}': " if prefix else ""
         raise error(f"{source}: {where}{exc}") from None

@@ -33,6 +33,7 @@ import ctypes
 import ctypes.util
 import os
 import sys
+from pathlib import Path
 
 #: glibc's mallopt parameters (malloc.h).
 _M_TRIM_THRESHOLD = -1
@@ -79,3 +80,48 @@ def retain_freed_memory() -> bool:
                    ((_M_ARENA_MAX, 1), (_M_MMAP_MAX, 0), (_M_TRIM_THRESHOLD, -1)))
     os.environ["GLIBC_TUNABLES"] = malloc_tunables(os.environ.get("GLIBC_TUNABLES", ""))
     return _applied
+
+
+class MemoryBudgetError(ValueError):
+    """A step would need more memory than the machine has available; the message says what to lower."""
+
+
+def available_memory_bytes() -> int | None:
+    """Bytes this process may still allocate: the smaller of the system's available memory and what
+    its cgroup's limit leaves; None where neither can be read (not Linux)."""
+    found: list[int] = []
+    try:
+        with open("/proc/meminfo", encoding="ascii") as fh:
+            for line in fh:
+                if line.startswith("MemAvailable:"):
+                    found.append(int(line.split()[1]) * 1024)
+                    break
+    except (OSError, ValueError):
+        pass
+    try:
+        limit = Path("/sys/fs/cgroup/memory.max").read_text(encoding="ascii").strip()
+        used = Path("/sys/fs/cgroup/memory.current").read_text(encoding="ascii").strip()
+        if limit != "max":
+            found.append(max(0, int(limit) - int(used)))
+    except (OSError, ValueError):
+        pass
+    return min(found) if found else None
+
+
+def check_memory(need_bytes: int, what: str, lower: str) -> None:
+    """Refuse a step that needs more than the available memory, before it allocates anything.
+
+    Args:
+        need_bytes: the step's estimate.
+        what: the step, as the message names it (``rendering log L (F frames)``).
+        lower: the options or config keys that shrink it.
+
+    Raises:
+        MemoryBudgetError: ``what`` needs about N GiB, M GiB are available; lower ``lower``.
+    """
+    available = available_memory_bytes()
+    if available is None or need_bytes <= available:
+        return
+    gib = 1024**3
+    raise MemoryBudgetError(f"{what} needs about {need_bytes / gib:.1f} GiB of memory, {available / gib:.1f} GiB "
+                            f"are available; lower {lower}")

@@ -67,6 +67,28 @@ def join(location: Location, *parts: str) -> Location:
     return Path(location).joinpath(*parts)
 
 
+def distinct_by_name(locations: Sequence[Location]) -> tuple[dict[str, Location], dict[str, str]]:
+    """The locations by their last part (a log folder's name is its log id), each name once.
+
+    Returns:
+        (name → the first location of that name, label of each later one → why it is left out):
+        a batch that names a log twice, as the same folder or as two folders of one log id,
+        processes it once and reports the rest.
+    """
+    kept: dict[str, Location] = {}
+    repeated: dict[str, str] = {}
+    for location in locations:
+        name = name_of(location)
+        if name in kept:
+            same = not is_uri(location) and not is_uri(kept[name]) and Path(location).resolve() == \
+                Path(kept[name]).resolve()
+            repeated[str(location)] = (f"log given twice (the same folder as {kept[name]})" if same
+                                       else f"log id {name} given twice (kept {kept[name]})")
+        else:
+            kept[name] = location
+    return kept, repeated
+
+
 def exists(location: Location) -> bool:
     if not is_uri(location):
         return Path(location).exists()

@@ -17,11 +17,11 @@ from __future__ import annotations
 
 import json
 import re
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from enum import StrEnum
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import common.config
 from common.config import YamlConfig
@@ -98,7 +98,14 @@ class TextConfig(EncodersConfig):
         whole_text: ``slots``: the whole-text place is the text encoded in one piece (``text``) or the
             mean of its sentences, each encoded alone (``sentences``: fewer and shorter distinct strings
             to encode in training, see :class:`encoders.text.SlotText`).
+
+    Upper bounds: ``finetune_top_layers`` and ``scratch_layers`` 64, ``scratch_vocab`` 262144,
+    ``scratch_width`` 4096, ``scratch_max_words`` 4096, ``max_steps`` 64, ``step_hidden`` 16384.
     """
+
+    upper_bounds: ClassVar[Mapping[str, float]] = {
+        "finetune_top_layers": 64, "scratch_vocab": 262_144, "scratch_width": 4096, "scratch_layers": 64,
+        "scratch_max_words": 4096, "max_steps": 64, "step_hidden": 16_384}
 
     kind: str = "pretrained"
     model: str = BUNDLED_TEXT_MODEL
@@ -115,6 +122,7 @@ class TextConfig(EncodersConfig):
     whole_text: str = "sentences"
 
     def __post_init__(self) -> None:
+        super().__post_init__()
         for name, allowed in (("kind", TEXT_KINDS), ("precision", TEXT_PRECISIONS), ("whole_text", WHOLE_TEXT_KINDS)):
             if getattr(self, name) not in allowed:
                 raise ConfigError(f"TextConfig.{name} must be one of {list(allowed)}, got {getattr(self, name)!r}")
@@ -136,7 +144,11 @@ class TemporalConfig(EncodersConfig):
         heads: attention heads.
         max_frames: longest clip (number of learned time positions).
         dropout: dropout inside the transformer.
+
+    Upper bounds: ``width`` 4096, ``layers`` 64, ``heads`` 256, ``max_frames`` 4096.
     """
+
+    upper_bounds: ClassVar[Mapping[str, float]] = {"width": 4096, "layers": 64, "heads": 256, "max_frames": 4096}
 
     width: int = 128
     layers: int = 2
@@ -145,6 +157,9 @@ class TemporalConfig(EncodersConfig):
     dropout: float = 0.0
 
     def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.heads < 1:
+            raise ConfigError(f"TemporalConfig.heads must be >= 1, got {self.heads}")
         if self.width % self.heads:
             raise ConfigError(f"TemporalConfig.width ({self.width}) must be divisible by heads ({self.heads})")
         if self.layers < 1 or self.max_frames < 1:
@@ -167,7 +182,11 @@ class CameraConfig(EncodersConfig):
         object_crop: also read the object's crop at full resolution (the batches' ``camera_crop``, from
             clips rendered with crops) through a CNN of its own, with where the crop lies in the image and
             how many pixels the object covers (``camera_box``) and their change since the previous frame.
+
+    Upper bounds: ``in_channels`` 64, each of ``widths`` 4096.
     """
+
+    upper_bounds: ClassVar[Mapping[str, float]] = {"in_channels": 64, "widths": 4096}
 
     in_channels: int = 4
     widths: tuple[int, ...] = (16, 32, 64)
@@ -178,6 +197,7 @@ class CameraConfig(EncodersConfig):
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "widths", tuple(int(w) for w in self.widths))
+        super().__post_init__()
         if not self.widths or min(self.widths) < 1:
             raise ConfigError(f"CameraConfig.widths must be non-empty positive, got {self.widths}")
         if not 0 <= self.ego_features <= 6:
@@ -212,7 +232,14 @@ class BevConfig(EncodersConfig):
             rules threshold, whatever the clip's frame step.
         track_rates: also give the track stream the object's own speed, acceleration and yaw rate over ground
             (``object_rates`` of a batch; with the track stream): what the own-behaviour rules threshold.
+
+    Upper bounds: ``lidar_channels`` and ``map_channels`` 256, each of ``widths`` and ``embed_channels`` 4096,
+    ``blocks_per_stage`` and ``context_blocks`` 64, ``temporal_kernel`` 255.
     """
+
+    upper_bounds: ClassVar[Mapping[str, float]] = {
+        "lidar_channels": 256, "map_channels": 256, "widths": 4096, "blocks_per_stage": 64, "context_blocks": 64,
+        "embed_channels": 4096, "temporal_kernel": 255}
 
     lidar_channels: int = 5
     map_channels: int = 6
@@ -232,6 +259,7 @@ class BevConfig(EncodersConfig):
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "widths", tuple(int(w) for w in self.widths))
+        super().__post_init__()
         if not self.widths or min(self.widths) < 1:
             raise ConfigError(f"BevConfig.widths must be non-empty positive, got {self.widths}")
         if self.blocks_per_stage < 1 or self.context_blocks < 0:
@@ -263,7 +291,11 @@ class FusionConfig(EncodersConfig):
             the clip table names it): a learned vector per category joins the fusion MLP's input.
         category_drop_p: in training, chance of withholding a clip's category (the "unknown" vector),
             so that the views keep reading the category from what they see.
+
+    Upper bounds: ``hidden`` 16384.
     """
+
+    upper_bounds: ClassVar[Mapping[str, float]] = {"hidden": 16_384}
 
     hidden: int = 512
     drop_camera_p: float = 0.3
@@ -272,6 +304,9 @@ class FusionConfig(EncodersConfig):
     category_drop_p: float = 0.0
 
     def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.hidden < 1:
+            raise ConfigError(f"FusionConfig.hidden must be >= 1, got {self.hidden}")
         for name in ("drop_camera_p", "drop_bev_p", "category_drop_p"):
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise ConfigError(f"FusionConfig.{name} must be in [0, 1], got {getattr(self, name)}")
@@ -295,7 +330,11 @@ class DualEncoderConfig(EncodersConfig):
             (:mod:`encoders.timeline`): the order of what happens is where in the vector it is.
             0: one vector read by a query token (the text tower's ``kind`` must then not be ``slots``).
         slot_dim: S, dimensions of each time slot; the first D − K·S dimensions stay global.
+
+    Upper bounds: ``embed_dim`` and ``slot_dim`` 8192, ``time_slots`` 256.
     """
+
+    upper_bounds: ClassVar[Mapping[str, float]] = {"embed_dim": 8192, "time_slots": 256, "slot_dim": 8192}
 
     embed_dim: int = 256
     logit_scale_init: float = 2.6592600369327779
@@ -310,6 +349,7 @@ class DualEncoderConfig(EncodersConfig):
     slot_dim: int = 48
 
     def __post_init__(self) -> None:
+        super().__post_init__()
         if self.embed_dim < 1:
             raise ConfigError(f"DualEncoderConfig.embed_dim must be >= 1, got {self.embed_dim}")
         if self.time_slots < 0 or self.slot_dim < 1:
@@ -397,7 +437,13 @@ class TrainConfig(EncodersConfig):
         partial_object_share: share of a step's clips whose object sentence trains as a query.
         partial_host_share: share of a step's clips whose ego sentence trains as a query (the clips of a log
             at one time share it, so a few carry it).
+
+    Upper bounds: ``epochs`` 10000, ``batch_size`` and ``eval_batch_size`` 4096, ``num_workers`` 256,
+    ``max_steps_per_epoch`` 1000000.
     """
+
+    upper_bounds: ClassVar[Mapping[str, float]] = {"epochs": 10_000, "batch_size": 4096, "eval_batch_size": 4096,
+                                                   "num_workers": 256, "max_steps_per_epoch": 1_000_000}
 
     model: DualEncoderConfig = field(default_factory=DualEncoderConfig)
     epochs: int = 10
@@ -431,6 +477,7 @@ class TrainConfig(EncodersConfig):
     partial_host_share: float = 0.25
 
     def __post_init__(self) -> None:
+        super().__post_init__()
         kinds = hard_negative_kinds(self.hard_negatives, "TrainConfig.hard_negatives")
         object.__setattr__(self, "hard_negatives", kinds)
         for name in ("epochs", "batch_size", "eval_every", "eval_batch_size"):

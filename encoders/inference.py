@@ -6,11 +6,19 @@ functions return float32 L2-normalised embeddings, one (D,) row per clip or text
 in the mode (train or eval) they found it in, so training validation can call them between steps.
 :func:`resolve_device` turns a device name of the configs (``auto``, ``cpu``, ``cuda[:i]``) into a
 torch device, for training and inference alike.
+
+A model reads clips of one shape: the frames per clip, camera image and BEV raster of the clips it
+was trained on. :func:`record_trained_clips` writes that shape into the run folder
+(``trained_clips.json``, the :data:`CLIP_SHAPE_FIELDS` of the training clips' ``manifest.json``), and
+:func:`check_clips_fit` refuses clips of another shape before any is embedded, naming the clips
+manifest's field, its value and the model's; a run without that file is checked against what its
+``config.json`` fixes (channel counts, the longest clip its temporal models take).
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterator, Sequence
+import json
+from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -18,12 +26,100 @@ import numpy as np
 import torch
 from torch.utils.data import DataLoader, Dataset
 
+from common.atomic import atomic_write_text
+from encoders.clips.layout import MANIFEST_FILE, read_manifest
 from encoders.config import ConfigError, TrainConfig, check_device_name
 from encoders.data import AugmentConfig, ClipDataset, collate_clips
 from encoders.dense import frame_tag_report
 from encoders.metrics import caption_queries, text_to_clip_metrics
 from encoders.model import DualEncoder
 from encoders.text import TEXT_CACHE_FILE
+
+#: The run folder's record of the clips it was trained on (:func:`record_trained_clips`).
+TRAINED_CLIPS_FILE = "trained_clips.json"
+#: The fields of ``CLIPS_DIR/manifest.json`` that fix what a model reads (dotted: ``bev.height_px`` is
+#: the ``height_px`` of its ``bev``): frames per clip, the camera image, the BEV raster's extent, cell,
+#: size and channels.
+CLIP_SHAPE_FIELDS = ("frames_per_clip", "camera.height_px", "camera.width_px", "camera.channels",
+                     "bev.x_min_m", "bev.x_max_m", "bev.y_min_m", "bev.y_max_m", "bev.resolution_m",
+                     "bev.height_px", "bev.width_px", "bev.lidar_channels", "bev.map_channels")
+
+
+class ClipShapeError(ConfigError):
+    """Clips of another shape than the clips a model was trained on."""
+
+
+def clip_shape(manifest: Mapping[str, Any]) -> dict[str, Any]:
+    """The :data:`CLIP_SHAPE_FIELDS` of a clips manifest, by dotted name (those it lacks are left out)."""
+    shape: dict[str, Any] = {}
+    for name in CLIP_SHAPE_FIELDS:
+        value: Any = manifest
+        for key in name.split("."):
+            value = value.get(key) if isinstance(value, Mapping) else None
+        if value is not None:
+            shape[name] = value
+    return shape
+
+
+def record_trained_clips(run_dir: Path | str, clips_dir: Path | str) -> None:
+    """Write ``RUN_DIR/trained_clips.json``: the training clips' folder and :func:`clip_shape`.
+
+    Training calls it beside the model it writes, so that :func:`check_clips_fit` holds other clips
+    to that shape. Clips without a manifest (datasets built in memory) record nothing.
+    """
+    if not (Path(clips_dir) / MANIFEST_FILE).is_file():
+        return
+    record = {"clips_dir": str(clips_dir), "shape": clip_shape(read_manifest(clips_dir))}
+    atomic_write_text(Path(run_dir) / TRAINED_CLIPS_FILE, json.dumps(record, indent=2, sort_keys=True))
+
+
+def check_clips_fit(run_dir: Path | str, clips_dir: Path | str) -> None:
+    """Refuse clips whose shape the model of ``run_dir`` was not trained on, before any is embedded.
+
+    The clips' :func:`clip_shape` is compared with the run's ``trained_clips.json`` field by field;
+    whether or not the run has that file, the BEV and camera channel counts must be those of its
+    ``config.json`` and ``frames_per_clip`` at most the longest clip its temporal models take.
+
+    Raises:
+        ClipShapeError: one line naming the clips manifest and each field that differs, with the
+            clips' value and the model's (``clips/manifest.json, field 'frames_per_clip': 8, the
+            model was trained on 12``).
+        FileNotFoundError: the clips folder has no manifest.
+    """
+    run_dir, manifest_path = Path(run_dir), Path(clips_dir) / MANIFEST_FILE
+    shape = clip_shape(read_manifest(clips_dir))
+    problems: dict[str, str] = {}  # field → what differs, one entry per field
+    record_path = run_dir / TRAINED_CLIPS_FILE
+    if record_path.is_file():
+        try:
+            trained = dict(json.loads(record_path.read_text(encoding="utf-8"))["shape"])
+        except (OSError, UnicodeDecodeError, json.JSONDecodeError, KeyError, TypeError, ValueError) as exc:
+            raise ClipShapeError(f"{record_path}: unreadable record of the training clips ({exc!r})") from None
+        problems.update({name: f"{shape.get(name)!r}, the model was trained on {trained[name]!r}"
+                         for name in CLIP_SHAPE_FIELDS if name in trained and shape.get(name) != trained[name]})
+    config_path = run_dir / "config.json"
+    if config_path.is_file():
+        model = TrainConfig.from_json(config_path).model
+        counts = {"bev.lidar_channels": ("bev.lidar_channels", model.bev.lidar_channels),
+                  "bev.map_channels": ("bev.map_channels", model.bev.map_channels),
+                  "camera.channels": ("camera.in_channels", model.camera.in_channels)}
+        for name, (key, expected) in counts.items():
+            value = shape.get(name)
+            got = len(value) if isinstance(value, list) else value
+            if got is not None and got != expected:
+                problems.setdefault(name, f"{got} channels, the model reads {expected} ({config_path}, "
+                                          f"field 'model.{key}')")
+        tower, longest = min((("bev", model.bev.temporal.max_frames), ("camera", model.camera.temporal.max_frames)),
+                             key=lambda pair: pair[1])
+        frames = shape.get("frames_per_clip")
+        if isinstance(frames, int) and frames > longest:
+            problems.setdefault("frames_per_clip", f"{frames}, the model reads at most {longest} frames "
+                                                   f"({config_path}, field 'model.{tower}.temporal.max_frames')")
+    if problems:
+        order = {name: i for i, name in enumerate(CLIP_SHAPE_FIELDS)}
+        fields = "; ".join(f"field {name!r}: {problems[name]}" for name in sorted(problems, key=order.__getitem__))
+        raise ClipShapeError(f"{manifest_path}, {fields} (make the clips as the run's training clips were, or "
+                             "train a model on these)")
 
 
 def resolve_device(name: str) -> torch.device:

@@ -61,6 +61,7 @@ import torch
 from torch.utils.data import DataLoader, Dataset
 
 from common.atomic import atomic_path, atomic_write_text
+from common.memory import check_memory
 from encoders.calibration import CameraWeightChoice, calibrate_camera_weight
 from encoders.checkpoints import (
     check_resume_config,
@@ -86,6 +87,7 @@ from encoders.model import DualEncoder
 from encoders.model_card import MODEL_CARD_FILE, model_card
 from encoders.negatives import NEGATIVE_FIELDS, batch_negatives
 from encoders.partial_queries import PARTIAL_FIELDS, batch_partials
+from encoders.run_folder import claim_run_dir
 from encoders.tagging.ablation import mask_inputs
 from encoders.tagging.config import TagTrainConfig
 from encoders.tagging.training import attach_tagging
@@ -182,6 +184,13 @@ def resolve_channels(config: TrainConfig, item: dict[str, Any]) -> TrainConfig:
     return dataclasses.replace(config, model=model)
 
 
+def batch_bytes(sample: dict[str, Any], batch_size: int) -> int:
+    """About the memory a batch of ``batch_size`` clips like ``sample`` takes as input: its tensors, held
+    by the loader, the collated batch and the model's first activations (three copies)."""
+    one = sum(int(v.numel() * v.element_size()) for v in sample.values() if isinstance(v, torch.Tensor))
+    return 3 * one * batch_size
+
+
 def build_optimizer(model: DualEncoder, config: TrainConfig) -> torch.optim.Optimizer:
     """AdamW; no weight decay on biases, norms, embeddings, time positions and the logit scale."""
     decay: list[torch.nn.Parameter] = []
@@ -236,6 +245,8 @@ def train(
     run_dir = Path(run_dir)
     train_set, val_set = _open_datasets(Path(clips_dir), config, datasets)
     first = train_set[0]
+    check_memory(batch_bytes(first, config.batch_size), f"a training batch of {config.batch_size} clips",
+                 "--batch-size (or the clips' frames and sizes)")
     config = resolve_channels(config, first)
     missing = [k for k in NEGATIVE_FIELDS if k not in first] if config.hard_negatives else []
     if missing:
@@ -252,7 +263,7 @@ def train(
     if not resume and (ckpt_path.exists() or metrics_path.exists()):
         raise FileExistsError(f"{run_dir} already holds a run; pass --resume to continue it or choose another --out")
     if dp.is_main:
-        run_dir.mkdir(parents=True, exist_ok=True)
+        claim_run_dir(run_dir, clips_dir)
 
     device = dp.device(resolve_device(config.device))
     checkpoint = read_checkpoint(ckpt_path) if resume else None

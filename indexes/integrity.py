@@ -40,6 +40,7 @@ from pathlib import Path
 from typing import Any
 
 from common.atomic import atomic_write_text
+from common.checksums import hash_threads, sha256_file, sha256_files
 from indexes.errors import IndexFileError, ManifestError
 
 STAMP_NAME = ".verified.json"
@@ -47,7 +48,6 @@ SEAL_FIELD = "content_sha256"
 #: A stamp entry is trusted only for files unchanged since this long before their hashing began.
 STAMP_MARGIN_NS = 2_000_000_000
 _STAMP_VERSION = 1
-_MAX_THREADS = 8
 
 
 class Verify(StrEnum):
@@ -86,17 +86,10 @@ class FileEntry:
         return {"size_bytes": self.size_bytes, "sha256": self.sha256}
 
 
-def sha256_file(path: Path) -> str:
-    with path.open("rb") as f:
-        return hashlib.file_digest(f, "sha256").hexdigest()
-
-
 def file_entries(directory: Path, names: list[str]) -> dict[str, FileEntry]:
     """Size and SHA-256 of ``directory / name`` for each of ``names``, hashed in parallel."""
     paths = [directory / n for n in names]
-    with ThreadPoolExecutor(max_workers=_threads(len(paths))) as pool:
-        digests = list(pool.map(sha256_file, paths))
-    return {n: FileEntry(p.stat().st_size, h) for n, p, h in zip(names, paths, digests)}
+    return {n: FileEntry(p.stat().st_size, h) for n, p, h in zip(names, paths, sha256_files(paths))}
 
 
 def parse_file_entries(raw: object, path: Path, field: str = "files") -> dict[str, FileEntry]:
@@ -186,10 +179,6 @@ def _trusted(record: list[Any] | None, st: os.stat_result, sha256: str) -> bool:
                 and isinstance(hashed_from_ns, int) and st.st_ctime_ns < hashed_from_ns - STAMP_MARGIN_NS)
 
 
-def _threads(n_files: int) -> int:
-    return max(1, min(n_files, os.cpu_count() or 1, _MAX_THREADS))
-
-
 class PendingVerification:
     """Checksums of a directory's files being computed in background threads; :meth:`wait` reports the outcome."""
 
@@ -211,7 +200,7 @@ class PendingVerification:
         #: Files hashed by this verification (the others were trusted from the stamp).
         self.hashed = [name for name, _ in todo]
         if todo:
-            self._pool = ThreadPoolExecutor(max_workers=_threads(len(todo)), thread_name_prefix="verify")
+            self._pool = ThreadPoolExecutor(max_workers=hash_threads(len(todo)), thread_name_prefix="verify")
             for name, st in todo:
                 started_ns = time.time_ns()
                 self._jobs[name] = (self._pool.submit(sha256_file, directory / name), st, started_ns)

@@ -19,9 +19,9 @@ from faiss.contrib.clustering import two_level_clustering
 from faiss.contrib.exhaustive_search import knn_ground_truth
 
 from common.atomic import atomic_path
+from common.checksums import sha256_file
 from indexes.errors import IndexFileError, VectorError, faiss_message
 from indexes.factory import AutoConfig
-from indexes.integrity import sha256_file
 from indexes.ondisk_plan import OnDiskPlan, PeakMemory
 from indexes.persistence import read_faiss_index
 from indexes.tuning import Knob, TuningResult, knob_limit, search_parameters, set_knob, tune

@@ -19,10 +19,11 @@ from typing import Any
 import faiss
 import numpy as np
 
+from common.checksums import sha256_file
 from indexes.building import IdsLike, prepare_build
 from indexes.errors import IdError, ManifestError
 from indexes.factory import AutoConfig
-from indexes.integrity import FileEntry, Verify, VerifyLike, sha256_file, verifying
+from indexes.integrity import FileEntry, Verify, VerifyLike, verifying
 from indexes.persistence import (
     MANIFEST_NAME,
     Manifest,

@@ -45,7 +45,8 @@ import pyarrow.parquet as pq
 from captioning.pipeline import CAPTIONS_FILENAME
 from captioning.tables import BEHAVIOR_CAPTION_FIELDS
 from captioning.text import OBJECT_HALF, caption_halves
-from common.atomic import atomic_directory, reading_directory, recover_directory
+from common.atomic import reading_directory, recover_directory
+from common.folders import claim_folder, claimed_directory
 from encoders.clips.layout import clip_id
 from encoders.config import WHOLE_TEXT_KINDS
 from indexes.errors import IndexesError, IndexFileError, ManifestError
@@ -54,6 +55,7 @@ from indexes.integrity import Verify, VerifyLike, file_entries, parse_file_entri
 from indexes.metadata import MetadataStore
 from indexes.persistence import load_array, read_json_manifest
 from retrieval.errors import IndexDirError
+from retrieval.index_folder import INDEX_FOLDER
 from retrieval.querying import MAX_K, build_query, check_query, preview_of
 from retrieval.records import SearchResult
 from retrieval.sentence_encoder import SentenceEncoder
@@ -248,6 +250,8 @@ class CaptionSearch:
                 raise FileNotFoundError(f"{path}: no caption table here (run `scenesearch caption` first)")
             table = pq.read_table(path)
             base_dir = base_dir or path.parent
+        if out_dir is not None:  # before the captions are embedded
+            claim_folder(out_dir, INDEX_FOLDER, () if isinstance(captions, pa.Table) else (captions,), whole=True)
         rows, skipped = caption_rows(table)
         if rows.num_rows == 0:
             raise ValueError("no captions to index" + (f"; skipped: {skipped[:5]}" if skipped else ""))
@@ -262,12 +266,16 @@ class CaptionSearch:
         store = MetadataStore.from_rows(meta, np.arange(rows.num_rows, dtype=np.int64))
         out = cls(store, texts, embeddings, full_groups, object_groups, encoder, None, base_dir, skipped)
         if out_dir is not None:
-            out.save(out_dir)
+            out.save(out_dir, inputs=() if isinstance(captions, pa.Table) else (captions,))
         return out
 
-    def save(self, out_dir: Path | str) -> None:
-        """Write the directory described in the module docstring, atomically."""
-        with atomic_directory(out_dir, overwrite=True) as tmp:
+    def save(self, out_dir: Path | str, inputs: Sequence[Path | str] = ()) -> None:
+        """Write the directory described in the module docstring, atomically.
+
+        ``out_dir`` is replaced only when it is an index folder (:mod:`common.folders`), and never when
+        it is one of ``inputs``, lies inside one or holds one.
+        """
+        with claimed_directory(out_dir, INDEX_FOLDER, inputs) as tmp:
             self.metadata.write(tmp / METADATA_FILE)
             pq.write_table(pa.table({"text": pa.array(self.texts, pa.string())}), tmp / TEXTS_FILE)
             np.save(tmp / EMBEDDINGS_FILE, self.text_embeddings)

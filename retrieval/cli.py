@@ -79,6 +79,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130
+    except MemoryError as exc:  # what the size checks could not foresee: one line, not a traceback
+        print(f"scenesearch {args.command}: error: out of memory ({exc or 'an allocation failed'}); lower the "
+              "sizes of this command's inputs or options (batch size, frames, grid)", file=sys.stderr)
+        return 2
     except Exception as exc:
         from scenes.errors import ScenesError
 

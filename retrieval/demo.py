@@ -26,6 +26,7 @@ from pathlib import Path
 from typing import Any
 
 from common.atomic import atomic_write_text
+from common.folders import FolderKind, claim_folder, mark_folder
 from common.ray_cluster import usable_cpus
 from retrieval.demo_config import CAMERA_OPTIONS, VAL_FRACTION, DemoConfig, option_flag
 
@@ -35,6 +36,10 @@ EXTRA_SEED_OFFSET = 1000
 VAL_SEED_OFFSET = 2000
 STAGES = ("simulate", "caption", "clips", "train", "index", "eval", "report")
 MARKERS = ".demo"
+#: The demo's folder (:mod:`common.folders`): one folder or file per stage's output, and the report.
+DEMO_FOLDER = FolderKind("demo", signature=MARKERS, entries=(
+    MARKERS, "logs", "extra_logs", "val_logs", "captions", "clips", "clips.yaml", "run", "index", "metrics.json",
+    "report.html", "plots", "tags"))
 
 
 class DemoStageError(RuntimeError):
@@ -170,7 +175,9 @@ class Demo:
         unknown = [s for s in stages if s not in STAGES]
         if unknown:
             raise ValueError(f"unknown stage {unknown[0]!r}; stages: {', '.join(STAGES)}")
+        claim_folder(self.out_dir, DEMO_FOLDER)  # its stages replace folders inside it
         self.out_dir.mkdir(parents=True, exist_ok=True)
+        mark_folder(self.out_dir, DEMO_FOLDER, DEMO_FOLDER.entries)
         started = time.perf_counter()
         rerun = False
         for i, stage in enumerate(stages, start=1):

@@ -19,10 +19,10 @@ from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
+from common.checksums import sha256_file
 from common.ray_cluster import Execution, cluster_gpus, import_ray, node_cpus, ray_runtime
 from common.storage import as_location, join, list_files, remove_files, write_file
 from encoders.config import check_device_name
-from indexes.integrity import sha256_file
 from retrieval.errors import ModelMismatchError
 
 MODEL_FILE = "model.safetensors"
@@ -131,6 +131,7 @@ class ModelEmbedder:
         self._views_key: tuple[str, str | None] | None = None
         self._views: tuple[list[str], dict[str, np.ndarray]] = ([], {})
         self._views_lock = threading.Lock()
+        self._fitting_clips: set[str] = set()  # clips folders whose shape the model was trained on
 
     @property
     def model_id(self) -> str:
@@ -166,10 +167,21 @@ class ModelEmbedder:
 
     def embed_clips(self, clips_dir: Path, view: str = "fused", split: str | None = None,
                     shuffle_frames: bool = False) -> tuple[list[str], np.ndarray]:
+        """Clip ids and their (N, D) embeddings, for all clips of ``clips_dir`` (or one split).
+
+        Raises:
+            ClipShapeError: the clips' shape (frames per clip, camera image, BEV raster) is not that of
+                the clips the model was trained on (:func:`encoders.inference.check_clips_fit`);
+                nothing is embedded.
+        """
         import torch
 
-        from encoders.inference import embed_clips
+        from encoders.inference import check_clips_fit, embed_clips
 
+        folder = str(Path(clips_dir).resolve())
+        if folder not in self._fitting_clips:
+            check_clips_fit(self.run_dir, clips_dir)
+            self._fitting_clips.add(folder)
         if shuffle_frames:
             with torch.inference_mode():
                 ids, x = embed_clips(self.model, clips_dir, split=split, view=view, shuffle_frames=True,

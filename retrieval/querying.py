@@ -4,33 +4,89 @@ Every search entry point (:class:`retrieval.SceneSearch`, :class:`retrieval.capt
 and through them the CLI and the HTTP service) builds a :class:`Query` with :func:`build_query` before
 any work: ``k`` and the filter are checked there, with one error style naming the parameter, and the
 layers below (:func:`hits_to_results`, :mod:`indexes`) take the query as it is.
+
+The query sentence has one check too, :func:`check_query` (its text by :func:`check_text`): at most
+:data:`MAX_QUERY_CHARS` characters, no control character but tab, line feed and carriage return, and
+nothing that is not text (a lone surrogate, which is what Python makes of bytes that are not UTF-8 in
+a command-line argument). The CLI, the Python API and the HTTP service all call it, so a query one of
+them refuses is refused by the others with the same rule.
+
+The index packages load on first use, so that reading :data:`MAX_QUERY_CHARS` (the service's default
+limit, read when the CLI builds its options) stays light.
 """
 
 from __future__ import annotations
 
+import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from indexes.clip_index import ClipIndex
-from indexes.errors import FilterError
-from indexes.filters import Condition, FilterSpec, Op, check, conditions_of
-from indexes.metadata import MetadataStore
-from retrieval.errors import EmptyQueryError, FilterSyntaxError, InvalidKError, NoCameraError
+from retrieval.errors import EmptyQueryError, FilterSyntaxError, InvalidKError, NoCameraError, RetrievalError
 from retrieval.records import SearchResult
+
+if TYPE_CHECKING:
+    from indexes.clip_index import ClipIndex
+    from indexes.filters import Condition, FilterSpec
+    from indexes.metadata import MetadataStore
 
 #: The most results one query may ask for (the service lowers it with its own limit).
 MAX_K = 10_000
+#: The longest query sentence, in characters, that any entry point takes (the service may lower it).
+MAX_QUERY_CHARS = 500
+
+#: What a query may not hold: control characters other than tab, line feed and carriage return (C0,
+#: DEL and C1), and surrogates (never text on their own; the escapes of bytes that are not UTF-8).
+_NOT_TEXT = re.compile("[\x00-\x08\x0b\x0c\x0e-\x1f\x7f-\x9f\ud800-\udfff]")
 
 
-def check_query(query: object) -> str:
-    """The query sentence without surrounding blanks; raises :class:`EmptyQueryError` when nothing is left."""
+class QueryTooLongError(RetrievalError):
+    """A query (or another text parameter) longer than its limit."""
+
+    def __init__(self, name: str, length: int, limit: int) -> None:
+        self.length, self.limit = length, limit
+        super().__init__(f"{name} is {length} characters; the limit is {limit}")
+
+
+class QueryTextError(RetrievalError):
+    """A query (or another text parameter) holding a control character or bytes that are not UTF-8 text."""
+
+
+def check_text(value: str, name: str = "query", max_chars: int = MAX_QUERY_CHARS) -> str:
+    """``value`` when a query may hold it: at most ``max_chars`` characters, no control character
+    but tab, line feed and carriage return, no surrogate; ``name`` (``"parameter 'q'"``) starts the message.
+
+    Raises:
+        QueryTooLongError: more than ``max_chars`` characters.
+        QueryTextError: a control character or a surrogate; the message says which and where.
+    """
+    if len(value) > max_chars:
+        raise QueryTooLongError(name, len(value), max_chars)
+    bad = _NOT_TEXT.search(value)
+    if bad is None:
+        return value
+    code = ord(bad.group())
+    if 0xDC80 <= code <= 0xDCFF:  # Python's escape of an undecodable byte (surrogateescape)
+        raise QueryTextError(f"{name} is not valid UTF-8: byte 0x{code - 0xDC00:02x} at character {bad.start()}")
+    if 0xD800 <= code <= 0xDFFF:
+        raise QueryTextError(f"{name} is not valid text: lone surrogate U+{code:04X} at character {bad.start()}")
+    raise QueryTextError(f"{name} holds the control character U+{code:04X} at character {bad.start()}; "
+                         "a query is text (tabs and line breaks aside)")
+
+
+def check_query(query: object, name: str = "query", max_chars: int = MAX_QUERY_CHARS) -> str:
+    """The query sentence without surrounding blanks, checked by :func:`check_text`.
+
+    Raises:
+        EmptyQueryError: not a string, or nothing but blanks.
+        QueryTooLongError, QueryTextError: see :func:`check_text`.
+    """
     if not isinstance(query, str) or not query.strip():
         raise EmptyQueryError()
-    return query.strip()
+    return check_text(query, name, max_chars).strip()
 
 
 @dataclass(frozen=True)
@@ -69,6 +125,8 @@ def build_query(k: object, filters: FilterSpec, metadata: MetadataStore, size: i
         FilterSyntaxError: the filter cannot be read, names an unknown field, or holds a value or an
             operator its field does not take (the message lists the valid fields).
     """
+    from indexes.filters import Condition, Op
+
     checked = _checked_filters(filters, metadata)
     if view == "camera" and "has_camera" in metadata.fields:
         checked = (*(checked or ()), Condition("has_camera", Op.EQ, True))
@@ -89,6 +147,9 @@ def check_k(k: object, max_k: int = MAX_K) -> int:
 
 
 def _checked_filters(filters: FilterSpec, metadata: MetadataStore) -> tuple[Condition, ...] | None:
+    from indexes.errors import FilterError
+    from indexes.filters import check, conditions_of
+
     if filters is None:
         return None
     valid = [f for f in metadata.fields if f != "id"]

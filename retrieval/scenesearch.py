@@ -33,7 +33,8 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from common.atomic import atomic_directory, reading_directory
+from common.atomic import reading_directory
+from common.folders import claim_folder, claimed_directory
 from encoders.clips.layout import read_clip_table
 from indexes.clip_index import ClipIndex
 from indexes.errors import IndexesError, ManifestError
@@ -52,6 +53,7 @@ from retrieval.captions_search import CaptionSearch, Skipped, TextEncoder, capti
 from retrieval.embedding import CONFIG_FILE, Embedder, ModelEmbedder
 from retrieval.errors import IndexDirError, ModelMismatchError, OtherMomentsError, UnknownClipError, UnknownViewError
 from retrieval.hybrid import Scorers, WeightChoice, check_weight, choose_for_index
+from retrieval.index_folder import INDEX_FOLDER
 from retrieval.index_manifest import FORMAT_VERSION, KIND, MANIFEST, IndexManifest
 from retrieval.querying import (
     MAX_K,
@@ -99,7 +101,8 @@ class SceneSearch:
         Args:
             run_dir: a training run (``model.safetensors`` + ``config.json``).
             clips_dir: the clips the run was trained on (``clips.parquet`` + per-log arrays).
-            out_dir: the index directory; replaced atomically when it exists.
+            out_dir: the index directory; replaced atomically when it is an index folder
+                (:mod:`common.folders`), refused when it is another folder or one of the inputs.
             embedder: the model (default: :class:`ModelEmbedder` of ``run_dir``).
             text_encoder: the sentence encoder of the caption index (default: all-MiniLM-L6-v2, seeded with
                 the run's own text cache, :meth:`SentenceEncoder.for_run`).
@@ -111,6 +114,7 @@ class SceneSearch:
         """
         say = progress or (lambda _m: None)
         run_dir, clips_dir, out_dir = Path(run_dir).resolve(), Path(clips_dir).resolve(), Path(out_dir)
+        claim_folder(out_dir, INDEX_FOLDER, (run_dir, clips_dir), whole=True)  # before hours of embedding
         embedder = embedder if embedder is not None else ModelEmbedder(run_dir)
         rows, skipped = caption_rows(read_clip_table(clips_dir))
         clip_ids = rows.column("clip_id").to_pylist()
@@ -139,7 +143,7 @@ class SceneSearch:
         if "split" in rows.column_names:
             for s in rows.column("split").to_pylist():
                 split_counts[f"split_{s}"] = split_counts.get(f"split_{s}", 0) + 1
-        with atomic_directory(out_dir, overwrite=True) as tmp:
+        with claimed_directory(out_dir, INDEX_FOLDER, (run_dir, clips_dir)) as tmp:
             for view, index in views.items():
                 index.save(tmp / view)
             captions.save(tmp / CAPTIONS_DIR)

@@ -140,7 +140,7 @@ class TagSearch:
         from encoders.clips import layout
         from encoders.clips.config import ClipsConfig
         from encoders.clips.render import render_log
-        from encoders.clips.render_stats import rendered_log_ok
+        from encoders.clips.render_stats import reuse_problem
         from scenes.log import Log
 
         log_dir = Path(log_dir)
@@ -152,15 +152,15 @@ class TagSearch:
         dense = log.dense_tracks()
         folder = None
         for root in (self.clips_dir, self.cache_dir):
-            if root is not None and rendered_log_ok(layout.rendered_log_dir(root, log_id), config, dense):
+            if root is not None and reuse_problem(layout.rendered_log_dir(root, log_id), config, dense) is None:
                 folder = layout.rendered_log_dir(root, log_id)
                 break
         if folder is None:
             render_log(log, config, self.cache_dir, dense)
             folder = layout.rendered_log_dir(self.cache_dir, log_id)
         ts = pq.read_table(folder / layout.FRAMES_FILE, columns=["timestamp_ns"]).column(0).to_numpy()
-        frames = LogFrames(log_id, ts.astype(np.int64), np.load(folder / layout.BEV_LIDAR_FILE, mmap_mode="r"),
-                           np.load(folder / layout.BEV_MAP_FILE, mmap_mode="r"), log.map_path is not None)
+        frames = LogFrames(log_id, ts.astype(np.int64), layout.load_rendered_array(folder, layout.BEV_LIDAR_FILE),
+                           layout.load_rendered_array(folder, layout.BEV_MAP_FILE), log.map_path is not None)
         self._frames[log_id] = frames
         return frames
 

@@ -30,6 +30,7 @@ import pyarrow.feather as feather
 from numpy.typing import NDArray
 
 from common.atomic import atomic_path, atomic_write_bytes, atomic_write_text
+from common.folders import FolderKind
 from scenes import schema
 from scenes.calibration import Calibration, CameraIntrinsics
 from scenes.errors import LogFormatError, MapFormatError, Problem, collect_problems
@@ -45,6 +46,11 @@ EXTRINSICS_PATH = Path("calibration") / "egovehicle_SE3_sensor.feather"
 INTRINSICS_PATH = Path("calibration") / "intrinsics.feather"
 LIDAR_DIR = Path("sensors") / "lidar"
 CAMERAS_DIR = Path("sensors") / "cameras"
+#: A log folder that scenesearch writes (simulated, imported, tracked; :mod:`common.folders`): the AV2
+#: layout and the files beside it. An unmarked folder counts as one when it holds ``log_metadata.json``,
+#: which real AV2 logs lack: a user's own log is never replaced.
+LOG_FOLDER = FolderKind("log", signature=METADATA_FILENAME, entries=(
+    ANNOTATIONS_FILENAME, POSES_FILENAME, "calibration", "map", "sensors", METADATA_FILENAME, "*.feather", "*.json"))
 
 
 def _write_table(path: Path, table: pa.Table) -> None:
@@ -83,6 +89,10 @@ def _se3_columns(quat_wxyz: NDArray[np.floating], translation_m: NDArray[np.floa
 def read_annotations(path: Path) -> Annotations:
     """Read and validate ``annotations.feather``; rows come back ordered by (timestamp, track id).
 
+    Beyond the columns, values must be plausible (:mod:`scenes.schema`): int64 nanosecond
+    timestamps, box centres within :data:`~scenes.schema.MAX_EGO_FRAME_COORDINATE_M` of the ego,
+    box sizes positive and at most :data:`~scenes.schema.MAX_BOX_SIZE_M`.
+
     The file may hold its rows in any order, as av2-api accepts: real logs keep ``EGO_VEHICLE`` rows
     at the end or group rows by track. Problems name the row as it is in the file.
     """
@@ -96,11 +106,16 @@ def read_annotations(path: Path) -> Annotations:
     size = _stack(floats, schema.SIZE_COLUMNS)
     quat = _stack(floats, schema.QUAT_COLUMNS)
     center = _stack(floats, schema.TRANSLATION_COLUMNS)
-    problems = schema.check_finite(path, floats)
+    # Timestamps in another unit make frames collide: that is said once, not as repeated tracks.
+    unit = schema.check_timestamp_unit(path, timestamps)
+    problems = unit + schema.check_finite(path, floats)
     if not problems:
         problems += schema.check_quaternions(path, quat)
-        problems += schema.check_positive_sizes(path, size)
-    problems += schema.check_unique_track_per_frame(path, timestamps, track_ids)
+        problems += schema.check_box_sizes(path, size)
+        problems += schema.check_bounds(path, {n: floats[n] for n in schema.TRANSLATION_COLUMNS},
+                                        schema.MAX_EGO_FRAME_COORDINATE_M, "ego-frame coordinate")
+    if not unit:
+        problems += schema.check_unique_track_per_frame(path, timestamps, track_ids)
     if problems:
         raise LogFormatError(problems)
     if "num_interior_pts" in table.column_names:
@@ -142,26 +157,44 @@ def write_annotations(log_dir: Path, annotations: Annotations) -> Path:
 # Ego poses
 
 
-def read_ego_poses(path: Path) -> EgoTrajectory:
+def read_ego_poses(
+    path: Path,
+    interpolated_at_ns: NDArray[np.integer] | None = None,
+    max_pose_gap_s: float = schema.DEFAULT_MAX_POSE_GAP_S,
+) -> EgoTrajectory:
     """Read and validate ``city_SE3_egovehicle.feather``; poses come back in time order.
 
     Rows may be in any order (av2-api reads them into a mapping keyed by timestamp); a timestamp
-    on two rows is refused. Problems name the row as it is in the file.
+    on two rows is refused, as are timestamps that are not nanoseconds and coordinates beyond
+    :data:`scenes.schema.MAX_CITY_COORDINATE_M`. Problems name the row as it is in the file.
+
+    Args:
+        path: the poses file.
+        interpolated_at_ns: (Q,) timestamps the poses will be interpolated to (the annotation
+            timestamps), or None. A query between two poses more than ``max_pose_gap_s`` apart
+            is refused: its pose would be made up across the gap.
+        max_pose_gap_s: the largest gap between poses that a query may be interpolated across.
     """
     table = schema.read_feather(path, schema.POSE_COLUMNS)
     if table.num_rows == 0:
         raise LogFormatError.single(path, "table has no rows")
     timestamps = np.asarray(table.column("timestamp_ns").to_numpy(), dtype=np.int64)
     floats, quat, trans = _read_se3(table)
-    problems = schema.check_finite(path, floats)
-    problems += schema.check_unique_timestamps(path, timestamps)
+    unit = schema.check_timestamp_unit(path, timestamps)
+    problems = unit + schema.check_finite(path, floats)
+    if not unit:
+        problems += schema.check_unique_timestamps(path, timestamps)
     if not problems:
         problems += schema.check_quaternions(path, quat)
+        problems += schema.check_bounds(path, {n: floats[n] for n in schema.TRANSLATION_COLUMNS},
+                                        schema.MAX_CITY_COORDINATE_M, "city-frame coordinate")
     order = np.argsort(timestamps, kind="stable")
     if not problems:
         # Jumps are between poses neighbouring in time; their rows are mapped back to the file's.
         jumps = schema.check_pose_jumps(path, timestamps[order], trans[order])
         problems += [replace(p, row=None if p.row is None else int(order[p.row])) for p in jumps]
+    if not problems and interpolated_at_ns is not None:
+        problems += schema.check_pose_gaps(path, timestamps, np.asarray(interpolated_at_ns), max_pose_gap_s)
     if problems:
         raise LogFormatError(problems)
     return EgoTrajectory(timestamps[order], quat[order], trans[order])
@@ -185,8 +218,18 @@ MAP_DIRNAME = "map"
 
 
 def find_map_file(log_dir: Path) -> Path | None:
-    """The log's ``map/log_map_archive_*.json``, or None when the log has no map."""
-    candidates = sorted((Path(log_dir) / MAP_DIRNAME).glob("log_map_archive_*.json"))
+    """The log's ``map/log_map_archive_*.json``, or None when the log has no map.
+
+    Raises:
+        LogFormatError: the log holds more than one archive (naming each): which one is the log's
+            map is ambiguous, and av2-api refuses such a log too.
+    """
+    folder = Path(log_dir) / MAP_DIRNAME
+    candidates = sorted(folder.glob("log_map_archive_*.json"))
+    if len(candidates) > 1:
+        names = ", ".join(p.name for p in candidates)
+        raise LogFormatError.single(
+            folder, f"{len(candidates)} map archives ({names}); a log holds exactly one log_map_archive_*.json")
     return candidates[0] if candidates else None
 
 
@@ -205,7 +248,8 @@ def forget_parsed_maps() -> None:
 
 
 def read_map(path: Path) -> VectorMap:
-    """Read a map JSON file; :class:`LogFormatError` names the file and the key of every bad part.
+    """Read a map JSON file; :class:`LogFormatError` names the file and the key of every bad part,
+    including NaN, inf and implausible (:data:`scenes.schema.MAX_CITY_COORDINATE_M`) coordinates.
 
     Files with the same bytes as one read lately give the same (immutable) :class:`VectorMap`.
     """
@@ -226,6 +270,9 @@ def read_map(path: Path) -> VectorMap:
         vector_map = VectorMap.from_json_dict(data)
     except MapFormatError as exc:
         raise LogFormatError(exc.problems(path)) from exc
+    problems = schema.check_map_coordinates(path, vector_map)
+    if problems:
+        raise LogFormatError(problems)
     with _PARSED_MAPS_LOCK:
         _PARSED_MAPS[digest] = vector_map
         while len(_PARSED_MAPS) > _PARSED_MAPS_SIZE:
@@ -246,7 +293,8 @@ def write_map(log_dir: Path, vector_map: VectorMap, log_id: str, city_name: str 
 def read_calibration(log_dir: Path) -> Calibration:
     """Extrinsics and intrinsics; an empty :class:`Calibration` when the log has none.
 
-    Beyond the columns, the values must make sense: every extrinsic rotation is a proper rotation,
+    Beyond the columns, the values must make sense: each sensor has one row per file (a repeated
+    ``sensor_name`` is refused, not resolved by row order), every extrinsic rotation is a proper rotation,
     focal lengths and image sizes are finite and positive, principal points and distortion finite.
     Every problem of both files is reported.
     """
@@ -264,7 +312,9 @@ def _read_extrinsics(path: Path) -> dict[str, SE3]:
         return {}
     table = schema.read_feather(path, schema.EXTRINSICS_COLUMNS)
     floats, quat, trans = _read_se3(table)
-    problems = schema.check_finite(path, floats) or schema.check_quaternions(path, quat)
+    names = [str(name) for name in table.column("sensor_name").to_pylist()]
+    problems = schema.check_unique_names(path, names, "sensor_name")
+    problems += schema.check_finite(path, floats) or schema.check_quaternions(path, quat)
     if problems:
         raise LogFormatError(problems)
     # The norm check already implies a rotation; checking the matrices actually used keeps every
@@ -273,7 +323,6 @@ def _read_extrinsics(path: Path) -> dict[str, SE3]:
     problems = schema.check_rotations(path, rotation, "qw..qz")
     if problems:
         raise LogFormatError(problems)
-    names = [str(name) for name in table.column("sensor_name").to_pylist()]
     return {name: SE3(rotation[i], trans[i]) for i, name in enumerate(names)}
 
 
@@ -285,7 +334,9 @@ def _read_intrinsics(path: Path) -> dict[str, CameraIntrinsics]:
     present = tuple(c for c in ("fx_px", "fy_px", "cx_px", "cy_px", *distortion) if c in table.column_names)
     floats = _float_columns(table, present)
     sizes = {c: np.asarray(table.column(c).to_numpy(), dtype=np.int64) for c in ("width_px", "height_px")}
-    problems = schema.check_finite(path, floats)
+    names = [str(name) for name in table.column("sensor_name").to_pylist()]
+    problems = schema.check_unique_names(path, names, "sensor_name")
+    problems += schema.check_finite(path, floats)
     not_finite = {p.field for p in problems}  # a NaN is named once, as NaN, not again as not positive
     focal = {c: floats[c] for c in ("fx_px", "fy_px") if c not in not_finite}
     problems += schema.check_positive(path, focal, "focal length")
@@ -294,7 +345,7 @@ def _read_intrinsics(path: Path) -> dict[str, CameraIntrinsics]:
         raise LogFormatError(problems)
     zeros = np.zeros(table.num_rows)
     out: dict[str, CameraIntrinsics] = {}
-    for i, name in enumerate(str(n) for n in table.column("sensor_name").to_pylist()):
+    for i, name in enumerate(names):
         out[name] = CameraIntrinsics(
             sensor_name=name,
             fx_px=float(floats["fx_px"][i]),

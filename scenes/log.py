@@ -10,6 +10,8 @@ log at once (what ``scenesearch validate`` does) use :func:`scenes.validate.vali
 
 from __future__ import annotations
 
+import errno
+import os
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
@@ -17,7 +19,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from scenes import av2_io
+from scenes import av2_io, schema
 from scenes.calibration import Calibration
 from scenes.errors import LogFormatError, Problem, collect_problems
 from scenes.map import VectorMap
@@ -38,23 +40,32 @@ class Log:
     unknown_categories: dict[str, int] = field(default_factory=dict)
 
     @staticmethod
-    def open(log_dir: Path | str) -> Log:
+    def open(log_dir: Path | str, max_pose_gap_s: float = schema.DEFAULT_MAX_POSE_GAP_S) -> Log:
         """Open and validate a log folder.
+
+        Args:
+            log_dir: the log folder.
+            max_pose_gap_s: the largest gap between the two ego poses that an annotation timestamp
+                is interpolated between; a log with a longer gap is refused rather than given made-up
+                poses. Raise it only for logs whose poses really are this sparse.
 
         Raises:
             LogFormatError: naming every file, row and field at fault.
         """
         log_dir = Path(log_dir)
         if not log_dir.is_dir():
-            raise LogFormatError.single(log_dir, "log folder does not exist")
+            raise LogFormatError.single(log_dir, log_folder_problem(log_dir))
         problems: list[Problem] = []
         annotations: Annotations | None = None
         ann_path = log_dir / av2_io.ANNOTATIONS_FILENAME
-        if not ann_path.is_file():
+        if not os.path.lexists(ann_path):
             problems.append(Problem(ann_path, "log has no annotations (file is missing)"))
         else:
             annotations = collect_problems(problems, av2_io.read_annotations, ann_path)
-        ego = collect_problems(problems, av2_io.read_ego_poses, log_dir / av2_io.POSES_FILENAME)
+        ego = collect_problems(
+            problems, av2_io.read_ego_poses, log_dir / av2_io.POSES_FILENAME,
+            None if annotations is None else annotations.timestamps_ns, max_pose_gap_s,
+        )
         if annotations is not None and ego is not None:
             problems.extend(_check_pose_coverage(log_dir, annotations, ego))
         if problems or annotations is None or ego is None:
@@ -134,6 +145,17 @@ class Log:
     def ego_at_frames(self) -> EgoTrajectory:
         """Ego poses interpolated to the annotation timestamps."""
         return self.ego.interpolate(self.timestamps_ns)
+
+
+def log_folder_problem(log_dir: Path) -> str:
+    """Why ``log_dir`` is not a log folder, in words: it does not exist, is a symbolic-link loop, or is a file."""
+    try:
+        os.stat(log_dir)
+    except OSError as exc:
+        if exc.errno == errno.ELOOP:
+            return f"symbolic-link loop: {log_dir} never resolves to a folder"
+        return "log folder does not exist"
+    return "not a folder"
 
 
 #: Suffix of the folders holding per-frame instance masks beside a camera's frames.

@@ -5,11 +5,31 @@ read; :func:`scenes.validate.validate_log` calls the readers. Each check returns
 :class:`~scenes.errors.Problem` records naming the file, the row and the field; nothing is repaired.
 
 A schema maps each column name to the Arrow type family its values must belong to: ``int``,
-``float`` (integers accepted) or ``str``.
+``int64_ns`` (a timestamp: int64 nanoseconds), ``float`` (integers accepted) or ``str``.
+
+Beyond types, values must be physically plausible; the bounds live here, in one place:
+
+- city-frame coordinates (ego poses, map points): every coordinate within
+  :data:`MAX_CITY_COORDINATE_M` of the city origin, which holds any projected frame in use (UTM
+  northings stay below 1e7 m);
+- ego-frame annotation centres: every coordinate within :data:`MAX_EGO_FRAME_COORDINATE_M` of the
+  ego (LiDAR labels reach about 250 m, imported WOMD tracks about 300 m);
+- box sizes: positive and at most :data:`MAX_BOX_SIZE_M` (an articulated truck is about 25 m);
+- timestamps: int64 nanoseconds, consecutive distinct ones a median of at least
+  :data:`MIN_TIMESTAMP_STEP_NS` apart (no sensor of a log runs faster), which tells seconds,
+  milliseconds and microseconds apart from nanoseconds whatever the epoch (WOMD logs start at 0);
+- ego poses around an annotation timestamp at most ``max_pose_gap_s`` apart
+  (:data:`DEFAULT_MAX_POSE_GAP_S` unless the caller raises it), so that poses are interpolated over
+  short spans only.
+
+A violation is a :class:`~scenes.errors.Problem` naming the file, the row, the field, the value and
+the bound.
 """
 
 from __future__ import annotations
 
+import errno
+import os
 from collections.abc import Mapping
 from pathlib import Path
 
@@ -19,6 +39,7 @@ import pyarrow.feather as feather
 from numpy.typing import NDArray
 
 from scenes.errors import LogFormatError, Problem
+from scenes.map import VectorMap
 
 #: The rotation (unit quaternion, w first) and translation of a pose: shared by the ego poses,
 #: the annotation boxes and the sensor extrinsics.
@@ -29,7 +50,7 @@ SE3_COLUMNS: dict[str, str] = {name: "float" for name in (*QUAT_COLUMNS, *TRANSL
 
 #: ``annotations.feather``.
 ANNOTATION_COLUMNS: dict[str, str] = {
-    "timestamp_ns": "int",
+    "timestamp_ns": "int64_ns",
     "track_uuid": "str",
     "category": "str",
     **{name: "float" for name in SIZE_COLUMNS},
@@ -38,7 +59,7 @@ ANNOTATION_COLUMNS: dict[str, str] = {
 OPTIONAL_ANNOTATION_COLUMNS: dict[str, str] = {"num_interior_pts": "int"}
 
 #: ``city_SE3_egovehicle.feather``.
-POSE_COLUMNS: dict[str, str] = {"timestamp_ns": "int", **SE3_COLUMNS}
+POSE_COLUMNS: dict[str, str] = {"timestamp_ns": "int64_ns", **SE3_COLUMNS}
 
 #: ``calibration/egovehicle_SE3_sensor.feather``.
 EXTRINSICS_COLUMNS: dict[str, str] = {"sensor_name": "str", **SE3_COLUMNS}
@@ -75,9 +96,24 @@ QUAT_NORM_TOLERANCE = 1e-2
 ROTATION_TOLERANCE = 1e-3
 #: Fastest believable ego speed between consecutive poses. Anything faster is a pose jump.
 MAX_EGO_SPEED_MPS = 70.0
+#: Largest absolute city-frame coordinate (ego poses, map points), in metres.
+MAX_CITY_COORDINATE_M = 1e7
+#: Largest absolute ego-frame coordinate of an annotation's box centre, in metres.
+MAX_EGO_FRAME_COORDINATE_M = 1000.0
+#: Largest box length, width or height, in metres.
+MAX_BOX_SIZE_M = 60.0
+#: Smallest believable median step between consecutive distinct timestamps of a table, in
+#: nanoseconds (0.5 ms: 2 kHz). Poses run at about 200 Hz (5 ms), annotations at 10 Hz (100 ms); the
+#: same streams in microseconds step 5 µs and 100 µs, below it.
+MIN_TIMESTAMP_STEP_NS = 500_000
+#: Default largest gap, in seconds, between the two ego poses an annotation timestamp is
+#: interpolated between. AV2 poses are about 5 ms apart, KITTI and WOMD poses 100 ms.
+DEFAULT_MAX_POSE_GAP_S = 1.0
 
 
 def _type_ok(arrow_type: pa.DataType, family: str) -> bool:
+    if family == "int64_ns":
+        return bool(pa.types.is_int64(arrow_type))
     if family == "int":
         return bool(pa.types.is_integer(arrow_type))
     if family == "float":
@@ -99,7 +135,12 @@ def check_columns(
             continue
         column = table.column(name)
         if not _type_ok(column.type, family):
-            problems.append(Problem(path, f"wrong type {column.type}, expected {family}", field=name))
+            if family == "int64_ns":
+                message = (f"wrong type {column.type}: the column must hold int64 nanoseconds "
+                           "(seconds or milliseconds must be converted)")
+            else:
+                message = f"wrong type {column.type}, expected {family}"
+            problems.append(Problem(path, message, field=name))
         elif column.null_count:
             first_null = int(np.flatnonzero(column.is_null().to_numpy(zero_copy_only=False))[0])
             problems.append(Problem(path, "null value", field=name, row=first_null))
@@ -113,7 +154,7 @@ def read_feather(path: Path, required: dict[str, str], optional: dict[str, str] 
         LogFormatError: the file is missing or unreadable, or its columns are wrong (each one named).
     """
     if not path.is_file():
-        raise LogFormatError.single(path, "file is missing")
+        raise LogFormatError.single(path, why_not_a_file(path))
     try:
         table = feather.read_table(path)
     except (OSError, pa.ArrowException) as exc:
@@ -122,6 +163,22 @@ def read_feather(path: Path, required: dict[str, str], optional: dict[str, str] 
     if problems:
         raise LogFormatError(problems)
     return table
+
+
+def why_not_a_file(path: Path) -> str:
+    """Why ``path`` cannot be opened as a file, in words: a symbolic-link loop, a link to nothing,
+    a folder, or no entry at all ("file is missing")."""
+    try:
+        os.stat(path)
+    except OSError as exc:
+        if exc.errno == errno.ELOOP:
+            return f"symbolic-link loop: {path} never resolves to a file"
+        if os.path.islink(path):
+            return f"broken symbolic link to {os.readlink(path)}"
+        if exc.errno == errno.ENOENT:
+            return "file is missing"
+        return f"cannot read: {exc.strerror}"
+    return "is a folder, not a file" if path.is_dir() else "not a regular file"
 
 
 def check_finite(path: Path, columns: Mapping[str, NDArray[np.floating]]) -> list[Problem]:
@@ -192,7 +249,8 @@ def check_unique_timestamps(path: Path, timestamps_ns: NDArray[np.integer]) -> l
         i = int(np.argmax(dup))
         first, second = sorted((int(order[i]), int(order[i + 1])))
         return [Problem(path, f"timestamp {int(ts[i])} appears twice (rows {first} and {second}); "
-                        "timestamps must be unique", field="timestamp_ns", row=second)]
+                        "timestamps must be unique int64 nanoseconds (seconds or milliseconds repeat)",
+                        field="timestamp_ns", row=second)]
     return []
 
 
@@ -212,11 +270,6 @@ def check_unique_track_per_frame(
                     field="track_uuid", row=row)
         ]
     return []
-
-
-def check_positive_sizes(path: Path, size_lwh_m: NDArray[np.floating]) -> list[Problem]:
-    """Box sizes that are zero or negative. ``size_lwh_m``: (N, 3)."""
-    return check_positive(path, {name: size_lwh_m[:, axis] for axis, name in enumerate(SIZE_COLUMNS)}, "box size")
 
 
 def check_pose_jumps(
@@ -240,3 +293,125 @@ def check_pose_jumps(
                     f"({speed[row - 1]:.0f} m/s > {MAX_EGO_SPEED_MPS:.0f} m/s)", field="tx_m,ty_m,tz_m", row=row)
         ]
     return []
+
+
+def check_bounds(path: Path, columns: Mapping[str, NDArray[np.floating]], bound_m: float, what: str) -> list[Problem]:
+    """Values whose magnitude exceeds ``bound_m`` in any column (each (N,)); names the first bad row
+    of each column, its value and the bound. NaN is left to :func:`check_finite`."""
+    problems = []
+    for name, values in columns.items():
+        bad = np.abs(np.asarray(values, dtype=np.float64)) > bound_m
+        if bad.any():
+            row = int(np.argmax(bad))
+            problems.append(Problem(path, f"{what} {float(values[row]):.6g} m is beyond the bound of "
+                                    f"±{bound_m:g} m", field=name, row=row))
+    return problems
+
+
+def check_box_sizes(path: Path, size_lwh_m: NDArray[np.floating]) -> list[Problem]:
+    """Box sizes that are not positive or exceed :data:`MAX_BOX_SIZE_M`. ``size_lwh_m``: (N, 3)."""
+    columns = {name: size_lwh_m[:, axis] for axis, name in enumerate(SIZE_COLUMNS)}
+    problems = check_positive(path, columns, "box size")
+    for name, values in columns.items():
+        bad = values > MAX_BOX_SIZE_M
+        if bad.any() and not any(p.field == name for p in problems):
+            row = int(np.argmax(bad))
+            problems.append(Problem(path, f"box size {float(values[row]):.6g} m exceeds the bound of "
+                                    f"{MAX_BOX_SIZE_M:g} m", field=name, row=row))
+    return problems
+
+
+def check_unique_names(path: Path, names: list[str], field: str) -> list[Problem]:
+    """A name on more than one row (``sensor_name`` of a calibration file): which row holds it is
+    ambiguous, so the file is refused. Names each repeated name with its rows."""
+    rows: dict[str, list[int]] = {}
+    for row, name in enumerate(names):
+        rows.setdefault(name, []).append(row)
+    return [
+        Problem(path, f"'{name}' appears on rows {', '.join(map(str, where))}; each must appear once",
+                field=field, row=where[1])
+        for name, where in rows.items()
+        if len(where) > 1
+    ]
+
+
+def check_timestamp_unit(path: Path, timestamps_ns: NDArray[np.integer]) -> list[Problem]:
+    """Timestamps that are not nanoseconds: consecutive distinct values a median of fewer than
+    :data:`MIN_TIMESTAMP_STEP_NS` apart (seconds, milliseconds or microseconds). ``timestamps_ns``: (N,)."""
+    distinct = np.unique(timestamps_ns)
+    if distinct.shape[0] < 2:
+        return []
+    step = float(np.median(np.diff(distinct)))
+    if step >= MIN_TIMESTAMP_STEP_NS:
+        return []
+    return [
+        Problem(path, f"consecutive timestamps are a median of {step:g} apart, closer than "
+                f"{MIN_TIMESTAMP_STEP_NS} ns: these are not nanoseconds (seconds, milliseconds or "
+                "microseconds?); the column must hold int64 nanoseconds", field="timestamp_ns")
+    ]
+
+
+def check_pose_gaps(
+    path: Path, pose_timestamps_ns: NDArray[np.integer], query_timestamps_ns: NDArray[np.integer], max_gap_s: float
+) -> list[Problem]:
+    """Gaps longer than ``max_gap_s`` between the two poses a query timestamp is interpolated between.
+
+    One problem per such gap, naming both poses' rows as they are in the file, their timestamps and
+    the first query timestamp inside the gap. Queries on a pose's own timestamp, or outside the pose
+    stream, are not interpolated and never fail here.
+
+    Args:
+        path: the poses file.
+        pose_timestamps_ns: (N,) unique pose timestamps, in file order.
+        query_timestamps_ns: (Q,) timestamps that poses are interpolated to (annotation timestamps).
+        max_gap_s: the largest gap allowed.
+    """
+    if pose_timestamps_ns.shape[0] < 2 or query_timestamps_ns.shape[0] == 0:
+        return []
+    order = np.argsort(pose_timestamps_ns, kind="stable")
+    ts = np.asarray(pose_timestamps_ns, dtype=np.int64)[order]
+    queries = np.unique(np.asarray(query_timestamps_ns, dtype=np.int64))
+    after = np.searchsorted(ts, queries, side="right")  # first pose later than the query
+    inside = (after > 0) & (after < ts.shape[0])
+    after_in = np.clip(after, 1, ts.shape[0] - 1)
+    interpolated = inside & (ts[after_in - 1] != queries)
+    gap_ns = ts[after_in] - ts[after_in - 1]
+    bad = interpolated & (gap_ns > max_gap_s * 1e9)
+    problems = []
+    for gap_index in np.unique(after_in[bad]):
+        first_query = int(queries[bad & (after_in == gap_index)][0])
+        t0, t1 = int(ts[gap_index - 1]), int(ts[gap_index])
+        r0, r1 = int(order[gap_index - 1]), int(order[gap_index])
+        problems.append(Problem(
+            path, f"ego poses at {t0} (row {r0}) and {t1} (row {r1}) are {(t1 - t0) * 1e-9:.3f} s apart, more "
+            f"than the limit of {max_gap_s:g} s; annotation timestamp {first_query} lies in the gap and its "
+            "pose would be interpolated across it (if the poses really are this sparse, raise the limit: "
+            "max_pose_gap_s of Log.open and validate_log, --max-pose-gap-s of scenesearch validate)",
+            field="timestamp_ns", row=r1))
+    return problems
+
+
+def check_map_coordinates(path: Path, vector_map: VectorMap) -> list[Problem]:
+    """NaN, inf or implausible (beyond :data:`MAX_CITY_COORDINATE_M`) coordinates in the map's
+    polylines; names the element's key and the point."""
+    polylines: list[tuple[str, NDArray[np.float64]]] = []
+    for lane in vector_map.lane_segments.values():
+        polylines.append((f"lane_segments[{lane.id}].left_lane_boundary", lane.left_lane_boundary))
+        polylines.append((f"lane_segments[{lane.id}].right_lane_boundary", lane.right_lane_boundary))
+    for crossing in vector_map.pedestrian_crossings.values():
+        polylines.append((f"pedestrian_crossings[{crossing.id}].edge1", crossing.edge1))
+        polylines.append((f"pedestrian_crossings[{crossing.id}].edge2", crossing.edge2))
+    for area in vector_map.drivable_areas.values():
+        polylines.append((f"drivable_areas[{area.id}].area_boundary", area.area_boundary))
+    problems = []
+    for name, points in polylines:
+        finite = np.isfinite(points)
+        if not finite.all():
+            problems.append(Problem(path, "NaN or inf coordinate", field=name, row=int(np.argmax(~finite.all(axis=1)))))
+            continue
+        far = np.abs(points) > MAX_CITY_COORDINATE_M
+        if far.any():
+            row, axis = (int(i) for i in np.argwhere(far)[0])
+            problems.append(Problem(path, f"{'xyz'[axis]} = {points[row, axis]:.6g} m is beyond the bound of "
+                                    f"±{MAX_CITY_COORDINATE_M:g} m for city-frame coordinates", field=name, row=row))
+    return problems

@@ -1,8 +1,8 @@
 """``scenesearch validate``: every check of the log contract on one log folder, as a report.
 
 The checks themselves are the readers' (:mod:`scenes.av2_io`, :mod:`scenes.sensors`, with the
-schema of :mod:`scenes.schema`): a log validates exactly when everything in it can be read. On top
-of the readers, the report checks what they take on trust: coordinates of the map, the first bytes
+schema and plausibility bounds of :mod:`scenes.schema`): a log validates exactly when everything in
+it can be read. On top of the readers, the report checks what they take on trust: the first bytes
 of each camera frame, and sweeps without points. Nothing is repaired; every problem is collected,
 not just the first.
 """
@@ -13,13 +13,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-from numpy.typing import NDArray
-
-from scenes import av2_io
+from scenes import av2_io, schema
 from scenes.errors import Problem, collect_problems
-from scenes.log import Log
-from scenes.map import VectorMap
+from scenes.log import Log, log_folder_problem
 from scenes.sensors import read_lidar_sweep, timestamps_in
 
 _JPEG_MAGIC = b"\xff\xd8"
@@ -34,8 +30,9 @@ class ValidationReport:
         problems: errors; a log with any problem fails validation.
         warnings: things that are allowed but worth knowing (unknown categories mapped to
             ``other``, a missing map, missing calibration).
-        facts: what the log holds when it opens: ``frames``, ``tracks``, ``duration_s``,
-            ``lidar_sweeps``, ``cameras``, ``camera_frames``, ``has_map``, ``source``.
+        facts: what the log holds when it opens: ``frames`` (distinct annotation timestamps),
+            ``tracks``, ``duration_s`` (first to last annotation timestamp), ``lidar_sweeps``,
+            ``cameras``, ``camera_frames``, ``has_map``, ``source``.
     """
 
     log_dir: Path
@@ -78,25 +75,6 @@ def check_lidar_sweep_file(path: Path) -> list[Problem]:
     return problems
 
 
-def check_map_finite(path: Path, vector_map: VectorMap) -> list[Problem]:
-    """NaN or inf coordinates in map polylines; names the element and the polyline."""
-    polylines: list[tuple[str, NDArray[np.float64]]] = []
-    for lane in vector_map.lane_segments.values():
-        polylines.append((f"lane_segments[{lane.id}].left_lane_boundary", lane.left_lane_boundary))
-        polylines.append((f"lane_segments[{lane.id}].right_lane_boundary", lane.right_lane_boundary))
-    for crossing in vector_map.pedestrian_crossings.values():
-        polylines.append((f"pedestrian_crossings[{crossing.id}].edge1", crossing.edge1))
-        polylines.append((f"pedestrian_crossings[{crossing.id}].edge2", crossing.edge2))
-    for area in vector_map.drivable_areas.values():
-        polylines.append((f"drivable_areas[{area.id}].area_boundary", area.area_boundary))
-    problems = []
-    for name, points in polylines:
-        bad = ~np.isfinite(points).all(axis=1)
-        if bad.any():
-            problems.append(Problem(path, "NaN or inf coordinate", field=name, row=int(np.argmax(bad))))
-    return problems
-
-
 def check_camera_frame_file(path: Path) -> list[Problem]:
     """A camera frame must be a non-empty JPEG (its first bytes are checked, not the whole image)."""
     try:
@@ -109,27 +87,31 @@ def check_camera_frame_file(path: Path) -> list[Problem]:
     return []
 
 
-def validate_log(log_dir: Path | str) -> ValidationReport:
+def validate_log(log_dir: Path | str, max_pose_gap_s: float = schema.DEFAULT_MAX_POSE_GAP_S) -> ValidationReport:
     """Run every check of the log contract on one log folder, including the parts that
     :meth:`scenes.log.Log.open` reads lazily (map, calibration, LiDAR sweeps, camera frames,
     metadata). Nothing is repaired; every problem is collected, not just the first.
+
+    Args:
+        log_dir: the log folder.
+        max_pose_gap_s: as for :meth:`scenes.log.Log.open`.
     """
     log_dir = Path(log_dir)
     problems: list[Problem] = []
     warnings: list[str] = []
     facts: dict[str, Any] = {}
     if not log_dir.is_dir():
-        return ValidationReport(log_dir, [Problem(log_dir, "log folder does not exist")])
+        return ValidationReport(log_dir, [Problem(log_dir, log_folder_problem(log_dir))])
 
-    log = collect_problems(problems, Log.open, log_dir)
+    log = collect_problems(problems, Log.open, log_dir, max_pose_gap_s)
     metadata = collect_problems(problems, av2_io.read_metadata, log_dir)
-    map_path = av2_io.find_map_file(log_dir)
-    if map_path is None:
+    map_problems: list[Problem] = []
+    map_path = collect_problems(map_problems, av2_io.find_map_file, log_dir)
+    problems.extend(map_problems)
+    if map_path is not None:
+        collect_problems(problems, av2_io.read_map, map_path)
+    elif not map_problems:
         warnings.append("no map (map/log_map_archive_*.json)")
-    else:
-        vector_map = collect_problems(problems, av2_io.read_map, map_path)
-        if vector_map is not None:
-            problems.extend(check_map_finite(map_path, vector_map))
     calibration = collect_problems(problems, av2_io.read_calibration, log_dir)
 
     lidar_dir = log_dir / av2_io.LIDAR_DIR
@@ -153,7 +135,9 @@ def validate_log(log_dir: Path | str) -> ValidationReport:
             warnings.append(f"camera '{name}' has no intrinsics")
 
     if log is not None:
-        ts = log.timestamps_ns
+        # Frames are the annotated timestamps: sweeps without annotations (a log cut to a few
+        # frames keeps its sweeps) neither add frames nor stretch the duration.
+        ts = log.annotations.timestamps_ns
         facts["frames"] = int(ts.shape[0])
         facts["tracks"] = len(log.annotations.without_ego().track_ids)
         facts["duration_s"] = round(float(ts[-1] - ts[0]) * 1e-9, 3) if ts.shape[0] else 0.0

@@ -25,11 +25,13 @@ import numpy as np
 
 from captioning.pipeline import CAPTIONS_FILENAME, FRAME_TAGS_FILENAME
 from common.atomic import atomic_write_text
+from common.folders import claim_folder, mark_folder
 from common.ray_cluster import Execution
 from common.ray_runner import TaskSkipped, TaskStatus, run_tasks
 from common.storage import (
     Location,
     copy_to_local,
+    distinct_by_name,
     exists,
     is_uri,
     join,
@@ -43,16 +45,18 @@ from encoders.clips.config import ClipsConfig
 from encoders.clips.frame_tags import LogFrameTags, empty_clip_columns, read_frame_tags
 from encoders.clips.layout import (
     CAMERA_PIXEL_COUNTS_FILE,
+    CLIPS_FOLDER,
     LOGS_DIR,
     MANIFEST_FILE,
     PREVIEWS_DIR,
     RENDER_FILE,
+    load_rendered_array,
     preview_file_name,
     rendered_log_dir,
 )
 from encoders.clips.raster import MAP_CHANNELS
 from encoders.clips.render import bev_grid, lidar_channel_names, render_log
-from encoders.clips.render_stats import LogRenderStats, read_render_stats, render_fingerprint, rendered_log_ok
+from encoders.clips.render_stats import LogRenderStats, read_render_stats, render_fingerprint, reuse_problem
 from encoders.clips.splits import assign_splits
 from encoders.clips.table import (
     CaptionRow,
@@ -110,6 +114,8 @@ class LogClips:
     table_s: float = 0.0
     preview_s: float = 0.0
     reused: bool = False
+    #: Why an earlier rendering of the log could not be reused (a file changed or missing), or None.
+    rerendered: str | None = None
 
 
 def clip_log(job: tuple[Location, tuple[CaptionRow, ...], LogFrameTags | None], ctx: ClipsTaskContext) -> LogClips:
@@ -165,9 +171,12 @@ def _render_and_cut(log: Log, dense: DenseTracks, rows: list[CaptionRow], clips_
     folder = rendered_log_dir(clips_dir, log.log_id)
     t0 = time.perf_counter()
     try:
-        if ctx.reuse and rendered_log_ok(folder, config, dense):
+        problem = reuse_problem(folder, config, dense) if ctx.reuse else None
+        if ctx.reuse and problem is None:
             stats, out.reused = read_render_stats(folder), True
         else:
+            if problem is not None and folder.is_dir():
+                out.rerendered = problem  # said in the log's line: a damaged rendering is never reused
             stats = render_log(log, config, clips_dir, dense)
     except LogFormatError as exc:
         # Files read lazily while rendering (the map, sweeps' folder) can still be bad: skip the log.
@@ -227,8 +236,13 @@ def build_clips(
     Raises:
         ClipsInputError: captions name logs that are not given or tracks not in their log (with
             ``config.strict``), a caption row is malformed, or no clip could be made.
+        FolderClaimError: ``clips_dir`` is neither new, empty nor a clips folder, or is one of the
+            inputs, lies inside one or holds one (:mod:`common.folders`).
     """
     say = progress or (lambda _line: None)
+    claim_folder(clips_dir, CLIPS_FOLDER, [*log_dirs, captions_dir])
+    if not is_uri(clips_dir):  # marked first: a run killed half way leaves a folder of its kind
+        mark_folder(clips_dir, CLIPS_FOLDER, CLIPS_FOLDER.entries)
     captions_path: Location = captions_dir
     captions_folder = parent(captions_dir)
     if (not str(captions_dir).endswith(".parquet")) if is_uri(captions_dir) else Path(captions_dir).is_dir():
@@ -238,13 +252,9 @@ def build_clips(
     report = ClipsReport(clips_dir=clips_dir)
     skipped = Skipped()
 
-    given: dict[str, Location] = {}
-    for log_dir in log_dirs:
-        log_id = name_of(log_dir)
-        if log_id in given:
-            skipped.add(f"log given twice (kept {given[log_id]})", log_id=log_id)
-        else:
-            given[log_id] = log_dir
+    given, repeated = distinct_by_name(log_dirs)
+    for label, reason in repeated.items():
+        skipped.add(reason, log_id=name_of(label), log_dir=label)
     frame_tags = _read_frame_tags(join(captions_folder, FRAME_TAGS_FILENAME), list(given))
     by_log: dict[str, list[CaptionRow]] = {}
     for row in rows:
@@ -306,6 +316,7 @@ def build_clips(
                             for item in skipped.items[:5])
         raise ClipsInputError(f"no clip could be made from {len(log_dirs)} log(s); {reasons or 'no captions'}")
     with staged_output(clips_dir) as out:
+        mark_folder(out, CLIPS_FOLDER, CLIPS_FOLDER.entries)
         write_clip_table(out, clip_rows)
         atomic_write_text(Path(out) / MANIFEST_FILE, json.dumps(_manifest(config, report, skipped, clip_rows),
                                                                 indent=2, default=str))
@@ -321,6 +332,10 @@ def _log_line(log_id: str, res: LogClips) -> str:
         extra += f", {len(stats['corrupt_sweeps'])} corrupt sweep(s) skipped"
     if stats.get("corrupt_camera_frames"):
         extra += f", {len(stats['corrupt_camera_frames'])} corrupt camera file(s) skipped"
+    if res.rerendered:
+        extra += f"; rendered again, the earlier rendering not reused: {res.rerendered}"
+    elif res.reused:
+        extra += "; reused (every file verified)"
     return (f"{log_id}: {len(res.rows)} clips, {stats.get('frames')} frames, bev={stats.get('bev_source')}, "
             f"camera frames={stats.get('camera_frames')}{extra}")
 
@@ -378,7 +393,7 @@ def _clip_rows(
     """The log's clip rows (``split`` is set by the driver, which knows every log)."""
     frame_ts = dense.timestamps_ns
     track_index = {str(t): i for i, t in enumerate(dense.track_ids)}
-    counts = np.load(folder / CAMERA_PIXEL_COUNTS_FILE, mmap_mode="r")
+    counts = load_rendered_array(folder, CAMERA_PIXEL_COUNTS_FILE)
     cam = config.camera
     appearance = log.metadata.appearance
     time_of_day = str(appearance.get("time_of_day", "unknown"))

@@ -7,11 +7,17 @@
 from __future__ import annotations
 
 from collections import Counter
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from enum import StrEnum
+from typing import ClassVar
 
 import common.config
 from common.config import YamlConfig
+
+#: Cells along each side of the BEV grid, and height bins, at most: beyond them a log's arrays stop fitting.
+MAX_GRID_CELLS = 2048
+MAX_HEIGHT_BINS = 64
 
 
 class BevSource(StrEnum):
@@ -60,7 +66,11 @@ class CameraClipConfig(ClipsYamlConfig):
         highlight_rgb: overlay colour of the object of interest.
         highlight_alpha: overlay opacity over the object.
         dim_factor: brightness kept outside the object.
+
+    Upper bounds: ``width_px`` and ``height_px`` 4096.
     """
+
+    upper_bounds: ClassVar[Mapping[str, float]] = {"width_px": 4096, "height_px": 4096}
 
     camera_name: str = "ring_front_center"
     width_px: int = 160
@@ -88,7 +98,12 @@ class BevClipConfig(ClipsYamlConfig):
         source: ``auto`` (LiDAR when sweeps cover ``lidar_min_coverage`` of the frames), ``lidar``
             or ``boxes``.
         lidar_min_coverage: see ``source``.
+
+    Upper bounds: ``num_sweeps`` 50, ``density_saturation_points`` 65535, 64 height bins and
+    2048 cells along each side of the grid (checked by :class:`ClipsConfig`).
     """
+
+    upper_bounds: ClassVar[Mapping[str, float]] = {"num_sweeps": 50, "density_saturation_points": 65535}
 
     x_min_m: float = -20.0
     x_max_m: float = 60.0
@@ -141,7 +156,12 @@ class ClipsConfig(ClipsYamlConfig):
             they are skipped and reported.
         previews: write an animated preview per clip.
         preview_fps: frame rate of the previews.
+
+    Upper bounds: ``frames_per_clip`` 256, ``preview_fps`` 60, ``window_tolerance_ns`` 10 s.
     """
+
+    upper_bounds: ClassVar[Mapping[str, float]] = {"frames_per_clip": 256, "preview_fps": 60,
+                                                   "window_tolerance_ns": 10_000_000_000}
 
     frames_per_clip: int = 16
     window_tolerance_ns: int = 50_000_000
@@ -153,6 +173,7 @@ class ClipsConfig(ClipsYamlConfig):
     split: SplitConfig = field(default_factory=SplitConfig)
 
     def __post_init__(self) -> None:
+        super().__post_init__()
         problems = []
         if self.frames_per_clip < 1:
             problems.append("frames_per_clip must be ≥ 1")
@@ -161,8 +182,14 @@ class ClipsConfig(ClipsYamlConfig):
         b = self.bev
         if b.resolution_m <= 0 or b.x_max_m <= b.x_min_m or b.y_max_m <= b.y_min_m:
             problems.append("bev grid needs resolution_m > 0, x_max_m > x_min_m, y_max_m > y_min_m")
+        elif max(b.x_max_m - b.x_min_m, b.y_max_m - b.y_min_m) / b.resolution_m > MAX_GRID_CELLS:
+            problems.append(f"bev grid of {(b.x_max_m - b.x_min_m) / b.resolution_m:g} × "
+                            f"{(b.y_max_m - b.y_min_m) / b.resolution_m:g} cells: at most {MAX_GRID_CELLS} along a "
+                            "side (raise bev.resolution_m or shrink the extent)")
         if len(b.z_bins_m) < 2 or any(hi <= lo for lo, hi in zip(b.z_bins_m[:-1], b.z_bins_m[1:])):
             problems.append("bev.z_bins_m must be ≥ 2 increasing edges")
+        elif len(b.z_bins_m) > MAX_HEIGHT_BINS + 1:
+            problems.append(f"bev.z_bins_m holds {len(b.z_bins_m)} edges: at most {MAX_HEIGHT_BINS} height bins")
         if b.num_sweeps < 1:
             problems.append("bev.num_sweeps must be ≥ 1")
         s = self.split

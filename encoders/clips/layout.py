@@ -54,10 +54,12 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
+from common.folders import FolderKind
 from scenes.bev import BevGrid
 from scenes.categories import CATEGORY_NAMES
 
@@ -66,6 +68,8 @@ MANIFEST_FILE = "manifest.json"
 PREVIEWS_DIR = "previews"
 #: Folder of rendered logs inside CLIPS_DIR.
 LOGS_DIR = "logs"
+#: The folder ``scenesearch clips`` writes (:mod:`common.folders`).
+CLIPS_FOLDER = FolderKind("clips", signature=CLIPS_FILE, entries=(CLIPS_FILE, MANIFEST_FILE, PREVIEWS_DIR, LOGS_DIR))
 
 # Per-log files in CLIPS_DIR/logs/<log_id>/ (the table in the module docstring).
 CAMERA_FILE = "camera.npy"
@@ -102,6 +106,27 @@ def parse_clip_id(value: str) -> tuple[str, str, int]:
     if not log_id or not track_id or not rest.lstrip("-").isdigit():
         raise ValueError(f"clip_id {value!r}: expected 'log_id:track_id:start_ns' with an integer start_ns")
     return log_id, track_id, int(rest)
+
+
+class RenderedArrayError(ValueError):
+    """A rendered array of a clips folder that cannot be read; the message names the file."""
+
+
+def load_rendered_array(folder: Path, name: str) -> np.ndarray:
+    """The array ``folder / name`` of a rendered log, memory-mapped.
+
+    Raises:
+        RenderedArrayError: the file is missing, truncated or not a numpy array (naming it, and how
+            to render it again).
+    """
+    path = folder / name
+    try:
+        return np.load(path, mmap_mode="r")
+    except FileNotFoundError:
+        reason = "missing"
+    except (ValueError, OSError, EOFError) as exc:
+        reason = f"unreadable as an array, truncated or damaged ({exc})"
+    raise RenderedArrayError(f"{path}: {reason}; run `scenesearch clips` again to render the log anew")
 
 
 def rendered_log_dir(clips_dir: Path | str, log_id: str) -> Path:

@@ -20,8 +20,10 @@ import pyarrow.parquet as pq
 from numpy.typing import NDArray
 
 from common.atomic import atomic_directory, atomic_write_text
+from common.memory import check_memory
 from encoders.clips import layout
 from encoders.clips.config import BevSource, BevSourceChoice, ClipsConfig
+from encoders.clips.raster import MAP_CHANNELS
 from encoders.clips.render_bev import (
     render_bev_instances,
     render_boxes_occupancy,
@@ -30,7 +32,7 @@ from encoders.clips.render_bev import (
     track_boxes,
 )
 from encoders.clips.render_camera import render_camera
-from encoders.clips.render_stats import LogRenderStats, log_fingerprint, render_fingerprint
+from encoders.clips.render_stats import LogRenderStats, file_checksums, log_fingerprint, render_fingerprint
 from scenes.bev import BevGrid
 from scenes.geometry import FloatArray, quat_to_yaw, rotmat_to_quat
 from scenes.log import Log
@@ -94,6 +96,19 @@ def _frames_table(
     )
 
 
+def render_bytes(config: ClipsConfig, frames: int, tracks: int) -> int:
+    """About the memory rendering a log of ``frames`` frames and ``tracks`` tracks holds at its peak:
+    every per-frame array at once (the table in :mod:`encoders.clips.layout`), crops counted for 16
+    tracks in view per frame at most (a camera rarely sees more)."""
+    grid = bev_grid(config)
+    cam_px = config.camera.height_px * config.camera.width_px
+    bev_px = grid.height * grid.width
+    channels = len(config.bev.z_bins_m) - 1 + len(MAP_CHANNELS)
+    per_frame = cam_px * (3 + 2) + bev_px * (channels + 2) + tracks * (4 + 4 + 12 + 20)
+    crops = frames * min(tracks, 16) * cam_px * 4
+    return int(frames * per_frame * 2 + crops)  # ×2: arrays are built, then copied into their files
+
+
 def render_log(log: Log, config: ClipsConfig, clips_dir: Path, dense: DenseTracks | None = None) -> LogRenderStats:
     """Render one log's per-frame arrays into ``clips_dir/logs/<log_id>/`` (atomically).
 
@@ -107,6 +122,8 @@ def render_log(log: Log, config: ClipsConfig, clips_dir: Path, dense: DenseTrack
     frame_ts = dense.timestamps_ns
     f = frame_ts.shape[0]
     stats.frames, stats.tracks = f, int(dense.track_ids.shape[0])
+    check_memory(render_bytes(config, f, stats.tracks), f"rendering log {log.log_id} ({f} frames, {stats.tracks} "
+                 "tracks)", "camera.width_px / height_px or the BEV grid (bev.resolution_m, its extent, bev.z_bins_m)")
     city_SE3_ego = dense.city_SE3_ego
     speed = log.ego.interpolate(frame_ts).speed_mps() if f else np.zeros(0)
 
@@ -154,7 +171,8 @@ def render_log(log: Log, config: ClipsConfig, clips_dir: Path, dense: DenseTrack
         atomic_write_text(tmp / layout.TRACK_IDS_FILE, json.dumps([str(t) for t in dense.track_ids]))
         pq.write_table(_frames_table(frame_ts, city_SE3_ego, speed, sweep_index >= 0, camera.frame_ok),
                        tmp / layout.FRAMES_FILE)
-        stats.bytes = int(sum(p.stat().st_size for p in tmp.iterdir()))
+        stats.files = file_checksums(tmp, sorted(p.name for p in tmp.iterdir()))
+        stats.bytes = int(sum(entry["size_bytes"] for entry in stats.files.values()))
         stats.render_s = round(time.perf_counter() - start, 3)
         atomic_write_text(tmp / layout.RENDER_FILE, json.dumps(stats.to_dict(), indent=2))
     return stats

@@ -1,7 +1,9 @@
 """Whether a log's rendered arrays can be reused: what rendering did, and fingerprints of its inputs.
 
 ``CLIPS_DIR/logs/<log_id>/render.json`` holds a :class:`LogRenderStats`; a rendering is reused when
-its fingerprints (the rendering config's and the log content's) match the current ones.
+its fingerprints (the rendering config's and the log content's) match the current ones and every
+file it lists still has its size and SHA-256: a truncated, deleted or changed array is rendered
+again, never reused.
 """
 
 from __future__ import annotations
@@ -14,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from common.checksums import sha256_files
 from encoders.clips.config import BevSource, ClipsConfig
 from encoders.clips.layout import RENDER_FILE
 from scenes.tracks import DenseTracks
@@ -63,6 +66,7 @@ class LogRenderStats:
         render_s: wall time.
         fingerprint: :func:`render_fingerprint` of the config used.
         log_fingerprint: :func:`log_fingerprint` of the log rendered.
+        files: every other file of the rendering: name → ``{"size_bytes", "sha256"}``.
     """
 
     log_id: str
@@ -81,23 +85,50 @@ class LogRenderStats:
     render_s: float = 0.0
     fingerprint: str = ""
     log_fingerprint: str = ""
+    files: dict[str, dict[str, Any]] = field(default_factory=dict)
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
 
 
-def rendered_log_ok(folder: Path, config: ClipsConfig, dense: DenseTracks) -> bool:
-    """Whether ``folder`` holds a complete rendering of this log's content (``dense``) made with an
-    equivalent config."""
+def file_checksums(folder: Path, names: list[str]) -> dict[str, dict[str, Any]]:
+    """``{name: {"size_bytes", "sha256"}}`` of the files ``names`` in ``folder``."""
+    paths = [folder / name for name in names]
+    return {name: {"size_bytes": p.stat().st_size, "sha256": digest}
+            for name, p, digest in zip(names, paths, sha256_files(paths))}
+
+
+def reuse_problem(folder: Path, config: ClipsConfig, dense: DenseTracks) -> str | None:
+    """Why ``folder`` does not hold a reusable rendering of this log's content (``dense``) made with an
+    equivalent config, or None when it does: every file that ``render.json`` lists must still have its
+    size and checksum."""
     path = folder / RENDER_FILE
     if not path.is_file():
-        return False
+        return "not rendered before"
     try:
         data = json.loads(path.read_text())
-    except (OSError, json.JSONDecodeError):
-        return False
-    return bool(data.get("fingerprint") == render_fingerprint(config)
-                and data.get("log_fingerprint") == log_fingerprint(dense))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+        return f"{RENDER_FILE} is unreadable"
+    if not isinstance(data, dict) or data.get("fingerprint") != render_fingerprint(config):
+        return "rendered with another config"
+    if data.get("log_fingerprint") != log_fingerprint(dense):
+        return "the log changed since it was rendered"
+    files = data.get("files")
+    if not isinstance(files, dict) or not files:
+        return f"{RENDER_FILE} lists no checksums"
+    present = []
+    for name, entry in files.items():
+        file = folder / str(name)
+        if not file.is_file():
+            return f"{name} is missing"
+        size, listed = file.stat().st_size, entry.get("size_bytes") if isinstance(entry, dict) else None
+        if size != listed:
+            return f"{name} is {size} bytes, {RENDER_FILE} says {listed}"
+        present.append(str(name))
+    for name, digest in zip(present, sha256_files([folder / n for n in present])):
+        if digest != files[name].get("sha256"):
+            return f"{name} differs from its checksum in {RENDER_FILE}"
+    return None
 
 
 def read_render_stats(folder: Path) -> LogRenderStats:

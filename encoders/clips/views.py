@@ -73,7 +73,7 @@ def open_log_arrays(clips_dir: Path, log_id: str) -> LogArrays:
     folder = layout.rendered_log_dir(clips_dir, log_id)
 
     def load(name: str) -> NDArray[np.generic]:
-        return np.load(folder / name, mmap_mode="r")
+        return layout.load_rendered_array(folder, name)
 
     ids = json.loads((folder / layout.TRACK_IDS_FILE).read_text())
     frames = pq.read_table(folder / layout.FRAMES_FILE, columns=["timestamp_ns", "x_m", "y_m", "yaw_rad", "speed_mps"])

@@ -6,7 +6,9 @@ from ``tagging.json`` for the BEV tower, the inputs and the frame spacing the mo
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
+from typing import ClassVar
 
 from encoders.config import BevConfig, ConfigError, EncodersConfig, check_device_name
 from encoders.tagging.ablation import parse_inputs
@@ -53,7 +55,12 @@ class TagTrainConfig(EncodersConfig):
         seed: seeds torch, numpy and the sampler.
         device: ``auto``, ``cpu`` or ``cuda[:i]``.
         log_every: steps between lines of ``tag_metrics.jsonl``.
+
+    Upper bounds: ``window_frames`` 256, ``frame_stride`` 100, ``batch_size`` 4096, ``steps`` 1000000.
     """
+
+    upper_bounds: ClassVar[Mapping[str, float]] = {"window_frames": 256, "frame_stride": 100, "batch_size": 4096,
+                                                   "steps": 1_000_000}
 
     mode: str = "joint"
     inputs: str = "both"
@@ -73,6 +80,7 @@ class TagTrainConfig(EncodersConfig):
     log_every: int = 20
 
     def __post_init__(self) -> None:
+        super().__post_init__()
         if self.mode not in MODES:
             raise ConfigError(f"TagTrainConfig.mode must be one of {MODES}, got {self.mode!r}")
         parse_inputs(self.inputs)

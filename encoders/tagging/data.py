@@ -22,7 +22,7 @@ import numpy as np
 import torch
 from numpy.typing import NDArray
 
-from encoders.clips.layout import BEV_LIDAR_FILE, BEV_MAP_FILE, read_manifest, rendered_log_dir
+from encoders.clips.layout import BEV_LIDAR_FILE, BEV_MAP_FILE, load_rendered_array, read_manifest, rendered_log_dir
 from encoders.tagging.attributes import TagError
 from encoders.tagging.targets import LogTargets, open_targets
 
@@ -94,8 +94,8 @@ class TagWindowDataset(torch.utils.data.Dataset[dict[str, Any]]):
     def _bev(self, log_id: str) -> tuple[NDArray[np.uint8], NDArray[np.uint8]]:
         if log_id not in self._arrays:
             folder = rendered_log_dir(self.clips_dir, log_id)
-            self._arrays[log_id] = (np.load(folder / BEV_LIDAR_FILE, mmap_mode="r"),
-                                    np.load(folder / BEV_MAP_FILE, mmap_mode="r"))
+            self._arrays[log_id] = (load_rendered_array(folder, BEV_LIDAR_FILE),
+                                    load_rendered_array(folder, BEV_MAP_FILE))
         return self._arrays[log_id]
 
     def __getitem__(self, index: int) -> dict[str, Any]:

@@ -44,6 +44,7 @@ from encoders.clips.layout import (
     BEV_MAP_FILE,
     TARGETS_STEM,
     grid_from_manifest,
+    load_rendered_array,
     read_manifest,
     rendered_log_dir,
 )
@@ -81,7 +82,7 @@ def pooled_truth_and_pred(
     manifest = read_manifest(clips_dir)
     grid = coarse_grid(grid_from_manifest(manifest), factor)
     folder = rendered_log_dir(clips_dir, log_id)
-    bev_map = np.load(folder / BEV_MAP_FILE, mmap_mode="r")
+    bev_map = load_rendered_array(folder, BEV_MAP_FILE)
     lt = open_targets(clips_dir, log_id, stem)
     attrs = names or lt.names
     cols = [lt.names.index(a) for a in attrs]
@@ -93,7 +94,7 @@ def pooled_truth_and_pred(
     cell = grid.resolution_m**2
     v = None
     if tagger is not None:
-        lidar = np.load(folder / BEV_LIDAR_FILE, mmap_mode="r")
+        lidar = load_rendered_array(folder, BEV_LIDAR_FILE)
         v = tagger.tag_frames(lidar, bev_map, attributes=[tagger.names.index(a) for a in attrs])
     truth: Pooled = {}
     pred: Pooled = {}

@@ -38,6 +38,7 @@ from encoders.bev import BevTower
 from encoders.clips.layout import read_manifest
 from encoders.config import BevConfig
 from encoders.inference import resolve_device
+from encoders.run_folder import claim_run_dir
 from encoders.tagging.ablation import mask_inputs
 from encoders.tagging.attributes import FOOTPRINT_M2, TagError, is_density
 from encoders.tagging.config import TagTrainConfig
@@ -284,7 +285,7 @@ def train_tags(
     loader = torch.utils.data.DataLoader(ds, batch_size=config.batch_size, sampler=sampler,
                                          collate_fn=collate_windows)
     run = Path(run_dir)
-    run.mkdir(parents=True, exist_ok=True)
+    claim_run_dir(run, clips_dir)
     lines: list[str] = []
     start = time.perf_counter()
     loss_avg = float("nan")

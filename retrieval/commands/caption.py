@@ -4,8 +4,11 @@ Writes ``OUT_DIR/frame_tags.parquet`` and ``OUT_DIR/captions.parquet`` (see
 :mod:`captioning.pipeline`), published together (:mod:`common.publish`). Logs that cannot be
 read are skipped and listed with the reason; so are tracks observed in single frames, or too short
 for own-behaviour tags, and a log without a map with lanes is said to have null lane tags, once.
-Exits 1, leaving the previous outputs untouched, when no log could be captioned, and 1 when a log
-failed (an unexpected error, or its worker died on every attempt; the others are written).
+Exit status (as every batch command's): 0 when every log was captioned; 1 when some were skipped
+or failed (listed; the others are written); 2 when nothing was done (no log could be captioned, or
+``--out`` is refused), leaving the previous outputs untouched. ``--out`` must be a new or empty
+folder or a captions folder, and neither a log folder nor inside one (:mod:`common.folders`); a log
+given twice is captioned once.
 
 ``--workers N`` captions one log per task on a local Ray runtime, ``--ray-address`` on a cluster
 (:mod:`common.ray_runner`); the files are the same as the serial path's. Log folders and ``--out``
@@ -44,7 +47,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from captioning.config import CaptioningConfig, RuleSet, WindowStrategy
-    from captioning.pipeline import caption_logs
+    from captioning.pipeline import CAPTIONS_FOLDER, caption_logs
+    from common.folders import claim_folder
 
     config = CaptioningConfig.from_yaml(args.config) if args.config else CaptioningConfig()
     if args.strategy:
@@ -56,16 +60,17 @@ def run(args: argparse.Namespace) -> int:
     if args.rules:
         config = dataclasses.replace(config, rules=RuleSet(args.rules))
     start = time.perf_counter()
-    out = as_location(args.out)
-    batch = caption_logs(expand(args.log_dirs), config, Execution.from_args(args))
+    out, log_dirs = as_location(args.out), expand(args.log_dirs)
+    claim_folder(out, CAPTIONS_FOLDER, log_dirs)  # before any log is read
+    batch = caption_logs(log_dirs, config, Execution.from_args(args))
     for log_dir, reason in batch.skipped_logs.items():
         print(f"skipped log {log_dir}: {reason}")
     for log_dir, reason in batch.failed_logs.items():
         print(f"failed log {log_dir}: {reason}")
     if not batch.results:
         print(f"no log could be captioned; {out} is left as it was")
-        return 1
-    frames_path, captions_path = _write(out, batch.results)
+        return 2
+    frames_path, captions_path = _write(out, batch.results, log_dirs)
     elapsed_s = time.perf_counter() - start
     object_frames = sum(int(r.valid.sum()) for r in batch.results)
     num_captions = sum(len(r.captions) for r in batch.results)
@@ -84,17 +89,17 @@ def run(args: argparse.Namespace) -> int:
         f"wrote {frames_path} and {captions_path}"
         + (f"; {len(batch.failed_logs)} log(s) failed: {', '.join(batch.failed_logs)}" if batch.failed_logs else "")
     )
-    return 1 if batch.failed_logs else 0
+    return 1 if batch.failed_logs or batch.skipped_logs else 0
 
 
-def _write(out: Location, results: list[LogCaptions]) -> tuple[Location, Location]:
+def _write(out: Location, results: list[LogCaptions], log_dirs: list[Location]) -> tuple[Location, Location]:
     """Publish the two files together in a local folder; upload them to a URI (files, no links)."""
     import pyarrow.parquet as pq
 
     from captioning.pipeline import CAPTIONS_FILENAME, FRAME_TAGS_FILENAME, output_tables, write_outputs
 
     if not is_uri(out):
-        return write_outputs(out, results)
+        return write_outputs(out, results, log_dirs)
     with staged_output(out) as local:
         for name, table in output_tables(results).items():
             pq.write_table(table, local / name)

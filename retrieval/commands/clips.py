@@ -3,7 +3,10 @@
 Renders each log's camera and BEV frames once into ``CLIPS_DIR/logs/<log_id>/``, writes
 ``CLIPS_DIR/clips.parquet`` (one clip per neighbour caption), ``manifest.json`` and, unless
 ``--no-previews``, an animated GIF per clip under ``CLIPS_DIR/previews/``. Reports what it skipped
-and why (corrupt sweeps, windows outside a log, unreadable logs) and which logs failed (exit 1).
+and why (corrupt sweeps, windows outside a log, unreadable logs, duplicate clip ids) and which logs
+failed. Exit status, as every batch command's: 0 when everything was made, 1 when something was
+skipped or failed (listed), 2 when nothing was done (every log failed, or ``--out`` is refused: it
+must be a new or empty folder or a clips folder, and not an input; :mod:`common.folders`).
 
 ``--train-only LOG_DIR...`` adds logs that always go to the train split (extra training data);
 ``--val-only`` and ``--test-only`` add logs that always validate or are always held out for test. The
@@ -62,11 +65,12 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from common.config import with_option
     from encoders.clips.config import BevSourceChoice, ClipsConfig
 
     config = ClipsConfig.from_yaml(args.config) if args.config else ClipsConfig()
     if args.frames_per_clip is not None:
-        config = replace(config, frames_per_clip=args.frames_per_clip)
+        config = with_option(config, "--frames-per-clip", frames_per_clip=args.frames_per_clip)
     if args.seed is not None:
         config = replace(config, split=replace(config.split, seed=args.seed))
     s = config.split
@@ -76,7 +80,7 @@ def run(args: argparse.Namespace) -> int:
     if args.bev_source is not None:
         config = replace(config, bev=replace(config.bev, source=BevSourceChoice(args.bev_source)))
     if args.num_sweeps is not None:
-        config = replace(config, bev=replace(config.bev, num_sweeps=args.num_sweeps))
+        config = replace(config, bev=with_option(config.bev, "--num-sweeps", num_sweeps=args.num_sweeps))
     if args.no_previews:
         config = replace(config, previews=False)
     if args.lenient:
@@ -129,4 +133,4 @@ def _run(args: argparse.Namespace, config: ClipsConfig, out: Location, execution
             print(f"  skipped {item.get('log_id', '?')}: {item.get('reason', '')}")
     for log_id, reason in report.failed.items():
         print(f"failed log {log_id}: {reason}")
-    return 1 if report.failed else 0
+    return 1 if report.failed or report.skipped else 0

@@ -1,9 +1,18 @@
-"""``scenesearch demo``: the whole pipeline on a small simulated city, ending with ``DIR/report.html``."""
+"""``scenesearch demo``: the whole pipeline on a small simulated city, ending with ``DIR/report.html``.
+
+Each size flag is checked against the upper bound of the config field it ends up in (``--logs`` against
+:class:`scenes.sim.SimulationConfig`'s ``logs``, ``--epochs`` against :class:`encoders.config.TrainConfig`'s,
+...; ``--workers`` against :data:`MAX_WORKERS`) before the first stage runs, so that a value a later
+stage would refuse stops the demo at once, naming the flag.
+"""
 
 from __future__ import annotations
 
 import argparse
 from pathlib import Path
+
+#: Ray workers ``--workers`` may ask for, at most.
+MAX_WORKERS = 1024
 
 HELP = "simulate, caption, build clips, train, index and evaluate a small city; write DIR/report.html"
 
@@ -89,8 +98,36 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="run only these stages (simulate caption clips train index eval report)")
 
 
+def size_bounds() -> dict[str, tuple[str, float]]:
+    """Each size flag's ``args`` attribute → (flag, upper bound), the bound of the config field it sets."""
+    from encoders.clips.config import CameraClipConfig, ClipsConfig
+    from encoders.config import DualEncoderConfig, TrainConfig
+    from scenes.sim.config import SimulationConfig
+
+    logs = SimulationConfig.upper_bounds["logs"]
+    return {"logs": ("--logs", logs), "extra_logs": ("--extra-logs", logs), "val_logs": ("--val-logs", logs),
+            "duration_s": ("--duration-s", SimulationConfig.upper_bounds["duration_s"]),
+            "frames_per_clip": ("--frames-per-clip", ClipsConfig.upper_bounds["frames_per_clip"]),
+            "camera_width_px": ("--camera-width-px", CameraClipConfig.upper_bounds["width_px"]),
+            "camera_height_px": ("--camera-height-px", CameraClipConfig.upper_bounds["height_px"]),
+            "epochs": ("--epochs", TrainConfig.upper_bounds["epochs"]),
+            "batch_size": ("--batch-size", TrainConfig.upper_bounds["batch_size"]),
+            "time_slots": ("--time-slots", DualEncoderConfig.upper_bounds["time_slots"]),
+            "workers": ("--workers", MAX_WORKERS)}
+
+
+def check_sizes(args: argparse.Namespace) -> None:
+    """Refuse a size flag above its upper bound (:func:`size_bounds`), naming the flag, before any stage runs."""
+    for name, (flag, bound) in size_bounds().items():
+        value = getattr(args, name, None)
+        if value is not None and value > bound:
+            raise ValueError(f"{flag} {value:g}: above its upper bound {bound:g}")
+
+
 def run(args: argparse.Namespace) -> int:
     import sys
+
+    check_sizes(args)
 
     from retrieval.demo import STAGES, Demo, DemoStageError, config_from_args
 

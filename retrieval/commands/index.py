@@ -3,7 +3,8 @@
 With ``--workers N`` (a local Ray runtime) or ``--ray-address`` (a cluster) the clips are embedded on
 Ray Data by a pool of actors, one model each (a GPU each when the cluster has them), written as
 Parquet shards (``--embeddings-dir``, kept when given) and indexed from them; the embeddings equal
-the serial ones (within 1e-4).
+the serial ones (within 1e-4). ``--batch-size`` (at most :data:`MAX_BATCH_SIZE`) and ``--num-workers``
+(at most :data:`MAX_NUM_WORKERS`) are checked before anything is loaded.
 """
 
 from __future__ import annotations
@@ -19,6 +20,11 @@ from common.ray_cluster import add_arguments as add_execution_arguments
 
 if TYPE_CHECKING:
     from retrieval.scenesearch import SceneSearch
+
+#: Clips embedded at a time (``--batch-size``) and loader processes (``--num-workers``), at most: as
+#: :class:`encoders.config.TrainConfig` bounds them for training.
+MAX_BATCH_SIZE = 4096
+MAX_NUM_WORKERS = 256
 
 HELP = ("embed all clips (fused, camera-only, BEV-only) and their captions with a trained model; write an index "
         "(or, with --captions, index rule captions alone: no model or sensors needed; or, with --check, "
@@ -54,7 +60,18 @@ def configure(parser: argparse.ArgumentParser) -> None:
                              "(default: a temporary folder, removed afterwards)")
 
 
+def check_sizes(args: argparse.Namespace) -> None:
+    """Refuse a ``--batch-size`` or ``--num-workers`` out of range, naming the flag, before anything is loaded."""
+    for option, value, low, high in (("--batch-size", args.batch_size, 1, MAX_BATCH_SIZE),
+                                     ("--num-workers", args.num_workers, 0, MAX_NUM_WORKERS)):
+        if value < low:
+            raise ValueError(f"{option} {value}: must be at least {low}")
+        if value > high:
+            raise ValueError(f"{option} {value}: above its upper bound {high}")
+
+
 def run(args: argparse.Namespace) -> int:
+    check_sizes(args)
     from retrieval.scenesearch import SceneSearch
 
     if args.check is not None:

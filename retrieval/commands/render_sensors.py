@@ -3,6 +3,9 @@
 Writes, per log, ``sensors/lidar/<ns>.feather``, ``sensors/cameras/<camera>/<ns>.jpg``, instance
 masks beside them and the calibration, from the log's annotations, ego poses, map and metadata.
 A log that cannot be rendered is reported with the reason and skipped; the exit status is 1 then.
+A flag's value above its upper bound in :mod:`scenes.sensorsim.config` (``--beams``, ``--azimuth-steps``,
+``--width``, ``--height``) or ``--threads`` above :data:`MAX_THREADS` is refused before any log is read,
+naming the flag.
 """
 
 from __future__ import annotations
@@ -11,6 +14,11 @@ import argparse
 import dataclasses
 import sys
 from pathlib import Path
+
+from common.config import with_option
+
+#: Ray-casting threads ``--threads`` may ask for, at most.
+MAX_THREADS = 1024
 
 HELP = "render simulated LiDAR sweeps, camera frames and instance masks for logs"
 
@@ -35,13 +43,17 @@ def build_config(args: argparse.Namespace) -> object:
     config = SensorConfig.from_yaml(args.config) if args.config else SensorConfig()
     lidar, camera = config.lidar, config.camera
     if args.beams is not None:
-        lidar = dataclasses.replace(lidar, beams=args.beams)
+        lidar = with_option(lidar, "--beams", beams=args.beams)
     if args.azimuth_steps is not None:
-        lidar = dataclasses.replace(lidar, azimuth_steps=args.azimuth_steps)
+        lidar = with_option(lidar, "--azimuth-steps", azimuth_steps=args.azimuth_steps)
     if args.width is not None:
-        camera = dataclasses.replace(camera, width_px=args.width)
+        camera = with_option(camera, "--width", width_px=args.width)
     if args.height is not None:
-        camera = dataclasses.replace(camera, height_px=args.height)
+        camera = with_option(camera, "--height", height_px=args.height)
+    if args.threads < 0:
+        raise ValueError(f"--threads {args.threads}: must be at least 0 (0: all cores)")
+    if args.threads > MAX_THREADS:
+        raise ValueError(f"--threads {args.threads}: above its upper bound {MAX_THREADS}")
     return dataclasses.replace(
         config,
         lidar=lidar,

@@ -11,7 +11,10 @@ HELP = "find the moments that match a sentence (text → clip; --captions: rule-
 
 def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("index_dir", type=Path, metavar="INDEX_DIR", help="index directory (`scenesearch index`)")
-    parser.add_argument("query", help='a sentence, e.g. "a car in the left lane approaches, then stops"')
+    from retrieval.querying import MAX_QUERY_CHARS
+
+    parser.add_argument("query", metavar="QUERY", help='a sentence, e.g. "a car in the left lane approaches, then '
+                                                       f'stops" (at most {MAX_QUERY_CHARS} characters)')
     parser.add_argument("-k", type=int, default=10, help="number of results (default 10)")
     parser.add_argument("--filter", action="append", metavar="FIELD=VALUE", dest="filters",
                         help="keep clips whose FIELD equals VALUE (repeatable; VALUE may be a,b for any of "
@@ -32,10 +35,14 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from retrieval.captions_search import CaptionSearch, is_caption_index
-    from retrieval.querying import parse_cli_filters
+    from retrieval.querying import check_query, check_text, parse_cli_filters
     from retrieval.records import format_table
     from retrieval.scenesearch import SceneSearch
 
+    # The query check of the API and the service, here before the index loads and naming the argument.
+    check_query(args.query, "argument QUERY")
+    for item in args.filters or []:
+        check_text(item, "--filter")
     filters = parse_cli_filters(args.filters)
     if args.weight is not None and not args.hybrid:
         raise ValueError("--weight is the weight of hybrid search: add --hybrid")

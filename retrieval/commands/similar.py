@@ -24,10 +24,14 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from retrieval.querying import parse_cli_filters
+    from retrieval.querying import check_text, parse_cli_filters
     from retrieval.records import format_table
     from retrieval.scenesearch import SceneSearch
 
+    # The text check of queries (retrieval.querying), before the index loads and naming the argument.
+    check_text(args.clip_id, "argument CLIP_ID")
+    for item in args.filters or []:
+        check_text(item, "--filter")
     search = SceneSearch.open(args.index_dir, views=(args.view,))
     results = search.search_clip(args.clip_id, k=args.k, filters=parse_cli_filters(args.filters), view=args.view,
                                  other_moments=args.other_moments)

@@ -5,20 +5,26 @@ metadata (see :mod:`scenes.sim`). Deterministic for a given seed. Flags override
 ``--config FILE.yaml`` (a serialised :class:`scenes.sim.SimulationConfig`). SUMO runs once; writing
 each log and rendering its sensors is one task per log, on Ray with ``--workers N`` or
 ``--ray-address`` (:mod:`common.ray_runner`), with the same bytes as the serial path. ``--out`` may
-be a ``pyarrow.fs`` URI.
+be a ``pyarrow.fs`` URI. A flag's value above its upper bound in :class:`scenes.sim.SimulationConfig`
+(e.g. ``--logs``, ``--duration-s``, ``--egos``) is refused before anything is simulated, naming the flag.
 """
 
 from __future__ import annotations
 
 import argparse
-import dataclasses
 from pathlib import Path
-from typing import Any
 
+from common.config import with_option
 from common.ray_cluster import Execution
 from common.ray_cluster import add_arguments as add_execution_arguments
 from common.storage import as_location
 from scenes.sim import NetworkKind, PostLogHook, SimulationConfig, simulate_tracks_and_map
+
+#: The flag that sets each field of :class:`SimulationConfig` (what an error names).
+FLAGS = {"logs": "--logs", "duration_s": "--duration-s", "seed": "--seed", "warmup_s": "--warmup-s",
+         "egos_per_run": "--egos", "tracker_noise": "--tracker-noise", "sensors": "--no-sensors",
+         "map_less_share": "--map-less-share", "jitter_share": "--jitter-share", "furniture_per_km": "--furniture-per-km",
+         "standing_pedestrians_per_km": "--standing-pedestrians-per-km", "cache_dir": "--cache-dir"}
 
 HELP = "simulate a city with SUMO and write N drive logs (AV2 layout, behaviour labels)"
 
@@ -58,16 +64,14 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 def build_config(args: argparse.Namespace) -> SimulationConfig:
     """The config file's values, overridden by the flags given."""
-    base = SimulationConfig.from_yaml(args.config) if args.config else SimulationConfig()
-    overrides: dict[str, Any] = {}
-    for name in ("logs", "duration_s", "seed", "warmup_s", "egos_per_run", "tracker_noise", "sensors", "map_less_share",
-                 "jitter_share", "furniture_per_km", "standing_pedestrians_per_km", "cache_dir"):
+    config = SimulationConfig.from_yaml(args.config) if args.config else SimulationConfig()
+    for name, flag in FLAGS.items():
         value = getattr(args, name, None)
         if value is not None:
-            overrides[name] = value
+            config = with_option(config, flag, **{name: value})
     if args.network is not None:
-        overrides["network"] = NetworkKind.parse(args.network)
-    return dataclasses.replace(base, **overrides)
+        config = with_option(config, "--network", network=NetworkKind.parse(args.network))
+    return config
 
 
 def post_log_hooks(config: SimulationConfig, emit_detections: bool = False,

@@ -12,6 +12,10 @@ launcher (gloo on CPU, NCCL on CUDA: one GPU each); ``--batch-size`` is then per
 loss is that of the whole batch of N × batch size clips (:mod:`encoders.distributed`). Run under
 ``torchrun ... -m retrieval.cli train ...`` (one machine or several), the command joins the
 launcher's process group instead. Data too small for N processes is refused before any starts.
+
+Size-like flags are checked against the upper bounds of :class:`encoders.config.TrainConfig` (and of
+the model's configs) before anything is loaded, and an error names the flag; ``--nproc`` is at most
+:data:`MAX_PROCESSES`.
 """
 
 from __future__ import annotations
@@ -23,7 +27,11 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from common.config import with_option
 from encoders.config import DENSE_STREAMS, HardNegative
+
+#: Processes ``--nproc`` may start on one machine, at most.
+MAX_PROCESSES = 256
 
 HELP = "train the dual text/video encoder on a clips folder (contrastive, multi-positive)"
 
@@ -109,7 +117,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def build_config(args: argparse.Namespace) -> Any:
-    from encoders.config import TrainConfig
+    from encoders.config import DualEncoderConfig, TrainConfig
 
     if args.config is not None:
         if not args.config.is_file():
@@ -119,18 +127,11 @@ def build_config(args: argparse.Namespace) -> Any:
         config = TrainConfig.from_json(args.out / "config.json")  # the run's own
     else:
         config = TrainConfig.preset(args.preset or "default")
-    flags = {
-        "epochs": args.epochs,
-        "batch_size": args.batch_size,
-        "lr": args.lr,
-        "seed": args.seed,
-        "device": args.device,
-        "num_workers": args.num_workers,
-        "max_steps_per_epoch": args.max_steps_per_epoch,
-        "time_reversal": args.time_reversal,
-        "camera_share": args.camera_share,
-    }
-    config = dataclasses.replace(config, **{k: v for k, v in flags.items() if v is not None})
+    for name in ("epochs", "batch_size", "lr", "seed", "device", "num_workers", "max_steps_per_epoch",
+                 "time_reversal", "camera_share"):
+        value = getattr(args, name)
+        if value is not None:
+            config = with_option(config, "--" + name.replace("_", "-"), **{name: value})
     if args.shuffle_frames:
         config = dataclasses.replace(config, shuffle_frames=True)
     if args.camera_apart:
@@ -166,10 +167,17 @@ def build_config(args: argparse.Namespace) -> Any:
     if args.track_rates is not None:
         model = dataclasses.replace(model, bev=dataclasses.replace(model.bev, track_rates=args.track_rates))
     if args.time_slots is not None:
+        check_flag_bound("--time-slots", args.time_slots, DualEncoderConfig.upper_bounds["time_slots"])
         # The slots live on both sides: the text tower lays each sentence's steps out in them.
         kind = "slots" if args.time_slots else ("pretrained" if text.kind == "slots" else text.kind)
         model = dataclasses.replace(model, time_slots=args.time_slots, text=dataclasses.replace(text, kind=kind))
     return dataclasses.replace(config, model=model)
+
+
+def check_flag_bound(option: str, value: float, bound: float) -> None:
+    """Refuse a flag's ``value`` above ``bound`` before anything is allocated for it, naming the flag."""
+    if value > bound:
+        raise ValueError(f"{option} {value}: above its upper bound {bound:g}")
 
 
 def tagging_config(args: argparse.Namespace) -> Any:
@@ -186,14 +194,16 @@ def tagging_config(args: argparse.Namespace) -> Any:
         if args.tag_weight < 0:
             raise ValueError(f"--tag-weight must be >= 0, got {args.tag_weight}")
         overrides["joint_weight"] = args.tag_weight
-    if args.tag_presence_weight is not None:
-        overrides["joint_presence_weight"] = args.tag_presence_weight  # TagTrainConfig checks it
-    return dataclasses.replace(TagTrainConfig(), **overrides)
+    config = dataclasses.replace(TagTrainConfig(), **overrides)
+    if args.tag_presence_weight is not None:  # TagTrainConfig checks it
+        config = with_option(config, "--tag-presence-weight", joint_presence_weight=args.tag_presence_weight)
+    return config
 
 
 def run(args: argparse.Namespace) -> int:
     if args.nproc < 1:
         raise ValueError(f"--nproc must be >= 1, got {args.nproc}")
+    check_flag_bound("--nproc", args.nproc, MAX_PROCESSES)
     if args.nproc == 1:
         return _train(args)
     if int(os.environ.get("WORLD_SIZE", "1")) > 1:
@@ -201,10 +211,11 @@ def run(args: argparse.Namespace) -> int:
     from encoders.distributed import check_processes, launch
     from encoders.inference import open_split
 
+    config = build_config(args)  # a bad flag is reported before the clips are read
     if not args.clips_dir.is_dir():
         raise FileNotFoundError(f"{args.clips_dir}: clips folder not found")
     n_train = len(open_split(args.clips_dir, "train"))  # type: ignore[arg-type]
-    check_processes(n_train, build_config(args).batch_size, args.nproc, args.clips_dir)
+    check_processes(n_train, config.batch_size, args.nproc, args.clips_dir)
     return int(launch(args.nproc, _worker, args))
 
 

@@ -11,12 +11,13 @@ from typing import TYPE_CHECKING, Any
 if TYPE_CHECKING:
     from retrieval.service.app import create_app
     from retrieval.service.limits import ServiceLimits
-    from retrieval.service.server import serve, server_config, serving_in_thread
+    from retrieval.service.server import ListenError, listen_sockets, serve, server_config, serving_in_thread
 
-__all__ = ["ServiceLimits", "create_app", "serve", "server_config", "serving_in_thread"]
+__all__ = ["ListenError", "ServiceLimits", "create_app", "listen_sockets", "serve", "server_config",
+           "serving_in_thread"]
 
 _HOMES = {"create_app": "app", "ServiceLimits": "limits", "serve": "server", "server_config": "server",
-          "serving_in_thread": "server"}
+          "serving_in_thread": "server", "ListenError": "server", "listen_sockets": "server"}
 
 
 def __getattr__(name: str) -> Any:

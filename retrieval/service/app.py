@@ -11,8 +11,10 @@ Endpoints (OpenAPI at ``/openapi.json``, interactive docs at ``/docs``)::
     GET /api/export?ids= | q=&k=        embeddings of a result set
     GET /                               the search page (static files, no network fetches)
 
-Errors are JSON ``{"detail": "..."}``: 422 for a malformed, unknown or repeated parameter (the
-message names it), 404 for unknown clips, 413 for queries longer than the limit, 409 when the
+Errors are JSON ``{"detail": "..."}``: 422 for a malformed, unknown or repeated parameter, one that
+is not valid UTF-8 or one that holds a control character (the message names it), 404 for unknown
+clips, 413 for queries longer than the limit (:func:`retrieval.querying.check_query`, the check of
+the CLI and the Python API too), 409 when the
 index's model changed, 503 when the model is gone, 429 (with ``Retry-After``) when every search
 slot is taken, 504 when a request is not answered within the time limit (see
 :mod:`retrieval.service.limits`; the connection-level limits are in :mod:`retrieval.service.server`).
@@ -28,6 +30,7 @@ import typing
 from enum import StrEnum
 from pathlib import Path
 from typing import Annotated, Any
+from urllib.parse import unquote_to_bytes
 
 import numpy as np
 from fastapi import Depends, FastAPI, HTTPException, Query, Request
@@ -44,7 +47,7 @@ from retrieval.errors import (
     UnknownViewError,
 )
 from retrieval.hybrid import check_weight
-from retrieval.querying import parse_cli_filters
+from retrieval.querying import QueryTooLongError, parse_cli_filters
 from retrieval.records import SearchResult
 from retrieval.scenesearch import SceneSearch
 from retrieval.service.limits import RequestTimeout, SearchGate, ServiceBusyError, ServiceLimits, check_chars
@@ -74,6 +77,8 @@ def _status_of(exc: RetrievalError) -> int:
         return 409
     if isinstance(exc, IndexDirError):
         return 503
+    if isinstance(exc, QueryTooLongError):
+        return 413
     return 422  # empty query, k out of range, bad filter, unknown view: malformed parameters
 
 
@@ -92,8 +97,27 @@ def _is_repeatable(annotation: Any) -> bool:
     return any(_is_repeatable(a) for a in typing.get_args(annotation) if a is not type(None))
 
 
+def check_utf8(query_string: bytes) -> None:
+    """422 naming the first query parameter whose name or value is not valid UTF-8 once percent-decoded.
+
+    Starlette decodes parameters with replacement characters, so ``?q=car%ff`` would otherwise reach
+    the search as ``"car\ufffd"``, a query nobody typed.
+    """
+    for pair in query_string.split(b"&"):
+        raw_name, _, raw_value = pair.partition(b"=")
+        name_bytes = unquote_to_bytes(raw_name.replace(b"+", b" "))
+        name = name_bytes.decode("utf-8", errors="replace")
+        for part in (name_bytes, unquote_to_bytes(raw_value.replace(b"+", b" "))):
+            try:
+                part.decode("utf-8")
+            except UnicodeDecodeError as exc:
+                raise HTTPException(422, f"parameter {name!r} is not valid UTF-8: byte 0x{part[exc.start]:02x} at "
+                                         f"byte {exc.start}") from None
+
+
 async def strict_parameters(request: Request) -> None:
-    """422 for a query parameter the endpoint does not take, or a single-valued one given twice.
+    """422 for a query parameter the endpoint does not take, a single-valued one given twice, or one
+    that is not valid UTF-8 (:func:`check_utf8`).
 
     FastAPI alone ignores unknown parameters and keeps the last of repeated ones, so a typo
     (``?kk=5``) or a clash (``?k=1&k=50``) would silently give another search than was asked for.
@@ -101,6 +125,7 @@ async def strict_parameters(request: Request) -> None:
     route = request.scope.get("route")
     if not isinstance(route, APIRoute) or not route.include_in_schema:
         return  # the page itself: its address carries the page's own state (``/?q=...``)
+    check_utf8(request.scope.get("query_string", b""))
     # Per route of this app: its query parameters, and those that may repeat. Filled on first use, on
     # the event loop's thread (async dependencies run there), so no lock is needed.
     known: dict[int, tuple[frozenset[str], frozenset[str]]] = request.app.state.route_parameters

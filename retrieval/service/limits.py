@@ -19,6 +19,8 @@ from collections.abc import Callable
 from dataclasses import dataclass, fields
 from typing import TYPE_CHECKING, TypeVar
 
+from retrieval.querying import MAX_QUERY_CHARS, QueryTextError, QueryTooLongError, check_text
+
 if TYPE_CHECKING:  # the CLI reads the defaults at start-up: no web framework imports for that
     import anyio
     from starlette.types import ASGIApp, Message, Receive, Scope, Send
@@ -32,7 +34,8 @@ class ServiceLimits:
 
     Attributes:
         max_k: the most results one request may ask for.
-        max_query_chars: the longest query, filter or tag expression accepted (longer → 413).
+        max_query_chars: the longest query, filter or tag expression accepted (longer → 413); at most
+            :data:`retrieval.querying.MAX_QUERY_CHARS`, the limit of every other entry point.
         max_filters: the most ``filter`` parameters in one request.
         max_export_ids: the most clips one export may name.
         request_timeout_s: the time the service has to answer a request (504 past it).
@@ -52,7 +55,7 @@ class ServiceLimits:
     """
 
     max_k: int = 100
-    max_query_chars: int = 500
+    max_query_chars: int = MAX_QUERY_CHARS
     max_filters: int = 8
     max_export_ids: int = 1000
     request_timeout_s: float = 30.0
@@ -74,16 +77,22 @@ class ServiceLimits:
             least = 0 if f.name == "max_waiting_searches" else 1e-9  # zero waiting places: refuse at once
             if isinstance(value, bool) or not isinstance(value, int | float) or not least <= value < math.inf:
                 raise ValueError(f"service limit {f.name} must be a positive number, got {value!r}")
+        if self.max_query_chars > MAX_QUERY_CHARS:
+            raise ValueError(f"service limit max_query_chars must be at most {MAX_QUERY_CHARS} (the limit of every "
+                             f"search entry point), got {self.max_query_chars}")
 
 
 def check_chars(name: str, value: str, limits: ServiceLimits) -> str:
-    """``value`` unless it is longer than ``limits.max_query_chars`` (413, naming the parameter)."""
+    """``value`` when the query check (:func:`retrieval.querying.check_text`) passes it under
+    ``limits.max_query_chars``; else 413 (too long) or 422 (a control character), naming the parameter."""
     from fastapi import HTTPException
 
-    if len(value) > limits.max_query_chars:
-        raise HTTPException(413, f"parameter {name!r} is {len(value)} characters; the limit is "
-                                 f"{limits.max_query_chars}")
-    return value
+    try:
+        return check_text(value, f"parameter {name!r}", limits.max_query_chars)
+    except QueryTooLongError as exc:
+        raise HTTPException(413, str(exc)) from None
+    except QueryTextError as exc:
+        raise HTTPException(422, str(exc)) from None
 
 
 class ServiceBusyError(Exception):

@@ -14,11 +14,18 @@ uvicorn's HTTP/1.1 protocol (h11) on its own leaves three gaps that this module 
   413 for a request line (a query) over ``max_request_line_bytes``, 431 for header fields over
   ``max_header_bytes``, 413 for a ``Content-Length`` over ``max_body_bytes`` and 411 for a body
   without one (chunked).
+- h11 takes any ``HTTP/d.d`` in a request line and answers it as HTTP/1.1, so a client speaking
+  another version would read an answer in a protocol it did not ask for. Here a request line whose
+  version is not HTTP/1.0 or HTTP/1.1 gets 505 (one that is not ``HTTP/d.d`` at all stays h11's 400).
 - After refusing a request the client is still sending, the server shuts its sending side, then
   reads and discards what keeps coming (up to ``max_linger_bytes``, for ``linger_s``) before
   closing, so that the client reads the refusal rather than a reset.
 
 Refusals are JSON ``{"detail": "..."}`` like every other error of the API.
+
+:func:`serve` binds its sockets itself (:func:`listen_sockets`) before uvicorn starts, so an address
+that cannot be used (a port out of range or taken, a host that does not resolve) is one
+:class:`ListenError` naming the host or the port, raised before the server announces anything.
 
 >>> serve(create_app(search, limits), "127.0.0.1", 8000, limits)
 """
@@ -26,8 +33,10 @@ Refusals are JSON ``{"detail": "..."}`` like every other error of the API.
 from __future__ import annotations
 
 import asyncio
+import errno
 import json
 import re
+import socket
 import threading
 import time
 from collections.abc import Iterator
@@ -45,6 +54,10 @@ from retrieval.service.limits import ServiceLimits
 _BLANK_LINE = re.compile(rb"\n\r?\n")
 _CONTENT_LENGTH = re.compile(rb"^content-length[ \t]*:[ \t]*([^\r\n]*?)[ \t]*\r?$", re.IGNORECASE | re.MULTILINE)
 _TRANSFER_ENCODING = re.compile(rb"^transfer-encoding[ \t]*:", re.IGNORECASE | re.MULTILINE)
+#: The version at the end of a request line, as h11 reads it (``HTTP/`` digit ``.`` digit).
+_REQUEST_VERSION = re.compile(rb" (HTTP/[0-9]\.[0-9])\r?$")
+#: The versions this server speaks: h11's HTTP/1.1, which also answers HTTP/1.0 clients.
+SUPPORTED_VERSIONS = (b"HTTP/1.0", b"HTTP/1.1")
 
 
 class GuardedH11Protocol(H11Protocol):
@@ -117,6 +130,11 @@ class GuardedH11Protocol(H11Protocol):
             return True
         if line_end < 0:
             return False
+        version = _REQUEST_VERSION.search(head, 0, line_end)
+        if version and version.group(1) not in SUPPORTED_VERSIONS:
+            self._refuse(505, f"{version.group(1).decode()} is not supported; this server speaks HTTP/1.0 and "
+                              "HTTP/1.1")
+            return True
         blank = _BLANK_LINE.search(head, line_end)
         end = blank.start() if blank else len(head)
         if end - line_end - 1 > lim.max_header_bytes:
@@ -190,9 +208,80 @@ def server_config(app: Any, host: str, port: int, limits: ServiceLimits, **uvico
     return uvicorn.Config(app, host=host, port=port, **options)
 
 
-def serve(app: Any, host: str, port: int, limits: ServiceLimits) -> None:
-    """Serve ``app`` on ``host:port`` until interrupted."""
-    uvicorn.Server(server_config(app, host, port, limits)).run()
+class ListenError(ValueError):
+    """The service cannot listen on the address asked for.
+
+    Attributes:
+        option: ``host`` or ``port``, the part of the address at fault.
+        value: the host or port as given.
+        reason: why, in a few words.
+    """
+
+    def __init__(self, option: str, value: object, reason: str) -> None:
+        self.option, self.value, self.reason = option, value, reason
+        super().__init__(f"{option} {value!r}: {reason}")
+
+
+def listen_sockets(host: str, port: int) -> list[socket.socket]:
+    """Sockets bound to ``port`` on every address ``host`` resolves to (all interfaces for ``""``),
+    not yet listening; :func:`serve` hands them to uvicorn.
+
+    As asyncio's own server does, each socket reuses a recent address (``SO_REUSEADDR``) and an IPv6
+    one takes IPv6 only, so that ``::`` and ``0.0.0.0`` do not collide.
+
+    Raises:
+        ListenError: ``port`` is not in 1 … 65535, ``host`` resolves to no address, an address is
+            not this machine's, the port is taken, or binding it needs privileges (no socket stays open).
+    """
+    if isinstance(port, bool) or not isinstance(port, int) or not 1 <= port <= 65535:
+        raise ListenError("port", port, "must be an integer in 1 … 65535")
+    try:
+        infos = socket.getaddrinfo(host or None, port, type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE)
+    except (socket.gaierror, UnicodeError, ValueError) as exc:
+        reason = exc.strerror if isinstance(exc, socket.gaierror) else str(exc)
+        raise ListenError("host", host, f"not an address of this machine nor a name that resolves ({reason})") from None
+    sockets: list[socket.socket] = []
+    for family, kind, proto, _, address in dict.fromkeys(infos):  # each address once
+        sock = socket.socket(family, kind, proto)
+        sockets.append(sock)
+        try:
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            if family == socket.AF_INET6:
+                sock.setsockopt(socket.IPPROTO_IPV6, socket.IPV6_V6ONLY, 1)
+            sock.bind(address)
+        except OSError as exc:
+            for opened in sockets:
+                opened.close()
+            raise _bind_error(host, port, str(address[0]), exc) from None
+    return sockets
+
+
+def _bind_error(host: str, port: int, address: str, exc: OSError) -> ListenError:
+    shown = f"[{address}]:{port}" if ":" in address else f"{address}:{port}"
+    if exc.errno == errno.EADDRINUSE:
+        return ListenError("port", port, f"{shown} is already in use by another program; choose another port")
+    if exc.errno in (errno.EACCES, errno.EPERM):
+        return ListenError("port", port, f"permission denied to listen on {shown} (ports below 1024 need "
+                                         "privileges); choose another port")
+    if exc.errno == errno.EADDRNOTAVAIL:
+        return ListenError("host", host, f"{address} is not an address of this machine")
+    return ListenError("host", host, f"cannot listen on {shown} ({exc.strerror or exc})")
+
+
+def serve(app: Any, host: str, port: int, limits: ServiceLimits,
+          sockets: list[socket.socket] | None = None) -> None:
+    """Serve ``app`` on ``host:port`` until interrupted, on ``sockets`` when given (from
+    :func:`listen_sockets`), else on sockets bound here.
+
+    Raises:
+        ListenError: the address cannot be used (see :func:`listen_sockets`).
+    """
+    bound = sockets if sockets is not None else listen_sockets(host, port)
+    try:
+        uvicorn.Server(server_config(app, host, port, limits)).run(sockets=bound)
+    finally:
+        for sock in bound:
+            sock.close()
 
 
 @contextmanager

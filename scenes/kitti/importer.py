@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from common.atomic import atomic_directory
+from common.folders import claimed_directory
 from scenes import av2_io
 from scenes.categories import CATEGORY_TO_AV2, KITTI_TO_CATEGORY, Category
 from scenes.errors import ImportFormatError
@@ -63,7 +63,7 @@ def write_kitti_log(
         FileExistsError: the log folder exists and ``overwrite`` is false.
     """
     target = Path(out_dir) / metadata.log_id
-    with atomic_directory(target, overwrite=overwrite) as tmp:
+    with claimed_directory(target, av2_io.LOG_FOLDER, overwrite=overwrite) as tmp:
         av2_io.write_annotations(tmp, annotations)
         av2_io.write_ego_poses(tmp, ego)
         av2_io.write_calibration(tmp, kitti_calibration_to_av2(calibration, image_size_px))

@@ -8,7 +8,9 @@ names :data:`LIDAR_SENSOR_NAME` and :attr:`CameraConfig.name`.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field
+from typing import ClassVar
 
 import numpy as np
 
@@ -39,7 +41,11 @@ class LidarConfig(ScenesConfig):
         ego_box_lwh_m: the ego's own body, which blocks rays (length, width, height of a car shape:
             a body and a cabin); (0, 0, 0) for none.
         ego_box_center_x_m: centre of the ego's body along the ego x axis.
+
+    Upper bounds: ``beams`` 256 (``laser_number`` is a uint8), ``azimuth_steps`` 16384.
     """
+
+    upper_bounds: ClassVar[Mapping[str, float]] = {"beams": 256, "azimuth_steps": 16_384}
 
     beams: int = 64
     vertical_fov_deg: tuple[float, float] = (-25.0, 15.0)
@@ -56,6 +62,7 @@ class LidarConfig(ScenesConfig):
     ego_box_center_x_m: float = 1.4
 
     def __post_init__(self) -> None:
+        super().__post_init__()
         object.__setattr__(self, "vertical_fov_deg", tuple(float(v) for v in self.vertical_fov_deg))
         object.__setattr__(self, "ego_box_lwh_m", tuple(float(v) for v in self.ego_box_lwh_m))
         if len(self.vertical_fov_deg) != 2 or not self.vertical_fov_deg[0] < self.vertical_fov_deg[1]:
@@ -64,8 +71,6 @@ class LidarConfig(ScenesConfig):
         if not (self.beams >= 1 and self.azimuth_steps >= 4):
             raise ValueError(f"LidarConfig needs beams >= 1 and azimuth_steps >= 4, got {self.beams}, "
                              f"{self.azimuth_steps}")
-        if self.beams > 256:
-            raise ValueError(f"LidarConfig.beams must fit laser_number (uint8), got {self.beams}")
         check_positive("LidarConfig", max_range_m=self.max_range_m, mount_height_m=self.mount_height_m,
                         spin_period_s=self.spin_period_s)
         if not 0 <= self.min_range_m < self.max_range_m:
@@ -104,7 +109,11 @@ class CameraConfig(ScenesConfig):
         pitch_deg: downward tilt of the optical axis.
         jpeg_quality: quality of the written JPEGs.
         max_distance_m: buildings and objects farther than this are not drawn.
+
+    Upper bounds: ``width_px`` and ``height_px`` 4096.
     """
+
+    upper_bounds: ClassVar[Mapping[str, float]] = {"width_px": 4096, "height_px": 4096}
 
     name: str = "ring_front_center"
     width_px: int = 640
@@ -118,6 +127,7 @@ class CameraConfig(ScenesConfig):
     max_distance_m: float = 150.0
 
     def __post_init__(self) -> None:
+        super().__post_init__()
         if not (self.width_px >= 8 and self.height_px >= 8):
             raise ValueError(f"CameraConfig image must be at least 8×8, got {self.width_px}×{self.height_px}")
         if not 1.0 <= self.horizontal_fov_deg <= 170.0:
@@ -159,7 +169,11 @@ class WorldConfig(ScenesConfig):
         building_size_m: (smallest, largest) footprint side.
         building_height_m: (lowest, highest) building height.
         lane_mark_width_m: width of painted lane boundaries.
+
+    Upper bounds: ``margin_m`` 1000 (the ground raster grows with the square of the world's extent).
     """
+
+    upper_bounds: ClassVar[Mapping[str, float]] = {"margin_m": 1000}
 
     raster_resolution_m: float = 0.1
     margin_m: float = 120.0
@@ -172,6 +186,7 @@ class WorldConfig(ScenesConfig):
     lane_mark_width_m: float = 0.15
 
     def __post_init__(self) -> None:
+        super().__post_init__()
         object.__setattr__(self, "building_size_m", tuple(float(v) for v in self.building_size_m))
         object.__setattr__(self, "building_height_m", tuple(float(v) for v in self.building_height_m))
         check_positive("WorldConfig", raster_resolution_m=self.raster_resolution_m, margin_m=self.margin_m,

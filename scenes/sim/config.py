@@ -2,12 +2,17 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from enum import StrEnum
+from typing import ClassVar
 
 import numpy as np
 
 from scenes.config import ScenesConfig, check_at_least, check_positive
+
+#: Simulation steps in one log, at most (an hour at 100 Hz): the steps of a log are held in memory.
+MAX_STEPS_PER_LOG = 360_000
 
 
 class NetworkKind(StrEnum):
@@ -43,7 +48,11 @@ class TrackerNoiseConfig(ScenesConfig):
         occlusion_fraction: a box is dropped when at least this fraction of its angular extent, seen
             from the ego, is hidden behind nearer boxes.
         occlusion_rays: rays sampled across each box's angular extent for the occlusion test.
+
+    Upper bounds: ``occlusion_rays`` 1024.
     """
+
+    upper_bounds: ClassVar[Mapping[str, float]] = {"occlusion_rays": 1024}
 
     center_std_m: float = 0.15
     yaw_std_rad: float = 0.03
@@ -54,6 +63,7 @@ class TrackerNoiseConfig(ScenesConfig):
     occlusion_rays: int = 16
 
     def __post_init__(self) -> None:
+        super().__post_init__()
         check_at_least("TrackerNoiseConfig", 0, center_std_m=self.center_std_m, yaw_std_rad=self.yaw_std_rad,
                        id_switch_rate_per_s=self.id_switch_rate_per_s)
         if not 0.0 <= self.miss_probability <= 1.0:
@@ -103,7 +113,17 @@ class SimulationConfig(ScenesConfig):
             the simulator's exact 0. Captions follow the jittered boxes; behaviour labels stay exact.
             Which logs: a seeded draw, apart from the map-less one. Ignored with ``tracker_noise``.
         cache_dir: folder for generated networks (default: the system temp folder).
+
+    Upper bounds: ``logs`` 100000, ``duration_s`` and ``warmup_s`` 3600, ``egos_per_run`` 256,
+    ``vehicles_per_s_per_km`` and ``pedestrians_per_s_per_km`` 10, ``parked_vehicles`` 10000,
+    ``furniture_per_km`` and ``standing_pedestrians_per_km`` 1000, and :data:`MAX_STEPS_PER_LOG` steps of
+    ``step_s`` in a log.
     """
+
+    upper_bounds: ClassVar[Mapping[str, float]] = {
+        "logs": 100_000, "duration_s": 3600, "warmup_s": 3600, "egos_per_run": 256, "vehicles_per_s_per_km": 10,
+        "pedestrians_per_s_per_km": 10, "parked_vehicles": 10_000, "furniture_per_km": 1000,
+        "standing_pedestrians_per_km": 1000}
 
     logs: int = 8
     duration_s: float = 25.0
@@ -126,6 +146,7 @@ class SimulationConfig(ScenesConfig):
     cache_dir: str | None = None
 
     def __post_init__(self) -> None:
+        super().__post_init__()
         object.__setattr__(self, "network", NetworkKind.parse(self.network))
         check_at_least("SimulationConfig", 1, logs=self.logs)
         check_positive("SimulationConfig", duration_s=self.duration_s, step_s=self.step_s, range_m=self.range_m)
@@ -139,6 +160,10 @@ class SimulationConfig(ScenesConfig):
                 raise ValueError(f"SimulationConfig.{name} must lie in [0, 1], got {share}")
         if self.duration_s < 2 * self.step_s:
             raise ValueError(f"SimulationConfig.duration_s must span at least two steps, got {self.duration_s}")
+        if self.duration_s / self.step_s > MAX_STEPS_PER_LOG:
+            raise self.config_error(f"key 'step_s': {self.duration_s:g} s in steps of {self.step_s:g} s are "
+                                    f"{self.duration_s / self.step_s:.0f} steps a log, above the upper bound "
+                                    f"{MAX_STEPS_PER_LOG}")
 
     @property
     def num_windows(self) -> int:

@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 
-from common.atomic import atomic_directory
+from common.folders import claimed_directory
 from common.ray_cluster import Execution
 from common.ray_runner import run_tasks
 from common.storage import Location, expand, is_uri, join, name_of, staged_output
@@ -209,7 +209,8 @@ class _WriteContext:
 def write_log(content: _LogContent, ctx: _WriteContext) -> str:
     """Write one log (and run the hooks on it) into a temporary folder renamed into place: one
     task of :func:`simulate_tracks_and_map`, in this process or on a Ray worker."""
-    with staged_output(ctx.out) as local, atomic_directory(local / content.log_id, overwrite=ctx.overwrite) as tmp:
+    with staged_output(ctx.out) as local, \
+            claimed_directory(local / content.log_id, av2_io.LOG_FOLDER, overwrite=ctx.overwrite) as tmp:
         content.write(tmp, ctx.vector_map, ctx.junctions)
         for hook in ctx.post_log:
             hook(tmp)

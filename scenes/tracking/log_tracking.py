@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from common.atomic import atomic_directory
+from common.folders import claimed_directory
 from scenes import av2_io
 from scenes.log import Log
 from scenes.metadata import LogMetadata
@@ -52,7 +52,7 @@ def track_log(
     target = Path(out_dir) / log_dir.name
     if target.resolve() == log_dir.resolve():
         raise ValueError(f"--out must differ from the log's own folder ({log_dir.parent})")
-    with atomic_directory(target, overwrite=overwrite) as tmp:
+    with claimed_directory(target, av2_io.LOG_FOLDER, overwrite=overwrite) as tmp:
         shutil.copytree(log_dir, tmp, dirs_exist_ok=True,
                         ignore=shutil.ignore_patterns(av2_io.ANNOTATIONS_FILENAME, ".*"))
         av2_io.write_annotations(tmp, annotations)

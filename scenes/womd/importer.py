@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from common.atomic import atomic_directory
+from common.folders import claimed_directory
 from scenes import av2_io
 from scenes.categories import CATEGORY_TO_AV2, Category
 from scenes.errors import ScenesError
@@ -313,7 +313,7 @@ def write_womd_log(
         LogFormatError: the converted log breaks the log contract (nothing is written).
     """
     target = Path(out_dir) / metadata.log_id
-    with atomic_directory(target, overwrite=overwrite) as tmp:
+    with claimed_directory(target, av2_io.LOG_FOLDER, overwrite=overwrite) as tmp:
         av2_io.write_annotations(tmp, converted.annotations)
         av2_io.write_ego_poses(tmp, converted.ego)
         map_path = av2_io.write_map(tmp, vector_map, metadata.log_id, CITY_NAME)

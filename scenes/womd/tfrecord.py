@@ -7,8 +7,9 @@ A TFRecord file is a sequence of records, each::
     byte   data[length]
     uint32 masked_crc32c(data)
 
-Both checksums are verified; a mismatch or a file that ends inside a record raises
-:class:`WomdFormatError` naming the file and the 0-based record index.
+Both checksums are verified; a mismatch, a file that ends inside a record, or a length that claims
+more bytes than the file has left raises :class:`WomdFormatError` naming the file and the 0-based
+record index. Gzip-compressed files are read transparently.
 
 CRC-32C (Castagnoli) is not in the standard library. :func:`crc32c` computes it with numpy: the
 data is cut into equal rows whose CRCs advance together one byte column at a time, and the row
@@ -19,8 +20,11 @@ A record of 1 MB costs a few milliseconds instead of the ~0.1 s of a byte loop i
 from __future__ import annotations
 
 import functools
+import gzip
+import os
 import struct
-from collections.abc import Iterator
+import zlib
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -160,7 +164,7 @@ class Record:
 
     Attributes:
         index: 0-based record number in the file.
-        offset: byte offset of the record's header.
+        offset: byte offset of the record's header (in the decompressed stream of a gzip file).
         data: the payload.
     """
 
@@ -187,39 +191,86 @@ def iter_records(path: Path | str) -> Iterator[Record | WomdFormatError]:
     """Like :func:`read_records`, but a record whose data fails its CRC is yielded as its error and
     reading goes on with the next one (its length was verified, so the framing still holds).
 
+    A gzip-compressed file (it starts with the gzip magic bytes ``1f 8b``; TensorFlow writes these
+    with ``compression_type="GZIP"``) is decompressed on the fly; record offsets then count bytes of
+    the decompressed stream. A record length is checked against the bytes left in the file before
+    anything is read, so a corrupt length never allocates more memory than the file holds.
+
     Raises:
         FileNotFoundError: the file does not exist.
-        WomdFormatError: the file ends inside a record or a length fails its CRC (nothing after it
-            can be framed).
+        WomdFormatError: the file ends inside a record, a length fails its CRC or claims more bytes
+            than the file has left (nothing after it can be framed), or the gzip stream is corrupt.
     """
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"{path}: no such file")
-    with path.open("rb") as f:
-        index = 0
-        offset = 0
-        while True:
-            header = f.read(_HEADER.size)
-            if not header:
-                return
-            if len(header) < _HEADER.size:
+    with path.open("rb") as raw:
+        if raw.read(len(_GZIP_MAGIC)) == _GZIP_MAGIC:
+            raw.seek(0)
+            with gzip.GzipFile(fileobj=raw, mode="rb") as unzipped:
+                yield from _frames(path, unzipped.read, None)
+        else:
+            raw.seek(0)
+            yield from _frames(path, raw.read, os.fstat(raw.fileno()).st_size)
+
+
+#: The first bytes of a gzip stream.
+_GZIP_MAGIC = b"\x1f\x8b"
+#: Bytes read at a time from a stream whose size is unknown (gzip), so that a corrupt record length
+#: costs no more memory than the data actually there.
+_CHUNK_BYTES = 1 << 24
+
+
+def _read(path: Path, read: Callable[[int], bytes], num_bytes: int, index: int) -> bytes:
+    """Up to ``num_bytes`` bytes from ``read`` (fewer at its end), read in chunks; a corrupt gzip
+    stream is a :class:`WomdFormatError` of record ``index``."""
+    parts = []
+    try:
+        while num_bytes > 0:
+            part = read(min(num_bytes, _CHUNK_BYTES))
+            if not part:
+                break
+            parts.append(part)
+            num_bytes -= len(part)
+    except (OSError, EOFError, zlib.error) as exc:
+        raise WomdFormatError(path, f"gzip-compressed file is corrupt or truncated: {exc}", index) from exc
+    return b"".join(parts)
+
+
+def _frames(path: Path, read: Callable[[int], bytes], size: int | None) -> Iterator[Record | WomdFormatError]:
+    """The records of the stream that ``read`` reads; ``size``: the file's size in bytes, None when unknown (gzip)."""
+    index = 0
+    offset = 0
+    where = "decompressed stream" if size is None else "file"
+    while True:
+        header = _read(path, read, _HEADER.size, index)
+        if not header:
+            return
+        if len(header) < _HEADER.size:
+            raise WomdFormatError(
+                path, f"truncated: the {where} ends inside a record header at byte {offset + len(header)}", index
+            )
+        length, length_crc = _HEADER.unpack(header)
+        if masked_crc32c(header[:8]) != length_crc:
+            raise WomdFormatError(path, f"corrupt record length at byte {offset} (CRC mismatch)", index)
+        if size is not None:
+            left = size - offset - _HEADER.size
+            if length + _FOOTER.size > left:
                 raise WomdFormatError(
-                    path, f"truncated: the file ends inside a record header at byte {offset + len(header)}", index
+                    path, f"truncated: the record at byte {offset} declares {length} bytes of data, but only "
+                    f"{left} bytes are left in the file (data and CRC need {length + _FOOTER.size})", index
                 )
-            length, length_crc = _HEADER.unpack(header)
-            if masked_crc32c(header[:8]) != length_crc:
-                raise WomdFormatError(path, f"corrupt record length at byte {offset} (CRC mismatch)", index)
-            data = f.read(length)
-            footer = f.read(_FOOTER.size)
-            if len(data) < length or len(footer) < _FOOTER.size:
-                raise WomdFormatError(
-                    path, f"truncated: the record at byte {offset} declares {length} bytes, "
-                    f"the file ends {len(data) + len(footer)} bytes into it", index
-                )
-            (data_crc,) = _FOOTER.unpack(footer)
-            if masked_crc32c(data) != data_crc:
-                yield WomdFormatError(path, f"corrupt record data at byte {offset} (CRC mismatch)", index)
-            else:
-                yield Record(index, offset, data)
-            offset += _HEADER.size + length + _FOOTER.size
-            index += 1
+        data = _read(path, read, length, index)
+        footer = _read(path, read, _FOOTER.size, index)
+        if len(data) < length or len(footer) < _FOOTER.size:
+            raise WomdFormatError(
+                path, f"truncated: the record at byte {offset} declares {length} bytes, "
+                f"the {where} ends {len(data) + len(footer)} bytes into it", index
+            )
+        (data_crc,) = _FOOTER.unpack(footer)
+        if masked_crc32c(data) != data_crc:
+            yield WomdFormatError(path, f"corrupt record data at byte {offset} (CRC mismatch)", index)
+        else:
+            yield Record(index, offset, data)
+        offset += _HEADER.size + length + _FOOTER.size
+        index += 1

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from dataclasses import replace
 from pathlib import Path
 
@@ -102,3 +103,20 @@ def test_frame_sampling_is_uniform_and_repeats_short_windows() -> None:
     assert window_frames(ts, 1_200, 1_500, 10) == (2, 5)
     assert window_frames(ts, 500, 1_500, 10) is None
     assert window_frames(ts, 1_200, 9_000, 10) is None
+
+
+@pytest.mark.parametrize(("data", "message"), [
+    ({"frames_per_clip": 257}, "key 'frames_per_clip': 257 is above its upper bound 256"),
+    ({"camera": {"width_px": 5000}}, "key 'camera.width_px': 5000 is above its upper bound 4096"),
+    ({"bev": {"num_sweeps": 51}}, "key 'bev.num_sweeps': 51 is above its upper bound 50"),
+    ({"bev": {"resolution_m": 0.001}}, "at most 2048 along a side"),
+    ({"bev": {"z_bins_m": list(range(70))}}, "at most 64 height bins"),
+])
+def test_sizes_above_their_bounds_are_refused(data: dict[str, object], message: str) -> None:
+    with pytest.raises(ClipsConfigError, match=re.escape(message)):
+        ClipsConfig.from_dict(data, source="clips.yaml")
+
+
+def test_sizes_at_their_bounds_are_taken() -> None:
+    config = ClipsConfig.from_dict({"frames_per_clip": 256, "bev": {"num_sweeps": 50}})
+    assert config.frames_per_clip == 256 and config.bev.num_sweeps == 50

@@ -4,12 +4,23 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import re
 from pathlib import Path
 
 import pytest
 
 import common.config
-from encoders.config import BevConfig, ConfigError, FusionConfig, TrainConfig
+from encoders.config import (
+    BevConfig,
+    CameraConfig,
+    ConfigError,
+    DualEncoderConfig,
+    FusionConfig,
+    TemporalConfig,
+    TextConfig,
+    TrainConfig,
+)
+from encoders.tagging.config import TagTrainConfig
 
 
 @pytest.mark.parametrize("preset", ["default", "tiny"])
@@ -121,3 +132,70 @@ def test_a_tagging_checkpoint_written_before_the_presence_weights_resumes() -> N
     check_resume_tagging(new, old)  # type: ignore[arg-type]  # what the keys weigh has no row in an older head
     with pytest.raises(ConfigError, match="tagging.joint_weight"):
         check_resume_tagging(new, {**old, "joint_weight": 2.0})  # type: ignore[arg-type]
+
+
+# --- upper bounds -----------------------------------------------------------------------------------
+
+#: Where each bounded config sits in a TrainConfig file (its keys are named from the top).
+BOUNDED_PLACES: dict[type[common.config.YamlConfig], str] = {
+    TrainConfig: "", DualEncoderConfig: "model.", TextConfig: "model.text.", CameraConfig: "model.camera.",
+    TemporalConfig: "model.camera.temporal.", BevConfig: "model.bev.", FusionConfig: "model.fusion."}
+#: Other values a field needs at its bound (heads divide the width; time slots go with the slots text tower).
+AT_BOUND_COMPANIONS: dict[str, dict[str, object]] = {
+    "model.camera.temporal.heads": {"model.camera.temporal.width": 256},
+    "model.time_slots": {"model.text.kind": "slots", "model.slot_dim": 16, "model.embed_dim": 8192}}
+BOUNDED_KEYS = [(f"{prefix}{key}", bound) for cls, prefix in BOUNDED_PLACES.items()
+                for key, bound in cls.upper_bounds.items()]
+
+
+def nested(values: dict[str, object]) -> dict[str, object]:
+    """``{"a.b": 1}`` → ``{"a": {"b": 1}}``."""
+    data: dict[str, object] = {}
+    for dotted, value in values.items():
+        *parents, last = dotted.split(".")
+        node = data
+        for part in parents:
+            node = node.setdefault(part, {})  # type: ignore[assignment]
+        node[last] = value
+    return data
+
+
+def _value(path: str, number: float) -> object:
+    return [number] if path.endswith("widths") else number  # widths: each stage's bound
+
+
+def test_every_bounded_config_has_a_place_and_a_documented_bound() -> None:
+    for cls in BOUNDED_PLACES:
+        assert cls.upper_bounds and "Upper bounds:" in (cls.__doc__ or "")
+        assert set(cls.upper_bounds) <= {f.name for f in dataclasses.fields(cls)}  # type: ignore[arg-type]
+    assert "Upper bounds:" in (TagTrainConfig.__doc__ or "")
+
+
+@pytest.mark.parametrize(("path", "bound"), BOUNDED_KEYS, ids=[path for path, _ in BOUNDED_KEYS])
+def test_a_size_above_its_bound_is_refused_naming_the_key(path: str, bound: float) -> None:
+    with pytest.raises(ConfigError, match=rf"train\.yaml: key '{re.escape(path)}': .* above its upper bound {bound:g}"):
+        TrainConfig.from_dict(nested({path: _value(path, bound + 1)}), source="train.yaml")
+
+
+@pytest.mark.parametrize(("path", "bound"), BOUNDED_KEYS, ids=[path for path, _ in BOUNDED_KEYS])
+def test_a_size_at_its_bound_is_accepted(path: str, bound: float) -> None:
+    config = TrainConfig.from_dict(nested({path: _value(path, bound), **AT_BOUND_COMPANIONS.get(path, {})}))
+    value: object = config
+    for part in path.split("."):
+        value = getattr(value, part)
+    assert value == (bound,) if path.endswith("widths") else value == bound
+
+
+def test_the_bound_message_names_the_file_key_and_bound() -> None:
+    with pytest.raises(ConfigError) as info:
+        TrainConfig.from_yaml_text("epochs: 1000000000\n", source="train.yaml")
+    assert str(info.value) == "train.yaml: key 'epochs': 1000000000 is above its upper bound 10000"
+    with pytest.raises(ConfigError, match="key 'batch_size': 5000 is above its upper bound 4096"):
+        TrainConfig(batch_size=5000)  # built in code, too
+
+
+@pytest.mark.parametrize(("key", "bound"), list(TagTrainConfig.upper_bounds.items()))
+def test_tag_training_sizes_are_bounded(key: str, bound: float) -> None:
+    with pytest.raises(ConfigError, match=rf"tagging\.json: key '{key}': .* above its upper bound {bound:g}"):
+        TagTrainConfig.from_dict({key: bound + 1}, source="tagging.json")
+    assert getattr(TagTrainConfig.from_dict({key: bound}), key) == bound

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from typing import Any
 
 import numpy as np
@@ -12,7 +13,18 @@ from indexes.clip_index import ClipIndex
 from indexes.filters import Condition, Op
 from indexes.metadata import MetadataStore
 from retrieval.errors import FilterSyntaxError, InvalidKError
-from retrieval.querying import MAX_K, Query, build_query, check_k, hits_to_results, parse_cli_filters
+from retrieval.querying import (
+    MAX_K,
+    MAX_QUERY_CHARS,
+    Query,
+    QueryTextError,
+    QueryTooLongError,
+    build_query,
+    check_k,
+    check_query,
+    hits_to_results,
+    parse_cli_filters,
+)
 
 ROWS = [{"clip_id": f"c{i}", "category": ["car", "truck", "pedestrian"][i % 3], "start_ns": 10 * i,
          "tags": [["left:approach"], ["host:stop"], []][i % 3]} for i in range(6)]
@@ -88,3 +100,36 @@ def test_the_camera_view_keeps_to_the_clips_the_camera_saw(metadata: MetadataSto
         Condition("category", Op.EQ, "car"), camera)
     assert build_query(3, None, seen, 6, view="fused").filters is None  # other views: every clip
     assert build_query(3, None, metadata, 6, view="camera").filters is None  # an index that does not record it
+
+
+@pytest.mark.parametrize(("text", "error", "needle"), [
+    ("x" * (MAX_QUERY_CHARS + 1), QueryTooLongError,
+     f"query is {MAX_QUERY_CHARS + 1} characters; the limit is {MAX_QUERY_CHARS}"),
+    ("a car\x00", QueryTextError, "query holds the control character U+0000 at character 5"),
+    ("a car\x1b[2J", QueryTextError, "control character U+001B"),
+    ("a car\x85", QueryTextError, "control character U+0085"),
+    ("a car\x0b", QueryTextError, "control character U+000B"),
+    ("a car\udcff", QueryTextError, "query is not valid UTF-8: byte 0xff at character 5"),
+    ("a car\ud800", QueryTextError, "query is not valid text: lone surrogate U+D800"),
+])
+def test_a_query_is_short_text(text: str, error: type[Exception], needle: str) -> None:
+    with pytest.raises(error, match=re.escape(needle)):
+        check_query(text)
+
+
+def test_ordinary_whitespace_and_any_script_pass_and_the_name_and_limit_are_the_callers() -> None:
+    assert check_query(" a car\tturns\r\nleft — 左折 🚗 ") == "a car\tturns\r\nleft — 左折 🚗"
+    assert check_query("x" * MAX_QUERY_CHARS) == "x" * MAX_QUERY_CHARS
+    with pytest.raises(QueryTooLongError, match="^parameter 'q' is 11 characters; the limit is 10$"):
+        check_query("x" * 11, "parameter 'q'", max_chars=10)
+
+
+def test_every_search_of_the_api_takes_the_one_query_check(built: dict[str, Any]) -> None:
+    """SceneSearch and CaptionSearch refuse what the CLI and the service refuse, before any model runs."""
+    search = built["search"]
+    long_query = "a car approaches " * 6200  # about 104 kB
+    for call in (search.search_text, search.search_hybrid, search.search_captions, search.captions.search):
+        with pytest.raises(QueryTooLongError, match=f"^query is {len(long_query)} characters; the limit is 500$"):
+            call(long_query)
+        with pytest.raises(QueryTextError, match="U\\+0000"):
+            call("a car\x00 approaches")

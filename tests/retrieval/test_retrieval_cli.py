@@ -102,6 +102,22 @@ def test_bad_input_exits_2(stand_in: dict[str, Any], capsys: pytest.CaptureFixtu
     assert message in capsys.readouterr().err
 
 
+@pytest.mark.parametrize(("argv", "message"), [
+    (["search", "{index}", "a car approaches " * 6200], "argument QUERY is 105400 characters; the limit is 500"),
+    (["search", "{index}", "a car\x00 approaches"], "argument QUERY holds the control character U+0000"),
+    (["search", "{index}", "a car\udcff"], "argument QUERY is not valid UTF-8: byte 0xff at character 5"),
+    (["search", "{index}", "a car", "--captions", "--filter", "category=car\x07"],
+     "--filter holds the control character U+0007"),
+    (["similar", "{index}", "x" * 600], "argument CLIP_ID is 600 characters; the limit is 500"),
+], ids=["long-query", "nul", "not-utf8", "filter-control", "long-clip-id"])
+def test_the_cli_takes_the_query_check_of_the_api_and_the_service(
+        stand_in: dict[str, Any], capsys: pytest.CaptureFixture[str], argv: list[str], message: str) -> None:
+    args = [a.replace("{index}", str(stand_in["index"])) for a in argv]
+    assert main(args) == 2
+    out, err = capsys.readouterr()
+    assert out == "" and err.startswith(f"scenesearch {argv[0]}: error: {message}") and err.count("\n") == 1, err
+
+
 def test_similar_and_export(stand_in: dict[str, Any], tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     clip_id = str(pq.read_table(stand_in["clips"] / "clips.parquet").column("clip_id")[5])
     assert main(["similar", str(stand_in["index"]), clip_id, "-k", "3", "--json"]) == 0

@@ -10,6 +10,8 @@ from __future__ import annotations
 import http.client
 import json
 import socket
+import subprocess
+import sys
 import threading
 import time
 from collections.abc import Iterator
@@ -47,7 +49,8 @@ def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any]]
     search.search_captions = search_captions  # type: ignore[method-assign]
     app = create_app(search, LIMITS)
     with serving_in_thread(app, LIMITS) as url:
-        yield {"port": int(url.rsplit(":", 1)[1]), "url": url, "holds": holds, "gate": app.state.search_gate}
+        yield {"port": int(url.rsplit(":", 1)[1]), "url": url, "holds": holds, "gate": app.state.search_gate,
+               "index": root / "index"}
         for event in holds.values():
             event.set()
 
@@ -163,6 +166,49 @@ def test_malformed_requests_get_400(server: dict[str, Any]) -> None:
     with _connect(server) as sock:
         sock.sendall(b"NOT HTTP AT ALL\r\n\r\n")
         assert _status_and_detail(_read_all(sock))[0] == 400
+
+
+@pytest.mark.parametrize("version", [b"HTTP/9.9", b"HTTP/2.0", b"HTTP/1.2", b"HTTP/0.9"])
+def test_other_http_versions_get_505(server: dict[str, Any], version: bytes) -> None:
+    with _connect(server) as sock:
+        sock.sendall(b"GET /health " + version + b"\r\nHost: x\r\n\r\n")
+        raw = _read_all(sock)
+    status, detail = _status_and_detail(raw)
+    assert raw.startswith(b"HTTP/1.1 505 HTTP Version Not Supported\r\n")
+    assert status == 505 and detail == f"{version.decode()} is not supported; this server speaks HTTP/1.0 and HTTP/1.1"
+
+
+def test_http_1_0_and_1_1_are_answered(server: dict[str, Any]) -> None:
+    for version in (b"HTTP/1.0", b"HTTP/1.1"):
+        with _connect(server) as sock:
+            sock.sendall(b"GET /health " + version + b"\r\nHost: x\r\nConnection: close\r\n\r\n")
+            raw = _read_all(sock)
+        assert raw.startswith(b"HTTP/1.1 200 OK\r\n") and json.loads(raw.partition(b"\r\n\r\n")[2])["status"] == "ok"
+
+
+def test_serve_announces_itself_only_once_it_holds_its_port(server: dict[str, Any]) -> None:
+    """``scenesearch serve`` binds before it announces: a second one on the same port is one line, exit 2."""
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    command = [sys.executable, "-u", "-m", "retrieval.cli", "serve", str(server["index"]), "--no-warmup",
+               "--port", str(port)]
+    first = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert first.stdout is not None
+        line = first.stdout.readline()
+        assert line.startswith(f"serving {server['index']}") and f"http://127.0.0.1:{port}/" in line, line
+        assert httpx.get(f"http://127.0.0.1:{port}/health", timeout=10).json()["status"] == "ok"
+        second = subprocess.run(command, capture_output=True, text=True, timeout=120)
+        assert second.returncode == 2 and second.stdout == ""
+        assert second.stderr == (f"scenesearch serve: error: --port {port}: 127.0.0.1:{port} is already in use by "
+                                 "another program; choose another port\n")
+    finally:
+        first.terminate()
+        first.wait(timeout=30)
+    out_of_range = subprocess.run([*command[:-1], "70000"], capture_output=True, text=True, timeout=120)
+    assert out_of_range.returncode == 2 and out_of_range.stdout == ""
+    assert out_of_range.stderr == "scenesearch serve: error: --port 70000: must be an integer in 1 … 65535\n"
 
 
 def test_past_the_search_slots_requests_get_429_with_retry_after(server: dict[str, Any]) -> None:

@@ -49,6 +49,10 @@ def client(search: SceneSearch) -> TestClient:
         ("/api/search", {"q": "car", "filter": "category=" + "x" * 300}, 413, "parameter 'filter'"),
         ("/api/search", {"q": "car", "filter": ["category=car"] * 9}, 422, "at most 8 filters"),
         ("/api/export", {"q": "x" * 201}, 413, "parameter 'q'"),
+        ("/api/search", {"q": "car\x00", "mode": "captions"}, 422, "parameter 'q' holds the control character U+0000"),
+        ("/api/search", {"q": "car\x07"}, 422, "parameter 'q' holds the control character U+0007"),
+        ("/api/search", {"q": "car", "filter": "category=car\x1b"}, 422, "parameter 'filter' holds the control"),
+        ("/api/export", {"q": "car\x00"}, 422, "parameter 'q' holds the control character U+0000"),
         ("/api/export", {"ids": "a", "view": "lidar"}, 422, "unknown view"),
         ("/api/fields", {"verbose": 1}, 422, "unknown parameter 'verbose' for /api/fields; valid parameters: none"),
         ("/health", {"x": 1}, 422, "unknown parameter 'x'"),
@@ -59,6 +63,25 @@ def test_every_parameter_is_checked(client: TestClient, path: str, params: dict[
     response = client.get(path, params=params)
     assert response.status_code == status, response.text
     assert needle in response.json()["detail"]
+
+
+@pytest.mark.parametrize(("query", "needle"), [
+    ("q=car%FF&mode=captions", "parameter 'q' is not valid UTF-8: byte 0xff at byte 3"),
+    ("q=%C3%28", "parameter 'q' is not valid UTF-8: byte 0xc3 at byte 0"),
+    ("q=car&filter=category%3D%ED%A0%80", "parameter 'filter' is not valid UTF-8"),  # an encoded surrogate
+])
+def test_a_parameter_that_is_not_utf8_gets_422_naming_it(client: TestClient, query: str, needle: str) -> None:
+    """Starlette would pass such bytes on as replacement characters; the service refuses them instead."""
+    response = client.get(f"/api/search?{query}")
+    assert response.status_code == 422 and needle in response.json()["detail"], response.text
+
+
+def test_the_service_limit_on_queries_is_the_api_limit() -> None:
+    from retrieval.querying import MAX_QUERY_CHARS
+
+    assert ServiceLimits().max_query_chars == MAX_QUERY_CHARS
+    with pytest.raises(ValueError, match=f"max_query_chars must be at most {MAX_QUERY_CHARS}"):
+        ServiceLimits(max_query_chars=MAX_QUERY_CHARS + 1)
 
 
 def test_repeatable_parameters_may_repeat_and_valid_views_pass(client: TestClient) -> None:
@@ -300,3 +323,45 @@ def test_serve_refuses_bad_limits_before_serving(search: SceneSearch, capsys: py
 
     assert main(["serve", str(search.index_dir), "--request-timeout-s", "0"]) == 2
     assert "request_timeout_s must be a positive number" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(("options", "needle"), [
+    (["--port", "70000"], "--port 70000: must be an integer in 1 … 65535"),
+    (["--port", "0"], "--port 0: must be an integer in 1 … 65535"),
+    (["--port", "-1"], "--port -1: must be an integer in 1 … 65535"),
+    (["--host", "no-such-host.invalid"], "--host 'no-such-host.invalid': not an address of this machine nor a name"),
+    (["--host", "192.0.2.1"], "--host '192.0.2.1': 192.0.2.1 is not an address of this machine"),
+])
+def test_serve_refuses_an_address_it_cannot_listen_on_in_one_line(
+        search: SceneSearch, capsys: pytest.CaptureFixture[str], options: list[str], needle: str) -> None:
+    from retrieval.cli import main
+
+    assert main(["serve", str(search.index_dir), "--no-warmup", *options]) == 2
+    out, err = capsys.readouterr()
+    assert "serving" not in out
+    assert err.startswith(f"scenesearch serve: error: {needle}") and err.count("\n") == 1, err
+
+
+def test_serve_refuses_a_taken_port_and_one_it_may_not_bind(search: SceneSearch, capsys: pytest.CaptureFixture[str],
+                                                            monkeypatch: pytest.MonkeyPatch) -> None:
+    import errno
+    import socket
+
+    from retrieval.cli import main
+
+    with socket.create_server(("127.0.0.1", 0)) as taken:
+        port = taken.getsockname()[1]
+        assert main(["serve", str(search.index_dir), "--no-warmup", "--port", str(port)]) == 2
+    out, err = capsys.readouterr()
+    assert "serving" not in out
+    assert err == f"scenesearch serve: error: --port {port}: 127.0.0.1:{port} is already in use by another program; " \
+                  "choose another port\n"
+
+    class NoPermission(socket.socket):
+        def bind(self, address: Any) -> None:
+            raise PermissionError(errno.EACCES, "Permission denied")
+
+    monkeypatch.setattr(socket, "socket", NoPermission)
+    assert main(["serve", str(search.index_dir), "--no-warmup", "--port", "80"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("scenesearch serve: error: --port 80: permission denied to listen on 127.0.0.1:80")

@@ -1,8 +1,8 @@
 """Development AV2 logs of ../shared/realdata for the reader tests, and rewritten copies of them.
 
-A rewritten log is a fixture with only ``annotations.feather`` replaced (in a temporary folder; every
-other entry links to the fixture, nothing is copied into the repository). The variants are the row
-orders real releases use.
+A rewritten log is a fixture with one table (``annotations.feather`` unless named) replaced (in a
+temporary folder; every other entry links to the fixture, nothing is copied into the repository). The
+variants are the row orders real releases use.
 """
 
 from __future__ import annotations
@@ -32,15 +32,17 @@ def require(path: Path) -> Path:
     return path
 
 
-def rewritten_log(source: Path, dest: Path, change: Callable[[pa.Table], pa.Table]) -> Path:
-    """A copy of ``source`` whose ``annotations.feather`` is ``change(original)``; every other entry is a
-    link to the fixture (read-only, nothing copied)."""
+def rewritten_log(
+    source: Path, dest: Path, change: Callable[[pa.Table], pa.Table], filename: str = av2_io.ANNOTATIONS_FILENAME
+) -> Path:
+    """A copy of ``source`` whose table ``filename`` (``annotations.feather`` unless named) is
+    ``change(original)``; every other entry is a link to the fixture (read-only, nothing copied)."""
     dest.mkdir(parents=True)
     for entry in source.iterdir():
-        if entry.name != av2_io.ANNOTATIONS_FILENAME:
+        if entry.name != filename:
             (dest / entry.name).symlink_to(entry, target_is_directory=entry.is_dir())
-    table = feather.read_table(source / av2_io.ANNOTATIONS_FILENAME)
-    feather.write_feather(change(table), dest / av2_io.ANNOTATIONS_FILENAME)
+    table = feather.read_table(source / filename)
+    feather.write_feather(change(table), dest / filename)
     return dest
 
 

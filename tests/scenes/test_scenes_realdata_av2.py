@@ -6,11 +6,15 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import pyarrow as pa
 import pytest
 
+from scenes import av2_io
 from scenes.categories import Category
+from scenes.errors import LogFormatError
 from scenes.log import Log
 from scenes.validate import validate_log
+from tests.scenes.av2_fixtures import rewritten_log
 
 REALDATA = Path(__file__).resolve().parents[2].parent / "shared" / "realdata"
 LOG_7FAB = REALDATA / "av2" / "7fab2350-7eaf-3b7e-a39d-6937a4c1bede"
@@ -118,3 +122,40 @@ def test_7fab_parked_cars_are_still_in_the_city_frame(log_7fab: Log) -> None:
               for t in long_cars]
     # The ego travels ~70 m and turns; parked cars still stay put within a metre in the city frame.
     assert sum(s < 1.0 for s in spread) >= 15
+
+
+def test_7fab_with_an_8_s_gap_in_its_poses_is_refused(tmp_path: Path) -> None:
+    """Poses dropped from 3 s to 11 s: the annotation frames inside would be given interpolated poses."""
+    source = _require(LOG_7FAB)
+
+    def drop(table: pa.Table) -> pa.Table:
+        ts = table.column("timestamp_ns").to_numpy()
+        return table.filter(pa.array((ts < ts[0] + 3_000_000_000) | (ts > ts[0] + 11_000_000_000)))
+
+    log_dir = rewritten_log(source, tmp_path / source.name, drop, av2_io.POSES_FILENAME)
+    with pytest.raises(LogFormatError) as info:
+        Log.open(log_dir)
+    [problem] = info.value.problems
+    assert (problem.path.name, problem.field) == (av2_io.POSES_FILENAME, "timestamp_ns")
+    assert "s apart, more than the limit of 1 s" in problem.message
+    assert validate_log(log_dir).problems == [problem]
+    assert len(Log.open(log_dir, max_pose_gap_s=10.0).tracks()) == 114
+
+
+def test_7fab_cut_to_one_frame_reports_one_frame(tmp_path: Path) -> None:
+    """Its two sweeps lie 11.6 s after the first frame: they are counted as sweeps, not as frames."""
+    source = _require(LOG_7FAB)
+
+    def first_frame(table: pa.Table) -> pa.Table:
+        ts = table.column("timestamp_ns").to_numpy()
+        return table.filter(pa.array(ts == ts.min()))
+
+    report = validate_log(rewritten_log(source, tmp_path / source.name, first_frame))
+    assert report.ok, report.problems
+    assert (report.facts["frames"], report.facts["duration_s"], report.facts["lidar_sweeps"]) == (1, 0.0, 2)
+
+
+@pytest.mark.parametrize("log_path", [LOG_7FAB, LOG_ADCF], ids=["7fab2350", "adcf7d18"])
+def test_development_logs_hold_within_the_plausibility_bounds(log_path: Path) -> None:
+    report = validate_log(_require(log_path))
+    assert report.ok, report.problems

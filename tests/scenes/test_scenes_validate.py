@@ -473,6 +473,187 @@ def test_unreadable_metadata(log_dir: Path) -> None:
     assert problem.path.name == "log_metadata.json"
 
 
+# ---- implausible values, ambiguous files and vague causes: refused by the readers, named by validate
+
+
+def test_two_map_archives_are_refused_naming_both(log_dir: Path) -> None:
+    """An extra (empty) archive beside the map: which one is the log's map is ambiguous, so neither is used."""
+    real = av2_io.find_map_file(log_dir)
+    assert real is not None
+    extra = real.parent / "log_map_archive_extra____PIT_city_1.json"
+    extra.write_text(json.dumps({"lane_segments": {}, "pedestrian_crossings": {}, "drivable_areas": {}}))
+    with pytest.raises(LogFormatError) as info:
+        av2_io.find_map_file(log_dir)
+    problem = _only(info.value.problems)
+    assert problem.path == real.parent and real.name in problem.message and extra.name in problem.message
+    with pytest.raises(LogFormatError):
+        _ = Log.open(log_dir).map
+    report = validate_log(log_dir)
+    assert report.problems == [problem] and not any("no map" in w for w in report.warnings)
+
+
+def _drop_poses_between(t_from_ns: int, t_to_ns: int) -> Callable[[pa.Table], pa.Table]:
+    def change(t: pa.Table) -> pa.Table:
+        ts = t.column("timestamp_ns").to_numpy()
+        return t.filter(pa.array((ts <= t_from_ns) | (ts >= t_to_ns)))
+
+    return change
+
+
+def test_gap_in_ego_poses_is_refused_not_interpolated(log_dir: Path) -> None:
+    """Poses at 20 Hz with the 5 poses from 50 to 250 ms dropped: annotation frames at 100 and
+    200 ms would get poses made up across a 300 ms gap."""
+    _edit(log_dir / POSES, _drop_poses_between(T0, T0 + 300_000_000))
+    with pytest.raises(LogFormatError) as info:
+        Log.open(log_dir, max_pose_gap_s=0.25)
+    problem = _only(info.value.problems)
+    assert (problem.path.name, problem.field, problem.row) == (POSES, "timestamp_ns", 1)
+    for text in (f"ego poses at {T0} (row 0) and {T0 + 300_000_000} (row 1)", "0.300 s apart",
+                 "limit of 0.25 s", f"annotation timestamp {T0 + 100_000_000}", "max_pose_gap_s"):
+        assert text in problem.message
+    assert validate_log(log_dir, max_pose_gap_s=0.25).problems == [problem]
+    assert Log.open(log_dir).annotations is not None  # the documented default (1 s) allows 300 ms
+    assert validate_log(log_dir).ok
+
+
+def test_default_pose_gap_limit_refuses_a_long_gap(tmp_path: Path) -> None:
+    log_dir = _write_log(tmp_path / "log")
+    """Two poses 2 s apart around frames every 400 ms: refused at the default limit, accepted when raised."""
+    _edit(log_dir / POSES, lambda t: _set(t.slice(0, 2), "timestamp_ns", [T0, T0 + 2_000_000_000], pa.int64()))
+    _edit(log_dir / ANN, lambda t: _set(t, "timestamp_ns", np.repeat(T0 + np.arange(5) * 400_000_000, 3), pa.int64()))
+    problem = _only(_open_problems(log_dir))
+    assert problem.path.name == POSES and f"limit of {schema.DEFAULT_MAX_POSE_GAP_S:g} s" in problem.message
+    assert Log.open(log_dir, max_pose_gap_s=2.5).annotations is not None
+
+
+def test_annotation_on_a_pose_timestamp_is_not_interpolated(log_dir: Path) -> None:
+    """Annotations exactly at pose timestamps (KITTI, WOMD) need no interpolation: sparse poses pass."""
+    _edit(log_dir / POSES, lambda t: t.take(pa.array([0, 2, 4, 6, 8])))  # every 100 ms, on the frames
+    assert Log.open(log_dir, max_pose_gap_s=0.01).annotations is not None
+
+
+@pytest.mark.parametrize(
+    ("filename", "column", "row", "value", "message"),
+    [
+        pytest.param(POSES, "tx_m", 2, 1e12, "city-frame coordinate 1e+12 m is beyond the bound of ±1e+07 m",
+                     id="pose-far-from-the-city-origin"),
+        pytest.param(ANN, "ty_m", 4, 1e12, "ego-frame coordinate 1e+12 m is beyond the bound of ±1000 m",
+                     id="box-centre-far-from-the-ego"),
+        pytest.param(ANN, "tz_m", 6, -1500.0, "ego-frame coordinate -1500 m", id="box-centre-below-the-ego"),
+        pytest.param(ANN, "length_m", 8, 1e9, "box size 1e+09 m exceeds the bound of 60 m", id="box-1e9-m-long"),
+    ],
+)
+def test_implausible_values_name_file_row_field_value_and_bound(
+    log_dir: Path, filename: str, column: str, row: int, value: float, message: str
+) -> None:
+    def edit(t: pa.Table) -> pa.Table:
+        values = t.column(column).to_numpy().copy()
+        values[row] = value
+        return _set(t, column, values, t.column(column).type)
+
+    _edit(log_dir / filename, edit)
+    problem = _only(_open_problems(log_dir))
+    assert (problem.path.name, problem.row, problem.field) == (filename, row, column)
+    assert message in problem.message
+
+
+def test_poses_shifted_far_away_are_refused(log_dir: Path) -> None:
+    """Every pose moved by 1e12 m: no jump between poses, but far beyond any city frame."""
+    _edit(log_dir / POSES, lambda t: _set(t, "ty_m", t.column("ty_m").to_numpy() + 1e12, pa.float64()))
+    problem = _only(_open_problems(log_dir))
+    assert (problem.path.name, problem.row, problem.field) == (POSES, 0, "ty_m")
+
+
+def test_map_point_far_away_is_refused_by_the_reader(log_dir: Path) -> None:
+    map_path = av2_io.find_map_file(log_dir)
+    assert map_path is not None
+    data = json.loads(map_path.read_text())
+    data["lane_segments"]["1"]["right_lane_boundary"][1]["y"] = 1e12
+    map_path.write_text(json.dumps(data))
+    problem = _only(validate_log(log_dir).problems)
+    assert (problem.path, problem.row, problem.field) == (map_path, 1, "lane_segments[1].right_lane_boundary")
+    assert "y = 1e+12 m is beyond the bound of ±1e+07 m" in problem.message
+    with pytest.raises(LogFormatError) as info:
+        _ = Log.open(log_dir).map
+    assert info.value.problems == [problem]
+
+
+@pytest.mark.parametrize("path", [av2_io.EXTRINSICS_PATH, av2_io.INTRINSICS_PATH], ids=["extrinsics", "intrinsics"])
+def test_calibration_sensor_named_twice_is_refused(log_dir: Path, path: Path) -> None:
+    """A second row for the same sensor (with another pose) would silently win by row order."""
+    def duplicate(t: pa.Table) -> pa.Table:
+        extra = t.slice(0, 1)
+        return pa.concat_tables([t, _set(extra, "cx_px" if "cx_px" in t.column_names else "tx_m", [1.0],
+                                         pa.float64())])
+
+    _edit(log_dir / path, duplicate)
+    problem = _only(validate_log(log_dir).problems)
+    assert (problem.path, problem.row, problem.field) == (log_dir / path, 1, "sensor_name")
+    assert "'front' appears on rows 0, 1" in problem.message
+    with pytest.raises(LogFormatError, match="sensor_name"):
+        av2_io.read_calibration(log_dir)
+
+
+def test_facts_count_annotated_frames_only(log_dir: Path) -> None:
+    """A log cut to one annotated frame keeps its sweeps; those neither add frames nor stretch the duration."""
+    av2_io.write_lidar_sweep(log_dir, LidarSweep(T0 + 400_000_000, np.ones((5, 3), np.float32), np.zeros(5, np.uint8),
+                                                 np.zeros(5, np.uint8), np.zeros(5, np.int32)))
+    _edit(log_dir / ANN, lambda t: t.filter(pa.compute.equal(t.column("timestamp_ns"), T0 + 200_000_000)))
+    facts = validate_log(log_dir).facts
+    assert (facts["frames"], facts["duration_s"], facts["lidar_sweeps"]) == (1, 0.0, 2)
+
+
+def test_symbolic_link_loop_is_named_as_such(log_dir: Path) -> None:
+    (log_dir / ANN).unlink()
+    (log_dir / ANN).symlink_to(log_dir / ANN)
+    problem = _only(_open_problems(log_dir))
+    assert problem.path == log_dir / ANN
+    assert problem.message == f"symbolic-link loop: {log_dir / ANN} never resolves to a file"
+    (log_dir / POSES).unlink()
+    (log_dir / POSES).symlink_to(log_dir / "nowhere.feather")
+    assert any("broken symbolic link" in p.message and p.path == log_dir / POSES for p in _open_problems(log_dir))
+
+
+def test_symbolic_link_loop_as_the_log_folder(tmp_path: Path) -> None:
+    (tmp_path / "loop").symlink_to(tmp_path / "loop")
+    assert "symbolic-link loop" in str(_only(validate_log(tmp_path / "loop").problems))
+    with pytest.raises(LogFormatError, match="symbolic-link loop"):
+        Log.open(tmp_path / "loop")
+
+
+def test_pose_timestamps_in_int32_seconds_name_the_unit(log_dir: Path) -> None:
+    _edit(log_dir / POSES, lambda t: _set(t, "timestamp_ns", (t.column("timestamp_ns").to_numpy() // 10**9)
+                                          .astype(np.int32), pa.int32()))
+    problem = _only(_open_problems(log_dir))
+    assert (problem.path.name, problem.row, problem.field) == (POSES, None, "timestamp_ns")
+    assert "int64 nanoseconds" in problem.message and "int32" in problem.message
+
+
+@pytest.mark.parametrize(("filename", "divisor"), [(POSES, 10**9), (POSES, 10**6), (ANN, 10**3)],
+                         ids=["pose-seconds", "pose-milliseconds", "annotation-microseconds"])
+def test_int64_timestamps_in_another_unit_name_the_unit(log_dir: Path, filename: str, divisor: int) -> None:
+    """Milliseconds and microseconds look like a MHz stream, and are named as not nanoseconds; seconds
+    of a 0.4 s log collapse to one value, and the repeat names the unit it must hold."""
+    _edit(log_dir / filename, lambda t: _set(t, "timestamp_ns", t.column("timestamp_ns").to_numpy() // divisor,
+                                             pa.int64()))
+    problems = _open_problems(log_dir)
+    unit = [p for p in problems if p.path.name == filename]
+    assert len(unit) == 1 and unit[0].field == "timestamp_ns"
+    assert "int64 nanoseconds" in unit[0].message
+    assert ("appears twice" if divisor == 10**9 else "not nanoseconds") in unit[0].message
+
+
+def test_timestamps_starting_near_zero_are_nanoseconds(tmp_path: Path) -> None:
+    """WOMD logs start at 0 ns: the unit check looks at the steps, not at the epoch."""
+    log_dir = _write_log(tmp_path / "log")
+    for name in (ANN, POSES):
+        _edit(log_dir / name, lambda t: _set(t, "timestamp_ns", t.column("timestamp_ns").to_numpy() - T0, pa.int64()))
+    (log_dir / av2_io.LIDAR_DIR / f"{T0}.feather").rename(log_dir / av2_io.LIDAR_DIR / "0.feather")
+    cam = log_dir / av2_io.CAMERAS_DIR / "front"
+    (cam / f"{T0}.jpg").rename(cam / "0.jpg")
+    assert validate_log(log_dir).ok
+
+
 # ---- the command
 
 
@@ -510,10 +691,10 @@ def test_validate_command_checks_every_log_after_bad_ones(
     good = _write_log(tmp_path / "good")
     real_validate = validate_log
 
-    def validate_or_fail(log_dir: Path | str) -> object:
+    def validate_or_fail(log_dir: Path | str, *args: float) -> object:
         if Path(log_dir) == unreadable:
             raise PermissionError(13, "Permission denied", str(unreadable / "sensors"))
-        return real_validate(log_dir)
+        return real_validate(log_dir, *args)
 
     monkeypatch.setattr("retrieval.commands.validate.validate_log", validate_or_fail)
     assert cli_main(["validate", str(bad_map), str(bad_calib), str(unreadable), str(good)]) == 1
@@ -530,6 +711,48 @@ def test_validate_command_checks_every_log_after_bad_ones(
         "1 of 4 logs OK",
     ]
     assert lines[-2].startswith(f"OK {good} ")
+
+
+def test_validate_command_exit_status_when_nothing_is_ok(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """0: every log OK; 1: some OK, some failed (listed); 2: none OK."""
+    bad = _write_log(tmp_path / "bad")
+    _edit(bad / ANN, lambda t: t.drop_columns(["qy"]))
+    assert cli_main(["validate", str(bad)]) == 2
+    assert cli_main(["validate", str(bad), str(tmp_path / "missing")]) == 2
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[-1] == "0 of 2 logs OK"
+
+
+def test_validate_command_reports_a_log_named_twice(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """The same folder twice (also through a link), or two folders with one log id: checked once, each
+    repeat fails as a duplicate naming the first."""
+    good = _write_log(tmp_path / "log1")
+    link = tmp_path / "link"
+    link.symlink_to(good, target_is_directory=True)
+    same_id = _write_log(tmp_path / "elsewhere" / "log1")
+    assert cli_main(["validate", str(good), f"{good}/", str(link), str(same_id)]) == 1
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0].startswith(f"OK {good} ")
+    assert lines[1:] == [
+        f"FAIL {good}: 1 problem(s)",
+        f"  {good}: duplicated log in the batch: the same log folder as {good}",
+        f"FAIL {link}: 1 problem(s)",
+        f"  {link}: duplicated log in the batch: the same log folder as {good}",
+        f"FAIL {same_id}: 1 problem(s)",
+        f"  {same_id}: duplicated log in the batch: the same log id as {good}",
+        "1 of 4 logs OK",
+    ]
+
+
+def test_validate_command_max_pose_gap(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    log_dir = _write_log(tmp_path / "log")
+    _edit(log_dir / POSES, _drop_poses_between(T0, T0 + 300_000_000))
+    assert cli_main(["validate", str(log_dir)]) == 0
+    assert cli_main(["validate", "--max-pose-gap-s", "0.2", str(log_dir)]) == 2
+    out = capsys.readouterr().out
+    assert f"{log_dir / POSES}, row 1, field 'timestamp_ns': ego poses at" in out and "limit of 0.2 s" in out
+    assert cli_main(["validate", "--max-pose-gap-s", "0", str(log_dir)]) == 2
+    assert "--max-pose-gap-s must be > 0" in capsys.readouterr().err
 
 
 def test_collect_problems_keeps_going_after_a_bad_file(tmp_path: Path) -> None:

@@ -3,6 +3,8 @@ and corrupt or truncated files named by file and record."""
 
 from __future__ import annotations
 
+import gzip
+import struct
 from pathlib import Path
 
 import numpy as np
@@ -127,3 +129,46 @@ def test_development_file_frames_and_checks() -> None:
     records = list(read_records(DEV_FILE))
     assert len(records) == 1
     assert 16 + len(records[0].data) == DEV_FILE.stat().st_size
+
+
+def test_length_beyond_the_file_is_refused_before_reading(tmp_path: Path) -> None:
+    """A header claiming 2^40 bytes, with a valid CRC: named with the bytes left, nothing allocated."""
+    length = struct.pack("<Q", 2**40)
+    path = tmp_path / "huge.tfrecord"
+    path.write_bytes(encode_record(b"ok") + length + struct.pack("<I", masked_crc32c(length)) + b"x" * 100)
+    items = iter_records(path)
+    assert next(items).data == b"ok"  # type: ignore[union-attr]
+    with pytest.raises(WomdFormatError, match=r"huge\.tfrecord, record 1: truncated: the record at byte 18 declares "
+                       r"1099511627776 bytes of data, but only 100 bytes are left in the file") as err:
+        next(items)
+    assert err.value.record == 1
+
+
+def test_gzip_compressed_file_is_read_transparently(tmp_path: Path) -> None:
+    payloads = [b"first", bytes(range(256)) * 20]
+    path = tmp_path / "z.tfrecord"
+    path.write_bytes(gzip.compress(b"".join(encode_record(p) for p in payloads)))
+    records = list(read_records(path))
+    assert [r.data for r in records] == payloads
+    assert records[1].offset == 16 + len(b"first")  # offsets count the decompressed stream
+
+
+def test_gzip_file_with_a_huge_length_or_cut_short(tmp_path: Path) -> None:
+    length = struct.pack("<Q", 2**40)
+    huge = tmp_path / "huge.tfrecord.gz"
+    huge.write_bytes(gzip.compress(length + struct.pack("<I", masked_crc32c(length)) + b"x" * 100))
+    with pytest.raises(WomdFormatError, match=r"record 0: truncated: .*declares 1099511627776 bytes, the "
+                       "decompressed stream ends 100 bytes into it"):
+        list(read_records(huge))
+    cut = tmp_path / "cut.tfrecord"
+    cut.write_bytes(gzip.compress(encode_record(b"a" * 4000) * 3)[:-30])
+    with pytest.raises(WomdFormatError, match=r"cut\.tfrecord, record \d: gzip-compressed file is corrupt"):
+        list(read_records(cut))
+
+
+def test_gzip_compressed_development_file_reads_the_same_records(tmp_path: Path) -> None:
+    if not DEV_FILE.is_file():
+        pytest.skip(f"WOMD development file not found at {DEV_FILE} (the shared realdata folder is absent)")
+    path = tmp_path / "dev.tfrecord"
+    path.write_bytes(gzip.compress(DEV_FILE.read_bytes(), compresslevel=1))
+    assert [r.data for r in read_records(path)] == [r.data for r in read_records(DEV_FILE)]

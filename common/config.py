@@ -97,7 +97,7 @@ def check_upper_bounds(config: Any, bounds: Mapping[str, float], error: type[Val
         value = getattr(config, name)
         values = value if isinstance(value, tuple) else (value,)
         if any(isinstance(v, int | float) and not isinstance(v, bool) and v > bound for v in values):
-            problems.append(f"key '{name}': {value} is above its upper bound {bound:g}")
+            problems.append(f"key '{name}': {value} is above its upper bound {bound:.15g}")
     if problems:
         raise error("; ".join(problems))
 

@@ -27,6 +27,11 @@ class ClusterError(ValueError):
     """Ray cannot be used as asked: not installed, or the cluster address cannot be reached."""
 
 
+#: Upper bounds of ``--workers`` (tasks at once) and of a task's retries.
+MAX_WORKERS = 4096
+MAX_RETRIES = 100
+
+
 @dataclass(frozen=True)
 class Execution:
     """Where tasks run.
@@ -48,10 +53,10 @@ class Execution:
     connect_timeout_s: float = 5.0
 
     def __post_init__(self) -> None:
-        if self.workers is not None and self.workers < 1:
-            raise ValueError(f"--workers must be at least 1, got {self.workers}")
-        if self.max_retries < 0:
-            raise ValueError(f"max_retries must be at least 0, got {self.max_retries}")
+        if self.workers is not None and not 1 <= self.workers <= MAX_WORKERS:
+            raise ValueError(f"--workers must lie in [1, {MAX_WORKERS}], got {self.workers}")
+        if not 0 <= self.max_retries <= MAX_RETRIES:
+            raise ValueError(f"max_retries must lie in [0, {MAX_RETRIES}], got {self.max_retries}")
 
     @property
     def on_ray(self) -> bool:

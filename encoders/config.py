@@ -439,11 +439,11 @@ class TrainConfig(EncodersConfig):
             at one time share it, so a few carry it).
 
     Upper bounds: ``epochs`` 10000, ``batch_size`` and ``eval_batch_size`` 4096, ``num_workers`` 256,
-    ``max_steps_per_epoch`` 1000000.
+    ``max_steps_per_epoch`` 500000.
     """
 
     upper_bounds: ClassVar[Mapping[str, float]] = {"epochs": 10_000, "batch_size": 4096, "eval_batch_size": 4096,
-                                                   "num_workers": 256, "max_steps_per_epoch": 1_000_000}
+                                                   "num_workers": 256, "max_steps_per_epoch": 500_000}
 
     model: DualEncoderConfig = field(default_factory=DualEncoderConfig)
     epochs: int = 10

@@ -56,11 +56,11 @@ class TagTrainConfig(EncodersConfig):
         device: ``auto``, ``cpu`` or ``cuda[:i]``.
         log_every: steps between lines of ``tag_metrics.jsonl``.
 
-    Upper bounds: ``window_frames`` 256, ``frame_stride`` 100, ``batch_size`` 4096, ``steps`` 1000000.
+    Upper bounds: ``window_frames`` 256, ``frame_stride`` 100, ``batch_size`` 4096, ``steps`` 500000.
     """
 
     upper_bounds: ClassVar[Mapping[str, float]] = {"window_frames": 256, "frame_stride": 100, "batch_size": 4096,
-                                                   "steps": 1_000_000}
+                                                   "steps": 500_000}
 
     mode: str = "joint"
     inputs: str = "both"

@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import json
 import time
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -39,6 +39,7 @@ import torch
 from numpy.typing import NDArray
 
 from common.atomic import atomic_write_text
+from common.folders import FolderKind, claim_folder, mark_folder
 from encoders.clips.layout import (
     BEV_LIDAR_FILE,
     BEV_MAP_FILE,
@@ -423,10 +424,16 @@ def sources_line(result: dict[str, Any]) -> str:
     return f"\nTruth of the {len(test)} test log(s): {said}.\n"
 
 
-def write_report(out_dir: Path | str, result: dict[str, Any]) -> tuple[Path, Path]:
-    """``DIR/tags.json`` and ``DIR/tags.md`` (atomic)."""
+#: The folder ``scenesearch eval-tags`` writes (:mod:`common.folders`).
+TAG_REPORT_FOLDER = FolderKind("tag report", signature="tags.json", entries=("tags.json", "tags.md"))
+
+
+def write_report(out_dir: Path | str, result: dict[str, Any], inputs: Sequence[Path | str] = ()) -> tuple[Path, Path]:
+    """``DIR/tags.json`` and ``DIR/tags.md`` (atomic), in a new, empty or tag report folder that is none
+    of ``inputs`` (:mod:`common.folders`)."""
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    claim_folder(out, TAG_REPORT_FOLDER, inputs)
+    mark_folder(out, TAG_REPORT_FOLDER, TAG_REPORT_FOLDER.entries)
     md = markdown_tables(result["by_region"], result["inputs"], result["skill"]) + sources_line(result)
     atomic_write_text(out / "tags.json", json.dumps(result, indent=2))
     atomic_write_text(out / "tags.md", "# Spatio-temporal tagging\n\n" + md)

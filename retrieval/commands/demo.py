@@ -121,7 +121,7 @@ def check_sizes(args: argparse.Namespace) -> None:
     for name, (flag, bound) in size_bounds().items():
         value = getattr(args, name, None)
         if value is not None and value > bound:
-            raise ValueError(f"{flag} {value:g}: above its upper bound {bound:g}")
+            raise ValueError(f"{flag} {value}: above its upper bound {bound:g}")
 
 
 def run(args: argparse.Namespace) -> int:

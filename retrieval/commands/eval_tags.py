@@ -34,10 +34,13 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from common.folders import claim_folder
     from encoders.tagging.ablation import parse_inputs
-    from encoders.tagging.evaluate import evaluate_runs, write_report
+    from encoders.tagging.evaluate import TAG_REPORT_FOLDER, evaluate_runs, write_report
     from encoders.tagging.targets import add_attribute_targets
 
+    inputs = [args.run_dir, args.clips_dir]
+    claim_folder(args.out, TAG_REPORT_FOLDER, inputs)  # before the evaluation
     runs: dict[str, Path] = {}
     for item in args.inputs_run:
         key, sep, path = item.partition("=")
@@ -51,7 +54,7 @@ def run(args: argparse.Namespace) -> int:
         for item in report.skipped:
             print(f"  skipped {item['log_id']}: {item['reason']}")
     result = evaluate_runs(args.run_dir, args.clips_dir, runs, args.split, progress=print)
-    json_path, md_path = write_report(args.out, result)
+    json_path, md_path = write_report(args.out, result, inputs)
     print(md_path.read_text())
     print(f"wrote {json_path} and {md_path}")
     return 0

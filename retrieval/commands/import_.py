@@ -8,7 +8,7 @@ KITTI tracking sequence into ``DIR/kitti_<seq>/`` (see :mod:`scenes.kitti`).
 ``scenesearch import womd FILE.tfrecord... --out DIR [--overwrite]`` converts every Waymo Open
 Motion Dataset scenario of the files into ``DIR/womd_<scenario_id>/`` (see :mod:`scenes.womd`).
 Scenarios that cannot be imported are listed with the reason and the rest go on; the exit status is
-1 when any scenario was skipped.
+1 when any scenario was skipped, 2 when none was imported.
 """
 
 from __future__ import annotations
@@ -44,7 +44,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
         help="Waymo Open Motion Dataset scenarios (TFRecord files) → DIR/womd_<scenario_id>/",
         description="Convert every Scenario of Waymo Open Motion Dataset TFRecord files into an AV2-layout "
         "log DIR/womd_<scenario_id>/. Scenarios that cannot be imported are listed with the reason; the "
-        "others are imported. Exits 1 when any scenario was skipped.",
+        "others are imported. Exits 1 when any scenario was skipped, 2 when none was imported.",
     )
     womd.add_argument("files", nargs="+", type=Path, metavar="FILE", help="TFRecord files of Scenario records")
     womd.add_argument("--out", type=Path, required=True, help="folder that receives womd_<scenario_id>/")
@@ -87,4 +87,4 @@ def _run_womd(args: argparse.Namespace) -> int:
     for skip in batch.skipped:
         print(skip)
     print(f"imported {len(batch.imported)} scenarios into {args.out}; skipped {len(batch.skipped)}")
-    return 1 if batch.skipped or not batch.imported else 0
+    return 2 if not batch.imported else 1 if batch.skipped else 0

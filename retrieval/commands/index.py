@@ -93,7 +93,7 @@ def run(args: argparse.Namespace) -> int:
             print(f"skipped {skipped.item}: {skipped.reason}")
         print(f"wrote {args.out}: {len(captions)} captions, {len(captions.texts)} distinct texts "
               f"({len(captions.skipped)} skipped)")
-        return 0
+        return 1 if captions.skipped else 0
     if args.run_dir is None or args.clips_dir is None:
         raise ValueError("give RUN_DIR and CLIPS_DIR (a trained model and its clips), or --captions CAPTIONS_DIR")
     if args.hybrid_weight is not None:
@@ -119,7 +119,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"... and {len(search.manifest.skipped) - 20} more skipped (listed in {args.out}/manifest.json)")
     counts = ", ".join(f"{k} {v}" for k, v in search.manifest.counts.items())
     print(f"wrote {args.out}: {counts}")
-    return 0
+    return 1 if search.manifest.skipped else 0
 
 
 def _build_on_ray(args: argparse.Namespace, execution: Execution) -> SceneSearch:

@@ -2,7 +2,8 @@
 
 Writes, per log, ``sensors/lidar/<ns>.feather``, ``sensors/cameras/<camera>/<ns>.jpg``, instance
 masks beside them and the calibration, from the log's annotations, ego poses, map and metadata.
-A log that cannot be rendered is reported with the reason and skipped; the exit status is 1 then.
+A log that cannot be rendered is reported with the reason and skipped; the exit status is 1 then,
+and 2 when no log could be rendered.
 A flag's value above its upper bound in :mod:`scenes.sensorsim.config` (``--beams``, ``--azimuth-steps``,
 ``--width``, ``--height``) or ``--threads`` above :data:`MAX_THREADS` is refused before any log is read,
 naming the flag.
@@ -82,4 +83,4 @@ def run(args: argparse.Namespace) -> int:
         print(report.summary())
     if failed:
         print(f"{failed} of {len(args.log_dirs)} logs skipped", file=sys.stderr)
-    return 1 if failed else 0
+    return 2 if failed == len(args.log_dirs) else 1 if failed else 0

@@ -70,10 +70,10 @@ def _bind(host: str, port: int) -> list[socket.socket]:
 
 
 def _serve(args: argparse.Namespace, limits: ServiceLimits, sockets: list[socket.socket]) -> None:
+    import torch
+
     from retrieval.scenesearch import SceneSearch
     from retrieval.service import create_app, serve
-
-    import torch
 
     # Measured on 2 busy cores: one caption query took 16 ms with one thread and 300+ ms with two, as
     # the threads of concurrent calls spin against each other (benchmarks/bench_service.py).

@@ -23,8 +23,9 @@ from scenes.sim import NetworkKind, PostLogHook, SimulationConfig, simulate_trac
 #: The flag that sets each field of :class:`SimulationConfig` (what an error names).
 FLAGS = {"logs": "--logs", "duration_s": "--duration-s", "seed": "--seed", "warmup_s": "--warmup-s",
          "egos_per_run": "--egos", "tracker_noise": "--tracker-noise", "sensors": "--no-sensors",
-         "map_less_share": "--map-less-share", "jitter_share": "--jitter-share", "furniture_per_km": "--furniture-per-km",
-         "standing_pedestrians_per_km": "--standing-pedestrians-per-km", "cache_dir": "--cache-dir"}
+         "map_less_share": "--map-less-share", "jitter_share": "--jitter-share",
+         "furniture_per_km": "--furniture-per-km", "standing_pedestrians_per_km": "--standing-pedestrians-per-km",
+         "cache_dir": "--cache-dir"}
 
 HELP = "simulate a city with SUMO and write N drive logs (AV2 layout, behaviour labels)"
 

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import re
+import typing
 from pathlib import Path
 
 import pytest
@@ -15,6 +17,7 @@ from captioning.config import (
     WindowStrategy,
 )
 from captioning.errors import CaptioningError, ConfigError
+from common.config import YamlConfig
 
 
 def test_default_round_trips_through_yaml(tmp_path: Path) -> None:
@@ -79,3 +82,33 @@ def test_dataclass_construction_is_validated_too() -> None:
 def test_config_error_is_a_value_error_for_the_cli() -> None:
     assert issubclass(ConfigError, ValueError)
     assert issubclass(ConfigError, CaptioningError) and issubclass(ConfigError, common.config.ConfigError)
+
+
+#: The parts of the captioning config, by key.
+PARTS: dict[str, type[YamlConfig]] = {name: hint for name, hint in typing.get_type_hints(CaptioningConfig).items()
+                                      if isinstance(hint, type) and issubclass(hint, YamlConfig)}
+#: Every bounded size of the captioning config, with its dotted key.
+BOUNDED_KEYS = [(f"{name}.{key}", bound) for name, part in PARTS.items() for key, bound in part.upper_bounds.items()]
+#: Other values of its part a size needs at its bound (a segment's maximum is at least twice its minimum).
+AT_BOUND_COMPANIONS = {"segments.min_frames": {"max_frames": 100_000}}
+
+
+def test_the_windows_and_counts_are_bounded_and_documented() -> None:
+    bounded = {name for name, part in PARTS.items() if part.upper_bounds}
+    assert bounded == {"smoothing", "segments", "windows", "text", "behavior", "map"}
+    assert all("Upper bounds:" in (PARTS[name].__doc__ or "") for name in bounded)
+
+
+@pytest.mark.parametrize(("path", "bound"), BOUNDED_KEYS, ids=[path for path, _ in BOUNDED_KEYS])
+def test_a_size_above_its_bound_is_refused_naming_the_key(path: str, bound: float) -> None:
+    part, key = path.split(".")
+    pattern = rf"^c\.yaml: key '{re.escape(path)}': \S+ is above its upper bound {re.escape(f'{bound:g}')}$"
+    with pytest.raises(ConfigError, match=pattern):
+        CaptioningConfig.from_dict({part: {key: bound + 1}}, source="c.yaml")
+
+
+@pytest.mark.parametrize(("path", "bound"), BOUNDED_KEYS, ids=[path for path, _ in BOUNDED_KEYS])
+def test_a_size_at_its_bound_is_accepted(path: str, bound: float) -> None:
+    part, key = path.split(".")
+    config = CaptioningConfig.from_dict({part: {key: bound, **AT_BOUND_COMPANIONS.get(path, {})}})
+    assert getattr(getattr(config, part), key) == bound

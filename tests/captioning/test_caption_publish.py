@@ -147,7 +147,7 @@ def test_caption_command_where_every_log_fails_leaves_outputs_untouched(
     write_outputs(out, [small_result(make_scene, 1)])
     before = {p.name: p.read_bytes() for p in (out / FRAME_TAGS_FILENAME, out / CAPTIONS_FILENAME)}
     generation = current_generation(out)
-    assert main(["caption", str(tmp_path / "no_such_log"), str(tmp_path / "nor_this"), "--out", str(out)]) == 1
+    assert main(["caption", str(tmp_path / "no_such_log"), str(tmp_path / "nor_this"), "--out", str(out)]) == 2
     said = capsys.readouterr().out
     assert "skipped log" in said and "left as it was" in said
     assert {p.name: p.read_bytes() for p in (out / FRAME_TAGS_FILENAME, out / CAPTIONS_FILENAME)} == before

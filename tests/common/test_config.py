@@ -3,13 +3,23 @@
 from __future__ import annotations
 
 import enum
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal
+from typing import ClassVar, Literal
 
 import pytest
 
-from common.config import ConfigError, YamlConfig, from_dict, from_yaml, from_yaml_text, to_dict, to_yaml
+from common.config import (
+    ConfigError,
+    YamlConfig,
+    from_dict,
+    from_yaml,
+    from_yaml_text,
+    to_dict,
+    to_yaml,
+    with_option,
+)
 
 
 class Mode(str, enum.Enum):
@@ -116,3 +126,42 @@ def test_the_base_class_offers_the_functions_with_the_stage_error(tmp_path: Path
     assert Small.from_dict({"epochs": 6}).to_dict() == {"epochs": 6}
     with pytest.raises(StageConfigError, match="unknown keys epoch "):
         Small.from_dict({"epoch": 1})
+
+
+@dataclass(frozen=True)
+class Bounded(StageConfig):
+    upper_bounds: ClassVar[Mapping[str, float]] = {"frames": 256, "widths": 4096, "rate": 10}
+
+    frames: int = 16
+    widths: tuple[int, ...] = (8, 16)
+    rate: float = 0.5
+
+
+@dataclass(frozen=True)
+class HoldsBounded(StageConfig):
+    part: Bounded = field(default_factory=Bounded)
+
+
+@pytest.mark.parametrize(
+    ("data", "message"),
+    [({"frames": 257}, "key 'frames': 257 is above its upper bound 256"),
+     ({"widths": [8, 5000]}, "key 'widths': (8, 5000) is above its upper bound 4096"),  # each element
+     ({"rate": 10.5}, "key 'rate': 10.5 is above its upper bound 10")],
+)
+def test_a_value_above_its_upper_bound_is_refused_naming_key_and_bound(data: dict, message: str) -> None:
+    with pytest.raises(StageConfigError) as info:
+        Bounded.from_dict(data, source="b.yaml")
+    assert str(info.value) == f"b.yaml: {message}"
+    with pytest.raises(StageConfigError, match=r"^b\.yaml: key 'part\.frames': 257 is above"):
+        HoldsBounded.from_dict({"part": data | {"frames": 257}}, source="b.yaml")  # named from the top
+
+
+def test_values_at_their_upper_bounds_are_accepted() -> None:
+    assert Bounded.from_dict({"frames": 256, "widths": [4096], "rate": 10}) == Bounded(256, (4096,), 10.0)
+
+
+def test_with_option_names_the_flag_of_a_refused_value() -> None:
+    assert with_option(Bounded(), "--frames", frames=32) == Bounded(frames=32)
+    with pytest.raises(StageConfigError, match=r"^--frames 1000000000: key 'frames': 1000000000 is above its "
+                                               r"upper bound 256$"):
+        with_option(Bounded(), "--frames", frames=1_000_000_000)

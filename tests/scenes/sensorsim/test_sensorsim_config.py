@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from scenes.errors import ConfigError
 from scenes.sensorsim.config import CameraConfig, LidarConfig, SensorConfig, WorldConfig
 
 AV2_LOG = (Path(__file__).resolve().parents[3] / ".." / "shared" / "realdata" / "av2"
@@ -69,3 +71,27 @@ def test_camera_axes_match_a_real_av2_calibration() -> None:
     ours = CameraConfig(pitch_deg=0.0).ego_SE3_sensor.rotation
     angle = np.degrees(np.arccos(np.clip((np.trace(real.T @ ours) - 1) / 2, -1, 1)))
     assert angle < 2.0
+
+
+BOUNDED_KEYS = [(part, key, bound) for part, cls in (("lidar", LidarConfig), ("camera", CameraConfig),
+                                                      ("world", WorldConfig))
+                for key, bound in cls.upper_bounds.items()]
+
+
+def test_the_sizes_are_bounded_and_documented() -> None:
+    assert {(p, k) for p, k, _ in BOUNDED_KEYS} >= {("lidar", "beams"), ("lidar", "azimuth_steps"),
+                                                     ("camera", "width_px"), ("camera", "height_px")}
+    for cls in (LidarConfig, CameraConfig, WorldConfig):
+        assert "Upper bounds:" in (cls.__doc__ or "")
+
+
+@pytest.mark.parametrize(("part", "key", "bound"), BOUNDED_KEYS, ids=[f"{p}.{k}" for p, k, _ in BOUNDED_KEYS])
+def test_a_size_above_its_bound_is_refused_naming_the_key(part: str, key: str, bound: float) -> None:
+    pattern = rf"^sensors\.yaml: key '{part}\.{key}': \S+ is above its upper bound {re.escape(f'{bound:g}')}$"
+    with pytest.raises(ConfigError, match=pattern):
+        SensorConfig.from_dict({part: {key: bound + 1}}, source="sensors.yaml")
+
+
+@pytest.mark.parametrize(("part", "key", "bound"), BOUNDED_KEYS, ids=[f"{p}.{k}" for p, k, _ in BOUNDED_KEYS])
+def test_a_size_at_its_bound_is_accepted(part: str, key: str, bound: float) -> None:
+    assert getattr(getattr(SensorConfig.from_dict({part: {key: bound}}), part), key) == bound

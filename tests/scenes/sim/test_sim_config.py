@@ -1,10 +1,11 @@
+import re
 from pathlib import Path
 
 import pytest
 
 import common.config
 from scenes.errors import ConfigError, ScenesError
-from scenes.sim.config import NetworkKind, SimulationConfig, TrackerNoiseConfig
+from scenes.sim.config import MAX_STEPS_PER_LOG, NetworkKind, SimulationConfig, TrackerNoiseConfig
 
 
 def test_default_config_round_trips_yaml() -> None:
@@ -83,3 +84,37 @@ def test_window_arithmetic() -> None:
     assert config.num_egos == 4
     assert config.num_windows == 3
     assert SimulationConfig(logs=2, egos_per_run=4).num_egos == 2
+
+
+BOUNDED_KEYS = [("", key, bound) for key, bound in SimulationConfig.upper_bounds.items()] + [
+    ("noise.", key, bound) for key, bound in TrackerNoiseConfig.upper_bounds.items()]
+
+
+def _at(prefix: str, key: str, value: float) -> dict:
+    return {prefix.rstrip("."): {key: value}} if prefix else {key: value}
+
+
+def test_the_sizes_are_bounded_and_documented() -> None:
+    assert {"logs", "duration_s", "egos_per_run", "parked_vehicles", "vehicles_per_s_per_km"} <= set(
+        SimulationConfig.upper_bounds)
+    for cls in (SimulationConfig, TrackerNoiseConfig):
+        assert "Upper bounds:" in (cls.__doc__ or "")
+
+
+@pytest.mark.parametrize(("prefix", "key", "bound"), BOUNDED_KEYS, ids=[p + k for p, k, _ in BOUNDED_KEYS])
+def test_a_size_above_its_bound_is_refused_naming_the_key(prefix: str, key: str, bound: float) -> None:
+    pattern = rf"^sim\.yaml: key '{re.escape(prefix + key)}': \S+ is above its upper bound {re.escape(f'{bound:g}')}$"
+    with pytest.raises(ConfigError, match=pattern):
+        SimulationConfig.from_dict(_at(prefix, key, bound + 1), source="sim.yaml")
+
+
+@pytest.mark.parametrize(("prefix", "key", "bound"), BOUNDED_KEYS, ids=[p + k for p, k, _ in BOUNDED_KEYS])
+def test_a_size_at_its_bound_is_accepted(prefix: str, key: str, bound: float) -> None:
+    config = SimulationConfig.from_dict(_at(prefix, key, bound))
+    assert getattr(config.noise if prefix else config, key) == bound
+
+
+def test_the_steps_of_a_log_are_bounded() -> None:
+    assert SimulationConfig(duration_s=3600.0, step_s=0.01)  # an hour at 100 Hz
+    with pytest.raises(ConfigError, match=rf"key 'step_s': .* above the upper bound {MAX_STEPS_PER_LOG}"):
+        SimulationConfig(duration_s=3600.0, step_s=0.001)

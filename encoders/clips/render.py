@@ -20,6 +20,7 @@ import pyarrow.parquet as pq
 from numpy.typing import NDArray
 
 from common.atomic import atomic_directory, atomic_write_text
+from common.checksums import file_checksums
 from common.memory import check_memory
 from encoders.clips import layout
 from encoders.clips.config import BevSource, BevSourceChoice, ClipsConfig
@@ -32,7 +33,7 @@ from encoders.clips.render_bev import (
     track_boxes,
 )
 from encoders.clips.render_camera import render_camera
-from encoders.clips.render_stats import LogRenderStats, file_checksums, log_fingerprint, render_fingerprint
+from encoders.clips.render_stats import LogRenderStats, log_fingerprint, render_fingerprint
 from scenes.bev import BevGrid
 from scenes.geometry import FloatArray, quat_to_yaw, rotmat_to_quat
 from scenes.log import Log

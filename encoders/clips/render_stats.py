@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from common.checksums import sha256_files
+from common.checksums import checksum_problem
 from encoders.clips.config import BevSource, ClipsConfig
 from encoders.clips.layout import RENDER_FILE
 from scenes.tracks import DenseTracks
@@ -91,13 +91,6 @@ class LogRenderStats:
         return asdict(self)
 
 
-def file_checksums(folder: Path, names: list[str]) -> dict[str, dict[str, Any]]:
-    """``{name: {"size_bytes", "sha256"}}`` of the files ``names`` in ``folder``."""
-    paths = [folder / name for name in names]
-    return {name: {"size_bytes": p.stat().st_size, "sha256": digest}
-            for name, p, digest in zip(names, paths, sha256_files(paths))}
-
-
 def reuse_problem(folder: Path, config: ClipsConfig, dense: DenseTracks) -> str | None:
     """Why ``folder`` does not hold a reusable rendering of this log's content (``dense``) made with an
     equivalent config, or None when it does: every file that ``render.json`` lists must still have its
@@ -113,22 +106,7 @@ def reuse_problem(folder: Path, config: ClipsConfig, dense: DenseTracks) -> str 
         return "rendered with another config"
     if data.get("log_fingerprint") != log_fingerprint(dense):
         return "the log changed since it was rendered"
-    files = data.get("files")
-    if not isinstance(files, dict) or not files:
-        return f"{RENDER_FILE} lists no checksums"
-    present = []
-    for name, entry in files.items():
-        file = folder / str(name)
-        if not file.is_file():
-            return f"{name} is missing"
-        size, listed = file.stat().st_size, entry.get("size_bytes") if isinstance(entry, dict) else None
-        if size != listed:
-            return f"{name} is {size} bytes, {RENDER_FILE} says {listed}"
-        present.append(str(name))
-    for name, digest in zip(present, sha256_files([folder / n for n in present])):
-        if digest != files[name].get("sha256"):
-            return f"{name} differs from its checksum in {RENDER_FILE}"
-    return None
+    return checksum_problem(folder, data.get("files"), RENDER_FILE)
 
 
 def read_render_stats(folder: Path) -> LogRenderStats:

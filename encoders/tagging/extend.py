@@ -32,7 +32,7 @@ from encoders.tagging.config import TagTrainConfig
 from encoders.tagging.head import TagHead, TagHeadConfig
 from encoders.tagging.inference import BACKBONE_FILE, load_tagger
 from encoders.tagging.rasterize import behavior_grid, box_values
-from encoders.tagging.targets import has_targets, open_targets, write_targets
+from encoders.tagging.targets import open_targets, targets_reusable, write_targets
 from encoders.tagging.training import TagTrainResult, save_tagging, train_tags
 from scenes.bev import BevGrid
 from scenes.log import Log
@@ -65,7 +65,7 @@ def write_new_targets(clips_dir: Path | str, log_dirs: Sequence[Path | str], nam
         folder = rendered_log_dir(clips, log_id)
         if not folder.is_dir():
             continue
-        if overwrite or not has_targets(clips, log_id, stem):
+        if overwrite or not targets_reusable(clips, log_id, stem):
             log = Log.open(log_dir)
             t = targets_fn(log, grid, log.dense_tracks())
             if t.shape[1] != len(names):

@@ -35,10 +35,18 @@ from captioning.config import CaptioningConfig, RuleSet
 from captioning.map_context import JUNCTION_KINDS, junction_kind_codes, lookup, rasterize_map
 from captioning.pipeline import tag_arrays
 from common.atomic import atomic_path, atomic_write_text
+from common.checksums import checksum_problem, file_checksums
 from common.ray_cluster import Execution
 from common.ray_runner import TaskSkipped, TaskStatus, run_tasks
 from common.storage import name_of, staged_input
-from encoders.clips.layout import FRAMES_FILE, TARGETS_STEM, grid_from_manifest, read_manifest, rendered_log_dir
+from encoders.clips.layout import (
+    FRAMES_FILE,
+    TARGETS_STEM,
+    grid_from_manifest,
+    load_rendered_array,
+    read_manifest,
+    rendered_log_dir,
+)
 from encoders.tagging.attributes import ATTRIBUTES, BEHAVIOR_ATTRIBUTES, JUNCTION_ATTRIBUTES, TagError
 from encoders.tagging.rasterize import BehaviorGrid, rasterize_targets
 from scenes.behavior import BEHAVIOR_FILENAME, BehaviorLabel
@@ -109,14 +117,21 @@ def write_targets(folder: Path, targets: NDArray[np.floating], names: Sequence[s
     with atomic_path(array_path) as tmp, open(tmp, "wb") as fh:
         np.save(fh, arr, allow_pickle=False)
     meta = {"attributes": list(names), "present": present.tolist(), "version": TARGETS_VERSION,
-            "source": TargetSource(source).value}
+            "source": TargetSource(source).value, "files": file_checksums(folder, [array_path.name])}
     atomic_write_text(meta_path, json.dumps(meta))
 
 
-def targets_version(clips_dir: Path | str, log_id: str, stem: str = TARGETS_STEM) -> int:
-    """The :data:`TARGETS_VERSION` a log's targets were written with (1 for files without one)."""
-    meta = json.loads(target_files(rendered_log_dir(clips_dir, log_id), stem)[1].read_text())
-    return int(meta.get("version", 1))
+def targets_reusable(clips_dir: Path | str, log_id: str, stem: str = TARGETS_STEM) -> bool:
+    """Whether a log's targets were written by this :data:`TARGETS_VERSION` and their array still has
+    the size and checksum its sidecar records (a truncated or changed array is written anew)."""
+    folder = rendered_log_dir(clips_dir, log_id)
+    meta_path = target_files(folder, stem)[1]
+    try:
+        meta = json.loads(meta_path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+        return False
+    return (isinstance(meta, dict) and meta.get("version") == TARGETS_VERSION
+            and checksum_problem(folder, meta.get("files"), meta_path.name) is None)
 
 
 def targets_source(clips_dir: Path | str, log_id: str, stem: str = TARGETS_STEM) -> str:
@@ -226,7 +241,7 @@ def log_targets(log_dir: Path | str, ctx: tuple[Path, BevGrid, bool]) -> tuple[s
     folder = rendered_log_dir(clips_dir, log_id)
     if not (folder / FRAMES_FILE).is_file():
         raise TaskSkipped("not rendered in the clips folder")
-    if not overwrite and has_targets(clips_dir, log_id) and targets_version(clips_dir, log_id) == TARGETS_VERSION:
+    if not overwrite and targets_reusable(clips_dir, log_id):
         return targets_source(clips_dir, log_id), None
     with staged_input(log_dir) as local:
         log = Log.open(local)
@@ -268,6 +283,6 @@ def open_targets(clips_dir: Path | str, log_id: str, stem: str = TARGETS_STEM) -
         raise FileNotFoundError(f"{array_path}: no tag targets (run `scenesearch eval-tags --logs` "
                                 "or encoders.tagging.targets.add_attribute_targets first)")
     meta = json.loads(meta_path.read_text())
-    arr = np.load(array_path, mmap_mode="r")
+    arr = load_rendered_array(array_path.parent, array_path.name)
     present = np.asarray(meta["present"], dtype=bool).reshape(arr.shape[0], arr.shape[1])
     return LogTargets(arr, tuple(meta["attributes"]), present)

@@ -110,3 +110,23 @@ def test_approach_strips_reach_back_along_entering_lanes() -> None:
     assert xs[0] == pytest.approx((-15.0, -10.0), abs=0.6) and xs[1] == pytest.approx((-10.0, 0.0))
     assert len(strips) == 2 and all(s[:, 1].min() == pytest.approx(-3.5) for s in strips)
     assert elsewhere == []  # another junction: no lane enters it
+
+
+def test_targets_are_reused_only_while_their_array_verifies(tmp_path: Path) -> None:
+    from encoders.clips.layout import rendered_log_dir
+    from encoders.tagging.targets import targets_reusable
+
+    folder = rendered_log_dir(tmp_path, "L")
+    folder.mkdir(parents=True)
+    write_targets(folder, np.ones((2, 3, 4, 4), np.float32), ["a", "b", "c"])
+    assert targets_reusable(tmp_path, "L")
+    data = bytearray((folder / "bev_attributes.npy").read_bytes())
+    data[-1] ^= 0x01  # same size, other content
+    (folder / "bev_attributes.npy").write_bytes(bytes(data))
+    assert not targets_reusable(tmp_path, "L")
+    write_targets(folder, np.ones((2, 3, 4, 4), np.float32), ["a", "b", "c"])
+    with open(folder / "bev_attributes.npy", "r+b") as fh:
+        fh.truncate(64)
+    assert not targets_reusable(tmp_path, "L")
+    (folder / "bev_attributes.npy").unlink()
+    assert not targets_reusable(tmp_path, "L")

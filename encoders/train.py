@@ -74,7 +74,7 @@ from encoders.clips.frame_tags import FRAME_TAG_COLUMNS
 from encoders.config import TrainConfig
 from encoders.data import AugmentConfig
 from encoders.distributed import Distributed
-from encoders.inference import collate, evaluate, open_split, resolve_device
+from encoders.inference import collate, evaluate, open_split, record_trained_clips, resolve_device
 from encoders.loss import (
     contrastive_loss,
     order_loss,
@@ -484,5 +484,6 @@ def _write_final(run_dir: Path, model: DualEncoder, config: TrainConfig, history
     with atomic_path(run_dir / "model.safetensors") as tmp:
         save_file(state, str(tmp), metadata={"format": "scenesearch.DualEncoder"})
     atomic_write_text(run_dir / "config.json", config.to_json())
+    record_trained_clips(run_dir, clips_dir)  # the clip shape this model takes (check_clips_fit)
     atomic_write_text(run_dir / MODEL_CARD_FILE, model_card(config, history, n_train, val_set, clips_dir,
                                                                   camera_weight))

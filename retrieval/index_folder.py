@@ -7,8 +7,9 @@ other at the same ``--out``, and neither ever replaces clips, captions, a run or
 from __future__ import annotations
 
 from common.folders import FolderKind
+from indexes.integrity import STAMP_NAME
 
 INDEX_FOLDER = FolderKind(
     "index", signature="manifest.json",
-    entries=("manifest.json", "fused", "camera", "bev", "captions", "run", "*.parquet", "*.npy"),
+    entries=("manifest.json", "fused", "camera", "bev", "captions", "run", "*.parquet", "*.npy", STAMP_NAME),
 )

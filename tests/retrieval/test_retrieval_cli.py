@@ -93,7 +93,7 @@ def test_search_hybrid(stand_in: dict[str, Any], capsys: pytest.CaptureFixture[s
     (["export", "{index}", "--out", "x.csv"], "use .parquet or .npy"),
     (["eval", "{run}", "{clips}", "--split", "dev"], "unknown split 'dev'"),
     (["index", "{run}", "{clips}", "--out", "{index}_x", "--device", "gpu"], "must be 'auto', 'cpu' or 'cuda[:i]'"),
-    (["index", "{run}", "{clips}", "--out", "{index}_x", "--batch-size", "0"], "batch_size must be at least 1"),
+    (["index", "{run}", "{clips}", "--out", "{index}_x", "--batch-size", "0"], "--batch-size 0: must be at least 1"),
 ])
 def test_bad_input_exits_2(stand_in: dict[str, Any], capsys: pytest.CaptureFixture[str], argv: list[str],
                            message: str) -> None:

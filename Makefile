@@ -32,6 +32,8 @@ $(STAMP): pyproject.toml | system-deps
 	$(PIP) install -q -e '.[dev,scale]'
 	# av2-api, the reference readers the tests compare against; its readers' imports are in [dev].
 	$(PIP) install -q --no-deps av2==0.3.6
+	# trackeval, behind av2's scenario-mining evaluator (`eval-mining`); --no-deps for the same reason.
+	$(PIP) install -q --no-deps trackeval==1.3.0
 	touch $(STAMP)
 
 demo: install

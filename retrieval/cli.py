@@ -38,6 +38,7 @@ COMMANDS: dict[str, str] = {
     "tag": "tag",
     "find": "find",
     "eval-tags": "eval_tags",
+    "eval-mining": "eval_mining",
 }
 
 

@@ -96,11 +96,19 @@ def _write(out: Location, results: list[LogCaptions], log_dirs: list[Location]) 
     """Publish the two files together in a local folder; upload them to a URI (files, no links)."""
     import pyarrow.parquet as pq
 
-    from captioning.pipeline import CAPTIONS_FILENAME, FRAME_TAGS_FILENAME, output_tables, write_outputs
+    from captioning.pipeline import (
+        CAPTIONS_FILENAME,
+        CAPTIONS_FOLDER,
+        FRAME_TAGS_FILENAME,
+        output_tables,
+        write_outputs,
+    )
+    from common.folders import mark_folder
 
     if not is_uri(out):
         return write_outputs(out, results, log_dirs)
     with staged_output(out) as local:
+        mark_folder(local, CAPTIONS_FOLDER, CAPTIONS_FOLDER.entries)
         for name, table in output_tables(results).items():
             pq.write_table(table, local / name)
     return f"{str(out).rstrip('/')}/{FRAME_TAGS_FILENAME}", f"{str(out).rstrip('/')}/{CAPTIONS_FILENAME}"

@@ -54,7 +54,7 @@ def test_av2_ego_waits_then_accelerates_straight_past_a_bus() -> None:
 
 def test_cli_on_av2_logs_reports_skips(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     out = tmp_path / "captions"
-    assert main(["caption", str(need(AV2_BRAKE)), str(tmp_path / "missing"), "--out", str(out)]) == 0
+    assert main(["caption", str(need(AV2_BRAKE)), str(tmp_path / "missing"), "--out", str(out)]) == 1
     printed = capsys.readouterr().out
     assert "skipped log" in printed and "missing" in printed and "single frames" in printed
     frames = pq.read_table(out / "frame_tags.parquet")

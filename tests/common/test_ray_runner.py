@@ -46,7 +46,7 @@ def test_execution_from_flags_and_bad_values() -> None:
 
     assert Execution.from_args(Args()) == Execution(workers=3)
     assert Execution(workers=2).on_ray and not Execution().on_ray
-    with pytest.raises(ValueError, match="--workers must be at least 1"):
+    with pytest.raises(ValueError, match=r"--workers must lie in \[1, 4096\], got 0"):
         Execution(workers=0)
     with pytest.raises(ValueError, match="labels"):
         run_tasks(_square, [1, 2], labels=["a"])

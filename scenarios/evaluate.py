@@ -1,0 +1,261 @@
+"""Running a program on one log's features: every node becomes a selection over objects × frames.
+
+A :class:`Selection` holds (K, F) scores (0 where an object is not selected at a frame) and (K, F)
+related flags (the objects the selected ones relate to). Nodes combine them with array operations
+only; relations look at subject × other × frame blocks, restricted to the objects their two sides
+select anywhere in the log (so "vehicle with a bicycle to its right" compares vehicles with bicycles,
+not every pair), in chunks of bounded size. Durations are seconds on the log's own timestamps, so a
+program means the same at 10 Hz and at 2 Hz.
+
+A predicate or relation that needs the map, on a log without one, selects nothing and adds a note
+saying so (:attr:`Evaluation.notes`): "no answer" is never reported as "false" silently.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+from scenarios.answer import LogAnswer
+from scenarios.features import LogFeatures
+from scenarios.kinds import KIND_NAMES, kind_mask
+from scenarios.predicates import PREDICATES, Mask, ProgramError, resolve_params
+from scenarios.program import (
+    AllOf,
+    AnyOf,
+    Between,
+    Excluding,
+    ForAtLeast,
+    Has,
+    Is,
+    Node,
+    Objects,
+    Then,
+    While,
+    to_text,
+)
+from scenarios.relations import RELATIONS, in_direction, pair_geometry
+
+#: Subject × other × frame cells a relation compares at once.
+_CHUNK_CELLS = 2_000_000
+
+
+@dataclass(frozen=True)
+class Selection:
+    """Objects × frames selected by a node.
+
+    Attributes:
+        scores: (K, F) float32, > 0 where selected.
+        related: (K, F) bool, objects related to selected ones.
+    """
+
+    scores: NDArray[np.float32]
+    related: Mask
+
+    @property
+    def mask(self) -> Mask:
+        return self.scores > 0
+
+
+@dataclass
+class Evaluation:
+    """A program's selection on one log, and what it could not answer there."""
+
+    selection: Selection
+    notes: list[str] = field(default_factory=list)
+
+
+def _empty(x: LogFeatures) -> Selection:
+    shape = (x.num_objects, x.num_frames)
+    return Selection(np.zeros(shape, np.float32), np.zeros(shape, bool))
+
+
+def _keep(sel: Selection, mask: Mask) -> Selection:
+    """``sel`` where ``mask`` holds; related objects only at frames where something stays selected."""
+    scores = np.where(mask, sel.scores, 0.0).astype(np.float32)
+    return Selection(scores, sel.related & (scores > 0).any(axis=0)[None, :])
+
+
+class _Run:
+    """One evaluation: the log's features and the notes gathered on the way."""
+
+    def __init__(self, x: LogFeatures) -> None:
+        self.x = x
+        self.notes: list[str] = []
+
+    def note_map(self, name: str) -> None:
+        note = f"{self.x.log_id}: '{name}' needs a map, and the log has none: no answer there (not 'false')"
+        if note not in self.notes:
+            self.notes.append(note)
+
+    def eval(self, node: Node) -> Selection:
+        x = self.x
+        match node:
+            case Objects(kind):
+                if kind not in KIND_NAMES:
+                    raise ProgramError(f"unknown kind {kind!r} (known: {', '.join(KIND_NAMES)})")
+                mask = kind_mask(kind, x.labels, x.categories)[:, None] & x.valid
+                return Selection(mask.astype(np.float32), np.zeros_like(mask))
+            case Is(subject, predicate, params, negate):
+                spec = PREDICATES.get(predicate)
+                if spec is None:
+                    raise ProgramError(f"unknown predicate {predicate!r} (known: {', '.join(sorted(PREDICATES))})")
+                p = resolve_params(spec.defaults, spec.choices, dict(params), predicate)
+                sel = self.eval(subject)
+                if spec.needs_map and not x.has_map:
+                    self.note_map(predicate)
+                    return _empty(x)
+                holds = spec.fn(x, p)
+                return _keep(sel, ~holds & x.valid if negate else holds)
+            case Has():
+                return self.relation(node)
+            case Between(subject, left, right, lateral_m):
+                return self.between(self.eval(subject), self.eval(left), self.eval(right), lateral_m)
+            case AllOf(children):
+                parts = [self.eval(c) for c in children]
+                scores = np.minimum.reduce([p.scores for p in parts])
+                related = np.logical_or.reduce([p.related for p in parts]) & (scores > 0).any(axis=0)[None]
+                return Selection(scores, related)
+            case AnyOf(children):
+                parts = [self.eval(c) for c in children]
+                return Selection(np.maximum.reduce([p.scores for p in parts]),
+                                 np.logical_or.reduce([p.related for p in parts]))
+            case Excluding(base, excluded):
+                return _keep(self.eval(base), ~self.eval(excluded).mask)
+            case ForAtLeast(child, seconds):
+                sel = self.eval(child)
+                return _keep(sel, runs_lasting(sel.mask, x.time_s, seconds))
+            case Then(first, second, within_s):
+                a, b = self.eval(first), self.eval(second)
+                keep = then_within(a.mask, b.mask, x.time_s, within_s)
+                return Selection(np.where(keep, np.maximum(a.scores, b.scores), 0.0).astype(np.float32),
+                                 (a.related | b.related) & keep.any(axis=0)[None])
+            case While(child, condition):
+                sel, cond = self.eval(child), self.eval(condition)
+                when = cond.mask.any(axis=0)[None, :]
+                kept = _keep(sel, np.broadcast_to(when, sel.scores.shape))
+                return Selection(kept.scores, kept.related | (cond.mask & kept.mask.any(axis=0)[None]))
+        raise ProgramError(f"not a program node: {node!r}")
+
+    def relation(self, node: Has) -> Selection:
+        x = self.x
+        spec = RELATIONS.get(node.relation)
+        if spec is None:
+            raise ProgramError(f"unknown relation {node.relation!r} (known: {', '.join(sorted(RELATIONS))})")
+        p = resolve_params(spec.defaults, spec.choices, dict(node.params), node.relation)
+        if node.min_count < 1 or (node.max_count is not None and node.max_count < node.min_count):
+            raise ProgramError(f"{node.relation}: min_count must be ≥ 1 and max_count ≥ min_count")
+        sel, other = self.eval(node.subject), self.eval(node.other)
+        if spec.needs_map and not x.has_map:
+            self.note_map(node.relation)
+            return _empty(x)
+        subjects = np.flatnonzero(sel.mask.any(axis=1))
+        others = np.flatnonzero(other.mask.any(axis=1))
+        k, f = x.num_objects, x.num_frames
+        ok_subject = np.zeros((k, f), bool)
+        related = np.zeros((k, f), bool)  # of the others, where they relate to a kept subject
+        reverse_related = np.zeros((k, f), bool)  # of the subjects, where they relate to a kept other
+        if subjects.size and others.size:
+            step = max(1, _CHUNK_CELLS // max(1, others.size * f))
+            for start in range(0, subjects.size, step):
+                block = subjects[start:start + step]
+                g = pair_geometry(x, block, others)
+                holds = spec.fn(g, p) & other.mask[others][None] & sel.mask[block][:, None]  # (S, O, F)
+                count = holds.sum(axis=1)  # (S, F)
+                if node.negate:
+                    ok = (count == 0) & sel.mask[block]
+                else:
+                    ok = count >= node.min_count
+                    if node.max_count is not None:
+                        ok &= count <= node.max_count
+                ok_subject[block] = ok
+                if not node.negate:
+                    kept = holds & ok[:, None, :]
+                    related[others] |= kept.any(axis=0)
+                    reverse_related[block] |= kept.any(axis=1)
+        if node.reverse:
+            if node.negate:
+                raise ProgramError(f"{node.relation}: reverse() of a negated relation names no object")
+            return Selection(np.where(related, other.scores, 0.0).astype(np.float32), reverse_related)
+        kept_sel = _keep(sel, ok_subject)
+        return Selection(kept_sel.scores, kept_sel.related | (related & ~kept_sel.mask))
+
+    def between(self, sel: Selection, left: Selection, right: Selection, lateral_m: float) -> Selection:
+        x = self.x
+        subjects = np.flatnonzero(sel.mask.any(axis=1))
+        both = np.zeros((x.num_objects, x.num_frames), bool)
+        related = np.zeros_like(both)
+        for first, second in ((left, right), (right, left)):  # either kind may be on either side
+            lo, hi = np.flatnonzero(first.mask.any(axis=1)), np.flatnonzero(second.mask.any(axis=1))
+            if not (subjects.size and lo.size and hi.size):
+                continue
+            g_lo, g_hi = pair_geometry(x, subjects, lo), pair_geometry(x, subjects, hi)
+            on_left = in_direction(g_lo, "left", 50.0, lateral_m) & first.mask[lo][None]
+            on_right = in_direction(g_hi, "right", 50.0, lateral_m) & second.mask[hi][None]
+            ok = on_left.any(axis=1) & on_right.any(axis=1)  # (S, F)
+            both[subjects] |= ok
+            related[lo] |= (on_left & ok[:, None]).any(axis=0)
+            related[hi] |= (on_right & ok[:, None]).any(axis=0)
+        kept = _keep(sel, both)
+        return Selection(kept.scores, kept.related | (related & ~kept.mask))
+
+
+def runs_lasting(mask: Mask, time_s: NDArray[np.float64], seconds: float) -> Mask:
+    """(K, F) frames of runs of ``mask`` (consecutive frames per object) that last at least ``seconds``.
+
+    A run lasts from its first frame's time to its last's plus one frame interval (a single frame at
+    10 Hz lasts 0.1 s).
+    """
+    if mask.shape[1] == 0:
+        return mask
+    dt = float(np.median(np.diff(time_s))) if time_s.shape[0] > 1 else 0.0
+    t = np.broadcast_to(time_s, mask.shape)
+    starts = mask & ~np.pad(mask, ((0, 0), (1, 0)))[:, :-1]
+    ends = mask & ~np.pad(mask, ((0, 0), (0, 1)))[:, 1:]
+    start_t = np.maximum.accumulate(np.where(starts, t, -np.inf), axis=1)
+    end_t = np.flip(np.minimum.accumulate(np.flip(np.where(ends, t, np.inf), axis=1), axis=1), axis=1)
+    return mask & (end_t - start_t + dt >= seconds - 1e-6)
+
+
+def then_within(first: Mask, second: Mask, time_s: NDArray[np.float64], within_s: float) -> Mask:
+    """(K, F) frames of ``first`` that ``second`` follows on the same object within ``within_s``, and the
+    frames of ``second`` that ``first`` preceded by at most that."""
+    if first.shape[1] == 0:
+        return first
+    t = np.broadcast_to(time_s, first.shape)
+    last_first = np.maximum.accumulate(np.where(first, t, -np.inf), axis=1)
+    next_second = np.flip(np.minimum.accumulate(np.flip(np.where(second, t, np.inf), axis=1), axis=1), axis=1)
+    # "then": the second starts after the first (not at the same frame), so look from the next frame on.
+    next_after = np.concatenate([next_second[:, 1:], np.full((first.shape[0], 1), np.inf)], axis=1)
+    before = np.concatenate([np.full((first.shape[0], 1), -np.inf), last_first[:, :-1]], axis=1)
+    return (first & (next_after - t <= within_s)) | (second & (t - before <= within_s))
+
+
+def evaluate(node: Node, features: LogFeatures) -> Evaluation:
+    """Run ``node`` on one log (see the module docstring).
+
+    Raises:
+        ProgramError: the program names an unknown kind, predicate or relation, or a bad parameter.
+    """
+    run = _Run(features)
+    return Evaluation(run.eval(node), run.notes)
+
+
+def answer(node: Node, features: LogFeatures, description: str | None = None) -> tuple[LogAnswer, list[str]]:
+    """The program's answer on one log (referred and related objects per frame) and its notes."""
+    result = evaluate(node, features)
+    x, sel = features, result.selection
+    referred = np.where(x.valid, sel.scores, 0.0).astype(np.float32)
+    ego_xyz = np.concatenate([x.xy_m[x.ego_index], x.z_m[x.ego_index][:, None]], axis=1).astype(np.float64)
+    xyz = np.concatenate([x.xy_m, x.z_m[..., None]], axis=-1).astype(np.float64)
+    velocity = np.concatenate([x.velocity_mps, np.zeros_like(x.z_m)[..., None]], axis=-1).astype(np.float64)
+    size = np.broadcast_to(x.size_lwh_m[:, None, :], xyz.shape).astype(np.float64)
+    return LogAnswer(
+        log_id=x.log_id, description=description if description is not None else to_text(node),
+        timestamps_ns=x.timestamps_ns, track_ids=x.track_ids, categories=x.categories, valid=x.valid,
+        referred=referred, related=sel.related & x.valid & (referred == 0), center_city_xyz_m=xyz,
+        size_lwh_m=size, yaw_city_rad=x.yaw_rad.astype(np.float64), velocity_city_mps=velocity,
+        ego_city_xyz_m=ego_xyz,
+    ), result.notes

@@ -1,0 +1,207 @@
+"""Predicates on one object per frame: its own motion, its place on the map, and its place relative to the ego.
+
+Each predicate maps a log's features to a (K, F) mask of the frames where it holds, vectorised over
+every object and frame. Thresholds are the predicate's parameters, with defaults; speeds in m/s,
+accelerations in m/s², durations in seconds. A predicate that reads the map (:attr:`Predicate.needs_map`)
+has no answer on a log without one: the evaluation says so instead of answering "false".
+
+- ``moving``: speed above ``min_mps`` (0.5); ``standing``: at most that.
+- ``stationary``: the object moves less than ``max_travel_m`` (2 m) over its whole track.
+- ``parked``, ``stopped``: the captioning rules' (:mod:`captioning.behavior`); ``stopped`` also holds
+  for any standing object the rules do not call parked.
+- ``accelerating`` / ``braking``: speed rising at ``min_mps2`` (0.65) or more / falling at ``min_mps2``
+  (1.0) or more, or the rules' braking.
+- ``turning``, ``changing_lanes``: the rules' turns and lane changes, ``direction`` left, right or any.
+- ``blocked``, ``braking_for_leader``: the rules' slow follower held up by, or braking for, a vehicle ahead.
+- ``speed``: speed within [``min_mps``, ``max_mps``].
+- ``at_intersection``, ``on_crosswalk``, ``on_road`` (on a lane or in a junction), ``in_bike_lane``,
+  ``in_bus_lane``: map context.
+- ``ego_lane`` (``lane``: host, left, right, oncoming, lateral), ``approaching_ego``, ``moving_away_from_ego``:
+  the captioning's tags relative to the ego.
+"""
+
+from __future__ import annotations
+
+import warnings
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+from captioning.tags import LANES, MOTIONS, Lane, Motion
+from scenarios.features import LogFeatures
+
+Mask = NDArray[np.bool_]
+Params = Mapping[str, float | str]
+
+
+class ProgramError(ValueError):
+    """A program that cannot be built or run: an unknown name, a parameter of the wrong kind or value."""
+
+
+@dataclass(frozen=True)
+class Predicate:
+    """A named test of one object at each frame.
+
+    Attributes:
+        name: the name programs use.
+        phrase: how a reader says it ("is turning {direction}").
+        fn: ``(features, params) -> (K, F) mask``.
+        defaults: parameter name → default value (a float, or a str among ``choices``).
+        choices: for str parameters, the values allowed.
+        needs_map: whether it reads the log's map.
+    """
+
+    name: str
+    phrase: str
+    fn: Callable[[LogFeatures, Params], Mask]
+    defaults: Mapping[str, float | str] = field(default_factory=dict)
+    choices: Mapping[str, tuple[str, ...]] = field(default_factory=dict)
+    needs_map: bool = False
+
+
+PREDICATES: dict[str, Predicate] = {}
+DIRECTIONS = ("left", "right", "any")
+
+
+def _define(name: str, phrase: str, defaults: Mapping[str, float | str] | None = None,
+            choices: Mapping[str, tuple[str, ...]] | None = None, needs_map: bool = False
+            ) -> Callable[[Callable[[LogFeatures, Params], Mask]], Callable[[LogFeatures, Params], Mask]]:
+    def register(fn: Callable[[LogFeatures, Params], Mask]) -> Callable[[LogFeatures, Params], Mask]:
+        PREDICATES[name] = Predicate(name, phrase, fn, dict(defaults or {}), dict(choices or {}), needs_map)
+        return fn
+    return register
+
+
+def _f(params: Params, key: str) -> float:
+    return float(params[key])
+
+
+@_define("moving", "is moving", {"min_mps": 0.5})
+def _moving(x: LogFeatures, p: Params) -> Mask:
+    return x.valid & (x.speed_mps > _f(p, "min_mps"))
+
+
+@_define("standing", "is standing", {"max_mps": 0.5})
+def _standing(x: LogFeatures, p: Params) -> Mask:
+    return x.valid & (x.speed_mps <= _f(p, "max_mps"))
+
+
+@_define("stationary", "never moves", {"max_travel_m": 2.0})
+def _stationary(x: LogFeatures, p: Params) -> Mask:
+    xy = np.where(x.valid[..., None], x.xy_m, np.nan)
+    with warnings.catch_warnings():  # tracks never observed give all-NaN rows: no travel known
+        warnings.simplefilter("ignore", RuntimeWarning)
+        extent = np.nanmax(xy, axis=1) - np.nanmin(xy, axis=1)  # (K, 2)
+    travel = np.nan_to_num(np.hypot(extent[:, 0], extent[:, 1]), nan=np.inf)
+    return x.valid & (travel <= _f(p, "max_travel_m"))[:, None]
+
+
+@_define("parked", "is parked")
+def _parked(x: LogFeatures, p: Params) -> Mask:
+    return x.flag("parked")
+
+
+@_define("stopped", "is stopped", {"max_mps": 0.5})
+def _stopped(x: LogFeatures, p: Params) -> Mask:
+    return (x.flag("stopped") | (x.valid & (x.speed_mps <= _f(p, "max_mps")))) & ~x.flag("parked")
+
+
+@_define("accelerating", "is accelerating", {"min_mps2": 0.65})
+def _accelerating(x: LogFeatures, p: Params) -> Mask:
+    return (x.valid & (x.accel_mps2 >= _f(p, "min_mps2")) & (x.speed_mps > 0.5)) | x.flag("accelerating_host")
+
+
+@_define("braking", "is braking", {"min_mps2": 1.0})
+def _braking(x: LogFeatures, p: Params) -> Mask:
+    return x.flag("braking") | (x.valid & (x.accel_mps2 <= -_f(p, "min_mps2")) & (x.speed_mps > 0.5))
+
+
+def _sided(x: LogFeatures, left: str, right: str, direction: str) -> Mask:
+    if direction == "left":
+        return x.flag(left)
+    if direction == "right":
+        return x.flag(right)
+    return x.flag(left) | x.flag(right)
+
+
+@_define("turning", "is turning {direction}", {"direction": "any"}, {"direction": DIRECTIONS})
+def _turning(x: LogFeatures, p: Params) -> Mask:
+    return _sided(x, "left_turn", "right_turn", str(p["direction"]))
+
+
+@_define("changing_lanes", "is changing lanes {direction}", {"direction": "any"}, {"direction": DIRECTIONS},
+         needs_map=True)
+def _changing_lanes(x: LogFeatures, p: Params) -> Mask:
+    return _sided(x, "left_lane_change", "right_lane_change", str(p["direction"]))
+
+
+@_define("blocked", "is blocked by a vehicle ahead")
+def _blocked(x: LogFeatures, p: Params) -> Mask:
+    return x.flag("blocked_by")
+
+
+@_define("braking_for_leader", "brakes for a vehicle ahead")
+def _braking_for(x: LogFeatures, p: Params) -> Mask:
+    return x.flag("braking_for")
+
+
+@_define("speed", "moves at {min_mps}–{max_mps} m/s", {"min_mps": 0.0, "max_mps": 1000.0})
+def _speed(x: LogFeatures, p: Params) -> Mask:
+    return x.valid & (x.speed_mps >= _f(p, "min_mps")) & (x.speed_mps <= _f(p, "max_mps"))
+
+
+for _name, _phrase in (("at_intersection", "is at an intersection"), ("on_crosswalk", "is on a crosswalk"),
+                       ("in_bike_lane", "is in a bike lane"), ("in_bus_lane", "is in a bus lane")):
+    _define(_name, _phrase, needs_map=True)(lambda x, p, flag=_name: x.flag(flag))
+_define("on_road", "is on the road", needs_map=True)(lambda x, p: x.flag("on_lane"))
+
+_LANE_GROUPS: dict[str, tuple[Lane, ...]] = {
+    "host": (Lane.HOST,), "left": (Lane.LEFT,), "right": (Lane.RIGHT,), "oncoming": (Lane.ONCOMING,),
+    "lateral": (Lane.LEFT_LATERAL, Lane.RIGHT_LATERAL, Lane.HOST_LATERAL),
+}
+
+
+@_define("ego_lane", "is in the {lane} lane of the ego", {"lane": "host"}, {"lane": tuple(_LANE_GROUPS)})
+def _ego_lane(x: LogFeatures, p: Params) -> Mask:
+    codes = [LANES.index(lane) for lane in _LANE_GROUPS[str(p["lane"])]]
+    return x.valid & np.isin(x.ego_lane, codes)
+
+
+@_define("approaching_ego", "comes closer to the ego")
+def _approaching(x: LogFeatures, p: Params) -> Mask:
+    return x.valid & (x.ego_motion == MOTIONS.index(Motion.APPROACH))
+
+
+@_define("moving_away_from_ego", "moves away from the ego")
+def _away(x: LogFeatures, p: Params) -> Mask:
+    return x.valid & (x.ego_motion == MOTIONS.index(Motion.AWAY))
+
+
+def resolve_params(defaults: Mapping[str, float | str], choices: Mapping[str, tuple[str, ...]],
+                   given: Mapping[str, float | str], owner: str) -> dict[str, float | str]:
+    """``given`` checked against a predicate's or relation's parameters, with the defaults filled in.
+
+    Raises:
+        ProgramError: an unknown parameter, a number where a word is expected (or the reverse), or a
+            word outside the choices.
+    """
+    unknown = sorted(set(given) - set(defaults))
+    if unknown:
+        raise ProgramError(f"{owner}: unknown parameter {unknown[0]!r} (known: {', '.join(defaults) or 'none'})")
+    out = dict(defaults)
+    for key, value in given.items():
+        if key in choices:
+            if str(value) not in choices[key]:
+                raise ProgramError(f"{owner}: {key}={value!r} is not one of {', '.join(choices[key])}")
+            out[key] = str(value)
+        else:
+            try:
+                number = float(value)
+            except (TypeError, ValueError):
+                raise ProgramError(f"{owner}: {key}={value!r} is not a number") from None
+            if not np.isfinite(number) or number < 0:
+                raise ProgramError(f"{owner}: {key}={value!r} must be a finite number ≥ 0")
+            out[key] = number
+    return out

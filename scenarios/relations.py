@@ -1,0 +1,219 @@
+"""Relations between two objects per frame, vectorised over subjects × others × frames.
+
+Geometry is taken in the subject's own frame: ``dx_m`` forward along its heading, ``dy_m`` to its left.
+``gap_m`` is the distance between the two boxes, approximated by the centre distance less each box's
+extent towards the other (exact for boxes facing each other, within centimetres otherwise). Each
+relation maps a :class:`PairGeometry` to an (S, O, F) mask of the frames where the other object stands
+in that relation to the subject:
+
+- ``direction`` (``front``, ``behind``, ``left``, ``right``): the other is beyond the subject's box on
+  that side, within ``lateral_m`` of the box's sides and ``within_m`` of the box.
+- ``near``: the boxes are within ``within_m``.
+- ``following``: the subject moves behind the other, in the same direction (within 45°), at most
+  ``within_m`` back and ``lateral_m`` aside.
+- ``same_lane``: both are on the same lane segment, within ``within_m``.
+- ``crossed_by``: the other's centre crosses the line ahead of the subject (up to ``forward_m`` past its
+  front, within ``lateral_m`` of it); the frames within ``window_s`` of the crossing count.
+- ``passed_by`` (``side`` left, right or any): the other moves from behind to ahead of the subject on
+  that side, within ``lateral_m``; the frames within ``window_s`` of it count.
+- ``heading`` (``same``, ``opposite``, ``perpendicular``): the headings differ by at most 45°, at least
+  135°, or between.
+- ``facing``: the other lies within ``angle_deg`` of the subject's heading, within ``within_m``.
+- ``heading_toward``: the subject moves (``min_mps``) towards the other, within ``angle_deg``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+from scenarios.features import LogFeatures
+from scenarios.predicates import Mask, Params
+
+Array = NDArray[np.float32]
+
+
+@dataclass(frozen=True)
+class PairGeometry:
+    """Subjects × others × frames, both observed (arrays (S, O, F) unless said).
+
+    Attributes:
+        ok: both observed, and not the same object.
+        dx_m, dy_m: the other's centre in the subject's frame.
+        gap_m: distance between the boxes.
+        rel_yaw_rad: the other's heading less the subject's, wrapped to (−π, π].
+        half_length_m, half_width_m: (S, 1, 1) the subject's half extents.
+        subject_speed_mps, other_speed_mps: speeds.
+        same_lane: on the same lane segment.
+        time_s: (F,) seconds since the log's first frame.
+    """
+
+    ok: Mask
+    dx_m: Array
+    dy_m: Array
+    gap_m: Array
+    rel_yaw_rad: Array
+    half_length_m: Array
+    half_width_m: Array
+    subject_speed_mps: Array
+    other_speed_mps: Array
+    same_lane: Mask
+    time_s: NDArray[np.float64]
+
+
+def pair_geometry(x: LogFeatures, subjects: NDArray[np.int64], others: NDArray[np.int64]) -> PairGeometry:
+    """The geometry of each subject (S,) against each other object (O,) at every frame."""
+    s_xy, o_xy = x.xy_m[subjects][:, None], x.xy_m[others][None]  # (S, 1, F, 2), (1, O, F, 2)
+    s_yaw = x.yaw_rad[subjects][:, None]  # (S, 1, F)
+    o_yaw = x.yaw_rad[others][None]
+    d = o_xy - s_xy  # (S, O, F, 2)
+    c, s = np.cos(s_yaw), np.sin(s_yaw)
+    dx = c * d[..., 0] + s * d[..., 1]
+    dy = -s * d[..., 0] + c * d[..., 1]
+    rel = (o_yaw - s_yaw + np.pi) % (2 * np.pi) - np.pi
+    dist = np.hypot(dx, dy)
+    s_half = x.size_lwh_m[subjects, :2][:, None, None] / 2  # (S, 1, 1, 2)
+    o_half = x.size_lwh_m[others, :2][None, :, None] / 2  # (1, O, 1, 2)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        ux, uy = np.abs(dx / dist), np.abs(dy / dist)  # the direction to the other, in the subject's frame
+        # ... and in the other's frame (rotated by the relative heading).
+        cr, sr = np.cos(rel), np.sin(rel)
+        vx, vy = np.abs(cr * dx + sr * dy) / dist, np.abs(-sr * dx + cr * dy) / dist
+    extent = np.nan_to_num(ux * s_half[..., 0] + uy * s_half[..., 1] + vx * o_half[..., 0] + vy * o_half[..., 1])
+    ok = x.valid[subjects][:, None] & x.valid[others][None] & (subjects[:, None] != others[None, :])[..., None]
+    s_lane, o_lane = x.lane[subjects][:, None], x.lane[others][None]
+    return PairGeometry(
+        ok=ok, dx_m=dx, dy_m=dy, gap_m=np.maximum(dist - extent, 0.0), rel_yaw_rad=rel,
+        half_length_m=s_half[..., 0], half_width_m=s_half[..., 1],
+        subject_speed_mps=np.broadcast_to(x.speed_mps[subjects][:, None], ok.shape),
+        other_speed_mps=np.broadcast_to(x.speed_mps[others][None], ok.shape),
+        same_lane=(s_lane == o_lane) & (s_lane >= 0), time_s=x.time_s,
+    )
+
+
+@dataclass(frozen=True)
+class Relation:
+    """A named relation of another object to a subject (see the module docstring)."""
+
+    name: str
+    phrase: str
+    fn: Callable[[PairGeometry, Params], Mask]
+    defaults: Mapping[str, float | str] = field(default_factory=dict)
+    choices: Mapping[str, tuple[str, ...]] = field(default_factory=dict)
+    needs_map: bool = False
+
+
+RELATIONS: dict[str, Relation] = {}
+
+
+def _define(name: str, phrase: str, defaults: Mapping[str, float | str] | None = None,
+            choices: Mapping[str, tuple[str, ...]] | None = None, needs_map: bool = False
+            ) -> Callable[[Callable[[PairGeometry, Params], Mask]], Callable[[PairGeometry, Params], Mask]]:
+    def register(fn: Callable[[PairGeometry, Params], Mask]) -> Callable[[PairGeometry, Params], Mask]:
+        RELATIONS[name] = Relation(name, phrase, fn, dict(defaults or {}), dict(choices or {}), needs_map)
+        return fn
+    return register
+
+
+def _f(p: Params, key: str) -> float:
+    return float(p[key])
+
+
+def in_direction(g: PairGeometry, side: str, within_m: float, lateral_m: float) -> Mask:
+    """Where the other lies beyond the subject's box on ``side``, within ``lateral_m`` of its sides."""
+    hl, hw = g.half_length_m, g.half_width_m
+    if side == "front":
+        where = (g.dx_m > hl) & (np.abs(g.dy_m) <= hw + lateral_m)
+    elif side == "behind":
+        where = (g.dx_m < -hl) & (np.abs(g.dy_m) <= hw + lateral_m)
+    elif side == "left":
+        where = (g.dy_m > hw) & (np.abs(g.dx_m) <= hl + lateral_m)
+    else:
+        where = (g.dy_m < -hw) & (np.abs(g.dx_m) <= hl + lateral_m)
+    return g.ok & where & (g.gap_m <= within_m)
+
+
+@_define("direction", "has {other} to its {side}", {"side": "front", "within_m": 50.0, "lateral_m": 1000.0},
+         {"side": ("front", "behind", "left", "right")})
+def _direction(g: PairGeometry, p: Params) -> Mask:
+    return in_direction(g, str(p["side"]), _f(p, "within_m"), _f(p, "lateral_m"))
+
+
+@_define("near", "is near {other}", {"within_m": 10.0})
+def _near(g: PairGeometry, p: Params) -> Mask:
+    return g.ok & (g.gap_m <= _f(p, "within_m"))
+
+
+@_define("following", "follows {other}", {"within_m": 25.0, "lateral_m": 1.5})
+def _following(g: PairGeometry, p: Params) -> Mask:
+    return in_direction(g, "front", _f(p, "within_m"), _f(p, "lateral_m")) & (np.abs(g.rel_yaw_rad) <= np.pi / 4) \
+        & (g.subject_speed_mps > 0.5)
+
+
+@_define("same_lane", "shares a lane with {other}", {"within_m": 50.0}, needs_map=True)
+def _same_lane(g: PairGeometry, p: Params) -> Mask:
+    return g.ok & g.same_lane & (g.gap_m <= _f(p, "within_m"))
+
+
+def _around_events(events: Mask, time_s: NDArray[np.float64], window_s: float) -> Mask:
+    """(S, O, F) frames within ``window_s`` of an event frame (on the same pair)."""
+    if events.shape[-1] == 0:
+        return events
+    t = np.broadcast_to(time_s, events.shape)
+    last = np.maximum.accumulate(np.where(events, t, -np.inf), axis=-1)
+    nxt = np.flip(np.minimum.accumulate(np.flip(np.where(events, t, np.inf), axis=-1), axis=-1), axis=-1)
+    return (t - last <= window_s) | (nxt - t <= window_s)
+
+
+def _sign_change(values: Array, ok: Mask) -> Mask:
+    """(S, O, F) frames where ``values`` changes sign since the frame before (both observed)."""
+    out = np.zeros(values.shape, dtype=bool)
+    out[..., 1:] = ok[..., 1:] & ok[..., :-1] & (np.sign(values[..., 1:]) != np.sign(values[..., :-1]))
+    return out
+
+
+@_define("crossed_by", "is crossed by {other}", {"forward_m": 10.0, "lateral_m": 5.0, "window_s": 1.0})
+def _crossed_by(g: PairGeometry, p: Params) -> Mask:
+    zone = g.ok & (g.dx_m > 0) & (g.dx_m <= g.half_length_m + _f(p, "forward_m")) \
+        & (np.abs(g.dy_m) <= g.half_width_m + _f(p, "lateral_m"))
+    events = _sign_change(g.dy_m, zone)
+    return g.ok & _around_events(events, g.time_s, _f(p, "window_s"))
+
+
+@_define("passed_by", "is passed by {other} on the {side}", {"side": "any", "lateral_m": 5.0, "window_s": 1.0},
+         {"side": ("left", "right", "any")})
+def _passed_by(g: PairGeometry, p: Params) -> Mask:
+    side, lateral = str(p["side"]), _f(p, "lateral_m")
+    beside = (np.abs(g.dy_m) > g.half_width_m) & (np.abs(g.dy_m) <= g.half_width_m + lateral)
+    if side == "left":
+        beside &= g.dy_m > 0
+    elif side == "right":
+        beside &= g.dy_m < 0
+    forward = np.zeros(g.ok.shape, dtype=bool)
+    forward[..., 1:] = (g.dx_m[..., 1:] >= 0) & (g.dx_m[..., :-1] < 0)  # from behind to ahead
+    events = _sign_change(g.dx_m, g.ok & beside) & forward
+    return g.ok & _around_events(events, g.time_s, _f(p, "window_s"))
+
+
+@_define("heading", "heads the {way} way as {other}", {"way": "same", "within_m": 50.0},
+         {"way": ("same", "opposite", "perpendicular")})
+def _heading(g: PairGeometry, p: Params) -> Mask:
+    a = np.abs(g.rel_yaw_rad)
+    way = str(p["way"])
+    match = a <= np.pi / 4 if way == "same" else a >= 3 * np.pi / 4 if way == "opposite" else \
+        (a > np.pi / 4) & (a < 3 * np.pi / 4)
+    return g.ok & match & (g.gap_m <= _f(p, "within_m"))
+
+
+@_define("facing", "faces {other}", {"angle_deg": 22.5, "within_m": 50.0})
+def _facing(g: PairGeometry, p: Params) -> Mask:
+    bearing = np.abs(np.arctan2(g.dy_m, g.dx_m))
+    return g.ok & (bearing <= np.radians(_f(p, "angle_deg"))) & (g.gap_m <= _f(p, "within_m"))
+
+
+@_define("heading_toward", "heads toward {other}", {"angle_deg": 22.5, "min_mps": 0.5, "within_m": 50.0})
+def _heading_toward(g: PairGeometry, p: Params) -> Mask:
+    return _facing(g, p) & (g.subject_speed_mps >= _f(p, "min_mps"))

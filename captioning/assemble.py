@@ -9,6 +9,7 @@ from numpy.typing import NDArray
 
 from captioning.behavior import BehaviorTags
 from captioning.config import CaptioningConfig
+from captioning.frames import FrameCounts
 from captioning.neighbors import NeighborTags
 from captioning.smoothing import IntArray
 from captioning.tables import EGO_CATEGORY, EGO_TRACK_ID, HOST_STRINGS, Caption, window_attributes
@@ -71,12 +72,13 @@ def neighbor_captions(
 ) -> list[Caption]:
     codes, strings = result.tag_codes()
     tagged = result.neighbors.tagged
+    least = FrameCounts.of_log(config, result.timestamps_ns).segment_min  # tagged frames a caption needs
     out: list[Caption] = []
     for window in windows:
         sub_tagged = tagged[:, window.start : window.end + 1]
         counts = sub_tagged.sum(axis=1)
         host = host_tags_in(host_code, window)
-        chosen = np.flatnonzero(counts >= config.segments.min_frames)
+        chosen = np.flatnonzero(counts >= least)
         attributes = (None if result.behavior is None
                       else window_attributes(result.behavior, chosen, window, sub_tagged[chosen]))
         for j, k in enumerate(chosen.tolist()):

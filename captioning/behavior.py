@@ -10,11 +10,12 @@ keys; everything is vectorised over tracks × frames on the compact grid of :mod
 Kinematics
 ----------
 Box centres in the city frame (``city_SE3_ego · ego_SE3_object``), gaps bridged as for the
-neighbour tags, are differentiated with a Savitzky–Golay window of ``behavior.window_frames`` on
-each run of at least ``behavior.min_run_frames`` frames: speed, its rate of change and the heading
-(unwrapped along the track). Shorter runs get no own-behaviour tags (null), and a track without a
-longer run is reported as skipped. Flicker is suppressed as for the other tags
-(``smoothing.min_run_frames``).
+neighbour tags, are differentiated with a Savitzky–Golay window of ``behavior.window_s`` on each run
+lasting at least ``behavior.min_run_s``: speed, its rate of change (``behavior.accel_window_s``) and
+the heading (unwrapped along the track). Durations become frames at the log's own frame rate
+(:mod:`captioning.frames`; a run needs two frames at least, so a 2 Hz log is tagged like a 10 Hz
+one). Shorter runs get no own-behaviour tags (null), and a track without a longer run is reported as
+skipped. Flicker is suppressed as for the other tags (``smoothing.min_run_s``).
 
 Rules (vehicles: every category but pedestrians and ``other``; pedestrians can only stand)
 -------------------------------------------------------------------------------------------
@@ -50,6 +51,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from captioning.config import CaptioningConfig
+from captioning.frames import FrameCounts
 from captioning.leaders import leader_tags, wrap_rad
 from captioning.map_context import MapRaster, junction_kind_codes, lookup
 from captioning.neighbors import TrackMotion
@@ -76,10 +78,16 @@ MAP_LABELS: frozenset[BehaviorLabel] = frozenset(
 NON_VEHICLES = frozenset({Category.PEDESTRIAN.value, Category.OTHER.value})
 #: Categories whose tags carry the context whatever they do (the crosswalk matters to them).
 CONTEXT_CATEGORIES = frozenset({Category.PEDESTRIAN.value, Category.CYCLIST.value})
-#: Why a track gets no own-behaviour tags.
-SKIP_SHORT = "no run of {n} observed frames for own-behaviour tags (behavior.min_run_frames)"
+#: Why a track gets no own-behaviour tags (:func:`skip_short_reason` fills it in).
+SKIP_SHORT = "no run of {seconds:g} s ({frames} frames at {rate}) of observed frames for own-behaviour tags " \
+    "(behavior.min_run_s)"
 #: Said once for a log whose map has no lanes (or that has no map).
 NO_MAP_NOTE = "no map with lanes: keeping_lane, lane changes and map context are null"
+
+
+def skip_short_reason(config: CaptioningConfig, frames: FrameCounts) -> str:
+    """:data:`SKIP_SHORT` for a log whose durations in frames are ``frames``: the key, its seconds and its frames."""
+    return SKIP_SHORT.format(seconds=config.behavior.min_run_s, frames=frames.behavior_min_run, rate=frames.describe())
 
 
 @dataclass(frozen=True)
@@ -276,8 +284,8 @@ def behavior_tags(
     xy = np.empty(first.shape)
     xy[..., 0] = r[0, 0] * first[..., 0] + r[0, 1] * first[..., 1] + o[0]
     xy[..., 1] = r[1, 0] * first[..., 0] + r[1, 1] * first[..., 1] + o[1]
-    w, p = b.window_frames, b.polyorder
-    m = config.smoothing.min_run_frames
+    frames = FrameCounts.of(config, motion.interval_s)
+    w, p, m = frames.behavior_window, frames.behavior_polyorder, frames.min_run
     with np.errstate(invalid="ignore"):
         moving_code = np.where(enough, (speed >= b.stopped_speed_mps).astype(np.int64), NO_TAG)
     moving = suppress_flicker(moving_code, m) == 1

@@ -5,12 +5,12 @@ The YAML file mirrors the nesting (every key optional, defaults below)::
     host:      {stationary_speed_mps: 0.5, accel_mps2: 0.5, yaw_rate_rps: 0.1}
     neighbor:  {stationary_speed_mps: 0.5, stationary_quantile: 0.8, host_lane_half_width_m: 1.85,
                 relative_speed_mps: 1.0, oncoming_min_deg: 150.0, lateral_deg: [60.0, 120.0]}
-    smoothing: {window_frames: 9, polyorder: 2, min_run_frames: 5, max_gap_frames: 3}
-    segments:  {min_frames: 8, max_frames: 300}
+    smoothing: {window_s: 0.9, polyorder: 2, min_run_s: 0.5, max_gap_s: 0.3}
+    segments:  {min_s: 0.8, max_s: 30.0}
     windows:   {strategy: host_segments, length_s: 5.0, stride_s: 2.5}
     text:      {num_paraphrases: 3, seed: 0}
     rules:     behavior          # or: paper (the paper's rules only, seed-exact captions)
-    behavior:  {window_frames: 15, stopped_speed_mps: 0.4, braking_decel_mps2: 0.8, ...}
+    behavior:  {window_s: 0.9, accel_window_s: 0.5, min_run_s: 0.5, stopped_speed_mps: 0.4, ...}
     map:       {resolution_m: 0.5, margin_m: 10.0, arm_gap_deg: 30.0, junction_approach_m: 20.0}
 
 Reading and writing go through :mod:`common.config` (``CaptioningConfig.from_yaml(path)``,
@@ -18,6 +18,11 @@ Reading and writing go through :mod:`common.config` (``CaptioningConfig.from_yam
 sizes above their upper bounds (windows, counts; each part's docstring lists them) raise
 :class:`~captioning.errors.ConfigError`. :data:`DEFAULT_CONFIG_PATH` is the annotated default
 file, equal to ``CaptioningConfig()``.
+
+**Durations are in seconds.** Every window and run of the rules (keys ending in ``_s``) is converted
+to frames at each log's own frame rate (:mod:`captioning.frames`), so that one config means the same
+at 10 Hz and at 2 Hz. Files with the frame-count keys these replace (``smoothing.window_frames``,
+``segments.min_frames``, …) are refused, naming each key and its replacement.
 """
 
 from __future__ import annotations
@@ -27,13 +32,43 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from enum import StrEnum
 from pathlib import Path
-from typing import ClassVar
+from typing import Any, ClassVar, Self
+
+import yaml
 
 from captioning.errors import ConfigError
 from common.config import YamlConfig
 
 #: The annotated default configuration shipped with the package.
 DEFAULT_CONFIG_PATH = Path(__file__).with_name("captioning.yaml")
+
+
+#: Frame-count keys of older config files → the seconds key that replaces each, and its default
+#: in frames at 10 Hz (files with them are refused: a frame count means a different time at each rate).
+RENAMED_KEYS: Mapping[str, tuple[str, str]] = {
+    "smoothing.window_frames": ("smoothing.window_s", "0.9 s is 9 frames at 10 Hz"),
+    "smoothing.min_run_frames": ("smoothing.min_run_s", "0.5 s is 5 frames at 10 Hz"),
+    "smoothing.max_gap_frames": ("smoothing.max_gap_s", "0.3 s is 3 frames at 10 Hz"),
+    "segments.min_frames": ("segments.min_s", "0.8 s is 8 frames at 10 Hz"),
+    "segments.max_frames": ("segments.max_s", "30 s is 300 frames at 10 Hz"),
+    "behavior.window_frames": ("behavior.window_s", "0.9 s is 9 frames at 10 Hz"),
+    "behavior.accel_window_frames": ("behavior.accel_window_s", "0.5 s is 5 frames at 10 Hz"),
+    "behavior.min_run_frames": ("behavior.min_run_s", "0.5 s is 5 frames at 10 Hz"),
+}
+
+
+def refuse_renamed_keys(data: object, source: str) -> None:
+    """Raise :class:`ConfigError` naming every frame-count key of :data:`RENAMED_KEYS` in the nested
+    mapping ``data`` and the seconds key that replaces it; anything else is left to the reader."""
+    if not isinstance(data, Mapping):
+        return
+    found = [
+        f"key '{old}' is now '{new}' (seconds, converted to frames at each log's frame rate; the default {note})"
+        for old, (new, note) in RENAMED_KEYS.items()
+        if isinstance(part := data.get(old.partition(".")[0]), Mapping) and old.partition(".")[2] in part
+    ]
+    if found:
+        raise ConfigError(f"{source}: " + "; ".join(found))
 
 
 class CaptioningYamlConfig(YamlConfig):
@@ -106,46 +141,53 @@ class NeighborConfig(CaptioningYamlConfig):
 
 @dataclass(frozen=True)
 class SmoothingConfig(CaptioningYamlConfig):
-    """Derivatives and flicker suppression.
+    """Derivatives and flicker suppression, in seconds (frames at each log's rate: :mod:`captioning.frames`).
 
     Attributes:
-        window_frames: Savitzky–Golay window (odd). 9 frames = 0.9 s at 10 Hz: long enough to average
-            out box jitter, short enough to keep a 2 s braking manoeuvre.
-        polyorder: Savitzky–Golay polynomial order (< window_frames).
-        min_run_frames: per-frame tags holding for fewer frames are replaced by their neighbours'
-            (0.5 s at 10 Hz); 1 turns suppression off.
-        max_gap_frames: a track's gaps of at most this many frames (missed detections) are bridged
-            by linear interpolation in time before differentiating and suppressing flicker, so a
-            tracker's occasional miss does not cut a track into short, noisy runs; tags are still
-            reported on observed frames only. 3 frames (0.3 s) covers typical misses and occlusions
-            by a passing object; 0 differentiates each contiguous run on its own.
+        window_s: Savitzky–Golay window of the host's and the tracks' derivatives. 0.9 s (9 frames at
+            10 Hz): long enough to average out box jitter, short enough to keep a 2 s braking
+            manoeuvre. In frames it is the nearest odd count, at least 3 and above ``polyorder``: 3
+            at 2 Hz, where the derivative is the central difference.
+        polyorder: Savitzky–Golay polynomial order.
+        min_run_s: per-frame tags holding for less than this are replaced by their neighbours'
+            (0.5 s: 5 frames at 10 Hz; at 2 Hz a single frame lasts as long, so nothing is
+            replaced); 0 turns suppression off.
+        max_gap_s: a track's gaps of at most this long in missed frames (missed detections) are
+            bridged by linear interpolation in time before differentiating and suppressing flicker, so
+            a tracker's occasional miss does not cut a track into short, noisy runs; tags are still
+            reported on observed frames only. 0.3 s (3 frames at 10 Hz, 1 at 2 Hz) covers typical
+            misses and occlusions by a passing object; 0 differentiates each contiguous run on its own.
 
-    Upper bounds: ``window_frames`` 1001, ``min_run_frames`` and ``max_gap_frames`` 100000.
+    Upper bounds: ``window_s`` 100, ``min_run_s`` and ``max_gap_s`` 10000 (seconds), ``polyorder`` 20.
     """
 
-    upper_bounds: ClassVar[Mapping[str, float]] = {"window_frames": 1001, "min_run_frames": 100_000,
-                                                   "max_gap_frames": 100_000}
+    upper_bounds: ClassVar[Mapping[str, float]] = {"window_s": 100.0, "min_run_s": 10_000.0,
+                                                   "max_gap_s": 10_000.0, "polyorder": 20}
 
-    window_frames: int = 9
+    window_s: float = 0.9
     polyorder: int = 2
-    min_run_frames: int = 5
-    max_gap_frames: int = 3
+    min_run_s: float = 0.5
+    max_gap_s: float = 0.3
 
 
 @dataclass(frozen=True)
 class SegmentsConfig(CaptioningYamlConfig):
-    """Host segments: runs of one host tag, ``min_frames``..``max_frames`` long (paper: 8..300).
+    """Host segments: runs of one host tag, ``min_s``..``max_s`` long (paper: 8..300 frames at 10 Hz).
 
-    Runs shorter than ``min_frames`` are dropped; longer than ``max_frames`` are split into equal parts,
-    which is why ``max_frames`` must be at least twice ``min_frames`` (no part may fall below the minimum).
+    Attributes:
+        min_s: runs shorter than this are dropped (0.8 s: 8 frames at 10 Hz, 2 at 2 Hz); a neighbour
+            caption needs its track tagged in at least as many frames of the window.
+        max_s: longer runs are split into equal parts (30 s: 300 frames at 10 Hz), which is why it
+            must be at least twice ``min_s`` (no part may fall below the minimum; in frames the
+            maximum is kept at least twice the minimum after rounding).
 
-    Upper bounds: ``min_frames`` 50000, ``max_frames`` 100000 (almost three hours at 10 Hz).
+    Upper bounds: ``min_s`` 5000, ``max_s`` 10000 (seconds; almost three hours).
     """
 
-    upper_bounds: ClassVar[Mapping[str, float]] = {"min_frames": 50_000, "max_frames": 100_000}
+    upper_bounds: ClassVar[Mapping[str, float]] = {"min_s": 5_000.0, "max_s": 10_000.0}
 
-    min_frames: int = 8
-    max_frames: int = 300
+    min_s: float = 0.8
+    max_s: float = 30.0
 
 
 @dataclass(frozen=True)
@@ -190,15 +232,17 @@ class BehaviorConfig(CaptioningYamlConfig):
     simulator's behaviour labels (:class:`scenes.behavior.BehaviorLabel`).
 
     Attributes:
-        window_frames: Savitzky–Golay window (odd) of the objects' own speed, acceleration and
-            lateral offset. 15 frames = 1.5 s at 10 Hz: box jitter of a tracker (±0.15 m) becomes
-            ≈0.1 m/s of speed noise, well below ``stopped_speed_mps``, while a 2 s braking keeps
-            most of its peak.
-        polyorder: its polynomial order (< window_frames).
-        accel_window_frames: Savitzky–Golay window (odd) of the rate of change of the smoothed speed;
-            short, because the speed is smoothed already.
-        min_run_frames: a track needs a run of at least this many observed (or bridged) frames for
-            own-behaviour tags; shorter runs are untagged (null) and the track is reported.
+        window_s: Savitzky–Golay window of the objects' own speed, heading rate and smoothed
+            position (for the map lookup). 0.9 s (9 frames at 10 Hz), as ``smoothing.window_s``, so
+            the speed is the neighbour tags' derivative: box jitter of a tracker (±0.15 m) becomes
+            ≈0.1–0.2 m/s of speed noise, below ``stopped_speed_mps``, while a 2 s braking keeps most of
+            its peak. In frames the nearest odd count, at least 3 and above ``polyorder``.
+        polyorder: its polynomial order.
+        accel_window_s: Savitzky–Golay window of the rate of change of the smoothed speed; short,
+            because the speed is smoothed already (0.5 s: 5 frames at 10 Hz; at least 3 frames).
+        min_run_s: a track needs a run of observed (or bridged) frames lasting at least this for
+            own-behaviour tags (0.5 s: 5 frames at 10 Hz, 2 at 2 Hz; never fewer than 2 frames, as a
+            derivative needs two); shorter runs are untagged (null) and the track is reported.
         stopped_speed_mps: below this smoothed speed an object stands still (stopped or parked).
             The labels' 0.2 m/s is within the speed noise of tracked boxes; 0.4 m/s is above it.
         braking_decel_mps2: a moving vehicle brakes when its speed falls at least this fast (1 m/s²,
@@ -229,16 +273,16 @@ class BehaviorConfig(CaptioningYamlConfig):
         ego_front_m: the ego's front bumper ahead of its origin (rear axle), for the ego as a leader.
         ego_rear_m: its rear bumper behind the origin.
 
-    Upper bounds: ``window_frames`` and ``accel_window_frames`` 1001, ``min_run_frames`` 100000.
+    Upper bounds: ``window_s`` and ``accel_window_s`` 100, ``min_run_s`` 10000 (seconds), ``polyorder`` 20.
     """
 
-    upper_bounds: ClassVar[Mapping[str, float]] = {"window_frames": 1001, "accel_window_frames": 1001,
-                                                   "min_run_frames": 100_000}
+    upper_bounds: ClassVar[Mapping[str, float]] = {"window_s": 100.0, "accel_window_s": 100.0,
+                                                   "min_run_s": 10_000.0, "polyorder": 20}
 
-    window_frames: int = 9
+    window_s: float = 0.9
     polyorder: int = 2
-    accel_window_frames: int = 5
-    min_run_frames: int = 5
+    accel_window_s: float = 0.5
+    min_run_s: float = 0.5
     stopped_speed_mps: float = 0.4
     braking_decel_mps2: float = 1.0
     parked_off_lane_fraction: float = 0.5
@@ -308,6 +352,32 @@ class CaptioningConfig(CaptioningYamlConfig):
         super().__post_init__()
         self.validate()
 
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any] | None, source: str = "<dict>") -> Self:
+        """As :meth:`YamlConfig.from_dict`; a frame-count key of an older file is refused naming its
+        replacement (:data:`RENAMED_KEYS`)."""
+        refuse_renamed_keys(data, source)
+        return super().from_dict(data, source)
+
+    @classmethod
+    def from_yaml_text(cls, text: str, source: str = "<text>") -> Self:
+        """As :meth:`YamlConfig.from_yaml_text`, refusing frame-count keys as :meth:`from_dict` does."""
+        try:
+            data = yaml.safe_load(text)
+        except yaml.YAMLError:
+            data = None  # the reader below reports it, with line and column
+        refuse_renamed_keys(data, source)
+        return super().from_yaml_text(text, source)
+
+    @classmethod
+    def from_yaml(cls, path: Path | str) -> Self:
+        """As :meth:`YamlConfig.from_yaml`, refusing frame-count keys as :meth:`from_dict` does."""
+        try:
+            text = Path(path).read_text(encoding="utf-8")
+        except (OSError, UnicodeDecodeError):
+            return super().from_yaml(path)  # reports why the file cannot be read
+        return cls.from_yaml_text(text, source=str(path))
+
     def validate(self) -> None:
         """Raise :class:`ConfigError` listing every contradiction."""
         problems: list[str] = []
@@ -333,23 +403,32 @@ class CaptioningConfig(CaptioningYamlConfig):
             )
         if not (0 < self.neighbor.stationary_quantile <= 1):
             problems.append(f"neighbor.stationary_quantile must lie in (0, 1], got {self.neighbor.stationary_quantile}")
-        s = self.smoothing
-        if s.window_frames < 3 or s.window_frames % 2 == 0:
-            problems.append(f"smoothing.window_frames must be odd and >= 3, got {s.window_frames}")
-        if not (1 <= s.polyorder < s.window_frames):
-            problems.append(f"smoothing.polyorder must lie in [1, window_frames), got {s.polyorder}")
-        if s.max_gap_frames < 0:
-            problems.append(f"smoothing.max_gap_frames must be >= 0, got {s.max_gap_frames}")
-        if s.min_run_frames < 1:
-            problems.append(f"smoothing.min_run_frames must be >= 1, got {s.min_run_frames}")
-        g = self.segments
-        if g.min_frames < 1:
-            problems.append(f"segments.min_frames must be >= 1, got {g.min_frames}")
-        if g.min_frames > g.max_frames:
-            problems.append(f"segments.min_frames ({g.min_frames}) exceeds segments.max_frames ({g.max_frames})")
-        elif g.max_frames < 2 * g.min_frames:
+        s, g, b = self.smoothing, self.segments, self.behavior
+        positive_s = {
+            "smoothing.window_s": s.window_s,
+            "segments.min_s": g.min_s,
+            "behavior.window_s": b.window_s,
+            "behavior.accel_window_s": b.accel_window_s,
+        }
+        for key, value in positive_s.items():
+            if not math.isfinite(value) or value <= 0:
+                problems.append(f"{key} must be a finite number of seconds > 0, got {value}")
+        at_least_zero_s = {
+            "smoothing.min_run_s": s.min_run_s,
+            "smoothing.max_gap_s": s.max_gap_s,
+            "behavior.min_run_s": b.min_run_s,
+        }
+        for key, value in at_least_zero_s.items():
+            if not math.isfinite(value) or value < 0:
+                problems.append(f"{key} must be a finite number of seconds >= 0, got {value}")
+        for key, order in (("smoothing.polyorder", s.polyorder), ("behavior.polyorder", b.polyorder)):
+            if order < 1:
+                problems.append(f"{key} must be >= 1, got {order}")
+        if g.min_s > g.max_s:
+            problems.append(f"segments.min_s ({g.min_s}) exceeds segments.max_s ({g.max_s})")
+        elif not g.max_s >= 2 * g.min_s:
             problems.append(
-                f"segments.max_frames ({g.max_frames}) must be at least twice segments.min_frames ({g.min_frames}) "
+                f"segments.max_s ({g.max_s}) must be at least twice segments.min_s ({g.min_s}) "
                 "so that splitting a long run never yields a part shorter than the minimum"
             )
         w = self.windows
@@ -359,17 +438,6 @@ class CaptioningConfig(CaptioningYamlConfig):
             problems.append(f"windows.length_s and windows.stride_s must be > 0, got {w.length_s}, {w.stride_s}")
         if not isinstance(self.rules, RuleSet):
             problems.append(f"rules must be one of {[v.value for v in RuleSet]}, got {self.rules!r}")
-        b = self.behavior
-        if b.window_frames < 3 or b.window_frames % 2 == 0:
-            problems.append(f"behavior.window_frames must be odd and >= 3, got {b.window_frames}")
-        if b.accel_window_frames < 3 or b.accel_window_frames % 2 == 0:
-            problems.append(f"behavior.accel_window_frames must be odd and >= 3, got {b.accel_window_frames}")
-        if not (1 <= b.polyorder < b.window_frames):
-            problems.append(f"behavior.polyorder must lie in [1, window_frames), got {b.polyorder}")
-        if b.min_run_frames < 2:
-            problems.append(
-                f"behavior.min_run_frames must be >= 2 (a derivative needs two frames), got {b.min_run_frames}"
-            )
         if not (0 < b.parked_off_lane_fraction <= 1):
             problems.append(f"behavior.parked_off_lane_fraction must lie in (0, 1], got {b.parked_off_lane_fraction}")
         positive = {

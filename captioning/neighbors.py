@@ -2,9 +2,10 @@
 
 Gaps
 ----
-Gaps of up to ``smoothing.max_gap_frames`` frames inside a track (missed detections) are bridged by
-linear interpolation before differentiating and suppressing flicker; longer gaps split the track
-into runs that are differentiated separately. Tags are reported on observed frames only.
+Gaps of up to ``smoothing.max_gap_s`` of missed frames inside a track (missed detections; in frames
+at the log's rate, :mod:`captioning.frames`) are bridged by linear interpolation before
+differentiating and suppressing flicker; longer gaps split the track into runs that are
+differentiated separately. Tags are reported on observed frames only.
 
 Stationarity (eq. 3)
 --------------------
@@ -34,6 +35,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from captioning.config import CaptioningConfig
+from captioning.frames import FrameCounts
 from captioning.smoothing import (
     BoolArray,
     IntArray,
@@ -277,6 +279,8 @@ class TrackMotion:
         run_end: (K, L) its last column.
         derivative: (K, L, 4) time derivatives of ``positions`` (``smoothing`` window); NaN where undefined.
         city_SE3_first: (4, 4) the host's first-frame pose: ``city = city_SE3_first · first``.
+        interval_s: the log's frame interval (:func:`~captioning.frames.frame_interval_s`), at which the
+            config's durations are converted to frames (:meth:`~captioning.frames.FrameCounts.of`).
     """
 
     grid: CompactGrid
@@ -288,6 +292,7 @@ class TrackMotion:
     run_end: IntArray
     derivative: FloatArray
     city_SE3_first: FloatArray
+    interval_s: float
 
 
 def track_motion(
@@ -307,7 +312,7 @@ def track_motion(
         yaw_ego_rad: (K, T) headings in the ego frame.
         city_SE3_ego: (T, 4, 4) ego poses.
     """
-    w, p = config.smoothing.window_frames, config.smoothing.polyorder
+    frames = FrameCounts.of_log(config, timestamps_ns)
     grid = CompactGrid.of(valid)
     cvalid = grid.valid
     rel_xy: FloatArray = np.where(cvalid[..., None], grid.gather(center_ego_xy_m), 0.0)  # (K, L, 2)
@@ -317,10 +322,11 @@ def track_motion(
     first_xy = host_compensated_xy(rel_xy, planar[grid.frame])
     t_s = seconds_since_first(timestamps_ns)[grid.frame]  # (K, L)
     positions = np.concatenate([first_xy, rel_xy], axis=2)  # (K, L, 4)
-    bridged = bridge_gaps(positions, yaw, cvalid, grid.inside, t_s, config.smoothing.max_gap_frames)
+    bridged = bridge_gaps(positions, yaw, cvalid, grid.inside, t_s, frames.max_gap)
     runs = run_bounds(bridged)
-    d = time_derivative(positions, bridged, t_s, w, p, runs=runs)  # (K, L, 4)
-    return TrackMotion(grid, t_s, positions, yaw, bridged, *runs, d, np.asarray(city_SE3_ego[0], dtype=np.float64))
+    d = time_derivative(positions, bridged, t_s, frames.window, frames.polyorder, runs=runs)  # (K, L, 4)
+    return TrackMotion(grid, t_s, positions, yaw, bridged, *runs, d, np.asarray(city_SE3_ego[0], dtype=np.float64),
+                       frames.interval_s)
 
 
 def neighbor_tags(
@@ -370,7 +376,7 @@ def neighbor_tags(
     if stationary_objects:
         moving = np.ones_like(moving)
 
-    m = config.smoothing.min_run_frames
+    m = FrameCounts.of(config, tracks.interval_s).min_run
     raw_lane = lane_codes(baseline_lane_codes(yaw, config), positions[..., 3], config)
     lane = suppress_flicker(np.where(tagged, raw_lane, NO_TAG), m)
     baseline = np.where(tagged, BASELINE_CODE_OF_LANE_CODE[np.maximum(lane, 0)], NO_TAG)

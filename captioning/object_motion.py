@@ -17,6 +17,7 @@ from numpy.typing import NDArray
 from scipy.ndimage import correlate1d
 
 from captioning.config import CaptioningConfig
+from captioning.frames import FrameCounts
 from captioning.leaders import wrap_rad
 from captioning.neighbors import CompactGrid, TrackMotion, track_motion
 from captioning.smoothing import BoolArray, IntArray, savgol_coefficients, time_derivative
@@ -60,6 +61,8 @@ def _interior_rate(
         run_end: (K, L) its last column.
     """
     h = window_frames // 2
+    if window_frames > values.shape[1]:  # the window fits no run (and its weights would be large)
+        return np.full(values.shape, np.nan)
     weights = savgol_coefficients(window_frames, polyorder, 1)[h]
     both = np.stack([np.nan_to_num(values), t_s], axis=2)
     d = correlate1d(both, weights, axis=1, mode="constant", cval=0.0)
@@ -97,19 +100,19 @@ def object_kinematics(motion: TrackMotion, city_SE3_ego: FloatArray, config: Cap
         motion: the tracks gathered, bridged and differentiated (:func:`captioning.neighbors.track_motion`).
         city_SE3_ego: (T, 4, 4) ego poses.
     """
-    b = config.behavior
+    frames = FrameCounts.of(config, motion.interval_s)
     start, end = motion.run_start, motion.run_end
-    enough = motion.bridged & (end - start + 1 >= b.min_run_frames)
+    enough = motion.bridged & (end - start + 1 >= frames.behavior_min_run)
     ego_yaw = np.arctan2(city_SE3_ego[:, 1, 0], city_SE3_ego[:, 0, 0])
     yaw = motion.yaw_ego_rad + ego_yaw[motion.grid.frame]
     # Speed: the neighbour tags' derivatives when the windows agree; then its rate of change.
-    w, p = b.window_frames, b.polyorder
-    if (w, p) == (config.smoothing.window_frames, config.smoothing.polyorder):
+    w, p, wa = frames.behavior_window, frames.behavior_polyorder, frames.accel_window
+    if (w, p) == (frames.window, frames.polyorder):
         vel = motion.derivative[..., :2]
     else:
         vel = time_derivative(motion.positions[..., :2], enough, motion.t_s, w, p)
     speed = np.where(enough, np.hypot(vel[..., 0], vel[..., 1]), np.nan)
-    accel = _interior_rate(speed, motion.t_s, start, end, b.accel_window_frames, min(p, b.accel_window_frames - 1))
+    accel = _interior_rate(speed, motion.t_s, start, end, wa, min(p, wa - 1))
     return ObjectKinematics(enough, speed, accel, yaw, _yaw_rate_rps(yaw, enough, motion.t_s, w))
 
 

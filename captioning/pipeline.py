@@ -24,7 +24,7 @@ computed (frames of too short runs; lane tags and context on a log without a map
 num_frames, tags`` (the unified sequence), ``host_tags`` (the host's over the same window),
 ``caption`` (= ``canonical_caption``), ``canonical_caption, paraphrases, window``. Host captions
 have track id ``ego``, one per host segment; neighbour captions one per (track, window) where the
-track is tagged in at least ``segments.min_frames`` frames of the window (moving tracks only under
+track is tagged in at least ``segments.min_s`` worth of frames of the window (moving tracks only under
 ``rules: paper``); the interval is the track's first and last tagged frame inside the window, and
 (log, track, start) is unique (of sliding windows that clip a track to the same start, the longest
 is kept). Under ``rules: behavior`` the neighbour tags carry the own action and context
@@ -48,9 +48,10 @@ import pyarrow.parquet as pq
 from numpy.typing import NDArray
 
 from captioning.assemble import host_captions, neighbor_captions, unique_starts
-from captioning.behavior import NO_MAP_NOTE, SKIP_SHORT, BehaviorTags, behavior_tags
+from captioning.behavior import NO_MAP_NOTE, BehaviorTags, behavior_tags, skip_short_reason
 from captioning.config import CaptioningConfig, RuleSet
 from captioning.errors import TrackDataError
+from captioning.frames import FrameCounts
 from captioning.host import host_kinematics, host_tags_of
 from captioning.map_context import rasterize_map
 from captioning.neighbors import NeighborTags, neighbor_tags, track_motion
@@ -341,9 +342,10 @@ def tag_arrays(
         else:
             behavior = behavior_tags(timestamps_ns, motion, length_m, categories, city_SE3_ego, raster, config,
                                      kin.speed_mps, kin.accel_mps2)
-        short = SKIP_SHORT.format(n=config.behavior.min_run_frames)
+        frames = FrameCounts.of(config, kin.interval_s)
+        short = skip_short_reason(config, frames)
         skipped.update({str(tid): short for tid in track_ids[nb.taggable & ~behavior.taggable]})
-        action, context = action_context_codes(behavior, nb.tagged, config.smoothing.min_run_frames)
+        action, context = action_context_codes(behavior, nb.tagged, frames.min_run)
     return LogCaptions(
         log_id, timestamps_ns, track_ids, categories, valid, center_ego_xy_m,
         host_motion, host_direction, nb, [], [], skipped, behavior, notes, action, context,

@@ -2,7 +2,8 @@
 
 It exists as a test oracle (the vectorised code must give the same tags) and as the speed
 baseline of ``benchmarks/bench_captioning.py``. Nothing else should use it: it is slow on purpose,
-with one Python step per track and frame, exactly as the rules read.
+with one Python step per track and frame, exactly as the rules read. The config's durations become
+frames as in the vectorised code (:class:`~captioning.frames.FrameCounts`).
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from captioning.config import CaptioningConfig
+from captioning.frames import FrameCounts
 from captioning.smoothing import FloatArray, savgol_derivative_coefficients
 from captioning.tags import (
     BASELINE_OF_LANE,
@@ -78,8 +80,8 @@ def _derivative_at(values: list[float], valid: list[bool], i: int, window: int, 
     return float(sum(float(coeffs[j]) * values[start + j] for j in range(window)))
 
 
-def _time_derivatives(values: list[float], valid: list[bool], t_s: list[float], cfg: CaptioningConfig) -> list[float]:
-    w, p = cfg.smoothing.window_frames, cfg.smoothing.polyorder
+def _time_derivatives(values: list[float], valid: list[bool], t_s: list[float], frames: FrameCounts) -> list[float]:
+    w, p = frames.window, frames.polyorder
     out = []
     for i in range(len(values)):
         if not valid[i]:
@@ -132,18 +134,19 @@ def reference_tags(
 ) -> ReferenceTags:
     """Per-frame tags, one Python step at a time; the arguments (and their shapes) are those of
     :func:`captioning.neighbors.neighbor_tags`, whose results these must equal."""
-    h, nb, m = config.host, config.neighbor, config.smoothing.min_run_frames
+    frames = FrameCounts.of_log(config, timestamps_ns)
+    h, nb, m, max_gap = config.host, config.neighbor, frames.min_run, frames.max_gap
     k_count, t_count = valid.shape
     t_s = [float(ts - timestamps_ns[0]) * 1e-9 for ts in timestamps_ns.tolist()]
     everywhere = [True] * t_count
 
     # Host (eqs. 1, 2).
     yaw = np.unwrap([math.atan2(city_SE3_ego[f, 1, 0], city_SE3_ego[f, 0, 0]) for f in range(t_count)]).tolist()
-    vx = _time_derivatives([float(city_SE3_ego[f, 0, 3]) for f in range(t_count)], everywhere, t_s, config)
-    vy = _time_derivatives([float(city_SE3_ego[f, 1, 3]) for f in range(t_count)], everywhere, t_s, config)
-    omega = _time_derivatives(yaw, everywhere, t_s, config)
+    vx = _time_derivatives([float(city_SE3_ego[f, 0, 3]) for f in range(t_count)], everywhere, t_s, frames)
+    vy = _time_derivatives([float(city_SE3_ego[f, 1, 3]) for f in range(t_count)], everywhere, t_s, frames)
+    omega = _time_derivatives(yaw, everywhere, t_s, frames)
     speed = [math.hypot(a, b) for a, b in zip(vx, vy)]
-    accel = _time_derivatives(speed, everywhere, t_s, config)
+    accel = _time_derivatives(speed, everywhere, t_s, frames)
     host_motion, host_direction = [], []
     for f in range(t_count):
         v, a, w = speed[f], accel[f], omega[f]
@@ -186,7 +189,7 @@ def reference_tags(
         # Bridge short gaps: linear in time between the observations on either side.
         bridged = list(obs)
         for f in range(t_count):
-            if obs[f] or config.smoothing.max_gap_frames <= 0:
+            if obs[f] or max_gap <= 0:
                 continue
             before = f - 1
             while before >= 0 and not obs[before]:
@@ -194,17 +197,17 @@ def reference_tags(
             after = f + 1
             while after < t_count and not obs[after]:
                 after += 1
-            if before < 0 or after >= t_count or after - before - 1 > config.smoothing.max_gap_frames:
+            if before < 0 or after >= t_count or after - before - 1 > max_gap:
                 continue
             w = (t_s[f] - t_s[before]) / (t_s[after] - t_s[before])
             for channel in (first_x, first_y, rel_x, rel_y):
                 channel[f] = channel[before] + w * (channel[after] - channel[before])
             heading[f] = heading[before]
             bridged[f] = True
-        dfx = _time_derivatives(first_x, bridged, t_s, config)
-        dfy = _time_derivatives(first_y, bridged, t_s, config)
-        drx = _time_derivatives(rel_x, bridged, t_s, config)
-        dry = _time_derivatives(rel_y, bridged, t_s, config)
+        dfx = _time_derivatives(first_x, bridged, t_s, frames)
+        dfy = _time_derivatives(first_y, bridged, t_s, frames)
+        drx = _time_derivatives(rel_x, bridged, t_s, frames)
+        dry = _time_derivatives(rel_y, bridged, t_s, frames)
         ok = [bridged[f] and not math.isnan(dfx[f]) for f in range(t_count)]
         ok_observed = [ok[f] and obs[f] for f in range(t_count)]
         if not any(ok_observed):

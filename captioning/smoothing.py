@@ -3,13 +3,15 @@
 Derivatives
 -----------
 Positions and headings are differentiated with a Savitzky–Golay filter (polynomial of order
-``polyorder`` fitted by least squares over ``window_frames`` frames), separately on each contiguous
-run of observed frames, so that a gap in a track never mixes two runs:
+``polyorder`` fitted by least squares over ``window_frames`` frames, an odd count: the config's
+``window_s`` at the log's frame rate, :mod:`captioning.frames`), separately on each contiguous run of
+observed frames, so that a gap in a track never mixes two runs:
 
 - a frame whose centred window fits inside its run uses the centred window;
 - near a run's ends the window is shifted to lie inside the run and the fitted polynomial is
   differentiated at the frame's own position (scipy's ``mode="interp"``);
-- runs shorter than the window use plain finite differences (central inside, one-sided at the ends);
+- runs shorter than the window use plain finite differences (central inside, one-sided at the ends),
+  so that at a low frame rate (2 Hz: a 3-frame window) a two-frame run still has a derivative;
 - single-frame runs have no derivative (NaN): such frames are left untagged.
 
 The filter works per frame index; timestamps are differentiated the same way and
@@ -96,7 +98,8 @@ def frame_derivative(
     k, t, c = values.shape
     if k == 0 or t == 0:
         return np.full((k, t, c), np.nan)
-    w = window_frames
+    # A window longer than the grid fits no run: the smallest odd count above T gives the same result.
+    w = min(window_frames, t + 1 if t % 2 == 0 else t + 2)
     half = w // 2
     sg_coeffs = savgol_coefficients(w, polyorder, order)
     # Unobserved samples get weight 0, but 0 × NaN is NaN: zero them unless all are finite already.
@@ -173,7 +176,8 @@ def time_derivative(
 
 
 def suppress_flicker(codes: IntArray, min_run_frames: int) -> IntArray:
-    """Replace runs of a tag shorter than ``min_run_frames`` by the neighbouring tag.
+    """Replace runs of a tag shorter than ``min_run_frames`` (the config's ``min_run_s`` at the log's
+    frame rate) by the neighbouring tag.
 
     A short run takes the tag of the frame before it (the end of the previous long run); at a
     track's start or after a gap it takes the tag after it; when a whole observed stretch consists

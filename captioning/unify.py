@@ -8,6 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from captioning.config import CaptioningConfig, WindowStrategy
+from captioning.frames import FrameCounts
 from captioning.smoothing import IntArray
 from captioning.tags import NO_TAG
 
@@ -101,6 +102,9 @@ def caption_windows(
 ) -> tuple[list[Segment], list[Segment]]:
     """Host segments and the neighbour windows of the configured strategy.
 
+    Segments last ``segments.min_s``..``max_s`` in frames at the log's frame rate
+    (:class:`~captioning.frames.FrameCounts`); sliding windows need as many frames as the shortest segment.
+
     Args:
         timestamps_ns: (T,) frame timestamps.
         host_code: (T,) unified host codes.
@@ -108,8 +112,9 @@ def caption_windows(
     Returns:
         (host segments, neighbour windows).
     """
-    segments = host_segments(host_code, config.segments.min_frames, config.segments.max_frames)
+    frames = FrameCounts.of_log(config, timestamps_ns)
+    segments = host_segments(host_code, frames.segment_min, frames.segment_max)
     if config.windows.strategy == WindowStrategy.HOST_SEGMENTS:
         return segments, segments
     windows = sliding_windows(timestamps_ns, config.windows.length_s, config.windows.stride_s)
-    return segments, [w for w in windows if w.num_frames >= config.segments.min_frames]
+    return segments, [w for w in windows if w.num_frames >= frames.segment_min]

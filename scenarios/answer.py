@@ -18,7 +18,8 @@ class LogAnswer:
         description: the description (or program text) answered.
         timestamps_ns: (F,) the log's annotation timestamps, increasing.
         track_ids: (K,) track ids (str).
-        categories: (K,) public category values (str).
+        categories: (K,) each object's dataset label where the log has AV2's (``REGULAR_VEHICLE``,
+            ``EGO_VEHICLE``), else its public category (``car``).
         valid: (K, F) whether the track is observed at the frame.
         referred: (K, F) float32 score in [0, 1] of each object being referred to at each frame; 0
             where not referred (or not observed).

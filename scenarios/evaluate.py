@@ -7,8 +7,9 @@ select anywhere in the log (so "vehicle with a bicycle to its right" compares ve
 not every pair), in chunks of bounded size. Durations are seconds on the log's own timestamps, so a
 program means the same at 10 Hz and at 2 Hz.
 
-A predicate or relation that needs the map, on a log without one, selects nothing and adds a note
-saying so (:attr:`Evaluation.notes`): "no answer" is never reported as "false" silently.
+A predicate or relation that needs what a log lacks (a map; recorded lighting or weather) selects
+nothing there and adds a note saying so (:attr:`Evaluation.notes`): "no answer" is never reported as
+"false" silently.
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ from numpy.typing import NDArray
 from scenarios.answer import LogAnswer
 from scenarios.features import LogFeatures
 from scenarios.kinds import KIND_NAMES, kind_mask
-from scenarios.predicates import PREDICATES, Mask, ProgramError, resolve_params
+from scenarios.predicates import PREDICATES, Mask, ProgramError, resolve_params, unanswerable
 from scenarios.program import (
     AllOf,
     AnyOf,
@@ -33,10 +34,12 @@ from scenarios.program import (
     Node,
     Objects,
     Then,
+    Together,
     While,
     to_text,
 )
 from scenarios.relations import RELATIONS, in_direction, pair_geometry
+from scenes.categories import AV2_TO_CATEGORY, EGO_VEHICLE_LABEL
 
 #: Subject × other × frame cells a relation compares at once.
 _CHUNK_CELLS = 2_000_000
@@ -56,7 +59,7 @@ class Selection:
 
     @property
     def mask(self) -> Mask:
-        return self.scores > 0
+        return np.asarray(self.scores > 0)
 
 
 @dataclass
@@ -67,6 +70,10 @@ class Evaluation:
     notes: list[str] = field(default_factory=list)
 
 
+def _any(mask: Mask, axis: int) -> Mask:
+    return np.asarray(mask.any(axis=axis), dtype=bool)
+
+
 def _empty(x: LogFeatures) -> Selection:
     shape = (x.num_objects, x.num_frames)
     return Selection(np.zeros(shape, np.float32), np.zeros(shape, bool))
@@ -75,7 +82,7 @@ def _empty(x: LogFeatures) -> Selection:
 def _keep(sel: Selection, mask: Mask) -> Selection:
     """``sel`` where ``mask`` holds; related objects only at frames where something stays selected."""
     scores = np.where(mask, sel.scores, 0.0).astype(np.float32)
-    return Selection(scores, sel.related & (scores > 0).any(axis=0)[None, :])
+    return Selection(scores, sel.related & _any(scores > 0, 0)[None, :])
 
 
 class _Run:
@@ -85,8 +92,8 @@ class _Run:
         self.x = x
         self.notes: list[str] = []
 
-    def note_map(self, name: str) -> None:
-        note = f"{self.x.log_id}: '{name}' needs a map, and the log has none: no answer there (not 'false')"
+    def note(self, name: str, reason: str) -> None:
+        note = f"{self.x.log_id}: '{name}' {reason}: no answer there (not 'false')"
         if note not in self.notes:
             self.notes.append(note)
 
@@ -104,8 +111,9 @@ class _Run:
                     raise ProgramError(f"unknown predicate {predicate!r} (known: {', '.join(sorted(PREDICATES))})")
                 p = resolve_params(spec.defaults, spec.choices, dict(params), predicate)
                 sel = self.eval(subject)
-                if spec.needs_map and not x.has_map:
-                    self.note_map(predicate)
+                reason = unanswerable(spec, x, p)
+                if reason is not None:
+                    self.note(predicate, reason)
                     return _empty(x)
                 holds = spec.fn(x, p)
                 return _keep(sel, ~holds & x.valid if negate else holds)
@@ -116,7 +124,7 @@ class _Run:
             case AllOf(children):
                 parts = [self.eval(c) for c in children]
                 scores = np.minimum.reduce([p.scores for p in parts])
-                related = np.logical_or.reduce([p.related for p in parts]) & (scores > 0).any(axis=0)[None]
+                related = np.logical_or.reduce([p.related for p in parts]) & _any(scores > 0, 0)[None]
                 return Selection(scores, related)
             case AnyOf(children):
                 parts = [self.eval(c) for c in children]
@@ -124,6 +132,9 @@ class _Run:
                                  np.logical_or.reduce([p.related for p in parts]))
             case Excluding(base, excluded):
                 return _keep(self.eval(base), ~self.eval(excluded).mask)
+            case Together(child, min_count):
+                sel = self.eval(child)
+                return _keep(sel, np.broadcast_to((sel.mask.sum(axis=0) >= min_count)[None], sel.scores.shape))
             case ForAtLeast(child, seconds):
                 sel = self.eval(child)
                 return _keep(sel, runs_lasting(sel.mask, x.time_s, seconds))
@@ -131,12 +142,12 @@ class _Run:
                 a, b = self.eval(first), self.eval(second)
                 keep = then_within(a.mask, b.mask, x.time_s, within_s)
                 return Selection(np.where(keep, np.maximum(a.scores, b.scores), 0.0).astype(np.float32),
-                                 (a.related | b.related) & keep.any(axis=0)[None])
+                                 (a.related | b.related) & _any(keep, 0)[None])
             case While(child, condition):
                 sel, cond = self.eval(child), self.eval(condition)
-                when = cond.mask.any(axis=0)[None, :]
+                when = _any(cond.mask, 0)[None, :]
                 kept = _keep(sel, np.broadcast_to(when, sel.scores.shape))
-                return Selection(kept.scores, kept.related | (cond.mask & kept.mask.any(axis=0)[None]))
+                return Selection(kept.scores, kept.related | (cond.mask & _any(kept.mask, 0)[None]))
         raise ProgramError(f"not a program node: {node!r}")
 
     def relation(self, node: Has) -> Selection:
@@ -149,7 +160,7 @@ class _Run:
             raise ProgramError(f"{node.relation}: min_count must be ≥ 1 and max_count ≥ min_count")
         sel, other = self.eval(node.subject), self.eval(node.other)
         if spec.needs_map and not x.has_map:
-            self.note_map(node.relation)
+            self.note(node.relation, "needs a map, and the log has none")
             return _empty(x)
         subjects = np.flatnonzero(sel.mask.any(axis=1))
         others = np.flatnonzero(other.mask.any(axis=1))
@@ -194,10 +205,10 @@ class _Run:
             g_lo, g_hi = pair_geometry(x, subjects, lo), pair_geometry(x, subjects, hi)
             on_left = in_direction(g_lo, "left", 50.0, lateral_m) & first.mask[lo][None]
             on_right = in_direction(g_hi, "right", 50.0, lateral_m) & second.mask[hi][None]
-            ok = on_left.any(axis=1) & on_right.any(axis=1)  # (S, F)
+            ok = _any(on_left, 1) & _any(on_right, 1)  # (S, F)
             both[subjects] |= ok
-            related[lo] |= (on_left & ok[:, None]).any(axis=0)
-            related[hi] |= (on_right & ok[:, None]).any(axis=0)
+            related[lo] |= _any(on_left & ok[:, None], 0)
+            related[hi] |= _any(on_right & ok[:, None], 0)
         kept = _keep(sel, both)
         return Selection(kept.scores, kept.related | (related & ~kept.mask))
 
@@ -254,7 +265,8 @@ def answer(node: Node, features: LogFeatures, description: str | None = None) ->
     size = np.broadcast_to(x.size_lwh_m[:, None, :], xyz.shape).astype(np.float64)
     return LogAnswer(
         log_id=x.log_id, description=description if description is not None else to_text(node),
-        timestamps_ns=x.timestamps_ns, track_ids=x.track_ids, categories=x.categories, valid=x.valid,
+        timestamps_ns=x.timestamps_ns, track_ids=x.track_ids, valid=x.valid,
+        categories=np.where(np.isin(x.labels, [*AV2_TO_CATEGORY, EGO_VEHICLE_LABEL]), x.labels, x.categories),
         referred=referred, related=sel.related & x.valid & (referred == 0), center_city_xyz_m=xyz,
         size_lwh_m=size, yaw_city_rad=x.yaw_rad.astype(np.float64), velocity_city_mps=velocity,
         ego_city_xyz_m=ego_xyz,

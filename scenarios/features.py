@@ -75,7 +75,11 @@ class LogFeatures:
         ego_lane: (K, F) int8 lane relative to the ego, −1 untagged.
         ego_motion: (K, F) int8 motion relative to the ego, −1 untagged.
         lane: (K, F) int32 lane index, −1 off the lanes.
+        to_junction_m: (K, F) float32 distance along the lane to the junction it enters (0 inside one,
+            inf where the lane enters none or off the lanes).
         has_map: whether the log has a map with lanes (map flags and ``lane`` mean something).
+        time_of_day: the log's lighting (``day``, ``dusk``, ``night``) where its metadata says, else ``unknown``.
+        weather: the log's weather (``clear``, ``rain``, ``fog``, ``snow``) where known, else ``unknown``.
     """
 
     log_id: str
@@ -95,7 +99,10 @@ class LogFeatures:
     ego_lane: NDArray[np.int8]
     ego_motion: NDArray[np.int8]
     lane: NDArray[np.int32]
+    to_junction_m: NDArray[np.float32]
     has_map: bool
+    time_of_day: str = "unknown"
+    weather: str = "unknown"
 
     @property
     def num_objects(self) -> int:
@@ -202,6 +209,7 @@ def build_features(log: Log, config: CaptioningConfig | None = None,
     _put_host_flags(rules, put, k)
 
     lane = np.full((k + 1, f), -1, dtype=np.int32)
+    to_junction = np.full((k + 1, f), np.inf, dtype=np.float64)
     has_map = False
     vector_map = log.map
     if vector_map is not None and vector_map.lane_segments:
@@ -211,6 +219,10 @@ def build_features(log: Log, config: CaptioningConfig | None = None,
             found = lookup(raster, np.where(valid[..., None], xyz[..., :2], np.nan))
             lane = found.lane.astype(np.int32)
             on_lane = lane >= 0
+            enters = np.where(on_lane, raster.lane_junction[np.maximum(lane, 0)], -1) if raster.lane_junction.size \
+                else np.full(lane.shape, -1)
+            to_junction = np.where(found.junction >= 0, 0.0,
+                                   np.where(enters >= 0, np.nan_to_num(found.to_lane_end_m, nan=np.inf), np.inf))
             put("on_lane", on_lane | (found.junction >= 0))
             types = {int(i): s.lane_type.upper() for i, s in vector_map.lane_segments.items()}
             lane_type = np.asarray([types.get(int(i), "VEHICLE") for i in raster.lane_ids], dtype=np.str_)
@@ -227,6 +239,7 @@ def build_features(log: Log, config: CaptioningConfig | None = None,
     ego_motion[:k] = np.where(nb.tagged, nb.motion, -1)
 
     track_ids = np.asarray([*map(str, dense.track_ids), EGO_TRACK_ID], dtype=np.str_)
+    appearance = log.metadata.appearance
     return LogFeatures(
         log_id=log.log_id, timestamps_ns=ts, track_ids=track_ids,
         labels=np.asarray([*_track_labels(log, dense.track_ids), EGO_VEHICLE_LABEL], dtype=np.str_),
@@ -236,7 +249,9 @@ def build_features(log: Log, config: CaptioningConfig | None = None,
         yaw_rad=np.where(valid, yaw, np.nan).astype(np.float32), size_lwh_m=size.astype(np.float32),
         velocity_mps=velocity.astype(np.float32), speed_mps=np.where(valid, speed, 0.0).astype(np.float32),
         accel_mps2=accel.astype(np.float32), flags=np.where(valid, flags, 0).astype(np.uint16),
-        ego_lane=ego_lane, ego_motion=ego_motion, lane=np.where(valid, lane, -1).astype(np.int32), has_map=has_map,
+        ego_lane=ego_lane, ego_motion=ego_motion, lane=np.where(valid, lane, -1).astype(np.int32),
+        to_junction_m=np.where(valid, to_junction, np.inf).astype(np.float32), has_map=has_map,
+        time_of_day=str(appearance.get("time_of_day", "unknown")), weather=str(appearance.get("weather", "unknown")),
     )
 
 

@@ -14,8 +14,14 @@ has no answer on a log without one: the evaluation says so instead of answering 
 - ``turning``, ``changing_lanes``: the rules' turns and lane changes, ``direction`` left, right or any.
 - ``blocked``, ``braking_for_leader``: the rules' slow follower held up by, or braking for, a vehicle ahead.
 - ``speed``: speed within [``min_mps``, ``max_mps``].
+- ``crossing_road``: a pedestrian, cyclist or other small road user moving on a lane, a crosswalk or
+  in a junction; ``approaching_crosswalk``: not on a crosswalk yet, on one within ``within_s`` (3 s).
+- ``near_intersection``: at most ``within_m`` (5 m) along its lane from the junction it enters, or in it.
 - ``at_intersection``, ``on_crosswalk``, ``on_road`` (on a lane or in a junction), ``in_bike_lane``,
   ``in_bus_lane``: map context.
+- ``jaywalking``: a moving pedestrian on a lane, off crosswalks and intersections (needs the map).
+- ``appearance`` (``time_of_day``, ``weather``): the log's recorded lighting and weather; a log that
+  records neither has no answer (a note says so).
 - ``ego_lane`` (``lane``: host, left, right, oncoming, lateral), ``approaching_ego``, ``moving_away_from_ego``:
   the captioning's tags relative to the ego.
 """
@@ -137,6 +143,40 @@ def _changing_lanes(x: LogFeatures, p: Params) -> Mask:
     return _sided(x, "left_lane_change", "right_lane_change", str(p["direction"]))
 
 
+@_define("jaywalking", "crosses the road off a crosswalk", needs_map=True)
+def _jaywalking(x: LogFeatures, p: Params) -> Mask:
+    return x.flag("on_lane") & ~x.flag("on_crosswalk") & ~x.flag("at_intersection") & (x.speed_mps > 0.5) \
+        & np.isin(x.categories, ["pedestrian"])[:, None]
+
+
+@_define("appearance", "in a log recorded at {time_of_day} time in {weather} weather",
+         {"time_of_day": "any", "weather": "any"},
+         {"time_of_day": ("any", "day", "dusk", "night"), "weather": ("any", "clear", "rain", "fog", "snow")})
+def _appearance(x: LogFeatures, p: Params) -> Mask:
+    ok = all(str(p[key]) in ("any", getattr(x, key)) for key in ("time_of_day", "weather"))
+    return x.valid & ok
+
+
+@_define("crossing_road", "crosses the road", needs_map=True)
+def _crossing_road(x: LogFeatures, p: Params) -> Mask:
+    on = x.flag("on_crosswalk") | x.flag("on_lane") | x.flag("at_intersection")
+    walkers = np.isin(x.categories, ["pedestrian", "cyclist", "other"])[:, None]
+    return on & walkers & (x.speed_mps > 0.5)
+
+
+@_define("approaching_crosswalk", "reaches a crosswalk within {within_s} s", {"within_s": 3.0}, needs_map=True)
+def _approaching_crosswalk(x: LogFeatures, p: Params) -> Mask:
+    on = x.flag("on_crosswalk")
+    t = np.broadcast_to(x.time_s, on.shape)
+    nxt = np.flip(np.minimum.accumulate(np.flip(np.where(on, t, np.inf), axis=1), axis=1), axis=1)
+    return x.valid & ~on & (nxt - t <= _f(p, "within_s"))
+
+
+@_define("near_intersection", "is within {within_m} m of an intersection", {"within_m": 5.0}, needs_map=True)
+def _near_intersection(x: LogFeatures, p: Params) -> Mask:
+    return x.valid & (x.to_junction_m <= _f(p, "within_m"))
+
+
 @_define("blocked", "is blocked by a vehicle ahead")
 def _blocked(x: LogFeatures, p: Params) -> Mask:
     return x.flag("blocked_by")
@@ -152,10 +192,18 @@ def _speed(x: LogFeatures, p: Params) -> Mask:
     return x.valid & (x.speed_mps >= _f(p, "min_mps")) & (x.speed_mps <= _f(p, "max_mps"))
 
 
-for _name, _phrase in (("at_intersection", "is at an intersection"), ("on_crosswalk", "is on a crosswalk"),
-                       ("in_bike_lane", "is in a bike lane"), ("in_bus_lane", "is in a bus lane")):
-    _define(_name, _phrase, needs_map=True)(lambda x, p, flag=_name: x.flag(flag))
-_define("on_road", "is on the road", needs_map=True)(lambda x, p: x.flag("on_lane"))
+def _map_flag(flag: str) -> Callable[[LogFeatures, Params], Mask]:
+    def holds(x: LogFeatures, p: Params) -> Mask:
+        return x.flag(flag)
+    return holds
+
+
+for _name, _flag, _phrase in (("at_intersection", "at_intersection", "is at an intersection"),
+                              ("on_crosswalk", "on_crosswalk", "is on a crosswalk"),
+                              ("in_bike_lane", "in_bike_lane", "is in a bike lane"),
+                              ("in_bus_lane", "in_bus_lane", "is in a bus lane"),
+                              ("on_road", "on_lane", "is on the road")):
+    _define(_name, _phrase, needs_map=True)(_map_flag(_flag))
 
 _LANE_GROUPS: dict[str, tuple[Lane, ...]] = {
     "host": (Lane.HOST,), "left": (Lane.LEFT,), "right": (Lane.RIGHT,), "oncoming": (Lane.ONCOMING,),
@@ -177,6 +225,17 @@ def _approaching(x: LogFeatures, p: Params) -> Mask:
 @_define("moving_away_from_ego", "moves away from the ego")
 def _away(x: LogFeatures, p: Params) -> Mask:
     return x.valid & (x.ego_motion == MOTIONS.index(Motion.AWAY))
+
+
+def unanswerable(spec: Predicate, x: LogFeatures, params: Params) -> str | None:
+    """Why ``spec`` has no answer on this log (no map; no recorded lighting or weather), or None."""
+    if spec.needs_map and not x.has_map:
+        return "needs a map, and the log has none"
+    if spec.name == "appearance":
+        missing = [key for key in ("time_of_day", "weather") if params[key] != "any" and getattr(x, key) == "unknown"]
+        if missing:
+            return f"needs the log's {' and '.join(missing).replace('_', ' ')}, which the log does not record"
+    return None
 
 
 def resolve_params(defaults: Mapping[str, float | str], choices: Mapping[str, tuple[str, ...]],

@@ -9,6 +9,7 @@ A program is built from these nodes (frozen dataclasses; never code to ``eval``)
   answers the other objects instead of the subjects.
 - :class:`Between`: the subject has an object of one kind on its left and of the other on its right.
 - :class:`AllOf`, :class:`AnyOf`, :class:`Excluding`: and, or, and "but not".
+- :class:`Together`: the child's objects at frames where at least ``min_count`` of them are selected.
 - :class:`ForAtLeast`: runs that last ``seconds``; :class:`Then`: the same object does one thing and
   then another within ``within_s``; :class:`While`: the subject at frames where the condition holds for
   any object.
@@ -74,6 +75,12 @@ class Excluding:
 
 
 @dataclass(frozen=True)
+class Together:
+    child: Node
+    min_count: int = 2
+
+
+@dataclass(frozen=True)
 class ForAtLeast:
     child: Node
     seconds: float
@@ -92,7 +99,7 @@ class While:
     condition: Node
 
 
-Node = Objects | Is | Has | Between | AllOf | AnyOf | Excluding | ForAtLeast | Then | While
+Node = Objects | Is | Has | Between | AllOf | AnyOf | Excluding | Together | ForAtLeast | Then | While
 
 
 def _value(value: float | str | int) -> str:
@@ -131,6 +138,8 @@ def to_text(node: Node) -> str:
             return _call("or", [to_text(c) for c in children], [])
         case Excluding(base, excluded):
             return _call("excluding", [to_text(base), to_text(excluded)], [])
+        case Together(child, min_count):
+            return _call("together", [to_text(child)], [("min_count", min_count)])
         case ForAtLeast(child, seconds):
             return _call("for_at_least", [to_text(child)], [("seconds", seconds)])
         case Then(first, second, within_s):
@@ -187,6 +196,8 @@ def describe(node: Node) -> str:
             return " or ".join(f"({describe(c)})" for c in children)
         case Excluding(base, excluded):
             return f"{describe(base)}, except {describe(excluded)}"
+        case Together(child, min_count):
+            return f"{describe(child)}, when at least {min_count} of them are there at once"
         case ForAtLeast(child, seconds):
             return f"{describe(child)}, for at least {_value(seconds)} s"
         case Then(first, second, within_s):

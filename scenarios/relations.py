@@ -6,8 +6,9 @@ extent towards the other (exact for boxes facing each other, within centimetres 
 relation maps a :class:`PairGeometry` to an (S, O, F) mask of the frames where the other object stands
 in that relation to the subject:
 
-- ``direction`` (``front``, ``behind``, ``left``, ``right``): the other is beyond the subject's box on
-  that side, within ``lateral_m`` of the box's sides and ``within_m`` of the box.
+- ``direction`` (``front``, ``behind``, ``left``, ``right``, ``beside``: left or right, and the corners
+  ``front_left`` … ``back_right``): the other is beyond the subject's box on that side (both ways for
+  a corner), within ``lateral_m`` of the box's sides and ``within_m`` of the box.
 - ``near``: the boxes are within ``within_m``.
 - ``following``: the subject moves behind the other, in the same direction (within 45°), at most
   ``within_m`` back and ``lateral_m`` aside.
@@ -75,8 +76,8 @@ def pair_geometry(x: LogFeatures, subjects: NDArray[np.int64], others: NDArray[n
     dy = -s * d[..., 0] + c * d[..., 1]
     rel = (o_yaw - s_yaw + np.pi) % (2 * np.pi) - np.pi
     dist = np.hypot(dx, dy)
-    s_half = x.size_lwh_m[subjects, :2][:, None, None] / 2  # (S, 1, 1, 2)
-    o_half = x.size_lwh_m[others, :2][None, :, None] / 2  # (1, O, 1, 2)
+    s_half = (x.size_lwh_m[subjects, :2][:, None, None] / 2).astype(np.float32)  # (S, 1, 1, 2)
+    o_half = (x.size_lwh_m[others, :2][None, :, None] / 2).astype(np.float32)  # (1, O, 1, 2)
     with np.errstate(invalid="ignore", divide="ignore"):
         ux, uy = np.abs(dx / dist), np.abs(dy / dist)  # the direction to the other, in the subject's frame
         # ... and in the other's frame (rotated by the relative heading).
@@ -131,13 +132,19 @@ def in_direction(g: PairGeometry, side: str, within_m: float, lateral_m: float) 
         where = (g.dx_m < -hl) & (np.abs(g.dy_m) <= hw + lateral_m)
     elif side == "left":
         where = (g.dy_m > hw) & (np.abs(g.dx_m) <= hl + lateral_m)
-    else:
+    elif side == "right":
         where = (g.dy_m < -hw) & (np.abs(g.dx_m) <= hl + lateral_m)
+    elif side == "beside":  # left or right
+        where = (np.abs(g.dy_m) > hw) & (np.abs(g.dx_m) <= hl + lateral_m)
+    else:  # a corner: beyond the box both ways
+        ahead = g.dx_m > hl if side.startswith("front") else g.dx_m < -hl
+        where = ahead & ((g.dy_m > hw) if side.endswith("left") else (g.dy_m < -hw))
     return g.ok & where & (g.gap_m <= within_m)
 
 
 @_define("direction", "has {other} to its {side}", {"side": "front", "within_m": 50.0, "lateral_m": 1000.0},
-         {"side": ("front", "behind", "left", "right")})
+         {"side": ("front", "behind", "left", "right", "beside", "front_left", "front_right", "back_left",
+                   "back_right")})
 def _direction(g: PairGeometry, p: Params) -> Mask:
     return in_direction(g, str(p["side"]), _f(p, "within_m"), _f(p, "lateral_m"))
 

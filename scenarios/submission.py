@@ -44,7 +44,7 @@ from numpy.typing import NDArray
 
 from common.atomic import atomic_write_bytes
 from scenarios.answer import LogAnswer
-from scenes.categories import AV2_TO_CATEGORY, CATEGORY_TO_AV2, Category, category_from_label
+from scenes.categories import AV2_TO_CATEGORY, CATEGORY_TO_AV2, EGO_VEHICLE_LABEL, Category, category_from_label
 
 #: The period of evaluation timestamps.
 EVALUATION_PERIOD_NS = 500_000_000
@@ -92,7 +92,7 @@ def evaluation_frames(timestamps_ns: NDArray[np.int64], all_timestamps: bool = F
 
 def av2_name(category: str) -> str:
     """The AV2 category written for a category: an AV2 label stays, a public category maps to its AV2 label."""
-    if category in AV2_TO_CATEGORY:
+    if category in AV2_TO_CATEGORY or category == EGO_VEHICLE_LABEL:
         return category
     return CATEGORY_TO_AV2[category_from_label(category) or Category.OTHER]
 

@@ -7,7 +7,7 @@ A program is a kind or a call::
 
 ``NAME`` is a predicate (``turning(vehicle, direction=left)``), a relation
 (``direction(vehicle, cyclist, side=right, within_m=5, min_count=2)``), or one of ``not``, ``reverse``,
-``between``, ``and``, ``or``, ``excluding``, ``for_at_least`` (``seconds=``), ``then``
+``between``, ``and``, ``or``, ``excluding``, ``together`` (``min_count=``), ``for_at_least`` (``seconds=``), ``then``
 (``within_s=``) and ``while``. ``VALUE`` is a number or a word. Nothing is evaluated as code; an error
 names the position and what was expected there.
 """
@@ -31,6 +31,7 @@ from scenarios.program import (
     Objects,
     Param,
     Then,
+    Together,
     While,
 )
 from scenarios.relations import RELATIONS
@@ -142,6 +143,11 @@ def build(name: str, args: list[Node], keywords: list[Param]) -> Node:
         arity(2)
         no_keywords()
         return Excluding(args[0], args[1]) if name == "excluding" else While(args[0], args[1])
+    if name == "together":
+        arity(1)
+        count = int(_number(given, "min_count", name)) if "min_count" in given else 2
+        no_keywords()
+        return Together(args[0], count)
     if name == "for_at_least":
         arity(1)
         seconds = _number(given, "seconds", name) if "seconds" in given else 1.0
@@ -166,7 +172,7 @@ def build(name: str, args: list[Node], keywords: list[Param]) -> Node:
         max_count = int(_number(given, "max_count", name)) if "max_count" in given else None
         return Has(args[0], name, args[1], tuple(given.items()), min_count, max_count)
     known = sorted({*PREDICATES, *RELATIONS, "not", "reverse", "and", "or", "excluding", "while", "for_at_least",
-                    "then", "between"})
+                    "then", "between", "together"})
     raise SyntaxProblem(f"unknown name {name!r} (known: {', '.join(known)})")
 
 

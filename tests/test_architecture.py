@@ -11,7 +11,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 #: Stage order: a package may import from itself and packages to its left, never from one to its right.
-ORDER = ("common", "scenes", "captioning", "encoders", "indexes", "retrieval")
+ORDER = ("common", "scenes", "captioning", "scenarios", "encoders", "indexes", "retrieval")
 #: `indexes/` is a generic vector store: besides itself it may import the base package alone.
 GENERIC = {"indexes": {"common", "indexes"}}
 #: Training code that later stages must not import (they use the inference modules instead).

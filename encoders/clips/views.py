@@ -112,8 +112,7 @@ def ego_rates(time_s: NDArray[np.float64], pose_xy_yaw: NDArray[np.float64]) -> 
     """
     if time_s.shape[0] < 2:
         return np.zeros(time_s.shape[0]), np.zeros(time_s.shape[0])
-    smoothing = SmoothingConfig()
-    kin = planar_kinematics(time_s, pose_xy_yaw[:, :2], pose_xy_yaw[:, 2], smoothing.window_frames, smoothing.polyorder)
+    kin = planar_kinematics(time_s, pose_xy_yaw[:, :2], pose_xy_yaw[:, 2], SmoothingConfig())
     return np.nan_to_num(kin.accel_mps2), np.nan_to_num(kin.yaw_rate_rps)
 
 

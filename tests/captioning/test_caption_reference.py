@@ -45,8 +45,8 @@ def random_log(seed: int, k: int = 20, t: int = 90) -> dict:
     "smoothing",
     [
         SmoothingConfig(),
-        SmoothingConfig(window_frames=5, min_run_frames=1, max_gap_frames=0),
-        SmoothingConfig(7, 3, 3, 1),
+        SmoothingConfig(window_s=0.5, min_run_s=0.0, max_gap_s=0.0),
+        SmoothingConfig(0.7, 3, 0.3, 0.1),
     ],
 )
 def test_vectorised_equals_reference(seed: int, smoothing: SmoothingConfig) -> None:

@@ -1,0 +1,314 @@
+"""The words the description compiler knows: phrases for kinds, predicates, relations, counts and the ego.
+
+Each phrase maps to a :class:`Lexeme`; the compiler matches the longest phrase at each position
+(:func:`lexemes`). Plurals of kind words are generated, and a few spellings are folded before
+matching (:func:`normalize`), so "bikes", "bicycles", "cyclists" and "bicyclist" all name cyclists,
+and "halted", "standing still" and "stopped" the same state.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import re
+from dataclasses import dataclass, field
+
+from scenarios.program import Param
+
+
+@dataclass(frozen=True)
+class Lexeme:
+    """What a phrase means to the compiler.
+
+    Attributes:
+        role: ``kind``, ``pred`` (a predicate on the object), ``rel`` (a relation to the object named
+            next), ``ego`` (a relation to the ego), ``with`` / ``between`` (relations whose shape the
+            words after them decide), ``side`` (a side, after ``with …``), ``count``, ``unit``,
+            ``conj`` (and, or, then, while), ``not``, ``closely`` (tightens the relation before it),
+            ``fixed`` (a relation to objects of the kind ``other`` that the phrase itself names: "at a
+            stop sign", "unattended"), or ``skip`` (carries no meaning here).
+        name: the kind, predicate, relation, side or conjunction named.
+        params: parameters of the predicate or relation.
+        reverse: for ``rel``: the relation holds from the named object's point of view ("in front of Y":
+            Y has the subject in front), so the compiler asks it of that object and answers the subject.
+        count: for ``count``: how many objects at least; for ``fixed``: how many of ``other``.
+        other: for ``fixed``: the kind related to.
+        negate: for ``pred`` and ``fixed``: the phrase says the opposite ("on the sidewalk": not on the road).
+    """
+
+    role: str
+    name: str = ""
+    params: tuple[Param, ...] = ()
+    reverse: bool = False
+    count: int = 0
+    other: str = ""
+    negate: bool = False
+    words: tuple[str, ...] = field(default=(), compare=False)
+
+
+_LEXICON: dict[tuple[str, ...], Lexeme] = {}
+_IRREGULAR = {"person": "people", "child": "children", "bus": "buses", "school bus": "school buses",
+              "articulated bus": "articulated buses", "pedestrian": "pedestrians", "ego vehicle": "ego vehicles"}
+
+
+def _plural(phrase: str) -> str:
+    if phrase in _IRREGULAR:
+        return _IRREGULAR[phrase]
+    head, _, last = phrase.rpartition(" ")
+    if last.endswith(("s", "x", "ch", "sh")):
+        last += "es"
+    elif last.endswith("y") and last[-2:-1] not in "aeiou":
+        last = last[:-1] + "ies"
+    else:
+        last += "s"
+    return f"{head} {last}".strip()
+
+
+def _add(phrases: str, lexeme: Lexeme, plural: bool = False) -> None:
+    for phrase in phrases.split("|"):
+        for form in (phrase, _plural(phrase)) if plural else (phrase,):
+            _LEXICON[tuple(form.split())] = lexeme
+
+
+# -- kinds ---------------------------------------------------------------------------------------------
+for _phrases, _kind in (
+    ("vehicle|auto|automobile|motor vehicle|traffic|active vehicle|road user", "vehicle"),
+    ("car|passenger vehicle|passenger car|regular vehicle|sedan|suv|van|pickup|pickup truck", "car"),
+    ("truck|lorry|heavy vehicle|large vehicle", "truck"),
+    ("box truck|delivery truck", "box_truck"),
+    ("semi truck|semi|truck cab|tractor|truck with trailer|truck cab with trailer", "truck_cab"),
+    ("trailer|vehicular trailer", "vehicular_trailer"),
+    ("bicycle traffic|bike traffic|cycle traffic", "cyclist"),
+    ("bus|city bus|transit bus", "bus"), ("school bus", "school_bus"), ("articulated bus", "articulated_bus"),
+    ("pedestrian|person|walker|ped|people|human|jaywalker", "pedestrian"),
+    ("cyclist|bicyclist|bicycle|bike|biker|bicycle rider|rider on a bicycle", "cyclist"),
+    ("wheeled rider|scooter rider", "wheeled_rider"),
+    ("motorcycle|motorcyclist|motorbike|motorbike rider|scooter", "motorcycle"),
+    ("dog|animal", "dog"), ("stroller|pram|baby stroller", "stroller"), ("wheelchair", "wheelchair"),
+    ("wheeled device|skateboard", "wheeled_device"),
+    ("bollard", "bollard"), ("construction cone|traffic cone|cone", "construction_cone"),
+    ("construction barrel|barrel", "construction_barrel"),
+    ("construction barrier|construction item|construction object|barrier|construction", "construction"),
+    ("stop sign", "stop_sign"), ("sign|road sign|traffic sign", "sign"),
+    ("message board trailer|message board|sign trailer", "message_board_trailer"),
+    ("mobile pedestrian sign|mobile pedestrian crossing sign|pedestrian crossing sign",
+     "mobile_pedestrian_crossing_sign"),
+    ("object|thing|anything|something|agent|actor", "any"),
+    ("vulnerable road user|vru", "vulnerable_road_user"),
+):
+    _add(_phrases, Lexeme("kind", _kind), plural=True)
+_add("ego vehicle|ego|ego car|the av|our car|my car|our vehicle|my vehicle|we|us|self driving car|autonomous vehicle",
+     Lexeme("kind", "ego"))
+
+# -- predicates ------------------------------------------------------------------------------------------
+for _phrases, _name, _params in (
+    ("moving|driving|traveling|travelling|in motion|active|walking|riding|going|running|jogging|heading|"
+     "navigating|maneuvering|proceeding|passing through|drives off|drive off|pulls away|pull away", "moving", ()),
+    ("stopped|halted|standing still|stopping|waiting|idling|not moving|stationary vehicle|at a standstill|"
+     "stands|stand|standing", "stopped", ()),
+    ("stationary|hasn't moved|has not moved|never moves|unmoving|static", "stationary", ()),
+    ("parked|parking", "parked", ()),
+    ("accelerating|speeding up|gaining speed|accelerates|accelerate", "accelerating", ()),
+    ("braking|slowing down|decelerating|slowing|brakes|brake", "braking", ()),
+    ("hard braking|braking hard|slamming on the brakes|emergency braking", "braking", (("min_mps2", 3.0),)),
+    ("turning|making a turn|turns|turn", "turning", ()),
+    ("turning left|making a left turn|left turn|turns left|turn left|left turning|left-turning", "turning",
+     (("direction", "left"),)),
+    ("turning right|making a right turn|right turn|turns right|turn right|right turning", "turning",
+     (("direction", "right"),)),
+    ("changing lanes|lane change|lane changing|changes lanes|change lanes|switching lanes|merging|merges|"
+     "swerving|weaving", "changing_lanes", ()),
+    ("changing lanes to the left|changing lanes left|lane change to the left|left lane change|swerving left|"
+     "merging left", "changing_lanes", (("direction", "left"),)),
+    ("changing lanes to the right|changing lanes right|lane change to the right|right lane change|swerving right|"
+     "merging right", "changing_lanes", (("direction", "right"),)),
+    ("at crawling speed|crawling|creeping|moving slowly|slow moving|slow|slowly", "speed",
+     (("min_mps", 0.1), ("max_mps", 2.0))),
+    ("fast|speeding|at high speed|quickly", "speed", (("min_mps", 13.0),)),
+    ("at intersection|at an intersection|at the intersection|on intersection|on an intersection|in intersection|"
+     "in an intersection|in the intersection|through intersection|through the intersection|at a junction|"
+     "in the junction|at the junction", "at_intersection", ()),
+    ("near intersection|near an intersection|near the intersection|approaching intersection|"
+     "approaching an intersection|approaching the intersection", "near_intersection", ()),
+    ("on crosswalk|on a crosswalk|on the crosswalk|at crosswalk|at a crosswalk|at the crosswalk|in crosswalk|"
+     "on pedestrian crossing|on a pedestrian crossing|at a pedestrian crossing|at pedestrian crossing|"
+     "using designated crossing|using the crosswalk|using a crosswalk|on zebra crossing", "on_crosswalk", ()),
+    ("in bike lane|in a bike lane|in the bike lane|on bike lane|in bicycle lane|in the bicycle lane", "in_bike_lane",
+     ()),
+    ("in bus lane|in a bus lane|in the bus lane", "in_bus_lane", ()),
+    ("on road|on the road|in the road|in road|on the street|in the street|in drivable area|in the drivable area",
+     "on_road", ()),
+    ("blocked|stuck|held up|queued|queuing|in a queue", "blocked", ()),
+    ("jaywalking|jaywalks|jaywalk|crossing the road outside a crosswalk", "jaywalking", ()),
+    ("at stop|at a stop|at its stop|stopped at a stop", "stopped", ()),
+    ("in vehicle lane|in a vehicle lane|in the vehicle lane|in a traffic lane|in the traffic lane|in traffic",
+     "on_road", ()),
+    ("from bike lane|from the bike lane|from a bike lane|out of the bike lane|through bike lane|through the bike lane|"
+     "into the bike lane|into a bike lane|across the bike lane", "in_bike_lane", ()),
+    ("intersection|an intersection|the intersection|junction|a junction", "near_intersection", ()),
+    ("approaching pedestrian crossing|approaching a pedestrian crossing|approaching the pedestrian crossing|"
+     "approaching crosswalk|approaching a crosswalk|approaching the crosswalk|nearing a crosswalk",
+     "approaching_crosswalk", ()),
+    ("getting closer to the ego vehicle|getting closer to the ego|getting closer to us|coming closer to us|"
+     "closing in on us", "approaching_ego", ()),
+    ("oncoming|coming toward us|coming towards us|in the oncoming lane|on the other side of the road",
+     "ego_lane", (("lane", "oncoming"),)),
+    ("in same lane|in the same lane|in my lane|in our lane|in the ego lane|in ego lane|in the same lane as us|"
+     "in the same lane as the ego vehicle|in the same lane as the ego|in front of us in our lane", "ego_lane",
+     (("lane", "host"),)),
+    ("in the left lane|in the lane to our left|in the lane on our left|in the left adjacent lane", "ego_lane",
+     (("lane", "left"),)),
+    ("in the right lane|in the lane to our right|in the lane on our right|in the right adjacent lane", "ego_lane",
+     (("lane", "right"),)),
+    ("approaching us|approaching the ego|getting closer|coming closer|closing in|approaching", "approaching_ego", ()),
+    ("moving away|driving away|pulling away from us|moving away from us|leaving", "moving_away_from_ego", ()),
+):
+    _add(_phrases, Lexeme("pred", _name, _params))
+
+# -- relations to an object named next ------------------------------------------------------------------
+for _phrases, _rel, _rparams, _reverse in (
+    ("near|close to|next to|around|in close proximity to|in proximity to|alongside|by|adjacent to",
+     "near", (), False),
+    ("following|behind|tailing|trailing|driving behind|following behind", "following", (), False),
+    ("following closely|closely following|following closely behind|closely behind|tailgating|too closely behind",
+     "following", (("within_m", 10.0),), False),
+    ("being followed by|followed by", "following", (), True),
+    ("in front of|ahead of|before|in front|directly in front of", "direction", (("side", "front"),), True),
+    ("to either side of|on either side of|to both sides of|on both sides of|either side of|beside|alongside of",
+     "direction", (("side", "beside"),), True),
+    ("to the front left of|front left of|to the front-left of", "direction", (("side", "front_left"),), True),
+    ("to the front right of|front right of", "direction", (("side", "front_right"),), True),
+    ("to the back left of|to the rear left of|back left of|behind and to the left of", "direction",
+     (("side", "back_left"),), True),
+    ("to the back right of|to the rear right of|back right of|behind and to the right of", "direction",
+     (("side", "back_right"),), True),
+    ("facing away from|turned away from|with its back to", "direction", (("side", "behind"),), False),
+    ("to the left of|left of|on the left of|on the left side of", "direction", (("side", "left"),), True),
+    ("to the right of|right of|on the right of|on the right side of", "direction", (("side", "right"),), True),
+    ("directly to the left of", "direction", (("side", "left"), ("lateral_m", 2.0)), True),
+    ("directly to the right of", "direction", (("side", "right"), ("lateral_m", 2.0)), True),
+    ("in the same lane as|in same lane as|sharing a lane with|sharing lane with|in the lane of|in its lane with|"
+     "sharing the lane with", "same_lane", (), False),
+    ("being crossed by|crossed by", "crossed_by", (), False),
+    ("crossing|crossing in front of|crossing the path of|crossing in front|cutting in front of|crosses|"
+     "crossing paths with|crossing path of", "crossed_by", (), True),
+    ("being passed by|passed by|being overtaken by|overtaken by|being overtaken|overtaken|being passed", "passed_by",
+     (), False),
+    ("past the right side of|past right side of|past the right of", "passed_by", (("side", "right"),), True),
+    ("past the left side of|past left side of|past the left of", "passed_by", (("side", "left"),), True),
+    ("at", "near", (("within_m", 5.0),), False),
+    ("passing|overtaking|passing by|passes|overtakes", "passed_by", (), True),
+    ("facing|facing toward|facing towards|looking at|facing at", "facing", (), False),
+    ("heading toward|heading towards|moving toward|moving towards|approaching|driving toward|driving towards|"
+     "accelerating toward|accelerating towards|walking toward|walking towards", "heading_toward", (), False),
+    ("traveling in the opposite direction as|going the opposite way to|in the opposite direction of|"
+     "traveling opposite to|opposite to|against", "heading", (("way", "opposite"),), False),
+    ("traveling in the same direction as|in the same direction as|going the same way as|parallel to", "heading",
+     (("way", "same"),), False),
+):
+    _add(_phrases, Lexeme("rel", _rel, _rparams, _reverse))
+
+# -- relations to the ego (no object named) --------------------------------------------------------------
+for _phrases, _side in (("ahead|in front|ahead of us|in front of us", "front"),
+                        ("behind us|behind the ego|in the rear", "behind"),
+                        ("to our left|on our left|to the left of us", "left"),
+                        ("to our right|on our right|to the right of us", "right")):
+    _add(_phrases, Lexeme("ego", "direction", (("side", _side),), reverse=True))
+
+# -- sides after "with …" -----------------------------------------------------------------------------------
+for _phrases, _side in (
+    ("to its left|on its left|on the left|to the left|on left|to left|on its left side|to their left|"
+     "on their left", "left"),
+    ("to its right|on its right|on the right|to the right|on right|to right|on its right side|to their right|"
+     "on their right", "right"),
+    ("in front of it|ahead of it|ahead|in front|in front of them|ahead of them|in its path", "front"),
+    ("behind it|behind them|behind", "behind"),
+    ("on either side|on both sides|on each side|on either side of it|on both sides of it|beside it", "beside"),
+    ("in its lane|in their lane|in its own lane|sharing its lane", "same_lane"),
+    ("nearby|close by|around it|near it|next to it", "near"),
+):
+    _add(_phrases, Lexeme("side", _side))
+
+# -- counts, units, conjunctions, negation, filler -----------------------------------------------------------
+for _phrases, _n in (("multiple|several|many|more than one|a couple of|couple of|numerous", 2),
+                     ("two|pair of|a pair of|both", 2), ("three", 3), ("four", 4), ("five", 5),
+                     ("group of|a group of|crowd of|a crowd of|groups of|bunch of|group|crowd|groups", 3)):
+    _add(_phrases, Lexeme("count", count=_n))
+_add("with|having|has|that has|which has|carrying|towing|accompanied by", Lexeme("with"))
+for _phrases, _lexeme in (
+    ("at stop sign|at a stop sign|at the stop sign|near a stop sign|near stop sign",
+     Lexeme("fixed", "near", (("within_m", 15.0),), other="stop_sign", count=1)),
+    ("in dense traffic|in heavy traffic|in a traffic jam|in traffic jam|in congested traffic",
+     Lexeme("fixed", "near", (("within_m", 25.0),), other="vehicle", count=5)),
+    ("isolated|alone|on its own|by itself", Lexeme("fixed", "near", (("within_m", 15.0),), other="any", count=1,
+                                                     negate=True)),
+    ("unattended|unaccompanied|without an owner|without a person", Lexeme("fixed", "near", (("within_m", 5.0),),
+                                                                         other="pedestrian", count=1, negate=True)),
+):
+    _add(_phrases, _lexeme)
+_add("closely|too closely|too close|tightly", Lexeme("closely"))
+_add("on sidewalk|on the sidewalk|on a sidewalk|off the road|not on the road|off road", Lexeme("pred", "on_road",
+                                                                                               negate=True))
+_add("during daylight|in daylight|during the day|in the daytime|on a clear day|during the daytime",
+     Lexeme("pred", "appearance", (("time_of_day", "day"),)))
+_add("at night|during the night|at nighttime|in the dark", Lexeme("pred", "appearance", (("time_of_day", "night"),)))
+_add("at dusk|during dusk|at dawn|at sunset|at twilight", Lexeme("pred", "appearance", (("time_of_day", "dusk"),)))
+_add("during rain|in the rain|in rain|while raining|when it rains|on a rainy day", Lexeme("pred", "appearance",
+                                                                                       (("weather", "rain"),)))
+_add("during snow|in the snow|in snow|while snowing|on a snowy day", Lexeme("pred", "appearance",
+                                                                           (("weather", "snow"),)))
+_add("in fog|in the fog|during fog|on a foggy day", Lexeme("pred", "appearance", (("weather", "fog"),)))
+_add("between", Lexeme("between"))
+_add("meters|meter|metres|metre|m", Lexeme("unit", "m"))
+_add("seconds|second|secs|sec|s", Lexeme("unit", "s"))
+for _phrases, _name in (("and|as well as|also|while also", "and"), ("or|either", "or"),
+                        ("then|and then|after that|afterwards|before", "then"),
+                        ("while|when|during|as|whilst", "while")):
+    _add(_phrases, Lexeme("conj", _name))
+_add("not|no|without|isn't|aren't|doesn't", Lexeme("not"))
+_add("within|at least|at most|less than|more than|up to|from|away|for|directly|another|other|each|any|"
+     "some|its|their|the|a|an|that|which|who|is|are|being|of|it|there|in|on|to|one|same|lane|path|side|too|"
+     "road|street|zone|area|i|see|find|show|me|all|where",
+     Lexeme("skip"))
+
+_SPELLINGS = {"towards": "toward", "colour": "color", "travelling": "traveling", "metres": "meters",
+              "pedestrains": "pedestrians", "bicylist": "bicyclist"}
+
+
+def normalize(text: str) -> list[str]:
+    """Lower-case words of ``text``: hyphens and slashes split words, punctuation goes, numbers stay."""
+    text = text.lower().replace("’", "'")
+    text = re.sub(r"(\d)\s*-\s*(\d)", r"\1 to \2", text)
+    text = re.sub(r"(\d)(m|s)\b", r"\1 \2", text)
+    text = re.sub(r"[-/]", " ", text)
+    words = re.findall(r"[a-z]+(?:'[a-z]+)?|\d+(?:\.\d+)?", text)
+    return [_SPELLINGS.get(w, w) for w in words]
+
+
+_MAX_PHRASE = max(len(k) for k in _LEXICON)
+
+
+def lexemes(words: list[str]) -> list[Lexeme]:
+    """The longest-matching lexeme at each position (``number`` lexemes for numbers; ``unknown`` ones for
+    words the lexicon lacks), each with the words it covers."""
+    out: list[Lexeme] = []
+    i = 0
+    while i < len(words):
+        if re.fullmatch(r"\d+(?:\.\d+)?", words[i]):
+            out.append(Lexeme("number", words[i], words=(words[i],)))
+            i += 1
+            continue
+        for size in range(min(_MAX_PHRASE, len(words) - i), 0, -1):
+            found = _LEXICON.get(tuple(words[i:i + size]))
+            if found is not None:
+                out.append(dataclasses.replace(found, words=tuple(words[i:i + size])))
+                i += size
+                break
+        else:
+            out.append(Lexeme("unknown", words[i], words=(words[i],)))
+            i += 1
+    return out
+
+
+def known_phrases() -> list[str]:
+    """Every phrase of the lexicon that means something (for suggestions and the sentence encoder)."""
+    return sorted(" ".join(k) for k, v in _LEXICON.items() if v.role not in ("skip", "unit"))

@@ -41,6 +41,8 @@ from scenarios.syntax import MAX_PROGRAM_CHARS, SyntaxProblem, parse_program
 
 #: Within this distance (m), "a group of" objects stand together.
 GROUP_RADIUS_M = 5.0
+#: The two steps of "drives off" or "cuts into my lane" happen within this many seconds.
+CUT_IN_WITHIN_S = 4.0
 
 
 class DescriptionError(ValueError):
@@ -219,6 +221,8 @@ class _Parser:
                 item = self.take()
                 node = Has(node, item.name, Objects(item.other), item.params, min_count=max(1, item.count),
                            negate=item.negate)
+            elif role == "seq":
+                node = self.sequence(node, self.take())
             elif role == "closely" and isinstance(node, Has):
                 self.take()
                 node = _closer(node)
@@ -272,7 +276,7 @@ class _Parser:
         if item.role == "side" and item.name in ("near", "same_lane"):  # "nearby", "in its lane" with no object
             return node
         if item.role == "side":
-            other = self.phrase()
+            other = self.phrase(need_kind=True)
             if other is None:  # "ahead", "behind": of the ego
                 return self.ego_relation(node, item.name, self.distance_params((), "direction"))
             return self.relate(node, Lexeme("rel", "direction", (("side", item.name),), reverse=True), other)
@@ -341,6 +345,16 @@ class _Parser:
         self.unused.extend(item.words)
         return node
 
+    def sequence(self, node: Node, item: Lexeme) -> Node:
+        """A sequence the words name: "drives off" (stops, then moves), "cuts into my lane [from the left]"
+        (in a lane beside the ego's, then in the ego's)."""
+        if item.name == "drive_off":
+            return Then(Is(node, "stopped"), Is(node, "moving"), CUT_IN_WITHIN_S)
+        side = "adjacent"
+        if self.role() == "side" and self.name() in ("left", "right"):
+            side = self.take().name
+        return Then(Is(node, "ego_lane", (("lane", side),)), Is(node, "ego_lane", (("lane", "host"),)), CUT_IN_WITHIN_S)
+
     def with_side(self, item: Lexeme) -> Lexeme:
         """``item`` with the side that follows it ("being overtaken on the left")."""
         if item.name == "passed_by" and self.role() == "side" \
@@ -402,7 +416,7 @@ class _Parser:
             nxt = self.phrase()
             if nxt is None:  # "stopped then moving": the same objects
                 head = _head(node)
-                if self.role() in ("pred", "rel", "ego", "side", "with", "between", "not"):
+                if self.role() in ("pred", "rel", "ego", "side", "with", "between", "not", "seq", "fixed"):
                     nxt = (self.modifiers(head), 0)
                 else:
                     self.unused.extend(conj.words)

@@ -24,6 +24,8 @@ class Lexeme:
             next), ``ego`` (a relation to the ego), ``with`` / ``between`` (relations whose shape the
             words after them decide), ``side`` (a side, after ``with …``), ``count``, ``unit``,
             ``conj`` (and, or, then, while), ``not``, ``closely`` (tightens the relation before it),
+            ``seq`` (a sequence the phrase names: ``drive_off`` stops then moves, ``cut_in`` moves from
+            an adjacent lane into the ego's),
             ``fixed`` (a relation to objects of the kind ``other`` that the phrase itself names: "at a
             stop sign", "unattended"), or ``skip`` (carries no meaning here).
         name: the kind, predicate, relation, side or conjunction named.
@@ -102,9 +104,9 @@ _add("ego vehicle|ego|ego car|the av|our car|my car|our vehicle|my vehicle|we|us
 # -- predicates ------------------------------------------------------------------------------------------
 for _phrases, _name, _params in (
     ("moving|driving|traveling|travelling|in motion|active|walking|riding|going|running|jogging|heading|"
-     "navigating|maneuvering|proceeding|passing through|drives off|drive off|pulls away|pull away", "moving", ()),
+     "navigating|maneuvering|proceeding|passing through", "moving", ()),
     ("stopped|halted|standing still|stopping|waiting|idling|not moving|stationary vehicle|at a standstill|"
-     "stands|stand|standing", "stopped", ()),
+     "stands|stand|standing|stop|stops|waits|wait|comes to a stop|come to a stop", "stopped", ()),
     ("stationary|hasn't moved|has not moved|never moves|unmoving|static", "stationary", ()),
     ("parked|parking", "parked", ()),
     ("accelerating|speeding up|gaining speed|accelerates|accelerate", "accelerating", ()),
@@ -159,7 +161,8 @@ for _phrases, _name, _params in (
      (("lane", "left"),)),
     ("in the right lane|in the lane to our right|in the lane on our right|in the right adjacent lane", "ego_lane",
      (("lane", "right"),)),
-    ("approaching us|approaching the ego|getting closer|coming closer|closing in|approaching", "approaching_ego", ()),
+    ("approaching us|approaching the ego|getting closer|coming closer|closing in|approaching|approaches|approach|"
+     "gets closer|comes closer", "approaching_ego", ()),
     ("moving away|driving away|pulling away from us|moving away from us|leaving", "moving_away_from_ego", ()),
 ):
     _add(_phrases, Lexeme("pred", _name, _params))
@@ -216,9 +219,11 @@ for _phrases, _side in (("ahead|in front|ahead of us|in front of us", "front"),
 
 # -- sides after "with …" -----------------------------------------------------------------------------------
 for _phrases, _side in (
-    ("to its left|on its left|on the left|to the left|on left|to left|on its left side|to their left|"
+    ("to its left|on its left|on the left|to the left|on left|to left|from the left|from left|on its left side|"
+     "to their left|"
      "on their left", "left"),
-    ("to its right|on its right|on the right|to the right|on right|to right|on its right side|to their right|"
+    ("to its right|on its right|on the right|to the right|on right|to right|from the right|from right|"
+     "on its right side|to their right|"
      "on their right", "right"),
     ("in front of it|ahead of it|ahead|in front|in front of them|ahead of them|in its path", "front"),
     ("behind it|behind them|behind", "behind"),
@@ -246,6 +251,12 @@ for _phrases, _lexeme in (
 ):
     _add(_phrases, _lexeme)
 _add("closely|too closely|too close|tightly", Lexeme("closely"))
+_add("drives off|drive off|pulls away|pull away|starts moving|start moving|takes off|sets off|starts to move|"
+     "pulls out|pulling out|drives away from a stop", Lexeme("seq", "drive_off"))
+_add("cuts into my lane|cuts into our lane|cutting into my lane|cutting into our lane|cuts in|cutting in|cut in|"
+     "cuts in front of us|cutting in front of us|merges into my lane|merges into our lane|merging into our lane|"
+     "moves into the ego lane|moves into our lane|moves into my lane|moving into our lane|moving into the ego lane|"
+     "changes into our lane|changes into my lane", Lexeme("seq", "cut_in"))
 _add("on sidewalk|on the sidewalk|on a sidewalk|off the road|not on the road|off road", Lexeme("pred", "on_road",
                                                                                                negate=True))
 _add("during daylight|in daylight|during the day|in the daytime|on a clear day|during the daytime",
@@ -267,7 +278,7 @@ for _phrases, _name in (("and|as well as|also|while also", "and"), ("or|either",
 _add("not|no|without|isn't|aren't|doesn't", Lexeme("not"))
 _add("within|at least|at most|less than|more than|up to|from|away|for|directly|another|other|each|any|"
      "some|its|their|the|a|an|that|which|who|is|are|being|of|it|there|in|on|to|one|same|lane|path|side|too|"
-     "road|street|zone|area|i|see|find|show|me|all|where",
+     "road|street|zone|area|i|see|find|show|me|all|where|together|here|now|just",
      Lexeme("skip"))
 
 _SPELLINGS = {"towards": "toward", "colour": "color", "travelling": "traveling", "metres": "meters",

@@ -22,8 +22,8 @@ has no answer on a log without one: the evaluation says so instead of answering 
 - ``jaywalking``: a moving pedestrian on a lane, off crosswalks and intersections (needs the map).
 - ``appearance`` (``time_of_day``, ``weather``): the log's recorded lighting and weather; a log that
   records neither has no answer (a note says so).
-- ``ego_lane`` (``lane``: host, left, right, oncoming, lateral), ``approaching_ego``, ``moving_away_from_ego``:
-  the captioning's tags relative to the ego.
+- ``ego_lane`` (``lane``: host, left, right, adjacent, oncoming, lateral), ``approaching_ego``,
+  ``moving_away_from_ego``: the captioning's tags relative to the ego.
 """
 
 from __future__ import annotations
@@ -206,7 +206,8 @@ for _name, _flag, _phrase in (("at_intersection", "at_intersection", "is at an i
     _define(_name, _phrase, needs_map=True)(_map_flag(_flag))
 
 _LANE_GROUPS: dict[str, tuple[Lane, ...]] = {
-    "host": (Lane.HOST,), "left": (Lane.LEFT,), "right": (Lane.RIGHT,), "oncoming": (Lane.ONCOMING,),
+    "host": (Lane.HOST,), "left": (Lane.LEFT,), "right": (Lane.RIGHT,), "adjacent": (Lane.LEFT, Lane.RIGHT),
+    "oncoming": (Lane.ONCOMING,),
     "lateral": (Lane.LEFT_LATERAL, Lane.RIGHT_LATERAL, Lane.HOST_LATERAL),
 }
 

@@ -260,7 +260,9 @@ def test_tracks_too_short_for_a_derivative_are_reported() -> None:
     lengths = np.vstack([lengths, np.full((1, T), 4.5)])
     result = caption_arrays(config=CaptioningConfig(), vector_map=city_map(), length_m=lengths,
                             **s.arrays())  # type: ignore[arg-type]
-    assert result.skipped_tracks == {"glimpse": SKIP_SHORT.format(n=5)}
+    assert result.skipped_tracks == {"glimpse": SKIP_SHORT.format(seconds=0.5, frames=5, rate="10 Hz")}
+    assert result.skipped_tracks["glimpse"] == ("no run of 0.5 s (5 frames at 10 Hz) of observed frames for "
+                                                "own-behaviour tags (behavior.min_run_s)")
     assert not flags(result, "glimpse", BehaviorLabel.STOPPED).any()
     rows = [r for r in result.frame_tags_table().to_pylist() if r["track_id"] == "glimpse"]
     assert len(rows) == 3 and all(r["stopped"] is None for r in rows)

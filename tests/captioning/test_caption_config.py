@@ -34,13 +34,13 @@ def test_custom_round_trips_through_yaml(tmp_path: Path) -> None:
     path = tmp_path / "c.yaml"
     path.write_text(
         "host: {yaw_rate_rps: 0.2}\nneighbor: {lateral_deg: [50, 130], oncoming_min_deg: 160}\n"
-        "windows: {strategy: sliding, length_s: 4, stride_s: 1}\nsmoothing: {window_frames: 7}\n"
+        "windows: {strategy: sliding, length_s: 4, stride_s: 1}\nsmoothing: {window_s: 0.7}\n"
     )
     config = CaptioningConfig.from_yaml(path)
     assert config.host.yaw_rate_rps == 0.2
     assert config.neighbor.lateral_deg == (50.0, 130.0)
     assert config.windows.strategy is WindowStrategy.SLIDING
-    assert config.smoothing.window_frames == 7
+    assert config.smoothing.window_s == 0.7
     config.to_yaml(tmp_path / "again.yaml")
     assert CaptioningConfig.from_yaml(tmp_path / "again.yaml") == config
 
@@ -59,9 +59,11 @@ def test_unknown_keys_are_all_listed(tmp_path: Path) -> None:
         ({"neighbor": {"lateral_deg": [120, 60]}}, "lateral_deg"),
         ({"neighbor": {"oncoming_min_deg": 100}}, "oncoming_min_deg"),
         ({"host": {"accel_mps2": -1}}, "host.accel_mps2"),
-        ({"segments": {"min_frames": 50, "max_frames": 20}}, "exceeds"),
-        ({"smoothing": {"window_frames": 8}}, "window_frames"),
-        ({"smoothing": {"window_frames": 5, "polyorder": 5}}, "polyorder"),
+        ({"segments": {"min_s": 5, "max_s": 2}}, "exceeds"),
+        ({"smoothing": {"window_s": 0}}, r"smoothing\.window_s"),
+        ({"smoothing": {"max_gap_s": -0.1}}, r"smoothing\.max_gap_s"),
+        ({"behavior": {"min_run_s": float("nan")}}, r"behavior\.min_run_s"),
+        ({"smoothing": {"polyorder": 0}}, "polyorder"),
         ({"windows": {"strategy": "random"}}, "strategy"),
         ({"host": {"yaw_rate_rps": "fast"}}, "yaw_rate_rps"),
         ({"neighbor": {"lateral_deg": 60}}, "lateral_deg"),
@@ -76,7 +78,7 @@ def test_dataclass_construction_is_validated_too() -> None:
     with pytest.raises(ConfigError):
         CaptioningConfig(neighbor=NeighborConfig(host_lane_half_width_m=float("nan")))
     with pytest.raises(ConfigError, match="twice"):
-        CaptioningConfig(segments=SegmentsConfig(min_frames=10, max_frames=15))
+        CaptioningConfig(segments=SegmentsConfig(min_s=1.0, max_s=1.5))
 
 
 def test_config_error_is_a_value_error_for_the_cli() -> None:
@@ -90,7 +92,7 @@ PARTS: dict[str, type[YamlConfig]] = {name: hint for name, hint in typing.get_ty
 #: Every bounded size of the captioning config, with its dotted key.
 BOUNDED_KEYS = [(f"{name}.{key}", bound) for name, part in PARTS.items() for key, bound in part.upper_bounds.items()]
 #: Other values of its part a size needs at its bound (a segment's maximum is at least twice its minimum).
-AT_BOUND_COMPANIONS = {"segments.min_frames": {"max_frames": 100_000}}
+AT_BOUND_COMPANIONS = {"segments.min_s": {"max_s": 10_000}}
 
 
 def test_the_windows_and_counts_are_bounded_and_documented() -> None:

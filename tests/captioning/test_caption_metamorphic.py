@@ -80,7 +80,7 @@ def reverse(data: dict) -> dict:
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_reversing_time_swaps_approach_away_and_accelerating_decelerating(seed: int) -> None:
     # Flicker suppression fills a short run from the run before it, which is not time-symmetric: off here.
-    config = CaptioningConfig(smoothing=SmoothingConfig(min_run_frames=1))
+    config = CaptioningConfig(smoothing=SmoothingConfig(min_run_s=0.0))
     data = smooth_scene(seed, turning=False)  # a straight ego keeps the first-frame axes of eq. 3 aligned
     a = caption_arrays(config=config, **data)  # type: ignore[arg-type]
     b = caption_arrays(config=config, **reverse(data))  # type: ignore[arg-type]
@@ -94,7 +94,7 @@ def test_reversing_time_swaps_approach_away_and_accelerating_decelerating(seed: 
 
 
 def test_reversing_time_swaps_steering(make_scene) -> None:  # type: ignore[no-untyped-def]
-    config = CaptioningConfig(smoothing=SmoothingConfig(min_run_frames=1))
+    config = CaptioningConfig(smoothing=SmoothingConfig(min_run_s=0.0))
     rate = np.r_[np.full(30, 0.35), np.full(30, -0.35)]
     data = make_scene(8.0, rate).arrays()
     a = caption_arrays(config=config, **data)

@@ -137,7 +137,7 @@ def test_missed_detections_are_bridged_for_derivatives_but_not_reported(make_sce
     seen = np.arange(60) % 4 != 3
     scene = make_scene(8.0).add("parked", "car", xy, 0.0, valid=seen)
     assert scene.caption().neighbors.stationary.tolist() == [True]
-    unbridged = CaptioningConfig(smoothing=SmoothingConfig(max_gap_frames=0))
+    unbridged = CaptioningConfig(smoothing=SmoothingConfig(max_gap_s=0.0))
     assert scene.caption(unbridged).neighbors.stationary.tolist() == [False]
     # Two frames with one missed between them can be differentiated; frames are reported only where seen.
     pair = np.zeros(60, bool)

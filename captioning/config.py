@@ -146,9 +146,10 @@ class SmoothingConfig(CaptioningYamlConfig):
     Attributes:
         window_s: Savitzky–Golay window of the host's and the tracks' derivatives. 0.9 s (9 frames at
             10 Hz): long enough to average out box jitter, short enough to keep a 2 s braking
-            manoeuvre. In frames it is the nearest odd count, at least 3 and above ``polyorder``: 3
-            at 2 Hz, where the derivative is the central difference.
-        polyorder: Savitzky–Golay polynomial order.
+            manoeuvre. In frames it is the nearest odd count, at least 3: 3 at 2 Hz, where the
+            derivative is the central difference.
+        polyorder: Savitzky–Golay polynomial order; lowered to the window's frames − 2 where the
+            window is shorter (a polynomial through every sample of its window interpolates the jitter).
         min_run_s: per-frame tags holding for less than this are replaced by their neighbours'
             (0.5 s: 5 frames at 10 Hz; at 2 Hz a single frame lasts as long, so nothing is
             replaced); 0 turns suppression off.
@@ -236,8 +237,9 @@ class BehaviorConfig(CaptioningYamlConfig):
             position (for the map lookup). 0.9 s (9 frames at 10 Hz), as ``smoothing.window_s``, so
             the speed is the neighbour tags' derivative: box jitter of a tracker (±0.15 m) becomes
             ≈0.1–0.2 m/s of speed noise, below ``stopped_speed_mps``, while a 2 s braking keeps most of
-            its peak. In frames the nearest odd count, at least 3 and above ``polyorder``.
-        polyorder: its polynomial order.
+            its peak. In frames the nearest odd count, at least 3.
+        polyorder: its polynomial order (and that of ``accel_window_s``), lowered to a window's frames
+            − 2 where the window is shorter.
         accel_window_s: Savitzky–Golay window of the rate of change of the smoothed speed; short,
             because the speed is smoothed already (0.5 s: 5 frames at 10 Hz; at least 3 frames).
         min_run_s: a track needs a run of observed (or bridged) frames lasting at least this for

@@ -7,10 +7,13 @@ does not change it). A duration of ``s`` seconds is ``round(s / interval)`` fram
 minimum that keeps each rule defined:
 
 - Savitzky–Golay windows (``smoothing.window_s``, ``behavior.window_s``, ``behavior.accel_window_s``)
-  take the odd frame count nearest to ``s / interval`` and at least the smallest odd count above
-  ``polyorder`` and ≥ 3. At 2 Hz the 0.9 s default is 3 frames: the fitted parabola passes through
-  the three samples, so the derivative is the central difference; runs shorter than the window use
-  plain differences (:mod:`captioning.smoothing`), so two frames still give a derivative.
+  take the odd frame count nearest to ``s / interval``, at least 3, and their polynomial order is
+  lowered to ``window − 2`` where it is higher: a polynomial through as many samples as it has
+  coefficients interpolates the jitter instead of smoothing it, and its slope at a run's end is
+  noisier than a plain difference. At 2 Hz the 0.9 s default is 3 frames with a straight line: the
+  central difference inside a run and the slope over its three end frames at its ends. Runs shorter
+  than the window use plain differences (:mod:`captioning.smoothing`), so two frames still give a
+  derivative.
 - flicker suppression (``smoothing.min_run_s``): at least 1 frame (1 turns it off; at 2 Hz one frame
   already lasts the 0.5 s default).
 - bridged gaps (``smoothing.max_gap_s``): at least 0 frames (0 bridges nothing; at 2 Hz the 0.3 s
@@ -53,14 +56,14 @@ def frames_at(seconds: float, interval_s: float, minimum: int) -> int:
     return max(minimum, math.floor(seconds / interval_s + 0.5))
 
 
-def savgol_frames(seconds: float, interval_s: float, polyorder: int) -> int:
-    """A Savitzky–Golay window of ``seconds``: the odd frame count nearest to ``seconds / interval_s``
-    (an even quotient goes up), at least the smallest odd count above ``polyorder`` and ≥ 3."""
-    least = max(3, polyorder + 1)
-    least += 1 - least % 2
-    if not (math.isfinite(interval_s) and interval_s > 0):
-        return least
-    return max(least, 2 * math.floor(seconds / interval_s / 2) + 1)
+def savgol_frames(seconds: float, interval_s: float, polyorder: int) -> tuple[int, int]:
+    """A Savitzky–Golay window of ``seconds`` and the polynomial order it takes: the odd frame count
+    nearest to ``seconds / interval_s`` (an even quotient goes up), at least 3, and ``polyorder``
+    lowered to at most that count − 2 (see the module docstring)."""
+    frames = 3
+    if math.isfinite(interval_s) and interval_s > 0:
+        frames = max(frames, 2 * math.floor(seconds / interval_s / 2) + 1)
+    return frames, max(1, min(polyorder, frames - 2))
 
 
 @dataclass(frozen=True)
@@ -70,14 +73,15 @@ class FrameCounts:
     Attributes:
         interval_s: the log's frame interval (:func:`frame_interval_s`); NaN for a single frame.
         window: ``smoothing.window_s``, odd (host, neighbour and position derivatives).
-        polyorder: ``smoothing.polyorder``.
+        polyorder: ``smoothing.polyorder``, at most ``window − 2``.
         min_run: ``smoothing.min_run_s`` (flicker suppression; 1 = off).
         max_gap: ``smoothing.max_gap_s``, in missed frames bridged.
         segment_min: ``segments.min_s`` (shortest host segment; fewest tagged frames of a neighbour caption).
         segment_max: ``segments.max_s``, at least twice ``segment_min``.
         behavior_window: ``behavior.window_s``, odd (the objects' own speed and lateral offset).
-        behavior_polyorder: ``behavior.polyorder``.
+        behavior_polyorder: ``behavior.polyorder``, at most ``behavior_window − 2``.
         accel_window: ``behavior.accel_window_s``, odd (the rate of change of the speed).
+        accel_polyorder: ``behavior.polyorder``, at most ``accel_window − 2``.
         behavior_min_run: ``behavior.min_run_s`` (shortest run with own-behaviour tags), at least 2.
     """
 
@@ -91,6 +95,7 @@ class FrameCounts:
     behavior_window: int
     behavior_polyorder: int
     accel_window: int
+    accel_polyorder: int
     behavior_min_run: int
 
     @staticmethod
@@ -98,17 +103,21 @@ class FrameCounts:
         """The counts at a frame interval (see the module docstring for the rounding and minimums)."""
         s, g, b = config.smoothing, config.segments, config.behavior
         segment_min = frames_at(g.min_s, interval_s, 1)
+        window, polyorder = savgol_frames(s.window_s, interval_s, s.polyorder)
+        behavior_window, behavior_polyorder = savgol_frames(b.window_s, interval_s, b.polyorder)
+        accel_window, accel_polyorder = savgol_frames(b.accel_window_s, interval_s, b.polyorder)
         return FrameCounts(
             interval_s=interval_s,
-            window=savgol_frames(s.window_s, interval_s, s.polyorder),
-            polyorder=s.polyorder,
+            window=window,
+            polyorder=polyorder,
             min_run=frames_at(s.min_run_s, interval_s, 1),
             max_gap=frames_at(s.max_gap_s, interval_s, 0),
             segment_min=segment_min,
             segment_max=max(frames_at(g.max_s, interval_s, 1), 2 * segment_min),
-            behavior_window=savgol_frames(b.window_s, interval_s, b.polyorder),
-            behavior_polyorder=b.polyorder,
-            accel_window=savgol_frames(b.accel_window_s, interval_s, min(b.polyorder, 2)),
+            behavior_window=behavior_window,
+            behavior_polyorder=behavior_polyorder,
+            accel_window=accel_window,
+            accel_polyorder=accel_polyorder,
             behavior_min_run=frames_at(b.min_run_s, interval_s, 2),
         )
 

@@ -60,8 +60,7 @@ def planar_kinematics(
             interval (:mod:`captioning.frames`).
     """
     interval_s = frame_interval_s(t_s)
-    window_frames = savgol_frames(smoothing.window_s, interval_s, smoothing.polyorder)
-    polyorder = smoothing.polyorder
+    window_frames, polyorder = savgol_frames(smoothing.window_s, interval_s, smoothing.polyorder)
     t = xy_m.shape[0]
     values = np.concatenate([xy_m, np.unwrap(yaw_rad)[:, None]], axis=1)[None]  # (1, T, 3)
     valid = np.ones((1, t), dtype=bool)

@@ -112,7 +112,7 @@ def object_kinematics(motion: TrackMotion, city_SE3_ego: FloatArray, config: Cap
     else:
         vel = time_derivative(motion.positions[..., :2], enough, motion.t_s, w, p)
     speed = np.where(enough, np.hypot(vel[..., 0], vel[..., 1]), np.nan)
-    accel = _interior_rate(speed, motion.t_s, start, end, wa, min(p, wa - 1))
+    accel = _interior_rate(speed, motion.t_s, start, end, wa, frames.accel_polyorder)
     return ObjectKinematics(enough, speed, accel, yaw, _yaw_rate_rps(yaw, enough, motion.t_s, w))
 
 

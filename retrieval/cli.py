@@ -38,6 +38,7 @@ COMMANDS: dict[str, str] = {
     "tag": "tag",
     "find": "find",
     "eval-tags": "eval_tags",
+    "mine": "mine",
     "eval-mining": "eval_mining",
 }
 

@@ -128,7 +128,7 @@ class LogFeatures:
         return ((self.flags & flag_bit(name)) != 0) & self.valid
 
 
-def _time_derivative(values: NDArray[np.float64], valid: NDArray[np.bool_], t_s: NDArray[np.float64]
+def time_derivative(values: NDArray[np.float64], valid: NDArray[np.bool_], t_s: NDArray[np.float64]
                      ) -> NDArray[np.float64]:
     """(K, F, ...) derivative over time of ``values`` (K, F, ...), central where both neighbours are
     observed, one-sided at the ends of a run, 0 for isolated frames."""
@@ -185,13 +185,13 @@ def build_features(log: Log, config: CaptioningConfig | None = None,
     size = np.nanmedian(np.where(dense.valid[..., None], dense.size_lwh_m, np.nan), axis=1) if f and k else \
         np.zeros((k, 3))
     size = np.concatenate([np.nan_to_num(size), np.asarray([EGO_SIZE_LWH_M])], axis=0)
-    velocity = _time_derivative(np.nan_to_num(xyz[..., :2]), valid, t_s)
+    velocity = time_derivative(np.nan_to_num(xyz[..., :2]), valid, t_s)
     speed = np.linalg.norm(velocity, axis=-1)
     behavior = rules.behavior
     if behavior is not None:  # the rules' smoothed speeds where they have them
         smooth = np.concatenate([behavior.speed_mps, np.full((1, f), np.nan)])
         speed = np.where(np.isfinite(smooth), smooth, speed)
-    accel = _time_derivative(speed, valid, t_s)
+    accel = time_derivative(speed, valid, t_s)
 
     flags = np.zeros((k + 1, f), dtype=np.uint16)
 

@@ -52,7 +52,7 @@ class Predicate:
 
     Attributes:
         name: the name programs use.
-        phrase: how a reader says it ("is turning {direction}").
+        phrase: how a reader says it ("turning {direction}").
         fn: ``(features, params) -> (K, F) mask``.
         defaults: parameter name → default value (a float, or a str among ``choices``).
         choices: for str parameters, the values allowed.
@@ -84,17 +84,17 @@ def _f(params: Params, key: str) -> float:
     return float(params[key])
 
 
-@_define("moving", "is moving", {"min_mps": 0.5})
+@_define("moving", "moving", {"min_mps": 0.5})
 def _moving(x: LogFeatures, p: Params) -> Mask:
     return x.valid & (x.speed_mps > _f(p, "min_mps"))
 
 
-@_define("standing", "is standing", {"max_mps": 0.5})
+@_define("standing", "standing", {"max_mps": 0.5})
 def _standing(x: LogFeatures, p: Params) -> Mask:
     return x.valid & (x.speed_mps <= _f(p, "max_mps"))
 
 
-@_define("stationary", "never moves", {"max_travel_m": 2.0})
+@_define("stationary", "never moving", {"max_travel_m": 2.0})
 def _stationary(x: LogFeatures, p: Params) -> Mask:
     xy = np.where(x.valid[..., None], x.xy_m, np.nan)
     with warnings.catch_warnings():  # tracks never observed give all-NaN rows: no travel known
@@ -104,22 +104,22 @@ def _stationary(x: LogFeatures, p: Params) -> Mask:
     return x.valid & (travel <= _f(p, "max_travel_m"))[:, None]
 
 
-@_define("parked", "is parked")
+@_define("parked", "parked")
 def _parked(x: LogFeatures, p: Params) -> Mask:
     return x.flag("parked")
 
 
-@_define("stopped", "is stopped", {"max_mps": 0.5})
+@_define("stopped", "stopped", {"max_mps": 0.5})
 def _stopped(x: LogFeatures, p: Params) -> Mask:
     return (x.flag("stopped") | (x.valid & (x.speed_mps <= _f(p, "max_mps")))) & ~x.flag("parked")
 
 
-@_define("accelerating", "is accelerating", {"min_mps2": 0.65})
+@_define("accelerating", "accelerating", {"min_mps2": 0.65})
 def _accelerating(x: LogFeatures, p: Params) -> Mask:
     return (x.valid & (x.accel_mps2 >= _f(p, "min_mps2")) & (x.speed_mps > 0.5)) | x.flag("accelerating_host")
 
 
-@_define("braking", "is braking", {"min_mps2": 1.0})
+@_define("braking", "braking", {"min_mps2": 1.0})
 def _braking(x: LogFeatures, p: Params) -> Mask:
     return x.flag("braking") | (x.valid & (x.accel_mps2 <= -_f(p, "min_mps2")) & (x.speed_mps > 0.5))
 
@@ -132,24 +132,24 @@ def _sided(x: LogFeatures, left: str, right: str, direction: str) -> Mask:
     return x.flag(left) | x.flag(right)
 
 
-@_define("turning", "is turning {direction}", {"direction": "any"}, {"direction": DIRECTIONS})
+@_define("turning", "turning {direction}", {"direction": "any"}, {"direction": DIRECTIONS})
 def _turning(x: LogFeatures, p: Params) -> Mask:
     return _sided(x, "left_turn", "right_turn", str(p["direction"]))
 
 
-@_define("changing_lanes", "is changing lanes {direction}", {"direction": "any"}, {"direction": DIRECTIONS},
+@_define("changing_lanes", "changing lanes {direction}", {"direction": "any"}, {"direction": DIRECTIONS},
          needs_map=True)
 def _changing_lanes(x: LogFeatures, p: Params) -> Mask:
     return _sided(x, "left_lane_change", "right_lane_change", str(p["direction"]))
 
 
-@_define("jaywalking", "crosses the road off a crosswalk", needs_map=True)
+@_define("jaywalking", "jaywalking (on a lane, off crosswalks)", needs_map=True)
 def _jaywalking(x: LogFeatures, p: Params) -> Mask:
     return x.flag("on_lane") & ~x.flag("on_crosswalk") & ~x.flag("at_intersection") & (x.speed_mps > 0.5) \
         & np.isin(x.categories, ["pedestrian"])[:, None]
 
 
-@_define("appearance", "in a log recorded at {time_of_day} time in {weather} weather",
+@_define("appearance", "in logs recorded: {time_of_day} {weather}",
          {"time_of_day": "any", "weather": "any"},
          {"time_of_day": ("any", "day", "dusk", "night"), "weather": ("any", "clear", "rain", "fog", "snow")})
 def _appearance(x: LogFeatures, p: Params) -> Mask:
@@ -157,14 +157,14 @@ def _appearance(x: LogFeatures, p: Params) -> Mask:
     return x.valid & ok
 
 
-@_define("crossing_road", "crosses the road", needs_map=True)
+@_define("crossing_road", "crossing the road", needs_map=True)
 def _crossing_road(x: LogFeatures, p: Params) -> Mask:
     on = x.flag("on_crosswalk") | x.flag("on_lane") | x.flag("at_intersection")
     walkers = np.isin(x.categories, ["pedestrian", "cyclist", "other"])[:, None]
     return on & walkers & (x.speed_mps > 0.5)
 
 
-@_define("approaching_crosswalk", "reaches a crosswalk within {within_s} s", {"within_s": 3.0}, needs_map=True)
+@_define("approaching_crosswalk", "reaching a crosswalk within {within_s} s", {"within_s": 3.0}, needs_map=True)
 def _approaching_crosswalk(x: LogFeatures, p: Params) -> Mask:
     on = x.flag("on_crosswalk")
     t = np.broadcast_to(x.time_s, on.shape)
@@ -172,22 +172,22 @@ def _approaching_crosswalk(x: LogFeatures, p: Params) -> Mask:
     return x.valid & ~on & (nxt - t <= _f(p, "within_s"))
 
 
-@_define("near_intersection", "is within {within_m} m of an intersection", {"within_m": 5.0}, needs_map=True)
+@_define("near_intersection", "within {within_m} m of an intersection", {"within_m": 5.0}, needs_map=True)
 def _near_intersection(x: LogFeatures, p: Params) -> Mask:
     return x.valid & (x.to_junction_m <= _f(p, "within_m"))
 
 
-@_define("blocked", "is blocked by a vehicle ahead")
+@_define("blocked", "blocked by a vehicle ahead")
 def _blocked(x: LogFeatures, p: Params) -> Mask:
     return x.flag("blocked_by")
 
 
-@_define("braking_for_leader", "brakes for a vehicle ahead")
+@_define("braking_for_leader", "braking for a vehicle ahead")
 def _braking_for(x: LogFeatures, p: Params) -> Mask:
     return x.flag("braking_for")
 
 
-@_define("speed", "moves at {min_mps}–{max_mps} m/s", {"min_mps": 0.0, "max_mps": 1000.0})
+@_define("speed", "moving at {min_mps}–{max_mps} m/s", {"min_mps": 0.0, "max_mps": 1000.0})
 def _speed(x: LogFeatures, p: Params) -> Mask:
     return x.valid & (x.speed_mps >= _f(p, "min_mps")) & (x.speed_mps <= _f(p, "max_mps"))
 
@@ -198,11 +198,11 @@ def _map_flag(flag: str) -> Callable[[LogFeatures, Params], Mask]:
     return holds
 
 
-for _name, _flag, _phrase in (("at_intersection", "at_intersection", "is at an intersection"),
-                              ("on_crosswalk", "on_crosswalk", "is on a crosswalk"),
-                              ("in_bike_lane", "in_bike_lane", "is in a bike lane"),
-                              ("in_bus_lane", "in_bus_lane", "is in a bus lane"),
-                              ("on_road", "on_lane", "is on the road")):
+for _name, _flag, _phrase in (("at_intersection", "at_intersection", "at an intersection"),
+                              ("on_crosswalk", "on_crosswalk", "on a crosswalk"),
+                              ("in_bike_lane", "in_bike_lane", "in a bike lane"),
+                              ("in_bus_lane", "in_bus_lane", "in a bus lane"),
+                              ("on_road", "on_lane", "on the road")):
     _define(_name, _phrase, needs_map=True)(_map_flag(_flag))
 
 _LANE_GROUPS: dict[str, tuple[Lane, ...]] = {
@@ -212,18 +212,18 @@ _LANE_GROUPS: dict[str, tuple[Lane, ...]] = {
 }
 
 
-@_define("ego_lane", "is in the {lane} lane of the ego", {"lane": "host"}, {"lane": tuple(_LANE_GROUPS)})
+@_define("ego_lane", "in the {lane} lane of the ego", {"lane": "host"}, {"lane": tuple(_LANE_GROUPS)})
 def _ego_lane(x: LogFeatures, p: Params) -> Mask:
     codes = [LANES.index(lane) for lane in _LANE_GROUPS[str(p["lane"])]]
     return x.valid & np.isin(x.ego_lane, codes)
 
 
-@_define("approaching_ego", "comes closer to the ego")
+@_define("approaching_ego", "coming closer to the ego")
 def _approaching(x: LogFeatures, p: Params) -> Mask:
     return x.valid & (x.ego_motion == MOTIONS.index(Motion.APPROACH))
 
 
-@_define("moving_away_from_ego", "moves away from the ego")
+@_define("moving_away_from_ego", "moving away from the ego")
 def _away(x: LogFeatures, p: Params) -> Mask:
     return x.valid & (x.ego_motion == MOTIONS.index(Motion.AWAY))
 

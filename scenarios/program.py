@@ -156,14 +156,28 @@ def _plural(kind: str) -> str:
     return words.get(kind, kind.replace("_", " ") + "s")
 
 
-def _params_text(params: tuple[Param, ...], skip: tuple[str, ...] = ()) -> str:
-    shown = [f"{k.removesuffix('_m').removesuffix('_s').replace('_', ' ')} {_value(v)}"
-             f"{' m' if k.endswith('_m') else ' s' if k.endswith('_s') else ''}" for k, v in params if k not in skip]
-    return f" ({', '.join(shown)})" if shown else ""
+_SIDES = {"front": "in front of", "behind": "behind", "left": "to the left of", "right": "to the right of",
+          "beside": "beside", "front_left": "to the front-left of", "front_right": "to the front-right of",
+          "back_left": "to the back-left of", "back_right": "to the back-right of"}
+
+
+def _params_text(params: dict[str, float | str], shown: str) -> str:
+    """The parameters a phrase does not say already, as "(within 5 m, …)"."""
+    rest = [(k, v) for k, v in params.items() if "{" + k + "}" not in shown and k != "side"]
+    text = [f"{k.removesuffix('_m').removesuffix('_s').removesuffix('_deg').replace('_', ' ')} {_value(v)}"
+            f"{' m' if k.endswith('_m') else ' s' if k.endswith('_s') else '°' if k.endswith('_deg') else ''}"
+            for k, v in rest]
+    return f" ({', '.join(text)})" if text else ""
+
+
+def _nested(node: Node) -> str:
+    """``describe(node)``, in parentheses when it is more than a kind."""
+    text = describe(node)
+    return text if isinstance(node, Objects) else f"({text})"
 
 
 def describe(node: Node) -> str:
-    """A sentence that says what the program selects, for a reader to check the parse against."""
+    """A phrase that says what the program selects, for a reader to check the parse against."""
     from scenarios.predicates import PREDICATES
     from scenarios.relations import RELATIONS
 
@@ -171,37 +185,38 @@ def describe(node: Node) -> str:
         case Objects(kind):
             return _plural(kind)
         case Is(subject, predicate, params, negate):
-            p = dict(params)
-            phrase = PREDICATES[predicate].phrase.format(**{**PREDICATES[predicate].defaults, **p}) \
-                if predicate in PREDICATES else predicate
-            phrase = phrase.replace(" any", "").replace("  ", " ")
-            named = tuple(k for k in p if "{" + k + "}" in PREDICATES.get(predicate, PREDICATES["moving"]).phrase)
-            return f"{describe(subject)} that {'not ' if negate else ''}{phrase}{_params_text(params, named)}"
+            pred = PREDICATES.get(predicate)
+            known = {**(pred.defaults if pred else {}), **dict(params)}
+            phrase = pred.phrase.format(**known).replace(" any", "") if pred else predicate
+            extra = _params_text(dict(params), pred.phrase if pred else "")
+            return f"{describe(subject)} {'not ' if negate else ''}{phrase}{extra}"
         case Has(subject, relation, other, params, min_count, max_count, negate, reverse):
-            p = dict(params)
-            count = ("no" if negate else f"at least {min_count}" if min_count > 1 else "") + \
-                (f" at most {max_count}" if max_count is not None else "")
-            other_text = f"{count} {describe(other)}".strip()
             spec = RELATIONS.get(relation)
-            phrase = spec.phrase.format(other=other_text, **{**spec.defaults, **p}) if spec else relation
+            values = {**(spec.defaults if spec else {}), **dict(params)}
+            side = str(values.get("side", ""))
+            values["side_of"] = _SIDES.get(side, side)
+            count = ("no " if negate else f"at least {min_count} " if min_count > 1 else "") + \
+                (f"at most {max_count} " if max_count is not None else "")
+            template = (spec.reverse_phrase if reverse else spec.phrase) if spec else relation + " {other}"
+            phrase = template.format(other=count + _nested(other), subject=_nested(subject),
+                                     **{k: v for k, v in values.items() if k not in ("other", "subject")})
             phrase = phrase.replace(" on the any", "")
-            named = tuple(k for k in p if spec is not None and "{" + k + "}" in spec.phrase)
-            sentence = f"{describe(subject)} that {phrase}{_params_text(params, named)}"
-            return f"the {describe(other)} related to: {sentence}" if reverse else sentence
+            extra = _params_text(dict(params), template)
+            return f"{describe(other) if reverse else describe(subject)} {phrase}{extra}"
         case Between(subject, left, right, _):
-            return f"{describe(subject)} between {describe(left)} and {describe(right)}"
+            return f"{describe(subject)} between {_nested(left)} and {_nested(right)}"
         case AllOf(children):
-            return " and ".join(f"({describe(c)})" for c in children)
+            return " and ".join(_nested(c) for c in children)
         case AnyOf(children):
-            return " or ".join(f"({describe(c)})" for c in children)
+            return " or ".join(_nested(c) for c in children)
         case Excluding(base, excluded):
-            return f"{describe(base)}, except {describe(excluded)}"
+            return f"{describe(base)}, except {_nested(excluded)}"
         case Together(child, min_count):
-            return f"{describe(child)}, when at least {min_count} of them are there at once"
+            return f"{describe(child)}, at least {min_count} at once"
         case ForAtLeast(child, seconds):
             return f"{describe(child)}, for at least {_value(seconds)} s"
         case Then(first, second, within_s):
-            return f"{describe(first)}, then within {_value(within_s)} s: {describe(second)}"
+            return f"{_nested(first)}, then within {_value(within_s)} s {_nested(second)}"
         case While(child, condition):
-            return f"{describe(child)}, while {describe(condition)}"
+            return f"{describe(child)}, while there are {_nested(condition)}"
     raise TypeError(f"not a program node: {node!r}")

@@ -97,10 +97,15 @@ def pair_geometry(x: LogFeatures, subjects: NDArray[np.int64], others: NDArray[n
 
 @dataclass(frozen=True)
 class Relation:
-    """A named relation of another object to a subject (see the module docstring)."""
+    """A named relation of another object to a subject (see the module docstring).
+
+    ``phrase`` says it after the subjects' name ("with {other} …"), ``reverse_phrase`` after the other
+    objects' ("… {subject}"), for programs that answer those.
+    """
 
     name: str
     phrase: str
+    reverse_phrase: str
     fn: Callable[[PairGeometry, Params], Mask]
     defaults: Mapping[str, float | str] = field(default_factory=dict)
     choices: Mapping[str, tuple[str, ...]] = field(default_factory=dict)
@@ -110,11 +115,12 @@ class Relation:
 RELATIONS: dict[str, Relation] = {}
 
 
-def _define(name: str, phrase: str, defaults: Mapping[str, float | str] | None = None,
+def _define(name: str, phrase: str, reverse_phrase: str, defaults: Mapping[str, float | str] | None = None,
             choices: Mapping[str, tuple[str, ...]] | None = None, needs_map: bool = False
             ) -> Callable[[Callable[[PairGeometry, Params], Mask]], Callable[[PairGeometry, Params], Mask]]:
     def register(fn: Callable[[PairGeometry, Params], Mask]) -> Callable[[PairGeometry, Params], Mask]:
-        RELATIONS[name] = Relation(name, phrase, fn, dict(defaults or {}), dict(choices or {}), needs_map)
+        RELATIONS[name] = Relation(name, phrase, reverse_phrase, fn, dict(defaults or {}), dict(choices or {}),
+                                   needs_map)
         return fn
     return register
 
@@ -142,25 +148,27 @@ def in_direction(g: PairGeometry, side: str, within_m: float, lateral_m: float) 
     return g.ok & where & (g.gap_m <= within_m)
 
 
-@_define("direction", "has {other} to its {side}", {"side": "front", "within_m": 50.0, "lateral_m": 1000.0},
+@_define("direction", "with {other} {side_of} them", "{side_of} {subject}",
+         {"side": "front", "within_m": 50.0, "lateral_m": 1000.0},
          {"side": ("front", "behind", "left", "right", "beside", "front_left", "front_right", "back_left",
                    "back_right")})
 def _direction(g: PairGeometry, p: Params) -> Mask:
     return in_direction(g, str(p["side"]), _f(p, "within_m"), _f(p, "lateral_m"))
 
 
-@_define("near", "is near {other}", {"within_m": 10.0})
+@_define("near", "near {other}", "near {subject}", {"within_m": 10.0})
 def _near(g: PairGeometry, p: Params) -> Mask:
     return g.ok & (g.gap_m <= _f(p, "within_m"))
 
 
-@_define("following", "follows {other}", {"within_m": 25.0, "lateral_m": 1.5})
+@_define("following", "following {other}", "followed by {subject}", {"within_m": 25.0, "lateral_m": 1.5})
 def _following(g: PairGeometry, p: Params) -> Mask:
     return in_direction(g, "front", _f(p, "within_m"), _f(p, "lateral_m")) & (np.abs(g.rel_yaw_rad) <= np.pi / 4) \
         & (g.subject_speed_mps > 0.5)
 
 
-@_define("same_lane", "shares a lane with {other}", {"within_m": 50.0}, needs_map=True)
+@_define("same_lane", "sharing a lane with {other}", "sharing a lane with {subject}",
+         {"within_m": 50.0}, needs_map=True)
 def _same_lane(g: PairGeometry, p: Params) -> Mask:
     return g.ok & g.same_lane & (g.gap_m <= _f(p, "within_m"))
 
@@ -182,7 +190,8 @@ def _sign_change(values: Array, ok: Mask) -> Mask:
     return out
 
 
-@_define("crossed_by", "is crossed by {other}", {"forward_m": 10.0, "lateral_m": 5.0, "window_s": 1.0})
+@_define("crossed_by", "crossed by {other}", "crossing in front of {subject}",
+         {"forward_m": 10.0, "lateral_m": 5.0, "window_s": 1.0})
 def _crossed_by(g: PairGeometry, p: Params) -> Mask:
     zone = g.ok & (g.dx_m > 0) & (g.dx_m <= g.half_length_m + _f(p, "forward_m")) \
         & (np.abs(g.dy_m) <= g.half_width_m + _f(p, "lateral_m"))
@@ -190,7 +199,8 @@ def _crossed_by(g: PairGeometry, p: Params) -> Mask:
     return g.ok & _around_events(events, g.time_s, _f(p, "window_s"))
 
 
-@_define("passed_by", "is passed by {other} on the {side}", {"side": "any", "lateral_m": 5.0, "window_s": 1.0},
+@_define("passed_by", "passed by {other} on the {side}", "passing {subject} on the {side}",
+         {"side": "any", "lateral_m": 5.0, "window_s": 1.0},
          {"side": ("left", "right", "any")})
 def _passed_by(g: PairGeometry, p: Params) -> Mask:
     side, lateral = str(p["side"]), _f(p, "lateral_m")
@@ -205,7 +215,8 @@ def _passed_by(g: PairGeometry, p: Params) -> Mask:
     return g.ok & _around_events(events, g.time_s, _f(p, "window_s"))
 
 
-@_define("heading", "heads the {way} way as {other}", {"way": "same", "within_m": 50.0},
+@_define("heading", "heading the {way} way as {other}", "heading the {way} way as {subject}",
+         {"way": "same", "within_m": 50.0},
          {"way": ("same", "opposite", "perpendicular")})
 def _heading(g: PairGeometry, p: Params) -> Mask:
     a = np.abs(g.rel_yaw_rad)
@@ -215,12 +226,13 @@ def _heading(g: PairGeometry, p: Params) -> Mask:
     return g.ok & match & (g.gap_m <= _f(p, "within_m"))
 
 
-@_define("facing", "faces {other}", {"angle_deg": 22.5, "within_m": 50.0})
+@_define("facing", "facing {other}", "faced by {subject}", {"angle_deg": 22.5, "within_m": 50.0})
 def _facing(g: PairGeometry, p: Params) -> Mask:
     bearing = np.abs(np.arctan2(g.dy_m, g.dx_m))
     return g.ok & (bearing <= np.radians(_f(p, "angle_deg"))) & (g.gap_m <= _f(p, "within_m"))
 
 
-@_define("heading_toward", "heads toward {other}", {"angle_deg": 22.5, "min_mps": 0.5, "within_m": 50.0})
+@_define("heading_toward", "heading toward {other}", "approached by {subject}",
+         {"angle_deg": 22.5, "min_mps": 0.5, "within_m": 50.0})
 def _heading_toward(g: PairGeometry, p: Params) -> Mask:
     return _facing(g, p) & (g.subject_speed_mps >= _f(p, "min_mps"))

@@ -1,0 +1,124 @@
+"""Scenario mining: descriptions compiled once, answered on every log from its cached features.
+
+>>> run = mine([Path("logs/a"), Path("logs/b")], ["vehicle with a bicycle to its right"], cache_dir=Path("feat"))
+>>> write_submission(run.answers, "predictions.pkl")
+
+Each log is one task (:func:`mine_log`: features from the cache or built, then every program),
+serially or on Ray (:mod:`common.ray_runner`); answers keep the logs' order, then the descriptions'.
+A log that cannot be read is skipped with its reason; a description that names nothing is refused
+before any log is read.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from captioning.config import CaptioningConfig
+from common.ray_cluster import Execution
+from common.ray_runner import TaskStatus, run_tasks
+from scenarios.answer import LogAnswer
+from scenarios.cache import cached_features, claim_cache
+from scenarios.compiler import Compiled, compile_description
+from scenarios.evaluate import answer
+from scenes.errors import ScenesError
+
+
+@dataclass(frozen=True)
+class MiningContext:
+    """What every log's task shares."""
+
+    compiled: tuple[Compiled, ...]
+    cache_dir: Path | None
+    config: CaptioningConfig
+
+
+@dataclass
+class LogMining:
+    """One log's answers (one per description, in order) and the notes of what it could not answer."""
+
+    answers: list[LogAnswer]
+    notes: list[str]
+    cached: bool
+    seconds: float
+
+
+@dataclass
+class MiningRun:
+    """A mining run over many logs.
+
+    Attributes:
+        compiled: each description as compiled, in order.
+        answers: one per (log, description), logs in order.
+        notes: what some logs could not answer (a map, recorded weather), once each.
+        skipped: log → why it was skipped.
+        cached: logs whose features came from the cache.
+        seconds: wall time of the run.
+    """
+
+    compiled: list[Compiled]
+    answers: list[LogAnswer] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
+    skipped: dict[str, str] = field(default_factory=dict)
+    cached: int = 0
+    seconds: float = 0.0
+
+
+def compile_all(descriptions: Sequence[str], phrase_hint: Callable[[str], str | None] | None = None
+                ) -> list[Compiled]:
+    """Each description compiled (programs in the program syntax are read as such).
+
+    Raises:
+        DescriptionError: a description names nothing (the message names it and its unknown words).
+    """
+    return [compile_description(text, phrase_hint) for text in descriptions]
+
+
+def mine_log(log_dir: Path, ctx: MiningContext) -> LogMining:
+    """One log's task: its features (cached or built), then each program's answer."""
+    start = time.perf_counter()
+    features, cached = cached_features(log_dir, ctx.cache_dir, ctx.config)
+    answers, notes = [], []
+    for compiled in ctx.compiled:
+        result, said = answer(compiled.program, features, compiled.description)
+        answers.append(result)
+        notes += [n for n in said if n not in notes]
+    return LogMining(answers, notes, cached, time.perf_counter() - start)
+
+
+def mine(log_dirs: Sequence[Path], descriptions: Sequence[str], cache_dir: Path | None = None,
+         config: CaptioningConfig | None = None, execution: Execution | None = None,
+         phrase_hint: Callable[[str], str | None] | None = None) -> MiningRun:
+    """Answer every description on every log (see the module docstring).
+
+    Args:
+        log_dirs: log folders (AV2 layout).
+        descriptions: descriptions, or programs in the program syntax.
+        cache_dir: where per-log features are kept between runs (None: built each time, kept nowhere).
+        config: the captioning rules' thresholds the features are built with.
+        execution: where the logs' tasks run (default: serially).
+        phrase_hint: maps words the lexicon lacks to known phrases (:func:`compile_description`).
+
+    Raises:
+        DescriptionError: a description names nothing.
+        FolderClaimError: ``cache_dir`` is a folder of something else.
+    """
+    start = time.perf_counter()
+    compiled = compile_all(descriptions, phrase_hint)
+    if cache_dir is not None:
+        claim_cache(cache_dir, list(log_dirs))
+    ctx = MiningContext(tuple(compiled), cache_dir, config or CaptioningConfig())
+    report = run_tasks(mine_log, list(log_dirs), execution, labels=[str(d) for d in log_dirs], context=ctx,
+                       skip_on=(ScenesError, ValueError, OSError))
+    run = MiningRun(compiled)
+    for log_dir, outcome in zip(log_dirs, report.outcomes):
+        if outcome.status is TaskStatus.DONE and outcome.value is not None:
+            run.answers += outcome.value.answers
+            run.notes += [n for n in outcome.value.notes if n not in run.notes]
+            run.cached += int(outcome.value.cached)
+        else:
+            run.skipped[str(log_dir)] = outcome.reason
+    run.seconds = time.perf_counter() - start
+    return run

@@ -2,10 +2,13 @@
 
 Gaps
 ----
-Gaps of up to ``smoothing.max_gap_s`` of missed frames inside a track (missed detections; in frames
-at the log's rate, :mod:`captioning.frames`) are bridged by linear interpolation before
-differentiating and suppressing flicker; longer gaps split the track into runs that are
-differentiated separately. Tags are reported on observed frames only.
+Gaps of up to ``smoothing.max_gap_s`` of missed frames inside a track (missed detections) are
+bridged by linear interpolation before differentiating and suppressing flicker; longer gaps split the
+track into runs that are differentiated separately. A gap misses its frames of the grid, but never
+more than the frames of the log's rate (:mod:`captioning.frames`) that fit between the observations
+on either side: extra frames in the grid (LiDAR sweeps without annotations between 2 Hz
+annotations) are no misses, and neither is a dropped sweep (no frame, nothing to miss). Tags are
+reported on observed frames only.
 
 Stationarity (eq. 3)
 --------------------
@@ -149,9 +152,13 @@ class CompactGrid:
 
 
 def bridge_gaps(
-    values: FloatArray, yaw_rad: FloatArray, valid: BoolArray, inside: BoolArray, t_s: FloatArray, max_gap_frames: int
+    values: FloatArray, yaw_rad: FloatArray, valid: BoolArray, inside: BoolArray, t_s: FloatArray, max_gap_frames: int,
+    interval_s: float,
 ) -> BoolArray:
-    """Fill gaps of at most ``max_gap_frames`` inside tracks, in place.
+    """Fill gaps of at most ``max_gap_frames`` missed frames inside tracks, in place.
+
+    A gap between observations at ``t0`` and ``t1`` misses its frames of the grid, but at most
+    ``round((t1 − t0) / interval_s) − 1`` (see the module docstring).
 
     Positions are interpolated linearly in time between the observations on either side; the
     heading keeps the last observed value (a gap is too short for it to matter).
@@ -162,21 +169,26 @@ def bridge_gaps(
         valid: (K, L) observed cells.
         inside: (K, L) cells between each track's first and last observation.
         t_s: (K, L) sample times.
+        interval_s: the log's frame interval (:func:`~captioning.frames.frame_interval_s`).
 
     Returns:
         (K, L) observed or bridged cells.
     """
-    if max_gap_frames <= 0:
+    if max_gap_frames <= 0 or not interval_s > 0:
         return valid
     gap = inside & ~valid
     gap_start, gap_end = run_bounds(gap)
-    bridge = gap & (gap_end - gap_start + 1 <= max_gap_frames)
-    rows, cols = np.nonzero(bridge)
-    if rows.size == 0:
-        return valid
+    rows, cols = np.nonzero(gap)
     before = gap_start[rows, cols] - 1  # observed: a gap inside a track has observations on both sides
     after = gap_end[rows, cols] + 1
     t0, t1 = t_s[rows, before], t_s[rows, after]
+    missed = np.minimum(after - before - 1, np.floor((t1 - t0) / interval_s + 0.5) - 1)
+    short = missed <= max_gap_frames
+    rows, cols, before, after, t0, t1 = rows[short], cols[short], before[short], after[short], t0[short], t1[short]
+    if rows.size == 0:
+        return valid
+    bridge = np.zeros_like(valid)
+    bridge[rows, cols] = True
     weight = ((t_s[rows, cols] - t0) / (t1 - t0))[:, None]
     values[rows, cols] = values[rows, before] + weight * (values[rows, after] - values[rows, before])
     yaw_rad[rows, cols] = yaw_rad[rows, before]
@@ -322,7 +334,7 @@ def track_motion(
     first_xy = host_compensated_xy(rel_xy, planar[grid.frame])
     t_s = seconds_since_first(timestamps_ns)[grid.frame]  # (K, L)
     positions = np.concatenate([first_xy, rel_xy], axis=2)  # (K, L, 4)
-    bridged = bridge_gaps(positions, yaw, cvalid, grid.inside, t_s, frames.max_gap)
+    bridged = bridge_gaps(positions, yaw, cvalid, grid.inside, t_s, frames.max_gap, frames.interval_s)
     runs = run_bounds(bridged)
     d = time_derivative(positions, bridged, t_s, frames.window, frames.polyorder, runs=runs)  # (K, L, 4)
     return TrackMotion(grid, t_s, positions, yaw, bridged, *runs, d, np.asarray(city_SE3_ego[0], dtype=np.float64),

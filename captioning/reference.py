@@ -197,7 +197,10 @@ def reference_tags(
             after = f + 1
             while after < t_count and not obs[after]:
                 after += 1
-            if before < 0 or after >= t_count or after - before - 1 > max_gap:
+            if before < 0 or after >= t_count:
+                continue
+            in_time = math.floor((t_s[after] - t_s[before]) / frames.interval_s + 0.5) - 1
+            if min(after - before - 1, in_time) > max_gap:  # missed frames: of the grid, at most as many as fit
                 continue
             w = (t_s[f] - t_s[before]) / (t_s[after] - t_s[before])
             for channel in (first_x, first_y, rel_x, rel_y):

@@ -105,7 +105,8 @@ def _timed(fn: Callable[[], Any]) -> tuple[float, float]:
 def _stages(logs: list[Path], root: Path, run_dir: Path | None, execution: Any, previews: bool,
             tag: str) -> dict[str, tuple[float, float]]:
     """Caption, clips and (with a run) embedding of ``logs`` under ``execution``: stage → (wall, CPU)."""
-    from captioning.pipeline import caption_logs, write_outputs
+    from captioning.outputs import write_outputs
+    from captioning.pipeline import caption_logs
     from encoders.clips.build import build_clips
     from encoders.clips.config import ClipsConfig
     from retrieval.embedding import ModelEmbedder, RayDataEmbedder

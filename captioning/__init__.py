@@ -31,6 +31,7 @@ Public API::
 
 from captioning.config import CaptioningConfig
 from captioning.errors import CaptioningError, ConfigError, TrackDataError
+from captioning.outputs import write_outputs
 from captioning.pipeline import (
     BatchResult,
     Caption,
@@ -39,7 +40,6 @@ from captioning.pipeline import (
     caption_dense,
     caption_log,
     caption_logs,
-    write_outputs,
 )
 
 __all__ = [

@@ -2,9 +2,10 @@
 (:mod:`captioning.config`) and converted here, at the log's own frame rate, so that one config means
 the same at 10 Hz (AV2, KITTI, WOMD) as at 2 Hz (nuScenes, a tracker run at 2 Hz).
 
-The frame interval of a log is the median step between its annotation timestamps (a dropped sweep
-does not change it). A duration of ``s`` seconds is ``round(s / interval)`` frames, never fewer than a
-minimum that keeps each rule defined:
+The frame interval of a log is the median step of its frame grid, i.e. of its annotation timestamps
+(a dropped sweep, or a few LiDAR sweeps without annotations in the grid, do not change it). A
+duration of ``s`` seconds is ``round(s / interval)`` frames, never fewer than a minimum that keeps
+each rule defined:
 
 - Savitzky–Golay windows (``smoothing.window_s``, ``behavior.window_s``, ``behavior.accel_window_s``)
   take the odd frame count nearest to ``s / interval``, at least 3, and their polynomial order is
@@ -17,7 +18,8 @@ minimum that keeps each rule defined:
 - flicker suppression (``smoothing.min_run_s``): at least 1 frame (1 turns it off; at 2 Hz one frame
   already lasts the 0.5 s default).
 - bridged gaps (``smoothing.max_gap_s``): at least 0 frames (0 bridges nothing; at 2 Hz the 0.3 s
-  default bridges one missed frame).
+  default bridges one missed frame); a gap's missed frames are counted in time as well
+  (:func:`captioning.neighbors.bridge_gaps`).
 - runs for own-behaviour tags (``behavior.min_run_s``): at least 2 frames (a derivative needs two).
 - host segments (``segments.min_s`` / ``max_s``): at least 1 frame, and the maximum at least twice
   the minimum after rounding (splitting a long run never yields a part below the minimum).

@@ -37,14 +37,12 @@ never known) and ``junction_kind`` (the most frequent in the window), for filter
 from __future__ import annotations
 
 import dataclasses
-import functools
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 import pyarrow as pa
-import pyarrow.parquet as pq
 from numpy.typing import NDArray
 
 from captioning.assemble import host_captions, neighbor_captions, unique_starts
@@ -79,8 +77,6 @@ from captioning.tags import (
     unified_neighbor_tag,
 )
 from captioning.unify import Segment, caption_windows
-from common.folders import FolderKind, claim_folder, mark_folder
-from common.publish import GENERATIONS_DIR, publish
 from common.ray_cluster import Execution
 from common.ray_runner import TaskSkipped, TaskStatus, run_tasks
 from common.storage import distinct_by_name, staged_input
@@ -93,8 +89,8 @@ FRAME_TAGS_FILENAME = "frame_tags.parquet"
 #: Why a track gets no tags: no two observations close enough to differentiate.
 SKIP_ISOLATED = "observed only in single frames too far apart to differentiate"
 CAPTIONS_FILENAME = "captions.parquet"
-#: The folder ``scenesearch caption`` writes (:mod:`common.folders`).
-CAPTIONS_FOLDER = FolderKind("captions", CAPTIONS_FILENAME, (CAPTIONS_FILENAME, FRAME_TAGS_FILENAME, GENERATIONS_DIR))
+#: log id → the log's folder, for the stages that read the logs again (scenario queries).
+LOGS_FILENAME = "logs.json"
 
 _NEIGHBOR_STRINGS = [f"{lane.value}:{m.value}" for lane in LANES for m in MOTIONS]
 #: Unified tags with action and context: code ((lane·M + motion)·(A + 1) + action + 1)·(C + 1) + context + 1.
@@ -423,30 +419,3 @@ def caption_logs(log_dirs: Iterable[Path | str], config: CaptioningConfig | None
     skipped = {o.label: o.reason for o in report.with_status(TaskStatus.SKIPPED)}
     return BatchResult(report.values, {**skipped, **repeated},
                        {o.label: o.reason for o in report.with_status(TaskStatus.FAILED)})
-
-
-def output_tables(results: Sequence[LogCaptions]) -> dict[str, pa.Table]:
-    """``frame_tags.parquet`` and ``captions.parquet`` of the logs, in their order."""
-    behavior = any(r.behavior is not None for r in results)
-    schema = FRAME_TAGS_BEHAVIOR_SCHEMA if behavior else FRAME_TAGS_SCHEMA
-    frames = pa.concat_tables([r.frame_tags_table() for r in results]) if results else schema.empty_table()
-    captions = captions_to_table([c for r in results for c in r.captions], behavior)
-    return {FRAME_TAGS_FILENAME: frames, CAPTIONS_FILENAME: captions}
-
-
-def write_outputs(out_dir: Path | str, results: Sequence[LogCaptions],
-                  inputs: Sequence[Path | str] = ()) -> tuple[Path, Path]:
-    """Write ``frame_tags.parquet`` and ``captions.parquet`` and publish them together
-    (:mod:`common.publish`: readers never see a new one beside an old one; what an earlier
-    killed write left behind is removed). ``out_dir`` must be new, empty or a captions folder, and not
-    one of ``inputs`` (the log folders) nor inside one, else :class:`FolderClaimError`."""
-    claim_folder(out_dir, CAPTIONS_FOLDER, inputs)
-    mark_folder(out_dir, CAPTIONS_FOLDER, CAPTIONS_FOLDER.entries)  # first: a killed write leaves its kind
-    tables = output_tables(results)
-    paths = publish(out_dir, {name: functools.partial(_write_parquet, table)
-                               for name, table in tables.items()})
-    return paths[FRAME_TAGS_FILENAME], paths[CAPTIONS_FILENAME]
-
-
-def _write_parquet(table: pa.Table, path: Path) -> None:
-    pq.write_table(table, path)

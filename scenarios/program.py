@@ -102,6 +102,23 @@ class While:
 Node = Objects | Is | Has | Between | AllOf | AnyOf | Excluding | Together | ForAtLeast | Then | While
 
 
+def subject_of(node: Node) -> Node:
+    """The objects a node answers, before its modifiers: its innermost subject (the other side of a
+    reversed relation)."""
+    while True:
+        match node:
+            case Is(subject) | Between(subject) | Together(subject) | ForAtLeast(subject) | While(subject):
+                node = subject
+            case Has() if node.reverse:
+                node = node.other
+            case Has(subject):
+                node = subject
+            case Then(first) | AllOf((first, *_)):
+                node = first
+            case _:
+                return node
+
+
 def _value(value: float | str | int) -> str:
     if isinstance(value, float):
         return f"{value:g}"

@@ -305,6 +305,7 @@ def build_clips(
         entry["clips"] = len(res.rows)
         entry["clips_with_camera"] = int(sum(r["has_camera"] for r in res.rows))
         entry["split"] = split
+        entry["log_dir"] = str(given[log_id]) if is_uri(given[log_id]) else str(Path(given[log_id]).resolve())
         report.logs[log_id] = entry
         say(_log_line(log_id, res))
     for log_id, reason in report.failed.items():

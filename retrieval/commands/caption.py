@@ -47,7 +47,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from captioning.config import CaptioningConfig, RuleSet, WindowStrategy
-    from captioning.pipeline import CAPTIONS_FOLDER, caption_logs
+    from captioning.outputs import CAPTIONS_FOLDER
+    from captioning.pipeline import caption_logs
     from common.folders import claim_folder
 
     config = CaptioningConfig.from_yaml(args.config) if args.config else CaptioningConfig()
@@ -96,13 +97,8 @@ def _write(out: Location, results: list[LogCaptions], log_dirs: list[Location]) 
     """Publish the two files together in a local folder; upload them to a URI (files, no links)."""
     import pyarrow.parquet as pq
 
-    from captioning.pipeline import (
-        CAPTIONS_FILENAME,
-        CAPTIONS_FOLDER,
-        FRAME_TAGS_FILENAME,
-        output_tables,
-        write_outputs,
-    )
+    from captioning.outputs import CAPTIONS_FOLDER, output_tables, write_outputs
+    from captioning.pipeline import CAPTIONS_FILENAME, FRAME_TAGS_FILENAME
     from common.folders import mark_folder
 
     if not is_uri(out):

@@ -18,7 +18,8 @@ import pytest
 from captioning.config import CaptioningConfig, RuleSet
 from captioning.errors import ConfigError
 from captioning.frames import FrameCounts, frames_at, savgol_frames
-from captioning.pipeline import LogCaptions, caption_arrays, caption_log, write_outputs
+from captioning.outputs import write_outputs
+from captioning.pipeline import LogCaptions, caption_arrays, caption_log
 from captioning.tags import NO_TAG
 from scenes.log import Log
 from tests.scenes.av2_fixtures import DEV_LOGS, require, rewritten_log
@@ -175,14 +176,15 @@ def test_the_development_av2_log_at_2_hz_is_captioned(tmp_path: Path) -> None:
     assert len(low.captions) >= 0.8 * len(full.captions)
     frames_path, captions_path = write_outputs(tmp_path / "captions", [low])
     assert frames_path.is_file() and captions_path.is_file()
-    # Tags at the shared timestamps, track by track.
-    in_full = np.isin(low.timestamps_ns, full.timestamps_ns)
-    assert in_full.mean() >= 0.9
-    shared = np.searchsorted(full.timestamps_ns, low.timestamps_ns[in_full])
+    # Tags where both logs observe a track: the 2 Hz grid also holds the fixture's few LiDAR sweeps,
+    # whose annotations the 2 Hz log lacks.
     row_of = {str(track): k for k, track in enumerate(full.track_ids)}
     rows = np.array([row_of[str(track)] for track in low.track_ids])
+    shared = np.searchsorted(full.timestamps_ns, low.timestamps_ns)
+    assert (full.timestamps_ns[shared] == low.timestamps_ns).all()
     for name in ("lane", "motion"):
         a = getattr(full.neighbors, name)[rows][:, shared]
-        b = getattr(low.neighbors, name)[:, in_full]
-        tagged = a != NO_TAG
+        b = getattr(low.neighbors, name)
+        tagged = (a != NO_TAG) & low.valid
+        assert tagged.sum() >= 2000
         assert float((a[tagged] == b[tagged]).mean()) >= 0.9, name

@@ -18,7 +18,8 @@ import pyarrow.parquet as pq
 import pytest
 
 from captioning.config import CaptioningConfig, RuleSet, WindowStrategy
-from captioning.pipeline import LogCaptions, caption_arrays, write_outputs
+from captioning.outputs import write_outputs
+from captioning.pipeline import LogCaptions, caption_arrays
 from captioning.tables import CAPTIONS_SCHEMA, FRAME_TAGS_SCHEMA
 
 FIXTURE = Path(__file__).parent / "fixtures" / "paper_style"

@@ -10,7 +10,8 @@ import pytest
 
 from captioning.config import CaptioningConfig, RuleSet, SmoothingConfig, WindowsConfig, WindowStrategy
 from captioning.errors import TrackDataError
-from captioning.pipeline import SKIP_ISOLATED, caption_arrays, write_outputs
+from captioning.outputs import write_outputs
+from captioning.pipeline import SKIP_ISOLATED, caption_arrays
 from captioning.tables import CAPTIONS_SCHEMA, FRAME_TAGS_SCHEMA
 
 
@@ -101,7 +102,7 @@ def test_write_outputs_atomically(make_scene, tmp_path: Path) -> None:  # type: 
     result = busy_scene(make_scene).caption()
     frames_path, captions_path = write_outputs(tmp_path / "out", [result, result])
     published = sorted(p.name for p in (tmp_path / "out").iterdir() if not p.name.startswith("."))
-    assert published == ["captions.parquet", "frame_tags.parquet"]
+    assert published == ["captions.parquet", "frame_tags.parquet", "logs.json"]
     frames = pq.read_table(frames_path)
     captions = pq.read_table(captions_path)
     assert frames.num_rows == 2 * result.frame_tags_table().num_rows

@@ -13,7 +13,8 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
-from captioning.pipeline import CAPTIONS_FILENAME, FRAME_TAGS_FILENAME, LogCaptions, write_outputs
+from captioning.outputs import write_outputs
+from captioning.pipeline import CAPTIONS_FILENAME, FRAME_TAGS_FILENAME, LogCaptions
 from common.atomic import machine_tag
 from common.publish import GENERATIONS_DIR, current_generation, publish
 from retrieval.cli import main
@@ -74,7 +75,8 @@ from pathlib import Path
 import numpy as np
 import pyarrow.parquet as pq
 from captioning.config import CaptioningConfig, RuleSet
-from captioning.pipeline import caption_arrays, write_outputs
+from captioning.pipeline import caption_arrays
+from captioning.outputs import write_outputs
 sys.path.insert(0, {tests!r})
 from captioning_scene import busy_result
 

@@ -1,0 +1,438 @@
+"""The grammar of descriptions: lexemes read into a scenario program.
+
+The compiler reads a description as a noun phrase about the objects it refers to, with modifiers:
+
+    description := phrase (("then" | "while") phrase)*
+    phrase      := [count] predicate* KIND modifier*
+    modifier    := predicate | "not" predicate | relation phrase | "with" phrase [side]
+                 | "between" phrase ["and" phrase] | ego-side ("ahead", "behind us")
+                 | distance ("within 5 m") | duration ("for 3 s")
+
+over the phrases of :mod:`scenarios.lexicon` (longest match first). A relation whose point of view is
+the named object ("in front of the bus") is asked of that object and answers the subject
+(``reverse``). A count on the referred objects keeps frames where that many are there together; a
+"group of" them must stand near one another. Every word that carries no meaning in the parse is
+reported in :attr:`Compiled.unused`, never dropped silently; a description with no usable word is
+refused (:class:`DescriptionError`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+from scenarios.lexicon import Lexeme
+from scenarios.program import (
+    AllOf,
+    AnyOf,
+    Between,
+    ForAtLeast,
+    Has,
+    Is,
+    Node,
+    Objects,
+    Then,
+    Together,
+    While,
+    subject_of,
+)
+
+#: Within this distance (m), "a group of" objects stand together.
+GROUP_RADIUS_M = 5.0
+#: The two steps of "drives off" or "cuts into my lane" happen within this many seconds.
+CUT_IN_WITHIN_S = 4.0
+
+
+class DescriptionError(ValueError):
+    """A description the compiler cannot use: it names the words it did not understand."""
+
+
+class Parser:
+    """One description's lexemes, read left to right into a program (see the module docstring)."""
+
+    def __init__(self, items: list[Lexeme]) -> None:
+        self.items = items
+        self.i = 0
+        self.unused: list[str] = []
+        self.pending_m: float | None = None
+        #: How deep in the phrases named by relations: "and"/"while" + modifier join the referred phrase only.
+        self.depth = 0
+
+    # -- the stream --------------------------------------------------------------------------------------
+    def peek(self, ahead: int = 0) -> Lexeme | None:
+        j, seen = self.i, -1
+        while j < len(self.items):
+            if self.items[j].role not in ("skip", "unknown"):
+                seen += 1
+                if seen == ahead:
+                    return self.items[j]
+            j += 1
+        return None
+
+    def take(self) -> Lexeme:
+        while self.items[self.i].role in ("skip", "unknown"):
+            if self.items[self.i].role == "unknown":
+                self.unused.append(self.items[self.i].name)
+            self.i += 1
+        item = self.items[self.i]
+        self.i += 1
+        return item
+
+    def drop_rest(self) -> None:
+        while self.i < len(self.items):
+            item = self.items[self.i]
+            if item.role != "skip":
+                self.unused.extend(item.words)
+            self.i += 1
+
+    def role(self, ahead: int = 0) -> str:
+        item = self.peek(ahead)
+        return item.role if item is not None else "end"
+
+    def name(self, ahead: int = 0) -> str:
+        item = self.peek(ahead)
+        return item.name if item is not None else ""
+
+    def count_ahead(self) -> int:
+        item = self.peek()
+        return item.count if item is not None else 0
+
+    # -- numbers -----------------------------------------------------------------------------------------
+    def quantity(self) -> tuple[float, str] | None:
+        """A number (or range "5 to 20") with its unit, consumed; the range's upper end."""
+        if self.role() != "number":
+            return None
+        j = 1
+        value = float(self.name())
+        if self.role(1) == "number":  # "5 to 20": "to" is filler between them
+            value, j = float(self.name(1)), 2
+        unit = self.peek(j)
+        if unit is None or unit.role != "unit":
+            if self.role(j) == "kind":
+                return None  # "two vehicles": a count, not a quantity
+            for _ in range(j):
+                self.take()
+            return value, ""
+        for _ in range(j + 1):
+            self.take()
+        return value, unit.name
+
+    # -- phrases -----------------------------------------------------------------------------------------
+    def phrase(self, bare: bool = False, need_kind: bool = False) -> tuple[Node, int] | None:
+        """A noun phrase: the node of the objects it names, and the count given for them (0: none).
+
+        A ``bare`` phrase stops after its kind ("between construction barriers | with ..."), so that
+        what follows modifies the phrase before it. A phrase that ``need_kind`` (the object of a
+        relation) names its kind: "crosses at the crosswalk" has no object.
+        """
+        start = self.i
+        count, preds = 0, []
+        while True:
+            role = self.role()
+            if role == "count":
+                count = max(count, self.take().count)
+            elif role == "number" and self.role(1) in ("kind", "pred"):
+                count = int(float(self.take().name))
+            elif role in ("pred", "fixed"):
+                preds.append(self.take())
+            elif role == "rel" and self.role(1) == "kind" and self.name() in ("crossed_by", "passed_by") \
+                    and getattr(self.peek(), "reverse", False):
+                item = self.take()  # "crossing pedestrians": pedestrians that cross the road
+                preds.append(Lexeme("pred", "crossing_road" if item.name == "crossed_by" else "moving"))
+            elif role == "not" and self.role(1) == "pred":
+                self.take()
+                item = self.take()
+                preds.append(dataclasses.replace(item, role="notpred"))
+            else:
+                break
+        if self.role() == "kind":
+            node: Node = Objects(self.take().name)
+            if self.role() == "count" and self.count_ahead() >= 3:  # "pedestrian group"
+                count = max(count, self.take().count)
+        elif preds and not need_kind:
+            node = Objects("any")
+        else:
+            self.i = start  # no phrase here: its words are left for what follows
+            return None
+        for item in preds:
+            if item.role == "fixed":
+                node = Has(node, item.name, Objects(item.other), item.params, min_count=max(1, item.count),
+                           negate=item.negate)
+            else:
+                node = Is(node, item.name, item.params, negate=item.role == "notpred" or item.negate)
+        if bare:
+            return node, count
+        self.depth += 1
+        try:
+            return self.modifiers(node), count
+        finally:
+            self.depth -= 1
+
+    def ego_relation(self, node: Node, side: str, params: tuple[tuple[str, float | str], ...] = ()) -> Node:
+        """``node``'s objects on ``side`` of the ego (a relation asked of the ego)."""
+        return Has(Objects("ego"), "direction", node, (("side", side), *params), reverse=True)
+
+    def distance_params(self, params: tuple[tuple[str, float | str], ...], name: str
+                        ) -> tuple[tuple[str, float | str], ...]:
+        key = "forward_m" if name == "crossed_by" else "within_m"
+        if self.pending_m is None or name in ("heading", "passed_by"):
+            return params
+        within, self.pending_m = self.pending_m, None
+        return (*[(k, v) for k, v in params if k != key], (key, within))
+
+    def relate(self, node: Node, item: Lexeme, other: tuple[Node, int]) -> Node:
+        other_node, count = other
+        params = self.distance_params(item.params, item.name)
+        if item.reverse:  # the relation holds from the other object's point of view
+            return Has(other_node, item.name, node, params, reverse=True)
+        return Has(node, item.name, other_node, params, min_count=max(1, count))
+
+    def modifiers(self, node: Node) -> Node:
+        while True:
+            role = self.role()
+            if role == "pred":
+                item = self.take()
+                node = Is(node, item.name, item.params, negate=item.negate)
+            elif role == "fixed":
+                item = self.take()
+                node = Has(node, item.name, Objects(item.other), item.params, min_count=max(1, item.count),
+                           negate=item.negate)
+            elif role == "seq":
+                node = self.sequence(node, self.take())
+            elif role == "closely" and isinstance(node, Has):
+                self.take()
+                node = _closer(node)
+            elif role in ("count", "number") and self.role(1) == "kind" and self.role(2) in ("side", "ego", "rel"):
+                node = self.chain(node)
+            elif role == "not" and self.role(1) == "kind":  # "truck without trailer"
+                self.take()
+                node = Has(node, "near", Objects(self.take().name), (("within_m", 5.0),), negate=True)
+            elif role == "not" and self.role(1) in ("pred", "rel", "with", "fixed"):
+                self.take()
+                after = self.modifiers_one(node)
+                node = _negated(after, node) if after is not None else node
+            elif role in ("rel", "ego", "side", "with", "between"):
+                updated = self.modifiers_one(node)
+                if updated is None:
+                    break
+                node = updated
+            elif role == "number":
+                found = self.quantity()
+                if found is None:
+                    break
+                value, unit = found
+                if unit == "s":
+                    node = ForAtLeast(node, value)
+                elif unit == "m" and isinstance(node, Has) and self.role() not in ("rel", "side", "kind"):
+                    node = _within(node, value)
+                elif unit == "m" and self.role() == "pred" and self.name() == "near_intersection":
+                    self.take()
+                    node = Is(node, "near_intersection", (("within_m", value),))
+                elif unit == "m":
+                    self.pending_m = value
+                else:
+                    self.unused.append(f"{value:g}")
+            elif role == "conj" and self.depth <= 1 and self.name() in ("and", "while") \
+                    and self.role(1) in ("pred", "rel", "ego", "side", "with", "not"):
+                self.take()  # "facing and heading toward", "… while being overtaken": one more modifier
+            else:
+                break
+        return node
+
+    def modifiers_one(self, node: Node) -> Node | None:
+        """One relation-like modifier of ``node``; None when the words do not make one."""
+        item = self.take()
+        if item.role == "pred":
+            return Is(node, item.name, item.params, negate=item.negate)
+        if item.role == "fixed":
+            return Has(node, item.name, Objects(item.other), item.params, min_count=max(1, item.count),
+                       negate=item.negate)
+        if item.role == "ego":
+            return self.ego_relation(node, str(dict(item.params)["side"]), self.distance_params((), "direction"))
+        if item.role == "side" and item.name in ("near", "same_lane"):  # "nearby", "in its lane" with no object
+            return node
+        if item.role == "side":
+            other = self.phrase(need_kind=True)
+            if other is None:  # "ahead", "behind": of the ego
+                return self.ego_relation(node, item.name, self.distance_params((), "direction"))
+            return self.relate(node, Lexeme("rel", "direction", (("side", item.name),), reverse=True), other)
+        if item.role == "rel":
+            item = self.with_side(item)
+            other = self.phrase(bare=item.name == "passed_by", need_kind=True)
+            if other is not None and item.name == "passed_by":  # "passed by a motorcycle on either side"
+                item = self.with_side(item)
+                other = (self.modifiers_bare(other[0]), other[1])
+            if other is None and self.role() == "conj" and self.role(1) == "rel":  # "facing and heading toward X"
+                self.take()
+                also = self.with_side(self.take())
+                other = self.phrase()
+                if other is not None:
+                    return self.relate(self.relate(node, item, other), also, other)
+            if other is None:
+                return self.without_object(node, item)
+            return self.relate(node, item, other)
+        if item.role == "with":
+            if self.role() == "side" and self.name() == "near":  # "with nearby X"
+                self.take()
+            if self.role() == "rel":  # "with crossing dog", "with approaching vehicle": the other acts on the node
+                rel = self.take()
+                acting = self.phrase(bare=True)
+                if acting is None:
+                    self.unused.extend((*item.words, *rel.words))
+                    return node
+                params = self.distance_params(rel.params, rel.name)
+                if rel.reverse:
+                    return Has(node, rel.name, acting[0], params, min_count=max(1, acting[1]))
+                return Has(acting[0], rel.name, node, params, reverse=True)
+            other = self.phrase(bare=True)
+            if other is not None:
+                other = (self.modifiers_bare(other[0]), other[1])
+            if other is None:
+                self.unused.extend(item.words)
+                return node
+            distance = self.quantity() if self.role() == "number" else None
+            if self.role() == "side":
+                side = self.take().name
+                rel = Lexeme("rel", side) if side in ("same_lane", "near") else \
+                    Lexeme("rel", "direction", (("side", side),))
+            else:
+                rel = Lexeme("rel", "near", ())
+            if distance is not None and distance[1] == "m":
+                self.pending_m = distance[0]
+            return self.relate(node, rel, other)
+        if item.role == "between":
+            if self.role() == "number":  # "between 5-20 meters away": a distance
+                found = self.quantity()
+                if found is not None and found[1] == "m":
+                    self.pending_m = found[0]
+                    return _within(node, found[0])
+            first = self.phrase(bare=True)
+            if first is None:
+                self.unused.extend(item.words)
+                return node
+            second = first
+            if self.role() == "conj" and self.name() == "and" \
+                    and self.role(1) in ("kind", "pred", "count"):
+                self.take()
+                second = self.phrase(bare=True) or first
+            if self.role() == "side" and self.name() == "beside":  # "... on both sides"
+                self.take()
+            return Between(node, first[0], second[0])
+        self.unused.extend(item.words)
+        return node
+
+    def sequence(self, node: Node, item: Lexeme) -> Node:
+        """A sequence the words name: "drives off" (stops, then moves), "cuts into my lane [from the left]"
+        (in a lane beside the ego's, then in the ego's)."""
+        if item.name == "drive_off":
+            return Then(Is(node, "stopped"), Is(node, "moving"), CUT_IN_WITHIN_S)
+        side = "adjacent"
+        if self.role() == "side" and self.name() in ("left", "right"):
+            side = self.take().name
+        return Then(Is(node, "ego_lane", (("lane", side),)), Is(node, "ego_lane", (("lane", "host"),)), CUT_IN_WITHIN_S)
+
+    def with_side(self, item: Lexeme) -> Lexeme:
+        """``item`` with the side that follows it ("being overtaken on the left")."""
+        if item.name == "passed_by" and self.role() == "side" \
+                and self.name() in ("left", "right", "beside"):
+            side = self.take().name.replace("beside", "any")
+            return dataclasses.replace(item, params=(*[(k, v) for k, v in item.params if k != "side"], ("side", side)))
+        return item
+
+    def without_object(self, node: Node, item: Lexeme) -> Node:
+        """A relation phrase that names no object: of the ego, by anyone, or no relation at all."""
+        if item.name == "heading_toward":  # "approaching": the ego
+            return Is(node, "approaching_ego")
+        if item.name == "direction":
+            side = str(dict(item.params)["side"])
+            return self.ego_relation(node, side, self.distance_params((), "direction"))
+        if item.words == ("at",):  # "at" before a place word the lexicon reads itself
+            return node
+        if item.reverse and item.name == "passed_by":  # "passing between ...": moving past
+            return Is(node, "moving")
+        if item.reverse and item.name == "crossed_by":  # "a pedestrian crosses at the crosswalk"
+            return Is(node, "crossing_road")
+        if item.name in ("following", "crossed_by", "passed_by", "near"):  # "being overtaken": by anyone
+            return self.relate(node, item, (Objects("any"), 0))
+        self.unused.extend(item.words)
+        return node
+
+    def modifiers_bare(self, node: Node) -> Node:
+        """The predicates right after a bare phrase ("with lane-changing vehicles", "with stroller jaywalking"
+        keeps "jaywalking" for the subject): only those that follow with no relation in between."""
+        while self.role() == "pred" and self.name() not in ("jaywalking", "appearance"):
+            item = self.take()
+            node = Is(node, item.name, item.params, negate=item.negate)
+        return node
+
+    def chain(self, node: Node) -> Node:
+        """"two cars ahead (of X)": the object of ``node``'s kind in front of the one in front of X (the ego
+        by default), through as many vehicles as the count says."""
+        count_item = self.take()
+        n = count_item.count or int(float(count_item.name))
+        link = Objects(self.take().name)
+        where = self.take()
+        anchor: Node = Objects("ego")
+        if where.role in ("rel", "side") and self.role() == "kind":
+            found = self.phrase()
+            anchor = found[0] if found is not None else anchor
+        front = (("side", "front"), ("lateral_m", 1.5), ("within_m", 40.0))
+        for _ in range(max(0, n - 1)):
+            anchor = Has(anchor, "direction", link, front, reverse=True)
+        return Has(anchor, "direction", node, front, reverse=True)
+
+    # -- the description -------------------------------------------------------------------------------
+    def description(self) -> Node:
+        found = self.phrase()
+        if found is None:
+            raise DescriptionError("")
+        node = self.referred(*found)
+        while self.role() == "conj":
+            conj = self.take()
+            nxt = self.phrase()
+            if nxt is None:  # "stopped then moving": the same objects
+                head = subject_of(node)
+                if self.role() in ("pred", "rel", "ego", "side", "with", "between", "not", "seq", "fixed"):
+                    nxt = (self.modifiers(head), 0)
+                else:
+                    self.unused.extend(conj.words)
+                    break
+            other = self.referred(*nxt)
+            if conj.name == "then":
+                node = Then(node, other)
+            elif conj.name == "while":
+                node = While(node, other)
+            else:
+                node = AllOf((node, other)) if conj.name == "and" else node
+                if conj.name == "or":
+                    node = AnyOf((node.children[0] if isinstance(node, AllOf) else node, other))
+        return node
+
+    def referred(self, node: Node, count: int) -> Node:
+        if count >= 3 and subject_of(node) == node:
+            return Has(node, "near", node, (("within_m", GROUP_RADIUS_M),), min_count=count - 1)
+        if count >= 2:
+            return Together(node, count)
+        return node
+
+
+def _closer(node: Node) -> Node:
+    """``node`` with its relation tightened ("following closely": within 10 m; "near": within 3 m)."""
+    if isinstance(node, Has) and node.relation in ("following", "near", "direction"):
+        tight = 10.0 if node.relation != "near" else 3.0
+        return _within(node, tight)
+    return node
+
+
+def _within(node: Node, within_m: float) -> Node:
+    """A relation ``node`` limited to ``within_m``; any other node as it is."""
+    if not isinstance(node, Has) or node.relation in ("heading", "passed_by", "crossed_by"):
+        return node
+    return dataclasses.replace(node, params=(*[(k, v) for k, v in node.params if k != "within_m"],
+                                             ("within_m", within_m)))
+
+
+def _negated(after: Node, before: Node) -> Node:
+    """``after`` (``before`` with one more modifier) with that modifier negated."""
+    if isinstance(after, Is | Has) and after != before:
+        return dataclasses.replace(after, negate=not after.negate)
+    return after

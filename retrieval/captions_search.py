@@ -33,7 +33,7 @@ Directory layout (written atomically)::
 from __future__ import annotations
 
 import json
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -58,6 +58,14 @@ from retrieval.errors import IndexDirError
 from retrieval.index_folder import INDEX_FOLDER
 from retrieval.querying import MAX_K, build_query, check_query, preview_of
 from retrieval.records import SearchResult
+from retrieval.scenario_search import (
+    SCENARIOS_DIR,
+    ScenarioMatch,
+    ScenarioStore,
+    build_store,
+    log_folders_of,
+    search_within,
+)
 from retrieval.sentence_encoder import SentenceEncoder
 
 TextEncoder = Callable[[Sequence[str]], np.ndarray]
@@ -220,6 +228,8 @@ class CaptionSearch:
         self.whole_text = whole_text or str(getattr(self.encoder, "whole_text", "text"))
         self.base_dir = base_dir
         self.skipped = list(skipped)
+        #: The scenario features of the index's logs (none until opened from a directory that holds them).
+        self.scenarios = ScenarioStore(None)
 
     def __len__(self) -> int:
         return len(self.metadata)
@@ -266,16 +276,21 @@ class CaptionSearch:
         store = MetadataStore.from_rows(meta, np.arange(rows.num_rows, dtype=np.int64))
         out = cls(store, texts, embeddings, full_groups, object_groups, encoder, None, base_dir, skipped)
         if out_dir is not None:
-            out.save(out_dir, inputs=() if isinstance(captions, pa.Table) else (captions,))
+            folders = log_folders_of(base_dir) if base_dir is not None else {}
+            out.save(out_dir, inputs=() if isinstance(captions, pa.Table) else (captions,), log_dirs=folders)
         return out
 
-    def save(self, out_dir: Path | str, inputs: Sequence[Path | str] = ()) -> None:
+    def save(self, out_dir: Path | str, inputs: Sequence[Path | str] = (),
+             log_dirs: Mapping[str, str] | None = None) -> None:
         """Write the directory described in the module docstring, atomically.
 
         ``out_dir`` is replaced only when it is an index folder (:mod:`common.folders`), and never when
-        it is one of ``inputs``, lies inside one or holds one.
+        it is one of ``inputs``, lies inside one or holds one. With ``log_dirs`` (log id → folder) the
+        index also holds its logs' scenario features (:mod:`retrieval.scenario_search`).
         """
         with claimed_directory(out_dir, INDEX_FOLDER, inputs) as tmp:
+            scenarios = build_store(tmp / SCENARIOS_DIR, log_dirs) if log_dirs else {}
+            stored = [f"{SCENARIOS_DIR}/{p.name}" for p in sorted((tmp / SCENARIOS_DIR).glob("*.npz"))]
             self.metadata.write(tmp / METADATA_FILE)
             pq.write_table(pa.table({"text": pa.array(self.texts, pa.string())}), tmp / TEXTS_FILE)
             np.save(tmp / EMBEDDINGS_FILE, self.text_embeddings)
@@ -287,7 +302,8 @@ class CaptionSearch:
                     "count": len(self), "texts": len(self.texts), "dim": int(self.text_embeddings.shape[1]),
                     "base_dir": None if self.base_dir is None else str(Path(self.base_dir).resolve()),
                     "skipped": [{"item": s.item, "reason": s.reason} for s in self.skipped],
-                    "files": {n: e.to_json() for n, e in file_entries(tmp, list(FILES)).items()}}
+                    "files": {n: e.to_json() for n, e in file_entries(tmp, [*FILES, *stored]).items()},
+                    "scenarios": scenarios}
             (tmp / MANIFEST).write_text(json.dumps(seal(info), indent=2))
 
     @classmethod
@@ -333,8 +349,10 @@ class CaptionSearch:
                                 f"the given encoder embeds a text as {given!r}")
         encoder = encoder if encoder is not None else SentenceEncoder(whole_text=whole_text)
         base = info.get("base_dir")
-        return cls(*parts, encoder, info.get("text_encoder"), Path(base) if base else None,
-                   [Skipped(s["item"], s["reason"]) for s in info.get("skipped", [])], whole_text)
+        out = cls(*parts, encoder, info.get("text_encoder"), Path(base) if base else None,
+                  [Skipped(s["item"], s["reason"]) for s in info.get("skipped", [])], whole_text)
+        out.scenarios = ScenarioStore(directory / SCENARIOS_DIR)
+        return out
 
     def scores(self, xq: np.ndarray) -> np.ndarray:
         """(N,) score of every row for one query embedding (D,): mean of its best full and best object text."""
@@ -365,6 +383,14 @@ class CaptionSearch:
         rows = self.metadata.rows(top)
         return [SearchResult.from_row(rank, row, float(scores[i]), "captions", preview_of(row, self.base_dir))
                 for rank, (i, row) in enumerate(zip(top, rows), start=1)]
+
+
+    def search_scenario(self, query: str, k: int = 10, filters: FilterSpec = None, max_k: int = MAX_K
+                        ) -> tuple[list[SearchResult], ScenarioMatch]:
+        """The k moments the query's scenario program selects, ranked by their captions' closeness to the
+        query; every moment when it does not compile or selects none (see :mod:`retrieval.scenario_search`)."""
+        return search_within(self.scenarios, self.metadata, query, k, filters, max_k,
+                             lambda spec: self.search(query, k, spec, max_k))
 
 
 # ---------------------------------------------------------------------- logs end to end

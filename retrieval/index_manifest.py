@@ -39,6 +39,8 @@ class IndexManifest:
             ``run/config.json`` (each sub-manifest in turn covers its own files).
         hybrid: the weight of hybrid search and how it was chosen (:class:`retrieval.hybrid.WeightChoice`;
             absent in an index from before it: the default weight).
+        scenarios: the logs whose scenario features the index holds, and those it lacks with the reason
+            (:func:`retrieval.scenario_search.build_store`).
     """
 
     format_version: int
@@ -54,6 +56,7 @@ class IndexManifest:
     skipped: list[dict[str, str]] = field(default_factory=list)
     files: dict[str, dict[str, Any]] = field(default_factory=dict)
     hybrid: dict[str, Any] = field(default_factory=dict)
+    scenarios: dict[str, Any] = field(default_factory=dict)
 
     @staticmethod
     def read(index_dir: Path) -> IndexManifest:
@@ -70,7 +73,7 @@ class IndexManifest:
         except IndexesError as exc:
             raise IndexDirError(str(exc)) from exc
         names = {f for f in IndexManifest.__dataclass_fields__}
-        missing = sorted(n for n in names if n not in raw and n not in ("skipped", "files", "hybrid"))
+        missing = sorted(n for n in names if n not in raw and n not in ("skipped", "files", "hybrid", "scenarios"))
         if missing:
             raise IndexDirError(f"{path}: missing fields {missing}")
         try:

@@ -35,7 +35,7 @@ import pyarrow.parquet as pq
 
 from common.atomic import reading_directory
 from common.folders import claim_folder, claimed_directory
-from encoders.clips.layout import read_clip_table
+from encoders.clips.layout import read_clip_table, read_manifest
 from indexes.clip_index import ClipIndex
 from indexes.errors import IndexesError, ManifestError
 from indexes.filters import FilterSpec
@@ -65,6 +65,7 @@ from retrieval.querying import (
     preview_of,
 )
 from retrieval.records import SearchResult
+from retrieval.scenario_search import SCENARIOS_DIR, ScenarioMatch, ScenarioStore, build_store, search_within
 from retrieval.sentence_encoder import SentenceEncoder
 
 VIEWS = ("fused", "camera", "bev")
@@ -89,6 +90,8 @@ class SceneSearch:
         self._scorers = Scorers()
         #: Seconds spent in each step of the last ``search_text`` call (encode, search, records).
         self.last_timings_s: dict[str, float] = {}
+        #: The scenario features of the index's logs, for scenario programs (:meth:`search_scenario`).
+        self.scenarios = ScenarioStore(index_dir / SCENARIOS_DIR)
 
     # ------------------------------------------------------------------ building
 
@@ -148,7 +151,11 @@ class SceneSearch:
                 index.save(tmp / view)
             captions.save(tmp / CAPTIONS_DIR)
             (tmp / "run").mkdir()
+            scenarios = build_store(tmp / SCENARIOS_DIR, _log_folders(clips_dir))
+            say(f"index: scenario features of {scenarios['logs']} log(s)"
+                + (f", {len(scenarios['missing'])} missing" if scenarios["missing"] else ""))
             covered = [f"{d}/{MANIFEST}" for d in (*VIEWS, CAPTIONS_DIR)]
+            covered += [f"{SCENARIOS_DIR}/{p.name}" for p in sorted((tmp / SCENARIOS_DIR).glob("*.npz"))]
             if (run_dir / CONFIG_FILE).is_file():
                 shutil.copy2(run_dir / CONFIG_FILE, tmp / "run" / CONFIG_FILE)
                 covered.append(RUN_CONFIG)
@@ -158,7 +165,8 @@ class SceneSearch:
                 counts={**{v: len(ix) for v, ix in views.items()}, "captions": len(captions), **split_counts},
                 text_encoder=captions.encoder_name, created=datetime.now(UTC).isoformat(timespec="seconds"),
                 skipped=[{"item": s.item, "reason": s.reason} for s in skipped],
-                files={n: e.to_json() for n, e in file_entries(tmp, covered).items()}, hybrid=hybrid.to_json())
+                files={n: e.to_json() for n, e in file_entries(tmp, covered).items()}, hybrid=hybrid.to_json(),
+                scenarios=scenarios)
             (tmp / MANIFEST).write_text(json.dumps(seal(asdict(manifest)), indent=2))
         say(f"index: wrote {out_dir} ({len(clip_ids)} clips, {len(skipped)} skipped)")
         return cls(out_dir, manifest, views, captions, embedder)
@@ -328,6 +336,29 @@ class SceneSearch:
         self.last_timings_s = {"encode_text": t1 - t0, "search_and_records": time.perf_counter() - t1}
         return results
 
+    def search_scenario(self, query: str, k: int = 10, filters: FilterSpec = None, view: str = "fused",
+                        ranking: str = "model", weight: float | None = None, max_k: int = MAX_K
+                        ) -> tuple[list[SearchResult], ScenarioMatch]:
+        """The k moments the query's scenario program selects, ranked by ``ranking`` (``model``, ``hybrid``
+        or ``captions``, as :meth:`search_text`, :meth:`search_hybrid`, :meth:`search_captions`); every
+        moment when the query does not compile or its program selects none (the match says why). See
+        :mod:`retrieval.scenario_search`.
+
+        Raises:
+            ValueError: an unknown ``ranking``; the others as the ranking's own search raises them.
+        """
+        index = self._view(view)
+        if ranking == "model":
+            return search_within(self.scenarios, index.metadata, query, k, filters, max_k,
+                                 lambda spec: self.search_text(query, k, spec, view, max_k))
+        if ranking == "hybrid":
+            return search_within(self.scenarios, index.metadata, query, k, filters, max_k,
+                                 lambda spec: self.search_hybrid(query, k, spec, view, weight, max_k))
+        if ranking == "captions":
+            return search_within(self.scenarios, self.captions.metadata, query, k, filters, max_k,
+                                 lambda spec: self.search_captions(query, k, spec, max_k))
+        raise ValueError(f"ranking {ranking!r}: one of model, hybrid, captions")
+
     def get(self, clip_id: str) -> SearchResult:
         """The record of one indexed clip (score 1, rank 0)."""
         index = next(iter(self.views.values()))
@@ -394,6 +425,16 @@ def _verify_top_files(index_dir: Path, manifest: IndexManifest, views: tuple[str
         raise ManifestError(path, f"does not list {', '.join(missing)}", field="files")
     wanted += [n for n in files if n == RUN_CONFIG]
     verify_files(index_dir, {n: files[n] for n in wanted}, mode)
+
+
+def _log_folders(clips_dir: Path) -> dict[str, str]:
+    """Log id → folder of the logs a clips folder was made from (as its manifest records them)."""
+    try:
+        logs = read_manifest(clips_dir).get("logs", {})
+    except (FileNotFoundError, ValueError):
+        return {}
+    return {str(log_id): str(entry["log_dir"]) for log_id, entry in logs.items()
+            if isinstance(entry, dict) and entry.get("log_dir") and "://" not in str(entry["log_dir"])}
 
 
 def _align(clip_ids: list[str], ids: list[str], x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

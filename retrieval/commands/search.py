@@ -5,8 +5,13 @@ from __future__ import annotations
 import argparse
 import json
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-HELP = "find the moments that match a sentence (text → clip; --captions: rule-caption search; --hybrid: both mixed)"
+if TYPE_CHECKING:
+    from retrieval.scenario_search import ScenarioMatch
+
+HELP = ("find the moments that match a sentence: its scenario program selects them, the model ranks them "
+        "(--captions: rule-caption search; --hybrid: both mixed; --no-program: rank every moment)")
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -30,6 +35,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--weight", type=float, metavar="W",
                         help="with --hybrid: the rule captions' share in [0, 1] instead of the index's "
                              "(0: the model alone, 1: rule captions alone)")
+    parser.add_argument("--no-program", action="store_true",
+                        help="rank every moment, without compiling the query to a scenario program first")
     parser.add_argument("--json", action="store_true", help="print JSON for scripts instead of a table")
 
 
@@ -47,26 +54,60 @@ def run(args: argparse.Namespace) -> int:
     if args.weight is not None and not args.hybrid:
         raise ValueError("--weight is the weight of hybrid search: add --hybrid")
     weight: float | None = None
+    match = None
     if is_caption_index(args.index_dir):  # built with `scenesearch index --captions`
         if args.hybrid:
             raise ValueError(f"{args.index_dir} holds rule captions only (`scenesearch index --captions`): hybrid "
                              "search needs the model's clip embeddings too (`scenesearch index RUN_DIR CLIPS_DIR`)")
-        results = CaptionSearch.open(args.index_dir).search(args.query, k=args.k, filters=filters)
-    elif args.captions:
-        search = SceneSearch.open(args.index_dir, views=(args.view,))
-        results = search.search_captions(args.query, k=args.k, filters=filters)
-    elif args.hybrid:
-        search = SceneSearch.open(args.index_dir, views=(args.view,))
-        weight = search.hybrid.weight if args.weight is None else args.weight
-        results = search.search_hybrid(args.query, k=args.k, filters=filters, view=args.view, weight=weight)
+        captions = CaptionSearch.open(args.index_dir)
+        if args.no_program:
+            results = captions.search(args.query, k=args.k, filters=filters)
+        else:
+            results, match = captions.search_scenario(args.query, k=args.k, filters=filters)
     else:
         search = SceneSearch.open(args.index_dir, views=(args.view,))
-        results = search.search_text(args.query, k=args.k, filters=filters, view=args.view)
+        ranking = "captions" if args.captions else "hybrid" if args.hybrid else "model"
+        if args.hybrid:
+            weight = search.hybrid.weight if args.weight is None else args.weight
+        if args.no_program:
+            results = (search.search_captions(args.query, k=args.k, filters=filters) if args.captions else
+                       search.search_hybrid(args.query, k=args.k, filters=filters, view=args.view, weight=weight)
+                       if args.hybrid else search.search_text(args.query, k=args.k, filters=filters, view=args.view))
+        else:
+            results, match = search.search_scenario(args.query, k=args.k, filters=filters, view=args.view,
+                                                     ranking=ranking, weight=weight)
     if args.json:
-        out = {"query": args.query, "results": [r.to_dict() for r in results]}
+        out: dict[str, object] = {"query": args.query, "results": [_with_objects(r.to_dict(), match) for r in results]}
         if weight is not None:
             out["hybrid_weight"] = weight
+        if match is not None:
+            out["scenario"] = match.to_dict()
         print(json.dumps(out, indent=2))
     else:
+        if match is not None:
+            print(_scenario_lines(match))
         print(format_table(results))
     return 0
+
+
+def _with_objects(result: dict[str, object], match: ScenarioMatch | None) -> dict[str, object]:
+    """A result's record with the tracks the program refers to and relates to in its window."""
+    if match is not None and match.fallback is None:
+        result["referred_tracks"] = list(match.referred.get(str(result["clip_id"]), ()))
+        result["related_tracks"] = list(match.related.get(str(result["clip_id"]), ()))
+    return result
+
+
+def _scenario_lines(match: ScenarioMatch) -> str:
+    """What the query compiled to, and whether it decided the moments (or why not)."""
+    lines = []
+    if match.compiled is not None:
+        lines.append(f"program: {match.compiled.text}\nreads:   {match.compiled.rendering}")
+        if match.compiled.unused:
+            lines.append(f"words the program does not use: {', '.join(match.compiled.unused)}")
+    if match.fallback is None:
+        lines.append(f"{len(match.clip_ids)} moment(s) match the program; ranked by the search below")
+    else:
+        lines.append(f"ranking every moment: {match.fallback}")
+    lines += [f"note: {n}" for n in match.notes[:5]]
+    return "\n".join(lines)

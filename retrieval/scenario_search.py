@@ -1,0 +1,192 @@
+"""Scenario queries in search: the query compiled to a program, answered on the index's logs, the search
+kept to the moments the program selects.
+
+An index keeps each of its logs' scenario features in ``INDEX/scenarios/<log_id>.npz``
+(:mod:`scenarios.cache`), built from the logs' folders when the index is built (:func:`build_store`)
+and covered by the index's checksums. At query time :meth:`ScenarioStore.match` compiles the query
+(:mod:`scenarios.compiler`), answers it on every log that has indexed moments, and keeps the moments
+(clip windows) in which an object the program refers to is referred at some frame: the clip's own
+track, or any clip of the log where the program refers to the ego (whose own moments have no clip).
+The search then ranks those moments with its usual scores (model, hybrid or rule captions), so the
+program decides *which* moments and the learned model *in which order*.
+
+Where the query does not compile, or its program selects no indexed moment, the search ranks every
+moment as before and :attr:`ScenarioMatch.fallback` says why.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+
+from indexes.filters import Condition, FilterSpec, Op
+from indexes.metadata import MetadataStore
+from retrieval.querying import build_query, check_query
+from retrieval.records import SearchResult
+from scenarios.cache import cached_features, decode
+from scenarios.compiler import Compiled, DescriptionError, compile_description
+from scenarios.evaluate import evaluate
+from scenarios.features import EGO_TRACK_ID, LogFeatures
+from scenes.errors import ScenesError
+
+#: The folder of the logs' scenario features inside an index.
+SCENARIOS_DIR = "scenarios"
+
+
+@dataclass(frozen=True)
+class ScenarioMatch:
+    """What the query's program selected among the indexed moments.
+
+    Attributes:
+        query: the query.
+        compiled: the program it compiled to, or None.
+        clip_ids: the moments the program selects (empty with a fallback).
+        referred: clip id → the tracks the program refers to in that moment's window.
+        related: clip id → the tracks those relate to (the bicycle of "vehicle with a bicycle to its right").
+        notes: what some logs could not answer (no map, no recorded weather, no features).
+        fallback: why the search ranks every moment instead (None when the program decides).
+    """
+
+    query: str
+    compiled: Compiled | None
+    clip_ids: tuple[str, ...] = ()
+    referred: Mapping[str, tuple[str, ...]] = field(default_factory=dict)
+    related: Mapping[str, tuple[str, ...]] = field(default_factory=dict)
+    notes: tuple[str, ...] = ()
+    fallback: str | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        """The match as the service and ``search --json`` report it."""
+        c = self.compiled
+        return {"program": c.text if c else None, "reads": c.rendering if c else None,
+                "unused_words": list(c.unused) if c else [], "matched_moments": len(self.clip_ids),
+                "fallback": self.fallback, "notes": list(self.notes)}
+
+
+def build_store(folder: Path, log_dirs: Mapping[str, str]) -> dict[str, Any]:
+    """Write the scenario features of each log (id → folder) into ``folder``; what was left out, and why.
+
+    Returns:
+        ``{"logs": built, "missing": {log_id: reason}}``.
+    """
+    folder.mkdir(parents=True, exist_ok=True)
+    missing: dict[str, str] = {}
+    for log_id, log_dir in sorted(log_dirs.items()):
+        try:
+            cached_features(Path(log_dir), folder)
+        except (ScenesError, OSError, ValueError) as exc:
+            missing[log_id] = f"its folder {log_dir} cannot be read ({exc})"
+    return {"logs": len(log_dirs) - len(missing), "missing": missing}
+
+
+def log_folders_of(captions_dir: Path) -> dict[str, str]:
+    """The ``logs.json`` of a captions folder (log id → folder); empty when it has none."""
+    path = captions_dir / "logs.json"
+    if not path.is_file():
+        return {}
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+        return {}
+    return {str(k): str(v) for k, v in data.items()} if isinstance(data, dict) else {}
+
+
+class ScenarioStore:
+    """The scenario features of an index's logs, read when a query first needs them."""
+
+    def __init__(self, folder: Path | None) -> None:
+        self.folder = folder
+        self._features: dict[str, LogFeatures | None] = {}
+
+    @property
+    def available(self) -> bool:
+        return self.folder is not None and self.folder.is_dir() and any(self.folder.glob("*.npz"))
+
+    def features(self, log_id: str) -> LogFeatures | None:
+        if self.folder is None:
+            return None
+        if log_id not in self._features:
+            path = self.folder / f"{log_id}.npz"
+            try:
+                self._features[log_id] = decode(path.read_bytes())[0] if path.is_file() else None
+            except ValueError:
+                self._features[log_id] = None
+        return self._features[log_id]
+
+    def match(self, query: str, moments: pa.Table) -> ScenarioMatch:
+        """The moments of ``moments`` (``clip_id``, ``log_id``, ``track_id``, ``start_ns``, ``end_ns``) the
+        query's program selects (see the module docstring)."""
+        try:
+            compiled = compile_description(query)
+        except DescriptionError as exc:
+            return ScenarioMatch(query, None, fallback=f"the query does not compile to a scenario program: {exc}")
+        if not self.available:
+            return ScenarioMatch(query, compiled, fallback="this index holds no scenario features (build it again "
+                                                          "to answer scenario programs)")
+        logs = moments.column("log_id").to_numpy(zero_copy_only=False).astype(str)
+        selected: list[str] = []
+        referred: dict[str, tuple[str, ...]] = {}
+        related: dict[str, tuple[str, ...]] = {}
+        notes: list[str] = []
+        for log_id in dict.fromkeys(logs.tolist()):
+            x = self.features(log_id)
+            if x is None:
+                notes.append(f"{log_id}: no scenario features: its moments are left out of the program's answer")
+                continue
+            result = evaluate(compiled.program, x)
+            notes += [n for n in result.notes if n not in notes]
+            rows = moments.filter(pa.array(logs == log_id))
+            found = _moments_selected(x, result.selection.mask, result.selection.related, rows)
+            for clip_id, refs, rels in found:
+                selected.append(clip_id)
+                referred[clip_id], related[clip_id] = refs, rels
+        if not selected:
+            return ScenarioMatch(query, compiled, notes=tuple(notes),
+                                 fallback="the program selects none of the indexed moments")
+        return ScenarioMatch(query, compiled, tuple(selected), referred, related, tuple(notes))
+
+
+def _moments_selected(x: LogFeatures, referred: np.ndarray, related: np.ndarray, rows: pa.Table
+                      ) -> list[tuple[str, tuple[str, ...], tuple[str, ...]]]:
+    """The moments of one log (``rows``) whose window holds a referred frame of their track (or of the ego),
+    each with the referred and related tracks in its window."""
+    ts = x.timestamps_ns
+    lo = np.searchsorted(ts, rows.column("start_ns").to_numpy().astype(np.int64), side="left")
+    hi = np.searchsorted(ts, rows.column("end_ns").to_numpy().astype(np.int64), side="right")
+    ref_sum = np.concatenate([np.zeros((x.num_objects, 1), np.int64), np.cumsum(referred, axis=1)], axis=1)
+    rel_sum = np.concatenate([np.zeros((x.num_objects, 1), np.int64), np.cumsum(related, axis=1)], axis=1)
+    in_window_ref = (ref_sum[:, hi] - ref_sum[:, lo]) > 0  # (K, M): referred somewhere in each window
+    in_window_rel = (rel_sum[:, hi] - rel_sum[:, lo]) > 0
+    track_row = {str(t): i for i, t in enumerate(x.track_ids)}
+    ego = x.ego_index
+    out = []
+    for m, (clip_id, track) in enumerate(zip(rows.column("clip_id").to_pylist(), rows.column("track_id").to_pylist())):
+        k = track_row.get(str(track))
+        own = k is not None and bool(in_window_ref[k, m])
+        by_ego = bool(in_window_ref[ego, m]) and str(track) != EGO_TRACK_ID
+        if not (own or by_ego):
+            continue
+        refs = tuple(str(x.track_ids[i]) for i in np.flatnonzero(in_window_ref[:, m]))
+        rels = tuple(str(x.track_ids[i]) for i in np.flatnonzero(in_window_rel[:, m]))
+        out.append((str(clip_id), refs, rels))
+    return out
+
+
+def search_within(store: ScenarioStore, metadata: MetadataStore, query: str, k: int, filters: FilterSpec,
+                  max_k: int, rank: Callable[[FilterSpec], list[SearchResult]]
+                  ) -> tuple[list[SearchResult], ScenarioMatch]:
+    """Rank with ``rank`` (a search given a filter) among the moments of ``metadata`` that the query's
+    program selects, the caller's ``filters`` included; every moment when the program cannot decide."""
+    query = check_query(query)
+    user = build_query(k, filters, metadata, len(metadata), max_k).filters  # the caller's filter, checked first
+    match = store.match(query, metadata.table)
+    if match.fallback is not None:
+        return rank(filters), match
+    within = Condition("clip_id", Op.IN, tuple(match.clip_ids))
+    return rank([*(user or ()), within]), match

@@ -1,0 +1,94 @@
+"""Search keeps to the moments the query's scenario program selects, and says when it cannot."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pytest
+
+sys.path.insert(0, str(Path(__file__).parent))
+
+from retrieval_fakes import HashTextEncoder
+
+from retrieval.captions_search import CaptionSearch
+from retrieval.cli import main
+from retrieval.scenario_search import SCENARIOS_DIR, ScenarioStore
+from scenarios.cache import encode
+from tests.scenarios.synthetic import car, cyclist, make_features
+from tests.scenes.av2_fixtures import DEV_LOGS, require
+
+Y = 50.0
+
+
+def _moments(rows: list[tuple[str, str, int, int]]) -> pa.Table:
+    return pa.table({"clip_id": [f"synthetic:{t}:{a}" for t, _, a, _ in rows], "log_id": ["synthetic"] * len(rows),
+                     "track_id": [t for t, _, _, _ in rows], "start_ns": [a for _, _, a, _ in rows],
+                     "end_ns": [b for _, _, _, b in rows]})
+
+
+@pytest.fixture
+def store(tmp_path: Path) -> tuple[ScenarioStore, np.ndarray]:
+    beside = np.zeros(30, bool)
+    beside[5:11] = True
+    path = np.stack([np.zeros(30), np.where(beside, Y - 3, Y - 80)], axis=1)  # the cyclist is beside at 0.5–1 s
+    turning = np.zeros(30, bool)
+    turning[20:25] = True
+    x = make_features([car((0, Y), id="car"), cyclist(path, id="bike")], frames=30)
+    ego_flags = x.flags.copy()
+    ego_flags[-1, 20:25] |= 1 << 4  # the ego turns left at 2–2.5 s ("left_turn" is bit 4)
+    x = type(x)(**{**x.__dict__, "flags": ego_flags})
+    folder = tmp_path / SCENARIOS_DIR
+    folder.mkdir()
+    (folder / "synthetic.npz").write_bytes(encode(x, "s"))
+    return ScenarioStore(folder), x.timestamps_ns
+
+
+def test_the_program_selects_the_windows_where_it_holds(store: tuple[ScenarioStore, np.ndarray]) -> None:
+    scenarios, ts = store
+    moments = _moments([("car", "", int(ts[0]), int(ts[15])), ("car", "", int(ts[15]), int(ts[29])),
+                        ("bike", "", int(ts[0]), int(ts[29]))])
+    match = scenarios.match("vehicle with a bicycle to its right", moments)
+    assert match.fallback is None and match.compiled is not None
+    assert match.clip_ids == (f"synthetic:car:{ts[0]}",)
+    assert match.referred[f"synthetic:car:{ts[0]}"] == ("car",) and match.related[f"synthetic:car:{ts[0]}"] == ("bike",)
+    ego = scenarios.match("we turn left", moments)  # the ego's own moments have no clip: those of its log do
+    assert set(ego.clip_ids) == {f"synthetic:car:{ts[15]}", f"synthetic:bike:{ts[0]}"}
+    assert ego.to_dict()["program"] == "turning(ego, direction=left)"
+
+
+def test_the_search_says_why_it_ranks_every_moment(store: tuple[ScenarioStore, np.ndarray], tmp_path: Path) -> None:
+    scenarios, ts = store
+    moments = _moments([("car", "", int(ts[15]), int(ts[29]))])
+    none = scenarios.match("vehicle with a bicycle to its right", moments)
+    assert none.fallback == "the program selects none of the indexed moments" and not none.clip_ids
+    words = scenarios.match("purple elephants", moments)
+    assert words.compiled is None and "words not understood: purple, elephants" in str(words.fallback)
+    bare = ScenarioStore(tmp_path / "none").match("vehicle", moments)
+    assert "holds no scenario features" in str(bare.fallback)
+
+
+def test_a_caption_index_answers_programs_on_its_logs(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                                      monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr("retrieval.captions_search.SentenceEncoder", HashTextEncoder)
+    log = tmp_path / "logs" / require(DEV_LOGS["7fab2350"]).name
+    log.parent.mkdir()
+    log.symlink_to(DEV_LOGS["7fab2350"], target_is_directory=True)
+    assert main(["caption", str(log), "--out", str(tmp_path / "captions")]) == 0
+    assert json.loads((tmp_path / "captions" / "logs.json").read_text()) == {log.name: str(log.resolve())}
+    CaptionSearch.build(tmp_path / "captions", tmp_path / "index", encoder=HashTextEncoder())
+    index = CaptionSearch.open(tmp_path / "index", encoder=HashTextEncoder())
+    results, match = index.search_scenario("vehicle with a pedestrian to its right", k=5)
+    assert match.fallback is None and len(results) == 5
+    assert all(match.referred[r.clip_id] for r in results)
+    assert all(r.category in ("car", "truck", "bus") for r in results)
+    plain = index.search("vehicle with a pedestrian to its right", k=50)
+    assert {r.clip_id for r in plain} != {r.clip_id for r in results}
+    capsys.readouterr()
+    assert main(["search", str(tmp_path / "index"), "stopped(vehicle)", "-k", "3", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["scenario"]["program"] == "stopped(vehicle)" and out["scenario"]["fallback"] is None
+    assert all(r["referred_tracks"] for r in out["results"])

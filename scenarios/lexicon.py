@@ -103,7 +103,8 @@ _add("ego vehicle|ego|ego car|the av|our car|my car|our vehicle|my vehicle|we|us
 
 # -- predicates ------------------------------------------------------------------------------------------
 for _phrases, _name, _params in (
-    ("moving|driving|traveling|travelling|in motion|active|walking|riding|going|running|jogging|heading|"
+    ("moving|driving|traveling|travelling|in motion|active|walking|riding|going|running|jogging|heading|moves|"
+     "move|drives|walks|rides|"
      "navigating|maneuvering|proceeding|passing through", "moving", ()),
     ("stopped|halted|standing still|stopping|waiting|idling|not moving|stationary vehicle|at a standstill|"
      "stands|stand|standing|stop|stops|waits|wait|comes to a stop|come to a stop", "stopped", ()),
@@ -256,7 +257,8 @@ _add("drives off|drive off|pulls away|pull away|starts moving|start moving|takes
 _add("cuts into my lane|cuts into our lane|cutting into my lane|cutting into our lane|cuts in|cutting in|cut in|"
      "cuts in front of us|cutting in front of us|merges into my lane|merges into our lane|merging into our lane|"
      "moves into the ego lane|moves into our lane|moves into my lane|moving into our lane|moving into the ego lane|"
-     "changes into our lane|changes into my lane", Lexeme("seq", "cut_in"))
+     "changes into our lane|changes into my lane|moves into the host lane|moving into the host lane|"
+     "into the host lane|into the ego lane|into our lane|into my lane", Lexeme("seq", "cut_in"))
 _add("on sidewalk|on the sidewalk|on a sidewalk|off the road|not on the road|off road", Lexeme("pred", "on_road",
                                                                                                negate=True))
 _add("during daylight|in daylight|during the day|in the daytime|on a clear day|during the daytime",

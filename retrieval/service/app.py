@@ -4,12 +4,16 @@ Endpoints (OpenAPI at ``/openapi.json``, interactive docs at ``/docs``)::
 
     GET /health                         liveness and what is served
     GET /api/fields                     filter fields and the values the page offers
-    GET /api/search?q=&k=&filter=&view=&mode=&weight=
+    GET /api/search?q=&k=&filter=&view=&mode=&weight=&program=
     GET /api/similar/{clip_id}?k=&filter=&view=
     GET /api/clips/{clip_id}            metadata, caption, tags and the tag timeline
     GET /api/clips/{clip_id}/preview    the animated preview (GIF)
     GET /api/export?ids= | q=&k=        embeddings of a result set
     GET /                               the search page (static files, no network fetches)
+
+A search compiles its query to a scenario program first and keeps to the moments it selects
+(:mod:`retrieval.scenario_search`); its answer says what the query read as (``scenario``) and, for each
+result, the tracks the program refers to and relates to; ``program=false`` ranks every moment.
 
 Errors are JSON ``{"detail": "..."}``: 422 for a malformed, unknown or repeated parameter, one that
 is not valid UTF-8 or one that holds a control character (the message names it), 404 for unknown
@@ -49,6 +53,7 @@ from retrieval.errors import (
 from retrieval.hybrid import check_weight
 from retrieval.querying import QueryTooLongError, parse_cli_filters
 from retrieval.records import SearchResult
+from retrieval.scenario_search import ScenarioMatch
 from retrieval.scenesearch import SceneSearch
 from retrieval.service.limits import RequestTimeout, SearchGate, ServiceBusyError, ServiceLimits, check_chars
 
@@ -82,11 +87,14 @@ def _status_of(exc: RetrievalError) -> int:
     return 422  # empty query, k out of range, bad filter, unknown view: malformed parameters
 
 
-def _result_json(result: SearchResult) -> dict[str, Any]:
+def _result_json(result: SearchResult, match: ScenarioMatch | None = None) -> dict[str, Any]:
     out = result.to_dict()
     out.pop("preview_path", None)  # a server path: the page uses the preview URL instead
     out["preview_url"] = f"/api/clips/{result.clip_id}/preview" if result.preview_path else None
     out["duration_s"] = round(result.duration_s, 2)
+    if match is not None and match.fallback is None:  # the objects the program refers to and relates to
+        out["referred_tracks"] = list(match.referred.get(result.clip_id, ()))
+        out["related_tracks"] = list(match.related.get(result.clip_id, ()))
     return out
 
 
@@ -238,6 +246,8 @@ def create_app(search: SceneSearch, limits: ServiceLimits | None = None) -> Fast
         weight: Annotated[float | None, Query(description="hybrid mode: the rule captions' share in [0, 1] "
                                                           "(default: the index's, chosen on its validation clips)")]
         = None,
+        program: Annotated[bool, Query(description="compile the query to a scenario program and keep to the moments "
+                                                   "it selects (false: rank every moment)")] = True,
     ) -> dict[str, Any]:
         check_chars("q", q, limits)
         spec = filters_of(filter)
@@ -248,7 +258,11 @@ def create_app(search: SceneSearch, limits: ServiceLimits | None = None) -> Fast
 
         def work() -> dict[str, Any]:
             start = time.perf_counter()
-            if mode is SearchMode.CAPTIONS:
+            match = None
+            if program:
+                results, match = search.search_scenario(q, k=k, filters=spec, view=view, ranking=mode.value,
+                                                        weight=mixed, max_k=limits.max_k)
+            elif mode is SearchMode.CAPTIONS:
                 results = search.search_captions(q, k=k, filters=spec, max_k=limits.max_k)
             elif mode is SearchMode.HYBRID:
                 results = search.search_hybrid(q, k=k, filters=spec, view=view, weight=mixed, max_k=limits.max_k)
@@ -257,7 +271,9 @@ def create_app(search: SceneSearch, limits: ServiceLimits | None = None) -> Fast
             elapsed_ms = (time.perf_counter() - start) * 1e3
             # Caption search uses no clip view: the answer says so rather than echoing the parameter.
             out = {"query": q, "k": k, "view": None if mode is SearchMode.CAPTIONS else view, "mode": mode.value,
-                   "elapsed_ms": round(elapsed_ms, 2), "results": [_result_json(r) for r in results]}
+                   "elapsed_ms": round(elapsed_ms, 2), "results": [_result_json(r, match) for r in results]}
+            if match is not None:
+                out["scenario"] = match.to_dict()
             return out | ({"hybrid_weight": mixed} if mode is SearchMode.HYBRID else {})
 
         return await gate.run(work)

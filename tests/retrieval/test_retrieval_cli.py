@@ -56,10 +56,16 @@ def test_index_command(stand_in: dict[str, Any], tmp_path: Path, capsys: pytest.
 
 def test_search_table_and_json(stand_in: dict[str, Any], capsys: pytest.CaptureFixture[str]) -> None:
     query = caption_of(["left:approach", "left:cut_in"])
-    assert main(["search", str(stand_in["index"]), query, "-k", "3", "--filter", "category=car"]) == 0
+    assert main(["search", str(stand_in["index"]), query, "-k", "3", "--filter", "category=car", "--no-program"]) == 0
     table = capsys.readouterr().out
     assert table.splitlines()[0].split()[:3] == ["#", "score", "category"]
     assert len(table.strip().splitlines()) == 5
+    assert main(["search", str(stand_in["index"]), query, "-k", "3", "--filter", "category=car"]) == 0
+    said = capsys.readouterr().out.splitlines()
+    assert said[0].startswith("program: ")
+    assert "ranking every moment: this index holds no scenario features (build it again to answer scenario programs)" \
+        in said
+    assert said[-5:] == table.strip().splitlines()  # no features here: the same moments, ranked the same
     assert main(["search", str(stand_in["index"]), query, "-k", "4", "--json"]) == 0
     payload = json.loads(capsys.readouterr().out)
     assert payload["query"] == query and len(payload["results"]) == 4

@@ -10,4 +10,5 @@ PAGE = Path(__file__).resolve().parents[2] / "docs" / "reference" / "scenario-la
 
 
 def test_the_reference_page_is_current() -> None:
-    assert PAGE.read_text() == markdown(), "regenerate: python -m scenarios.reference > docs/reference/scenario-language.md"
+    regenerate = "python -m scenarios.reference > docs/reference/scenario-language.md"
+    assert PAGE.read_text() == markdown(), f"regenerate: {regenerate}"

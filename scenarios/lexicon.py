@@ -144,7 +144,7 @@ for _phrases, _name, _params in (
     ("jaywalking|jaywalks|jaywalk|crossing the road outside a crosswalk", "jaywalking", ()),
     ("at stop|at a stop|at its stop|stopped at a stop", "stopped", ()),
     ("in vehicle lane|in a vehicle lane|in the vehicle lane|in a traffic lane|in the traffic lane|in traffic",
-     "on_road", ()),
+     "in_vehicle_lane", ()),
     ("from bike lane|from the bike lane|from a bike lane|out of the bike lane|through bike lane|through the bike lane|"
      "into the bike lane|into a bike lane|across the bike lane", "in_bike_lane", ()),
     ("intersection|an intersection|the intersection|junction|a junction", "near_intersection", ()),

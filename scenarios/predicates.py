@@ -18,7 +18,7 @@ has no answer on a log without one: the evaluation says so instead of answering 
   in a junction; ``approaching_crosswalk``: not on a crosswalk yet, on one within ``within_s`` (3 s).
 - ``near_intersection``: at most ``within_m`` (5 m) along its lane from the junction it enters, or in it.
 - ``at_intersection``, ``on_crosswalk``, ``on_road`` (on a lane or in a junction), ``in_bike_lane``,
-  ``in_bus_lane``: map context.
+  ``in_bus_lane``, ``in_vehicle_lane`` (on a lane that is neither): map context.
 - ``jaywalking``: a moving pedestrian on a lane, off crosswalks and intersections (needs the map).
 - ``appearance`` (``time_of_day``, ``weather``): the log's recorded lighting and weather; a log that
   records neither has no answer (a note says so).
@@ -196,6 +196,11 @@ def _map_flag(flag: str) -> Callable[[LogFeatures, Params], Mask]:
     def holds(x: LogFeatures, p: Params) -> Mask:
         return x.flag(flag)
     return holds
+
+
+@_define("in_vehicle_lane", "in a vehicle lane", needs_map=True)
+def _in_vehicle_lane(x: LogFeatures, p: Params) -> Mask:
+    return x.flag("on_lane") & ~x.flag("in_bike_lane") & ~x.flag("in_bus_lane")
 
 
 for _name, _flag, _phrase in (("at_intersection", "at_intersection", "at an intersection"),

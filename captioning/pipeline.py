@@ -375,7 +375,11 @@ def caption_log(log: Log, config: CaptioningConfig | None = None) -> LogCaptions
     """
     config = config or CaptioningConfig()
     vector_map = log.map if config.rules == RuleSet.BEHAVIOR else None
-    return caption_dense(log.log_id, log.dense_tracks(), config, vector_map)
+    result = caption_dense(log.log_id, log.dense_tracks(), config, vector_map)
+    if log.unknown_categories:  # said here as `validate` says it: their objects are captioned as "object"
+        listed = ", ".join(f"{k}={v}" for k, v in sorted(log.unknown_categories.items()))
+        result.notes.append(f"unknown categories captioned as 'other': {listed}")
+    return result
 
 
 @dataclass(frozen=True)

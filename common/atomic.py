@@ -60,6 +60,33 @@ _TEMP_RE = re.compile(r"^\..+?\.(?:(?P<pid>\d+)@(?P<machine>[0-9a-f]{8})\.)?[a-z
 _last_sweep: dict[str, float] = {}
 
 
+class OutputPathError(OSError):
+    """An output path that cannot be written; the message names the path the caller gave, never a temporary one."""
+
+    def __init__(self, path: Path, reason: str) -> None:
+        super().__init__(f"{path}: {reason}")
+        self.path = path
+
+
+def check_output_file(target: Path | str) -> None:
+    """Refuse a file output that cannot be written, before the work that would produce it.
+
+    Raises:
+        OutputPathError: ``target`` is a folder or a device (renaming onto it would replace it), or a
+            part of its parent path is a file.
+    """
+    target = Path(target)
+    if target.exists() and not target.is_file():
+        raise OutputPathError(target, "exists and is not a regular file (a folder or a device); give a file path")
+    for folder in target.parents:
+        if folder.exists():
+            if not folder.is_dir():
+                raise OutputPathError(target, f"{folder} is a file, not a folder")
+            if not os.access(folder, os.W_OK | os.X_OK):
+                raise OutputPathError(target, f"{folder} cannot be written")
+            break
+
+
 def _umask() -> int:
     mask = os.umask(0)
     os.umask(mask)
@@ -161,10 +188,14 @@ def atomic_path(target: Path | str) -> Iterator[Path]:
     The temporary file keeps the target's suffix, so libraries that pick a format by suffix work.
     """
     target = Path(target)
-    target.parent.mkdir(parents=True, exist_ok=True)
-    sweep_stale(target.parent)
-    fd, tmp_name = tempfile.mkstemp(prefix=_temp_prefix(target.name), suffix=f".tmp{target.suffix}",
-                                    dir=target.parent)
+    check_output_file(target)
+    try:
+        target.parent.mkdir(parents=True, exist_ok=True)
+        sweep_stale(target.parent)
+        fd, tmp_name = tempfile.mkstemp(prefix=_temp_prefix(target.name), suffix=f".tmp{target.suffix}",
+                                        dir=target.parent)
+    except OSError as exc:
+        raise OutputPathError(target, f"cannot be written in {target.parent} ({exc.strerror or exc})") from None
     os.close(fd)
     tmp = Path(tmp_name)
     try:

@@ -33,10 +33,11 @@ Directory layout (written atomically)::
 from __future__ import annotations
 
 import json
+import sys
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pyarrow as pa
@@ -66,7 +67,19 @@ from retrieval.scenario_search import (
     log_folders_of,
     search_within,
 )
-from retrieval.sentence_encoder import SentenceEncoder
+
+if TYPE_CHECKING:
+    from retrieval.sentence_encoder import SentenceEncoder
+else:
+    def __getattr__(name: str) -> Any:
+        # SentenceEncoder is imported on first use (PEP 562): it imports torch, which reading an index's
+        # manifest (through retrieval.hybrid) or a clip → clip search never needs.
+        if name == "SentenceEncoder":
+            from retrieval.sentence_encoder import SentenceEncoder
+
+            globals()[name] = SentenceEncoder
+            return SentenceEncoder
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 TextEncoder = Callable[[Sequence[str]], np.ndarray]
 MANIFEST = "manifest.json"
@@ -150,6 +163,12 @@ def text_variants(row: dict[str, Any]) -> tuple[list[str], list[str]]:
     return full, objects or full
 
 
+def _sentence_encoder_class() -> type[SentenceEncoder]:
+    """The default sentence encoder's class, this module's ``SentenceEncoder`` (imported on first use)."""
+    encoder_class: type[SentenceEncoder] = sys.modules[__name__].SentenceEncoder
+    return encoder_class
+
+
 class _Groups:
     """Rows → lists of text indices, as CSR arrays (offsets (N + 1,), indices (V,))."""
 
@@ -182,7 +201,8 @@ def _read_parts(directory: Path, counts: dict[str, Any]) -> tuple[MetadataStore,
                                                         f"{counts['count']}")
     texts_path = directory / TEXTS_FILE
     try:
-        texts_table = pq.read_table(texts_path)
+        with pq.ParquetFile(texts_path) as texts_file:  # not pq.read_table, whose datasets import pandas
+            texts_table = texts_file.read()
     except (OSError, pa.ArrowException) as exc:
         raise IndexFileError(texts_path, f"unreadable Parquet: {exc}") from None
     if "text" not in texts_table.column_names or not pa.types.is_string(texts_table.schema.field("text").type) \
@@ -222,7 +242,7 @@ class CaptionSearch:
         self.text_embeddings = np.ascontiguousarray(text_embeddings, dtype=np.float32)
         self.full = full
         self.objects = objects
-        self.encoder: TextEncoder = encoder if encoder is not None else SentenceEncoder()
+        self.encoder: TextEncoder = encoder if encoder is not None else _sentence_encoder_class()()
         self.encoder_name = str(encoder_name or getattr(self.encoder, "name", type(self.encoder).__name__))
         # How the texts were embedded (SentenceEncoder.whole_text): the queries have to be embedded alike.
         self.whole_text = whole_text or str(getattr(self.encoder, "whole_text", "text"))
@@ -270,7 +290,7 @@ class CaptionSearch:
         pos = {t: i for i, t in enumerate(texts)}
         full_groups = _Groups.of([v[0] for v in variants], pos)
         object_groups = _Groups.of([v[1] for v in variants], pos)
-        encoder = encoder if encoder is not None else SentenceEncoder()
+        encoder = encoder if encoder is not None else _sentence_encoder_class()()
         embeddings = np.asarray(encoder(texts), dtype=np.float32)
         meta = rows.select([c for c in rows.column_names if c not in ("canonical_caption", "paraphrases")])
         store = MetadataStore.from_rows(meta, np.arange(rows.num_rows, dtype=np.int64))
@@ -347,7 +367,7 @@ class CaptionSearch:
         if given != whole_text:  # queries embedded unlike the texts would rank by the difference
             raise IndexDirError(f"{path}, field 'whole_text': the index embedded its texts as {whole_text!r}, "
                                 f"the given encoder embeds a text as {given!r}")
-        encoder = encoder if encoder is not None else SentenceEncoder(whole_text=whole_text)
+        encoder = encoder if encoder is not None else _sentence_encoder_class()(whole_text=whole_text)
         base = info.get("base_dir")
         out = cls(*parts, encoder, info.get("text_encoder"), Path(base) if base else None,
                   [Skipped(s["item"], s["reason"]) for s in info.get("skipped", [])], whole_text)

@@ -2,8 +2,9 @@
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from dataclasses import asdict, dataclass
+from pathlib import Path
 from typing import Any
 
 
@@ -68,17 +69,115 @@ class SearchResult:
         )
 
 
-def format_table(results: list[SearchResult], max_caption_chars: int = 72) -> str:
-    """Results as an aligned plain-text table (what the CLI prints by default); clip ids in full."""
+@dataclass(frozen=True)
+class LogSpan:
+    """The time a log covers: its first and last frame's timestamps, nanoseconds."""
+
+    first_ns: int
+    last_ns: int
+
+    @property
+    def duration_s(self) -> float:
+        return (self.last_ns - self.first_ns) / 1e9
+
+
+@dataclass(frozen=True)
+class TimeInLog:
+    """When a moment happens in its log: seconds from the log's first frame, and the log's length.
+
+    ``str()`` gives what the page, the CLI and the API show: ``12.4–15.9 s of 20 s``.
+    """
+
+    start_s: float
+    end_s: float
+    log_s: float
+
+    def __str__(self) -> str:
+        whole = abs(self.log_s - round(self.log_s)) < 0.05
+        return f"{self.start_s:.1f}–{self.end_s:.1f} s of {self.log_s:.0f} s" if whole else \
+            f"{self.start_s:.1f}–{self.end_s:.1f} s of {self.log_s:.1f} s"
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"start_s": round(self.start_s, 2), "end_s": round(self.end_s, 2), "log_s": round(self.log_s, 2),
+                "text": str(self)}
+
+
+def time_in_log(result: SearchResult, span: LogSpan) -> TimeInLog:
+    """When ``result`` happens within its log, whose time ``span`` covers."""
+    return TimeInLog((result.start_ns - span.first_ns) / 1e9, (result.end_ns - span.first_ns) / 1e9, span.duration_s)
+
+
+def read_log_spans(clips_dir: Path | str, log_ids: Iterable[str]) -> dict[str, LogSpan]:
+    """The time span of each of ``log_ids`` from its rendered frames (``CLIPS_DIR/logs/<log_id>/frames.parquet``,
+    one small column read per log); logs without that file are left out."""
+    import pyarrow.parquet as pq
+
+    from encoders.clips.layout import FRAMES_FILE, rendered_log_dir
+
+    out: dict[str, LogSpan] = {}
+    for log_id in dict.fromkeys(log_ids):
+        path = rendered_log_dir(clips_dir, log_id) / FRAMES_FILE
+        try:
+            stamps = pq.read_table(path, columns=["timestamp_ns"]).column("timestamp_ns")
+        except (OSError, ValueError, KeyError):  # missing, unreadable or without the column
+            continue
+        if len(stamps):
+            out[log_id] = LogSpan(int(stamps[0].as_py()), int(stamps[-1].as_py()))
+    return out
+
+
+def format_table(results: list[SearchResult], width: int | None = None, ids: Mapping[str, str] | None = None,
+                 spans: Mapping[str, LogSpan] | None = None) -> str:
+    """Results as a plain-text table that fits ``width`` columns (what the CLI prints by default).
+
+    Each result takes one line of fields (rank, short id, score, category, when it happens in its log)
+    and below it, indented, its caption in full, wrapped rather than cut, with the object's sentence
+    first: every rule caption opens with the ego's sentence, which says least about the object
+    (:func:`captioning.text.caption_halves`).
+
+    Args:
+        results: the ranked results.
+        width: the line length (default: the terminal's width, ``COLUMNS`` where set).
+        ids: clip id → the short id to show (:meth:`retrieval.short_ids.ShortIds.readable_ids` of the
+            index, which ``similar`` reads back); default: the readable form of these results alone, the
+            logs' starts taken from ``spans``.
+        spans: log id → the log's time span, for the time within the log; without it the duration shows.
+    """
+    import shutil
+    import textwrap
+
     if not results:
         return "(no results)"
-    header = ("#", "score", "category", "dur_s", "caption", "clip_id")
+    width = width or shutil.get_terminal_size().columns
+    if ids is None:
+        from retrieval.short_ids import ShortIds
+
+        given = dict(spans or {})
+        short = ShortIds([r.clip_id for r in results], [r.log_id for r in results], [r.track_id for r in results],
+                         [r.start_ns for r in results], [r.end_ns for r in results],
+                         read_spans=lambda logs: {lg: given[lg] for lg in logs if lg in given})
+        ids = short.readable_ids(r.clip_id for r in results)
+    header = ("#", "id", "score", "category", "time in log" if spans is not None else "duration")
     rows = []
     for r in results:
-        caption = r.caption if len(r.caption) <= max_caption_chars else r.caption[: max_caption_chars - 1] + "…"
-        rows.append((str(r.rank), f"{r.score:.3f}", r.category, f"{r.duration_s:.1f}", caption, r.clip_id))
+        span = spans.get(r.log_id) if spans is not None else None
+        when = str(time_in_log(r, span)) if span is not None else f"{r.duration_s:.1f} s"
+        rows.append((str(r.rank), ids.get(r.clip_id, r.clip_id), f"{r.score:.3f}", r.category, when))
     widths = [max(len(h), *(len(row[i]) for row in rows)) for i, h in enumerate(header)]
-    lines = ["  ".join(h.ljust(w) for h, w in zip(header, widths)).rstrip()]
+    indent = " " * (widths[0] + 2)
+    text_width = max(len(indent) + 20, width)  # textwrap counts the indent in the width
+    lines = ["  ".join(h.ljust(w) for h, w in zip(header, widths)).rstrip(), f"{indent}caption"]
     lines.append("  ".join("-" * w for w in widths))
-    lines.extend("  ".join(c.ljust(w) for c, w in zip(row, widths)).rstrip() for row in rows)
+    for r, row in zip(results, rows):
+        lines.append("  ".join(c.ljust(w) for c, w in zip(row, widths)).rstrip())
+        lines.extend(textwrap.wrap(object_first(r.caption) or "(no caption)", text_width, initial_indent=indent,
+                                   subsequent_indent=indent, break_on_hyphens=False))
     return "\n".join(lines)
+
+
+def object_first(caption: str) -> str:
+    """The caption with the object's sentence before the ego's (unchanged when it has no object sentence)."""
+    from captioning.text import caption_halves
+
+    host, obj = caption_halves(caption)
+    return f"{obj} {host}" if host and obj else caption

@@ -24,18 +24,18 @@ import shutil
 import time
 import warnings
 from collections.abc import Callable, Mapping
+from contextlib import nullcontext
 from dataclasses import asdict
 from datetime import UTC, datetime
+from functools import partial
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pyarrow as pa
-import pyarrow.parquet as pq
 
 from common.atomic import reading_directory
 from common.folders import claim_folder, claimed_directory
-from encoders.clips.layout import read_clip_table, read_manifest
 from indexes.clip_index import ClipIndex
 from indexes.errors import IndexesError, ManifestError
 from indexes.filters import FilterSpec
@@ -49,7 +49,6 @@ from indexes.integrity import (
     seal,
     verify_files,
 )
-from retrieval.captions_search import CaptionSearch, Skipped, TextEncoder, caption_rows
 from retrieval.embedding import CONFIG_FILE, Embedder, ModelEmbedder
 from retrieval.errors import IndexDirError, ModelMismatchError, OtherMomentsError, UnknownClipError, UnknownViewError
 from retrieval.hybrid import Scorers, WeightChoice, check_weight, choose_for_index
@@ -66,7 +65,9 @@ from retrieval.querying import (
 )
 from retrieval.records import SearchResult
 from retrieval.scenario_search import SCENARIOS_DIR, ScenarioMatch, ScenarioStore, build_store, search_within
-from retrieval.sentence_encoder import SentenceEncoder
+
+if TYPE_CHECKING:
+    from retrieval.captions_search import CaptionSearch, TextEncoder
 
 VIEWS = ("fused", "camera", "bev")
 CAPTIONS_DIR = "captions"
@@ -78,11 +79,13 @@ class SceneSearch:
     """Text → clip, clip → clip and caption search over one index directory."""
 
     def __init__(self, index_dir: Path, manifest: IndexManifest, views: dict[str, ClipIndex],
-                 captions: CaptionSearch, embedder: Embedder | None = None) -> None:
+                 captions: CaptionSearch | Callable[[], CaptionSearch], embedder: Embedder | None = None) -> None:
+        """``captions``: the caption index, or what opens it when first used (:meth:`open`, ``lazy_captions``)."""
         self.index_dir = index_dir
         self.manifest = manifest
         self.views = views
-        self.captions = captions
+        self._captions: CaptionSearch | None = None if callable(captions) else captions
+        self._open_captions = captions if callable(captions) else None
         self._embedder = embedder
         self.clips_dir = Path(manifest.clips_dir)
         #: The weight of hybrid search (rule captions' share) and how it was chosen.
@@ -115,6 +118,10 @@ class SceneSearch:
         Raises:
             FileNotFoundError: no model in ``run_dir`` or no ``clips.parquet`` in ``clips_dir``.
         """
+        from encoders.clips.layout import read_clip_table
+        from retrieval.captions_search import CaptionSearch, Skipped, caption_rows
+        from retrieval.sentence_encoder import SentenceEncoder
+
         say = progress or (lambda _m: None)
         run_dir, clips_dir, out_dir = Path(run_dir).resolve(), Path(clips_dir).resolve(), Path(out_dir)
         claim_folder(out_dir, INDEX_FOLDER, (run_dir, clips_dir), whole=True)  # before hours of embedding
@@ -174,7 +181,7 @@ class SceneSearch:
     @classmethod
     def open(cls, index_dir: Path | str, embedder: Embedder | None = None,
              text_encoder: TextEncoder | None = None, views: tuple[str, ...] = VIEWS,
-             verify: VerifyLike = Verify.CACHED) -> SceneSearch:
+             verify: VerifyLike = Verify.CACHED, lazy_captions: bool = False, mmap: bool = False) -> SceneSearch:
         """Open an index directory written by :meth:`build`, checking every file it reads.
 
         The model is loaded when the first text query needs it; its hash is checked then. A build
@@ -187,10 +194,15 @@ class SceneSearch:
             views: the views to load.
             verify: file checksums: ``cached`` (hash files not verified before), ``full`` or
                 ``off`` (warns once); see :mod:`indexes.integrity`.
+            lazy_captions: open the caption index (and check its files) when a query first needs it,
+                so that a process that ranks by the model or by clip alone never reads it (the CLI).
+            mmap: map the views' vectors from disk instead of reading them (:meth:`ClipIndex.load`):
+                a short-lived process touches only the pages a query reads; the views are read-only.
 
         Raises:
             IndexDirError: not an index directory, an unsupported format, or a missing, truncated
-                or corrupt file (the message names it).
+                or corrupt file (the message names it); with ``lazy_captions``, the caption index's
+                files raise it when first used.
             ModelMismatchError: ``embedder`` is another model than the index was built with.
         """
         # Held until every file is read: a concurrent build of the same directory waits for it.
@@ -210,17 +222,25 @@ class SceneSearch:
                                   IntegrityWarning, stacklevel=2)
                     warnings.filterwarnings("ignore", message=".*checksums not verified", category=IntegrityWarning)
                 try:
-                    _verify_top_files(index_dir, manifest, views, mode)
-                    loaded = {v: ClipIndex.load(index_dir / v, verify=mode) for v in views}
+                    _verify_top_files(index_dir, manifest, (*views, *(() if lazy_captions else (CAPTIONS_DIR,))), mode)
+                    loaded = {v: ClipIndex.load(index_dir / v, mmap=mmap, verify=mode) for v in views}
                 except IndexesError as exc:
                     raise IndexDirError(str(exc)) from exc
-                captions = CaptionSearch.open(index_dir / CAPTIONS_DIR, encoder=text_encoder, verify=mode)
-        for name, size in [*((v, len(ix)) for v, ix in loaded.items()), ("captions", len(captions))]:
-            if manifest.counts.get(name) not in (None, size):
-                raise IndexDirError(f"{index_dir / name}: holds {size} entries, {index_dir / MANIFEST} says "
-                                    f"{manifest.counts[name]}")
-        captions.base_dir = Path(manifest.clips_dir)
+                captions: CaptionSearch | Callable[[], CaptionSearch] = (
+                    partial(_open_captions, index_dir, manifest, text_encoder, mode, later=True) if lazy_captions
+                    else _open_captions(index_dir, manifest, text_encoder, mode))
+        for name, size in ((v, len(ix)) for v, ix in loaded.items()):
+            _check_count(index_dir, manifest, name, size)
         return cls(index_dir, manifest, loaded, captions, embedder)
+
+    @property
+    def captions(self) -> CaptionSearch:
+        """The clips' rule captions embedded by the frozen sentence encoder; opened on first use where the
+        index was opened with ``lazy_captions``."""
+        if self._captions is None:
+            assert self._open_captions is not None
+            self._captions = self._open_captions()
+        return self._captions
 
     # ------------------------------------------------------------------ model
 
@@ -381,6 +401,8 @@ class SceneSearch:
         ``embedding`` for the first, ``embedding_<view>`` for others) or ``.npy`` (+ ``.json`` beside it
         with the metadata rows, the view and the model hash). Written atomically.
         """
+        import pyarrow.parquet as pq
+
         from common.atomic import atomic_path, atomic_write_text
 
         path = Path(path)
@@ -413,13 +435,42 @@ class SceneSearch:
         raise ValueError(f"{path}: unknown export format {path.suffix!r}; use .parquet or .npy")
 
 
-def _verify_top_files(index_dir: Path, manifest: IndexManifest, views: tuple[str, ...], mode: Verify) -> None:
-    """Check the files the top manifest covers: the sub-manifests of ``views`` and captions, and the run config."""
+def _open_captions(index_dir: Path, manifest: IndexManifest, text_encoder: TextEncoder | None, mode: Verify,
+                   later: bool = False) -> CaptionSearch:
+    """The caption index of an index directory, checked against the top manifest. ``later``: after
+    :meth:`SceneSearch.open` has returned, so under a read lock of its own, with its sub-manifest checked
+    here (``open`` checks it otherwise) and without a second warning of unchecked files."""
+    from retrieval.captions_search import CaptionSearch
+
+    with reading_directory(index_dir) if later else nullcontext(index_dir) as index_dir, \
+            warnings.catch_warnings():
+        if later:
+            warnings.filterwarnings("ignore", message=".*checksums not verified", category=IntegrityWarning)
+            try:
+                _verify_top_files(index_dir, manifest, (CAPTIONS_DIR,), mode)
+            except IndexesError as exc:
+                raise IndexDirError(str(exc)) from exc
+        captions = CaptionSearch.open(index_dir / CAPTIONS_DIR, encoder=text_encoder, verify=mode)
+    _check_count(index_dir, manifest, "captions", len(captions))
+    captions.base_dir = Path(manifest.clips_dir)
+    return captions
+
+
+def _check_count(index_dir: Path, manifest: IndexManifest, name: str, size: int) -> None:
+    """Raise :class:`IndexDirError` when the part ``name`` holds another number of entries than the manifest says."""
+    if manifest.counts.get(name) not in (None, size):
+        raise IndexDirError(f"{index_dir / name}: holds {size} entries, {index_dir / MANIFEST} says "
+                            f"{manifest.counts[name]}")
+
+
+def _verify_top_files(index_dir: Path, manifest: IndexManifest, parts: tuple[str, ...], mode: Verify) -> None:
+    """Check the files the top manifest covers: the sub-manifests of ``parts`` (views and ``captions``), and
+    the run config."""
     if manifest.format_version < 2:
         return  # IndexManifest.read warned: no checksums in this format
     path = index_dir / MANIFEST
     files = parse_file_entries(manifest.files, path)
-    wanted = [f"{d}/{MANIFEST}" for d in (*views, CAPTIONS_DIR)]
+    wanted = [f"{d}/{MANIFEST}" for d in parts]
     missing = [n for n in wanted if n not in files]
     if missing:
         raise ManifestError(path, f"does not list {', '.join(missing)}", field="files")
@@ -429,6 +480,8 @@ def _verify_top_files(index_dir: Path, manifest: IndexManifest, views: tuple[str
 
 def _log_folders(clips_dir: Path) -> dict[str, str]:
     """Log id → folder of the logs a clips folder was made from (as its manifest records them)."""
+    from encoders.clips.layout import read_manifest
+
     try:
         logs = read_manifest(clips_dir).get("logs", {})
     except (FileNotFoundError, ValueError):

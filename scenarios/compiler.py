@@ -15,8 +15,9 @@ from dataclasses import dataclass
 
 from scenarios.lexicon import lexemes, normalize
 from scenarios.parser import DescriptionError, Parser
+from scenarios.predicates import ProgramError
 from scenarios.program import Node, describe, to_text
-from scenarios.syntax import MAX_PROGRAM_CHARS, SyntaxProblem, parse_program
+from scenarios.syntax import MAX_PROGRAM_CHARS, parse_program
 
 __all__ = ["Compiled", "DescriptionError", "compile_description"]
 
@@ -63,7 +64,7 @@ def compile_description(text: str, phrase_hint: Callable[[str], str | None] | No
     if "(" in stripped and stripped.endswith(")"):
         try:
             program = parse_program(stripped)
-        except SyntaxProblem as exc:
+        except ProgramError as exc:  # syntax, an unknown name, or a parameter its call does not take
             raise DescriptionError(f"program {stripped!r}: {exc}") from None
         return Compiled(text, program, to_text(program), describe(program), ())
     words = normalize(text)

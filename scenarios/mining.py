@@ -6,7 +6,8 @@
 Each log is one task (:func:`mine_log`: features from the cache or built, then every program),
 serially or on Ray (:mod:`common.ray_runner`); answers keep the logs' order, then the descriptions'.
 A log that cannot be read is skipped with its reason; a description that names nothing is refused
-before any log is read.
+before any log is read. A log given twice (the same folder, or two of one log id) is answered once and
+the repeat reported.
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ from pathlib import Path
 from captioning.config import CaptioningConfig
 from common.ray_cluster import Execution
 from common.ray_runner import TaskStatus, run_tasks
+from common.storage import distinct_by_name
 from scenarios.answer import LogAnswer
 from scenarios.cache import cached_features, claim_cache
 from scenarios.compiler import Compiled, compile_description
@@ -109,11 +111,13 @@ def mine(log_dirs: Sequence[Path], descriptions: Sequence[str], cache_dir: Path 
     compiled = compile_all(descriptions, phrase_hint)
     if cache_dir is not None:
         claim_cache(cache_dir, list(log_dirs))
+    given, repeated = distinct_by_name(list(log_dirs))
+    dirs = [Path(d) for d in given.values()]
     ctx = MiningContext(tuple(compiled), cache_dir, config or CaptioningConfig())
-    report = run_tasks(mine_log, list(log_dirs), execution, labels=[str(d) for d in log_dirs], context=ctx,
+    report = run_tasks(mine_log, dirs, execution, labels=[str(d) for d in dirs], context=ctx,
                        skip_on=(ScenesError, ValueError, OSError))
-    run = MiningRun(compiled)
-    for log_dir, outcome in zip(log_dirs, report.outcomes):
+    run = MiningRun(compiled, skipped=dict(repeated))
+    for log_dir, outcome in zip(dirs, report.outcomes):
         if outcome.status is TaskStatus.DONE and outcome.value is not None:
             run.answers += outcome.value.answers
             run.notes += [n for n in outcome.value.notes if n not in run.notes]

@@ -18,7 +18,7 @@ import dataclasses
 import re
 
 from scenarios.kinds import KIND_NAMES
-from scenarios.predicates import PREDICATES, ProgramError
+from scenarios.predicates import PREDICATES, ProgramError, resolve_params
 from scenarios.program import (
     AllOf,
     AnyOf,
@@ -165,11 +165,15 @@ def build(name: str, args: list[Node], keywords: list[Param]) -> Node:
         return Between(args[0], args[1], args[2], lateral)
     if name in PREDICATES:
         arity(1)
+        spec = PREDICATES[name]
+        resolve_params(spec.defaults, spec.choices, given, name)  # a bad parameter is refused here, named
         return Is(args[0], name, tuple(given.items()))
     if name in RELATIONS:
         arity(2)
         min_count = int(_number(given, "min_count", name)) if "min_count" in given else 1
         max_count = int(_number(given, "max_count", name)) if "max_count" in given else None
+        rel = RELATIONS[name]
+        resolve_params(rel.defaults, rel.choices, given, name)
         return Has(args[0], name, args[1], tuple(given.items()), min_count, max_count)
     known = sorted({*PREDICATES, *RELATIONS, "not", "reverse", "and", "or", "excluding", "while", "for_at_least",
                     "then", "between", "together"})

@@ -119,6 +119,8 @@ def _type_ok(arrow_type: pa.DataType, family: str) -> bool:
     if family == "float":
         return bool(pa.types.is_floating(arrow_type) or pa.types.is_integer(arrow_type))
     if family == "str":
+        if pa.types.is_dictionary(arrow_type):  # categorical columns (pandas Categorical) hold strings too
+            arrow_type = arrow_type.value_type
         return bool(pa.types.is_string(arrow_type) or pa.types.is_large_string(arrow_type))
     raise ValueError(family)
 
@@ -126,8 +128,13 @@ def _type_ok(arrow_type: pa.DataType, family: str) -> bool:
 def check_columns(
     path: Path, table: pa.Table, required: dict[str, str], optional: dict[str, str] | None = None
 ) -> list[Problem]:
-    """Missing columns, wrong type families, and nulls."""
+    """Columns named twice, missing columns, wrong type families, and nulls."""
     problems = []
+    names = table.column_names
+    for name in sorted({n for n in names if names.count(n) > 1}):
+        problems.append(Problem(path, f"column appears {names.count(name)} times", field=name))
+    if problems:
+        return problems
     for name, family in {**required, **(optional or {})}.items():
         if name not in table.column_names:
             if name in required:
@@ -162,6 +169,11 @@ def read_feather(path: Path, required: dict[str, str], optional: dict[str, str] 
     problems = check_columns(path, table, required, optional)
     if problems:
         raise LogFormatError(problems)
+    for i, field in enumerate(table.schema):  # categorical columns as the plain strings they hold
+        if pa.types.is_dictionary(field.type):
+            column = table.column(i)
+            plain = pa.chunked_array([chunk.dictionary_decode() for chunk in column.chunks], field.type.value_type)
+            table = table.set_column(i, field.name, plain)
     return table
 
 
@@ -270,6 +282,28 @@ def check_unique_track_per_frame(
                     field="track_uuid", row=row)
         ]
     return []
+
+
+def check_one_category_per_track(
+    path: Path, track_ids: NDArray[np.str_], categories: NDArray[np.str_]
+) -> list[Problem]:
+    """A track whose rows name more than one category (a track is one object). ``track_ids``,
+    ``categories``: (N,); names the first such track, its categories and the first row of the second."""
+    if track_ids.shape[0] < 2:
+        return []
+    pairs = np.unique(np.stack([track_ids, categories], axis=1), axis=0)
+    tracks, counts = np.unique(pairs[:, 0], return_counts=True)
+    mixed = tracks[counts > 1]
+    if mixed.size == 0:
+        return []
+    track = str(mixed[0])
+    rows = np.flatnonzero(track_ids == track)
+    first = categories[rows[0]]
+    other = int(rows[np.argmax(categories[rows] != first)])
+    names = sorted({str(c) for c in categories[rows]})
+    more = f" ({mixed.size - 1} more tracks likewise)" if mixed.size > 1 else ""
+    return [Problem(path, f"track '{track}' is labelled {' and '.join(names)}: a track keeps one category{more}",
+                    field="category", row=other)]
 
 
 def check_pose_jumps(

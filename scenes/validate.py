@@ -144,6 +144,9 @@ def validate_log(log_dir: Path | str, max_pose_gap_s: float = schema.DEFAULT_MAX
         if log.unknown_categories:
             listed = ", ".join(f"{k}={v}" for k, v in sorted(log.unknown_categories.items()))
             warnings.append(f"unknown categories mapped to 'other': {listed}")
+        ann = log.annotations
+        warnings += [str(p) for p in schema.check_one_category_per_track(
+            log.log_dir / av2_io.ANNOTATIONS_FILENAME, ann.track_id, ann.category)]
     facts["lidar_sweeps"] = int(lidar_ts.shape[0])
     facts["cameras"] = len(camera_names)
     facts["camera_frames"] = camera_frames

@@ -133,6 +133,8 @@ def read_captions(captions_path: Path) -> list[CaptionRow]:
             raise ClipsInputError(f"{captions_path}, row {i}, field 'category': {category!r} is not one of "
                                   f"{list(CATEGORY_NAMES)}")
         caption = str(cols["caption"][i])
+        if not caption.strip():
+            raise ClipsInputError(f"{captions_path}, row {i}, field 'caption': empty (a clip is its caption's moment)")
         rows.append(
             CaptionRow(
                 row=i,

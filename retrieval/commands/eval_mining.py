@@ -60,8 +60,11 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from common.atomic import atomic_write_text
+    from common.atomic import atomic_write_text, check_output_file
     from scenarios.submission import load_submission
+
+    if args.out is not None:
+        check_output_file(args.out)  # before the work that would fill it
 
     if not args.max_range_m > 0:
         raise ValueError(f"--max-range-m must be positive, got {args.max_range_m}")

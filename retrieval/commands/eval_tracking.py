@@ -49,9 +49,11 @@ def _print_table(title: str, figures: dict[str, dict[str, Any]]) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from common.atomic import atomic_write_text
+    from common.atomic import atomic_write_text, check_output_file
     from scenes.errors import ScenesError
     from scenes.tracking.log_evaluation import Protocol, evaluate_log_pair, pair_logs, pool
+
+    check_output_file(args.out)  # before the work that would fill it
 
     if not args.max_distance_m > 0:
         raise ValueError(f"--max-distance-m must be positive, got {args.max_distance_m}")

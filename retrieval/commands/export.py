@@ -17,14 +17,19 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from common.atomic import check_output_file
     from retrieval.scenesearch import SceneSearch
+
+    check_output_file(args.out)  # before the work that would fill it
 
     views = tuple(args.views) if args.views else None
     if views is None and args.out.suffix == ".npy":
         views = ("fused",)
     if args.out.suffix not in (".parquet", ".npy"):
         raise ValueError(f"{args.out}: unknown export format {args.out.suffix!r}; use .parquet or .npy")
-    search = SceneSearch.open(args.index_dir, views=views or ("fused", "camera", "bev"))
+    # Neither the model nor the rule captions are exported: the caption index is never read.
+    search = SceneSearch.open(args.index_dir, views=views or ("fused", "camera", "bev"), lazy_captions=True,
+                              mmap=True)
     path = search.export(args.out, views=views)
     extra = f" and {path.with_suffix('.json')}" if path.suffix == ".npy" else ""
     print(f"wrote {path}{extra}: {len(search)} clips, views {', '.join(views or tuple(search.views))}")

@@ -55,12 +55,14 @@ def _descriptions(args: argparse.Namespace) -> list[str]:
 
 
 def run(args: argparse.Namespace) -> int:
+    from common.atomic import check_output_file
     from common.folders import check_inputs
     from scenarios.mining import compile_all, mine
     from scenarios.submission import write_submission
 
     texts = _descriptions(args)
     check_inputs(args.out, args.log_dirs)
+    check_output_file(args.out)  # before any work
     compiled = compile_all(texts)  # a description that names nothing is refused before any log is read
     for c in compiled:
         print(f"{c.description!r}\n  program: {c.text}\n  reads:   {c.rendering}"

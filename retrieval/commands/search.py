@@ -1,4 +1,10 @@
-"""``scenesearch search``: the clips that best match a sentence."""
+"""``scenesearch search``: the clips that best match a sentence.
+
+The table fits the terminal and names each moment by a short id that ``scenesearch similar`` reads back:
+its rank (``#3``, remembered per index directory) or its readable form (``log8/track8@12.4s``); see
+:mod:`retrieval.short_ids`. Only what the query needs is loaded: the caption index only for caption or
+hybrid ranking, the model only for model or hybrid ranking, and the views' vectors memory-mapped.
+"""
 
 from __future__ import annotations
 
@@ -8,7 +14,9 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
+    from retrieval.records import SearchResult
     from retrieval.scenario_search import ScenarioMatch
+    from retrieval.short_ids import ShortIds
 
 HELP = ("find the moments that match a sentence: its scenario program selects them, the model ranks them "
         "(--captions: rule-caption search; --hybrid: both mixed; --no-program: rank every moment)")
@@ -43,7 +51,6 @@ def configure(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from retrieval.captions_search import CaptionSearch, is_caption_index
     from retrieval.querying import check_query, check_text, parse_cli_filters
-    from retrieval.records import format_table
     from retrieval.scenesearch import SceneSearch
 
     # The query check of the API and the service, here before the index loads and naming the argument.
@@ -60,12 +67,14 @@ def run(args: argparse.Namespace) -> int:
             raise ValueError(f"{args.index_dir} holds rule captions only (`scenesearch index --captions`): hybrid "
                              "search needs the model's clip embeddings too (`scenesearch index RUN_DIR CLIPS_DIR`)")
         captions = CaptionSearch.open(args.index_dir)
+        moments, logs_dir = captions.metadata.table, captions.base_dir
         if args.no_program:
             results = captions.search(args.query, k=args.k, filters=filters)
         else:
             results, match = captions.search_scenario(args.query, k=args.k, filters=filters)
     else:
-        search = SceneSearch.open(args.index_dir, views=(args.view,))
+        search = SceneSearch.open(args.index_dir, views=(args.view,), lazy_captions=True, mmap=True)
+        moments, logs_dir = search.views[args.view].metadata.table, search.clips_dir
         ranking = "captions" if args.captions else "hybrid" if args.hybrid else "model"
         if args.hybrid:
             weight = search.hybrid.weight if args.weight is None else args.weight
@@ -76,18 +85,60 @@ def run(args: argparse.Namespace) -> int:
         else:
             results, match = search.search_scenario(args.query, k=args.k, filters=filters, view=args.view,
                                                      ranking=ranking, weight=weight)
-    if args.json:
-        out: dict[str, object] = {"query": args.query, "results": [_with_objects(r.to_dict(), match) for r in results]}
-        if weight is not None:
-            out["hybrid_weight"] = weight
-        if match is not None:
-            out["scenario"] = match.to_dict()
-        print(json.dumps(out, indent=2))
-    else:
-        if match is not None:
-            print(_scenario_lines(match))
-        print(format_table(results))
+    from retrieval.short_ids import ShortIds
+
+    print_results(args.index_dir, args.query, results, ShortIds.of_table(moments, logs_dir), args.json,
+                  {"hybrid_weight": weight} if weight is not None else {},
+                  _scenario_lines(match) if match is not None else "", match)
     return 0
+
+
+def print_results(index_dir: Path, query: str, results: list[SearchResult], short: ShortIds, as_json: bool,
+                  extra: dict[str, object] | None = None, before: str = "", match: ScenarioMatch | None = None) -> None:
+    """Print ``results`` as JSON or as a table that fits the terminal, and remember them for ``#N`` ids.
+
+    Args:
+        index_dir: the index searched (the key of the remembered results).
+        query: what was searched (a sentence, or the query clip's id).
+        results: the ranked results.
+        short: the short ids of the index's moments.
+        as_json: JSON for scripts (each result with its ``short_id`` and ``time_in_log``) instead of a table.
+        extra: more top-level JSON fields.
+        before: text printed above the table, wrapped to the terminal.
+        match: the scenario match, whose referred and related tracks each JSON result names.
+    """
+    import shutil
+
+    from retrieval.records import format_table, time_in_log
+    from retrieval.short_ids import remember
+
+    ids = short.readable_ids(r.clip_id for r in results)
+    spans = short.spans(r.log_id for r in results)
+    remember(index_dir, query, [r.clip_id for r in results])
+    if as_json:
+        rows = []
+        for r in results:
+            row = _with_objects(r.to_dict(), match)
+            row["short_id"] = ids.get(r.clip_id)
+            span = spans.get(r.log_id)
+            row["time_in_log"] = time_in_log(r, span).to_dict() if span is not None else None
+            rows.append(row)
+        print(json.dumps({"query": query, **(extra or {}), "results": rows,
+                          **({"scenario": match.to_dict()} if match is not None else {})}, indent=2))
+        return
+    width = shutil.get_terminal_size().columns
+    if before:
+        print(wrap(before, width))
+    print(format_table(results, width, ids, spans))
+
+
+def wrap(text: str, width: int, indent: str = "    ") -> str:
+    """``text`` with each of its lines wrapped to ``width`` columns, continuations indented by ``indent``."""
+    import textwrap
+
+    return "\n".join(part for line in text.splitlines()
+                     for part in textwrap.wrap(line, max(width, len(indent) + 20), subsequent_indent=indent,
+                                               break_on_hyphens=False) or [""])
 
 
 def _with_objects(result: dict[str, object], match: ScenarioMatch | None) -> dict[str, object]:

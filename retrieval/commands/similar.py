@@ -1,9 +1,14 @@
-"""``scenesearch similar``: the clips most like a given clip."""
+"""``scenesearch similar``: the clips most like a given clip.
+
+The clip is named by its id, by its rank in the last search of the index (``#3``) or by its readable
+short id (``log8/track8@12.4s``), as the tables of ``search`` and ``similar`` print them
+(:mod:`retrieval.short_ids`). Clip → clip search needs neither the model nor the caption index, so
+neither is loaded; the view's vectors are memory-mapped.
+"""
 
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 HELP = "find the moments most like a given clip (clip → clip)"
@@ -11,7 +16,9 @@ HELP = "find the moments most like a given clip (clip → clip)"
 
 def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("index_dir", type=Path, metavar="INDEX_DIR", help="index directory (`scenesearch index`)")
-    parser.add_argument("clip_id", metavar="CLIP_ID", help="an indexed clip id, LOG_ID:TRACK_ID:START_NS")
+    parser.add_argument("clip_id", metavar="CLIP_ID",
+                        help="an indexed clip: its id LOG_ID:TRACK_ID:START_NS, #N (rank N of the last search of "
+                             "this index) or the short id the tables print, LOG/TRACK@SECONDSs")
     parser.add_argument("-k", type=int, default=10, help="number of results (default 10)")
     parser.add_argument("--filter", action="append", metavar="FIELD=VALUE", dest="filters",
                         help="keep clips whose FIELD equals VALUE (repeatable)")
@@ -24,21 +31,29 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    import shutil
+
+    from retrieval.commands.search import print_results, wrap
     from retrieval.querying import check_text, parse_cli_filters
-    from retrieval.records import format_table
+    from retrieval.records import object_first, time_in_log
     from retrieval.scenesearch import SceneSearch
+    from retrieval.short_ids import ShortIds
 
     # The text check of queries (retrieval.querying), before the index loads and naming the argument.
     check_text(args.clip_id, "argument CLIP_ID")
     for item in args.filters or []:
         check_text(item, "--filter")
-    search = SceneSearch.open(args.index_dir, views=(args.view,))
-    results = search.search_clip(args.clip_id, k=args.k, filters=parse_cli_filters(args.filters), view=args.view,
+    search = SceneSearch.open(args.index_dir, views=(args.view,), lazy_captions=True, mmap=True)
+    short = ShortIds.of_table(search.views[args.view].metadata.table, search.clips_dir)
+    clip_id = short.resolve(args.clip_id, args.index_dir)
+    results = search.search_clip(clip_id, k=args.k, filters=parse_cli_filters(args.filters), view=args.view,
                                  other_moments=args.other_moments)
-    if args.json:
-        print(json.dumps({"clip_id": args.clip_id, "results": [r.to_dict() for r in results]}, indent=2))
-    else:
-        query = search.get(args.clip_id)
-        print(f"query: {query.clip_id} ({query.category}): {query.caption}")
-        print(format_table(results))
+    query = search.get(clip_id)
+    named = f"{args.clip_id} = " if args.clip_id.strip().startswith("#") else ""
+    when = time_in_log(query, short.spans([query.log_id])[query.log_id])
+    width = shutil.get_terminal_size().columns
+    before = wrap(f"query: {named}{short.readable(clip_id)} ({query.category}, {when})", width) + "\n" + \
+        wrap(f"    {object_first(query.caption)}", width)
+    print_results(args.index_dir, f"more like {short.readable(clip_id)}", results, short, args.json,
+                  {"clip_id": clip_id}, before)
     return 0

@@ -3,17 +3,30 @@
 Endpoints (OpenAPI at ``/openapi.json``, interactive docs at ``/docs``)::
 
     GET /health                         liveness and what is served
-    GET /api/fields                     filter fields and the values the page offers
-    GET /api/search?q=&k=&filter=&view=&mode=&weight=&program=
-    GET /api/similar/{clip_id}?k=&filter=&view=
+    GET /api/fields                     filter fields and values with counts, switches, the index summary,
+                                        example queries, the score scale of each mode
+    GET /api/search?q=&k=&offset=&filter=&view=&mode=&weight=&program=
+    GET /api/similar/{clip_id}?k=&offset=&filter=&view=&other_moments=&same_track=
     GET /api/clips/{clip_id}            metadata, caption, tags and the tag timeline
-    GET /api/clips/{clip_id}/preview    the animated preview (GIF)
+    GET /api/clips/{clip_id}/preview?referred=&related=
+                                        the animated preview (GIF); with tracks given, drawn anew marking them
+    GET /api/map?view=                  the embedding map: every clip's 2-D projection and action
     GET /api/export?ids= | q=&k=        embeddings of a result set
+    GET /docs, /redoc                   interactive API docs, their scripts served from the installed
+                                        ``fastapi_offline`` package (no network)
     GET /                               the search page (static files, no network fetches)
 
 A search compiles its query to a scenario program first and keeps to the moments it selects
-(:mod:`retrieval.scenario_search`); its answer says what the query read as (``scenario``) and, for each
-result, the tracks the program refers to and relates to; ``program=false`` ranks every moment.
+(:mod:`retrieval.scenario_search`); its answer says what the query read as (``scenario``, with the words
+it left unused and a phrasing the index knows), and, for each result, the tracks the program refers to
+and relates to (its ``preview_url`` then draws them); ``program=false`` ranks every moment.
+
+Pages: ``k`` results from ``offset`` (ranks count from the first page); ``total`` is how many the search
+can return and ``next_offset`` where the next page starts (null after the last), so every result of
+an index can be paged through, ``max_k`` at a time. Every answer of a search carries the time of each
+moment within its log (``time_in_log``), its object sentence and its tags in words
+(:mod:`retrieval.service.explain`), the scale of its scores (``score_scale``) and, where the index has
+validation clips, whether its best score is weak for the mode (``confidence``).
 
 Errors are JSON ``{"detail": "..."}``: 422 for a malformed, unknown or repeated parameter, one that
 is not valid UTF-8 or one that holds a control character (the message names it), 404 for unknown
@@ -28,7 +41,6 @@ clips directory, so no request can read a file outside it.
 
 from __future__ import annotations
 
-import threading
 import time
 import typing
 from enum import StrEnum
@@ -39,7 +51,7 @@ from urllib.parse import unquote_to_bytes
 import numpy as np
 from fastapi import Depends, FastAPI, HTTPException, Query, Request
 from fastapi.exceptions import RequestValidationError
-from fastapi.responses import FileResponse, JSONResponse
+from fastapi.responses import FileResponse, HTMLResponse, JSONResponse, Response
 from fastapi.routing import APIRoute
 from fastapi.staticfiles import StaticFiles
 
@@ -51,16 +63,14 @@ from retrieval.errors import (
     UnknownViewError,
 )
 from retrieval.hybrid import check_weight
-from retrieval.querying import QueryTooLongError, parse_cli_filters
+from retrieval.querying import QueryTooLongError, check_k, parse_cli_filters
 from retrieval.records import SearchResult
 from retrieval.scenario_search import ScenarioMatch
 from retrieval.scenesearch import SceneSearch
 from retrieval.service.limits import RequestTimeout, SearchGate, ServiceBusyError, ServiceLimits, check_chars
+from retrieval.service.results import ResultContext, ranked_prefix
 
 STATIC_DIR = Path(__file__).parent / "static"
-
-#: Filter fields the page offers as menus, with their distinct values.
-MENU_FIELDS = ("category", "log_id", "time_of_day", "weather")
 VIEWS = ("fused", "camera", "bev")
 
 
@@ -85,17 +95,6 @@ def _status_of(exc: RetrievalError) -> int:
     if isinstance(exc, QueryTooLongError):
         return 413
     return 422  # empty query, k out of range, bad filter, unknown view: malformed parameters
-
-
-def _result_json(result: SearchResult, match: ScenarioMatch | None = None) -> dict[str, Any]:
-    out = result.to_dict()
-    out.pop("preview_path", None)  # a server path: the page uses the preview URL instead
-    out["preview_url"] = f"/api/clips/{result.clip_id}/preview" if result.preview_path else None
-    out["duration_s"] = round(result.duration_s, 2)
-    if match is not None and match.fallback is None:  # the objects the program refers to and relates to
-        out["referred_tracks"] = list(match.referred.get(result.clip_id, ()))
-        out["related_tracks"] = list(match.related.get(result.clip_id, ()))
-    return out
 
 
 def _is_repeatable(annotation: Any) -> bool:
@@ -177,7 +176,11 @@ def create_app(search: SceneSearch, limits: ServiceLimits | None = None) -> Fast
         description="Natural-language and example-based search over driving-log clips.",
         version="1",
         dependencies=[Depends(strict_parameters)],
+        docs_url=None,  # served below from local files, never from a CDN
+        redoc_url=None,
     )
+    context = ResultContext(search)
+    app.state.result_context = context
     app.state.search_gate = gate
     app.state.route_parameters = {}
     app.state.limits = limits
@@ -210,35 +213,41 @@ def create_app(search: SceneSearch, limits: ServiceLimits | None = None) -> Fast
             raise UnknownViewError(view, list(search.views))
         return view
 
-    fields_lock = threading.Lock()
-    fields_answer: dict[str, Any] = {}
+    def check_page(k: int, offset: int) -> int:
+        """The results to ask the search for: this page's ``k`` (at most ``max_k``) after ``offset``."""
+        check_k(k, limits.max_k)
+        return offset + k
+
+    def page(results: list[SearchResult], offset: int, k: int, total: int) -> tuple[list[SearchResult], Any]:
+        shown = results[offset:offset + k]
+        return shown, (offset + k if offset + k < total and len(shown) == k else None)
+
+    def selects(query: str) -> bool:
+        """Whether ``query``'s program selects some indexed moment (an example worth offering)."""
+        try:
+            return search.scenarios.match(query, context.metadata.table).fallback is None
+        except Exception:
+            return False
 
     @app.get("/health", summary="Liveness and what is served")
     def health() -> dict[str, Any]:
         return {"status": "ok", "clips": len(search), "views": list(search.views),
                 "model": search.manifest.model_sha256[:12], "text_encoder": search.manifest.text_encoder}
 
-    @app.get("/api/fields", summary="Filter fields, with the values offered as menus")
+    @app.get("/api/fields", summary="Filter fields and values with counts, the index summary and example queries")
     def fields() -> dict[str, Any]:
-        # Scans every clip's metadata: computed once (the index does not change while served).
-        with fields_lock:
-            if not fields_answer:
-                table = search.views[next(iter(search.views))].metadata.table
-                menus = {f: sorted({str(v) for v in table.column(f).to_pylist() if v is not None})
-                         for f in MENU_FIELDS if f in table.column_names}
-                tags: set[str] = set()
-                if "tags" in table.column_names:
-                    for row in table.column("tags").to_pylist():
-                        tags.update(row or [])
-                fields_answer.update(
-                    fields=search.fields, menus=menus, tags=sorted(tags), views=list(search.views), modes=list(MODES),
-                    limits={"max_k": limits.max_k, "max_query_chars": limits.max_query_chars})
-            return fields_answer
+        # Scans every clip's metadata once (the index does not change while served).
+        return {"fields": search.fields, **context.summary(selects), "views": list(search.views),
+                "modes": list(MODES), "score_scales": {m: ResultContext.score_scale(m) for m in (*MODES, "similar")},
+                "hybrid_weight": search.hybrid.weight,
+                "limits": {"max_k": limits.max_k, "max_query_chars": limits.max_query_chars}}
 
     @app.get("/api/search", summary="Clips matching a sentence")
     async def api_search(
         q: Annotated[str, Query(description="a sentence, e.g. 'a car in the left lane approaches, then stops'")],
-        k: Annotated[int, Query(description="number of results")] = 10,
+        k: Annotated[int, Query(description="results on this page, at most the service's max_k")] = 10,
+        offset: Annotated[int, Query(ge=0, le=10_000_000, description="results to skip: the page's first rank "
+                                                                       "is offset + 1")] = 0,
         filter: Annotated[list[str] | None, Query(description="FIELD=VALUE or a filter expression")] = None,
         view: Annotated[str, Query(description="fused, camera or bev (model mode)")] = "fused",
         mode: Annotated[SearchMode, Query(description="model (trained encoder), captions (rule captions) or "
@@ -255,25 +264,43 @@ def create_app(search: SceneSearch, limits: ServiceLimits | None = None) -> Fast
         if weight is not None and mode is not SearchMode.HYBRID:
             raise HTTPException(422, "parameter 'weight': the weight of hybrid search; add mode=hybrid")
         mixed = search.hybrid.weight if weight is None else check_weight(weight)
+        wanted = check_page(k, offset)
 
         def work() -> dict[str, Any]:
             start = time.perf_counter()
-            match = None
-            if program:
-                results, match = search.search_scenario(q, k=k, filters=spec, view=view, ranking=mode.value,
-                                                        weight=mixed, max_k=limits.max_k)
-            elif mode is SearchMode.CAPTIONS:
-                results = search.search_captions(q, k=k, filters=spec, max_k=limits.max_k)
-            elif mode is SearchMode.HYBRID:
-                results = search.search_hybrid(q, k=k, filters=spec, view=view, weight=mixed, max_k=limits.max_k)
-            else:
-                results = search.search_text(q, k=k, filters=spec, view=view, max_k=limits.max_k)
+            captions = mode is SearchMode.CAPTIONS
+            metadata = search.captions.metadata if captions else search.views[view].metadata
+            found: dict[str, ScenarioMatch] = {}
+
+            def fetch(n: int) -> list[SearchResult]:
+                deep = max(limits.max_k, n)  # pages reach every result, max_k at a time
+                if program:
+                    results, found["match"] = search.search_scenario(q, k=n, filters=spec, view=view,
+                                                                     ranking=mode.value, weight=mixed, max_k=deep)
+                    return results
+                if captions:
+                    return search.search_captions(q, k=n, filters=spec, max_k=deep)
+                if mode is SearchMode.HYBRID:
+                    return search.search_hybrid(q, k=n, filters=spec, view=view, weight=mixed, max_k=deep)
+                return search.search_text(q, k=n, filters=spec, view=view, max_k=deep)
+
+            first = fetch(wanted)
+            match = found.get("match")
+            within = match.clip_ids if match is not None and match.fallback is None else None
+            total = context.total(metadata, spec, None if captions else view, within)
+            results = ranked_prefix(lambda n: first if n == wanted else fetch(n), wanted, total)
             elapsed_ms = (time.perf_counter() - start) * 1e3
+            shown, next_offset = page(results, offset, k, total)
             # Caption search uses no clip view: the answer says so rather than echoing the parameter.
-            out = {"query": q, "k": k, "view": None if mode is SearchMode.CAPTIONS else view, "mode": mode.value,
-                   "elapsed_ms": round(elapsed_ms, 2), "results": [_result_json(r, match) for r in results]}
+            out = {"query": q, "k": k, "offset": offset, "total": total, "next_offset": next_offset,
+                   "view": None if captions else view, "mode": mode.value, "elapsed_ms": round(elapsed_ms, 2),
+                   "score_scale": ResultContext.score_scale(mode.value),
+                   "confidence": context.confidence(mode.value, view, mixed, results),
+                   "results": [context.result_json(r, match, q) for r in shown]}
             if match is not None:
                 out["scenario"] = match.to_dict()
+                unused = match.compiled.unused if match.compiled is not None else ()
+                out["scenario"]["suggestion"] = context.suggest(q, unused)
             return out | ({"hybrid_weight": mixed} if mode is SearchMode.HYBRID else {})
 
         return await gate.run(work)
@@ -281,28 +308,56 @@ def create_app(search: SceneSearch, limits: ServiceLimits | None = None) -> Fast
     @app.get("/api/similar/{clip_id:path}", summary="Clips most like an indexed clip")
     async def api_similar(
         clip_id: str,
-        k: Annotated[int, Query(description="number of results")] = 10,
+        k: Annotated[int, Query(description="results on this page, at most the service's max_k")] = 10,
+        offset: Annotated[int, Query(ge=0, le=10_000_000, description="results to skip")] = 0,
         filter: Annotated[list[str] | None, Query(description="FIELD=VALUE or a filter expression")] = None,
         view: Annotated[str, Query(description="fused, camera or bev")] = "fused",
         other_moments: Annotated[bool, Query(description="leave out the other objects in view at the same time "
                                                          "in the clip's log (fewer than k may come back)")] = False,
+        same_track: Annotated[bool, Query(description="keep the clip's own object in its other time windows (by "
+                                                      "default they are left out: they are the same moment "
+                                                      "a little later)")] = False,
     ) -> dict[str, Any]:
         spec = filters_of(filter)
         check_view(view)
+        wanted = check_page(k, offset)
 
         def work() -> dict[str, Any]:
-            results = search.search_clip(clip_id, k=k, filters=spec, view=view, max_k=limits.max_k,
-                                         other_moments=other_moments)
-            return {"clip_id": clip_id, "k": k, "view": view, "other_moments": other_moments,
-                    "results": [_result_json(r) for r in results]}
+            def fetch(n: int) -> list[SearchResult]:
+                return context.similar(clip_id, n, spec, view, max(limits.max_k, n), other_moments, same_track)
+
+            results = ranked_prefix(fetch, wanted, len(search))
+            shown = results[offset:offset + k]
+            more = len(shown) == k and (len(results) > wanted or wanted < len(search) - 1)
+            query = context.result_json(search.get(clip_id))
+            query.pop("score", None)
+            query.pop("rank", None)
+            return {"clip_id": clip_id, "k": k, "offset": offset, "next_offset": offset + k if more else None,
+                    "view": view, "other_moments": other_moments, "same_track": same_track, "query": query,
+                    "score_scale": ResultContext.score_scale("similar"),
+                    "results": [context.result_json(r) for r in shown]}
 
         return await gate.run(work)
 
     @app.get("/api/clips/{clip_id:path}/preview", summary="Animated preview of a clip", response_model=None)
-    def api_preview(clip_id: str) -> FileResponse:
+    async def api_preview(
+        clip_id: str,
+        referred: Annotated[str | None, Query(description="comma-separated tracks a scenario query refers to, "
+                                                          "drawn in orange (the preview is drawn anew)")] = None,
+        related: Annotated[str | None, Query(description="comma-separated tracks they relate to, drawn in cyan")]
+        = None,
+    ) -> Response:
         record = search.get(clip_id)  # 404 for any id that is not indexed, traversal attempts included
         if not record.preview_path:
             raise HTTPException(404, f"clip {clip_id!r} has no preview")
+        marks = [[t for t in (v or "").split(",") if t][:32] for v in (referred, related)]
+        if any(marks):
+            for name, value in (("referred", referred), ("related", related)):
+                if value:
+                    check_chars(name, value, limits)
+            drawn = await gate.run(lambda: context.preview(clip_id, marks[0], marks[1]))
+            if drawn is not None:
+                return Response(drawn, media_type="image/gif", headers={"Cache-Control": "max-age=3600"})
         path = Path(record.preview_path).resolve()
         if not path.is_relative_to(clips_root) or not path.is_file():
             raise HTTPException(404, f"the preview of clip {clip_id!r} is missing")
@@ -313,17 +368,23 @@ def create_app(search: SceneSearch, limits: ServiceLimits | None = None) -> Fast
     def api_clip(clip_id: str) -> dict[str, Any]:
         record = search.get(clip_id)
         row = search.views[next(iter(search.views))].get(clip_id)
-        out = _result_json(record)
+        out = context.result_json(record)
         out.pop("score", None)
         out.pop("rank", None)
         extra = {key: _plain(value) for key, value in row.items() if key not in out and key != "id"}
         tags = list(record.tags)
         # The unified tag sequence is ordered in time; without per-step times, steps share the window evenly.
         step_s = record.duration_s / max(len(tags), 1)
-        out["timeline"] = [{"tag": tag, "start_s": round(i * step_s, 2), "end_s": round((i + 1) * step_s, 2)}
-                           for i, tag in enumerate(tags)]
+        out["timeline"] = [{"tag": tag, "label": label, "start_s": round(i * step_s, 2),
+                            "end_s": round((i + 1) * step_s, 2)}
+                           for i, (tag, label) in enumerate(zip(tags, out["tag_labels"]))]
         out["metadata"] = extra
         return out
+
+    @app.get("/api/map", summary="Embedding map: every clip's 2-D projection (PCA), coloured by action")
+    async def api_map(view: Annotated[str, Query(description="fused, camera or bev")] = "fused") -> dict[str, Any]:
+        check_view(view)
+        return await gate.run(lambda: context.embedding_map(view))
 
     @app.get("/api/export", summary="Embeddings of a result set")
     async def api_export(
@@ -361,7 +422,51 @@ def create_app(search: SceneSearch, limits: ServiceLimits | None = None) -> Fast
         return FileResponse(STATIC_DIR / "index.html", media_type="text/html")
 
     app.mount("/static", StaticFiles(directory=STATIC_DIR), name="static")
+    _add_docs(app)
     return app
+
+
+def docs_assets_dir() -> Path | None:
+    """The folder of Swagger UI's and ReDoc's scripts in the installed ``fastapi_offline`` package, or None."""
+    import importlib.util
+
+    spec = importlib.util.find_spec("fastapi_offline")
+    if spec is None or spec.origin is None:
+        return None
+    folder = Path(spec.origin).parent / "static"
+    return folder if (folder / "swagger-ui-bundle.js").is_file() else None
+
+
+def _add_docs(app: FastAPI) -> None:
+    """``/docs`` (Swagger UI) and ``/redoc`` with their scripts served from this service, so they work with no
+    network; without the assets both pages say how to get them and link the OpenAPI schema."""
+    from fastapi.openapi.docs import get_redoc_html, get_swagger_ui_html
+
+    assets = docs_assets_dir()
+    if assets is not None:
+        app.mount("/docs-assets", StaticFiles(directory=assets), name="docs-assets")
+
+    def missing(name: str) -> HTMLResponse:
+        return HTMLResponse(f"<!doctype html><title>{name}</title><p>{name} needs the package fastapi-offline "
+                            "(<code>pip install fastapi-offline</code>), whose files it serves locally. The API's "
+                            "schema: <a href='/openapi.json'>/openapi.json</a>.</p>")
+
+    @app.get("/docs", include_in_schema=False, response_model=None)
+    def swagger() -> HTMLResponse:
+        if assets is None:
+            return missing("Swagger UI")
+        return get_swagger_ui_html(openapi_url="/openapi.json", title="scenesearch API",
+                                   swagger_js_url="/docs-assets/swagger-ui-bundle.js",
+                                   swagger_css_url="/docs-assets/swagger-ui.css",
+                                   swagger_favicon_url="/docs-assets/favicon.png")
+
+    @app.get("/redoc", include_in_schema=False, response_model=None)
+    def redoc() -> HTMLResponse:
+        if assets is None:
+            return missing("ReDoc")
+        return get_redoc_html(openapi_url="/openapi.json", title="scenesearch API",
+                              redoc_js_url="/docs-assets/redoc.standalone.js",
+                              redoc_favicon_url="/docs-assets/favicon.png", with_google_fonts=False)
 
 
 def _plain(value: Any) -> Any:

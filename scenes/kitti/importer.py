@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from common.folders import claimed_directory
-from scenes import av2_io
+from scenes import av2_io, schema
 from scenes.categories import CATEGORY_TO_AV2, KITTI_TO_CATEGORY, Category
 from scenes.errors import ImportFormatError
 from scenes.kitti.boxes import kitti_boxes_to_ego
@@ -97,10 +97,11 @@ def kitti_labels_to_annotations(
     unknown = {t: c for t, c in type_counts.items() if t not in KITTI_TO_CATEGORY}
     av2_label = {t: CATEGORY_TO_AV2[KITTI_TO_CATEGORY.get(t, Category.OTHER)] for t in type_counts}
     categories = np.array([av2_label[str(t)] for t in labels.kitti_type], dtype=np.str_)
+    track_ids = np.array([str(t) for t in labels.track_id], dtype=np.str_)
     size_lwh = labels.size_hwl_m[:, [2, 1, 0]]
     annotations = Annotations(
         timestamp_ns=KITTI_EPOCH_NS + labels.frame * FRAME_PERIOD_NS,
-        track_id=np.array([str(t) for t in labels.track_id], dtype=np.str_),
+        track_id=track_ids,
         category=categories,
         center_xyz_m=center_ego,
         size_lwh_m=size_lwh,
@@ -146,6 +147,9 @@ def import_kitti_sequence(
         )
     if len(labels) == 0:
         raise ImportFormatError(labels_path, "no boxes besides DontCare rows: the log would have no annotations")
+    mixed = schema.check_one_category_per_track(Path(labels_path), labels.track_id.astype(str), labels.kitti_type)
+    if mixed:  # KITTI's ground truth keeps each track's type: a file that does not is damaged
+        raise ImportFormatError(labels_path, mixed[0].message, field="type")
     annotations, type_counts, unknown = kitti_labels_to_annotations(labels, calibration)
     ego = ego_trajectory_from_kitti(world_SE3_cam, calibration.ego_SE3_cam)
     log_id = f"kitti_{seq}"

@@ -32,6 +32,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from scenes.errors import ImportFormatError
+from scenes.schema import why_not_a_file
 
 #: Reflected CRC-32C polynomial.
 _POLY = 0x82F63B78
@@ -203,7 +204,7 @@ def iter_records(path: Path | str) -> Iterator[Record | WomdFormatError]:
     """
     path = Path(path)
     if not path.is_file():
-        raise FileNotFoundError(f"{path}: no such file")
+        raise FileNotFoundError(f"{path}: {why_not_a_file(path)} (a TFRecord file is expected)")
     with path.open("rb") as raw:
         if raw.read(len(_GZIP_MAGIC)) == _GZIP_MAGIC:
             raw.seek(0)

@@ -218,5 +218,8 @@ def test_page_and_static_files(served: dict[str, Any]) -> None:
     assert "http://" not in script and "https://" not in script and "http" not in page.text.replace(
         'http-equiv', '')
     fields = client.get("/api/fields").json()
-    assert set(fields["menus"]["category"]) == {"car", "truck", "pedestrian"}
-    assert "left:approach" in fields["tags"]
+    assert {v["value"]: v["count"] for v in fields["menus"]["category"]["values"]} == {
+        c: sum(r["category"] == c for r in served["rows"]) for c in ("car", "truck", "pedestrian")}
+    steps = {v["value"]: v["label"] for v in fields["menus"]["tags"]["values"]}
+    assert steps["left:approach"] == "left lane · approaches"  # readable names, not raw tag strings
+    assert fields["summary"]["clips"] == len(served["rows"]) and fields["examples"]

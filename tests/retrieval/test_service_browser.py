@@ -95,6 +95,19 @@ def _open_and_search(browser: Any, url: str, query: str, mode: str = "model") ->
     return list(_wait(lambda: browser.find_elements(By.CSS_SELECTOR, "#results .card")))
 
 
+def _previews_loaded(browser: Any) -> bool:
+    """Whether every preview in the window has loaded (those further down load lazily, when scrolled to)."""
+    return bool(browser.execute_script(
+        "const shown = [...document.querySelectorAll('img.preview')].filter(i => i.getBoundingClientRect().top < "
+        "innerHeight); return shown.length > 0 && shown.every(i => i.complete && i.naturalWidth > 0)"))
+
+
+def _shot(browser: Any, server: dict[str, Any], name: str) -> None:
+    shot_dir = Path(os.environ.get("SCENESEARCH_SCREENSHOT_DIR", server["root"]))
+    shot_dir.mkdir(parents=True, exist_ok=True)
+    assert browser.save_screenshot(str(shot_dir / name))
+
+
 def test_query_previews_and_more_like_this(server: dict[str, Any], browser: Any) -> None:
     from selenium.webdriver.common.by import By
 
@@ -102,9 +115,8 @@ def test_query_previews_and_more_like_this(server: dict[str, Any], browser: Any)
     cards = _open_and_search(browser, server["url"], query)
     assert len(cards) == 12
     assert cards[0].find_element(By.CSS_SELECTOR, ".caption").text.endswith(query)
-    # Every preview image really loaded (decoded, non-zero size), not just an <img> tag.
-    _wait(lambda: browser.execute_script(
-        "return [...document.querySelectorAll('#results img.preview')].every(i => i.complete && i.naturalWidth > 0)"))
+    # Every preview image in view really loaded (decoded, non-zero size), not just an <img> tag.
+    _wait(lambda: _previews_loaded(browser))
 
     first_id = cards[0].get_attribute("data-clip-id")
     cards[0].find_element(By.CSS_SELECTOR, ".more-like-this").click()
@@ -141,3 +153,77 @@ def test_errors_are_shown_on_the_page(server: dict[str, Any], browser: Any) -> N
     # The page says "Searching…" while the request is out: wait for the answer, not the first text.
     status = _wait(lambda: (text := browser.find_element(By.ID, "status").text) and "Searching" not in text and text)
     assert "413" in status
+
+
+def test_landing_page_offers_examples_and_the_index_summary(server: dict[str, Any], browser: Any) -> None:
+    from selenium.webdriver.common.by import By
+
+    browser.get(server["url"])
+    examples = _wait(lambda: browser.find_elements(By.CSS_SELECTOR, "#examples button"))
+    assert "32" in browser.find_element(By.ID, "summary").text  # 4 logs × 8 clips
+    text = examples[0].text
+    examples[0].click()
+    cards = _wait(lambda: browser.find_elements(By.CSS_SELECTOR, "#results .card"))
+    assert cards and browser.find_element(By.ID, "query").get_attribute("value") == text
+    assert "q=" in browser.current_url
+
+
+def test_more_like_this_pins_the_query_and_says_so_in_the_box_and_address(server: dict[str, Any],
+                                                                          browser: Any) -> None:
+    from selenium.webdriver.common.by import By
+
+    cards = _open_and_search(browser, server["url"], caption_of(["left:approach", "left:cut_in"]))
+    first_id = cards[0].get_attribute("data-clip-id")
+    cards[0].find_element(By.CSS_SELECTOR, ".more-like-this").click()
+    pinned = _wait(lambda: browser.find_elements(By.CSS_SELECTOR, "#pinned .card"))
+    assert pinned[0].get_attribute("data-clip-id") == first_id
+    assert browser.find_element(By.ID, "query").get_attribute("value") == "like: " + first_id
+    assert "like=" in browser.current_url
+    results = [c.get_attribute("data-clip-id") for c in browser.find_elements(By.CSS_SELECTOR, "#results .card")]
+    assert results and first_id not in results
+    _shot(browser, server, "web_page_similar.png")
+    browser.back()  # the address holds the whole state: back returns to the search
+    _wait(lambda: browser.find_elements(By.CSS_SELECTOR, "#pinned[hidden]"))
+    assert browser.find_element(By.ID, "query").get_attribute("value").startswith("a car in the left lane")
+
+
+def test_a_filter_and_pages_live_in_the_address(server: dict[str, Any], browser: Any) -> None:
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.support.ui import Select
+
+    _open_and_search(browser, server["url"], "keeps its distance ahead")
+    Select(browser.find_element(By.ID, "k")).select_by_value("6")
+    Select(browser.find_element(By.ID, "f-category")).select_by_value("truck")
+    _wait(lambda: "category%3Dtruck" in browser.current_url and "k=6" in browser.current_url)
+
+    def categories() -> list[str]:
+        return [c.text.split(" · ")[0] for c in browser.find_elements(By.CSS_SELECTOR, "#results .card .meta")]
+
+    _wait(lambda: categories() and all(c == "truck" for c in categories()))
+    first_page = [c.get_attribute("data-clip-id") for c in browser.find_elements(By.CSS_SELECTOR, "#results .card")]
+    browser.find_element(By.ID, "next-page").click()
+    _wait(lambda: "page=2" in browser.current_url and browser.find_element(By.ID, "page-info").text.startswith("7"))
+    second_page = [c.get_attribute("data-clip-id") for c in browser.find_elements(By.CSS_SELECTOR, "#results .card")]
+    assert second_page and not set(first_page) & set(second_page)
+    ranks = [c.text for c in browser.find_elements(By.CSS_SELECTOR, "#results .card .rank")]
+    assert ranks[0] == "#7"
+    browser.refresh()  # the same view again from the address alone
+    _wait(lambda: [c.get_attribute("data-clip-id") for c in browser.find_elements(By.CSS_SELECTOR, "#results .card")]
+          == second_page)
+    assert Select(browser.find_element(By.ID, "f-category")).first_selected_option.get_attribute("value") == "truck"
+    _shot(browser, server, "web_page_filtered.png")
+
+
+def test_embedding_map_opens_a_clip(server: dict[str, Any], browser: Any) -> None:
+    from selenium.webdriver.common.action_chains import ActionChains
+    from selenium.webdriver.common.by import By
+
+    browser.get(server["url"] + "?map=1")
+    _wait(lambda: browser.find_elements(By.CSS_SELECTOR, "#map-legend span"))
+    canvas = browser.find_element(By.ID, "map-canvas")
+    point = browser.execute_script(
+        "const c = document.getElementById('map-canvas'), b = c.getBoundingClientRect(), p = MAP.points[0];"
+        "const [x, y] = mapXY(p, c); return [x * b.width / c.width - b.width / 2, y * b.height / c.height - "
+        "b.height / 2];")
+    ActionChains(browser).move_to_element_with_offset(canvas, int(point[0]), int(point[1])).click().perform()
+    _wait(lambda: browser.find_elements(By.CSS_SELECTOR, "#detail:not([hidden]) #timeline div"))

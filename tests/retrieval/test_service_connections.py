@@ -41,10 +41,10 @@ def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any]]
     holds: dict[str, threading.Event] = {}
     original = search.search_captions
 
-    def search_captions(query: str, **kwargs: Any) -> Any:
+    def search_captions(query: str, *args: Any, **kwargs: Any) -> Any:
         if query in holds:  # a query that waits until the test releases it
             holds[query].wait(10)
-        return original(query, **kwargs)
+        return original(query, *args, **kwargs)
 
     search.search_captions = search_captions  # type: ignore[method-assign]
     app = create_app(search, LIMITS)

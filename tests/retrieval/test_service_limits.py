@@ -109,9 +109,9 @@ def test_a_search_past_the_time_limit_gets_504_and_frees_its_slot(search: SceneS
     release = threading.Event()
     original = search.search_captions
 
-    def slow(query: str, **kwargs: Any) -> Any:
+    def slow(query: str, *args: Any, **kwargs: Any) -> Any:
         release.wait(10)
-        return original(query, **kwargs)
+        return original(query, *args, **kwargs)
 
     monkeypatch.setattr(search, "search_captions", slow)
     app = create_app(search, ServiceLimits(request_timeout_s=0.3))

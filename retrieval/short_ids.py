@@ -1,0 +1,264 @@
+"""Short ids of indexed moments, which the command line prints and ``scenesearch similar`` accepts.
+
+A clip id (``LOG_ID:TRACK_ID:START_NS``, :func:`encoders.clips.layout.clip_id`) is exact but long. Two
+shorter forms name a moment of one index:
+
+- ``#N``: the moment at rank N of the last ``search`` (or ``similar``) of that index directory. Each
+  such command remembers its ranked clip ids in a small state file of the user's cache directory
+  (:func:`state_path`: ``$XDG_CACHE_HOME/scenesearch/last_search.json``, else
+  ``~/.cache/scenesearch/last_search.json``), keyed by the index directory's resolved path and
+  written atomically (:mod:`common.atomic`); it holds the last search of at most
+  :data:`MAX_REMEMBERED` index directories.
+- ``LOG/TRACK@SECONDSs``, the *readable* form, e.g. ``5620d013/8e7d6a5c@12.4s``: a prefix of the log
+  id, ``/``, a prefix of the track id, ``@``, and the moment's start in seconds within its log, to
+  0.1 s: the start of :func:`retrieval.records.time_in_log`, from the log's first frame where its
+  rendered frames are at hand (:func:`retrieval.records.read_log_spans`), else from the log's earliest
+  indexed moment.
+  :class:`ShortIds` prints each prefix at :data:`PREFIX_CHARS` characters, longer where that many
+  would name more than one log of the index (or more than one track of the log), so every printed
+  form names one moment. Read back, an id given in full wins over a longer id it begins; a prefix
+  that still names several logs or tracks, or a time that matches no moment of the track, is
+  refused with the candidates named (:class:`ShortIdError`).
+
+A full clip id is taken as it is.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import re
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from retrieval.errors import RetrievalError
+from retrieval.records import LogSpan
+
+#: Characters of the log and track prefixes in a readable id (more where that many are ambiguous).
+PREFIX_CHARS = 8
+#: Index directories whose last search the state file keeps (the oldest is dropped first).
+MAX_REMEMBERED = 32
+STATE_FILE = "last_search.json"
+_STATE_FORMAT = 1
+_RANK = re.compile(r"#(\d+)")
+_READABLE = re.compile(r"(?P<log>[^/@\s]+)/(?P<track>[^@\s]+)@(?P<seconds>-?\d+(?:\.\d+)?)s?")
+
+
+class ShortIdError(RetrievalError):
+    """A short id that names no moment of the index, or several (the message names the candidates)."""
+
+
+def state_path() -> Path:
+    """The state file of the last searches: under ``$XDG_CACHE_HOME`` (default ``~/.cache``)."""
+    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
+    return Path(base) / "scenesearch" / STATE_FILE
+
+
+def _index_key(index_dir: Path | str) -> str:
+    return str(Path(index_dir).resolve())
+
+
+def _read_state(path: Path) -> dict[str, Any]:
+    """The state file's searches (index dir → record); empty when it is absent or unreadable."""
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+        return {}
+    if not isinstance(data, dict) or data.get("format") != _STATE_FORMAT or not isinstance(data.get("searches"), dict):
+        return {}
+    return dict(data["searches"])
+
+
+def remember(index_dir: Path | str, query: str, clip_ids: Sequence[str], path: Path | None = None) -> None:
+    """Record ``clip_ids`` (rank 1 first) as the last search of ``index_dir``, for ``#N`` ids.
+
+    A state file that cannot be written (a read-only home, say) costs the ``#N`` ids only: the search
+    itself has succeeded, so the failure is ignored.
+    """
+    from common.atomic import atomic_write_text
+
+    path = path or state_path()
+    searches = _read_state(path)
+    key = _index_key(index_dir)
+    searches.pop(key, None)
+    searches[key] = {"query": query, "clip_ids": list(clip_ids)}
+    while len(searches) > MAX_REMEMBERED:
+        searches.pop(next(iter(searches)))
+    with contextlib.suppress(OSError):
+        atomic_write_text(path, json.dumps({"format": _STATE_FORMAT, "searches": searches}, indent=1))
+
+
+def last_search(index_dir: Path | str, path: Path | None = None) -> tuple[str, list[str]] | None:
+    """The query and ranked clip ids of the last search of ``index_dir``, or None."""
+    record = _read_state(path or state_path()).get(_index_key(index_dir))
+    if not isinstance(record, dict) or not isinstance(record.get("clip_ids"), list):
+        return None
+    return str(record.get("query", "")), [str(c) for c in record["clip_ids"]]
+
+
+def _unique_prefixes(names: Iterable[str], shortest: int) -> dict[str, str]:
+    """Each name → its shortest prefix of at least ``shortest`` characters that no other name starts with
+    (the whole name where none is)."""
+    ordered = sorted(set(names))
+    out: dict[str, str] = {}
+    for i, name in enumerate(ordered):
+        need = shortest
+        for other in (ordered[i - 1] if i else None, ordered[i + 1] if i + 1 < len(ordered) else None):
+            if other is None:
+                continue
+            common = next((i for i, (a, b) in enumerate(zip(name, other)) if a != b), min(len(name), len(other)))
+            need = max(need, common + 1)
+        out[name] = name[:need]
+    return out
+
+
+@dataclass(frozen=True)
+class _Moment:
+    clip_id: str
+    log_id: str
+    track_id: str
+    start_ns: int
+    end_ns: int
+
+
+class ShortIds:
+    """The readable ids of an index's moments, and the reading of any short id back to a clip id.
+
+    Built from the index's metadata columns ``clip_id``, ``log_id``, ``track_id``, ``start_ns`` and
+    ``end_ns``. A log's span comes from ``read_spans`` (log ids → their spans, e.g. from the rendered
+    frames by :func:`retrieval.records.read_log_spans`), asked once per log when first needed; a log it
+    does not give spans from its earliest indexed moment to its latest.
+    """
+
+    def __init__(self, clip_ids: Sequence[str], log_ids: Sequence[str], track_ids: Sequence[str],
+                 start_ns: Sequence[int], end_ns: Sequence[int],
+                 read_spans: Callable[[list[str]], Mapping[str, LogSpan]] | None = None) -> None:
+        self._moments = [_Moment(str(c), str(lg), str(t), int(s), int(e))
+                         for c, lg, t, s, e in zip(clip_ids, log_ids, track_ids, start_ns, end_ns)]
+        self._by_clip = {m.clip_id: m for m in self._moments}
+        self._covered: dict[str, LogSpan] = {}
+        tracks: dict[str, set[str]] = {}
+        for m in self._moments:
+            seen = self._covered.get(m.log_id)
+            self._covered[m.log_id] = LogSpan(min(m.start_ns, seen.first_ns), max(m.end_ns, seen.last_ns)) \
+                if seen else LogSpan(m.start_ns, m.end_ns)
+            tracks.setdefault(m.log_id, set()).add(m.track_id)
+        self._read_spans = read_spans
+        self._spans: dict[str, LogSpan] = {}
+        self._log_prefix = _unique_prefixes(self._covered, PREFIX_CHARS)
+        self._track_prefix = {log: _unique_prefixes(ts, PREFIX_CHARS) for log, ts in tracks.items()}
+
+    @classmethod
+    def of_table(cls, table: Any, clips_dir: Path | str | None = None) -> ShortIds:
+        """From a ``pyarrow.Table`` of index metadata; the logs' spans from the rendered frames of
+        ``clips_dir`` where it holds them."""
+        clip_ids, log_ids, track_ids, start_ns, end_ns = (
+            table.column(c).to_pylist() for c in ("clip_id", "log_id", "track_id", "start_ns", "end_ns"))
+        if clips_dir is None:
+            return cls(clip_ids, log_ids, track_ids, start_ns, end_ns)
+        from retrieval.records import read_log_spans
+
+        folder = Path(clips_dir)
+        return cls(clip_ids, log_ids, track_ids, start_ns, end_ns, lambda logs: read_log_spans(folder, logs))
+
+    def spans(self, log_ids: Iterable[str]) -> dict[str, LogSpan]:
+        """The span of each indexed log among ``log_ids`` (those not known yet are read in one call)."""
+        wanted = [lg for lg in dict.fromkeys(log_ids) if lg in self._covered]
+        missing = [lg for lg in wanted if lg not in self._spans]
+        if missing:
+            read = dict(self._read_spans(missing)) if self._read_spans is not None else {}
+            for log_id in missing:
+                self._spans[log_id] = read.get(log_id) or self._covered[log_id]
+        return {lg: self._spans[lg] for lg in wanted}
+
+    def start_s(self, clip_id: str) -> float:
+        """The moment's start in seconds within its log (see the module docstring)."""
+        m = self._by_clip[clip_id]
+        return (m.start_ns - self.spans([m.log_id])[m.log_id].first_ns) / 1e9
+
+    def readable(self, clip_id: str) -> str:
+        """The readable id of an indexed clip id (``LOG/TRACK@SECONDSs``)."""
+        m = self._by_clip[clip_id]
+        return f"{self._log_prefix[m.log_id]}/{self._track_prefix[m.log_id][m.track_id]}@{self.start_s(clip_id):.1f}s"
+
+    def readable_ids(self, clip_ids: Iterable[str]) -> dict[str, str]:
+        """Clip id → readable id, for the indexed ones among ``clip_ids``."""
+        return {c: self.readable(c) for c in clip_ids if c in self._by_clip}
+
+    def resolve(self, text: str, index_dir: Path | str, state: Path | None = None) -> str:
+        """The clip id that ``text`` names: a clip id, ``#N`` or a readable id (see the module docstring).
+
+        Raises:
+            ShortIdError: ``text`` names no indexed moment or several; the message names the candidates
+                (or the ranks of the last search).
+        """
+        text = text.strip()
+        if text in self._by_clip:
+            return text
+        rank = _RANK.fullmatch(text)
+        if rank:
+            return self._resolve_rank(int(rank.group(1)), index_dir, state)
+        readable = _READABLE.fullmatch(text)
+        if readable:
+            return self._resolve_readable(readable.group("log"), readable.group("track"),
+                                          float(readable.group("seconds")))
+        examples = ", ".join(self.readable(m.clip_id) for m in self._moments[:3])
+        raise ShortIdError(f"unknown clip id {text!r}: give a clip id LOG_ID:TRACK_ID:START_NS, #N (rank N of the last "
+                           f"search of this index) or LOG/TRACK@SECONDSs (e.g. {examples})")
+
+    def _resolve_rank(self, rank: int, index_dir: Path | str, state: Path | None) -> str:
+        last = last_search(index_dir, state)
+        if last is None:
+            raise ShortIdError(f"#{rank}: no search of {index_dir} is remembered; run `scenesearch search "
+                               f"{index_dir} QUERY` first (or give a clip id)")
+        query, ranked = last
+        if not 1 <= rank <= len(ranked):
+            span = f"#1 … #{len(ranked)}" if ranked else "none"
+            raise ShortIdError(f"#{rank}: the last search of {index_dir} ({query!r}) has {len(ranked)} result(s): "
+                               f"{span}")
+        clip = ranked[rank - 1]
+        if clip not in self._by_clip:
+            raise ShortIdError(f"#{rank}: {clip!r} of the last search ({query!r}) is no longer in {index_dir}; "
+                               "search again")
+        return clip
+
+    def _resolve_readable(self, log: str, track: str, seconds: float) -> str:
+        logs = _matching(log, self._covered)
+        if not logs:
+            raise ShortIdError(f"no log of this index starts with {log!r} (logs: "
+                               f"{_listed(self._log_prefix[lg] for lg in sorted(self._covered))})")
+        if len(logs) > 1:
+            raise ShortIdError(f"{log!r} names {len(logs)} logs: {_listed(logs)}; give more of the log id")
+        log_id = logs[0]
+        tracks = _matching(track, self._track_prefix[log_id])
+        if not tracks:
+            raise ShortIdError(f"log {log_id} has no indexed track starting with {track!r}")
+        if len(tracks) > 1:
+            raise ShortIdError(f"{track!r} names {len(tracks)} tracks of log {log_id}: {_listed(tracks)}; give more "
+                               "of the track id")
+        moments = [m for m in self._moments if m.log_id == log_id and m.track_id == tracks[0]]
+        hits = [m for m in moments if round(self.start_s(m.clip_id), 1) == round(seconds, 1)]
+        if len(hits) == 1:
+            return hits[0].clip_id
+        listed = _listed(self.readable(m.clip_id) for m in sorted(moments, key=lambda m: m.start_ns))
+        if not hits:
+            raise ShortIdError(f"track {tracks[0]} of log {log_id} has no moment starting at {seconds:.1f} s; its "
+                               f"moments: {listed}")
+        raise ShortIdError(f"{len(hits)} moments of track {tracks[0]} start at {seconds:.1f} s: "
+                           f"{_listed(m.clip_id for m in hits)}; give the clip id")
+
+
+def _matching(prefix: str, names: Mapping[str, object]) -> list[str]:
+    """The names equal to ``prefix`` (an id given in full wins), else those that start with it."""
+    if prefix in names:
+        return [prefix]
+    return sorted(n for n in names if n.startswith(prefix))
+
+
+def _listed(items: Iterable[str], limit: int = 8) -> str:
+    shown = list(items)
+    more = f" and {len(shown) - limit} more" if len(shown) > limit else ""
+    return ", ".join(shown[:limit]) + more

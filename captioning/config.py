@@ -410,6 +410,8 @@ class CaptioningConfig(CaptioningYamlConfig):
             problems.append(f"windows.strategy must be one of {[v.value for v in WindowStrategy]}, got {w.strategy!r}")
         if not (w.length_s > 0 and w.stride_s > 0):
             problems.append(f"windows.length_s and windows.stride_s must be > 0, got {w.length_s}, {w.stride_s}")
+        elif w.stride_s > w.length_s:  # windows would leave gaps that no caption covers
+            problems.append(f"windows.stride_s ({w.stride_s}) exceeds windows.length_s ({w.length_s})")
         if not isinstance(self.rules, RuleSet):
             problems.append(f"rules must be one of {[v.value for v in RuleSet]}, got {self.rules!r}")
         if not (0 < b.parked_off_lane_fraction <= 1):

@@ -201,8 +201,7 @@ def _read_parts(directory: Path, counts: dict[str, Any]) -> tuple[MetadataStore,
                                                         f"{counts['count']}")
     texts_path = directory / TEXTS_FILE
     try:
-        with pq.ParquetFile(texts_path) as texts_file:  # not pq.read_table, whose datasets import pandas
-            texts_table = texts_file.read()
+        texts_table = pq.read_table(texts_path)
     except (OSError, pa.ArrowException) as exc:
         raise IndexFileError(texts_path, f"unreadable Parquet: {exc}") from None
     if "text" not in texts_table.column_names or not pa.types.is_string(texts_table.schema.field("text").type) \

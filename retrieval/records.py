@@ -157,20 +157,26 @@ def format_table(results: list[SearchResult], width: int | None = None, ids: Map
                          [r.start_ns for r in results], [r.end_ns for r in results],
                          read_spans=lambda logs: {lg: given[lg] for lg in logs if lg in given})
         ids = short.readable_ids(r.clip_id for r in results)
-    header = ("#", "id", "score", "category", "time in log" if spans is not None else "duration")
+    header: tuple[str, ...] = ("#", "id", "score", "category", "time in log" if spans is not None else "duration")
     rows = []
     for r in results:
         span = spans.get(r.log_id) if spans is not None else None
         when = str(time_in_log(r, span)) if span is not None else f"{r.duration_s:.1f} s"
         rows.append((str(r.rank), ids.get(r.clip_id, r.clip_id), f"{r.score:.3f}", r.category, when))
     widths = [max(len(h), *(len(row[i]) for row in rows)) for i, h in enumerate(header)]
+    # Too narrow for every field on one line: the time opens the caption's lines instead.
+    time_below = sum(widths) + 2 * (len(widths) - 1) > width
+    if time_below:
+        header, widths = header[:-1], widths[:-1]
     indent = " " * (widths[0] + 2)
     text_width = max(len(indent) + 20, width)  # textwrap counts the indent in the width
-    lines = ["  ".join(h.ljust(w) for h, w in zip(header, widths)).rstrip(), f"{indent}caption"]
+    lines = ["  ".join(h.ljust(w) for h, w in zip(header, widths)).rstrip(),
+             f"{indent}{'time: ' if time_below else ''}caption"]
     lines.append("  ".join("-" * w for w in widths))
     for r, row in zip(results, rows):
         lines.append("  ".join(c.ljust(w) for c, w in zip(row, widths)).rstrip())
-        lines.extend(textwrap.wrap(object_first(r.caption) or "(no caption)", text_width, initial_indent=indent,
+        text = object_first(r.caption) or "(no caption)"
+        lines.extend(textwrap.wrap(f"{row[-1]}: {text}" if time_below else text, text_width, initial_indent=indent,
                                    subsequent_indent=indent, break_on_hyphens=False))
     return "\n".join(lines)
 

@@ -33,7 +33,7 @@ from numpy.typing import NDArray
 
 from captioning.config import CaptioningConfig
 from common.atomic import atomic_write_bytes
-from common.folders import FolderKind, claim_folder, mark_folder
+from common.folders import FolderClaimError, FolderKind, claim_folder, mark_folder
 from scenarios.features import LogFeatures, build_features, time_derivative
 from scenes.log import Log
 
@@ -182,5 +182,8 @@ def cached_features(log_dir: Path | str, cache_dir: Path | str | None, config: C
 
 def claim_cache(cache_dir: Path | str, inputs: list[Path]) -> None:
     """Take ``cache_dir`` as a feature cache: new, empty or one already (:mod:`common.folders`)."""
-    claim_folder(cache_dir, FEATURES_FOLDER, inputs)
+    try:
+        claim_folder(cache_dir, FEATURES_FOLDER, inputs)
+    except FolderClaimError as exc:  # the folder is the cache's: say so rather than "--out"
+        raise FolderClaimError(str(exc).replace("--out ", "--cache ", 1)) from None
     mark_folder(cache_dir, FEATURES_FOLDER, FEATURES_FOLDER.entries)

@@ -227,6 +227,13 @@ class _MapParser:
             raise _BadPart(f"{where}.{name}", "missing key")
         return item[name]
 
+    def boolean(self, where: str, item: Mapping[str, Any], name: str) -> bool:
+        """``item[name]`` as a JSON boolean; anything else is a bad part named by its key."""
+        value = self.required(where, item, name)
+        if not isinstance(value, bool):
+            raise _BadPart(f"{where}.{name}", f"must be true or false, got {_kind(value)}")
+        return value
+
     @staticmethod
     def as_id(key: str, value: object) -> int:
         """An element id: a JSON integer, or a string of one (AV2 keys are strings)."""
@@ -279,7 +286,7 @@ class _MapParser:
     def lane(self, where: str, s: Mapping[str, Any]) -> LaneSegment:
         return LaneSegment(
             id=self.integer(where, s, "id"),
-            is_intersection=bool(self.required(where, s, "is_intersection")),
+            is_intersection=self.boolean(where, s, "is_intersection"),
             lane_type=str(self.required(where, s, "lane_type")),
             left_lane_boundary=self.points(where, s, "left_lane_boundary"),
             right_lane_boundary=self.points(where, s, "right_lane_boundary"),

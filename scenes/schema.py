@@ -287,8 +287,7 @@ def check_unique_track_per_frame(
 def check_one_category_per_track(
     path: Path, track_ids: NDArray[np.str_], categories: NDArray[np.str_]
 ) -> list[Problem]:
-    """A track whose rows name more than one category (a track is one object). ``track_ids``,
-    ``categories``: (N,); names the first such track, its categories and the first row of the second."""
+    """A track whose rows name more than one category; ``track_ids``, ``categories``: (N,)."""
     if track_ids.shape[0] < 2:
         return []
     pairs = np.unique(np.stack([track_ids, categories], axis=1), axis=0)

@@ -26,6 +26,11 @@ Colours: the object of interest is the camera's highlight colour (magenta by def
 green, other objects grey outlines; a preview drawn for a scenario query adds the tracks the program
 refers to (orange) and relates them to (cyan). BEV map: drivable area dark grey, lane boundaries grey,
 crossings olive, intersections dark blue; LiDAR (or box) occupancy above the lowest height bin white.
+
+Frames are drawn straight into palette indices (:func:`render_preview_indices`) and written as a GIF
+whose later frames keep only the pixels that change (:func:`encode_gif`): only the camera's pixels are
+ever quantised, and the camera at half the panel's size. The module is one job, from a clip's arrays
+to its preview's bytes, and is read as one: panels, palette and encoding depend on each other's layout.
 """
 
 from __future__ import annotations
@@ -246,15 +251,17 @@ def _edge_arrow(frame: NDArray[np.uint8], centre: NDArray[np.float64], box: NDAr
 
 def _camera_rgb(arrays: LogArrays, clip: Mapping[str, Any], config: ClipsConfig, layout: PreviewLayout
                 ) -> tuple[NDArray[np.uint8], NDArray[np.bool_]] | None:
-    """(T, camera_h, camera_w, 3) the camera scaled up, the object tinted and the rest dimmed, and (T, Hc, Wc)
-    the object's mask in the clip's own frames; None when the clip has no camera view."""
+    """(T, camera_h / 2, camera_w / 2, 3) the camera scaled up smoothly to half the panel (it is quantised
+    there and doubled: a quarter of the work, and pixel pairs do not show at the sizes pages show previews),
+    the object tinted and the rest dimmed, and (T, Hc, Wc) the object's mask in the clip's own frames; None
+    when the clip has no camera view."""
     if not (bool(clip["has_camera"]) and arrays.camera.shape[0]):
         return None
     fi = np.asarray(clip["frame_indices"], dtype=np.int64)
     cam = config.camera
     mask = np.asarray(arrays.camera_instances[fi]) == arrays.track_value[str(clip["track_id"])]  # (T, Hc, Wc)
     rgb = highlight_camera(np.asarray(arrays.camera[fi]), mask, cam.highlight_rgb, 0.35, cam.dim_factor)
-    return _resize(rgb, layout.camera_w, layout.camera_h, cv2.INTER_LINEAR), mask
+    return _resize(rgb, layout.camera_w // 2, layout.camera_h // 2, cv2.INTER_LINEAR), mask
 
 
 def _closeup_rgb(arrays: LogArrays, clip: Mapping[str, Any], layout: PreviewLayout
@@ -366,7 +373,7 @@ def render_preview_indices(arrays: LogArrays, clip: Mapping[str, Any], config: C
     if sources:
         width = max(s.shape[1] for s in sources)
         mosaic = np.concatenate([np.pad(s, ((0, 0), (0, width - s.shape[1]), (0, 0))) for s in sources], axis=0)
-        step = max(1, mosaic.shape[0] // 2048)  # a palette from every step-th row: enough, and cheap
+        step = max(1, mosaic.shape[0] // 512)  # a palette from every step-th row: enough, and cheap
         pal = Image.fromarray(np.ascontiguousarray(mosaic[::step])).quantize(CAMERA_COLOURS,
                                                                            Image.Quantize.FASTOCTREE)
         colours = np.asarray(pal.getpalette() or [], dtype=np.uint8).reshape(-1, 3)[:CAMERA_COLOURS]
@@ -375,9 +382,10 @@ def render_preview_indices(arrays: LogArrays, clip: Mapping[str, Any], config: C
                              dtype=np.uint8) + np.uint8(CAMERA_FIRST)
         rows = 0
         if camera is not None:
-            n = camera[0].shape[0] * camera[0].shape[1]  # rows of the mosaic: T frames of camera_h
-            cam_panel[:] = indices[:n, : layout.camera_w].reshape(cam_panel.shape)
-            rows = n
+            t_, h_, w_ = camera[0].shape[:3]  # rows of the mosaic: T frames of camera_h / 2
+            half = indices[: t_ * h_, :w_].reshape(t_, h_, w_)
+            cam_panel[:] = _resize(half, layout.camera_w, layout.camera_h, cv2.INTER_NEAREST)
+            rows = t_ * h_
         if closeup is not None:
             rgb, mask, ok = closeup
             box = indices[rows: rows + rgb.shape[0] * rgb.shape[1], : rgb.shape[2]].reshape(rgb.shape[:3])
@@ -417,7 +425,7 @@ def encode_gif(indices: NDArray[np.uint8], palette: NDArray[np.uint8], fps: floa
     """(T, H, W) palette indices (never :data:`TRANSPARENT`) and their (256, 3) palette as a looping animated GIF.
 
     Each frame after the first keeps only the pixels that change; the rest are transparent and show the
-    frame before (GIF disposal 1), which makes files several times smaller at no cost in quality.
+    frame before (GIF disposal 1), which keeps files small at no cost in quality.
     """
     from PIL import Image
 

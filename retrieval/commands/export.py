@@ -18,13 +18,18 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from common.atomic import check_output_file
+    from common.folders import check_inputs
     from retrieval.scenesearch import SceneSearch
 
     check_output_file(args.out)  # before the work that would fill it
+    check_inputs(args.out, [args.index_dir])  # a file written inside the index would break it
 
     views = tuple(args.views) if args.views else None
     if views is None and args.out.suffix == ".npy":
         views = ("fused",)
+    if args.out.suffix == ".npy" and views is not None and len(views) > 1:
+        raise ValueError(f"--out {args.out}: a .npy file holds one view; export {', '.join(views)} to .parquet, "
+                         "or one view per .npy file")
     if args.out.suffix not in (".parquet", ".npy"):
         raise ValueError(f"{args.out}: unknown export format {args.out.suffix!r}; use .parquet or .npy")
     # Neither the model nor the rule captions are exported: the caption index is never read.

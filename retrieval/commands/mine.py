@@ -46,7 +46,11 @@ def _descriptions(args: argparse.Namespace) -> list[str]:
             lines = args.descriptions_file.read_text(encoding="utf-8").splitlines()
         except (OSError, UnicodeDecodeError) as exc:
             raise ValueError(f"--descriptions-file {args.descriptions_file}: unreadable ({exc})") from None
-        texts += [line.strip() for line in lines if line.strip() and not line.lstrip().startswith("#")]
+        found = [line.strip() for line in lines if line.strip() and not line.lstrip().startswith("#")]
+        if not found:
+            raise ValueError(f"--descriptions-file {args.descriptions_file}: holds no descriptions (all "
+                             f"{len(lines)} lines are blank or comments)")
+        texts += found
     if not texts:
         raise ValueError("give at least one --description TEXT (or --descriptions-file FILE)")
     if len(texts) > MAX_DESCRIPTIONS:

@@ -52,6 +52,7 @@ def run(args: argparse.Namespace) -> int:
     from retrieval.captions_search import CaptionSearch, is_caption_index
     from retrieval.querying import check_query, check_text, parse_cli_filters
     from retrieval.scenesearch import SceneSearch
+    from retrieval.short_ids import ShortIds
 
     # The query check of the API and the service, here before the index loads and naming the argument.
     check_query(args.query, "argument QUERY")
@@ -85,8 +86,6 @@ def run(args: argparse.Namespace) -> int:
         else:
             results, match = search.search_scenario(args.query, k=args.k, filters=filters, view=args.view,
                                                      ranking=ranking, weight=weight)
-    from retrieval.short_ids import ShortIds
-
     print_results(args.index_dir, args.query, results, ShortIds.of_table(moments, logs_dir), args.json,
                   {"hybrid_weight": weight} if weight is not None else {},
                   _scenario_lines(match) if match is not None else "", match)

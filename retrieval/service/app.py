@@ -51,7 +51,7 @@ from urllib.parse import unquote_to_bytes
 import numpy as np
 from fastapi import Depends, FastAPI, HTTPException, Query, Request
 from fastapi.exceptions import RequestValidationError
-from fastapi.responses import FileResponse, HTMLResponse, JSONResponse, Response
+from fastapi.responses import FileResponse, JSONResponse, Response
 from fastapi.routing import APIRoute
 from fastapi.staticfiles import StaticFiles
 
@@ -67,6 +67,7 @@ from retrieval.querying import QueryTooLongError, check_k, parse_cli_filters
 from retrieval.records import SearchResult
 from retrieval.scenario_search import ScenarioMatch
 from retrieval.scenesearch import SceneSearch
+from retrieval.service.docs_pages import add_docs
 from retrieval.service.limits import RequestTimeout, SearchGate, ServiceBusyError, ServiceLimits, check_chars
 from retrieval.service.results import ResultContext, ranked_prefix
 
@@ -422,51 +423,8 @@ def create_app(search: SceneSearch, limits: ServiceLimits | None = None) -> Fast
         return FileResponse(STATIC_DIR / "index.html", media_type="text/html")
 
     app.mount("/static", StaticFiles(directory=STATIC_DIR), name="static")
-    _add_docs(app)
+    add_docs(app)
     return app
-
-
-def docs_assets_dir() -> Path | None:
-    """The folder of Swagger UI's and ReDoc's scripts in the installed ``fastapi_offline`` package, or None."""
-    import importlib.util
-
-    spec = importlib.util.find_spec("fastapi_offline")
-    if spec is None or spec.origin is None:
-        return None
-    folder = Path(spec.origin).parent / "static"
-    return folder if (folder / "swagger-ui-bundle.js").is_file() else None
-
-
-def _add_docs(app: FastAPI) -> None:
-    """``/docs`` (Swagger UI) and ``/redoc`` with their scripts served from this service, so they work with no
-    network; without the assets both pages say how to get them and link the OpenAPI schema."""
-    from fastapi.openapi.docs import get_redoc_html, get_swagger_ui_html
-
-    assets = docs_assets_dir()
-    if assets is not None:
-        app.mount("/docs-assets", StaticFiles(directory=assets), name="docs-assets")
-
-    def missing(name: str) -> HTMLResponse:
-        return HTMLResponse(f"<!doctype html><title>{name}</title><p>{name} needs the package fastapi-offline "
-                            "(<code>pip install fastapi-offline</code>), whose files it serves locally. The API's "
-                            "schema: <a href='/openapi.json'>/openapi.json</a>.</p>")
-
-    @app.get("/docs", include_in_schema=False, response_model=None)
-    def swagger() -> HTMLResponse:
-        if assets is None:
-            return missing("Swagger UI")
-        return get_swagger_ui_html(openapi_url="/openapi.json", title="scenesearch API",
-                                   swagger_js_url="/docs-assets/swagger-ui-bundle.js",
-                                   swagger_css_url="/docs-assets/swagger-ui.css",
-                                   swagger_favicon_url="/docs-assets/favicon.png")
-
-    @app.get("/redoc", include_in_schema=False, response_model=None)
-    def redoc() -> HTMLResponse:
-        if assets is None:
-            return missing("ReDoc")
-        return get_redoc_html(openapi_url="/openapi.json", title="scenesearch API",
-                              redoc_js_url="/docs-assets/redoc.standalone.js",
-                              redoc_favicon_url="/docs-assets/favicon.png", with_google_fonts=False)
 
 
 def _plain(value: Any) -> Any:

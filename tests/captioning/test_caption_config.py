@@ -92,7 +92,7 @@ PARTS: dict[str, type[YamlConfig]] = {name: hint for name, hint in typing.get_ty
 #: Every bounded size of the captioning config, with its dotted key.
 BOUNDED_KEYS = [(f"{name}.{key}", bound) for name, part in PARTS.items() for key, bound in part.upper_bounds.items()]
 #: Other values of its part a size needs at its bound (a segment's maximum is at least twice its minimum).
-AT_BOUND_COMPANIONS = {"segments.min_s": {"max_s": 10_000}}
+AT_BOUND_COMPANIONS = {"segments.min_s": {"max_s": 10_000}, "windows.stride_s": {"length_s": 3600}}
 
 
 def test_the_windows_and_counts_are_bounded_and_documented() -> None:

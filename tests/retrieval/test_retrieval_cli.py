@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import json
+import os
+import re
 import shutil
 from pathlib import Path
 from typing import Any
@@ -201,3 +203,47 @@ def test_caption_only_index(stand_in: dict[str, Any], tmp_path: Path, capsys: py
     assert "give RUN_DIR and CLIPS_DIR" in capsys.readouterr().err
     assert main(["index", "--captions", str(captions), "--out", str(out), "--hybrid-weight", "1"]) == 2
     assert "a caption index has no model embeddings" in capsys.readouterr().err
+
+
+def test_the_output_fits_100_columns(stand_in: dict[str, Any], monkeypatch: pytest.MonkeyPatch,
+                                     capsys: pytest.CaptureFixture[str]) -> None:
+    monkeypatch.setenv("COLUMNS", "100")
+    index, query = str(stand_in["index"]), caption_of(["left:approach", "left:cut_in"]) + " " + "very " * 40 + "late"
+    for argv in (["search", index, query], ["search", index, query, "--captions", "-k", "20"],
+                 ["search", index, query, "--no-program", "--hybrid"], ["similar", index, "#3"]):
+        assert main(argv) == 0, capsys.readouterr().err
+        out = capsys.readouterr().out
+        assert max(len(line) for line in out.splitlines()) <= 100, argv
+        assert not re.search(r"log\d+:", out)  # short ids, never the long clip ids
+
+
+def test_short_ids_round_trip_through_similar(stand_in: dict[str, Any], capsys: pytest.CaptureFixture[str]) -> None:
+    index = str(stand_in["index"])
+    assert main(["search", index, caption_of(["left:approach"]), "-k", "5", "--json"]) == 0
+    found = json.loads(capsys.readouterr().out)["results"]
+    for named, rank in (("#2", 2), (found[2]["short_id"], 3), (found[3]["clip_id"], 4)):
+        assert main(["similar", index, named, "--json", "-k", "2"]) == 0
+        assert json.loads(capsys.readouterr().out)["clip_id"] == found[rank - 1]["clip_id"]
+    # `similar` remembers its own results: #1 is now its best match.
+    assert main(["similar", index, "#1", "--json", "-k", "2"]) == 0
+    assert main(["similar", index, found[0]["clip_id"], "-k", "2"]) == 0
+    table = capsys.readouterr().out
+    assert f"query: {found[0]['short_id']}" in table
+    for named, message in (("#6", "has 2 result(s): #1 … #2"), ("log0/t000@0.0s", "names 6 logs: log00, log01"),
+                           ("log00/t000@9.9s", "its moments: log00/t000@0.0s"), ("nope", "unknown clip id 'nope'")):
+        assert main(["similar", index, named]) == 2
+        err = capsys.readouterr().err
+        assert message in err and err.count("\n") == 1, err
+
+
+def test_libraries_stay_quiet_unless_verbose(stand_in: dict[str, Any], monkeypatch: pytest.MonkeyPatch) -> None:
+    from retrieval.cli import QUIET_LIBRARIES
+
+    for name in QUIET_LIBRARIES:
+        monkeypatch.delenv(name, raising=False)
+    assert main(["search", str(stand_in["index"]), "a car", "--verbose", "--json"]) == 0
+    assert not any(name in os.environ for name in QUIET_LIBRARIES)
+    assert main(["--verbose", "similar", str(stand_in["index"]), "#1", "--json"]) == 0
+    assert not any(name in os.environ for name in QUIET_LIBRARIES)
+    assert main(["search", str(stand_in["index"]), "a car", "--json"]) == 0
+    assert {name: os.environ[name] for name in QUIET_LIBRARIES} == QUIET_LIBRARIES

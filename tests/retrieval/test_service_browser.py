@@ -192,38 +192,43 @@ def test_a_filter_and_pages_live_in_the_address(server: dict[str, Any], browser:
     from selenium.webdriver.support.ui import Select
 
     _open_and_search(browser, server["url"], "keeps its distance ahead")
-    Select(browser.find_element(By.ID, "k")).select_by_value("6")
+    Select(browser.find_element(By.ID, "k")).select_by_visible_text("6")
     Select(browser.find_element(By.ID, "f-category")).select_by_value("truck")
     _wait(lambda: "category%3Dtruck" in browser.current_url and "k=6" in browser.current_url)
 
-    def categories() -> list[str]:
-        return [c.text.split(" · ")[0] for c in browser.find_elements(By.CSS_SELECTOR, "#results .card .meta")]
+    def categories() -> list[str]:  # read in one go: the cards are replaced while a search answers
+        return [t.split(" · ")[0] for t in browser.execute_script(
+            "return [...document.querySelectorAll('#results .card .meta')].map(m => m.textContent.trim())")]
+
+    def shown() -> list[str]:
+        return list(browser.execute_script(
+            "return [...document.querySelectorAll('#results .card')].map(c => c.dataset.clipId)"))
 
     _wait(lambda: categories() and all(c == "truck" for c in categories()))
-    first_page = [c.get_attribute("data-clip-id") for c in browser.find_elements(By.CSS_SELECTOR, "#results .card")]
+    first_page = shown()
     browser.find_element(By.ID, "next-page").click()
     _wait(lambda: "page=2" in browser.current_url and browser.find_element(By.ID, "page-info").text.startswith("7"))
-    second_page = [c.get_attribute("data-clip-id") for c in browser.find_elements(By.CSS_SELECTOR, "#results .card")]
+    second_page = shown()
     assert second_page and not set(first_page) & set(second_page)
     ranks = [c.text for c in browser.find_elements(By.CSS_SELECTOR, "#results .card .rank")]
     assert ranks[0] == "#7"
     browser.refresh()  # the same view again from the address alone
-    _wait(lambda: [c.get_attribute("data-clip-id") for c in browser.find_elements(By.CSS_SELECTOR, "#results .card")]
-          == second_page)
+    _wait(lambda: shown() == second_page)
     assert Select(browser.find_element(By.ID, "f-category")).first_selected_option.get_attribute("value") == "truck"
     _shot(browser, server, "web_page_filtered.png")
 
 
 def test_embedding_map_opens_a_clip(server: dict[str, Any], browser: Any) -> None:
-    from selenium.webdriver.common.action_chains import ActionChains
     from selenium.webdriver.common.by import By
 
     browser.get(server["url"] + "?map=1")
     _wait(lambda: browser.find_elements(By.CSS_SELECTOR, "#map-legend span"))
-    canvas = browser.find_element(By.ID, "map-canvas")
-    point = browser.execute_script(
-        "const c = document.getElementById('map-canvas'), b = c.getBoundingClientRect(), p = MAP.points[0];"
-        "const [x, y] = mapXY(p, c); return [x * b.width / c.width - b.width / 2, y * b.height / c.height - "
-        "b.height / 2];")
-    ActionChains(browser).move_to_element_with_offset(canvas, int(point[0]), int(point[1])).click().perform()
+    # A click on the first point, where the page draws it.
+    clicked = browser.execute_script(
+        "const c = document.getElementById('map-canvas'); c.scrollIntoView(); const b = c.getBoundingClientRect();"
+        "const [x, y] = mapXY(MAP.points[0], c);"
+        "c.dispatchEvent(new MouseEvent('click', {bubbles: true, clientX: b.left + x * b.width / c.width,"
+        "                                         clientY: b.top + y * b.height / c.height}));"
+        "return MAP.clip_ids[0];")
     _wait(lambda: browser.find_elements(By.CSS_SELECTOR, "#detail:not([hidden]) #timeline div"))
+    assert clicked in browser.find_element(By.ID, "detail-body").text

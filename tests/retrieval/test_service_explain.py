@@ -217,7 +217,7 @@ def test_api_docs_load_nothing_from_the_network(served: dict[str, Any]) -> None:
     for path in ("/docs", "/redoc"):
         page = client.get(path)
         assert page.status_code == 200 and "https://" not in page.text and "http://" not in page.text
-    from retrieval.service.app import docs_assets_dir
+    from retrieval.service.docs_pages import docs_assets_dir
 
     if docs_assets_dir() is None:
         pytest.skip("fastapi-offline is not installed: /docs says how to get its assets")

@@ -162,14 +162,18 @@ def from_yaml(cls: type[T], path: Path | str, error: type[ConfigError] = ConfigE
 
 def from_yaml_text(cls: type[T], text: str, source: str = "<text>", error: type[ConfigError] = ConfigError) -> T:
     """Like :func:`from_yaml` for YAML already in memory (``source`` names it in errors)."""
+    return from_dict(cls, read_yaml_text(text, source, error), source=source, error=error)
+
+
+def read_yaml_text(text: str, source: str = "<text>", error: type[ConfigError] = ConfigError) -> Any:
+    """The data of a YAML text; a syntax error raises ``error`` naming ``source``, the line and the column."""
     try:
-        data = yaml.safe_load(text)
+        return yaml.safe_load(text)
     except yaml.YAMLError as exc:
         where = getattr(exc, "problem_mark", None)
         line = f" (line {where.line + 1}, column {where.column + 1})" if where is not None else ""
         problem = getattr(exc, "problem", None) or exc
         raise error(f"{source}: not valid YAML{line}: {problem}") from None
-    return from_dict(cls, data, source=source, error=error)
 
 
 def from_dict(

@@ -535,12 +535,10 @@ class TrainConfig(EncodersConfig):
 
     @staticmethod
     def preset(name: str) -> TrainConfig:
-        """The named preset: ``default`` or ``tiny``."""
-        if name == "default":
-            return TrainConfig()
-        if name == "tiny":
-            return TrainConfig(model=tiny_model_config(), batch_size=8, warmup_steps=2, epochs=2, amp=False)
-        raise ConfigError(f"unknown preset {name!r} (choose one of: default, tiny)")
+        """The train config of the preset ``name`` (:mod:`encoders.presets`: ``recommended``, ``tiny``)."""
+        from encoders.presets import preset
+
+        return preset(name).train
 
 
 def tiny_model_config(lidar_channels: int = 5, map_channels: int = 6) -> DualEncoderConfig:

@@ -8,7 +8,7 @@ from common.folders import FolderKind, claim_folder, mark_folder
 
 RUN_FOLDER = FolderKind("run", signature="config.json", entries=(
     "config.json", "checkpoints", "metrics.jsonl", "metrics.json", "model.safetensors", "model_card.md",
-    "text_cache.npz", "tagging.json", "tag_*", "tensorboard", "train.yaml", "trained_clips.json"))
+    "text_cache.npz", "tagging.json", "tag_*", "tensorboard", "train.yaml", "trained_clips.json", "recipe.yaml"))
 
 
 def claim_run_dir(run_dir: Path, clips_dir: Path | str) -> None:

@@ -28,7 +28,7 @@ from typing import Any
 from common.atomic import atomic_write_text
 from common.folders import FolderKind, claim_folder, mark_folder
 from common.ray_cluster import usable_cpus
-from retrieval.demo_config import CAMERA_OPTIONS, VAL_FRACTION, DemoConfig, option_flag
+from retrieval.demo_config import VAL_FRACTION, DemoConfig
 
 #: The extra training logs' seed is the demo's plus this: other drives through another city.
 EXTRA_SEED_OFFSET = 1000
@@ -132,15 +132,7 @@ class Demo:
                          c.camera_height_px], "bev_resolution_m": c.bev_resolution_m,
                          "test_fraction": c.test_fraction}
         upto["train"] = {**upto["clips"], "epochs": c.epochs, "train_preset": c.train_preset,
-                         "batch_size": c.batch_size, "tag_weight": c.tag_weight, "camera_share": c.camera_share,
-                         "time_slots": c.time_slots, "hard_negatives": list(c.hard_negatives),
-                         "order_weight": c.order_weight,
-                         "dense_weight": c.dense_weight, "dense_streams": list(c.dense_streams),
-                         "track_velocity": c.track_velocity}
-        # Named only when on, so that a demo folder made before these options resumes without retraining.
-        upto["train"].update({name: True for name in (*CAMERA_OPTIONS, "object_category") if getattr(c, name)})
-        if c.partial_weight:
-            upto["train"]["partial_weight"] = c.partial_weight
+                         "batch_size": c.batch_size}
         upto["index"] = upto["train"]
         upto["eval"] = upto["train"]
         upto["report"] = {**upto["train"], "queries": list(c.queries), "top_k": c.top_k}
@@ -252,34 +244,11 @@ class Demo:
         # left here belongs to other settings (or was cut short), so training starts afresh.
         if self.run_dir.exists():
             shutil.rmtree(self.run_dir)
-        args: list[object] = ["train", self.clips_dir, "--out", self.run_dir]
-        if self.config.train_preset is not None:
-            args += ["--preset", self.config.train_preset]
+        args: list[object] = ["train", self.clips_dir, "--out", self.run_dir, "--preset", self.config.train_preset]
         if self.config.epochs is not None:
             args += ["--epochs", self.config.epochs]
         if self.config.batch_size is not None:
             args += ["--batch-size", self.config.batch_size]
-        if self.config.tag_weight is not None:
-            args += ["--tag-weight", self.config.tag_weight]
-        if self.config.camera_share is not None:
-            args += ["--camera-share", self.config.camera_share]
-        if self.config.time_slots is not None:
-            args += ["--time-slots", self.config.time_slots]
-        if self.config.hard_negatives:
-            args += ["--hard-negatives", *self.config.hard_negatives]
-        if self.config.order_weight:
-            args += ["--order-weight", self.config.order_weight]
-        if self.config.partial_weight:
-            args += ["--partial-weight", self.config.partial_weight]
-        if self.config.dense_weight is not None:
-            args += ["--dense-weight", self.config.dense_weight]
-            if self.config.dense_weight > 0 and self.config.dense_streams:
-                args += ["--dense-streams", *self.config.dense_streams]
-        if self.config.track_velocity:
-            args.append("--track-velocity")
-        if self.config.object_category:
-            args.append("--object-category")
-        args += [option_flag(name) for name in CAMERA_OPTIONS if getattr(self.config, name)]
         self.command(args)
         return ""
 
@@ -332,9 +301,8 @@ def config_from_args(args: argparse.Namespace) -> DemoConfig:
     base = DemoConfig.quick() if args.quick else DemoConfig()
     overrides: dict[str, Any] = {}
     for name in ("logs", "duration_s", "test_fraction", "seed", "frames_per_clip", "camera_width_px",
-                 "camera_height_px", "bev_resolution_m", "epochs", "batch_size", "tag_weight", "extra_logs", "val_logs",
-                 "map_less_share", "jitter_share", "camera_share", "time_slots", "dense_weight",
-                 "order_weight", "partial_weight", "track_velocity", "object_category", *CAMERA_OPTIONS, "workers"):
+                 "camera_height_px", "bev_resolution_m", "train_preset", "epochs", "batch_size", "extra_logs",
+                 "val_logs", "map_less_share", "jitter_share", "workers"):
         value = getattr(args, name, None)
         if value is not None:
             overrides[name] = value
@@ -344,10 +312,4 @@ def config_from_args(args: argparse.Namespace) -> DemoConfig:
         overrides["queries"] = tuple(args.query)
     if getattr(args, "extra_networks", None) is not None:
         overrides["extra_networks"] = tuple(args.extra_networks)
-    if getattr(args, "dense_streams", None) is not None:
-        overrides["dense_streams"] = tuple(args.dense_streams)
-    if getattr(args, "hard_negatives", None) is not None:
-        overrides["hard_negatives"] = tuple(e for e in args.hard_negatives if e != "none")
-        if "reverse" not in overrides["hard_negatives"] and getattr(args, "order_weight", None) is None:
-            overrides["order_weight"] = None  # the order loss pairs each clip with its reversed steps
     return replace(base, **overrides)

@@ -18,8 +18,8 @@ HELP = "simulate, caption, build clips, train, index and evaluate a small city; 
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
-    from encoders.config import DENSE_STREAMS, HardNegative
-    from retrieval.demo_config import CAMERA_OPTIONS, VAL_FRACTION, option_flag
+    from encoders.presets import preset_names
+    from retrieval.demo_config import VAL_FRACTION
     from retrieval.demo_config import DemoConfig as D  # the defaults the help shows
     from scenes.sim.config import NetworkKind
 
@@ -33,48 +33,13 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help=f"camera view height of clips (default {D.camera_height_px})")
     parser.add_argument("--bev-resolution-m", type=float,
                         help=f"BEV cell size of clips in metres (default {D.bev_resolution_m:g})")
-    parser.add_argument("--epochs", type=int, help=f"training epochs (default {D.epochs})")
-    parser.add_argument("--batch-size", type=int, help=f"training batch size (default {D.batch_size})")
+    parser.add_argument("--preset", dest="train_preset", choices=preset_names(),
+                        help=f"the training recipe (default {D.train_preset}; tiny for a smoke run)")
+    parser.add_argument("--epochs", type=int, help="training epochs (default: the recipe's)")
+    parser.add_argument("--batch-size", type=int, help="training batch size (default: the recipe's)")
     parser.add_argument("--test-fraction", type=float,
                         help=f"share of the logs held out for testing (default {D.test_fraction:g}; "
                         f"validation takes {VAL_FRACTION:g})")
-    parser.add_argument("--tag-weight", type=float,
-                        help=f"weight of the tagging loss in training (default {D.tag_weight:g})")
-    parser.add_argument("--camera-share", type=float, metavar="F",
-                        help=f"share of camera clips in every training batch (default {D.camera_share:g})")
-    parser.add_argument("--time-slots", type=int, metavar="K",
-                        help=f"time slots in every embedding (default {D.time_slots}; 0: one pooled vector)")
-    edits = [k.value for k in HardNegative]
-    parser.add_argument("--hard-negatives", nargs="+", metavar="EDIT", choices=[*edits, "none"],
-                        help=f"edits of a clip's steps trained as extra negatives (default "
-                        f"{' '.join(D.hard_negatives)}; none: in-batch negatives only)")
-    parser.add_argument("--order-weight", type=float, metavar="W",
-                        help=f"weight of the pairwise order loss, each clip against its steps reversed (default "
-                        f"{D.order_weight or 0:g}; 0: none)")
-    parser.add_argument("--partial-weight", type=float, metavar="W",
-                        help=f"weight of the partial-query loss, the halves of each caption as queries of their own "
-                        f"(default {D.partial_weight or 0:g}; 0: none)")
-    parser.add_argument("--dense-weight", type=float, metavar="W",
-                        help=f"weight of the per-frame tag loss on the streams' frame tokens (default "
-                        f"{D.dense_weight:g}; 0: no dense heads)")
-    parser.add_argument("--dense-streams", nargs="+", metavar="STREAM", choices=list(DENSE_STREAMS),
-                        help=f"streams whose frame tokens carry the per-frame tag heads (default "
-                        f"{' '.join(D.dense_streams)})")
-    parser.add_argument("--track-velocity", action=argparse.BooleanOptionalAction,
-                        help=f"give the track stream the object's velocity relative to the ego "
-                        f"(default {'on' if D.track_velocity else 'off'})")
-    parser.add_argument("--object-category", action=argparse.BooleanOptionalAction,
-                        help=f"let the fused view read each clip's object category (default "
-                        f"{'on' if D.object_category else 'off'})")
-    camera_help = {"camera_ego": "give the camera's temporal model the ego's motion from the log's poses",
-                   "camera_mask_scale": "give the camera's temporal model the object's size in the image on a log "
-                                        "scale",
-                   "camera_apart": "train the camera tower beside the shared space, so that it does not move the "
-                                   "captions or the BEV view",
-                   "camera_crop": "give the camera tower each object's crop at full resolution"}
-    for name in CAMERA_OPTIONS:
-        parser.add_argument(option_flag(name), action=argparse.BooleanOptionalAction,
-                            help=f"{camera_help[name]} (default {'on' if getattr(D, name) else 'off'})")
     parser.add_argument("--no-sensors", action="store_true", help="skip LiDAR/camera rendering (BEV from boxes)")
     parser.add_argument("--extra-logs", type=int, metavar="N",
                         help=f"extra training-only logs, simulated without sensors (default {D.extra_logs})")
@@ -101,7 +66,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 def size_bounds() -> dict[str, tuple[str, float]]:
     """Each size flag's ``args`` attribute → (flag, upper bound), the bound of the config field it sets."""
     from encoders.clips.config import CameraClipConfig, ClipsConfig
-    from encoders.config import DualEncoderConfig, TrainConfig
+    from encoders.config import TrainConfig
     from scenes.sim.config import SimulationConfig
 
     logs = SimulationConfig.upper_bounds["logs"]
@@ -112,7 +77,6 @@ def size_bounds() -> dict[str, tuple[str, float]]:
             "camera_height_px": ("--camera-height-px", CameraClipConfig.upper_bounds["height_px"]),
             "epochs": ("--epochs", TrainConfig.upper_bounds["epochs"]),
             "batch_size": ("--batch-size", TrainConfig.upper_bounds["batch_size"]),
-            "time_slots": ("--time-slots", DualEncoderConfig.upper_bounds["time_slots"]),
             "workers": ("--workers", MAX_WORKERS)}
 
 

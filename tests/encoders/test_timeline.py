@@ -170,18 +170,20 @@ def test_slotted_model_keeps_its_shapes_and_reads_frame_order(model: DualEncoder
     assert not torch.allclose(video, video_flipped, atol=1e-4)
 
 
-def test_train_flags_set_the_slots_on_both_sides(tmp_path: Path) -> None:
+def test_recipes_set_the_slots_on_both_sides(tmp_path: Path) -> None:
     from retrieval.commands import train as train_command
 
     parser = argparse.ArgumentParser()
     train_command.configure(parser)
     base = ["clips", "--out", str(tmp_path / "run")]
-    config = train_command.build_config(parser.parse_args([*base, "--time-slots", "4", "--hard-negatives", "reverse"]))
+    config = train_command.build_recipe(parser.parse_args(base)).train
     assert config.model.time_slots == 4 and config.model.text.kind == "slots"
     assert config.hard_negatives == (HardNegative.REVERSE,)
-    (tmp_path / "slots.yaml").write_text("model:\n  time_slots: 4\n  text:\n    kind: slots\n")
-    off = train_command.build_config(parser.parse_args([*base, "--config", str(tmp_path / "slots.yaml"),
-                                                        "--time-slots", "0"]))
-    assert off.model.time_slots == 0 and off.model.text.kind == "pretrained" and off.hard_negatives == ()
+    off = train_command.build_recipe(parser.parse_args([*base, "--set", "model.time_slots=0", "--set",
+                                                        "model.text.kind=pretrained"])).train
+    assert off.model.time_slots == 0 and off.model.text.kind == "pretrained"
+    with pytest.raises(ConfigError, match="time_slots > 0 and model.text.kind: slots go together"):
+        train_command.build_recipe(parser.parse_args([*base, "--set", "model.time_slots=0"]))
     with pytest.raises(ConfigError, match="global dimensions"):  # the tiny model's 32 dimensions hold no slots
-        train_command.build_config(parser.parse_args([*base, "--preset", "tiny", "--time-slots", "4"]))
+        train_command.build_recipe(parser.parse_args([*base, "--preset", "tiny", "--set", "model.time_slots=4",
+                                                      "--set", "model.text.kind=slots"]))

@@ -6,6 +6,7 @@ import argparse
 import json
 from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 import pyarrow.parquet as pq
 import pytest
@@ -15,7 +16,7 @@ from torch.utils.data import DataLoader
 from encoders.clips.build import build_clips
 from encoders.clips.config import ClipsConfig
 from encoders.clips.testing import synthetic_captions, synthetic_frame_tags, write_synthetic_log
-from encoders.config import ConfigError, HardNegative, TrainConfig
+from encoders.config import ConfigError, TrainConfig
 from encoders.dense import DENSE_TASKS
 from encoders.inference import collate, embed_clips, embed_texts, frame_tag_figures, load_model, open_split
 from encoders.model import DualEncoder
@@ -108,9 +109,10 @@ def test_bad_config_and_missing_split(clips_dir: Path, tmp_path: Path, capsys: p
 def test_dense_weight_trains_frame_tag_heads_and_eval_reports_them(
         tagged_clips_dir: Path, clips_dir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     out = tmp_path / "run"
-    args = ["--preset", "tiny", "--batch-size", "4", "--epochs", "2", "--dense-weight", "1", "--track-velocity",
-            "--track-rates", "--camera-ego", "--camera-mask-scale", "--camera-apart", "--camera-crop",
-            "--object-category"]
+    settings = ["dense_weight=1", "model.dense_streams=[track]", "model.bev.track_velocity=true",
+                "model.bev.track_rates=true", "model.camera.ego_features=6", "model.camera.mask_scale=true",
+                "camera_apart=true", "model.camera.object_crop=true", "model.fusion.object_category=true"]
+    args = ["--preset", "tiny", "--batch-size", "4", "--epochs", "2", *(f"--set={s}" for s in settings)]
     assert main(["train", str(tagged_clips_dir), "--out", str(out), *args]) == 0
     config = json.loads((out / "config.json").read_text())
     assert config["dense_weight"] == 1.0 and config["model"]["dense_streams"] == ["track"]
@@ -157,55 +159,34 @@ def test_frame_tag_figures_of_perfect_heads(tagged_clips_dir: Path, monkeypatch:
     assert frame_tag_figures(DualEncoder(tiny), dataset) == {}
 
 
-def test_dense_streams_flag_names_the_streams_with_heads(tmp_path: Path) -> None:
-    from retrieval.commands import train as train_command
-
-    parser = argparse.ArgumentParser()
-    train_command.configure(parser)
-    base = ["clips", "--out", str(tmp_path / "run"), "--dense-weight", "1"]
-    assert train_command.build_config(parser.parse_args(base)).model.dense_streams == ("track",)  # the default
-    both = train_command.build_config(parser.parse_args([*base, "--dense-streams", "track", "camera"]))
-    assert both.model.dense_streams == ("camera", "track") and both.dense_weight == 1.0  # in DENSE_STREAMS order
-    with pytest.raises(SystemExit):
-        parser.parse_args([*base, "--dense-streams", "lidar"])
-
-
-def test_order_weight_flag_needs_the_reversed_steps(tmp_path: Path) -> None:
-    from retrieval.commands import train as train_command
-
-    parser = argparse.ArgumentParser()
-    train_command.configure(parser)
-    base = ["clips", "--out", str(tmp_path / "run"), "--order-weight", "0.5"]
-    config = train_command.build_config(parser.parse_args([*base, "--hard-negatives", "reverse"]))
-    assert config.order_weight == 0.5 and config.hard_negatives == (HardNegative.REVERSE,)
-    with pytest.raises(ConfigError, match="order_weight > 0 needs 'reverse'"):
-        train_command.build_config(parser.parse_args([*base, "--hard-negatives", "mirror"]))
-
-
-def test_partial_weight_flag_reaches_the_config(tmp_path: Path) -> None:
-    from retrieval.commands import train as train_command
-
-    parser = argparse.ArgumentParser()
-    train_command.configure(parser)
-    base = ["clips", "--out", str(tmp_path / "run")]
-    assert train_command.build_config(parser.parse_args(base)).partial_weight == 0.0
-    config = train_command.build_config(parser.parse_args([*base, "--partial-weight", "0.5"]))
-    assert config.partial_weight == 0.5 and config.partial_object_share == 1.0 and config.partial_host_share == 0.25
-    with pytest.raises(ConfigError, match="partial_weight must be >= 0"):
-        train_command.build_config(parser.parse_args([*base, "--partial-weight", "-1"]))
-    with pytest.raises(ConfigError, match="partial_host_share must be in"):
-        TrainConfig(partial_host_share=1.5)
-
-
-def test_tag_presence_weight_flag_reaches_the_tagging_config(tmp_path: Path) -> None:
+def test_recipe_settings_reach_the_configs(tmp_path: Path) -> None:
     from encoders.tagging.config import TagTrainConfig
     from retrieval.commands import train as train_command
 
     parser = argparse.ArgumentParser()
     train_command.configure(parser)
     base = ["clips", "--out", str(tmp_path / "run")]
-    assert train_command.tagging_config(parser.parse_args(base)) is None  # the defaults
-    config = train_command.tagging_config(parser.parse_args([*base, "--tag-presence-weight", "2"]))
-    assert config == TagTrainConfig(joint_presence_weight=2.0)
+
+    def recipe(*argv: str) -> Any:
+        return train_command.build_recipe(parser.parse_args([*base, *argv]))
+
+    default = recipe()
+    assert default.name == "recommended" and default.train == TrainConfig.preset("recommended")
+    both = recipe("--set", "model.dense_streams=[camera, track]", "--set", "dense_weight=1").train
+    assert both.model.dense_streams == ("camera", "track") and both.dense_weight == 1.0
+    with pytest.raises(ConfigError, match="lidar"):
+        recipe("--set", "model.dense_streams=[lidar]")
+    with pytest.raises(ConfigError, match="order_weight > 0 needs 'reverse'"):
+        recipe("--set", "hard_negatives=[]")
+    assert recipe("--set", "partial_weight=0.25").train.partial_weight == 0.25
+    assert recipe("--set", "tagging.joint_presence_weight=2").tagging == TagTrainConfig(joint_presence_weight=2.0)
     with pytest.raises(ConfigError, match="joint_presence_weight"):
-        train_command.tagging_config(parser.parse_args([*base, "--tag-presence-weight", "-1"]))
+        recipe("--set", "tagging.joint_presence_weight=-1")
+    with pytest.raises(ConfigError, match="unknown key 'model.widht'"):
+        recipe("--set", "model.widht=3")
+    with pytest.raises(ConfigError, match="write KEY=VALUE"):
+        recipe("--set", "epochs")
+    tiny = recipe("--preset", "tiny", "--epochs", "2", "--lr", "0.01").train
+    assert tiny.epochs == 2 and tiny.lr == 0.01 and tiny.model.embed_dim == 32
+    with pytest.raises(SystemExit):
+        parser.parse_args([*base, "--time-slots", "4"])  # architecture lives in the recipe, not in flags

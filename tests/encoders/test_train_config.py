@@ -8,6 +8,7 @@ import re
 from pathlib import Path
 
 import pytest
+import yaml
 
 import common.config
 from encoders.config import (
@@ -16,20 +17,37 @@ from encoders.config import (
     ConfigError,
     DualEncoderConfig,
     FusionConfig,
+    HardNegative,
     TemporalConfig,
     TextConfig,
     TrainConfig,
 )
+from encoders.presets import PRESETS_DIR, preset, preset_names, read_recipe
 from encoders.tagging.config import TagTrainConfig
 
 
-@pytest.mark.parametrize("preset", ["default", "tiny"])
-def test_yaml_round_trip(preset: str, tmp_path: Path) -> None:
-    config = TrainConfig.preset(preset)
+@pytest.mark.parametrize("name", preset_names())
+def test_every_preset_is_a_complete_recipe_that_round_trips(name: str, tmp_path: Path) -> None:
+    recipe = preset(name)
+    config = recipe.train
     config.to_yaml(tmp_path / "train.yaml")
     again = TrainConfig.from_yaml(tmp_path / "train.yaml")
     assert again == config == TrainConfig.from_yaml_text(config.to_yaml_text())
     assert isinstance(again.model.camera.widths, tuple)
+    recipe.to_yaml(tmp_path / "recipe.yaml")
+    assert read_recipe(tmp_path / "recipe.yaml") == recipe
+    # Complete: every key of the config is written in the preset's file, nothing left to code defaults.
+    written = yaml.safe_load((PRESETS_DIR / f"{name}.yaml").read_text())
+    assert set(written) - {"tagging"} == set(config.to_dict())
+
+
+def test_presets_are_the_two_recipes() -> None:
+    assert preset_names() == ["recommended", "tiny"]
+    recommended = preset("recommended").train
+    assert recommended.model.time_slots == 4 and recommended.hard_negatives == (HardNegative.REVERSE,)
+    assert recommended.order_weight == 0.3 and recommended.dense_weight == 5.0 and recommended.camera_apart
+    with pytest.raises(ConfigError, match="unknown preset 'default'"):
+        preset("default")
 
 
 def test_run_config_json_round_trips(tmp_path: Path) -> None:

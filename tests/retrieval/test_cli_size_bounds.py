@@ -18,8 +18,8 @@ from retrieval.demo_config import DemoConfig
     [
         (["train", "{tmp}/clips", "--out", "{tmp}/run", "--epochs", "1000000000"],
          "--epochs 1000000000: key 'epochs': 1000000000 is above its upper bound 10000"),
-        (["train", "{tmp}/clips", "--out", "{tmp}/run", "--time-slots", "100000"],
-         "--time-slots 100000: above its upper bound 256"),
+        (["train", "{tmp}/clips", "--out", "{tmp}/run", "--set", "model.time_slots=100000"],
+         "--set: key 'model.time_slots': 100000 is above its upper bound 256"),
         (["train", "{tmp}/clips", "--out", "{tmp}/run", "--nproc", "100000"],
          "--nproc 100000: above its upper bound 256"),
         (["simulate", "--out", "{tmp}/logs", "--logs", "1000000000"],

@@ -49,7 +49,7 @@ def _demo(tmp_path: Path, config: DemoConfig) -> RecordingDemo:
 def test_stages_run_in_order_with_sizes(tmp_path: Path) -> None:
     demo = _demo(tmp_path, DemoConfig(logs=2, duration_s=10, epochs=3, frames_per_clip=8, batch_size=4,
                                       camera_width_px=40, bev_resolution_m=2.0, extra_logs=3, map_less_share=0.25,
-                                      jitter_share=0.75, camera_share=0.5, val_logs=2,
+                                      jitter_share=0.75, val_logs=2,
                                       extra_networks=("grid", "spider")))
     results = demo.run()
     assert [r.name for r in results] == list(STAGES)
@@ -86,19 +86,8 @@ def test_stages_run_in_order_with_sizes(tmp_path: Path) -> None:
         bev=BevClipConfig(resolution_m=2.0), split=SplitConfig(train_fraction=0.6, val_fraction=0.15))
     train = demo.calls[6]
     assert train[train.index("--epochs") + 1] == "3" and train[train.index("--batch-size") + 1] == "4"
-    assert train[train.index("--camera-share") + 1] == "0.5"
-    # The demo's model: time slots, trained with the reversed-step captions as negatives.
-    assert train[train.index("--time-slots") + 1] == "4"
-    assert train[train.index("--hard-negatives") + 1:][:1] == ["reverse"]
-    # ... and each clip against its own reversed steps in the pairwise order loss.
-    assert train[train.index("--order-weight") + 1] == "0.3"
-    # ... and each caption's halves, the object's sentence and the ego's, as queries of their own.
-    assert train[train.index("--partial-weight") + 1] == "0.5"
-    # ... with per-frame tag heads on the camera and track streams; the track stream reads the velocity.
-    assert train[train.index("--dense-weight") + 1] == "5.0" and "--track-velocity" in train
-    # ... and the camera reads the ego's motion and the object's size, trained beside the shared space.
-    assert {"--camera-ego", "--camera-mask-scale", "--camera-apart"} <= set(train)
-    assert train[train.index("--dense-streams") + 1:][:2] == ["camera", "track"]
+    # The demo's model is the recommended recipe (encoders/presets/recommended.yaml), named, not spelt in flags.
+    assert train[train.index("--preset") + 1] == "recommended" and len(train) == 10
     # The test split's figures, with their baselines, go into the model card too.
     assert "--model-card" in demo.calls[8] and demo.calls[8][demo.calls[8].index("--split") + 1] == "test"
 
@@ -171,62 +160,12 @@ def test_resume_skips_complete_stages_and_reruns_after_a_change(tmp_path: Path) 
     fewer_maps = _demo(tmp_path, DemoConfig(logs=2, duration_s=10, epochs=5, map_less_share=1.0))
     fewer_maps.run()
     assert [c[0] for c in fewer_maps.calls] == ["simulate", "simulate", *STAGES]  # with the validation logs
-    # Another camera share retrains on the same clips.
-    more_camera = _demo(tmp_path, DemoConfig(logs=2, duration_s=10, epochs=5, map_less_share=1.0, camera_share=0.5))
-    more_camera.run()
-    assert [c[0] for c in more_camera.calls] == ["train", "index", "eval", "report"]
-    # So does one pooled vector instead of time slots, with in-batch negatives only.
-    one_vector = _demo(tmp_path, DemoConfig(logs=2, duration_s=10, epochs=5, map_less_share=1.0, camera_share=0.5,
-                                            time_slots=0, hard_negatives=(), order_weight=None))
-    one_vector.run()
-    assert [c[0] for c in one_vector.calls] == ["train", "index", "eval", "report"]
-    train = one_vector.calls[0]
-    assert train[train.index("--time-slots") + 1] == "0" and "--hard-negatives" not in train
-    assert "--order-weight" not in train
-    assert "--object-category" in one_vector.calls[0]
-    # Without the dense heads, the velocity features and the category: retrained, and no flag reaches `train`.
-    sparse = _demo(tmp_path, DemoConfig(logs=2, duration_s=10, epochs=5, map_less_share=1.0, camera_share=0.5,
-                                        time_slots=0, hard_negatives=(), order_weight=None, dense_weight=None,
-                                        track_velocity=False, object_category=False))
-    sparse.run()
-    assert [c[0] for c in sparse.calls] == ["train", "index", "eval", "report"]
-    assert "--dense-weight" not in sparse.calls[0] and "--track-velocity" not in sparse.calls[0]
-    assert "--object-category" not in sparse.calls[0]
-    assert "--dense-streams" not in sparse.calls[0]
-    # Heads on the track stream alone: another model, retrained.
-    track_only = _demo(tmp_path, DemoConfig(logs=2, duration_s=10, epochs=5, map_less_share=1.0, camera_share=0.5,
-                                            time_slots=0, hard_negatives=(), order_weight=None,
-                                            dense_streams=("track",)))
-    track_only.run()
-    assert [c[0] for c in track_only.calls] == ["train", "index", "eval", "report"]
-    train = track_only.calls[0]
-    assert train[train.index("--dense-streams") + 1:][:2] == ["track", "--track-velocity"]
-    # Another weight of the pairwise order loss: another model, retrained, the weight passed to `train`.
-    ordered = _demo(tmp_path, DemoConfig(logs=2, duration_s=10, epochs=5, map_less_share=1.0, camera_share=0.5,
-                                         time_slots=0, dense_streams=("track",), order_weight=0.5))
-    ordered.run()
-    assert [c[0] for c in ordered.calls] == ["train", "index", "eval", "report"]
-    assert ordered.calls[0][ordered.calls[0].index("--order-weight") + 1] == "0.5"
-    # Without the partial queries: another model, retrained, and no flag reaches `train`.
-    whole = _demo(tmp_path, DemoConfig(logs=2, duration_s=10, epochs=5, map_less_share=1.0, camera_share=0.5,
-                                       time_slots=0, dense_streams=("track",), order_weight=0.5, partial_weight=None))
-    whole.run()
-    assert [c[0] for c in whole.calls] == ["train", "index", "eval", "report"]
-    assert "--partial-weight" not in whole.calls[0]
-    assert "partial_weight" not in whole.settings("train") and "partial_weight" in ordered.settings("train")
-    # The camera on its pixels alone: another model, retrained, none of the camera's flags passed to `train`.
-    camera = _demo(tmp_path, DemoConfig(logs=2, duration_s=10, epochs=5, map_less_share=1.0, camera_share=0.5,
-                                        time_slots=0, dense_streams=("track",), order_weight=0.5, camera_ego=False,
-                                        camera_mask_scale=False, camera_apart=False, camera_crop=False))
-    camera.run()
-    assert [c[0] for c in camera.calls] == ["train", "index", "eval", "report"]
-    assert not {"--camera-ego", "--camera-mask-scale", "--camera-apart", "--camera-crop"} & set(camera.calls[0])
-    # Off, they are not among the settings: a demo folder made before them resumes as it was.
-    off = DemoConfig(camera_ego=False, camera_mask_scale=False, camera_apart=False, camera_crop=False,
-                     object_category=False)
-    names = {"camera_ego", "camera_mask_scale", "camera_apart", "camera_crop", "object_category"}
-    assert not names & set(Demo(tmp_path, off).settings("train"))
-    assert names <= set(Demo(tmp_path, DemoConfig()).settings("train"))
+    # Another recipe retrains on the same clips, and names it.
+    tiny = _demo(tmp_path, DemoConfig(logs=2, duration_s=10, epochs=5, map_less_share=1.0, train_preset="tiny"))
+    tiny.run()
+    assert [c[0] for c in tiny.calls] == ["train", "index", "eval", "report"]
+    assert tiny.calls[0][tiny.calls[0].index("--preset") + 1] == "tiny"
+    assert tiny.settings("train")["train_preset"] == "tiny"
     # Without extra logs, none is simulated, and those of the settings before are gone.
     assert fewer_maps.extra_logs_dir.is_dir()
     alone = _demo(tmp_path, DemoConfig(logs=2, duration_s=10, epochs=5, extra_logs=0))
@@ -246,50 +185,20 @@ def test_resume_skips_complete_stages_and_reruns_after_a_change(tmp_path: Path) 
 def test_config_from_flags() -> None:
     args = argparse.Namespace(quick=True, logs=None, duration_s=None, seed=None, frames_per_clip=None, epochs=4,
                               no_sensors=True, query=["a bus stops"], map_less_share=0.25, extra_logs=5,
-                              jitter_share=0.2, extra_networks=["random"], camera_share=0.4, time_slots=None,
-                              hard_negatives=None, dense_weight=None, track_velocity=None, dense_streams=None)
+                              jitter_share=0.2, extra_networks=["random"], train_preset=None)
     config = config_from_args(args)
     assert config.logs == DemoConfig.quick().logs and config.epochs == 4 and config.map_less_share == 0.25
-    assert config.extra_logs == 5 and config.camera_share == 0.4 and config.jitter_share == 0.2
-    assert config.extra_networks == ("random",)
-    # --quick trains the tiny model: one vector, no step edits.
-    assert config.time_slots is None and config.hard_negatives == ()
-    assert config.dense_weight is None and config.track_velocity is False
-    dense = config_from_args(argparse.Namespace(**{**vars(args), "dense_weight": 0.5, "track_velocity": True}))
-    assert dense.dense_weight == 0.5 and dense.track_velocity is True
-    plain = config_from_args(argparse.Namespace(**{**vars(args), "quick": False, "track_velocity": False}))
-    assert plain.track_velocity is False and plain.dense_weight == DemoConfig().dense_weight
+    assert config.extra_logs == 5 and config.jitter_share == 0.2 and config.extra_networks == ("random",)
+    assert config.train_preset == "tiny"  # --quick trains the tiny recipe
+    assert config.sensors is False and config.queries == ("a bus stops",)
     parser = argparse.ArgumentParser()
     demo_command.configure(parser)
-    parsed = config_from_args(parser.parse_args(["--out", "x", "--dense-weight", "0", "--no-track-velocity",
-                                                 "--camera-ego", "--camera-mask-scale", "--camera-apart",
-                                                 "--camera-crop"]))
-    assert parsed.dense_weight == 0.0 and parsed.track_velocity is False
-    assert parsed.camera_ego is True and parsed.camera_mask_scale is True and parsed.camera_apart is True
-    assert parsed.camera_crop is True
-    bare = config_from_args(parser.parse_args(["--out", "x", "--no-camera-ego", "--no-camera-mask-scale",
-                                               "--no-camera-apart", "--no-camera-crop", "--no-object-category"]))
-    assert not (bare.camera_ego or bare.camera_mask_scale or bare.camera_apart or bare.camera_crop)
-    assert bare.object_category is False and DemoConfig().object_category is True
-    assert config_from_args(parser.parse_args(["--out", "x", "--dense-streams", "track"])).dense_streams == ("track",)
     assert config_from_args(parser.parse_args(["--out", "x"])) == DemoConfig()
+    assert DemoConfig().train_preset == "recommended" and DemoConfig().epochs is None
+    assert config_from_args(parser.parse_args(["--out", "x", "--preset", "tiny"])).train_preset == "tiny"
     assert config_from_args(parser.parse_args(["--out", "x", "--val-logs", "0"])).val_logs == 0
-    assert config_from_args(parser.parse_args(["--out", "x", "--order-weight", "0.5"])).order_weight == 0.5
-    # Without the reversed steps the order loss has no pairs: off unless asked for (then refused).
-    assert config_from_args(parser.parse_args(["--out", "x", "--hard-negatives", "none"])).order_weight is None
-    assert config_from_args(parser.parse_args(["--out", "x", "--hard-negatives", "mirror", "reverse"])
-                            ).order_weight == DemoConfig().order_weight
-    with pytest.raises(ValueError, match="order_weight needs 'reverse'"):
-        config_from_args(parser.parse_args(["--out", "x", "--hard-negatives", "none", "--order-weight", "1"]))
-    flags = argparse.Namespace(**{**vars(args), "quick": False, "time_slots": 6, "hard_negatives": ["none"]})
-    assert config_from_args(flags).time_slots == 6 and config_from_args(flags).hard_negatives == ()
-    assert config_from_args(argparse.Namespace(**{**vars(flags), "hard_negatives": None})).hard_negatives == (
-        "reverse",)
-    assert config.sensors is False and config.queries == ("a bus stops",)
-    with pytest.raises(ValueError, match=r"hard_negatives: unknown \['backwards'\]"):
-        DemoConfig(hard_negatives=("backwards",))
-    with pytest.raises(ValueError, match="unknown stage 'deploy'"):
-        _demo(Path("/nonexistent"), DemoConfig()).run(["deploy"])
+    with pytest.raises(SystemExit):
+        parser.parse_args(["--out", "x", "--time-slots", "4"])  # a model setting: it lives in the recipe
 
 
 def test_report(built: dict[str, Any], tmp_path: Path) -> None:

@@ -2,7 +2,7 @@
 
 Logs come from the simulator with rendered sensors (``scenesearch simulate`` + the sensor
 simulation) and captions from ``scenesearch caption``; where either is unavailable the benchmark
-falls back to the synthetic logs of :mod:`encoders.clips.testing` and caption windows cut every
+falls back to the synthetic logs of :mod:`tests.encoders.clip_fixtures` and caption windows cut every
 2 s per track, and says so in ``log_source`` / ``caption_source``.
 
 Baseline (same run): rendering each clip's frames on its own, from the log files, as a pipeline
@@ -63,7 +63,7 @@ def _simulated_logs(n: int, duration_s: float, out: Path) -> list[Path]:
 
 
 def _synthetic_logs(n: int, duration_s: float, out: Path) -> list[Path]:
-    from encoders.clips.testing import write_synthetic_log
+    from tests.encoders.clip_fixtures import write_synthetic_log
 
     shutil.rmtree(out, ignore_errors=True)
     return [write_synthetic_log(out, f"synthetic_{i:04d}", num_frames=int(duration_s * 10), seed=i) for i in range(n)]
@@ -176,7 +176,7 @@ def run(quick: bool) -> dict[str, Any]:
     except Exception as exc:  # any simulator failure falls back to synthetic logs
         print(f"simulator unavailable ({type(exc).__name__}: {str(exc)[:200]}); using synthetic logs")
         logs = _synthetic_logs(n_logs, duration_s, WORK / "synthetic_logs")
-        log_source = "encoders.clips.testing synthetic logs"
+        log_source = "tests.encoders.clip_fixtures synthetic logs"
     caption_source = _captions(logs, WORK / "captions")
 
     config = replace(ClipsConfig(), previews=False)

@@ -48,9 +48,9 @@ from torch.utils.data import Dataset
 from encoders.config import TrainConfig
 from encoders.loss import contrastive_loss, positives_matrix
 from encoders.model import DualEncoder
-from encoders.synthetic import SyntheticClipDataset, SyntheticSpec, collate_clips
 from encoders.text import ENCODE_GROUP, TextTower
 from encoders.train import build_optimizer, evaluate, train
+from tests.encoders.synthetic import SyntheticClipDataset, SyntheticSpec, collate_clips
 
 DEFAULT_SPEC = SyntheticSpec()
 SMALL_SPEC = SyntheticSpec(camera_hw=(48, 80), bev_hw=(80, 40))
@@ -99,7 +99,7 @@ def train_rate(config: TrainConfig, spec: SyntheticSpec, batch_size: int, steps:
 def text_cache_speedup(batch_size: int, steps: int) -> dict[str, float]:
     """Text side of a training step (encoder + head, forward and backward) with and without the cache."""
     from encoders.config import TextConfig
-    from encoders.synthetic import behaviours, caption_of
+    from tests.encoders.synthetic import behaviours, caption_of
 
     captions = [caption_of(c, b) for c in ("car", "truck") for b in behaviours()]
     rng = np.random.default_rng(0)
@@ -123,7 +123,7 @@ def _step_strings(captions_per_step: int, steps: int) -> list[list[str]]:
     caption whole and each of its steps (an ego sentence and an object sentence of one to three
     steps, 3 to 30 words a string)."""
     import encoders.text as text_module
-    from encoders.synthetic import behaviours, caption_of
+    from tests.encoders.synthetic import behaviours, caption_of
 
     hosts = ("stationary", "cruising straight", "accelerating while steering left", "decelerating straight")
     captions = [f"The ego vehicle is {h}. {caption_of(c, b).capitalize()}."
@@ -194,12 +194,12 @@ def _training_texts(clips_per_step: int, steps: int, clips: int = 400, seed: int
     """The caption texts of ``steps`` training steps of the demo's recipe over ``clips`` clips: per clip
     drawn, its caption (one of its 3 paraphrases 80 % of the time, as captioning stores them) and the
     caption of its steps reversed (a hard negative, paraphrased as often). Clips take their steps from
-    :func:`encoders.synthetic.behaviours` and an ego tag of a few: sentences recur, captions hardly."""
+    :func:`tests.encoders.synthetic.behaviours` and an ego tag of a few: sentences recur, captions hardly."""
     import random
 
     from captioning.text import caption_text, paraphrases
     from encoders.negatives import hard_negatives
-    from encoders.synthetic import behaviours
+    from tests.encoders.synthetic import behaviours
 
     rng = random.Random(seed)
     hosts = ("stationary:heading_straight", "cruising:heading_straight", "accelerating:steering_left",

@@ -5,7 +5,7 @@
 
 Without ``--clips`` it builds a small clips folder first: one simulated log with rendered sensors
 (``scenesearch simulate``, the sensor simulation, ``scenesearch caption``), or the synthetic log of
-:mod:`encoders.clips.testing` where the simulator is unavailable.
+:mod:`tests.encoders.clip_fixtures` where the simulator is unavailable.
 """
 
 from __future__ import annotations
@@ -40,7 +40,7 @@ def build_demo_clips(work: Path, seed: int) -> Path:
                        check=True, capture_output=True, cwd=ROOT)
     except (subprocess.CalledProcessError, ImportError, OSError) as exc:
         print(f"simulator unavailable ({exc}); using the synthetic log", file=sys.stderr)
-        from encoders.clips.testing import synthetic_captions, write_synthetic_log
+        from tests.encoders.clip_fixtures import synthetic_captions, write_synthetic_log
 
         logs = [write_synthetic_log(logs_dir, num_frames=40)]
         captions.mkdir(parents=True, exist_ok=True)

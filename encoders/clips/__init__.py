@@ -12,7 +12,6 @@
 - :mod:`encoders.clips.raster`: BEV layers on top of :mod:`scenes.bev` (map warp, track footprints).
 - :mod:`encoders.clips.views`: one clip's views cut from the memory-mapped arrays (numpy only).
 - :mod:`encoders.clips.preview`: animated GIF per clip and a still grid.
-- :mod:`encoders.clips.testing`: a small synthetic log with every sensor, for tests and benchmarks.
 
 The torch dataset over a clips folder is :class:`encoders.data.ClipDataset`.
 """

@@ -13,8 +13,8 @@ from encoders.calibration import CAMERA_WEIGHTS, calibrate_camera_weight
 from encoders.config import TrainConfig
 from encoders.inference import evaluate, load_model
 from encoders.model import DualEncoder
-from encoders.synthetic import SyntheticClipDataset, SyntheticSpec
 from encoders.train import train
+from tests.encoders.synthetic import SyntheticClipDataset, SyntheticSpec
 
 SPEC = SyntheticSpec(frames=6, camera_hw=(24, 32), bev_hw=(24, 12), distractors=1)
 

@@ -20,10 +20,10 @@ from encoders.clips.raster import MAP_CHANNELS
 from encoders.clips.render import render_log
 from encoders.clips.splits import assign_splits
 from encoders.clips.table import ClipsInputError
-from encoders.clips.testing import EGO_SE3_CAMERA, INTRINSICS, synthetic_captions, write_synthetic_log
 from encoders.data import ClipDataset
 from scenes.bev import BevGrid
 from scenes.log import Log
+from tests.encoders.clip_fixtures import EGO_SE3_CAMERA, INTRINSICS, synthetic_captions, write_synthetic_log
 
 CONFIG = replace(ClipsConfig(), previews=False)
 

@@ -16,13 +16,13 @@ import torch
 from encoders.clips.build import build_clips
 from encoders.clips.config import ClipsConfig
 from encoders.clips.layout import parse_clip_id, read_clip_table, read_manifest
-from encoders.clips.testing import synthetic_captions, synthetic_frame_tags, write_synthetic_log
 from encoders.clips.views import EGO_MOTION_FEATURES
 from encoders.data import AugmentConfig, ClipDataset, collate_clips
 from encoders.dense import DENSE_TASKS
 from encoders.negatives import render_caption
 from encoders.time_reversal import reversed_clip_tags
 from scenes.bev import BevGrid
+from tests.encoders.clip_fixtures import synthetic_captions, synthetic_frame_tags, write_synthetic_log
 
 
 @pytest.fixture(scope="module")

@@ -38,10 +38,10 @@ from encoders.distributed import (
 )
 from encoders.loss import contrastive_loss, positives_matrix
 from encoders.negatives import render_caption
-from encoders.synthetic import SyntheticClipDataset, SyntheticSpec
 from encoders.tagging.config import TagTrainConfig
-from encoders.tagging.testing import build_tagging_fixture
 from retrieval.cli import main
+from tests.encoders.synthetic import SyntheticClipDataset, SyntheticSpec
+from tests.encoders.tagging_fixtures import build_tagging_fixture
 
 ROOT = Path(__file__).resolve().parents[2]
 SPEC = SyntheticSpec(frames=4, camera_hw=(16, 16), bev_hw=(16, 8), distractors=0)

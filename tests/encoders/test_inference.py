@@ -57,7 +57,7 @@ def test_a_model_loaded_without_its_text_tower_embeds_clips_alike_and_never_read
     from encoders.config import TextConfig, TrainConfig, tiny_model_config
     from encoders.inference import load_model
     from encoders.model import DualEncoder
-    from encoders.synthetic import SyntheticClipDataset, SyntheticSpec, collate_clips
+    from tests.encoders.synthetic import SyntheticClipDataset, SyntheticSpec, collate_clips
 
     torch.manual_seed(0)
     torch.set_num_threads(1)
@@ -85,7 +85,7 @@ def test_clips_loaded_in_worker_processes_embed_alike() -> None:
     from encoders.config import tiny_model_config
     from encoders.inference import embed_dataset_views
     from encoders.model import DualEncoder
-    from encoders.synthetic import SyntheticClipDataset, SyntheticSpec
+    from tests.encoders.synthetic import SyntheticClipDataset, SyntheticSpec
 
     torch.manual_seed(0)
     model = DualEncoder(tiny_model_config()).eval()

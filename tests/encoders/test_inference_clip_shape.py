@@ -15,9 +15,9 @@ import torch
 
 from encoders.clips.build import build_clips
 from encoders.clips.config import ClipsConfig
-from encoders.clips.testing import synthetic_captions, write_synthetic_log
 from encoders.inference import ClipShapeError, check_clips_fit, record_trained_clips
 from retrieval.cli import main
+from tests.encoders.clip_fixtures import synthetic_captions, write_synthetic_log
 
 
 @pytest.fixture(scope="module")

@@ -12,8 +12,8 @@ import torch
 from encoders.config import ConfigError, tiny_model_config
 from encoders.fusion import UNKNOWN_CATEGORY, category_indices
 from encoders.model import DualEncoder
-from encoders.synthetic import SyntheticClipDataset, SyntheticSpec, collate_clips
 from scenes.categories import CATEGORY_NAMES
+from tests.encoders.synthetic import SyntheticClipDataset, SyntheticSpec, collate_clips
 
 SPEC = SyntheticSpec(frames=8, camera_hw=(32, 48), bev_hw=(32, 16), camera_fraction=1.0)
 

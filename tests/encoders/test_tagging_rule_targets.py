@@ -13,7 +13,6 @@ import pytest
 from encoders.clips.build import build_clips
 from encoders.clips.config import ClipsConfig
 from encoders.clips.layout import TARGETS_STEM, rendered_log_dir
-from encoders.clips.testing import synthetic_captions, write_synthetic_log
 from encoders.tagging.attributes import ATTRIBUTES, Attribute
 from encoders.tagging.evaluate import sources_line
 from encoders.tagging.rasterize import rasterize_targets
@@ -26,9 +25,10 @@ from encoders.tagging.targets import (
     target_files,
     targets_source,
 )
-from encoders.tagging.testing import add_synthetic_labels
 from scenes.bev import BevGrid
 from scenes.log import Log
+from tests.encoders.clip_fixtures import synthetic_captions, write_synthetic_log
+from tests.encoders.tagging_fixtures import add_synthetic_labels
 
 NUM_FRAMES = 40
 GRID = BevGrid(-20.0, 60.0, -20.0, 20.0, 0.5)

@@ -7,15 +7,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from encoders.clips.testing import write_synthetic_log
 from encoders.tagging.attributes import ATTRIBUTES, BEHAVIOR_ATTRIBUTES, JUNCTION_ATTRIBUTES, Attribute, TagError
 from encoders.tagging.rasterize import approach_strips, behavior_grid, rasterize_targets
 from encoders.tagging.targets import write_targets
-from encoders.tagging.testing import add_synthetic_labels
 from scenes.behavior import BehaviorLabel, JunctionKind
 from scenes.bev import BevGrid
 from scenes.log import Log
 from scenes.map import LaneSegment, VectorMap
+from tests.encoders.clip_fixtures import write_synthetic_log
+from tests.encoders.tagging_fixtures import add_synthetic_labels
 
 NUM_FRAMES = 6
 

@@ -16,8 +16,8 @@ from encoders.tagging.evaluate import evaluate_runs, write_report
 from encoders.tagging.extend import CAUSES_EGO_BRAKING, add_attributes, ego_brake_cause_targets
 from encoders.tagging.inference import EMBEDDING_PREFIXES, load_tagger
 from encoders.tagging.targets import open_targets
-from encoders.tagging.testing import build_tagging_fixture
 from encoders.tagging.training import attach_tagging
+from tests.encoders.tagging_fixtures import build_tagging_fixture
 
 
 @pytest.fixture(scope="module")
@@ -46,7 +46,7 @@ def test_run_folder_loads_and_tags_whole_logs_chunk_independently(fixture: dict[
 
 def test_joint_hook_adds_the_head_to_the_optimiser_and_gives_a_loss(fixture: dict[str, Any]) -> None:
     from encoders.bev import BevTower
-    from encoders.tagging.testing import tiny_bev_config
+    from tests.encoders.tagging_fixtures import tiny_bev_config
 
     class Model(torch.nn.Module):  # what the hook needs of a DualEncoder: .config.bev, .bev_embedding
         def __init__(self) -> None:

@@ -23,9 +23,9 @@ from encoders.config import (
 from encoders.fusion import ViewFusion
 from encoders.model import DualEncoder
 from encoders.sentence import TextModelUnavailableError
-from encoders.synthetic import SyntheticClipDataset, SyntheticSpec, collate_clips
 from encoders.text import SlotText, sentence_steps, text_sentences
 from encoders.timeline import SlotReadout, SlotTextHead, slot_of_steps
+from tests.encoders.synthetic import SyntheticClipDataset, SyntheticSpec, collate_clips
 
 os.environ["HF_HUB_OFFLINE"] = "1"
 CAPTION = "The ego vehicle is cruising straight. A car in the left lane approaches, then moves away."

@@ -15,7 +15,6 @@ from torch.utils.data import DataLoader
 
 from encoders.clips.build import build_clips
 from encoders.clips.config import ClipsConfig
-from encoders.clips.testing import synthetic_captions, synthetic_frame_tags, write_synthetic_log
 from encoders.config import ConfigError, TrainConfig
 from encoders.dense import DENSE_TASKS
 from encoders.inference import collate, embed_clips, embed_texts, frame_tag_figures, load_model, open_split
@@ -24,6 +23,7 @@ from encoders.train import resolve_channels
 from retrieval.cli import main
 from retrieval.evaluation import evaluate
 from retrieval.metrics_tables import metrics_table
+from tests.encoders.clip_fixtures import synthetic_captions, synthetic_frame_tags, write_synthetic_log
 from tests.retrieval.retrieval_fakes import HashTextEncoder
 
 

@@ -19,9 +19,9 @@ from encoders.config import HardNegative, TextConfig, TrainConfig
 from encoders.inference import embed_texts, load_model
 from encoders.negatives import render_caption, reversed_steps
 from encoders.sentence import TextModelUnavailableError
-from encoders.synthetic import SyntheticClipDataset, SyntheticSpec
 from encoders.train import TrainingError, train
 from retrieval.evaluation import ORDER_COSINE_MAX, text_order_figures
+from tests.encoders.synthetic import SyntheticClipDataset, SyntheticSpec
 
 SPEC = SyntheticSpec(frames=4, camera_hw=(16, 16), bev_hw=(16, 8), distractors=0, camera_fraction=0.0)
 HOST = ["cruising:heading_straight"]

@@ -19,8 +19,8 @@ from encoders.checkpoints import read_checkpoint
 from encoders.config import ConfigMismatchError, TextConfig, TrainConfig
 from encoders.sentence import TextModelUnavailableError
 from encoders.tagging.config import TagTrainConfig
-from encoders.tagging.testing import build_tagging_fixture
 from encoders.train import train
+from tests.encoders.tagging_fixtures import build_tagging_fixture
 
 TIMING = {"samples_per_s", "epoch_s"}
 TAGS = TagTrainConfig(batch_size=2, window_frames=3)

@@ -25,8 +25,8 @@ from encoders.checkpoints import (
 )
 from encoders.config import ConfigMismatchError, TrainConfig
 from encoders.inference import load_model, shuffle_time
-from encoders.synthetic import SyntheticClipDataset, SyntheticSpec
 from encoders.train import NonFiniteLossError, NoTrainingSplitError, evaluate, learning_rate, train
+from tests.encoders.synthetic import SyntheticClipDataset, SyntheticSpec
 
 SPEC = SyntheticSpec(frames=6, camera_hw=(24, 32), bev_hw=(24, 12), distractors=1)
 TIMING = {"samples_per_s", "epoch_s"}

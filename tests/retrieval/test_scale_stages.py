@@ -40,7 +40,7 @@ def _without_timing(value: Any) -> Any:
 
 @pytest.fixture(scope="module")
 def data(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
-    from encoders.clips.testing import write_synthetic_log
+    from tests.encoders.clip_fixtures import write_synthetic_log
 
     root = tmp_path_factory.mktemp("scale")
     sim = ["simulate", "--logs", "3", "--duration-s", "4", "--warmup-s", "20", "--egos", "2", "--seed", "1",

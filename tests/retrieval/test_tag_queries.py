@@ -15,10 +15,10 @@ from fastapi.testclient import TestClient
 
 from encoders.tagging.attributes import TagError
 from encoders.tagging.scene_tags import compose, pool_values, region_masks, sigmoid
-from encoders.tagging.testing import build_tagging_fixture
 from retrieval.cli import main
 from retrieval.service.tags_api import register_tag_routes
 from retrieval.tagging import TagSearch, find, spans_of, tag_log
+from tests.encoders.tagging_fixtures import build_tagging_fixture
 
 
 @pytest.fixture(scope="module")

@@ -1,6 +1,6 @@
 """Small labelled logs and a tiny trained tagging model, for tests and smoke runs.
 
-:func:`add_synthetic_labels` gives the synthetic log of :mod:`encoders.clips.testing` behaviour labels
+:func:`add_synthetic_labels` gives the synthetic log of :mod:`tests.encoders.clip_fixtures` behaviour labels
 (``lead`` brakes and the ego brakes for it, ``parked`` is parked, ``follower`` keeps its lane) and a
 4-way junction outline at city x ∈ [25, 35] m, |y| ≤ 5 m (the ego drives along +x from x = 0).
 """
@@ -13,9 +13,9 @@ from pathlib import Path
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from encoders.clips.testing import FRAME_PERIOD_NS, START_NS, synthetic_captions, write_synthetic_log
 from encoders.config import BevConfig, TemporalConfig
 from scenes.behavior import BEHAVIOR_SCHEMA, BehaviorLabel, write_behavior_labels, write_junctions
+from tests.encoders.clip_fixtures import FRAME_PERIOD_NS, START_NS, synthetic_captions, write_synthetic_log
 
 
 def add_synthetic_labels(log_dir: Path, num_frames: int) -> None:

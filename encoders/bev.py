@@ -26,8 +26,6 @@ from encoders.config import BevConfig
 from encoders.fusion import TemporalEncoder
 from encoders.timeline import clip_head, read_clip
 
-#: What ``BevConfig.track_range`` adds to each frame of the track: range, |x| and |y| from the ego.
-RANGE_FEATURES = ("range", "abs_x", "abs_y")
 #: What ``BevConfig.track_velocity`` adds: the velocity relative to the ego and the range rates along x and y.
 VELOCITY_FEATURES = ("vx", "vy", "range_rate_x", "range_rate_y")
 #: m/s brought to about unit range.
@@ -220,8 +218,7 @@ class BevTower(nn.Module):
         self.track: TemporalEncoder | None = None
         self.track_head: nn.Module | None = None
         if config.track_features:
-            per_frame = (config.track_features + (len(RANGE_FEATURES) if config.track_range else 0)
-                         + (len(VELOCITY_FEATURES) if config.track_velocity else 0)
+            per_frame = (config.track_features + (len(VELOCITY_FEATURES) if config.track_velocity else 0)
                          + (len(RATES_SCALE) if config.track_rates else 0))
             self.track = TemporalEncoder(config.track, 2 * per_frame + config.ego_features)
             self.track_head = clip_head(config.track.width, embed_dim, time_slots, slot_dim)
@@ -318,14 +315,12 @@ class BevTower(nn.Module):
                        object_velocity: torch.Tensor | None = None,
                        object_rates: torch.Tensor | None = None) -> torch.Tensor:
         """object_track: (B, T, F); ego_motion: (B, T, 6); object_velocity: (B, T, 2) m/s; object_rates:
-        (B, T, 3) → (B, T, 2 F' + E): the track (with :data:`RANGE_FEATURES` under ``track_range``,
-        :data:`VELOCITY_FEATURES` under ``track_velocity`` and the object's own rates under
-        ``track_rates``), its change since the previous frame, and the ego motion."""
+        (B, T, 3) → (B, T, 2 F' + E): the track (with :data:`VELOCITY_FEATURES` under ``track_velocity``
+        and the object's own rates under ``track_rates``), its change since the previous frame, and the
+        ego motion."""
         ego = unit_ego_motion(ego_motion, self.config.ego_features)  # (B, T, E)
         x, y = object_track[..., 0], object_track[..., 1]  # (B, T) ego-relative position / 50 m
         parts = [object_track]
-        if self.config.track_range:
-            parts.append(torch.stack([torch.hypot(x, y), x.abs(), y.abs()], dim=-1))  # (B, T, 3)
         if self.config.track_velocity:
             if object_velocity is None:
                 raise ValueError("this BEV tower reads the object's velocity: the batch needs "

@@ -210,8 +210,8 @@ def _config_differences(a: dict[str, Any], b: dict[str, Any], prefix: str = "") 
 def check_resume_config(new: TrainConfig, saved: dict[str, Any], done_epochs: int, source: str = "checkpoint") -> None:
     """Raise :class:`ConfigMismatchError` when ``new`` differs from the checkpoint's config beyond RESUMABLE_KEYS.
 
-    ``saved`` is read as a run's config (:meth:`TrainConfig.from_run_dict`: keys added since it was
-    written take their earlier values); ``source`` names the checkpoint in errors about it.
+    ``saved`` is read as a run's config (:meth:`TrainConfig.from_run_dict`: a checkpoint that lacks a
+    key was written by an older version and is refused); ``source`` names the checkpoint in errors about it.
     """
     a = {k: v for k, v in new.to_dict().items() if k not in RESUMABLE_KEYS}
     b = {k: v for k, v in TrainConfig.from_run_dict(saved, f"{source}: config").to_dict().items()

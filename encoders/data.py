@@ -34,13 +34,11 @@ of the bytes to move; :class:`~encoders.model.DualEncoder` converts them on its 
 
 Augmentation (seeded by ``(seed, epoch, index)``; call :meth:`ClipDataset.set_epoch`): paraphrased
 captions, one small rotation and translation of the whole BEV clip about the ego (``ego_motion``
-and ``object_track`` are rotated to match), colour jitter of the camera frames, and (with
-``time_reversal_probability``) the clip played backwards under its reversed tags.
+and ``object_track`` are rotated to match), colour jitter of the camera frames.
 """
 
 from __future__ import annotations
 
-import random
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -73,8 +71,6 @@ from encoders.clips.views import (
     warp_source_cells,
 )
 from encoders.dense import DENSE_TASKS, frame_targets
-from encoders.negatives import render_caption
-from encoders.time_reversal import reversed_clip_tags
 
 #: The image-like views; uint8 0–255 with ``as_uint8=True``, else float32 in [0, 1].
 UINT8_VIEWS = ("camera", "camera_crop", "bev_lidar", "bev_map", "bev_object")
@@ -89,8 +85,6 @@ class AugmentConfig:
         max_translation_m: BEV shift along x and y drawn from U(−max, max).
         brightness, contrast, saturation: camera jitter factors drawn from U(1 − v, 1 + v).
         paraphrase_probability: chance to use a paraphrase instead of the canonical caption.
-        time_reversal_probability: chance to play the clip backwards, captioned by its reversed tags
-            (:mod:`encoders.time_reversal`); 0 leaves every other draw as it was.
     """
 
     max_rotation_rad: float = 0.1
@@ -99,7 +93,6 @@ class AugmentConfig:
     contrast: float = 0.2
     saturation: float = 0.2
     paraphrase_probability: float = 0.8
-    time_reversal_probability: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -308,16 +301,8 @@ class ClipDataset(torch.utils.data.Dataset[dict[str, Any]]):
         aug = self.augment_config
 
         caption, canonical, tags, host_tags = row.caption, row.canonical_caption, list(row.tags), list(row.host_tags)
-        backwards = _played_backwards(row, rng, aug)
         targets_out[:] = row.frame_targets
-        if backwards is not None:
-            fi = fi[::-1]
-            targets_out.fill(-1)  # the frames' tags of a clip played backwards are not the rules'; none
-            canonical, tags, host_tags = backwards
-            caption = canonical
-            if rng is not None and rng.random() < aug.paraphrase_probability:
-                caption = render_caption(row.category, tags, host_tags, random.Random(int(rng.integers(2**63))))
-        elif rng is not None and row.paraphrases and rng.random() < aug.paraphrase_probability:
+        if rng is not None and row.paraphrases and rng.random() < aug.paraphrase_probability:
             caption = row.paraphrases[int(rng.integers(len(row.paraphrases)))]
 
         has_camera = bool(row.has_camera and arrays.camera.shape[0] > 0)
@@ -347,10 +332,6 @@ class ClipDataset(torch.utils.data.Dataset[dict[str, Any]]):
         rates_and_velocity = self._track_kinematics(row.log_id, row.track_id, arrays, value)[fi]  # (T, 5)
         rates_out[:] = rates_and_velocity[:, : len(OBJECT_RATES_COLUMNS)]
         velocity_out[:] = rates_and_velocity[:, len(OBJECT_RATES_COLUMNS):]
-        if backwards is not None:
-            velocity_out *= -1.0  # played backwards, every velocity turns round
-            motion_out[:, 4:] *= -1.0  # and the ego's rates with it (accelerating ↔ decelerating, left ↔ right)
-            rates_out[:, 1:] *= -1.0  # and the object's (its speed stays)
         if rng is None:
             np.take(arrays.bev_lidar, fi, axis=0, out=slot["bev_lidar"])  # memory map → batch, one copy
             np.take(arrays.bev_map, fi, axis=0, out=slot["bev_map"])
@@ -378,19 +359,6 @@ class ClipDataset(torch.utils.data.Dataset[dict[str, Any]]):
             "host_tags": host_tags,
             "has_camera": has_camera,
         }
-
-
-def _played_backwards(row: _Row, rng: np.random.Generator | None,
-                      aug: AugmentConfig) -> tuple[str, list[str], list[str]] | None:
-    """(canonical caption, tags, host tags) of the row's clip played backwards when the draw says so,
-    else None. Tags outside captioning's vocabulary have no reversed caption: that clip plays forwards."""
-    if rng is None or aug.time_reversal_probability <= 0 or rng.random() >= aug.time_reversal_probability:
-        return None
-    tags, host_tags = reversed_clip_tags(row.category, row.tags, row.host_tags)
-    try:
-        return render_caption(row.category, tags, host_tags), tags, host_tags
-    except (KeyError, ValueError):
-        return None
 
 
 def _jitter_factors(rng: np.random.Generator, aug: AugmentConfig) -> tuple[float, float, float]:

@@ -6,9 +6,8 @@ tags at each clip frame (:mod:`encoders.clips.frame_tags`) are the targets of li
 stream's frame tokens (:data:`DENSE_TASKS`): the object's lane and its motion relative to the ego, the
 ego's motion and its direction, and the object's own action and map context as its unified tag names
 them (``none`` where it names none: a caption's steps can differ in these alone, "moves away, then
-moves away braking"). A model predicts the tasks of its ``DualEncoderConfig.dense_tasks`` (runs from
-before the action and context heads: the first four). A frame the rules did not tag has target −1 and
-adds no loss.
+moves away braking"). A model predicts the tasks of its ``DualEncoderConfig.dense_tasks``. A frame the
+rules did not tag has target −1 and adds no loss.
 
     tokens (B, T, W) ─ DenseHeads ─ (B, T, ΣC) ─ per task: cross-entropy over tagged frames ─ mean
 """

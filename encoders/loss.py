@@ -1,16 +1,13 @@
 """Symmetric InfoNCE with multiple positives.
 
-Rule captions repeat: two clips with the same canonical caption (or the same unified tag sequence) are
-positives for each other, not negatives. With ``P`` (B, B) the positives (``P_ii`` true) and
-``s_i = scale · v_i · T^T`` the logits of clip i against all captions of the batch:
+Rule captions repeat: two clips with the same canonical caption are positives for each other, not
+negatives. With ``P`` (B, B) the positives (``P_ii`` true) and ``s_i = scale · v_i · T^T`` the logits
+of clip i against all captions of the batch:
 
-    multi_positive (default):   loss_v2t = mean_i −log Σ_{j ∈ P_i} softmax(s_i)_j
-    soft:                       loss_v2t = mean_i −Σ_j q_ij log softmax(s_i)_j,
-                                q_i ∝ P_i + tag_weight · sim(tags_i, tags_j) · ¬P_i
+    loss_v2t = mean_i −log Σ_{j ∈ P_i} softmax(s_i)_j
 
-``multi_positive`` puts the softmax mass on the set of positives (it does not force equal mass on each,
-which is right for identical captions); ``soft`` spreads the target over positives, and over
-tag-similar clips when ``tag_weight`` > 0. The loss is the mean of the clip→text and text→clip terms.
+The loss puts the softmax mass on the set of positives (it does not force equal mass on each, which is
+right for identical captions). It is the mean of the clip→text and text→clip terms.
 
 Hard negatives (``negatives`` (M, D), e.g. captions of a clip's steps reversed: :mod:`encoders.negatives`)
 join the clip→text side as M more columns of every row; the text→clip side and the targets over the
@@ -30,45 +27,17 @@ import torch.nn.functional as F
 
 
 def positives_matrix(keys: Sequence[Hashable], device: torch.device | None = None) -> torch.Tensor:
-    """keys: B hashable (canonical captions or tag tuples) → (B, B) bool, true where keys are equal."""
+    """keys: B hashable (canonical captions) → (B, B) bool, true where keys are equal."""
     index: dict[Hashable, int] = {}
     ids = torch.tensor([index.setdefault(k, len(index)) for k in keys], device=device)  # (B,)
     return ids[:, None] == ids[None, :]
 
 
-def sequence_similarity(a: Sequence[str], b: Sequence[str]) -> float:
-    """Longest common subsequence length / the longer length: 1 for equal tag sequences, 0 for disjoint."""
-    if not a or not b:
-        return float(a == b)
-    prev = [0] * (len(b) + 1)
-    for x in a:
-        cur = [0]
-        for j, y in enumerate(b):
-            cur.append(prev[j] + 1 if x == y else max(prev[j + 1], cur[j]))
-        prev = cur
-    return prev[-1] / max(len(a), len(b))
-
-
-def tag_similarity(tags: Sequence[Sequence[str]], device: torch.device | None = None) -> torch.Tensor:
-    """tags: B tag sequences → (B, B) float32 pairwise :func:`sequence_similarity`."""
-    n = len(tags)
-    sim = torch.eye(n)
-    for i in range(n):
-        for j in range(i + 1, n):
-            sim[i, j] = sim[j, i] = sequence_similarity(tags[i], tags[j])
-    return sim.to(device)
-
-
-def row_losses(logits: torch.Tensor, target: torch.Tensor, variant: str = "multi_positive") -> torch.Tensor:
-    """The loss of each row of ``logits`` (R, C) against its ``target`` (R, C): bool positives
-    (``multi_positive``, −log of the softmax mass on them) or weights (``soft``, cross-entropy with the
-    weights normalised) → (R,)."""
-    if variant == "multi_positive":
-        # −log Σ_{j∈P_i} softmax(s_i)_j = logsumexp(s_i) − logsumexp(s_i over P_i)
-        return torch.logsumexp(logits, dim=1) - torch.logsumexp(logits.masked_fill(~target, float("-inf")), dim=1)
-    if variant == "soft":
-        return -(target / target.sum(dim=1, keepdim=True) * F.log_softmax(logits, dim=1)).sum(dim=1)
-    raise ValueError(f"unknown loss variant {variant!r} (choose 'multi_positive' or 'soft')")
+def row_losses(logits: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """The loss of each row of ``logits`` (R, C) against its bool positives ``target`` (R, C): −log of
+    the softmax mass on them → (R,)."""
+    # −log Σ_{j∈P_i} softmax(s_i)_j = logsumexp(s_i) − logsumexp(s_i over P_i)
+    return torch.logsumexp(logits, dim=1) - torch.logsumexp(logits.masked_fill(~target, float("-inf")), dim=1)
 
 
 def contrastive_loss(
@@ -76,34 +45,25 @@ def contrastive_loss(
     text: torch.Tensor,
     scale: torch.Tensor,
     positives: torch.Tensor,
-    variant: str = "multi_positive",
-    similarity: torch.Tensor | None = None,
-    tag_weight: float = 0.0,
     negatives: torch.Tensor | None = None,
     negative_positives: torch.Tensor | None = None,
     rows: slice | torch.Tensor | None = None,
 ) -> torch.Tensor:
     """video: (B, D), text: (B, D) normalised; scale: () ; positives: (B, B) bool → scalar loss.
 
-    ``similarity`` (B, B) in [0, 1] weighs non-positive pairs in the ``soft`` variant. ``negatives``
-    (M, D) normalised are extra captions for the clip→text side; ``negative_positives`` (B, M) bool
-    marks the ones equal to a clip's own caption (default: none). ``rows`` (default all; a slice or
-    an index tensor): the mean is over these clips' and captions' terms only, each still against
+    ``negatives`` (M, D) normalised are extra captions for the clip→text side; ``negative_positives``
+    (B, M) bool marks the ones equal to a clip's own caption (default: none). ``rows`` (default all; a
+    slice or an index tensor): the mean is over these clips' and captions' terms only, each still against
     every column; with the batch gathered from several processes (:mod:`encoders.distributed`) each
     takes its own rows, and the mean of their losses is the loss of the whole batch.
     """
     mine = slice(None) if rows is None else rows
     clips = video if rows is None else video[rows]  # (B or b, D)
     logits = scale * clips.float() @ text.float().T  # (B or b, B) clip i vs caption j
-    pos = positives.to(logits.device)
-    target: torch.Tensor = pos
-    if variant == "soft":
-        target = pos.float()  # (B, B), symmetric: the same targets serve both directions
-        if similarity is not None and tag_weight > 0:
-            target = target + tag_weight * similarity.to(logits.device).float() * (~pos).float()
+    target = positives.to(logits.device)  # (B, B), symmetric: the same targets serve both directions
 
     def side(s: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
-        return row_losses(s, t, variant).mean()
+        return row_losses(s, t).mean()
     v2t_logits, v2t_target = logits, target[mine]
     if negatives is not None and len(negatives):
         own = (torch.zeros(len(video), len(negatives), dtype=torch.bool) if negative_positives is None
@@ -111,20 +71,18 @@ def contrastive_loss(
         v2t_logits = torch.cat([logits, scale * clips.float() @ negatives.float().T], dim=1)  # (B, B + M)
         v2t_target = torch.cat([target[mine], own[mine].to(target.dtype)], dim=1)
     v2t = side(v2t_logits, v2t_target)
-    # Built after the clip → text side, as it always was: the gradient sums in the same order.
+    # Built after the clip → text side: the gradient sums in one fixed order.
     t2v_logits = logits.T if rows is None else scale * text[rows].float() @ video.float().T  # caption i vs clip j
     return 0.5 * (v2t + side(t2v_logits, target.T[mine]))
 
 
 def view_loss(view: torch.Tensor, text: torch.Tensor, scale: torch.Tensor, positives: torch.Tensor,
-              keep: torch.Tensor, rows: slice | None, processes: int, variant: str = "multi_positive",
-              similarity: torch.Tensor | None = None, tag_weight: float = 0.0,
-              negatives: torch.Tensor | None = None, own: torch.Tensor | None = None,
-              move_text: bool = True) -> torch.Tensor:
+              keep: torch.Tensor, rows: slice | None, processes: int, negatives: torch.Tensor | None = None,
+              own: torch.Tensor | None = None, move_text: bool = True) -> torch.Tensor:
     """The contrastive loss of one view alone over the whole batch's clips where ``keep`` holds.
 
-    view: (N, D) the whole batch's clip vectors of the view; text: (N, D) their captions; positives,
-    similarity: (N, N); keep: (N,) bool; negatives: (M, D); own: (N, M). ``rows``: this process's
+    view: (N, D) the whole batch's clip vectors of the view; text: (N, D) their captions; positives:
+    (N, N); keep: (N,) bool; negatives: (M, D); own: (N, M). ``rows``: this process's
     rows of the whole batch (None on one process) out of ``processes``. Each process takes the mean
     over its own kept clips, rescaled by its share of them, so that the mean over processes is the
     loss of the whole batch, as for the fused view. 0 (with a graph) when fewer than 2 clips are kept.
@@ -145,9 +103,8 @@ def view_loss(view: torch.Tensor, text: torch.Tensor, scale: torch.Tensor, posit
         if len(mine) == 0:
             return zero
         share = len(mine) * processes / len(index)
-    loss = contrastive_loss(view[index], text[index], scale, positives[index][:, index], variant,
-                            None if similarity is None else similarity[index][:, index], tag_weight,
-                            negatives, None if own is None else own[index], rows=mine)
+    loss = contrastive_loss(view[index], text[index], scale, positives[index][:, index], negatives,
+                            None if own is None else own[index], rows=mine)
     return share * loss + zero
 
 
@@ -181,8 +138,8 @@ def order_loss(
     return F.softplus(-scale * margin).sum() / total
 
 
-def partial_query_loss(video: torch.Tensor, partial: torch.Tensor, scale: torch.Tensor, positives: torch.Tensor,
-                       variant: str = "multi_positive") -> torch.Tensor:
+def partial_query_loss(video: torch.Tensor, partial: torch.Tensor, scale: torch.Tensor,
+                       positives: torch.Tensor) -> torch.Tensor:
     """The batch's clips against the halves of their captions (:mod:`encoders.partial_queries`).
 
     video: (B, D) the whole batch's clips, normalised; partial: (M, D) the whole batch's halves,
@@ -196,8 +153,7 @@ def partial_query_loss(video: torch.Tensor, partial: torch.Tensor, scale: torch.
         return video.sum() * 0.0
     logits = scale * video.float() @ partial.float().T  # (B, M) clip i vs half m
     pos = positives.to(device=logits.device, dtype=torch.bool)
-    target = pos if variant == "multi_positive" else pos.float()
     answered = pos.any(dim=1)  # (B,) clips that answer some half
-    clip_side = row_losses(logits[answered], target[answered], variant).mean()
-    half_side = row_losses(logits.T, target.T, variant).mean()
+    clip_side = row_losses(logits[answered], pos[answered]).mean()
+    half_side = row_losses(logits.T, pos.T).mean()
     return 0.5 * (clip_side + half_side)

@@ -29,8 +29,6 @@ from encoders.fusion import ViewFusion, category_indices
 from encoders.text import TextTower, UnloadedText
 
 VIEWS = ("fused", "camera", "bev")
-#: State that older saved weights lack, with the value that reproduces how those models worked.
-LEGACY_DEFAULTS: dict[str, torch.Tensor] = {"fusion.camera_weight": torch.ones(())}
 
 
 class DualEncoder(nn.Module):
@@ -188,11 +186,7 @@ class DualEncoder(nn.Module):
         return {k: v for k, v in self.state_dict().items() if not any(k.startswith(s) for s in skip)}
 
     def load_saved_state_dict(self, state: dict[str, torch.Tensor]) -> None:
-        """Load what :meth:`saved_state_dict` wrote; any other missing or extra key is an error.
-
-        Weights saved before the fusion had a camera weight fuse as they did then: an equal mean.
-        """
-        state = {**LEGACY_DEFAULTS, **state}
+        """Load what :meth:`saved_state_dict` wrote; any other missing or extra key is an error."""
         if isinstance(self.text, UnloadedText):  # built without its text tower: the text weights stay unread
             state = {k: v for k, v in state.items() if not k.startswith("text.")}
         result = self.load_state_dict(state, strict=False)

@@ -22,7 +22,6 @@ def model_card(config: TrainConfig, history: list[dict[str, Any]], n_train: int,
     m = config.model
     metric_lines = "\n".join(f"| {k} | {v:.4g} |" for k, v in last_val.items()) or "| (no validation split) | |"
     text = {"pretrained": m.text.model,
-            "clauses": f"{m.text.model} over the text and each of its steps (up to {m.text.max_steps})",
             "slots": f"{m.text.model} over each sentence's steps in {m.time_slots} time slots of {m.slot_dim} dims"
                      + (", the whole text as the mean of its sentences" if m.text.whole_text == "sentences" else ""),
             }.get(m.text.kind, f"scratch transformer ({m.text.scratch_layers} layers)")
@@ -36,8 +35,7 @@ def model_card(config: TrainConfig, history: list[dict[str, Any]], n_train: int,
     n_val = len(val_set) if val_set is not None else 0  # type: ignore[arg-type]
     track = ""
     if m.bev.track_features:
-        extra = [name for name, on in (("range", m.bev.track_range), ("velocity relative to the ego",
-                                                                      m.bev.track_velocity),
+        extra = [name for name, on in (("velocity relative to the ego", m.bev.track_velocity),
                                        ("own speed, acceleration and yaw rate", m.bev.track_rates)) if on]
         track = (f";\n  the object's own track ({m.bev.track_features} features per frame"
                  f"{' + ' + ' and '.join(extra) if extra else ''}) through its own temporal transformer")
@@ -76,7 +74,7 @@ Text → clip and clip → clip retrieval of object behaviour in driving logs.
 ## Data
 - Clips: `{clips_dir}`; {n_train} training clips, {n_val} validation clips.
 - Supervision: rule-based canonical captions{" (paraphrases as augmentation)" if config.augment else ""};
-  positives: equal {config.positives}; loss: {config.loss};
+  positives: equal canonical captions; loss: multi-positive InfoNCE;
   hard negatives (edited steps): {", ".join(config.hard_negatives) or "none"}{dense}.
 
 ## Training

@@ -9,14 +9,11 @@ head on text. Frozen, it infers in bfloat16 where the CPU does that in hardware
 (:func:`encoders.sentence.inference_dtype`).
 With ``finetune_top_layers`` > 0 the top transformer layers train too and the cache is off.
 
-``kind: clauses`` runs the same encoder over the whole text and over each of its steps
-(:func:`text_steps`: sentences, split again before "then"), and a head reads the slots in order:
-a caption and the same steps reversed then differ in what each slot holds, where one pooled
-sentence embedding barely changes (cosine ≈ 0.99). Every string goes through the same cache.
-
-``kind: slots`` lays the steps of each sentence out in the time slots of :mod:`encoders.timeline`
-(the video towers read their frames into the same slots), so the order of steps is where in the
-vector they are.
+``kind: slots`` lays the steps of each sentence (:func:`text_steps`: sentences, split again before
+"then") out in the time slots of :mod:`encoders.timeline` (the video towers read their frames into the
+same slots), so the order of steps is where in the vector they are: a caption and the same steps
+reversed differ in what each slot holds, where one pooled sentence embedding barely changes. Every
+string goes through the same cache.
 
 ``kind: scratch`` is a small text transformer over hashed words, trained from scratch: the fallback
 when no pretrained encoder is installed.
@@ -299,38 +296,6 @@ def text_sentences(text: str) -> list[str]:
     return [s.strip() for s in _SENTENCE_END.split(text) if s.strip(" ,.;!?")] or [text.strip() or text]
 
 
-class ClauseText(nn.Module):
-    """The pretrained encoder over a text and its steps → (B, (1 + max_steps) · F): slot 0 the whole
-    text, slot 1 + j its step j, empty slots zero. Each distinct string of a batch is encoded (or
-    read from the cache) once."""
-
-    def __init__(self, config: TextConfig) -> None:
-        super().__init__()
-        self.config = config
-        self.sentence = PretrainedText(config)
-        self.slots = 1 + config.max_steps
-        self.out_features = self.slots * self.sentence.out_features
-        self.trainable = self.sentence.trainable
-        self.cache = self.sentence.cache
-
-    def forward(self, texts: list[str], device: torch.device) -> torch.Tensor:
-        """texts: B strings → (B, (1 + max_steps) · F)."""
-        index: dict[str, int] = {}
-        rows: list[int] = []
-        slots: list[int] = []
-        source: list[int] = []
-        for i, text in enumerate(texts):
-            for slot, part in enumerate([text, *text_steps(text, self.config.max_steps)]):
-                rows.append(i)
-                slots.append(slot)
-                source.append(index.setdefault(part, len(index)))
-        vectors = self.sentence(list(index), device)  # (U, F), U distinct strings
-        x = vectors.new_zeros(len(texts), self.slots, vectors.shape[1])  # (B, S, F)
-        at = {"device": vectors.device}
-        x[torch.tensor(rows, **at), torch.tensor(slots, **at)] = vectors[torch.tensor(source, **at)]
-        return x.reshape(len(texts), -1)
-
-
 class SlotText(nn.Module):
     """The pretrained encoder over a text and its sentences' steps, laid out in time slots →
     (B, F + K·F): the whole text, then per slot (of K = ``time_slots``) the mean of what each sentence
@@ -383,7 +348,7 @@ class SlotText(nn.Module):
 
 
 class TextTower(nn.Module):
-    """Captions → (B, D): a sentence encoder (pretrained, clauses, slots or scratch) and a projection head.
+    """Captions → (B, D): a sentence encoder (pretrained, slots or scratch) and a projection head.
 
     With ``time_slots`` K > 0 (and ``kind: slots``) the head is :class:`encoders.timeline.SlotTextHead`:
     the last K · ``slot_dim`` dimensions of the output are the K time slots.
@@ -392,19 +357,15 @@ class TextTower(nn.Module):
     def __init__(self, config: TextConfig, embed_dim: int, time_slots: int = 0, slot_dim: int = 0) -> None:
         super().__init__()
         self.config = config
-        self.backbone: PretrainedText | ClauseText | SlotText | ScratchText
+        self.backbone: PretrainedText | SlotText | ScratchText
         if config.kind == "slots":
             self.backbone = SlotText(config, time_slots)
             self.head: nn.Module = SlotTextHead(self.backbone.features, embed_dim, time_slots, slot_dim,
                                                 config.step_hidden)
             return
-        backbones: dict[str, type[PretrainedText | ClauseText | ScratchText]] = {
-            "pretrained": PretrainedText, "clauses": ClauseText, "scratch": ScratchText}
-        self.backbone = backbones[config.kind](config)
+        self.backbone = PretrainedText(config) if config.kind == "pretrained" else ScratchText(config)
         f = self.backbone.out_features
-        # The clauses backbone is (1 + max_steps) × wider: a square first layer would be mostly idle weights.
-        hidden = config.step_hidden if config.kind == "clauses" else f
-        self.head = nn.Sequential(nn.Linear(f, hidden), nn.GELU(), nn.Linear(hidden, embed_dim))
+        self.head = nn.Sequential(nn.Linear(f, f), nn.GELU(), nn.Linear(f, embed_dim))
 
     @property
     def cache(self) -> TextFeatureCache | None:
@@ -418,7 +379,7 @@ class TextTower(nn.Module):
         """state_dict key prefixes (below this module) that are frozen pretrained weights, not saved in runs."""
         if isinstance(self.backbone, PretrainedText) and not self.backbone.trainable:
             return ["backbone.encoder."]
-        if isinstance(self.backbone, ClauseText | SlotText) and not self.backbone.trainable:
+        if isinstance(self.backbone, SlotText) and not self.backbone.trainable:
             return ["backbone.sentence.encoder."]
         return []
 

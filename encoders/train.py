@@ -6,7 +6,7 @@
     metrics.jsonl         one line per epoch: loss, learning rate, samples/s, validation retrieval metrics
     checkpoints/last.pt   everything a resumed run needs (:mod:`encoders.checkpoints`), atomically every epoch
     model.safetensors     final weights (frozen pretrained text weights are left out: they load from text.model)
-    text_cache.npz        cached frozen caption embeddings (pretrained and clauses text towers)
+    text_cache.npz        cached frozen caption embeddings (pretrained and slots text towers)
     model_card.md         data, metrics and limits (:mod:`encoders.model_card`)
     tensorboard/          when TensorBoard is installed
 
@@ -18,9 +18,9 @@ state). A run resumed from ``checkpoints/last.pt`` therefore continues exactly a
 stopped (on CPU; CUDA kernels may add their own non-determinism), with or without tag targets and
 with a trained or a frozen text tower.
 
-With ``hard_negatives`` (:mod:`encoders.negatives`), each clip's captions with its steps edited
-(reversed, one approach ↔ away flipped, lanes mirrored) join the clip → text side of the loss as
-extra negatives; ``order_weight`` adds a pairwise term on the reversed ones (:mod:`encoders.loss`).
+With ``hard_negatives`` (:mod:`encoders.negatives`), each clip's caption with its steps reversed
+joins the clip → text side of the loss as an extra negative; ``order_weight`` adds a pairwise term
+on the reversed ones (:mod:`encoders.loss`).
 With ``partial_weight`` (:mod:`encoders.partial_queries`), each caption's halves (the object's sentence,
 the ego's) join the text batch as queries of their own, in a loss beside the captions'.
 
@@ -80,7 +80,6 @@ from encoders.loss import (
     order_loss,
     partial_query_loss,
     positives_matrix,
-    tag_similarity,
     view_loss,
 )
 from encoders.model import DualEncoder
@@ -151,8 +150,7 @@ def _open_datasets(
     else:
         if not clips_dir.is_dir():
             raise FileNotFoundError(f"{clips_dir}: clips folder not found")
-        train_set = open_split(clips_dir, "train", augment=config.augment, seed=config.seed,
-                               augment_config=AugmentConfig(time_reversal_probability=config.time_reversal))
+        train_set = open_split(clips_dir, "train", augment=config.augment, seed=config.seed)
         val_set = open_split(clips_dir, "val", seed=config.seed)
     if config.model.camera.object_crop and not getattr(train_set, "has_crops", True):
         raise TrainingError(f"{clips_dir}: model.camera.object_crop (--camera-crop) reads object crops and these "
@@ -345,17 +343,17 @@ def train(
                 group["lr"] = learning_rate(config, step, total_steps)
             batch = mask_inputs(batch, tag_config.inputs)  # tagging hook: input ablation (none/map/lidar/both)
             batch = dp.align_draws(batch, config.shuffle_frames)  # frames shuffled in time (the baseline)
-            keys = batch["canonical_caption"] if config.positives == "caption" else [tuple(t) for t in batch["tags"]]
+            keys = batch["canonical_caption"]
             whole, all_keys = dp.whole_batch(batch, keys)  # the text fields of every process's clips
             negative_texts: list[str] = []
             own: list[list[bool]] = []
             reversed_of: list[int] = []
             if config.hard_negatives:
                 negative_texts, own, reversed_of = batch_negatives(
-                    batch, config.hard_negatives, keys, config.positives, config.seed, step, negative_paraphrases)
+                    batch, config.hard_negatives, keys, config.seed, step, negative_paraphrases)
                 if dp.active:  # the whole batch's clips against every process's negatives, in the same order
-                    _, own, reversed_of = batch_negatives(whole, config.hard_negatives, all_keys, config.positives,
-                                                          config.seed, step, negative_paraphrases)
+                    _, own, reversed_of = batch_negatives(whole, config.hard_negatives, all_keys, config.seed, step,
+                                                          negative_paraphrases)
             partials = None
             if config.partial_weight > 0:  # halves of the captions as queries of their own
                 partials = batch_partials(batch, config.seed, step, config.partial_object_share,
@@ -375,14 +373,12 @@ def train(
                 text, negatives, partial = texts.split([*split, len(texts) - sum(split)])  # (B, D), (M, D), (H, D)
                 video, text, negatives = dp.gather(video), dp.gather(text), dp.gather(negatives)  # whole batch
                 positives = positives_matrix(all_keys, device)
-                sim = tag_similarity(whole["tags"], device) if config.tag_weight > 0 else None
                 own_mask = torch.tensor(own, dtype=torch.bool, device=device).reshape(len(all_keys), len(negatives))
-                loss = contrastive_loss(video, text, scale, positives, config.loss, sim, config.tag_weight,
-                                        negatives, own_mask, rows=dp.rows(len(keys)))
+                loss = contrastive_loss(video, text, scale, positives, negatives, own_mask, rows=dp.rows(len(keys)))
                 if partials is not None:  # the whole batch's loss on every process (see partial_query_loss)
                     partial_positives = torch.tensor(partials.positives, dtype=torch.bool)  # (whole B, whole M)
                     loss = loss + config.partial_weight * partial_query_loss(video, dp.gather(partial), scale,
-                                                                             partial_positives, config.loss)
+                                                                             partial_positives)
                 if config.order_weight > 0:  # each clip against its steps reversed; gradients are averaged
                     loss = loss + config.order_weight * dp.processes * order_loss(video, text, negatives, reversed_of,
                                                                                   scale, dp.rows(len(keys)))
@@ -395,7 +391,7 @@ def train(
                     for name, keep in (("camera", with_camera), ("bev", torch.ones_like(with_camera))):
                         loss = loss + config.view_weight * view_loss(
                             dp.gather(views[name]), text, scale, positives, keep, dp.rows(len(keys)), dp.processes,
-                            config.loss, sim, config.tag_weight, negatives, own_mask,
+                            negatives, own_mask,
                             move_text=not (config.camera_apart and name == "camera"))  # apart: as the others put them
                 if tag_objective is not None:  # tagging hook
                     loss = loss + tag_objective.weight * tag_objective.loss(model.bev_embedding)

@@ -84,7 +84,7 @@ class ManifestError(IndexFileError):
 
 
 class UnsupportedFormatError(ManifestError):
-    """``manifest.json`` was written by a newer format version than this code reads."""
+    """``manifest.json`` was written in a format version other than the one this code reads (newer or older)."""
 
 
 class FilterError(IndexesError, ValueError):

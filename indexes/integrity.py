@@ -72,7 +72,7 @@ def as_verify(value: VerifyLike) -> Verify:
 
 
 class IntegrityWarning(UserWarning):
-    """Checksums were not verified: skipped on request, or absent from an index of an older format."""
+    """Checksums were not verified: skipped on request."""
 
 
 @dataclass(frozen=True)
@@ -121,22 +121,15 @@ def seal(payload: Mapping[str, Any]) -> dict[str, Any]:
     return {**{k: v for k, v in payload.items() if k != SEAL_FIELD}, SEAL_FIELD: _content_digest(payload)}
 
 
-def check_seal(raw: Mapping[str, Any], path: Path, required: bool) -> None:
+def check_seal(raw: Mapping[str, Any], path: Path) -> None:
     """Compare a manifest's content with its :data:`SEAL_FIELD`.
 
     Raises:
-        ManifestError: the content differs, or the field is absent where ``required``.
-
-    Warns:
-        IntegrityWarning: the field is absent from a manifest of an older format.
+        ManifestError: the content differs, or the field is absent.
     """
     stored = raw.get(SEAL_FIELD)
     if stored is None:
-        if required:
-            raise ManifestError(path, "missing; the manifest cannot be checked", field=SEAL_FIELD)
-        warnings.warn(f"{path}: written by an older version without checksums of its own content; "
-                      "rebuild the index to have every file verified", IntegrityWarning, stacklevel=3)
-        return
+        raise ManifestError(path, "missing; the manifest cannot be checked", field=SEAL_FIELD)
     if stored != _content_digest(raw):
         raise ManifestError(path, "the manifest's content differs from its checksum (corrupt or edited); "
                                   "rebuild the index", field=SEAL_FIELD)

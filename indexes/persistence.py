@@ -33,7 +33,7 @@ from common.atomic import atomic_directory, reading_directory
 from indexes.errors import IndexFileError, ManifestError, UnsupportedFormatError, faiss_message
 from indexes.integrity import FileEntry, check_seal, file_entries, parse_file_entries, seal
 
-#: 2: the manifest holds the checksum of its own content. Version 1 is still read (with a warning).
+#: The layout version: the manifest holds the checksum of its own content. Other versions are refused.
 FORMAT_VERSION = 2
 MANIFEST_NAME = "manifest.json"
 
@@ -43,7 +43,7 @@ class Manifest:
     """Contents of ``manifest.json``.
 
     Attributes:
-        format_version: layout version; readers refuse newer ones.
+        format_version: layout version; readers refuse other ones.
         kind: ``vector_index``, ``clip_index`` or ``sharded_index``.
         dim: vector dimension.
         metric: :class:`indexes.vectors.Metric` value.
@@ -128,7 +128,7 @@ def read_manifest(directory: Path | str, expected_kind: str | None = None) -> Ma
         expected_kind: refuse a manifest of another kind.
 
     Raises:
-        UnsupportedFormatError: written by a newer format version.
+        UnsupportedFormatError: written in another format version (newer or older).
         ManifestError: unreadable, missing fields, corrupt, or of the wrong kind.
     """
     path = Path(directory) / MANIFEST_NAME
@@ -145,14 +145,14 @@ def read_manifest(directory: Path | str, expected_kind: str | None = None) -> Ma
                     files, extra)
 
 
-def read_json_manifest(path: Path, kind: str | None, max_version: int, sealed_from: int = 2) -> dict[str, Any]:
-    """Parse a manifest file: a JSON object of ``kind`` whose ``format_version`` is at most
-    ``max_version`` and whose content matches its own checksum (required from version ``sealed_from``;
-    older versions are read with an :class:`~indexes.integrity.IntegrityWarning`).
+def read_json_manifest(path: Path, kind: str | None, version: int) -> dict[str, Any]:
+    """Parse a manifest file: a JSON object of ``kind`` whose ``format_version`` is ``version`` and
+    whose content matches its own checksum.
 
     Raises:
         ManifestError: missing, unreadable, not an object, of another kind, or corrupt.
-        UnsupportedFormatError: a newer format version.
+        UnsupportedFormatError: another format version: a newer one (upgrade scenesearch) or an older
+            one (build the index again).
     """
     try:
         raw = json.loads(path.read_text())
@@ -162,16 +162,20 @@ def read_json_manifest(path: Path, kind: str | None, max_version: int, sealed_fr
         raise ManifestError(path, f"unreadable: {exc}") from None
     if not isinstance(raw, dict):
         raise ManifestError(path, "expected a JSON object")
-    version = raw.get("format_version")
-    if not isinstance(version, int):
+    found = raw.get("format_version")
+    if not isinstance(found, int):
         raise ManifestError(path, "missing or non-integer", field="format_version")
-    if version > max_version:
+    if found > version:
         raise UnsupportedFormatError(
-            path, f"format version {version} is newer than the supported version {max_version}; "
+            path, f"format version {found} is newer than the supported version {version}; "
             "upgrade scenesearch to read it", field="format_version")
+    if found < version:
+        raise UnsupportedFormatError(
+            path, f"format version {found} was built by an older version of scenesearch (this one reads "
+            f"{version}): build it again", field="format_version")
     if kind is not None and raw.get("kind") != kind:
         raise ManifestError(path, f"holds a {raw.get('kind')!r}, expected a {kind!r}", field="kind")
-    check_seal(raw, path, required=version >= sealed_from)
+    check_seal(raw, path)
     return raw
 
 

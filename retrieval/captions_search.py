@@ -346,15 +346,17 @@ class CaptionSearch:
                                     "CaptionSearch.build or `scenesearch index`)")
             try:
                 info = read_json_manifest(path, KIND, FORMAT_VERSION)
-                version = info["format_version"]
-                files = parse_file_entries(info.get("files"), path) if version >= 2 else {}
-                if version >= 2 and (missing := [n for n in FILES if n not in files]):
+                files = parse_file_entries(info.get("files"), path)
+                if missing := [n for n in FILES if n not in files]:
                     raise ManifestError(path, f"does not list {', '.join(missing)}", field="files")
                 counts = {k: info.get(k) for k in ("count", "texts", "dim")}
                 for key, value in counts.items():
                     if not isinstance(value, int) or value < 0:
                         raise ManifestError(path, "missing or not a count", field=key)
-                whole_text = info.get("whole_text", "text")  # an index from before the field: in one piece
+                whole_text = info.get("whole_text")
+                if whole_text is None:
+                    raise ManifestError(path, "missing (built by an older version of scenesearch: build it again)",
+                                        field="whole_text")
                 if whole_text not in WHOLE_TEXT_KINDS:
                     raise ManifestError(path, f"must be one of {list(WHOLE_TEXT_KINDS)}, got {whole_text!r}",
                                         field="whole_text")

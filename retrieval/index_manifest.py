@@ -13,7 +13,7 @@ from indexes.persistence import read_json_manifest
 from retrieval.errors import IndexDirError
 from retrieval.hybrid import InvalidWeightError, WeightChoice
 
-#: 2: the manifest holds checksums (``files``, ``content_sha256``); version 1 is still read, with a warning.
+#: The layout version: the manifest holds checksums (``files``, ``content_sha256``). Other versions are refused.
 FORMAT_VERSION = 2
 KIND = "scenesearch_index"
 MANIFEST = "manifest.json"
@@ -24,7 +24,7 @@ class IndexManifest:
     """Contents of ``INDEX_DIR/manifest.json``.
 
     Attributes:
-        format_version: layout version; newer ones are refused.
+        format_version: layout version; other ones are refused.
         kind: always ``scenesearch_index``.
         model_sha256: SHA-256 of the ``model.safetensors`` the clip and text embeddings came from.
         run_dir: absolute path of the training run (its model encodes text queries).
@@ -37,8 +37,7 @@ class IndexManifest:
         skipped: clips left out, with the reason.
         files: size and SHA-256 of ``<view>/manifest.json``, ``captions/manifest.json`` and
             ``run/config.json`` (each sub-manifest in turn covers its own files).
-        hybrid: the weight of hybrid search and how it was chosen (:class:`retrieval.hybrid.WeightChoice`;
-            absent in an index from before it: the default weight).
+        hybrid: the weight of hybrid search and how it was chosen (:class:`retrieval.hybrid.WeightChoice`).
         scenarios: the logs whose scenario features the index holds, and those it lacks with the reason
             (:func:`retrieval.scenario_search.build_store`).
     """
@@ -68,12 +67,11 @@ class IndexManifest:
                                 "finished)")
         try:
             raw = read_json_manifest(path, KIND, FORMAT_VERSION)
-            if raw["format_version"] >= 2:
-                parse_file_entries(raw.get("files"), path)
+            parse_file_entries(raw.get("files"), path)
         except IndexesError as exc:
             raise IndexDirError(str(exc)) from exc
         names = {f for f in IndexManifest.__dataclass_fields__}
-        missing = sorted(n for n in names if n not in raw and n not in ("skipped", "files", "hybrid", "scenarios"))
+        missing = sorted(n for n in names if n not in raw and n not in ("skipped", "files", "scenarios"))
         if missing:
             raise IndexDirError(f"{path}: missing fields {missing}")
         try:

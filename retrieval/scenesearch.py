@@ -466,8 +466,6 @@ def _check_count(index_dir: Path, manifest: IndexManifest, name: str, size: int)
 def _verify_top_files(index_dir: Path, manifest: IndexManifest, parts: tuple[str, ...], mode: Verify) -> None:
     """Check the files the top manifest covers: the sub-manifests of ``parts`` (views and ``captions``), and
     the run config."""
-    if manifest.format_version < 2:
-        return  # IndexManifest.read warned: no checksums in this format
     path = index_dir / MANIFEST
     files = parse_file_entries(manifest.files, path)
     wanted = [f"{d}/{MANIFEST}" for d in parts]

@@ -7,8 +7,8 @@ track) with the object's ``lane`` and ``motion`` relative to the ego, the own ``
 collapsed (eq. 8), so they say *when* each step of the caption holds. A clip samples T frames of its
 window (``frame_indices``); the clip table keeps the tags at those frames in six list columns,
 :data:`FRAME_TAG_COLUMNS`, null where the rules did not tag a frame (and all null when the captions
-came without ``frame_tags.parquet``). Files written under ``rules: paper``, or before the action and
-context columns existed, give null actions and contexts.
+came without ``frame_tags.parquet``). Files written under ``rules: paper`` have no action and context
+columns: they give null actions and contexts.
 """
 
 from __future__ import annotations
@@ -32,7 +32,7 @@ FRAME_TAG_COLUMNS: dict[str, str] = {
     "frame_context": "context",
 }
 _OBJECT_FIELDS = ("lane", "motion", "action", "context")
-#: Object fields that a frame_tags.parquet may lack (``rules: paper``, older files): null there.
+#: Object fields that a frame_tags.parquet may lack (``rules: paper``): null there.
 _OPTIONAL_FIELDS = ("action", "context")
 _HOST_FIELDS = ("host_motion", "host_direction")
 _HOST_TRACK_ID = "ego"

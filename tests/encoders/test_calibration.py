@@ -73,7 +73,7 @@ def test_calibration_without_a_camera_clip_or_a_validation_split_leaves_the_weig
     assert float(model.fusion.camera_weight) == 1.0
 
 
-def test_training_saves_the_calibrated_weight_and_old_weights_load_as_an_equal_mean(tmp_path: Path) -> None:
+def test_training_saves_the_calibrated_weight_and_weights_without_it_are_refused(tmp_path: Path) -> None:
     torch.set_num_threads(1)
     cfg = dataclasses.replace(TrainConfig.preset("tiny"), batch_size=8, epochs=1)
     data = {"train": SyntheticClipDataset(16, "train", SPEC, seed=1),
@@ -85,11 +85,10 @@ def test_training_saves_the_calibrated_weight_and_old_weights_load_as_an_equal_m
     assert weight in CAMERA_WEIGHTS
     assert any(f"camera weight {weight:g} in the fusion, chosen by validation mAP" in line for line in lines)
     assert f"camera weight {weight:g} in the fusion" in (tmp_path / "run" / "model_card.md").read_text()
-    # Weights saved before the fusion had a camera weight.
+    # Weights without the fusion's camera weight are another model's.
     state = {k: v for k, v in model.saved_state_dict().items() if k != "fusion.camera_weight"}
-    old = tiny_model(seed=1)
-    old.load_saved_state_dict(state)
-    assert float(old.fusion.camera_weight) == 1.0
+    with pytest.raises(ValueError, match=r"missing \['fusion.camera_weight'\]"):
+        tiny_model(seed=1).load_saved_state_dict(state)
     # Off, the fusion keeps the equal mean that training used.
     train("unused", tmp_path / "off", dataclasses.replace(cfg, calibrate_camera=False), datasets=data,
           progress=False, log=lambda _m: None)

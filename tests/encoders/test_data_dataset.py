@@ -19,8 +19,6 @@ from encoders.clips.layout import parse_clip_id, read_clip_table, read_manifest
 from encoders.clips.views import EGO_MOTION_FEATURES
 from encoders.data import AugmentConfig, ClipDataset, collate_clips
 from encoders.dense import DENSE_TASKS
-from encoders.negatives import render_caption
-from encoders.time_reversal import reversed_clip_tags
 from scenes.bev import BevGrid
 from tests.encoders.clip_fixtures import synthetic_captions, synthetic_frame_tags, write_synthetic_log
 
@@ -150,32 +148,6 @@ def test_uint8_batches_match_the_float_interface(clips_dir: Path) -> None:
     assert a["caption"] == b["caption"] and a["clip_id"] == [floats.clip_ids[i] for i in indices]
 
 
-def test_time_reversal_plays_the_clip_backwards_under_its_reversed_caption(clips_dir: Path) -> None:
-    still = dict(max_rotation_rad=0.0, max_translation_m=0.0, brightness=0.0, contrast=0.0, saturation=0.0,
-                 paraphrase_probability=0.0)
-    plain = ClipDataset(clips_dir, augment=True, augment_config=AugmentConfig(**still))
-    backwards = ClipDataset(clips_dir, augment=True,
-                            augment_config=AugmentConfig(**still, time_reversal_probability=1.0))
-    for index in range(len(plain)):
-        x, y = plain[index], backwards[index]
-        for key in ("bev_lidar", "bev_map", "bev_object", "camera"):
-            assert torch.equal(y[key], x[key].flip(0)), key
-        tags, host = reversed_clip_tags(x["category"], x["tags"], x["host_tags"])
-        assert (y["tags"], y["host_tags"]) == (tags, host)
-        assert y["caption"] == y["canonical_caption"] == render_caption(x["category"], tags, host)
-        # The ego motion is taken from the new first frame: the ego drives backwards at the same speeds.
-        m0, m1 = x["ego_motion"].numpy(), y["ego_motion"].numpy()
-        np.testing.assert_allclose(m1[0, :3], 0.0, atol=1e-6)
-        np.testing.assert_allclose(m1[:, 3], m0[::-1, 3])
-        np.testing.assert_allclose(m1[:, 4:], -m0[::-1, 4:])  # accelerating ↔ decelerating, left ↔ right
-        np.testing.assert_allclose(np.linalg.norm(m1[-1, :2]), np.linalg.norm(m0[-1, :2]), atol=1e-4)
-        np.testing.assert_array_equal(y["object_track"].numpy()[:, :4], x["object_track"].numpy()[::-1, :4])
-    # Half the clips, drawn per (seed, epoch, clip): a draw like any other augmentation.
-    half = ClipDataset(clips_dir, augment=True, augment_config=AugmentConfig(**still, time_reversal_probability=0.5))
-    flipped = [not torch.equal(half[i]["bev_object"], plain[i]["bev_object"]) for i in range(len(plain))]
-    assert 0 < sum(flipped) < len(plain)
-
-
 def test_clips_carry_each_frames_rule_tags_as_dense_targets(clips_dir: Path) -> None:
     table = pq.read_table(clips_dir / "clips.parquet").to_pylist()
     lead = next(r for r in table if r["track_id"] == "lead")
@@ -220,20 +192,6 @@ def test_object_rates_are_the_objects_own_motion_over_ground(clips_dir: Path) ->
     assert by_track["parked"]["object_rates"].shape == (8, 3)
     np.testing.assert_allclose(by_track["parked"]["object_rates"].numpy(), 0.0, atol=1e-3)
     np.testing.assert_allclose(by_track["follower"]["object_rates"].numpy()[:, 0], 5.0, atol=1e-2)
-
-
-def test_clips_played_backwards_have_no_dense_targets_and_turn_their_velocity(clips_dir: Path) -> None:
-    aug = AugmentConfig(time_reversal_probability=1.0, max_rotation_rad=0.0, max_translation_m=0.0)
-    forward = ClipDataset(clips_dir)
-    backward = ClipDataset(clips_dir, augment=True, augment_config=aug)
-    i = forward.clip_ids.index(next(c for c in forward.clip_ids if ":parked:" in c))
-    item = backward[i]
-    assert (item["frame_targets"] == -1).all()
-    np.testing.assert_allclose(item["object_velocity"].numpy(), -forward[i]["object_velocity"].numpy()[::-1],
-                               atol=1e-4)
-    # The object's own rates: its speed stays, its acceleration and yaw rate turn round.
-    rates = forward[i]["object_rates"].numpy()[::-1]
-    np.testing.assert_allclose(item["object_rates"].numpy(), rates * np.array([1.0, -1.0, -1.0]), atol=1e-5)
 
 
 def test_a_category_outside_the_vocabulary_names_the_table_the_field_and_the_clip(

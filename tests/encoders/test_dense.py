@@ -55,8 +55,8 @@ def test_dense_loss_counts_tagged_frames_and_kept_clips_only() -> None:
 
 
 def test_heads_of_some_tasks_read_their_own_targets_only() -> None:
-    """A model from before the action and context heads predicts the first four tasks: its loss and
-    accuracy read those targets of a six-task batch, and its heads have their outputs only."""
+    """A model of the first four tasks (``dense_tasks``): its loss and accuracy read those targets of a
+    six-task batch, and its heads have their outputs only."""
     old = ("lane", "motion", "host_motion", "host_direction")
     gen = torch.Generator().manual_seed(2)
     targets = torch.stack([torch.randint(-1, len(c), (3, 5), generator=gen) for c in DENSE_TASKS.values()], -1)

@@ -3,8 +3,7 @@
 
 The equivalence runs every per-batch part at once: batch norms, the fusion's modality dropout with one
 process's share holding no camera clip, frames shuffled in time, hard negatives counted differently per
-process, soft targets over tag similarity (synthetic clips), and the tagging objective with positives by
-tag sequence (a clips folder with tag targets).
+process, and the tagging objective (a clips folder with tag targets).
 """
 
 from __future__ import annotations
@@ -89,13 +88,13 @@ def setup(name: str, clips: Path, processes: int) -> tuple[TrainConfig, dict[str
     if name == "synthetic":
         model = dataclasses.replace(tiny.model, dense_streams=("camera", "track"),
                                     bev=dataclasses.replace(tiny.model.bev, track_velocity=True))
-        cfg = dataclasses.replace(tiny, model=model, batch_size=B * scale, epochs=3, shuffle_frames=True, loss="soft",
-                                  tag_weight=0.5, hard_negatives=tuple(HardNegative), view_weight=0.5,
-                                  dense_weight=0.5, order_weight=0.5, partial_weight=0.5)
+        cfg = dataclasses.replace(tiny, model=model, batch_size=B * scale, epochs=3, shuffle_frames=True,
+                                  hard_negatives=tuple(HardNegative), view_weight=0.5, dense_weight=0.5,
+                                  order_weight=0.5, partial_weight=0.5)
         return cfg, {"clips_dir": "unused", "datasets": {"train": Clips()}}
-    cfg = dataclasses.replace(tiny, batch_size=2 * scale, epochs=2, positives="tags")
+    cfg = dataclasses.replace(tiny, batch_size=2 * scale, epochs=2)
     if name == "resumable":
-        return dataclasses.replace(cfg, positives="caption"), {"clips_dir": clips}
+        return cfg, {"clips_dir": clips}
     return cfg, {"clips_dir": clips, "tagging": TagTrainConfig(batch_size=2 * scale, window_frames=3)}
 
 
@@ -293,16 +292,14 @@ def test_loss_over_each_process_rows_averages_to_the_whole_batch_loss() -> None:
     negatives = F.normalize(torch.randn(5, 16, generator=g), dim=-1)
     own = torch.rand(8, 5, generator=g) < 0.2
     positives = positives_matrix([0, 1, 0, 2, 3, 1, 4, 4])
-    sim = torch.rand(8, 8, generator=g)
     scale = torch.tensor(10.0)
-    for variant in ("multi_positive", "soft"):
-        whole = contrastive_loss(video, text, scale, positives, variant, sim, 0.5, negatives, own)
-        parts = [contrastive_loss(video, text, scale, positives, variant, sim, 0.5, negatives, own, rows=rows)
-                 for rows in (slice(0, 4), slice(4, 8))]
-        assert torch.allclose(whole, sum(parts) / 2, atol=1e-6)
-        grads = [torch.autograd.grad(loss, (video, text)) for loss in (whole, sum(parts) / 2)]
-        assert all(torch.allclose(a, b, atol=1e-6) for a, b in zip(*grads))
-        assert not torch.allclose(parts[0], parts[1], atol=1e-3)
+    whole = contrastive_loss(video, text, scale, positives, negatives, own)
+    parts = [contrastive_loss(video, text, scale, positives, negatives, own, rows=rows)
+             for rows in (slice(0, 4), slice(4, 8))]
+    assert torch.allclose(whole, sum(parts) / 2, atol=1e-6)
+    grads = [torch.autograd.grad(loss, (video, text)) for loss in (whole, sum(parts) / 2)]
+    assert all(torch.allclose(a, b, atol=1e-6) for a, b in zip(*grads))
+    assert not torch.allclose(parts[0], parts[1], atol=1e-3)
 
 
 def test_global_batch_norm_keeps_the_model_and_is_batch_norm_on_one_process() -> None:

@@ -8,7 +8,7 @@ import pytest
 import torch
 import torch.nn.functional as F
 
-from encoders.loss import contrastive_loss, positives_matrix, sequence_similarity, tag_similarity
+from encoders.loss import contrastive_loss, positives_matrix
 
 
 def naive_multi_positive(video: torch.Tensor, text: torch.Tensor, scale: float, keys: list[str]) -> float:
@@ -21,19 +21,6 @@ def naive_multi_positive(video: torch.Tensor, text: torch.Tensor, scale: float, 
             denom = sum(math.exp(x) for x in row)
             mass = sum(math.exp(row[j]) for j in range(b) if keys[j] == keys[i]) / denom
             total += -math.log(mass) / b
-    return total / 2
-
-
-def naive_soft(video: torch.Tensor, text: torch.Tensor, scale: float, keys: list[str], sim: list[list[float]],
-               weight: float) -> float:
-    b = len(keys)
-    total = 0.0
-    for direction in range(2):
-        for i in range(b):
-            row = [scale * float(video[i] @ text[j] if direction == 0 else video[j] @ text[i]) for j in range(b)]
-            w = [1.0 if keys[j] == keys[i] else weight * sim[i][j] for j in range(b)]
-            lse = math.log(sum(math.exp(x) for x in row))
-            total += -sum(w[j] / sum(w) * (row[j] - lse) for j in range(b)) / b
     return total / 2
 
 
@@ -52,24 +39,14 @@ def test_multi_positive_matches_naive(data: tuple[torch.Tensor, torch.Tensor, li
     assert math.isclose(float(got), naive_multi_positive(video, text, 14.0, keys), rel_tol=1e-5)
 
 
-def test_soft_matches_naive(data: tuple[torch.Tensor, torch.Tensor, list[str]]) -> None:
-    video, text, keys = data
-    tags = [["l:a"], ["h:a", "l:a"], ["l:a"], ["h:r"], ["h:a", "l:a"], ["l:a"], ["l:a", "h:a"]]
-    sim = tag_similarity(tags)
-    got = contrastive_loss(video, text, torch.tensor(9.0), positives_matrix(keys), "soft", sim, 0.5)
-    want = naive_soft(video, text, 9.0, keys, sim.tolist(), 0.5)
-    assert math.isclose(float(got), want, rel_tol=1e-5)
-
-
 def test_unique_keys_give_the_clip_loss(data: tuple[torch.Tensor, torch.Tensor, list[str]]) -> None:
     video, text, _ = data
     keys = [str(i) for i in range(7)]
     logits = 10.0 * video.float() @ text.float().T
     target = torch.arange(7)
     clip = 0.5 * (F.cross_entropy(logits, target) + F.cross_entropy(logits.T, target))
-    for variant in ("multi_positive", "soft"):
-        got = contrastive_loss(video, text, torch.tensor(10.0), positives_matrix(keys), variant)
-        assert math.isclose(float(got), float(clip), rel_tol=1e-5)
+    got = contrastive_loss(video, text, torch.tensor(10.0), positives_matrix(keys))
+    assert math.isclose(float(got), float(clip), rel_tol=1e-5)
 
 
 def test_repeated_captions_are_not_negatives() -> None:
@@ -88,15 +65,3 @@ def test_gradient_flows_to_scale(data: tuple[torch.Tensor, torch.Tensor, list[st
     scale = torch.tensor(5.0, dtype=torch.float64, requires_grad=True)
     contrastive_loss(video, text, scale, positives_matrix(keys)).backward()
     assert scale.grad is not None and float(scale.grad) != 0.0
-
-
-def test_sequence_similarity() -> None:
-    assert sequence_similarity(["a", "b"], ["a", "b"]) == 1.0
-    assert sequence_similarity(["a", "b"], ["b", "a"]) == 0.5
-    assert sequence_similarity(["a"], ["c"]) == 0.0
-    assert sequence_similarity([], []) == 1.0
-
-
-def test_unknown_variant() -> None:
-    with pytest.raises(ValueError, match="variant"):
-        contrastive_loss(torch.eye(2), torch.eye(2), torch.tensor(1.0), torch.eye(2, dtype=torch.bool), "hinge")

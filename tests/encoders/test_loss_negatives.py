@@ -8,7 +8,7 @@ import pytest
 import torch
 import torch.nn.functional as F
 
-from encoders.loss import contrastive_loss, positives_matrix, tag_similarity
+from encoders.loss import contrastive_loss, positives_matrix
 
 
 def lse(*values: float) -> float:
@@ -29,41 +29,27 @@ def test_hand_checked_negatives() -> None:
     got = contrastive_loss(video, text, scale, positives, negatives=negatives, negative_positives=own)
     v2t = ((lse(1, 0, 0.6) - lse(1, 0.6)) + (lse(0, 1, 0.8) - 1)) / 2
     assert float(got) == pytest.approx(0.5 * (v2t + in_batch))
-    # soft targets with one positive per row are the same loss
-    soft = contrastive_loss(video, text, scale, positives, "soft", negatives=negatives)
-    assert float(soft) == pytest.approx(float(contrastive_loss(video, text, scale, positives, negatives=negatives)))
     # A negative closer to a clip than its caption costs more.
     near = contrastive_loss(video, text, scale, positives, negatives=torch.tensor([[1.0, 0.0]]))
     assert float(near) > float(got)
 
 
-def reference_loss(video: torch.Tensor, text: torch.Tensor, scale: torch.Tensor, pos: torch.Tensor, variant: str,
-                   similarity: torch.Tensor | None, tag_weight: float) -> torch.Tensor:
+def reference_loss(video: torch.Tensor, text: torch.Tensor, scale: torch.Tensor, pos: torch.Tensor) -> torch.Tensor:
     """The loss as it is written without hard negatives."""
     logits = scale * video.float() @ text.float().T
-    if variant == "multi_positive":
-        def side(s: torch.Tensor) -> torch.Tensor:
-            return (torch.logsumexp(s, dim=1) - torch.logsumexp(s.masked_fill(~pos, float("-inf")), dim=1)).mean()
-    else:
-        weight = pos.float()
-        if similarity is not None and tag_weight > 0:
-            weight = weight + tag_weight * similarity.float() * (~pos).float()
-        target = weight / weight.sum(dim=1, keepdim=True)
 
-        def side(s: torch.Tensor) -> torch.Tensor:
-            return -(target * F.log_softmax(s, dim=1)).sum(dim=1).mean()
+    def side(s: torch.Tensor) -> torch.Tensor:
+        return (torch.logsumexp(s, dim=1) - torch.logsumexp(s.masked_fill(~pos, float("-inf")), dim=1)).mean()
     return 0.5 * (side(logits) + side(logits.T))
 
 
-@pytest.mark.parametrize("variant", ["multi_positive", "soft"])
-def test_without_negatives_the_loss_is_unchanged(variant: str) -> None:
+def test_without_negatives_the_loss_is_unchanged() -> None:
     g = torch.Generator().manual_seed(0)
     video = F.normalize(torch.randn(6, 8, generator=g), dim=-1)
     text = F.normalize(torch.randn(6, 8, generator=g), dim=-1)
     keys = ["a", "b", "a", "c", "d", "b"]
-    tags = [["x", "y"], ["y"], ["x", "y"], ["x"], ["y", "x"], ["y"]]
-    pos, sim, scale = positives_matrix(keys), tag_similarity(tags), torch.tensor(14.3)
-    expected = reference_loss(video, text, scale, pos, variant, sim, 0.5)
+    pos, scale = positives_matrix(keys), torch.tensor(14.3)
+    expected = reference_loss(video, text, scale, pos)
     for negatives in (None, torch.zeros(0, 8)):
-        got = contrastive_loss(video, text, scale, pos, variant, sim, 0.5, negatives=negatives)
+        got = contrastive_loss(video, text, scale, pos, negatives=negatives)
         assert torch.equal(got, expected)

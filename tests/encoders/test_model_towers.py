@@ -292,26 +292,6 @@ def test_bev_tower_reads_the_object_track(model: DualEncoder, batch: dict[str, A
         assert off.encode_video({k: v for k, v in batch.items() if k != "object_track"}, view="bev").shape == base.shape
 
 
-def test_track_range_gives_the_track_stream_the_range_and_its_change(batch: dict[str, Any]) -> None:
-    from encoders.bev import RANGE_FEATURES
-
-    config = tiny_model_config()
-    tower = DualEncoder(replace(config, bev=replace(config.bev, track_range=True, track_rates=False))).bev.eval()
-    track, ego = batch["object_track"], batch["ego_motion"]
-    features = tower.track_features(track, ego)  # (B, T, 2 (F + 3) + E)
-    f = track.shape[-1] + len(RANGE_FEATURES)
-    assert features.shape[-1] == 2 * f + tower.config.ego_features
-    torch.testing.assert_close(features[..., f - 3], torch.hypot(track[..., 0], track[..., 1]))
-    # Its change since the previous frame, scaled by T as every track feature's is.
-    t = track.shape[1]
-    rate = features[..., 2 * f - 3]
-    torch.testing.assert_close(rate[:, 1:], (features[:, 1:, f - 3] - features[:, :-1, f - 3]) * t)
-    assert torch.equal(rate[:, 0], torch.zeros_like(rate[:, 0]))
-    with torch.no_grad():
-        assert tower(batch["bev_lidar"], batch["bev_map"], batch["bev_object"], ego, track).shape == (
-            track.shape[0], config.embed_dim)
-
-
 def test_track_velocity_gives_the_track_stream_velocity_and_range_rates(batch: dict[str, Any]) -> None:
     from encoders.bev import VELOCITY_FEATURES, VELOCITY_SCALE_MPS
 

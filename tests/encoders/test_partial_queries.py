@@ -89,8 +89,6 @@ def test_partial_query_loss_is_symmetric_infonce_over_the_clips_that_answer_a_ha
     # Each half's positive clips closer than the others: lower loss.
     aligned = torch.nn.functional.normalize(positives.T.float() @ video + 0.01 * partial, dim=-1)
     assert partial_query_loss(video, aligned, scale, positives) < loss
-    soft = partial_query_loss(video, partial, scale, positives, "soft")
-    assert torch.isfinite(soft) and not torch.allclose(soft, loss)
 
 
 def test_partial_query_loss_without_halves_is_zero_with_a_graph() -> None:

@@ -90,7 +90,7 @@ def test_unknown_keys_are_listed_with_their_path() -> None:
 
 @pytest.mark.parametrize(
     ("text", "field"),
-    [("loss: hinge", "loss"), ("positives: words", "positives"), ("batch_size: 0", "batch_size"),
+    [("epochs: 0", "epochs"), ("hard_negatives: [mirror]", "hard_negatives"), ("batch_size: 0", "batch_size"),
      ("device: tpu", "device"), ("model:\n  bev:\n    downsample: 3", "downsample"),
      ("model:\n  text:\n    kind: lstm", "kind"), ("model:\n  bev:\n    ego_features: 7", "ego_features"),
      ("model:\n  dense_tasks: [lane, speed]", "dense_tasks.*speed"), ("model:\n  dense_tasks: []", "dense_tasks")],
@@ -113,29 +113,34 @@ def test_defaults_of_the_universal_embedding() -> None:
     assert dataclasses.asdict(TrainConfig())["model"]["logit_scale_max"] == pytest.approx(4.60517, abs=1e-5)
 
 
-def test_a_run_written_before_newer_keys_loads_and_resumes_as_it_was(tmp_path: Path) -> None:
+def test_a_run_that_lacks_a_key_or_holds_a_removed_one_is_refused(tmp_path: Path) -> None:
     from encoders.checkpoints import check_resume_config
 
-    old = TrainConfig().to_dict()
-    del old["view_weight"], old["time_reversal"], old["model"]["bev"]["track_range"], old["model"]["dense_tasks"]
-    del old["model"]["text"]["whole_text"]
+    config = TrainConfig()
+    written = config.to_dict()
+    check_resume_config(config, written, done_epochs=1)
     path = tmp_path / "config.json"
-    path.write_text(json.dumps(old))
-    config = TrainConfig.from_json(path)
-    assert config.view_weight == 0.0 and config.time_reversal == 0.0 and config.model.bev.track_range is False
-    # The whole text was encoded in one piece before its sentences made it up.
-    assert config.model.text.whole_text == "text" and TrainConfig().model.text.whole_text == "sentences"
-    # Dense heads from before the action and context tasks predict the first four.
-    assert config.model.dense_tasks == ("lane", "motion", "host_motion", "host_direction")
-    assert TrainConfig().model.dense_tasks[4:] == ("action", "context")
-    check_resume_config(config, old, done_epochs=1)  # the checkpoint's dict lacks the same keys
-    changed = dataclasses.replace(config.model, bev=dataclasses.replace(config.model.bev, track_range=True))
-    with pytest.raises(ConfigError, match="track_range"):
-        check_resume_config(dataclasses.replace(config, model=changed), old, done_epochs=1)
+    lacking = json.loads(json.dumps(written))
+    del lacking["view_weight"], lacking["model"]["text"]["whole_text"]
+    path.write_text(json.dumps(lacking))
+    with pytest.raises(ConfigError, match=r"config.json: written by an older version \(it lacks "
+                                          r"model.text.whole_text, view_weight\): train the model again"):
+        TrainConfig.from_json(path)
+    with pytest.raises(ConfigError, match="run/checkpoints/last.pt: config: written by an older version"):
+        check_resume_config(config, lacking, done_epochs=1, source="run/checkpoints/last.pt")
+    for removed in ("time_reversal", "loss", "positives", "tag_weight"):
+        path.write_text(json.dumps({**written, removed: 0.0}))
+        with pytest.raises(ConfigError, match=f"unknown keys {removed}"):
+            TrainConfig.from_json(path)
+    path.write_text(json.dumps({**written, "model": {**written["model"], "bev": {**written["model"]["bev"],
+                                                                                  "track_range": False}}}))
+    with pytest.raises(ConfigError, match="unknown keys model.bev.track_range"):
+        TrainConfig.from_json(path)
+    changed = dataclasses.replace(config.model, bev=dataclasses.replace(config.model.bev, track_velocity=True))
+    with pytest.raises(ConfigError, match="track_velocity"):
+        check_resume_config(dataclasses.replace(config, model=changed), written, done_epochs=1)
     with pytest.raises(ConfigError, match=r"run/checkpoints/last.pt: config.*bogus"):
-        check_resume_config(config, {**old, "bogus": 1}, done_epochs=1, source="run/checkpoints/last.pt")
-    with pytest.raises(ConfigError, match="time_reversal"):
-        TrainConfig(time_reversal=1.5)
+        check_resume_config(config, {**written, "bogus": 1}, done_epochs=1, source="run/checkpoints/last.pt")
 
 
 def test_a_tagging_checkpoint_written_before_the_presence_weights_resumes() -> None:

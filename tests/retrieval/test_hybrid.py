@@ -214,11 +214,10 @@ def _with_hybrid(built: dict[str, Any], tmp_path: Path, value: Any) -> Path:
     return index
 
 
-def test_an_index_from_before_searches_with_the_default_weight(built: dict[str, Any], tmp_path: Path) -> None:
-    search = SceneSearch.open(_with_hybrid(built, tmp_path, None), embedder=built["embedder"],
-                              text_encoder=built["search"].captions.encoder)
-    assert search.hybrid == WeightChoice(DEFAULT_WEIGHT)
-    assert len(search.search_hybrid("a car in the left lane approaches", k=3)) == 3
+def test_an_index_without_its_hybrid_weight_is_refused(built: dict[str, Any], tmp_path: Path) -> None:
+    with pytest.raises(IndexDirError, match=r"missing fields \['hybrid'\]"):
+        SceneSearch.open(_with_hybrid(built, tmp_path, None), embedder=built["embedder"],
+                         text_encoder=built["search"].captions.encoder)
 
 
 @pytest.mark.parametrize(("value", "message"), [

@@ -154,14 +154,14 @@ def test_sidecar_errors_name_file_and_expectation(tmp_path: Path, name: str,
         CaptionSearch.open(directory, encoder=HashTextEncoder())
 
 
-def test_older_caption_index_opens_with_a_warning(tmp_path: Path) -> None:
+def test_an_older_caption_index_is_refused_with_what_to_do(tmp_path: Path) -> None:
     directory = _built(tmp_path)
     manifest = json.loads((directory / "manifest.json").read_text())
     for key in ("files", "content_sha256"):
         manifest.pop(key)
     (directory / "manifest.json").write_text(json.dumps({**manifest, "format_version": 1}))
-    with pytest.warns(UserWarning, match="older version"):
-        assert len(CaptionSearch.open(directory, encoder=HashTextEncoder())) == 4
+    with pytest.raises(IndexDirError, match="built by an older version.*build it again"):
+        CaptionSearch.open(directory, encoder=HashTextEncoder())
 
 
 def test_cli_reports_a_corrupt_caption_index_in_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
@@ -192,10 +192,11 @@ def test_queries_are_embedded_as_the_index_embedded_its_texts(tmp_path: Path) ->
                                             r"'sentences', the given encoder embeds a text as 'text'"):
         CaptionSearch.open(directory, encoder=HashTextEncoder())
     assert CaptionSearch.open(directory, encoder=HashTextEncoder("sentences")).whole_text == "sentences"
-    # An index from before the field embedded its texts in one piece: so are its queries.
+    # An index that does not say how it embedded its texts was built by an older version.
     manifest.pop("whole_text")
     (directory / "manifest.json").write_text(json.dumps(seal(manifest)))
-    assert CaptionSearch.open(directory).encoder.whole_text == "text"  # type: ignore[attr-defined]
+    with pytest.raises(IndexDirError, match=r"field 'whole_text': missing \(built by an older version"):
+        CaptionSearch.open(directory)
     (directory / "manifest.json").write_text(json.dumps(seal({**manifest, "whole_text": "words"})))
     with pytest.raises(IndexDirError, match=r"manifest.json, field 'whole_text': must be one of"):
         CaptionSearch.open(directory)

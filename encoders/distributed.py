@@ -296,13 +296,13 @@ class Distributed:
         """This process's ``n`` rows of the whole batch (None on one process: all rows)."""
         return slice(self.rank * n, (self.rank + 1) * n) if self.active else None
 
-    def mean(self, value: float) -> float:
-        """``value`` averaged over processes."""
+    def means(self, values: dict[str, float]) -> dict[str, float]:
+        """Each of ``values`` averaged over processes (one collective for all)."""
         if not self.active:
-            return value
-        t = torch.tensor([value], dtype=torch.float64, device=self._collective_device())
+            return dict(values)
+        t = torch.tensor(list(values.values()), dtype=torch.float64, device=self._collective_device())
         dist.all_reduce(t)
-        return float(t) / self.processes
+        return {k: float(v) / self.processes for k, v in zip(values, t.tolist())}
 
     def total(self, x: torch.Tensor) -> torch.Tensor:
         """x (counts, no gradient) summed over processes."""

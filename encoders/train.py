@@ -3,7 +3,8 @@
 ``train(clips_dir, run_dir, config)`` writes, in ``run_dir``:
 
     config.json           the TrainConfig (model channels resolved from the data)
-    metrics.jsonl         one line per epoch: loss, learning rate, samples/s, validation retrieval metrics
+    metrics.jsonl         one line per epoch: loss and each of its terms, learning rate, samples/s,
+                          validation retrieval metrics
     checkpoints/last.pt   everything a resumed run needs (:mod:`encoders.checkpoints`), atomically every epoch
     model.safetensors     final weights (frozen pretrained text weights are left out: they load from text.model)
     text_cache.npz        cached frozen caption embeddings (pretrained and slots text towers)
@@ -18,15 +19,10 @@ state). A run resumed from ``checkpoints/last.pt`` therefore continues exactly a
 stopped (on CPU; CUDA kernels may add their own non-determinism), with or without tag targets and
 with a trained or a frozen text tower.
 
-With ``hard_negatives`` (:mod:`encoders.negatives`), each clip's caption with its steps reversed
-joins the clip → text side of the loss as an extra negative; ``order_weight`` adds a pairwise term
-on the reversed ones (:mod:`encoders.loss`).
-With ``partial_weight`` (:mod:`encoders.partial_queries`), each caption's halves (the object's sentence,
-the ego's) join the text batch as queries of their own, in a loss beside the captions'.
-
-This module is one job, the training loop; it is long because every loss above joins the same step.
-What each computes lives in :mod:`encoders.loss`, :mod:`encoders.negatives` and
-:mod:`encoders.partial_queries`, the checkpoints in :mod:`encoders.checkpoints`.
+Each step embeds its batch and the texts its loss adds (:func:`encoders.training_loss.forward_step`:
+hard negatives, caption halves) and minimises :class:`encoders.training_loss.TrainingLoss`, whose
+named terms (contrastive, partial, order, dense, view_camera, view_bev, tagging) are each logged as the
+epoch's mean in ``train_terms``; what each term computes lives in :mod:`encoders.loss`.
 
 Checkpoints (:mod:`encoders.checkpoints`) hold every optimiser's state (the tagging head's own
 included), the random states and the metrics rows so far, as plain tensors and data read with
@@ -75,22 +71,16 @@ from encoders.config import TrainConfig
 from encoders.data import AugmentConfig
 from encoders.distributed import Distributed
 from encoders.inference import collate, evaluate, open_split, record_trained_clips, resolve_device
-from encoders.loss import (
-    contrastive_loss,
-    order_loss,
-    partial_query_loss,
-    positives_matrix,
-    view_loss,
-)
 from encoders.model import DualEncoder
 from encoders.model_card import MODEL_CARD_FILE, model_card
-from encoders.negatives import NEGATIVE_FIELDS, batch_negatives
-from encoders.partial_queries import PARTIAL_FIELDS, batch_partials
+from encoders.negatives import NEGATIVE_FIELDS
+from encoders.partial_queries import PARTIAL_FIELDS
 from encoders.run_folder import claim_run_dir
 from encoders.tagging.ablation import mask_inputs
 from encoders.tagging.config import TagTrainConfig
 from encoders.tagging.training import attach_tagging
 from encoders.text import TEXT_CACHE_FILE, kept_apart
+from encoders.training_loss import TOTAL, TrainingLoss, forward_step
 
 
 class TrainingError(RuntimeError):
@@ -311,6 +301,7 @@ def train(
     total_steps = batches_per_epoch * config.epochs
     camera = camera_flags(train_set) if config.camera_share > 0 else None
     use_amp = config.amp and device.type == "cuda"
+    loss_fn = TrainingLoss(config, dp, tag_objective)
     # Negatives are paraphrased as often as the positives are.
     negative_paraphrases = AugmentConfig().paraphrase_probability if config.augment else 0.0
     writer = _tensorboard(run_dir) if dp.is_main else None
@@ -334,6 +325,7 @@ def train(
             persistent_workers=False,
         )
         losses: list[float] = []
+        terms: dict[str, list[float]] = {}  # each term's values over the epoch's steps
         seen, t0 = 0, time.perf_counter()
         bar = _progress(loader, total=batches_per_epoch, desc=f"epoch {epoch + 1}/{config.epochs}",
                         enable=progress if dp.is_main else False)
@@ -343,63 +335,15 @@ def train(
                 group["lr"] = learning_rate(config, step, total_steps)
             batch = mask_inputs(batch, tag_config.inputs)  # tagging hook: input ablation (none/map/lidar/both)
             batch = dp.align_draws(batch, config.shuffle_frames)  # frames shuffled in time (the baseline)
-            keys = batch["canonical_caption"]
-            whole, all_keys = dp.whole_batch(batch, keys)  # the text fields of every process's clips
-            negative_texts: list[str] = []
-            own: list[list[bool]] = []
-            reversed_of: list[int] = []
-            if config.hard_negatives:
-                negative_texts, own, reversed_of = batch_negatives(
-                    batch, config.hard_negatives, keys, config.seed, step, negative_paraphrases)
-                if dp.active:  # the whole batch's clips against every process's negatives, in the same order
-                    _, own, reversed_of = batch_negatives(whole, config.hard_negatives, all_keys, config.seed, step,
-                                                          negative_paraphrases)
-            partials = None
-            if config.partial_weight > 0:  # halves of the captions as queries of their own
-                partials = batch_partials(batch, config.seed, step, config.partial_object_share,
-                                          config.partial_host_share, whole if dp.active else None)
-            queries = list(batch["caption"]) + negative_texts + (partials.texts if partials else [])
             with torch.autocast(device_type=device.type, dtype=torch.bfloat16, enabled=use_amp):
-                views: dict[str, torch.Tensor] = {}
-                frames: dict[str, torch.Tensor] | None = {} if config.dense_weight > 0 else None
-                if config.view_weight > 0 or frames is not None:  # each tower once; the fused view reuses them
-                    views = model.encode_views(batch, camera_always=False, frames=frames,  # no camera: not run
-                                               detach_camera=config.camera_apart)
-                    texts = model.encode_text(queries)
-                    video, scale = views["fused"], model.scale()
-                else:
-                    video, texts, scale = model(batch, queries)
-                split = [len(keys), len(negative_texts)]
-                text, negatives, partial = texts.split([*split, len(texts) - sum(split)])  # (B, D), (M, D), (H, D)
-                video, text, negatives = dp.gather(video), dp.gather(text), dp.gather(negatives)  # whole batch
-                positives = positives_matrix(all_keys, device)
-                own_mask = torch.tensor(own, dtype=torch.bool, device=device).reshape(len(all_keys), len(negatives))
-                loss = contrastive_loss(video, text, scale, positives, negatives, own_mask, rows=dp.rows(len(keys)))
-                if partials is not None:  # the whole batch's loss on every process (see partial_query_loss)
-                    partial_positives = torch.tensor(partials.positives, dtype=torch.bool)  # (whole B, whole M)
-                    loss = loss + config.partial_weight * partial_query_loss(video, dp.gather(partial), scale,
-                                                                             partial_positives)
-                if config.order_weight > 0:  # each clip against its steps reversed; gradients are averaged
-                    loss = loss + config.order_weight * dp.processes * order_loss(video, text, negatives, reversed_of,
-                                                                                  scale, dp.rows(len(keys)))
-                if frames:  # the frames' rule tags from each stream's frame tokens (encoders.dense)
-                    # Over the whole batch's tagged frames; gradients are averaged over processes, hence the factor.
-                    loss = loss + config.dense_weight * dp.processes * model.dense_loss(batch, frames, dp.total)
-                if config.view_weight > 0:
-                    with_camera = dp.gather(torch.as_tensor(batch["has_camera"], dtype=torch.float32,
-                                                     device=device).reshape(-1)).gt(0.5)  # (B,) whole batch
-                    for name, keep in (("camera", with_camera), ("bev", torch.ones_like(with_camera))):
-                        loss = loss + config.view_weight * view_loss(
-                            dp.gather(views[name]), text, scale, positives, keep, dp.rows(len(keys)), dp.processes,
-                            negatives, own_mask,
-                            move_text=not (config.camera_apart and name == "camera"))  # apart: as the others put them
-                if tag_objective is not None:  # tagging hook
-                    loss = loss + tag_objective.weight * tag_objective.loss(model.bev_embedding)
-            value = dp.mean(float(loss.detach()))  # the whole batch's loss
+                out = forward_step(model, batch, config, step, dp, negative_paraphrases)
+                step_loss = loss_fn(model, out)
+            values = dp.means(step_loss.values())  # the whole batch's loss and terms
+            value = values.pop(TOTAL)
             if not math.isfinite(value):
-                raise NonFiniteLossError(step, epoch, whole["clip_id"], value)
+                raise NonFiniteLossError(step, epoch, out.clip_ids, value)
             opt.zero_grad(set_to_none=True)
-            loss.backward()
+            step_loss.total.backward()
             dp.average_gradients(model, tag_objective)
             if config.grad_clip > 0:
                 torch.nn.utils.clip_grad_norm_(model.parameters(), config.grad_clip)
@@ -409,6 +353,8 @@ def train(
             step += 1
             seen += len(batch["clip_id"]) * dp.processes
             losses.append(value)
+            for name, term in values.items():
+                terms.setdefault(name, []).append(term)
             rate = seen / max(time.perf_counter() - t0, 1e-9)
             if hasattr(bar, "set_postfix"):
                 bar.set_postfix(loss=f"{value:.3f}", samples_s=f"{rate:.1f}")
@@ -421,6 +367,7 @@ def train(
             "epoch": done,
             "step": step,
             "train_loss": float(np.mean(losses)) if losses else float("nan"),
+            "train_terms": {name: float(np.mean(v)) for name, v in terms.items()},
             "lr": opt.param_groups[0]["lr"],
             "logit_scale": float(model.logit_scale.detach()),
             "samples_per_s": seen / max(epoch_s, 1e-9),
@@ -439,6 +386,8 @@ def train(
             _append_metrics(metrics_path, row)
         if writer is not None:
             writer.add_scalar("train/loss", row["train_loss"], step)
+            for k, v in row["train_terms"].items():
+                writer.add_scalar(f"train/{k}", v, step)
             writer.add_scalar("train/samples_per_s", row["samples_per_s"], step)
             for k, v in row.get("val", {}).items():
                 writer.add_scalar(f"val/{k}", v, step)

@@ -15,7 +15,7 @@ ORDER = ("common", "scenes", "captioning", "scenarios", "encoders", "indexes", "
 #: `indexes/` is a generic vector store: besides itself it may import the base package alone.
 GENERIC = {"indexes": {"common", "indexes"}}
 #: Training code that later stages must not import (they use the inference modules instead).
-TRAINING_MODULES = {"encoders.train", "encoders.calibration", "encoders.tagging.training"}
+TRAINING_MODULES = {"encoders.train", "encoders.training_loss", "encoders.calibration", "encoders.tagging.training"}
 MAX_LINES = 450
 
 

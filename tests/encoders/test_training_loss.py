@@ -164,6 +164,6 @@ def test_every_term_is_logged_per_epoch(tmp_path: Path) -> None:
     config = dataclasses.replace(every_term(), batch_size=4, epochs=1)
     train("unused", tmp_path / "run", config, datasets={"train": Clips()}, progress=False, log=lambda _m: None)
     row = json.loads((tmp_path / "run" / "metrics.jsonl").read_text().splitlines()[0])
-    assert list(row["train_terms"]) == ["contrastive", "partial", "order", "dense", "view_camera", "view_bev"]
+    assert set(row["train_terms"]) == {"contrastive", "partial", "order", "dense", "view_camera", "view_bev"}
     # Each is the epoch's mean of the step's weighted terms, which add up to the step's loss.
     assert sum(row["train_terms"].values()) == pytest.approx(row["train_loss"], rel=1e-5)

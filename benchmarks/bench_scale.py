@@ -75,19 +75,19 @@ def _simulated(out: Path, logs: int, duration_s: float, sensors: bool) -> tuple[
     return sorted(Path(p) for p in result.log_dirs), figures
 
 
-def _untrained_run(run_dir: Path, clips_dir: Path, preset: str = "default") -> Path:
+def _untrained_run(run_dir: Path, clips_dir: Path, name: str = "recommended") -> Path:
     """A run folder holding a model of the preset's size with its initial weights: embedding costs
     the same as with trained ones."""
     from safetensors.torch import save_file
 
     from common.atomic import atomic_write_text
-    from encoders.config import TrainConfig
     from encoders.data import ClipDataset
     from encoders.model import DualEncoder
+    from encoders.presets import preset
     from encoders.train import resolve_channels
 
     run_dir.mkdir(parents=True, exist_ok=True)  # made anew each run: the model's code may have changed
-    config = resolve_channels(TrainConfig.preset(preset), ClipDataset(clips_dir, as_uint8=True)[0])
+    config = resolve_channels(preset(name).train, ClipDataset(clips_dir, as_uint8=True)[0])
     model = DualEncoder(config.model)
     save_file({k: v.detach().contiguous() for k, v in model.saved_state_dict().items()},
               str(run_dir / "model.safetensors"), metadata={"format": "scenesearch.DualEncoder"})
@@ -196,7 +196,7 @@ def run(quick: bool) -> dict[str, Any]:
 
     load_before = os.getloadavg()[0]
     serial = _stages(logs, scratch, None, None, True, "serial")
-    run_dir = _untrained_run(scratch / "run", scratch / "clips_serial", "tiny" if quick else "default")
+    run_dir = _untrained_run(scratch / "run", scratch / "clips_serial", "tiny" if quick else "recommended")
     from retrieval.embedding import ModelEmbedder
 
     serial["embed"] = _timed(lambda: ModelEmbedder(run_dir).embed_clips(scratch / "clips_serial", view="fused"))

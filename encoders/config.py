@@ -6,8 +6,7 @@ go through :mod:`common.config` (``TrainConfig.from_yaml(path)``, ``to_yaml(path
 an error that lists them all, with their dotted path (``model.camera.widht``). A run folder keeps its
 config as ``config.json`` (:meth:`TrainConfig.to_json`, :meth:`TrainConfig.from_json`).
 
-Presets: ``default`` (the sizes the CPU demo trains in minutes) and ``tiny`` (tests and smoke runs:
-a from-scratch text tower and a few channels per layer).
+Complete recipes, the model and its training, are files selected by name (:mod:`encoders.presets`).
 
 One job: every setting of the model and its training, read and checked in one place, so that a run's
 ``config.json`` is one document with one reader.
@@ -511,13 +510,6 @@ class TrainConfig(EncodersConfig):
             raise ConfigError(f"{source}: written by an older version (it lacks {', '.join(missing)}): "
                               "train the model again")
         return config
-
-    @staticmethod
-    def preset(name: str) -> TrainConfig:
-        """The train config of the preset ``name`` (:mod:`encoders.presets`: ``recommended``, ``tiny``)."""
-        from encoders.presets import preset
-
-        return preset(name).train
 
 
 def _missing_keys(cls: type, data: Mapping[str, Any], prefix: str = "") -> list[str]:

@@ -10,9 +10,9 @@ import torch
 import torch.nn.functional as F
 
 from encoders.calibration import CAMERA_WEIGHTS, calibrate_camera_weight
-from encoders.config import TrainConfig
 from encoders.inference import evaluate, load_model
 from encoders.model import DualEncoder
+from encoders.presets import preset
 from encoders.train import train
 from tests.encoders.synthetic import SyntheticClipDataset, SyntheticSpec
 
@@ -21,7 +21,7 @@ SPEC = SyntheticSpec(frames=6, camera_hw=(24, 32), bev_hw=(24, 12), distractors=
 
 def tiny_model(seed: int = 0) -> DualEncoder:
     torch.manual_seed(seed)
-    config = TrainConfig.preset("tiny").model
+    config = preset("tiny").train.model
     item = SyntheticClipDataset(1, "val", SPEC, seed=1)[0]
     bev = dataclasses.replace(config.bev, lidar_channels=int(item["bev_lidar"].shape[1]),
                               map_channels=int(item["bev_map"].shape[1]))
@@ -75,7 +75,7 @@ def test_calibration_without_a_camera_clip_or_a_validation_split_leaves_the_weig
 
 def test_training_saves_the_calibrated_weight_and_weights_without_it_are_refused(tmp_path: Path) -> None:
     torch.set_num_threads(1)
-    cfg = dataclasses.replace(TrainConfig.preset("tiny"), batch_size=8, epochs=1)
+    cfg = dataclasses.replace(preset("tiny").train, batch_size=8, epochs=1)
     data = {"train": SyntheticClipDataset(16, "train", SPEC, seed=1),
             "val": SyntheticClipDataset(8, "val", SPEC, seed=1)}
     lines: list[str] = []

@@ -21,6 +21,7 @@ from encoders.clips.render import render_log
 from encoders.clips.splits import assign_splits
 from encoders.clips.table import ClipsInputError
 from encoders.data import ClipDataset
+from encoders.presets import preset
 from scenes.bev import BevGrid
 from scenes.log import Log
 from tests.encoders.clip_fixtures import EGO_SE3_CAMERA, INTRINSICS, synthetic_captions, write_synthetic_log
@@ -116,7 +117,6 @@ def test_object_crops_centre_each_track_in_its_own_colours(built: tuple[Path, Pa
 
 def test_clips_without_their_crops_are_named_and_a_crop_model_refuses_clips_from_before_crops(
         built: tuple[Path, Path], tmp_path: Path) -> None:
-    from encoders.config import TrainConfig
     from encoders.train import TrainingError, train
 
     _, clips_dir = built
@@ -133,7 +133,7 @@ def test_clips_without_their_crops_are_named_and_a_crop_model_refuses_clips_from
     del manifest["camera"]["object_crops"]
     (old / "manifest.json").write_text(json.dumps(manifest))
     assert "camera_crop" not in _item(old, "lead") and "camera_box" not in _item(old, "lead")
-    tiny = TrainConfig.preset("tiny")
+    tiny = preset("tiny").train
     crop_config = replace(tiny, model=replace(tiny.model, camera=replace(tiny.model.camera, object_crop=True)))
     with pytest.raises(TrainingError, match="object_crop.*render them again"):
         train(old, tmp_path / "run", crop_config)

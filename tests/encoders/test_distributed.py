@@ -37,6 +37,7 @@ from encoders.distributed import (
 )
 from encoders.loss import contrastive_loss, positives_matrix
 from encoders.negatives import render_caption
+from encoders.presets import preset
 from encoders.tagging.config import TagTrainConfig
 from retrieval.cli import main
 from tests.encoders.synthetic import SyntheticClipDataset, SyntheticSpec
@@ -83,7 +84,7 @@ def setup(name: str, clips: Path, processes: int) -> tuple[TrainConfig, dict[str
     between two summation orders already (one process on 1 and on 2 threads), whatever the processes.
     ``resumable`` is what the command line trains (the default tagging), to be resumed by it.
     """
-    tiny = dataclasses.replace(TrainConfig.preset("tiny"), device="cpu", max_steps_per_epoch=1)
+    tiny = dataclasses.replace(preset("tiny").train, device="cpu", max_steps_per_epoch=1)
     scale = 2 // processes  # one process takes the whole batch
     if name == "synthetic":
         model = dataclasses.replace(tiny.model, dense_streams=("camera", "track"),

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 import torch
 
+from encoders.presets import preset
 from encoders.tagging.attributes import ATTRIBUTES, FOOTPRINT_M2, TagError
 from encoders.tagging.config import TagTrainConfig
 from encoders.tagging.evaluate import evaluate_runs, write_report
@@ -201,10 +202,9 @@ def test_a_joint_run_takes_the_backbone_from_the_dual_encoder(fixture: dict[str,
 def test_scenesearch_training_adds_the_tag_loss_and_writes_the_head(fixture: dict[str, Any], tmp_path: Path) -> None:
     import dataclasses
 
-    from encoders.config import TrainConfig
     from encoders.train import train
 
-    config = dataclasses.replace(TrainConfig.preset("tiny"), epochs=1, batch_size=2, device="cpu")
+    config = dataclasses.replace(preset("tiny").train, epochs=1, batch_size=2, device="cpu")
     lines: list[str] = []
     train(fixture["clips"], tmp_path / "joint", config, log=lines.append, progress=False,
           tagging=TagTrainConfig(batch_size=2, window_frames=3, inputs="lidar"))

@@ -15,10 +15,11 @@ from torch.utils.data import DataLoader
 
 from encoders.clips.build import build_clips
 from encoders.clips.config import ClipsConfig
-from encoders.config import ConfigError, TrainConfig
+from encoders.config import ConfigError
 from encoders.dense import DENSE_TASKS
 from encoders.inference import collate, embed_clips, embed_texts, frame_tag_figures, load_model, open_split
 from encoders.model import DualEncoder
+from encoders.presets import preset
 from encoders.train import resolve_channels
 from retrieval.cli import main
 from retrieval.evaluation import evaluate
@@ -140,7 +141,7 @@ def test_dense_weight_trains_frame_tag_heads_and_eval_reports_them(
 
 def test_frame_tag_figures_of_perfect_heads(tagged_clips_dir: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     dataset = open_split(tagged_clips_dir, None)
-    tiny = resolve_channels(TrainConfig.preset("tiny"), dataset[0]).model
+    tiny = resolve_channels(preset("tiny").train, dataset[0]).model
     model = DualEncoder(replace(tiny, dense_streams=("track",)))
     targets = iter(torch.as_tensor(b["frame_targets"]) for b in DataLoader(dataset, batch_size=32, collate_fn=collate))
 
@@ -171,7 +172,7 @@ def test_recipe_settings_reach_the_configs(tmp_path: Path) -> None:
         return train_command.build_recipe(parser.parse_args([*base, *argv]))
 
     default = recipe()
-    assert default.name == "recommended" and default.train == TrainConfig.preset("recommended")
+    assert default.name == "recommended" and default.train == preset("recommended").train
     both = recipe("--set", "model.dense_streams=[camera, track]", "--set", "dense_weight=1").train
     assert both.model.dense_streams == ("camera", "track") and both.dense_weight == 1.0
     with pytest.raises(ConfigError, match="lidar"):

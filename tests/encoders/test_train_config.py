@@ -51,7 +51,7 @@ def test_presets_are_the_two_recipes() -> None:
 
 
 def test_run_config_json_round_trips(tmp_path: Path) -> None:
-    config = dataclasses.replace(TrainConfig.preset("tiny"), lr=1e-6)  # JSON writes 1e-06, which YAML 1.1 reads as text
+    config = dataclasses.replace(preset("tiny").train, lr=1e-6)  # JSON writes 1e-06, which YAML 1.1 reads as text
     (tmp_path / "config.json").write_text(config.to_json())
     assert TrainConfig.from_json(tmp_path / "config.json") == config
 

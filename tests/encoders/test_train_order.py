@@ -18,6 +18,7 @@ from torch.utils.data import Dataset
 from encoders.config import HardNegative, TextConfig, TrainConfig
 from encoders.inference import embed_texts, load_model
 from encoders.negatives import render_caption, reversed_steps
+from encoders.presets import preset
 from encoders.sentence import TextModelUnavailableError
 from encoders.text import text_sentences
 from encoders.train import TrainingError, train
@@ -64,7 +65,7 @@ class CaptionedClips(Dataset[dict[str, Any]]):
 
 
 def config(text: TextConfig, **changes: Any) -> TrainConfig:
-    tiny = TrainConfig.preset("tiny")
+    tiny = preset("tiny").train
     slots = {"time_slots": 4, "slot_dim": 4} if text.kind == "slots" else {}
     changes = {"batch_size": 8, "augment": False, "device": "cpu", **changes}
     return dataclasses.replace(tiny, model=dataclasses.replace(tiny.model, text=text, **slots), **changes)
@@ -111,7 +112,7 @@ class Killed(Exception):
 
 
 def test_resume_with_paraphrased_hard_negatives_is_exact(tmp_path: Path) -> None:
-    cfg = config(TrainConfig.preset("tiny").model.text, epochs=2, augment=True, hard_negatives=tuple(HardNegative))
+    cfg = config(preset("tiny").train.model.text, epochs=2, augment=True, hard_negatives=tuple(HardNegative))
     run(tmp_path / "straight", cfg, CaptionedClips(16, augment=True))
 
     def kill(epoch: int) -> None:
@@ -131,7 +132,7 @@ def test_resume_with_paraphrased_hard_negatives_is_exact(tmp_path: Path) -> None
 
 
 def test_hard_negatives_need_the_clips_tags() -> None:
-    cfg = config(TrainConfig.preset("tiny").model.text, hard_negatives=(HardNegative.REVERSE,))
+    cfg = config(preset("tiny").train.model.text, hard_negatives=(HardNegative.REVERSE,))
     with pytest.raises(TrainingError, match="category, host_tags"):
         train("unused", "/nonexistent/run", cfg, datasets={"train": SyntheticClipDataset(4, "train", SPEC)},
               progress=False, log=lambda _m: None)

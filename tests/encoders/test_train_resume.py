@@ -17,6 +17,7 @@ from safetensors.torch import load_file
 
 from encoders.checkpoints import read_checkpoint
 from encoders.config import ConfigMismatchError, TextConfig, TrainConfig
+from encoders.presets import preset
 from encoders.sentence import TextModelUnavailableError
 from encoders.tagging.config import TagTrainConfig
 from encoders.train import train
@@ -40,7 +41,7 @@ def clips(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 def config(text: str) -> TrainConfig:
-    tiny = TrainConfig.preset("tiny")
+    tiny = preset("tiny").train
     model = tiny.model
     if text == "frozen":  # the pretrained sentence encoder, frozen: its embeddings come from the text cache
         model = dataclasses.replace(model, text=TextConfig(kind="pretrained", freeze=True, cache=True))

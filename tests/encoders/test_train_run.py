@@ -25,6 +25,7 @@ from encoders.checkpoints import (
 )
 from encoders.config import ConfigMismatchError, TrainConfig
 from encoders.inference import load_model, shuffle_time
+from encoders.presets import preset
 from encoders.train import NonFiniteLossError, NoTrainingSplitError, evaluate, learning_rate, train
 from tests.encoders.synthetic import SyntheticClipDataset, SyntheticSpec
 
@@ -44,7 +45,7 @@ def datasets() -> dict[str, Any]:
 
 
 def config(**changes: Any) -> TrainConfig:
-    return dataclasses.replace(TrainConfig.preset("tiny"), batch_size=8, epochs=2, **changes)
+    return dataclasses.replace(preset("tiny").train, batch_size=8, epochs=2, **changes)
 
 
 def run(out: Path, cfg: TrainConfig, **kwargs: Any) -> Any:
@@ -288,7 +289,7 @@ def test_camera_apart_leaves_the_shared_towers_to_the_captions_and_bev(tmp_path:
     # The fused view never sees the camera here (dropped whenever both views are present), so only the
     # camera view's own loss could carry the camera's pixels into the text and BEV towers; no gradient
     # clipping, whose global norm would mix the towers' gradients.
-    model = TrainConfig.preset("tiny").model
+    model = preset("tiny").train.model
     model = dataclasses.replace(model, fusion=dataclasses.replace(model.fusion, drop_camera_p=1.0, drop_bev_p=0.0))
     cfg = config(model=model, camera_apart=apart, grad_clip=0.0, calibrate_camera=False)
     shared = ("text.", "bev.", "fusion.mlp.")

@@ -21,6 +21,7 @@ from encoders.loss import contrastive_loss, order_loss, partial_query_loss, posi
 from encoders.model import DualEncoder
 from encoders.negatives import batch_negatives, render_caption
 from encoders.partial_queries import batch_partials
+from encoders.presets import preset
 from encoders.train import train
 from encoders.training_loss import TOTAL, LossTerms, TrainingLoss, forward_step
 from tests.encoders.synthetic import SyntheticClipDataset, SyntheticSpec
@@ -63,7 +64,7 @@ class Tagging:
 
 
 def every_term() -> TrainConfig:
-    tiny = dataclasses.replace(TrainConfig.preset("tiny"), device="cpu")
+    tiny = dataclasses.replace(preset("tiny").train, device="cpu")
     model = dataclasses.replace(tiny.model, dense_streams=("camera", "track"),
                                 bev=dataclasses.replace(tiny.model.bev, track_velocity=True))
     return dataclasses.replace(tiny, model=model, hard_negatives=(HardNegative.REVERSE,), view_weight=0.5,
@@ -142,7 +143,7 @@ def _step(config: TrainConfig, new: bool, with_tagging: bool) -> tuple[torch.Ten
 @pytest.mark.parametrize(("config", "with_tagging"), [
     (every_term(), True),
     (dataclasses.replace(every_term(), camera_apart=False), False),
-    (dataclasses.replace(TrainConfig.preset("tiny"), device="cpu", view_weight=0.0), False),  # one forward
+    (dataclasses.replace(preset("tiny").train, device="cpu", view_weight=0.0), False),  # one forward
 ])
 def test_the_total_and_its_gradients_are_the_terms_summed_as_the_loop_did(config: TrainConfig,
                                                                           with_tagging: bool) -> None:

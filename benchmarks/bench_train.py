@@ -45,11 +45,11 @@ import numpy as np
 import torch
 from torch.utils.data import Dataset
 
-from encoders.config import TrainConfig
 from encoders.loss import contrastive_loss, positives_matrix
 from encoders.model import DualEncoder
 from encoders.text import ENCODE_GROUP, TextTower
 from encoders.train import build_optimizer, evaluate, train
+from encoders.train_config import TrainConfig
 from tests.encoders.synthetic import SyntheticClipDataset, SyntheticSpec, collate_clips
 
 DEFAULT_SPEC = SyntheticSpec()

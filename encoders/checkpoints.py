@@ -32,7 +32,8 @@ import numpy as np
 import torch
 
 from common.atomic import atomic_path
-from encoders.config import ConfigMismatchError, TrainConfig
+from encoders.config import ConfigMismatchError
+from encoders.train_config import TrainConfig
 
 if TYPE_CHECKING:
     from encoders.model import DualEncoder

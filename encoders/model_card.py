@@ -10,7 +10,7 @@ from torch.utils.data import Dataset
 
 from encoders.calibration import CameraWeightChoice
 from encoders.clips.views import EGO_MOTION_COLUMNS
-from encoders.config import TrainConfig
+from encoders.train_config import TrainConfig
 
 
 def model_card(config: TrainConfig, history: list[dict[str, Any]], n_train: int,

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 from typing import Any, NamedTuple
 
 from captioning.text import caption_text
-from encoders.config import HardNegative
+from encoders.train_config import HardNegative
 
 #: What a clip (a dataset item) needs for its hard negatives.
 NEGATIVE_FIELDS = ("clip_id", "category", "tags", "host_tags")

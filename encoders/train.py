@@ -67,7 +67,6 @@ from encoders.checkpoints import (
     save_checkpoint,
 )
 from encoders.clips.frame_tags import FRAME_TAG_COLUMNS
-from encoders.config import TrainConfig
 from encoders.data import AugmentConfig
 from encoders.distributed import Distributed
 from encoders.inference import collate, evaluate, open_split, record_trained_clips, resolve_device
@@ -80,6 +79,7 @@ from encoders.tagging.ablation import mask_inputs
 from encoders.tagging.config import TagTrainConfig
 from encoders.tagging.training import attach_tagging
 from encoders.text import TEXT_CACHE_FILE, kept_apart
+from encoders.train_config import TrainConfig
 from encoders.training_loss import TOTAL, TrainingLoss, forward_step
 
 

@@ -1,6 +1,6 @@
 """The training step's loss as one object: named terms, each weighted, and their sum.
 
-:class:`TrainingLoss` is built once per run from the :class:`~encoders.config.TrainConfig` (with the
+:class:`TrainingLoss` is built once per run from the :class:`~encoders.train_config.TrainConfig` (with the
 run's processes and its tagging objective, if any). Called on a step's outputs (:func:`forward_step`,
 :class:`StepOutputs`), it returns :class:`LossTerms`: every term already weighted, in the order they
 add up, and their total, which the step minimises. Training logs each term (``train_terms`` of
@@ -34,11 +34,11 @@ from typing import TYPE_CHECKING, Any
 
 import torch
 
-from encoders.config import TrainConfig
 from encoders.distributed import Distributed
 from encoders.loss import contrastive_loss, order_loss, partial_query_loss, positives_matrix, view_loss
 from encoders.negatives import batch_negatives
 from encoders.partial_queries import batch_partials
+from encoders.train_config import TrainConfig
 
 if TYPE_CHECKING:
     from encoders.model import DualEncoder

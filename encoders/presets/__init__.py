@@ -1,6 +1,6 @@
 """Training recipes: a complete configuration of a model and its training, one small file per recipe.
 
-``encoders/presets/<name>.yaml`` holds a :class:`~encoders.config.TrainConfig` (model architecture,
+``encoders/presets/<name>.yaml`` holds a :class:`~encoders.train_config.TrainConfig` (model architecture,
 losses, training schedule) and, under ``tagging:``, the :class:`~encoders.tagging.config.TagTrainConfig`
 of the attribute-tagging head trained with it. ``recommended`` is the model the documentation measures;
 ``tiny`` is the smallest that runs every part (tests, smoke runs).
@@ -21,8 +21,9 @@ import yaml
 
 from common.atomic import atomic_write_text
 from common.config import read_yaml_text, to_dict
-from encoders.config import ConfigError, TrainConfig
+from encoders.config import ConfigError
 from encoders.tagging.config import TagTrainConfig
+from encoders.train_config import TrainConfig
 
 PRESETS_DIR = Path(__file__).parent
 #: The file a run folder records its resolved recipe in.

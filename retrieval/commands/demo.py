@@ -1,7 +1,7 @@
 """``scenesearch demo``: the whole pipeline on a small simulated city, ending with ``DIR/report.html``.
 
 Each size flag is checked against the upper bound of the config field it ends up in (``--logs`` against
-:class:`scenes.sim.SimulationConfig`'s ``logs``, ``--epochs`` against :class:`encoders.config.TrainConfig`'s,
+:class:`scenes.sim.SimulationConfig`'s ``logs``, ``--epochs`` against :class:`encoders.train_config.TrainConfig`'s,
 ...; ``--workers`` against :data:`MAX_WORKERS`) before the first stage runs, so that a value a later
 stage would refuse stops the demo at once, naming the flag.
 """
@@ -66,7 +66,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 def size_bounds() -> dict[str, tuple[str, float]]:
     """Each size flag's ``args`` attribute → (flag, upper bound), the bound of the config field it sets."""
     from encoders.clips.config import CameraClipConfig, ClipsConfig
-    from encoders.config import TrainConfig
+    from encoders.train_config import TrainConfig
     from scenes.sim.config import SimulationConfig
 
     logs = SimulationConfig.upper_bounds["logs"]

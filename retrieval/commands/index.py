@@ -22,7 +22,7 @@ if TYPE_CHECKING:
     from retrieval.scenesearch import SceneSearch
 
 #: Clips embedded at a time (``--batch-size``) and loader processes (``--num-workers``), at most: as
-#: :class:`encoders.config.TrainConfig` bounds them for training.
+#: :class:`encoders.train_config.TrainConfig` bounds them for training.
 MAX_BATCH_SIZE = 4096
 MAX_NUM_WORKERS = 256
 

@@ -25,7 +25,6 @@ import torch.nn.functional as F
 from safetensors.torch import load_file
 from torch.utils.data import Dataset
 
-from encoders.config import HardNegative, TrainConfig
 from encoders.dense import DENSE_TASKS
 from encoders.distributed import (
     Distributed,
@@ -39,6 +38,7 @@ from encoders.loss import contrastive_loss, positives_matrix
 from encoders.negatives import render_caption
 from encoders.presets import preset
 from encoders.tagging.config import TagTrainConfig
+from encoders.train_config import HardNegative, TrainConfig
 from retrieval.cli import main
 from tests.encoders.synthetic import SyntheticClipDataset, SyntheticSpec
 from tests.encoders.tagging_fixtures import build_tagging_fixture

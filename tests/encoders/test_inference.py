@@ -54,9 +54,10 @@ def test_a_model_loaded_without_its_text_tower_embeds_clips_alike_and_never_read
 
     from safetensors.torch import save_file
 
-    from encoders.config import TextConfig, TrainConfig, tiny_model_config
+    from encoders.config import TextConfig, tiny_model_config
     from encoders.inference import load_model
     from encoders.model import DualEncoder
+    from encoders.train_config import TrainConfig
     from tests.encoders.synthetic import SyntheticClipDataset, SyntheticSpec, collate_clips
 
     torch.manual_seed(0)

@@ -8,8 +8,9 @@ import pytest
 import torch
 import torch.nn.functional as F
 
-from encoders.config import ConfigError, HardNegative, TrainConfig
+from encoders.config import ConfigError
 from encoders.loss import order_loss
+from encoders.train_config import HardNegative, TrainConfig
 
 
 def _batch(seed: int = 0, b: int = 6, m: int = 5, d: int = 8) -> tuple[torch.Tensor, ...]:

@@ -8,8 +8,9 @@ import pytest
 import torch
 import torch.nn.functional as F
 
-from encoders.config import ConfigError, TrainConfig
+from encoders.config import ConfigError
 from encoders.loss import contrastive_loss, positives_matrix, view_loss
+from encoders.train_config import TrainConfig
 
 N, D, M = 8, 16, 3  # whole batch, embedding width, extra negatives
 

@@ -7,8 +7,9 @@ import dataclasses
 import pytest
 
 from encoders.calibration import CameraWeightChoice
-from encoders.config import BevConfig, CameraConfig, DualEncoderConfig, HardNegative, TextConfig, TrainConfig
+from encoders.config import BevConfig, CameraConfig, DualEncoderConfig, TextConfig
 from encoders.model_card import model_card
+from encoders.train_config import HardNegative, TrainConfig
 
 
 def _card(config: TrainConfig) -> str:

@@ -7,8 +7,9 @@ from typing import Any
 
 import pytest
 
-from encoders.config import ConfigError, HardNegative, TrainConfig
+from encoders.config import ConfigError
 from encoders.negatives import batch_negatives, edited_steps, hard_negatives, render_caption, reversed_steps
+from encoders.train_config import HardNegative, TrainConfig
 
 HOST = ["cruising:heading_straight"]
 ALL = list(HardNegative)

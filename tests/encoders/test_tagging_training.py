@@ -178,8 +178,9 @@ def test_the_run_against_the_statistics_is_table_2_compared_row_by_row(
 def test_a_joint_run_takes_the_backbone_from_the_dual_encoder(fixture: dict[str, Any], tmp_path: Path) -> None:
     from safetensors.torch import save_file
 
-    from encoders.config import TrainConfig, tiny_model_config
+    from encoders.config import tiny_model_config
     from encoders.model import DualEncoder
+    from encoders.train_config import TrainConfig
 
     config = TrainConfig(model=tiny_model_config(lidar_channels=4, map_channels=6))
     model = DualEncoder(config.model)

@@ -12,19 +12,13 @@ import torch
 import torch.nn.functional as F
 
 from captioning.text import caption_halves
-from encoders.config import (
-    ConfigError,
-    DualEncoderConfig,
-    FusionConfig,
-    HardNegative,
-    TextConfig,
-    tiny_model_config,
-)
+from encoders.config import ConfigError, DualEncoderConfig, FusionConfig, TextConfig, tiny_model_config
 from encoders.fusion import ViewFusion
 from encoders.model import DualEncoder
 from encoders.sentence import TextModelUnavailableError
 from encoders.text import SlotText, sentence_steps, text_sentences
 from encoders.timeline import SlotReadout, SlotTextHead, slot_of_steps
+from encoders.train_config import HardNegative
 from tests.encoders.synthetic import SyntheticClipDataset, SyntheticSpec, collate_clips
 
 os.environ["HF_HUB_OFFLINE"] = "1"

@@ -17,13 +17,12 @@ from encoders.config import (
     ConfigError,
     DualEncoderConfig,
     FusionConfig,
-    HardNegative,
     TemporalConfig,
     TextConfig,
-    TrainConfig,
 )
 from encoders.presets import PRESETS_DIR, preset, preset_names, read_recipe
 from encoders.tagging.config import TagTrainConfig
+from encoders.train_config import HardNegative, TrainConfig
 
 
 @pytest.mark.parametrize("name", preset_names())

@@ -15,13 +15,14 @@ import torch
 from safetensors.torch import load_file
 from torch.utils.data import Dataset
 
-from encoders.config import HardNegative, TextConfig, TrainConfig
+from encoders.config import TextConfig
 from encoders.inference import embed_texts, load_model
 from encoders.negatives import render_caption, reversed_steps
 from encoders.presets import preset
 from encoders.sentence import TextModelUnavailableError
 from encoders.text import text_sentences
 from encoders.train import TrainingError, train
+from encoders.train_config import HardNegative, TrainConfig
 from retrieval.evaluation import ORDER_COSINE_MAX, text_order_figures
 from tests.encoders.synthetic import SyntheticClipDataset, SyntheticSpec
 

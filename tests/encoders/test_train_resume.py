@@ -16,11 +16,12 @@ import torch
 from safetensors.torch import load_file
 
 from encoders.checkpoints import read_checkpoint
-from encoders.config import ConfigMismatchError, TextConfig, TrainConfig
+from encoders.config import ConfigMismatchError, TextConfig
 from encoders.presets import preset
 from encoders.sentence import TextModelUnavailableError
 from encoders.tagging.config import TagTrainConfig
 from encoders.train import train
+from encoders.train_config import TrainConfig
 from tests.encoders.tagging_fixtures import build_tagging_fixture
 
 TIMING = {"samples_per_s", "epoch_s"}

@@ -23,10 +23,11 @@ from encoders.checkpoints import (
     restore_rng,
     rng_state,
 )
-from encoders.config import ConfigMismatchError, TrainConfig
+from encoders.config import ConfigMismatchError
 from encoders.inference import load_model, shuffle_time
 from encoders.presets import preset
 from encoders.train import NonFiniteLossError, NoTrainingSplitError, evaluate, learning_rate, train
+from encoders.train_config import TrainConfig
 from tests.encoders.synthetic import SyntheticClipDataset, SyntheticSpec
 
 SPEC = SyntheticSpec(frames=6, camera_hw=(24, 32), bev_hw=(24, 12), distractors=1)

@@ -13,7 +13,6 @@ import pytest
 import torch
 from torch.utils.data import Dataset
 
-from encoders.config import HardNegative, TrainConfig
 from encoders.dense import DENSE_TASKS
 from encoders.distributed import Distributed
 from encoders.inference import collate
@@ -23,6 +22,7 @@ from encoders.negatives import batch_negatives, render_caption
 from encoders.partial_queries import batch_partials
 from encoders.presets import preset
 from encoders.train import train
+from encoders.train_config import HardNegative, TrainConfig
 from encoders.training_loss import TOTAL, LossTerms, TrainingLoss, forward_step
 from tests.encoders.synthetic import SyntheticClipDataset, SyntheticSpec
 

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from encoders.config import TrainConfig
+from encoders.train_config import TrainConfig
 from retrieval.cli import main
 from retrieval.commands import demo, index
 from retrieval.demo_config import DemoConfig

@@ -5,25 +5,20 @@ FAISS stores vectors and int64 ids; this class owns everything around them:
 * ids — the caller's ids live inside the FAISS index (IVF lists natively, other kinds through
   ``IndexIDMap2``), the set of live ids is kept sorted beside it, and removed ids are never reused;
 * filtering inside the search through FAISS ID selectors, with an exact fallback when a filter is
-  so selective that the approximate search would come back short;
+  so selective that the approximate search would come back short (:mod:`indexes.filtered_search`);
 * removal: in place where FAISS supports it (Flat, IVF); for HNSW, which cannot delete, removed
   ids become tombstones excluded by a selector on every search;
 * saving and loading its files, checked against the manifest.
 
 The trained empty index comes from :mod:`indexes.building` (``factory="auto"`` picks the kind, see
 :mod:`indexes.factory`), ``nprobe``/``efSearch`` are tuned to a target recall by
-:mod:`indexes.tuning`, and the directory layout is :mod:`indexes.persistence`'s. What stays here is
-one job, keeping the id bookkeeping (live, removed, tombstoned ids) true to the FAISS index: every
-method left reads or updates that bookkeeping, so splitting them would spread one invariant over
-several modules.
+:mod:`indexes.tuning`, and the directory layout is :mod:`indexes.persistence`'s. What stays here keeps
+the id bookkeeping (live, removed, tombstoned ids) true to the FAISS index.
 
 Search results follow FAISS: ``D`` and ``I`` are (nq, k); ``I`` holds the caller's ids, sorted by
 closeness; where fewer than k vectors qualify, ``I`` is −1 and ``D`` is −inf (similarity metrics) or
 +inf (L2).
 """
-
-# D and I are FAISS's names for the (nq, k) score and id tables.
-# ruff: noqa: E741
 
 from __future__ import annotations
 
@@ -39,6 +34,7 @@ import numpy as np
 from indexes.building import IdsLike, prepare_build
 from indexes.errors import IdError, IndexesError, InvalidKError, ManifestError, ReadOnlyIndexError, faiss_message
 from indexes.factory import AutoConfig
+from indexes.filtered_search import filtered_search
 from indexes.integrity import Verify, VerifyLike, verifying
 from indexes.ondisk_lists import (
     IVFDATA_FILE,
@@ -58,12 +54,8 @@ from indexes.persistence import (
     writing_index_dir,
 )
 from indexes.tuning import (
-    Knob,
-    faiss_threads_for,
     get_knob,
-    knob_limit,
     knob_of,
-    search_parameters,
     set_knob,
     tune_index,
     unwrap,
@@ -79,11 +71,6 @@ FILES = (INDEX_FILE, IDS_FILE, REMOVED_FILE, TOMBSTONES_FILE)
 #: Files an index with on-disk inverted lists has besides :data:`FILES` (see :mod:`indexes.ondisk_lists`).
 ON_DISK_FILES = (IVFDATA_FILE, LOCATIONS_FILE)
 
-# Filters passing at most this many vectors are answered by exact search over just those vectors:
-# cheaper than a selector scan and never short of results.
-EXACT_FILTER_MAX = 4096
-# Exact search over a filtered subset is also used as the last fallback, up to this many vectors.
-EXACT_FALLBACK_MAX = 262_144
 
 
 class VectorIndex:
@@ -242,7 +229,7 @@ class VectorIndex:
     # ------------------------------------------------------------------ search
 
     def search(self, xq: np.ndarray, k: int, filter: IdsLike | None = None) -> tuple[np.ndarray, np.ndarray]:
-        """The k nearest vectors to each query.
+        """The k nearest vectors to each query (:func:`indexes.filtered_search.filtered_search`).
 
         Args:
             xq: (nq, d) or (d,) queries.
@@ -261,89 +248,12 @@ class VectorIndex:
         x = prepare_vectors(xq, self.dim, self.metric, "queries")
         check_k(k, len(self))
         allowed = None if filter is None else self._allowed(filter)
-        if allowed is not None and self._prefer_exact(len(allowed)):
-            return self._exact_search(x, k, allowed)
-        sel_refs = self._selector(allowed)
-        try:
-            D, I = self._faiss_search(x, k, sel_refs[0] if sel_refs else None)
-        except RuntimeError as exc:
-            # Some kinds (e.g. flat PQ) take no search parameters, hence no selector.
-            subset = self._ids if allowed is None else allowed
-            if not sel_refs or len(subset) > EXACT_FALLBACK_MAX:
-                raise IndexesError(f"factory {self.factory!r} cannot search with a filter: "
-                                   f"{faiss_message(exc)}") from None
-            return self._exact_search(x, k, subset)
-        expected = min(k, len(self) if allowed is None else len(allowed))
-        # FAISS puts padding last, so a row is short exactly when its expected-th result is −1.
-        if expected == 0 or I[:, expected - 1].min() >= 0:
-            if expected < k:
-                D[I < 0] = self.metric.missing_score
-            return D, I
-        short = np.flatnonzero(I[:, expected - 1] < 0)
-        if self._knob is not Knob.NONE:
-            # Filters and tombstones can leave an approximate search short: look further.
-            value, limit = get_knob(self._index), knob_limit(self._index)
-            while len(short) and value < limit:
-                value = min(limit, value * 4)
-                sel = sel_refs[0] if sel_refs else None
-                D2, I2 = self._faiss_search(x[short], k, sel, value)
-                D[short], I[short] = D2, I2
-                short = short[I2[:, expected - 1] < 0]
-        if len(short):
-            subset = self._ids if allowed is None else allowed
-            if len(subset) <= EXACT_FALLBACK_MAX:
-                D[short], I[short] = self._exact_search(x[short], k, subset)
-        D[I < 0] = self.metric.missing_score
-        return D, I
+        return filtered_search(self._index, self.metric, self.factory, self._knob, self._ids, self._tombstones,
+                               self.reconstruct, x, k, allowed)
 
     def _allowed(self, filter: IdsLike) -> np.ndarray:
         wanted = np.unique(np.asarray(filter, dtype=np.int64))
         return np.intersect1d(wanted, self._ids, assume_unique=True)
-
-    def _prefer_exact(self, n_allowed: int) -> bool:
-        if n_allowed <= EXACT_FILTER_MAX:
-            return True
-        if self._knob is Knob.NPROBE:
-            ivf = faiss.extract_index_ivf(unwrap(self._index))
-            # Expected allowed vectors met per query in the probed lists; too few → short results.
-            return n_allowed * ivf.nprobe / max(ivf.nlist, 1) < 64
-        if self._knob is Knob.EF_SEARCH:
-            return n_allowed < 0.02 * len(self)
-        return False
-
-    def _selector(self, allowed: np.ndarray | None) -> list[faiss.IDSelector]:
-        """Selector for a search, plus every object it points to (kept alive by the list)."""
-        if allowed is not None:
-            return [faiss.IDSelectorBatch(allowed)]
-        if len(self._tombstones):
-            inner = faiss.IDSelectorBatch(self._tombstones)
-            return [faiss.IDSelectorNot(inner), inner]
-        return []
-
-    def _faiss_search(self, x: np.ndarray, k: int, sel: faiss.IDSelector | None,
-                      knob_value: int | None = None) -> tuple[np.ndarray, np.ndarray]:
-        with faiss_threads_for(len(x)):
-            if sel is None and knob_value is None:
-                D, I = self._index.search(x, k)
-            else:
-                params = search_parameters(self._index, sel, knob_value)
-                D, I = self._index.search(x, k, params=params)
-        return np.asarray(D), np.asarray(I)
-
-    def _exact_search(self, x: np.ndarray, k: int, subset: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Exact k-NN of ``x`` (nq, d) among the vectors with ids ``subset`` (M,), padded with −1."""
-        nq = len(x)
-        D = np.full((nq, k), self.metric.missing_score, dtype=np.float32)
-        I = np.full((nq, k), -1, dtype=np.int64)
-        if len(subset) == 0:
-            return D, I
-        xb = self.reconstruct(subset)
-        kk = min(k, len(subset))
-        with faiss_threads_for(len(x)):
-            d_sub, i_sub = faiss.knn(x, xb, kk, metric=self.metric.faiss_metric)
-        D[:, :kk] = d_sub
-        I[:, :kk] = np.where(i_sub >= 0, subset[np.maximum(i_sub, 0)], -1)
-        return D, I
 
     def reconstruct(self, ids: IdsLike) -> np.ndarray:
         """(M, d) stored vectors (normalised under cosine; approximate for compressed codes).

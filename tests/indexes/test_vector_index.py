@@ -200,7 +200,7 @@ def test_kinds_without_a_knob_still_measure_recall(data: Data, monkeypatch: pyte
     assert 0.0 < tuning["recall_at_k"] < 1.0  # lossy codes: measured, not assumed
     assert index.remove([3]) == 1 and 3 not in index  # flat codes delete in place
     # Flat PQ takes no selector: a filter falls back to exact search over the allowed vectors.
-    monkeypatch.setattr("indexes.vector_index.EXACT_FILTER_MAX", 0)
+    monkeypatch.setattr("indexes.filtered_search.EXACT_FILTER_MAX", 0)
     _, I = index.search(data[1], 5, filter=np.arange(0, 3000, 2))
     assert (I % 2 == 0).all() and (I >= 0).all()
 

@@ -97,6 +97,26 @@ def preset(name: str) -> Recipe:
     return _from_mapping(yaml.safe_load(path.read_text(encoding="utf-8")), name, str(path))
 
 
+def run_recipe(run_dir: Path) -> Recipe | None:
+    """The recipe a run folder trained: its ``recipe.yaml``, or else (a run the Python API started) the
+    configurations its checkpoint holds; None when the folder holds neither.
+
+    Raises:
+        ConfigError: the recipe or checkpoint's configuration does not read (named).
+    """
+    if (run_dir / RECIPE_FILE).is_file():
+        return read_recipe(run_dir / RECIPE_FILE)
+    path = run_dir / "checkpoints" / "last.pt"
+    if not path.is_file():
+        return None
+    from encoders.checkpoints import read_checkpoint
+
+    checkpoint = read_checkpoint(path)
+    saved_tagging = checkpoint.tagging["config"] if checkpoint.tagging is not None else {}
+    return Recipe(str(run_dir), TrainConfig.from_run_dict(checkpoint.config, source=str(path)),
+                  TagTrainConfig.from_dict(saved_tagging, source=f"{path}, tagging config"))
+
+
 def with_settings(recipe: Recipe, settings: Sequence[str]) -> Recipe:
     """``recipe`` with ``key=value`` settings applied (``--set``): dotted keys into the train config, or into
     the tagging head's under ``tagging.``; values read as YAML (``true``, ``3``, ``[reverse]``).

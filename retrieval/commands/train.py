@@ -75,12 +75,13 @@ def build_recipe(args: argparse.Namespace) -> Recipe:
     """The recipe the command trains: the preset, file or run's own, with ``--set`` and the run options."""
     import dataclasses
 
-    from encoders.presets import RECIPE_FILE, preset, read_recipe, with_settings
+    from encoders.presets import preset, read_recipe, run_recipe, with_settings
 
+    own = run_recipe(args.out) if args.resume and args.preset is None and args.config is None else None
     if args.config is not None:
         recipe = read_recipe(args.config)
-    elif args.resume and args.preset is None and (args.out / RECIPE_FILE).is_file():
-        recipe = read_recipe(args.out / RECIPE_FILE)  # the run's own
+    elif own is not None:
+        recipe = own  # a resume continues the run's own recipe
     else:
         recipe = preset(args.preset or "recommended")
     recipe = with_settings(recipe, args.settings)

@@ -27,9 +27,12 @@ CONFIGS: tuple[tuple[str, str, str], ...] = (
      "`scenesearch caption --config FILE` (annotated defaults: `captioning/captioning.yaml`)"),
     ("scenes.tracking.config", "TrackerConfig", "`scenesearch track --config FILE`"),
     ("encoders.clips.config", "ClipsConfig", "`scenesearch clips --config FILE`"),
-    ("encoders.config", "TrainConfig", "`scenesearch train --config FILE`; the run keeps it in `config.json`"),
+    ("encoders.train_config", "TrainConfig",
+     "a recipe (`scenesearch train --preset NAME`, `--config FILE`, `--set KEY=VALUE`; presets in "
+     "`encoders/presets/`); the run keeps it in `config.json` and the whole recipe in `recipe.yaml`"),
     ("encoders.tagging.config", "TagTrainConfig",
-     "the tagging options of `scenesearch train`; a run that answers tag queries keeps it in `tagging.json`"),
+     "a recipe's `tagging:` keys (`--set tagging.KEY=VALUE`); a run that answers tag queries keeps it in "
+     "`tagging.json`"),
     ("indexes.factory", "AutoConfig", "the choice of FAISS index (Python: `indexes`)"),
 )
 

@@ -73,12 +73,18 @@ def test_train_resume_and_bad_input(clips_dir: Path, tmp_path: Path, capsys: pyt
     # Without --config or --preset, --resume continues with the run's own config.json.
     assert main(["train", str(clips_dir), "--out", str(out), "--resume", "--epochs", "3"]) == 0
     assert len((out / "metrics.jsonl").read_text().splitlines()) == 3
+    # A run the Python API started has no recipe.yaml: the resume reads the checkpoint's configurations
+    # (the tiny preset's batch size, not the recommended one's).
+    (out / "recipe.yaml").unlink()
+    assert main(["train", str(clips_dir), "--out", str(out), "--resume", "--epochs", "4"]) == 0
+    assert len((out / "metrics.jsonl").read_text().splitlines()) == 4
+    assert json.loads((out / "config.json").read_text())["batch_size"] == 2
 
     # A checkpoint that needs more than tensors and plain data to load is refused, naming the file.
     checkpoint = out / "checkpoints" / "last.pt"
     torch.save({**torch.load(checkpoint, weights_only=True), "extra": Path("anything")}, checkpoint)
     capsys.readouterr()
-    assert main(["train", str(clips_dir), "--out", str(out), "--resume", "--epochs", "4"]) == 2
+    assert main(["train", str(clips_dir), "--out", str(out), "--resume", "--epochs", "5"]) == 2
     err = capsys.readouterr().err
     assert f"{checkpoint}: not a checkpoint that loads as plain tensors" in err and "Traceback" not in err
 

@@ -355,6 +355,7 @@ class CaptioningConfig(CaptioningYamlConfig):
     def validate(self) -> None:
         """Raise :class:`ConfigError` listing every contradiction."""
         problems: list[str] = []
+        s, g, b = self.smoothing, self.segments, self.behavior
         non_negative = {
             "host.stationary_speed_mps": self.host.stationary_speed_mps,
             "host.accel_mps2": self.host.accel_mps2,
@@ -362,6 +363,18 @@ class CaptioningConfig(CaptioningYamlConfig):
             "neighbor.stationary_speed_mps": self.neighbor.stationary_speed_mps,
             "neighbor.host_lane_half_width_m": self.neighbor.host_lane_half_width_m,
             "neighbor.relative_speed_mps": self.neighbor.relative_speed_mps,
+            "behavior.parked_curb_min_s": b.parked_curb_min_s,
+            "behavior.parked_curb_offset_m": b.parked_curb_offset_m,
+            "behavior.parked_no_map_min_s": b.parked_no_map_min_s,
+            "behavior.turn_yaw_rate_rps": b.turn_yaw_rate_rps,
+            "behavior.blocked_speed_mps": b.blocked_speed_mps,
+            "behavior.blocked_gap_m": b.blocked_gap_m,
+            "behavior.braking_for_min_gap_m": b.braking_for_min_gap_m,
+            "behavior.braking_for_headway_s": b.braking_for_headway_s,
+            "behavior.ego_front_m": b.ego_front_m,
+            "behavior.ego_rear_m": b.ego_rear_m,
+            "map.margin_m": self.map.margin_m,
+            "map.junction_approach_m": self.map.junction_approach_m,
         }
         for key, value in non_negative.items():
             if not math.isfinite(value) or value < 0:
@@ -377,7 +390,6 @@ class CaptioningConfig(CaptioningYamlConfig):
             )
         if not (0 < self.neighbor.stationary_quantile <= 1):
             problems.append(f"neighbor.stationary_quantile must lie in (0, 1], got {self.neighbor.stationary_quantile}")
-        s, g, b = self.smoothing, self.segments, self.behavior
         positive_s = {
             "smoothing.window_s": s.window_s,
             "segments.min_s": g.min_s,
@@ -429,23 +441,6 @@ class CaptioningConfig(CaptioningYamlConfig):
         for key, value in positive.items():
             if not math.isfinite(value) or value <= 0:
                 problems.append(f"{key} must be a finite number > 0, got {value}")
-        at_least_zero = {
-            "behavior.parked_curb_min_s": b.parked_curb_min_s,
-            "behavior.parked_curb_offset_m": b.parked_curb_offset_m,
-            "behavior.parked_no_map_min_s": b.parked_no_map_min_s,
-            "behavior.turn_yaw_rate_rps": b.turn_yaw_rate_rps,
-            "behavior.blocked_speed_mps": b.blocked_speed_mps,
-            "behavior.blocked_gap_m": b.blocked_gap_m,
-            "behavior.braking_for_min_gap_m": b.braking_for_min_gap_m,
-            "behavior.braking_for_headway_s": b.braking_for_headway_s,
-            "behavior.ego_front_m": b.ego_front_m,
-            "behavior.ego_rear_m": b.ego_rear_m,
-            "map.margin_m": self.map.margin_m,
-            "map.junction_approach_m": self.map.junction_approach_m,
-        }
-        for key, value in at_least_zero.items():
-            if not math.isfinite(value) or value < 0:
-                problems.append(f"{key} must be a finite number >= 0, got {value}")
         if self.text.num_paraphrases < 0:
             problems.append(f"text.num_paraphrases must be >= 0, got {self.text.num_paraphrases}")
         if problems:

@@ -11,7 +11,8 @@
 - :mod:`encoders.clips.build`: :func:`build_clips`, the ``scenesearch clips`` command's work.
 - :mod:`encoders.clips.raster`: BEV layers on top of :mod:`scenes.bev` (map warp, track footprints).
 - :mod:`encoders.clips.views`: one clip's views cut from the memory-mapped arrays (numpy only).
-- :mod:`encoders.clips.preview`: animated GIF per clip and a still grid.
+- :mod:`encoders.clips.preview`: animated GIF per clip and a still grid; its BEV half in
+  :mod:`encoders.clips.preview_bev`, sizes, colours and palette in :mod:`encoders.clips.preview_canvas`.
 
 The torch dataset over a clips folder is :class:`encoders.data.ClipDataset`.
 """

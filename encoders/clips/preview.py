@@ -1,6 +1,7 @@
 """Previews of clips: an animated GIF per clip (camera and BEV side by side) and a still grid.
 
-Layout of a preview frame, :data:`PREVIEW_HEIGHT_PX` high whatever the clips' own sizes::
+Layout of a preview frame, :data:`~encoders.clips.preview_canvas.PREVIEW_HEIGHT_PX` high whatever the clips'
+own sizes::
 
     +------------------------------+-----------+
     | camera: the object outlined  |  BEV,     |
@@ -17,27 +18,18 @@ The camera is scaled up smoothly and every mark (outlines, boxes, the ego, text)
 preview's own resolution, so the preview stays sharp however small the clips' arrays are. The camera
 outlines the object's mask and boxes it; where the object covers no pixel of the small camera frame,
 its box is placed by its full-resolution crop (:mod:`encoders.clips.crops`), whose close-up is shown
-below the camera. The BEV draws every track's box from ``track_boxes.npy`` (so a log rendered from
-boxes alone, or without a map, still shows its objects), the object filled in the highlight colour, an
-object outside the grid as an arrow at the edge pointing to it, and says "no map" and "boxes, no LiDAR"
-where that is so.
-
-Colours: the object of interest is the camera's highlight colour (magenta by default), the ego
-green, other objects grey outlines; a preview drawn for a scenario query adds the tracks the program
-refers to (orange) and relates them to (cyan). BEV map: drivable area dark grey, lane boundaries grey,
-crossings olive, intersections dark blue; LiDAR (or box) occupancy above the lowest height bin white.
+below the camera. The BEV half is drawn by :mod:`encoders.clips.preview_bev`; the panels' sizes, the
+colours and the palette are those of :mod:`encoders.clips.preview_canvas`.
 
 Frames are drawn straight into palette indices (:func:`render_preview_indices`) and written as a GIF
 whose later frames keep only the pixels that change (:func:`encode_gif`): only the camera's pixels are
-ever quantised, and the camera at half the panel's size. The module is one job, from a clip's arrays
-to its preview's bytes, and is read as one: panels, palette and encoding depend on each other's layout.
+ever quantised, and the camera at half the panel's size.
 """
 
 from __future__ import annotations
 
 import io
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -48,85 +40,29 @@ from numpy.typing import NDArray
 from common.atomic import atomic_path
 from encoders.clips.config import ClipsConfig
 from encoders.clips.layout import read_clip_rows, read_manifest
-from encoders.clips.raster import MAP_CHANNELS
+from encoders.clips.preview_bev import bev_panel
+from encoders.clips.preview_canvas import (
+    BLACK,
+    CAMERA_COLOURS,
+    CAMERA_FIRST,
+    EGO,
+    FONT,
+    GAP_PX,
+    NO_CAMERA,
+    OBJECT,
+    OTHER,
+    PANEL,
+    REFERRED,
+    RELATED,
+    TEXT,
+    TRANSPARENT,
+    PreviewLayout,
+    fixed_palette,
+    put_text,
+    resize_frames,
+)
 from encoders.clips.render import bev_grid
 from encoders.clips.views import LogArrays, highlight_camera, object_footprint, open_log_arrays
-
-#: Height of every preview, pixels (the BEV's 80 m at 4.8 px/m with the default grid).
-PREVIEW_HEIGHT_PX = 384
-#: Height of the strip under the camera (close-up and legend).
-STRIP_PX = 96
-#: The widest camera panel, pixels.
-MAX_CAMERA_WIDTH_PX = 640
-GAP_PX = 4
-
-EGO_RGB = (40, 220, 40)
-OTHER_RGB = (150, 150, 150)
-REFERRED_RGB = (255, 160, 0)
-RELATED_RGB = (0, 200, 255)
-TEXT_RGB = (235, 235, 235)
-PANEL_RGB = (20, 20, 20)
-NO_CAMERA_RGB = (48, 48, 52)
-MAP_RGB = {"drivable_area": (45, 45, 45), "intersection": (25, 35, 80), "crossing": (90, 90, 30),
-           "lane_boundary": (110, 110, 110)}
-#: The ego's footprint in its own frame: x (rear, front) and y (right, left), metres; rear axle at the origin.
-EGO_BOX_M = ((-0.5, 4.0), (-1.0, 1.0))
-_FONT = cv2.FONT_HERSHEY_SIMPLEX
-
-# Frames are drawn as indices into one palette: fixed entries for everything but the camera's pixels,
-# which take the rest (:data:`CAMERA_COLOURS`), chosen per clip. Marks and text are drawn straight
-# into the indices, so only the camera's pixels are ever quantised.
-(PANEL, BLACK, DRIVABLE, INTERSECTION, CROSSING, LANE, EGO, OTHER, REFERRED, RELATED, TEXT, WHITE, NO_CAMERA,
- OBJECT, REFERRED_FILL, RELATED_FILL) = range(16)
-#: Occupancy levels: a grey ramp from 80 to 255 in :data:`OCCUPANCY_LEVELS` steps.
-OCCUPANCY_FIRST, OCCUPANCY_LEVELS = 16, 16
-CAMERA_FIRST = OCCUPANCY_FIRST + OCCUPANCY_LEVELS
-#: The last entry: transparent in the GIF, where a frame repeats the one before it (see :func:`encode_gif`).
-TRANSPARENT = 255
-CAMERA_COLOURS = TRANSPARENT - CAMERA_FIRST
-
-
-def fixed_palette(highlight_rgb: tuple[int, int, int]) -> NDArray[np.uint8]:
-    """(CAMERA_FIRST, 3) the palette's fixed entries, in the order of the index names above."""
-    hl = tuple(int(v) for v in highlight_rgb)
-    entries = [PANEL_RGB, (0, 0, 0), MAP_RGB["drivable_area"], MAP_RGB["intersection"], MAP_RGB["crossing"],
-               MAP_RGB["lane_boundary"], EGO_RGB, OTHER_RGB, REFERRED_RGB, RELATED_RGB, TEXT_RGB, (255, 255, 255),
-               NO_CAMERA_RGB, hl, tuple(v // 3 for v in REFERRED_RGB), tuple(v // 3 for v in RELATED_RGB)]
-    ramp = [(g, g, g) for g in np.linspace(80, 255, OCCUPANCY_LEVELS).round().astype(int)]
-    return np.asarray(entries + ramp, dtype=np.uint8)
-
-
-@dataclass(frozen=True)
-class PreviewLayout:
-    """Pixel sizes of a preview's panels (see the module docstring).
-
-    Attributes:
-        height: the preview's height.
-        camera_w, camera_h: the camera panel.
-        bev_w: the BEV panel's width (its height is ``height``).
-        closeup_w, closeup_h: the object's close-up in the strip.
-    """
-
-    height: int
-    camera_w: int
-    camera_h: int
-    bev_w: int
-    closeup_w: int
-    closeup_h: int
-
-    @property
-    def width(self) -> int:
-        return self.camera_w + GAP_PX + self.bev_w
-
-    @staticmethod
-    def of(config: ClipsConfig) -> PreviewLayout:
-        b, cam = config.bev, config.camera
-        bev_w = max(round(PREVIEW_HEIGHT_PX * (b.y_max_m - b.y_min_m) / (b.x_max_m - b.x_min_m)), 32)
-        aspect = cam.width_px / cam.height_px
-        camera_w = min(round((PREVIEW_HEIGHT_PX - STRIP_PX) * aspect), MAX_CAMERA_WIDTH_PX)
-        camera_h = round(camera_w / aspect)
-        closeup_w = min(round((STRIP_PX - 8) * aspect), camera_w // 2)
-        return PreviewLayout(PREVIEW_HEIGHT_PX, camera_w, camera_h, bev_w, closeup_w, round(closeup_w / aspect))
 
 
 def _config(clips_dir: Path) -> ClipsConfig:
@@ -134,119 +70,6 @@ def _config(clips_dir: Path) -> ClipsConfig:
     return ClipsConfig.from_dict(read_manifest(clips_dir).get("config", {}))
 
 
-def _resize(frames: NDArray[Any], width: int, height: int, interpolation: int) -> NDArray[Any]:
-    """(T, H, W[, C]) → (T, height, width[, C]), every frame alike."""
-    if not len(frames):
-        return np.zeros((0, height, width, *frames.shape[3:]), frames.dtype)
-    return np.stack([cv2.resize(np.ascontiguousarray(f), (width, height), interpolation=interpolation)
-                     for f in frames])
-
-
-def _text(image: NDArray[np.uint8], text: str, org: tuple[int, int], scale: float = 0.45, index: int = TEXT,
-          thickness: int = 1) -> None:
-    """Write ``text`` into (H, W) palette indices: OpenCV shades the edges of its letters whatever the line
-    type, which in indices would be other colours, so the letters are cut from a mask."""
-    (tw, th), base = cv2.getTextSize(text, _FONT, scale, thickness)
-    x0, y0 = max(org[0] - 2, 0), max(org[1] - th - 2, 0)
-    x1, y1 = min(org[0] + tw + 2, image.shape[1]), min(org[1] + base + 2, image.shape[0])
-    if x1 <= x0 or y1 <= y0:
-        return
-    mask = np.zeros((y1 - y0, x1 - x0), np.uint8)
-    cv2.putText(mask, text, (org[0] - x0, org[1] - y0), _FONT, scale, 255, thickness, cv2.LINE_8)
-    image[y0:y1, x0:x1][mask > 100] = index
-
-
-def _box_corners_px(boxes: NDArray[np.floating], config: ClipsConfig, px_per_m: float) -> NDArray[np.float64]:
-    """(..., 4, 2) (column, row) preview pixels of the corners of (..., 5) ``x, y, length, width, yaw`` boxes."""
-    b = np.asarray(boxes, dtype=np.float64)
-    c, s = np.cos(b[..., 4]), np.sin(b[..., 4])
-    signs = np.array([[1, 1], [1, -1], [-1, -1], [-1, 1]], dtype=np.float64)  # front-left, front-right, …
-    dx = signs[:, 0] * 0.5 * b[..., 2, None]
-    dy = signs[:, 1] * 0.5 * b[..., 3, None]
-    x = b[..., 0, None] + c[..., None] * dx - s[..., None] * dy
-    y = b[..., 1, None] + s[..., None] * dx + c[..., None] * dy
-    return np.stack([(config.bev.y_max_m - y) * px_per_m, (config.bev.x_max_m - x) * px_per_m], axis=-1)
-
-
-def _fixed(points: NDArray[np.float64]) -> NDArray[np.int32]:
-    """Pixel coordinates in OpenCV's fixed point (4 fractional bits, ``shift=4``)."""
-    return np.round(points * 16).astype(np.int32)
-
-
-def _bev_panel(arrays: LogArrays, clip: Mapping[str, Any], config: ClipsConfig, layout: PreviewLayout,
-               referred: Sequence[str], related: Sequence[str]) -> NDArray[np.uint8]:
-    """(T, height, bev_w) palette indices of the BEV half: map, occupancy, every track's box, the object, the ego."""
-    fi = np.asarray(clip["frame_indices"], dtype=np.int64)
-    t, h, w = fi.shape[0], layout.height, layout.bev_w
-    px_per_m = h / (config.bev.x_max_m - config.bev.x_min_m)
-    bev_map = np.asarray(arrays.bev_map[fi])  # (T, Cm, Hb, Wb)
-    has_map = bool(bev_map.any())
-    bev = np.full((t, h, w), BLACK, np.uint8)
-    if has_map:
-        # Map layers scaled smoothly and cut at half: edges follow the cells without blocks.
-        layers = [(DRIVABLE, "drivable_area"), (INTERSECTION, "intersection"), (CROSSING, "crossing"),
-                  (LANE, "lane_boundary")]
-        stack = np.moveaxis(bev_map[:, [MAP_CHANNELS.index(n) for _, n in layers]], 1, -1)  # (T, Hb, Wb, 4)
-        up = _resize(stack, w, h, cv2.INTER_LINEAR) > 127  # (T, h, w, 4)
-        for j, (index, _) in enumerate(layers):
-            np.copyto(bev, np.uint8(index), where=up[..., j])
-    lidar = np.asarray(arrays.bev_lidar[fi])  # (T, Z, Hb, Wb)
-    occ = (lidar[:, 1:] if lidar.shape[1] > 1 else lidar).max(axis=1)  # above the ground bin: (T, Hb, Wb)
-    level = np.where(occ > 0, OCCUPANCY_FIRST + occ.astype(np.uint16) * (OCCUPANCY_LEVELS - 1) // 255, 0)
-    occ_up = _resize(level.astype(np.uint8), w, h, cv2.INTER_NEAREST)
-    np.copyto(bev, occ_up, where=occ_up > 0)
-
-    track = str(clip["track_id"])
-    k_obj = arrays.track_value[track] - 1
-    boxes = np.asarray(arrays.track_boxes[fi])  # (T, K, 5)
-    corners = _box_corners_px(boxes, config, px_per_m)  # (T, K, 4, 2)
-    seen: NDArray[np.bool_] = np.asarray(np.isfinite(boxes).all(axis=-1))  # (T, K)
-    marks = {**{r: (RELATED, RELATED_FILL) for r in related}, **{r: (REFERRED, REFERRED_FILL) for r in referred}}
-    marked = {arrays.track_value[r] - 1: m for r, m in marks.items() if r in arrays.track_value and r != track}
-    others = np.array([k for k in range(boxes.shape[1]) if k != k_obj and k not in marked], dtype=np.int64)
-    (x0, x1), (y0, y1) = EGO_BOX_M
-    ego = _box_corners_px(np.array([0.5 * (x0 + x1), 0.5 * (y0 + y1), x1 - x0, y1 - y0, 0.0]), config, px_per_m)
-    nose = ego[:2].mean(axis=0)
-    for i in range(t):
-        frame = bev[i]
-        ring = [_fixed(corners[i, k]) for k in others if seen[i, k]]
-        if ring:
-            cv2.polylines(frame, ring, True, OTHER, 1, cv2.LINE_8, shift=4)
-        for k, (edge, fill) in marked.items():
-            if seen[i, k]:
-                cv2.fillPoly(frame, [_fixed(corners[i, k])], fill, cv2.LINE_8, shift=4)
-                cv2.polylines(frame, [_fixed(corners[i, k])], True, edge, 2, cv2.LINE_8, shift=4)
-        cv2.fillPoly(frame, [_fixed(ego)], EGO, cv2.LINE_8, shift=4)
-        cv2.line(frame, (int(nose[0]), int(nose[1])), (int(nose[0]), int(nose[1]) - 8), WHITE, 2, cv2.LINE_8)
-        if not seen[i, k_obj]:
-            continue
-        centre = corners[i, k_obj].mean(axis=0)
-        if 0 <= centre[0] < w and 0 <= centre[1] < h:
-            cv2.fillPoly(frame, [_fixed(corners[i, k_obj])], OBJECT, cv2.LINE_8, shift=4)
-            cv2.polylines(frame, [_fixed(corners[i, k_obj])], True, WHITE, 1, cv2.LINE_8, shift=4)
-            cv2.circle(frame, (int(centre[0]), int(centre[1])), max(int(2.4 * px_per_m), 10), OBJECT, 2, cv2.LINE_8)
-        else:
-            _edge_arrow(frame, centre, boxes[i, k_obj])
-    notes = ([] if has_map else ["no map"]) + (["boxes, no LiDAR"] if str(clip.get("bev_source")) == "boxes" else [])
-    for j, note in enumerate(notes):
-        for i in range(t):
-            _text(bev[i], note, (6, 16 + 16 * j), 0.4, OTHER)
-    return bev
-
-
-def _edge_arrow(frame: NDArray[np.uint8], centre: NDArray[np.float64], box: NDArray[np.floating]) -> None:
-    """An arrow at the panel's edge pointing to an object outside it, with its distance."""
-    h, w = frame.shape[:2]
-    x, y = float(np.clip(centre[0], 14, w - 15)), float(np.clip(centre[1], 14, h - 15))
-    dx, dy = centre[0] - x, centre[1] - y
-    n = float(np.hypot(dx, dy)) or 1.0
-    dx, dy = dx / n, dy / n
-    cv2.arrowedLine(frame, (int(x - 10 * dx), int(y - 10 * dy)), (int(x + 10 * dx), int(y + 10 * dy)), OBJECT, 3,
-                    cv2.LINE_8, tipLength=0.5)
-    label = f"{float(np.hypot(box[0], box[1])):.0f} m"
-    (tw, th), _ = cv2.getTextSize(label, _FONT, 0.4, 1)
-    lx, ly = x - 26 * dx - tw / 2, y - 26 * dy + th / 2  # inside the panel, behind the arrow
-    _text(frame, label, (int(np.clip(lx, 2, w - tw - 2)), int(np.clip(ly, th + 2, h - 3))), 0.4, OBJECT)
 
 
 def _camera_rgb(arrays: LogArrays, clip: Mapping[str, Any], config: ClipsConfig, layout: PreviewLayout
@@ -261,7 +84,7 @@ def _camera_rgb(arrays: LogArrays, clip: Mapping[str, Any], config: ClipsConfig,
     cam = config.camera
     mask = np.asarray(arrays.camera_instances[fi]) == arrays.track_value[str(clip["track_id"])]  # (T, Hc, Wc)
     rgb = highlight_camera(np.asarray(arrays.camera[fi]), mask, cam.highlight_rgb, 0.35, cam.dim_factor)
-    return _resize(rgb, layout.camera_w // 2, layout.camera_h // 2, cv2.INTER_LINEAR), mask
+    return resize_frames(rgb, layout.camera_w // 2, layout.camera_h // 2, cv2.INTER_LINEAR), mask
 
 
 def _closeup_rgb(arrays: LogArrays, clip: Mapping[str, Any], layout: PreviewLayout
@@ -279,8 +102,8 @@ def _closeup_rgb(arrays: LogArrays, clip: Mapping[str, Any], layout: PreviewLayo
     w, h = layout.closeup_w, layout.closeup_h
     rgb = np.zeros((fi.shape[0], h, w, 3), np.uint8)
     mask = np.zeros((fi.shape[0], h, w), bool)
-    rgb[ok] = _resize(np.asarray(crops.rgb[rows[ok]]), w, h, cv2.INTER_LINEAR)
-    mask[ok] = _resize(np.asarray(crops.mask[rows[ok]]) * np.uint8(255), w, h, cv2.INTER_LINEAR) > 96
+    rgb[ok] = resize_frames(np.asarray(crops.rgb[rows[ok]]), w, h, cv2.INTER_LINEAR)
+    mask[ok] = resize_frames(np.asarray(crops.mask[rows[ok]]) * np.uint8(255), w, h, cv2.INTER_LINEAR) > 96
     return rgb, mask, ok
 
 
@@ -296,7 +119,7 @@ def _camera_marks(panel: NDArray[np.uint8], mask: NDArray[np.bool_], arrays: Log
     fi = np.asarray(clip["frame_indices"], dtype=np.int64)
     cw, ch = layout.camera_w, layout.camera_h
     sx, sy = cw / mask.shape[2], ch / mask.shape[1]
-    mask_up = _resize(mask.astype(np.uint8) * np.uint8(255), cw, ch, cv2.INTER_LINEAR) > 96
+    mask_up = resize_frames(mask.astype(np.uint8) * np.uint8(255), cw, ch, cv2.INTER_LINEAR) > 96
     crops, k = arrays.crops, arrays.track_value[str(clip["track_id"])] - 1
     for i in range(fi.shape[0]):
         if mask_up[i].any():
@@ -322,8 +145,8 @@ def _no_camera(panel: NDArray[np.uint8], arrays: LogArrays) -> None:
     panel[:] = NO_CAMERA
     why = "this log has no camera" if not arrays.camera.shape[0] else "the object is out of the camera's view"
     for text, scale, thick, dy, index in (("no camera", 1.2, 2, 0, TEXT), (why, 0.5, 1, 30, OTHER)):
-        (tw, _), _ = cv2.getTextSize(text, _FONT, scale, thick)
-        _text(panel[0], text, ((cw - tw) // 2, ch // 2 + dy), scale, index, thick)
+        (tw, _), _ = cv2.getTextSize(text, FONT, scale, thick)
+        put_text(panel[0], text, ((cw - tw) // 2, ch // 2 + dy), scale, index, thick)
     panel[1:] = panel[0]
 
 
@@ -341,7 +164,7 @@ def _legend(strip: NDArray[np.uint8], x: int, clip: Mapping[str, Any], referred:
         if y > strip.shape[0] - 22:
             break
         cv2.rectangle(strip, (x, y - 10), (x + 10, y), index, -1)
-        _text(strip, label, (x + 16, y))
+        put_text(strip, label, (x + 16, y))
         y += 18
 
 
@@ -384,7 +207,7 @@ def render_preview_indices(arrays: LogArrays, clip: Mapping[str, Any], config: C
         if camera is not None:
             t_, h_, w_ = camera[0].shape[:3]  # rows of the mosaic: T frames of camera_h / 2
             half = indices[: t_ * h_, :w_].reshape(t_, h_, w_)
-            cam_panel[:] = _resize(half, layout.camera_w, layout.camera_h, cv2.INTER_NEAREST)
+            cam_panel[:] = resize_frames(half, layout.camera_w, layout.camera_h, cv2.INTER_NEAREST)
             rows = t_ * h_
         if closeup is not None:
             rgb, mask, ok = closeup
@@ -409,8 +232,8 @@ def render_preview_indices(arrays: LogArrays, clip: Mapping[str, Any], config: C
     times = np.asarray(arrays.time_s)[np.asarray(clip["frame_indices"], dtype=np.int64)] if len(arrays.time_s) \
         else np.zeros(t)
     for j in range(t):
-        _text(strip[j], f"t = {times[j]:.1f} s", (layout.camera_w - 92, strip.shape[1] - 10))
-    canvas[:, :, layout.camera_w + GAP_PX:] = _bev_panel(arrays, clip, config, layout, referred, related)
+        put_text(strip[j], f"t = {times[j]:.1f} s", (layout.camera_w - 92, strip.shape[1] - 10))
+    canvas[:, :, layout.camera_w + GAP_PX:] = bev_panel(arrays, clip, config, layout, referred, related)
     return canvas, palette
 
 

@@ -65,6 +65,8 @@ def test_unknown_keys_are_all_listed(tmp_path: Path) -> None:
         ({"behavior": {"min_run_s": float("nan")}}, r"behavior\.min_run_s"),
         ({"smoothing": {"polyorder": 0}}, "polyorder"),
         ({"windows": {"strategy": "random"}}, "strategy"),
+        ({"windows": {"strategy": "sliding", "length_s": 2, "stride_s": 3}},
+         r"stride_s \(3.*exceeds windows\.length_s"),
         ({"host": {"yaw_rate_rps": "fast"}}, "yaw_rate_rps"),
         ({"neighbor": {"lateral_deg": 60}}, "lateral_deg"),
     ],

@@ -103,3 +103,24 @@ def test_an_empty_caption_row_is_refused_by_clips(log: Path, tmp_path: Path, cap
     assert main(["clips", str(log), "--captions", str(tmp_path / "bad"), "--out", str(tmp_path / "clips"),
                  "--no-previews"]) == 2
     assert f"row {row}, field 'caption': empty" in capsys.readouterr().err
+
+
+def test_a_descriptions_file_with_none_is_refused(log: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+                                                  ) -> None:
+    descriptions = tmp_path / "descriptions.txt"
+    descriptions.write_text("# only a comment\n\n")
+    assert main(["mine", str(log), "--descriptions-file", str(descriptions), "--out", str(tmp_path / "p.pkl")]) == 2
+    assert f"--descriptions-file {descriptions}: holds no descriptions" in capsys.readouterr().err
+    assert not (tmp_path / "p.pkl").exists()
+
+
+def test_a_cache_folder_that_is_not_one_is_named_as_the_cache(log: Path, tmp_path: Path,
+                                                             capsys: pytest.CaptureFixture[str]) -> None:
+    cache = tmp_path / "mine"
+    cache.mkdir()
+    (cache / "notes.txt").write_text("mine")
+    assert main(["mine", str(log), "--description", "vehicle", "--cache", str(cache),
+                 "--out", str(tmp_path / "p.pkl")]) == 2
+    err = capsys.readouterr().err
+    assert f"--cache {cache}" in err and "--out" not in err
+    assert (cache / "notes.txt").read_text() == "mine"

@@ -150,6 +150,12 @@ def test_similar_and_export(stand_in: dict[str, Any], tmp_path: Path, capsys: py
     assert pq.read_table(out).num_rows == 84
     assert main(["export", str(stand_in["index"]), "--out", str(tmp_path / "emb.npy")]) == 0
     assert (tmp_path / "emb.json").is_file()
+    # A file written inside the index would change it under its manifest; a .npy holds one view.
+    assert main(["export", str(stand_in["index"]), "--out", str(stand_in["index"] / "emb.parquet")]) == 2
+    assert not (stand_in["index"] / "emb.parquet").exists()
+    assert main(["export", str(stand_in["index"]), "--out", str(tmp_path / "two.npy"), "--view", "camera",
+                 "--view", "bev"]) == 2
+    assert "a .npy file holds one view" in capsys.readouterr().err and not (tmp_path / "two.npy").exists()
 
 
 def test_eval_command(stand_in: dict[str, Any], tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

@@ -369,6 +369,16 @@ def test_every_bad_map_element_is_reported(log_dir: Path) -> None:
                       "pedestrian_crossings[5].edge2"]
 
 
+def test_map_boolean_written_as_a_string_is_refused(log_dir: Path) -> None:
+    map_path = av2_io.find_map_file(log_dir)
+    assert map_path is not None
+    data = json.loads(map_path.read_text())
+    _lane(data)["is_intersection"] = "false"  # truthy as a string: it would read as an intersection
+    map_path.write_text(json.dumps(data))
+    problem = _only(validate_log(log_dir).problems)
+    assert problem.field == "lane_segments[1].is_intersection" and "must be true or false" in problem.message
+
+
 def test_map_not_utf8(log_dir: Path) -> None:
     map_path = av2_io.find_map_file(log_dir)
     assert map_path is not None

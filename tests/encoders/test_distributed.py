@@ -251,7 +251,7 @@ def test_resuming_on_another_number_of_processes_is_refused(runs: dict[str, Any]
     assert main(["train", str(clips), "--out", str(runs["two"] / "resumable"), "--resume", "--epochs", "3"]) == 2
     assert "trained on 2 process(es) and this run has 1" in capfd.readouterr().err
     one = ["train", str(clips), "--out", str(tmp_path / "one"), "--preset", "tiny", "--batch-size", "2",
-           "--max-steps-per-epoch", "1"]
+           "--set", "max_steps_per_epoch=1"]
     assert main([*one, "--epochs", "1"]) == 0
     capfd.readouterr()
     assert main([*one, "--epochs", "2", "--resume", "--nproc", "2"]) == 2

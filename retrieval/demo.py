@@ -263,8 +263,8 @@ class Demo:
 
     def stage_report(self) -> str:
         from retrieval.metrics_tables import metrics_table
-        from retrieval.records import format_table
         from retrieval.report import Example, write_report
+        from retrieval.result_table import format_table
         from retrieval.scenesearch import SceneSearch
         from retrieval.tag_report import tag_sections
 

@@ -24,7 +24,6 @@ import shutil
 import time
 import warnings
 from collections.abc import Callable, Mapping
-from contextlib import nullcontext
 from dataclasses import asdict
 from datetime import UTC, datetime
 from functools import partial
@@ -37,23 +36,15 @@ import pyarrow as pa
 from common.atomic import reading_directory
 from common.folders import claim_folder, claimed_directory
 from indexes.clip_index import ClipIndex
-from indexes.errors import IndexesError, ManifestError
+from indexes.errors import IndexesError
 from indexes.filters import FilterSpec
-from indexes.integrity import (
-    IntegrityWarning,
-    Verify,
-    VerifyLike,
-    as_verify,
-    file_entries,
-    parse_file_entries,
-    seal,
-    verify_files,
-)
+from indexes.integrity import IntegrityWarning, Verify, VerifyLike, as_verify, file_entries, seal
 from retrieval.embedding import CONFIG_FILE, Embedder, ModelEmbedder
 from retrieval.errors import IndexDirError, ModelMismatchError, OtherMomentsError, UnknownClipError, UnknownViewError
 from retrieval.hybrid import Scorers, WeightChoice, check_weight, choose_for_index
 from retrieval.index_folder import INDEX_FOLDER
 from retrieval.index_manifest import FORMAT_VERSION, KIND, MANIFEST, IndexManifest
+from retrieval.index_parts import CAPTIONS_DIR, RUN_CONFIG, check_count, open_captions, verify_top_files
 from retrieval.querying import (
     MAX_K,
     build_query,
@@ -70,8 +61,6 @@ if TYPE_CHECKING:
     from retrieval.captions_search import CaptionSearch, TextEncoder
 
 VIEWS = ("fused", "camera", "bev")
-CAPTIONS_DIR = "captions"
-RUN_CONFIG = f"run/{CONFIG_FILE}"
 Progress = Callable[[str], None]
 
 
@@ -222,15 +211,15 @@ class SceneSearch:
                                   IntegrityWarning, stacklevel=2)
                     warnings.filterwarnings("ignore", message=".*checksums not verified", category=IntegrityWarning)
                 try:
-                    _verify_top_files(index_dir, manifest, (*views, *(() if lazy_captions else (CAPTIONS_DIR,))), mode)
+                    verify_top_files(index_dir, manifest, (*views, *(() if lazy_captions else (CAPTIONS_DIR,))), mode)
                     loaded = {v: ClipIndex.load(index_dir / v, mmap=mmap, verify=mode) for v in views}
                 except IndexesError as exc:
                     raise IndexDirError(str(exc)) from exc
                 captions: CaptionSearch | Callable[[], CaptionSearch] = (
-                    partial(_open_captions, index_dir, manifest, text_encoder, mode, later=True) if lazy_captions
-                    else _open_captions(index_dir, manifest, text_encoder, mode))
+                    partial(open_captions, index_dir, manifest, text_encoder, mode, later=True) if lazy_captions
+                    else open_captions(index_dir, manifest, text_encoder, mode))
         for name, size in ((v, len(ix)) for v, ix in loaded.items()):
-            _check_count(index_dir, manifest, name, size)
+            check_count(index_dir, manifest, name, size)
         return cls(index_dir, manifest, loaded, captions, embedder)
 
     @property
@@ -433,47 +422,6 @@ class SceneSearch:
                                                    "rows": meta.to_pylist()}, indent=1, default=str))
             return path
         raise ValueError(f"{path}: unknown export format {path.suffix!r}; use .parquet or .npy")
-
-
-def _open_captions(index_dir: Path, manifest: IndexManifest, text_encoder: TextEncoder | None, mode: Verify,
-                   later: bool = False) -> CaptionSearch:
-    """The caption index of an index directory, checked against the top manifest. ``later``: after
-    :meth:`SceneSearch.open` has returned, so under a read lock of its own, with its sub-manifest checked
-    here (``open`` checks it otherwise) and without a second warning of unchecked files."""
-    from retrieval.captions_search import CaptionSearch
-
-    with reading_directory(index_dir) if later else nullcontext(index_dir) as index_dir, \
-            warnings.catch_warnings():
-        if later:
-            warnings.filterwarnings("ignore", message=".*checksums not verified", category=IntegrityWarning)
-            try:
-                _verify_top_files(index_dir, manifest, (CAPTIONS_DIR,), mode)
-            except IndexesError as exc:
-                raise IndexDirError(str(exc)) from exc
-        captions = CaptionSearch.open(index_dir / CAPTIONS_DIR, encoder=text_encoder, verify=mode)
-    _check_count(index_dir, manifest, "captions", len(captions))
-    captions.base_dir = Path(manifest.clips_dir)
-    return captions
-
-
-def _check_count(index_dir: Path, manifest: IndexManifest, name: str, size: int) -> None:
-    """Raise :class:`IndexDirError` when the part ``name`` holds another number of entries than the manifest says."""
-    if manifest.counts.get(name) not in (None, size):
-        raise IndexDirError(f"{index_dir / name}: holds {size} entries, {index_dir / MANIFEST} says "
-                            f"{manifest.counts[name]}")
-
-
-def _verify_top_files(index_dir: Path, manifest: IndexManifest, parts: tuple[str, ...], mode: Verify) -> None:
-    """Check the files the top manifest covers: the sub-manifests of ``parts`` (views and ``captions``), and
-    the run config."""
-    path = index_dir / MANIFEST
-    files = parse_file_entries(manifest.files, path)
-    wanted = [f"{d}/{MANIFEST}" for d in parts]
-    missing = [n for n in wanted if n not in files]
-    if missing:
-        raise ManifestError(path, f"does not list {', '.join(missing)}", field="files")
-    wanted += [n for n in files if n == RUN_CONFIG]
-    verify_files(index_dir, {n: files[n] for n in wanted}, mode)
 
 
 def _log_folders(clips_dir: Path) -> dict[str, str]:

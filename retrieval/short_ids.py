@@ -30,12 +30,14 @@ import json
 import os
 import re
 from collections.abc import Callable, Iterable, Mapping, Sequence
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import pyarrow as pa
+import pyarrow.compute as pc
+
 from retrieval.errors import RetrievalError
-from retrieval.records import LogSpan
+from retrieval.records import LogSpan, SearchResult
 
 #: Characters of the log and track prefixes in a readable id (more where that many are ambiguous).
 PREFIX_CHARS = 8
@@ -115,54 +117,51 @@ def _unique_prefixes(names: Iterable[str], shortest: int) -> dict[str, str]:
     return out
 
 
-@dataclass(frozen=True)
-class _Moment:
-    clip_id: str
-    log_id: str
-    track_id: str
-    start_ns: int
-    end_ns: int
+_COLUMNS = ("clip_id", "log_id", "track_id", "start_ns", "end_ns")
 
 
 class ShortIds:
     """The readable ids of an index's moments, and the reading of any short id back to a clip id.
 
-    Built from the index's metadata columns ``clip_id``, ``log_id``, ``track_id``, ``start_ns`` and
-    ``end_ns``. A log's span comes from ``read_spans`` (log ids → their spans, e.g. from the rendered
-    frames by :func:`retrieval.records.read_log_spans`), asked once per log when first needed; a log it
-    does not give spans from its earliest indexed moment to its latest.
+    Built from the index's metadata table (columns ``clip_id``, ``log_id``, ``track_id``, ``start_ns``,
+    ``end_ns``); the work per query is per log, in Arrow, so it stays small on large indexes. A log's span
+    comes from ``read_spans`` (log ids → their spans, e.g. from the rendered frames by
+    :func:`retrieval.records.read_log_spans`), asked once per log when first needed; a log it does not
+    give spans from its earliest indexed moment to its latest.
     """
 
-    def __init__(self, clip_ids: Sequence[str], log_ids: Sequence[str], track_ids: Sequence[str],
-                 start_ns: Sequence[int], end_ns: Sequence[int],
-                 read_spans: Callable[[list[str]], Mapping[str, LogSpan]] | None = None) -> None:
-        self._moments = [_Moment(str(c), str(lg), str(t), int(s), int(e))
-                         for c, lg, t, s, e in zip(clip_ids, log_ids, track_ids, start_ns, end_ns)]
-        self._by_clip = {m.clip_id: m for m in self._moments}
-        self._covered: dict[str, LogSpan] = {}
-        tracks: dict[str, set[str]] = {}
-        for m in self._moments:
-            seen = self._covered.get(m.log_id)
-            self._covered[m.log_id] = LogSpan(min(m.start_ns, seen.first_ns), max(m.end_ns, seen.last_ns)) \
-                if seen else LogSpan(m.start_ns, m.end_ns)
-            tracks.setdefault(m.log_id, set()).add(m.track_id)
+    def __init__(self, table: pa.Table, read_spans: Callable[[list[str]], Mapping[str, LogSpan]] | None = None
+                 ) -> None:
+        self._table = table.select(list(_COLUMNS))
+        covered = self._table.group_by("log_id").aggregate([("start_ns", "min"), ("end_ns", "max")])
+        self._covered = {str(lg): LogSpan(int(first), int(last)) for lg, first, last in zip(
+            covered.column("log_id").to_pylist(), covered.column("start_ns_min").to_pylist(),
+            covered.column("end_ns_max").to_pylist())}
         self._read_spans = read_spans
         self._spans: dict[str, LogSpan] = {}
         self._log_prefix = _unique_prefixes(self._covered, PREFIX_CHARS)
-        self._track_prefix = {log: _unique_prefixes(ts, PREFIX_CHARS) for log, ts in tracks.items()}
+        self._track_prefix: dict[str, dict[str, str]] = {}
 
     @classmethod
-    def of_table(cls, table: Any, clips_dir: Path | str | None = None) -> ShortIds:
-        """From a ``pyarrow.Table`` of index metadata; the logs' spans from the rendered frames of
-        ``clips_dir`` where it holds them."""
-        clip_ids, log_ids, track_ids, start_ns, end_ns = (
-            table.column(c).to_pylist() for c in ("clip_id", "log_id", "track_id", "start_ns", "end_ns"))
+    def of_table(cls, table: pa.Table, clips_dir: Path | str | None = None) -> ShortIds:
+        """From an index's metadata table; the logs' spans from the rendered frames of ``clips_dir`` where
+        it holds them."""
         if clips_dir is None:
-            return cls(clip_ids, log_ids, track_ids, start_ns, end_ns)
+            return cls(table)
         from retrieval.records import read_log_spans
 
         folder = Path(clips_dir)
-        return cls(clip_ids, log_ids, track_ids, start_ns, end_ns, lambda logs: read_log_spans(folder, logs))
+        return cls(table, lambda logs: read_log_spans(folder, logs))
+
+    @classmethod
+    def of_results(cls, results: Sequence[SearchResult], spans: Mapping[str, LogSpan] | None = None) -> ShortIds:
+        """From the moments of ``results`` alone (logs' spans from ``spans``, else from these moments)."""
+        given = dict(spans or {})
+        table = pa.table({"clip_id": [r.clip_id for r in results], "log_id": [r.log_id for r in results],
+                          "track_id": [r.track_id for r in results],
+                          "start_ns": pa.array([r.start_ns for r in results], pa.int64()),
+                          "end_ns": pa.array([r.end_ns for r in results], pa.int64())})
+        return cls(table, lambda logs: {lg: given[lg] for lg in logs if lg in given})
 
     def spans(self, log_ids: Iterable[str]) -> dict[str, LogSpan]:
         """The span of each indexed log among ``log_ids`` (those not known yet are read in one call)."""
@@ -174,19 +173,27 @@ class ShortIds:
                 self._spans[log_id] = read.get(log_id) or self._covered[log_id]
         return {lg: self._spans[lg] for lg in wanted}
 
-    def start_s(self, clip_id: str) -> float:
-        """The moment's start in seconds within its log (see the module docstring)."""
-        m = self._by_clip[clip_id]
-        return (m.start_ns - self.spans([m.log_id])[m.log_id].first_ns) / 1e9
+    def _moments_of(self, log_id: str) -> pa.Table:
+        return self._table.filter(pc.equal(self._table.column("log_id"), log_id))
 
-    def readable(self, clip_id: str) -> str:
-        """The readable id of an indexed clip id (``LOG/TRACK@SECONDSs``)."""
-        m = self._by_clip[clip_id]
-        return f"{self._log_prefix[m.log_id]}/{self._track_prefix[m.log_id][m.track_id]}@{self.start_s(clip_id):.1f}s"
+    def _tracks(self, log_id: str) -> dict[str, str]:
+        """Each track of the log → its printed prefix."""
+        if log_id not in self._track_prefix:
+            tracks = pc.unique(self._moments_of(log_id).column("track_id")).to_pylist()
+            self._track_prefix[log_id] = _unique_prefixes(map(str, tracks), PREFIX_CHARS)
+        return self._track_prefix[log_id]
 
-    def readable_ids(self, clip_ids: Iterable[str]) -> dict[str, str]:
-        """Clip id → readable id, for the indexed ones among ``clip_ids``."""
-        return {c: self.readable(c) for c in clip_ids if c in self._by_clip}
+    def start_s(self, log_id: str, start_ns: int) -> float:
+        """A moment's start in seconds within its log (see the module docstring)."""
+        return (int(start_ns) - self.spans([log_id])[log_id].first_ns) / 1e9
+
+    def readable(self, log_id: str, track_id: str, start_ns: int) -> str:
+        """The readable id (``LOG/TRACK@SECONDSs``) of an indexed moment."""
+        return f"{self._log_prefix[log_id]}/{self._tracks(log_id)[track_id]}@{self.start_s(log_id, start_ns):.1f}s"
+
+    def readable_ids(self, results: Iterable[SearchResult]) -> dict[str, str]:
+        """Clip id → readable id of each of ``results`` (moments of the index)."""
+        return {r.clip_id: self.readable(r.log_id, r.track_id, r.start_ns) for r in results}
 
     def resolve(self, text: str, index_dir: Path | str, state: Path | None = None) -> str:
         """The clip id that ``text`` names: a clip id, ``#N`` or a readable id (see the module docstring).
@@ -196,7 +203,7 @@ class ShortIds:
                 (or the ranks of the last search).
         """
         text = text.strip()
-        if text in self._by_clip:
+        if self._holds(text):
             return text
         rank = _RANK.fullmatch(text)
         if rank:
@@ -205,9 +212,13 @@ class ShortIds:
         if readable:
             return self._resolve_readable(readable.group("log"), readable.group("track"),
                                           float(readable.group("seconds")))
-        examples = ", ".join(self.readable(m.clip_id) for m in self._moments[:3])
-        raise ShortIdError(f"unknown clip id {text!r}: give a clip id LOG_ID:TRACK_ID:START_NS, #N (rank N of the last "
-                           f"search of this index) or LOG/TRACK@SECONDSs (e.g. {examples})")
+        first = self._table.slice(0, 3).to_pylist()
+        examples = ", ".join(self.readable(r["log_id"], r["track_id"], r["start_ns"]) for r in first)
+        raise ShortIdError(f"unknown clip id {text!r}: give a clip id LOG_ID:TRACK_ID:START_NS, #N (rank N of the "
+                           f"last search of this index) or LOG/TRACK@SECONDSs (e.g. {examples})")
+
+    def _holds(self, clip_id: str) -> bool:
+        return bool(pc.any(pc.equal(self._table.column("clip_id"), clip_id)).as_py())
 
     def _resolve_rank(self, rank: int, index_dir: Path | str, state: Path | None) -> str:
         last = last_search(index_dir, state)
@@ -220,7 +231,7 @@ class ShortIds:
             raise ShortIdError(f"#{rank}: the last search of {index_dir} ({query!r}) has {len(ranked)} result(s): "
                                f"{span}")
         clip = ranked[rank - 1]
-        if clip not in self._by_clip:
+        if not self._holds(clip):
             raise ShortIdError(f"#{rank}: {clip!r} of the last search ({query!r}) is no longer in {index_dir}; "
                                "search again")
         return clip
@@ -233,22 +244,23 @@ class ShortIds:
         if len(logs) > 1:
             raise ShortIdError(f"{log!r} names {len(logs)} logs: {_listed(logs)}; give more of the log id")
         log_id = logs[0]
-        tracks = _matching(track, self._track_prefix[log_id])
+        tracks = _matching(track, self._tracks(log_id))
         if not tracks:
             raise ShortIdError(f"log {log_id} has no indexed track starting with {track!r}")
         if len(tracks) > 1:
             raise ShortIdError(f"{track!r} names {len(tracks)} tracks of log {log_id}: {_listed(tracks)}; give more "
                                "of the track id")
-        moments = [m for m in self._moments if m.log_id == log_id and m.track_id == tracks[0]]
-        hits = [m for m in moments if round(self.start_s(m.clip_id), 1) == round(seconds, 1)]
+        rows = self._moments_of(log_id)
+        rows = rows.filter(pc.equal(rows.column("track_id"), tracks[0])).sort_by("start_ns").to_pylist()
+        hits = [r for r in rows if round(self.start_s(log_id, r["start_ns"]), 1) == round(seconds, 1)]
         if len(hits) == 1:
-            return hits[0].clip_id
-        listed = _listed(self.readable(m.clip_id) for m in sorted(moments, key=lambda m: m.start_ns))
+            return str(hits[0]["clip_id"])
         if not hits:
+            listed = _listed(self.readable(log_id, tracks[0], r["start_ns"]) for r in rows)
             raise ShortIdError(f"track {tracks[0]} of log {log_id} has no moment starting at {seconds:.1f} s; its "
                                f"moments: {listed}")
         raise ShortIdError(f"{len(hits)} moments of track {tracks[0]} start at {seconds:.1f} s: "
-                           f"{_listed(m.clip_id for m in hits)}; give the clip id")
+                           f"{_listed(str(r['clip_id']) for r in hits)}; give the clip id")
 
 
 def _matching(prefix: str, names: Mapping[str, object]) -> list[str]:

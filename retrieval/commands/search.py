@@ -108,10 +108,11 @@ def print_results(index_dir: Path, query: str, results: list[SearchResult], shor
     """
     import shutil
 
-    from retrieval.records import format_table, time_in_log
+    from retrieval.records import time_in_log
+    from retrieval.result_table import format_table
     from retrieval.short_ids import remember
 
-    ids = short.readable_ids(r.clip_id for r in results)
+    ids = short.readable_ids(results)
     spans = short.spans(r.log_id for r in results)
     remember(index_dir, query, [r.clip_id for r in results])
     if as_json:

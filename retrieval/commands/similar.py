@@ -35,7 +35,8 @@ def run(args: argparse.Namespace) -> int:
 
     from retrieval.commands.search import print_results, wrap
     from retrieval.querying import check_text, parse_cli_filters
-    from retrieval.records import object_first, time_in_log
+    from retrieval.records import time_in_log
+    from retrieval.result_table import object_first
     from retrieval.scenesearch import SceneSearch
     from retrieval.short_ids import ShortIds
 
@@ -49,11 +50,11 @@ def run(args: argparse.Namespace) -> int:
     results = search.search_clip(clip_id, k=args.k, filters=parse_cli_filters(args.filters), view=args.view,
                                  other_moments=args.other_moments)
     query = search.get(clip_id)
-    named = f"{args.clip_id} = " if args.clip_id.strip().startswith("#") else ""
+    readable = short.readable(query.log_id, query.track_id, query.start_ns)
+    named = f"{args.clip_id.strip()} = " if args.clip_id.strip().startswith("#") else ""
     when = time_in_log(query, short.spans([query.log_id])[query.log_id])
     width = shutil.get_terminal_size().columns
-    before = wrap(f"query: {named}{short.readable(clip_id)} ({query.category}, {when})", width) + "\n" + \
+    before = wrap(f"query: {named}{readable} ({query.category}, {when})", width) + "\n" + \
         wrap(f"    {object_first(query.caption)}", width)
-    print_results(args.index_dir, f"more like {short.readable(clip_id)}", results, short, args.json,
-                  {"clip_id": clip_id}, before)
+    print_results(args.index_dir, f"more like {readable}", results, short, args.json, {"clip_id": clip_id}, before)
     return 0

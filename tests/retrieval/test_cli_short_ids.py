@@ -7,9 +7,11 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pyarrow as pa
 import pytest
 
-from retrieval.records import LogSpan, SearchResult, format_table, time_in_log
+from retrieval.records import LogSpan, SearchResult, time_in_log
+from retrieval.result_table import format_table
 from retrieval.short_ids import MAX_REMEMBERED, ShortIdError, ShortIds, last_search, remember
 
 LOG_A = "5620d013-d98a-5f82-8df8-e7b651f7d6b7"
@@ -24,16 +26,26 @@ def _moments() -> tuple[ShortIds, list[str]]:
             (LOG_C, "ego", 0.0), (LOG_C, "ego-2", 3.0), (LOG_C, "12", 1.0), (LOG_C, "123", 1.0)]
     starts = [T0 + int(s * 1e9) for _, _, s in rows]
     clip_ids = [f"{lg}:{tr}:{st}" for (lg, tr, _), st in zip(rows, starts)]
-    return ShortIds(clip_ids, [r[0] for r in rows], [r[1] for r in rows], starts,
-                    [s + 1_500_000_000 for s in starts]), clip_ids
+    return ShortIds(_table(clip_ids, [r[0] for r in rows], [r[1] for r in rows], starts)), clip_ids
+
+
+def _table(clip_ids: list[str], logs: list[str], tracks: list[str], starts: list[int]) -> pa.Table:
+    """Index metadata: moments 1.5 s long."""
+    return pa.table({"clip_id": clip_ids, "log_id": logs, "track_id": tracks, "start_ns": pa.array(starts, pa.int64()),
+                     "end_ns": pa.array([s + 1_500_000_000 for s in starts], pa.int64())})
+
+
+def _parts(clip_id: str) -> tuple[str, str, int]:
+    log_id, track_id, start = clip_id.split(":")
+    return log_id, track_id, int(start)
 
 
 def test_readable_ids_round_trip_and_lengthen_shared_prefixes(tmp_path: Path) -> None:
     short, clip_ids = _moments()
-    ids = short.readable_ids(clip_ids)
-    assert short.readable(f"{LOG_A}:7a35f449-b158-562a-bfd9-98f08561f31e:{T0 + 4_500_000_000}") \
+    ids = {c: short.readable(*_parts(c)) for c in clip_ids}
+    assert ids[f"{LOG_A}:7a35f449-b158-562a-bfd9-98f08561f31e:{T0 + 4_500_000_000}"] \
         == "5620d013-d/7a35f449@4.5s"  # the log's 8 characters name two logs: one more each
-    assert short.readable(f"{LOG_C}:12:{T0 + 1_000_000_000}") == "ecea1f9d/12@1.0s"
+    assert ids[f"{LOG_C}:12:{T0 + 1_000_000_000}"] == "ecea1f9d/12@1.0s"
     assert len(set(ids.values())) == len(ids)
     for clip_id, readable in ids.items():
         assert short.resolve(readable, tmp_path) == clip_id
@@ -82,11 +94,12 @@ def test_ranks_of_the_last_search_are_remembered_per_index(tmp_path: Path) -> No
 
 def test_the_time_in_an_id_counts_from_the_logs_first_frame_where_known() -> None:
     starts = [T0 + 5_000_000_000, T0 + 7_000_000_000]
-    plain = ShortIds(["a:t:1", "a:t:2"], ["a", "a"], ["t", "t"], starts, [s + 10**9 for s in starts])
-    framed = ShortIds(["a:t:1", "a:t:2"], ["a", "a"], ["t", "t"], starts, [s + 10**9 for s in starts],
-                      read_spans=lambda logs: {"a": LogSpan(T0, T0 + 20 * 10**9)})
-    assert [plain.readable(c) for c in ("a:t:1", "a:t:2")] == ["a/t@0.0s", "a/t@2.0s"]  # from the first moment
-    assert [framed.readable(c) for c in ("a:t:1", "a:t:2")] == ["a/t@5.0s", "a/t@7.0s"]  # from the first frame
+    table = _table(["a:t:1", "a:t:2"], ["a", "a"], ["t", "t"], starts)
+    plain = ShortIds(table)
+    framed = ShortIds(table, read_spans=lambda logs: {"a": LogSpan(T0, T0 + 20 * 10**9)})
+    assert [plain.readable("a", "t", s) for s in starts] == ["a/t@0.0s", "a/t@2.0s"]  # from the first moment
+    assert [framed.readable("a", "t", s) for s in starts] == ["a/t@5.0s", "a/t@7.0s"]  # from the first frame
+    assert framed.resolve("a/t@7s", "index") == "a:t:2"
 
 
 def _result(rank: int, caption: str, category: str = "car") -> SearchResult:

@@ -31,7 +31,8 @@ from retrieval.errors import (
     UnknownViewError,
 )
 from retrieval.querying import parse_cli_filters
-from retrieval.records import SearchResult, format_table
+from retrieval.records import SearchResult
+from retrieval.result_table import format_table
 from retrieval.scenesearch import SceneSearch
 
 

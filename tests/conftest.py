@@ -43,3 +43,9 @@ def ray_stopped() -> Iterator[None]:
     finally:
         if running and not ray.is_initialized():
             ray.init(**_LOCAL)
+
+
+@pytest.fixture(autouse=True)
+def private_cache_home(tmp_path_factory: pytest.TempPathFactory, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Keep what commands remember between runs (the last search's short ids) out of the user's ~/.cache."""
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path_factory.mktemp("cache_home")))

@@ -29,7 +29,8 @@ wrong. Every test is written again from its definition, one object and one frame
   headings within 45°, the subject moving); ``same_lane``; ``crossed_by`` (the other's centre
   changes side of the subject's heading line between two frames, both inside the zone up to
   ``forward_m`` past the front and ``lateral_m`` aside; the pair's frames within ``window_s``
-  count).
+  count; a centre within :data:`ON_LINE_M` of the line is on neither side, so an object that walks
+  along the line does not cross it at every rounding of its offset).
 - **Composition and time** as :mod:`scenarios.program` states: ``Has`` with counts, negation and
   ``reverse``; ``Between`` (either kind on either side, boxes within 50 m); and / or / but not;
   ``Together``; ``ForAtLeast`` (a run lasts from its first frame to its last plus one frame
@@ -74,6 +75,8 @@ Params = dict[str, float | str]
 EGO_LENGTH_M, EGO_WIDTH_M = 4.877, 1.852
 #: An oncoming lane lies at most this far to the side of the ego.
 ONCOMING_LATERAL_M = 10.0
+#: A centre this close to the subject's heading line is on it, on neither side (it has not crossed).
+ON_LINE_M = 0.001
 #: Distances to a junction are resolved up to this far (farther ones read as infinite).
 JUNCTION_MARGIN_M = 20.0
 #: Cell size of the lookup grid of map polygons.
@@ -636,8 +639,8 @@ class _Reference:
                     lateral[f] = left
                     zone[f] = 0 < fwd <= log.length[s][f] / 2 + float(p["forward_m"]) \
                         and abs(left) <= log.width[s][f] / 2 + float(p["lateral_m"])
-            events = [f for f in range(1, nf) if zone[f] and zone[f - 1]
-                      and (lateral[f] > 0) - (lateral[f] < 0) != (lateral[f - 1] > 0) - (lateral[f - 1] < 0)]
+            side = [(v > ON_LINE_M) - (v < -ON_LINE_M) for v in lateral]  # 0: on the line, no side
+            events = [f for f in range(1, nf) if zone[f] and zone[f - 1] and side[f] * side[f - 1] < 0]
             for f in range(nf):
                 if both[f]:
                     out[f] = any(abs(log.time_s[f] - log.time_s[g]) <= float(p["window_s"]) for g in events)

@@ -26,6 +26,7 @@ import argparse
 import contextlib
 import io
 import json
+import multiprocessing
 import sys
 import tempfile
 import uuid
@@ -159,6 +160,11 @@ def _av2_evaluate() -> Callable[..., tuple[float, float, float, float]]:
         warnings.simplefilter("ignore", FutureWarning)
         warnings.simplefilter("ignore", DeprecationWarning)
         from av2.evaluation.scenario_mining.eval import evaluate
+        from av2.evaluation.tracking import eval as tracking_eval
+    # The evaluator's worker pool forks this process by default; a fork of a process whose other threads
+    # hold locks (a Ray runtime's, torch's) can hang its children. Its workers start from a fresh server
+    # process instead.
+    setattr(tracking_eval, "mp", multiprocessing.get_context("forkserver"))  # noqa: B010
     return evaluate
 
 

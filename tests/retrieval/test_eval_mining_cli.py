@@ -49,6 +49,8 @@ def gt_path(tmp_path: Path) -> Path:
     return tmp_path / "gt.pkl"
 
 
+# With a Ray runtime in this process: the evaluator's workers must not be forks of it (they would hang).
+@pytest.mark.usefixtures("ray_local")
 def test_a_perfect_prediction_scores_the_maximum_and_an_empty_one_less(
         tmp_path: Path, gt_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     # The prediction holds every 10 Hz frame; the command picks the ground truth's 2 Hz ones.

@@ -19,6 +19,7 @@ from captioning.pipeline import CAPTIONS_FILENAME, FRAME_TAGS_FILENAME, LOGS_FIL
 from captioning.tables import FRAME_TAGS_BEHAVIOR_SCHEMA, FRAME_TAGS_SCHEMA, captions_to_table
 from common.folders import FolderKind, claim_folder, mark_folder
 from common.publish import GENERATIONS_DIR, publish
+from common.storage import is_uri
 
 #: The folder ``scenesearch caption`` writes (:mod:`common.folders`).
 CAPTIONS_FOLDER = FolderKind("captions", CAPTIONS_FILENAME, (CAPTIONS_FILENAME, FRAME_TAGS_FILENAME, LOGS_FILENAME,
@@ -42,11 +43,21 @@ def write_outputs(out_dir: Path | str, results: Sequence[LogCaptions],
     one of ``inputs`` (the log folders) nor inside one, else :class:`FolderClaimError`."""
     claim_folder(out_dir, CAPTIONS_FOLDER, inputs)
     mark_folder(out_dir, CAPTIONS_FOLDER, CAPTIONS_FOLDER.entries)  # first: a killed write leaves its kind
-    folders = {Path(str(d)).name: str(Path(d).resolve()) for d in inputs}
-    logs = json.dumps({r.log_id: folders[r.log_id] for r in results if r.log_id in folders}, indent=1)
+    logs = logs_index(results, inputs)
     writers = {name: functools.partial(_write_parquet, table) for name, table in output_tables(results).items()}
     paths = publish(out_dir, {**writers, LOGS_FILENAME: functools.partial(_write_text, logs)})
     return paths[FRAME_TAGS_FILENAME], paths[CAPTIONS_FILENAME]
+
+
+def logs_index(results: Sequence[LogCaptions], inputs: Sequence[Path | str]) -> str:
+    """``logs.json``'s text: each captioned log's id → its folder (a local folder resolved, ``file://``
+    read as the local folder it names, any other URI as given)."""
+    folders: dict[str, str] = {}
+    for d in inputs:
+        text = str(d).rstrip("/")
+        local = text.removeprefix("file://") if text.startswith("file://") or not is_uri(text) else None
+        folders[Path(text).name] = str(Path(local).resolve()) if local is not None else text
+    return json.dumps({r.log_id: folders[r.log_id] for r in results if r.log_id in folders}, indent=1)
 
 
 def _write_parquet(table: pa.Table, path: Path) -> None:

@@ -94,11 +94,11 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _write(out: Location, results: list[LogCaptions], log_dirs: list[Location]) -> tuple[Location, Location]:
-    """Publish the two files together in a local folder; upload them to a URI (files, no links)."""
+    """Publish the captions folder's files together in a local folder; upload them to a URI (files, no links)."""
     import pyarrow.parquet as pq
 
-    from captioning.outputs import CAPTIONS_FOLDER, output_tables, write_outputs
-    from captioning.pipeline import CAPTIONS_FILENAME, FRAME_TAGS_FILENAME
+    from captioning.outputs import CAPTIONS_FOLDER, logs_index, output_tables, write_outputs
+    from captioning.pipeline import CAPTIONS_FILENAME, FRAME_TAGS_FILENAME, LOGS_FILENAME
     from common.folders import mark_folder
 
     if not is_uri(out):
@@ -107,6 +107,7 @@ def _write(out: Location, results: list[LogCaptions], log_dirs: list[Location]) 
         mark_folder(local, CAPTIONS_FOLDER, CAPTIONS_FOLDER.entries)
         for name, table in output_tables(results).items():
             pq.write_table(table, local / name)
+        (local / LOGS_FILENAME).write_text(logs_index(results, log_dirs), encoding="utf-8")
     return f"{str(out).rstrip('/')}/{FRAME_TAGS_FILENAME}", f"{str(out).rstrip('/')}/{CAPTIONS_FILENAME}"
 
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -133,8 +134,12 @@ def test_the_table_of_no_results() -> None:
 
 
 def _stderr_of(code: str) -> str:
+    from retrieval.cli import QUIET_LIBRARIES
+
+    # A CLI test earlier in this process may have set the switches in its environment.
+    env = {k: v for k, v in os.environ.items() if k not in QUIET_LIBRARIES}
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300,
-                          cwd=Path(__file__).parents[2])
+                          cwd=Path(__file__).parents[2], env=env)
     assert done.returncode == 0, done.stderr
     return done.stderr
 

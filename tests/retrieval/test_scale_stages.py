@@ -72,7 +72,7 @@ def test_caption_clips_and_tag_targets_with_workers_give_the_same_bytes(data: di
         assert main(["clips", *logs, "--captions", str(root / "captions_serial"), "--out", str(root / f"clips_{name}"),
                      "--frames-per-clip", "4", *extra]) == 0
     captions = _tree(root / "captions_serial")
-    assert set(captions) == {".scenesearch.json", "captions.parquet", "frame_tags.parquet"}
+    assert set(captions) == {".scenesearch.json", "captions.parquet", "frame_tags.parquet", "logs.json"}
     assert captions == _tree(root / "captions_ray")
     serial, ray = (_tree(root / f"clips_{n}", skip=("render.json", "manifest.json")) for n in ("serial", "ray"))
     assert "clips.parquet" in serial and any(k.startswith("previews/") for k in serial)

@@ -192,7 +192,7 @@ def test_batch_reports_every_skip_and_imports_the_rest(tmp_path: Path) -> None:
         ("flipped.tfrecord, record 0", "CRC mismatch"),
         ("truncated.tfrecord, record 0", "truncated"),
         ("empty.tfrecord", "no records"),
-        ("missing.tfrecord", "no such file"),
+        ("missing.tfrecord", "file is missing"),
     ]
     for (where, what), reason in zip(expected, reasons):
         assert where in reason and what in reason, reason

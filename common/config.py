@@ -111,6 +111,13 @@ def with_option(config: T, option: str, **changes: Any) -> T:
         raise type(exc)(f"{option} {', '.join(str(v) for v in changes.values())}: {exc}") from None
 
 
+def check_flag_bound(option: str, value: float, bound: float) -> None:
+    """Refuse a command-line flag's ``value`` above ``bound`` before anything is allocated for it, naming
+    the flag (``--batch-size 100000: above its upper bound 4096``)."""
+    if value > bound:
+        raise ValueError(f"{option} {value}: above its upper bound {bound:g}")
+
+
 # --- writing ----------------------------------------------------------------------------------------
 
 

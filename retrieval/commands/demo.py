@@ -11,6 +11,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from common.config import check_flag_bound
+
 #: Ray workers ``--workers`` may ask for, at most.
 MAX_WORKERS = 1024
 
@@ -84,8 +86,8 @@ def check_sizes(args: argparse.Namespace) -> None:
     """Refuse a size flag above its upper bound (:func:`size_bounds`), naming the flag, before any stage runs."""
     for name, (flag, bound) in size_bounds().items():
         value = getattr(args, name, None)
-        if value is not None and value > bound:
-            raise ValueError(f"{flag} {value}: above its upper bound {bound:g}")
+        if value is not None:
+            check_flag_bound(flag, value, bound)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -15,6 +15,7 @@ import tempfile
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from common.config import check_flag_bound
 from common.ray_cluster import Execution
 from common.ray_cluster import add_arguments as add_execution_arguments
 
@@ -66,8 +67,7 @@ def check_sizes(args: argparse.Namespace) -> None:
                                      ("--num-workers", args.num_workers, 0, MAX_NUM_WORKERS)):
         if value < low:
             raise ValueError(f"{option} {value}: must be at least {low}")
-        if value > high:
-            raise ValueError(f"{option} {value}: above its upper bound {high}")
+        check_flag_bound(option, value, high)
 
 
 def run(args: argparse.Namespace) -> int:

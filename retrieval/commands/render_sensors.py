@@ -16,7 +16,7 @@ import dataclasses
 import sys
 from pathlib import Path
 
-from common.config import with_option
+from common.config import check_flag_bound, with_option
 
 #: Ray-casting threads ``--threads`` may ask for, at most.
 MAX_THREADS = 1024
@@ -53,8 +53,7 @@ def build_config(args: argparse.Namespace) -> object:
         camera = with_option(camera, "--height", height_px=args.height)
     if args.threads < 0:
         raise ValueError(f"--threads {args.threads}: must be at least 0 (0: all cores)")
-    if args.threads > MAX_THREADS:
-        raise ValueError(f"--threads {args.threads}: above its upper bound {MAX_THREADS}")
+    check_flag_bound("--threads", args.threads, MAX_THREADS)
     return dataclasses.replace(
         config,
         lidar=lidar,

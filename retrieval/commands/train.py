@@ -31,7 +31,7 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from common.config import with_option
+from common.config import check_flag_bound, with_option
 
 if TYPE_CHECKING:
     from encoders.presets import Recipe
@@ -91,12 +91,6 @@ def build_recipe(args: argparse.Namespace) -> Recipe:
         if value is not None:
             train = with_option(train, "--" + name.replace("_", "-"), **{name: value})
     return dataclasses.replace(recipe, train=train)
-
-
-def check_flag_bound(option: str, value: float, bound: float) -> None:
-    """Refuse a flag's ``value`` above ``bound`` before anything is allocated for it, naming the flag."""
-    if value > bound:
-        raise ValueError(f"{option} {value}: above its upper bound {bound:g}")
 
 
 def run(args: argparse.Namespace) -> int:

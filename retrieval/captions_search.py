@@ -249,6 +249,8 @@ class CaptionSearch:
         self.skipped = list(skipped)
         #: The scenario features of the index's logs (none until opened from a directory that holds them).
         self.scenarios = ScenarioStore(None)
+        #: Logs whose scenario features the last :meth:`save` could not store: log id → why.
+        self.scenarios_missing: dict[str, str] = {}
 
     def __len__(self) -> int:
         return len(self.metadata)
@@ -308,7 +310,9 @@ class CaptionSearch:
         index also holds its logs' scenario features (:mod:`retrieval.scenario_search`).
         """
         with claimed_directory(out_dir, INDEX_FOLDER, inputs) as tmp:
-            scenarios = build_store(tmp / SCENARIOS_DIR, log_dirs) if log_dirs else {}
+            log_ids = self.metadata.table.column("log_id").to_pylist() if log_dirs else ()
+            scenarios = build_store(tmp / SCENARIOS_DIR, log_dirs, log_ids) if log_dirs else {}
+            self.scenarios_missing = dict(scenarios.get("missing", {}))
             stored = [f"{SCENARIOS_DIR}/{p.name}" for p in sorted((tmp / SCENARIOS_DIR).glob("*.npz"))]
             self.metadata.write(tmp / METADATA_FILE)
             pq.write_table(pa.table({"text": pa.array(self.texts, pa.string())}), tmp / TEXTS_FILE)
@@ -368,6 +372,11 @@ class CaptionSearch:
         if given != whole_text:  # queries embedded unlike the texts would rank by the difference
             raise IndexDirError(f"{path}, field 'whole_text': the index embedded its texts as {whole_text!r}, "
                                 f"the given encoder embeds a text as {given!r}")
+        encoder_dim = getattr(encoder if encoder is not None else _sentence_encoder_class(), "dim", None)
+        if encoder_dim is not None and encoder_dim != counts["dim"]:  # every query would fail to score
+            raise IndexDirError(f"{path}, field 'dim': the index holds texts embedded in {counts['dim']} "
+                                f"dimensions (text encoder {info.get('text_encoder')!r}), the query encoder "
+                                f"embeds in {encoder_dim}; build the index again with this encoder")
         encoder = encoder if encoder is not None else _sentence_encoder_class()(whole_text=whole_text)
         base = info.get("base_dir")
         out = cls(*parts, encoder, info.get("text_encoder"), Path(base) if base else None,
@@ -391,7 +400,12 @@ class CaptionSearch:
         """
         query = check_query(query)
         checked = build_query(k, filters, self.metadata, len(self), max_k)
-        scores = self.scores(np.asarray(self.encoder([query]), dtype=np.float32)[0])
+        xq = np.asarray(self.encoder([query]), dtype=np.float32)
+        if xq.ndim != 2 or xq.shape[1] != self.text_embeddings.shape[1]:
+            raise IndexDirError(f"the query encoder {self.encoder_name!r} gave embeddings of shape {xq.shape}; "
+                                f"the index's texts have {self.text_embeddings.shape[1]} dimensions "
+                                "(build the index again with this encoder)")
+        scores = self.scores(xq[0])
         if checked.filters is not None:
             allowed = np.zeros(len(self), dtype=bool)
             allowed[self.metadata.select(checked.filters)] = True

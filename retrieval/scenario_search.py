@@ -17,7 +17,7 @@ moment as before and :attr:`ScenarioMatch.fallback` says why.
 from __future__ import annotations
 
 import json
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -69,20 +69,26 @@ class ScenarioMatch:
                 "fallback": self.fallback, "notes": list(self.notes)}
 
 
-def build_store(folder: Path, log_dirs: Mapping[str, str]) -> dict[str, Any]:
+def build_store(folder: Path, log_dirs: Mapping[str, str], log_ids: Iterable[str] = ()) -> dict[str, Any]:
     """Write the scenario features of each log (id → folder) into ``folder``; what was left out, and why.
+
+    ``log_ids``: the logs of the indexed moments; one that ``log_dirs`` does not name is reported missing
+    too (its moments would otherwise quietly never match a scenario query).
 
     Returns:
         ``{"logs": built, "missing": {log_id: reason}}``.
     """
     folder.mkdir(parents=True, exist_ok=True)
-    missing: dict[str, str] = {}
+    missing: dict[str, str] = {str(log_id): "its folder is not recorded (no entry in the log list of its captions "
+                                            "or clips), so scenario queries cannot select its moments"
+                               for log_id in sorted(set(map(str, log_ids)) - set(log_dirs))}
     for log_id, log_dir in sorted(log_dirs.items()):
         try:
             cached_features(Path(log_dir), folder)
         except (ScenesError, OSError, ValueError) as exc:
             missing[log_id] = f"its folder {log_dir} cannot be read ({exc})"
-    return {"logs": len(log_dirs) - len(missing), "missing": missing}
+    built = sum(1 for log_id in log_dirs if log_id not in missing)
+    return {"logs": built, "missing": missing}
 
 
 def log_folders_of(captions_dir: Path) -> dict[str, str]:

@@ -147,9 +147,13 @@ class SceneSearch:
                 index.save(tmp / view)
             captions.save(tmp / CAPTIONS_DIR)
             (tmp / "run").mkdir()
-            scenarios = build_store(tmp / SCENARIOS_DIR, _log_folders(clips_dir))
+            folders = _log_folders(clips_dir)
+            scenarios = build_store(tmp / SCENARIOS_DIR, folders,
+                                    rows.column("log_id").to_pylist() if folders else ())
             say(f"index: scenario features of {scenarios['logs']} log(s)"
                 + (f", {len(scenarios['missing'])} missing" if scenarios["missing"] else ""))
+            for log_id, reason in list(scenarios["missing"].items())[:20]:
+                say(f"note: no scenario features for log {log_id}: {reason}")
             covered = [f"{d}/{MANIFEST}" for d in (*VIEWS, CAPTIONS_DIR)]
             covered += [f"{SCENARIOS_DIR}/{p.name}" for p in sorted((tmp / SCENARIOS_DIR).glob("*.npz"))]
             if (run_dir / CONFIG_FILE).is_file():

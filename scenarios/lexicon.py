@@ -106,7 +106,7 @@ for _phrases, _name, _params in (
     ("moving|driving|traveling|travelling|in motion|active|walking|riding|going|running|jogging|heading|moves|"
      "move|drives|walks|rides|"
      "navigating|maneuvering|proceeding|passing through", "moving", ()),
-    ("stopped|halted|standing still|stopping|waiting|idling|not moving|stationary vehicle|at a standstill|"
+    ("stopped|halted|standing still|stopping|waiting|idling|stationary vehicle|at a standstill|"
      "stands|stand|standing|stop|stops|waits|wait|comes to a stop|come to a stop", "stopped", ()),
     ("stationary|hasn't moved|has not moved|never moves|unmoving|static", "stationary", ()),
     ("parked|parking", "parked", ()),
@@ -251,6 +251,8 @@ for _phrases, _lexeme in (
                                                                          other="pedestrian", count=1, negate=True)),
 ):
     _add(_phrases, _lexeme)
+# Not moving: stopped for a moment or parked for the whole log (``stopped`` alone leaves parked ones out).
+_add("not moving|isn't moving|is not moving|are not moving|aren't moving", Lexeme("pred", "moving", negate=True))
 _add("closely|too closely|too close|tightly", Lexeme("closely"))
 _add("drives off|drive off|pulls away|pull away|starts moving|start moving|takes off|sets off|starts to move|"
      "pulls out|pulling out|drives away from a stop", Lexeme("seq", "drive_off"))

@@ -54,6 +54,8 @@ class Parser:
         self.i = 0
         self.unused: list[str] = []
         self.pending_m: float | None = None
+        #: "… then stops within 4 seconds": the time the steps of a sequence fall within (not a duration).
+        self.within_s: float | None = None
         #: How deep in the phrases named by relations: "and"/"while" + modifier join the referred phrase only.
         self.depth = 0
 
@@ -83,6 +85,13 @@ class Parser:
             if item.role != "skip":
                 self.unused.extend(item.words)
             self.i += 1
+
+    def after_word(self, word: str) -> bool:
+        """Whether the next meaningful item comes right after ``word`` (a filler the stream skips)."""
+        j = self.i
+        while j < len(self.items) and self.items[j].role in ("skip", "unknown"):
+            j += 1
+        return j > 0 and self.items[j - 1].words == (word,)
 
     def role(self, ahead: int = 0) -> str:
         item = self.peek(ahead)
@@ -216,11 +225,14 @@ class Parser:
                     break
                 node = updated
             elif role == "number":
+                after_within = self.after_word("within")
                 found = self.quantity()
                 if found is None:
                     break
                 value, unit = found
-                if unit == "s":
+                if unit == "s" and after_within:
+                    self.within_s = value
+                elif unit == "s":
                     node = ForAtLeast(node, value)
                 elif unit == "m" and isinstance(node, Has) and self.role() not in ("rel", "side", "kind"):
                     node = _within(node, value)
@@ -323,8 +335,10 @@ class Parser:
     def sequence(self, node: Node, item: Lexeme) -> Node:
         """A sequence the words name: "drives off" (stops, then moves), "cuts into my lane [from the left]"
         (in a lane beside the ego's, then in the ego's)."""
-        if item.name == "drive_off":
-            return Then(Is(node, "stopped"), Is(node, "moving"), CUT_IN_WITHIN_S)
+        if item.name == "drive_off":  # "stopped vehicle that starts moving": stopped once, then moving
+            first = node if isinstance(node, Is) and node.predicate in ("stopped", "parked") and not node.negate \
+                else Is(node, "stopped")
+            return Then(first, Is(_without_states(node), "moving"), CUT_IN_WITHIN_S)
         side = "adjacent"
         if self.role() == "side" and self.name() in ("left", "right"):
             side = self.take().name
@@ -388,15 +402,18 @@ class Parser:
         node = self.referred(*found)
         while self.role() == "conj":
             conj = self.take()
-            nxt = self.phrase()
+            # "brakes and then stops": a phrase naming no kind goes on about the same objects.
+            nxt = self.phrase(need_kind=True)
             if nxt is None:  # "stopped then moving": the same objects
-                head = subject_of(node)
+                head = _without_states(subject_of(node))
                 if self.role() in ("pred", "rel", "ego", "side", "with", "between", "not", "seq", "fixed"):
                     nxt = (self.modifiers(head), 0)
                 else:
                     self.unused.extend(conj.words)
                     break
             other = self.referred(*nxt)
+            if subject_of(node) == Objects("any") and subject_of(other) != Objects("any") :
+                node = _with_subject(node, subject_of(other))  # "parked or stopped vehicle": both of vehicles
             if conj.name == "then":
                 node = Then(node, other)
             elif conj.name == "while":
@@ -405,6 +422,11 @@ class Parser:
                 node = AllOf((node, other)) if conj.name == "and" else node
                 if conj.name == "or":
                     node = AnyOf((node.children[0] if isinstance(node, AllOf) else node, other))
+        if self.within_s is not None:
+            if isinstance(node, Then):
+                node = dataclasses.replace(node, within_s=self.within_s)
+            else:
+                self.unused.append(f"within {self.within_s:g} s")
         return node
 
     def referred(self, node: Node, count: int) -> Node:
@@ -436,3 +458,42 @@ def _negated(after: Node, before: Node) -> Node:
     if isinstance(after, Is | Has) and after != before:
         return dataclasses.replace(after, negate=not after.negate)
     return after
+
+
+#: Predicates of what an object is doing at a moment: a later step of a sequence does not inherit them.
+STATES = ("stopped", "moving", "parked", "stationary", "braking", "accelerating")
+
+
+def _without_states(node: Node) -> Node:
+    """``node`` without its state predicates (:data:`STATES`) along its subjects: "a stopped vehicle in
+    our lane" → "a vehicle in our lane", the objects a next step ("… then moves") is about."""
+    match node:
+        case Is(subject) if node.predicate in STATES:
+            return _without_states(subject)
+        case Is(subject):
+            return dataclasses.replace(node, subject=_without_states(subject))
+        case Has() if node.reverse:
+            return dataclasses.replace(node, other=_without_states(node.other))
+        case Has(subject):
+            return dataclasses.replace(node, subject=_without_states(subject))
+    return node
+
+
+def _with_subject(node: Node, subject: Node) -> Node:
+    """``node`` with its innermost subject (:func:`scenarios.program.subject_of`) replaced by ``subject``."""
+    match node:
+        case Objects():
+            return subject
+        case Is(inner) | Between(inner) | Together(inner) | ForAtLeast(inner) | While(inner):
+            field = dataclasses.fields(node)[0].name
+            return dataclasses.replace(node, **{field: _with_subject(inner, subject)})  # type: ignore[arg-type]
+        case Has() if node.reverse:
+            return dataclasses.replace(node, other=_with_subject(node.other, subject))
+        case Has(inner):
+            return dataclasses.replace(node, subject=_with_subject(inner, subject))
+        case Then(first):
+            return dataclasses.replace(node, first=_with_subject(first, subject))
+        case AllOf((first, *rest)):
+            return AllOf((_with_subject(first, subject), *rest))
+    return node
+

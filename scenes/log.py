@@ -68,6 +68,7 @@ class Log:
         )
         if annotations is not None and ego is not None:
             problems.extend(_check_pose_coverage(log_dir, annotations, ego))
+            problems.extend(_check_sweep_times(log_dir, ego))
         if problems or annotations is None or ego is None:
             raise LogFormatError(problems)
         return Log(log_dir, annotations, ego, annotations.unknown_labels())
@@ -96,7 +97,13 @@ class Log:
     def map(self) -> VectorMap | None:
         """The vector map, or None when the log has none."""
         path = self.map_path
-        return None if path is None else av2_io.read_map(path)
+        if path is None:
+            return None
+        vector_map = av2_io.read_map(path)
+        problems = schema.check_map_covers_poses(path, vector_map, self.ego.translation_m[:, :2])
+        if problems:
+            raise LogFormatError(problems)
+        return vector_map
 
     @cached_property
     def calibration(self) -> Calibration:
@@ -177,3 +184,20 @@ def _check_pose_coverage(log_dir: Path, annotations: Annotations, ego: EgoTrajec
                     f"timestamp {first} has no ego pose (poses cover {lo}..{hi})", field="timestamp_ns")
         ]
     return []
+
+
+def _check_sweep_times(log_dir: Path, ego: EgoTrajectory) -> list[Problem]:
+    """A LiDAR sweep named at a time the ego poses do not cover (``1.feather``, a sweep of another log):
+    its name is its timestamp, so it would add a frame outside the log and stretch its time grid."""
+    lidar_dir = log_dir / av2_io.LIDAR_DIR
+    ts = timestamps_in(lidar_dir, ".feather")
+    lo, hi = int(ego.timestamps_ns[0]), int(ego.timestamps_ns[-1])
+    outside = (ts < lo - POSE_COVERAGE_TOLERANCE_NS) | (ts > hi + POSE_COVERAGE_TOLERANCE_NS)
+    if not outside.any():
+        return []
+    first = int(ts[np.argmax(outside)])
+    return [Problem(lidar_dir / f"{first}.feather",
+                    f"the sweep's name gives the time {first} ns, outside the ego poses ({lo}..{hi} ns); "
+                    f"{int(outside.sum())} sweep(s) of {ts.shape[0]} lie outside the log",
+                    field="timestamp_ns (file name)")]
+

@@ -109,7 +109,9 @@ def validate_log(log_dir: Path | str, max_pose_gap_s: float = schema.DEFAULT_MAX
     map_path = collect_problems(map_problems, av2_io.find_map_file, log_dir)
     problems.extend(map_problems)
     if map_path is not None:
-        collect_problems(problems, av2_io.read_map, map_path)
+        vector_map = collect_problems(problems, av2_io.read_map, map_path)
+        if vector_map is not None and log is not None:
+            problems += schema.check_map_covers_poses(map_path, vector_map, log.ego.translation_m[:, :2])
     elif not map_problems:
         warnings.append("no map (map/log_map_archive_*.json)")
     calibration = collect_problems(problems, av2_io.read_calibration, log_dir)

@@ -69,6 +69,10 @@ def run(args: argparse.Namespace) -> int:
 
     if not args.max_range_m > 0:
         raise ValueError(f"--max-range-m must be positive, got {args.max_range_m}")
+    if args.dataset_dir is not None and not args.dataset_dir.is_dir():
+        what = "is not a folder" if args.dataset_dir.exists() else "does not exist"
+        raise FileNotFoundError(f"--dataset-dir {args.dataset_dir}: {what} (expected the folder of the logs, "
+                                "one sub-folder per log id)")
     predictions = load_submission(args.pred, require_score=True)
     labels = load_submission(args.gt)
     predictions, notes = align_predictions(predictions, labels, args.pred)
@@ -194,9 +198,12 @@ def _link_logs(dataset_dir: Path, stand_in: dict[str, str], links: Path) -> Path
         log_dir = dataset_dir / log_id
         needed = [("city_SE3_egovehicle.feather",), ("map", "log_map_archive_*.json"),
                   ("map", "*_ground_height_surface____*.npy"), ("map", "*___img_Sim2_city.json")]
+        if not log_dir.is_dir():
+            raise FileNotFoundError(f"--dataset-dir {dataset_dir}: no folder {log_dir} for the log {log_id!r} of the "
+                                    "ground truth; leave out --dataset-dir to score without the region of interest")
         for parts in needed:
             if not any(log_dir.glob("/".join(parts))):
-                raise FileNotFoundError(f"--dataset-dir {dataset_dir}: log {log_id!r} has no {'/'.join(parts)} "
+                raise FileNotFoundError(f"--dataset-dir {dataset_dir}: {log_dir / '/'.join(parts)} not found "
                                         "(the region-of-interest filter needs the log's poses, vector map and "
                                         "map rasters); leave out --dataset-dir to score without it")
         (links / name).symlink_to(log_dir.resolve(), target_is_directory=True)

@@ -91,9 +91,13 @@ def run(args: argparse.Namespace) -> int:
         captions = CaptionSearch.build(args.captions, args.out)
         for skipped in captions.skipped[:20]:
             print(f"skipped {skipped.item}: {skipped.reason}")
+        for log_id, reason in list(captions.scenarios_missing.items())[:20]:
+            print(f"note: no scenario features for log {log_id}: {reason}")
         print(f"wrote {args.out}: {len(captions)} captions, {len(captions.texts)} distinct texts "
-              f"({len(captions.skipped)} skipped)")
-        return 1 if captions.skipped else 0
+              f"({len(captions.skipped)} skipped"
+              + (f", {len(captions.scenarios_missing)} log(s) without scenario features" if captions.scenarios_missing
+                 else "") + ")")
+        return 1 if captions.skipped or captions.scenarios_missing else 0
     if args.run_dir is None or args.clips_dir is None:
         raise ValueError("give RUN_DIR and CLIPS_DIR (a trained model and its clips), or --captions CAPTIONS_DIR")
     if args.hybrid_weight is not None:

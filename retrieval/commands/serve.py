@@ -94,6 +94,11 @@ def _serve(args: argparse.Namespace, limits: ServiceLimits, sockets: list[socket
             raise ValueError(f"--logs: the run {run_dir} was trained without tagging; tag queries are unavailable")
         register_tag_routes(app, TagSearch(run_dir, clips_dir=search.clips_dir), list(args.logs))
         print(f"tag queries over {len(args.logs)} logs at /api/tags/series and /api/tags/find")
+    else:
+        from retrieval.service.tags_api import register_tags_unavailable
+
+        register_tags_unavailable(app, "the service was started without --logs (start it with "
+                                       "`scenesearch serve INDEX --logs LOG_DIR ...` from a run trained with tagging)")
     print(f"serving {args.index_dir} ({len(search)} clips) on http://{args.host}:{args.port}/ "
           f"(requests answered within {limits.request_timeout_s:g} s, {limits.max_concurrent_searches} searches at "
           f"once, {limits.max_waiting_searches} waiting)")

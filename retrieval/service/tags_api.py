@@ -14,7 +14,9 @@ Mount on the application of :func:`retrieval.service.app.create_app`::
 
 Errors are JSON ``{"detail": ...}``: 422 for an unknown attribute or region, a malformed composition,
 a map region of a log without a map (the message lists the valid values) or a number that is not
-finite, 413 for a tag expression longer than the limit, 404 for a log that is not served. Logs are
+finite, 413 for a tag expression longer than the limit, 404 for a log that is not served. On a service
+started without tag queries (:func:`register_tags_unavailable`) every ``/api/tags/`` route answers 404
+saying what starts them. Logs are
 only looked up among ``log_dirs``, never opened by a path from the request.
 
 On an application of ``create_app`` the queries share its search gate (429 when busy) and time
@@ -111,3 +113,13 @@ def register_tag_routes(app: FastAPI, search: TagSearch, log_dirs: Sequence[Path
         spans = await run(lambda: search.find(dirs, tag, region, threshold, min_duration_s, k, h, kap))
         return {"tag": tag, "region": region, "threshold": threshold, "k": k,
                 "results": [s.to_dict() for s in spans]}
+
+
+def register_tags_unavailable(app: FastAPI, reason: str) -> None:
+    """Answer every ``/api/tags/...`` route with 404 and ``reason``: what the service needs to serve tag
+    queries, rather than a bare "Not Found" that reads as a wrong address."""
+
+    @app.get("/api/tags/{rest:path}", include_in_schema=False)
+    def unavailable(rest: str) -> None:
+        raise HTTPException(404, f"tag queries are not served: {reason}")
+

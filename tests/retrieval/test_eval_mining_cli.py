@@ -107,4 +107,19 @@ def test_a_dataset_dir_without_map_rasters_is_refused(
     logs = tmp_path / "logs"
     (logs / AV2_LOG / "map").mkdir(parents=True)
     assert main(["eval-mining", str(gt_path), str(gt_path), "--dataset-dir", str(logs)]) == 2
-    assert f"log '{AV2_LOG}' has no city_SE3_egovehicle.feather" in capsys.readouterr().err
+    assert f"{logs / AV2_LOG / 'city_SE3_egovehicle.feather'} not found" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("kind", ["missing", "a_file", "without_the_log"])
+def test_a_dataset_dir_that_is_not_the_logs_folder_names_the_path_tried(
+        kind: str, tmp_path: Path, gt_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    logs = tmp_path / "logs"
+    if kind == "a_file":
+        logs.write_text("not a folder")
+    elif kind == "without_the_log":
+        logs.mkdir()
+    assert main(["eval-mining", str(gt_path), str(gt_path), "--dataset-dir", str(logs)]) == 2
+    err = capsys.readouterr().err
+    expected = {"missing": f"--dataset-dir {logs}: does not exist", "a_file": f"--dataset-dir {logs}: is not a folder",
+                "without_the_log": f"no folder {logs / AV2_LOG} for the log '{AV2_LOG}'"}[kind]
+    assert expected in err and "Traceback" not in err

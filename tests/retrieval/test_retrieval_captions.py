@@ -3,13 +3,13 @@
 from __future__ import annotations
 
 import json
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import numpy as np
 import pyarrow as pa
 import pytest
-from retrieval_fakes import HashTextEncoder
+from retrieval_fakes import HashTextEncoder, hash_embed
 
 from captioning.text import OBJECT_HALF, caption_halves
 from indexes.integrity import seal, sha256_file
@@ -200,3 +200,33 @@ def test_queries_are_embedded_as_the_index_embedded_its_texts(tmp_path: Path) ->
     (directory / "manifest.json").write_text(json.dumps(seal({**manifest, "whole_text": "words"})))
     with pytest.raises(IndexDirError, match=r"manifest.json, field 'whole_text': must be one of"):
         CaptionSearch.open(directory)
+
+
+class _WiderEncoder(HashTextEncoder):
+    """A query encoder whose embeddings are wider than the index's texts (another sentence encoder)."""
+
+    name = "wider-test"
+    dim = 512
+
+    def __call__(self, texts: Sequence[str]) -> np.ndarray:
+        return hash_embed(list(texts), dim=self.dim)
+
+
+def test_an_index_of_another_encoders_width_is_refused_on_open_and_search(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from retrieval.cli import main
+
+    directory = _built(tmp_path)
+    dim = json.loads((directory / "manifest.json").read_text())["dim"]
+    with pytest.raises(IndexDirError, match=rf"field 'dim': the index holds texts embedded in {dim} dimensions "
+                                            r"\(text encoder 'hash-test'\), the query encoder embeds in 512"):
+        CaptionSearch.open(directory, encoder=_WiderEncoder())
+    # The default encoder (384-D) meets the index of the 64-D test encoder on the command line: one line.
+    assert main(["search", str(directory), "stopped car"]) == 2
+    err = capsys.readouterr().err
+    assert f"field 'dim': the index holds texts embedded in {dim} dimensions" in err and "Traceback" not in err
+    # An encoder that does not declare its width is caught at the first query.
+    search = CaptionSearch.open(directory, encoder=HashTextEncoder())
+    search.encoder = _WiderEncoder()
+    with pytest.raises(IndexDirError, match=r"gave embeddings of shape \(1, 512\); the index's texts have"):
+        search.search("stopped car")

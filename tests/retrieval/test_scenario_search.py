@@ -92,3 +92,24 @@ def test_a_caption_index_answers_programs_on_its_logs(tmp_path: Path, capsys: py
     out = json.loads(capsys.readouterr().out)
     assert out["scenario"]["program"] == "stopped(vehicle)" and out["scenario"]["fallback"] is None
     assert all(r["referred_tracks"] for r in out["results"])
+
+
+@pytest.mark.parametrize("kind", ["log_left_out", "folder_gone"])
+def test_a_log_without_scenario_features_is_reported_when_indexed(
+        kind: str, tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch) -> None:
+    """``logs.json`` that leaves out a captioned log, or names a folder that is gone: the index says which
+    log's moments scenario queries cannot select (exit 1), rather than leaving them out in silence."""
+    monkeypatch.setattr("retrieval.captions_search.SentenceEncoder", HashTextEncoder)
+    log = tmp_path / "logs" / require(DEV_LOGS["7fab2350"]).name
+    log.parent.mkdir()
+    log.symlink_to(DEV_LOGS["7fab2350"], target_is_directory=True)
+    assert main(["caption", str(log), "--out", str(tmp_path / "captions")]) == 0
+    listed = {"other-log": str(log.resolve())} if kind == "log_left_out" else {log.name: str(tmp_path / "gone")}
+    (tmp_path / "captions" / "logs.json").write_text(json.dumps(listed))
+    capsys.readouterr()
+    assert main(["index", "--captions", str(tmp_path / "captions"), "--out", str(tmp_path / "index")]) == 1
+    out = capsys.readouterr().out
+    why = ("its folder is not recorded (no entry in the log list" if kind == "log_left_out"
+           else f"its folder {tmp_path / 'gone'} cannot be read")
+    assert f"note: no scenario features for log {log.name}: {why}" in out
+    assert "1 log(s) without scenario features" in out

@@ -16,7 +16,7 @@ from fastapi.testclient import TestClient
 from encoders.tagging.attributes import TagError
 from encoders.tagging.scene_tags import compose, pool_values, region_masks, sigmoid
 from retrieval.cli import main
-from retrieval.service.tags_api import register_tag_routes
+from retrieval.service.tags_api import register_tag_routes, register_tags_unavailable
 from retrieval.tagging import TagSearch, find, spans_of, tag_log
 from tests.encoders.tagging_fixtures import build_tagging_fixture
 
@@ -121,3 +121,14 @@ def test_http_tag_routes(fx: dict[str, Any]) -> None:
     assert r.status_code == 422 and "twice" in r.json()["detail"]
     r = client.get("/api/tags/series", params={"log_id": "nomap_0", "tag": "parked", "region": "crosswalk"})
     assert r.status_code == 422 and "map" in r.json()["detail"]
+
+
+def test_tag_routes_of_a_service_without_tag_queries_say_what_starts_them() -> None:
+    app = FastAPI()
+    register_tags_unavailable(app, "the service was started without --logs")
+    client = TestClient(app)
+    for path in ("/api/tags/vocabulary", "/api/tags/find?tag=stopped", "/api/tags/series?log_id=a&tag=b"):
+        response = client.get(path)
+        assert response.status_code == 404
+        assert response.json()["detail"] == "tag queries are not served: the service was started without --logs"
+

@@ -397,6 +397,43 @@ def test_map_nan_coordinate(log_dir: Path) -> None:
     assert (problem.path, problem.row, problem.field) == (map_path, 1, "lane_segments[1].left_lane_boundary")
 
 
+def test_map_point_thousands_of_km_away_is_refused(log_dir: Path) -> None:
+    map_path = av2_io.find_map_file(log_dir)
+    assert map_path is not None
+    data = json.loads(map_path.read_text())
+    data["lane_segments"]["1"]["left_lane_boundary"][1]["x"] = 9.0e6  # 9,000 km, inside the city bound
+    map_path.write_text(json.dumps(data))
+    problem = _only(validate_log(log_dir).problems)
+    assert (problem.path, problem.row, problem.field) == (map_path, 1, "lane_segments[1].left_lane_boundary")
+    assert "km from every ego pose" in problem.message
+    with pytest.raises(LogFormatError, match="lane_segments"):
+        _ = Log.open(log_dir).map
+
+
+def test_map_of_another_place_is_refused(log_dir: Path, tmp_path: Path) -> None:
+    """Another log's map (here: the same lane 5 km away) covers none of this log's poses."""
+    map_path = av2_io.find_map_file(log_dir)
+    assert map_path is not None
+    data = json.loads(map_path.read_text())
+    for side in ("left_lane_boundary", "right_lane_boundary"):
+        for point in data["lane_segments"]["1"][side]:
+            point["x"] += 5000.0
+    map_path.write_text(json.dumps(data))
+    problem = _only(validate_log(log_dir).problems)
+    assert problem.path == map_path and "the map is not this log's: only 0 of 9 ego poses" in problem.message
+    with pytest.raises(LogFormatError, match="not this log's"):
+        _ = Log.open(log_dir).map
+
+
+def test_lidar_sweep_named_outside_the_log_is_refused(log_dir: Path) -> None:
+    sweep = _sweep_path(log_dir)
+    odd = sweep.with_name("1.feather")
+    odd.write_bytes(sweep.read_bytes())
+    problem = _only(_open_problems(log_dir))
+    assert (problem.path, problem.field) == (odd, "timestamp_ns (file name)")
+    assert "outside the ego poses" in problem.message
+
+
 def test_missing_map_is_a_warning(log_dir: Path) -> None:
     for p in (log_dir / "map").iterdir():
         p.unlink()

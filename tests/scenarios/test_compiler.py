@@ -43,6 +43,14 @@ MEANINGS = {
     "standing still bicyclists": "stopped(cyclist)",
     "vehicles being overtaken on the left": "passed_by(vehicle, any, side=left)",
     "cars moving for at least 3 seconds": "for_at_least(moving(car), seconds=3)",
+    # A sequence's later step is about the same objects, without the states of the earlier one.
+    "stopped vehicle that starts moving": "then(stopped(vehicle), moving(vehicle), within_s=4)",
+    "vehicle that brakes and then stops within 4 seconds": "then(braking(vehicle), stopped(vehicle), within_s=4)",
+    "stopped then moving vehicle": "then(stopped(vehicle), moving(vehicle), within_s=5)",
+    # Not moving: stopped or parked.
+    "vehicle that is not moving": "not(moving(vehicle))",
+    # The kind named once serves both sides of "or".
+    "parked or stopped vehicle": "or(parked(vehicle), stopped(vehicle))",
 }
 
 

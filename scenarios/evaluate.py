@@ -38,7 +38,7 @@ from scenarios.program import (
     While,
     to_text,
 )
-from scenarios.relations import RELATIONS, in_direction, pair_geometry
+from scenarios.relations import RELATIONS, candidate_pairs, group_any, group_count, in_direction, pair_geometry
 from scenes.categories import AV2_TO_CATEGORY, EGO_VEHICLE_LABEL
 
 #: Subject × other × frame cells a relation compares at once.
@@ -165,27 +165,31 @@ class _Run:
         subjects = np.flatnonzero(sel.mask.any(axis=1))
         others = np.flatnonzero(other.mask.any(axis=1))
         k, f = x.num_objects, x.num_frames
-        ok_subject = np.zeros((k, f), bool)
+        count = np.zeros((k, f), np.int64)  # of the subjects: how many others relate at each frame
+        holds_parts, s_parts, o_parts = [], [], []
+        if subjects.size and others.size:
+            s_idx, o_idx = candidate_pairs(x, subjects, others, spec.reach_m(p))
+            step = max(1, _CHUNK_CELLS // max(1, f))
+            for start in range(0, s_idx.size, step):
+                si, oi = s_idx[start:start + step], o_idx[start:start + step]
+                holds = spec.fn(pair_geometry(x, si, oi), p) & other.mask[oi] & sel.mask[si]  # (P, F)
+                count += group_count(holds, si, k)
+                holds_parts.append(holds)
+                s_parts.append(si)
+                o_parts.append(oi)
+        if node.negate:
+            ok_subject = (count == 0) & sel.mask
+        else:
+            ok_subject = count >= node.min_count
+            if node.max_count is not None:
+                ok_subject &= count <= node.max_count
         related = np.zeros((k, f), bool)  # of the others, where they relate to a kept subject
         reverse_related = np.zeros((k, f), bool)  # of the subjects, where they relate to a kept other
-        if subjects.size and others.size:
-            step = max(1, _CHUNK_CELLS // max(1, others.size * f))
-            for start in range(0, subjects.size, step):
-                block = subjects[start:start + step]
-                g = pair_geometry(x, block, others)
-                holds = spec.fn(g, p) & other.mask[others][None] & sel.mask[block][:, None]  # (S, O, F)
-                count = holds.sum(axis=1)  # (S, F)
-                if node.negate:
-                    ok = (count == 0) & sel.mask[block]
-                else:
-                    ok = count >= node.min_count
-                    if node.max_count is not None:
-                        ok &= count <= node.max_count
-                ok_subject[block] = ok
-                if not node.negate:
-                    kept = holds & ok[:, None, :]
-                    related[others] |= kept.any(axis=0)
-                    reverse_related[block] |= kept.any(axis=1)
+        if not node.negate and holds_parts:
+            holds, si, oi = np.concatenate(holds_parts), np.concatenate(s_parts), np.concatenate(o_parts)
+            kept = holds & ok_subject[si]
+            related = group_any(kept, oi, k)
+            reverse_related = group_any(kept, si, k)
         if node.reverse:
             if node.negate:
                 raise ProgramError(f"{node.relation}: reverse() of a negated relation names no object")
@@ -202,13 +206,15 @@ class _Run:
             lo, hi = np.flatnonzero(first.mask.any(axis=1)), np.flatnonzero(second.mask.any(axis=1))
             if not (subjects.size and lo.size and hi.size):
                 continue
-            g_lo, g_hi = pair_geometry(x, subjects, lo), pair_geometry(x, subjects, hi)
-            on_left = in_direction(g_lo, "left", 50.0, lateral_m) & first.mask[lo][None]
-            on_right = in_direction(g_hi, "right", 50.0, lateral_m) & second.mask[hi][None]
-            ok = _any(on_left, 1) & _any(on_right, 1)  # (S, F)
-            both[subjects] |= ok
-            related[lo] |= _any(on_left & ok[:, None], 0)
-            related[hi] |= _any(on_right & ok[:, None], 0)
+            reach = 50.0 + lateral_m
+            s_lo, o_lo = candidate_pairs(x, subjects, lo, reach)
+            s_hi, o_hi = candidate_pairs(x, subjects, hi, reach)
+            on_left = in_direction(pair_geometry(x, s_lo, o_lo), "left", 50.0, lateral_m) & first.mask[o_lo]
+            on_right = in_direction(pair_geometry(x, s_hi, o_hi), "right", 50.0, lateral_m) & second.mask[o_hi]
+            ok = group_any(on_left, s_lo, x.num_objects) & group_any(on_right, s_hi, x.num_objects)  # (K, F)
+            both |= ok
+            related |= group_any(on_left & ok[s_lo], o_lo, x.num_objects)
+            related |= group_any(on_right & ok[s_hi], o_hi, x.num_objects)
         kept = _keep(sel, both)
         return Selection(kept.scores, kept.related | (related & ~kept.mask))
 

@@ -1,10 +1,11 @@
-"""Relations between two objects per frame, vectorised over subjects × others × frames.
+"""Relations between two objects per frame, vectorised over pairs of objects × frames.
 
 Geometry is taken in the subject's own frame: ``dx_m`` forward along its heading, ``dy_m`` to its left.
 ``gap_m`` is the distance between the two boxes, approximated by the centre distance less each box's
 extent towards the other (exact for boxes facing each other, within centimetres otherwise). Each
-relation maps a :class:`PairGeometry` to an (S, O, F) mask of the frames where the other object stands
-in that relation to the subject:
+relation maps a :class:`PairGeometry` to a (P, F) mask of the frames where the other object of a pair stands
+in that relation to its subject; pairs whose boxes never come within the relation's reach are left out
+beforehand (:func:`candidate_pairs`):
 
 - ``direction`` (``front``, ``behind``, ``left``, ``right``, ``beside``: left or right, and the corners
   ``front_left`` … ``back_right``): the other is beyond the subject's box on that side (both ways for
@@ -39,14 +40,14 @@ Array = NDArray[np.float32]
 
 @dataclass(frozen=True)
 class PairGeometry:
-    """Subjects × others × frames, both observed (arrays (S, O, F) unless said).
+    """Pairs (subject, other) × frames, both observed (arrays (P, F) unless said).
 
     Attributes:
         ok: both observed, and not the same object.
         dx_m, dy_m: the other's centre in the subject's frame.
         gap_m: distance between the boxes.
         rel_yaw_rad: the other's heading less the subject's, wrapped to (−π, π].
-        half_length_m, half_width_m: (S, 1, 1) the subject's half extents.
+        half_length_m, half_width_m: (P, 1) the subject's half extents.
         subject_speed_mps, other_speed_mps: speeds.
         same_lane: on the same lane segment.
         time_s: (F,) seconds since the log's first frame.
@@ -66,33 +67,91 @@ class PairGeometry:
 
 
 def pair_geometry(x: LogFeatures, subjects: NDArray[np.int64], others: NDArray[np.int64]) -> PairGeometry:
-    """The geometry of each subject (S,) against each other object (O,) at every frame."""
-    s_xy, o_xy = x.xy_m[subjects][:, None], x.xy_m[others][None]  # (S, 1, F, 2), (1, O, F, 2)
-    s_yaw = x.yaw_rad[subjects][:, None]  # (S, 1, F)
-    o_yaw = x.yaw_rad[others][None]
-    d = o_xy - s_xy  # (S, O, F, 2)
+    """The geometry of each pair (``subjects[p]``, ``others[p]``) (P,) at every frame."""
+    s_xy, o_xy = x.xy_m[subjects], x.xy_m[others]  # (P, F, 2)
+    s_yaw, o_yaw = x.yaw_rad[subjects], x.yaw_rad[others]  # (P, F)
+    d = o_xy - s_xy  # (P, F, 2)
     c, s = np.cos(s_yaw), np.sin(s_yaw)
     dx = c * d[..., 0] + s * d[..., 1]
     dy = -s * d[..., 0] + c * d[..., 1]
     rel = (o_yaw - s_yaw + np.pi) % (2 * np.pi) - np.pi
     dist = np.hypot(dx, dy)
-    s_half = (x.size_lwh_m[subjects, :2][:, None, None] / 2).astype(np.float32)  # (S, 1, 1, 2)
-    o_half = (x.size_lwh_m[others, :2][None, :, None] / 2).astype(np.float32)  # (1, O, 1, 2)
+    s_half = (x.size_lwh_m[subjects, :2][:, None] / 2).astype(np.float32)  # (P, 1, 2)
+    o_half = (x.size_lwh_m[others, :2][:, None] / 2).astype(np.float32)  # (P, 1, 2)
     with np.errstate(invalid="ignore", divide="ignore"):
         ux, uy = np.abs(dx / dist), np.abs(dy / dist)  # the direction to the other, in the subject's frame
         # ... and in the other's frame (rotated by the relative heading).
         cr, sr = np.cos(rel), np.sin(rel)
         vx, vy = np.abs(cr * dx + sr * dy) / dist, np.abs(-sr * dx + cr * dy) / dist
     extent = np.nan_to_num(ux * s_half[..., 0] + uy * s_half[..., 1] + vx * o_half[..., 0] + vy * o_half[..., 1])
-    ok = x.valid[subjects][:, None] & x.valid[others][None] & (subjects[:, None] != others[None, :])[..., None]
-    s_lane, o_lane = x.lane[subjects][:, None], x.lane[others][None]
+    ok = x.valid[subjects] & x.valid[others] & (subjects != others)[:, None]
+    s_lane, o_lane = x.lane[subjects], x.lane[others]
     return PairGeometry(
         ok=ok, dx_m=dx, dy_m=dy, gap_m=np.maximum(dist - extent, 0.0), rel_yaw_rad=rel,
         half_length_m=s_half[..., 0], half_width_m=s_half[..., 1],
-        subject_speed_mps=np.broadcast_to(x.speed_mps[subjects][:, None], ok.shape),
-        other_speed_mps=np.broadcast_to(x.speed_mps[others][None], ok.shape),
+        subject_speed_mps=x.speed_mps[subjects], other_speed_mps=x.speed_mps[others],
         same_lane=(s_lane == o_lane) & (s_lane >= 0), time_s=x.time_s,
     )
+
+
+#: Frames per block of :func:`candidate_pairs`' coarse test (1 s at 10 Hz).
+PAIR_BLOCK_FRAMES = 10
+
+
+def candidate_pairs(x: LogFeatures, subjects: NDArray[np.int64], others: NDArray[np.int64], reach_m: float | None
+                    ) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """The pairs (subject, other), as two (P,) arrays sorted by subject, that may relate: two different
+    objects observed in a same block of :data:`PAIR_BLOCK_FRAMES` frames with their centres' boxes over
+    that block within ``reach_m`` plus both boxes' half diagonals (every pair when ``reach_m`` is None).
+
+    The test is conservative (a pair left out never comes that close), so the relations' answers do not
+    change; it spares the geometry of objects far apart, most pairs of a busy log.
+    """
+    f = x.num_frames
+    nb = -(-f // PAIR_BLOCK_FRAMES)
+    pad = nb * PAIR_BLOCK_FRAMES - f
+
+    def block_boxes(idx: NDArray[np.int64]) -> tuple[NDArray[np.float32], NDArray[np.float32], NDArray[np.bool_]]:
+        valid = np.pad(x.valid[idx], ((0, 0), (0, pad))).reshape(len(idx), nb, PAIR_BLOCK_FRAMES)
+        xy = np.pad(x.xy_m[idx], ((0, 0), (0, pad), (0, 0))).reshape(len(idx), nb, PAIR_BLOCK_FRAMES, 2)
+        lo = np.where(valid[..., None], xy, np.inf).min(axis=2)  # (N, B, 2)
+        hi = np.where(valid[..., None], xy, -np.inf).max(axis=2)
+        return lo, hi, np.asarray(valid.any(axis=2))
+
+    s_lo, s_hi, s_on = block_boxes(subjects)
+    o_lo, o_hi, o_on = block_boxes(others)
+    near = s_on[:, None] & o_on[None]  # (S, O, B)
+    if reach_m is not None:
+        half_diag = np.hypot(x.size_lwh_m[:, 0], x.size_lwh_m[:, 1]) / 2
+        margin = (reach_m + half_diag[subjects][:, None] + half_diag[others][None])[..., None]  # (S, O, 1)
+        for axis in (0, 1):
+            near &= (s_lo[:, None, :, axis] - margin <= o_hi[None, :, :, axis]) \
+                & (o_lo[None, :, :, axis] <= s_hi[:, None, :, axis] + margin)
+    pair = near.any(axis=2) & (subjects[:, None] != others[None, :])
+    si, oi = np.nonzero(pair)
+    return subjects[si], others[oi]
+
+
+def group_any(mask: Mask, keys: NDArray[np.int64], n: int) -> Mask:
+    """(n, F): row k is the or of the rows of ``mask`` (P, F) whose key is k."""
+    out = np.zeros((n, mask.shape[1]), dtype=bool)
+    if keys.size:
+        order = np.argsort(keys, kind="stable")
+        k = keys[order]
+        starts = np.flatnonzero(np.r_[True, k[1:] != k[:-1]])
+        out[k[starts]] = np.logical_or.reduceat(mask[order], starts, axis=0)
+    return out
+
+
+def group_count(mask: Mask, keys: NDArray[np.int64], n: int) -> NDArray[np.int64]:
+    """(n, F): row k counts the rows of ``mask`` (P, F) whose key is k that hold at each frame."""
+    out = np.zeros((n, mask.shape[1]), dtype=np.int64)
+    if keys.size:
+        order = np.argsort(keys, kind="stable")
+        k = keys[order]
+        starts = np.flatnonzero(np.r_[True, k[1:] != k[:-1]])
+        out[k[starts]] = np.add.reduceat(mask[order].astype(np.int64), starts, axis=0)
+    return out
 
 
 @dataclass(frozen=True)
@@ -110,17 +169,24 @@ class Relation:
     defaults: Mapping[str, float | str] = field(default_factory=dict)
     choices: Mapping[str, tuple[str, ...]] = field(default_factory=dict)
     needs_map: bool = False
+    #: The farthest the boxes can be apart where it holds, given its parameters (None: no bound).
+    reach_m: Callable[[Params], float | None] = lambda p: None
 
 
 RELATIONS: dict[str, Relation] = {}
 
 
+def _within_reach(p: Params) -> float | None:
+    return float(p["within_m"])
+
+
 def _define(name: str, phrase: str, reverse_phrase: str, defaults: Mapping[str, float | str] | None = None,
-            choices: Mapping[str, tuple[str, ...]] | None = None, needs_map: bool = False
+            choices: Mapping[str, tuple[str, ...]] | None = None, needs_map: bool = False,
+            reach_m: Callable[[Params], float | None] = _within_reach,
             ) -> Callable[[Callable[[PairGeometry, Params], Mask]], Callable[[PairGeometry, Params], Mask]]:
     def register(fn: Callable[[PairGeometry, Params], Mask]) -> Callable[[PairGeometry, Params], Mask]:
         RELATIONS[name] = Relation(name, phrase, reverse_phrase, fn, dict(defaults or {}), dict(choices or {}),
-                                   needs_map)
+                                   needs_map, reach_m)
         return fn
     return register
 
@@ -174,7 +240,7 @@ def _same_lane(g: PairGeometry, p: Params) -> Mask:
 
 
 def _around_events(events: Mask, time_s: NDArray[np.float64], window_s: float) -> Mask:
-    """(S, O, F) frames within ``window_s`` of an event frame (on the same pair)."""
+    """(P, F) frames within ``window_s`` of an event frame (on the same pair)."""
     if events.shape[-1] == 0:
         return events
     t = np.broadcast_to(time_s, events.shape)
@@ -184,14 +250,16 @@ def _around_events(events: Mask, time_s: NDArray[np.float64], window_s: float) -
 
 
 def _sign_change(values: Array, ok: Mask) -> Mask:
-    """(S, O, F) frames where ``values`` changes sign since the frame before (both observed)."""
+    """(P, F) frames where ``values`` changes sign since the frame before (both observed)."""
     out = np.zeros(values.shape, dtype=bool)
     out[..., 1:] = ok[..., 1:] & ok[..., :-1] & (np.sign(values[..., 1:]) != np.sign(values[..., :-1]))
     return out
 
 
 @_define("crossed_by", "crossed by {other}", "crossing in front of {subject}",
-         {"forward_m": 10.0, "lateral_m": 5.0, "window_s": 1.0})
+         {"forward_m": 10.0, "lateral_m": 5.0, "window_s": 1.0},
+         # The other's centre enters the zone ahead: within its length and width beyond the box.
+         reach_m=lambda p: float(np.hypot(float(p["forward_m"]), float(p["lateral_m"]))))
 def _crossed_by(g: PairGeometry, p: Params) -> Mask:
     zone = g.ok & (g.dx_m > 0) & (g.dx_m <= g.half_length_m + _f(p, "forward_m")) \
         & (np.abs(g.dy_m) <= g.half_width_m + _f(p, "lateral_m"))
@@ -201,7 +269,8 @@ def _crossed_by(g: PairGeometry, p: Params) -> Mask:
 
 @_define("passed_by", "passed by {other} on the {side}", "passing {subject} on the {side}",
          {"side": "any", "lateral_m": 5.0, "window_s": 1.0},
-         {"side": ("left", "right", "any")})
+         {"side": ("left", "right", "any")},
+         reach_m=lambda p: None)  # how far the other moves between two frames is unbounded
 def _passed_by(g: PairGeometry, p: Params) -> Mask:
     side, lateral = str(p["side"]), _f(p, "lateral_m")
     beside = (np.abs(g.dy_m) > g.half_width_m) & (np.abs(g.dy_m) <= g.half_width_m + lateral)

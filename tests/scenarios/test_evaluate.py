@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from scenarios.evaluate import answer, evaluate, runs_lasting, then_within
-from scenarios.predicates import ProgramError
+from scenarios.predicates import ProgramError, resolve_params
 from scenarios.program import (
     AllOf,
     AnyOf,
@@ -21,6 +21,7 @@ from scenarios.program import (
     Together,
     While,
 )
+from scenarios.relations import RELATIONS, candidate_pairs, pair_geometry
 from tests.scenarios.synthetic import car, cyclist, make_features, pedestrian
 
 Y = 50.0  # the scene lies away from the ego at the origin
@@ -172,3 +173,32 @@ def test_answer_marks_referred_and_related_apart() -> None:
     assert not (result.related & result.referred_mask).any()
     assert result.categories.tolist() == ["REGULAR_VEHICLE", "BICYCLIST", "EGO_VEHICLE"]
     assert result.center_city_xyz_m.shape == (3, 20, 3) and result.ego_city_xyz_m.shape == (20, 3)
+
+
+def test_a_negated_relation_with_no_other_object_keeps_every_subject() -> None:
+    """"car without a pedestrian near it" where the log has no pedestrian: every car."""
+    x = make_features([car((0, Y)), car((100, Y))])
+    lonely = Has(Objects("car"), "near", Objects("pedestrian"), (("within_m", 5.0),), negate=True)
+    assert selected(lonely, x).tolist() == [True, True, False]
+
+
+@pytest.mark.parametrize("relation", sorted(RELATIONS))
+def test_pairs_left_out_as_too_far_apart_never_hold(relation: str) -> None:
+    """The coarse test of candidate_pairs is conservative: on random scenes, a relation holds on no pair
+    it leaves out (the relation computed on every pair is the reference)."""
+    rng = np.random.default_rng(7)
+    spec = RELATIONS[relation]
+    p = resolve_params(spec.defaults, spec.choices, {}, relation)
+    for _ in range(5):
+        frames = 30
+        start = rng.uniform(-80, 80, (12, 2))
+        step = rng.uniform(-2, 2, (12, 2))
+        objects = [car(start[i] + np.arange(frames)[:, None] * step[i], yaw=float(rng.uniform(-np.pi, np.pi)),
+                       lane=int(rng.integers(0, 3))) for i in range(12)]
+        x = make_features(objects, frames=frames)
+        every = np.arange(x.num_objects)
+        s_all, o_all = np.repeat(every, every.size), np.tile(every, every.size)
+        holds = spec.fn(pair_geometry(x, s_all, o_all), p).any(axis=1)
+        s_kept, o_kept = candidate_pairs(x, every, every, spec.reach_m(p))
+        kept = set(zip(s_kept.tolist(), o_kept.tolist()))
+        assert {(s, o) for s, o, h in zip(s_all.tolist(), o_all.tolist(), holds) if h} <= kept

@@ -400,7 +400,7 @@ def run(quick: bool) -> dict[str, Any]:
     gt_features, build_s = _features(data.log_dirs, data.root / "features" / "gt_tracks")
     grids = {x.log_id: x.timestamps_ns for x in gt_features}
     log_seconds = float(sum(x.time_s[-1] + float(np.median(np.diff(x.time_s))) for x in gt_features))
-    cache_bytes = sum(p.stat().st_size for p in (data.root / "features" / "gt_tracks").glob("*.npz"))
+    cache_bytes = sum(p.stat().st_size for p in (data.root / "features" / "gt_tracks").glob("*.features"))
     annotation_bytes = sum((d / "annotations.feather").stat().st_size for d in data.log_dirs)
     conditions: dict[str, list[LogAnswer]] = {}
     errors: dict[str, dict[str, str]] = {}

@@ -67,6 +67,7 @@ from retrieval.scenario_search import (
     log_folders_of,
     search_within,
 )
+from scenarios.cache import FEATURES_SUFFIX
 
 if TYPE_CHECKING:
     from retrieval.sentence_encoder import SentenceEncoder
@@ -313,7 +314,7 @@ class CaptionSearch:
             log_ids = self.metadata.table.column("log_id").to_pylist() if log_dirs else ()
             scenarios = build_store(tmp / SCENARIOS_DIR, log_dirs, log_ids) if log_dirs else {}
             self.scenarios_missing = dict(scenarios.get("missing", {}))
-            stored = [f"{SCENARIOS_DIR}/{p.name}" for p in sorted((tmp / SCENARIOS_DIR).glob("*.npz"))]
+            stored = [f"{SCENARIOS_DIR}/{p.name}" for p in sorted((tmp / SCENARIOS_DIR).glob(f"*{FEATURES_SUFFIX}"))]
             self.metadata.write(tmp / METADATA_FILE)
             pq.write_table(pa.table({"text": pa.array(self.texts, pa.string())}), tmp / TEXTS_FILE)
             np.save(tmp / EMBEDDINGS_FILE, self.text_embeddings)

@@ -1,7 +1,7 @@
 """Scenario queries in search: the query compiled to a program, answered on the index's logs, the search
 kept to the moments the program selects.
 
-An index keeps each of its logs' scenario features in ``INDEX/scenarios/<log_id>.npz``
+An index keeps each of its logs' scenario features in ``INDEX/scenarios/<log_id>.features``
 (:mod:`scenarios.cache`), built from the logs' folders when the index is built (:func:`build_store`)
 and covered by the index's checksums. At query time :meth:`ScenarioStore.match` compiles the query
 (:mod:`scenarios.compiler`), answers it on every log that has indexed moments, and keeps the moments
@@ -29,7 +29,7 @@ from indexes.filters import Condition, FilterSpec, Op
 from indexes.metadata import MetadataStore
 from retrieval.querying import build_query, check_query
 from retrieval.records import SearchResult
-from scenarios.cache import cached_features, decode
+from scenarios.cache import FEATURES_SUFFIX, cached_features, decode
 from scenarios.compiler import Compiled, DescriptionError, compile_description
 from scenarios.evaluate import evaluate
 from scenarios.features import EGO_TRACK_ID, LogFeatures
@@ -112,13 +112,13 @@ class ScenarioStore:
 
     @property
     def available(self) -> bool:
-        return self.folder is not None and self.folder.is_dir() and any(self.folder.glob("*.npz"))
+        return self.folder is not None and self.folder.is_dir() and any(self.folder.glob(f"*{FEATURES_SUFFIX}"))
 
     def features(self, log_id: str) -> LogFeatures | None:
         if self.folder is None:
             return None
         if log_id not in self._features:
-            path = self.folder / f"{log_id}.npz"
+            path = self.folder / f"{log_id}{FEATURES_SUFFIX}"
             try:
                 self._features[log_id] = decode(path.read_bytes())[0] if path.is_file() else None
             except ValueError:

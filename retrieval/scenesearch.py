@@ -56,6 +56,7 @@ from retrieval.querying import (
 )
 from retrieval.records import SearchResult
 from retrieval.scenario_search import SCENARIOS_DIR, ScenarioMatch, ScenarioStore, build_store, search_within
+from scenarios.cache import FEATURES_SUFFIX
 
 if TYPE_CHECKING:
     from retrieval.captions_search import CaptionSearch, TextEncoder
@@ -155,7 +156,7 @@ class SceneSearch:
             for log_id, reason in list(scenarios["missing"].items())[:20]:
                 say(f"note: no scenario features for log {log_id}: {reason}")
             covered = [f"{d}/{MANIFEST}" for d in (*VIEWS, CAPTIONS_DIR)]
-            covered += [f"{SCENARIOS_DIR}/{p.name}" for p in sorted((tmp / SCENARIOS_DIR).glob("*.npz"))]
+            covered += [f"{SCENARIOS_DIR}/{p.name}" for p in sorted((tmp / SCENARIOS_DIR).glob(f"*{FEATURES_SUFFIX}"))]
             if (run_dir / CONFIG_FILE).is_file():
                 shutil.copy2(run_dir / CONFIG_FILE, tmp / "run" / CONFIG_FILE)
                 covered.append(RUN_CONFIG)

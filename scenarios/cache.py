@@ -1,17 +1,23 @@
 """The per-log feature cache: :class:`~scenarios.features.LogFeatures` built once, kept small, read fast.
 
-``CACHE_DIR/<log_id>.npz`` holds one log's features, only for the (object, frame) cells where the
+``CACHE_DIR/<log_id>.features`` holds one log's features, only for the (object, frame) cells where the
 object is observed, in compact integer encodings, each along its track as differences from the frame
 before (so that zlib compresses them well):
 
 =================  ============================================================
-position           centimetres from the log's first ego position (int32 deltas)
-height             decimetres (int16 deltas)
-heading            1e-4 rad (int16 deltas, wrapped)
-speed              cm/s (int16 deltas)
+position           centimetres from the log's first ego position, differences of
+                   differences (a steady motion is a run of zeros)
+height             decimetres (deltas)
+heading            1e-4 rad, differences (wrapped) of differences
+speed              cm/s (deltas)
+frame of a cell    deltas along the track (mostly 1)
 flags, lanes       as they are (uint16, int8), lane ids renumbered from 0
-to the junction    0.5 m steps, 255 beyond 127 m
+to the junction    0.5 m steps, 255 beyond 127 m (deltas)
+timestamps         the first, then deltas
+ids and labels     one UTF-8 JSON list each
 =================  ============================================================
+
+Integers are stored in the narrowest type that holds them (int8 … int64).
 
 Velocities and accelerations are derived again from positions and speeds when a file is read. A file
 records what it was built from (the log's files' sizes and modification times, the captioning
@@ -22,9 +28,8 @@ is built again, never used.
 from __future__ import annotations
 
 import hashlib
-import io
 import json
-import zipfile
+import zlib
 from pathlib import Path
 from typing import Any
 
@@ -38,9 +43,15 @@ from scenarios.features import LogFeatures, build_features, time_derivative
 from scenes.log import Log
 
 #: Version of the encoding; files of another are built again.
-CACHE_VERSION = 1
+CACHE_VERSION = 2
 #: The cache folder (:mod:`common.folders`).
-FEATURES_FOLDER = FolderKind("scenario features", signature="", entries=("*.npz",))
+#: The suffix of a log's file.
+FEATURES_SUFFIX = ".features"
+FEATURES_FOLDER = FolderKind("scenario features", signature="", entries=(f"*{FEATURES_SUFFIX}",))
+#: The file's first bytes; then the length of its header (4 bytes, little-endian) and one zlib stream of
+#: the header (JSON: each array's name, dtype and shape) followed by the arrays' bytes. One stream, not a
+#: zip of arrays: a log's file is about 10 kB, and an archive's headers would be a third of it.
+_MAGIC = b"SSFEAT"
 _CM = 100.0  # centimetres per metre
 _DM = 10.0
 _YAW = 1e4  # 1e-4 rad
@@ -64,11 +75,43 @@ def _deltas(values: NDArray[np.int64], starts: NDArray[np.bool_]) -> NDArray[np.
     return out
 
 
+def _second_starts(starts: NDArray[np.bool_]) -> NDArray[np.bool_]:
+    """The cells kept as they are when deltas are taken again: each track's first two (its position and
+    its first step)."""
+    second = starts.copy()
+    second[1:] |= starts[:-1]
+    return second
+
+
 def _undeltas(deltas: NDArray[np.int64], starts: NDArray[np.bool_]) -> NDArray[np.int64]:
     """Inverse of :func:`_deltas` (a cumulative sum restarted at each track's first cell)."""
     total = np.cumsum(deltas, axis=0)
     first = np.maximum.accumulate(np.where(starts, np.arange(starts.shape[0]), 0))  # each cell's track start
     return total - (total[first] - deltas[first])
+
+
+def _narrow(values: NDArray[np.integer]) -> NDArray[np.integer]:
+    """``values`` in the narrowest signed integer type that holds them (zlib packs the small ones best)."""
+    if values.size == 0:
+        return values.astype(np.int8)
+    lo, hi = int(values.min()), int(values.max())
+    for dtype in (np.int8, np.int16, np.int32):
+        info = np.iinfo(dtype)
+        if info.min <= lo and hi <= info.max:
+            return values.astype(dtype)
+    return values.astype(np.int64)
+
+
+def _strings(values: NDArray[np.str_]) -> NDArray[np.uint8]:
+    """(N,) strings as the UTF-8 bytes of their JSON list (a fixed-width array spends 4 bytes a character)."""
+    return np.frombuffer(json.dumps(values.tolist()).encode("utf-8"), dtype=np.uint8)
+
+
+def _unstrings(data: NDArray[np.uint8]) -> NDArray[np.str_]:
+    values = json.loads(data.tobytes().decode("utf-8"))
+    if not isinstance(values, list) or not all(isinstance(v, str) for v in values):
+        raise ValueError("a string list that is not one")
+    return np.asarray(values, dtype=np.str_)
 
 
 def encode(x: LogFeatures, stamp: str) -> bytes:
@@ -85,19 +128,50 @@ def encode(x: LogFeatures, stamp: str) -> bytes:
     speed = np.round(x.speed_mps[k_idx, f_idx] * _CMS).astype(np.int64)
     lanes, lane_code = np.unique(x.lane[k_idx, f_idx], return_inverse=True)
     junction = np.minimum(np.round(x.to_junction_m[k_idx, f_idx] / _JUNCTION_STEP_M), 255).astype(np.uint8)
+    xy_deltas = _deltas(xy, starts)
+    first_frame = np.arange(x.num_frames) == 0
     arrays = {
-        "timestamps_ns": x.timestamps_ns, "track_ids": x.track_ids, "labels": x.labels, "categories": x.categories,
-        "size_lwh_m": x.size_lwh_m, "k": k_idx.astype(np.int32), "f": f_idx.astype(np.int32),
-        "origin": origin, "xy": _deltas(xy, starts).astype(np.int32), "z": _deltas(z, starts).astype(np.int32),
-        "yaw": dyaw.astype(np.int16), "speed": _deltas(speed, starts).astype(np.int32),
+        "timestamps_ns": _narrow(_deltas(np.asarray(x.timestamps_ns, dtype=np.int64), first_frame)),
+        "track_ids": _strings(x.track_ids), "labels": _strings(x.labels), "categories": _strings(x.categories),
+        "size_lwh_m": x.size_lwh_m, "k": _narrow(np.diff(k_idx, prepend=0)), "f": _narrow(_deltas(f_idx, starts)),
+        "origin": origin, "xy": _narrow(_deltas(xy_deltas, _second_starts(starts))),
+        "z": _narrow(_deltas(z, starts)), "yaw": _narrow(_deltas(dyaw, _second_starts(starts))),
+        "speed": _narrow(_deltas(speed, starts)),
         "flags": x.flags[k_idx, f_idx], "ego_lane": x.ego_lane[k_idx, f_idx], "ego_motion": x.ego_motion[k_idx, f_idx],
-        "lanes": lanes.astype(np.int32), "lane": lane_code.astype(np.int16), "to_junction": junction,
-        "meta": np.asarray(json.dumps({"log_id": x.log_id, "has_map": x.has_map, "time_of_day": x.time_of_day,
-                                       "weather": x.weather, "stamp": stamp, "version": CACHE_VERSION})),
+        "lanes": lanes.astype(np.int32), "lane": lane_code.astype(np.int16),
+        "to_junction": _narrow(_deltas(junction.astype(np.int64), starts)),
+        "meta": np.frombuffer(json.dumps({"log_id": x.log_id, "has_map": x.has_map, "time_of_day": x.time_of_day,
+                                          "weather": x.weather, "stamp": stamp, "version": CACHE_VERSION}).encode(),
+                              dtype=np.uint8),
     }
-    buffer = io.BytesIO()
-    np.savez_compressed(buffer, **arrays)  # type: ignore[arg-type]
-    return buffer.getvalue()
+    header = json.dumps([[name, value.dtype.str, list(value.shape)] for name, value in arrays.items()]).encode()
+    body = b"".join(np.ascontiguousarray(value).tobytes() for value in arrays.values())
+    return _MAGIC + len(header).to_bytes(4, "little") + zlib.compress(header + body, 9)
+
+
+def _unpack(data: bytes) -> dict[str, NDArray[Any]]:
+    """The arrays of a file written by :func:`encode`.
+
+    Raises:
+        ValueError: not such a file, or its bytes fail zlib's checksum.
+    """
+    if not data.startswith(_MAGIC) or len(data) < len(_MAGIC) + 4:
+        raise ValueError("not a feature file (it does not start as one)")
+    header_length = int.from_bytes(data[len(_MAGIC):len(_MAGIC) + 4], "little")
+    try:
+        raw = zlib.decompress(data[len(_MAGIC) + 4:])
+        entries = json.loads(raw[:header_length].decode())
+        arrays, offset = {}, header_length
+        for name, dtype_str, shape in entries:
+            dtype = np.dtype(dtype_str)
+            if dtype.hasobject:
+                raise ValueError(f"array {name!r} of objects")
+            count = int(np.prod(shape, dtype=np.int64))
+            arrays[str(name)] = np.frombuffer(raw, dtype, count, offset).reshape(shape)
+            offset += count * dtype.itemsize
+    except (zlib.error, UnicodeDecodeError, TypeError, ValueError) as exc:
+        raise ValueError(f"not a feature file ({exc})") from None
+    return arrays
 
 
 def decode(data: bytes) -> tuple[LogFeatures, str]:
@@ -106,18 +180,19 @@ def decode(data: bytes) -> tuple[LogFeatures, str]:
     Raises:
         ValueError: the bytes are not such a file (or fail their checksums).
     """
+    a = _unpack(data)
     try:
-        with np.load(io.BytesIO(data), allow_pickle=False) as z:
-            a = {name: z[name] for name in z.files}
-    except (zipfile.BadZipFile, OSError, EOFError, KeyError, ValueError) as exc:
-        raise ValueError(f"not a feature file ({exc})") from None
-    meta = json.loads(str(a["meta"]))
+        meta = json.loads(a["meta"].tobytes().decode())
+    except (KeyError, UnicodeDecodeError, ValueError) as exc:
+        raise ValueError(f"not a feature file (its record: {exc})") from None
     if meta.get("version") != CACHE_VERSION:
         raise ValueError(f"feature file of version {meta.get('version')}, expected {CACHE_VERSION}")
-    ts, k_idx, f_idx = a["timestamps_ns"].astype(np.int64), a["k"].astype(np.int64), a["f"].astype(np.int64)
-    n_obj, n_frames = a["track_ids"].shape[0], ts.shape[0]
+    ts, k_idx = np.cumsum(a["timestamps_ns"].astype(np.int64)), np.cumsum(a["k"].astype(np.int64))
+    track_ids, labels, categories = (_unstrings(a[name]) for name in ("track_ids", "labels", "categories"))
+    n_obj, n_frames = track_ids.shape[0], ts.shape[0]
     starts = np.ones(k_idx.shape[0], dtype=bool)
     starts[1:] = k_idx[1:] != k_idx[:-1]
+    f_idx = _undeltas(a["f"].astype(np.int64), starts)
     valid = np.zeros((n_obj, n_frames), dtype=bool)
     valid[k_idx, f_idx] = True
 
@@ -126,17 +201,18 @@ def decode(data: bytes) -> tuple[LogFeatures, str]:
         out[k_idx, f_idx] = values
         return out
 
-    xy = _undeltas(a["xy"].astype(np.int64), starts) / _CM + a["origin"]
-    yaw = _undeltas(a["yaw"].astype(np.int64), starts) / _YAW
+    xy = _undeltas(_undeltas(a["xy"].astype(np.int64), _second_starts(starts)), starts) / _CM + a["origin"]
+    yaw = _undeltas(_undeltas(a["yaw"].astype(np.int64), _second_starts(starts)), starts) / _YAW
     speed = _undeltas(a["speed"].astype(np.int64), starts) / _CMS
     t_s = (ts - ts[0]).astype(np.float64) * 1e-9 if n_frames else np.zeros(0)
     xy_dense = dense(xy, np.nan, np.float64, (2,))
     speed_dense = dense(speed, 0.0, np.float64)
-    junction = a["to_junction"].astype(np.float64) * _JUNCTION_STEP_M
-    junction[a["to_junction"] == 255] = np.inf
+    junction_steps = _undeltas(a["to_junction"].astype(np.int64), starts)
+    junction = junction_steps.astype(np.float64) * _JUNCTION_STEP_M
+    junction[junction_steps == 255] = np.inf
     features = LogFeatures(
-        log_id=str(meta["log_id"]), timestamps_ns=ts, track_ids=a["track_ids"], labels=a["labels"],
-        categories=a["categories"], valid=valid, xy_m=xy_dense.astype(np.float32),
+        log_id=str(meta["log_id"]), timestamps_ns=ts, track_ids=track_ids, labels=labels,
+        categories=categories, valid=valid, xy_m=xy_dense.astype(np.float32),
         z_m=dense(_undeltas(a["z"].astype(np.int64), starts) / _DM, np.nan, np.float32),
         yaw_rad=dense((yaw + np.pi) % (2 * np.pi) - np.pi, np.nan, np.float32),
         size_lwh_m=a["size_lwh_m"].astype(np.float32),
@@ -166,7 +242,7 @@ def cached_features(log_dir: Path | str, cache_dir: Path | str | None, config: C
     log_dir = Path(log_dir)
     config = config or CaptioningConfig()
     stamp = source_stamp(log_dir, config)
-    path = Path(cache_dir) / f"{log_dir.name}.npz" if cache_dir is not None else None
+    path = Path(cache_dir) / f"{log_dir.name}{FEATURES_SUFFIX}" if cache_dir is not None else None
     if path is not None and path.is_file():
         try:
             features, found = decode(path.read_bytes())

@@ -133,21 +133,24 @@ def time_derivative(values: NDArray[np.float64], valid: NDArray[np.bool_], t_s: 
     """(K, F, ...) derivative over time of ``values`` (K, F, ...), central where both neighbours are
     observed, one-sided at the ends of a run, 0 for isolated frames."""
     k, f = valid.shape
-    out = np.zeros_like(values)
     if f < 2:
-        return out
+        return np.zeros_like(values)
     extra = (1,) * (values.ndim - 2)
     prev_ok = np.zeros_like(valid)
     next_ok = np.zeros_like(valid)
     prev_ok[:, 1:] = valid[:, 1:] & valid[:, :-1]
     next_ok[:, :-1] = valid[:, :-1] & valid[:, 1:]
-    lo = np.where(prev_ok, np.arange(f) - 1, np.arange(f))
-    hi = np.where(next_ok, np.arange(f) + 1, np.arange(f))
-    rows = np.arange(k)[:, None]
-    dt = (t_s[hi] - t_s[lo]).reshape(k, f, *extra)
-    diff = values[rows, hi] - values[rows, lo]
+    # Each frame's neighbours by shifting (a frame without an observed neighbour stands for it), not by
+    # gathering with index arrays: the same values at a fraction of the cost on (K, F, 2) arrays.
+    before = np.concatenate([values[:, :1], values[:, :-1]], axis=1)
+    after = np.concatenate([values[:, 1:], values[:, -1:]], axis=1)
+    t_before = np.concatenate([t_s[:1], t_s[:-1]])
+    t_after = np.concatenate([t_s[1:], t_s[-1:]])
+    lo_ok, hi_ok = prev_ok.reshape(k, f, *extra), next_ok.reshape(k, f, *extra)
+    diff = np.where(hi_ok, after, values) - np.where(lo_ok, before, values)
+    dt = np.where(next_ok, t_after, t_s) - np.where(prev_ok, t_before, t_s)  # (K, F)
     with np.errstate(invalid="ignore", divide="ignore"):
-        out = np.where(dt > 0, diff / np.where(dt > 0, dt, 1.0), 0.0)
+        out = diff / np.where(dt > 0, dt, np.inf).reshape(k, f, *extra)
     return np.where(valid.reshape(k, f, *extra), np.nan_to_num(out), 0.0)
 
 

@@ -43,7 +43,7 @@ def store(tmp_path: Path) -> tuple[ScenarioStore, np.ndarray]:
     x = type(x)(**{**x.__dict__, "flags": ego_flags})
     folder = tmp_path / SCENARIOS_DIR
     folder.mkdir()
-    (folder / "synthetic.npz").write_bytes(encode(x, "s"))
+    (folder / "synthetic.features").write_bytes(encode(x, "s"))
     return ScenarioStore(folder), x.timestamps_ns
 
 

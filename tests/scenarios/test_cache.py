@@ -49,14 +49,21 @@ def test_a_development_log_caches_small_and_is_rebuilt_when_it_changes(tmp_path:
     cache = tmp_path / "cache"
     cache.mkdir()
     built, cached = cached_features(log, cache)
-    assert not cached and (cache / f"{source.name}.npz").is_file()
-    size = (cache / f"{source.name}.npz").stat().st_size
+    assert not cached and (cache / f"{source.name}.features").is_file()
+    size = (cache / f"{source.name}.features").stat().st_size
     assert size <= 0.10 * (source / "annotations.feather").stat().st_size
     again, cached = cached_features(log, cache)
     assert cached and np.array_equal(again.valid, built.valid)
     reference = build_features(Log.open(log))
     assert np.abs(again.xy_m - reference.xy_m)[reference.valid].max() <= 0.005
-    (cache / f"{source.name}.npz").write_bytes(b"not a zip")  # damaged: built again, never used
+    (cache / f"{source.name}.features").write_bytes(b"not a feature file")  # damaged: built again, never used
+    _, cached = cached_features(log, cache)
+    assert not cached
+    damaged = bytearray((cache / f"{source.name}.features").read_bytes())
+    damaged[len(damaged) // 2] ^= 0xFF  # a flipped byte inside the compressed stream fails its checksum
+    (cache / f"{source.name}.features").write_bytes(bytes(damaged))
+    with pytest.raises(ValueError, match="not a feature file"):
+        decode(bytes(damaged))
     _, cached = cached_features(log, cache)
     assert not cached
     st = (log / "annotations.feather").stat()

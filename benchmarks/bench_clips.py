@@ -37,7 +37,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from common.ray_cluster import usable_cpus
+from scenesearch_base.ray_cluster import usable_cpus
 
 WORK = Path(__file__).resolve().parent / "_work" / "clips"
 

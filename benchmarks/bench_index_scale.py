@@ -4,7 +4,7 @@ The vectors (10 GB at 10M) are generated deterministically, chunk by chunk, into
 from the same kind of clusters as ``bench_index`` (cluster centre + a point of a shared
 16-dimensional subspace + noise, L2-normalised; 1,000 vectors a cluster). Then
 :func:`indexes.build_on_disk` builds the default on-disk index (``SQ8`` codes) within a 4 GiB
-budget, its add tasks on a local Ray runtime with two workers (:mod:`common.ray_runner`).
+budget, its add tasks on a local Ray runtime with two workers (:mod:`scenesearch_base.ray_runner`).
 
 Figures:
 
@@ -48,12 +48,12 @@ from faiss.contrib.evaluation import knn_intersection_measure
 from faiss.contrib.exhaustive_search import knn_ground_truth
 from numpy.lib import format as npy_format
 
-from common.ray_runner import Execution, run_tasks
 from indexes import VectorIndex, build_on_disk, integrity
 from indexes.ondisk import AddTask, ShardResult
 from indexes.ondisk_lists import read_ondisk_index
 from indexes.ondisk_plan import DEFAULT_MEMORY_BUDGET_BYTES
 from indexes.vector_files import VectorFiles
+from scenesearch_base.ray_runner import Execution, run_tasks
 
 DIM = 256
 K = 10
@@ -105,7 +105,7 @@ def write_files(clusters: Clusters, n: int, folder: Path) -> list[Path]:
 
 
 def ray_map(workers: int) -> Callable[[Callable[[AddTask], ShardResult], Sequence[AddTask]], Iterable[ShardResult]]:
-    """Run add tasks with :func:`common.ray_runner.run_tasks` on a local Ray runtime of ``workers`` CPUs."""
+    """Run add tasks with :func:`scenesearch_base.ray_runner.run_tasks` on a local Ray runtime of ``workers`` CPUs."""
     def map_fn(fn: Callable[[AddTask], ShardResult], tasks: Sequence[AddTask]) -> list[ShardResult]:
         report = run_tasks(fn, tasks, Execution(workers=workers, progress=False),
                            labels=[f"rows {t.span.start}-{t.span.stop} of {t.span.vectors.name}" for t in tasks],

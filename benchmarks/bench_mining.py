@@ -151,7 +151,8 @@ def _system_answers(programs: dict[str, Any], features: Sequence[LogFeatures],
 def _baseline_answers(data: MiningData, items: Sequence[Description], features: Sequence[LogFeatures]
                       ) -> list[LogAnswer]:
     """Clip search used as mining: each log's top :data:`BASELINE_K` caption windows, their tracks marked."""
-    from retrieval.captions_search import CaptionSearch, caption_logs
+    from retrieval.captions_search import CaptionSearch
+    from retrieval.logs_search import caption_logs
     from scenarios.evaluate import answer
     from scenarios.program import Objects
 

@@ -24,12 +24,12 @@ figure is what Ray adds and not the second core a serial run's numerics use:
 the load of the moment); ``overhead_fraction_vs_all_threads`` the same against a serial run with
 torch's default threads, run after each pair,
 ``overhead_fraction_best_of_each``, ``per_item_ms`` (what Ray adds to one log's task, from the best
-of each; tiny logs share Ray tasks, see :mod:`common.ray_runner`), ``empty_task_ms`` (a Ray task
+of each; tiny logs share Ray tasks, see :mod:`scenesearch_base.ray_runner`), ``empty_task_ms`` (a Ray task
 doing nothing, round trip included, one item per task) and ``fraction_on_benchmark_logs`` (that
 per-item time against the serial caption + clips time of one of the benchmark's logs). ``cost``:
 log-seconds per CPU-second of each stage (serial, CPU time of this process, which holds all of it)
 and the CPU-hours 10,000 hours of logs take. ``memory``: the serial embedding again, in a fresh
-process with glibc's default malloc and in one with the settings of :mod:`common.memory` (from its
+process with glibc's default malloc and in one with the settings of :mod:`scenesearch_base.memory` (from its
 environment, as Ray workers and launched processes get them), wall seconds and their ratio.
 ``load_average`` says how busy the machine was; other work on it slows the parallel runs most.
 """
@@ -80,11 +80,11 @@ def _untrained_run(run_dir: Path, clips_dir: Path, name: str = "recommended") ->
     the same as with trained ones."""
     from safetensors.torch import save_file
 
-    from common.atomic import atomic_write_text
     from encoders.data import ClipDataset
     from encoders.model import DualEncoder
     from encoders.presets import preset
     from encoders.train import resolve_channels
+    from scenesearch_base.atomic import atomic_write_text
 
     run_dir.mkdir(parents=True, exist_ok=True)  # made anew each run: the model's code may have changed
     config = resolve_channels(preset(name).train, ClipDataset(clips_dir, as_uint8=True)[0])
@@ -157,8 +157,8 @@ print(time.perf_counter() - start)
 
 def _embed_with_malloc(run_dir: Path, clips: Path) -> dict[str, float]:
     """The serial embedding in a fresh process with glibc's default malloc, then with the settings
-    of :mod:`common.memory`: wall seconds each and the ratio."""
-    from common.memory import malloc_tunables
+    of :mod:`scenesearch_base.memory`: wall seconds each and the ratio."""
+    from scenesearch_base.memory import malloc_tunables
 
     base = {k: v for k, v in os.environ.items() if k != "GLIBC_TUNABLES"}
     out: dict[str, float] = {}
@@ -181,8 +181,8 @@ def _ratio(a: float, b: float) -> float:
 def run(quick: bool) -> dict[str, Any]:
     import ray
 
-    from common.ray_cluster import Execution
-    from common.ray_runner import run_tasks
+    from scenesearch_base.ray_cluster import Execution
+    from scenesearch_base.ray_runner import run_tasks
 
     os.environ.setdefault("RAY_DATA_LOG_LEVEL", "ERROR")
     WORK.mkdir(parents=True, exist_ok=True)

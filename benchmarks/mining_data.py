@@ -40,11 +40,11 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks.mining_reference import load_reference_log, reference_answer
-from common.atomic import atomic_write_text
 from scenarios.syntax import parse_program
 from scenes import av2_io
 from scenes.log import Log
 from scenes.tracks import Annotations
+from scenesearch_base.atomic import atomic_write_text
 
 #: Simulator seeds of the development logs (no other benchmark simulates these).
 SEEDS = (61, 62)

@@ -15,8 +15,8 @@ import time
 import traceback
 from pathlib import Path
 
-from common.memory import retain_freed_memory
-from common.ray_cluster import usable_cpus
+from scenesearch_base.memory import retain_freed_memory
+from scenesearch_base.ray_cluster import usable_cpus
 
 
 def discover() -> list[str]:

@@ -18,7 +18,7 @@ LiDAR Tracks", vectorised over tracks × frames:
 - the paper's right-positive lateral axis is converted once, in :mod:`captioning.tags`;
 - all thresholds: :class:`CaptioningConfig` (:mod:`captioning.config`, ``captioning.yaml``);
 - files and the batch API: :mod:`captioning.pipeline`, their columns :mod:`captioning.tables`, published
-  together by :mod:`common.publish`; simulator-label agreement and own-behaviour F1:
+  together by :mod:`scenesearch_base.publish`; simulator-label agreement and own-behaviour F1:
   :mod:`captioning.agreement`; the per-frame oracle of the paper's rules: :mod:`captioning.reference`.
 
 Every tracked object is tagged wherever it is around the ego (standing ones too, under the default

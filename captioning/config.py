@@ -13,7 +13,7 @@ The YAML file mirrors the nesting (every key optional, defaults below)::
     behavior:  {window_s: 0.9, accel_window_s: 0.5, min_run_s: 0.5, stopped_speed_mps: 0.4, ...}
     map:       {resolution_m: 0.5, margin_m: 10.0, arm_gap_deg: 30.0, junction_approach_m: 20.0}
 
-Reading and writing go through :mod:`common.config` (``CaptioningConfig.from_yaml(path)``,
+Reading and writing go through :mod:`scenesearch_base.config` (``CaptioningConfig.from_yaml(path)``,
 ``to_yaml(path)``): unknown keys (all listed), values of the wrong type, contradicting thresholds and
 sizes above their upper bounds (windows, counts; each part's docstring lists them) raise
 :class:`~captioning.errors.ConfigError`. :data:`DEFAULT_CONFIG_PATH` is the annotated default
@@ -38,7 +38,7 @@ import yaml
 
 from captioning.errors import ConfigError
 from captioning.renamed_keys import refuse_renamed_keys
-from common.config import YamlConfig
+from scenesearch_base.config import YamlConfig
 
 #: The annotated default configuration shipped with the package.
 DEFAULT_CONFIG_PATH = Path(__file__).with_name("captioning.yaml")

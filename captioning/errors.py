@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-import common.config
+import scenesearch_base.config
 from scenes.errors import ScenesError
 
 
@@ -10,7 +10,7 @@ class CaptioningError(ScenesError):
     """Base class of every error raised by :mod:`captioning`."""
 
 
-class ConfigError(CaptioningError, common.config.ConfigError):
+class ConfigError(CaptioningError, scenesearch_base.config.ConfigError):
     """A captioning configuration is malformed or its thresholds contradict each other."""
 
 

@@ -2,7 +2,7 @@
 
 ``logs.json`` maps each captioned log's id to its folder, so that later stages can read the logs
 again (the scenario queries' features). The three files are written as one generation
-(:mod:`common.publish`): readers never see a new one beside an old one.
+(:mod:`scenesearch_base.publish`): readers never see a new one beside an old one.
 """
 
 from __future__ import annotations
@@ -17,11 +17,11 @@ import pyarrow.parquet as pq
 
 from captioning.pipeline import CAPTIONS_FILENAME, FRAME_TAGS_FILENAME, LOGS_FILENAME, LogCaptions
 from captioning.tables import FRAME_TAGS_BEHAVIOR_SCHEMA, FRAME_TAGS_SCHEMA, captions_to_table
-from common.folders import FolderKind, claim_folder, mark_folder
-from common.publish import GENERATIONS_DIR, publish
-from common.storage import is_uri
+from scenesearch_base.folders import FolderKind, claim_folder, mark_folder
+from scenesearch_base.publish import GENERATIONS_DIR, publish
+from scenesearch_base.storage import is_uri
 
-#: The folder ``scenesearch caption`` writes (:mod:`common.folders`).
+#: The folder ``scenesearch caption`` writes (:mod:`scenesearch_base.folders`).
 CAPTIONS_FOLDER = FolderKind("captions", CAPTIONS_FILENAME, (CAPTIONS_FILENAME, FRAME_TAGS_FILENAME, LOGS_FILENAME,
                                                              GENERATIONS_DIR))
 
@@ -38,7 +38,7 @@ def output_tables(results: Sequence[LogCaptions]) -> dict[str, pa.Table]:
 def write_outputs(out_dir: Path | str, results: Sequence[LogCaptions],
                   inputs: Sequence[Path | str] = ()) -> tuple[Path, Path]:
     """Write ``frame_tags.parquet``, ``captions.parquet`` and ``logs.json`` and publish them together
-    (:mod:`common.publish`: readers never see a new one beside an old one; what an earlier
+    (:mod:`scenesearch_base.publish`: readers never see a new one beside an old one; what an earlier
     killed write left behind is removed). ``out_dir`` must be new, empty or a captions folder, and not
     one of ``inputs`` (the log folders) nor inside one, else :class:`FolderClaimError`."""
     claim_folder(out_dir, CAPTIONS_FOLDER, inputs)

@@ -77,13 +77,13 @@ from captioning.tags import (
     unified_neighbor_tag,
 )
 from captioning.unify import Segment, caption_windows
-from common.ray_cluster import Execution
-from common.ray_runner import TaskSkipped, TaskStatus, run_tasks
-from common.storage import distinct_by_name, staged_input
 from scenes.errors import ScenesError
 from scenes.log import Log
 from scenes.map import VectorMap
 from scenes.tracks import DenseTracks
+from scenesearch_base.ray_cluster import Execution
+from scenesearch_base.ray_runner import TaskSkipped, TaskStatus, run_tasks
+from scenesearch_base.storage import distinct_by_name, staged_input
 
 FRAME_TAGS_FILENAME = "frame_tags.parquet"
 #: Why a track gets no tags: no two observations close enough to differentiate.

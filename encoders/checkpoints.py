@@ -31,9 +31,9 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import torch
 
-from common.atomic import atomic_path
 from encoders.config import ConfigMismatchError
 from encoders.train_config import TrainConfig
+from scenesearch_base.atomic import atomic_path
 
 if TYPE_CHECKING:
     from encoders.model import DualEncoder

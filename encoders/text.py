@@ -96,7 +96,7 @@ class TextFeatureCache:
 
     def save(self, path: Path) -> None:
         """Write the cache atomically to ``path`` (.npz with ``keys`` (N,) and ``vectors`` (N, F))."""
-        from common.atomic import atomic_path
+        from scenesearch_base.atomic import atomic_path
 
         keys = sorted(self.entries)
         vectors = np.stack([self.entries[k] for k in keys]) if keys else np.zeros((0, 0), np.float32)

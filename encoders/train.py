@@ -56,8 +56,6 @@ import numpy as np
 import torch
 from torch.utils.data import DataLoader, Dataset
 
-from common.atomic import atomic_path, atomic_write_text
-from common.memory import check_memory
 from encoders.calibration import CameraWeightChoice, calibrate_camera_weight
 from encoders.checkpoints import (
     check_resume_config,
@@ -81,6 +79,8 @@ from encoders.tagging.training import attach_tagging
 from encoders.text import TEXT_CACHE_FILE, kept_apart
 from encoders.train_config import TrainConfig
 from encoders.training_loss import TOTAL, TrainingLoss, forward_step
+from scenesearch_base.atomic import atomic_path, atomic_write_text
+from scenesearch_base.memory import check_memory
 
 
 class TrainingError(RuntimeError):

@@ -1,6 +1,6 @@
 """Configuration of a training run: :class:`TrainConfig`, the model (:mod:`encoders.config`) and how it trains.
 
-Reading and writing go through :mod:`common.config` (``TrainConfig.from_yaml(path)``, ``to_yaml(path)``):
+Reading and writing go through :mod:`scenesearch_base.config` (``TrainConfig.from_yaml(path)``, ``to_yaml(path)``):
 unknown keys are an error that lists them all, with their dotted path. A run folder keeps its config as
 ``config.json`` (:meth:`TrainConfig.to_json`, :meth:`TrainConfig.from_json`), which holds every key: a
 run's config that lacks one was written by an older version and is refused. Complete recipes are files

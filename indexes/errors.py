@@ -9,14 +9,14 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import common.config
+import scenesearch_base.config
 
 
 class IndexesError(Exception):
     """Base class of every error raised by :mod:`indexes`."""
 
 
-class ConfigError(IndexesError, common.config.ConfigError):
+class ConfigError(IndexesError, scenesearch_base.config.ConfigError):
     """An index configuration (:class:`~indexes.factory.AutoConfig`) holds unknown keys or values out of range."""
 
 

@@ -18,8 +18,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from common.config import YamlConfig
 from indexes.errors import ConfigError, MemoryBudgetError
+from scenesearch_base.config import YamlConfig
 
 # Bytes the id map takes per vector: the int64 id plus the hash-table entry that lets an IVF index
 # reconstruct and remove by id.
@@ -30,7 +30,7 @@ HNSW_LINK_BYTES_PER_NEIGHBOUR = 4 * 2 * 1.1
 
 @dataclass(frozen=True)
 class AutoConfig(YamlConfig):
-    """Thresholds of the automatic choice; read and written as YAML through :mod:`common.config`.
+    """Thresholds of the automatic choice; read and written as YAML through :mod:`scenesearch_base.config`.
 
     Attributes:
         flat_max_n: collections up to this many vectors use exact ``Flat``.

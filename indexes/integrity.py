@@ -39,9 +39,9 @@ from enum import StrEnum
 from pathlib import Path
 from typing import Any
 
-from common.atomic import atomic_write_text
-from common.checksums import hash_threads, sha256_file, sha256_files
 from indexes.errors import IndexFileError, ManifestError
+from scenesearch_base.atomic import atomic_write_text
+from scenesearch_base.checksums import hash_threads, sha256_file, sha256_files
 
 STAMP_NAME = ".verified.json"
 SEAL_FIELD = "content_sha256"

@@ -18,8 +18,6 @@ import numpy as np
 from faiss.contrib.clustering import two_level_clustering
 from faiss.contrib.exhaustive_search import knn_ground_truth
 
-from common.atomic import atomic_path
-from common.checksums import sha256_file
 from indexes.errors import IndexFileError, VectorError, faiss_message
 from indexes.factory import AutoConfig
 from indexes.ondisk_plan import OnDiskPlan, PeakMemory
@@ -28,6 +26,8 @@ from indexes.tuning import Knob, TuningResult, knob_limit, search_parameters, se
 from indexes.vector_files import RowSpan, VectorFiles, span_chunks
 from indexes.vector_index import VectorIndex
 from indexes.vectors import Metric, prepare_vectors
+from scenesearch_base.atomic import atomic_path
+from scenesearch_base.checksums import sha256_file
 
 # ---------------------------------------------------------------------- reading prepared rows
 

@@ -12,7 +12,7 @@
 
 The manifest is written last, inside a temporary directory that is renamed onto the target, so a
 reader sees either the previous complete index or the new one. A kill between the two renames of
-that swap leaves the complete previous index aside (see :mod:`common.atomic`); :func:`reading_index_dir`
+that swap leaves the complete previous index aside (see :mod:`scenesearch_base.atomic`); :func:`reading_index_dir`
 moves it back, so a kill at any moment leaves a loadable index, and holds off a concurrent save
 while a loader reads. Loading checks every file against the manifest (:mod:`indexes.integrity`).
 """
@@ -29,9 +29,9 @@ from typing import Any
 import faiss
 import numpy as np
 
-from common.atomic import atomic_directory, reading_directory
 from indexes.errors import IndexFileError, ManifestError, UnsupportedFormatError, faiss_message
 from indexes.integrity import FileEntry, check_seal, file_entries, parse_file_entries, seal
+from scenesearch_base.atomic import atomic_directory, reading_directory
 
 #: The layout version: the manifest holds the checksum of its own content. Other versions are refused.
 FORMAT_VERSION = 2
@@ -104,7 +104,8 @@ def require_files(manifest: Manifest, directory: Path, names: tuple[str, ...]) -
 @contextmanager
 def reading_index_dir(directory: Path | str) -> Iterator[Path]:
     """Yield the index directory to read at ``directory``, after recovering a save whose swap a kill
-    interrupted; a concurrent save waits until the block has read it (:func:`common.atomic.reading_directory`).
+    interrupted; a concurrent save waits until the block has read it
+    (:func:`scenesearch_base.atomic.reading_directory`).
 
     Raises:
         IndexFileError: nothing there.

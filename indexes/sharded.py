@@ -19,7 +19,6 @@ from typing import Any
 import faiss
 import numpy as np
 
-from common.checksums import sha256_file
 from indexes.building import IdsLike, prepare_build
 from indexes.errors import IdError, ManifestError
 from indexes.factory import AutoConfig
@@ -36,6 +35,7 @@ from indexes.persistence import (
 from indexes.vector_index import KIND as SHARD_KIND
 from indexes.vector_index import VectorIndex, check_k, files_of
 from indexes.vectors import Metric, as_metric, prepare_ids, prepare_vectors
+from scenesearch_base.checksums import sha256_file
 
 KIND = "sharded_index"
 DEFAULT_SHARD_SIZE = 8_000_000

@@ -14,8 +14,7 @@ host stopped, not the car), while "the ego vehicle stops" still finds the host's
 >>> search = CaptionSearch.build("captions/captions.parquet", "captions_index")
 >>> search.search("stopped car", k=5, filters={"category": "car"})
 
-:func:`caption_logs` captions log folders end to end (``captioning.caption_logs``); :func:`search_logs`
-captions and searches real AV2 logs (tracks only) in one call.
+:mod:`retrieval.logs_search` captions log folders and searches them in one call (tracks only).
 
 Directory layout (written atomically)::
 
@@ -46,8 +45,6 @@ import pyarrow.parquet as pq
 from captioning.pipeline import CAPTIONS_FILENAME
 from captioning.tables import BEHAVIOR_CAPTION_FIELDS
 from captioning.text import OBJECT_HALF, caption_halves
-from common.atomic import reading_directory, recover_directory
-from common.folders import claim_folder, claimed_directory
 from encoders.clips.layout import clip_id
 from encoders.config import WHOLE_TEXT_KINDS
 from indexes.errors import IndexesError, IndexFileError, ManifestError
@@ -68,6 +65,8 @@ from retrieval.scenario_search import (
     search_within,
 )
 from scenarios.cache import FEATURES_SUFFIX
+from scenesearch_base.atomic import reading_directory, recover_directory
+from scenesearch_base.folders import claim_folder, claimed_directory
 
 if TYPE_CHECKING:
     from retrieval.sentence_encoder import SentenceEncoder
@@ -306,7 +305,7 @@ class CaptionSearch:
              log_dirs: Mapping[str, str] | None = None) -> None:
         """Write the directory described in the module docstring, atomically.
 
-        ``out_dir`` is replaced only when it is an index folder (:mod:`common.folders`), and never when
+        ``out_dir`` is replaced only when it is an index folder (:mod:`scenesearch_base.folders`), and never when
         it is one of ``inputs``, lies inside one or holds one. With ``log_dirs`` (log id → folder) the
         index also holds its logs' scenario features (:mod:`retrieval.scenario_search`).
         """
@@ -373,11 +372,6 @@ class CaptionSearch:
         if given != whole_text:  # queries embedded unlike the texts would rank by the difference
             raise IndexDirError(f"{path}, field 'whole_text': the index embedded its texts as {whole_text!r}, "
                                 f"the given encoder embeds a text as {given!r}")
-        encoder_dim = getattr(encoder if encoder is not None else _sentence_encoder_class(), "dim", None)
-        if encoder_dim is not None and encoder_dim != counts["dim"]:  # every query would fail to score
-            raise IndexDirError(f"{path}, field 'dim': the index holds texts embedded in {counts['dim']} "
-                                f"dimensions (text encoder {info.get('text_encoder')!r}), the query encoder "
-                                f"embeds in {encoder_dim}; build the index again with this encoder")
         encoder = encoder if encoder is not None else _sentence_encoder_class()(whole_text=whole_text)
         base = info.get("base_dir")
         out = cls(*parts, encoder, info.get("text_encoder"), Path(base) if base else None,
@@ -402,10 +396,11 @@ class CaptionSearch:
         query = check_query(query)
         checked = build_query(k, filters, self.metadata, len(self), max_k)
         xq = np.asarray(self.encoder([query]), dtype=np.float32)
-        if xq.ndim != 2 or xq.shape[1] != self.text_embeddings.shape[1]:
-            raise IndexDirError(f"the query encoder {self.encoder_name!r} gave embeddings of shape {xq.shape}; "
-                                f"the index's texts have {self.text_embeddings.shape[1]} dimensions "
-                                "(build the index again with this encoder)")
+        if xq.ndim != 2 or xq.shape[1] != self.text_embeddings.shape[1]:  # an index of another encoder
+            query_encoder = getattr(self.encoder, "name", type(self.encoder).__name__)
+            raise IndexDirError(f"the index's texts were embedded in {self.text_embeddings.shape[1]} dimensions "
+                                f"(text encoder {self.encoder_name!r}); the query encoder {query_encoder!r} "
+                                f"gives {xq.shape[-1]}: build the index again with this encoder")
         scores = self.scores(xq[0])
         if checked.filters is not None:
             allowed = np.zeros(len(self), dtype=bool)
@@ -427,32 +422,3 @@ class CaptionSearch:
         query; every moment when it does not compile or selects none (see :mod:`retrieval.scenario_search`)."""
         return search_within(self.scenarios, self.metadata, query, k, filters, max_k,
                              lambda spec: self.search(query, k, spec, max_k))
-
-
-# ---------------------------------------------------------------------- logs end to end
-
-
-def caption_logs(log_dirs: Sequence[Path | str], config: Any = None) -> tuple[pa.Table, list[Skipped]]:
-    """Caption log folders with ``captioning.caption_logs``; the caption table and the skipped logs.
-
-    Raises:
-        ValueError: no log gave a caption (the message lists why each was skipped).
-    """
-    import captioning
-    from captioning.tables import captions_to_table
-
-    batch = captioning.caption_logs([Path(d) for d in log_dirs], config)
-    skipped = [Skipped(str(k), v) for k, v in batch.skipped_logs.items()]
-    captions = [c for r in batch.results for c in r.captions]
-    if not captions:
-        reasons = "; ".join(f"{s.item}: {s.reason}" for s in skipped) or "the logs have no tracks to caption"
-        raise ValueError(f"no log gave captions ({reasons})")
-    return captions_to_table(captions), skipped
-
-
-def search_logs(log_dirs: Sequence[Path | str], query: str, k: int = 10, filters: FilterSpec = None,
-                encoder: TextEncoder | None = None) -> list[SearchResult]:
-    """Caption ``log_dirs`` and search their captions for ``query`` in one call (tracks only)."""
-    table, _ = caption_logs(log_dirs)
-    search = CaptionSearch.build(table, encoder=encoder)
-    return search.search(query, k=min(k, len(search)), filters=filters)

@@ -110,9 +110,9 @@ def _quiet_libraries() -> None:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    from common.memory import retain_freed_memory
+    from scenesearch_base.memory import retain_freed_memory
 
-    retain_freed_memory()  # every command moves large arrays: reuse freed memory (see common.memory)
+    retain_freed_memory()  # every command moves large arrays: reuse freed memory (see scenesearch_base.memory)
     argv = list(sys.argv[1:] if argv is None else argv)
     parser = build_parser(_command_of(argv))
     args = parser.parse_args(argv)

@@ -25,10 +25,10 @@ from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-from common.atomic import atomic_write_text
-from common.folders import FolderKind, claim_folder, mark_folder
-from common.ray_cluster import usable_cpus
 from retrieval.demo_config import VAL_FRACTION, DemoConfig
+from scenesearch_base.atomic import atomic_write_text
+from scenesearch_base.folders import FolderKind, claim_folder, mark_folder
+from scenesearch_base.ray_cluster import usable_cpus
 
 #: The extra training logs' seed is the demo's plus this: other drives through another city.
 EXTRA_SEED_OFFSET = 1000
@@ -36,7 +36,7 @@ EXTRA_SEED_OFFSET = 1000
 VAL_SEED_OFFSET = 2000
 STAGES = ("simulate", "caption", "clips", "train", "index", "eval", "report")
 MARKERS = ".demo"
-#: The demo's folder (:mod:`common.folders`): one folder or file per stage's output, and the report.
+#: The demo's folder (:mod:`scenesearch_base.folders`): one folder or file per stage's output, and the report.
 DEMO_FOLDER = FolderKind("demo", signature=MARKERS, entries=(
     MARKERS, "logs", "extra_logs", "val_logs", "captions", "clips", "clips.yaml", "run", "index", "metrics.json",
     "report.html", "plots", "tags"))

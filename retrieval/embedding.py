@@ -19,11 +19,11 @@ from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
-from common.checksums import sha256_file
-from common.ray_cluster import Execution, cluster_gpus, import_ray, node_cpus, ray_runtime
-from common.storage import as_location, join, list_files, remove_files, write_file
 from encoders.config import check_device_name
 from retrieval.errors import ModelMismatchError
+from scenesearch_base.checksums import sha256_file
+from scenesearch_base.ray_cluster import Execution, cluster_gpus, import_ray, node_cpus, ray_runtime
+from scenesearch_base.storage import as_location, join, list_files, remove_files, write_file
 
 MODEL_FILE = "model.safetensors"
 #: The embedding shards that :class:`RayDataEmbedder`'s actors write (``part-<first row>.parquet``).

@@ -1,13 +1,13 @@
 """The folder kind of an index written by ``scenesearch index``: a model index or a caption index.
 
-Both kinds of index live in a folder of kind ``index`` (:mod:`common.folders`), so either replaces the
+Both kinds of index live in a folder of kind ``index`` (:mod:`scenesearch_base.folders`), so either replaces the
 other at the same ``--out``, and neither ever replaces clips, captions, a run or a user's folder.
 """
 
 from __future__ import annotations
 
-from common.folders import FolderKind
 from indexes.integrity import STAMP_NAME
+from scenesearch_base.folders import FolderKind
 
 INDEX_FOLDER = FolderKind(
     "index", signature="manifest.json",

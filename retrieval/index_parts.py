@@ -3,7 +3,7 @@ manifest over its parts, their counts, and the caption index, opened at once or 
 
 A process that ranks by the model or by clip alone never reads the caption index (``SceneSearch.open``
 with ``lazy_captions``): :func:`open_captions` opens it later, under a read lock of its own
-(:func:`common.atomic.reading_directory`), with the same checks as an eager open.
+(:func:`scenesearch_base.atomic.reading_directory`), with the same checks as an eager open.
 """
 
 from __future__ import annotations
@@ -13,12 +13,12 @@ from contextlib import nullcontext
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from common.atomic import reading_directory
 from indexes.errors import IndexesError, ManifestError
 from indexes.integrity import IntegrityWarning, Verify, parse_file_entries, verify_files
 from retrieval.embedding import CONFIG_FILE
 from retrieval.errors import IndexDirError
 from retrieval.index_manifest import MANIFEST, IndexManifest
+from scenesearch_base.atomic import reading_directory
 
 if TYPE_CHECKING:
     from retrieval.captions_search import CaptionSearch, TextEncoder

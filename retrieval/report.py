@@ -18,8 +18,8 @@ from typing import Any
 
 import numpy as np
 
-from common.atomic import atomic_write_text
 from retrieval.records import SearchResult
+from scenesearch_base.atomic import atomic_write_text
 
 MAX_ACTIONS_COLOURED = 9
 PLOTTED_FIGURES = ("R@1", "R@5", "R@10", "mAP")

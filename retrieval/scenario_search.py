@@ -103,6 +103,18 @@ def log_folders_of(captions_dir: Path) -> dict[str, str]:
     return {str(k): str(v) for k, v in data.items()} if isinstance(data, dict) else {}
 
 
+def clip_log_folders(clips_dir: Path) -> dict[str, str]:
+    """Log id → folder of the logs a clips folder was made from (as its manifest records them)."""
+    from encoders.clips.layout import read_manifest
+
+    try:
+        logs = read_manifest(clips_dir).get("logs", {})
+    except (FileNotFoundError, ValueError):
+        return {}
+    return {str(log_id): str(entry["log_dir"]) for log_id, entry in logs.items()
+            if isinstance(entry, dict) and entry.get("log_dir") and "://" not in str(entry["log_dir"])}
+
+
 class ScenarioStore:
     """The scenario features of an index's logs, read when a query first needs them."""
 

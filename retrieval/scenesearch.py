@@ -33,8 +33,6 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import pyarrow as pa
 
-from common.atomic import reading_directory
-from common.folders import claim_folder, claimed_directory
 from indexes.clip_index import ClipIndex
 from indexes.errors import IndexesError
 from indexes.filters import FilterSpec
@@ -55,8 +53,17 @@ from retrieval.querying import (
     preview_of,
 )
 from retrieval.records import SearchResult
-from retrieval.scenario_search import SCENARIOS_DIR, ScenarioMatch, ScenarioStore, build_store, search_within
+from retrieval.scenario_search import (
+    SCENARIOS_DIR,
+    ScenarioMatch,
+    ScenarioStore,
+    build_store,
+    clip_log_folders,
+    search_within,
+)
 from scenarios.cache import FEATURES_SUFFIX
+from scenesearch_base.atomic import reading_directory
+from scenesearch_base.folders import claim_folder, claimed_directory
 
 if TYPE_CHECKING:
     from retrieval.captions_search import CaptionSearch, TextEncoder
@@ -98,7 +105,7 @@ class SceneSearch:
             run_dir: a training run (``model.safetensors`` + ``config.json``).
             clips_dir: the clips the run was trained on (``clips.parquet`` + per-log arrays).
             out_dir: the index directory; replaced atomically when it is an index folder
-                (:mod:`common.folders`), refused when it is another folder or one of the inputs.
+                (:mod:`scenesearch_base.folders`), refused when it is another folder or one of the inputs.
             embedder: the model (default: :class:`ModelEmbedder` of ``run_dir``).
             text_encoder: the sentence encoder of the caption index (default: all-MiniLM-L6-v2, seeded with
                 the run's own text cache, :meth:`SentenceEncoder.for_run`).
@@ -148,7 +155,7 @@ class SceneSearch:
                 index.save(tmp / view)
             captions.save(tmp / CAPTIONS_DIR)
             (tmp / "run").mkdir()
-            folders = _log_folders(clips_dir)
+            folders = clip_log_folders(clips_dir)
             scenarios = build_store(tmp / SCENARIOS_DIR, folders,
                                     rows.column("log_id").to_pylist() if folders else ())
             say(f"index: scenario features of {scenarios['logs']} log(s)"
@@ -179,7 +186,7 @@ class SceneSearch:
         """Open an index directory written by :meth:`build`, checking every file it reads.
 
         The model is loaded when the first text query needs it; its hash is checked then. A build
-        killed while swapping directories is recovered here (see :mod:`common.atomic`).
+        killed while swapping directories is recovered here (see :mod:`scenesearch_base.atomic`).
 
         Args:
             index_dir: the index directory.
@@ -397,7 +404,7 @@ class SceneSearch:
         """
         import pyarrow.parquet as pq
 
-        from common.atomic import atomic_path, atomic_write_text
+        from scenesearch_base.atomic import atomic_path, atomic_write_text
 
         path = Path(path)
         views = views or tuple(self.views)
@@ -427,18 +434,6 @@ class SceneSearch:
                                                    "rows": meta.to_pylist()}, indent=1, default=str))
             return path
         raise ValueError(f"{path}: unknown export format {path.suffix!r}; use .parquet or .npy")
-
-
-def _log_folders(clips_dir: Path) -> dict[str, str]:
-    """Log id → folder of the logs a clips folder was made from (as its manifest records them)."""
-    from encoders.clips.layout import read_manifest
-
-    try:
-        logs = read_manifest(clips_dir).get("logs", {})
-    except (FileNotFoundError, ValueError):
-        return {}
-    return {str(log_id): str(entry["log_dir"]) for log_id, entry in logs.items()
-            if isinstance(entry, dict) and entry.get("log_dir") and "://" not in str(entry["log_dir"])}
 
 
 def _align(clip_ids: list[str], ids: list[str], x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

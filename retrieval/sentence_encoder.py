@@ -36,8 +36,6 @@ class SentenceEncoder:
     """
 
     name = "all-MiniLM-L6-v2"
-    #: The width of its embeddings; an index of texts embedded at another width is not its own.
-    dim = 384
 
     def __init__(self, cache_size: int = 100_000, known: TextFeatureCache | None = None,
                  precision: str = "auto", whole_text: str = "sentences") -> None:

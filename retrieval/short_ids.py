@@ -7,7 +7,7 @@ shorter forms name a moment of one index:
   such command remembers its ranked clip ids in a small state file of the user's cache directory
   (:func:`state_path`: ``$XDG_CACHE_HOME/scenesearch/last_search.json``, else
   ``~/.cache/scenesearch/last_search.json``), keyed by the index directory's resolved path and
-  written atomically (:mod:`common.atomic`); it holds the last search of at most
+  written atomically (:mod:`scenesearch_base.atomic`); it holds the last search of at most
   :data:`MAX_REMEMBERED` index directories.
 - ``LOG/TRACK@SECONDSs``, the *readable* form, e.g. ``5620d013/8e7d6a5c@12.4s``: a prefix of the log
   id, ``/``, a prefix of the track id, ``@``, and the moment's start in seconds within its log, to
@@ -80,7 +80,7 @@ def remember(index_dir: Path | str, query: str, clip_ids: Sequence[str], path: P
     A state file that cannot be written (a read-only home, say) costs the ``#N`` ids only: the search
     itself has succeeded, so the failure is ignored.
     """
-    from common.atomic import atomic_write_text
+    from scenesearch_base.atomic import atomic_write_text
 
     path = path or state_path()
     searches = _read_state(path)

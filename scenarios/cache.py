@@ -37,14 +37,14 @@ import numpy as np
 from numpy.typing import NDArray
 
 from captioning.config import CaptioningConfig
-from common.atomic import atomic_write_bytes
-from common.folders import FolderClaimError, FolderKind, claim_folder, mark_folder
 from scenarios.features import LogFeatures, build_features, time_derivative
 from scenes.log import Log
+from scenesearch_base.atomic import atomic_write_bytes
+from scenesearch_base.folders import FolderClaimError, FolderKind, claim_folder, mark_folder
 
 #: Version of the encoding; files of another are built again.
 CACHE_VERSION = 2
-#: The cache folder (:mod:`common.folders`).
+#: The cache folder (:mod:`scenesearch_base.folders`).
 #: The suffix of a log's file.
 FEATURES_SUFFIX = ".features"
 FEATURES_FOLDER = FolderKind("scenario features", signature="", entries=(f"*{FEATURES_SUFFIX}",))
@@ -257,7 +257,7 @@ def cached_features(log_dir: Path | str, cache_dir: Path | str | None, config: C
 
 
 def claim_cache(cache_dir: Path | str, inputs: list[Path]) -> None:
-    """Take ``cache_dir`` as a feature cache: new, empty or one already (:mod:`common.folders`)."""
+    """Take ``cache_dir`` as a feature cache: new, empty or one already (:mod:`scenesearch_base.folders`)."""
     try:
         claim_folder(cache_dir, FEATURES_FOLDER, inputs)
     except FolderClaimError as exc:  # the folder is the cache's: say so rather than "--out"

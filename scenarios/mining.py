@@ -4,7 +4,7 @@
 >>> write_submission(run.answers, "predictions.pkl")
 
 Each log is one task (:func:`mine_log`: features from the cache or built, then every program),
-serially or on Ray (:mod:`common.ray_runner`); answers keep the logs' order, then the descriptions'.
+serially or on Ray (:mod:`scenesearch_base.ray_runner`); answers keep the logs' order, then the descriptions'.
 A log that cannot be read is skipped with its reason; a description that names nothing is refused
 before any log is read. A log given twice (the same folder, or two of one log id) is answered once and
 the repeat reported.
@@ -18,14 +18,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from captioning.config import CaptioningConfig
-from common.ray_cluster import Execution
-from common.ray_runner import TaskStatus, run_tasks
-from common.storage import distinct_by_name
 from scenarios.answer import LogAnswer
 from scenarios.cache import cached_features, claim_cache
 from scenarios.compiler import Compiled, compile_description
 from scenarios.evaluate import answer
 from scenes.errors import ScenesError
+from scenesearch_base.ray_cluster import Execution
+from scenesearch_base.ray_runner import TaskStatus, run_tasks
+from scenesearch_base.storage import distinct_by_name
 
 
 @dataclass(frozen=True)

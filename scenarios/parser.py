@@ -35,6 +35,7 @@ from scenarios.program import (
     While,
     subject_of,
 )
+from scenarios.rewrite import closer, negated, with_subject, within, without_states
 
 #: Within this distance (m), "a group of" objects stand together.
 GROUP_RADIUS_M = 5.0
@@ -209,7 +210,7 @@ class Parser:
                 node = self.sequence(node, self.take())
             elif role == "closely" and isinstance(node, Has):
                 self.take()
-                node = _closer(node)
+                node = closer(node)
             elif role in ("count", "number") and self.role(1) == "kind" and self.role(2) in ("side", "ego", "rel"):
                 node = self.chain(node)
             elif role == "not" and self.role(1) == "kind":  # "truck without trailer"
@@ -218,7 +219,7 @@ class Parser:
             elif role == "not" and self.role(1) in ("pred", "rel", "with", "fixed"):
                 self.take()
                 after = self.modifiers_one(node)
-                node = _negated(after, node) if after is not None else node
+                node = negated(after, node) if after is not None else node
             elif role in ("rel", "ego", "side", "with", "between"):
                 updated = self.modifiers_one(node)
                 if updated is None:
@@ -235,7 +236,7 @@ class Parser:
                 elif unit == "s":
                     node = ForAtLeast(node, value)
                 elif unit == "m" and isinstance(node, Has) and self.role() not in ("rel", "side", "kind"):
-                    node = _within(node, value)
+                    node = within(node, value)
                 elif unit == "m" and self.role() == "pred" and self.name() == "near_intersection":
                     self.take()
                     node = Is(node, "near_intersection", (("within_m", value),))
@@ -316,7 +317,7 @@ class Parser:
                 found = self.quantity()
                 if found is not None and found[1] == "m":
                     self.pending_m = found[0]
-                    return _within(node, found[0])
+                    return within(node, found[0])
             first = self.phrase(bare=True)
             if first is None:
                 self.unused.extend(item.words)
@@ -338,7 +339,7 @@ class Parser:
         if item.name == "drive_off":  # "stopped vehicle that starts moving": stopped once, then moving
             first = node if isinstance(node, Is) and node.predicate in ("stopped", "parked") and not node.negate \
                 else Is(node, "stopped")
-            return Then(first, Is(_without_states(node), "moving"), CUT_IN_WITHIN_S)
+            return Then(first, Is(without_states(node), "moving"), CUT_IN_WITHIN_S)
         side = "adjacent"
         if self.role() == "side" and self.name() in ("left", "right"):
             side = self.take().name
@@ -405,7 +406,7 @@ class Parser:
             # "brakes and then stops": a phrase naming no kind goes on about the same objects.
             nxt = self.phrase(need_kind=True)
             if nxt is None:  # "stopped then moving": the same objects
-                head = _without_states(subject_of(node))
+                head = without_states(subject_of(node))
                 if self.role() in ("pred", "rel", "ego", "side", "with", "between", "not", "seq", "fixed"):
                     nxt = (self.modifiers(head), 0)
                 else:
@@ -413,7 +414,7 @@ class Parser:
                     break
             other = self.referred(*nxt)
             if subject_of(node) == Objects("any") and subject_of(other) != Objects("any") :
-                node = _with_subject(node, subject_of(other))  # "parked or stopped vehicle": both of vehicles
+                node = with_subject(node, subject_of(other))  # "parked or stopped vehicle": both of vehicles
             if conj.name == "then":
                 node = Then(node, other)
             elif conj.name == "while":
@@ -435,65 +436,3 @@ class Parser:
         if count >= 2:
             return Together(node, count)
         return node
-
-
-def _closer(node: Node) -> Node:
-    """``node`` with its relation tightened ("following closely": within 10 m; "near": within 3 m)."""
-    if isinstance(node, Has) and node.relation in ("following", "near", "direction"):
-        tight = 10.0 if node.relation != "near" else 3.0
-        return _within(node, tight)
-    return node
-
-
-def _within(node: Node, within_m: float) -> Node:
-    """A relation ``node`` limited to ``within_m``; any other node as it is."""
-    if not isinstance(node, Has) or node.relation in ("heading", "passed_by", "crossed_by"):
-        return node
-    return dataclasses.replace(node, params=(*[(k, v) for k, v in node.params if k != "within_m"],
-                                             ("within_m", within_m)))
-
-
-def _negated(after: Node, before: Node) -> Node:
-    """``after`` (``before`` with one more modifier) with that modifier negated."""
-    if isinstance(after, Is | Has) and after != before:
-        return dataclasses.replace(after, negate=not after.negate)
-    return after
-
-
-#: Predicates of what an object is doing at a moment: a later step of a sequence does not inherit them.
-STATES = ("stopped", "moving", "parked", "stationary", "braking", "accelerating")
-
-
-def _without_states(node: Node) -> Node:
-    """``node`` without its state predicates (:data:`STATES`) along its subjects: "a stopped vehicle in
-    our lane" → "a vehicle in our lane", the objects a next step ("… then moves") is about."""
-    match node:
-        case Is(subject) if node.predicate in STATES:
-            return _without_states(subject)
-        case Is(subject):
-            return dataclasses.replace(node, subject=_without_states(subject))
-        case Has() if node.reverse:
-            return dataclasses.replace(node, other=_without_states(node.other))
-        case Has(subject):
-            return dataclasses.replace(node, subject=_without_states(subject))
-    return node
-
-
-def _with_subject(node: Node, subject: Node) -> Node:
-    """``node`` with its innermost subject (:func:`scenarios.program.subject_of`) replaced by ``subject``."""
-    match node:
-        case Objects():
-            return subject
-        case Is(inner) | Between(inner) | Together(inner) | ForAtLeast(inner) | While(inner):
-            field = dataclasses.fields(node)[0].name
-            return dataclasses.replace(node, **{field: _with_subject(inner, subject)})  # type: ignore[arg-type]
-        case Has() if node.reverse:
-            return dataclasses.replace(node, other=_with_subject(node.other, subject))
-        case Has(inner):
-            return dataclasses.replace(node, subject=_with_subject(inner, subject))
-        case Then(first):
-            return dataclasses.replace(node, first=_with_subject(first, subject))
-        case AllOf((first, *rest)):
-            return AllOf((_with_subject(first, subject), *rest))
-    return node
-

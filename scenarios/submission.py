@@ -42,9 +42,9 @@ from typing import IO, Any
 import numpy as np
 from numpy.typing import NDArray
 
-from common.atomic import atomic_write_bytes
 from scenarios.answer import LogAnswer
 from scenes.categories import AV2_TO_CATEGORY, CATEGORY_TO_AV2, EGO_VEHICLE_LABEL, Category, category_from_label
+from scenesearch_base.atomic import atomic_write_bytes
 
 #: The period of evaluation timestamps.
 EVALUATION_PERIOD_NS = 500_000_000

@@ -29,9 +29,7 @@ import pyarrow as pa
 import pyarrow.feather as feather
 from numpy.typing import NDArray
 
-from common.atomic import atomic_path, atomic_write_bytes, atomic_write_text
-from common.folders import FolderKind
-from scenes import schema
+from scenes import map_schema, schema
 from scenes.calibration import Calibration, CameraIntrinsics
 from scenes.errors import LogFormatError, MapFormatError, Problem, collect_problems
 from scenes.geometry import SE3, quat_to_rotmat
@@ -39,6 +37,8 @@ from scenes.map import VectorMap
 from scenes.metadata import METADATA_FILENAME, LogMetadata
 from scenes.sensors import LidarSweep
 from scenes.tracks import Annotations, EgoTrajectory
+from scenesearch_base.atomic import atomic_path, atomic_write_bytes, atomic_write_text
+from scenesearch_base.folders import FolderKind
 
 ANNOTATIONS_FILENAME = "annotations.feather"
 POSES_FILENAME = "city_SE3_egovehicle.feather"
@@ -46,7 +46,7 @@ EXTRINSICS_PATH = Path("calibration") / "egovehicle_SE3_sensor.feather"
 INTRINSICS_PATH = Path("calibration") / "intrinsics.feather"
 LIDAR_DIR = Path("sensors") / "lidar"
 CAMERAS_DIR = Path("sensors") / "cameras"
-#: A log folder that scenesearch writes (simulated, imported, tracked; :mod:`common.folders`): the AV2
+#: A log folder that scenesearch writes (simulated, imported, tracked; :mod:`scenesearch_base.folders`): the AV2
 #: layout and the files beside it. An unmarked folder counts as one when it holds ``log_metadata.json``,
 #: which real AV2 logs lack: a user's own log is never replaced.
 LOG_FOLDER = FolderKind("log", signature=METADATA_FILENAME, entries=(
@@ -270,7 +270,7 @@ def read_map(path: Path) -> VectorMap:
         vector_map = VectorMap.from_json_dict(data)
     except MapFormatError as exc:
         raise LogFormatError(exc.problems(path)) from exc
-    problems = schema.check_map_coordinates(path, vector_map)
+    problems = map_schema.check_map_coordinates(path, vector_map)
     if problems:
         raise LogFormatError(problems)
     with _PARSED_MAPS_LOCK:

@@ -34,8 +34,8 @@ from pathlib import Path
 import pyarrow as pa
 import pyarrow.feather as feather
 
-from common.atomic import atomic_path
 from scenes.errors import LogFormatError, Problem
+from scenesearch_base.atomic import atomic_path
 
 BEHAVIOR_FILENAME = "behavior_labels.feather"
 JUNCTIONS_FILENAME = "junctions.feather"

@@ -1,9 +1,9 @@
-"""Base of the scenes configs (simulator, sensors, tracker): YAML through :mod:`common.config`."""
+"""Base of the scenes configs (simulator, sensors, tracker): YAML through :mod:`scenesearch_base.config`."""
 
 from __future__ import annotations
 
-from common.config import YamlConfig
 from scenes.errors import ConfigError
+from scenesearch_base.config import YamlConfig
 
 
 class ScenesConfig(YamlConfig):

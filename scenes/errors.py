@@ -7,7 +7,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import ParamSpec, TypeVar
 
-import common.config
+import scenesearch_base.config
 
 P = ParamSpec("P")
 T = TypeVar("T")
@@ -17,7 +17,7 @@ class ScenesError(Exception):
     """Base class of every error raised by :mod:`scenes`."""
 
 
-class ConfigError(ScenesError, common.config.ConfigError):
+class ConfigError(ScenesError, scenesearch_base.config.ConfigError):
     """A config of a scenes stage (simulator, sensors, tracker) is invalid; names the file and the key."""
 
 

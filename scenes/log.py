@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from scenes import av2_io, schema
+from scenes import av2_io, map_schema, schema
 from scenes.calibration import Calibration
 from scenes.errors import LogFormatError, Problem, collect_problems
 from scenes.map import VectorMap
@@ -100,7 +100,7 @@ class Log:
         if path is None:
             return None
         vector_map = av2_io.read_map(path)
-        problems = schema.check_map_covers_poses(path, vector_map, self.ego.translation_m[:, :2])
+        problems = map_schema.check_map_covers_poses(path, vector_map, self.ego.translation_m[:, :2])
         if problems:
             raise LogFormatError(problems)
         return vector_map

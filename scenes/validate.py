@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from scenes import av2_io, schema
+from scenes import av2_io, map_schema, schema
 from scenes.errors import Problem, collect_problems
 from scenes.log import Log, log_folder_problem
 from scenes.sensors import read_lidar_sweep, timestamps_in
@@ -111,7 +111,7 @@ def validate_log(log_dir: Path | str, max_pose_gap_s: float = schema.DEFAULT_MAX
     if map_path is not None:
         vector_map = collect_problems(problems, av2_io.read_map, map_path)
         if vector_map is not None and log is not None:
-            problems += schema.check_map_covers_poses(map_path, vector_map, log.ego.translation_m[:, :2])
+            problems += map_schema.check_map_covers_poses(map_path, vector_map, log.ego.translation_m[:, :2])
     elif not map_problems:
         warnings.append("no map (map/log_map_archive_*.json)")
     calibration = collect_problems(problems, av2_io.read_calibration, log_dir)

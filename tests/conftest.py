@@ -14,7 +14,7 @@ _LOCAL = {"num_cpus": 2, "include_dashboard": False, "log_to_driver": False, "co
 def ray_local() -> Iterator[None]:
     """A local Ray runtime with 2 CPUs, started once (a few seconds) and shut down at the end.
 
-    :mod:`common.ray_cluster` reuses a runtime this process started, so ``Execution(workers=2)``
+    :mod:`scenesearch_base.ray_cluster` reuses a runtime this process started, so ``Execution(workers=2)``
     runs on this one; ``Execution(workers=1)`` keeps to one task at a time on it.
     """
     ray = pytest.importorskip("ray", reason="Ray is not installed (pip install 'scenesearch[scale]')")
@@ -28,7 +28,7 @@ def ray_local() -> Iterator[None]:
 @pytest.fixture
 def ray_stopped() -> Iterator[None]:
     """No Ray runtime in this process during the test: one that ``ray_local`` started is stopped, and
-    started again afterwards. :mod:`common.ray_cluster` reuses a running runtime (or refuses an address
+    started again afterwards. :mod:`scenesearch_base.ray_cluster` reuses a running runtime (or refuses an address
     it is not on), so a test of joining a cluster would otherwise depend on which tests ran before it."""
     try:
         import ray

@@ -11,9 +11,9 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 #: Stage order: a package may import from itself and packages to its left, never from one to its right.
-ORDER = ("common", "scenes", "captioning", "scenarios", "encoders", "indexes", "retrieval")
+ORDER = ("scenesearch_base", "scenes", "captioning", "scenarios", "encoders", "indexes", "retrieval")
 #: `indexes/` is a generic vector store: besides itself it may import the base package alone.
-GENERIC = {"indexes": {"common", "indexes"}}
+GENERIC = {"indexes": {"scenesearch_base", "indexes"}}
 #: Training code that later stages must not import (they use the inference modules instead).
 TRAINING_MODULES = {"encoders.train", "encoders.training_loss", "encoders.calibration", "encoders.tagging.training"}
 MAX_LINES = 450

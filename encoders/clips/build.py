@@ -5,9 +5,9 @@
 
 Each log is one task (:func:`clip_log`: open the log, check its captions' tracks, render its arrays
 into ``CLIPS_DIR/logs/<log_id>/``, cut its clip rows, write its previews), run serially or on Ray
-(:mod:`common.ray_runner`). The driver assigns the splits and writes ``clips.parquet`` and
+(:mod:`scenesearch_base.ray_runner`). The driver assigns the splits and writes ``clips.parquet`` and
 ``manifest.json`` from the tasks' results in a fixed order, so any number of workers gives the same
-files. Logs, captions and the clips folder may be ``pyarrow.fs`` URIs (:mod:`common.storage`): a
+files. Logs, captions and the clips folder may be ``pyarrow.fs`` URIs (:mod:`scenesearch_base.storage`): a
 task stages its log locally and uploads its rendered folder and previews.
 """
 
@@ -24,23 +24,6 @@ from typing import Any
 import numpy as np
 
 from captioning.pipeline import CAPTIONS_FILENAME, FRAME_TAGS_FILENAME
-from common.atomic import atomic_write_text
-from common.folders import claim_folder, mark_folder
-from common.ray_cluster import Execution
-from common.ray_runner import TaskSkipped, TaskStatus, run_tasks
-from common.storage import (
-    Location,
-    copy_to_local,
-    distinct_by_name,
-    exists,
-    is_uri,
-    join,
-    name_of,
-    parent,
-    read_bytes,
-    staged_input,
-    staged_output,
-)
 from encoders.clips.config import ClipsConfig
 from encoders.clips.frame_tags import LogFrameTags, empty_clip_columns, read_frame_tags
 from encoders.clips.layout import (
@@ -71,6 +54,23 @@ from encoders.clips.views import open_log_arrays
 from scenes.errors import LogFormatError
 from scenes.log import Log
 from scenes.tracks import DenseTracks
+from scenesearch_base.atomic import atomic_write_text
+from scenesearch_base.folders import claim_folder, mark_folder
+from scenesearch_base.ray_cluster import Execution
+from scenesearch_base.ray_runner import TaskSkipped, TaskStatus, run_tasks
+from scenesearch_base.storage import (
+    Location,
+    copy_to_local,
+    distinct_by_name,
+    exists,
+    is_uri,
+    join,
+    name_of,
+    parent,
+    read_bytes,
+    staged_input,
+    staged_output,
+)
 
 FORMAT_VERSION = 1
 
@@ -237,7 +237,7 @@ def build_clips(
         ClipsInputError: captions name logs that are not given or tracks not in their log (with
             ``config.strict``), a caption row is malformed, or no clip could be made.
         FolderClaimError: ``clips_dir`` is neither new, empty nor a clips folder, or is one of the
-            inputs, lies inside one or holds one (:mod:`common.folders`).
+            inputs, lies inside one or holds one (:mod:`scenesearch_base.folders`).
     """
     say = progress or (lambda _line: None)
     claim_folder(clips_dir, CLIPS_FOLDER, [*log_dirs, captions_dir])

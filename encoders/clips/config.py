@@ -1,4 +1,4 @@
-"""Configuration of clip rendering: frozen dataclasses, serialised as YAML by :mod:`common.config`.
+"""Configuration of clip rendering: frozen dataclasses, serialised as YAML by :mod:`scenesearch_base.config`.
 
 >>> config = ClipsConfig.from_yaml(Path("clips.yaml"))     # every field optional
 >>> config.to_yaml(Path("clips.yaml"))                        # round-trips exactly
@@ -12,8 +12,8 @@ from dataclasses import dataclass, field
 from enum import StrEnum
 from typing import ClassVar
 
-import common.config
-from common.config import YamlConfig
+import scenesearch_base.config
+from scenesearch_base.config import YamlConfig
 
 #: Cells along each side of the BEV grid, and height bins, at most: beyond them a log's arrays stop fitting.
 MAX_GRID_CELLS = 2048
@@ -41,7 +41,7 @@ class Split(StrEnum):
     TEST = "test"
 
 
-class ClipsConfigError(common.config.ConfigError):
+class ClipsConfigError(scenesearch_base.config.ConfigError):
     """A clips configuration file or value is invalid; names the file and the field."""
 
 

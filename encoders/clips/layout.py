@@ -59,16 +59,16 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
-from common.folders import FolderKind
 from scenes.bev import BevGrid
 from scenes.categories import CATEGORY_NAMES
+from scenesearch_base.folders import FolderKind
 
 CLIPS_FILE = "clips.parquet"
 MANIFEST_FILE = "manifest.json"
 PREVIEWS_DIR = "previews"
 #: Folder of rendered logs inside CLIPS_DIR.
 LOGS_DIR = "logs"
-#: The folder ``scenesearch clips`` writes (:mod:`common.folders`).
+#: The folder ``scenesearch clips`` writes (:mod:`scenesearch_base.folders`).
 CLIPS_FOLDER = FolderKind("clips", signature=CLIPS_FILE, entries=(CLIPS_FILE, MANIFEST_FILE, PREVIEWS_DIR, LOGS_DIR))
 
 # Per-log files in CLIPS_DIR/logs/<log_id>/ (the table in the module docstring).

@@ -37,7 +37,6 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from common.atomic import atomic_path
 from encoders.clips.config import ClipsConfig
 from encoders.clips.layout import read_clip_rows, read_manifest
 from encoders.clips.preview_bev import bev_panel
@@ -63,6 +62,7 @@ from encoders.clips.preview_canvas import (
 )
 from encoders.clips.render import bev_grid
 from encoders.clips.views import LogArrays, highlight_camera, object_footprint, open_log_arrays
+from scenesearch_base.atomic import atomic_path
 
 
 def _config(clips_dir: Path) -> ClipsConfig:

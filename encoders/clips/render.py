@@ -19,9 +19,6 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 from numpy.typing import NDArray
 
-from common.atomic import atomic_directory, atomic_write_text
-from common.checksums import file_checksums
-from common.memory import check_memory
 from encoders.clips import layout
 from encoders.clips.config import BevSource, BevSourceChoice, ClipsConfig
 from encoders.clips.raster import MAP_CHANNELS
@@ -38,6 +35,9 @@ from scenes.bev import BevGrid
 from scenes.geometry import FloatArray, quat_to_yaw, rotmat_to_quat
 from scenes.log import Log
 from scenes.tracks import DenseTracks
+from scenesearch_base.atomic import atomic_directory, atomic_write_text
+from scenesearch_base.checksums import file_checksums
+from scenesearch_base.memory import check_memory
 
 
 def lidar_channel_names(z_bins_m: tuple[float, ...]) -> list[str]:

@@ -16,10 +16,10 @@ from typing import Any
 
 import numpy as np
 
-from common.checksums import checksum_problem
 from encoders.clips.config import BevSource, ClipsConfig
 from encoders.clips.layout import RENDER_FILE
 from scenes.tracks import DenseTracks
+from scenesearch_base.checksums import checksum_problem
 
 #: Version of the per-log files; bump when their content changes.
 RENDER_VERSION = 5

@@ -23,10 +23,10 @@ import pyarrow.parquet as pq
 from numpy.typing import NDArray
 
 from captioning.tables import BEHAVIOR_CAPTION_FIELDS
-from common.atomic import atomic_write_with
 from encoders.clips.frame_tags import FRAME_TAG_COLUMNS
 from encoders.clips.layout import CLIPS_FILE, clip_id
 from scenes.categories import CATEGORY_NAMES, Category
+from scenesearch_base.atomic import atomic_write_with
 
 HOST_TRACK_ID = "ego"
 REQUIRED_CAPTION_COLUMNS = ("log_id", "track_id", "start_ns", "end_ns", "caption")

@@ -19,11 +19,11 @@ from typing import Any
 
 import yaml
 
-from common.atomic import atomic_write_text
-from common.config import read_yaml_text, to_dict
 from encoders.config import ConfigError
 from encoders.tagging.config import TagTrainConfig
 from encoders.train_config import TrainConfig
+from scenesearch_base.atomic import atomic_write_text
+from scenesearch_base.config import read_yaml_text, to_dict
 
 PRESETS_DIR = Path(__file__).parent
 #: The file a run folder records its resolved recipe in.

@@ -38,8 +38,6 @@ import numpy as np
 import torch
 from numpy.typing import NDArray
 
-from common.atomic import atomic_write_text
-from common.folders import FolderKind, claim_folder, mark_folder
 from encoders.clips.layout import (
     BEV_LIDAR_FILE,
     BEV_MAP_FILE,
@@ -62,6 +60,8 @@ from encoders.tagging.scene_tags import (
     values_of,
 )
 from encoders.tagging.targets import has_targets, open_targets, targets_source
+from scenesearch_base.atomic import atomic_write_text
+from scenesearch_base.folders import FolderKind, claim_folder, mark_folder
 
 Pooled = dict[str, dict[str, NDArray[np.float32]]]
 
@@ -424,13 +424,13 @@ def sources_line(result: dict[str, Any]) -> str:
     return f"\nTruth of the {len(test)} test log(s): {said}.\n"
 
 
-#: The folder ``scenesearch eval-tags`` writes (:mod:`common.folders`).
+#: The folder ``scenesearch eval-tags`` writes (:mod:`scenesearch_base.folders`).
 TAG_REPORT_FOLDER = FolderKind("tag report", signature="tags.json", entries=("tags.json", "tags.md"))
 
 
 def write_report(out_dir: Path | str, result: dict[str, Any], inputs: Sequence[Path | str] = ()) -> tuple[Path, Path]:
     """``DIR/tags.json`` and ``DIR/tags.md`` (atomic), in a new, empty or tag report folder that is none
-    of ``inputs`` (:mod:`common.folders`)."""
+    of ``inputs`` (:mod:`scenesearch_base.folders`)."""
     out = Path(out_dir)
     claim_folder(out, TAG_REPORT_FOLDER, inputs)
     mark_folder(out, TAG_REPORT_FOLDER, TAG_REPORT_FOLDER.entries)

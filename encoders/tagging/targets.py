@@ -34,11 +34,6 @@ from captioning.behavior import LABELS, BehaviorTags
 from captioning.config import CaptioningConfig, RuleSet
 from captioning.map_context import JUNCTION_KINDS, junction_kind_codes, lookup, rasterize_map
 from captioning.pipeline import tag_arrays
-from common.atomic import atomic_path, atomic_write_text
-from common.checksums import checksum_problem, file_checksums
-from common.ray_cluster import Execution
-from common.ray_runner import TaskSkipped, TaskStatus, run_tasks
-from common.storage import name_of, staged_input
 from encoders.clips.layout import (
     FRAMES_FILE,
     TARGETS_STEM,
@@ -54,6 +49,11 @@ from scenes.bev import BevGrid
 from scenes.errors import ScenesError
 from scenes.log import Log
 from scenes.tracks import DenseTracks
+from scenesearch_base.atomic import atomic_path, atomic_write_text
+from scenesearch_base.checksums import checksum_problem, file_checksums
+from scenesearch_base.ray_cluster import Execution
+from scenesearch_base.ray_runner import TaskSkipped, TaskStatus, run_tasks
+from scenesearch_base.storage import name_of, staged_input
 
 #: Version of the target definitions; targets written by another version are recomputed, not reused.
 #: 2: junction kinds cover the junction's approaches, not only its outline.

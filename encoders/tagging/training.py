@@ -33,7 +33,6 @@ import torch
 from safetensors.torch import save_file
 from torch import nn
 
-from common.atomic import atomic_path, atomic_write_text
 from encoders.bev import BevTower
 from encoders.clips.layout import read_manifest
 from encoders.config import BevConfig
@@ -46,6 +45,7 @@ from encoders.tagging.data import TagWindowDataset, TargetSource, collate_window
 from encoders.tagging.head import TagHead, TagHeadConfig
 from encoders.tagging.inference import BACKBONE_FILE, HEAD_FILE, TAGGING_FILE, Tagger
 from encoders.tagging.losses import TaskBalancedSampler, downsample_targets, tag_loss
+from scenesearch_base.atomic import atomic_path, atomic_write_text
 
 METRICS_FILE = "tag_metrics.jsonl"
 

@@ -1,17 +1,17 @@
 """``scenesearch caption LOG_DIR... --out OUT_DIR [--config captioning.yaml]``: rule-based captions.
 
 Writes ``OUT_DIR/frame_tags.parquet`` and ``OUT_DIR/captions.parquet`` (see
-:mod:`captioning.pipeline`), published together (:mod:`common.publish`). Logs that cannot be
+:mod:`captioning.pipeline`), published together (:mod:`scenesearch_base.publish`). Logs that cannot be
 read are skipped and listed with the reason; so are tracks observed in single frames, or too short
 for own-behaviour tags, and a log without a map with lanes is said to have null lane tags, once.
 Exit status (as every batch command's): 0 when every log was captioned; 1 when some were skipped
 or failed (listed; the others are written); 2 when nothing was done (no log could be captioned, or
 ``--out`` is refused), leaving the previous outputs untouched. ``--out`` must be a new or empty
-folder or a captions folder, and neither a log folder nor inside one (:mod:`common.folders`); a log
+folder or a captions folder, and neither a log folder nor inside one (:mod:`scenesearch_base.folders`); a log
 given twice is captioned once.
 
 ``--workers N`` captions one log per task on a local Ray runtime, ``--ray-address`` on a cluster
-(:mod:`common.ray_runner`); the files are the same as the serial path's. Log folders and ``--out``
+(:mod:`scenesearch_base.ray_runner`); the files are the same as the serial path's. Log folders and ``--out``
 may be ``pyarrow.fs`` URIs (``s3://bucket/logs/*`` lists the logs under a prefix).
 """
 
@@ -23,9 +23,9 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from common.ray_cluster import Execution
-from common.ray_cluster import add_arguments as add_execution_arguments
-from common.storage import Location, as_location, expand, is_uri, staged_output
+from scenesearch_base.ray_cluster import Execution
+from scenesearch_base.ray_cluster import add_arguments as add_execution_arguments
+from scenesearch_base.storage import Location, as_location, expand, is_uri, staged_output
 
 if TYPE_CHECKING:
     from captioning.pipeline import LogCaptions
@@ -49,7 +49,7 @@ def run(args: argparse.Namespace) -> int:
     from captioning.config import CaptioningConfig, RuleSet, WindowStrategy
     from captioning.outputs import CAPTIONS_FOLDER
     from captioning.pipeline import caption_logs
-    from common.folders import claim_folder
+    from scenesearch_base.folders import claim_folder
 
     config = CaptioningConfig.from_yaml(args.config) if args.config else CaptioningConfig()
     if args.strategy:
@@ -99,7 +99,7 @@ def _write(out: Location, results: list[LogCaptions], log_dirs: list[Location]) 
 
     from captioning.outputs import CAPTIONS_FOLDER, logs_index, output_tables, write_outputs
     from captioning.pipeline import CAPTIONS_FILENAME, FRAME_TAGS_FILENAME, LOGS_FILENAME
-    from common.folders import mark_folder
+    from scenesearch_base.folders import mark_folder
 
     if not is_uri(out):
         return write_outputs(out, results, log_dirs)

@@ -6,14 +6,14 @@ Renders each log's camera and BEV frames once into ``CLIPS_DIR/logs/<log_id>/``,
 and why (corrupt sweeps, windows outside a log, unreadable logs, duplicate clip ids) and which logs
 failed. Exit status, as every batch command's: 0 when everything was made, 1 when something was
 skipped or failed (listed), 2 when nothing was done (every log failed, or ``--out`` is refused: it
-must be a new or empty folder or a clips folder, and not an input; :mod:`common.folders`).
+must be a new or empty folder or a clips folder, and not an input; :mod:`scenesearch_base.folders`).
 
 ``--train-only LOG_DIR...`` adds logs that always go to the train split (extra training data);
 ``--val-only`` and ``--test-only`` add logs that always validate or are always held out for test. The
 logs given plainly split by a seeded hash of their id, as they would without the others.
 
 ``--workers N`` renders one log per task on a local Ray runtime, ``--ray-address`` on a cluster
-(:mod:`common.ray_runner`); the files are the same as the serial path's. Logs, ``--captions`` and
+(:mod:`scenesearch_base.ray_runner`); the files are the same as the serial path's. Logs, ``--captions`` and
 ``--out`` may be ``pyarrow.fs`` URIs (``--tag-targets`` needs a local or shared ``--out``).
 """
 
@@ -24,9 +24,9 @@ from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from common.ray_cluster import Execution, held_runtime
-from common.ray_cluster import add_arguments as add_execution_arguments
-from common.storage import Location, as_location, expand, is_uri, name_of
+from scenesearch_base.ray_cluster import Execution, held_runtime
+from scenesearch_base.ray_cluster import add_arguments as add_execution_arguments
+from scenesearch_base.storage import Location, as_location, expand, is_uri, name_of
 
 if TYPE_CHECKING:
     from encoders.clips.config import ClipsConfig
@@ -65,8 +65,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from common.config import with_option
     from encoders.clips.config import BevSourceChoice, ClipsConfig
+    from scenesearch_base.config import with_option
 
     config = ClipsConfig.from_yaml(args.config) if args.config else ClipsConfig()
     if args.frames_per_clip is not None:

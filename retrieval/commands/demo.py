@@ -11,7 +11,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from common.config import check_flag_bound
+from scenesearch_base.config import check_flag_bound
 
 #: Ray workers ``--workers`` may ask for, at most.
 MAX_WORKERS = 1024

@@ -24,9 +24,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from common.atomic import atomic_write_text, check_output_file
     from encoders.model_card import MODEL_CARD_FILE, with_section
     from retrieval.evaluation import evaluate
+    from scenesearch_base.atomic import atomic_write_text, check_output_file
 
     check_output_file(args.out)  # before the work that would fill it
     from retrieval.metrics_tables import metrics_markdown, metrics_table

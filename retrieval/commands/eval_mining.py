@@ -61,8 +61,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from common.atomic import atomic_write_text, check_output_file
     from scenarios.submission import load_submission
+    from scenesearch_base.atomic import atomic_write_text, check_output_file
 
     if args.out is not None:
         check_output_file(args.out)  # before the work that would fill it

@@ -13,9 +13,9 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from common.ray_cluster import Execution
-from common.ray_cluster import add_arguments as add_execution_arguments
-from common.storage import expand
+from scenesearch_base.ray_cluster import Execution
+from scenesearch_base.ray_cluster import add_arguments as add_execution_arguments
+from scenesearch_base.storage import expand
 
 HELP = "evaluate scene tags per attribute × region and per input (Tables 1 and 2) into DIR/tags.{md,json}"
 
@@ -34,10 +34,10 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from common.folders import claim_folder
     from encoders.tagging.ablation import parse_inputs
     from encoders.tagging.evaluate import TAG_REPORT_FOLDER, evaluate_runs, write_report
     from encoders.tagging.targets import add_attribute_targets
+    from scenesearch_base.folders import claim_folder
 
     inputs = [args.run_dir, args.clips_dir]
     claim_folder(args.out, TAG_REPORT_FOLDER, inputs)  # before the evaluation

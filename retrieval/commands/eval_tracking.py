@@ -49,9 +49,9 @@ def _print_table(title: str, figures: dict[str, dict[str, Any]]) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from common.atomic import atomic_write_text, check_output_file
     from scenes.errors import ScenesError
     from scenes.tracking.log_evaluation import Protocol, evaluate_log_pair, pair_logs, pool
+    from scenesearch_base.atomic import atomic_write_text, check_output_file
 
     check_output_file(args.out)  # before the work that would fill it
 

@@ -17,9 +17,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from common.atomic import check_output_file
-    from common.folders import check_inputs
     from retrieval.scenesearch import SceneSearch
+    from scenesearch_base.atomic import check_output_file
+    from scenesearch_base.folders import check_inputs
 
     check_output_file(args.out)  # before the work that would fill it
     check_inputs(args.out, [args.index_dir])  # a file written inside the index would break it

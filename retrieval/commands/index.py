@@ -15,9 +15,9 @@ import tempfile
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from common.config import check_flag_bound
-from common.ray_cluster import Execution
-from common.ray_cluster import add_arguments as add_execution_arguments
+from scenesearch_base.config import check_flag_bound
+from scenesearch_base.ray_cluster import Execution
+from scenesearch_base.ray_cluster import add_arguments as add_execution_arguments
 
 if TYPE_CHECKING:
     from retrieval.scenesearch import SceneSearch
@@ -127,9 +127,9 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _build_on_ray(args: argparse.Namespace, execution: Execution) -> SceneSearch:
-    from common.ray_cluster import held_runtime
     from retrieval.embedding import RayDataEmbedder
     from retrieval.scenesearch import SceneSearch
+    from scenesearch_base.ray_cluster import held_runtime
 
     scratch = None if args.embeddings_dir else Path(tempfile.mkdtemp(prefix="scenesearch-embeddings-"))
     shards = args.embeddings_dir or str(scratch)

@@ -17,8 +17,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from common.ray_cluster import Execution
-from common.ray_cluster import add_arguments as add_execution_arguments
+from scenesearch_base.ray_cluster import Execution
+from scenesearch_base.ray_cluster import add_arguments as add_execution_arguments
 
 HELP = ("answer scenario descriptions per object and timestamp on logs (Argoverse 2 scenario-mining "
         "submission pickle)")
@@ -59,10 +59,10 @@ def _descriptions(args: argparse.Namespace) -> list[str]:
 
 
 def run(args: argparse.Namespace) -> int:
-    from common.atomic import check_output_file
-    from common.folders import check_inputs
     from scenarios.mining import compile_all, mine
     from scenarios.submission import write_submission
+    from scenesearch_base.atomic import check_output_file
+    from scenesearch_base.folders import check_inputs
 
     texts = _descriptions(args)
     check_inputs(args.out, args.log_dirs)

@@ -16,7 +16,7 @@ import dataclasses
 import sys
 from pathlib import Path
 
-from common.config import check_flag_bound, with_option
+from scenesearch_base.config import check_flag_bound, with_option
 
 #: Ray-casting threads ``--threads`` may ask for, at most.
 MAX_THREADS = 1024

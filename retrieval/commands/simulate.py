@@ -4,7 +4,7 @@ Writes N logs of a SUMO-simulated city in the AV2 layout, with behaviour labels 
 metadata (see :mod:`scenes.sim`). Deterministic for a given seed. Flags override the values of
 ``--config FILE.yaml`` (a serialised :class:`scenes.sim.SimulationConfig`). SUMO runs once; writing
 each log and rendering its sensors is one task per log, on Ray with ``--workers N`` or
-``--ray-address`` (:mod:`common.ray_runner`), with the same bytes as the serial path. ``--out`` may
+``--ray-address`` (:mod:`scenesearch_base.ray_runner`), with the same bytes as the serial path. ``--out`` may
 be a ``pyarrow.fs`` URI. A flag's value above its upper bound in :class:`scenes.sim.SimulationConfig`
 (e.g. ``--logs``, ``--duration-s``, ``--egos``) is refused before anything is simulated, naming the flag.
 """
@@ -14,11 +14,11 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from common.config import with_option
-from common.ray_cluster import Execution
-from common.ray_cluster import add_arguments as add_execution_arguments
-from common.storage import as_location
 from scenes.sim import NetworkKind, PostLogHook, SimulationConfig, simulate_tracks_and_map
+from scenesearch_base.config import with_option
+from scenesearch_base.ray_cluster import Execution
+from scenesearch_base.ray_cluster import add_arguments as add_execution_arguments
+from scenesearch_base.storage import as_location
 
 #: The flag that sets each field of :class:`SimulationConfig` (what an error names).
 FLAGS = {"logs": "--logs", "duration_s": "--duration-s", "seed": "--seed", "warmup_s": "--warmup-s",

@@ -55,7 +55,7 @@ def run(args: argparse.Namespace) -> int:
         matplotlib.use("Agg")
         import matplotlib.pyplot as plt
 
-        from common.atomic import atomic_path
+        from scenesearch_base.atomic import atomic_path
 
         fig, ax = plt.subplots(figsize=(8, 2.8))
         ax.plot(t_s, values, lw=1.5)

@@ -31,7 +31,7 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from common.config import check_flag_bound, with_option
+from scenesearch_base.config import check_flag_bound, with_option
 
 if TYPE_CHECKING:
     from encoders.presets import Recipe

@@ -50,7 +50,7 @@ def stale(root: Path = ROOT) -> list[str]:
 
 def write_all(root: Path = ROOT) -> list[str]:
     """Rewrite every generated page; returns the pages whose content changed."""
-    from common.atomic import atomic_write_text
+    from scenesearch_base.atomic import atomic_write_text
 
     changed = []
     for relative, generate in pages().items():

@@ -1,6 +1,6 @@
 """``docs/reference/configuration.md``: every key of every config file, from the config dataclasses.
 
-Each top-level config is a frozen dataclass (:mod:`common.config`); nested configs appear as dotted
+Each top-level config is a frozen dataclass (:mod:`scenesearch_base.config`); nested configs appear as dotted
 keys, as a YAML file nests them. A key's text is its entry in the ``Attributes:`` section of its
 class's docstring; its upper bound comes from the class's ``upper_bounds``.
 """

@@ -1,7 +1,7 @@
 """``docs/reference/folders.md``: each folder kind scenesearch writes, its marker, files and columns.
 
 The text comes from the docstrings of the modules that own each folder, the file names from their
-:class:`common.folders.FolderKind`, the columns from the Arrow schemas the writers use.
+:class:`scenesearch_base.folders.FolderKind`, the columns from the Arrow schemas the writers use.
 """
 
 from __future__ import annotations
@@ -51,7 +51,7 @@ def _doc(module_name: str) -> list[str]:
 
 def markdown() -> str:
     """The page (Markdown)."""
-    from common import folders
+    from scenesearch_base import folders
 
     lines = ["# Folder formats", "", GENERATED, ""]
     kinds = []
@@ -62,7 +62,7 @@ def markdown() -> str:
                       ", ".join(code(e) for e in kind.entries)])
     header = ["folder", "kind in its marker", "written by", "signature file", "entries its writers make"]
     lines += [*table(header, kinds), ""]
-    lines += [f"## Markers: `{folders.MARKER_FILE}`", "", *_doc("common.folders")]
+    lines += [f"## Markers: `{folders.MARKER_FILE}`", "", *_doc("scenesearch_base.folders")]
     for title, _, _, _, docs, schemas in FOLDERS:
         lines += [f"## {title}", ""]
         for module_name in docs:

@@ -8,7 +8,6 @@ from pathlib import Path
 
 import numpy as np
 
-from common.folders import claimed_directory
 from scenes import av2_io, schema
 from scenes.categories import CATEGORY_TO_AV2, KITTI_TO_CATEGORY, Category
 from scenes.errors import ImportFormatError
@@ -24,6 +23,7 @@ from scenes.kitti.poses import FRAME_PERIOD_NS, KITTI_EPOCH_NS, ego_trajectory_f
 from scenes.log import Log
 from scenes.metadata import LogMetadata
 from scenes.tracks import Annotations, EgoTrajectory
+from scenesearch_base.folders import claimed_directory
 
 
 @dataclass(frozen=True)

@@ -1,4 +1,4 @@
-"""Configuration of the sensor simulation: frozen dataclasses, serialised as YAML by :mod:`common.config`.
+"""Configuration of the sensor simulation: frozen dataclasses, serialised as YAML by :mod:`scenesearch_base.config`.
 
 Sensor mounting positions are in the ego frame (x forward, y left, z up, origin on the ground
 under the rear axle). They are recorded in the log's calibration as ``ego_SE3_sensor`` under the

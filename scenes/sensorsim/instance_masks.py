@@ -19,9 +19,9 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from common.atomic import atomic_write_bytes, atomic_write_text
 from scenes.av2_io import CAMERAS_DIR
 from scenes.errors import LogFormatError
+from scenesearch_base.atomic import atomic_write_bytes, atomic_write_text
 
 INSTANCE_SUFFIX = "_instance"
 TRACK_IDS_FILENAME = "instance_track_ids.json"

@@ -1,4 +1,4 @@
-"""Configuration of the city simulator: frozen dataclasses, serialised as YAML by :mod:`common.config`."""
+"""Configuration of the city simulator: frozen dataclasses, serialised as YAML by :mod:`scenesearch_base.config`."""
 
 from __future__ import annotations
 

@@ -31,10 +31,6 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 
-from common.folders import claimed_directory
-from common.ray_cluster import Execution
-from common.ray_runner import run_tasks
-from common.storage import Location, expand, is_uri, join, name_of, staged_output
 from scenes import av2_io
 from scenes.behavior import BEHAVIOR_SCHEMA, EGO_TRACK_ID, BehaviorLabel, write_behavior_labels, write_junctions
 from scenes.geometry import wrap_angle_rad
@@ -52,6 +48,10 @@ from scenes.sim.noise import apply_tracker_noise, jitter_boxes
 from scenes.sim.props import PROP_TYPES, PropType, place_props, prop_rows
 from scenes.sim.runner import CONTEXT_RADIUS_M, MARGIN_S, ObjectRows, Recording, RunPlan, run_sumo
 from scenes.tracks import Annotations, EgoTrajectory
+from scenesearch_base.folders import claimed_directory
+from scenesearch_base.ray_cluster import Execution
+from scenesearch_base.ray_runner import run_tasks
+from scenesearch_base.storage import Location, expand, is_uri, join, name_of, staged_output
 
 #: Timestamp of simulation time 0 (2023-11-14T22:13:20Z): fixed, so that logs are reproducible.
 BASE_TIMESTAMP_NS = 1_700_000_000_000_000_000

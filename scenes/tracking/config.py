@@ -1,4 +1,4 @@
-"""Tracker parameters, one frozen dataclass, serialised as YAML by :mod:`common.config`."""
+"""Tracker parameters, one frozen dataclass, serialised as YAML by :mod:`scenesearch_base.config`."""
 
 from __future__ import annotations
 

@@ -139,7 +139,7 @@ def read_detections_table(path: Path) -> Detections:
 
 def write_detections_table(path: Path, detections: Detections) -> None:
     """Write the generic detections table (Parquet), atomically."""
-    from common.atomic import atomic_path
+    from scenesearch_base.atomic import atomic_path
 
     table = pa.table(
         {

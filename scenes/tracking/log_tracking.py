@@ -8,7 +8,6 @@ from pathlib import Path
 
 import numpy as np
 
-from common.folders import claimed_directory
 from scenes import av2_io
 from scenes.log import Log
 from scenes.metadata import LogMetadata
@@ -16,6 +15,7 @@ from scenes.sensors import timestamps_in
 from scenes.tracking.config import TrackerConfig
 from scenes.tracking.detections import read_detections_table
 from scenes.tracking.tracker import track_detections
+from scenesearch_base.folders import claimed_directory
 
 
 @dataclass(frozen=True)

@@ -11,7 +11,6 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from common.folders import claimed_directory
 from scenes import av2_io
 from scenes.categories import CATEGORY_TO_AV2, Category
 from scenes.errors import ScenesError
@@ -23,6 +22,7 @@ from scenes.tracks import Annotations, EgoTrajectory
 from scenes.womd.proto import DecodeError, ObjectType, parse_scenario
 from scenes.womd.roadmap import WomdMap, vector_map_from_womd, womd_map_from_features
 from scenes.womd.tfrecord import WomdFormatError, iter_records
+from scenesearch_base.folders import claimed_directory
 
 #: WOMD object types as public categories. WOMD does not tell cars from trucks or buses, so every
 #: vehicle is a car; an unset type is counted and becomes ``other``.

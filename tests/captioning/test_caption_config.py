@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-import common.config
+import scenesearch_base.config
 from captioning.config import (
     DEFAULT_CONFIG_PATH,
     CaptioningConfig,
@@ -17,7 +17,7 @@ from captioning.config import (
     WindowStrategy,
 )
 from captioning.errors import CaptioningError, ConfigError
-from common.config import YamlConfig
+from scenesearch_base.config import YamlConfig
 
 
 def test_default_round_trips_through_yaml(tmp_path: Path) -> None:
@@ -85,7 +85,7 @@ def test_dataclass_construction_is_validated_too() -> None:
 
 def test_config_error_is_a_value_error_for_the_cli() -> None:
     assert issubclass(ConfigError, ValueError)
-    assert issubclass(ConfigError, CaptioningError) and issubclass(ConfigError, common.config.ConfigError)
+    assert issubclass(ConfigError, CaptioningError) and issubclass(ConfigError, scenesearch_base.config.ConfigError)
 
 
 #: The parts of the captioning config, by key.

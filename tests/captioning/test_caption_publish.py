@@ -15,9 +15,9 @@ import pytest
 
 from captioning.outputs import write_outputs
 from captioning.pipeline import CAPTIONS_FILENAME, FRAME_TAGS_FILENAME, LogCaptions
-from common.atomic import machine_tag
-from common.publish import GENERATIONS_DIR, current_generation, publish
 from retrieval.cli import main
+from scenesearch_base.atomic import machine_tag
+from scenesearch_base.publish import GENERATIONS_DIR, current_generation, publish
 
 from .conftest import Scene
 

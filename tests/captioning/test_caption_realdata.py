@@ -155,7 +155,8 @@ def test_stopped_car_search_finds_vehicles_that_stand_still_in_the_raw_annotatio
     over their caption's window in the raw annotations (the box centre moves less than 1 m): the first
     three all, and three in four of the first twelve results (a caption may also tell how a car that
     stood drives off, within the same window). One log keeps it to seconds (each text is embedded)."""
-    from retrieval.captions_search import CaptionSearch, caption_logs
+    from retrieval.captions_search import CaptionSearch
+    from retrieval.logs_search import caption_logs
 
     log_dir = need(AV2_WAIT)
     table, skipped = caption_logs([log_dir])

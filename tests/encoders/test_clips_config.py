@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import common.config
+import scenesearch_base.config
 from encoders.clips.config import BevSourceChoice, ClipsConfig, ClipsConfigError, Split, SplitConfig
 from encoders.clips.splits import assign_splits
 from encoders.clips.table import sample_frame_indices, window_frames
@@ -42,7 +42,7 @@ def test_config_rejects_unknown_fields_and_bad_values(tmp_path: Path, text: str,
     path.write_text(text)
     with pytest.raises(ClipsConfigError, match=message) as info:
         ClipsConfig.from_yaml(path)
-    assert str(path) in str(info.value) and isinstance(info.value, common.config.ConfigError)
+    assert str(path) in str(info.value) and isinstance(info.value, scenesearch_base.config.ConfigError)
 
 
 def test_splits_are_by_log_deterministic_and_cover_every_split() -> None:

@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-import common.config
+import scenesearch_base.config
 from encoders.config import (
     BevConfig,
     CameraConfig,
@@ -67,8 +67,8 @@ def test_a_bad_run_config_json_names_the_file(tmp_path: Path, text: str, message
 
 
 def test_errors_are_the_common_config_error() -> None:
-    assert issubclass(ConfigError, common.config.ConfigError)
-    with pytest.raises(common.config.ConfigError, match="train.yaml: unknown keys epochz"):
+    assert issubclass(ConfigError, scenesearch_base.config.ConfigError)
+    with pytest.raises(scenesearch_base.config.ConfigError, match="train.yaml: unknown keys epochz"):
         TrainConfig.from_yaml_text("epochz: 3", source="train.yaml")
 
 
@@ -159,7 +159,7 @@ def test_a_tagging_checkpoint_written_before_the_presence_weights_resumes() -> N
 # --- upper bounds -----------------------------------------------------------------------------------
 
 #: Where each bounded config sits in a TrainConfig file (its keys are named from the top).
-BOUNDED_PLACES: dict[type[common.config.YamlConfig], str] = {
+BOUNDED_PLACES: dict[type[scenesearch_base.config.YamlConfig], str] = {
     TrainConfig: "", DualEncoderConfig: "model.", TextConfig: "model.text.", CameraConfig: "model.camera.",
     TemporalConfig: "model.camera.temporal.", BevConfig: "model.bev.", FusionConfig: "model.fusion."}
 #: Other values a field needs at its bound (heads divide the width; time slots go with the slots text tower).

@@ -3,7 +3,7 @@ from pathlib import Path
 
 import pytest
 
-import common.config
+import scenesearch_base.config
 from indexes.errors import ConfigError, IndexesError, MemoryBudgetError
 from indexes.factory import AutoConfig, choose_factory, ivf_lists, train_points
 
@@ -66,4 +66,4 @@ def test_auto_config_round_trips_yaml(tmp_path: Path) -> None:
         AutoConfig.from_yaml(tmp_path / "auto.yaml")
     with pytest.raises(ConfigError, match="target_recall"):
         AutoConfig(target_recall=1.5)
-    assert issubclass(ConfigError, common.config.ConfigError) and issubclass(ConfigError, IndexesError)
+    assert issubclass(ConfigError, scenesearch_base.config.ConfigError) and issubclass(ConfigError, IndexesError)

@@ -13,11 +13,11 @@ import faiss
 import numpy as np
 import pytest
 
-from common.atomic import sweep_stale
 from indexes.errors import IndexFileError, ManifestError, ReadOnlyIndexError, UnsupportedFormatError
 from indexes.integrity import seal
 from indexes.persistence import FORMAT_VERSION
 from indexes.vector_index import VectorIndex
+from scenesearch_base.atomic import sweep_stale
 
 Data = tuple[np.ndarray, np.ndarray]
 ROOT = Path(__file__).resolve().parents[2]
@@ -201,7 +201,7 @@ def test_kill_between_the_two_renames_of_a_save(tmp_path: Path, data: Data) -> N
 
 _KILLED_SAVE = textwrap.dedent("""
     import sys
-    sys.path[:0] = [{root!r}, {root!r} + "/tests/common"]
+    sys.path[:0] = [{root!r}, {root!r} + "/tests/scenesearch_base"]
     import kill_points
     import numpy as np
     from indexes.clip_index import ClipIndex
@@ -246,9 +246,9 @@ def test_concurrent_writers_and_readers_of_one_index_never_break_each_other(tmp_
     loop = textwrap.dedent(f"""
         import sys
         sys.path.insert(0, {str(ROOT)!r})
-        import common.atomic
+        import scenesearch_base.atomic
         from indexes.vector_index import VectorIndex
-        common.atomic.SWEEP_INTERVAL_S = 0.0  # sweep on every write: the hardest case for the other writer
+        scenesearch_base.atomic.SWEEP_INTERVAL_S = 0.0  # sweep on every write: the hardest case for the other writer
         index = VectorIndex.load({str(target)!r})
         for _ in range(25):
             index.save({str(target)!r})

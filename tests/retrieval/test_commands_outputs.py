@@ -11,14 +11,14 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
-from common.folders import FolderClaimError, claim_folder, mark_folder
-from common.memory import MemoryBudgetError, check_memory
 from encoders.clips.config import ClipsConfig
 from encoders.clips.render import render_bytes
 from encoders.run_folder import claim_run_dir
 from retrieval.cli import main
 from retrieval.demo import DEMO_FOLDER
 from retrieval.index_folder import INDEX_FOLDER
+from scenesearch_base.folders import FolderClaimError, claim_folder, mark_folder
+from scenesearch_base.memory import MemoryBudgetError, check_memory
 from tests.scenes.av2_fixtures import DEV_LOGS, require
 
 

@@ -16,7 +16,6 @@ import pyarrow.parquet as pq
 import pytest
 from retrieval_fakes import FakeEmbedder, HashTextEncoder, caption_of, make_clips_dir, make_run_dir
 
-from common.atomic import sweep_stale
 from indexes.integrity import seal
 from retrieval.embedding import ModelEmbedder, model_hash
 from retrieval.errors import (
@@ -34,6 +33,7 @@ from retrieval.querying import parse_cli_filters
 from retrieval.records import SearchResult
 from retrieval.result_table import format_table
 from retrieval.scenesearch import SceneSearch
+from scenesearch_base.atomic import sweep_stale
 
 
 def _open(built: dict[str, Any]) -> SceneSearch:
@@ -287,7 +287,7 @@ def test_check_command_reports_the_corrupt_file(built: dict[str, Any], tmp_path:
 
 _KILLED_BUILD = textwrap.dedent("""
     import sys
-    sys.path[:0] = [{root!r}, {fakes!r}, {root!r} + "/tests/common"]
+    sys.path[:0] = [{root!r}, {fakes!r}, {root!r} + "/tests/scenesearch_base"]
     import kill_points
     from retrieval_fakes import FakeEmbedder, HashTextEncoder
     from retrieval.scenesearch import SceneSearch

@@ -63,8 +63,8 @@ def test_simulate_with_workers_writes_the_same_logs(data: dict[str, Path]) -> No
 
 
 def test_caption_clips_and_tag_targets_with_workers_give_the_same_bytes(data: dict[str, Path]) -> None:
-    from common.ray_cluster import Execution
     from encoders.tagging.targets import add_attribute_targets
+    from scenesearch_base.ray_cluster import Execution
 
     root, logs = data["root"], _logs(data)
     for name, extra in (("serial", []), ("ray", ["--workers", "2"])):
@@ -126,9 +126,9 @@ def test_a_worker_dying_mid_log_is_retried_then_reported(data: dict[str, Path], 
 
 def test_index_embeddings_on_ray_data_equal_the_serial_ones(data: dict[str, Path], tmp_path: Path,
                                                             monkeypatch: pytest.MonkeyPatch) -> None:
-    from common.ray_cluster import Execution
     from retrieval.embedding import ModelEmbedder, RayDataEmbedder
     from retrieval.scenesearch import SceneSearch
+    from scenesearch_base.ray_cluster import Execution
 
     clips = data["root"] / "clips_serial"
     if not (clips / "clips.parquet").exists():

@@ -155,7 +155,7 @@ def test_writes_are_atomic_on_failure(tmp_path: Path) -> None:
     def broken(_: Path) -> None:
         raise Boom
 
-    from common.atomic import atomic_write_with
+    from scenesearch_base.atomic import atomic_write_with
 
     with pytest.raises(Boom):
         atomic_write_with(path, broken)

@@ -3,7 +3,7 @@ from pathlib import Path
 
 import pytest
 
-import common.config
+import scenesearch_base.config
 from scenes.errors import ConfigError, ScenesError
 from scenes.sim.config import MAX_STEPS_PER_LOG, NetworkKind, SimulationConfig, TrackerNoiseConfig
 
@@ -67,7 +67,7 @@ def test_config_file_errors_are_scenes_and_common_config_errors(tmp_path: Path) 
     path.write_text("logs: three\n")
     with pytest.raises(ConfigError, match="key 'logs': expected an integer") as info:
         SimulationConfig.from_yaml(path)
-    assert isinstance(info.value, ScenesError) and isinstance(info.value, common.config.ConfigError)
+    assert isinstance(info.value, ScenesError) and isinstance(info.value, scenesearch_base.config.ConfigError)
     with pytest.raises(ConfigError, match="key 'network': expected one of 'grid', 'spider', 'random'"):
         SimulationConfig.from_yaml_text("network: hexagon\n")
 

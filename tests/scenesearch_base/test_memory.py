@@ -10,13 +10,13 @@ import sys
 
 import pytest
 
-from common.memory import malloc_tunables, retain_freed_memory
+from scenesearch_base.memory import malloc_tunables, retain_freed_memory
 
 #: Allocates a 64 MiB array and frees it; prints malloc's statistics (mallinfo2) while it lives and after.
 _ALLOCATE = """
 import ctypes, json, sys
 import numpy as np
-from common.memory import retain_freed_memory
+from scenesearch_base.memory import retain_freed_memory
 
 class MallInfo2(ctypes.Structure):
     _fields_ = [(name, ctypes.c_size_t) for name in

@@ -27,7 +27,7 @@ import uuid
 from collections.abc import Callable, Mapping
 from pathlib import Path
 
-from common.atomic import sweep_stale
+from scenesearch_base.atomic import sweep_stale
 
 #: Folder of the generations, inside the output folder.
 GENERATIONS_DIR = ".generations"
@@ -67,7 +67,7 @@ def remove_stale(out_dir: Path | str) -> list[Path]:
     """Remove what killed writes left behind; returns what was removed.
 
     Everything in ``.generations`` but the current generation and its link, and the temporary files
-    of killed single-file writes beside the outputs (:func:`common.atomic.sweep_stale`).
+    of killed single-file writes beside the outputs (:func:`scenesearch_base.atomic.sweep_stale`).
     """
     out = Path(out_dir)
     removed: list[Path] = []

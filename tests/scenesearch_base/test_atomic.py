@@ -13,8 +13,8 @@ from pathlib import Path
 
 import pytest
 
-import common.atomic as atomic
-from common.atomic import (
+import scenesearch_base.atomic as atomic
+from scenesearch_base.atomic import (
     aside_path,
     atomic_directory,
     atomic_path,
@@ -192,7 +192,7 @@ _KILLED_SWAP = textwrap.dedent("""
     from pathlib import Path
     sys.path[:0] = [{root!r}, {here!r}]
     import kill_points
-    from common.atomic import atomic_directory, atomic_path
+    from scenesearch_base.atomic import atomic_directory, atomic_path
     target, point = Path({target!r}), {point!r}
     kill_points.install(target, point)
     if point == "file_write":

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from common.folders import (
+from scenesearch_base.folders import (
     MARKER_FILE,
     FolderClaimError,
     FolderKind,

@@ -10,7 +10,7 @@ from typing import ClassVar, Literal
 
 import pytest
 
-from common.config import (
+from scenesearch_base.config import (
     ConfigError,
     YamlConfig,
     from_dict,

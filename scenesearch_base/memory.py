@@ -15,7 +15,7 @@ no ``mmap``) and never trim that heap's freed top, so freed blocks are reused wi
 - in every process started from it afterwards (Ray's local workers, the training launcher's
   processes), through ``GLIBC_TUNABLES`` in the environment (:func:`malloc_tunables`), which glibc
   reads when a process starts; a joined Ray cluster's workers get it through the job's runtime
-  environment (:func:`common.ray_cluster.ray_runtime`).
+  environment (:func:`scenesearch_base.ray_cluster.ray_runtime`).
 
 The command line's ``main`` and the benchmarks call it first; workers and launched processes get it
 from their environment, not by calling it: a worker's task runs on a thread that already has its own

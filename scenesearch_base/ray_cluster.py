@@ -157,9 +157,9 @@ def _host_ips(host: str) -> set[str]:
 
 
 def _worker_env() -> dict[str, Any]:
-    """The job's runtime environment: workers reuse freed memory (see :mod:`common.memory`), on this
+    """The job's runtime environment: workers reuse freed memory (see :mod:`scenesearch_base.memory`), on this
     machine's runtime and on a cluster's nodes alike."""
-    from common.memory import malloc_tunables
+    from scenesearch_base.memory import malloc_tunables
 
     return {"env_vars": {"GLIBC_TUNABLES": malloc_tunables(os.environ.get("GLIBC_TUNABLES", ""))}}
 

@@ -1,6 +1,6 @@
 """Fault injection for the kill tests: a child process imports this and SIGKILLs itself at a chosen point.
 
-Points of an atomic write or directory swap of ``target`` (see :mod:`common.atomic`):
+Points of an atomic write or directory swap of ``target`` (see :mod:`scenesearch_base.atomic`):
 
 * ``before_swap``: just before the previous directory is moved aside;
 * ``between_renames``: after it was moved aside, before the new one is moved in;
@@ -10,7 +10,7 @@ Points of an atomic write or directory swap of ``target`` (see :mod:`common.atom
 
 Usage in the child::
 
-    sys.path.insert(0, "<repo>/tests/common")
+    sys.path.insert(0, "<repo>/tests/scenesearch_base")
     import kill_points
     kill_points.install(target, point)
 """

@@ -3,7 +3,7 @@
 >>> report = run_tasks(caption_one, log_dirs, Execution(workers=2), labels=[str(p) for p in log_dirs])
 >>> [o.value for o in report.outcomes if o.status is TaskStatus.DONE]    # input order, whatever finished first
 
-:class:`~common.ray_cluster.Execution` says where the tasks run: ``Execution()`` in this process,
+:class:`~scenesearch_base.ray_cluster.Execution` says where the tasks run: ``Execution()`` in this process,
 one after the other; ``Execution(workers=N)`` on a Ray runtime started here with N CPUs (one task
 per CPU); and ``Execution(address="HOST:PORT" | "auto")`` on an existing Ray cluster (``ray start
 --head`` on its head node). A runtime already started in this process (``ray.init``) is reused and
@@ -40,7 +40,7 @@ from dataclasses import dataclass
 from enum import StrEnum
 from typing import Any, Generic, TypeVar
 
-from common.ray_cluster import Execution, cluster_cpus, import_ray, one_line, ray_runtime
+from scenesearch_base.ray_cluster import Execution, cluster_cpus, import_ray, one_line, ray_runtime
 
 R = TypeVar("R")
 

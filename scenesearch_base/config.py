@@ -38,7 +38,7 @@ from typing import Any, ClassVar, Self, TypeVar
 
 import yaml
 
-from common.atomic import atomic_write_text
+from scenesearch_base.atomic import atomic_write_text
 
 T = TypeVar("T")
 

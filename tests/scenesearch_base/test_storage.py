@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from common.storage import (
+from scenesearch_base.storage import (
     as_location,
     exists,
     expand,

@@ -9,13 +9,13 @@ writer touches a folder, :func:`claim_folder` checks it:
 - a missing or empty folder is taken;
 - a folder marked with another kind is refused (an index is never written over clips);
 - a folder marked with this kind is taken. A writer that replaces the whole folder
-  (:func:`common.atomic.atomic_directory` with a ``kind``) also refuses one that holds entries no
+  (:func:`scenesearch_base.atomic.atomic_directory` with a ``kind``) also refuses one that holds entries no
   writer of this kind made, such as a user's notes left inside, so that they are never deleted;
 - an unmarked folder is taken only when a writer of this kind made it before markers existed: its
   signature file is there and every entry has one of the kind's names. Anything else is refused,
   naming a few of the entries it holds.
 
-Temporary entries of killed writes (:mod:`common.atomic`) are never counted as the folder's content.
+Temporary entries of killed writes (:mod:`scenesearch_base.atomic`) are never counted as the folder's content.
 Folders given as URIs are not checked: an object store has no folders to own.
 """
 
@@ -29,7 +29,7 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
-from common.atomic import atomic_directory, atomic_write_text, is_temporary
+from scenesearch_base.atomic import atomic_directory, atomic_write_text, is_temporary
 
 #: The marker file in every folder scenesearch writes.
 MARKER_FILE = ".scenesearch.json"
@@ -184,7 +184,7 @@ def mark_folder(folder: Path | str, kind: FolderKind, entries: Iterable[str] | N
 @contextmanager
 def claimed_directory(target: Path | str, kind: FolderKind, inputs: Iterable[Path | str | None] = (),
                       overwrite: bool = True) -> Iterator[Path]:
-    """:func:`common.atomic.atomic_directory` for a folder of ``kind``: claimed first, marked when complete.
+    """:func:`scenesearch_base.atomic.atomic_directory` for a folder of ``kind``: claimed first, marked when complete.
 
     The new folder replaces ``target`` (with ``overwrite``) only when :func:`claim_folder` takes it
     as a whole; its marker lists what the caller wrote into the temporary folder.

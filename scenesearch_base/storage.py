@@ -21,7 +21,7 @@ from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
-from common.atomic import atomic_write_with
+from scenesearch_base.atomic import atomic_write_with
 
 _URI = re.compile(r"^[A-Za-z][A-Za-z0-9+.-]*://")
 

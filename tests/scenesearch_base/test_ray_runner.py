@@ -15,8 +15,8 @@ sys.path.insert(0, str(Path(__file__).parent))
 
 import ray_tasks
 
-from common.ray_cluster import ClusterError, Execution, check_reachable, ray_runtime, split_address
-from common.ray_runner import ChunkSizer, TaskSkipped, TaskStatus, run_tasks
+from scenesearch_base.ray_cluster import ClusterError, Execution, check_reachable, ray_runtime, split_address
+from scenesearch_base.ray_runner import ChunkSizer, TaskSkipped, TaskStatus, run_tasks
 
 
 def _square(x: int) -> int:

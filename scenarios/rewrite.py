@@ -1,0 +1,80 @@
+"""Rewrites of program nodes that the parser applies as it reads modifiers: a relation tightened or
+bounded, a modifier negated, the states left out of a later step, the subject replaced."""
+
+from __future__ import annotations
+
+import dataclasses
+
+from scenarios.program import (
+    AllOf,
+    Between,
+    ForAtLeast,
+    Has,
+    Is,
+    Node,
+    Objects,
+    Then,
+    Together,
+    While,
+)
+
+
+def closer(node: Node) -> Node:
+    """``node`` with its relation tightened ("following closely": within 10 m; "near": within 3 m)."""
+    if isinstance(node, Has) and node.relation in ("following", "near", "direction"):
+        tight = 10.0 if node.relation != "near" else 3.0
+        return within(node, tight)
+    return node
+
+
+def within(node: Node, within_m: float) -> Node:
+    """A relation ``node`` limited to ``within_m``; any other node as it is."""
+    if not isinstance(node, Has) or node.relation in ("heading", "passed_by", "crossed_by"):
+        return node
+    return dataclasses.replace(node, params=(*[(k, v) for k, v in node.params if k != "within_m"],
+                                             ("within_m", within_m)))
+
+
+def negated(after: Node, before: Node) -> Node:
+    """``after`` (``before`` with one more modifier) with that modifier negated."""
+    if isinstance(after, Is | Has) and after != before:
+        return dataclasses.replace(after, negate=not after.negate)
+    return after
+
+
+#: Predicates of what an object is doing at a moment: a later step of a sequence does not inherit them.
+STATES = ("stopped", "moving", "parked", "stationary", "braking", "accelerating")
+
+
+def without_states(node: Node) -> Node:
+    """``node`` without its state predicates (:data:`STATES`) along its subjects: "a stopped vehicle in
+    our lane" → "a vehicle in our lane", the objects a next step ("… then moves") is about."""
+    match node:
+        case Is(subject) if node.predicate in STATES:
+            return without_states(subject)
+        case Is(subject):
+            return dataclasses.replace(node, subject=without_states(subject))
+        case Has() if node.reverse:
+            return dataclasses.replace(node, other=without_states(node.other))
+        case Has(subject):
+            return dataclasses.replace(node, subject=without_states(subject))
+    return node
+
+
+def with_subject(node: Node, subject: Node) -> Node:
+    """``node`` with its innermost subject (:func:`scenarios.program.subject_of`) replaced by ``subject``."""
+    match node:
+        case Objects():
+            return subject
+        case Is(inner) | Between(inner) | Together(inner) | ForAtLeast(inner) | While(inner):
+            field = dataclasses.fields(node)[0].name
+            return dataclasses.replace(node, **{field: with_subject(inner, subject)})  # type: ignore[arg-type]
+        case Has() if node.reverse:
+            return dataclasses.replace(node, other=with_subject(node.other, subject))
+        case Has(inner):
+            return dataclasses.replace(node, subject=with_subject(inner, subject))
+        case Then(first):
+            return dataclasses.replace(node, first=with_subject(first, subject))
+        case AllOf((first, *rest)):
+            return AllOf((with_subject(first, subject), *rest))
+    return node

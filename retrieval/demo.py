@@ -135,7 +135,8 @@ class Demo:
                          "batch_size": c.batch_size}
         upto["index"] = upto["train"]
         upto["eval"] = upto["train"]
-        upto["report"] = {**upto["train"], "queries": list(c.queries), "top_k": c.top_k}
+        upto["report"] = {**upto["train"], "queries": list(c.queries), "scenario_query": c.scenario_query,
+                          "top_k": c.top_k}
         return upto[stage]
 
     def _marker(self, stage: str) -> Path:
@@ -265,6 +266,7 @@ class Demo:
         from retrieval.metrics_tables import metrics_table
         from retrieval.report import Example, write_report
         from retrieval.result_table import format_table
+        from retrieval.scenario_report import scenario_section
         from retrieval.scenesearch import SceneSearch
         from retrieval.tag_report import tag_sections
 
@@ -278,6 +280,9 @@ class Demo:
             results = search.search_text(query, k=k)
             examples.append(Example(query, results))
             self.say(f'\ntext → clip: "{query}"\n{format_table(results)}')
+        scenario_html, scenario_results, match = scenario_section(search, self.config.scenario_query, k, self.out_dir)
+        self.say(f'\nscenario query: "{self.config.scenario_query}" → '
+                 f'{match.compiled.text if match.compiled else match.fallback}\n{format_table(scenario_results)}')
         caption_query = self.config.queries[-1]
         caption_results = search.search_captions(caption_query, k=k)
         examples.append(Example(caption_query, caption_results, mode="rule-caption search"))
@@ -288,10 +293,10 @@ class Demo:
         path = write_report(self.out_dir, metrics, examples, run_dir=self.run_dir, embedding_map=(x, actions),
                             stage_timings_s=timings, notes=[f"settings: {settings}",
                                                             f"index: {self.index_dir} ({len(search)} clips)"],
-                            sections=tag_sections(self.run_dir, self.clips_dir, [*self.log_dirs(),
+                            sections=[scenario_html, *tag_sections(self.run_dir, self.clips_dir, [*self.log_dirs(),
                                                                                  *self.val_log_dirs()], meta,
                                                   self.out_dir, self.say,
-                                                  (metrics or {}).get("tagging")))
+                                                  (metrics or {}).get("tagging"))])
         self.say(f"\nwrote {path}")
         return str(path)
 

@@ -12,6 +12,8 @@ DEFAULT_QUERIES = (
     "a stopped car in the ego lane",
     "a car in the oncoming lane approaches, then moves away",
 )
+#: The report's scenario query: a relation between objects, answered by its program over tracks.
+DEFAULT_SCENARIO_QUERY = "a bus with a car behind it"
 #: Share of the demo's logs in the validation split.
 VAL_FRACTION = 0.15
 @dataclass(frozen=True)
@@ -61,6 +63,7 @@ class DemoConfig:
             mAP and cost temporal order (README, "Extra logs on two road networks"). A random log
             holds about 1.7 times the clips of a grid log.
         queries: example queries shown and put in the report.
+        scenario_query: the report's scenario query, shown with its program and the objects it selects.
         top_k: results shown per example query.
         workers: Ray workers of the per-log stages that take most of their time in one process: the
             simulation of the sensor logs and the clips (``--workers``; outputs are the same bytes as
@@ -89,6 +92,7 @@ class DemoConfig:
     jitter_share: float = 0.5
     extra_networks: tuple[str, ...] = ("grid",)
     queries: tuple[str, ...] = DEFAULT_QUERIES
+    scenario_query: str = DEFAULT_SCENARIO_QUERY
     top_k: int = 3
     workers: int | None = None
 

@@ -108,9 +108,9 @@ class Skipped:
 def caption_rows(table: pa.Table) -> tuple[pa.Table, list[Skipped]]:
     """The metadata table of a caption (or clip) table: one row per unique moment with a caption.
 
-    Adds ``clip_id`` (:func:`encoders.clips.layout.clip_id`) when absent; drops rows without a caption
-    and repeated ids (reported). Keeps ``paraphrases`` and ``canonical_caption`` for
-    :func:`text_variants` (they are not metadata).
+    Adds ``clip_id`` (:func:`encoders.clips.layout.clip_id`) when absent; drops rows without a caption,
+    rows that end before they start, and repeated ids (each reported). Keeps ``paraphrases`` and
+    ``canonical_caption`` for :func:`text_variants` (they are not metadata).
     """
     missing = [c for c in ("log_id", "track_id", "start_ns", "caption") if c not in table.column_names]
     if "caption" in missing and "canonical_caption" in table.column_names:
@@ -128,9 +128,14 @@ def caption_rows(table: pa.Table) -> tuple[pa.Table, list[Skipped]]:
     skipped: list[Skipped] = []
     seen: set[str] = set()
     mask = np.zeros(table.num_rows, dtype=bool)
+    starts = table.column("start_ns").to_pylist()
+    ends = table.column("end_ns").to_pylist() if "end_ns" in table.column_names else starts
     for i, (cid, cap) in enumerate(zip(table.column("clip_id").to_pylist(), table.column("caption").to_pylist())):
         if not cap or not str(cap).strip():
             skipped.append(Skipped(str(cid), "no caption"))
+        elif starts[i] is None or ends[i] is None or ends[i] < starts[i]:
+            skipped.append(Skipped(str(cid), f"field 'end_ns' ({ends[i]}) is before field 'start_ns' ({starts[i]})"
+                                   if starts[i] is not None and ends[i] is not None else "no start_ns or end_ns"))
         elif cid in seen:
             skipped.append(Skipped(str(cid), "repeated clip id (kept the first row)"))
         else:

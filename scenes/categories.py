@@ -95,6 +95,8 @@ def category_from_label(label: str) -> Category | None:
     """
     if label in AV2_TO_CATEGORY:
         return AV2_TO_CATEGORY[label]
+    if label != label.strip():  # "PEDESTRIAN " from a hand-made table: the label it plainly is
+        return category_from_label(label.strip())
     if label.upper() in AV2_TO_CATEGORY:  # AV2's labels written in another case
         return AV2_TO_CATEGORY[label.upper()]
     if label in KITTI_TO_CATEGORY:

@@ -340,6 +340,26 @@ def check_bounds(path: Path, columns: Mapping[str, NDArray[np.floating]], bound_
     return problems
 
 
+#: Largest roll or pitch of a believable ego pose, in degrees (the steepest streets tilt a car by about 20°).
+MAX_EGO_TILT_DEG = 45.0
+
+
+def check_upright(path: Path, quat_wxyz: NDArray[np.floating]) -> list[Problem]:
+    """Ego poses that roll or pitch the vehicle beyond :data:`MAX_EGO_TILT_DEG`: most often quaternions
+    written scalar-last (x, y, z, w) into the (qw, qx, qy, qz) columns, which turns the car on its side.
+    ``quat_wxyz``: (N, 4) unit quaternions; names the first row."""
+    w, x, y, z = (np.asarray(quat_wxyz, dtype=np.float64)[:, i] for i in range(4))
+    roll_deg = np.degrees(np.arctan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y)))
+    pitch_deg = np.degrees(np.arcsin(np.clip(2 * (w * y - z * x), -1.0, 1.0)))
+    tilted = (np.abs(roll_deg) > MAX_EGO_TILT_DEG) | (np.abs(pitch_deg) > MAX_EGO_TILT_DEG)
+    if not tilted.any():
+        return []
+    row = int(np.argmax(tilted))
+    return [Problem(path, f"the ego is rolled {roll_deg[row]:.0f}° and pitched {pitch_deg[row]:.0f}° "
+                          f"({int(tilted.sum())} of {tilted.shape[0]} poses beyond ±{MAX_EGO_TILT_DEG:g}°): are the "
+                          "quaternions in (qw, qx, qy, qz) order?", field="qw,qx,qy,qz", row=row)]
+
+
 def check_box_sizes(path: Path, size_lwh_m: NDArray[np.floating]) -> list[Problem]:
     """Box sizes that are not positive or exceed :data:`MAX_BOX_SIZE_M`. ``size_lwh_m``: (N, 3)."""
     columns = {name: size_lwh_m[:, axis] for axis, name in enumerate(SIZE_COLUMNS)}

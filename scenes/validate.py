@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from scenes import av2_io, map_schema, schema
+from scenes.calibration import CameraIntrinsics
 from scenes.errors import Problem, collect_problems
 from scenes.log import Log, log_folder_problem
 from scenes.sensors import read_lidar_sweep, timestamps_in
@@ -87,6 +88,21 @@ def check_camera_frame_file(path: Path) -> list[Problem]:
     return []
 
 
+def check_frame_size(path: Path, intrinsics: CameraIntrinsics) -> list[Problem]:
+    """A camera image of another size than its intrinsics say (another camera's, or resized): boxes would be
+    projected onto the wrong pixels. The first frame of each camera is decoded for its size."""
+    import cv2
+
+    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if image is None:
+        return []  # unreadable: check_camera_frame_file and the readers say so
+    height_px, width_px = image.shape[:2]
+    if (width_px, height_px) == (intrinsics.width_px, intrinsics.height_px):
+        return []
+    return [Problem(path, f"the image is {width_px}×{height_px} px, the camera's intrinsics say "
+                          f"{intrinsics.width_px}×{intrinsics.height_px} px", field="width_px,height_px")]
+
+
 def validate_log(log_dir: Path | str, max_pose_gap_s: float = schema.DEFAULT_MAX_POSE_GAP_S) -> ValidationReport:
     """Run every check of the log contract on one log folder, including the parts that
     :meth:`scenes.log.Log.open` reads lazily (map, calibration, LiDAR sweeps, camera frames,
@@ -135,6 +151,12 @@ def validate_log(log_dir: Path | str, max_pose_gap_s: float = schema.DEFAULT_MAX
             problems.extend(check_camera_frame_file(cameras_dir / name / f"{int(ts)}.jpg"))
         if calibration is not None and calibration.intrinsics and name not in calibration.intrinsics:
             warnings.append(f"camera '{name}' has no intrinsics")
+        if calibration is not None and stamps.shape[0] and name not in calibration.ego_SE3_sensor:
+            warnings.append(f"camera '{name}' has {stamps.shape[0]} frames but no row in "
+                            f"{av2_io.EXTRINSICS_PATH}: its frames cannot be placed")
+        if calibration is not None and stamps.shape[0] and name in calibration.intrinsics:
+            problems.extend(check_frame_size(cameras_dir / name / f"{int(stamps[0])}.jpg",
+                                             calibration.intrinsics[name]))
 
     if log is not None:
         # Frames are the annotated timestamps: sweeps without annotations (a log cut to a few

@@ -172,10 +172,26 @@ def from_yaml_text(cls: type[T], text: str, source: str = "<text>", error: type[
     return from_dict(cls, read_yaml_text(text, source, error), source=source, error=error)
 
 
+class _UniqueKeyLoader(yaml.SafeLoader):
+    """A safe loader that refuses a key given twice in one mapping (PyYAML keeps the last silently, so
+    ``lr: 0.001`` then ``lr: 0.5`` would train at 0.5 without a word)."""
+
+    def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict[Any, Any]:
+        seen: set[Any] = set()
+        for key_node, _ in node.value:
+            key = self.construct_object(key_node, deep=deep)  # type: ignore[no-untyped-call]
+            if key in seen:
+                raise yaml.constructor.ConstructorError(
+                    None, None, f"key {key!r} appears twice in one mapping (which one is meant?)", key_node.start_mark)
+            seen.add(key)
+        return super().construct_mapping(node, deep=deep)
+
+
 def read_yaml_text(text: str, source: str = "<text>", error: type[ConfigError] = ConfigError) -> Any:
-    """The data of a YAML text; a syntax error raises ``error`` naming ``source``, the line and the column."""
+    """The data of a YAML text; a syntax error or a key given twice raises ``error`` naming ``source``, the line
+    and the column."""
     try:
-        return yaml.safe_load(text)
+        return yaml.load(text, Loader=_UniqueKeyLoader)
     except yaml.YAMLError as exc:
         where = getattr(exc, "problem_mark", None)
         line = f" (line {where.line + 1}, column {where.column + 1})" if where is not None else ""

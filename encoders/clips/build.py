@@ -333,6 +333,9 @@ def _log_line(log_id: str, res: LogClips) -> str:
         extra += f", {len(stats['corrupt_sweeps'])} corrupt sweep(s) skipped"
     if stats.get("corrupt_camera_frames"):
         extra += f", {len(stats['corrupt_camera_frames'])} corrupt camera file(s) skipped"
+    if stats.get("camera_frames") and stats.get("camera_mask_source") == "none":
+        extra += (", no object masks from the camera: it has no intrinsics or no extrinsics row in the calibration "
+                  "(so no clip has the camera)")
     if res.rerendered:
         extra += f"; rendered again, the earlier rendering not reused: {res.rerendered}"
     elif res.reused:

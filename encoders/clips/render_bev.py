@@ -92,6 +92,10 @@ def render_lidar_occupancy(
                 stats.corrupt_sweeps.append(f"{int(sweep_ts[j])}.feather: {exc.problems[0].message}")
                 cache[j] = None
                 return None
+            if xyz.shape[0] == 0:  # as `validate` says, a sweep with no points: its frames would read as empty
+                stats.corrupt_sweeps.append(f"{int(sweep_ts[j])}.feather: sweep has no points")
+                cache[j] = None
+                return None
             keep = (np.abs(xyz[:, 0]) < reach) & (np.abs(xyz[:, 1]) < reach)
             keep &= (xyz[:, 2] >= b.z_bins_m[0]) & (xyz[:, 2] < b.z_bins_m[-1] + 5.0)
             cache[j] = xyz[keep]

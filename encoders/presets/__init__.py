@@ -94,7 +94,7 @@ def preset(name: str) -> Recipe:
     path = PRESETS_DIR / f"{name}.yaml"
     if not path.is_file():
         raise ConfigError(f"unknown preset {name!r} (presets: {', '.join(preset_names())})")
-    return _from_mapping(yaml.safe_load(path.read_text(encoding="utf-8")), name, str(path))
+    return _from_mapping(read_yaml_text(path.read_text(encoding="utf-8"), str(path), ConfigError), name, str(path))
 
 
 def run_recipe(run_dir: Path) -> Recipe | None:

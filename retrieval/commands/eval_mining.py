@@ -206,8 +206,22 @@ def _link_logs(dataset_dir: Path, stand_in: dict[str, str], links: Path) -> Path
                 raise FileNotFoundError(f"--dataset-dir {dataset_dir}: {log_dir / '/'.join(parts)} not found "
                                         "(the region-of-interest filter needs the log's poses, vector map and "
                                         "map rasters); leave out --dataset-dir to score without it")
+        for raster in log_dir.glob("map/*_ground_height_surface____*.npy"):
+            _check_raster(raster)
         (links / name).symlink_to(log_dir.resolve(), target_is_directory=True)
     return links
+
+
+def _check_raster(path: Path) -> None:
+    """A map raster the evaluator's region-of-interest filter can read whole (a truncated one aborts it)."""
+    import numpy as np
+
+    try:
+        array = np.load(path, mmap_mode="r", allow_pickle=False)
+        if array.ndim != 2:
+            raise ValueError(f"expected a 2-D array, got shape {array.shape}")
+    except (OSError, ValueError) as exc:
+        raise ValueError(f"--dataset-dir: {path}: not a readable map raster ({exc})") from None
 
 
 def _read_by_class(folder: Path) -> dict[str, dict[str, float]]:

@@ -88,7 +88,10 @@ def _serve(args: argparse.Namespace, limits: ServiceLimits, sockets: list[socket
     if args.logs:
         from retrieval.service.tags_api import register_tag_routes
         from retrieval.tagging import TagSearch
+        from scenes.log import Log
 
+        for log_dir in args.logs:  # a log that does not open would answer its first tag query with a 500
+            Log.open(log_dir)
         run_dir = Path(search.manifest.run_dir)
         if not (run_dir / "tagging.json").is_file():
             raise ValueError(f"--logs: the run {run_dir} was trained without tagging; tag queries are unavailable")

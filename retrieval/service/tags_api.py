@@ -40,6 +40,7 @@ from retrieval.errors import InvalidKError
 from retrieval.querying import check_k
 from retrieval.service.limits import SearchGate, ServiceLimits, check_chars
 from retrieval.tagging import TagSearch
+from scenes.errors import ScenesError
 
 T = TypeVar("T")
 
@@ -58,6 +59,8 @@ def register_tag_routes(app: FastAPI, search: TagSearch, log_dirs: Sequence[Path
                     return fn()
                 except TagError as exc:
                     raise HTTPException(422, str(exc)) from None
+                except ScenesError as exc:  # a served log that fails to read (changed since the start)
+                    raise HTTPException(503, f"the log cannot be read: {exc}") from None
 
         return await (gate.run(locked) if gate is not None else run_in_threadpool(locked))
 

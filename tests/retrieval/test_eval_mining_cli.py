@@ -123,3 +123,21 @@ def test_a_dataset_dir_that_is_not_the_logs_folder_names_the_path_tried(
     expected = {"missing": f"--dataset-dir {logs}: does not exist", "a_file": f"--dataset-dir {logs}: is not a folder",
                 "without_the_log": f"no folder {logs / AV2_LOG} for the log '{AV2_LOG}'"}[kind]
     assert expected in err and "Traceback" not in err
+
+
+def test_a_truncated_map_raster_in_the_dataset_dir_is_named(
+        tmp_path: Path, gt_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    import numpy as np
+
+    log = tmp_path / "logs" / AV2_LOG
+    (log / "map").mkdir(parents=True)
+    (log / "city_SE3_egovehicle.feather").write_bytes(b"")
+    (log / "map" / "log_map_archive_x.json").write_text("{}")
+    (log / "map" / "x___img_Sim2_city.json").write_text("{}")
+    raster = log / "map" / "x_ground_height_surface____PIT.npy"
+    np.save(raster, np.zeros((785, 880), np.float32))
+    raster.write_bytes(raster.read_bytes()[:10_000])  # truncated
+    assert main(["eval-mining", str(gt_path), str(gt_path), "--dataset-dir", str(tmp_path / "logs")]) == 2
+    err = capsys.readouterr().err
+    assert f"{raster}: not a readable map raster" in err and "Traceback" not in err
+

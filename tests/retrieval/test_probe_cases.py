@@ -75,6 +75,9 @@ def test_columns_named_twice_and_categorical_columns(log: Path, tmp_path: Path) 
 def test_labels_in_another_case_are_read_as_the_dataset_means() -> None:
     assert category_from_label("regular_vehicle") is Category.CAR
     assert category_from_label("Box_Truck") is Category.TRUCK
+    assert category_from_label("PEDESTRIAN ") is Category.PEDESTRIAN  # a trailing space: the label it plainly is
+    assert category_from_label(" Car") is Category.CAR
+    assert category_from_label("   ") is None
 
 
 def test_a_track_whose_category_changes(log: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

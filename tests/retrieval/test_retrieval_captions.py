@@ -13,7 +13,7 @@ from retrieval_fakes import HashTextEncoder, hash_embed
 
 from captioning.text import OBJECT_HALF, caption_halves
 from indexes.integrity import seal, sha256_file
-from retrieval.captions_search import CaptionSearch, is_caption_index, text_variants
+from retrieval.captions_search import CaptionSearch, caption_rows, is_caption_index, text_variants
 from retrieval.errors import EmptyQueryError, FilterSyntaxError, IndexDirError, InvalidKError
 from retrieval.logs_search import caption_logs
 
@@ -229,3 +229,13 @@ def test_an_index_of_another_encoders_width_is_refused_at_the_query(
     assert main(["search", str(directory), "stopped car"]) == 2
     err = capsys.readouterr().err
     assert f"the index's texts were embedded in {dim} dimensions" in err and "Traceback" not in err
+
+
+def test_a_row_that_ends_before_it_starts_is_skipped_and_said() -> None:
+    table = _table()
+    ends = table.column("end_ns").to_pylist()
+    ends[0] = -1  # a hand-edited row
+    rows, skipped = caption_rows(table.set_column(table.column_names.index("end_ns"), "end_ns", pa.array(ends)))
+    assert rows.num_rows == 3  # the empty caption is skipped too
+    assert [s.reason for s in skipped] == ["field 'end_ns' (-1) is before field 'start_ns' (0)", "no caption"]
+

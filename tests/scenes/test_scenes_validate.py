@@ -397,6 +397,17 @@ def test_map_nan_coordinate(log_dir: Path) -> None:
     assert (problem.path, problem.row, problem.field) == (map_path, 1, "lane_segments[1].left_lane_boundary")
 
 
+def test_a_map_element_id_given_twice_is_refused(log_dir: Path) -> None:
+    map_path = av2_io.find_map_file(log_dir)
+    assert map_path is not None
+    text = map_path.read_text()
+    lanes_at = text.index('"lane_segments": {') + len('"lane_segments": {')
+    lane = json.dumps(json.loads(text)["lane_segments"]["1"])
+    map_path.write_text(text[:lanes_at] + f'"1": {lane}, ' + text[lanes_at:])  # the lane "1" twice
+    problem = _only(validate_log(log_dir).problems)
+    assert problem.path == map_path and "key '1' appears twice in one object" in problem.message
+
+
 def test_map_point_thousands_of_km_away_is_refused(log_dir: Path) -> None:
     map_path = av2_io.find_map_file(log_dir)
     assert map_path is not None
@@ -432,6 +443,41 @@ def test_lidar_sweep_named_outside_the_log_is_refused(log_dir: Path) -> None:
     problem = _only(_open_problems(log_dir))
     assert (problem.path, problem.field) == (odd, "timestamp_ns (file name)")
     assert "outside the ego poses" in problem.message
+
+
+def test_a_camera_without_extrinsics_is_a_warning(log_dir: Path) -> None:
+    extrinsics = log_dir / av2_io.EXTRINSICS_PATH
+    _edit(extrinsics, lambda t: t.filter(pa.array([name != "front" for name in t.column("sensor_name").to_pylist()])))
+    report = validate_log(log_dir)
+    assert report.ok and any("camera 'front' has 1 frames but no row in calibration/egovehicle_SE3_sensor.feather"
+                             in w for w in report.warnings)
+
+
+def test_camera_frames_of_another_size_than_the_intrinsics_are_refused(log_dir: Path) -> None:
+    cam = CameraIntrinsics("front", 500.0, 500.0, 64.0, 48.0, 128, 96)  # the frames are 64 × 48
+    av2_io.write_calibration(log_dir, Calibration({"front": SE3.identity()}, {"front": cam}))
+    problem = _only(validate_log(log_dir).problems)
+    assert problem.path == log_dir / "sensors" / "cameras" / "front" / f"{T0}.jpg"
+    assert problem.message == "the image is 64×48 px, the camera's intrinsics say 128×96 px"
+
+
+def test_ego_quaternions_written_scalar_last_are_refused(log_dir: Path) -> None:
+    """(x, y, z, w) in the (qw, qx, qy, qz) columns: still unit quaternions, but the car lies on its side."""
+    def scalar_last(t: pa.Table) -> pa.Table:
+        w, x, y, z = (t.column(c) for c in ("qw", "qx", "qy", "qz"))
+        for name, values in zip(("qw", "qx", "qy", "qz"), (x, y, z, w)):
+            t = t.set_column(t.column_names.index(name), name, values)
+        return t
+
+    pose_ts = T0 + np.arange(0, 9) * 50_000_000
+    t_s = (pose_ts - T0) * 1e-9  # heading north-east: a yaw-only quaternion far from the identity
+    av2_io.write_ego_poses(log_dir, EgoTrajectory(pose_ts, yaw_to_quat(1.2 + 0.05 * t_s), np.c_[8 * t_s, 0 * t_s,
+                                                                                              0 * t_s]))
+    assert validate_log(log_dir).ok
+    _edit(log_dir / POSES, scalar_last)
+    problem = _only(_open_problems(log_dir))
+    assert (problem.path, problem.field, problem.row) == (log_dir / POSES, "qw,qx,qy,qz", 0)
+    assert "are the quaternions in (qw, qx, qy, qz) order?" in problem.message
 
 
 def test_missing_map_is_a_warning(log_dir: Path) -> None:

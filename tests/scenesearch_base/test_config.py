@@ -110,6 +110,15 @@ def test_yaml_syntax_and_top_level_errors_name_the_file(tmp_path: Path) -> None:
         from_yaml(Outer, tmp_path / "missing.yaml")
 
 
+def test_a_key_given_twice_is_refused_naming_it_and_its_line(tmp_path: Path) -> None:
+    """PyYAML would keep the last value silently; which one the person meant is not known."""
+    path = tmp_path / "twice.yaml"
+    path.write_text("epochs: 3\nname: a\nepochs: 50\n")
+    with pytest.raises(ConfigError, match=r"twice.yaml: not valid YAML \(line 3, column 1\): key 'epochs' "
+                                          r"appears twice in one mapping"):
+        from_yaml(Outer, path)
+
+
 class StageConfig(YamlConfig):
     config_error = StageConfigError
 

@@ -136,6 +136,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             return 2
         if isinstance(exc, OSError):  # a path the system refuses (permissions, a folder, a full disk)
             where = f"{exc.filename}: " if exc.filename and str(exc.filename) not in str(exc) else ""
+            if not exc.filename and getattr(args, "out", None) is not None:  # a library's write names no file
+                where = f"writing {args.out}: "
             print(f"scenesearch {args.command}: error: {where}{exc.strerror or exc}", file=sys.stderr)
             return 2
         raise

@@ -127,3 +127,21 @@ def test_a_cache_folder_that_is_not_one_is_named_as_the_cache(log: Path, tmp_pat
     err = capsys.readouterr().err
     assert f"--cache {cache}" in err and "--out" not in err
     assert (cache / "notes.txt").read_text() == "mine"
+
+
+def test_a_write_that_fails_without_a_file_name_names_the_output(log: Path, tmp_path: Path,
+                                                                   capsys: pytest.CaptureFixture[str],
+                                                                   monkeypatch: pytest.MonkeyPatch) -> None:
+    """A full disk inside a library's writer (pyarrow: "[errno 28] No space left on device", no path): the
+    one line names the output being written."""
+    import errno
+
+    def full_disk(*args: object, **kwargs: object) -> None:
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr("captioning.outputs.write_outputs", full_disk)
+    monkeypatch.setattr("retrieval.commands.caption.write_outputs", full_disk, raising=False)
+    out = tmp_path / "captions"
+    assert main(["caption", str(log), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert f"writing {out}: No space left on device" in err and "Traceback" not in err

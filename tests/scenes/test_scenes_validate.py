@@ -387,12 +387,18 @@ def test_map_not_utf8(log_dir: Path) -> None:
     assert problem.path == map_path and "unreadable map JSON" in problem.message
 
 
-def test_map_nan_coordinate(log_dir: Path) -> None:
+def _edit_map(log_dir: Path, change: Callable[[dict], None]) -> Path:
+    """Change the log's map JSON in place; its path."""
     map_path = av2_io.find_map_file(log_dir)
     assert map_path is not None
     data = json.loads(map_path.read_text())
-    data["lane_segments"]["1"]["left_lane_boundary"][1]["y"] = float("nan")
+    change(data)
     map_path.write_text(json.dumps(data))
+    return map_path
+
+
+def test_map_nan_coordinate(log_dir: Path) -> None:
+    map_path = _edit_map(log_dir, lambda d: _lane(d)["left_lane_boundary"][1].update(y=float("nan")))
     problem = _only(validate_log(log_dir).problems)
     assert (problem.path, problem.row, problem.field) == (map_path, 1, "lane_segments[1].left_lane_boundary")
 
@@ -409,11 +415,8 @@ def test_a_map_element_id_given_twice_is_refused(log_dir: Path) -> None:
 
 
 def test_map_point_thousands_of_km_away_is_refused(log_dir: Path) -> None:
-    map_path = av2_io.find_map_file(log_dir)
-    assert map_path is not None
-    data = json.loads(map_path.read_text())
-    data["lane_segments"]["1"]["left_lane_boundary"][1]["x"] = 9.0e6  # 9,000 km, inside the city bound
-    map_path.write_text(json.dumps(data))
+    # 9,000 km away, inside the bound on city coordinates
+    map_path = _edit_map(log_dir, lambda d: _lane(d)["left_lane_boundary"][1].update(x=9.0e6))
     problem = _only(validate_log(log_dir).problems)
     assert (problem.path, problem.row, problem.field) == (map_path, 1, "lane_segments[1].left_lane_boundary")
     assert "km from every ego pose" in problem.message
@@ -423,13 +426,13 @@ def test_map_point_thousands_of_km_away_is_refused(log_dir: Path) -> None:
 
 def test_map_of_another_place_is_refused(log_dir: Path, tmp_path: Path) -> None:
     """Another log's map (here: the same lane 5 km away) covers none of this log's poses."""
-    map_path = av2_io.find_map_file(log_dir)
-    assert map_path is not None
-    data = json.loads(map_path.read_text())
-    for side in ("left_lane_boundary", "right_lane_boundary"):
-        for point in data["lane_segments"]["1"][side]:
-            point["x"] += 5000.0
-    map_path.write_text(json.dumps(data))
+
+    def shift(data: dict) -> None:
+        for side in ("left_lane_boundary", "right_lane_boundary"):
+            for point in _lane(data)[side]:
+                point["x"] += 5000.0
+
+    map_path = _edit_map(log_dir, shift)
     problem = _only(validate_log(log_dir).problems)
     assert problem.path == map_path and "the map is not this log's: only 0 of 9 ego poses" in problem.message
     with pytest.raises(LogFormatError, match="not this log's"):

@@ -11,9 +11,10 @@ The sentences are split in two: ``DEV`` were seen while the description compiler
 Measured for each sentence, on the index's test clips (``split == test``): precision@10 of the default
 search (the query's scenario program selects the moments, the model ranks them), of the model alone,
 of rule-caption search and of hybrid search, and the base rate (the share of test clips the judge
-accepts: what a random ranking scores). The index is the demo's (``scenesearch demo``, default
-``demo_out``; ``SCENESEARCH_DEMO_DIR`` names another); without it the benchmark says so and measures
-nothing.
+accepts: what a random ranking scores), and the ceiling (min(relevant clips, 10) / 10: what a perfect
+ranking scores; a sentence with fewer than 10 relevant test clips cannot reach 1). The index is the
+demo's (``scenesearch demo``, default ``demo_out``; ``SCENESEARCH_DEMO_DIR`` names another); without
+it the benchmark says so and measures nothing.
 """
 
 from __future__ import annotations
@@ -111,22 +112,30 @@ def evaluate(index_dir: Path, queries: Mapping[str, Judge]) -> dict[str, dict[st
     rows = [r for r in search.views["fused"].metadata.table.to_pylist() if r.get("split") == "test"]
     out: dict[str, dict[str, float]] = {}
     for text, judge in queries.items():
-        base = sum(judge(r) for r in rows) / max(1, len(rows))
+        relevant = sum(judge(r) for r in rows)
+        base = relevant / max(1, len(rows))
         program, match = search.search_scenario(text, k=K, filters=test)
         modes = {"default": program, "model": search.search_text(text, k=K, filters=test),
                  "rule_captions": search.search_captions(text, k=K, filters=test),
                  "hybrid": search.search_hybrid(text, k=K, filters=test)}
         by_id = {str(r["clip_id"]): r for r in search.captions.metadata.table.to_pylist()}
         figures = {name: sum(judge(by_id.get(r.clip_id, {})) for r in results) / K for name, results in modes.items()}
-        out[text] = {**figures, "base_rate": base, "program_decided": float(match.fallback is None),
+        # The most any ranking can score: a sentence with 3 relevant test clips reaches P@10 0.3 at best.
+        out[text] = {**figures, "base_rate": base, "relevant": float(relevant), "ceiling": min(relevant, K) / K,
+                     "program_decided": float(match.fallback is None),
                      "matched_moments": float(len(match.clip_ids))}
     return out
 
 
 def _means(per_query: Mapping[str, Mapping[str, float]]) -> dict[str, float]:
-    names = ("default", "model", "rule_captions", "hybrid", "base_rate")
+    names = ("default", "model", "rule_captions", "hybrid", "base_rate", "ceiling")
     means = {n: round(sum(q[n] for q in per_query.values()) / max(1, len(per_query)), 3) for n in names}
     means["at_or_below_base_rate"] = float(sum(q["default"] <= q["base_rate"] for q in per_query.values()))
+    # Sentences with no relevant test clip score 0 whatever the search: counted apart.
+    means["without_relevant_clips"] = float(sum(q["relevant"] == 0 for q in per_query.values()))
+    means["at_or_below_base_rate_with_relevant_clips"] = float(sum(
+        q["default"] <= q["base_rate"] for q in per_query.values() if q["relevant"] > 0))
+    means["default_share_of_ceiling"] = round(means["default"] / means["ceiling"], 3) if means["ceiling"] else 0.0
     return means
 
 

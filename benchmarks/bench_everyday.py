@@ -5,8 +5,10 @@ moment's own rule tags and the simulator's labels (its caption row: category, ta
 ``lane:motion[:action][:context]``, the ego's tags, behaviour columns), never from the query's program.
 Each sentence's judge below is written from the sentence alone.
 
-The sentences are split in two: ``DEV`` were seen while the description compiler was written;
-``HELD_OUT`` were written with their judges before any search ran on them and are not tuned on.
+The sentences are split in three: ``DEV`` were seen while the description compiler was written;
+``FIRST_HELD_OUT`` were held out at the first measurement and read after it to find the compiler's
+gaps; ``HELD_OUT`` were written with their judges after that, before any search ran on them, and are
+not tuned on.
 
 Measured for each sentence, on the index's test clips (``split == test``): precision@10 of the default
 search (the query's scenario program selects the moments, the model ranks them), of the model alone,
@@ -82,7 +84,9 @@ DEV: dict[str, Judge] = {
     "car braking hard in front of us": lambda r: _cat(r, "car") and _has(r, lane="host", action="braking"),
     "a parked truck on the right": lambda r: _cat(r, "truck") and _has(r, lane="right*", action="parked"),
 }
-HELD_OUT: dict[str, Judge] = {
+#: Held out at the first measurement (precision@10 0.275 of a 0.417 ceiling), then read to find the
+#: compiler's gaps: development sentences since.
+FIRST_HELD_OUT: dict[str, Judge] = {
     "a cyclist riding next to us on the right": lambda r: _cat(r, "cyclist") and _has(r, lane="right*"),
     "a car pulling out of a parking spot":
         lambda r: _cat(r, "car") and _then(r, lambda s: "parked" in s or "stopped" in s,
@@ -100,6 +104,23 @@ HELD_OUT: dict[str, Judge] = {
     "a cyclist crossing the intersection": lambda r: _cat(r, "cyclist") and _has(r, context="at_intersection"),
     "we are stopped behind a car":
         lambda r: _host(r, "stationary") and _cat(r, "car") and _has(r, lane="host", action="stopped"),
+}
+#: Written with their judges after the first measurement, before the compiler changed again; not tuned on.
+HELD_OUT: dict[str, Judge] = {
+    "a car overtaking us on the left": lambda r: _cat(r, "car") and _has(r, lane="left", motion="away"),
+    "a pedestrian walking on the right side": lambda r: _cat(r, "pedestrian") and _has(r, lane="right*"),
+    "oncoming bus": lambda r: _cat(r, "bus") and _has(r, lane="oncoming"),
+    "a car in front of us slowing down": lambda r: _cat(r, "car") and _has(r, lane="host", action="braking"),
+    "a vehicle turning right at the intersection": lambda r: _cat(r, *VEHICLES) and _has(r, action="right_turn"),
+    "a cyclist approaching from behind": lambda r: _cat(r, "cyclist") and _has(r, motion="approach"),
+    "cars parked along the left side of the road": lambda r: _cat(r, "car") and _has(r, lane="left*", action="parked"),
+    "a pedestrian standing still on the crosswalk":
+        lambda r: _cat(r, "pedestrian") and _has(r, action="stopped", context="on_crosswalk"),
+    "a car merging into the right lane": lambda r: _cat(r, "car") and _has(r, action="right_lane_change"),
+    "we accelerate while a car is in front of us":
+        lambda r: _host(r, "accelerating") and _cat(r, "car") and _has(r, lane="host"),
+    "a motorcycle coming toward us": lambda r: _cat(r, "motorcycle") and _has(r, lane="oncoming", motion="approach"),
+    "a stopped truck in our lane": lambda r: _cat(r, "truck") and _has(r, lane="host", action="stopped"),
 }
 
 
@@ -144,6 +165,7 @@ def run(quick: bool = False) -> dict[str, Any]:
     index = demo / "index"
     if not (index / "manifest.json").is_file():
         return {"skipped": f"no demo index at {index}: run `make demo` (or set SCENESEARCH_DEMO_DIR) first"}
-    dev, held = evaluate(index, DEV), evaluate(index, HELD_OUT)
+    dev, first, held = evaluate(index, DEV), evaluate(index, FIRST_HELD_OUT), evaluate(index, HELD_OUT)
     return {"index": str(index), "k": K, "held_out": {"mean": _means(held), "per_query": held},
+            "first_held_out": {"mean": _means(first), "per_query": first},
             "dev": {"mean": _means(dev), "per_query": dev}}

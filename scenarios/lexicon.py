@@ -121,9 +121,11 @@ for _phrases, _name, _params in (
     ("changing lanes|lane change|lane changing|changes lanes|change lanes|switching lanes|merging|merges|"
      "swerving|weaving", "changing_lanes", ()),
     ("changing lanes to the left|changing lanes left|lane change to the left|left lane change|swerving left|"
-     "merging left", "changing_lanes", (("direction", "left"),)),
+     "merging left|changing into the left lane|changes into the left lane|change into the left lane",
+     "changing_lanes", (("direction", "left"),)),
     ("changing lanes to the right|changing lanes right|lane change to the right|right lane change|swerving right|"
-     "merging right", "changing_lanes", (("direction", "right"),)),
+     "merging right|changing into the right lane|changes into the right lane|change into the right lane",
+     "changing_lanes", (("direction", "right"),)),
     ("at crawling speed|crawling|creeping|moving slowly|slow moving|slow|slowly", "speed",
      (("min_mps", 0.1), ("max_mps", 2.0))),
     ("fast|speeding|at high speed|quickly", "speed", (("min_mps", 13.0),)),
@@ -255,7 +257,8 @@ for _phrases, _lexeme in (
 _add("not moving|isn't moving|is not moving|are not moving|aren't moving", Lexeme("pred", "moving", negate=True))
 _add("closely|too closely|too close|tightly", Lexeme("closely"))
 _add("drives off|drive off|pulls away|pull away|starts moving|start moving|takes off|sets off|starts to move|"
-     "pulls out|pulling out|drives away from a stop", Lexeme("seq", "drive_off"))
+     "pulls out|pulling out|drives away from a stop|pulling out of a parking spot|pulls out of a parking spot|"
+     "pulling out of a parking space|pulls out of a parking space", Lexeme("seq", "drive_off"))
 _add("cuts into my lane|cuts into our lane|cutting into my lane|cutting into our lane|cuts in|cutting in|cut in|"
      "cuts in front of us|cutting in front of us|merges into my lane|merges into our lane|merging into our lane|"
      "moves into the ego lane|moves into our lane|moves into my lane|moving into our lane|moving into the ego lane|"

@@ -51,6 +51,11 @@ MEANINGS = {
     "vehicle that is not moving": "not(moving(vehicle))",
     # The kind named once serves both sides of "or".
     "parked or stopped vehicle": "or(parked(vehicle), stopped(vehicle))",
+    # A lane change named by the lane it goes into; a place phrase read whole; the ego as an object takes no
+    # modifiers of its own ("on the right" is the cyclist's).
+    "a car changing into the left lane": "changing_lanes(car, direction=left)",
+    "a car pulling out of a parking spot": "then(stopped(car), moving(car), within_s=4)",
+    "a cyclist riding next to us on the right": "reverse(direction(ego, near(moving(cyclist), ego), side=right))",
 }
 
 

@@ -35,7 +35,13 @@ import torch
 from torch import nn
 
 from encoders.config import ConfigError, TextConfig
-from encoders.sentence import cache_name, inference_autocast, load_sentence_encoder, text_encoder_dtype
+from encoders.sentence import (
+    cache_name,
+    embedding_few_texts,
+    inference_autocast,
+    load_sentence_encoder,
+    text_encoder_dtype,
+)
 from encoders.timeline import SlotTextHead, slot_of_steps
 
 #: The file of a run that holds its :class:`TextFeatureCache` (frozen sentence embeddings per string).
@@ -190,7 +196,7 @@ class PretrainedText(nn.Module):
 
     def forward(self, texts: list[str], device: torch.device) -> torch.Tensor:
         """texts: B strings → (B, F)."""
-        if self.cache is None:
+        if self.cache is None or embedding_few_texts():  # a query's few texts: not into the cache
             if self.trainable:
                 return self._run(texts, device)
             with torch.no_grad(), inference_autocast(device, self.dtype):

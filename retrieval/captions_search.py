@@ -32,6 +32,7 @@ Directory layout (written atomically)::
 from __future__ import annotations
 
 import json
+import os
 import sys
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
@@ -282,6 +283,9 @@ class CaptionSearch:
             path = Path(captions)
             if path.is_dir():
                 path = path / CAPTIONS_FILENAME
+            if os.path.lexists(path) and not path.exists():  # a published generation's link left dangling
+                raise FileNotFoundError(f"{path}: a broken link (to {os.readlink(path)}, which leads nowhere: "
+                                        f"{path.resolve()} is missing); write the captions again")
             if not path.is_file():
                 raise FileNotFoundError(f"{path}: no caption table here (run `scenesearch caption` first)")
             table = pq.read_table(path)

@@ -158,9 +158,11 @@ class ModelEmbedder:
     def _encode_texts(self, texts: list[str]) -> np.ndarray:
         import torch
 
+        from encoders.sentence import few_texts
+
         rows = []
         for start in range(0, len(texts), 256):
-            with torch.inference_mode():
+            with torch.inference_mode(), few_texts(len(texts)):
                 emb = self.model.encode_text(texts[start:start + 256], normalize=True)
             rows.append(l2_normalize(_to_numpy(emb)))
         return np.concatenate(rows)

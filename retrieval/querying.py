@@ -161,7 +161,32 @@ def _checked_filters(filters: FilterSpec, metadata: MetadataStore) -> tuple[Cond
         check(conditions, metadata.table.schema, filters if isinstance(filters, str) else None)
     except FilterError as exc:
         raise FilterSyntaxError(f"{exc}; valid fields: {', '.join(valid)}") from None
+    _check_categorical_values(conditions, metadata)
     return tuple(conditions)
+
+
+#: A text field with at most this many distinct values is a vocabulary (split, category, weather): a
+#: value outside it is a typo, refused with the values it holds, rather than answered with nothing.
+MAX_VOCABULARY = 50
+
+
+def _check_categorical_values(conditions: Sequence[Condition], metadata: MetadataStore) -> None:
+    import pyarrow as pa
+
+    from indexes.filters import Op
+
+    for c in conditions:
+        if c.op not in (Op.EQ, Op.IN) or not pa.types.is_string(metadata.table.schema.field(c.field).type):
+            continue
+        present = set(metadata.table.column(c.field).to_pylist())
+        if len(present) > MAX_VOCABULARY:
+            continue
+        wanted = c.value if c.op is Op.IN else (c.value,)
+        absent = [v for v in wanted if v not in present]
+        if absent and len(absent) == len(wanted):
+            values = ", ".join(sorted(str(v) for v in present if v is not None))
+            raise FilterSyntaxError(f"filter field {c.field!r}: no clip has the value {absent[0]!r}; its values: "
+                                    f"{values}")
 
 
 def parse_cli_filters(items: Sequence[str] | None) -> FilterSpec:

@@ -92,15 +92,21 @@ def build_store(folder: Path, log_dirs: Mapping[str, str], log_ids: Iterable[str
 
 
 def log_folders_of(captions_dir: Path) -> dict[str, str]:
-    """The ``logs.json`` of a captions folder (log id → folder); empty when it has none."""
+    """The ``logs.json`` of a captions folder (log id → folder); empty when it has none.
+
+    Raises:
+        ValueError: the file is there but unreadable, or not an object of folder names (naming it).
+    """
     path = captions_dir / "logs.json"
     if not path.is_file():
         return {}
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
-        return {}
-    return {str(k): str(v) for k, v in data.items()} if isinstance(data, dict) else {}
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ValueError(f"{path}: unreadable ({exc}); write the captions again with `scenesearch caption`") from None
+    if not isinstance(data, dict) or not all(isinstance(v, str) for v in data.values()):
+        raise ValueError(f"{path}: expected an object of log id → folder, got {type(data).__name__}")
+    return {str(k): v for k, v in data.items()}
 
 
 def clip_log_folders(clips_dir: Path) -> dict[str, str]:

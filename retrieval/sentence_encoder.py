@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from encoders.config import BUNDLED_TEXT_MODEL, WHOLE_TEXT_KINDS
-from encoders.sentence import cache_name, inference_autocast, inference_dtype, shared_sentence_encoder
+from encoders.sentence import cache_name, few_texts, inference_autocast, inference_dtype, shared_sentence_encoder
 from encoders.text import TEXT_CACHE_FILE, TextFeatureCache, text_sentences
 from retrieval.embedding import EmbeddingCache
 
@@ -95,7 +95,7 @@ class SentenceEncoder:
 
 def _encode_sentences(texts: list[str], dtype: torch.dtype) -> np.ndarray:
     model = shared_sentence_encoder(BUNDLED_TEXT_MODEL, device="cpu")  # loaded once, under its own lock
-    with inference_autocast("cpu", dtype):
+    with few_texts(len(texts)), inference_autocast("cpu", dtype):
         emb = model.encode(texts, batch_size=64, convert_to_numpy=True, normalize_embeddings=True,
                            show_progress_bar=False)
     return np.asarray(emb, dtype=np.float32)

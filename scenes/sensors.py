@@ -79,7 +79,14 @@ def read_camera_frame(path: Path) -> NDArray[np.uint8]:
     """(H, W, 3) BGR image; raises :class:`LogFormatError` when the file cannot be decoded."""
     import cv2
 
-    image = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise LogFormatError.single(path, f"unreadable image: {exc}") from None
+    # libjpeg decodes a truncated file to a partly grey image with a warning on stderr only.
+    if data[:2] == b"\xff\xd8" and b"\xff\xd9" not in data[-64:]:
+        raise LogFormatError.single(path, "truncated JPEG (no end-of-image marker)")
+    image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
     if image is None:
         raise LogFormatError.single(path, "cannot decode image")
     return np.asarray(image, dtype=np.uint8)

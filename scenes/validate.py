@@ -20,6 +20,9 @@ from scenes.log import Log, log_folder_problem
 from scenes.sensors import read_lidar_sweep, timestamps_in
 
 _JPEG_MAGIC = b"\xff\xd8"
+#: End-of-image marker; writers may pad a few bytes after it.
+_JPEG_END = b"\xff\xd9"
+_JPEG_TAIL_BYTES = 64
 
 
 @dataclass(frozen=True)
@@ -77,14 +80,19 @@ def check_lidar_sweep_file(path: Path) -> list[Problem]:
 
 
 def check_camera_frame_file(path: Path) -> list[Problem]:
-    """A camera frame must be a non-empty JPEG (its first bytes are checked, not the whole image)."""
+    """A camera frame must be a whole JPEG: its first and last bytes are checked (a truncated file loses
+    its end-of-image marker), not the image between them."""
     try:
         with path.open("rb") as f:
             head = f.read(2)
+            f.seek(max(0, path.stat().st_size - _JPEG_TAIL_BYTES))
+            tail = f.read()
     except OSError as exc:
         return [Problem(path, f"unreadable image: {exc}")]
     if head != _JPEG_MAGIC:
         return [Problem(path, "not a JPEG file (empty or wrong format)")]
+    if _JPEG_END not in tail:
+        return [Problem(path, "truncated JPEG (no end-of-image marker)")]
     return []
 
 

@@ -109,6 +109,10 @@ def read_captions(captions_path: Path) -> list[CaptionRow]:
     missing = [c for c in REQUIRED_CAPTION_COLUMNS if c not in table.column_names]
     if missing:
         raise ClipsInputError(f"{captions_path}: missing column(s) {missing}")
+    for name in ("start_ns", "end_ns"):  # seconds as floats would read as a window of a few nanoseconds
+        if not pa.types.is_integer(table.schema.field(name).type):
+            raise ClipsInputError(f"{captions_path}, field '{name}': {table.schema.field(name).type}; expected int64 "
+                                  "nanoseconds (as `scenesearch caption` writes them)")
     cols = {name: table.column(name).to_pylist() for name in table.column_names}
     n = table.num_rows
 

@@ -133,3 +133,12 @@ def test_every_search_of_the_api_takes_the_one_query_check(built: dict[str, Any]
             call(long_query)
         with pytest.raises(QueryTextError, match="U\\+0000"):
             call("a car\x00 approaches")
+
+
+def test_a_vocabulary_value_no_clip_has_is_refused_with_the_values(metadata: MetadataStore) -> None:
+    """``category=tuck``: a typo, said with the values the field holds, rather than an empty answer."""
+    with pytest.raises(FilterSyntaxError, match=r"filter field 'category': no clip has the value 'tuck'; its "
+                                                r"values: car, pedestrian, truck"):
+        build_query(5, {"category": "tuck"}, metadata, len(ROWS))
+    assert build_query(5, {"category": ["tuck", "car"]}, metadata, len(ROWS)).filters  # one value is there
+

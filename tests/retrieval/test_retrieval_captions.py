@@ -239,3 +239,13 @@ def test_a_row_that_ends_before_it_starts_is_skipped_and_said() -> None:
     assert rows.num_rows == 3  # the empty caption is skipped too
     assert [s.reason for s in skipped] == ["field 'end_ns' (-1) is before field 'start_ns' (0)", "no caption"]
 
+
+
+def test_a_caption_table_behind_a_dangling_link_is_named_as_one(tmp_path: Path) -> None:
+    """A captions folder whose published generation is gone: the link is named, not "run caption first"."""
+    folder = tmp_path / "captions"
+    folder.mkdir()
+    (folder / "captions.parquet").symlink_to(folder / ".generations" / "g2" / "captions.parquet")
+    with pytest.raises(FileNotFoundError, match=r"captions.parquet: a broken link \(to .*g2/captions.parquet, "
+                                                r"which leads nowhere"):
+        CaptionSearch.build(folder, encoder=HashTextEncoder())

@@ -16,7 +16,7 @@ from retrieval_fakes import HashTextEncoder
 
 from retrieval.captions_search import CaptionSearch
 from retrieval.cli import main
-from retrieval.scenario_search import SCENARIOS_DIR, ScenarioStore
+from retrieval.scenario_search import SCENARIOS_DIR, ScenarioStore, log_folders_of
 from scenarios.cache import encode
 from tests.scenarios.synthetic import car, cyclist, make_features
 from tests.scenes.av2_fixtures import DEV_LOGS, require
@@ -113,3 +113,13 @@ def test_a_log_without_scenario_features_is_reported_when_indexed(
            else f"its folder {tmp_path / 'gone'} cannot be read")
     assert f"note: no scenario features for log {log.name}: {why}" in out
     assert "1 log(s) without scenario features" in out
+
+
+def test_an_unreadable_log_list_is_refused_naming_it(tmp_path: Path) -> None:
+    (tmp_path / "logs.json").write_text('{"a": "/logs/a", "b": ')  # cut off mid-file
+    with pytest.raises(ValueError, match=r"logs.json: unreadable \(Expecting value"):
+        log_folders_of(tmp_path)
+    (tmp_path / "logs.json").write_text('["/logs/a"]')
+    with pytest.raises(ValueError, match="logs.json: expected an object of log id → folder, got list"):
+        log_folders_of(tmp_path)
+

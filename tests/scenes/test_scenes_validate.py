@@ -563,6 +563,15 @@ def test_camera_frame_not_a_jpeg(log_dir: Path) -> None:
     assert problem.path == path and "JPEG" in problem.message
 
 
+def test_a_truncated_camera_frame_is_refused_by_validate_and_the_reader(log_dir: Path) -> None:
+    path = log_dir / av2_io.CAMERAS_DIR / "front" / f"{T0}.jpg"
+    path.write_bytes(path.read_bytes()[: path.stat().st_size // 3])
+    problem = _only(validate_log(log_dir).problems)
+    assert (problem.path, problem.message) == (path, "truncated JPEG (no end-of-image marker)")
+    with pytest.raises(LogFormatError, match="truncated JPEG"):
+        Log.open(log_dir).camera_frame("front", T0)
+
+
 def test_unreadable_metadata(log_dir: Path) -> None:
     (log_dir / "log_metadata.json").write_text("[1, 2]")
     problem = _only(validate_log(log_dir).problems)

@@ -82,3 +82,15 @@ def test_training_mode_drops_out_and_eval_mode_is_deterministic(folder: Path) ->
     model.eval()
     assert np.allclose(model.encode(TEXTS[:2], normalize_embeddings=True),
                        torch.nn.functional.normalize(first, dim=1).detach().numpy(), atol=1e-6)
+
+
+def test_a_few_texts_run_in_float32_and_a_batch_in_the_inference_dtype() -> None:
+    import contextlib
+
+    from encoders.sentence import FEW_TEXTS, few_texts, inference_autocast
+
+    with few_texts(1):
+        assert isinstance(inference_autocast("cpu", torch.bfloat16), contextlib.nullcontext)
+    with few_texts(FEW_TEXTS):
+        assert isinstance(inference_autocast("cpu", torch.bfloat16), torch.autocast)
+    assert isinstance(inference_autocast("cpu", torch.bfloat16), torch.autocast)  # outside: as before

@@ -38,7 +38,8 @@ render.json               dict                   stats and the rendering config'
 ========================  =====================  =========================================================
 
 and the tagging stage adds the ground-truth tag rasters beside them (:mod:`encoders.tagging.targets`):
-``bev_attributes.npy`` (F, A, H, W) float16 and its ``bev_attributes.json`` sidecar (other stems for
+``bev_attributes.blocks`` (F, A, H, W) float16 in compressed frame blocks
+(:mod:`encoders.clips.blocks`) and its ``bev_attributes.json`` sidecar (other stems for
 attributes added later).
 
 Every BEV grid is in its own frame's ego frame; ego motion is recoverable from ``frames.parquet``.

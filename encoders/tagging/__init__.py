@@ -2,7 +2,7 @@
 
 - :mod:`.attributes`: the vocabulary (:class:`Attribute`, :class:`Region`, metre definitions).
 - :mod:`.rasterize`: ground truth per BEV cell from boxes, behaviour labels and junctions;
-  :mod:`.targets` writes it into the clips folder (``CLIPS_DIR/logs/<log_id>/bev_attributes.npy``).
+  :mod:`.targets` writes it into the clips folder (``CLIPS_DIR/logs/<log_id>/bev_attributes.blocks``).
 - :mod:`.head`: attribute embeddings A, V = E · A[τ].
 - :mod:`.losses`: hard-negative-mined BCE, smooth L1 per pixel and on scene sums, task balancing.
 - :mod:`.scene_tags`: pooling over regions, compositions, tag expressions (pure numpy).

@@ -3,7 +3,8 @@
 :func:`add_attribute_targets` rasterises every rendered log (:mod:`encoders.tagging.rasterize`) and
 writes, per log::
 
-    CLIPS_DIR/logs/<log_id>/bev_attributes.npy    (F, A, H, W) float16
+    CLIPS_DIR/logs/<log_id>/bev_attributes.blocks (F, A, H, W) float16, in zlib blocks of frames
+                                                  (:mod:`encoders.clips.blocks`: 98 % of the cells are 0)
     CLIPS_DIR/logs/<log_id>/bev_attributes.json   {"attributes": [names], "present": (F, A) 0/1 lists,
                                                   "version": TARGETS_VERSION, "source": "labels" | "rules"}
 
@@ -34,11 +35,12 @@ from captioning.behavior import LABELS, BehaviorTags
 from captioning.config import CaptioningConfig, RuleSet
 from captioning.map_context import JUNCTION_KINDS, junction_kind_codes, lookup, rasterize_map
 from captioning.pipeline import tag_arrays
+from encoders.clips.blocks import BlockArray, BlockFileError, write_blocks
 from encoders.clips.layout import (
     FRAMES_FILE,
     TARGETS_STEM,
+    RenderedArrayError,
     grid_from_manifest,
-    load_rendered_array,
     read_manifest,
     rendered_log_dir,
 )
@@ -49,7 +51,7 @@ from scenes.bev import BevGrid
 from scenes.errors import ScenesError
 from scenes.log import Log
 from scenes.tracks import DenseTracks
-from scenesearch_base.atomic import atomic_path, atomic_write_text
+from scenesearch_base.atomic import atomic_write_text
 from scenesearch_base.checksums import checksum_problem, file_checksums
 from scenesearch_base.ray_cluster import Execution
 from scenesearch_base.ray_runner import TaskSkipped, TaskStatus, run_tasks
@@ -58,7 +60,8 @@ from scenesearch_base.storage import name_of, staged_input
 #: Version of the target definitions; targets written by another version are recomputed, not reused.
 #: 2: junction kinds cover the junction's approaches, not only its outline.
 #: 3: logs without behaviour labels get targets from the captioning rules; the sidecar names the source.
-TARGETS_VERSION = 3
+#: 4: the rasters in compressed frame blocks (``.blocks``), not a ``.npy``.
+TARGETS_VERSION = 4
 #: Frames whose BEV cells are looked up in the map at once (bounds the scratch memory).
 _CHUNK_FRAMES = 16
 
@@ -92,8 +95,8 @@ class TargetsReport:
 
 
 def target_files(folder: Path, stem: str = TARGETS_STEM) -> tuple[Path, Path]:
-    """``<stem>.npy`` (the rasters) and ``<stem>.json`` (their sidecar) in a log's ``CLIPS_DIR/logs/<log_id>``."""
-    return folder / f"{stem}.npy", folder / f"{stem}.json"
+    """``<stem>.blocks`` (the rasters) and ``<stem>.json`` (their sidecar) in a log's ``CLIPS_DIR/logs/<log_id>``."""
+    return folder / f"{stem}.blocks", folder / f"{stem}.json"
 
 
 def has_targets(clips_dir: Path | str, log_id: str, stem: str = TARGETS_STEM) -> bool:
@@ -102,7 +105,7 @@ def has_targets(clips_dir: Path | str, log_id: str, stem: str = TARGETS_STEM) ->
 
 def write_targets(folder: Path, targets: NDArray[np.floating], names: Sequence[str], stem: str = TARGETS_STEM,
                   source: TargetSource = TargetSource.LABELS) -> None:
-    """Write ``<stem>.npy`` (float16) and its ``<stem>.json`` sidecar atomically.
+    """Write ``<stem>.blocks`` (float16) and its ``<stem>.json`` sidecar atomically.
 
     Args:
         folder: ``CLIPS_DIR/logs/<log_id>``.
@@ -114,8 +117,7 @@ def write_targets(folder: Path, targets: NDArray[np.floating], names: Sequence[s
     arr = np.ascontiguousarray(np.asarray(targets, dtype=np.float16))
     present = (arr.reshape(arr.shape[0], arr.shape[1], -1) != 0).any(axis=2).astype(np.uint8)
     array_path, meta_path = target_files(folder, stem)
-    with atomic_path(array_path) as tmp, open(tmp, "wb") as fh:
-        np.save(fh, arr, allow_pickle=False)
+    write_blocks(array_path, arr)
     meta = {"attributes": list(names), "present": present.tolist(), "version": TARGETS_VERSION,
             "source": TargetSource(source).value, "files": file_checksums(folder, [array_path.name])}
     atomic_write_text(meta_path, json.dumps(meta))
@@ -264,7 +266,7 @@ def log_targets(log_dir: Path | str, ctx: tuple[Path, BevGrid, bool]) -> tuple[s
 
 @dataclass(frozen=True)
 class LogTargets:
-    """A log's targets opened with ``mmap_mode='r'``.
+    """A log's targets, read by frames as they are indexed (:class:`encoders.clips.blocks.BlockArray`).
 
     Attributes:
         targets: (F, A, H, W) float16.
@@ -272,7 +274,7 @@ class LogTargets:
         present: (F, A) bool, attribute non-zero somewhere in the frame.
     """
 
-    targets: NDArray[np.float16]
+    targets: BlockArray
     names: tuple[str, ...]
     present: NDArray[np.bool_]
 
@@ -283,6 +285,9 @@ def open_targets(clips_dir: Path | str, log_id: str, stem: str = TARGETS_STEM) -
         raise FileNotFoundError(f"{array_path}: no tag targets (run `scenesearch eval-tags --logs` "
                                 "or encoders.tagging.targets.add_attribute_targets first)")
     meta = json.loads(meta_path.read_text())
-    arr = load_rendered_array(array_path.parent, array_path.name)
+    try:
+        arr = BlockArray(array_path)
+    except BlockFileError as exc:
+        raise RenderedArrayError(f"{exc}; run `scenesearch clips --tag-targets` again to write it anew") from None
     present = np.asarray(meta["present"], dtype=bool).reshape(arr.shape[0], arr.shape[1])
     return LogTargets(arr, tuple(meta["attributes"]), present)

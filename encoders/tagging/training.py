@@ -241,7 +241,7 @@ def train_tags(
         clips_dir: a clips folder whose logs have tag targets.
         run_dir: output folder.
         config: options.
-        targets: where targets come from (default ``bev_attributes.npy`` of each log).
+        targets: where targets come from (default ``bev_attributes.blocks`` of each log).
         init: start from this model's backbone (and its head rows for attributes of the same name).
         train_backbone: train the backbone too (else only A and b).
     """

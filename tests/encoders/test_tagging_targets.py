@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from encoders.clips.blocks import BlockArray
 from encoders.tagging.attributes import ATTRIBUTES, BEHAVIOR_ATTRIBUTES, JUNCTION_ATTRIBUTES, Attribute, TagError
 from encoders.tagging.rasterize import approach_strips, behavior_grid, rasterize_targets
 from encoders.tagging.targets import write_targets
@@ -75,8 +76,9 @@ def test_write_targets_is_float16_with_presence(tmp_path: Path) -> None:
     t = np.zeros((2, 3, 4, 4), np.float32)
     t[1, 2, 0, 0] = 0.5
     write_targets(tmp_path, t, ["a", "b", "c"])
-    arr = np.load(tmp_path / "bev_attributes.npy")
+    arr = BlockArray(tmp_path / "bev_attributes.blocks")
     assert arr.dtype == np.float16 and arr.shape == (2, 3, 4, 4)
+    assert np.array_equal(arr[:], t.astype(np.float16)) and arr[1, 2, 0, 0] == 0.5
     import json
 
     meta = json.loads((tmp_path / "bev_attributes.json").read_text())
@@ -120,13 +122,13 @@ def test_targets_are_reused_only_while_their_array_verifies(tmp_path: Path) -> N
     folder.mkdir(parents=True)
     write_targets(folder, np.ones((2, 3, 4, 4), np.float32), ["a", "b", "c"])
     assert targets_reusable(tmp_path, "L")
-    data = bytearray((folder / "bev_attributes.npy").read_bytes())
+    data = bytearray((folder / "bev_attributes.blocks").read_bytes())
     data[-1] ^= 0x01  # same size, other content
-    (folder / "bev_attributes.npy").write_bytes(bytes(data))
+    (folder / "bev_attributes.blocks").write_bytes(bytes(data))
     assert not targets_reusable(tmp_path, "L")
     write_targets(folder, np.ones((2, 3, 4, 4), np.float32), ["a", "b", "c"])
-    with open(folder / "bev_attributes.npy", "r+b") as fh:
+    with open(folder / "bev_attributes.blocks", "r+b") as fh:
         fh.truncate(64)
     assert not targets_reusable(tmp_path, "L")
-    (folder / "bev_attributes.npy").unlink()
+    (folder / "bev_attributes.blocks").unlink()
     assert not targets_reusable(tmp_path, "L")

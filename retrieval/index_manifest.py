@@ -12,6 +12,7 @@ from indexes.integrity import parse_file_entries
 from indexes.persistence import read_json_manifest
 from retrieval.errors import IndexDirError
 from retrieval.hybrid import InvalidWeightError, WeightChoice
+from retrieval.index_folder import INDEX_FOLDER
 
 #: The layout version: the manifest holds checksums (``files``, ``content_sha256``). Other versions are refused.
 FORMAT_VERSION = 2
@@ -65,6 +66,7 @@ class IndexManifest:
         if not path.is_file():
             raise IndexDirError(f"{path}: missing; {index_dir} is not a scenesearch index (or its build never "
                                 "finished)")
+        _refuse_other_kind(index_dir)
         try:
             raw = read_json_manifest(path, KIND, FORMAT_VERSION)
             parse_file_entries(raw.get("files"), path)
@@ -79,3 +81,18 @@ class IndexManifest:
         except (InvalidWeightError, ValueError) as exc:
             raise IndexDirError(f"{path}, field 'hybrid': {exc}") from None
         return IndexManifest(**{k: v for k, v in raw.items() if k in names})
+
+
+def _refuse_other_kind(index_dir: Path) -> None:
+    """A folder whose marker says it is another of scenesearch's outputs (a clips folder also holds a
+    ``manifest.json``): said as such, rather than as an index of an older format."""
+    from scenesearch_base.folders import FolderClaimError, read_marker
+
+    try:
+        marker = read_marker(index_dir)
+    except FolderClaimError:
+        return  # the manifest's own checks speak
+    if marker is not None and marker.kind != INDEX_FOLDER.name:
+        raise IndexDirError(f"{index_dir}: a {marker.kind} folder, not an index (build one from it with "
+                            "`scenesearch index RUN_DIR CLIPS_DIR --out INDEX`)")
+

@@ -238,6 +238,15 @@ def _read(path: Path, read: Callable[[int], bytes], num_bytes: int, index: int) 
     return b"".join(parts)
 
 
+def _looks_like_text(data: bytes) -> bool:
+    """Whether ``data`` is printable UTF-8 text (a TFRecord's first bytes are a binary length and its CRC)."""
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError:
+        return False
+    return all(ch.isprintable() or ch in "\r\n\t" for ch in text)
+
+
 def _frames(path: Path, read: Callable[[int], bytes], size: int | None) -> Iterator[Record | WomdFormatError]:
     """The records of the stream that ``read`` reads; ``size``: the file's size in bytes, None when unknown (gzip)."""
     index = 0
@@ -253,6 +262,8 @@ def _frames(path: Path, read: Callable[[int], bytes], size: int | None) -> Itera
             )
         length, length_crc = _HEADER.unpack(header)
         if masked_crc32c(header[:8]) != length_crc:
+            if index == 0 and _looks_like_text(header):  # a CSV, JSON or other text file given as a TFRecord
+                raise WomdFormatError(path, f"not a TFRecord file: it starts with text ({header[:12]!r}…)", index)
             raise WomdFormatError(path, f"corrupt record length at byte {offset} (CRC mismatch)", index)
         if size is not None:
             left = size - offset - _HEADER.size

@@ -323,3 +323,18 @@ def test_kill_during_an_index_build_keeps_a_searchable_index(built: dict[str, An
 
 def _open_at(index: Path, built: dict[str, Any]) -> SceneSearch:
     return SceneSearch.open(index, embedder=built["embedder"], text_encoder=HashTextEncoder())
+
+
+def test_opening_a_clips_folder_as_an_index_says_what_it_is(built: dict[str, Any], tmp_path: Path) -> None:
+    """A clips folder holds a ``manifest.json`` too: its marker says what it is."""
+    from encoders.clips.layout import CLIPS_FOLDER
+    from retrieval.errors import IndexDirError
+    from retrieval.scenesearch import SceneSearch
+    from scenesearch_base.folders import mark_folder
+
+    clips = tmp_path / "clips"
+    shutil.copytree(built["clips"], clips)
+    mark_folder(clips, CLIPS_FOLDER)
+    with pytest.raises(IndexDirError, match=r"clips: a clips folder, not an index \(build one from it with "
+                                            r"`scenesearch index RUN_DIR CLIPS_DIR --out INDEX`\)"):
+        SceneSearch.open(clips)

@@ -172,3 +172,11 @@ def test_gzip_compressed_development_file_reads_the_same_records(tmp_path: Path)
     path = tmp_path / "dev.tfrecord"
     path.write_bytes(gzip.compress(DEV_FILE.read_bytes(), compresslevel=1))
     assert [r.data for r in read_records(path)] == [r.data for r in read_records(DEV_FILE)]
+
+
+def test_a_text_file_given_as_a_tfrecord_is_said_to_be_text(tmp_path: Path) -> None:
+    path = tmp_path / "scenario.tfrecord"
+    path.write_text("scenario_id,track_id,x,y\nee519cf571686d19,1,0.5,2.0\n")  # a decoded tracks CSV
+    with pytest.raises(WomdFormatError, match=r"scenario.tfrecord, record 0: not a TFRecord file: it starts with "
+                                              r"text \(b'scenario_id,'…\)"):
+        list(read_records(path))

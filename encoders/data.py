@@ -333,8 +333,8 @@ class ClipDataset(torch.utils.data.Dataset[dict[str, Any]]):
         rates_out[:] = rates_and_velocity[:, : len(OBJECT_RATES_COLUMNS)]
         velocity_out[:] = rates_and_velocity[:, len(OBJECT_RATES_COLUMNS):]
         if rng is None:
-            np.take(arrays.bev_lidar, fi, axis=0, out=slot["bev_lidar"])  # memory map → batch, one copy
-            np.take(arrays.bev_map, fi, axis=0, out=slot["bev_map"])
+            slot["bev_lidar"][:] = arrays.bev_lidar[fi]  # the frames' blocks, decompressed, into the batch
+            slot["bev_map"][:] = arrays.bev_map[fi]
             slot["bev_object"][:] = obj
         else:
             theta = float(rng.uniform(-aug.max_rotation_rad, aug.max_rotation_rad))

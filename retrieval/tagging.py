@@ -27,6 +27,7 @@ import numpy as np
 import pyarrow.parquet as pq
 from numpy.typing import NDArray
 
+from encoders.clips.blocks import FrameArray
 from encoders.tagging.attributes import Region, TagError, parse_attribute, parse_region
 from encoders.tagging.inference import Tagger, load_tagger
 from encoders.tagging.scene_tags import (
@@ -89,8 +90,8 @@ class LogFrames:
 
     log_id: str
     timestamps_ns: NDArray[np.int64]
-    bev_lidar: NDArray[np.uint8]
-    bev_map: NDArray[np.uint8]
+    bev_lidar: FrameArray
+    bev_map: FrameArray
     has_map: bool
 
 

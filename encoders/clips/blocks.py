@@ -1,9 +1,11 @@
 """Frame-blocked compressed arrays: a log's per-frame rasters stored in zlib blocks of a few frames.
 
-A log's tag targets, (F, A, H, W) float16, are 98 % zeros: as a plain ``.npy`` they were 70 % of a
-clips folder (12 MB of a 17 MB log of 20 s), compressed they take under 1 %. Readers take frames at
+A rendered log's arrays are mostly zeros (instance rasters, LiDAR occupancy), the static map and
+sparse tag targets: as plain ``.npy`` files a 20-s demo log took 12 MB (17 MB with its tag targets),
+compressed about 3 MB (0.2 MB with the targets' 12 MB shrunk a hundredfold). Readers take frames at
 random (a training window, a clip), so the frames are compressed in blocks of :data:`BLOCK_FRAMES`
-and a read decompresses only the blocks it touches.
+and a read decompresses only the blocks it touches: a clip's 12-frame window of five arrays in about
+1.2 ms at random, 0.17 ms in order, against 0.07 ms from a memory-mapped ``.npy`` in the page cache.
 
 File layout (little-endian)::
 
@@ -64,6 +66,8 @@ class BlockArray:
             self.shape: tuple[int, ...] = tuple(int(n) for n in info["shape"])
             self.block_frames = int(info["block_frames"])
             self._offsets = [int(o) for o in info["offsets"]]
+        except FileNotFoundError:
+            raise
         except (OSError, ValueError, KeyError, TypeError) as exc:
             if isinstance(exc, BlockFileError):
                 raise
@@ -107,6 +111,8 @@ class BlockArray:
 
     def __getitem__(self, key: Any) -> Any:
         first, rest = (key[0], key[1:]) if isinstance(key, tuple) else (key, ())
+        if first is Ellipsis or first is None:  # indexes other axes first: read every frame
+            return self[:][key]
         if isinstance(first, int | np.integer):
             return self._frames(np.array([int(first) % self.shape[0]]))[0][rest]
         frames = np.arange(self.shape[0])[first]  # a slice or an index array, checked by numpy
@@ -115,3 +121,9 @@ class BlockArray:
     def __array__(self, dtype: Any = None, copy: Any = None) -> NDArray[Any]:
         out = self[:]
         return out if dtype is None else out.astype(dtype)
+
+
+#: What a reader of a rendered log's arrays takes: a block file, or an array in memory (tests, callers
+#: that rendered it themselves).
+FrameArray = BlockArray | NDArray[Any]
+

@@ -55,11 +55,11 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
+from encoders.clips.blocks import BlockArray, BlockFileError
 from scenes.bev import BevGrid
 from scenes.categories import CATEGORY_NAMES
 from scenesearch_base.folders import FolderKind
@@ -73,17 +73,17 @@ LOGS_DIR = "logs"
 CLIPS_FOLDER = FolderKind("clips", signature=CLIPS_FILE, entries=(CLIPS_FILE, MANIFEST_FILE, PREVIEWS_DIR, LOGS_DIR))
 
 # Per-log files in CLIPS_DIR/logs/<log_id>/ (the table in the module docstring).
-CAMERA_FILE = "camera.npy"
-CAMERA_INSTANCES_FILE = "camera_instances.npy"
-CAMERA_PIXEL_COUNTS_FILE = "camera_pixel_counts.npy"
-CAMERA_CROPS_FILE = "camera_crops.npy"
-CAMERA_CROP_MASKS_FILE = "camera_crop_masks.npy"
-CAMERA_CROP_INDEX_FILE = "camera_crop_index.npy"
-CAMERA_CROP_BOX_FILE = "camera_crop_box.npy"
-BEV_LIDAR_FILE = "bev_lidar.npy"
-BEV_MAP_FILE = "bev_map.npy"
-BEV_INSTANCES_FILE = "bev_instances.npy"
-TRACK_BOXES_FILE = "track_boxes.npy"
+CAMERA_FILE = "camera.blocks"
+CAMERA_INSTANCES_FILE = "camera_instances.blocks"
+CAMERA_PIXEL_COUNTS_FILE = "camera_pixel_counts.blocks"
+CAMERA_CROPS_FILE = "camera_crops.blocks"
+CAMERA_CROP_MASKS_FILE = "camera_crop_masks.blocks"
+CAMERA_CROP_INDEX_FILE = "camera_crop_index.blocks"
+CAMERA_CROP_BOX_FILE = "camera_crop_box.blocks"
+BEV_LIDAR_FILE = "bev_lidar.blocks"
+BEV_MAP_FILE = "bev_map.blocks"
+BEV_INSTANCES_FILE = "bev_instances.blocks"
+TRACK_BOXES_FILE = "track_boxes.blocks"
 TRACK_IDS_FILE = "track_ids.json"
 FRAMES_FILE = "frames.parquet"
 RENDER_FILE = "render.json"
@@ -113,19 +113,19 @@ class RenderedArrayError(ValueError):
     """A rendered array of a clips folder that cannot be read; the message names the file."""
 
 
-def load_rendered_array(folder: Path, name: str) -> np.ndarray:
-    """The array ``folder / name`` of a rendered log, memory-mapped.
+def load_rendered_array(folder: Path, name: str) -> BlockArray:
+    """The array ``folder / name`` of a rendered log, read by the frames indexed (:mod:`encoders.clips.blocks`).
 
     Raises:
-        RenderedArrayError: the file is missing, truncated or not a numpy array (naming it, and how
+        RenderedArrayError: the file is missing, truncated or not a block file (naming it, and how
             to render it again).
     """
     path = folder / name
     try:
-        return np.load(path, mmap_mode="r")
+        return BlockArray(path)
     except FileNotFoundError:
         reason = "missing"
-    except (ValueError, OSError, EOFError) as exc:
+    except (BlockFileError, OSError) as exc:
         reason = f"unreadable as an array, truncated or damaged ({exc})"
     raise RenderedArrayError(f"{path}: {reason}; run `scenesearch clips` again to render the log anew")
 

@@ -20,6 +20,7 @@ import pyarrow.parquet as pq
 from numpy.typing import NDArray
 
 from encoders.clips import layout
+from encoders.clips.blocks import write_blocks
 from encoders.clips.config import BevSource, BevSourceChoice, ClipsConfig
 from encoders.clips.raster import MAP_CHANNELS
 from encoders.clips.render_bev import (
@@ -50,8 +51,8 @@ def bev_grid(config: ClipsConfig) -> BevGrid:
     return BevGrid(b.x_min_m, b.x_max_m, b.y_min_m, b.y_max_m, b.resolution_m)
 
 
-def _save_npy(folder: Path, name: str, array: NDArray[np.generic]) -> None:
-    np.save(folder / name, np.ascontiguousarray(array), allow_pickle=False)
+def _save_blocks(folder: Path, name: str, array: NDArray[np.generic]) -> None:
+    write_blocks(folder / name, array)  # compressed by frames: a clips folder is mostly zeros and static map
 
 
 def nearest_within(
@@ -158,17 +159,17 @@ def render_log(log: Log, config: ClipsConfig, clips_dir: Path, dense: DenseTrack
 
     target = layout.rendered_log_dir(clips_dir, log.log_id)
     with atomic_directory(target, overwrite=True) as tmp:
-        _save_npy(tmp, layout.CAMERA_FILE, camera.rgb)
-        _save_npy(tmp, layout.CAMERA_INSTANCES_FILE, camera.masks)
-        _save_npy(tmp, layout.CAMERA_PIXEL_COUNTS_FILE, camera.pixels)
-        _save_npy(tmp, layout.CAMERA_CROPS_FILE, crop_rgb)
-        _save_npy(tmp, layout.CAMERA_CROP_MASKS_FILE, crop_masks)
-        _save_npy(tmp, layout.CAMERA_CROP_INDEX_FILE, crop_index)
-        _save_npy(tmp, layout.CAMERA_CROP_BOX_FILE, crop_box)
-        _save_npy(tmp, layout.BEV_LIDAR_FILE, bev_occ)
-        _save_npy(tmp, layout.BEV_MAP_FILE, bev_map)
-        _save_npy(tmp, layout.BEV_INSTANCES_FILE, bev_inst)
-        _save_npy(tmp, layout.TRACK_BOXES_FILE, track_boxes(dense))
+        _save_blocks(tmp, layout.CAMERA_FILE, camera.rgb)
+        _save_blocks(tmp, layout.CAMERA_INSTANCES_FILE, camera.masks)
+        _save_blocks(tmp, layout.CAMERA_PIXEL_COUNTS_FILE, camera.pixels)
+        _save_blocks(tmp, layout.CAMERA_CROPS_FILE, crop_rgb)
+        _save_blocks(tmp, layout.CAMERA_CROP_MASKS_FILE, crop_masks)
+        _save_blocks(tmp, layout.CAMERA_CROP_INDEX_FILE, crop_index)
+        _save_blocks(tmp, layout.CAMERA_CROP_BOX_FILE, crop_box)
+        _save_blocks(tmp, layout.BEV_LIDAR_FILE, bev_occ)
+        _save_blocks(tmp, layout.BEV_MAP_FILE, bev_map)
+        _save_blocks(tmp, layout.BEV_INSTANCES_FILE, bev_inst)
+        _save_blocks(tmp, layout.TRACK_BOXES_FILE, track_boxes(dense))
         atomic_write_text(tmp / layout.TRACK_IDS_FILE, json.dumps([str(t) for t in dense.track_ids]))
         pq.write_table(_frames_table(frame_ts, city_SE3_ego, speed, sweep_index >= 0, camera.frame_ok),
                        tmp / layout.FRAMES_FILE)

@@ -18,6 +18,7 @@ from captioning.config import CaptioningConfig, SmoothingConfig
 from captioning.host import planar_kinematics
 from captioning.object_motion import TRACK_KINEMATICS_COLUMNS, track_kinematics
 from encoders.clips import layout
+from encoders.clips.blocks import FrameArray
 from encoders.clips.raster import grid_affine_from, rasterize_track
 from scenes.bev import BevGrid
 from scenes.geometry import batch_matrices, wrap_angle_rad, yaw_to_rotmat
@@ -72,7 +73,7 @@ class LogArrays:
 def open_log_arrays(clips_dir: Path, log_id: str) -> LogArrays:
     folder = layout.rendered_log_dir(clips_dir, log_id)
 
-    def load(name: str) -> NDArray[np.generic]:
+    def load(name: str) -> FrameArray:
         return layout.load_rendered_array(folder, name)
 
     ids = json.loads((folder / layout.TRACK_IDS_FILE).read_text())

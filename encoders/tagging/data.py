@@ -22,6 +22,7 @@ import numpy as np
 import torch
 from numpy.typing import NDArray
 
+from encoders.clips.blocks import FrameArray
 from encoders.clips.layout import BEV_LIDAR_FILE, BEV_MAP_FILE, load_rendered_array, read_manifest, rendered_log_dir
 from encoders.tagging.attributes import TagError
 from encoders.tagging.targets import LogTargets, open_targets
@@ -81,7 +82,7 @@ class TagWindowDataset(torch.utils.data.Dataset[dict[str, Any]]):
         self.log_index = np.concatenate(log_index).astype(np.int64)
         self.frame_index = np.concatenate(frame_index).astype(np.int64)
         self.present: NDArray[np.bool_] = np.concatenate(present).astype(bool)
-        self._arrays: dict[str, tuple[NDArray[np.uint8], NDArray[np.uint8]]] = {}
+        self._arrays: dict[str, tuple[FrameArray, FrameArray]] = {}
 
     def __getstate__(self) -> dict[str, Any]:
         state = dict(self.__dict__)
@@ -91,7 +92,7 @@ class TagWindowDataset(torch.utils.data.Dataset[dict[str, Any]]):
     def __len__(self) -> int:
         return int(self.log_index.shape[0])
 
-    def _bev(self, log_id: str) -> tuple[NDArray[np.uint8], NDArray[np.uint8]]:
+    def _bev(self, log_id: str) -> tuple[FrameArray, FrameArray]:
         if log_id not in self._arrays:
             folder = rendered_log_dir(self.clips_dir, log_id)
             self._arrays[log_id] = (load_rendered_array(folder, BEV_LIDAR_FILE),

@@ -38,6 +38,7 @@ import numpy as np
 import torch
 from numpy.typing import NDArray
 
+from encoders.clips.blocks import FrameArray
 from encoders.clips.layout import (
     BEV_LIDAR_FILE,
     BEV_MAP_FILE,
@@ -66,7 +67,7 @@ from scenesearch_base.folders import FolderKind, claim_folder, mark_folder
 Pooled = dict[str, dict[str, NDArray[np.float32]]]
 
 
-def log_has_map(bev_map: NDArray[np.uint8]) -> bool:
+def log_has_map(bev_map: FrameArray) -> bool:
     """Whether a rendered log has map layers (a log rendered without a map has all-zero layers)."""
     return bool(np.asarray(bev_map[:: max(1, bev_map.shape[0] // 8)]).any())
 

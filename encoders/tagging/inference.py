@@ -18,6 +18,7 @@ from numpy.typing import NDArray
 from safetensors.torch import load_file
 
 from encoders.bev import BevTower
+from encoders.clips.blocks import FrameArray
 from encoders.clips.layout import grid_from_manifest
 from encoders.config import BevConfig
 from encoders.inference import load_model, resolve_device
@@ -60,7 +61,7 @@ class Tagger:
         return parse_inputs(self.config.inputs)
 
     @torch.no_grad()
-    def tag_frames(self, bev_lidar: NDArray[np.uint8], bev_map: NDArray[np.uint8], chunk: int = 32,
+    def tag_frames(self, bev_lidar: FrameArray, bev_map: FrameArray, chunk: int = 32,
                    attributes: list[int] | None = None) -> NDArray[np.float32]:
         """Tag tensors of consecutive frames of one log.
 

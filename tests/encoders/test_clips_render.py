@@ -14,6 +14,7 @@ import pyarrow.parquet as pq
 import pytest
 from scipy.ndimage import binary_dilation
 
+from encoders.clips.blocks import BlockArray
 from encoders.clips.build import build_clips
 from encoders.clips.config import BevSourceChoice, ClipsConfig, Split, SplitConfig
 from encoders.clips.raster import MAP_CHANNELS
@@ -123,8 +124,8 @@ def test_clips_without_their_crops_are_named_and_a_crop_model_refuses_clips_from
     damaged = tmp_path / "damaged"
     shutil.copytree(clips_dir, damaged)
     log_folder = next((damaged / "logs").iterdir())
-    (log_folder / "camera_crop_index.npy").unlink()
-    with pytest.raises(FileNotFoundError, match=rf"{log_folder.name}.*camera_crop_index\.npy is missing"):
+    (log_folder / "camera_crop_index.blocks").unlink()
+    with pytest.raises(FileNotFoundError, match=rf"{log_folder.name}.*camera_crop_index\.blocks is missing"):
         _item(damaged, "lead")
     # A clips folder from before crops (no manifest flag): no crop views, and a model that reads them says why.
     old = tmp_path / "old"
@@ -201,14 +202,14 @@ def test_lidar_sweeps_are_motion_compensated(tmp_path: Path) -> None:
         config = replace(CONFIG, bev=replace(CONFIG.bev, num_sweeps=num_sweeps, source=BevSourceChoice.LIDAR))
         out = tmp_path / f"clips_{num_sweeps}"
         render_log(log, config, out, dense)
-        occ = np.load(out / "logs" / log_dir.name / "bev_lidar.npy")[6, 1:].max(axis=0) > 0  # above ground
-        inst = np.load(out / "logs" / log_dir.name / "bev_instances.npy")[6] == parked
+        occ = BlockArray(out / "logs" / log_dir.name / "bev_lidar.blocks")[:][6, 1:].max(axis=0) > 0  # above ground
+        inst = BlockArray(out / "logs" / log_dir.name / "bev_instances.blocks")[:][6] == parked
         rows, cols = np.nonzero(inst)
         window = np.zeros_like(inst)
         window[rows.min() - 8 : rows.max() + 9, cols.min() - 3 : cols.max() + 4] = True
         grown = np.zeros_like(inst)
         grown[rows.min() - 1 : rows.max() + 2, cols.min() - 1 : cols.max() + 2] = True
-        others = np.load(out / "logs" / log_dir.name / "bev_instances.npy")[6] > 0
+        others = BlockArray(out / "logs" / log_dir.name / "bev_instances.blocks")[:][6] > 0
         grown |= binary_dilation(others & ~inst, iterations=2)
         return float(occ[inst].mean()), float((occ & window & ~grown).sum())
 
@@ -254,7 +255,7 @@ def test_corrupt_sweep_is_skipped_counted_and_reported(tmp_path: Path) -> None:
     stats = report.logs[log_dir.name]
     assert len(stats["corrupt_sweeps"]) == 1 and sweeps[6].name in stats["corrupt_sweeps"][0]
     assert stats["frames_without_sweep"] == 1 and stats["bev_source"] == "lidar"
-    occ = np.load(tmp_path / "clips" / "logs" / log_dir.name / "bev_lidar.npy")
+    occ = BlockArray(tmp_path / "clips" / "logs" / log_dir.name / "bev_lidar.blocks")[:]
     assert occ[6].max() == 0 and occ[5].max() > 0 and occ[7].max() > 0
     # A second run reuses the rendered log.
     again = build_clips([log_dir], tmp_path / "c", tmp_path / "clips", CONFIG)

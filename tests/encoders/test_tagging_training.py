@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 import torch
 
+from encoders.clips.blocks import BlockArray
 from encoders.presets import preset
 from encoders.tagging.attributes import ATTRIBUTES, FOOTPRINT_M2, TagError
 from encoders.tagging.config import TagTrainConfig
@@ -31,8 +32,8 @@ def test_run_folder_loads_and_tags_whole_logs_chunk_independently(fixture: dict[
     tagger = load_tagger(fixture["run"])
     assert tagger.names == tuple(a.value for a in ATTRIBUTES)
     folder = Path(fixture["clips"]) / "logs" / "tagged_0"
-    lidar = np.load(folder / "bev_lidar.npy", mmap_mode="r")
-    bev_map = np.load(folder / "bev_map.npy", mmap_mode="r")
+    lidar = BlockArray(folder / "bev_lidar.blocks")[:]
+    bev_map = BlockArray(folder / "bev_map.blocks")[:]
     full = tagger.tag_frames(lidar, bev_map, chunk=64)
     assert full.shape == (8, len(ATTRIBUTES), 80, 40) and np.isfinite(full).all()
     # Chunks with temporal context give the same tensors as one pass.

@@ -11,6 +11,7 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
+from encoders.clips.blocks import BlockArray
 from encoders.clips.config import ClipsConfig
 from encoders.clips.render import render_bytes
 from encoders.run_folder import claim_run_dir
@@ -78,23 +79,23 @@ def test_a_damaged_rendering_is_rendered_again_and_said(work: dict[str, Path], c
     args = ["clips", str(work["log"]), "--captions", str(work["captions"]), "--out", str(out), "--no-previews"]
     assert main(args) == 0
     folder = next((out / "logs").iterdir())
-    reference = np.load(folder / "bev_map.npy")
+    reference = BlockArray(folder / "bev_map.blocks")[:]
     capsys.readouterr()
     assert main(args) == 0
     assert "reused (every file verified)" in capsys.readouterr().out
-    with open(folder / "bev_map.npy", "r+b") as fh:
+    with open(folder / "bev_map.blocks", "r+b") as fh:
         fh.truncate(1000)
     assert main(args) == 0
-    assert "bev_map.npy is 1000 bytes, render.json says" in capsys.readouterr().out
-    (folder / "camera.npy").unlink()
+    assert "bev_map.blocks is 1000 bytes, render.json says" in capsys.readouterr().out
+    (folder / "camera.blocks").unlink()
     assert main(args) == 0
-    assert "camera.npy is missing" in capsys.readouterr().out
-    data = bytearray((folder / "track_boxes.npy").read_bytes())
+    assert "camera.blocks is missing" in capsys.readouterr().out
+    data = bytearray((folder / "track_boxes.blocks").read_bytes())
     data[-1] ^= 0xFF  # same size, other content
-    (folder / "track_boxes.npy").write_bytes(bytes(data))
+    (folder / "track_boxes.blocks").write_bytes(bytes(data))
     assert main(args) == 0
-    assert "track_boxes.npy differs from its checksum" in capsys.readouterr().out
-    np.testing.assert_array_equal(np.load(folder / "bev_map.npy"), reference)
+    assert "track_boxes.blocks differs from its checksum" in capsys.readouterr().out
+    np.testing.assert_array_equal(BlockArray(folder / "bev_map.blocks")[:], reference)
 
 
 def test_a_log_given_twice_is_processed_once_and_reported(work: dict[str, Path],

@@ -166,7 +166,8 @@ def test_top_k_with_nothing_allowed_and_a_clip_without_caption() -> None:
     xb = np.eye(4, dtype=np.float32)
     index = ClipIndex.build(xb, [{"clip_id": f"c{i}", "category": "car"} for i in range(4)], metric="cosine")
     scorer = HybridScorer(index, ["c0", "c1", "c2", "c3"])
-    ids, scores = scorer.top_k(xb[0], np.zeros(4), build_query(3, {"category": "bus"}, index.metadata, 4), 0.5)
+    nothing = build_query(3, "category != car", index.metadata, 4)
+    ids, scores = scorer.top_k(xb[0], np.zeros(4), nothing, 0.5)
     assert len(ids) == len(scores) == 0
     with pytest.raises(IndexDirError, match="no rule caption"):
         HybridScorer(index, ["c0", "c1"])

@@ -23,7 +23,6 @@ import threading
 from collections import OrderedDict
 from dataclasses import replace
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import pyarrow as pa
@@ -249,16 +248,6 @@ def forget_parsed_maps() -> None:
         _PARSED_MAPS.clear()
 
 
-def _unique_keys(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
-    """A JSON object whose keys are unique: a lane id given twice would silently replace the first lane."""
-    out: dict[str, Any] = {}
-    for key, value in pairs:
-        if key in out:
-            raise ValueError(f"key {key!r} appears twice in one object (two map elements with one id?)")
-        out[key] = value
-    return out
-
-
 def read_map(path: Path) -> VectorMap:
     """Read a map JSON file; :class:`LogFormatError` names the file and the key of every bad part,
     including NaN, inf and implausible (:data:`scenes.schema.MAX_CITY_COORDINATE_M`) coordinates.
@@ -275,7 +264,7 @@ def read_map(path: Path) -> VectorMap:
             _PARSED_MAPS.move_to_end(digest)
             return cached
     try:
-        data = json.loads(raw.decode("utf-8"), object_pairs_hook=_unique_keys)
+        data = json.loads(raw.decode("utf-8"), object_pairs_hook=map_schema.unique_keys)
     except (UnicodeDecodeError, ValueError, RecursionError) as exc:
         raise LogFormatError.single(path, f"unreadable map JSON: {exc}") from exc
     try:

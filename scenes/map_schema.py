@@ -5,6 +5,7 @@ naming the file, the map element's key and the point."""
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -86,3 +87,13 @@ def check_map_coordinates(path: Path, vector_map: VectorMap) -> list[Problem]:
             problems.append(Problem(path, f"{'xyz'[axis]} = {points[row, axis]:.6g} m is beyond the bound of "
                                     f"±{MAX_CITY_COORDINATE_M:g} m for city-frame coordinates", field=name, row=row))
     return problems
+
+
+def unique_keys(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    """A JSON object whose keys are unique: a lane id given twice would silently replace the first lane."""
+    out: dict[str, Any] = {}
+    for key, value in pairs:
+        if key in out:
+            raise ValueError(f"key {key!r} appears twice in one object (two map elements with one id?)")
+        out[key] = value
+    return out

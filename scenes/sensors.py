@@ -75,6 +75,10 @@ def read_lidar_sweep(path: Path) -> LidarSweep:
     )
 
 
+#: A JPEG's first bytes, and its end-of-image marker, which writers may pad with a few bytes after it.
+JPEG_START, JPEG_END, JPEG_TAIL_BYTES = b"\xff\xd8", b"\xff\xd9", 64
+
+
 def read_camera_frame(path: Path) -> NDArray[np.uint8]:
     """(H, W, 3) BGR image; raises :class:`LogFormatError` when the file cannot be decoded."""
     import cv2
@@ -84,7 +88,7 @@ def read_camera_frame(path: Path) -> NDArray[np.uint8]:
     except OSError as exc:
         raise LogFormatError.single(path, f"unreadable image: {exc}") from None
     # libjpeg decodes a truncated file to a partly grey image with a warning on stderr only.
-    if data[:2] == b"\xff\xd8" and b"\xff\xd9" not in data[-64:]:
+    if data[:2] == JPEG_START and JPEG_END not in data[-JPEG_TAIL_BYTES:]:
         raise LogFormatError.single(path, "truncated JPEG (no end-of-image marker)")
     image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
     if image is None:

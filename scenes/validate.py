@@ -17,12 +17,7 @@ from scenes import av2_io, map_schema, schema
 from scenes.calibration import CameraIntrinsics
 from scenes.errors import Problem, collect_problems
 from scenes.log import Log, log_folder_problem
-from scenes.sensors import read_lidar_sweep, timestamps_in
-
-_JPEG_MAGIC = b"\xff\xd8"
-#: End-of-image marker; writers may pad a few bytes after it.
-_JPEG_END = b"\xff\xd9"
-_JPEG_TAIL_BYTES = 64
+from scenes.sensors import JPEG_END, JPEG_START, JPEG_TAIL_BYTES, read_lidar_sweep, timestamps_in
 
 
 @dataclass(frozen=True)
@@ -85,13 +80,13 @@ def check_camera_frame_file(path: Path) -> list[Problem]:
     try:
         with path.open("rb") as f:
             head = f.read(2)
-            f.seek(max(0, path.stat().st_size - _JPEG_TAIL_BYTES))
+            f.seek(max(0, path.stat().st_size - JPEG_TAIL_BYTES))
             tail = f.read()
     except OSError as exc:
         return [Problem(path, f"unreadable image: {exc}")]
-    if head != _JPEG_MAGIC:
+    if head != JPEG_START:
         return [Problem(path, "not a JPEG file (empty or wrong format)")]
-    if _JPEG_END not in tail:
+    if JPEG_END not in tail:
         return [Problem(path, "truncated JPEG (no end-of-image marker)")]
     return []
 

@@ -5,39 +5,28 @@ from __future__ import annotations
 
 import dataclasses
 
-from scenarios.program import (
-    AllOf,
-    Between,
-    ForAtLeast,
-    Has,
-    Is,
-    Node,
-    Objects,
-    Then,
-    Together,
-    While,
-)
+from scenarios import program as p
 
 
-def closer(node: Node) -> Node:
+def closer(node: p.Node) -> p.Node:
     """``node`` with its relation tightened ("following closely": within 10 m; "near": within 3 m)."""
-    if isinstance(node, Has) and node.relation in ("following", "near", "direction"):
+    if isinstance(node, p.Has) and node.relation in ("following", "near", "direction"):
         tight = 10.0 if node.relation != "near" else 3.0
         return within(node, tight)
     return node
 
 
-def within(node: Node, within_m: float) -> Node:
+def within(node: p.Node, within_m: float) -> p.Node:
     """A relation ``node`` limited to ``within_m``; any other node as it is."""
-    if not isinstance(node, Has) or node.relation in ("heading", "passed_by", "crossed_by"):
+    if not isinstance(node, p.Has) or node.relation in ("heading", "passed_by", "crossed_by"):
         return node
     return dataclasses.replace(node, params=(*[(k, v) for k, v in node.params if k != "within_m"],
                                              ("within_m", within_m)))
 
 
-def negated(after: Node, before: Node) -> Node:
+def negated(after: p.Node, before: p.Node) -> p.Node:
     """``after`` (``before`` with one more modifier) with that modifier negated."""
-    if isinstance(after, Is | Has) and after != before:
+    if isinstance(after, p.Is | p.Has) and after != before:
         return dataclasses.replace(after, negate=not after.negate)
     return after
 
@@ -46,35 +35,35 @@ def negated(after: Node, before: Node) -> Node:
 STATES = ("stopped", "moving", "parked", "stationary", "braking", "accelerating")
 
 
-def without_states(node: Node) -> Node:
+def without_states(node: p.Node) -> p.Node:
     """``node`` without its state predicates (:data:`STATES`) along its subjects: "a stopped vehicle in
     our lane" → "a vehicle in our lane", the objects a next step ("… then moves") is about."""
     match node:
-        case Is(subject) if node.predicate in STATES:
+        case p.Is(subject) if node.predicate in STATES:
             return without_states(subject)
-        case Is(subject):
+        case p.Is(subject):
             return dataclasses.replace(node, subject=without_states(subject))
-        case Has() if node.reverse:
+        case p.Has() if node.reverse:
             return dataclasses.replace(node, other=without_states(node.other))
-        case Has(subject):
+        case p.Has(subject):
             return dataclasses.replace(node, subject=without_states(subject))
     return node
 
 
-def with_subject(node: Node, subject: Node) -> Node:
+def with_subject(node: p.Node, subject: p.Node) -> p.Node:
     """``node`` with its innermost subject (:func:`scenarios.program.subject_of`) replaced by ``subject``."""
     match node:
-        case Objects():
+        case p.Objects():
             return subject
-        case Is(inner) | Between(inner) | Together(inner) | ForAtLeast(inner) | While(inner):
+        case p.Is(inner) | p.Between(inner) | p.Together(inner) | p.ForAtLeast(inner) | p.While(inner):
             field = dataclasses.fields(node)[0].name
             return dataclasses.replace(node, **{field: with_subject(inner, subject)})  # type: ignore[arg-type]
-        case Has() if node.reverse:
+        case p.Has() if node.reverse:
             return dataclasses.replace(node, other=with_subject(node.other, subject))
-        case Has(inner):
+        case p.Has(inner):
             return dataclasses.replace(node, subject=with_subject(inner, subject))
-        case Then(first):
+        case p.Then(first):
             return dataclasses.replace(node, first=with_subject(first, subject))
-        case AllOf((first, *rest)):
-            return AllOf((with_subject(first, subject), *rest))
+        case p.AllOf((first, *rest)):
+            return p.AllOf((with_subject(first, subject), *rest))
     return node

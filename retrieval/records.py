@@ -118,7 +118,7 @@ def read_log_spans(clips_dir: Path | str, log_ids: Iterable[str]) -> dict[str, L
     for log_id in dict.fromkeys(log_ids):
         path = rendered_log_dir(clips_dir, log_id) / FRAMES_FILE
         try:
-            stamps = pq.read_table(path, columns=["timestamp_ns"]).column("timestamp_ns")
+            stamps = pq.ParquetFile(path).read(columns=["timestamp_ns"]).column("timestamp_ns")
         except (OSError, ValueError, KeyError):  # missing, unreadable or without the column
             continue
         if len(stamps):

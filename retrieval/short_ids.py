@@ -33,6 +33,7 @@ from collections.abc import Callable, Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 
@@ -133,10 +134,14 @@ class ShortIds:
     def __init__(self, table: pa.Table, read_spans: Callable[[list[str]], Mapping[str, LogSpan]] | None = None
                  ) -> None:
         self._table = table.select(list(_COLUMNS))
-        covered = self._table.group_by("log_id").aggregate([("start_ns", "min"), ("end_ns", "max")])
-        self._covered = {str(lg): LogSpan(int(first), int(last)) for lg, first, last in zip(
-            covered.column("log_id").to_pylist(), covered.column("start_ns_min").to_pylist(),
-            covered.column("end_ns_max").to_pylist())}
+        # Each log's first and last indexed moment, in numpy: Arrow's group_by imports its query engine and
+        # pyarrow.dataset (0.2 s of a search's start-up).
+        logs, inverse = np.unique(np.asarray(self._table.column("log_id").to_pylist(), dtype=str), return_inverse=True)
+        first = np.full(logs.shape[0], np.iinfo(np.int64).max, dtype=np.int64)
+        last = np.full(logs.shape[0], np.iinfo(np.int64).min, dtype=np.int64)
+        np.minimum.at(first, inverse, np.asarray(self._table.column("start_ns").to_numpy(), dtype=np.int64))
+        np.maximum.at(last, inverse, np.asarray(self._table.column("end_ns").to_numpy(), dtype=np.int64))
+        self._covered = {str(lg): LogSpan(int(a), int(b)) for lg, a, b in zip(logs, first, last)}
         self._read_spans = read_spans
         self._spans: dict[str, LogSpan] = {}
         self._log_prefix = _unique_prefixes(self._covered, PREFIX_CHARS)

@@ -33,6 +33,7 @@ class MetadataStore:
         self._table = table.combine_chunks()
         self._ids = np.asarray(self._table.column(ID).to_numpy(), dtype=np.int64)
         self._clip_pos: dict[str, int] | None = None
+        self._distinct: dict[str, frozenset[Any] | None] = {}
 
     @classmethod
     def from_rows(cls, rows: Rows, ids: np.ndarray) -> MetadataStore:
@@ -85,6 +86,14 @@ class MetadataStore:
     def clip_ids(self, ids: np.ndarray) -> list[str]:
         return self._table.column(CLIP_ID).take(pa.array(self.positions(ids))).to_pylist()
 
+    def distinct(self, field: str, limit: int) -> frozenset[Any] | None:
+        """The distinct values of a column when it holds at most ``limit`` of them, else None; computed
+        once per store (filters check a vocabulary's values against them)."""
+        if field not in self._distinct:
+            values = pc.unique(self._table.column(field))
+            self._distinct[field] = frozenset(values.to_pylist()) if len(values) <= limit else None
+        return self._distinct[field]
+
     def ids_of(self, clip_ids: Sequence[str]) -> np.ndarray:
         """(M,) ids of ``clip_ids``; raises :class:`MetadataError` listing unknown clip ids."""
         if self._clip_pos is None:
@@ -104,13 +113,13 @@ class MetadataStore:
             raise MetadataError(f"new rows do not match the existing columns: {exc}") from None
         order = np.argsort(np.asarray(table.column(ID).to_numpy()), kind="stable")
         store = MetadataStore(table.take(pa.array(order)))
-        self._table, self._ids, self._clip_pos = store._table, store._ids, None
+        self._table, self._ids, self._clip_pos, self._distinct = store._table, store._ids, None, {}
 
     def remove(self, ids: np.ndarray) -> None:
         keep = ~np.isin(self._ids, np.asarray(ids, dtype=np.int64))
         self._table = self._table.filter(pa.array(keep))
         self._ids = self._ids[keep]
-        self._clip_pos = None
+        self._clip_pos, self._distinct = None, {}
 
     # ------------------------------------------------------------------ files
 

@@ -178,8 +178,8 @@ def _check_categorical_values(conditions: Sequence[Condition], metadata: Metadat
     for c in conditions:
         if c.op not in (Op.EQ, Op.IN) or not pa.types.is_string(metadata.table.schema.field(c.field).type):
             continue
-        present = set(metadata.table.column(c.field).to_pylist())
-        if len(present) > MAX_VOCABULARY:
+        present = metadata.distinct(c.field, MAX_VOCABULARY)  # computed once per index, not per query
+        if present is None:
             continue
         wanted = c.value if c.op is Op.IN else (c.value,)
         absent = [v for v in wanted if v not in present]

@@ -173,10 +173,15 @@ INSTANCE_SUFFIX = "_instance"
 POSE_COVERAGE_TOLERANCE_NS = 200_000_000
 
 
+def _outside_poses(ts: NDArray[np.int64], ego: EgoTrajectory) -> tuple[NDArray[np.bool_], int, int]:
+    """(T,) which of ``ts`` lie beyond the poses' span and its tolerance; the span's first and last time."""
+    lo, hi = int(ego.timestamps_ns[0]), int(ego.timestamps_ns[-1])
+    return (ts < lo - POSE_COVERAGE_TOLERANCE_NS) | (ts > hi + POSE_COVERAGE_TOLERANCE_NS), lo, hi
+
+
 def _check_pose_coverage(log_dir: Path, annotations: Annotations, ego: EgoTrajectory) -> list[Problem]:
     ts = annotations.timestamps_ns
-    lo, hi = int(ego.timestamps_ns[0]), int(ego.timestamps_ns[-1])
-    outside = (ts < lo - POSE_COVERAGE_TOLERANCE_NS) | (ts > hi + POSE_COVERAGE_TOLERANCE_NS)
+    outside, lo, hi = _outside_poses(ts, ego)
     if outside.any():
         first = int(ts[np.argmax(outside)])
         return [
@@ -191,8 +196,7 @@ def _check_sweep_times(log_dir: Path, ego: EgoTrajectory) -> list[Problem]:
     its name is its timestamp, so it would add a frame outside the log and stretch its time grid."""
     lidar_dir = log_dir / av2_io.LIDAR_DIR
     ts = timestamps_in(lidar_dir, ".feather")
-    lo, hi = int(ego.timestamps_ns[0]), int(ego.timestamps_ns[-1])
-    outside = (ts < lo - POSE_COVERAGE_TOLERANCE_NS) | (ts > hi + POSE_COVERAGE_TOLERANCE_NS)
+    outside, lo, hi = _outside_poses(ts, ego)
     if not outside.any():
         return []
     first = int(ts[np.argmax(outside)])

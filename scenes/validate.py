@@ -15,9 +15,9 @@ from typing import Any
 
 from scenes import av2_io, map_schema, schema
 from scenes.calibration import CameraIntrinsics
-from scenes.errors import Problem, collect_problems
+from scenes.errors import LogFormatError, Problem, collect_problems
 from scenes.log import Log, log_folder_problem
-from scenes.sensors import JPEG_END, JPEG_START, JPEG_TAIL_BYTES, read_lidar_sweep, timestamps_in
+from scenes.sensors import JPEG_END, JPEG_START, JPEG_TAIL_BYTES, read_camera_frame, read_lidar_sweep, timestamps_in
 
 
 @dataclass(frozen=True)
@@ -94,12 +94,10 @@ def check_camera_frame_file(path: Path) -> list[Problem]:
 def check_frame_size(path: Path, intrinsics: CameraIntrinsics) -> list[Problem]:
     """A camera image of another size than its intrinsics say (another camera's, or resized): boxes would be
     projected onto the wrong pixels. The first frame of each camera is decoded for its size."""
-    import cv2
-
-    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if image is None:
-        return []  # unreadable: check_camera_frame_file and the readers say so
-    height_px, width_px = image.shape[:2]
+    try:
+        height_px, width_px = read_camera_frame(path).shape[:2]
+    except LogFormatError:
+        return []  # unreadable: check_camera_frame_file says so
     if (width_px, height_px) == (intrinsics.width_px, intrinsics.height_px):
         return []
     return [Problem(path, f"the image is {width_px}×{height_px} px, the camera's intrinsics say "

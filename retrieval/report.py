@@ -34,7 +34,7 @@ class Example:
     mode: str = "text → clip"
 
 
-def _pyplot() -> Any:
+def pyplot() -> Any:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -88,7 +88,7 @@ def plot_training_curves(rows: Sequence[dict[str, Any]], out_png: Path) -> bool:
                 figures.setdefault(key, []).append((x, float(value)))
     if not losses and not figures:
         return False
-    plt = _pyplot()
+    plt = pyplot()
     fig, axes = plt.subplots(1, 2, figsize=(11, 3.8))
     for ax, series, title in ((axes[0], losses, "training loss"), (axes[1], figures, "validation, text → clip")):
         for key, points in sorted(series.items()):
@@ -119,7 +119,7 @@ def plot_embedding_map(x: np.ndarray, actions: Sequence[str], out_png: Path, tit
     xy = pca_2d(x)
     counts = Counter(actions)
     top = [a for a, _ in counts.most_common(MAX_ACTIONS_COLOURED)]
-    plt = _pyplot()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(8, 6))
     other = np.array([a not in top for a in actions])
     if other.any():
@@ -143,7 +143,7 @@ def plot_recall_curves(curves: dict[str, Any], out_png: Path) -> bool:
     ks = curves.get("k") or []
     if not ks:
         return False
-    plt = _pyplot()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(7, 4.2))
     styles = {"model": ("fused model", "-", 2.2), "camera": ("camera only (clips it saw)", "--", 1.3),
               "bev": ("BEV only", "--", 1.3), "bag_of_frames": ("bag of frames", ":", 1.6),
@@ -185,7 +185,7 @@ def metrics_html(metrics: dict[str, Any]) -> str:
     return "\n".join(out)
 
 
-def _preview_html(result: SearchResult, out_dir: Path) -> str:
+def preview_html(result: SearchResult, out_dir: Path) -> str:
     if result.preview_path and Path(result.preview_path).is_file():
         rel = os.path.relpath(result.preview_path, out_dir)
         return f"<img src='{html.escape(rel)}' alt='preview of {html.escape(result.clip_id)}' loading='lazy'>"
@@ -198,7 +198,7 @@ def examples_html(examples: Sequence[Example], out_dir: Path) -> str:
         cards = []
         for r in ex.results:
             cards.append(
-                "<div class='card'>" + _preview_html(r, out_dir) +
+                "<div class='card'>" + preview_html(r, out_dir) +
                 f"<div class='meta'><b>#{r.rank}</b> score {r.score:.3f} · {html.escape(r.category)}<br>"
                 f"<span class='cap'>{html.escape(r.caption)}</span><br>"
                 f"<code>{html.escape(r.clip_id)}</code></div></div>")

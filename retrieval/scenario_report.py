@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from retrieval.records import SearchResult
-from retrieval.report import _preview_html, _pyplot
+from retrieval.report import preview_html, pyplot
 from retrieval.scenario_search import ScenarioMatch
 from scenarios.features import LogFeatures
 
@@ -41,7 +41,7 @@ def draw_moment(x: LogFeatures, result: SearchResult, referred: Sequence[str], r
     ``out_png``; False when the log holds no frame."""
     if x.num_frames == 0:
         return False
-    plt = _pyplot()
+    plt = pyplot()
     middle_ns = (result.start_ns + result.end_ns) // 2
     f = int(np.argmin(np.abs(x.timestamps_ns - middle_ns)))
     ego = x.ego_index
@@ -97,7 +97,7 @@ def scenario_section(search: SceneSearch, query: str, k: int, out_dir: Path) -> 
         drawn = features is not None and draw_moment(features, r, match.referred.get(r.clip_id, ()),
                                                      match.related.get(r.clip_id, ()), png)
         top = f"<img src='plots/{png.name}' alt='the moment from above'>" if drawn else ""
-        cards.append(f"<div class='card'>{top}{_preview_html(r, out_dir)}<div class='meta'><b>#{r.rank}</b> "
+        cards.append(f"<div class='card'>{top}{preview_html(r, out_dir)}<div class='meta'><b>#{r.rank}</b> "
                      f"{html.escape(r.category)}<br><span class='cap'>{html.escape(r.caption)}</span><br>"
                      f"<code>{html.escape(r.clip_id)}</code></div></div>")
     return head + f"<div class='cards'>{''.join(cards) or '(no results)'}</div>", results, match

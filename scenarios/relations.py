@@ -28,6 +28,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -132,26 +133,25 @@ def candidate_pairs(x: LogFeatures, subjects: NDArray[np.int64], others: NDArray
     return subjects[si], others[oi]
 
 
-def group_any(mask: Mask, keys: NDArray[np.int64], n: int) -> Mask:
-    """(n, F): row k is the or of the rows of ``mask`` (P, F) whose key is k."""
-    out = np.zeros((n, mask.shape[1]), dtype=bool)
+def _grouped(mask: Mask, keys: NDArray[np.int64], n: int, reduce: np.ufunc, dtype: type) -> NDArray[Any]:
+    """(n, F): row k reduces (``reduce.reduceat``) the rows of ``mask`` (P, F) whose key is k."""
+    out: NDArray[Any] = np.zeros((n, mask.shape[1]), dtype=dtype)
     if keys.size:
         order = np.argsort(keys, kind="stable")
         k = keys[order]
         starts = np.flatnonzero(np.r_[True, k[1:] != k[:-1]])
-        out[k[starts]] = np.logical_or.reduceat(mask[order], starts, axis=0)
+        out[k[starts]] = reduce.reduceat(mask[order].astype(dtype), starts, axis=0)
     return out
+
+
+def group_any(mask: Mask, keys: NDArray[np.int64], n: int) -> Mask:
+    """(n, F): row k is the or of the rows of ``mask`` (P, F) whose key is k."""
+    return _grouped(mask, keys, n, np.logical_or, bool)
 
 
 def group_count(mask: Mask, keys: NDArray[np.int64], n: int) -> NDArray[np.int64]:
     """(n, F): row k counts the rows of ``mask`` (P, F) whose key is k that hold at each frame."""
-    out = np.zeros((n, mask.shape[1]), dtype=np.int64)
-    if keys.size:
-        order = np.argsort(keys, kind="stable")
-        k = keys[order]
-        starts = np.flatnonzero(np.r_[True, k[1:] != k[:-1]])
-        out[k[starts]] = np.add.reduceat(mask[order].astype(np.int64), starts, axis=0)
-    return out
+    return _grouped(mask, keys, n, np.add, np.int64)
 
 
 @dataclass(frozen=True)

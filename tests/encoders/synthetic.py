@@ -20,6 +20,7 @@ Rendering is vectorised over frames; every item is a pure function of (seed, spl
 from __future__ import annotations
 
 import zlib
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -310,3 +311,36 @@ def collate_clips(items: list[dict[str, Any]]) -> dict[str, Any]:
         else:
             out[key] = values
     return out
+
+
+#: Small clips for the training tests: 4 frames, small views, no distractors.
+SMALL_SPEC = SyntheticSpec(frames=4, camera_hw=(16, 16), bev_hw=(16, 8), distractors=0)
+HOST_TAGS = ["cruising:heading_straight"]
+
+
+class CaptionedClips(Dataset[dict[str, Any]]):
+    """Synthetic clips (:data:`SMALL_SPEC`) captioned as a clips folder's: tags, host tags and captions,
+    frame tags on some frames only (the dense targets), and a camera only where ``has_camera(index)``."""
+
+    def __init__(self, size: int, has_camera: Callable[[int], bool], augment: bool = False) -> None:
+        self.base = SyntheticClipDataset(size, "train", SMALL_SPEC, seed=1, augment=augment)
+        self.has_camera = has_camera
+
+    def __len__(self) -> int:
+        return len(self.base)
+
+    def __getitem__(self, index: int) -> dict[str, Any]:
+        from encoders.dense import DENSE_TASKS
+        from encoders.negatives import render_caption
+
+        item, record = self.base[index], self.base.record(index)
+        tags = [f"{lane}:{'away' if motion == 'recede' else motion}" for lane, motion in record["steps"]]
+        caption = render_caption(record["category"], tags, HOST_TAGS)
+        has_camera = self.has_camera(index)
+        rng = np.random.default_rng([2, index])
+        targets = np.stack([rng.integers(-1, len(c), SMALL_SPEC.frames) for c in DENSE_TASKS.values()], axis=1)
+        return {**item, "category": record["category"], "tags": tags, "host_tags": HOST_TAGS,
+                "canonical_caption": caption, "caption": caption, "has_camera": has_camera,
+                "camera": item["camera"] if has_camera else torch.zeros_like(item["camera"]),
+                "frame_targets": torch.as_tensor(targets, dtype=torch.int64)}
+

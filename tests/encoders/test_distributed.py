@@ -23,9 +23,7 @@ import pytest
 import torch
 import torch.nn.functional as F
 from safetensors.torch import load_file
-from torch.utils.data import Dataset
 
-from encoders.dense import DENSE_TASKS
 from encoders.distributed import (
     Distributed,
     GlobalBatchNorm,
@@ -35,46 +33,26 @@ from encoders.distributed import (
     sync_batch_norms,
 )
 from encoders.loss import contrastive_loss, positives_matrix
-from encoders.negatives import render_caption
 from encoders.presets import preset
 from encoders.tagging.config import TagTrainConfig
 from encoders.train_config import HardNegative, TrainConfig
 from retrieval.cli import main
-from tests.encoders.synthetic import SyntheticClipDataset, SyntheticSpec
+from tests.encoders.synthetic import CaptionedClips
 from tests.encoders.tagging_fixtures import build_tagging_fixture
 
 ROOT = Path(__file__).resolve().parents[2]
-SPEC = SyntheticSpec(frames=4, camera_hw=(16, 16), bev_hw=(16, 8), distractors=0)
-HOST = ["cruising:heading_straight"]
 TIMING = {"samples_per_s", "epoch_s"}
 B = 4  # clips per process and step (synthetic clips)
 
 
-class Clips(Dataset[dict[str, Any]]):
-    """Synthetic clips with captions, tags and host tags as a clips folder's; camera on a few clips only, so
-    that in the first step one process's share has none and the other's has some (the camera view's own
-    loss, ``view_weight``, then has kept clips on one process only)."""
-
-    def __init__(self, size: int = 16) -> None:
-        self.base = SyntheticClipDataset(size, "train", SPEC, seed=1, augment=True)
-        first = np.random.default_rng([0, 0]).permutation(size)  # EpochSampler's order of epoch 0 (seed 0)
-        self.camera = {int(i) for i in first[B : B + 2]} | {int(first[-1])}
-
-    def __len__(self) -> int:
-        return len(self.base)
-
-    def __getitem__(self, index: int) -> dict[str, Any]:
-        item, record = self.base[index], self.base.record(index)
-        tags = [f"{lane}:{'away' if motion == 'recede' else motion}" for lane, motion in record["steps"]]
-        caption = render_caption(record["category"], tags, HOST)
-        has_camera = index in self.camera
-        camera = item["camera"] if has_camera else torch.zeros_like(item["camera"])
-        # Frame tags on some frames only, so that the processes hold unequal shares of the dense targets.
-        rng = np.random.default_rng([2, index])
-        targets = np.stack([rng.integers(-1, len(c), SPEC.frames) for c in DENSE_TASKS.values()], axis=1)
-        return {**item, "category": record["category"], "tags": tags, "host_tags": HOST, "canonical_caption": caption,
-                "caption": caption, "has_camera": has_camera, "camera": camera,
-                "frame_targets": torch.as_tensor(targets, dtype=torch.int64)}
+def Clips(size: int = 16) -> CaptionedClips:
+    """Synthetic clips captioned as a clips folder's; camera on a few clips only, so that in the first step
+    one process's share has none and the other's has some (the camera view's own loss, ``view_weight``,
+    then has kept clips on one process only); frame tags on some frames only, so that the processes hold
+    unequal shares of the dense targets."""
+    first = np.random.default_rng([0, 0]).permutation(size)  # EpochSampler's order of epoch 0 (seed 0)
+    camera = {int(i) for i in first[B : B + 2]} | {int(first[-1])}
+    return CaptionedClips(size, camera.__contains__, augment=True)
 
 
 def setup(name: str, clips: Path, processes: int) -> tuple[TrainConfig, dict[str, Any]]:

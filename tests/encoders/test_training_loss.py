@@ -8,48 +8,25 @@ import json
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import pytest
 import torch
-from torch.utils.data import Dataset
 
-from encoders.dense import DENSE_TASKS
 from encoders.distributed import Distributed
 from encoders.inference import collate
 from encoders.loss import contrastive_loss, order_loss, partial_query_loss, positives_matrix, view_loss
 from encoders.model import DualEncoder
-from encoders.negatives import batch_negatives, render_caption
+from encoders.negatives import batch_negatives
 from encoders.partial_queries import batch_partials
 from encoders.presets import preset
 from encoders.train import train
 from encoders.train_config import HardNegative, TrainConfig
 from encoders.training_loss import TOTAL, LossTerms, TrainingLoss, forward_step
-from tests.encoders.synthetic import SyntheticClipDataset, SyntheticSpec
-
-SPEC = SyntheticSpec(frames=4, camera_hw=(16, 16), bev_hw=(16, 8), distractors=0)
-HOST = ["cruising:heading_straight"]
+from tests.encoders.synthetic import CaptionedClips
 
 
-class Clips(Dataset[dict[str, Any]]):
+def Clips(size: int = 8) -> CaptionedClips:
     """Synthetic clips captioned as a clips folder's, with frame tags on some frames and a camera on some clips."""
-
-    def __init__(self, size: int = 8) -> None:
-        self.base = SyntheticClipDataset(size, "train", SPEC, seed=1)
-
-    def __len__(self) -> int:
-        return len(self.base)
-
-    def __getitem__(self, index: int) -> dict[str, Any]:
-        item, record = self.base[index], self.base.record(index)
-        tags = [f"{lane}:{'away' if motion == 'recede' else motion}" for lane, motion in record["steps"]]
-        caption = render_caption(record["category"], tags, HOST)
-        has_camera = index % 3 != 0
-        rng = np.random.default_rng([2, index])
-        targets = np.stack([rng.integers(-1, len(c), SPEC.frames) for c in DENSE_TASKS.values()], axis=1)
-        return {**item, "category": record["category"], "tags": tags, "host_tags": HOST, "canonical_caption": caption,
-                "caption": caption, "has_camera": has_camera,
-                "camera": item["camera"] if has_camera else torch.zeros_like(item["camera"]),
-                "frame_targets": torch.as_tensor(targets, dtype=torch.int64)}
+    return CaptionedClips(size, lambda index: index % 3 != 0)
 
 
 class Tagging:

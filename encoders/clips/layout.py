@@ -9,33 +9,34 @@ the names from here::
     CLIPS_DIR/previews/<clip>.gif     an animated preview per clip (:func:`preview_file_name`), optional
     CLIPS_DIR/logs/<log_id>/          each log's rendered arrays (:func:`rendered_log_dir`), below
 
-For a log with F frames (its annotation timestamps) :func:`encoders.clips.render.render_log` writes:
+For a log with F frames (its annotation timestamps) :func:`encoders.clips.render.render_log` writes these
+arrays, each in zlib blocks of frames (:mod:`encoders.clips.blocks`, read by :func:`load_rendered_array`):
 
-========================  =====================  =========================================================
-file                      shape, dtype           content
-========================  =====================  =========================================================
-camera.npy                (F, Hc, Wc, 3) uint8   front camera RGB, resized (F = 0 when the log has no camera)
-camera_instances.npy      (F, Hc, Wc) uint16     instance masks: v ≥ 1 ↔ ``track_ids[v − 1]``, 0 = none
-camera_pixel_counts.npy   (F, K) int32           mask pixels of every track at the camera's full resolution
-camera_crops.npy          (N, Hc, Wc, 3) uint8   every seen track's crop around its box at full resolution
-                                                 (:mod:`encoders.clips.crops`), one row per (frame, track)
-camera_crop_masks.npy     (N, Hc, Wc) uint8      the track's mask in its crop (1 = the object)
-camera_crop_index.npy     (F, K) int32           each (frame, track)'s row in the crops, −1 where none
-camera_crop_box.npy       (F, K, 3) float32      the crop's centre in the full image (x, y in [−1, 1]) and the
-                                                 track's pixels there, log(1 + px) / log(1 + image px)
-bev_lidar.npy             (F, Z, Hb, Wb) uint8   occupancy per height bin (log-scaled point density)
-bev_map.npy               (F, Cm, Hb, Wb) uint8  map layers (:data:`~encoders.clips.raster.MAP_CHANNELS`)
-bev_instances.npy         (F, Hb, Wb) uint16     box footprints: v ≥ 1 ↔ ``track_ids[v − 1]`` (overlaps: the
-                                                 smaller box wins)
-track_boxes.npy           (F, K, 5) float32      every track's ``x_m, y_m, length_m, width_m, yaw_rad`` in
-                                                 the frame's ego frame, NaN when not observed; the dataset
-                                                 draws the object of interest from it (never hidden by
-                                                 an overlapping box)
-track_ids.json            list[str]              K track ids
-frames.parquet            F rows                 frame_index, timestamp_ns, city_SE3_ego (qw..tz_m), x_m, y_m,
-                                                 yaw_rad, speed_mps, has_sweep, has_camera_frame
-render.json               dict                   stats and the rendering config's fingerprint
-========================  =====================  =========================================================
+===========================  =====================  =========================================================
+file                         shape, dtype           content
+===========================  =====================  =========================================================
+camera.blocks                (F, Hc, Wc, 3) uint8   front camera RGB, resized (F = 0 when the log has no camera)
+camera_instances.blocks      (F, Hc, Wc) uint16     instance masks: v ≥ 1 ↔ ``track_ids[v − 1]``, 0 = none
+camera_pixel_counts.blocks   (F, K) int32           mask pixels of every track at the camera's full resolution
+camera_crops.blocks          (N, Hc, Wc, 3) uint8   every seen track's crop around its box at full resolution
+                                                    (:mod:`encoders.clips.crops`), one row per (frame, track)
+camera_crop_masks.blocks     (N, Hc, Wc) uint8      the track's mask in its crop (1 = the object)
+camera_crop_index.blocks     (F, K) int32           each (frame, track)'s row in the crops, −1 where none
+camera_crop_box.blocks       (F, K, 3) float32      the crop's centre in the full image (x, y in [−1, 1]) and the
+                                                    track's pixels there, log(1 + px) / log(1 + image px)
+bev_lidar.blocks             (F, Z, Hb, Wb) uint8   occupancy per height bin (log-scaled point density)
+bev_map.blocks               (F, Cm, Hb, Wb) uint8  map layers (:data:`~encoders.clips.raster.MAP_CHANNELS`)
+bev_instances.blocks         (F, Hb, Wb) uint16     box footprints: v ≥ 1 ↔ ``track_ids[v − 1]`` (overlaps: the
+                                                    smaller box wins)
+track_boxes.blocks           (F, K, 5) float32      every track's ``x_m, y_m, length_m, width_m, yaw_rad`` in
+                                                    the frame's ego frame, NaN when not observed; the dataset
+                                                    draws the object of interest from it (never hidden by
+                                                    an overlapping box)
+track_ids.json               list[str]              K track ids
+frames.parquet               F rows                 frame_index, timestamp_ns, city_SE3_ego (qw..tz_m), x_m, y_m,
+                                                    yaw_rad, speed_mps, has_sweep, has_camera_frame
+render.json                  dict                   stats and the rendering config's fingerprint
+===========================  =====================  =========================================================
 
 and the tagging stage adds the ground-truth tag rasters beside them (:mod:`encoders.tagging.targets`):
 ``bev_attributes.blocks`` (F, A, H, W) float16 in compressed frame blocks
@@ -87,7 +88,7 @@ TRACK_BOXES_FILE = "track_boxes.blocks"
 TRACK_IDS_FILE = "track_ids.json"
 FRAMES_FILE = "frames.parquet"
 RENDER_FILE = "render.json"
-#: Stem of the built-in tag targets: ``<stem>.npy`` holds the rasters, ``<stem>.json`` their sidecar.
+#: Stem of the built-in tag targets: ``<stem>.blocks`` holds the rasters, ``<stem>.json`` their sidecar.
 TARGETS_STEM = "bev_attributes"
 
 

@@ -48,12 +48,28 @@ class BertConfig:
     attention_probs_dropout_prob: float
 
 
+class _Linear(nn.Linear):
+    """``nn.Linear`` without random initialisation: :func:`load` assigns every weight from the checkpoint,
+    so drawing them first would be work thrown away at each start of a command."""
+
+    def reset_parameters(self) -> None:
+        pass
+
+
+class _Embedding(nn.Embedding):
+    """``nn.Embedding`` without random initialisation (see :class:`_Linear`): the 30,522-token table's
+    normal draws were most of a query's model construction."""
+
+    def reset_parameters(self) -> None:
+        pass
+
+
 class _Embeddings(nn.Module):
     def __init__(self, c: BertConfig) -> None:
         super().__init__()
-        self.word_embeddings = nn.Embedding(c.vocab_size, c.hidden_size, padding_idx=0)
-        self.position_embeddings = nn.Embedding(c.max_position_embeddings, c.hidden_size)
-        self.token_type_embeddings = nn.Embedding(c.type_vocab_size, c.hidden_size)
+        self.word_embeddings = _Embedding(c.vocab_size, c.hidden_size, padding_idx=0)
+        self.position_embeddings = _Embedding(c.max_position_embeddings, c.hidden_size)
+        self.token_type_embeddings = _Embedding(c.type_vocab_size, c.hidden_size)
         self.LayerNorm = nn.LayerNorm(c.hidden_size, eps=c.layer_norm_eps)
         self.dropout = nn.Dropout(c.hidden_dropout_prob)
 
@@ -68,9 +84,9 @@ class _SelfAttention(nn.Module):
         super().__init__()
         self.heads = c.num_attention_heads
         self.dropout_p = c.attention_probs_dropout_prob
-        self.query = nn.Linear(c.hidden_size, c.hidden_size)
-        self.key = nn.Linear(c.hidden_size, c.hidden_size)
-        self.value = nn.Linear(c.hidden_size, c.hidden_size)
+        self.query = _Linear(c.hidden_size, c.hidden_size)
+        self.key = _Linear(c.hidden_size, c.hidden_size)
+        self.value = _Linear(c.hidden_size, c.hidden_size)
 
     def forward(self, x: torch.Tensor, bias: torch.Tensor) -> torch.Tensor:
         b, n, h = x.shape
@@ -86,7 +102,7 @@ class _DenseNorm(nn.Module):
 
     def __init__(self, c: BertConfig, width_in: int) -> None:
         super().__init__()
-        self.dense = nn.Linear(width_in, c.hidden_size)
+        self.dense = _Linear(width_in, c.hidden_size)
         self.LayerNorm = nn.LayerNorm(c.hidden_size, eps=c.layer_norm_eps)
         self.dropout = nn.Dropout(c.hidden_dropout_prob)
 
@@ -107,7 +123,7 @@ class _Attention(nn.Module):
 class _Intermediate(nn.Module):
     def __init__(self, c: BertConfig) -> None:
         super().__init__()
-        self.dense = nn.Linear(c.hidden_size, c.intermediate_size)
+        self.dense = _Linear(c.hidden_size, c.intermediate_size)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         return F.gelu(self.dense(x))  # (B, L, I)
@@ -136,7 +152,7 @@ class _Pooler(nn.Module):
 
     def __init__(self, c: BertConfig) -> None:
         super().__init__()
-        self.dense = nn.Linear(c.hidden_size, c.hidden_size)
+        self.dense = _Linear(c.hidden_size, c.hidden_size)
 
 
 class BertModel(nn.Module):
@@ -273,9 +289,9 @@ def load(folder: Path | str, device: str = "cpu") -> SentenceBert:
     model = SentenceBert(config, tokenizer, max_len, normalize=modules[2:] == [_NORMALIZE])
     weights = load_file(str(folder / "model.safetensors"))
     prefix = "bert." if any(k.startswith("bert.") for k in weights) else ""
-    state = {f"0.model.{k.removeprefix(prefix)}": v for k, v in weights.items()
+    state = {f"0.model.{k.removeprefix(prefix)}": v.float() for k, v in weights.items()
              if not k.removeprefix(prefix).startswith(("embeddings.position_ids", "embeddings.token_type_ids"))}
-    missing, unexpected = model.load_state_dict(state, strict=False)
+    missing, unexpected = model.load_state_dict(state, strict=False, assign=True)
     if missing or unexpected:
         raise UnsupportedFolderError(f"{folder / 'model.safetensors'}: weights that do not fit a BERT encoder "
                                      f"(missing {missing[:3]}, unexpected {unexpected[:3]})")

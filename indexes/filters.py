@@ -36,6 +36,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 
 from indexes.errors import FilterError
+from scenesearch_base import arrow_numpy
 
 
 class Op(str, Enum):
@@ -216,7 +217,7 @@ def check(conditions: Sequence[Condition], schema: pa.Schema, expression: str | 
 
     ``expression`` is the filter string the conditions were parsed from, named in the error.
     """
-    _mask(schema.empty_table(), conditions, expression)
+    _mask(pa.Table.from_batches([], schema=schema), conditions, expression)  # no chunks: no conversion runs
 
 
 def _mask(table: pa.Table, conditions: Sequence[Condition], expression: str | None) -> np.ndarray:
@@ -239,8 +240,8 @@ def _condition_mask(column: pa.ChunkedArray, cond: Condition, expression: str | 
             raise FilterError(f"list field supports only 'contains', not {cond.op.value!r}", expression, cond.field)
         value = _convert(cond.value, typ.value_type, cond.field, expression)
         flat = pc.list_flatten(column)
-        parents = np.asarray(pc.list_parent_indices(column))
-        hit = np.asarray(pc.fill_null(pc.equal(flat, value), False), dtype=bool)
+        parents = arrow_numpy.to_numpy(pc.list_parent_indices(column))
+        hit = arrow_numpy.mask(pc.equal(flat, value))
         mask = np.zeros(len(column), dtype=bool)
         mask[parents[hit]] = True
         return mask
@@ -250,7 +251,7 @@ def _condition_mask(column: pa.ChunkedArray, cond: Condition, expression: str | 
         result = pc.match_substring(column, str(cond.value))
     elif cond.op in (Op.IN, Op.NOT_IN):
         value_type = typ.value_type if pa.types.is_dictionary(typ) else typ
-        values = pa.array([_convert(v, typ, cond.field, expression).as_py() for v in cond.value], type=value_type)
+        values = _values_array([_convert(v, typ, cond.field, expression) for v in cond.value], value_type)
         result = pc.is_in(column, value_set=values)
         if cond.op is Op.NOT_IN:
             result = pc.and_(pc.invert(result), pc.is_valid(column))
@@ -263,7 +264,14 @@ def _condition_mask(column: pa.ChunkedArray, cond: Condition, expression: str | 
         except (pa.ArrowNotImplementedError, pa.ArrowInvalid) as exc:
             raise FilterError(f"cannot compare a {typ} field with {cond.op.value!r}: {exc}",
                               expression, cond.field) from None
-    return np.asarray(pc.fill_null(result, False), dtype=bool)
+    return arrow_numpy.mask(result)
+
+
+def _values_array(values: Sequence[pa.Scalar], value_type: pa.DataType) -> pa.Array:
+    """The set of an ``in`` condition: strings from their text, other types through ``pa.array``."""
+    if pa.types.is_string(value_type) or pa.types.is_large_string(value_type):
+        return arrow_numpy.strings([v.as_py() for v in values]).cast(value_type)
+    return pa.array([v.as_py() for v in values], type=value_type)
 
 
 def _convert(value: Any, typ: pa.DataType, field: str, expression: str | None) -> pa.Scalar:
@@ -286,12 +294,10 @@ def _convert(value: Any, typ: pa.DataType, field: str, expression: str | None) -
                 raise FilterError(f"{text!r} is not true or false", expression, field) from None
             v = text.lower() == "true"
         elif pa.types.is_dictionary(typ):
-            return pa.scalar(text, type=typ.value_type)
+            return arrow_numpy.scalar(text, typ.value_type)
         else:
             v = text
     try:
-        if pa.types.is_dictionary(typ):
-            return pa.scalar(v, type=typ.value_type)
-        return pa.scalar(v, type=typ)
-    except (pa.ArrowInvalid, pa.ArrowTypeError, OverflowError, TypeError) as exc:
+        return arrow_numpy.scalar(v, typ.value_type if pa.types.is_dictionary(typ) else typ)
+    except (pa.ArrowInvalid, pa.ArrowTypeError, OverflowError, TypeError, ValueError) as exc:
         raise FilterError(f"value {value!r} does not fit the field's type {typ}: {exc}", expression, field) from None

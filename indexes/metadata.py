@@ -19,6 +19,7 @@ import pyarrow.parquet as pq
 
 from indexes.errors import IdError, IndexFileError, MetadataError
 from indexes.filters import FilterSpec, compile_mask
+from scenesearch_base.arrow_numpy import from_numpy, to_numpy
 
 ID = "id"
 CLIP_ID = "clip_id"
@@ -31,7 +32,7 @@ class MetadataStore:
     def __init__(self, table: pa.Table, source: str = "metadata") -> None:
         _validate(table, source)
         self._table = table.combine_chunks()
-        self._ids = np.asarray(self._table.column(ID).to_numpy(), dtype=np.int64)
+        self._ids = np.asarray(to_numpy(self._table.column(ID)), dtype=np.int64)
         self._clip_pos: dict[str, int] | None = None
         self._distinct: dict[str, frozenset[Any] | None] = {}
 
@@ -81,10 +82,10 @@ class MetadataStore:
 
     def rows(self, ids: np.ndarray) -> list[dict[str, Any]]:
         """Metadata rows (as dicts) of ``ids`` (M,), in that order."""
-        return self._table.take(pa.array(self.positions(ids))).to_pylist()
+        return self._table.take(from_numpy(self.positions(ids))).to_pylist()
 
     def clip_ids(self, ids: np.ndarray) -> list[str]:
-        return self._table.column(CLIP_ID).take(pa.array(self.positions(ids))).to_pylist()
+        return self._table.column(CLIP_ID).take(from_numpy(self.positions(ids))).to_pylist()
 
     def distinct(self, field: str, limit: int) -> frozenset[Any] | None:
         """The distinct values of a column when it holds at most ``limit`` of them, else None; computed
@@ -164,10 +165,11 @@ def _validate(table: pa.Table, source: str) -> None:
         row = int(np.flatnonzero(np.asarray(pc.is_null(clip)))[0])
         raise MetadataError(f"{source}: missing clip id", row=row, field=CLIP_ID)
     counts = pc.value_counts(clip)
-    dup = pc.filter(counts.field("values"), pc.greater(counts.field("counts"), 1)).to_pylist()
+    dup = [value for value, n in zip(counts.field("values").to_pylist(), to_numpy(counts.field("counts")))
+           if n > 1] if pc.count_distinct(clip).as_py() < len(clip) else []
     if dup:
         first = clip.to_pylist().index(dup[0])
         raise MetadataError(f"{source}: duplicate clip ids {dup[:10]}", row=first, field=CLIP_ID)
-    ids = np.asarray(table.column(ID).to_numpy())
+    ids = to_numpy(table.column(ID))
     if len(ids) > 1 and not (np.diff(ids) > 0).all():
         raise MetadataError(f"{source}: ids must be unique and ascending", field=ID)

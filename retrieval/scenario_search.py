@@ -34,6 +34,7 @@ from scenarios.compiler import Compiled, DescriptionError, compile_description
 from scenarios.evaluate import evaluate
 from scenarios.features import EGO_TRACK_ID, LogFeatures
 from scenes.errors import ScenesError
+from scenesearch_base.arrow_numpy import from_numpy, to_numpy
 
 #: The folder of the logs' scenario features inside an index.
 SCENARIOS_DIR = "scenarios"
@@ -153,7 +154,7 @@ class ScenarioStore:
         if not self.available:
             return ScenarioMatch(query, compiled, fallback="this index holds no scenario features (build it again "
                                                           "to answer scenario programs)")
-        logs = moments.column("log_id").to_numpy(zero_copy_only=False).astype(str)
+        logs = to_numpy(moments.column("log_id")).astype(str)
         selected: list[str] = []
         referred: dict[str, tuple[str, ...]] = {}
         related: dict[str, tuple[str, ...]] = {}
@@ -165,7 +166,7 @@ class ScenarioStore:
                 continue
             result = evaluate(compiled.program, x)
             notes += [n for n in result.notes if n not in notes]
-            rows = moments.filter(pa.array(logs == log_id))
+            rows = moments.filter(from_numpy(logs == log_id))
             found = _moments_selected(x, result.selection.mask, result.selection.related, rows)
             for clip_id, refs, rels in found:
                 selected.append(clip_id)
@@ -181,8 +182,8 @@ def _moments_selected(x: LogFeatures, referred: np.ndarray, related: np.ndarray,
     """The moments of one log (``rows``) whose window holds a referred frame of their track (or of the ego),
     each with the referred and related tracks in its window."""
     ts = x.timestamps_ns
-    lo = np.searchsorted(ts, rows.column("start_ns").to_numpy().astype(np.int64), side="left")
-    hi = np.searchsorted(ts, rows.column("end_ns").to_numpy().astype(np.int64), side="right")
+    lo = np.searchsorted(ts, to_numpy(rows.column("start_ns")).astype(np.int64), side="left")
+    hi = np.searchsorted(ts, to_numpy(rows.column("end_ns")).astype(np.int64), side="right")
     ref_sum = np.concatenate([np.zeros((x.num_objects, 1), np.int64), np.cumsum(referred, axis=1)], axis=1)
     rel_sum = np.concatenate([np.zeros((x.num_objects, 1), np.int64), np.cumsum(related, axis=1)], axis=1)
     in_window_ref = (ref_sum[:, hi] - ref_sum[:, lo]) > 0  # (K, M): referred somewhere in each window

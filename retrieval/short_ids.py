@@ -39,6 +39,7 @@ import pyarrow.compute as pc
 
 from retrieval.errors import RetrievalError
 from retrieval.records import LogSpan, SearchResult
+from scenesearch_base.arrow_numpy import scalar, to_numpy
 
 #: Characters of the log and track prefixes in a readable id (more where that many are ambiguous).
 PREFIX_CHARS = 8
@@ -136,11 +137,11 @@ class ShortIds:
         self._table = table.select(list(_COLUMNS))
         # Each log's first and last indexed moment, in numpy: Arrow's group_by imports its query engine and
         # pyarrow.dataset (0.2 s of a search's start-up).
-        logs, inverse = np.unique(np.asarray(self._table.column("log_id").to_pylist(), dtype=str), return_inverse=True)
+        logs, inverse = np.unique(to_numpy(self._table.column("log_id")).astype(str), return_inverse=True)
         first = np.full(logs.shape[0], np.iinfo(np.int64).max, dtype=np.int64)
         last = np.full(logs.shape[0], np.iinfo(np.int64).min, dtype=np.int64)
-        np.minimum.at(first, inverse, np.asarray(self._table.column("start_ns").to_numpy(), dtype=np.int64))
-        np.maximum.at(last, inverse, np.asarray(self._table.column("end_ns").to_numpy(), dtype=np.int64))
+        np.minimum.at(first, inverse, to_numpy(self._table.column("start_ns")).astype(np.int64))
+        np.maximum.at(last, inverse, to_numpy(self._table.column("end_ns")).astype(np.int64))
         self._covered = {str(lg): LogSpan(int(a), int(b)) for lg, a, b in zip(logs, first, last)}
         self._read_spans = read_spans
         self._spans: dict[str, LogSpan] = {}
@@ -179,7 +180,7 @@ class ShortIds:
         return {lg: self._spans[lg] for lg in wanted}
 
     def _moments_of(self, log_id: str) -> pa.Table:
-        return self._table.filter(pc.equal(self._table.column("log_id"), log_id))
+        return self._table.filter(pc.equal(self._table.column("log_id"), scalar(log_id, pa.string())))
 
     def _tracks(self, log_id: str) -> dict[str, str]:
         """Each track of the log → its printed prefix."""
@@ -223,7 +224,7 @@ class ShortIds:
                            f"last search of this index) or LOG/TRACK@SECONDSs (e.g. {examples})")
 
     def _holds(self, clip_id: str) -> bool:
-        return bool(pc.any(pc.equal(self._table.column("clip_id"), clip_id)).as_py())
+        return bool(pc.any(pc.equal(self._table.column("clip_id"), scalar(clip_id, pa.string()))).as_py())
 
     def _resolve_rank(self, rank: int, index_dir: Path | str, state: Path | None) -> str:
         last = last_search(index_dir, state)
@@ -256,7 +257,8 @@ class ShortIds:
             raise ShortIdError(f"{track!r} names {len(tracks)} tracks of log {log_id}: {_listed(tracks)}; give more "
                                "of the track id")
         rows = self._moments_of(log_id)
-        rows = rows.filter(pc.equal(rows.column("track_id"), tracks[0])).sort_by("start_ns").to_pylist()
+        rows = rows.filter(pc.equal(rows.column("track_id"), scalar(tracks[0], pa.string())))
+        rows = rows.sort_by("start_ns").to_pylist()
         hits = [r for r in rows if round(self.start_s(log_id, r["start_ns"]), 1) == round(seconds, 1)]
         if len(hits) == 1:
             return str(hits[0]["clip_id"])

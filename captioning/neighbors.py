@@ -354,11 +354,8 @@ def neighbor_tags(
     """All neighbour tags, vectorised over tracks × frames.
 
     Args:
-        timestamps_ns: (T,) frame timestamps.
-        valid: (K, T) observed mask.
-        center_ego_xy_m: (K, T, 2) centres in the ego frame (anything where not observed).
-        yaw_ego_rad: (K, T) headings in the ego frame.
-        city_SE3_ego: (T, 4, 4) ego poses.
+        timestamps_ns, valid, center_ego_xy_m, yaw_ego_rad, city_SE3_ego, config: as :func:`track_motion`
+            (here K or T may be 0).
         stationary_objects: tag stationary tracks too, and let motion be the distance rule alone
             (approach / away / constant, the ego's doing for an object that stands): whether an
             object stands is then its own-behaviour tag (:mod:`captioning.behavior`), not a motion.

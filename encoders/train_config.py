@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any, ClassVar
 
 from encoders.config import ConfigError, DualEncoderConfig, EncodersConfig, check_device_name, ordered_names
+from scenesearch_base.config import check_at_least, check_fraction
 
 
 class HardNegative(StrEnum):
@@ -119,13 +120,12 @@ class TrainConfig(EncodersConfig):
         super().__post_init__()
         kinds = hard_negative_kinds(self.hard_negatives, "TrainConfig.hard_negatives")
         object.__setattr__(self, "hard_negatives", kinds)
-        for name in ("epochs", "batch_size", "eval_every", "eval_batch_size"):
-            if getattr(self, name) < 1:
-                raise ConfigError(f"TrainConfig.{name} must be >= 1, got {getattr(self, name)}")
-        for name in ("lr", "weight_decay", "warmup_steps", "grad_clip", "num_workers", "view_weight",
-                     "dense_weight", "order_weight", "partial_weight"):
-            if getattr(self, name) < 0:
-                raise ConfigError(f"TrainConfig.{name} must be >= 0, got {getattr(self, name)}")
+        check_at_least("TrainConfig", 1, error=ConfigError, epochs=self.epochs, batch_size=self.batch_size,
+                       eval_every=self.eval_every, eval_batch_size=self.eval_batch_size)
+        check_at_least("TrainConfig", 0, error=ConfigError, lr=self.lr, weight_decay=self.weight_decay,
+                       warmup_steps=self.warmup_steps, grad_clip=self.grad_clip, num_workers=self.num_workers,
+                       view_weight=self.view_weight, dense_weight=self.dense_weight, order_weight=self.order_weight,
+                       partial_weight=self.partial_weight)
         if self.order_weight > 0 and HardNegative.REVERSE not in self.hard_negatives:
             raise ConfigError("TrainConfig.order_weight > 0 needs 'reverse' among hard_negatives")
         if self.camera_apart and self.view_weight <= 0:
@@ -133,11 +133,9 @@ class TrainConfig(EncodersConfig):
                               "all that trains it contrastively")
         if self.dense_weight > 0 and not self.model.dense_streams:
             raise ConfigError("TrainConfig.dense_weight > 0 needs dense heads: set model.dense_streams")
-        for name in ("camera_share", "partial_object_share", "partial_host_share"):
-            if not 0.0 <= getattr(self, name) <= 1.0:
-                raise ConfigError(f"TrainConfig.{name} must be in [0, 1], got {getattr(self, name)}")
-        if self.max_steps_per_epoch < 0:
-            raise ConfigError(f"TrainConfig.max_steps_per_epoch must be >= 0, got {self.max_steps_per_epoch}")
+        check_fraction("TrainConfig", error=ConfigError, camera_share=self.camera_share,
+                       partial_object_share=self.partial_object_share, partial_host_share=self.partial_host_share)
+        check_at_least("TrainConfig", 0, error=ConfigError, max_steps_per_epoch=self.max_steps_per_epoch)
         check_device_name(self.device, "TrainConfig.device")
 
     def to_json(self) -> str:

@@ -11,16 +11,3 @@ class ScenesConfig(YamlConfig):
 
     config_error = ConfigError
 
-
-def check_positive(owner: str, **values: float) -> None:
-    """Raise ``ValueError`` naming ``owner.<name>`` for the first value that is not > 0."""
-    for name, value in values.items():
-        if not value > 0:
-            raise ValueError(f"{owner}.{name} must be > 0, got {value}")
-
-
-def check_at_least(owner: str, minimum: float, **values: float) -> None:
-    """Raise ``ValueError`` naming ``owner.<name>`` for the first value below ``minimum``."""
-    for name, value in values.items():
-        if value < minimum:
-            raise ValueError(f"{owner}.{name} must be >= {minimum}, got {value}")

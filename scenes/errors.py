@@ -21,6 +21,27 @@ class ConfigError(ScenesError, scenesearch_base.config.ConfigError):
     """A config of a scenes stage (simulator, sensors, tracker) is invalid; names the file and the key."""
 
 
+class TrackFrameError(ScenesError):
+    """A value of one track at one frame that a stage cannot use (a NaN centre, a flat box).
+
+    The message reads ``PLACE, frame F (timestamp_ns N), field 'FIELD': MESSAGE``, where ``place`` names
+    the log or file and the track as the raising stage writes them.
+
+    Attributes:
+        track_id: the track.
+        frame: 0-based frame index.
+        timestamp_ns: the frame's timestamp.
+        field: the field at fault.
+    """
+
+    def __init__(self, place: str, track_id: str, frame: int, timestamp_ns: int, field: str, message: str) -> None:
+        self.track_id = track_id
+        self.frame = frame
+        self.timestamp_ns = timestamp_ns
+        self.field = field
+        super().__init__(f"{place}, frame {frame} (timestamp_ns {timestamp_ns}), field '{field}': {message}")
+
+
 @dataclass(frozen=True)
 class Problem:
     """One thing wrong with an input file.

@@ -102,6 +102,42 @@ def check_upper_bounds(config: Any, bounds: Mapping[str, float], error: type[Val
         raise error("; ".join(problems))
 
 
+def check_positive(owner: str, /, *, error: type[ValueError] = ValueError, **values: float) -> None:
+    """Refuse the first of ``values`` that is not > 0 (NaN included), naming the field as ``owner.<name>``.
+
+    The per-field checks of a config's ``__post_init__`` share these helpers, so that every stage words a
+    bad value alike; ``error`` is the stage's exception.
+
+    Raises:
+        error: ``OWNER.NAME must be > 0, got VALUE``.
+    """
+    for name, value in values.items():
+        if not value > 0:
+            raise error(f"{owner}.{name} must be > 0, got {value}")
+
+
+def check_at_least(owner: str, minimum: float, /, *, error: type[ValueError] = ValueError, **values: float) -> None:
+    """Refuse the first of ``values`` below ``minimum``, naming the field as ``owner.<name>``.
+
+    Raises:
+        error: ``OWNER.NAME must be >= MINIMUM, got VALUE``.
+    """
+    for name, value in values.items():
+        if value < minimum:
+            raise error(f"{owner}.{name} must be >= {minimum}, got {value}")
+
+
+def check_fraction(owner: str, /, *, error: type[ValueError] = ValueError, **values: float) -> None:
+    """Refuse the first of ``values`` outside [0, 1] (a probability or a share), naming ``owner.<name>``.
+
+    Raises:
+        error: ``OWNER.NAME must be in [0, 1], got VALUE``.
+    """
+    for name, value in values.items():
+        if not 0.0 <= value <= 1.0:
+            raise error(f"{owner}.{name} must be in [0, 1], got {value}")
+
+
 def with_option(config: T, option: str, **changes: Any) -> T:
     """``dataclasses.replace(config, **changes)`` for a command-line ``option``; a value the config
     refuses is reported as the option's (``--frames-per-clip 1000000000: key 'frames_per_clip': …``)."""

@@ -13,6 +13,7 @@ from typing import ClassVar
 from encoders.config import BevConfig, ConfigError, EncodersConfig, check_device_name
 from encoders.tagging.ablation import parse_inputs
 from encoders.tagging.losses import TagLossConfig
+from scenesearch_base.config import check_at_least, check_positive
 
 MODES = ("joint", "alone")
 
@@ -84,11 +85,11 @@ class TagTrainConfig(EncodersConfig):
         if self.mode not in MODES:
             raise ConfigError(f"TagTrainConfig.mode must be one of {MODES}, got {self.mode!r}")
         parse_inputs(self.inputs)
-        for name in ("window_frames", "frame_stride", "batch_size", "steps", "log_every"):
-            if getattr(self, name) < 1:
-                raise ConfigError(f"TagTrainConfig.{name} must be >= 1, got {getattr(self, name)}")
-        if (self.lr <= 0 or self.weight_decay < 0 or self.joint_weight < 0 or self.joint_presence_weight < 0
-                or self.warmup_steps < 0):
-            raise ConfigError("TagTrainConfig.lr must be > 0; weight_decay, joint_weight, joint_presence_weight, "
-                              "warmup_steps >= 0")
+        check_at_least("TagTrainConfig", 1, error=ConfigError, window_frames=self.window_frames,
+                       frame_stride=self.frame_stride, batch_size=self.batch_size, steps=self.steps,
+                       log_every=self.log_every)
+        check_positive("TagTrainConfig", error=ConfigError, lr=self.lr)
+        check_at_least("TagTrainConfig", 0, error=ConfigError, weight_decay=self.weight_decay,
+                       joint_weight=self.joint_weight, joint_presence_weight=self.joint_presence_weight,
+                       warmup_steps=self.warmup_steps)
         check_device_name(self.device, "TagTrainConfig.device")

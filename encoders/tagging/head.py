@@ -34,6 +34,7 @@ from encoders.tagging.attributes import (
     attribute_kind,
     is_density,
 )
+from scenesearch_base.config import check_at_least
 
 
 @dataclass(frozen=True)
@@ -69,8 +70,7 @@ class TagHeadConfig:
             raise TagError("TagHeadConfig.attributes must not be empty")
         if len(set(self.attributes)) != len(self.attributes):
             raise TagError(f"TagHeadConfig.attributes repeats a name: {list(self.attributes)}")
-        if self.embed_channels < 1:
-            raise TagError(f"TagHeadConfig.embed_channels must be >= 1, got {self.embed_channels}")
+        check_at_least("TagHeadConfig", 1, error=TagError, embed_channels=self.embed_channels)
         for name, kind in self.kinds.items():
             if kind not in (AttributeKind.CONTINUOUS.value, AttributeKind.DISCRETE.value):
                 raise TagError(f"TagHeadConfig.kinds[{name!r}] must be 'continuous' or 'discrete', got {kind!r}")

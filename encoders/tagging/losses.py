@@ -31,6 +31,7 @@ import torch.nn.functional as F
 from numpy.typing import NDArray
 
 from encoders.tagging.attributes import TagError
+from scenesearch_base.config import check_at_least, check_positive
 
 
 @dataclass(frozen=True)
@@ -59,14 +60,12 @@ class TagLossConfig:
     presence_weight: float = 1.0
 
     def __post_init__(self) -> None:
-        if self.hard_negatives < 0 or self.min_negatives < 0:
-            raise TagError("TagLossConfig.hard_negatives and min_negatives must be >= 0")
-        if self.smooth_l1_beta <= 0 or self.scene_norm <= 0:
-            raise TagError("TagLossConfig.smooth_l1_beta and scene_norm must be > 0")
-        weights = ("scene_weight", "discrete_weight", "continuous_weight", "presence_weight")
-        if any(getattr(self, w) < 0 for w in weights):
-            raise TagError(f"TagLossConfig.{', '.join(weights)} must be >= 0, got "
-                           f"{[getattr(self, w) for w in weights]}")
+        check_at_least("TagLossConfig", 0, error=TagError, hard_negatives=self.hard_negatives,
+                       min_negatives=self.min_negatives)
+        check_positive("TagLossConfig", error=TagError, smooth_l1_beta=self.smooth_l1_beta, scene_norm=self.scene_norm)
+        check_at_least("TagLossConfig", 0, error=TagError, scene_weight=self.scene_weight,
+                       discrete_weight=self.discrete_weight, continuous_weight=self.continuous_weight,
+                       presence_weight=self.presence_weight)
 
 
 def downsample_targets(targets: torch.Tensor, factor: int, area: torch.Tensor) -> torch.Tensor:

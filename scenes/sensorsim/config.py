@@ -15,8 +15,9 @@ from typing import ClassVar
 import numpy as np
 
 from scenes.calibration import CameraIntrinsics
-from scenes.config import ScenesConfig, check_at_least, check_positive
+from scenes.config import ScenesConfig
 from scenes.geometry import SE3
+from scenesearch_base.config import check_at_least, check_positive
 
 #: Calibration name of the simulated LiDAR (the AV2 name of the roof LiDAR).
 LIDAR_SENSOR_NAME = "up_lidar"

@@ -9,7 +9,8 @@ from typing import ClassVar
 
 import numpy as np
 
-from scenes.config import ScenesConfig, check_at_least, check_positive
+from scenes.config import ScenesConfig
+from scenesearch_base.config import check_at_least, check_fraction, check_positive
 
 #: Simulation steps in one log, at most (an hour at 100 Hz): the steps of a log are held in memory.
 MAX_STEPS_PER_LOG = 360_000
@@ -66,8 +67,7 @@ class TrackerNoiseConfig(ScenesConfig):
         super().__post_init__()
         check_at_least("TrackerNoiseConfig", 0, center_std_m=self.center_std_m, yaw_std_rad=self.yaw_std_rad,
                        id_switch_rate_per_s=self.id_switch_rate_per_s)
-        if not 0.0 <= self.miss_probability <= 1.0:
-            raise ValueError(f"TrackerNoiseConfig.miss_probability must be in [0, 1], got {self.miss_probability}")
+        check_fraction("TrackerNoiseConfig", miss_probability=self.miss_probability)
         if not 0.0 < self.occlusion_fraction <= 1.0:
             raise ValueError(
                 f"TrackerNoiseConfig.occlusion_fraction must be in (0, 1], got {self.occlusion_fraction}"

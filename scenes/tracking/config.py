@@ -5,7 +5,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from enum import Enum
 
-from scenes.config import ScenesConfig, check_at_least, check_positive
+from scenes.config import ScenesConfig
+from scenesearch_base.config import check_at_least, check_fraction, check_positive
 
 
 class Association(str, Enum):
@@ -69,8 +70,7 @@ class TrackerConfig(ScenesConfig):
         object.__setattr__(self, "association", Association(self.association))
         check_at_least("TrackerConfig", 1, min_hits=self.min_hits)
         check_at_least("TrackerConfig", 0, max_age=self.max_age)
-        if not 0.0 <= self.score_threshold <= 1.0:
-            raise ValueError(f"TrackerConfig.score_threshold must be in [0, 1], got {self.score_threshold}")
+        check_fraction("TrackerConfig", score_threshold=self.score_threshold)
         if not 0.0 < self.min_bev_iou <= 1.0:
             raise ValueError(f"TrackerConfig.min_bev_iou must be in (0, 1], got {self.min_bev_iou}")
         check_positive("TrackerConfig", position_noise_m=self.position_noise_m, yaw_noise_rad=self.yaw_noise_rad,

@@ -13,8 +13,8 @@ from captioning import CaptioningConfig, caption_log
 from captioning.unify import collapse
 from retrieval.cli import main
 from scenes.log import Log
+from tests.realdata import REALDATA
 
-REALDATA = Path(__file__).resolve().parents[2] / ".." / "shared" / "realdata"
 AV2_BRAKE = REALDATA / "av2" / "7fab2350-7eaf-3b7e-a39d-6937a4c1bede"
 AV2_WAIT = REALDATA / "av2" / "adcf7d18-0510-35b0-a2fa-b4cea13a6d76"
 KITTI = REALDATA / "kitti_tracking"

@@ -11,8 +11,9 @@ from captioning.robustness import caption_agreement, match_tracks
 from scenes.kitti import import_kitti_sequence
 from scenes.log import Log
 from scenes.tracking import TrackerConfig, import_kitti_detections
+from tests.realdata import REALDATA
 
-KITTI = Path(__file__).resolve().parents[2] / ".." / "shared" / "realdata" / "kitti_tracking"
+KITTI = REALDATA / "kitti_tracking"
 
 
 def test_match_tracks_pairs_nearest_within_the_threshold() -> None:

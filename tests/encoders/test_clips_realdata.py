@@ -15,8 +15,8 @@ from encoders.clips.build import build_clips
 from encoders.clips.config import BevSourceChoice, ClipsConfig
 from encoders.data import ClipDataset, collate_clips
 from scenes.log import Log
+from tests.realdata import REALDATA
 
-REALDATA = Path(__file__).resolve().parents[3] / "shared" / "realdata"
 AV2_LOG = REALDATA / "av2" / "7fab2350-7eaf-3b7e-a39d-6937a4c1bede"
 KITTI = REALDATA / "kitti_tracking"
 

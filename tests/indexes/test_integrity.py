@@ -6,6 +6,7 @@ import json
 import os
 import warnings
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -96,37 +97,37 @@ def test_stamp_is_not_listed_in_a_new_manifest(tmp_path: Path, data: Data) -> No
     assert STAMP_NAME not in read_manifest(tmp_path / "copy").files
 
 
+def _manifest_to_edit(tmp_path: Path, data: Data) -> tuple[Path, dict[str, Any]]:
+    """A saved 100-clip index's manifest: its path, and its content to edit and write back."""
+    path = _clip_index(tmp_path, data[0][:100]) / "manifest.json"
+    return path, json.loads(path.read_text())
+
+
 def test_edited_manifest_is_refused(tmp_path: Path, data: Data) -> None:
-    directory = _clip_index(tmp_path, data[0][:100])
-    path = directory / "manifest.json"
-    raw = json.loads(path.read_text())
+    path, raw = _manifest_to_edit(tmp_path, data)
     path.write_text(json.dumps({**raw, "count": 99}))
     with pytest.raises(ManifestError, match="content differs from its checksum"):
-        ClipIndex.load(directory)
+        ClipIndex.load(path.parent)
     raw.pop("content_sha256")
     path.write_text(json.dumps(raw))  # a version-2 manifest must carry its checksum
     with pytest.raises(ManifestError, match="content_sha256"):
-        ClipIndex.load(directory)
+        ClipIndex.load(path.parent)
 
 
 def test_an_older_format_is_refused_with_what_to_do(tmp_path: Path, data: Data) -> None:
-    directory = _clip_index(tmp_path, data[0][:100])
-    path = directory / "manifest.json"
-    raw = json.loads(path.read_text())
+    path, raw = _manifest_to_edit(tmp_path, data)
     raw.pop("content_sha256")
     path.write_text(json.dumps({**raw, "format_version": 1}))
     with pytest.raises(UnsupportedFormatError, match="version 1 was built by an older version.*build it again"):
-        ClipIndex.load(directory)
+        ClipIndex.load(path.parent)
 
 
 def test_manifest_must_list_every_file_it_reads(tmp_path: Path, data: Data) -> None:
-    directory = _clip_index(tmp_path, data[0][:100])
-    path = directory / "manifest.json"
-    raw = json.loads(path.read_text())
+    path, raw = _manifest_to_edit(tmp_path, data)
     del raw["files"]["metadata.parquet"]
     path.write_text(json.dumps(seal(raw)))
     with pytest.raises(ManifestError, match="does not list metadata.parquet"):
-        ClipIndex.load(directory)
+        ClipIndex.load(path.parent)
 
 
 def test_sharded_index_verifies_every_shard(tmp_path: Path, data: Data) -> None:

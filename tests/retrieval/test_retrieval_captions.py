@@ -16,8 +16,9 @@ from indexes.integrity import seal, sha256_file
 from retrieval.captions_search import CaptionSearch, caption_rows, is_caption_index, text_variants
 from retrieval.errors import EmptyQueryError, FilterSyntaxError, IndexDirError, InvalidKError
 from retrieval.logs_search import caption_logs
+from tests.realdata import REALDATA
 
-REALDATA = Path(__file__).resolve().parents[3] / "shared" / "realdata" / "av2"
+AV2 = REALDATA / "av2"
 DEV_LOGS = ("7fab2350-7eaf-3b7e-a39d-6937a4c1bede", "adcf7d18-0510-35b0-a2fa-b4cea13a6d76")
 
 
@@ -75,11 +76,11 @@ def test_build_search_round_trip(tmp_path: Path) -> None:
         CaptionSearch.open(tmp_path)
 
 
-@pytest.mark.skipif(not all((REALDATA / d).is_dir() for d in DEV_LOGS), reason="../shared/realdata/av2 is absent")
+@pytest.mark.skipif(not all((AV2 / d).is_dir() for d in DEV_LOGS), reason="../shared/realdata/av2 is absent")
 def test_stopped_car_on_real_av2_logs() -> None:
     """Acceptance: a short query finds the right moments on real logs that have tracks but no sensors."""
     # One development log keeps the test short (its ~700 distinct texts take seconds to embed).
-    table, skipped = caption_logs([REALDATA / DEV_LOGS[0]])
+    table, skipped = caption_logs([AV2 / DEV_LOGS[0]])
     assert skipped == []
     search = CaptionSearch.build(table)
     results = search.search("stopped car", k=6)

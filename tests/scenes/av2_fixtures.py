@@ -17,8 +17,8 @@ import pytest
 
 from scenes import av2_io
 from scenes.categories import EGO_VEHICLE_LABEL
+from tests.realdata import REALDATA
 
-REALDATA = Path(__file__).resolve().parents[2].parent / "shared" / "realdata"
 DEV_LOGS = {
     "7fab2350": REALDATA / "av2" / "7fab2350-7eaf-3b7e-a39d-6937a4c1bede",
     "adcf7d18": REALDATA / "av2" / "adcf7d18-0510-35b0-a2fa-b4cea13a6d76",

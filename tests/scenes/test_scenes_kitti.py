@@ -30,8 +30,8 @@ from scenes.kitti import (
 )
 from scenes.log import Log
 from scenes.validate import validate_log
+from tests.realdata import REALDATA
 
-REALDATA = Path(__file__).resolve().parents[2].parent / "shared" / "realdata"
 KITTI = REALDATA / "kitti_tracking"
 DEV_SEQUENCES = [f"{i:04d}" for i in range(11)]  # 0000–0010 are for development; 0011–0020 are reserved
 

@@ -14,9 +14,9 @@ from scenes.categories import Category
 from scenes.errors import LogFormatError
 from scenes.log import Log
 from scenes.validate import validate_log
+from tests.realdata import REALDATA
 from tests.scenes.av2_fixtures import rewritten_log
 
-REALDATA = Path(__file__).resolve().parents[2].parent / "shared" / "realdata"
 LOG_7FAB = REALDATA / "av2" / "7fab2350-7eaf-3b7e-a39d-6937a4c1bede"
 LOG_ADCF = REALDATA / "av2" / "adcf7d18-0510-35b0-a2fa-b4cea13a6d76"
 

@@ -13,6 +13,9 @@ import pytest
 from scenesearch_base.config import (
     ConfigError,
     YamlConfig,
+    check_at_least,
+    check_fraction,
+    check_positive,
     from_dict,
     from_yaml,
     from_yaml_text,
@@ -174,3 +177,19 @@ def test_with_option_names_the_flag_of_a_refused_value() -> None:
     with pytest.raises(StageConfigError, match=r"^--frames 1000000000: key 'frames': 1000000000 is above its "
                                                r"upper bound 256$"):
         with_option(Bounded(), "--frames", frames=1_000_000_000)
+
+
+def test_field_checks_name_the_first_bad_field_and_raise_the_stage_error() -> None:
+    check_positive("Lens", focal_m=0.05, aperture_m=1e-9)
+    check_at_least("Lens", 1, blades=1, elements=7)
+    check_fraction("Lens", vignetting=0.0, transmission=1.0)
+    with pytest.raises(ValueError, match=r"^Lens\.aperture_m must be > 0, got 0\.0$"):
+        check_positive("Lens", focal_m=0.05, aperture_m=0.0, shutter_s=-1.0)
+    with pytest.raises(ValueError, match=r"^Lens\.focal_m must be > 0, got nan$"):
+        check_positive("Lens", focal_m=float("nan"))
+    with pytest.raises(StageConfigError, match=r"^Lens\.elements must be >= 1, got 0$"):
+        check_at_least("Lens", 1, error=StageConfigError, blades=3, elements=0)
+    with pytest.raises(ValueError, match=r"^Lens\.transmission must be in \[0, 1\], got 1\.5$"):
+        check_fraction("Lens", vignetting=0.5, transmission=1.5)
+    with pytest.raises(ValueError, match=r"^Lens\.vignetting must be in \[0, 1\], got -0\.1$"):
+        check_fraction("Lens", vignetting=-0.1)

@@ -3,16 +3,15 @@
 from __future__ import annotations
 
 import re
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 from scenes.errors import ConfigError
 from scenes.sensorsim.config import CameraConfig, LidarConfig, SensorConfig, WorldConfig
+from tests.realdata import REALDATA
 
-AV2_LOG = (Path(__file__).resolve().parents[3] / ".." / "shared" / "realdata" / "av2"
-           / "7fab2350-7eaf-3b7e-a39d-6937a4c1bede")
+AV2_LOG = REALDATA / "av2" / "7fab2350-7eaf-3b7e-a39d-6937a4c1bede"
 
 
 def test_yaml_round_trip() -> None:

@@ -19,9 +19,9 @@ from scenes.sensorsim.instance_masks import instance_mask_dir, read_instance_mas
 from scenes.sensorsim.render import check_objects, render_log_sensors
 from scenes.sensorsim.synthetic import write_synthetic_log
 from scenes.tracks import Annotations, EgoTrajectory, dense_tracks
+from tests.realdata import REALDATA
 
-AV2_SWEEP_DIR = (Path(__file__).resolve().parents[3] / ".." / "shared" / "realdata" / "av2"
-                 / "7fab2350-7eaf-3b7e-a39d-6937a4c1bede" / "sensors" / "lidar")
+AV2_SWEEP_DIR = REALDATA / "av2" / "7fab2350-7eaf-3b7e-a39d-6937a4c1bede" / "sensors" / "lidar"
 
 
 @pytest.fixture(scope="module")

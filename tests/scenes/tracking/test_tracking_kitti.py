@@ -14,8 +14,9 @@ from scenes.tracking import TrackerConfig, import_kitti_detections
 from scenes.tracking.evaluate import evaluate_tracking
 from scenes.tracking.kitti_detections import read_pointrcnn_detections
 from scenes.tracking.log_evaluation import Protocol, evaluate_log_pair
+from tests.realdata import REALDATA
 
-KITTI = Path(__file__).resolve().parents[3] / ".." / "shared" / "realdata" / "kitti_tracking"
+KITTI = REALDATA / "kitti_tracking"
 pytestmark = pytest.mark.skipif(not KITTI.is_dir(), reason="../shared/realdata/kitti_tracking is absent")
 
 SEQ = "0006"  # a development sequence, 270 frames of mostly parked and moving cars

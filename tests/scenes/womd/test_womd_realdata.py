@@ -26,8 +26,8 @@ from scenes.womd import (
 )
 from scenes.womd.proto import MAP_FEATURE_KINDS, ObjectType
 from scenes.womd.roadmap import MAX_HALF_WIDTH_M
+from tests.realdata import REALDATA
 
-REALDATA = Path(__file__).resolve().parents[3].parent / "shared" / "realdata"
 WOMD = REALDATA / "womd"
 DEV_FILE = WOMD / "womd_scenario_input.tfrecord"
 DEV_ID = "ee519cf571686d19"

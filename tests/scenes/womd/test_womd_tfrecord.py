@@ -19,8 +19,8 @@ from scenes.womd.tfrecord import (
     masked_crc32c,
     read_records,
 )
+from tests.realdata import REALDATA
 
-REALDATA = Path(__file__).resolve().parents[3].parent / "shared" / "realdata"
 DEV_FILE = REALDATA / "womd" / "womd_scenario_input.tfrecord"
 
 

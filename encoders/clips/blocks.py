@@ -4,8 +4,10 @@ A rendered log's arrays are mostly zeros (instance rasters, LiDAR occupancy), th
 sparse tag targets: as plain ``.npy`` files a 20-s demo log took 12 MB (17 MB with its tag targets),
 compressed about 3 MB (0.2 MB with the targets' 12 MB shrunk a hundredfold). Readers take frames at
 random (a training window, a clip), so the frames are compressed in blocks of :data:`BLOCK_FRAMES`
-and a read decompresses only the blocks it touches: a clip's 12-frame window of five arrays in about
-1.2 ms at random, 0.17 ms in order, against 0.07 ms from a memory-mapped ``.npy`` in the page cache.
+and a read decompresses only the blocks it touches. Decoded blocks are kept per process up to
+:data:`DECODED_CACHE_BYTES`, shared by every reader of a file: the clips of one log cover its frames
+many times over (a clip's 12 frames spread over a window of up to the whole log), and an index build
+decompressed each block about eight times before the cache was shared.
 
 File layout (little-endian)::
 
@@ -19,7 +21,9 @@ array), the rest applying within them.
 from __future__ import annotations
 
 import json
+import threading
 import zlib
+from collections import OrderedDict
 from pathlib import Path
 from typing import Any
 
@@ -31,6 +35,47 @@ from scenesearch_base.atomic import atomic_path
 MAGIC = b"SSBLOCK1"
 #: Frames per compressed block: a training window of 8 frames touches one or two blocks.
 BLOCK_FRAMES = 8
+
+
+#: Decoded blocks kept per process, in bytes: a demo log's arrays are 12–17 MB decoded, so a pass that
+#: reads log after log (an index build) decompresses each block about once, and training's random
+#: draws find most of a few dozen logs decoded.
+DECODED_CACHE_BYTES = 256 << 20
+
+
+class _DecodedBlocks:
+    """The process's most recently used decoded blocks, up to a byte budget (thread-safe)."""
+
+    def __init__(self, max_bytes: int) -> None:
+        self.max_bytes = max_bytes
+        self._blocks: OrderedDict[tuple[Any, ...], NDArray[Any]] = OrderedDict()
+        self._bytes = 0
+        self._lock = threading.Lock()
+
+    def get(self, key: tuple[Any, ...]) -> NDArray[Any] | None:
+        with self._lock:
+            block = self._blocks.get(key)
+            if block is not None:
+                self._blocks.move_to_end(key)
+            return block
+
+    def put(self, key: tuple[Any, ...], block: NDArray[Any]) -> None:
+        with self._lock:
+            if key in self._blocks or block.nbytes > self.max_bytes:
+                return
+            self._blocks[key] = block
+            self._bytes += block.nbytes
+            while self._bytes > self.max_bytes:
+                _, evicted = self._blocks.popitem(last=False)
+                self._bytes -= evicted.nbytes
+
+    def clear(self) -> None:
+        with self._lock:
+            self._blocks.clear()
+            self._bytes = 0
+
+
+_DECODED = _DecodedBlocks(DECODED_CACHE_BYTES)
 
 
 class BlockFileError(ValueError):
@@ -73,11 +118,12 @@ class BlockArray:
                 raise
             raise BlockFileError(f"{self.path}: unreadable block file ({exc})") from None
         expected_blocks = -(-self.shape[0] // self.block_frames) if self.shape else 0
-        if len(self._offsets) != expected_blocks + 1 or \
-                self.path.stat().st_size != self._data_start + self._offsets[-1]:
-            raise BlockFileError(f"{self.path}: {self.path.stat().st_size} bytes, its header says "
+        stat = self.path.stat()
+        if len(self._offsets) != expected_blocks + 1 or stat.st_size != self._data_start + self._offsets[-1]:
+            raise BlockFileError(f"{self.path}: {stat.st_size} bytes, its header says "
                                  f"{self._data_start + self._offsets[-1]} (truncated or extended)")
-        self._cache: dict[int, NDArray[Any]] = {}
+        # The file as opened: a file written again since (a log rendered anew) never serves old blocks.
+        self._identity = (str(self.path.resolve()), stat.st_ino, stat.st_mtime_ns, stat.st_size)
 
     @property
     def ndim(self) -> int:
@@ -87,9 +133,9 @@ class BlockArray:
         return self.shape[0]
 
     def _block(self, b: int) -> NDArray[Any]:
-        if b not in self._cache:
-            if len(self._cache) >= 4:  # the last few blocks: consecutive windows share them
-                self._cache.pop(next(iter(self._cache)))
+        key = (*self._identity, b)
+        block = _DECODED.get(key)
+        if block is None:
             start, stop = self._offsets[b], self._offsets[b + 1]
             with self.path.open("rb") as fh:
                 fh.seek(self._data_start + start)
@@ -99,8 +145,9 @@ class BlockArray:
                 raw = zlib.decompress(data)
             except zlib.error as exc:
                 raise BlockFileError(f"{self.path}: block {b} is damaged ({exc})") from None
-            self._cache[b] = np.frombuffer(raw, self.dtype).reshape(frames, *self.shape[1:])
-        return self._cache[b]
+            block = np.frombuffer(raw, self.dtype).reshape(frames, *self.shape[1:])
+            _DECODED.put(key, block)
+        return block
 
     def _frames(self, frames: NDArray[np.int64]) -> NDArray[Any]:
         out = np.empty((frames.shape[0], *self.shape[1:]), self.dtype)

@@ -47,3 +47,38 @@ def test_damaged_and_truncated_files_are_named(stored: tuple[np.ndarray, BlockAr
     path.write_bytes(b"\x93NUMPY")
     with pytest.raises(BlockFileError, match="x.blocks: not a block file"):
         BlockArray(path)
+
+
+def test_a_block_is_decompressed_once_for_every_reader_of_its_file(tmp_path: Path,
+                                                                 monkeypatch: pytest.MonkeyPatch) -> None:
+    from encoders.clips import blocks as blocks_module
+
+    x = np.arange(24 * 6, dtype=np.uint8).reshape(24, 6)
+    write_blocks(tmp_path / "x.blocks", x, block_frames=8)
+    calls = []
+    real = blocks_module.zlib.decompress
+    monkeypatch.setattr(blocks_module.zlib, "decompress", lambda data: calls.append(1) or real(data))
+    for _ in range(3):  # a clip table reading windows of one log: each reader opens the file anew
+        reader = BlockArray(tmp_path / "x.blocks")
+        assert np.array_equal(reader[np.array([0, 9, 23, 1])], x[[0, 9, 23, 1]])
+    assert len(calls) == 3  # the three blocks, once each
+
+
+def test_a_file_written_again_never_serves_its_old_blocks(tmp_path: Path) -> None:
+    path = tmp_path / "x.blocks"
+    write_blocks(path, np.zeros((10, 4), np.int32))
+    assert BlockArray(path)[3].sum() == 0
+    write_blocks(path, np.ones((10, 4), np.int32))
+    assert BlockArray(path)[3].sum() == 4
+
+
+def test_decoded_blocks_stay_within_their_budget() -> None:
+    from encoders.clips.blocks import _DecodedBlocks
+
+    cache = _DecodedBlocks(max_bytes=1000)
+    for b in range(10):
+        cache.put(("f", b), np.zeros(300, np.uint8))
+    assert cache.get(("f", 9)) is not None and cache.get(("f", 0)) is None  # the oldest went first
+    assert sum(cache.get(("f", b)) is not None for b in range(10)) == 3  # 3 × 300 bytes ≤ 1000
+    cache.put(("big", 0), np.zeros(2000, np.uint8))  # larger than the whole budget: not kept
+    assert cache.get(("big", 0)) is None

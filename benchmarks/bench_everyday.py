@@ -5,10 +5,10 @@ moment's own rule tags and the simulator's labels (its caption row: category, ta
 ``lane:motion[:action][:context]``, the ego's tags, behaviour columns), never from the query's program.
 Each sentence's judge below is written from the sentence alone.
 
-The sentences are split in three: ``DEV`` were seen while the description compiler was written;
-``FIRST_HELD_OUT`` were held out at the first measurement and read after it to find the compiler's
-gaps; ``HELD_OUT`` were written with their judges after that, before any search ran on them, and are
-not tuned on.
+The sentences are split in four: ``DEV`` were seen while the description compiler was written;
+``FIRST_HELD_OUT`` and ``SECOND_HELD_OUT`` were each held out at one measurement and read after it to
+find the compiler's gaps; ``HELD_OUT`` were written with their judges after that, before any search
+ran on them, and are not tuned on.
 
 Measured for each sentence, on the index's test clips (``split == test``): precision@10 of the default
 search (the query's scenario program selects the moments, the model ranks them), of the model alone,
@@ -105,8 +105,9 @@ FIRST_HELD_OUT: dict[str, Judge] = {
     "we are stopped behind a car":
         lambda r: _host(r, "stationary") and _cat(r, "car") and _has(r, lane="host", action="stopped"),
 }
-#: Written with their judges after the first measurement, before the compiler changed again; not tuned on.
-HELD_OUT: dict[str, Judge] = {
+#: Written with their judges after the first measurement, before the compiler changed again; held out at
+#: the second measurement (precision@10 0.317 of a 0.558 ceiling), read after it: development sentences since.
+SECOND_HELD_OUT: dict[str, Judge] = {
     "a car overtaking us on the left": lambda r: _cat(r, "car") and _has(r, lane="left", motion="away"),
     "a pedestrian walking on the right side": lambda r: _cat(r, "pedestrian") and _has(r, lane="right*"),
     "oncoming bus": lambda r: _cat(r, "bus") and _has(r, lane="oncoming"),
@@ -121,6 +122,27 @@ HELD_OUT: dict[str, Judge] = {
         lambda r: _host(r, "accelerating") and _cat(r, "car") and _has(r, lane="host"),
     "a motorcycle coming toward us": lambda r: _cat(r, "motorcycle") and _has(r, lane="oncoming", motion="approach"),
     "a stopped truck in our lane": lambda r: _cat(r, "truck") and _has(r, lane="host", action="stopped"),
+}
+
+#: Written with their judges after the second measurement, before any search ran on them and before the
+#: compiler changed again; not tuned on.
+HELD_OUT: dict[str, Judge] = {
+    "a car moving away from us in the left lane": lambda r: _cat(r, "car") and _has(r, lane="left", motion="away"),
+    "a pedestrian on the left side of the road": lambda r: _cat(r, "pedestrian") and _has(r, lane="left*"),
+    "a truck driving ahead of us":
+        lambda r: _cat(r, "truck") and any(s[0] == "host" and "stopped" not in s and "parked" not in s
+                                           for s in _steps(r)),
+    "a bus turning left": lambda r: _cat(r, "bus") and _has(r, action="left_turn"),
+    "a car braking in the left lane": lambda r: _cat(r, "car") and _has(r, lane="left", action="braking"),
+    "a cyclist waiting at the intersection":
+        lambda r: _cat(r, "cyclist") and _has(r, action="stopped", context="at_intersection"),
+    "a stopped car on the right": lambda r: _cat(r, "car") and _has(r, lane="right*", action="stopped"),
+    "a car changing lanes":
+        lambda r: _cat(r, "car") and (_has(r, action="left_lane_change") or _has(r, action="right_lane_change")),
+    "a pedestrian while we turn right": lambda r: _host(r, "steering_right") and _cat(r, "pedestrian"),
+    "an oncoming car turning left": lambda r: _cat(r, "car") and _has(r, lane="oncoming", action="left_turn"),
+    "a motorcycle in our lane": lambda r: _cat(r, "motorcycle") and _has(r, lane="host"),
+    "a parked bus": lambda r: _cat(r, "bus") and _has(r, action="parked"),
 }
 
 
@@ -166,6 +188,8 @@ def run(quick: bool = False) -> dict[str, Any]:
     if not (index / "manifest.json").is_file():
         return {"skipped": f"no demo index at {index}: run `make demo` (or set SCENESEARCH_DEMO_DIR) first"}
     dev, first, held = evaluate(index, DEV), evaluate(index, FIRST_HELD_OUT), evaluate(index, HELD_OUT)
+    second = evaluate(index, SECOND_HELD_OUT)
     return {"index": str(index), "k": K, "held_out": {"mean": _means(held), "per_query": held},
+            "second_held_out": {"mean": _means(second), "per_query": second},
             "first_held_out": {"mean": _means(first), "per_query": first},
             "dev": {"mean": _means(dev), "per_query": dev}}

@@ -1,8 +1,9 @@
 """Scenario mining (RefAV's task) on simulated logs, scored by av2's official evaluator, and its speed.
 
 Quality, on the development set of :mod:`benchmarks.mining_data` (ground truth from the reference's
-plain loops over true boxes, the simulator's behaviour labels and the map), for the held-out and the
-development descriptions apart: mean HOTA-Temporal, HOTA-Track, timestamp and log balanced accuracy
+plain loops over true boxes, the simulator's behaviour labels and the map), for each split apart
+(:data:`benchmarks.mining_data.SPLITS`: the later held-out descriptions, the held-out half, the
+development half): mean HOTA-Temporal, HOTA-Track, timestamp and log balanced accuracy
 (:func:`retrieval.commands.eval_mining.score_submission`), overall and per family, for
 
 - ``system``: each description compiled (:func:`scenarios.compiler.compile_description`) and
@@ -61,7 +62,7 @@ from typing import Any
 
 import numpy as np
 
-from benchmarks.mining_data import FAMILIES, WORK, Description, MiningData, build_data
+from benchmarks.mining_data import FAMILIES, SPLITS, WORK, Description, MiningData, build_data
 from benchmarks.mining_reference import load_reference_log, reference_selection, replicate
 from scenarios.answer import LogAnswer
 from scenarios.features import LogFeatures
@@ -81,7 +82,6 @@ SPEED_DESCRIPTION = "vehicle with a pedestrian within 15 m in front of it"
 #: Targets.
 TARGET_SCALE_S, TARGET_SPEEDUP, TARGET_CACHE_SHARE = 30.0, 100.0, 0.10
 FIGURES = ("hota_temporal", "hota_track", "timestamp_balanced_accuracy", "log_balanced_accuracy")
-SPLITS = ("held_out", "development")
 #: Objects farther than this from the ego are left out of the evaluation (av2's official range).
 EVALUATION_RANGE_M = 50
 

@@ -34,6 +34,8 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+from benchmarks.processes import measure_process
+
 QUERY = "a car in the left lane approaches, then moves into the ego lane"
 BASELINE = (sys.executable, "-c", "import torch, faiss")
 TARGETS = {"search": 2.0, "search_captions": 1.5}
@@ -61,31 +63,16 @@ def _build(root: Path) -> dict[str, Path]:
     return {"model_index": root / "model_index", "caption_index": root / "caption_index"}
 
 
-def _measure(argv: Sequence[str], env: dict[str, str]) -> tuple[float, float, float]:
-    """Wall seconds, CPU seconds and peak resident MiB of one process."""
-    start = time.perf_counter()
-    proc = subprocess.Popen(list(argv), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=env,
-                            cwd=Path(__file__).parent.parent)
-    _, status, usage = os.wait4(proc.pid, 0)
-    wall = time.perf_counter() - start
-    assert proc.stderr is not None
-    err = proc.stderr.read().decode(errors="replace")
-    proc.stderr.close()
-    if status:
-        raise RuntimeError(f"{' '.join(argv)} failed ({status}): {err[-500:]}")
-    return wall, usage.ru_utime + usage.ru_stime, usage.ru_maxrss / 1024
-
-
 def measure(commands: Mapping[str, Sequence[str]], repeats: int, env: dict[str, str]) -> dict[str, Any]:
     """Each command and the baseline ``repeats`` times, interleaved, after one uncounted run of each; medians
     and ratios to the baseline."""
     samples: dict[str, list[tuple[float, float, float]]] = {"baseline": [], **{name: [] for name in commands}}
     for argv in (BASELINE, *commands.values()):  # one run each, not counted: bytecode and page cache warm
-        _measure(argv, env)
+        measure_process(argv, env)
     for _ in range(repeats):
-        samples["baseline"].append(_measure(BASELINE, env))
+        samples["baseline"].append(measure_process(BASELINE, env))
         for name, argv in commands.items():
-            samples[name].append(_measure(argv, env))
+            samples[name].append(measure_process(argv, env))
     medians = {name: (statistics.median(s[0] for s in runs), statistics.median(s[1] for s in runs),
                       max(s[2] for s in runs)) for name, runs in samples.items()}
     base_wall, base_cpu, _ = medians["baseline"]

@@ -33,6 +33,7 @@ from scenarios.program import (
     Then,
     Together,
     While,
+    of_two_kinds,
     subject_of,
 )
 from scenarios.rewrite import closer, negated, with_subject, within, without_states
@@ -247,11 +248,18 @@ class Parser:
                 else:
                     self.unused.append(f"{value:g}")
             elif role == "conj" and self.depth <= 1 and self.name() in ("and", "while") \
-                    and self.role(1) in ("pred", "rel", "ego", "side", "with", "not"):
+                    and self.role(1) in ("pred", "rel", "ego", "side", "with", "not") and not self.kind_after_states(1):
                 self.take()  # "facing and heading toward", "… while being overtaken": one more modifier
             else:
                 break
         return node
+
+    def kind_after_states(self, ahead: int) -> bool:
+        """Whether the words from ``ahead`` on are states naming a kind ("… and parked cyclists"): a phrase
+        of its own, not one more modifier."""
+        while self.role(ahead) in ("pred", "not"):
+            ahead += 1
+        return self.role(ahead) == "kind"
 
     def modifiers_one(self, node: Node) -> Node | None:
         """One relation-like modifier of ``node``; None when the words do not make one."""
@@ -421,6 +429,8 @@ class Parser:
                 node = Then(node, other)
             elif conj.name == "while":
                 node = While(node, other)
+            elif conj.name == "and" and of_two_kinds(node, other):
+                node = AnyOf((node, other))  # "buses and motorcycles": no object is both, the words name both
             else:
                 node = AllOf((node, other)) if conj.name == "and" else node
                 if conj.name == "or":

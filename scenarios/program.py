@@ -119,6 +119,13 @@ def subject_of(node: Node) -> Node:
                 return node
 
 
+def of_two_kinds(a: Node, b: Node) -> bool:
+    """Whether ``a`` and ``b`` answer objects of two different named kinds (neither ``any``)."""
+    kind_a, kind_b = subject_of(a), subject_of(b)
+    return isinstance(kind_a, Objects) and isinstance(kind_b, Objects) and kind_a.kind != kind_b.kind \
+        and "any" not in (kind_a.kind, kind_b.kind)
+
+
 def _value(value: float | str | int) -> str:
     if isinstance(value, float):
         return f"{value:g}"

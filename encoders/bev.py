@@ -91,12 +91,14 @@ def pool_frames(s: torch.Tensor, weights: torch.Tensor, inverse: torch.Tensor | 
     m, p, k = weights.shape
     order = torch.argsort(inverse, stable=True)  # frames grouped by their row of s
     counts = torch.bincount(inverse, minlength=s.shape[0]).tolist()
-    out = weights.new_empty(m, s.shape[1], k)
+    out: torch.Tensor | None = None  # in the products' dtype (bfloat16 under autocast)
     for row, frames in enumerate(torch.split(order, counts)):
         if len(frames):
             together = weights.index_select(0, frames).permute(1, 0, 2).reshape(p, -1)  # (P, n·K)
-            out[frames] = (s[row] @ together).reshape(-1, len(frames), k).transpose(0, 1)  # (n, C, K)
-    return out
+            part = (s[row] @ together).reshape(-1, len(frames), k).transpose(0, 1)  # (n, C, K)
+            out = part.new_empty(m, s.shape[1], k) if out is None else out
+            out[frames] = part
+    return out if out is not None else weights.new_empty(m, s.shape[1], k)
 
 
 class Residual(nn.Module):

@@ -17,6 +17,7 @@ manifest's field, its value and the model's; a run without that file is checked 
 
 from __future__ import annotations
 
+import contextlib
 import json
 from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
@@ -24,6 +25,7 @@ from typing import Any
 
 import numpy as np
 import torch
+import torch.nn.functional as F
 from torch.utils.data import DataLoader, Dataset
 
 from encoders.clips.layout import MANIFEST_FILE, read_manifest
@@ -32,6 +34,7 @@ from encoders.data import AugmentConfig, ClipDataset, collate_clips
 from encoders.dense import frame_tag_report
 from encoders.metrics import caption_queries, text_to_clip_metrics
 from encoders.model import DualEncoder
+from encoders.sentence import native_bfloat16
 from encoders.text import TEXT_CACHE_FILE
 from encoders.train_config import TrainConfig
 from scenesearch_base.atomic import atomic_write_text
@@ -166,10 +169,25 @@ def shuffle_time(batch: dict[str, Any], generator: torch.Generator | None = None
     return out
 
 
-def batches(dataset: Dataset[dict[str, Any]], batch_size: int, num_workers: int = 0) -> Iterator[dict[str, Any]]:
-    """The dataset's items in order, collated in batches of ``batch_size``."""
-    loader = DataLoader(dataset, batch_size=batch_size, shuffle=False, num_workers=num_workers, collate_fn=collate)
+def batches(dataset: Dataset[dict[str, Any]], batch_size: int, num_workers: int = 0,
+            pin_memory: bool = False) -> Iterator[dict[str, Any]]:
+    """The dataset's items in order, collated in batches of ``batch_size`` (in page-locked memory with
+    ``pin_memory``, so that copies to a GPU overlap the next batch's loading)."""
+    loader = DataLoader(dataset, batch_size=batch_size, shuffle=False, num_workers=num_workers, collate_fn=collate,
+                        pin_memory=pin_memory)
     yield from loader
+
+
+def clip_autocast(device: torch.device) -> contextlib.AbstractContextManager[Any]:
+    """Mixed precision for embedding batches of clips on ``device``: bfloat16 autocast on a GPU (float16
+    where it has no bfloat16) and on a CPU that multiplies bfloat16 in hardware; float32 elsewhere.
+    Embeddings stay within 1e-4 cosine of float32's (docs/research/ingest-profile.md). One clip at query
+    time stays in float32: bfloat16's kernels are built on their first call in a process."""
+    if device.type == "cuda":
+        return torch.autocast("cuda", dtype=torch.bfloat16 if torch.cuda.is_bf16_supported() else torch.float16)
+    if device.type == "cpu" and native_bfloat16():
+        return torch.autocast("cpu", dtype=torch.bfloat16)
+    return contextlib.nullcontext()
 
 
 @torch.no_grad()
@@ -188,10 +206,13 @@ def embed_dataset(
     ids: list[str] = []
     captions: list[str] = []
     chunks = []
-    for batch in batches(dataset, batch_size):
+    device = model.device
+    for batch in batches(dataset, batch_size, pin_memory=device.type == "cuda"):
         if shuffle_frames:
             batch = shuffle_time(batch, gen)
-        chunks.append(model.encode_video(batch, view=view).float().cpu().numpy())
+        with clip_autocast(device):
+            x = model.encode_video(batch, view=view)
+        chunks.append(F.normalize(x.float(), dim=-1).cpu().numpy())
         ids += list(batch["clip_id"])
         captions += list(batch["canonical_caption"])
     model.train(was_training)
@@ -209,9 +230,12 @@ def embed_dataset_views(
     model.eval()
     ids: list[str] = []
     chunks: dict[str, list[np.ndarray]] = {}
-    for batch in batches(dataset, batch_size, num_workers):
-        for view, x in model.encode_views(batch).items():
-            chunks.setdefault(view, []).append(x.float().cpu().numpy())
+    device = model.device
+    for batch in batches(dataset, batch_size, num_workers, pin_memory=device.type == "cuda"):
+        with clip_autocast(device):
+            views = model.encode_views(batch)
+        for view, x in views.items():  # normalised again in float32: bfloat16's norm is off by about 1e-3
+            chunks.setdefault(view, []).append(F.normalize(x.float(), dim=-1).cpu().numpy())
         ids += list(batch["clip_id"])
     model.train(was_training)
     d = model.config.embed_dim

@@ -96,3 +96,35 @@ def test_clips_loaded_in_worker_processes_embed_alike() -> None:
     assert ids_w == ids
     for view, x in views.items():
         np.testing.assert_array_equal(views_w[view], x)
+
+
+@pytest.mark.parametrize("native", [True, False])
+def test_batches_of_clips_run_in_bfloat16_where_the_cpu_multiplies_it(monkeypatch: pytest.MonkeyPatch,
+                                                                      native: bool) -> None:
+    import encoders.inference as inference
+
+    monkeypatch.setattr(inference, "native_bfloat16", lambda: native)
+    with inference.clip_autocast(torch.device("cpu")):
+        assert torch.is_autocast_enabled("cpu") is native
+        if native:
+            assert torch.get_autocast_dtype("cpu") == torch.bfloat16
+
+
+def test_bfloat16_embeddings_stay_within_1e_3_cosine_of_float32(monkeypatch: pytest.MonkeyPatch) -> None:
+    import encoders.inference as inference
+    from encoders.config import tiny_model_config
+    from encoders.model import DualEncoder
+    from tests.encoders.synthetic import SyntheticClipDataset, SyntheticSpec
+
+    torch.manual_seed(0)
+    model = DualEncoder(tiny_model_config()).eval()
+    ds = SyntheticClipDataset(6, spec=SyntheticSpec(frames=4, camera_hw=(32, 48), bev_hw=(32, 16)), seed=2)
+    monkeypatch.setattr(inference, "native_bfloat16", lambda: False)
+    _, exact = inference.embed_dataset_views(model, ds, batch_size=3)
+    monkeypatch.setattr(inference, "native_bfloat16", lambda: True)  # autocast runs on any CPU, if slower
+    _, mixed = inference.embed_dataset_views(model, ds, batch_size=3)
+    for view, x in exact.items():
+        assert mixed[view].dtype == np.float32
+        np.testing.assert_allclose(np.linalg.norm(mixed[view], axis=1), 1.0, atol=1e-5)
+        assert (x * mixed[view]).sum(axis=1).min() > 1 - 1e-3, view
+        assert not np.array_equal(x, mixed[view]), view  # the products did run in bfloat16

@@ -577,3 +577,17 @@ def test_object_crops_reach_the_camera_view_and_a_model_without_them_ignores_the
                                    model.encode_video(batch, view="camera"))
     with pytest.raises(ValueError, match="object crops.*scenesearch clips"):
         crop_model.encode_video(batch, view="camera")
+
+
+def test_pooling_shared_frames_keeps_the_products_dtype_under_autocast() -> None:
+    from encoders.bev import pool_frames
+
+    torch.manual_seed(0)
+    s, weights = torch.randn(3, 4, 6), torch.rand(5, 6, 2)  # 3 distinct frames, 5 frames reading them
+    inverse = torch.tensor([0, 2, 2, 1, 0])
+    exact = pool_frames(s, weights, inverse)
+    torch.testing.assert_close(exact, torch.bmm(s[inverse], weights))
+    with torch.autocast("cpu", dtype=torch.bfloat16):
+        mixed = pool_frames(s, weights, inverse)
+    assert mixed.dtype == torch.bfloat16
+    torch.testing.assert_close(mixed.float(), exact, atol=0.05, rtol=0.02)

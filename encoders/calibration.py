@@ -18,7 +18,7 @@ import torch
 import torch.nn.functional as F
 from torch.utils.data import Dataset
 
-from encoders.inference import batches, embed_texts
+from encoders.inference import batches, clip_autocast, embed_texts
 from encoders.metrics import caption_queries, text_to_clip_metrics
 from encoders.model import DualEncoder
 
@@ -70,7 +70,9 @@ def calibrate_camera_weight(model: DualEncoder, val_set: Dataset[dict[str, Any]]
         map_by_weight: dict[float, float] = {}
         for weight in sorted(weights):
             model.fusion.set_camera_weight(weight)
-            fused = F.normalize(model.fusion(camera, bev, has_camera, category), dim=-1).float().cpu().numpy()  # (N, D)
+            with clip_autocast(model.device):  # the precision embedding the clips runs in: the same figures
+                fused_raw = model.fusion(camera, bev, has_camera, category)
+            fused = F.normalize(fused_raw.float(), dim=-1).cpu().numpy()  # (N, D)
             map_by_weight[weight] = float(text_to_clip_metrics(text @ fused.T, relevant)["mAP"])
         best = max(map_by_weight, key=lambda w: (round(map_by_weight[w], 6), w))
         model.fusion.set_camera_weight(best)
@@ -88,7 +90,8 @@ def _views(model: DualEncoder, dataset: Dataset[dict[str, Any]],
     categories: list[torch.Tensor] = []
     for batch in batches(dataset, batch_size):
         # A batch without camera clips skips the camera tower: the fusion reads BEV alone for them.
-        views = model.encode_views(batch, normalize=False, camera_always=False)
+        with clip_autocast(model.device):
+            views = model.encode_views(batch, normalize=False, camera_always=False)
         cameras.append(views["camera"])  # (B, D)
         bevs.append(views["bev"])  # (B, D)
         flags.append(torch.as_tensor(batch["has_camera"], dtype=torch.bool, device=model.device).reshape(-1))

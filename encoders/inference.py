@@ -211,8 +211,8 @@ def embed_dataset(
         if shuffle_frames:
             batch = shuffle_time(batch, gen)
         with clip_autocast(device):
-            x = model.encode_video(batch, view=view)
-        chunks.append(F.normalize(x.float(), dim=-1).cpu().numpy())
+            x = model.encode_video(batch, view=view, normalize=False)
+        chunks.append(F.normalize(x.float(), dim=-1).cpu().numpy())  # normalised in float32
         ids += list(batch["clip_id"])
         captions += list(batch["canonical_caption"])
     model.train(was_training)
@@ -233,8 +233,8 @@ def embed_dataset_views(
     device = model.device
     for batch in batches(dataset, batch_size, num_workers, pin_memory=device.type == "cuda"):
         with clip_autocast(device):
-            views = model.encode_views(batch)
-        for view, x in views.items():  # normalised again in float32: bfloat16's norm is off by about 1e-3
+            views = model.encode_views(batch, normalize=False)
+        for view, x in views.items():  # normalised in float32: in bfloat16 the norm is off by about 1e-3
             chunks.setdefault(view, []).append(F.normalize(x.float(), dim=-1).cpu().numpy())
         ids += list(batch["clip_id"])
     model.train(was_training)

@@ -246,7 +246,7 @@ def _condition_mask(column: pa.ChunkedArray, cond: Condition, expression: str | 
         mask[parents[hit]] = True
         return mask
     if cond.op is Op.CONTAINS:
-        if not (pa.types.is_string(typ) or pa.types.is_large_string(typ)):
+        if not arrow_numpy.is_string(typ):
             raise FilterError(f"'contains' needs a list or text field, this one is {typ}", expression, cond.field)
         result = pc.match_substring(column, str(cond.value))
     elif cond.op in (Op.IN, Op.NOT_IN):
@@ -269,7 +269,7 @@ def _condition_mask(column: pa.ChunkedArray, cond: Condition, expression: str | 
 
 def _values_array(values: Sequence[pa.Scalar], value_type: pa.DataType) -> pa.Array:
     """The set of an ``in`` condition: strings from their text, other types through ``pa.array``."""
-    if pa.types.is_string(value_type) or pa.types.is_large_string(value_type):
+    if arrow_numpy.is_string(value_type):
         return arrow_numpy.strings([v.as_py() for v in values]).cast(value_type)
     return pa.array([v.as_py() for v in values], type=value_type)
 

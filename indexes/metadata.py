@@ -19,7 +19,7 @@ import pyarrow.parquet as pq
 
 from indexes.errors import IdError, IndexFileError, MetadataError
 from indexes.filters import FilterSpec, compile_mask
-from scenesearch_base.arrow_numpy import from_numpy, to_numpy
+from scenesearch_base.arrow_numpy import from_numpy, is_string, to_numpy
 
 ID = "id"
 CLIP_ID = "clip_id"
@@ -159,15 +159,15 @@ def _validate(table: pa.Table, source: str) -> None:
     if not pa.types.is_integer(table.schema.field(ID).type):
         raise MetadataError(f"{source}: ids must be integers", field=ID)
     clip = table.column(CLIP_ID)
-    if not (pa.types.is_string(clip.type) or pa.types.is_large_string(clip.type)):
+    if not is_string(clip.type):
         raise MetadataError(f"{source}: clip ids must be strings, got {clip.type}", field=CLIP_ID)
     if clip.null_count:
         row = int(np.flatnonzero(np.asarray(pc.is_null(clip)))[0])
         raise MetadataError(f"{source}: missing clip id", row=row, field=CLIP_ID)
     counts = pc.value_counts(clip)
-    dup = [value for value, n in zip(counts.field("values").to_pylist(), to_numpy(counts.field("counts")))
-           if n > 1] if pc.count_distinct(clip).as_py() < len(clip) else []
-    if dup:
+    repeated = np.flatnonzero(to_numpy(counts.field("counts")) > 1)
+    if repeated.size:
+        dup = counts.field("values").take(from_numpy(repeated)).to_pylist()
         first = clip.to_pylist().index(dup[0])
         raise MetadataError(f"{source}: duplicate clip ids {dup[:10]}", row=first, field=CLIP_ID)
     ids = to_numpy(table.column(ID))

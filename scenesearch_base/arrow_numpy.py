@@ -27,8 +27,8 @@ def to_numpy(values: pa.Array | pa.ChunkedArray) -> np.ndarray:
             return np.concatenate([to_numpy(chunk) for chunk in values.chunks])
         if _fixed_width(values.type):
             return np.empty(0, np.dtype(values.type.to_pandas_dtype()))
-        return np.empty(0, object) if _is_string(values.type) else values.to_numpy()
-    if not values.null_count and _is_string(values.type):
+        return np.empty(0, object) if is_string(values.type) else values.to_numpy()
+    if not values.null_count and is_string(values.type):
         return np.array(values.to_pylist(), dtype=object)
     if values.null_count or not _fixed_width(values.type):
         return values.to_numpy(zero_copy_only=False)
@@ -39,7 +39,8 @@ def to_numpy(values: pa.Array | pa.ChunkedArray) -> np.ndarray:
     return np.frombuffer(data, dtype=dtype, count=len(values), offset=values.offset * dtype.itemsize)
 
 
-def _is_string(dtype: pa.DataType) -> bool:
+def is_string(dtype: pa.DataType) -> bool:
+    """Whether ``dtype`` is Arrow's ``string`` or ``large_string``."""
     return bool(pa.types.is_string(dtype) or pa.types.is_large_string(dtype))
 
 
@@ -79,7 +80,7 @@ def scalar(value: Any, dtype: pa.DataType) -> pa.Scalar:
     Raises:
         ValueError, TypeError, OverflowError: ``value`` does not fit ``dtype``.
     """
-    if _is_string(dtype):
+    if is_string(dtype):
         if not isinstance(value, str):
             raise TypeError(f"expected a string, got {type(value).__name__}")
         return strings([value]).cast(dtype)[0]

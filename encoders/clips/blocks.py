@@ -69,11 +69,6 @@ class _DecodedBlocks:
                 _, evicted = self._blocks.popitem(last=False)
                 self._bytes -= evicted.nbytes
 
-    def clear(self) -> None:
-        with self._lock:
-            self._blocks.clear()
-            self._bytes = 0
-
 
 _DECODED = _DecodedBlocks(DECODED_CACHE_BYTES)
 

@@ -12,10 +12,14 @@ object is not observed, ``valid`` is false and its values are NaN (or zero for f
 
 Flags (:data:`FLAGS`) come from the captioning rules (:mod:`captioning.behavior`; the ego's from its
 host tags): own behaviour (parked, stopped, braking, turns, lane changes, blocked, braking for a
-leader) and map context (intersection, crosswalk, lane types). ``ego_lane`` and ``ego_motion`` are the
-captioning's lane and motion tags relative to the ego (:class:`captioning.tags.Lane`,
-:class:`captioning.tags.Motion`), −1 where untagged. ``lane`` indexes the lane segment under each
-object (−1 off the lanes), so two objects share a lane where their indices are equal.
+leader); map context (intersection, crosswalk, lane types) is read at each object's centre.
+``ego_lane`` is the object's lane relative to the ego's (:class:`captioning.tags.Lane`): on a log with
+a map, from the lane segments under the two centres (the same segment, its left or right neighbour,
+or a lane of the other direction within :data:`ONCOMING_LATERAL_M` to the side) and, for crossing
+traffic, the captioning's lateral lanes; without a map, the captioning's lane tags. ``ego_motion`` is
+the captioning's motion tag (:class:`captioning.tags.Motion`). Both are −1 where nothing says.
+``lane`` indexes the lane segment under each object (−1 off the lanes), so two objects share a lane
+where their indices are equal.
 """
 
 from __future__ import annotations
@@ -27,13 +31,14 @@ import numpy as np
 from numpy.typing import NDArray
 
 from captioning.config import CaptioningConfig
-from captioning.map_context import lookup, rasterize_map
+from captioning.map_context import MapLookup, MapRaster, lookup, rasterize_map
 from captioning.pipeline import LogCaptions, caption_log
-from captioning.tags import HOST_DIRECTIONS, HOST_MOTIONS, HostDirection, HostMotion
+from captioning.tags import HOST_DIRECTIONS, HOST_MOTIONS, LANES, HostDirection, HostMotion, Lane
 from scenes.behavior import BehaviorLabel
 from scenes.categories import EGO_VEHICLE_LABEL
-from scenes.geometry import quat_to_yaw, rotmat_to_quat
+from scenes.geometry import points_in_polygon, quat_to_yaw, rotmat_to_quat
 from scenes.log import Log
+from scenes.map import VectorMap
 
 #: Flag bits of :attr:`LogFeatures.flags`, in bit order.
 FLAGS: tuple[str, ...] = (
@@ -207,13 +212,12 @@ def build_features(log: Log, config: CaptioningConfig | None = None,
         for label in _BEHAVIOR_FLAGS:
             column = behavior.flags[..., labels.index(label.value)] & behavior.known_cell
             put(label.value, np.concatenate([column, np.zeros((1, f), bool)]))
-        put("at_intersection", np.concatenate([behavior.at_intersection, np.zeros((1, f), bool)]))
-        put("on_crosswalk", np.concatenate([behavior.on_crosswalk, np.zeros((1, f), bool)]))
     _put_host_flags(rules, put, k)
 
     lane = np.full((k + 1, f), -1, dtype=np.int32)
     to_junction = np.full((k + 1, f), np.inf, dtype=np.float64)
     has_map = False
+    map_lanes: NDArray[np.int8] | None = None
     vector_map = log.map
     if vector_map is not None and vector_map.lane_segments:
         raster = rasterize_map(vector_map, np.nan_to_num(xyz[..., :2][valid]), config.map)
@@ -233,12 +237,23 @@ def build_features(log: Log, config: CaptioningConfig | None = None,
                 of_lane = lane_type[np.maximum(lane, 0)]
                 put("in_bike_lane", on_lane & (of_lane == "BIKE"))
                 put("in_bus_lane", on_lane & (of_lane == "BUS"))
-            put("at_intersection", (np.arange(k + 1)[:, None] == k) & (found.junction >= 0))  # the ego's
+            # Where an object is on the map is where its centre is, for every kind (the behaviour rules
+            # look at a vehicle's front instead, to tag it as it enters an intersection).
+            put("at_intersection", found.junction >= 0)
+            crosswalk = found.crosswalk.copy()  # the raster's cells, then exactly where they say so
+            crosswalk[crosswalk] = on_crossing(vector_map, xyz[..., :2][crosswalk])
+            put("on_crosswalk", crosswalk)
+            map_lanes = map_ego_lane(raster, found, np.where(valid[..., None], xyz[..., :2], np.nan), ego_yaw)
 
     ego_lane = np.full((k + 1, f), -1, dtype=np.int8)
     ego_motion = np.full((k + 1, f), -1, dtype=np.int8)
     nb = rules.neighbors
     ego_lane[:k] = np.where(nb.tagged, nb.lane, -1)
+    if map_lanes is not None:  # the map says which lane an object is in better than its offset from the ego;
+        # crossing traffic has no lane of the ego's, so its tag (the lateral lanes) stays
+        lateral = np.isin(ego_lane, [LANES.index(m) for m in (Lane.LEFT_LATERAL, Lane.RIGHT_LATERAL,
+                                                               Lane.HOST_LATERAL)])
+        ego_lane = np.where(map_lanes >= 0, map_lanes, np.where(lateral, ego_lane, -1)).astype(np.int8)
     ego_motion[:k] = np.where(nb.tagged, nb.motion, -1)
 
     track_ids = np.asarray([*map(str, dense.track_ids), EGO_TRACK_ID], dtype=np.str_)
@@ -256,6 +271,55 @@ def build_features(log: Log, config: CaptioningConfig | None = None,
         to_junction_m=np.where(valid, to_junction, np.inf).astype(np.float32), has_map=has_map,
         time_of_day=str(appearance.get("time_of_day", "unknown")), weather=str(appearance.get("weather", "unknown")),
     )
+
+
+def on_crossing(vector_map: VectorMap, xy_m: NDArray[np.floating]) -> NDArray[np.bool_]:
+    """(...,) whether each point (..., 2) lies inside one of the map's pedestrian crossings, exactly: the
+    map raster's crosswalk cells take in the cells its edges touch, up to a cell beyond the outline,
+    where pedestrians wait at the kerb."""
+    inside = np.zeros(xy_m.shape[:-1], dtype=bool)
+    for crossing in vector_map.pedestrian_crossings.values():
+        inside |= points_in_polygon(xy_m, crossing.polygon()[:, :2])
+    return inside
+
+
+#: An oncoming lane's object lies at most this far to the side of the ego.
+ONCOMING_LATERAL_M = 10.0
+
+
+def map_ego_lane(raster: MapRaster, found: MapLookup, xy_m: NDArray[np.float64], ego_yaw_rad: NDArray[np.float64]
+                 ) -> NDArray[np.int8]:
+    """(K+1, F) :data:`captioning.tags.LANES` code of each object's lane relative to the ego's, from the map.
+
+    Args:
+        raster: the log's map raster.
+        found: (K+1, F) its lookup at the objects' centres, the ego last.
+        xy_m: (K+1, F, 2) city positions, NaN where unobserved.
+        ego_yaw_rad: (F,) the ego's heading.
+
+    The same lane segment is the host lane, the segment's left / right neighbour the left / right lane;
+    a lane whose direction differs from the ego lane's by more than 135° and whose object is at most
+    :data:`ONCOMING_LATERAL_M` to the side of the ego is oncoming. −1 elsewhere, the ego's own row, and
+    wherever the ego or the object is off the lanes (in an intersection).
+    """
+    lane = found.lane
+    ego = lane[-1]  # (F,)
+    mine = np.maximum(ego, 0)[None, :]
+    on = (lane >= 0) & (ego >= 0)[None, :]
+    host = on & (lane == ego[None, :])
+    left = on & ~host & (lane == raster.lane_left[mine])
+    right = on & ~host & ~left & (lane == raster.lane_right[mine])
+    gap = np.angle(np.exp(1j * (found.lane_heading_rad - found.lane_heading_rad[-1][None, :])))
+    dx, dy = (xy_m - xy_m[-1][None]).transpose(2, 0, 1)  # (K+1, F) each
+    lateral = -np.sin(ego_yaw_rad)[None, :] * dx + np.cos(ego_yaw_rad)[None, :] * dy
+    with np.errstate(invalid="ignore"):
+        oncoming = on & ~(host | left | right) & (np.abs(gap) > np.radians(135.0)) \
+            & (np.abs(lateral) <= ONCOMING_LATERAL_M)
+    codes = np.full(lane.shape, -1, dtype=np.int8)
+    for mask, member in ((host, Lane.HOST), (left, Lane.LEFT), (right, Lane.RIGHT), (oncoming, Lane.ONCOMING)):
+        codes[mask] = LANES.index(member)
+    codes[-1] = -1
+    return codes
 
 
 def _put_host_flags(rules: LogCaptions, put: Callable[[str, NDArray[np.bool_]], None], k: int) -> None:

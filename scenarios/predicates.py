@@ -22,8 +22,10 @@ has no answer on a log without one: the evaluation says so instead of answering 
 - ``jaywalking``: a moving pedestrian on a lane, off crosswalks and intersections (needs the map).
 - ``appearance`` (``time_of_day``, ``weather``): the log's recorded lighting and weather; a log that
   records neither has no answer (a note says so).
-- ``ego_lane`` (``lane``: host, left, right, adjacent, oncoming, lateral), ``approaching_ego``,
-  ``moving_away_from_ego``: the captioning's tags relative to the ego.
+- ``ego_lane`` (``lane``: host, left, right, adjacent, oncoming, lateral): the object's lane relative to
+  the ego's (:mod:`scenarios.features`: the map's lanes where there is a map, else the captioning's tags).
+- ``approaching_ego`` / ``moving_away_from_ego``: moving (above ``min_mps``), and the distance between
+  the centres of the object and the ego shrinks / grows by at least :data:`GAP_RATE_MPS` (1 m/s).
 """
 
 from __future__ import annotations
@@ -35,7 +37,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from captioning.tags import LANES, MOTIONS, Lane, Motion
+from captioning.tags import LANES, Lane
 from scenarios.features import LogFeatures
 
 Mask = NDArray[np.bool_]
@@ -223,14 +225,28 @@ def _ego_lane(x: LogFeatures, p: Params) -> Mask:
     return x.valid & np.isin(x.ego_lane, codes)
 
 
-@_define("approaching_ego", "coming closer to the ego")
+#: The gap to the ego changes by at least this much for an object to approach it or move away.
+GAP_RATE_MPS = 1.0
+
+
+def _gap_rate(x: LogFeatures) -> NDArray[np.float64]:
+    """(K, F) rate of change of each object's centre distance to the ego, m/s (NaN where unobserved)."""
+    offset = x.xy_m.astype(np.float64) - x.xy_m[-1:].astype(np.float64)  # (K, F, 2)
+    closing = x.velocity_mps.astype(np.float64) - x.velocity_mps[-1:].astype(np.float64)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return (offset * closing).sum(axis=-1) / np.linalg.norm(offset, axis=-1)
+
+
+@_define("approaching_ego", "coming closer to the ego", {"min_mps": 0.5})
 def _approaching(x: LogFeatures, p: Params) -> Mask:
-    return x.valid & (x.ego_motion == MOTIONS.index(Motion.APPROACH))
+    with np.errstate(invalid="ignore"):
+        return _moving(x, p) & (_gap_rate(x) <= -GAP_RATE_MPS)
 
 
-@_define("moving_away_from_ego", "moving away from the ego")
+@_define("moving_away_from_ego", "moving away from the ego", {"min_mps": 0.5})
 def _away(x: LogFeatures, p: Params) -> Mask:
-    return x.valid & (x.ego_motion == MOTIONS.index(Motion.AWAY))
+    with np.errstate(invalid="ignore"):
+        return _moving(x, p) & (_gap_rate(x) >= GAP_RATE_MPS)
 
 
 def unanswerable(spec: Predicate, x: LogFeatures, params: Params) -> str | None:

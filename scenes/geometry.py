@@ -362,3 +362,19 @@ def interpolate_poses(
     out_q = slerp_quat(quat[idx], quat[idx + 1], frac)
     out_t = trans[idx] + frac[:, None] * (trans[idx + 1] - trans[idx])
     return out_q, out_t
+
+
+def points_in_polygon(points_xy_m: NDArray[np.floating], polygon_xy_m: NDArray[np.floating]) -> NDArray[np.bool_]:
+    """(...,) whether each of ``points_xy_m`` (..., 2) lies inside ``polygon_xy_m`` (M, ≥2; vertices in
+    order, not closed): the even-odd rule, one pass over the M edges; NaN points are outside."""
+    px, py = points_xy_m[..., 0], points_xy_m[..., 1]
+    inside = np.zeros(px.shape, dtype=bool)
+    ax, ay = polygon_xy_m[:, 0], polygon_xy_m[:, 1]
+    bx, by = np.roll(ax, 1), np.roll(ay, 1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        for x0, y0, x1, y1 in zip(ax.tolist(), ay.tolist(), bx.tolist(), by.tolist()):
+            if y0 == y1:
+                continue
+            straddles = (py < y0) != (py < y1)
+            inside ^= straddles & (px < x0 + (py - y0) * (x1 - x0) / (y1 - y0))
+    return inside

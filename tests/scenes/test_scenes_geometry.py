@@ -12,6 +12,7 @@ from scenes.geometry import (
     batch_matrices,
     interpolate_poses,
     invert_matrices,
+    points_in_polygon,
     quat_to_rotmat,
     quat_to_yaw,
     rotmat_to_quat,
@@ -147,3 +148,11 @@ def test_se3_is_immutable_and_copies_its_input() -> None:
         pose.rotation[0, 0] = 2.0
     with pytest.raises(ValueError, match="shape"):
         SE3(np.eye(2), np.zeros(3))
+
+
+def test_points_in_polygon_follows_the_even_odd_rule() -> None:
+    concave = np.asarray([[0.0, 0.0], [4.0, 0.0], [4.0, 4.0], [2.0, 1.0], [0.0, 4.0]])  # a notch from the top
+    points = np.asarray([[1.0, 0.5], [2.0, 3.0], [3.5, 3.0], [5.0, 1.0], [np.nan, 1.0], [-0.1, 2.0]])
+    assert points_in_polygon(points, concave).tolist() == [True, False, True, False, False, False]
+    grid = np.stack(np.meshgrid(np.linspace(-1, 5, 7), np.linspace(-1, 5, 7)), axis=-1)  # (7, 7, 2)
+    assert points_in_polygon(grid, concave).shape == (7, 7)

@@ -160,9 +160,11 @@ for _phrases, _name, _params in (
     ("in same lane|in the same lane|in my lane|in our lane|in the ego lane|in ego lane|in the same lane as us|"
      "in the same lane as the ego vehicle|in the same lane as the ego|in front of us in our lane", "ego_lane",
      (("lane", "host"),)),
-    ("in the left lane|in the lane to our left|in the lane on our left|in the left adjacent lane", "ego_lane",
+    ("in the left lane|in the lane to our left|in the lane on our left|in the left adjacent lane|"
+     "in the lane to the left of us|in the lane left of us|in the lane to the left of the ego vehicle", "ego_lane",
      (("lane", "left"),)),
-    ("in the right lane|in the lane to our right|in the lane on our right|in the right adjacent lane", "ego_lane",
+    ("in the right lane|in the lane to our right|in the lane on our right|in the right adjacent lane|"
+     "in the lane to the right of us|in the lane right of us|in the lane to the right of the ego vehicle", "ego_lane",
      (("lane", "right"),)),
     ("approaching us|approaching the ego|getting closer|coming closer|closing in|approaching|approaches|approach|"
      "gets closer|comes closer", "approaching_ego", ()),

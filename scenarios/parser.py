@@ -157,7 +157,7 @@ class Parser:
                 break
         if self.role() == "kind":
             node: Node = Objects(self.take().name)
-            if need_kind and node == Objects("ego"):  # "next to us on the right": what follows is of the subject
+            if need_kind and self.depth and node == Objects("ego"):  # "next to us on the right": of the subject
                 return node, count
             if self.role() == "count" and self.count_ahead() >= 3:  # "pedestrian group"
                 count = max(count, self.take().count)

@@ -56,6 +56,10 @@ MEANINGS = {
     "a car changing into the left lane": "changing_lanes(car, direction=left)",
     "a car pulling out of a parking spot": "then(stopped(car), moving(car), within_s=4)",
     "a cyclist riding next to us on the right": "reverse(direction(ego, near(moving(cyclist), ego), side=right))",
+    # The ego after "while" takes its own states; "the lane to the right of us" is a lane of the ego's.
+    "pedestrian walking while the ego vehicle is stopped": "while(moving(pedestrian), stopped(ego))",
+    "pedestrian walking while we are braking": "while(moving(pedestrian), braking(ego))",
+    "truck in the lane to the left of us": "ego_lane(truck, lane=left)",
     # "And" between two kinds names both (no object is both); between states of one kind, both at once.
     "buses and motorcycles": "or(bus, motorcycle)",
     "pedestrians and parked cyclists": "or(pedestrian, parked(cyclist))",

@@ -23,7 +23,7 @@ from scenarios import program as p
 from scenarios.answer import LogAnswer
 from scenarios.features import LogFeatures
 from scenarios.kinds import KIND_NAMES, kind_mask
-from scenarios.predicates import PREDICATES, Mask, ProgramError, resolve_params, unanswerable
+from scenarios.predicates import PREDICATES, Mask, ProgramError, unanswerable
 from scenarios.relations import RELATIONS, candidate_pairs, group_any, group_count, in_direction, pair_geometry
 from scenes.categories import AV2_TO_CATEGORY, EGO_VEHICLE_LABEL
 
@@ -95,7 +95,7 @@ class _Run:
                 spec = PREDICATES.get(predicate)
                 if spec is None:
                     raise ProgramError(f"unknown predicate {predicate!r} (known: {', '.join(sorted(PREDICATES))})")
-                resolved = resolve_params(spec.defaults, spec.choices, dict(params), predicate)
+                resolved = spec.resolve(dict(params))
                 sel = self.eval(subject)
                 reason = unanswerable(spec, x, resolved)
                 if reason is not None:
@@ -141,7 +141,7 @@ class _Run:
         spec = RELATIONS.get(node.relation)
         if spec is None:
             raise ProgramError(f"unknown relation {node.relation!r} (known: {', '.join(sorted(RELATIONS))})")
-        resolved = resolve_params(spec.defaults, spec.choices, dict(node.params), node.relation)
+        resolved = spec.resolve(dict(node.params))
         if node.min_count < 1 or (node.max_count is not None and node.max_count < node.min_count):
             raise ProgramError(f"{node.relation}: min_count must be ≥ 1 and max_count ≥ min_count")
         sel, other = self.eval(node.subject), self.eval(node.other)

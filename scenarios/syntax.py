@@ -19,7 +19,7 @@ import re
 
 from scenarios import program as p
 from scenarios.kinds import KIND_NAMES
-from scenarios.predicates import PREDICATES, ProgramError, resolve_params
+from scenarios.predicates import PREDICATES, ProgramError
 from scenarios.relations import RELATIONS
 
 _TOKEN = re.compile(r"\s*(?:(?P<word>[A-Za-z_][A-Za-z0-9_]*)|(?P<number>-?\d+(?:\.\d*)?(?:e-?\d+)?)|(?P<punct>[(),=]))")
@@ -152,14 +152,14 @@ def build(name: str, args: list[p.Node], keywords: list[p.Param]) -> p.Node:
     if name in PREDICATES:
         arity(1)
         spec = PREDICATES[name]
-        resolve_params(spec.defaults, spec.choices, given, name)  # a bad parameter is refused here, named
+        spec.resolve(given)  # a bad parameter is refused here, named
         return p.Is(args[0], name, tuple(given.items()))
     if name in RELATIONS:
         arity(2)
         min_count = int(_number(given, "min_count", name)) if "min_count" in given else 1
         max_count = int(_number(given, "max_count", name)) if "max_count" in given else None
         rel = RELATIONS[name]
-        resolve_params(rel.defaults, rel.choices, given, name)
+        rel.resolve(given)
         return p.Has(args[0], name, args[1], tuple(given.items()), min_count, max_count)
     known = sorted({*PREDICATES, *RELATIONS, "not", "reverse", "and", "or", "excluding", "while", "for_at_least",
                     "then", "between", "together"})

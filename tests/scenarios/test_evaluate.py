@@ -7,7 +7,7 @@ import pytest
 
 from scenarios import program as p
 from scenarios.evaluate import answer, evaluate, runs_lasting, then_within
-from scenarios.predicates import ProgramError, resolve_params
+from scenarios.predicates import ProgramError
 from scenarios.relations import RELATIONS, candidate_pairs, pair_geometry
 from tests.scenarios.synthetic import car, cyclist, make_features, pedestrian
 
@@ -176,7 +176,7 @@ def test_pairs_left_out_as_too_far_apart_never_hold(relation: str) -> None:
     it leaves out (the relation computed on every pair is the reference)."""
     rng = np.random.default_rng(7)
     spec = RELATIONS[relation]
-    params = resolve_params(spec.defaults, spec.choices, {}, relation)
+    params = spec.resolve({})
     for _ in range(5):
         frames = 30
         start = rng.uniform(-80, 80, (12, 2))

@@ -25,7 +25,7 @@ import numpy as np
 from captioning.agreement import agreement_for_logs
 from captioning.config import CaptioningConfig, RuleSet
 from captioning.host import host_tags
-from captioning.neighbors import neighbor_tags
+from captioning.neighbors import neighbor_tags, track_motion
 from captioning.pipeline import caption_arrays, tag_arrays
 from captioning.reference import reference_tags
 from scenes.geometry import batch_matrices, quat_to_rotmat, yaw_to_quat
@@ -61,8 +61,9 @@ def synthetic_log(seed: int, num_tracks: int, num_frames: int) -> dict:
 
 def _tags(data: dict, config: CaptioningConfig) -> None:
     host_tags(data["timestamps_ns"], data["city_SE3_ego"], config)
-    neighbor_tags(data["timestamps_ns"], data["valid"], data["center_ego_xy_m"], data["yaw_ego_rad"],
-                  data["city_SE3_ego"], config)
+    tracks = track_motion(data["timestamps_ns"], data["valid"], data["center_ego_xy_m"], data["yaw_ego_rad"],
+                          data["city_SE3_ego"], config)
+    neighbor_tags(tracks, data["valid"].shape, config)
 
 
 def _best_of(repeats: int, fn, *args) -> float:  # type: ignore[no-untyped-def]

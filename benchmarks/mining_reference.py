@@ -47,21 +47,8 @@ from typing import TypeVar
 
 import numpy as np
 
+from scenarios import program as p
 from scenarios.answer import LogAnswer
-from scenarios.program import (
-    AllOf,
-    AnyOf,
-    Between,
-    Excluding,
-    ForAtLeast,
-    Has,
-    Is,
-    Node,
-    Objects,
-    Then,
-    Together,
-    While,
-)
 from scenes.behavior import EGO_TRACK_ID, read_behavior_labels, read_junctions
 from scenes.categories import AV2_TO_CATEGORY, EGO_VEHICLE_LABEL
 from scenes.geometry import quat_to_yaw, rotmat_to_quat
@@ -465,10 +452,10 @@ class _Reference:
     def any_at(self, grid: Grid) -> list[bool]:
         return [any(grid[o][f] for o in range(self.k)) for f in range(self.f)]
 
-    def eval(self, node: Node) -> _Sel:
+    def eval(self, node: p.Node) -> _Sel:
         log, k, nf = self.log, self.k, self.f
         match node:
-            case Objects(kind):
+            case p.Objects(kind):
                 if kind not in KIND_LABELS:
                     raise ReferenceError(f"the reference does not define the kind {kind!r}")
                 covered = KIND_LABELS[kind]
@@ -478,56 +465,56 @@ class _Reference:
                         for f in range(nf):
                             sel[o][f] = log.valid[o][f]
                 return _Sel(sel, self.grid())
-            case Is(subject, predicate, params, negate):
-                p = _params(_PREDICATE_DEFAULTS, predicate, params)
+            case p.Is(subject, predicate, params, negate):
+                resolved = _params(_PREDICATE_DEFAULTS, predicate, params)
                 child = self.eval(subject)
-                holds = self.predicate(predicate, p)
+                holds = self.predicate(predicate, resolved)
                 keep = self.grid()
                 for o in range(k):
                     for f in range(nf):
                         keep[o][f] = log.valid[o][f] and (holds[o][f] != negate)
                 return self.keep(child, keep)
-            case Has():
+            case p.Has():
                 return self.relation(node)
-            case Between(subject, left, right, lateral_m):
+            case p.Between(subject, left, right, lateral_m):
                 return self.between(self.eval(subject), self.eval(left), self.eval(right), float(lateral_m))
-            case AllOf(children):
+            case p.AllOf(children):
                 parts = [self.eval(c) for c in children]
                 sel = self.grid()
                 for o in range(k):
                     for f in range(nf):
-                        sel[o][f] = all(p.sel[o][f] for p in parts)
+                        sel[o][f] = all(part.sel[o][f] for part in parts)
                 on = self.any_at(sel)
                 related = self.grid()
                 for o in range(k):
                     for f in range(nf):
-                        related[o][f] = on[f] and any(p.related[o][f] for p in parts)
+                        related[o][f] = on[f] and any(part.related[o][f] for part in parts)
                 return _Sel(sel, related)
-            case AnyOf(children):
+            case p.AnyOf(children):
                 parts = [self.eval(c) for c in children]
                 sel, related = self.grid(), self.grid()
                 for o in range(k):
                     for f in range(nf):
-                        sel[o][f] = any(p.sel[o][f] for p in parts)
-                        related[o][f] = any(p.related[o][f] for p in parts)
+                        sel[o][f] = any(part.sel[o][f] for part in parts)
+                        related[o][f] = any(part.related[o][f] for part in parts)
                 return _Sel(sel, related)
-            case Excluding(base, excluded):
+            case p.Excluding(base, excluded):
                 kept, out = self.eval(base), self.eval(excluded)
                 return self.keep(kept, [[not out.sel[o][f] for f in range(nf)] for o in range(k)])
-            case Together(child, min_count):
+            case p.Together(child, min_count):
                 part = self.eval(child)
                 counts = [sum(part.sel[o][f] for o in range(k)) for f in range(nf)]
                 return self.keep(part, [[counts[f] >= min_count for f in range(nf)] for _ in range(k)])
-            case ForAtLeast(child, seconds):
+            case p.ForAtLeast(child, seconds):
                 part = self.eval(child)
                 return self.keep(part, self.runs_lasting(part.sel, float(seconds)))
-            case Then(first, second, within_s):
+            case p.Then(first, second, within_s):
                 a, b = self.eval(first), self.eval(second)
                 keep = self.then_within(a.sel, b.sel, float(within_s))
                 on = self.any_at(keep)
                 related = [[on[f] and (a.related[o][f] or b.related[o][f]) for f in range(nf)] for o in range(k)]
                 return _Sel(keep, related)
-            case While(child, condition):
+            case p.While(child, condition):
                 part, cond = self.eval(child), self.eval(condition)
                 when = self.any_at(cond.sel)
                 kept = self.keep(part, [list(when) for _ in range(k)])
@@ -661,9 +648,9 @@ class _Reference:
                     and self.gap(s, o, f) <= float(p["within_m"])
         return out
 
-    def relation(self, node: Has) -> _Sel:
+    def relation(self, node: p.Has) -> _Sel:
         k, nf = self.k, self.f
-        p = _params(_RELATION_DEFAULTS, node.relation, node.params)
+        resolved = _params(_RELATION_DEFAULTS, node.relation, node.params)
         subject, other = self.eval(node.subject), self.eval(node.other)
         subjects = [s for s in range(k) if any(subject.sel[s])]
         others = [o for o in range(k) if any(other.sel[o])]
@@ -671,7 +658,7 @@ class _Reference:
         for s in subjects:
             for o in others:
                 if s != o:
-                    frames = self.pair_frames(node.relation, p, s, o)
+                    frames = self.pair_frames(node.relation, resolved, s, o)
                     holds[(s, o)] = [frames[f] and subject.sel[s][f] and other.sel[o][f] for f in range(nf)]
         ok = self.grid()
         related_others, related_subjects = self.grid(), self.grid()
@@ -758,7 +745,7 @@ class _Reference:
         return out
 
 
-def reference_selection(program: Node, log: ReferenceLog) -> tuple[Grid, Grid]:
+def reference_selection(program: p.Node, log: ReferenceLog) -> tuple[Grid, Grid]:
     """The (referred, related) objects × frames of ``program`` on ``log``, by the reference's loops.
 
     Raises:
@@ -768,7 +755,7 @@ def reference_selection(program: Node, log: ReferenceLog) -> tuple[Grid, Grid]:
     return result.sel, result.related
 
 
-def reference_answer(program: Node, log: ReferenceLog, description: str) -> LogAnswer:
+def reference_answer(program: p.Node, log: ReferenceLog, description: str) -> LogAnswer:
     """The reference's answer as a :class:`LogAnswer` (referred objects score 1)."""
     referred, related = reference_selection(program, log)
     k, nf = log.num_objects, log.num_frames

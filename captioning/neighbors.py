@@ -342,32 +342,26 @@ def track_motion(
 
 
 def neighbor_tags(
-    timestamps_ns: IntArray,
-    valid: BoolArray,
-    center_ego_xy_m: FloatArray,
-    yaw_ego_rad: FloatArray,
-    city_SE3_ego: FloatArray,
+    tracks: TrackMotion | None,
+    shape: tuple[int, int],
     config: CaptioningConfig,
     stationary_objects: bool = False,
-    tracks: TrackMotion | None = None,
 ) -> NeighborTags:
     """All neighbour tags, vectorised over tracks × frames.
 
     Args:
-        timestamps_ns, valid, center_ego_xy_m, yaw_ego_rad, city_SE3_ego, config: as :func:`track_motion`
-            (here K or T may be 0).
+        tracks: :func:`track_motion` of the log's tracks; None where K or T is 0 (every tag is then empty).
+        shape: (K, T), the log's tracks and frames.
+        config: the captioning config :func:`track_motion` was given.
         stationary_objects: tag stationary tracks too, and let motion be the distance rule alone
             (approach / away / constant, the ego's doing for an object that stands): whether an
             object stands is then its own-behaviour tag (:mod:`captioning.behavior`), not a motion.
-        tracks: :func:`track_motion` of the same arguments, when computed already.
     """
-    k, t = valid.shape
+    k, t = shape
     nb = config.neighbor
-    if k == 0 or t == 0:
+    if tracks is None:
         empty = np.full((k, t), NO_TAG, dtype=np.int8)
         return NeighborTags(np.zeros(k, bool), np.zeros(k, bool), np.zeros((k, t), bool), empty, empty, empty)
-    if tracks is None:
-        tracks = track_motion(timestamps_ns, valid, center_ego_xy_m, yaw_ego_rad, city_SE3_ego, config)
     grid, positions, yaw, d = tracks.grid, tracks.positions, tracks.yaw_ego_rad, tracks.derivative
     cvalid = grid.valid
     abs_first_vel = np.abs(d[..., :2])

@@ -317,10 +317,8 @@ def tag_arrays(
     rich = config.rules == RuleSet.BEHAVIOR
     k, t = valid.shape
     # The own behaviour starts from the same bridged, differentiated tracks as the neighbour tags.
-    motion = (track_motion(timestamps_ns, valid, center_ego_xy_m, yaw_ego_rad, city_SE3_ego, config)
-              if rich and k and t else None)
-    nb = neighbor_tags(timestamps_ns, valid, center_ego_xy_m, yaw_ego_rad, city_SE3_ego, config,
-                       stationary_objects=rich, tracks=motion)
+    motion = track_motion(timestamps_ns, valid, center_ego_xy_m, yaw_ego_rad, city_SE3_ego, config) if k and t else None
+    nb = neighbor_tags(motion, (k, t), config, stationary_objects=rich)
     skipped = {str(tid): SKIP_ISOLATED for tid in track_ids[~nb.taggable]}
     behavior: BehaviorTags | None = None
     notes: list[str] = []

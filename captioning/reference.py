@@ -133,7 +133,8 @@ def reference_tags(
     config: CaptioningConfig,
 ) -> ReferenceTags:
     """Per-frame tags, one Python step at a time; the arguments (and their shapes) are those of
-    :func:`captioning.neighbors.neighbor_tags`, whose results these must equal."""
+    :func:`captioning.neighbors.track_motion`, and the results must equal those of
+    :func:`captioning.neighbors.neighbor_tags` on its tracks."""
     frames = FrameCounts.of_log(config, timestamps_ns)
     h, nb, m, max_gap = config.host, config.neighbor, frames.min_run, frames.max_gap
     k_count, t_count = valid.shape

@@ -12,6 +12,7 @@ import faiss
 import numpy as np
 
 from indexes.errors import DimensionMismatchError, IdError, VectorError
+from scenesearch_base.config import parse_choice
 
 
 class Metric(str, Enum):
@@ -37,11 +38,7 @@ class Metric(str, Enum):
 
 def as_metric(metric: Metric | str) -> Metric:
     """Accept a :class:`Metric` or its string value; raise ``ValueError`` listing valid ones."""
-    try:
-        return Metric(metric)
-    except ValueError:
-        valid = ", ".join(m.value for m in Metric)
-        raise ValueError(f"unknown metric {metric!r}; valid metrics: {valid}") from None
+    return parse_choice(Metric, metric, "metric", "valid metrics")
 
 
 def prepare_vectors(x: np.ndarray, dim: int | None, metric: Metric, what: str = "vectors") -> np.ndarray:

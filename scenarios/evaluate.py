@@ -19,25 +19,11 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
+from scenarios import program as p
 from scenarios.answer import LogAnswer
 from scenarios.features import LogFeatures
 from scenarios.kinds import KIND_NAMES, kind_mask
-from scenarios.predicates import PREDICATES, Mask, ProgramError, resolve_params, unanswerable
-from scenarios.program import (
-    AllOf,
-    AnyOf,
-    Between,
-    Excluding,
-    ForAtLeast,
-    Has,
-    Is,
-    Node,
-    Objects,
-    Then,
-    Together,
-    While,
-    to_text,
-)
+from scenarios.predicates import PREDICATES, Mask, ProgramError, unanswerable
 from scenarios.relations import RELATIONS, candidate_pairs, group_any, group_count, in_direction, pair_geometry
 from scenes.categories import AV2_TO_CATEGORY, EGO_VEHICLE_LABEL
 
@@ -97,65 +83,65 @@ class _Run:
         if note not in self.notes:
             self.notes.append(note)
 
-    def eval(self, node: Node) -> Selection:
+    def eval(self, node: p.Node) -> Selection:
         x = self.x
         match node:
-            case Objects(kind):
+            case p.Objects(kind):
                 if kind not in KIND_NAMES:
                     raise ProgramError(f"unknown kind {kind!r} (known: {', '.join(KIND_NAMES)})")
                 mask = kind_mask(kind, x.labels, x.categories)[:, None] & x.valid
                 return Selection(mask.astype(np.float32), np.zeros_like(mask))
-            case Is(subject, predicate, params, negate):
+            case p.Is(subject, predicate, params, negate):
                 spec = PREDICATES.get(predicate)
                 if spec is None:
                     raise ProgramError(f"unknown predicate {predicate!r} (known: {', '.join(sorted(PREDICATES))})")
-                p = resolve_params(spec.defaults, spec.choices, dict(params), predicate)
+                resolved = spec.resolve(dict(params))
                 sel = self.eval(subject)
-                reason = unanswerable(spec, x, p)
+                reason = unanswerable(spec, x, resolved)
                 if reason is not None:
                     self.note(predicate, reason)
                     return _empty(x)
-                holds = spec.fn(x, p)
+                holds = spec.fn(x, resolved)
                 return _keep(sel, ~holds & x.valid if negate else holds)
-            case Has():
+            case p.Has():
                 return self.relation(node)
-            case Between(subject, left, right, lateral_m):
+            case p.Between(subject, left, right, lateral_m):
                 return self.between(self.eval(subject), self.eval(left), self.eval(right), lateral_m)
-            case AllOf(children):
+            case p.AllOf(children):
                 parts = [self.eval(c) for c in children]
-                scores = np.minimum.reduce([p.scores for p in parts])
-                related = np.logical_or.reduce([p.related for p in parts]) & _any(scores > 0, 0)[None]
+                scores = np.minimum.reduce([part.scores for part in parts])
+                related = np.logical_or.reduce([part.related for part in parts]) & _any(scores > 0, 0)[None]
                 return Selection(scores, related)
-            case AnyOf(children):
+            case p.AnyOf(children):
                 parts = [self.eval(c) for c in children]
-                return Selection(np.maximum.reduce([p.scores for p in parts]),
-                                 np.logical_or.reduce([p.related for p in parts]))
-            case Excluding(base, excluded):
+                return Selection(np.maximum.reduce([part.scores for part in parts]),
+                                 np.logical_or.reduce([part.related for part in parts]))
+            case p.Excluding(base, excluded):
                 return _keep(self.eval(base), ~self.eval(excluded).mask)
-            case Together(child, min_count):
+            case p.Together(child, min_count):
                 sel = self.eval(child)
                 return _keep(sel, np.broadcast_to((sel.mask.sum(axis=0) >= min_count)[None], sel.scores.shape))
-            case ForAtLeast(child, seconds):
+            case p.ForAtLeast(child, seconds):
                 sel = self.eval(child)
                 return _keep(sel, runs_lasting(sel.mask, x.time_s, seconds))
-            case Then(first, second, within_s):
+            case p.Then(first, second, within_s):
                 a, b = self.eval(first), self.eval(second)
                 keep = then_within(a.mask, b.mask, x.time_s, within_s)
                 return Selection(np.where(keep, np.maximum(a.scores, b.scores), 0.0).astype(np.float32),
                                  (a.related | b.related) & _any(keep, 0)[None])
-            case While(child, condition):
+            case p.While(child, condition):
                 sel, cond = self.eval(child), self.eval(condition)
                 when = _any(cond.mask, 0)[None, :]
                 kept = _keep(sel, np.broadcast_to(when, sel.scores.shape))
                 return Selection(kept.scores, kept.related | (cond.mask & _any(kept.mask, 0)[None]))
         raise ProgramError(f"not a program node: {node!r}")
 
-    def relation(self, node: Has) -> Selection:
+    def relation(self, node: p.Has) -> Selection:
         x = self.x
         spec = RELATIONS.get(node.relation)
         if spec is None:
             raise ProgramError(f"unknown relation {node.relation!r} (known: {', '.join(sorted(RELATIONS))})")
-        p = resolve_params(spec.defaults, spec.choices, dict(node.params), node.relation)
+        resolved = spec.resolve(dict(node.params))
         if node.min_count < 1 or (node.max_count is not None and node.max_count < node.min_count):
             raise ProgramError(f"{node.relation}: min_count must be ≥ 1 and max_count ≥ min_count")
         sel, other = self.eval(node.subject), self.eval(node.other)
@@ -168,11 +154,11 @@ class _Run:
         count = np.zeros((k, f), np.int64)  # of the subjects: how many others relate at each frame
         holds_parts, s_parts, o_parts = [], [], []
         if subjects.size and others.size:
-            s_idx, o_idx = candidate_pairs(x, subjects, others, spec.reach_m(p))
+            s_idx, o_idx = candidate_pairs(x, subjects, others, spec.reach_m(resolved))
             step = max(1, _CHUNK_CELLS // max(1, f))
             for start in range(0, s_idx.size, step):
                 si, oi = s_idx[start:start + step], o_idx[start:start + step]
-                holds = spec.fn(pair_geometry(x, si, oi), p) & other.mask[oi] & sel.mask[si]  # (P, F)
+                holds = spec.fn(pair_geometry(x, si, oi), resolved) & other.mask[oi] & sel.mask[si]  # (P, F)
                 count += group_count(holds, si, k)
                 holds_parts.append(holds)
                 s_parts.append(si)
@@ -250,7 +236,7 @@ def then_within(first: Mask, second: Mask, time_s: NDArray[np.float64], within_s
     return (first & (next_after - t <= within_s)) | (second & (t - before <= within_s))
 
 
-def evaluate(node: Node, features: LogFeatures) -> Evaluation:
+def evaluate(node: p.Node, features: LogFeatures) -> Evaluation:
     """Run ``node`` on one log (see the module docstring).
 
     Raises:
@@ -260,7 +246,7 @@ def evaluate(node: Node, features: LogFeatures) -> Evaluation:
     return Evaluation(run.eval(node), run.notes)
 
 
-def answer(node: Node, features: LogFeatures, description: str | None = None) -> tuple[LogAnswer, list[str]]:
+def answer(node: p.Node, features: LogFeatures, description: str | None = None) -> tuple[LogAnswer, list[str]]:
     """The program's answer on one log (referred and related objects per frame) and its notes."""
     result = evaluate(node, features)
     x, sel = features, result.selection
@@ -270,7 +256,7 @@ def answer(node: Node, features: LogFeatures, description: str | None = None) ->
     velocity = np.concatenate([x.velocity_mps, np.zeros_like(x.z_m)[..., None]], axis=-1).astype(np.float64)
     size = np.broadcast_to(x.size_lwh_m[:, None, :], xyz.shape).astype(np.float64)
     return LogAnswer(
-        log_id=x.log_id, description=description if description is not None else to_text(node),
+        log_id=x.log_id, description=description if description is not None else p.to_text(node),
         timestamps_ns=x.timestamps_ns, track_ids=x.track_ids, valid=x.valid,
         categories=np.where(np.isin(x.labels, [*AV2_TO_CATEGORY, EGO_VEHICLE_LABEL]), x.labels, x.categories),
         referred=referred, related=sel.related & x.valid & (referred == 0), center_city_xyz_m=xyz,

@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import warnings
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import KW_ONLY, dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
@@ -49,24 +49,61 @@ class ProgramError(ValueError):
 
 
 @dataclass(frozen=True)
-class Predicate:
-    """A named test of one object at each frame.
+class Criterion:
+    """What predicates and relations share: a name, parameters with defaults, and whether the map is read.
 
     Attributes:
         name: the name programs use.
-        phrase: how a reader says it ("turning {direction}").
-        fn: ``(features, params) -> (K, F) mask``.
         defaults: parameter name → default value (a float, or a str among ``choices``).
         choices: for str parameters, the values allowed.
         needs_map: whether it reads the log's map.
     """
 
     name: str
-    phrase: str
-    fn: Callable[[LogFeatures, Params], Mask]
+    _: KW_ONLY
     defaults: Mapping[str, float | str] = field(default_factory=dict)
     choices: Mapping[str, tuple[str, ...]] = field(default_factory=dict)
     needs_map: bool = False
+
+    def resolve(self, given: Params) -> dict[str, float | str]:
+        """``given`` checked against the parameters, with the defaults filled in.
+
+        Raises:
+            ProgramError: an unknown parameter, a number where a word is expected (or the reverse), or a
+                word outside the choices; the message starts with the name.
+        """
+        unknown = sorted(set(given) - set(self.defaults))
+        if unknown:
+            raise ProgramError(f"{self.name}: unknown parameter {unknown[0]!r} "
+                               f"(known: {', '.join(self.defaults) or 'none'})")
+        out = dict(self.defaults)
+        for key, value in given.items():
+            if key in self.choices:
+                if str(value) not in self.choices[key]:
+                    raise ProgramError(f"{self.name}: {key}={value!r} is not one of {', '.join(self.choices[key])}")
+                out[key] = str(value)
+            else:
+                try:
+                    number = float(value)
+                except (TypeError, ValueError):
+                    raise ProgramError(f"{self.name}: {key}={value!r} is not a number") from None
+                if not np.isfinite(number) or number < 0:
+                    raise ProgramError(f"{self.name}: {key}={value!r} must be a finite number ≥ 0")
+                out[key] = number
+        return out
+
+
+@dataclass(frozen=True)
+class Predicate(Criterion):
+    """A named test of one object at each frame (with the parameters of :class:`Criterion`).
+
+    Attributes:
+        phrase: how a reader says it ("turning {direction}").
+        fn: ``(features, params) -> (K, F) mask``.
+    """
+
+    phrase: str
+    fn: Callable[[LogFeatures, Params], Mask]
 
 
 PREDICATES: dict[str, Predicate] = {}
@@ -77,7 +114,8 @@ def _define(name: str, phrase: str, defaults: Mapping[str, float | str] | None =
             choices: Mapping[str, tuple[str, ...]] | None = None, needs_map: bool = False
             ) -> Callable[[Callable[[LogFeatures, Params], Mask]], Callable[[LogFeatures, Params], Mask]]:
     def register(fn: Callable[[LogFeatures, Params], Mask]) -> Callable[[LogFeatures, Params], Mask]:
-        PREDICATES[name] = Predicate(name, phrase, fn, dict(defaults or {}), dict(choices or {}), needs_map)
+        PREDICATES[name] = Predicate(name, phrase, fn, defaults=dict(defaults or {}), choices=dict(choices or {}),
+                                     needs_map=needs_map)
         return fn
     return register
 
@@ -258,31 +296,3 @@ def unanswerable(spec: Predicate, x: LogFeatures, params: Params) -> str | None:
         if missing:
             return f"needs the log's {' and '.join(missing).replace('_', ' ')}, which the log does not record"
     return None
-
-
-def resolve_params(defaults: Mapping[str, float | str], choices: Mapping[str, tuple[str, ...]],
-                   given: Mapping[str, float | str], owner: str) -> dict[str, float | str]:
-    """``given`` checked against a predicate's or relation's parameters, with the defaults filled in.
-
-    Raises:
-        ProgramError: an unknown parameter, a number where a word is expected (or the reverse), or a
-            word outside the choices.
-    """
-    unknown = sorted(set(given) - set(defaults))
-    if unknown:
-        raise ProgramError(f"{owner}: unknown parameter {unknown[0]!r} (known: {', '.join(defaults) or 'none'})")
-    out = dict(defaults)
-    for key, value in given.items():
-        if key in choices:
-            if str(value) not in choices[key]:
-                raise ProgramError(f"{owner}: {key}={value!r} is not one of {', '.join(choices[key])}")
-            out[key] = str(value)
-        else:
-            try:
-                number = float(value)
-            except (TypeError, ValueError):
-                raise ProgramError(f"{owner}: {key}={value!r} is not a number") from None
-            if not np.isfinite(number) or number < 0:
-                raise ProgramError(f"{owner}: {key}={value!r} must be a finite number ≥ 0")
-            out[key] = number
-    return out

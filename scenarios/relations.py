@@ -27,14 +27,14 @@ beforehand (:func:`candidate_pairs`):
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from scenarios.features import LogFeatures
-from scenarios.predicates import Mask, Params
+from scenarios.predicates import Criterion, Mask, Params
 
 Array = NDArray[np.float32]
 
@@ -155,20 +155,17 @@ def group_count(mask: Mask, keys: NDArray[np.int64], n: int) -> NDArray[np.int64
 
 
 @dataclass(frozen=True)
-class Relation:
-    """A named relation of another object to a subject (see the module docstring).
+class Relation(Criterion):
+    """A named relation of another object to a subject (see the module docstring), with the parameters of
+    :class:`~scenarios.predicates.Criterion`.
 
     ``phrase`` says it after the subjects' name ("with {other} …"), ``reverse_phrase`` after the other
     objects' ("… {subject}"), for programs that answer those.
     """
 
-    name: str
     phrase: str
     reverse_phrase: str
     fn: Callable[[PairGeometry, Params], Mask]
-    defaults: Mapping[str, float | str] = field(default_factory=dict)
-    choices: Mapping[str, tuple[str, ...]] = field(default_factory=dict)
-    needs_map: bool = False
     #: The farthest the boxes can be apart where it holds, given its parameters (None: no bound).
     reach_m: Callable[[Params], float | None] = lambda p: None
 
@@ -185,8 +182,8 @@ def _define(name: str, phrase: str, reverse_phrase: str, defaults: Mapping[str, 
             reach_m: Callable[[Params], float | None] = _within_reach,
             ) -> Callable[[Callable[[PairGeometry, Params], Mask]], Callable[[PairGeometry, Params], Mask]]:
     def register(fn: Callable[[PairGeometry, Params], Mask]) -> Callable[[PairGeometry, Params], Mask]:
-        RELATIONS[name] = Relation(name, phrase, reverse_phrase, fn, dict(defaults or {}), dict(choices or {}),
-                                   needs_map, reach_m)
+        RELATIONS[name] = Relation(name, phrase, reverse_phrase, fn, reach_m, defaults=dict(defaults or {}),
+                                   choices=dict(choices or {}), needs_map=needs_map)
         return fn
     return register
 

@@ -17,23 +17,9 @@ from __future__ import annotations
 import dataclasses
 import re
 
+from scenarios import program as p
 from scenarios.kinds import KIND_NAMES
-from scenarios.predicates import PREDICATES, ProgramError, resolve_params
-from scenarios.program import (
-    AllOf,
-    AnyOf,
-    Between,
-    Excluding,
-    ForAtLeast,
-    Has,
-    Is,
-    Node,
-    Objects,
-    Param,
-    Then,
-    Together,
-    While,
-)
+from scenarios.predicates import PREDICATES, ProgramError
 from scenarios.relations import RELATIONS
 
 _TOKEN = re.compile(r"\s*(?:(?P<word>[A-Za-z_][A-Za-z0-9_]*)|(?P<number>-?\d+(?:\.\d*)?(?:e-?\d+)?)|(?P<punct>[(),=]))")
@@ -75,15 +61,15 @@ class _Parser:
         self.i += 1
         return v
 
-    def program(self) -> Node:
+    def program(self) -> p.Node:
         name = self.take(kind="word")
         if self.peek()[1] != "(":
             if name not in KIND_NAMES:
                 raise SyntaxProblem(f"{name!r} is not a kind of object (kinds: {', '.join(KIND_NAMES)})")
-            return Objects(name)
+            return p.Objects(name)
         self.take("(")
-        args: list[Node] = []
-        keywords: list[Param] = []
+        args: list[p.Node] = []
+        keywords: list[p.Param] = []
         while True:
             k, v, _ = self.peek()
             nxt = self.tokens[self.i + 1][1] if self.i + 1 < len(self.tokens) else ""
@@ -109,7 +95,7 @@ def _number(keywords: dict[str, float | str], key: str, name: str) -> float:
     return value
 
 
-def build(name: str, args: list[Node], keywords: list[Param]) -> Node:
+def build(name: str, args: list[p.Node], keywords: list[p.Param]) -> p.Node:
     """The node a call ``name(args, keywords)`` stands for.
 
     Raises:
@@ -129,58 +115,58 @@ def build(name: str, args: list[Node], keywords: list[Param]) -> Node:
         arity(1)
         no_keywords()
         inner = args[0]
-        if name == "not" and isinstance(inner, Is | Has):
+        if name == "not" and isinstance(inner, p.Is | p.Has):
             return dataclasses.replace(inner, negate=not inner.negate)
-        if name == "reverse" and isinstance(inner, Has):
+        if name == "reverse" and isinstance(inner, p.Has):
             return dataclasses.replace(inner, reverse=True)
         raise SyntaxProblem(f"{name}(...) applies to a {'predicate or relation' if name == 'not' else 'relation'}")
     if name in ("and", "or"):
         no_keywords()
         if len(args) < 2:
             raise SyntaxProblem(f"{name}(...) takes at least 2 programs")
-        return AllOf(tuple(args)) if name == "and" else AnyOf(tuple(args))
+        return p.AllOf(tuple(args)) if name == "and" else p.AnyOf(tuple(args))
     if name in ("excluding", "while"):
         arity(2)
         no_keywords()
-        return Excluding(args[0], args[1]) if name == "excluding" else While(args[0], args[1])
+        return p.Excluding(args[0], args[1]) if name == "excluding" else p.While(args[0], args[1])
     if name == "together":
         arity(1)
         count = int(_number(given, "min_count", name)) if "min_count" in given else 2
         no_keywords()
-        return Together(args[0], count)
+        return p.Together(args[0], count)
     if name == "for_at_least":
         arity(1)
         seconds = _number(given, "seconds", name) if "seconds" in given else 1.0
         no_keywords()
-        return ForAtLeast(args[0], seconds)
+        return p.ForAtLeast(args[0], seconds)
     if name == "then":
         arity(2)
         within = _number(given, "within_s", name) if "within_s" in given else 5.0
         no_keywords()
-        return Then(args[0], args[1], within)
+        return p.Then(args[0], args[1], within)
     if name == "between":
         arity(3)
         lateral = _number(given, "lateral_m", name) if "lateral_m" in given else 5.0
         no_keywords()
-        return Between(args[0], args[1], args[2], lateral)
+        return p.Between(args[0], args[1], args[2], lateral)
     if name in PREDICATES:
         arity(1)
         spec = PREDICATES[name]
-        resolve_params(spec.defaults, spec.choices, given, name)  # a bad parameter is refused here, named
-        return Is(args[0], name, tuple(given.items()))
+        spec.resolve(given)  # a bad parameter is refused here, named
+        return p.Is(args[0], name, tuple(given.items()))
     if name in RELATIONS:
         arity(2)
         min_count = int(_number(given, "min_count", name)) if "min_count" in given else 1
         max_count = int(_number(given, "max_count", name)) if "max_count" in given else None
         rel = RELATIONS[name]
-        resolve_params(rel.defaults, rel.choices, given, name)
-        return Has(args[0], name, args[1], tuple(given.items()), min_count, max_count)
+        rel.resolve(given)
+        return p.Has(args[0], name, args[1], tuple(given.items()), min_count, max_count)
     known = sorted({*PREDICATES, *RELATIONS, "not", "reverse", "and", "or", "excluding", "while", "for_at_least",
                     "then", "between", "together"})
     raise SyntaxProblem(f"unknown name {name!r} (known: {', '.join(known)})")
 
 
-def parse_program(text: str) -> Node:
+def parse_program(text: str) -> p.Node:
     """The program written in ``text`` (see the module docstring).
 
     Raises:

@@ -41,6 +41,7 @@ import yaml
 from scenesearch_base.atomic import atomic_write_text
 
 T = TypeVar("T")
+E = TypeVar("E", bound=enum.Enum)
 
 
 class ConfigError(ValueError):
@@ -136,6 +137,22 @@ def check_fraction(owner: str, /, *, error: type[ValueError] = ValueError, **val
     for name, value in values.items():
         if not 0.0 <= value <= 1.0:
             raise error(f"{owner}.{name} must be in [0, 1], got {value}")
+
+
+def parse_choice(choices: type[E], value: object, what: str, valid: str, /, *,
+                 error: type[ValueError] = ValueError) -> E:
+    """The member of the Enum ``choices`` whose value is ``value`` (a member is returned as it is).
+
+    Every vocabulary read from a flag, a file or a query (metrics, network kinds, tagging regions) is
+    refused with the same words, listing what it accepts; ``error`` is the stage's exception.
+
+    Raises:
+        error: ``unknown WHAT VALUE; VALID: A, B, C`` (the values of ``choices``, in their order).
+    """
+    try:
+        return choices(value)
+    except ValueError:
+        raise error(f"unknown {what} {value!r}; {valid}: {', '.join(str(c.value) for c in choices)}") from None
 
 
 def with_option(config: T, option: str, **changes: Any) -> T:

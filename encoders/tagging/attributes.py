@@ -37,6 +37,7 @@ from enum import StrEnum
 from typing import TypeVar
 
 from scenes.behavior import BehaviorLabel, JunctionKind
+from scenesearch_base import config as base_config
 
 _Choice = TypeVar("_Choice", bound=StrEnum)
 
@@ -169,10 +170,7 @@ def parse_choice(choices: type[_Choice], value: str | _Choice, what: str, valid:
     Raises:
         TagError: ``unknown <what> ...; <valid>: <the valid names>``.
     """
-    try:
-        return choices(str(value).strip())
-    except ValueError:
-        raise TagError(f"unknown {what} {value!r}; {valid}: {', '.join(c.value for c in choices)}") from None
+    return base_config.parse_choice(choices, str(value).strip(), what, valid, error=TagError)
 
 
 def parse_region(name: str) -> Region:

@@ -10,7 +10,7 @@ from typing import ClassVar
 import numpy as np
 
 from scenes.config import ScenesConfig
-from scenesearch_base.config import check_at_least, check_fraction, check_positive
+from scenesearch_base.config import check_at_least, check_fraction, check_positive, parse_choice
 
 #: Simulation steps in one log, at most (an hour at 100 Hz): the steps of a log are held in memory.
 MAX_STEPS_PER_LOG = 360_000
@@ -28,11 +28,7 @@ class NetworkKind(StrEnum):
 
     @staticmethod
     def parse(value: str | NetworkKind) -> NetworkKind:
-        try:
-            return NetworkKind(value)
-        except ValueError:
-            choices = ", ".join(k.value for k in NetworkKind)
-            raise ValueError(f"unknown network kind {value!r} (choose one of: {choices})") from None
+        return parse_choice(NetworkKind, value, "network kind", "choose one of")
 
 
 @dataclass(frozen=True)

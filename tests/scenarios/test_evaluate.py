@@ -5,29 +5,16 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from scenarios import program as p
 from scenarios.evaluate import answer, evaluate, runs_lasting, then_within
-from scenarios.predicates import ProgramError, resolve_params
-from scenarios.program import (
-    AllOf,
-    AnyOf,
-    Between,
-    Excluding,
-    ForAtLeast,
-    Has,
-    Is,
-    Node,
-    Objects,
-    Then,
-    Together,
-    While,
-)
+from scenarios.predicates import ProgramError
 from scenarios.relations import RELATIONS, candidate_pairs, pair_geometry
 from tests.scenarios.synthetic import car, cyclist, make_features, pedestrian
 
 Y = 50.0  # the scene lies away from the ego at the origin
 
 
-def selected(node: Node, features: object) -> np.ndarray:
+def selected(node: p.Node, features: object) -> np.ndarray:
     """(K,) which objects the node selects anywhere."""
     return evaluate(node, features).selection.mask.any(axis=1)  # type: ignore[arg-type]
 
@@ -35,12 +22,12 @@ def selected(node: Node, features: object) -> np.ndarray:
 def test_kinds_match_labels_and_fall_back_on_categories() -> None:
     x = make_features([car((0, Y)), {"label": "BUS", "category": "bus", "xy": (10, Y)},
                        {"label": "Car", "category": "car", "xy": (20, Y)}, cyclist((30, Y))])
-    assert selected(Objects("vehicle"), x).tolist() == [True, True, True, False, False]
-    assert selected(Objects("car"), x).tolist() == [True, False, True, False, False]
-    assert selected(Objects("any"), x).tolist() == [True, True, True, True, False]
-    assert selected(Objects("ego"), x).tolist() == [False] * 4 + [True]
+    assert selected(p.Objects("vehicle"), x).tolist() == [True, True, True, False, False]
+    assert selected(p.Objects("car"), x).tolist() == [True, False, True, False, False]
+    assert selected(p.Objects("any"), x).tolist() == [True, True, True, True, False]
+    assert selected(p.Objects("ego"), x).tolist() == [False] * 4 + [True]
     with pytest.raises(ProgramError, match="unknown kind 'unicorn'"):
-        evaluate(Objects("unicorn"), x)
+        evaluate(p.Objects("unicorn"), x)
 
 
 def test_predicates_read_flags_and_speeds() -> None:
@@ -48,19 +35,20 @@ def test_predicates_read_flags_and_speeds() -> None:
     turning[5:9] = True
     x = make_features([car((0, Y), flags={"left_turn": turning}), car((10, Y), speed=0.0, flags=("parked",)),
                        car((20, Y), speed=0.1)])
-    mask = evaluate(Is(Objects("car"), "turning", (("direction", "left"),)), x).selection.mask
+    mask = evaluate(p.Is(p.Objects("car"), "turning", (("direction", "left"),)), x).selection.mask
     assert mask[0].tolist() == turning.tolist() and not mask[1:].any()
-    assert selected(Is(Objects("car"), "parked"), x).tolist() == [False, True, False, False]
-    assert selected(Is(Objects("car"), "stopped"), x).tolist() == [False, False, True, False]  # parked is not stopped
-    assert selected(Is(Objects("car"), "moving"), x).tolist() == [True, False, False, False]
-    assert selected(Is(Objects("car"), "moving", negate=True), x).tolist() == [False, True, True, False]
+    assert selected(p.Is(p.Objects("car"), "parked"), x).tolist() == [False, True, False, False]
+    # parked is not stopped
+    assert selected(p.Is(p.Objects("car"), "stopped"), x).tolist() == [False, False, True, False]
+    assert selected(p.Is(p.Objects("car"), "moving"), x).tolist() == [True, False, False, False]
+    assert selected(p.Is(p.Objects("car"), "moving", negate=True), x).tolist() == [False, True, True, False]
     with pytest.raises(ProgramError, match=r"turning: direction='up' is not one of left, right, any"):
-        evaluate(Is(Objects("car"), "turning", (("direction", "up"),)), x)
+        evaluate(p.Is(p.Objects("car"), "turning", (("direction", "up"),)), x)
 
 
 def test_map_predicates_on_a_log_without_a_map_say_so() -> None:
     x = make_features([car((0, Y), flags=("at_intersection",))], has_map=False)
-    result = evaluate(Is(Objects("car"), "at_intersection"), x)
+    result = evaluate(p.Is(p.Objects("car"), "at_intersection"), x)
     assert not result.selection.mask.any()
     assert result.notes == ["synthetic: 'at_intersection' needs a map, and the log has none: no answer there "
                             "(not 'false')"]
@@ -69,30 +57,30 @@ def test_map_predicates_on_a_log_without_a_map_say_so() -> None:
 def test_direction_with_distance_and_lateral_band() -> None:
     # The car heads +x: its right is −y. A cyclist 3 m to its right, another 3 m to its left, one 30 m right.
     x = make_features([car((0, Y)), cyclist((0, Y - 3)), cyclist((0, Y + 3)), cyclist((0, Y - 30))])
-    right = Has(Objects("car"), "direction", Objects("cyclist"), (("side", "right"), ("within_m", 5.0)))
+    right = p.Has(p.Objects("car"), "direction", p.Objects("cyclist"), (("side", "right"), ("within_m", 5.0)))
     result = evaluate(right, x).selection
     assert result.mask.any(axis=1).tolist() == [True, False, False, False, False]
     assert result.related.any(axis=1).tolist() == [False, True, False, False, False]
-    wide = Has(Objects("car"), "direction", Objects("cyclist"), (("side", "right"),))
-    assert evaluate(Has(Objects("car"), "direction", Objects("cyclist"), (("side", "right"),), min_count=2),
+    wide = p.Has(p.Objects("car"), "direction", p.Objects("cyclist"), (("side", "right"),))
+    assert evaluate(p.Has(p.Objects("car"), "direction", p.Objects("cyclist"), (("side", "right"),), min_count=2),
                     x).selection.mask.any()
     assert selected(wide, x)[0]
-    reverse = Has(Objects("car"), "direction", Objects("cyclist"), (("side", "right"), ("within_m", 5.0)),
+    reverse = p.Has(p.Objects("car"), "direction", p.Objects("cyclist"), (("side", "right"), ("within_m", 5.0)),
                   reverse=True)
     assert selected(reverse, x).tolist() == [False, True, False, False, False]
-    assert not selected(Has(Objects("car"), "direction", Objects("cyclist"), (("side", "front"),)), x).any()
+    assert not selected(p.Has(p.Objects("car"), "direction", p.Objects("cyclist"), (("side", "front"),)), x).any()
 
 
 def test_counts_and_negation() -> None:
     x = make_features([car((0, Y)), pedestrian((2, Y + 3)), pedestrian((-2, Y + 3)), car((100, Y))])
-    two = Has(Objects("car"), "near", Objects("pedestrian"), (("within_m", 5.0),), min_count=2)
-    three = Has(Objects("car"), "near", Objects("pedestrian"), (("within_m", 5.0),), min_count=3)
-    lonely = Has(Objects("car"), "near", Objects("pedestrian"), (("within_m", 5.0),), negate=True)
+    two = p.Has(p.Objects("car"), "near", p.Objects("pedestrian"), (("within_m", 5.0),), min_count=2)
+    three = p.Has(p.Objects("car"), "near", p.Objects("pedestrian"), (("within_m", 5.0),), min_count=3)
+    lonely = p.Has(p.Objects("car"), "near", p.Objects("pedestrian"), (("within_m", 5.0),), negate=True)
     assert selected(two, x).tolist() == [True, False, False, False, False]
     assert not selected(three, x).any()
     assert selected(lonely, x).tolist() == [False, False, False, True, False]
-    assert selected(Together(Objects("pedestrian"), 2), x).tolist() == [False, True, True, False, False]
-    assert not selected(Together(Objects("pedestrian"), 3), x).any()
+    assert selected(p.Together(p.Objects("pedestrian"), 2), x).tolist() == [False, True, True, False, False]
+    assert not selected(p.Together(p.Objects("pedestrian"), 3), x).any()
 
 
 def test_crossing_and_passing_happen_around_their_moment() -> None:
@@ -100,34 +88,34 @@ def test_crossing_and_passing_happen_around_their_moment() -> None:
     across = np.stack([np.full(frames, 6.0), Y + np.linspace(4, -4, frames)], axis=1)  # 6 m ahead, left to right
     overtaking = np.stack([np.linspace(-10, 10, frames), np.full(frames, Y + 3.0)], axis=1)  # passes on the left
     x = make_features([car((0, Y)), pedestrian(across), car(overtaking, speed=10.0)], frames=frames)
-    crossed = evaluate(Has(Objects("car"), "crossed_by", Objects("pedestrian")), x).selection.mask[0]
+    crossed = evaluate(p.Has(p.Objects("car"), "crossed_by", p.Objects("pedestrian")), x).selection.mask[0]
     assert crossed[19] and crossed[20] and not crossed[0] and not crossed[-1]
-    left = Has(Objects("car"), "passed_by", Objects("car"), (("side", "left"),))
+    left = p.Has(p.Objects("car"), "passed_by", p.Objects("car"), (("side", "left"),))
     passed = evaluate(left, x).selection.mask[0]
     assert passed[20] and not passed[0]
-    right = Has(Objects("car"), "passed_by", Objects("car"), (("side", "right"),))
+    right = p.Has(p.Objects("car"), "passed_by", p.Objects("car"), (("side", "right"),))
     assert not evaluate(right, x).selection.mask[0].any()
 
 
 def test_between_following_same_lane_and_heading() -> None:
     x = make_features([pedestrian((0, Y)), car((0, Y + 3), lane=1), car((0, Y - 3), lane=1), car((15, Y + 3), lane=1),
                        car((-40, Y + 3), yaw=np.pi, lane=2)])
-    assert selected(Between(Objects("pedestrian"), Objects("car"), Objects("car")), x)[0]
-    assert not selected(Between(Objects("pedestrian"), Objects("car"), Objects("bus")), x).any()
-    follows = selected(Has(Objects("car"), "following", Objects("car")), x)
+    assert selected(p.Between(p.Objects("pedestrian"), p.Objects("car"), p.Objects("car")), x)[0]
+    assert not selected(p.Between(p.Objects("pedestrian"), p.Objects("car"), p.Objects("bus")), x).any()
+    follows = selected(p.Has(p.Objects("car"), "following", p.Objects("car")), x)
     assert follows.tolist() == [False, True, False, False, False, False]  # the car 15 m behind the first
-    shares = selected(Has(Objects("car"), "same_lane", Objects("car")), x)
+    shares = selected(p.Has(p.Objects("car"), "same_lane", p.Objects("car")), x)
     assert shares.tolist() == [False, True, True, True, False, False]
-    opposite = selected(Has(Objects("car"), "heading", Objects("car"), (("way", "opposite"),)), x)
+    opposite = selected(p.Has(p.Objects("car"), "heading", p.Objects("car"), (("way", "opposite"),)), x)
     assert opposite.tolist() == [False, True, True, False, True, False]  # within 50 m of the oncoming car
 
 
 def test_and_or_excluding() -> None:
     x = make_features([car((0, Y), flags=("braking",)), car((10, Y), flags=("parked",), speed=0.0), cyclist((20, Y))])
-    braking, parked = Is(Objects("car"), "braking"), Is(Objects("car"), "parked")
-    assert selected(AnyOf((braking, parked)), x).tolist() == [True, True, False, False]
-    assert not selected(AllOf((braking, parked)), x).any()
-    assert selected(Excluding(Objects("vehicle"), parked), x).tolist() == [True, False, False, False]
+    braking, parked = p.Is(p.Objects("car"), "braking"), p.Is(p.Objects("car"), "parked")
+    assert selected(p.AnyOf((braking, parked)), x).tolist() == [True, True, False, False]
+    assert not selected(p.AllOf((braking, parked)), x).any()
+    assert selected(p.Excluding(p.Objects("vehicle"), parked), x).tolist() == [True, False, False, False]
 
 
 def test_durations_are_seconds_at_any_rate() -> None:
@@ -154,19 +142,19 @@ def test_then_while_and_for_at_least_on_features() -> None:
     waiting[20:] = True
     x = make_features([car((0, Y), flags={"stopped": stopped}, speed=np.where(stopped, 0.0, 5.0)),
                        cyclist((5, Y), speed=np.where(waiting, 0.0, 4.0))], frames=frames)
-    drive_off = Then(Is(Objects("car"), "stopped"), Is(Objects("car"), "moving"), 0.5)
+    drive_off = p.Then(p.Is(p.Objects("car"), "stopped"), p.Is(p.Objects("car"), "moving"), 0.5)
     mask = evaluate(drive_off, x).selection.mask[0]
     assert mask[9] and mask[10] and not mask[0] and not mask[-1]
-    assert evaluate(ForAtLeast(Is(Objects("car"), "stopped"), 1.0), x).selection.mask[0].sum() == 10
-    assert not evaluate(ForAtLeast(Is(Objects("car"), "stopped"), 1.5), x).selection.mask.any()
-    while_waiting = evaluate(While(Objects("car"), Is(Objects("cyclist"), "stopped")), x).selection
+    assert evaluate(p.ForAtLeast(p.Is(p.Objects("car"), "stopped"), 1.0), x).selection.mask[0].sum() == 10
+    assert not evaluate(p.ForAtLeast(p.Is(p.Objects("car"), "stopped"), 1.5), x).selection.mask.any()
+    while_waiting = evaluate(p.While(p.Objects("car"), p.Is(p.Objects("cyclist"), "stopped")), x).selection
     assert while_waiting.mask[0].tolist() == waiting.tolist()
     assert while_waiting.related[1].tolist() == waiting.tolist()
 
 
 def test_answer_marks_referred_and_related_apart() -> None:
     x = make_features([car((0, Y)), cyclist((0, Y - 3))])
-    result, notes = answer(Has(Objects("car"), "direction", Objects("cyclist"), (("side", "right"),)), x, "d")
+    result, notes = answer(p.Has(p.Objects("car"), "direction", p.Objects("cyclist"), (("side", "right"),)), x, "d")
     assert notes == [] and result.description == "d"
     assert result.referred_mask.any(axis=1).tolist() == [True, False, False]
     assert result.related.any(axis=1).tolist() == [False, True, False]
@@ -178,7 +166,7 @@ def test_answer_marks_referred_and_related_apart() -> None:
 def test_a_negated_relation_with_no_other_object_keeps_every_subject() -> None:
     """"car without a pedestrian near it" where the log has no pedestrian: every car."""
     x = make_features([car((0, Y)), car((100, Y))])
-    lonely = Has(Objects("car"), "near", Objects("pedestrian"), (("within_m", 5.0),), negate=True)
+    lonely = p.Has(p.Objects("car"), "near", p.Objects("pedestrian"), (("within_m", 5.0),), negate=True)
     assert selected(lonely, x).tolist() == [True, True, False]
 
 
@@ -188,7 +176,7 @@ def test_pairs_left_out_as_too_far_apart_never_hold(relation: str) -> None:
     it leaves out (the relation computed on every pair is the reference)."""
     rng = np.random.default_rng(7)
     spec = RELATIONS[relation]
-    p = resolve_params(spec.defaults, spec.choices, {}, relation)
+    params = spec.resolve({})
     for _ in range(5):
         frames = 30
         start = rng.uniform(-80, 80, (12, 2))
@@ -198,7 +186,7 @@ def test_pairs_left_out_as_too_far_apart_never_hold(relation: str) -> None:
         x = make_features(objects, frames=frames)
         every = np.arange(x.num_objects)
         s_all, o_all = np.repeat(every, every.size), np.tile(every, every.size)
-        holds = spec.fn(pair_geometry(x, s_all, o_all), p).any(axis=1)
-        s_kept, o_kept = candidate_pairs(x, every, every, spec.reach_m(p))
+        holds = spec.fn(pair_geometry(x, s_all, o_all), params).any(axis=1)
+        s_kept, o_kept = candidate_pairs(x, every, every, spec.reach_m(params))
         kept = set(zip(s_kept.tolist(), o_kept.tolist()))
         assert {(s, o) for s, o, h in zip(s_all.tolist(), o_all.tolist(), holds) if h} <= kept

@@ -19,6 +19,7 @@ from scenesearch_base.config import (
     from_dict,
     from_yaml,
     from_yaml_text,
+    parse_choice,
     to_dict,
     to_yaml,
     with_option,
@@ -193,3 +194,12 @@ def test_field_checks_name_the_first_bad_field_and_raise_the_stage_error() -> No
         check_fraction("Lens", vignetting=0.5, transmission=1.5)
     with pytest.raises(ValueError, match=r"^Lens\.vignetting must be in \[0, 1\], got -0\.1$"):
         check_fraction("Lens", vignetting=-0.1)
+
+
+def test_a_choice_is_read_by_its_value_and_an_unknown_one_lists_the_valid_values() -> None:
+    assert parse_choice(Mode, "exact", "mode", "valid modes") is Mode.EXACT
+    assert parse_choice(Mode, Mode.FAST, "mode", "valid modes") is Mode.FAST
+    with pytest.raises(ValueError, match=r"^unknown mode 'slow'; valid modes: fast, exact$"):
+        parse_choice(Mode, "slow", "mode", "valid modes")
+    with pytest.raises(StageConfigError, match=r"^unknown mode 3; choose one of: fast, exact$"):
+        parse_choice(Mode, 3, "mode", "choose one of", error=StageConfigError)

@@ -21,6 +21,7 @@ from torch.utils.data import Dataset
 from encoders.inference import batches, clip_autocast, embed_texts
 from encoders.metrics import caption_queries, text_to_clip_metrics
 from encoders.model import DualEncoder
+from encoders.sentence import evaluating
 
 #: Weights tried, camera against BEV's 1; 1 is what training used (an equal mean).
 CAMERA_WEIGHTS: tuple[float, ...] = (0.0, 0.125, 0.25, 0.375, 0.5, 0.75, 1.0)
@@ -59,9 +60,7 @@ def calibrate_camera_weight(model: DualEncoder, val_set: Dataset[dict[str, Any]]
     current = float(model.fusion.camera_weight)
     if val_set is None or len(val_set) == 0:  # type: ignore[arg-type]
         return CameraWeightChoice(current, {}, "no validation split")
-    was_training = model.training
-    model.eval()
-    try:
+    with evaluating(model):
         camera, bev, has_camera, category, captions = _views(model, val_set, batch_size)
         if not bool(has_camera.any()):
             return CameraWeightChoice(current, {}, "no camera clip in the validation split")
@@ -77,8 +76,6 @@ def calibrate_camera_weight(model: DualEncoder, val_set: Dataset[dict[str, Any]]
         best = max(map_by_weight, key=lambda w: (round(map_by_weight[w], 6), w))
         model.fusion.set_camera_weight(best)
         return CameraWeightChoice(best, map_by_weight)
-    finally:
-        model.train(was_training)
 
 
 def _views(model: DualEncoder, dataset: Dataset[dict[str, Any]],

@@ -34,7 +34,7 @@ from encoders.data import AugmentConfig, ClipDataset, collate_clips
 from encoders.dense import frame_tag_report
 from encoders.metrics import caption_queries, text_to_clip_metrics
 from encoders.model import DualEncoder
-from encoders.sentence import native_bfloat16
+from encoders.sentence import evaluating, native_bfloat16
 from encoders.text import TEXT_CACHE_FILE
 from encoders.train_config import TrainConfig
 from scenesearch_base.atomic import atomic_write_text
@@ -200,22 +200,20 @@ def embed_dataset(
     seed: int = 0,
 ) -> tuple[list[str], np.ndarray, list[str]]:
     """→ clip ids, (N, D) float32 normalised clip embeddings, canonical captions."""
-    was_training = model.training
-    model.eval()
     gen = torch.Generator().manual_seed(seed)
     ids: list[str] = []
     captions: list[str] = []
     chunks = []
     device = model.device
-    for batch in batches(dataset, batch_size, pin_memory=device.type == "cuda"):
-        if shuffle_frames:
-            batch = shuffle_time(batch, gen)
-        with clip_autocast(device):
-            x = model.encode_video(batch, view=view, normalize=False)
-        chunks.append(F.normalize(x.float(), dim=-1).cpu().numpy())  # normalised in float32
-        ids += list(batch["clip_id"])
-        captions += list(batch["canonical_caption"])
-    model.train(was_training)
+    with evaluating(model):
+        for batch in batches(dataset, batch_size, pin_memory=device.type == "cuda"):
+            if shuffle_frames:
+                batch = shuffle_time(batch, gen)
+            with clip_autocast(device):
+                x = model.encode_video(batch, view=view, normalize=False)
+            chunks.append(F.normalize(x.float(), dim=-1).cpu().numpy())  # normalised in float32
+            ids += list(batch["clip_id"])
+            captions += list(batch["canonical_caption"])
     d = model.config.embed_dim
     return ids, (np.concatenate(chunks) if chunks else np.zeros((0, d), np.float32)), captions
 
@@ -226,18 +224,16 @@ def embed_dataset_views(
 ) -> tuple[list[str], dict[str, np.ndarray]]:
     """→ clip ids and, per view (camera, bev, fused), (N, D) float32 normalised embeddings, in one pass
     (the clips loaded in ``num_workers`` processes, 0: this one)."""
-    was_training = model.training
-    model.eval()
     ids: list[str] = []
     chunks: dict[str, list[np.ndarray]] = {}
     device = model.device
-    for batch in batches(dataset, batch_size, num_workers, pin_memory=device.type == "cuda"):
-        with clip_autocast(device):
-            views = model.encode_views(batch, normalize=False)
-        for view, x in views.items():  # normalised in float32: in bfloat16 the norm is off by about 1e-3
-            chunks.setdefault(view, []).append(F.normalize(x.float(), dim=-1).cpu().numpy())
-        ids += list(batch["clip_id"])
-    model.train(was_training)
+    with evaluating(model):
+        for batch in batches(dataset, batch_size, num_workers, pin_memory=device.type == "cuda"):
+            with clip_autocast(device):
+                views = model.encode_views(batch, normalize=False)
+            for view, x in views.items():  # normalised in float32: in bfloat16 the norm is off by about 1e-3
+                chunks.setdefault(view, []).append(F.normalize(x.float(), dim=-1).cpu().numpy())
+            ids += list(batch["clip_id"])
     d = model.config.embed_dim
     return ids, {v: np.concatenate(c) if c else np.zeros((0, d), np.float32) for v, c in chunks.items()}
 
@@ -245,11 +241,9 @@ def embed_dataset_views(
 @torch.no_grad()
 def embed_texts(model: DualEncoder, texts: Sequence[str], batch_size: int = 256) -> np.ndarray:
     """texts: N strings → (N, D) float32 normalised embeddings."""
-    was_training = model.training
-    model.eval()
-    out = [model.encode_text(list(texts[i : i + batch_size])).float().cpu().numpy()
-           for i in range(0, len(texts), batch_size)]
-    model.train(was_training)
+    with evaluating(model):
+        out = [model.encode_text(list(texts[i : i + batch_size])).float().cpu().numpy()
+               for i in range(0, len(texts), batch_size)]
     return np.concatenate(out) if out else np.zeros((0, model.config.embed_dim), np.float32)
 
 
@@ -300,18 +294,16 @@ def frame_tag_figures(model: DualEncoder, dataset: Dataset[dict[str, Any]], batc
     :func:`encoders.dense.frame_tag_report`. Empty without dense heads."""
     if not model.dense:
         return {}
-    was_training = model.training
-    model.eval()
     logits: dict[str, list[torch.Tensor]] = {}
     targets, has_camera = [], []
-    for batch in batches(dataset, batch_size):
-        frames: dict[str, torch.Tensor] = {}
-        model.encode_views(batch, frames=frames)
-        for name, x in model.dense_logits(frames).items():
-            logits.setdefault(name, []).append(x.float().cpu())
-        targets.append(torch.as_tensor(batch["frame_targets"]))
-        has_camera.append(torch.as_tensor(batch["has_camera"], dtype=torch.bool).reshape(-1))
-    model.train(was_training)
+    with evaluating(model):
+        for batch in batches(dataset, batch_size):
+            frames: dict[str, torch.Tensor] = {}
+            model.encode_views(batch, frames=frames)
+            for name, x in model.dense_logits(frames).items():
+                logits.setdefault(name, []).append(x.float().cpu())
+            targets.append(torch.as_tensor(batch["frame_targets"]))
+            has_camera.append(torch.as_tensor(batch["has_camera"], dtype=torch.bool).reshape(-1))
     if not targets:
         return {}
     return frame_tag_report({name: torch.cat(chunks) for name, chunks in logits.items()}, torch.cat(targets),

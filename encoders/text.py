@@ -38,6 +38,7 @@ from encoders.config import ConfigError, TextConfig
 from encoders.sentence import (
     cache_name,
     embedding_few_texts,
+    evaluating,
     inference_autocast,
     load_sentence_encoder,
     text_encoder_dtype,
@@ -205,11 +206,8 @@ class PretrainedText(nn.Module):
         self.cache.misses += len(missing)
         self.cache.hits += len(texts) - len(missing)
         if missing:
-            was_training = self.encoder.training
-            self.encoder.eval()
-            with torch.no_grad(), inference_autocast(device, self.dtype):
+            with evaluating(self.encoder), torch.no_grad(), inference_autocast(device, self.dtype):
                 vectors = self._run(missing, device).cpu().numpy()
-            self.encoder.train(was_training)
             for t, v in zip(missing, vectors):
                 self.cache.put(t, v)
         stacked = np.stack([self.cache.get(t) for t in texts])  # type: ignore[misc]

@@ -323,11 +323,12 @@ def map_ego_lane(raster: MapRaster, found: MapLookup, xy_m: NDArray[np.float64],
 
 
 def _put_host_flags(rules: LogCaptions, put: Callable[[str, NDArray[np.bool_]], None], k: int) -> None:
-    """The ego's flags from its host tags: standing, braking (decelerating), accelerating and steering."""
+    """The ego's flags from its host tags: standing, accelerating and steering. Its braking is read from its
+    speed, as every object's is (``braking``'s ``min_mps2``): the host tag "decelerating" takes in gentler
+    slowing than a brake."""
     row = np.arange(k + 1)[:, None] == k
     for name, codes, member, members in (
         ("stopped", rules.host_motion, HostMotion.STATIONARY, HOST_MOTIONS),
-        ("braking", rules.host_motion, HostMotion.DECELERATING, HOST_MOTIONS),
         ("accelerating_host", rules.host_motion, HostMotion.ACCELERATING, HOST_MOTIONS),
         ("left_turn", rules.host_direction, HostDirection.STEERING_LEFT, HOST_DIRECTIONS),
         ("right_turn", rules.host_direction, HostDirection.STEERING_RIGHT, HOST_DIRECTIONS),

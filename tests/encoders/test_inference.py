@@ -11,6 +11,7 @@ import torch
 
 from encoders.config import ConfigError
 from encoders.inference import resolve_device
+from encoders.sentence import evaluating
 
 
 @pytest.fixture
@@ -128,3 +129,18 @@ def test_bfloat16_embeddings_stay_within_1e_3_cosine_of_float32(monkeypatch: pyt
         np.testing.assert_allclose(np.linalg.norm(mixed[view], axis=1), 1.0, atol=1e-5)
         assert (x * mixed[view]).sum(axis=1).min() > 1 - 1e-3, view
         assert not np.array_equal(x, mixed[view]), view  # the products did run in bfloat16
+
+
+def test_evaluating_restores_the_mode_it_found_even_on_an_error() -> None:
+    module = torch.nn.Dropout(0.5)
+    module.train()
+    with evaluating(module):
+        assert not module.training
+    assert module.training
+    with pytest.raises(RuntimeError), evaluating(module):
+        raise RuntimeError("inside")
+    assert module.training
+    module.eval()
+    with evaluating(module):
+        pass
+    assert not module.training

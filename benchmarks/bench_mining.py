@@ -53,7 +53,8 @@ from typing import Any
 import numpy as np
 
 from benchmarks.mining_data import FAMILIES, SPLITS, WORK, Description, MiningData, build_data
-from benchmarks.mining_reference import load_reference_log, reference_selection
+from benchmarks.mining_reference import reference_selection
+from benchmarks.mining_reference_log import load_reference_log
 from benchmarks.mining_speed import speed
 from scenarios.answer import LogAnswer
 from scenarios.features import LogFeatures

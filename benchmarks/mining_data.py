@@ -41,7 +41,8 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks.mining_reference import load_reference_log, reference_answer
+from benchmarks.mining_reference import reference_answer
+from benchmarks.mining_reference_log import load_reference_log
 from scenarios.syntax import parse_program
 from scenes import av2_io
 from scenes.log import Log

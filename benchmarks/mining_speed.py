@@ -24,7 +24,8 @@ from typing import Any
 import numpy as np
 
 from benchmarks.mining_data import MiningData
-from benchmarks.mining_reference import load_reference_log, reference_selection, replicate
+from benchmarks.mining_reference import reference_selection
+from benchmarks.mining_reference_log import load_reference_log, replicate
 from scenarios.features import LogFeatures
 
 #: The speed test: logs, their length, objects a frame.

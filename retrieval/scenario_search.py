@@ -128,6 +128,7 @@ class ScenarioStore:
     def __init__(self, folder: Path | None) -> None:
         self.folder = folder
         self._features: dict[str, LogFeatures | None] = {}
+        self._problems: dict[str, str] = {}  # log id → why its features could not be read
 
     @property
     def available(self) -> bool:
@@ -140,8 +141,9 @@ class ScenarioStore:
             path = self.folder / f"{log_id}{FEATURES_SUFFIX}"
             try:
                 self._features[log_id] = decode(path.read_bytes())[0] if path.is_file() else None
-            except ValueError:
+            except ValueError as exc:  # another format (an index built by another release) or damaged
                 self._features[log_id] = None
+                self._problems[log_id] = f"{path.name}: {exc}; build the index again to answer scenario programs"
         return self._features[log_id]
 
     def match(self, query: str, moments: pa.Table) -> ScenarioMatch:
@@ -162,7 +164,8 @@ class ScenarioStore:
         for log_id in dict.fromkeys(logs.tolist()):
             x = self.features(log_id)
             if x is None:
-                notes.append(f"{log_id}: no scenario features: its moments are left out of the program's answer")
+                why = self._problems.get(log_id, "no scenario features")
+                notes.append(f"{log_id}: {why}: its moments are left out of the program's answer")
                 continue
             result = evaluate(compiled.program, x)
             notes += [n for n in result.notes if n not in notes]

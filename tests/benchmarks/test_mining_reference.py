@@ -13,7 +13,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from benchmarks.mining_reference import load_reference_log, reference_answer, reference_selection
+from benchmarks.mining_reference import reference_answer, reference_selection
+from benchmarks.mining_reference_log import load_reference_log
 from scenarios.evaluate import evaluate
 from scenarios.features import build_features
 from scenarios.syntax import parse_program

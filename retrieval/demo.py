@@ -120,6 +120,10 @@ class Demo:
 
     def settings(self, stage: str) -> dict[str, Any]:
         """The settings a stage's output depends on (a changed setting reruns the stage and those after)."""
+        from encoders.clips.layout import CLIPS_FORMAT_VERSION
+        from retrieval.index_manifest import FORMAT_VERSION as INDEX_FORMAT_VERSION
+        from scenarios.cache import CACHE_VERSION
+
         c = self.config
         sim = {"logs": c.logs, "duration_s": c.duration_s, "seed": c.seed, "sensors": c.sensors,
                "extra_logs": c.extra_logs, "map_less_share": c.map_less_share,
@@ -128,12 +132,13 @@ class Demo:
             sim["val_logs"] = c.val_logs
         upto: dict[str, dict[str, Any]] = {"simulate": sim}
         upto["caption"] = upto["simulate"]
+        # A folder made by a release that wrote another format is made again, not resumed.
         upto["clips"] = {**upto["caption"], "frames_per_clip": c.frames_per_clip, "camera": [c.camera_width_px,
                          c.camera_height_px], "bev_resolution_m": c.bev_resolution_m,
-                         "test_fraction": c.test_fraction}
+                         "test_fraction": c.test_fraction, "clips_format": CLIPS_FORMAT_VERSION}
         upto["train"] = {**upto["clips"], "epochs": c.epochs, "train_preset": c.train_preset,
                          "batch_size": c.batch_size}
-        upto["index"] = upto["train"]
+        upto["index"] = {**upto["train"], "index_format": INDEX_FORMAT_VERSION, "scenario_features": CACHE_VERSION}
         upto["eval"] = upto["train"]
         upto["report"] = {**upto["train"], "queries": list(c.queries), "scenario_query": c.scenario_query,
                           "top_k": c.top_k}

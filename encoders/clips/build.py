@@ -29,6 +29,7 @@ from encoders.clips.frame_tags import LogFrameTags, empty_clip_columns, read_fra
 from encoders.clips.layout import (
     CAMERA_PIXEL_COUNTS_FILE,
     CLIPS_FOLDER,
+    CLIPS_FORMAT_VERSION,
     LOGS_DIR,
     MANIFEST_FILE,
     PREVIEWS_DIR,
@@ -71,8 +72,6 @@ from scenesearch_base.storage import (
     staged_input,
     staged_output,
 )
-
-FORMAT_VERSION = 1
 
 
 @dataclass
@@ -348,7 +347,7 @@ def _manifest(config: ClipsConfig, report: ClipsReport, skipped: Skipped,
               clip_rows: list[dict[str, Any]]) -> dict[str, Any]:
     grid = bev_grid(config)
     return {
-        "format_version": FORMAT_VERSION,
+        "format_version": CLIPS_FORMAT_VERSION,
         "frames_per_clip": config.frames_per_clip,
         "camera": {
             "name": config.camera.camera_name,

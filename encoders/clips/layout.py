@@ -66,6 +66,8 @@ from scenes.categories import CATEGORY_NAMES
 from scenesearch_base.folders import FolderKind
 
 CLIPS_FILE = "clips.parquet"
+#: Format of a clips folder, in its manifest: 2 keeps every rendered per-frame array in ``.blocks`` files.
+CLIPS_FORMAT_VERSION = 2
 MANIFEST_FILE = "manifest.json"
 PREVIEWS_DIR = "previews"
 #: Folder of rendered logs inside CLIPS_DIR.
@@ -147,7 +149,7 @@ def read_manifest(clips_dir: Path | str) -> dict[str, Any]:
 
     Raises:
         FileNotFoundError: there is no manifest (the folder was never built, or its build never finished).
-        ValueError: the manifest is not valid JSON.
+        ValueError: the manifest is not valid JSON, or it describes a folder of another format.
     """
     path = Path(clips_dir) / MANIFEST_FILE
     if not path.is_file():
@@ -156,6 +158,10 @@ def read_manifest(clips_dir: Path | str) -> dict[str, Any]:
         data: dict[str, Any] = json.loads(path.read_text())
     except json.JSONDecodeError as exc:
         raise ValueError(f"{path}: unreadable clips manifest ({exc})") from None
+    found = data.get("format_version") if isinstance(data, dict) else None
+    if found is not None and found != CLIPS_FORMAT_VERSION:
+        raise ValueError(f"{path}: format_version {found}, and this release reads clips folders of format "
+                         f"{CLIPS_FORMAT_VERSION}: run `scenesearch clips` again to build the folder anew")
     return data
 
 

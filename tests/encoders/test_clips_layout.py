@@ -47,6 +47,9 @@ def test_readers_name_the_file_and_field(tmp_path: Path) -> None:
     bev = {"x_min_m": -10, "x_max_m": 30, "y_min_m": -20, "y_max_m": 20, "resolution_m": 0.5}
     (tmp_path / MANIFEST_FILE).write_text(json.dumps({"bev": bev}))
     assert grid_from_manifest(read_manifest(tmp_path)).shape == (80, 80)
+    (tmp_path / MANIFEST_FILE).write_text(json.dumps({"bev": bev, "format_version": 1}))  # plain .npy arrays
+    with pytest.raises(ValueError, match=f"{MANIFEST_FILE}: format_version 1.*run `scenesearch clips` again"):
+        read_manifest(tmp_path)
 
     ids = [clip_id("log", "car", 1), clip_id("log", "bus", 2)]
     pq.write_table(pa.table({"clip_id": ids, "caption": ["a car", "a bus"]}), tmp_path / CLIPS_FILE)

@@ -152,7 +152,7 @@ def make_clips_dir(root: Path, n_logs: int = 6, clips_per_log: int = 14, seed: i
             })
     root.mkdir(parents=True, exist_ok=True)
     pq.write_table(pa.Table.from_pylist(rows), root / "clips.parquet")
-    (root / "manifest.json").write_text('{"format_version": 1, "frames_per_clip": 16}')
+    (root / "manifest.json").write_text('{"format_version": 2, "frames_per_clip": 16}')
     return root
 
 

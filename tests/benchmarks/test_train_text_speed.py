@@ -5,13 +5,13 @@ from __future__ import annotations
 
 import os
 
-from benchmarks.bench_train import _training_texts, whole_text_speedup
+from benchmarks.train_text_speed import training_texts, whole_text_speedup
 from encoders.text import text_sentences
 
 
 def test_training_texts_are_seeded_and_their_sentences_recur() -> None:
-    steps = _training_texts(16, 6)
-    assert steps == _training_texts(16, 6) and steps != _training_texts(16, 6, seed=1)
+    steps = training_texts(16, 6)
+    assert steps == training_texts(16, 6) and steps != training_texts(16, 6, seed=1)
     assert all(len(texts) >= 16 for texts in steps)  # each clip's caption, and its reversal where it has one
     texts = {t for texts in steps for t in texts}
     sentences = {s for t in texts for s in text_sentences(t)}
@@ -23,7 +23,7 @@ def test_training_texts_are_seeded_and_their_sentences_recur() -> None:
 def test_whole_text_speedup_runs_both_forms_over_the_same_texts() -> None:
     os.environ.setdefault("HF_HUB_OFFLINE", "1")
     figures = whole_text_speedup(4, 2)
-    assert figures["texts"] == sum(map(len, _training_texts(4, 2)))
+    assert figures["texts"] == sum(map(len, training_texts(4, 2)))
     text, sentences = figures["text"], figures["sentences"]
     assert text["strings"] > 0 and sentences["strings"] > 0
     # In one piece every caption is encoded as written; as sentences none of them is (two sentences each).

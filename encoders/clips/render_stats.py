@@ -21,8 +21,8 @@ from encoders.clips.layout import RENDER_FILE
 from scenes.tracks import DenseTracks
 from scenesearch_base.checksums import checksum_problem
 
-#: Version of the per-log files; bump when their content changes.
-RENDER_VERSION = 5
+#: Version of the per-log files; bump when their content or their format changes (6: `.blocks` files).
+RENDER_VERSION = 6
 
 
 def render_fingerprint(config: ClipsConfig) -> str:

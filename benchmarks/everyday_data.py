@@ -25,6 +25,7 @@ import sys
 import time
 from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 from scenesearch_base.atomic import atomic_write_text
 
@@ -44,16 +45,21 @@ def _run(argv: list[str]) -> None:
         raise RuntimeError(f"failed: scenesearch {' '.join(argv)}")
 
 
-def _manifest(demo: Path) -> dict[str, object]:
+def _manifest(demo: Path) -> dict[str, Any]:
+    """What the folder's clips come from (``clips``) and which model indexed them (``model``)."""
+    from encoders.clips.layout import CLIPS_FORMAT_VERSION
+
     model = demo / "run" / "model.safetensors"
-    return {"version": DATA_VERSION, "seed": SEED, "logs": LOGS, "duration_s": DURATION_S,
-            "demo_run": str((demo / "run").resolve()),
-            "model_bytes": model.stat().st_size if model.is_file() else None,
-            "model_mtime_ns": model.stat().st_mtime_ns if model.is_file() else None}
+    return {"clips": {"version": DATA_VERSION, "seed": SEED, "logs": LOGS, "duration_s": DURATION_S,
+                      "clips_yaml": (demo / "clips.yaml").read_text(), "clips_format": CLIPS_FORMAT_VERSION},
+            "model": {"demo_run": str((demo / "run").resolve()),
+                      "model_bytes": model.stat().st_size if model.is_file() else None,
+                      "model_mtime_ns": model.stat().st_mtime_ns if model.is_file() else None}}
 
 
 def build_split(demo: Path, root: Path | None = None, rebuild: bool = False) -> Path:
-    """Build (or reuse) the split in ``root`` and return its index folder (see the module docstring).
+    """Build (or reuse) the split in ``root`` and return its index folder (see the module docstring): the
+    clips are made again when what they come from changed, the index when they or the model did.
 
     Raises:
         FileNotFoundError: ``demo`` has no trained run or no ``clips.yaml``.
@@ -66,28 +72,33 @@ def build_split(demo: Path, root: Path | None = None, rebuild: bool = False) -> 
             raise FileNotFoundError(f"{needed}: the everyday split needs a finished demo (`make demo`)")
     manifest = _manifest(demo)
     manifest_path = root / "manifest.json"
-    if not rebuild and manifest_path.is_file() and json.loads(manifest_path.read_text()).get("built") == manifest:
+    built = json.loads(manifest_path.read_text()).get("built", {}) if manifest_path.is_file() else {}
+    same_clips = not rebuild and built.get("clips") == manifest["clips"]
+    if same_clips and built.get("model") == manifest["model"]:
         return root / "index"
-    if root.exists():
-        shutil.rmtree(root)
-    root.mkdir(parents=True)
     seconds: dict[str, float] = {}
-    start = time.perf_counter()
-    _run(["simulate", "--out", str(root / "logs"), "--logs", str(LOGS), "--duration-s", str(DURATION_S),
-          "--seed", str(SEED), "--overwrite"])
-    logs = sorted(str(p) for p in (root / "logs").iterdir() if p.is_dir() and not p.name.startswith("."))
-    seconds["simulate"] = time.perf_counter() - start
-    start = time.perf_counter()
-    _run(["caption", *logs, "--out", str(root / "captions")])
-    seconds["caption"] = time.perf_counter() - start
-    demo_clips = ClipsConfig.from_yaml(demo / "clips.yaml")
-    config = replace(demo_clips, previews=False,
-                     split=replace(demo_clips.split, test_only=tuple(Path(p).name for p in logs)))
-    config.to_yaml(root / "clips.yaml")
-    start = time.perf_counter()
-    _run(["clips", *logs, "--captions", str(root / "captions"), "--out", str(root / "clips"), "--frames-per-clip",
-          str(config.frames_per_clip), "--config", str(root / "clips.yaml")])
-    seconds["clips"] = time.perf_counter() - start
+    if not same_clips:
+        if root.exists():
+            shutil.rmtree(root)
+        root.mkdir(parents=True)
+        start = time.perf_counter()
+        _run(["simulate", "--out", str(root / "logs"), "--logs", str(LOGS), "--duration-s", str(DURATION_S),
+              "--seed", str(SEED), "--overwrite"])
+        logs = sorted(str(p) for p in (root / "logs").iterdir() if p.is_dir() and not p.name.startswith("."))
+        seconds["simulate"] = time.perf_counter() - start
+        start = time.perf_counter()
+        _run(["caption", *logs, "--out", str(root / "captions")])
+        seconds["caption"] = time.perf_counter() - start
+        demo_clips = ClipsConfig.from_yaml(demo / "clips.yaml")
+        config = replace(demo_clips, previews=False,
+                         split=replace(demo_clips.split, test_only=tuple(Path(p).name for p in logs)))
+        config.to_yaml(root / "clips.yaml")
+        start = time.perf_counter()
+        _run(["clips", *logs, "--captions", str(root / "captions"), "--out", str(root / "clips"),
+              "--frames-per-clip", str(config.frames_per_clip), "--config", str(root / "clips.yaml")])
+        seconds["clips"] = time.perf_counter() - start
+    elif (root / "index").exists():
+        shutil.rmtree(root / "index")
     start = time.perf_counter()
     _run(["index", str(demo / "run"), str(root / "clips"), "--out", str(root / "index")])
     seconds["index"] = time.perf_counter() - start

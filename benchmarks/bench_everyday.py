@@ -5,10 +5,10 @@ moment's own rule tags and the simulator's labels (its caption row: category, ta
 ``lane:motion[:action][:context]``, the ego's tags, behaviour columns), never from the query's program.
 Each sentence's judge below is written from the sentence alone.
 
-The sentences are split in four: ``DEV`` were seen while the description compiler was written;
-``FIRST_HELD_OUT`` and ``SECOND_HELD_OUT`` were each held out at one measurement and read after it to
-find the compiler's gaps; ``HELD_OUT`` were written with their judges after that, before any search
-ran on them, and are not tuned on.
+The sentences are split in five: ``DEV`` were seen while the description compiler was written;
+``FIRST_HELD_OUT``, ``SECOND_HELD_OUT`` and ``THIRD_HELD_OUT`` were each held out at one measurement and
+read after it to find the search's gaps; ``HELD_OUT`` were written with their judges after that, before
+any search ran on them, and are not tuned on.
 
 Measured for each sentence, on the index's test clips (``split == test``): precision@10 of the default
 search (the query's scenario program selects the moments, the model ranks them), of the model alone,
@@ -127,9 +127,9 @@ SECOND_HELD_OUT: dict[str, Judge] = {
     "a stopped truck in our lane": lambda r: _cat(r, "truck") and _has(r, lane="host", action="stopped"),
 }
 
-#: Written with their judges after the second measurement, before any search ran on them and before the
-#: compiler changed again; not tuned on.
-HELD_OUT: dict[str, Judge] = {
+#: Written with their judges after the second measurement, before the compiler changed again; held out at
+#: the third measurement (precision@10 0.575 of a 0.717 ceiling on the larger split), read after it.
+THIRD_HELD_OUT: dict[str, Judge] = {
     "a car moving away from us in the left lane": lambda r: _cat(r, "car") and _has(r, lane="left", motion="away"),
     "a pedestrian on the left side of the road": lambda r: _cat(r, "pedestrian") and _has(r, lane="left*"),
     "a truck driving ahead of us":
@@ -146,6 +146,28 @@ HELD_OUT: dict[str, Judge] = {
     "an oncoming car turning left": lambda r: _cat(r, "car") and _has(r, lane="oncoming", action="left_turn"),
     "a motorcycle in our lane": lambda r: _cat(r, "motorcycle") and _has(r, lane="host"),
     "a parked bus": lambda r: _cat(r, "bus") and _has(r, action="parked"),
+}
+
+#: Written with their judges after the third measurement, before any search ran on them and before the
+#: search changed again; not tuned on.
+HELD_OUT: dict[str, Judge] = {
+    "a car approaching us in the oncoming lane":
+        lambda r: _cat(r, "car") and _has(r, lane="oncoming", motion="approach"),
+    "a pedestrian crossing in front of us": lambda r: _cat(r, "pedestrian") and _has(r, lane="host_lateral"),
+    "a parked car on the right side of the street":
+        lambda r: _cat(r, "car") and _has(r, lane="right*", action="parked"),
+    "a car stopped in the lane to our left": lambda r: _cat(r, "car") and _has(r, lane="left", action="stopped"),
+    "a truck turning right": lambda r: _cat(r, "truck") and _has(r, action="right_turn"),
+    "a car that brakes and then stops":
+        lambda r: _cat(r, "car") and _then(r, lambda s: "braking" in s, lambda s: "stopped" in s),
+    "a car changing lanes to the right": lambda r: _cat(r, "car") and _has(r, action="right_lane_change"),
+    "we turn left while a car comes toward us":
+        lambda r: _host(r, "steering_left") and _cat(r, "car") and _has(r, lane="oncoming", motion="approach"),
+    "a cyclist in our lane": lambda r: _cat(r, "cyclist") and _has(r, lane="host"),
+    "a bus at the intersection": lambda r: _cat(r, "bus") and _has(r, context="at_intersection"),
+    "we are stopped while a pedestrian crosses":
+        lambda r: _host(r, "stationary") and _cat(r, "pedestrian") and _has(r, lane="host_lateral"),
+    "a car driving away from us in our lane": lambda r: _cat(r, "car") and _has(r, lane="host", motion="away"),
 }
 
 
@@ -191,9 +213,10 @@ def run(quick: bool = False) -> dict[str, Any]:
     if not (index / "manifest.json").is_file():
         return {"skipped": f"no demo index at {index}: run `make demo` (or set SCENESEARCH_DEMO_DIR) first"}
     dev, first, held = evaluate(index, DEV), evaluate(index, FIRST_HELD_OUT), evaluate(index, HELD_OUT)
-    second = evaluate(index, SECOND_HELD_OUT)
+    second, third = evaluate(index, SECOND_HELD_OUT), evaluate(index, THIRD_HELD_OUT)
     out: dict[str, Any] = {
         "index": str(index), "k": K, "held_out": {"mean": _means(held), "per_query": held},
+        "third_held_out": {"mean": _means(third), "per_query": third},
         "second_held_out": {"mean": _means(second), "per_query": second},
         "first_held_out": {"mean": _means(first), "per_query": first},
         "dev": {"mean": _means(dev), "per_query": dev}}
@@ -203,8 +226,8 @@ def run(quick: bool = False) -> dict[str, Any]:
         start = time.perf_counter()
         large = build_split(demo)
         build_s = time.perf_counter() - start
-        sets = {"held_out": HELD_OUT, "second_held_out": SECOND_HELD_OUT, "first_held_out": FIRST_HELD_OUT,
-                "dev": DEV}
+        sets = {"held_out": HELD_OUT, "third_held_out": THIRD_HELD_OUT, "second_held_out": SECOND_HELD_OUT,
+                "first_held_out": FIRST_HELD_OUT, "dev": DEV}
         out["large_split"] = {"index": str(large), "build_seconds": round(build_s, 1), **{
             name: {"mean": _means(per_query), "per_query": per_query}
             for name, per_query in ((n, evaluate(large, q)) for n, q in sets.items())}}

@@ -64,6 +64,7 @@ _PREDICATE_DEFAULTS: dict[str, Params] = {
     "moving": {"min_mps": 0.5}, "stopped": {}, "parked": {}, "braking": {}, "accelerating": {"min_mps2": 0.65},
     "turning": {"direction": "any"}, "changing_lanes": {"direction": "any"}, "blocked": {},
     "braking_for_leader": {}, "at_intersection": {}, "near_intersection": {"within_m": 5.0}, "on_crosswalk": {},
+    "at_crosswalk": {},
     "ego_lane": {"lane": "host"}, "approaching_ego": {},
 }
 _RELATION_DEFAULTS: dict[str, Params] = {
@@ -235,7 +236,9 @@ class _Reference:
                 elif name == "near_intersection":
                     out[o][f] = log.junction_m[o][f] <= float(p["within_m"])
                 elif name == "on_crosswalk":
-                    out[o][f] = log.on_crosswalk[o][f]
+                    out[o][f] = log.crosswalk_m[o][f] == 0.0
+                elif name == "at_crosswalk":
+                    out[o][f] = log.crosswalk_m[o][f] <= 1.0
                 elif name == "ego_lane":
                     lane = str(p["lane"])
                     here = log.ego_lane[o][f]

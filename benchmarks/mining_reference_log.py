@@ -4,7 +4,8 @@ map, as plain lists indexed ``[object][frame]``, and the plain geometry its test
 Shares no code with :mod:`scenarios`' features (see :mod:`benchmarks.mining_reference`). Map context:
 ``in_junction``: the box centre lies in a junction outline of ``junctions.feather`` (the simulator's
 junctions of three or more roads); ``junction_m``: the distance to the nearest such outline;
-``on_crosswalk``: the centre lies in a pedestrian crossing of the map; ``lane``: the map's lane segment
+``crosswalk_m``: the distance from the centre to the nearest pedestrian crossing of the map (0 inside
+one; resolved up to :data:`CROSSWALK_MARGIN_M`); ``lane``: the map's lane segment
 outside junctions whose outline holds the centre. ``ego_lane``: ``host`` on the ego's lane segment,
 ``left`` / ``right`` on its left / right neighbour, ``oncoming`` on a lane whose direction differs from
 the ego lane's by more than 135° with the centre at most :data:`ONCOMING_LATERAL_M` to the side of the
@@ -32,6 +33,8 @@ EGO_LENGTH_M, EGO_WIDTH_M = 4.877, 1.852
 ONCOMING_LATERAL_M = 10.0
 #: Distances to a junction are resolved up to this far (farther ones read as infinite).
 JUNCTION_MARGIN_M = 20.0
+#: Distances to a crossing are resolved up to this far (farther ones read as infinite).
+CROSSWALK_MARGIN_M = 2.0
 #: Cell size of the lookup grid of map polygons.
 _CELL_M = 25.0
 #: The simulator's behaviour labels the reference reads.
@@ -56,7 +59,7 @@ class ReferenceLog:
         flags: behaviour label → grid.
         lane: lane segment id under the centre (outside junctions), −1 off them.
         in_junction: in a junction outline; junction_m: distance to the nearest outline.
-        on_crosswalk: on a pedestrian crossing.
+        crosswalk_m: distance to the nearest pedestrian crossing (0 on one).
         ego_lane: ``host``, ``left``, ``right``, ``oncoming`` or ``""``.
     """
 
@@ -78,7 +81,7 @@ class ReferenceLog:
     lane: list[list[int]]
     in_junction: Grid
     junction_m: list[list[float]]
-    on_crosswalk: Grid
+    crosswalk_m: list[list[float]]
     ego_lane: list[list[str]]
 
     @property
@@ -301,14 +304,14 @@ def load_reference_log(log_dir: Path | str) -> ReferenceLog:
         for index, row in enumerate(junction_table.to_pylist()):
             if row["polygon_x_m"]:
                 junctions.append((index, list(zip(row["polygon_x_m"], row["polygon_y_m"]))))
-    lane_grid, crossing_grid = _PolygonGrid(lanes), _PolygonGrid(crossings)
+    lane_grid, crossing_grid = _PolygonGrid(lanes), _PolygonGrid(crossings, CROSSWALK_MARGIN_M)
     junction_grid = _PolygonGrid(junctions, JUNCTION_MARGIN_M)
     centerlines = {i: [(float(p[0]), float(p[1])) for p in s.centerline(20).tolist()] for i, s in segments.items()}
 
     lane = [[-1] * nf for _ in range(k)]
     in_junction = [[False] * nf for _ in range(k)]
     junction_m = [[math.inf] * nf for _ in range(k)]
-    on_crosswalk = [[False] * nf for _ in range(k)]
+    crosswalk_m = [[math.inf] * nf for _ in range(k)]
     for o in range(k):
         for f in range(nf):
             if not valid[o][f]:
@@ -319,9 +322,7 @@ def load_reference_log(log_dir: Path | str) -> ReferenceLog:
                     lane[o][f] = lane_id
                     break
             for _, polygon in crossing_grid.near(px, py):
-                if point_in_polygon(px, py, polygon):
-                    on_crosswalk[o][f] = True
-                    break
+                crosswalk_m[o][f] = min(crosswalk_m[o][f], polygon_distance(px, py, polygon))
             for _, polygon in junction_grid.near(px, py):
                 d = polygon_distance(px, py, polygon)
                 junction_m[o][f] = min(junction_m[o][f], d)
@@ -352,7 +353,7 @@ def load_reference_log(log_dir: Path | str) -> ReferenceLog:
                 if ex * ox + ey * oy < math.cos(math.radians(135.0)) and abs(lateral) <= ONCOMING_LATERAL_M:
                     ego_lane[o][f] = "oncoming"
     return ReferenceLog(log.log_id, timestamps, time_s, track_ids, labels, valid, x, y, z, yaw, length, width,
-                        height, speed, flags, lane, in_junction, junction_m, on_crosswalk, ego_lane)
+                        height, speed, flags, lane, in_junction, junction_m, crosswalk_m, ego_lane)
 
 
 
@@ -372,5 +373,5 @@ def replicate(log: ReferenceLog, copies: int, offset_m: float) -> ReferenceLog:
         [log.labels[o] for o in order], pick(log.valid), [[v + d for v in log.x[o]] for o, d in zip(order, shift)],
         pick(log.y), pick(log.z), pick(log.yaw), pick(log.length), pick(log.width), pick(log.height),
         pick(log.speed), {name: pick(grid) for name, grid in log.flags.items()}, pick(log.lane),
-        pick(log.in_junction), pick(log.junction_m), pick(log.on_crosswalk), pick(log.ego_lane),
+        pick(log.in_junction), pick(log.junction_m), pick(log.crosswalk_m), pick(log.ego_lane),
     )

@@ -43,7 +43,7 @@ from scenesearch_base.atomic import atomic_write_bytes
 from scenesearch_base.folders import FolderClaimError, FolderKind, claim_folder, mark_folder
 
 #: Version of the encoding; files of another are built again.
-CACHE_VERSION = 4
+CACHE_VERSION = 5
 #: The cache folder (:mod:`scenesearch_base.folders`).
 #: The suffix of a log's file.
 FEATURES_SUFFIX = ".features"

@@ -12,7 +12,8 @@ object is not observed, ``valid`` is false and its values are NaN (or zero for f
 
 Flags (:data:`FLAGS`) come from the captioning rules (:mod:`captioning.behavior`; the ego's from its
 host tags): own behaviour (parked, stopped, braking, turns, lane changes, blocked, braking for a
-leader); map context (intersection, crosswalk, lane types) is read at each object's centre.
+leader); map context (intersection, on a crosswalk, within :data:`AT_CROSSWALK_M` of one, lane types)
+is read at each object's centre.
 ``ego_lane`` is the object's lane relative to the ego's (:class:`captioning.tags.Lane`): on a log with
 a map, from the lane segments under the two centres (the same segment, its left or right neighbour,
 or a lane of the other direction within :data:`ONCOMING_LATERAL_M` to the side) and, for crossing
@@ -42,10 +43,13 @@ from scenes.map import VectorMap
 
 #: Flag bits of :attr:`LogFeatures.flags`, in bit order.
 FLAGS: tuple[str, ...] = (
-    "parked", "stopped", "braking", "keeping_lane", "left_turn", "right_turn", "left_lane_change",
+    "parked", "stopped", "braking", "at_crosswalk", "left_turn", "right_turn", "left_lane_change",
     "right_lane_change", "blocked_by", "braking_for", "at_intersection", "on_crosswalk", "on_lane",
     "in_bike_lane", "in_bus_lane", "accelerating_host",
 )
+#: ``at_crosswalk``: the centre lies within this distance of a pedestrian crossing (inside it included),
+#: as RefAV's ``at_pedestrian_crossing``: where pedestrians wait at the kerb to cross.
+AT_CROSSWALK_M = 1.0
 #: The ego's box (length, width, height in metres): a mid-size sedan, as AV2's ego.
 EGO_SIZE_LWH_M = (4.877, 1.852, 1.5)
 EGO_TRACK_ID = "ego"
@@ -243,6 +247,8 @@ def build_features(log: Log, config: CaptioningConfig | None = None,
             crosswalk = found.crosswalk.copy()  # the raster's cells, then exactly where they say so
             crosswalk[crosswalk] = on_crossing(vector_map, xyz[..., :2][crosswalk])
             put("on_crosswalk", crosswalk)
+            put("at_crosswalk", valid & near_crossing(vector_map, np.nan_to_num(xyz[..., :2], nan=np.inf),
+                                                      AT_CROSSWALK_M))
             map_lanes = map_ego_lane(raster, found, np.where(valid[..., None], xyz[..., :2], np.nan), ego_yaw)
 
     ego_lane = np.full((k + 1, f), -1, dtype=np.int8)
@@ -281,6 +287,32 @@ def on_crossing(vector_map: VectorMap, xy_m: NDArray[np.floating]) -> NDArray[np
     for crossing in vector_map.pedestrian_crossings.values():
         inside |= points_in_polygon(xy_m, crossing.polygon()[:, :2])
     return inside
+
+
+def near_crossing(vector_map: VectorMap, xy_m: NDArray[np.floating], within_m: float) -> NDArray[np.bool_]:
+    """(...,) whether each point (..., 2) lies inside one of the map's pedestrian crossings or within
+    ``within_m`` of its outline; only the points in a crossing's bounding box grown by ``within_m`` are
+    measured."""
+    near = np.zeros(xy_m.shape[:-1], dtype=bool)
+    for crossing in vector_map.pedestrian_crossings.values():
+        polygon = crossing.polygon()[:, :2]
+        lo, hi = polygon.min(axis=0) - within_m, polygon.max(axis=0) + within_m
+        box = np.all((xy_m >= lo) & (xy_m <= hi), axis=-1) & ~near
+        if not box.any():
+            continue
+        points = xy_m[box]
+        near[box] = points_in_polygon(points, polygon) | (distance_to_outline_m(points, polygon) <= within_m)
+    return near
+
+
+def distance_to_outline_m(points_xy_m: NDArray[np.floating], polygon_xy_m: NDArray[np.floating]
+                          ) -> NDArray[np.float64]:
+    """(N,) distance from each point (N, 2) to the nearest edge of the closed polygon (M, 2)."""
+    a = polygon_xy_m[None, :, :]  # (1, M, 2)
+    ab = np.roll(polygon_xy_m, -1, axis=0)[None] - a  # (1, M, 2)
+    ap = points_xy_m[:, None, :] - a  # (N, M, 2)
+    t = np.clip((ap * ab).sum(-1) / np.maximum((ab * ab).sum(-1), 1e-12), 0.0, 1.0)  # (N, M)
+    return np.linalg.norm(ap - t[..., None] * ab, axis=-1).min(axis=1)
 
 
 #: An oncoming lane's object lies at most this far to the side of the ego.

@@ -121,10 +121,12 @@ for _phrases, _name, _params in (
     ("changing lanes|lane change|lane changing|changes lanes|change lanes|switching lanes|merging|merges|"
      "swerving|weaving", "changing_lanes", ()),
     ("changing lanes to the left|changing lanes left|lane change to the left|left lane change|swerving left|"
-     "merging left|changing into the left lane|changes into the left lane|change into the left lane",
+     "merging left|changing into the left lane|changes into the left lane|change into the left lane|"
+     "merging into the left lane|merges into the left lane|moving into the left lane|moves into the left lane",
      "changing_lanes", (("direction", "left"),)),
     ("changing lanes to the right|changing lanes right|lane change to the right|right lane change|swerving right|"
-     "merging right|changing into the right lane|changes into the right lane|change into the right lane",
+     "merging right|changing into the right lane|changes into the right lane|change into the right lane|"
+     "merging into the right lane|merges into the right lane|moving into the right lane|moves into the right lane",
      "changing_lanes", (("direction", "right"),)),
     ("at crawling speed|crawling|creeping|moving slowly|slow moving|slow|slowly", "speed",
      (("min_mps", 0.1), ("max_mps", 2.0))),
@@ -134,9 +136,12 @@ for _phrases, _name, _params in (
      "in the junction|at the junction", "at_intersection", ()),
     ("near intersection|near an intersection|near the intersection|approaching intersection|"
      "approaching an intersection|approaching the intersection", "near_intersection", ()),
-    ("on crosswalk|on a crosswalk|on the crosswalk|at crosswalk|at a crosswalk|at the crosswalk|in crosswalk|"
-     "on pedestrian crossing|on a pedestrian crossing|at a pedestrian crossing|at pedestrian crossing|"
-     "using designated crossing|using the crosswalk|using a crosswalk|on zebra crossing", "on_crosswalk", ()),
+    ("on crosswalk|on a crosswalk|on the crosswalk|in crosswalk|in the crosswalk|on pedestrian crossing|"
+     "on a pedestrian crossing|on the pedestrian crossing|using designated crossing|using the crosswalk|"
+     "using a crosswalk|on zebra crossing", "on_crosswalk", ()),
+    ("at crosswalk|at a crosswalk|at the crosswalk|at a pedestrian crossing|at pedestrian crossing|"
+     "at the pedestrian crossing|near a crosswalk|near the crosswalk|next to the crosswalk|by the crosswalk|"
+     "beside the crosswalk", "at_crosswalk", ()),
     ("in bike lane|in a bike lane|in the bike lane|on bike lane|in bicycle lane|in the bicycle lane", "in_bike_lane",
      ()),
     ("in bus lane|in a bus lane|in the bus lane", "in_bus_lane", ()),
@@ -155,7 +160,8 @@ for _phrases, _name, _params in (
      "approaching_crosswalk", ()),
     ("getting closer to the ego vehicle|getting closer to the ego|getting closer to us|coming closer to us|"
      "closing in on us", "approaching_ego", ()),
-    ("oncoming|coming toward us|coming towards us|in the oncoming lane|on the other side of the road",
+    ("oncoming|coming toward us|coming towards us|comes toward us|comes towards us|come toward us|"
+     "come towards us|in the oncoming lane|on the other side of the road",
      "ego_lane", (("lane", "oncoming"),)),
     ("in same lane|in the same lane|in my lane|in our lane|in the ego lane|in ego lane|in the same lane as us|"
      "in the same lane as the ego vehicle|in the same lane as the ego|in front of us in our lane", "ego_lane",
@@ -168,7 +174,8 @@ for _phrases, _name, _params in (
      (("lane", "right"),)),
     ("approaching us|approaching the ego|getting closer|coming closer|closing in|approaching|approaches|approach|"
      "gets closer|comes closer", "approaching_ego", ()),
-    ("moving away|driving away|pulling away from us|moving away from us|leaving", "moving_away_from_ego", ()),
+    ("moving away|driving away|pulling away from us|moving away from us|driving away from us|leaving",
+     "moving_away_from_ego", ()),
 ):
     _add(_phrases, Lexeme("pred", _name, _params))
 
@@ -190,8 +197,10 @@ for _phrases, _rel, _rparams, _reverse in (
     ("to the back right of|to the rear right of|back right of|behind and to the right of", "direction",
      (("side", "back_right"),), True),
     ("facing away from|turned away from|with its back to", "direction", (("side", "behind"),), False),
-    ("to the left of|left of|on the left of|on the left side of", "direction", (("side", "left"),), True),
-    ("to the right of|right of|on the right of|on the right side of", "direction", (("side", "right"),), True),
+    ("to the left of|left of|on the left of|on the left side of|along the left side of", "direction",
+     (("side", "left"),), True),
+    ("to the right of|right of|on the right of|on the right side of|along the right side of", "direction",
+     (("side", "right"),), True),
     ("directly to the left of", "direction", (("side", "left"), ("lateral_m", 2.0)), True),
     ("directly to the right of", "direction", (("side", "right"), ("lateral_m", 2.0)), True),
     ("in the same lane as|in same lane as|sharing a lane with|sharing lane with|in the lane of|in its lane with|"

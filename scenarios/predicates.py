@@ -17,8 +17,9 @@ has no answer on a log without one: the evaluation says so instead of answering 
 - ``crossing_road``: a pedestrian, cyclist or other small road user moving on a lane, a crosswalk or
   in a junction; ``approaching_crosswalk``: not on a crosswalk yet, on one within ``within_s`` (3 s).
 - ``near_intersection``: at most ``within_m`` (5 m) along its lane from the junction it enters, or in it.
-- ``at_intersection``, ``on_crosswalk``, ``on_road`` (on a lane or in a junction), ``in_bike_lane``,
-  ``in_bus_lane``, ``in_vehicle_lane`` (on a lane that is neither): map context.
+- ``at_intersection``, ``on_crosswalk``, ``at_crosswalk`` (on one or within 1 m: where pedestrians
+  wait), ``on_road`` (on a lane or in a junction), ``in_bike_lane``, ``in_bus_lane``, ``in_vehicle_lane``
+  (on a lane that is neither): map context.
 - ``jaywalking``: a moving pedestrian on a lane, off crosswalks and intersections (needs the map).
 - ``appearance`` (``time_of_day``, ``weather``): the log's recorded lighting and weather; a log that
   records neither has no answer (a note says so).
@@ -245,6 +246,7 @@ def _in_vehicle_lane(x: LogFeatures, p: Params) -> Mask:
 
 for _name, _flag, _phrase in (("at_intersection", "at_intersection", "at an intersection"),
                               ("on_crosswalk", "on_crosswalk", "on a crosswalk"),
+                              ("at_crosswalk", "at_crosswalk", "at a crosswalk"),
                               ("in_bike_lane", "in_bike_lane", "in a bike lane"),
                               ("in_bus_lane", "in_bus_lane", "in a bus lane"),
                               ("on_road", "on_lane", "on the road")):

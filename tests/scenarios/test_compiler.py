@@ -64,6 +64,13 @@ MEANINGS = {
     "buses and motorcycles": "or(bus, motorcycle)",
     "pedestrians and parked cyclists": "or(pedestrian, parked(cyclist))",
     "vehicle that is stopped and at an intersection": "at_intersection(stopped(vehicle))",
+    # "At" a crosswalk takes in its kerb (within 1 m), "on" one does not.
+    "a pedestrian waiting at the crosswalk": "at_crosswalk(stopped(pedestrian))",
+    "a pedestrian standing on the crosswalk": "on_crosswalk(stopped(pedestrian))",
+    "cars parked along the left side of the road": "reverse(direction(ego, parked(car), side=left))",
+    "a car merging into the right lane": "changing_lanes(car, direction=right)",
+    "a bus driving away from us": "moving_away_from_ego(bus)",
+    "we turn left while a car comes toward us": "while(turning(ego, direction=left), ego_lane(car, lane=oncoming))",
 }
 
 

@@ -10,8 +10,9 @@ import numpy as np
 from captioning.map_context import MapLookup, MapRaster
 from captioning.tags import LANES, Lane
 from scenarios.evaluate import evaluate
-from scenarios.features import map_ego_lane
+from scenarios.features import distance_to_outline_m, map_ego_lane, near_crossing
 from scenarios.program import Is, Objects
+from scenes.map import PedestrianCrossing, VectorMap
 from tests.scenarios.synthetic import car, make_features
 
 
@@ -63,3 +64,14 @@ def test_a_standing_object_the_ego_drives_towards_is_not_approaching() -> None:
     xy[-1], velocity[-1] = ego_xy, np.asarray([10.0, 0.0], np.float32)
     x = type(x)(**{**x.__dict__, "xy_m": xy, "velocity_mps": velocity})
     assert not evaluate(Is(Objects("car"), "approaching_ego"), x).selection.mask.any()
+
+
+def test_near_crossing_takes_in_the_crossing_and_a_band_around_its_outline() -> None:
+    # A crossing 4 m wide (x from 0 to 4) and 10 m long (y from 0 to 10).
+    crossing = PedestrianCrossing(1, np.array([[0.0, 0.0, 0.0], [0.0, 10.0, 0.0]]),
+                                  np.array([[4.0, 0.0, 0.0], [4.0, 10.0, 0.0]]))
+    vector_map = VectorMap(pedestrian_crossings={1: crossing})
+    xy = np.array([[2.0, 5.0], [-0.9, 5.0], [-1.1, 5.0], [4.5, 10.5], [5.0, 11.0], [np.inf, np.inf]])
+    assert near_crossing(vector_map, xy, 1.0).tolist() == [True, True, False, True, False, False]
+    np.testing.assert_allclose(distance_to_outline_m(xy[:5], crossing.polygon()[:, :2]),
+                               [2.0, 0.9, 1.1, np.hypot(0.5, 0.5), np.hypot(1.0, 1.0)])

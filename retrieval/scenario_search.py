@@ -160,24 +160,35 @@ class ScenarioStore:
         selected: list[str] = []
         referred: dict[str, tuple[str, ...]] = {}
         related: dict[str, tuple[str, ...]] = {}
-        notes: list[str] = []
+        by_reason: dict[str, list[str]] = {}  # what a log could not answer → the logs
         for log_id in dict.fromkeys(logs.tolist()):
             x = self.features(log_id)
             if x is None:
                 why = self._problems.get(log_id, "no scenario features")
-                notes.append(f"{log_id}: {why}: its moments are left out of the program's answer")
+                by_reason.setdefault(f"{why}: its moments are left out of the program's answer", []).append(log_id)
                 continue
             result = evaluate(compiled.program, x)
-            notes += [n for n in result.notes if n not in notes]
+            for note in result.notes:
+                by_reason.setdefault(note.removeprefix(f"{log_id}: "), []).append(log_id)
             rows = moments.filter(from_numpy(logs == log_id))
             found = _moments_selected(x, result.selection.mask, result.selection.related, rows)
             for clip_id, refs, rels in found:
                 selected.append(clip_id)
                 referred[clip_id], related[clip_id] = refs, rels
+        notes = tuple(f"{_log_list(ids)}: {reason}" for reason, ids in by_reason.items())
         if not selected:
-            return ScenarioMatch(query, compiled, notes=tuple(notes),
+            return ScenarioMatch(query, compiled, notes=notes,
                                  fallback="the program selects none of the indexed moments")
-        return ScenarioMatch(query, compiled, tuple(selected), referred, related, tuple(notes))
+        return ScenarioMatch(query, compiled, tuple(selected), referred, related, notes)
+
+
+def _log_list(log_ids: list[str], shown: int = 3) -> str:
+    """The logs a note is about: all of a few, the first ``shown`` and a count of many (a note per log
+    would bury the answer under the same sentence repeated)."""
+    ids = list(dict.fromkeys(log_ids))
+    if len(ids) <= shown + 1:
+        return ", ".join(ids)
+    return f"{', '.join(ids[:shown])} and {len(ids) - shown} more logs"
 
 
 def _moments_selected(x: LogFeatures, referred: np.ndarray, related: np.ndarray, rows: pa.Table

@@ -160,5 +160,5 @@ def _scenario_lines(match: ScenarioMatch) -> str:
         lines.append(f"{len(match.clip_ids)} moment(s) match the program; ranked by the search below")
     else:
         lines.append(f"ranking every moment: {match.fallback}")
-    lines += [f"note: {n}" for n in match.notes[:5]]
+    lines += [f"note: {n}" for n in match.notes]
     return "\n".join(lines)

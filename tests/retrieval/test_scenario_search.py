@@ -123,3 +123,19 @@ def test_an_unreadable_log_list_is_refused_naming_it(tmp_path: Path) -> None:
     with pytest.raises(ValueError, match="logs.json: expected an object of log id → folder, got list"):
         log_folders_of(tmp_path)
 
+
+
+def test_what_several_logs_cannot_answer_is_said_once_naming_them(tmp_path: Path) -> None:
+    folder = tmp_path / SCENARIOS_DIR
+    folder.mkdir()
+    x = make_features([car((0, Y), id="car")], frames=10)
+    x = type(x)(**{**x.__dict__, "has_map": False})  # map predicates have no answer
+    names = [f"log{i}" for i in range(5)]
+    for name in names:
+        (folder / f"{name}.features").write_bytes(encode(type(x)(**{**x.__dict__, "log_id": name}), "s"))
+    ts = x.timestamps_ns
+    moments = pa.table({"clip_id": [f"{n}:car:{ts[0]}" for n in names], "log_id": names, "track_id": ["car"] * 5,
+                        "start_ns": [int(ts[0])] * 5, "end_ns": [int(ts[-1])] * 5})
+    match = ScenarioStore(folder).match("a car at the crosswalk", moments)
+    assert match.notes == ("log0, log1, log2 and 2 more logs: 'at_crosswalk' needs a map, and the log has none: "
+                           "no answer there (not 'false')",)

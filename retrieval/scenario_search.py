@@ -31,7 +31,7 @@ from retrieval.querying import build_query, check_query
 from retrieval.records import SearchResult
 from scenarios.cache import FEATURES_SUFFIX, cached_features, decode
 from scenarios.compiler import Compiled, DescriptionError, compile_description
-from scenarios.evaluate import evaluate
+from scenarios.evaluate import evaluate, grouped_notes
 from scenarios.features import EGO_TRACK_ID, LogFeatures
 from scenes.errors import ScenesError
 from scenesearch_base.arrow_numpy import from_numpy, to_numpy
@@ -160,35 +160,25 @@ class ScenarioStore:
         selected: list[str] = []
         referred: dict[str, tuple[str, ...]] = {}
         related: dict[str, tuple[str, ...]] = {}
-        by_reason: dict[str, list[str]] = {}  # what a log could not answer → the logs
+        said: list[tuple[str, str]] = []  # (log id, what it could not answer)
         for log_id in dict.fromkeys(logs.tolist()):
             x = self.features(log_id)
             if x is None:
                 why = self._problems.get(log_id, "no scenario features")
-                by_reason.setdefault(f"{why}: its moments are left out of the program's answer", []).append(log_id)
+                said.append((log_id, f"{why}: its moments are left out of the program's answer"))
                 continue
             result = evaluate(compiled.program, x)
-            for note in result.notes:
-                by_reason.setdefault(note.removeprefix(f"{log_id}: "), []).append(log_id)
+            said += [(log_id, note) for note in result.notes]
             rows = moments.filter(from_numpy(logs == log_id))
             found = _moments_selected(x, result.selection.mask, result.selection.related, rows)
             for clip_id, refs, rels in found:
                 selected.append(clip_id)
                 referred[clip_id], related[clip_id] = refs, rels
-        notes = tuple(f"{_log_list(ids)}: {reason}" for reason, ids in by_reason.items())
+        notes = grouped_notes(said)
         if not selected:
             return ScenarioMatch(query, compiled, notes=notes,
                                  fallback="the program selects none of the indexed moments")
         return ScenarioMatch(query, compiled, tuple(selected), referred, related, notes)
-
-
-def _log_list(log_ids: list[str], shown: int = 3) -> str:
-    """The logs a note is about: all of a few, the first ``shown`` and a count of many (a note per log
-    would bury the answer under the same sentence repeated)."""
-    ids = list(dict.fromkeys(log_ids))
-    if len(ids) <= shown + 1:
-        return ", ".join(ids)
-    return f"{', '.join(ids[:shown])} and {len(ids) - shown} more logs"
 
 
 def _moments_selected(x: LogFeatures, referred: np.ndarray, related: np.ndarray, rows: pa.Table

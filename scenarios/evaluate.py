@@ -14,6 +14,7 @@ nothing there and adds a note saying so (:attr:`Evaluation.notes`): "no answer" 
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -263,3 +264,21 @@ def answer(node: p.Node, features: LogFeatures, description: str | None = None) 
         size_lwh_m=size, yaw_city_rad=x.yaw_rad.astype(np.float64), velocity_city_mps=velocity,
         ego_city_xyz_m=ego_xyz,
     ), result.notes
+
+
+def grouped_notes(said: Iterable[tuple[str, str]], shown: int = 3) -> tuple[str, ...]:
+    """Notes of many logs, given as (log id, note) pairs, once per distinct reason: each names the first
+    ``shown`` logs it is about and counts the rest (a note per log would bury the answer under the same
+    sentence repeated). A note's ``"<log id>: "`` prefix, as :meth:`_Run.note` writes it, is left out."""
+    by_reason: dict[str, list[str]] = {}
+    for log_id, note in said:
+        logs = by_reason.setdefault(note.removeprefix(f"{log_id}: "), [])
+        if log_id not in logs:
+            logs.append(log_id)
+    out = []
+    for reason, logs in by_reason.items():
+        named = ", ".join(logs if len(logs) <= shown + 1 else logs[:shown])
+        if len(logs) > shown + 1:
+            named += f" and {len(logs) - shown} more logs"
+        out.append(f"{named}: {reason}")
+    return tuple(out)

@@ -21,7 +21,7 @@ from captioning.config import CaptioningConfig
 from scenarios.answer import LogAnswer
 from scenarios.cache import cached_features, claim_cache
 from scenarios.compiler import Compiled, compile_description
-from scenarios.evaluate import answer
+from scenarios.evaluate import answer, grouped_notes
 from scenes.errors import ScenesError
 from scenesearch_base.ray_cluster import Execution
 from scenesearch_base.ray_runner import TaskStatus, run_tasks
@@ -41,6 +41,7 @@ class MiningContext:
 class LogMining:
     """One log's answers (one per description, in order) and the notes of what it could not answer."""
 
+    log_id: str
     answers: list[LogAnswer]
     notes: list[str]
     cached: bool
@@ -54,7 +55,7 @@ class MiningRun:
     Attributes:
         compiled: each description as compiled, in order.
         answers: one per (log, description), logs in order.
-        notes: what some logs could not answer (a map, recorded weather), once each.
+        notes: what some logs could not answer (a map, recorded weather), once per reason, naming the logs.
         skipped: log → why it was skipped.
         cached: logs whose features came from the cache.
         seconds: wall time of the run.
@@ -87,7 +88,7 @@ def mine_log(log_dir: Path, ctx: MiningContext) -> LogMining:
         result, said = answer(compiled.program, features, compiled.description)
         answers.append(result)
         notes += [n for n in said if n not in notes]
-    return LogMining(answers, notes, cached, time.perf_counter() - start)
+    return LogMining(features.log_id, answers, notes, cached, time.perf_counter() - start)
 
 
 def mine(log_dirs: Sequence[Path], descriptions: Sequence[str], cache_dir: Path | None = None,
@@ -117,12 +118,14 @@ def mine(log_dirs: Sequence[Path], descriptions: Sequence[str], cache_dir: Path 
     report = run_tasks(mine_log, dirs, execution, labels=[str(d) for d in dirs], context=ctx,
                        skip_on=(ScenesError, ValueError, OSError))
     run = MiningRun(compiled, skipped=dict(repeated))
+    said: list[tuple[str, str]] = []
     for log_dir, outcome in zip(dirs, report.outcomes):
         if outcome.status is TaskStatus.DONE and outcome.value is not None:
             run.answers += outcome.value.answers
-            run.notes += [n for n in outcome.value.notes if n not in run.notes]
+            said += [(outcome.value.log_id, note) for note in outcome.value.notes]
             run.cached += int(outcome.value.cached)
         else:
             run.skipped[str(log_dir)] = outcome.reason
+    run.notes = list(grouped_notes(said))
     run.seconds = time.perf_counter() - start
     return run

@@ -190,3 +190,11 @@ def test_pairs_left_out_as_too_far_apart_never_hold(relation: str) -> None:
         s_kept, o_kept = candidate_pairs(x, every, every, spec.reach_m(params))
         kept = set(zip(s_kept.tolist(), o_kept.tolist()))
         assert {(s, o) for s, o, h in zip(s_all.tolist(), o_all.tolist(), holds) if h} <= kept
+
+
+def test_notes_of_many_logs_are_said_once_per_reason() -> None:
+    from scenarios.evaluate import grouped_notes
+
+    said = [(f"log{i}", f"log{i}: 'on_crosswalk' needs a map") for i in range(6)] + [("log2", "log2: no weather")]
+    assert grouped_notes(said) == ("log0, log1, log2 and 3 more logs: 'on_crosswalk' needs a map", "log2: no weather")
+    assert grouped_notes(said[:4]) == ("log0, log1, log2, log3: 'on_crosswalk' needs a map",)

@@ -37,7 +37,7 @@ from captioning.pipeline import LogCaptions, caption_log
 from captioning.tags import HOST_DIRECTIONS, HOST_MOTIONS, LANES, HostDirection, HostMotion, Lane
 from scenes.behavior import BehaviorLabel
 from scenes.categories import EGO_VEHICLE_LABEL
-from scenes.geometry import points_in_polygon, quat_to_yaw, rotmat_to_quat
+from scenes.geometry import point_polyline_distance, points_in_polygon, quat_to_yaw, rotmat_to_quat
 from scenes.log import Log
 from scenes.map import VectorMap
 
@@ -301,18 +301,9 @@ def near_crossing(vector_map: VectorMap, xy_m: NDArray[np.floating], within_m: f
         if not box.any():
             continue
         points = xy_m[box]
-        near[box] = points_in_polygon(points, polygon) | (distance_to_outline_m(points, polygon) <= within_m)
+        outline = np.concatenate([polygon, polygon[:1]])  # closed
+        near[box] = points_in_polygon(points, polygon) | (point_polyline_distance(points, outline) <= within_m)
     return near
-
-
-def distance_to_outline_m(points_xy_m: NDArray[np.floating], polygon_xy_m: NDArray[np.floating]
-                          ) -> NDArray[np.float64]:
-    """(N,) distance from each point (N, 2) to the nearest edge of the closed polygon (M, 2)."""
-    a = polygon_xy_m[None, :, :]  # (1, M, 2)
-    ab = np.roll(polygon_xy_m, -1, axis=0)[None] - a  # (1, M, 2)
-    ap = points_xy_m[:, None, :] - a  # (N, M, 2)
-    t = np.clip((ap * ab).sum(-1) / np.maximum((ab * ab).sum(-1), 1e-12), 0.0, 1.0)  # (N, M)
-    return np.linalg.norm(ap - t[..., None] * ab, axis=-1).min(axis=1)
 
 
 #: An oncoming lane's object lies at most this far to the side of the ego.

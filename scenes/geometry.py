@@ -378,3 +378,22 @@ def points_in_polygon(points_xy_m: NDArray[np.floating], polygon_xy_m: NDArray[n
             straddles = (py < y0) != (py < y1)
             inside ^= straddles & (px < x0 + (py - y0) * (x1 - x0) / (y1 - y0))
     return inside
+
+
+def point_polyline_distance(points_xy: FloatArray, polyline_xy: FloatArray) -> FloatArray:
+    """(N,) distance from each point to a polyline.
+
+    Args:
+        points_xy: (N, 2) points.
+        polyline_xy: (M, 2) polyline vertices, M ≥ 1.
+    """
+    if polyline_xy.shape[0] == 1:
+        return np.asarray(np.linalg.norm(points_xy - polyline_xy[0], axis=1), dtype=np.float64)
+    a, b = polyline_xy[:-1], polyline_xy[1:]  # (S, 2) each
+    ab = b - a
+    length2 = np.maximum((ab * ab).sum(axis=1), 1e-12)  # (S,)
+    rel = points_xy[:, None, :] - a[None]  # (N, S, 2)
+    t = np.clip((rel * ab[None]).sum(axis=2) / length2, 0.0, 1.0)  # (N, S)
+    closest = a[None] + t[..., None] * ab[None]  # (N, S, 2)
+    dist = np.linalg.norm(points_xy[:, None, :] - closest, axis=2)
+    return np.asarray(dist.min(axis=1), dtype=np.float64)

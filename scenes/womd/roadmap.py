@@ -43,7 +43,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
-from scenes.geometry import FloatArray
+from scenes.geometry import FloatArray, point_polyline_distance
 from scenes.map import DrivableArea, LaneSegment, PedestrianCrossing, VectorMap
 from scenes.womd.drivable import drivable_polygons
 from scenes.womd.proto import LaneType, RoadLineType
@@ -197,25 +197,6 @@ def _left_normals(centerline_xy: FloatArray) -> FloatArray:
     index[: int(np.argmax(ok))] = int(np.argmax(ok))
     unit = tangent[index] / norm[index, None]
     return np.stack([-unit[:, 1], unit[:, 0]], axis=1)
-
-
-def point_polyline_distance(points_xy: FloatArray, polyline_xy: FloatArray) -> FloatArray:
-    """(N,) distance from each point to a polyline.
-
-    Args:
-        points_xy: (N, 2) points.
-        polyline_xy: (M, 2) polyline vertices, M ≥ 1.
-    """
-    if polyline_xy.shape[0] == 1:
-        return np.asarray(np.linalg.norm(points_xy - polyline_xy[0], axis=1), dtype=np.float64)
-    a, b = polyline_xy[:-1], polyline_xy[1:]  # (S, 2) each
-    ab = b - a
-    length2 = np.maximum((ab * ab).sum(axis=1), 1e-12)  # (S,)
-    rel = points_xy[:, None, :] - a[None]  # (N, S, 2)
-    t = np.clip((rel * ab[None]).sum(axis=2) / length2, 0.0, 1.0)  # (N, S)
-    closest = a[None] + t[..., None] * ab[None]  # (N, S, 2)
-    dist = np.linalg.norm(points_xy[:, None, :] - closest, axis=2)
-    return np.asarray(dist.min(axis=1), dtype=np.float64)
 
 
 def _side_distances(

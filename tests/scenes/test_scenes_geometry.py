@@ -12,6 +12,7 @@ from scenes.geometry import (
     batch_matrices,
     interpolate_poses,
     invert_matrices,
+    point_polyline_distance,
     points_in_polygon,
     quat_to_rotmat,
     quat_to_yaw,
@@ -156,3 +157,9 @@ def test_points_in_polygon_follows_the_even_odd_rule() -> None:
     assert points_in_polygon(points, concave).tolist() == [True, False, True, False, False, False]
     grid = np.stack(np.meshgrid(np.linspace(-1, 5, 7), np.linspace(-1, 5, 7)), axis=-1)  # (7, 7, 2)
     assert points_in_polygon(grid, concave).shape == (7, 7)
+
+
+def test_point_polyline_distance() -> None:
+    polyline = np.array([[0.0, 0.0], [10.0, 0.0], [10.0, 10.0]])
+    points = np.array([[5.0, 2.0], [12.0, 5.0], [-3.0, -4.0], [11.0, 11.0]])
+    np.testing.assert_allclose(point_polyline_distance(points, polyline), [2.0, 2.0, 5.0, np.sqrt(2.0)])

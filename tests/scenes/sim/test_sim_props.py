@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from scenes.behavior import read_behavior_labels
+from scenes.geometry import point_polyline_distance
 from scenes.log import Log
 from scenes.sim import SimulationConfig, simulate
 from scenes.sim.netparse import SumoNet, read_net
@@ -22,7 +23,6 @@ from scenes.sim.props import (
     sidewalks,
 )
 from scenes.sim.runner import ObjectRows
-from scenes.womd.roadmap import point_polyline_distance
 
 
 @pytest.fixture(scope="module")

@@ -17,19 +17,12 @@ from scenes.womd.roadmap import (
     crossing_edges,
     crossing_lanes,
     lane_half_widths,
-    point_polyline_distance,
     vector_map_from_womd,
 )
 
 
 def _line(x0: float, y0: float, x1: float, y1: float, n: int = 21) -> np.ndarray:
     return np.stack([np.linspace(x0, x1, n), np.linspace(y0, y1, n), np.zeros(n)], axis=1)
-
-
-def test_point_polyline_distance() -> None:
-    polyline = np.array([[0.0, 0.0], [10.0, 0.0], [10.0, 10.0]])
-    points = np.array([[5.0, 2.0], [12.0, 5.0], [-3.0, -4.0], [11.0, 11.0]])
-    np.testing.assert_allclose(point_polyline_distance(points, polyline), [2.0, 2.0, 5.0, np.sqrt(2.0)])
 
 
 def test_half_widths_follow_lines_fill_gaps_and_stop_at_kerbs() -> None:

@@ -10,7 +10,6 @@ a rendering a reader checks the parse by, and every word that carries no meaning
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass
 
 from scenarios.lexicon import lexemes, normalize
@@ -46,14 +45,12 @@ class Compiled:
         return not self.unused
 
 
-def compile_description(text: str, phrase_hint: Callable[[str], str | None] | None = None) -> Compiled:
+def compile_description(text: str) -> Compiled:
     """Compile a description to a program; a program written in the program syntax is read as such.
 
     Args:
         text: the description ("vehicle with a bicycle to its right") or a program
             (``direction(vehicle, cyclist, side=right)``).
-        phrase_hint: maps a word the lexicon lacks to a known phrase (e.g. by sentence-encoder
-            similarity), or None; used before a word is reported unused.
 
     Raises:
         DescriptionError: nothing in the text names objects, naming the words not understood.
@@ -67,10 +64,7 @@ def compile_description(text: str, phrase_hint: Callable[[str], str | None] | No
         except ProgramError as exc:  # syntax, an unknown name, or a parameter its call does not take
             raise DescriptionError(f"program {stripped!r}: {exc}") from None
         return Compiled(text, program, to_text(program), describe(program), ())
-    words = normalize(text)
-    if phrase_hint is not None:
-        words = _hinted(words, phrase_hint)
-    items = lexemes(words)
+    items = lexemes(normalize(text))
     parser = Parser(items)
     try:
         program = parser.description()
@@ -83,14 +77,3 @@ def compile_description(text: str, phrase_hint: Callable[[str], str | None] | No
     unused = [*parser.unused, *[w for it in items[parser.i:] if it.role == "unknown" for w in it.words]]
     return Compiled(text, program, to_text(program), describe(program), tuple(dict.fromkeys(unused)))
 
-
-def _hinted(words: list[str], phrase_hint: Callable[[str], str | None]) -> list[str]:
-    """``words`` with each word the lexicon lacks replaced by the phrase ``phrase_hint`` gives it."""
-    out: list[str] = []
-    for item in lexemes(words):
-        if item.role == "unknown":
-            hint = phrase_hint(item.name)
-            out.extend(hint.split() if hint else item.words)
-        else:
-            out.extend(item.words)
-    return out

@@ -13,7 +13,7 @@ the repeat reported.
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -69,14 +69,13 @@ class MiningRun:
     seconds: float = 0.0
 
 
-def compile_all(descriptions: Sequence[str], phrase_hint: Callable[[str], str | None] | None = None
-                ) -> list[Compiled]:
+def compile_all(descriptions: Sequence[str]) -> list[Compiled]:
     """Each description compiled (programs in the program syntax are read as such).
 
     Raises:
         DescriptionError: a description names nothing (the message names it and its unknown words).
     """
-    return [compile_description(text, phrase_hint) for text in descriptions]
+    return [compile_description(text) for text in descriptions]
 
 
 def mine_log(log_dir: Path, ctx: MiningContext) -> LogMining:
@@ -92,8 +91,7 @@ def mine_log(log_dir: Path, ctx: MiningContext) -> LogMining:
 
 
 def mine(log_dirs: Sequence[Path], descriptions: Sequence[str], cache_dir: Path | None = None,
-         config: CaptioningConfig | None = None, execution: Execution | None = None,
-         phrase_hint: Callable[[str], str | None] | None = None) -> MiningRun:
+         config: CaptioningConfig | None = None, execution: Execution | None = None) -> MiningRun:
     """Answer every description on every log (see the module docstring).
 
     Args:
@@ -102,14 +100,13 @@ def mine(log_dirs: Sequence[Path], descriptions: Sequence[str], cache_dir: Path 
         cache_dir: where per-log features are kept between runs (None: built each time, kept nowhere).
         config: the captioning rules' thresholds the features are built with.
         execution: where the logs' tasks run (default: serially).
-        phrase_hint: maps words the lexicon lacks to known phrases (:func:`compile_description`).
 
     Raises:
         DescriptionError: a description names nothing.
         FolderClaimError: ``cache_dir`` is a folder of something else.
     """
     start = time.perf_counter()
-    compiled = compile_all(descriptions, phrase_hint)
+    compiled = compile_all(descriptions)
     if cache_dir is not None:
         claim_cache(cache_dir, list(log_dirs))
     given, repeated = distinct_by_name(list(log_dirs))

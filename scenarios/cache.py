@@ -43,7 +43,7 @@ from scenesearch_base.atomic import atomic_write_bytes
 from scenesearch_base.folders import FolderClaimError, FolderKind, claim_folder, mark_folder
 
 #: Version of the encoding; files of another are built again.
-CACHE_VERSION = 5
+CACHE_VERSION = 6
 #: The cache folder (:mod:`scenesearch_base.folders`).
 #: The suffix of a log's file.
 FEATURES_SUFFIX = ".features"
@@ -137,7 +137,7 @@ def encode(x: LogFeatures, stamp: str) -> bytes:
         "origin": origin, "xy": _narrow(_deltas(xy_deltas, _second_starts(starts))),
         "z": _narrow(_deltas(z, starts)), "yaw": _narrow(_deltas(dyaw, _second_starts(starts))),
         "speed": _narrow(_deltas(speed, starts)),
-        "flags": x.flags[k_idx, f_idx], "ego_lane": x.ego_lane[k_idx, f_idx], "ego_motion": x.ego_motion[k_idx, f_idx],
+        "flags": x.flags[k_idx, f_idx], "ego_lane": x.ego_lane[k_idx, f_idx],
         "lanes": lanes.astype(np.int32), "lane": lane_code.astype(np.int16),
         "to_junction": _narrow(_deltas(junction.astype(np.int64), starts)),
         "meta": np.frombuffer(json.dumps({"log_id": x.log_id, "has_map": x.has_map, "time_of_day": x.time_of_day,
@@ -220,7 +220,6 @@ def decode(data: bytes) -> tuple[LogFeatures, str]:
         speed_mps=speed_dense.astype(np.float32),
         accel_mps2=time_derivative(speed_dense, valid, t_s).astype(np.float32),
         flags=dense(a["flags"], 0, np.uint16), ego_lane=dense(a["ego_lane"], -1, np.int8),
-        ego_motion=dense(a["ego_motion"], -1, np.int8),
         lane=dense(a["lanes"][a["lane"]], -1, np.int32).astype(np.int32),
         to_junction_m=dense(junction, np.inf, np.float32).astype(np.float32), has_map=bool(meta["has_map"]),
         time_of_day=str(meta["time_of_day"]), weather=str(meta["weather"]),

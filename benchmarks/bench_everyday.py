@@ -178,6 +178,7 @@ def evaluate(index_dir: Path, queries: Mapping[str, Judge]) -> dict[str, dict[st
     search = SceneSearch.open(index_dir)
     test = {"split": "test"}
     rows = [r for r in search.views["fused"].metadata.table.to_pylist() if r.get("split") == "test"]
+    by_id = {str(r["clip_id"]): r for r in search.captions.metadata.table.to_pylist()}
     out: dict[str, dict[str, float]] = {}
     for text, judge in queries.items():
         relevant = sum(judge(r) for r in rows)
@@ -186,7 +187,6 @@ def evaluate(index_dir: Path, queries: Mapping[str, Judge]) -> dict[str, dict[st
         modes = {"default": program, "model": search.search_text(text, k=K, filters=test),
                  "rule_captions": search.search_captions(text, k=K, filters=test),
                  "hybrid": search.search_hybrid(text, k=K, filters=test)}
-        by_id = {str(r["clip_id"]): r for r in search.captions.metadata.table.to_pylist()}
         figures = {name: sum(judge(by_id.get(r.clip_id, {})) for r in results) / K for name, results in modes.items()}
         # The most any ranking can score: a sentence with 3 relevant test clips reaches P@10 0.3 at best.
         out[text] = {**figures, "base_rate": base, "relevant": float(relevant), "ceiling": min(relevant, K) / K,

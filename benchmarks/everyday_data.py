@@ -46,20 +46,25 @@ def _run(argv: list[str]) -> None:
 
 
 def _manifest(demo: Path) -> dict[str, Any]:
-    """What the folder's clips come from (``clips``) and which model indexed them (``model``)."""
+    """What the folder's clips come from (``clips``), and which model and formats their index was built
+    with (``index``: an index whose stored scenario features are of another format cannot answer)."""
     from encoders.clips.layout import CLIPS_FORMAT_VERSION
+    from retrieval.index_manifest import FORMAT_VERSION as INDEX_FORMAT_VERSION
+    from scenarios.cache import CACHE_VERSION
 
     model = demo / "run" / "model.safetensors"
     return {"clips": {"version": DATA_VERSION, "seed": SEED, "logs": LOGS, "duration_s": DURATION_S,
                       "clips_yaml": (demo / "clips.yaml").read_text(), "clips_format": CLIPS_FORMAT_VERSION},
-            "model": {"demo_run": str((demo / "run").resolve()),
+            "index": {"demo_run": str((demo / "run").resolve()), "index_format": INDEX_FORMAT_VERSION,
+                      "scenario_features": CACHE_VERSION,
                       "model_bytes": model.stat().st_size if model.is_file() else None,
                       "model_mtime_ns": model.stat().st_mtime_ns if model.is_file() else None}}
 
 
 def build_split(demo: Path, root: Path | None = None, rebuild: bool = False) -> Path:
     """Build (or reuse) the split in ``root`` and return its index folder (see the module docstring): the
-    clips are made again when what they come from changed, the index when they or the model did.
+    clips are made again when what they come from changed, the index when they, the model or the formats
+    it stores did.
 
     Raises:
         FileNotFoundError: ``demo`` has no trained run or no ``clips.yaml``.
@@ -74,7 +79,7 @@ def build_split(demo: Path, root: Path | None = None, rebuild: bool = False) -> 
     manifest_path = root / "manifest.json"
     built = json.loads(manifest_path.read_text()).get("built", {}) if manifest_path.is_file() else {}
     same_clips = not rebuild and built.get("clips") == manifest["clips"]
-    if same_clips and built.get("model") == manifest["model"]:
+    if same_clips and built.get("index") == manifest["index"]:
         return root / "index"
     seconds: dict[str, float] = {}
     if not same_clips:

@@ -14,7 +14,9 @@ Measured for each sentence, on the index's test clips (``split == test``): preci
 search (the query's scenario program selects the moments, the model ranks them), of the model alone,
 of rule-caption search and of hybrid search, and the base rate (the share of test clips the judge
 accepts: what a random ranking scores), and the ceiling (min(relevant clips, 10) / 10: what a perfect
-ranking scores; a sentence with fewer than 10 relevant test clips cannot reach 1). The index is the
+ranking scores; a sentence with fewer than 10 relevant test clips cannot reach 1), and the precision and
+recall of the program's whole selection of test clips against the judge (which says whether a miss
+comes from the program's definitions or from the order within its selection). The index is the
 demo's (``scenesearch demo``, default ``demo_out``; ``SCENESEARCH_DEMO_DIR`` names another); without
 it the benchmark says so and measures nothing. The same is measured on a larger held-out split
 (:mod:`benchmarks.everyday_data`: 30 fresh sensor logs indexed with the demo's model, built once), on
@@ -180,10 +182,16 @@ def evaluate(index_dir: Path, queries: Mapping[str, Judge]) -> dict[str, dict[st
     rows = [r for r in search.views["fused"].metadata.table.to_pylist() if r.get("split") == "test"]
     by_id = {str(r["clip_id"]): r for r in search.captions.metadata.table.to_pylist()}
     out: dict[str, dict[str, float]] = {}
+    test_ids = {str(r["clip_id"]) for r in rows}
     for text, judge in queries.items():
-        relevant = sum(judge(r) for r in rows)
+        relevant_ids = {str(r["clip_id"]) for r in rows if judge(r)}
+        relevant = len(relevant_ids)
         base = relevant / max(1, len(rows))
         program, match = search.search_scenario(text, k=K, filters=test)
+        # The program's whole selection against the judge: low precision with full recall is a ranking
+        # (or a looser definition) problem, high precision with low recall a stricter definition.
+        selected = set(match.clip_ids) & test_ids if match.fallback is None else set()
+        hits = len(selected & relevant_ids)
         modes = {"default": program, "model": search.search_text(text, k=K, filters=test),
                  "rule_captions": search.search_captions(text, k=K, filters=test),
                  "hybrid": search.search_hybrid(text, k=K, filters=test)}
@@ -191,12 +199,15 @@ def evaluate(index_dir: Path, queries: Mapping[str, Judge]) -> dict[str, dict[st
         # The most any ranking can score: a sentence with 3 relevant test clips reaches P@10 0.3 at best.
         out[text] = {**figures, "base_rate": base, "relevant": float(relevant), "ceiling": min(relevant, K) / K,
                      "program_decided": float(match.fallback is None),
-                     "matched_moments": float(len(match.clip_ids))}
+                     "matched_moments": float(len(match.clip_ids)),
+                     "selection_precision": hits / len(selected) if selected else 0.0,
+                     "selection_recall": hits / relevant if relevant else 0.0}
     return out
 
 
 def _means(per_query: Mapping[str, Mapping[str, float]]) -> dict[str, float]:
-    names = ("default", "model", "rule_captions", "hybrid", "base_rate", "ceiling")
+    names = ("default", "model", "rule_captions", "hybrid", "base_rate", "ceiling", "selection_precision",
+             "selection_recall")
     means = {n: round(sum(q[n] for q in per_query.values()) / max(1, len(per_query)), 3) for n in names}
     means["at_or_below_base_rate"] = float(sum(q["default"] <= q["base_rate"] for q in per_query.values()))
     # Sentences with no relevant test clip score 0 whatever the search: counted apart.

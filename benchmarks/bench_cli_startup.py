@@ -56,7 +56,7 @@ def _build(root: Path) -> dict[str, Path]:
     log_dirs = sorted(p for p in logs.iterdir() if p.is_dir())
     scenesearch("caption", *log_dirs, "--out", captions)
     scenesearch("index", "--captions", captions, "--out", root / "caption_index")
-    scenesearch("clips", *log_dirs, "--captions", captions, "--out", clips, "--bev-source", "boxes", "--no-previews")
+    scenesearch("clips", *log_dirs, "--captions", captions, "--out", clips, "--bev-source", "boxes")
     scenesearch("train", clips, "--out", run, "--preset", "tiny", "--set", "model.text.kind=pretrained",
                 "--set", "max_steps_per_epoch=2", "--epochs", "1", "--device", "cpu")
     scenesearch("index", run, clips, "--out", root / "model_index", "--device", "cpu")

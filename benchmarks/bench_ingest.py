@@ -1,7 +1,7 @@
 """From a log to a searchable index: what each stage costs per log and per log-second, with sensors and
 track-only, against the cost of merely reading the log's sensor files.
 
-Whole ``scenesearch`` processes, as a user runs them: ``caption`` → ``clips`` (``--no-previews``) →
+Whole ``scenesearch`` processes, as a user runs them: ``caption`` → ``clips`` (no stored previews) →
 ``index`` with a trained model, on 1 log and on :data:`LOGS` logs of the same length, with LiDAR and
 camera and track-only (``--bev-source boxes``), :data:`REPEATS` times (medians). Each process's CPU
 time (user + system, children included) is split into a per-log-second cost (the slope between the
@@ -28,6 +28,7 @@ import statistics
 import sys
 import tempfile
 import time
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -60,8 +61,7 @@ def _inputs(root: Path, quick: bool) -> tuple[list[Path], Path, Path | None, str
                              str(duration), "--seed", "11"))
     logs = sorted(p for p in (root / "logs").iterdir() if p.is_dir())
     run_checked(_scenesearch("caption", *logs, "--out", root / "train_captions"))
-    run_checked(_scenesearch("clips", *logs, "--captions", root / "train_captions", "--out", root / "train_clips",
-                             "--no-previews"))
+    run_checked(_scenesearch("clips", *logs, "--captions", root / "train_captions", "--out", root / "train_clips"))
     run_checked(_scenesearch("train", root / "train_clips", "--out", root / "run", "--preset", "tiny",
                              "--set", "max_steps_per_epoch=2", "--epochs", "1", "--device", "cpu"))
     return logs, root / "run", None, f"simulated logs of {duration} s (seed 11), tiny model trained for 2 steps"
@@ -80,12 +80,18 @@ def _log_seconds(logs: list[Path]) -> float:
 def _ingest(logs: list[Path], run: Path, clips_config: Path | None, mode: str, out: Path,
             env: dict[str, str]) -> dict[str, float]:
     """CPU seconds of each stage for ``logs`` (one run of each; ``out`` is removed after)."""
+    from encoders.clips.config import ClipsConfig
+
     extra = ["--bev-source", "boxes"] if mode == "boxes" else []
-    config = ["--config", str(clips_config)] if clips_config is not None else []
+    config: list[str] = []
+    if clips_config is not None:  # the demo's settings without stored previews (a demo made before kept them)
+        out.mkdir(parents=True, exist_ok=True)
+        replace(ClipsConfig.from_yaml(clips_config), previews=False).to_yaml(out / "clips.yaml")
+        config = ["--config", str(out / "clips.yaml")]
     commands = {
         "caption": _scenesearch("caption", *logs, "--out", out / "captions"),
         "clips": _scenesearch("clips", *logs, "--captions", out / "captions", "--out", out / "clips",
-                              "--no-previews", *config, *extra),
+                              *config, *extra),
         "index": _scenesearch("index", run, out / "clips", "--out", out / "index"),
     }
     try:

@@ -47,7 +47,7 @@ def run(quick: bool) -> dict[str, Any]:
         steps = [
             ["caption", *logs, "--out", str(work / "captions")],
             ["clips", *logs, "--captions", str(work / "captions"), "--out", str(work / "clips"),
-             "--bev-source", "boxes", "--no-previews", "--config", str(clips_config)],
+             "--bev-source", "boxes", "--config", str(clips_config)],
             ["eval", str(run_dir), str(work / "clips"), "--split", "all", "--out", str(work / "metrics.json")],
         ]
         for argv in steps:

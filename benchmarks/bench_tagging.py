@@ -129,7 +129,7 @@ def make_data(work: Path, logs: int, duration_s: int, seed: int) -> tuple[Path, 
         ids = [p.name for p in log_dirs]
         best = max(range(16), key=lambda s: min(
             sum(v.value == k for v in assign_splits(ids, SplitConfig(seed=s)).values()) for k in ("val", "test")))
-        _cli("clips", *map(str, log_dirs), "--captions", str(cap), "--out", str(clips), "--no-previews",
+        _cli("clips", *map(str, log_dirs), "--captions", str(cap), "--out", str(clips),
              "--seed", str(best))
     add_attribute_targets(clips, log_dirs)
     return clips, log_dirs

@@ -301,7 +301,8 @@ class Demo:
                             sections=[scenario_html, *tag_sections(self.run_dir, self.clips_dir, [*self.log_dirs(),
                                                                                  *self.val_log_dirs()], meta,
                                                   self.out_dir, self.say,
-                                                  (metrics or {}).get("tagging"))])
+                                                  (metrics or {}).get("tagging"))],
+                            clips_dir=self.clips_dir)
         self.say(f"\nwrote {path}")
         return str(path)
 

@@ -1,7 +1,9 @@
 """``report.html``: one self-contained page with the metrics, plots and example results of a run.
 
-Plots are PNG files written beside the page by matplotlib (Agg backend, no display needed); previews
-are linked relatively, so the page, the plots and the clips directory can be moved together.
+Plots are PNG files written beside the page by matplotlib (Agg backend, no display needed). Previews
+stored in the clips folder are linked relatively; the others are drawn from the clips folder's rendered
+frames into ``previews/`` beside the page, so the page, its plots and previews can be moved together
+(with the clips folder where it links stored ones).
 """
 
 from __future__ import annotations
@@ -185,20 +187,46 @@ def metrics_html(metrics: dict[str, Any]) -> str:
     return "\n".join(out)
 
 
-def preview_html(result: SearchResult, out_dir: Path) -> str:
-    if result.preview_path and Path(result.preview_path).is_file():
-        rel = os.path.relpath(result.preview_path, out_dir)
-        return f"<img src='{html.escape(rel)}' alt='preview of {html.escape(result.clip_id)}' loading='lazy'>"
-    return "<div class='nopreview'>no preview</div>"
+def draw_preview(result: SearchResult, out_dir: Path, clips_dir: Path, referred: Sequence[str] = (),
+                 related: Sequence[str] = ()) -> Path | None:
+    """Draw the result's preview from ``clips_dir``'s rendered frames into ``out_dir/previews/``, marking
+    ``referred`` and ``related`` tracks; None when the clips folder does not hold its log's frames."""
+    from encoders.clips.layout import preview_file_name, rendered_log_dir
+    from encoders.clips.preview import preview_gif
+    from scenesearch_base.atomic import atomic_path
+
+    if not rendered_log_dir(Path(clips_dir), result.log_id).is_dir():
+        return None
+    path = Path(out_dir) / "previews" / preview_file_name(result.clip_id)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    data = preview_gif(clips_dir, result.clip_id, referred=referred, related=related)
+    with atomic_path(path) as tmp:
+        Path(tmp).write_bytes(data)
+    return path
 
 
-def examples_html(examples: Sequence[Example], out_dir: Path) -> str:
+def preview_html(result: SearchResult, out_dir: Path, clips_dir: Path | None = None, referred: Sequence[str] = (),
+                 related: Sequence[str] = ()) -> str:
+    """The result's preview as an image linked relative to the page: drawn from ``clips_dir`` (marking
+    ``referred`` and ``related`` tracks) where no preview was stored or tracks are to be marked, else the
+    stored one; a placeholder when neither is at hand."""
+    stored = Path(result.preview_path) if result.preview_path and Path(result.preview_path).is_file() else None
+    path = stored
+    if clips_dir is not None and (stored is None or referred or related):
+        path = draw_preview(result, out_dir, clips_dir, referred, related) or stored
+    if path is None:
+        return "<div class='nopreview'>no preview</div>"
+    rel = os.path.relpath(path, out_dir)
+    return f"<img src='{html.escape(rel)}' alt='preview of {html.escape(result.clip_id)}' loading='lazy'>"
+
+
+def examples_html(examples: Sequence[Example], out_dir: Path, clips_dir: Path | None = None) -> str:
     parts = []
     for ex in examples:
         cards = []
         for r in ex.results:
             cards.append(
-                "<div class='card'>" + preview_html(r, out_dir) +
+                "<div class='card'>" + preview_html(r, out_dir, clips_dir) +
                 f"<div class='meta'><b>#{r.rank}</b> score {r.score:.3f} · {html.escape(r.category)}<br>"
                 f"<span class='cap'>{html.escape(r.caption)}</span><br>"
                 f"<code>{html.escape(r.clip_id)}</code></div></div>")
@@ -222,10 +250,11 @@ align-items:center;justify-content:center} .meta{font-size:12px} .cap{color:#333
 def write_report(out_dir: Path, metrics: dict[str, Any] | None, examples: Sequence[Example],
                  run_dir: Path | None = None, embedding_map: tuple[np.ndarray, Sequence[str]] | None = None,
                  stage_timings_s: dict[str, float] | None = None, title: str = "scenesearch demo",
-                 notes: Sequence[str] = (), sections: Sequence[str] = ()) -> Path:
+                 notes: Sequence[str] = (), sections: Sequence[str] = (), clips_dir: Path | None = None) -> Path:
     """Write ``out_dir/report.html`` and its plots (``out_dir/plots/*.png``); returns the page's path.
 
     ``sections`` are extra HTML fragments (already escaped), placed after the example queries.
+    ``clips_dir``: the examples' clips folder, whose rendered frames draw the previews it does not store.
     """
     out_dir = Path(out_dir)
     plots = out_dir / "plots"
@@ -250,7 +279,7 @@ def write_report(out_dir: Path, metrics: dict[str, Any] | None, examples: Sequen
         body.append(metrics_html(metrics))
     if examples:
         body.append("<h2>Example queries</h2>")
-        body.append(examples_html(examples, out_dir))
+        body.append(examples_html(examples, out_dir, clips_dir))
     body.extend(sections)
     if figures:
         body.append("<h2>Plots</h2><div class='plots'>")

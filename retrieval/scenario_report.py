@@ -97,7 +97,8 @@ def scenario_section(search: SceneSearch, query: str, k: int, out_dir: Path) -> 
         drawn = features is not None and draw_moment(features, r, match.referred.get(r.clip_id, ()),
                                                      match.related.get(r.clip_id, ()), png)
         top = f"<img src='plots/{png.name}' alt='the moment from above'>" if drawn else ""
-        cards.append(f"<div class='card'>{top}{preview_html(r, out_dir)}<div class='meta'><b>#{r.rank}</b> "
+        preview = preview_html(r, out_dir, search.clips_dir, *match.preview_marks(r.clip_id, r.track_id))
+        cards.append(f"<div class='card'>{top}{preview}<div class='meta'><b>#{r.rank}</b> "
                      f"{html.escape(r.category)}<br><span class='cap'>{html.escape(r.caption)}</span><br>"
                      f"<code>{html.escape(r.clip_id)}</code></div></div>")
     return head + f"<div class='cards'>{''.join(cards) or '(no results)'}</div>", results, match

@@ -62,6 +62,13 @@ class ScenarioMatch:
     notes: tuple[str, ...] = ()
     fallback: str | None = None
 
+    def preview_marks(self, clip_id: str, track_id: str) -> tuple[tuple[str, ...], tuple[str, ...]]:
+        """The tracks a preview of the moment marks: those the program refers to besides the moment's own
+        track, and those they relate to (the ego, always drawn, in neither)."""
+        referred = tuple(t for t in self.referred.get(clip_id, ()) if t not in (track_id, EGO_TRACK_ID))
+        related = tuple(t for t in self.related.get(clip_id, ()) if t != EGO_TRACK_ID)
+        return referred, related
+
     def to_dict(self) -> dict[str, Any]:
         """The match as the service and ``search --json`` report it."""
         c = self.compiled

@@ -154,7 +154,9 @@ class ClipsConfig(ClipsYamlConfig):
         window_tolerance_ns: a caption window may start/end this far outside the log's frames.
         strict: captions naming logs or tracks that are not given raise an error; when false
             they are skipped and reported.
-        previews: write an animated preview per clip.
+        previews: also write an animated preview of every clip at build time. Off by default: a
+            preview is drawn from the rendered frames when it is shown (the page, the demo's report),
+            which costs a fleet's ingest nothing; stored ones are for viewing the folder without them.
         preview_fps: frame rate of the previews.
 
     Upper bounds: ``frames_per_clip`` 256, ``preview_fps`` 60, ``window_tolerance_ns`` 10 s.
@@ -166,7 +168,7 @@ class ClipsConfig(ClipsYamlConfig):
     frames_per_clip: int = 16
     window_tolerance_ns: int = 50_000_000
     strict: bool = True
-    previews: bool = True
+    previews: bool = False
     preview_fps: float = 5.0
     camera: CameraClipConfig = field(default_factory=CameraClipConfig)
     bev: BevClipConfig = field(default_factory=BevClipConfig)

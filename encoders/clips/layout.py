@@ -6,7 +6,8 @@ the names from here::
     CLIPS_DIR/clips.parquet           the clip table, one row per clip (:data:`encoders.clips.table.CLIP_SCHEMA`)
     CLIPS_DIR/manifest.json           format version, camera and BEV sizes and channels, per-log stats and
                                       splits, the clips config, skipped inputs
-    CLIPS_DIR/previews/<clip>.gif     an animated preview per clip (:func:`preview_file_name`), optional
+    CLIPS_DIR/previews/<clip>.gif     an animated preview per clip (:func:`preview_file_name`), with `previews`
+                                      only; otherwise previews are drawn from the arrays when shown
     CLIPS_DIR/logs/<log_id>/          each log's rendered arrays (:func:`rendered_log_dir`), below
 
 For a log with F frames (its annotation timestamps) :func:`encoders.clips.render.render_log` writes these

@@ -1,8 +1,9 @@
 """``scenesearch clips LOG_DIR... --captions CAPTIONS_DIR --out CLIPS_DIR [--config clips.yaml]``.
 
 Renders each log's camera and BEV frames once into ``CLIPS_DIR/logs/<log_id>/``, writes
-``CLIPS_DIR/clips.parquet`` (one clip per neighbour caption), ``manifest.json`` and, unless
-``--no-previews``, an animated GIF per clip under ``CLIPS_DIR/previews/``. Reports what it skipped
+``CLIPS_DIR/clips.parquet`` (one clip per neighbour caption), ``manifest.json`` and, with
+``--previews``, an animated GIF per clip under ``CLIPS_DIR/previews/`` (without them, the page and the
+demo's report draw a clip's preview from the rendered frames when they show it). Reports what it skipped
 and why (corrupt sweeps, windows outside a log, unreadable logs, duplicate clip ids) and which logs
 failed. Exit status, as every batch command's: 0 when everything was made, 1 when something was
 skipped or failed (listed), 2 when nothing was done (every log failed, or ``--out`` is refused: it
@@ -52,7 +53,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="more log folders, always held out in the test split")
     parser.add_argument("--bev-source", choices=["auto", "lidar", "boxes"], help="BEV occupancy source")
     parser.add_argument("--num-sweeps", type=int, help="sweeps aggregated per BEV frame")
-    parser.add_argument("--no-previews", action="store_true", help="do not write animated previews")
+    parser.add_argument("--previews", action="store_true",
+                        help="also write an animated preview of every clip (the page draws the ones it shows)")
     parser.add_argument("--lenient", action="store_true",
                         help="skip (and report) captions naming logs or tracks that are not given, instead of failing")
     parser.add_argument("--no-reuse", action="store_true", help="re-render logs already rendered with this config")
@@ -81,8 +83,8 @@ def run(args: argparse.Namespace) -> int:
         config = replace(config, bev=replace(config.bev, source=BevSourceChoice(args.bev_source)))
     if args.num_sweeps is not None:
         config = replace(config, bev=with_option(config.bev, "--num-sweeps", num_sweeps=args.num_sweeps))
-    if args.no_previews:
-        config = replace(config, previews=False)
+    if args.previews:
+        config = replace(config, previews=True)
     if args.lenient:
         config = replace(config, strict=False)
     if args.save_config:

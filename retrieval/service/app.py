@@ -349,16 +349,17 @@ def create_app(search: SceneSearch, limits: ServiceLimits | None = None) -> Fast
         = None,
     ) -> Response:
         record = search.get(clip_id)  # 404 for any id that is not indexed, traversal attempts included
-        if not record.preview_path:
-            raise HTTPException(404, f"clip {clip_id!r} has no preview")
         marks = [[t for t in (v or "").split(",") if t][:32] for v in (referred, related)]
-        if any(marks):
-            for name, value in (("referred", referred), ("related", related)):
-                if value:
-                    check_chars(name, value, limits)
+        for name, value in (("referred", referred), ("related", related)):
+            if value:
+                check_chars(name, value, limits)
+        # Drawn from the rendered frames where marks are asked for or no preview was stored at build time.
+        if any(marks) or not record.preview_path:
             drawn = await gate.run(lambda: context.preview(clip_id, marks[0], marks[1]))
             if drawn is not None:
                 return Response(drawn, media_type="image/gif", headers={"Cache-Control": "max-age=3600"})
+        if not record.preview_path:
+            raise HTTPException(404, f"clip {clip_id!r} has no preview, and its rendered frames are not at hand")
         path = Path(record.preview_path).resolve()
         if not path.is_relative_to(clips_root) or not path.is_file():
             raise HTTPException(404, f"the preview of clip {clip_id!r} is missing")

@@ -33,7 +33,6 @@ from retrieval.service.explain import (
     suggestion,
 )
 from retrieval.service.overview import embedding_map, examples, field_summary, log_spans_from_clips
-from scenarios.features import EGO_TRACK_ID
 
 #: On-demand previews kept in memory (bytes), most recently used first.
 PREVIEW_CACHE_ENTRIES = 64
@@ -78,6 +77,7 @@ class ResultContext:
         self._clips_config: Any = None
         self._previews: OrderedDict[tuple[str, tuple[str, ...], tuple[str, ...]], bytes] = OrderedDict()
         self._render_lock = threading.Lock()
+        self._drawable: dict[str, bool] = {}  # log id → whether the clips folder holds its rendered frames
 
     @property
     def metadata(self) -> MetadataStore:
@@ -101,17 +101,16 @@ class ResultContext:
         program refers to and relates to), its time in the log, its object sentence and tags in words."""
         out = result.to_dict()
         out.pop("preview_path", None)  # a server path: the page uses the preview URL instead
-        out["preview_url"] = f"/api/clips/{result.clip_id}/preview" if result.preview_path else None
+        drawable = bool(result.preview_path) or self.drawable(result.log_id)
+        out["preview_url"] = f"/api/clips/{result.clip_id}/preview" if drawable else None
         out["duration_s"] = round(result.duration_s, 2)
         span = self.spans().get(result.log_id)
         out["time_in_log"] = time_in_log(result, span).to_dict() if span is not None else None
         out.update(explain_result(query, result))
         if match is not None and match.fallback is None:  # the objects the program refers to and relates to
-            referred = list(match.referred.get(result.clip_id, ()))
-            related = list(match.related.get(result.clip_id, ()))
-            out["referred_tracks"], out["related_tracks"] = referred, list(match.related.get(result.clip_id, ()))
-            others = [t for t in referred if t not in (result.track_id, EGO_TRACK_ID)]  # the ego is always drawn
-            related = [t for t in related if t != EGO_TRACK_ID]
+            out["referred_tracks"] = list(match.referred.get(result.clip_id, ()))
+            out["related_tracks"] = list(match.related.get(result.clip_id, ()))
+            others, related = match.preview_marks(result.clip_id, result.track_id)
             if out["preview_url"] and (others or related):
                 out["preview_url"] += preview_query(others, related)
         return out
@@ -207,9 +206,20 @@ class ResultContext:
 
     # ------------------------------------------------------------------ previews
 
+    def drawable(self, log_id: str) -> bool:
+        """Whether previews of the log's clips can be drawn: the clips folder holds its rendered frames."""
+        with self._lock:
+            if log_id not in self._drawable:
+                from encoders.clips.layout import rendered_log_dir
+
+                clips_dir = self.search.clips_dir
+                self._drawable[log_id] = clips_dir is not None and rendered_log_dir(Path(clips_dir), log_id).is_dir()
+            return self._drawable[log_id]
+
     def preview(self, clip_id: str, referred: Sequence[str], related: Sequence[str]) -> bytes | None:
-        """The clip's preview drawn anew marking ``referred`` and ``related`` tracks, from the clips folder's
-        rendered arrays; None when those are not at hand (the caller serves the stored preview)."""
+        """The clip's preview drawn from the clips folder's rendered arrays, marking ``referred`` and
+        ``related`` tracks; None when those are not at hand (the caller serves the stored preview, if any).
+        Drawn previews are kept, the latest :data:`PREVIEW_CACHE_ENTRIES`."""
         key = (clip_id, tuple(referred), tuple(related))
         with self._lock:
             if key in self._previews:

@@ -282,9 +282,15 @@ def test_cli_writes_clips_and_previews(built: tuple[Path, Path], tmp_path: Path,
     log_dir, _ = built
     (tmp_path / "c").mkdir()
     pq.write_table(synthetic_captions([log_dir]), tmp_path / "c" / "captions.parquet")
+    plain = tmp_path / "plain"
+    assert main(["clips", str(log_dir), "--captions", str(tmp_path / "c"), "--out", str(plain),
+                 "--frames-per-clip", "8"]) == 0
+    # Without --previews none is stored: they are drawn when shown.
+    assert not (plain / "previews").exists()
+    assert all(r["preview_path"] is None for r in pq.read_table(plain / "clips.parquet").to_pylist())
     out = tmp_path / "clips"
     assert main(["clips", str(log_dir), "--captions", str(tmp_path / "c"), "--out", str(out),
-                 "--frames-per-clip", "8"]) == 0
+                 "--frames-per-clip", "8", "--previews"]) == 0
     assert "wrote 3 clips" in capsys.readouterr().out
     rows = pq.read_table(out / "clips.parquet").to_pylist()
     assert all(len(r["frame_indices"]) == 8 for r in rows)

@@ -57,8 +57,7 @@ def test_clips_into_a_captions_folder_or_an_index_is_refused(work: dict[str, Pat
     mark_folder(index, INDEX_FOLDER, ["manifest.json"])
     (index / "manifest.json").write_text("{}")
     for out in (index, work["captions"]):
-        assert main(["clips", str(work["log"]), "--captions", str(work["captions"]), "--out", str(out),
-                     "--no-previews"]) == 2
+        assert main(["clips", str(work["log"]), "--captions", str(work["captions"]), "--out", str(out)]) == 2
     err = capsys.readouterr().err
     assert "is a scenesearch index folder" in err and "is the input" in err
     assert (index / "manifest.json").read_text() == "{}" and not (index / "clips.parquet").exists()
@@ -76,7 +75,7 @@ def test_sizes_are_refused_before_allocation_naming_the_option(work: dict[str, P
 def test_a_damaged_rendering_is_rendered_again_and_said(work: dict[str, Path], capsys: pytest.CaptureFixture[str]
                                                         ) -> None:
     out = work["root"] / "clips"
-    args = ["clips", str(work["log"]), "--captions", str(work["captions"]), "--out", str(out), "--no-previews"]
+    args = ["clips", str(work["log"]), "--captions", str(work["captions"]), "--out", str(out)]
     assert main(args) == 0
     folder = next((out / "logs").iterdir())
     reference = BlockArray(folder / "bev_map.blocks")[:]
@@ -105,8 +104,7 @@ def test_a_log_given_twice_is_processed_once_and_reported(work: dict[str, Path],
     assert "log given twice" in capsys.readouterr().out
     assert _captions(out) == _captions(work["captions"])
     clips = work["root"] / "clips_twice"
-    assert main(["clips", str(work["log"]), str(work["log"]), "--captions", str(out), "--out", str(clips),
-                 "--no-previews"]) == 1
+    assert main(["clips", str(work["log"]), str(work["log"]), "--captions", str(out), "--out", str(clips)]) == 1
     assert "log given twice" in capsys.readouterr().out
 
 

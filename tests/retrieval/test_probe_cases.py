@@ -103,8 +103,7 @@ def test_an_empty_caption_row_is_refused_by_clips(log: Path, tmp_path: Path, cap
     (tmp_path / "bad").mkdir()
     pq.write_table(table.set_column(table.column_names.index("caption"), "caption", pa.array(texts)),
                    tmp_path / "bad" / "captions.parquet")
-    assert main(["clips", str(log), "--captions", str(tmp_path / "bad"), "--out", str(tmp_path / "clips"),
-                 "--no-previews"]) == 2
+    assert main(["clips", str(log), "--captions", str(tmp_path / "bad"), "--out", str(tmp_path / "clips")]) == 2
     assert f"row {row}, field 'caption': empty" in capsys.readouterr().err
 
 

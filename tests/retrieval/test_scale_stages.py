@@ -70,7 +70,7 @@ def test_caption_clips_and_tag_targets_with_workers_give_the_same_bytes(data: di
     for name, extra in (("serial", []), ("ray", ["--workers", "2"])):
         assert main(["caption", *logs, "--out", str(root / f"captions_{name}"), *extra]) == 0
         assert main(["clips", *logs, "--captions", str(root / "captions_serial"), "--out", str(root / f"clips_{name}"),
-                     "--frames-per-clip", "4", *extra]) == 0
+                     "--frames-per-clip", "4", "--previews", *extra]) == 0
     captions = _tree(root / "captions_serial")
     assert set(captions) == {".scenesearch.json", "captions.parquet", "frame_tags.parquet", "logs.json"}
     assert captions == _tree(root / "captions_ray")
@@ -96,7 +96,7 @@ def test_uris_in_and_out(data: dict[str, Path]) -> None:
     assert main(["caption", logs_uri, "--out", f"file://{root / 'captions_uri'}", "--workers", "2"]) == 0
     assert _tree(root / "captions_uri") == _tree(root / "captions_serial")
     assert main(["clips", logs_uri, "--captions", f"file://{root / 'captions_uri'}",
-                 "--out", f"file://{root / 'clips_uri'}", "--frames-per-clip", "4"]) == 0
+                 "--out", f"file://{root / 'clips_uri'}", "--frames-per-clip", "4", "--previews"]) == 0
     skip = ("render.json", "manifest.json", "bev_attributes.blocks", "bev_attributes.json")
     assert _tree(root / "clips_uri", skip) == _tree(root / "clips_serial", skip)
 

@@ -191,5 +191,5 @@ def test_imported_log_validates_captions_and_cuts_clips(
     assert len(captions["caption"]) > 10
     assert any("pedestrian" in c for c in captions["caption"])
     assert cli_main(["clips", str(imported), "--captions", str(tmp_path / "captions"), "--out",
-                     str(tmp_path / "clips"), "--bev-source", "boxes", "--no-previews"]) == 0
+                     str(tmp_path / "clips"), "--bev-source", "boxes"]) == 0
     assert "clips from 1 log" in capsys.readouterr().out

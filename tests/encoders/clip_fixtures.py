@@ -18,6 +18,7 @@ import cv2
 import numpy as np
 import pyarrow as pa
 
+from encoders.clips.config import BevClipConfig, CameraClipConfig, ClipsConfig
 from scenes import av2_io
 from scenes.calibration import Calibration, CameraIntrinsics
 from scenes.geometry import SE3, FloatArray
@@ -25,6 +26,11 @@ from scenes.map import DrivableArea, LaneSegment, PedestrianCrossing, VectorMap
 from scenes.metadata import LogMetadata
 from scenes.sensors import LidarSweep
 from scenes.tracks import Annotations, EgoTrajectory
+
+#: Clips fine enough for the geometric checks (a 160 × 96 camera, 0.5 m BEV cells, 16 frames): the
+#: defaults' coarser grid, the recommended model's, hides the movements and positions they measure.
+FINE_CLIPS = ClipsConfig(frames_per_clip=16, previews=False, camera=CameraClipConfig(width_px=160, height_px=96),
+                         bev=BevClipConfig(resolution_m=0.5))
 
 CAMERA_NAME = "ring_front_center"
 FRAME_PERIOD_NS = 100_000_000

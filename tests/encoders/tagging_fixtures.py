@@ -15,7 +15,7 @@ import pyarrow.parquet as pq
 
 from encoders.config import BevConfig, TemporalConfig
 from scenes.behavior import BEHAVIOR_SCHEMA, BehaviorLabel, write_behavior_labels, write_junctions
-from tests.encoders.clip_fixtures import FRAME_PERIOD_NS, START_NS, synthetic_captions, write_synthetic_log
+from tests.encoders.clip_fixtures import FINE_CLIPS, FRAME_PERIOD_NS, START_NS, synthetic_captions, write_synthetic_log
 
 
 def add_synthetic_labels(log_dir: Path, num_frames: int) -> None:
@@ -53,7 +53,6 @@ def build_tagging_fixture(root: Path, num_logs: int = 3, num_frames: int = 12, s
         ``{"logs": [log dirs], "clips": clips dir, "run": run dir}``.
     """
     from encoders.clips.build import build_clips
-    from encoders.clips.config import ClipsConfig
     from encoders.tagging.config import TagTrainConfig
     from encoders.tagging.targets import add_attribute_targets
     from encoders.tagging.training import train_tags
@@ -64,7 +63,7 @@ def build_tagging_fixture(root: Path, num_logs: int = 3, num_frames: int = 12, s
         add_synthetic_labels(log_dir, num_frames)
     (root / "captions").mkdir(parents=True, exist_ok=True)
     pq.write_table(synthetic_captions(logs, 1, num_frames - 2), root / "captions" / "captions.parquet")
-    config = dataclasses.replace(ClipsConfig(), previews=False, frames_per_clip=4)
+    config = dataclasses.replace(FINE_CLIPS, frames_per_clip=4)
     build_clips(logs, root / "captions", root / "clips", config)
     add_attribute_targets(root / "clips", logs)
     cfg = TagTrainConfig(mode="alone", bev=tiny_bev_config(), steps=steps, batch_size=2, window_frames=3,

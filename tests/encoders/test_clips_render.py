@@ -25,9 +25,15 @@ from encoders.data import ClipDataset
 from encoders.presets import preset
 from scenes.bev import BevGrid
 from scenes.log import Log
-from tests.encoders.clip_fixtures import EGO_SE3_CAMERA, INTRINSICS, synthetic_captions, write_synthetic_log
+from tests.encoders.clip_fixtures import (
+    EGO_SE3_CAMERA,
+    FINE_CLIPS,
+    INTRINSICS,
+    synthetic_captions,
+    write_synthetic_log,
+)
 
-CONFIG = replace(ClipsConfig(), previews=False)
+CONFIG = FINE_CLIPS
 
 
 @pytest.fixture(scope="module")

@@ -14,13 +14,12 @@ import pytest
 import torch
 
 from encoders.clips.build import build_clips
-from encoders.clips.config import ClipsConfig
 from encoders.clips.layout import parse_clip_id, read_clip_table, read_manifest
 from encoders.clips.views import EGO_MOTION_FEATURES
 from encoders.data import AugmentConfig, ClipDataset, collate_clips
 from encoders.dense import DENSE_TASKS
 from scenes.bev import BevGrid
-from tests.encoders.clip_fixtures import synthetic_captions, synthetic_frame_tags, write_synthetic_log
+from tests.encoders.clip_fixtures import FINE_CLIPS, synthetic_captions, synthetic_frame_tags, write_synthetic_log
 
 
 @pytest.fixture(scope="module")
@@ -33,7 +32,7 @@ def clips_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
     (root / "captions").mkdir()
     pq.write_table(synthetic_captions(logs, 2, 21), root / "captions" / "captions.parquet")
     pq.write_table(synthetic_frame_tags(logs, 24), root / "captions" / "frame_tags.parquet")
-    config = replace(ClipsConfig(), previews=False, frames_per_clip=8)
+    config = replace(FINE_CLIPS, frames_per_clip=8)
     build_clips(logs, root / "captions", root / "clips", config)
     return root / "clips"
 
@@ -168,7 +167,7 @@ def test_clips_carry_each_frames_rule_tags_as_dense_targets(clips_dir: Path) -> 
 def test_frame_tags_are_found_beside_a_captions_file_given_by_name(clips_dir: Path, tmp_path: Path) -> None:
     root = clips_dir.parent
     logs = sorted((root / "logs").iterdir())
-    config = replace(ClipsConfig(), previews=False, frames_per_clip=8)
+    config = replace(FINE_CLIPS, frames_per_clip=8)
     build_clips(logs, root / "captions" / "captions.parquet", tmp_path / "clips", config)
     lead = next(r for r in pq.read_table(tmp_path / "clips" / "clips.parquet").to_pylist() if r["track_id"] == "lead")
     assert lead["frame_lane"] == ["left" if f < 12 else "host" for f in lead["frame_indices"]]

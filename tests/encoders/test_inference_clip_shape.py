@@ -14,10 +14,9 @@ import pytest
 import torch
 
 from encoders.clips.build import build_clips
-from encoders.clips.config import ClipsConfig
 from encoders.inference import ClipShapeError, check_clips_fit, record_trained_clips
 from retrieval.cli import main
-from tests.encoders.clip_fixtures import synthetic_captions, write_synthetic_log
+from tests.encoders.clip_fixtures import FINE_CLIPS, synthetic_captions, write_synthetic_log
 
 
 @pytest.fixture(scope="module")
@@ -28,7 +27,7 @@ def data(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     logs = [write_synthetic_log(root / "logs", log_id=f"synthetic_{i}", num_frames=24, seed=i) for i in range(3)]
     (root / "captions").mkdir()
     pq.write_table(synthetic_captions(logs, 2, 20), root / "captions" / "captions.parquet")
-    config = replace(ClipsConfig(), previews=False, frames_per_clip=4)
+    config = replace(FINE_CLIPS, frames_per_clip=4)
     build_clips(logs, root / "captions", root / "trained", config)
     other = replace(config, frames_per_clip=6, camera=replace(config.camera, height_px=48, width_px=80))
     build_clips(logs, root / "captions", root / "other", other)

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -11,7 +10,6 @@ import pyarrow.parquet as pq
 import pytest
 
 from encoders.clips.build import build_clips
-from encoders.clips.config import ClipsConfig
 from encoders.clips.layout import TARGETS_STEM, rendered_log_dir
 from encoders.tagging.attributes import ATTRIBUTES, Attribute
 from encoders.tagging.evaluate import sources_line
@@ -27,7 +25,7 @@ from encoders.tagging.targets import (
 )
 from scenes.bev import BevGrid
 from scenes.log import Log
-from tests.encoders.clip_fixtures import synthetic_captions, write_synthetic_log
+from tests.encoders.clip_fixtures import FINE_CLIPS, synthetic_captions, write_synthetic_log
 from tests.encoders.tagging_fixtures import add_synthetic_labels
 
 NUM_FRAMES = 40
@@ -75,7 +73,7 @@ def clips(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, list[Path]]:
                                      with_lidar=False)
     (root / "captions").mkdir()
     pq.write_table(synthetic_captions([labelled, unlabelled]), root / "captions" / "captions.parquet")
-    build_clips([labelled, unlabelled], root / "captions", root / "clips", replace(ClipsConfig(), previews=False))
+    build_clips([labelled, unlabelled], root / "captions", root / "clips", FINE_CLIPS)
     return root / "clips", [labelled, unlabelled]
 
 

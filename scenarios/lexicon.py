@@ -104,14 +104,15 @@ _add("ego vehicle|ego|ego car|the av|our car|my car|our vehicle|my vehicle|we|us
 # -- predicates ------------------------------------------------------------------------------------------
 for _phrases, _name, _params in (
     ("moving|driving|traveling|travelling|in motion|active|walking|riding|going|running|jogging|heading|moves|"
-     "move|drives|walks|rides|"
+     "move|drives|walks|rides|drive|walk|ride|"
      "navigating|maneuvering|proceeding|passing through", "moving", ()),
     ("stopped|halted|standing still|stopping|waiting|idling|stationary vehicle|at a standstill|"
      "stands|stand|standing|stop|stops|waits|wait|comes to a stop|come to a stop", "stopped", ()),
     ("stationary|hasn't moved|has not moved|never moves|unmoving|static", "stationary", ()),
     ("parked|parking", "parked", ()),
     ("accelerating|speeding up|gaining speed|accelerates|accelerate", "accelerating", ()),
-    ("braking|slowing down|decelerating|slowing|brakes|brake", "braking", ()),
+    ("braking|slowing down|decelerating|slowing|brakes|brake|slow down|slows down|slowed down|decelerates|"
+     "decelerate", "braking", ()),
     ("hard braking|braking hard|slamming on the brakes|emergency braking", "braking", (("min_mps2", 3.0),)),
     ("turning|making a turn|turns|turn", "turning", ()),
     ("turning left|making a left turn|left turn|turns left|turn left|left turning|left-turning", "turning",
@@ -172,9 +173,12 @@ for _phrases, _name, _params in (
     ("in the right lane|in the lane to our right|in the lane on our right|in the right adjacent lane|"
      "in the lane to the right of us|in the lane right of us|in the lane to the right of the ego vehicle", "ego_lane",
      (("lane", "right"),)),
-    ("approaching us|approaching the ego|getting closer|coming closer|closing in|approaching|approaches|approach|"
+    ("approaching us|approaching the ego|approaching the ego vehicle|approaching the ego car|getting closer|"
+     "coming closer|closing in|approaching|approaches|approach|"
      "gets closer|comes closer", "approaching_ego", ()),
-    ("moving away|driving away|pulling away from us|moving away from us|driving away from us|leaving",
+    ("moving away|driving away|pulling away from us|moving away from us|driving away from us|leaving|"
+     "walking away|walking away from us|riding away|riding away from us|heading away|heading away from us|"
+     "going away from us",
      "moving_away_from_ego", ()),
 ):
     _add(_phrases, Lexeme("pred", _name, _params))
@@ -213,7 +217,8 @@ for _phrases, _rel, _rparams, _reverse in (
     ("past the right side of|past right side of|past the right of", "passed_by", (("side", "right"),), True),
     ("past the left side of|past left side of|past the left of", "passed_by", (("side", "left"),), True),
     ("at", "near", (("within_m", 5.0),), False),
-    ("passing|overtaking|passing by|passes|overtakes", "passed_by", (), True),
+    ("passing|overtaking|passing by|passes|overtakes|drive past|drives past|driving past|drive by|drives by|"
+     "driving by|goes past|going past|go past", "passed_by", (), True),
     ("facing|facing toward|facing towards|looking at|facing at", "facing", (), False),
     ("heading toward|heading towards|moving toward|moving towards|approaching|driving toward|driving towards|"
      "accelerating toward|accelerating towards|walking toward|walking towards", "heading_toward", (), False),
@@ -226,7 +231,7 @@ for _phrases, _rel, _rparams, _reverse in (
 
 # -- relations to the ego (no object named) --------------------------------------------------------------
 for _phrases, _side in (("ahead|in front|ahead of us|in front of us", "front"),
-                        ("behind us|behind the ego|in the rear", "behind"),
+                        ("behind us|behind the ego|behind the ego vehicle|behind the ego car|in the rear", "behind"),
                         ("to our left|on our left|to the left of us", "left"),
                         ("to our right|on our right|to the right of us", "right")):
     _add(_phrases, Lexeme("ego", "direction", (("side", _side),), reverse=True))

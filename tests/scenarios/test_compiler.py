@@ -71,6 +71,13 @@ MEANINGS = {
     "a car merging into the right lane": "changing_lanes(car, direction=right)",
     "a bus driving away from us": "moving_away_from_ego(bus)",
     "we turn left while a car comes toward us": "while(turning(ego, direction=left), ego_lane(car, lane=oncoming))",
+    "a pedestrian walking away from us": "moving_away_from_ego(pedestrian)",
+    "we slow down behind a car": "reverse(direction(car, braking(ego), side=behind))",
+    "a car parked on the right while we drive past":
+        "while(reverse(direction(ego, parked(car), side=right)), moving(ego))",
+    "we drive past a parked truck": "reverse(passed_by(parked(truck), ego))",
+    "car behind the ego vehicle": "reverse(direction(ego, car, side=behind))",
+    "bus approaching the ego car": "approaching_ego(bus)",
 }
 
 

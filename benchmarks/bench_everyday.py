@@ -5,8 +5,8 @@ moment's own rule tags and the simulator's labels (its caption row: category, ta
 ``lane:motion[:action][:context]``, the ego's tags, behaviour columns), never from the query's program.
 Each sentence's judge below is written from the sentence alone.
 
-The sentences are split in six: ``DEV`` were seen while the description compiler was written;
-``FIRST_HELD_OUT`` … ``FOURTH_HELD_OUT`` were each held out at one measurement and read after it to
+The sentences are split in seven: ``DEV`` were seen while the description compiler was written;
+``FIRST_HELD_OUT`` … ``FIFTH_HELD_OUT`` were each held out at one measurement and read after it to
 find the search's gaps; ``HELD_OUT`` were written with their judges after that, before
 any search ran on them, and are not tuned on.
 
@@ -174,8 +174,8 @@ FOURTH_HELD_OUT: dict[str, Judge] = {
 
 
 #: Written with their judges after the fourth measurement and its reading, before any search ran on them;
-#: not tuned on.
-HELD_OUT: dict[str, Judge] = {
+#: held out at the fifth measurement (precision@10 0.575 of a 0.825 ceiling on the larger split), read after it.
+FIFTH_HELD_OUT: dict[str, Judge] = {
     "a truck parked on the left side": lambda r: _cat(r, "truck") and _has(r, lane="left*", action="parked"),
     "a pedestrian on the crosswalk": lambda r: _cat(r, "pedestrian") and _has(r, context="on_crosswalk"),
     "a cyclist moving away from us": lambda r: _cat(r, "cyclist") and _has(r, motion="away"),
@@ -192,6 +192,30 @@ HELD_OUT: dict[str, Judge] = {
     "a cyclist crossing in front of us": lambda r: _cat(r, "cyclist") and _has(r, lane="host_lateral"),
     "a vehicle stopped at a red light":
         lambda r: _cat(r, *VEHICLES) and _has(r, action="stopped", context="at_intersection"),
+}
+
+
+#: Written with their judges after the fifth measurement and its reading, before any search ran on them;
+#: not tuned on.
+HELD_OUT: dict[str, Judge] = {
+    "a bus turning right": lambda r: _cat(r, "bus") and _has(r, action="right_turn"),
+    "a pedestrian standing on the left": lambda r: _cat(r, "pedestrian") and _has(r, lane="left*", action="stopped"),
+    "a truck in the lane to our right": lambda r: _cat(r, "truck") and _has(r, lane="right"),
+    "a cyclist approaching us": lambda r: _cat(r, "cyclist") and _has(r, motion="approach"),
+    "a car stopped on the crosswalk": lambda r: _cat(r, "car") and _has(r, action="stopped", context="on_crosswalk"),
+    "a parked car in our lane": lambda r: _cat(r, "car") and _has(r, lane="host", action="parked"),
+    "we are stopped next to a parked car":
+        lambda r: _host(r, "stationary") and _cat(r, "car")
+        and (_has(r, lane="left*", action="parked") or _has(r, lane="right*", action="parked")),
+    "a car changing lanes to the left": lambda r: _cat(r, "car") and _has(r, action="left_lane_change"),
+    "a bus coming toward us": lambda r: _cat(r, "bus") and _has(r, lane="oncoming", motion="approach"),
+    "pedestrians standing on the right side of the road":
+        lambda r: _cat(r, "pedestrian") and _has(r, lane="right*", action="stopped"),
+    "a car braking at the intersection":
+        lambda r: _cat(r, "car") and _has(r, action="braking") and _has(r, context="at_intersection"),
+    "a moving truck on our left":
+        lambda r: _cat(r, "truck") and any(s[0].startswith("left") and "stopped" not in s and "parked" not in s
+                                           for s in _steps(r)),
 }
 
 
@@ -247,9 +271,10 @@ def run(quick: bool = False) -> dict[str, Any]:
         return {"skipped": f"no demo index at {index}: run `make demo` (or set SCENESEARCH_DEMO_DIR) first"}
     dev, first, held = evaluate(index, DEV), evaluate(index, FIRST_HELD_OUT), evaluate(index, HELD_OUT)
     second, third = evaluate(index, SECOND_HELD_OUT), evaluate(index, THIRD_HELD_OUT)
-    fourth = evaluate(index, FOURTH_HELD_OUT)
+    fourth, fifth = evaluate(index, FOURTH_HELD_OUT), evaluate(index, FIFTH_HELD_OUT)
     out: dict[str, Any] = {
         "index": str(index), "k": K, "held_out": {"mean": _means(held), "per_query": held},
+        "fifth_held_out": {"mean": _means(fifth), "per_query": fifth},
         "fourth_held_out": {"mean": _means(fourth), "per_query": fourth},
         "third_held_out": {"mean": _means(third), "per_query": third},
         "second_held_out": {"mean": _means(second), "per_query": second},
@@ -261,7 +286,8 @@ def run(quick: bool = False) -> dict[str, Any]:
         start = time.perf_counter()
         large = build_split(demo)
         build_s = time.perf_counter() - start
-        sets = {"held_out": HELD_OUT, "fourth_held_out": FOURTH_HELD_OUT, "third_held_out": THIRD_HELD_OUT,
+        sets = {"held_out": HELD_OUT, "fifth_held_out": FIFTH_HELD_OUT, "fourth_held_out": FOURTH_HELD_OUT,
+                "third_held_out": THIRD_HELD_OUT,
                 "second_held_out": SECOND_HELD_OUT,
                 "first_held_out": FIRST_HELD_OUT, "dev": DEV}
         out["large_split"] = {"index": str(large), "build_seconds": round(build_s, 1), **{

@@ -39,7 +39,7 @@ MARKERS = ".demo"
 #: The demo's folder (:mod:`scenesearch_base.folders`): one folder or file per stage's output, and the report.
 DEMO_FOLDER = FolderKind("demo", signature=MARKERS, entries=(
     MARKERS, "logs", "extra_logs", "val_logs", "captions", "clips", "clips.yaml", "run", "index", "metrics.json",
-    "report.html", "plots", "tags"))
+    "report.html", "plots", "previews", "tags"))
 
 
 class DemoStageError(RuntimeError):
@@ -278,6 +278,7 @@ class Demo:
         metrics = json.loads(self.metrics_path.read_text()) if self.metrics_path.is_file() else None
         if metrics is not None:
             self.say(metrics_table(metrics))
+        shutil.rmtree(self.out_dir / "previews", ignore_errors=True)  # the previews the report draws, anew
         search = SceneSearch.open(self.index_dir)
         examples = []
         k = min(self.config.top_k, len(search))

@@ -190,16 +190,29 @@ def metrics_html(metrics: dict[str, Any]) -> str:
 def draw_preview(result: SearchResult, out_dir: Path, clips_dir: Path, referred: Sequence[str] = (),
                  related: Sequence[str] = ()) -> Path | None:
     """Draw the result's preview from ``clips_dir``'s rendered frames into ``out_dir/previews/``, marking
-    ``referred`` and ``related`` tracks; None when the clips folder does not hold its log's frames."""
+    ``referred`` and ``related`` tracks (a drawing per clip and marks, drawn once); None when the clips
+    folder cannot draw it (no rendered frames of its log, the clip not in its table, damaged arrays),
+    so that one clip never stops a report."""
+    import hashlib
+
     from encoders.clips.layout import preview_file_name, rendered_log_dir
     from encoders.clips.preview import preview_gif
     from scenesearch_base.atomic import atomic_path
 
     if not rendered_log_dir(Path(clips_dir), result.log_id).is_dir():
         return None
-    path = Path(out_dir) / "previews" / preview_file_name(result.clip_id)
+    name = preview_file_name(result.clip_id)
+    if referred or related:  # the same clip may be shown unmarked elsewhere on the page
+        marks = hashlib.blake2b(repr((tuple(referred), tuple(related))).encode(), digest_size=4).hexdigest()
+        name = f"{Path(name).stem}_{marks}{Path(name).suffix}"
+    path = Path(out_dir) / "previews" / name
+    if path.is_file():
+        return path
+    try:
+        data = preview_gif(clips_dir, result.clip_id, referred=referred, related=related)
+    except (OSError, ValueError, KeyError):
+        return None
     path.parent.mkdir(parents=True, exist_ok=True)
-    data = preview_gif(clips_dir, result.clip_id, referred=referred, related=related)
     with atomic_path(path) as tmp:
         Path(tmp).write_bytes(data)
     return path

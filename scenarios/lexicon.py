@@ -104,7 +104,7 @@ _add("ego vehicle|ego|ego car|the av|our car|my car|our vehicle|my vehicle|we|us
 # -- predicates ------------------------------------------------------------------------------------------
 for _phrases, _name, _params in (
     ("moving|driving|traveling|travelling|in motion|active|walking|riding|going|running|jogging|heading|moves|"
-     "move|drives|walks|rides|drive|walk|ride|"
+     "move|drives|walks|rides|"
      "navigating|maneuvering|proceeding|passing through", "moving", ()),
     ("stopped|halted|standing still|stopping|waiting|idling|stationary vehicle|at a standstill|"
      "stands|stand|standing|stop|stops|waits|wait|comes to a stop|come to a stop", "stopped", ()),
@@ -177,8 +177,8 @@ for _phrases, _name, _params in (
      "coming closer|closing in|approaching|approaches|approach|"
      "gets closer|comes closer", "approaching_ego", ()),
     ("moving away|driving away|pulling away from us|moving away from us|driving away from us|leaving|"
-     "walking away|walking away from us|riding away|riding away from us|heading away|heading away from us|"
-     "going away from us",
+     "walking away from us|riding away from us|heading away from us|going away from us|walking away from the ego|"
+     "riding away from the ego",
      "moving_away_from_ego", ()),
 ):
     _add(_phrases, Lexeme("pred", _name, _params))

@@ -9,7 +9,8 @@ Endpoints (OpenAPI at ``/openapi.json``, interactive docs at ``/docs``)::
     GET /api/similar/{clip_id}?k=&offset=&filter=&view=&other_moments=&same_track=
     GET /api/clips/{clip_id}            metadata, caption, tags and the tag timeline
     GET /api/clips/{clip_id}/preview?referred=&related=
-                                        the animated preview (GIF); with tracks given, drawn anew marking them
+                                        the animated preview (GIF): the stored one, else (or with tracks
+                                        given, marking them) drawn from the clips folder's rendered frames
     GET /api/map?view=                  the embedding map: every clip's 2-D projection and action
     GET /api/export?ids= | q=&k=        embeddings of a result set
     GET /docs, /redoc                   interactive API docs, their scripts served from the installed
@@ -172,6 +173,7 @@ def create_app(search: SceneSearch, limits: ServiceLimits | None = None) -> Fast
     limits = limits or ServiceLimits()
     clips_root = search.clips_dir.resolve()
     gate = SearchGate(limits.max_concurrent_searches, limits.max_waiting_searches)
+    preview_gate = SearchGate(1, limits.max_waiting_previews)  # drawing is one at a time (ResultContext)
     app = FastAPI(
         title="scenesearch",
         description="Natural-language and example-based search over driving-log clips.",
@@ -355,7 +357,9 @@ def create_app(search: SceneSearch, limits: ServiceLimits | None = None) -> Fast
                 check_chars(name, value, limits)
         # Drawn from the rendered frames where marks are asked for or no preview was stored at build time.
         if any(marks) or not record.preview_path:
-            drawn = await gate.run(lambda: context.preview(clip_id, marks[0], marks[1]))
+            drawn = context.drawn_preview(clip_id, marks[0], marks[1])  # kept from before: no wait
+            if drawn is None:
+                drawn = await preview_gate.run(lambda: context.preview(clip_id, marks[0], marks[1]))
             if drawn is not None:
                 return Response(drawn, media_type="image/gif", headers={"Cache-Control": "max-age=3600"})
         if not record.preview_path:

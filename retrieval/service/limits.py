@@ -44,6 +44,8 @@ class ServiceLimits:
         keep_alive_s: how long an idle connection stays open between requests.
         max_concurrent_searches: searches computed at once.
         max_waiting_searches: searches that may wait for one of those slots; past them, 429.
+        max_waiting_previews: previews that may wait to be drawn (one at a time, apart from the
+            searches, so that a page's previews never take a search's slot); past them, 429.
         retry_after_s: the ``Retry-After`` a 429 asks for.
         max_request_line_bytes: the longest request line (method, path and query; longer → 413).
         max_header_bytes: the most bytes of header fields (more → 431).
@@ -63,6 +65,7 @@ class ServiceLimits:
     keep_alive_s: float = 5.0
     max_concurrent_searches: int = 8
     max_waiting_searches: int = 32
+    max_waiting_previews: int = 64
     retry_after_s: int = 1
     max_request_line_bytes: int = 32 * 1024
     max_header_bytes: int = 32 * 1024

@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pyarrow as pa
 
 from indexes.filters import Condition, FilterSpec, Op
 from indexes.metadata import MetadataStore
@@ -73,11 +74,12 @@ class ResultContext:
         self._spans: dict[str, LogSpan] | None = None
         self._summary: dict[str, Any] | None = None
         self._maps: dict[str, dict[str, Any]] = {}
-        self._clip_rows: dict[str, dict[str, Any]] | None = None
+        self._clip_table: pa.Table | None = None
         self._clips_config: Any = None
         self._previews: OrderedDict[tuple[str, tuple[str, ...], tuple[str, ...]], bytes] = OrderedDict()
         self._render_lock = threading.Lock()
         self._drawable: dict[str, bool] = {}  # log id → whether the clips folder holds its rendered frames
+        self._clips_readable: bool | None = None  # whether the clips folder is of a format this release reads
 
     @property
     def metadata(self) -> MetadataStore:
@@ -210,21 +212,35 @@ class ResultContext:
         """Whether previews of the log's clips can be drawn: the clips folder holds its rendered frames."""
         with self._lock:
             if log_id not in self._drawable:
-                from encoders.clips.layout import rendered_log_dir
+                from encoders.clips.layout import read_manifest, rendered_log_dir
 
                 clips_dir = self.search.clips_dir
-                self._drawable[log_id] = clips_dir is not None and rendered_log_dir(Path(clips_dir), log_id).is_dir()
+                if self._clips_readable is None:  # a folder of another format cannot be drawn from
+                    try:
+                        self._clips_readable = clips_dir is not None and bool(read_manifest(Path(clips_dir)))
+                    except (OSError, ValueError):
+                        self._clips_readable = False
+                self._drawable[log_id] = self._clips_readable and rendered_log_dir(Path(clips_dir), log_id).is_dir()
             return self._drawable[log_id]
 
-    def preview(self, clip_id: str, referred: Sequence[str], related: Sequence[str]) -> bytes | None:
-        """The clip's preview drawn from the clips folder's rendered arrays, marking ``referred`` and
-        ``related`` tracks; None when those are not at hand (the caller serves the stored preview, if any).
-        Drawn previews are kept, the latest :data:`PREVIEW_CACHE_ENTRIES`."""
+    def drawn_preview(self, clip_id: str, referred: Sequence[str], related: Sequence[str]) -> bytes | None:
+        """The clip's preview with these marks if it was drawn before and is still kept, else None."""
         key = (clip_id, tuple(referred), tuple(related))
         with self._lock:
             if key in self._previews:
                 self._previews.move_to_end(key)
                 return self._previews[key]
+        return None
+
+    def preview(self, clip_id: str, referred: Sequence[str], related: Sequence[str]) -> bytes | None:
+        """The clip's preview drawn from the clips folder's rendered arrays, marking ``referred`` and
+        ``related`` tracks; None when those are not at hand (the caller serves the stored preview, if any).
+        Drawn previews are kept, the latest :data:`PREVIEW_CACHE_ENTRIES`."""
+        kept = self.drawn_preview(clip_id, referred, related)
+        if kept is not None:
+            return kept
+        import pyarrow.compute as pc
+
         from encoders.clips.config import ClipsConfig
         from encoders.clips.layout import read_clip_table, read_manifest, rendered_log_dir
         from encoders.clips.preview import preview_gif
@@ -232,18 +248,18 @@ class ResultContext:
         clips_dir = Path(self.search.clips_dir)
         with self._render_lock:  # one at a time: a page asks for a dozen at once
             try:
-                if self._clip_rows is None:
-                    table = read_clip_table(clips_dir)
-                    self._clip_rows = {str(r["clip_id"]): r for r in table.to_pylist()}
+                if self._clip_table is None:  # kept in Arrow: one row becomes Python per drawing
+                    self._clip_table = read_clip_table(clips_dir)
                     self._clips_config = ClipsConfig.from_dict(read_manifest(clips_dir).get("config", {}))
-                row = self._clip_rows.get(clip_id)
+                rows = self._clip_table.filter(pc.equal(self._clip_table.column("clip_id"), clip_id)).to_pylist()
+                row = rows[0] if rows else None
                 if row is None or not rendered_log_dir(clips_dir, str(row["log_id"])).is_dir():
                     return None
                 data = preview_gif(clips_dir, row, self._clips_config, referred=referred, related=related)
             except (OSError, ValueError, KeyError):
                 return None
         with self._lock:
-            self._previews[key] = data
+            self._previews[(clip_id, tuple(referred), tuple(related))] = data
             while len(self._previews) > PREVIEW_CACHE_ENTRIES:
                 self._previews.popitem(last=False)
         return data

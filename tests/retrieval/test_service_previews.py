@@ -18,7 +18,7 @@ from encoders.clips.build import build_clips
 from encoders.clips.config import BevClipConfig, CameraClipConfig, ClipsConfig
 from encoders.clips.layout import read_clip_table, rendered_log_dir
 from retrieval.embedding import model_hash
-from retrieval.report import preview_html
+from retrieval.report import draw_preview, preview_html
 from retrieval.scenesearch import SceneSearch
 from retrieval.service import ServiceLimits, create_app
 from tests.encoders.clip_fixtures import synthetic_captions, write_synthetic_log
@@ -81,3 +81,19 @@ def test_the_report_draws_its_previews_beside_the_page(served: dict[str, Any], t
     assert "no preview" in preview_html(results[1], tmp_path)  # nothing stored, no clips folder to draw from
     gone = next(r for r in search.search_text("a car", k=20) if r.log_id == "gone")
     assert "no preview" in preview_html(gone, tmp_path, clips)
+
+
+def test_report_drawings_with_marks_are_kept_apart_and_a_bad_clip_is_skipped(served: dict[str, Any],
+                                                                          tmp_path: Path) -> None:
+    from dataclasses import replace
+
+    search, clips = served["search"], served["root"] / "clips"
+    result = next(r for r in search.search_text("a car", k=20) if r.log_id == "drawn")
+    plain = draw_preview(result, tmp_path, clips)
+    marked = draw_preview(result, tmp_path, clips, referred=["parked"])
+    assert plain is not None and marked is not None and plain != marked
+    assert plain.read_bytes() != marked.read_bytes()
+    assert draw_preview(result, tmp_path, clips) == plain  # drawn once, then reused
+    unknown = replace(result, clip_id="drawn:nobody:0")  # its log's frames are there, the clip is not
+    assert draw_preview(unknown, tmp_path, clips) is None
+    assert "no preview" in preview_html(unknown, tmp_path, clips)

@@ -80,6 +80,19 @@ MEANINGS = {
     "bus approaching the ego car": "approaching_ego(bus)",
 }
 
+#: Phrases that must not be read as something else: the word is reported unused instead.
+NOT_UNDERSTOOD = {
+    "a car waiting to drive": ("stopped(car)", ("drive",)),
+    "a pedestrian waiting to walk": ("stopped(pedestrian)", ("walk",)),
+    "a car parked in the drive": ("parked(car)", ("drive",)),
+}
+
+
+@pytest.mark.parametrize(("description", "expected"), list(NOT_UNDERSTOOD.items()))
+def test_bare_verbs_are_not_read_as_moving(description: str, expected: tuple[str, tuple[str, ...]]) -> None:
+    compiled = compile_description(description)
+    assert (compiled.text, compiled.unused) == expected
+
 
 @pytest.mark.parametrize(("description", "program"), list(MEANINGS.items()))
 def test_descriptions_mean_what_they_say(description: str, program: str) -> None:

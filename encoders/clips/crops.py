@@ -107,28 +107,36 @@ class ObjectCrops:
         return rgb, mask, self.index, self.box
 
 
-def crop_instances(crops: ObjectCrops, frame: int, bgr: NDArray[np.uint8], instances: NDArray[np.uint16],
-                   pixels: NDArray[np.integer]) -> None:
-    """Cut every track seen in a full-resolution instance mask.
+def crop_instances(crops: ObjectCrops, frame: int, bgr: NDArray[np.uint8], instances: NDArray[np.uint16]
+                   ) -> NDArray[np.int32]:
+    """Cut every track seen in a full-resolution instance mask, and count each track's pixels.
+
+    The pixels are counted inside each track's own bounding box, found in the same pass over the
+    mask, which is cheaper than counting every value of the whole image.
 
     Args:
         crops: receives the crops.
         frame: the frame's index.
         bgr: (H, W, 3) the full-resolution image (OpenCV's BGR).
         instances: (H, W) instance values at full resolution, v ≥ 1 ↔ track v − 1.
-        pixels: (K,) each track's pixels in ``instances``.
+
+    Returns:
+        (K,) int32 each track's pixels in ``instances``.
     """
     from scipy.ndimage import find_objects
 
+    pixels = np.zeros(crops.tracks, np.int32)
     for k, where in enumerate(find_objects(instances, max_label=crops.tracks)):
-        if where is None or pixels[k] <= 0:
+        if where is None:
             continue
+        pixels[k] = np.count_nonzero(instances[where] == k + 1)
         box = (float(where[1].start), float(where[0].start), float(where[1].stop), float(where[0].stop))
         affine = crop_affine(box, crops.height_px, crops.width_px)
         rgb = cv2.cvtColor(crop_image(bgr, affine, crops.height_px, crops.width_px), cv2.COLOR_BGR2RGB)
         # The labels are cut through the RGB's own map, so that both sample the same pixels.
         mask = crop_image(instances, affine, crops.height_px, crops.width_px, nearest=True) == k + 1
         crops.add(frame, k, np.asarray(rgb, np.uint8), mask, box_columns(box, float(pixels[k]), instances.shape))
+    return pixels
 
 
 def crop_projected(crops: ObjectCrops, frame: int, bgr: NDArray[np.uint8], corners_uv_px: NDArray[np.floating],

@@ -56,7 +56,7 @@ def grid_affine_from(grid: BevGrid, source: BevGrid, source_SE3_grid: FloatArray
     return np.asarray(affine, dtype=np.float64)
 
 
-def density_uint8(counts: NDArray[np.floating], saturation_points: int) -> NDArray[np.uint8]:
+def density_uint8(counts: NDArray[np.floating] | NDArray[np.integer], saturation_points: int) -> NDArray[np.uint8]:
     """(...) point counts → (...) uint8 on a log scale, 255 at ``saturation_points`` or more."""
     scale = np.float32(255.0 / np.log1p(float(saturation_points)))
     return np.minimum(np.log1p(counts.astype(np.float32)) * scale + 0.5, 255.0).astype(np.uint8)

@@ -9,7 +9,7 @@ from numpy.typing import NDArray
 from encoders.clips.config import ClipsConfig
 from encoders.clips.raster import MAP_CHANNELS, density_uint8, render_map_frames
 from encoders.clips.render_stats import LogRenderStats
-from scenes.bev import BevGrid, lidar_occupancy, rasterize_boxes
+from scenes.bev import BevGrid, count_points, rasterize_boxes
 from scenes.errors import LogFormatError
 from scenes.geometry import FloatArray, invert_matrices
 from scenes.log import Log
@@ -70,8 +70,9 @@ def render_lidar_occupancy(
 ) -> NDArray[np.uint8]:
     """(F, Z, Hb, Wb) occupancy from the nearest sweep and the previous ones, motion-compensated.
 
-    Each sweep is read once; sweep points are moved into the frame's ego frame by
-    ``ego_SE3_city(frame) · city_SE3_ego(sweep)`` (ego poses interpolated at the sweep times).
+    Each sweep is read once and kept while frames use it; its points are moved into each frame's ego
+    frame by ``ego_SE3_city(frame) · city_SE3_ego(sweep)`` (ego poses interpolated at the sweep
+    times) inside :func:`scenes.bev.count_points`.
     """
     b = config.bev
     sweep_ts = log.lidar_timestamps_ns
@@ -81,10 +82,11 @@ def render_lidar_occupancy(
         return out
     city_SE3_sweep = log.ego.interpolate(sweep_ts).matrices  # (S, 4, 4)
     ego_SE3_city = invert_matrices(city_SE3_ego)  # (F, 4, 4)
-    reach = max(abs(b.x_min_m), abs(b.x_max_m), abs(b.y_min_m), abs(b.y_max_m)) + 30.0
+    z_bins_m = np.asarray(b.z_bins_m)
     cache: dict[int, NDArray[np.float32] | None] = {}
 
     def points(j: int) -> NDArray[np.float32] | None:
+        """(3, N) the sweep's points as rows of coordinates, or None when it cannot be used."""
         if j not in cache:
             try:
                 xyz = log.lidar_sweep(int(sweep_ts[j])).xyz_m
@@ -96,9 +98,7 @@ def render_lidar_occupancy(
                 stats.corrupt_sweeps.append(f"{int(sweep_ts[j])}.feather: sweep has no points")
                 cache[j] = None
                 return None
-            keep = (np.abs(xyz[:, 0]) < reach) & (np.abs(xyz[:, 1]) < reach)
-            keep &= (xyz[:, 2] >= b.z_bins_m[0]) & (xyz[:, 2] < b.z_bins_m[-1] + 5.0)
-            cache[j] = xyz[keep]
+            cache[j] = np.ascontiguousarray(xyz.T)
         return cache[j]
 
     for fi in range(frame_ts.shape[0]):
@@ -108,17 +108,14 @@ def render_lidar_occupancy(
         if points(j) is None:  # the frame's own sweep is corrupt: skip the frame
             sweep_index[fi] = -1
             continue
-        parts = []
+        clouds = []
         for jj in range(j, max(j - b.num_sweeps, -1), -1):
-            pts = points(jj)
-            if pts is None:
-                continue
-            m = ego_SE3_city[fi] @ city_SE3_sweep[jj]
-            parts.append(pts @ m[:3, :3].T.astype(np.float32) + m[:3, 3].astype(np.float32))
+            xyz_m = points(jj)
+            if xyz_m is not None:
+                clouds.append((xyz_m, ego_SE3_city[fi] @ city_SE3_sweep[jj]))
         for stale in [key for key in cache if key < j - b.num_sweeps]:
             del cache[stale]
-        counts = lidar_occupancy(grid, np.concatenate(parts, axis=0), np.asarray(b.z_bins_m))
-        out[fi] = density_uint8(counts, b.density_saturation_points)
+        out[fi] = density_uint8(count_points(grid, z_bins_m, clouds), b.density_saturation_points)
     return out
 
 

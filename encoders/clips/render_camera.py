@@ -158,12 +158,12 @@ def render_camera(
             lut = np.zeros(max(int(full.max()), len(ids)) + 1, dtype=np.uint16)
             lut[1 : len(ids) + 1] = [track_index.get(t, -1) + 1 for t in ids]
             lut_ids = ids
-        if full.max() >= lut.shape[0]:
-            lut = np.concatenate([lut, np.zeros(int(full.max()) + 1 - lut.shape[0], np.uint16)])
-        remapped = lut[full]
-        counts[fi] = np.bincount(remapped.ravel(), minlength=k + 1)[1 : k + 1]
+        top = int(full.max())
+        if top >= lut.shape[0]:
+            lut = np.concatenate([lut, np.zeros(top + 1 - lut.shape[0], np.uint16)])
+        remapped = np.take(lut, full)  # several times faster than indexing ``lut[full]``
         masks[fi] = cv2.resize(remapped, (cam.width_px, cam.height_px), interpolation=cv2.INTER_NEAREST)
-        crop_instances(crops, int(fi), bgr, remapped, counts[fi])
+        counts[fi] = crop_instances(crops, int(fi), bgr, remapped)
     stats.camera_frames = int(frame_ok.sum())
     stats.camera_frames_missing = int(f - frame_ok.sum())
     if use_masks:

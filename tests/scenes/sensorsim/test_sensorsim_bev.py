@@ -5,7 +5,15 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from scenes.bev import MAP_LAYERS, BevGrid, MapRasterizer, lidar_occupancy, rasterize_boxes, rasterize_map
+from scenes.bev import (
+    MAP_LAYERS,
+    BevGrid,
+    MapRasterizer,
+    count_points,
+    lidar_occupancy,
+    rasterize_boxes,
+    rasterize_map,
+)
 from scenes.geometry import SE3
 from scenes.sensorsim.synthetic import crossroad_map
 
@@ -98,3 +106,28 @@ def test_lidar_occupancy_counts_points_in_their_cells() -> None:
     assert lidar_occupancy(GRID, points, np.array([0.0, 1.0, 3.0]), binary=True)[0, r, c] == 1.0
     with pytest.raises(ValueError, match="increasing"):
         lidar_occupancy(GRID, points, np.array([1.0, 0.0]))
+
+
+def test_count_points_moves_each_cloud_by_its_pose_and_counts_it_in_its_cell() -> None:
+    rng = np.random.default_rng(0)
+    edges = np.array([-0.5, 0.3, 1.0, 2.0, 4.0])
+    expected = np.zeros((4, *GRID.shape), np.int64)
+    clouds = []
+    for _ in range(3):  # a frame's sweep and two earlier ones, each with its own pose
+        ego_SE3_cloud = SE3.from_yaw(rng.uniform(-np.pi, np.pi), rng.uniform(-5, 5, 3)).matrix
+        n = 2000
+        rows, cols, bins = rng.integers(0, 160, n), rng.integers(0, 80, n), rng.integers(0, 4, n)
+        # Inside their cell and height bin, away from every edge: float32 rounding cannot move them.
+        x = GRID.x_max_m - (rows + rng.uniform(0.05, 0.95, n)) * GRID.resolution_m
+        y = GRID.y_max_m - (cols + rng.uniform(0.05, 0.95, n)) * GRID.resolution_m
+        z = edges[bins] + rng.uniform(0.05, 0.95, n) * np.diff(edges)[bins]
+        np.add.at(expected, (bins, rows, cols), 1)
+        outside = np.array([[-30.0, 0.0, 0.5], [70.0, 0.0, 0.5], [0.0, 25.0, 0.5], [0.0, -25.0, 0.5],
+                            [0.0, 0.0, -0.6], [0.0, 0.0, 4.0], [1e7, -1e7, 1e7], [-1e7, 1e7, -1e7]])
+        ego = np.concatenate([np.stack([x, y, z], axis=1), outside])
+        cloud = (ego - ego_SE3_cloud[:3, 3]) @ ego_SE3_cloud[:3, :3]  # into the cloud's own frame
+        clouds.append((np.ascontiguousarray(cloud.T, dtype=np.float32), ego_SE3_cloud))
+    counts = count_points(GRID, edges, clouds)
+    assert counts.dtype == np.int64 and counts.shape == (4, 160, 80)
+    np.testing.assert_array_equal(counts, expected)
+    assert count_points(GRID, edges, []).sum() == 0

@@ -327,4 +327,9 @@ def load_model(run_dir: Path | str, device: str = "cpu", text: bool = True) -> D
     model.load_saved_state_dict(load_file(str(weights_path)))
     if model.text.cache is not None:
         model.text.cache.load(run_dir / TEXT_CACHE_FILE)
-    return model.to(resolve_device(device)).eval()
+    # Convolution weights in channels-last layout: oneDNN's bfloat16 kernels (and a GPU's tensor
+    # cores) read it natively, where the default layout is reordered on every call
+    # (docs/research/ingest-profile.md, "Channels-last weights").
+    model = model.to(resolve_device(device))
+    model.to(memory_format=torch.channels_last)  # type: ignore[call-overload]  # an overload torch's stubs omit
+    return model.eval()

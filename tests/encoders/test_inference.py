@@ -50,7 +50,8 @@ def test_with_cuda_auto_picks_it_and_indexes_are_checked(monkeypatch: pytest.Mon
 def test_a_model_loaded_without_its_text_tower_embeds_clips_alike_and_never_reads_the_sentence_encoder(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """``load_model(..., text=False)``, as the clip-embedding actors load it: the clip views are the
-    full model's bit for bit, the sentence encoder is not built, and encoding text is a clear error."""
+    full model's bit for bit in the same layout (channels-last convolutions) and within float rounding
+    of the default layout's, the sentence encoder is not built, and encoding text is a clear error."""
     from dataclasses import replace
 
     from safetensors.torch import save_file
@@ -75,9 +76,15 @@ def test_a_model_loaded_without_its_text_tower_embeds_clips_alike_and_never_read
 
     monkeypatch.setattr("encoders.text.load_sentence_encoder", no_encoder)
     clips_only = load_model(tmp_path, text=False)
+    convolutions = [m.weight for m in clips_only.modules() if isinstance(m, torch.nn.Conv2d)]
+    assert convolutions and all(w.is_contiguous(memory_format=torch.channels_last) for w in convolutions)
     with torch.no_grad():
+        contiguous = full.encode_views(batch)
+        full.to(memory_format=torch.channels_last)  # as load_model lays its convolution weights out
         expected, got = full.encode_views(batch), clips_only.encode_views(batch)
     assert all(torch.equal(expected[view], got[view]) for view in expected)
+    for view in expected:  # the layout changes only the order of the sums
+        torch.testing.assert_close(got[view], contiguous[view], rtol=1e-5, atol=1e-6)
     assert not any(k.startswith("text.") for k in clips_only.saved_state_dict())
     with pytest.raises(RuntimeError, match=r"loaded without its text tower .*text=True to encode text"):
         clips_only.encode_text(["a car turns left"])

@@ -1,4 +1,4 @@
-"""Bird's-eye-view (BEV) rasters in the ego frame: boxes, map layers and LiDAR occupancy.
+"""Bird's-eye-view (BEV) rasters in the ego frame: boxes, map layers and LiDAR point counts.
 
 Image convention of every raster (H rows × W columns)::
 
@@ -354,30 +354,11 @@ def count_points(
     return counts.reshape(padded_z, padded_h, padded_w)[1:-1, 1:-1, 1:-1]
 
 
-def lidar_occupancy(grid: BevGrid, points_xyz: NDArray[np.floating], z_bins_m: NDArray[np.floating],
-                    binary: bool = False) -> NDArray[np.float32]:
-    """Count LiDAR points per cell and height bin (:func:`count_points` of one cloud).
-
-    Args:
-        grid: the BEV grid.
-        points_xyz: (N, 3) points in the ego frame.
-        z_bins_m: (Z + 1,) increasing height bin edges; points outside them are ignored.
-        binary: return 1 for occupied cells instead of counts.
-
-    Returns:
-        (Z, H, W) float32 point counts (or 0/1 occupancy).
-    """
-    xyz_m = np.ascontiguousarray(np.asarray(points_xyz, dtype=np.float32).reshape(-1, 3).T)
-    counts = count_points(grid, z_bins_m, [(xyz_m, np.eye(4))]).astype(np.float32)
-    return (counts > 0).astype(np.float32) if binary else counts
-
-
 __all__ = [
     "MAP_LAYERS",
     "BevGrid",
     "MapRasterizer",
     "count_points",
-    "lidar_occupancy",
     "rasterize_boxes",
     "rasterize_map",
 ]

@@ -10,7 +10,6 @@ from scenes.bev import (
     BevGrid,
     MapRasterizer,
     count_points,
-    lidar_occupancy,
     rasterize_boxes,
     rasterize_map,
 )
@@ -96,16 +95,15 @@ def test_map_layers_around_the_ego() -> None:
     assert turned["lane_direction_sin"][r, c] == pytest.approx(-1.0, abs=1e-3)
 
 
-def test_lidar_occupancy_counts_points_in_their_cells() -> None:
+def test_count_points_counts_points_in_their_cells_and_drops_the_rest() -> None:
     points = np.array([[10.1, 5.1, 0.5], [10.2, 5.2, 0.6], [10.1, 5.1, 2.5], [-30.0, 0.0, 0.5], [0.0, 0.0, 9.0]])
-    occ = lidar_occupancy(GRID, points, np.array([0.0, 1.0, 3.0]))
-    assert occ.shape == (2, 160, 80)
+    counts = count_points(GRID, np.array([0.0, 1.0, 3.0]), [(points.T.astype(np.float32), np.eye(4))])
+    assert counts.shape == (2, 160, 80)
     r, c = int((60.0 - 10.1) / 0.5), int((20.0 - 5.1) / 0.5)
-    assert occ[0, r, c] == 2.0 and occ[1, r, c] == 1.0
-    assert occ.sum() == 3.0  # the point behind the grid and the one above the bins are dropped
-    assert lidar_occupancy(GRID, points, np.array([0.0, 1.0, 3.0]), binary=True)[0, r, c] == 1.0
+    assert counts[0, r, c] == 2 and counts[1, r, c] == 1
+    assert counts.sum() == 3  # the point behind the grid and the one above the bins are dropped
     with pytest.raises(ValueError, match="increasing"):
-        lidar_occupancy(GRID, points, np.array([1.0, 0.0]))
+        count_points(GRID, np.array([1.0, 0.0]), [])
 
 
 def test_count_points_moves_each_cloud_by_its_pose_and_counts_it_in_its_cell() -> None:

@@ -19,6 +19,10 @@ without per-log arrays would (``naive_clips_per_s``). Figures:
 - ``*_vs_naive``: those divided by ``naive_clips_per_s``
 - disk: ``mb_per_log``, ``kb_per_frame``, ``kb_per_clip`` (rendered arrays shared by clips),
   ``kb_per_preview``
+- ``lidar_counting``: CPU milliseconds a frame of :func:`scenes.bev.count_points` (each sweep moved
+  and binned by one float32 product) against the same counts binned in float64 behind masks, as
+  rendering did before (the sweeps read beforehand for both), and how many counts differ (points
+  within float32 rounding of a cell edge)
 """
 
 from __future__ import annotations
@@ -162,6 +166,70 @@ def _naive_clips_per_s(logs: list[Path], clips_dir: Path, config: Any, max_clips
     return len(table) / (time.perf_counter() - start)
 
 
+def _counts_with_masks(grid: Any, z_bins_m: np.ndarray,
+                       clouds: list[tuple[np.ndarray, np.ndarray]]) -> np.ndarray:
+    """(Z, H, W) the baseline of :func:`scenes.bev.count_points`: points moved in float32, then binned
+    in float64 and kept by masks over every point."""
+    moved = [(ego_SE3_cloud[:3, :3].astype(np.float32) @ xyz_m).T + ego_SE3_cloud[:3, 3].astype(np.float32)
+             for xyz_m, ego_SE3_cloud in clouds]
+    pts = np.concatenate(moved).astype(np.float64)
+    h, w = grid.shape
+    z_count = z_bins_m.shape[0] - 1
+    row = np.floor((grid.x_max_m - pts[:, 0]) / grid.resolution_m).astype(np.int64)
+    col = np.floor((grid.y_max_m - pts[:, 1]) / grid.resolution_m).astype(np.int64)
+    z_bin = np.searchsorted(z_bins_m, pts[:, 2], side="right") - 1
+    ok = (row >= 0) & (row < h) & (col >= 0) & (col < w) & (z_bin >= 0) & (z_bin < z_count)
+    flat = (z_bin[ok] * h + row[ok]) * w + col[ok]
+    return np.bincount(flat, minlength=z_count * h * w).reshape(z_count, h, w)
+
+
+def _lidar_counting(logs: list[Path], config: Any, max_frames: int) -> dict[str, Any]:
+    """:func:`scenes.bev.count_points` against :func:`_counts_with_masks` on the logs' own sweeps."""
+    from encoders.clips.render import bev_grid, nearest_within
+    from scenes.bev import count_points
+    from scenes.geometry import invert_matrices
+    from scenes.log import Log
+
+    grid, b = bev_grid(config), config.bev
+    z_bins_m = np.asarray(b.z_bins_m, dtype=np.float64)
+    frames: list[list[tuple[np.ndarray, np.ndarray]]] = []
+    for path in logs:
+        log = Log.open(path)
+        sweep_ts = log.lidar_timestamps_ns
+        if sweep_ts.shape[0] == 0:
+            continue
+        dense = log.dense_tracks()
+        sweep_index = nearest_within(sweep_ts, dense.timestamps_ns, b.sweep_tolerance_ns)
+        city_SE3_sweep = log.ego.interpolate(sweep_ts).matrices
+        ego_SE3_city = invert_matrices(dense.city_SE3_ego)
+        points: dict[int, np.ndarray] = {}
+        for fi in np.flatnonzero(sweep_index >= 0):
+            j = int(sweep_index[fi])
+            clouds = []
+            for jj in range(j, max(j - b.num_sweeps, -1), -1):
+                if jj not in points:
+                    points[jj] = np.ascontiguousarray(log.lidar_sweep(int(sweep_ts[jj])).xyz_m.T)
+                clouds.append((points[jj], ego_SE3_city[fi] @ city_SE3_sweep[jj]))
+            frames.append(clouds)
+            if len(frames) >= max_frames:
+                break
+        if len(frames) >= max_frames:
+            break
+    if not frames:
+        return {"frames": 0}
+    start = time.process_time()
+    fast = [count_points(grid, z_bins_m, clouds) for clouds in frames]
+    fast_s = time.process_time() - start
+    start = time.process_time()
+    reference = [_counts_with_masks(grid, z_bins_m, clouds) for clouds in frames]
+    reference_s = time.process_time() - start
+    differing = sum(int((a != r).sum()) for a, r in zip(fast, reference, strict=True))
+    return {"frames": len(frames), "ms_per_frame": round(1e3 * fast_s / len(frames), 3),
+            "masked_float64_ms_per_frame": round(1e3 * reference_s / len(frames), 3),
+            "speedup": round(reference_s / max(fast_s, 1e-9), 2), "differing_counts": differing,
+            "counts": int(sum(a.size for a in fast))}
+
+
 def run(quick: bool) -> dict[str, Any]:
     from encoders.clips.build import build_clips
     from encoders.clips.config import ClipsConfig
@@ -199,6 +267,7 @@ def run(quick: bool) -> dict[str, Any]:
     preview_s = time.perf_counter() - start
 
     naive = _naive_clips_per_s(logs, clips_dir, config, 4 if quick else 8)
+    lidar_counting = _lidar_counting(logs, config, 40 if quick else 200)
     import torch
 
     threads = torch.get_num_threads()
@@ -245,6 +314,7 @@ def run(quick: bool) -> dict[str, Any]:
         "kb_per_frame": round(log_bytes / max(frames, 1) / 1e3, 1),
         "kb_per_clip": round(log_bytes / max(num_clips, 1) / 1e3, 1),
         "kb_per_preview": round(preview_bytes / max(len(rows), 1) / 1e3, 1),
+        "lidar_counting": lidar_counting,
         "cpus": usable_cpus(),
     }
 

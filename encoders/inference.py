@@ -311,7 +311,9 @@ def frame_tag_figures(model: DualEncoder, dataset: Dataset[dict[str, Any]], batc
 
 
 def load_model(run_dir: Path | str, device: str = "cpu", text: bool = True) -> DualEncoder:
-    """The trained DualEncoder of ``run_dir`` (config.json + model.safetensors), in eval mode.
+    """The trained DualEncoder of ``run_dir`` (config.json + model.safetensors), in eval mode, its 4-D
+    weights (the convolutions') laid out channels-last for inference: call ``.contiguous()`` on its
+    state before saving or broadcasting it.
 
     ``text=False``: without its text tower (:class:`encoders.text.UnloadedText`), for processes that
     embed clips only: the sentence encoder, most of the load's time, is not read.
@@ -327,9 +329,10 @@ def load_model(run_dir: Path | str, device: str = "cpu", text: bool = True) -> D
     model.load_saved_state_dict(load_file(str(weights_path)))
     if model.text.cache is not None:
         model.text.cache.load(run_dir / TEXT_CACHE_FILE)
-    # Convolution weights in channels-last layout: oneDNN's bfloat16 kernels (and a GPU's tensor
-    # cores) read it natively, where the default layout is reordered on every call
-    # (docs/research/ingest-profile.md, "Channels-last weights").
+    # Every 4-D weight (the convolutions') channels-last: oneDNN's bfloat16 kernels (and a GPU's
+    # tensor cores) read that layout natively and reorder the default one on every call; the
+    # convolutions' outputs come out channels-last too (docs/research/ingest-profile.md,
+    # "Channels-last weights").
     model = model.to(resolve_device(device))
     model.to(memory_format=torch.channels_last)  # type: ignore[call-overload]  # an overload torch's stubs omit
     return model.eval()

@@ -317,17 +317,19 @@ def count_points(
 
     Args:
         grid: the BEV grid.
-        z_bins_m: (Z + 1,) increasing height bin edges (ego frame); points outside them are ignored.
+        z_bins_m: (Z + 1,) increasing height bin edges (ego frame), at most 255; points outside them
+            are ignored.
         clouds: ``(xyz_m, ego_SE3_cloud)`` pairs: (3, N) float32 points in the cloud's frame, with
-            coordinates as rows, and the (4, 4) pose of that frame in the ego frame.
+            coordinates as rows, and the (4, 4) pose of that frame in the ego frame. Points that are
+            not finite are ignored.
 
     Returns:
         (Z, H, W) int64 point counts.
     """
     edges = np.asarray(z_bins_m, dtype=np.float64).reshape(-1)
-    if edges.shape[0] < 2 or np.any(np.diff(edges) <= 0):
-        raise ValueError(f"z_bins_m must hold at least two increasing edges, got {edges.tolist()}")
     edges32 = edges.astype(np.float32)
+    if not 2 <= edges.shape[0] <= 255 or np.any(np.diff(edges32) <= 0):  # bins are counted in uint8
+        raise ValueError(f"z_bins_m must hold 2 to 255 increasing edges (as float32), got {edges.tolist()}")
     h, w = grid.shape
     padded_h, padded_w, padded_z = h + 2, w + 2, edges.shape[0] + 1
     # ego (x, y, z) → (row + 1, column + 1, z), rows and columns continuous (floored when counted)
@@ -338,8 +340,11 @@ def count_points(
     flats = []
     for xyz_m, ego_SE3_cloud in clouds:
         cells_SE3_cloud = cells_SE3_ego @ ego_SE3_cloud
-        cells = cells_SE3_cloud[:3, :3].astype(np.float32) @ xyz_m  # (3, N)
-        cells += cells_SE3_cloud[:3, 3:].astype(np.float32)
+        with np.errstate(invalid="ignore", over="ignore"):  # non-finite points are dropped just below
+            cells = cells_SE3_cloud[:3, :3].astype(np.float32) @ xyz_m  # (3, N)
+            cells += cells_SE3_cloud[:3, 3:].astype(np.float32)
+        if not np.isfinite(cells).all():  # a NaN would turn into an arbitrary index: send it to the border
+            cells = np.nan_to_num(cells, nan=-1.0, posinf=-1.0, neginf=-1.0)
         z_bin = np.zeros(cells.shape[1], dtype=np.uint8)  # 0 below the bins, Z + 1 above them
         for edge in edges32:
             np.add(z_bin, cells[2] >= edge, out=z_bin, casting="unsafe")

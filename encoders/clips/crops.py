@@ -112,7 +112,8 @@ def crop_instances(crops: ObjectCrops, frame: int, bgr: NDArray[np.uint8], insta
     """Cut every track seen in a full-resolution instance mask, and count each track's pixels.
 
     The pixels are counted inside each track's own bounding box, found in the same pass over the
-    mask, which is cheaper than counting every value of the whole image.
+    mask: objects' boxes cover a small part of the image, so this is cheaper than counting every
+    value of the whole image (boxes that together cover the image several times would cost more).
 
     Args:
         crops: receives the crops.

@@ -52,8 +52,9 @@ def _scene() -> tuple[np.ndarray, np.ndarray]:
 def test_instance_crops_show_each_object_in_the_middle_in_its_own_colours() -> None:
     bgr, labels = _scene()
     crops = ObjectCrops(frames=3, tracks=3, height_px=HC, width_px=WC)
+    labels[300:310, 600:610] = 7  # a value beyond the log's tracks: neither counted nor cropped
     pixels = crop_instances(crops, 1, bgr, labels)
-    np.testing.assert_array_equal(pixels, np.bincount(labels.ravel(), minlength=4)[1:])
+    np.testing.assert_array_equal(pixels, np.bincount(labels.ravel(), minlength=8)[1:4])
     rgb, mask, index, box = crops.arrays()
     assert rgb.shape == (2, HC, WC, 3) and mask.shape == (2, HC, WC) and index.shape == (3, 3)
     assert (index[[0, 2]] == -1).all() and index[1, 2] == -1  # other frames; the track never seen

@@ -102,8 +102,22 @@ def test_count_points_counts_points_in_their_cells_and_drops_the_rest() -> None:
     r, c = int((60.0 - 10.1) / 0.5), int((20.0 - 5.1) / 0.5)
     assert counts[0, r, c] == 2 and counts[1, r, c] == 1
     assert counts.sum() == 3  # the point behind the grid and the one above the bins are dropped
-    with pytest.raises(ValueError, match="increasing"):
-        count_points(GRID, np.array([1.0, 0.0]), [])
+    for edges in ([1.0, 0.0], [0.0], np.arange(256.0), [1.0, 1.0 + 1e-9]):  # the last two equal as float32
+        with pytest.raises(ValueError, match="increasing"):
+            count_points(GRID, np.array(edges), [])
+
+
+def test_count_points_keeps_the_grid_and_bins_half_open_and_drops_points_that_are_not_finite() -> None:
+    # Edges: x = x_max and y = y_max are the first row and column, x = x_min and y = y_min lie outside;
+    # z = the lowest edge is in the first bin, z = the highest is outside.
+    points = np.array([[60.0, 0.1, 0.5], [-20.0, 0.1, 0.5], [0.1, 20.0, 0.5], [0.1, -20.0, 0.5],
+                       [0.1, 0.1, 0.0], [0.1, 0.1, 3.0], [np.nan, 0.1, 0.5], [np.inf, 0.1, 0.5],
+                       [0.1, -np.inf, 0.5], [0.1, 0.1, np.nan]])
+    counts = count_points(GRID, np.array([0.0, 1.0, 3.0]), [(points.T.astype(np.float32), np.eye(4))])
+    assert counts[0, 0, int((20.0 - 0.1) / 0.5)] == 1
+    assert counts[0, int((60.0 - 0.1) / 0.5), 0] == 1
+    assert counts[0, int((60.0 - 0.1) / 0.5), int((20.0 - 0.1) / 0.5)] == 1
+    assert counts.sum() == 3
 
 
 def test_count_points_moves_each_cloud_by_its_pose_and_counts_it_in_its_cell() -> None:

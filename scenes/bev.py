@@ -343,8 +343,8 @@ def count_points(
         with np.errstate(invalid="ignore", over="ignore"):  # non-finite points are dropped just below
             cells = cells_SE3_cloud[:3, :3].astype(np.float32) @ xyz_m  # (3, N)
             cells += cells_SE3_cloud[:3, 3:].astype(np.float32)
-        if not np.isfinite(cells).all():  # a NaN would turn into an arbitrary index: send it to the border
-            cells = np.nan_to_num(cells, nan=-1.0, posinf=-1.0, neginf=-1.0)
+        if not np.isfinite(cells).all():  # a NaN would turn into an arbitrary index; ±inf clip to the border
+            cells[np.isnan(cells)] = -np.inf  # below every cell and every height bin: the border
         z_bin = np.zeros(cells.shape[1], dtype=np.uint8)  # 0 below the bins, Z + 1 above them
         for edge in edges32:
             np.add(z_bin, cells[2] >= edge, out=z_bin, casting="unsafe")

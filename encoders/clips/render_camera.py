@@ -153,14 +153,12 @@ def render_camera(
         except LogFormatError:
             stats.corrupt_camera_frames.append(f"{cam.camera_name}{INSTANCE_SUFFIX}/{ts}.png")
             continue
-        if lut is None or ids != lut_ids:
-            # Mask value v ↔ ids[v − 1] → this log's value 1 + index in track_ids (0 = unknown id).
-            lut = np.zeros(max(int(full.max()), len(ids)) + 1, dtype=np.uint16)
+        top = int(full.max())
+        if lut is None or ids != lut_ids or top >= lut.shape[0]:
+            # Mask value v ↔ ids[v − 1] → this log's value 1 + index in track_ids (0 = unknown id or value).
+            lut = np.zeros(max(top, len(ids)) + 1, dtype=np.uint16)
             lut[1 : len(ids) + 1] = [track_index.get(t, -1) + 1 for t in ids]
             lut_ids = ids
-        top = int(full.max())
-        if top >= lut.shape[0]:
-            lut = np.concatenate([lut, np.zeros(top + 1 - lut.shape[0], np.uint16)])
         remapped = np.take(lut, full)  # several times faster than indexing ``lut[full]``
         masks[fi] = cv2.resize(remapped, (cam.width_px, cam.height_px), interpolation=cv2.INTER_NEAREST)
         counts[fi] = crop_instances(crops, int(fi), bgr, remapped)

@@ -34,6 +34,9 @@ stored preview per clip, measured in the same run (``clips_stored_previews``,
 shown), and the CPU-hours 10,000 hours of logs take. ``memory``: the serial embedding again, in a fresh
 process with glibc's default malloc and in one with the settings of :mod:`scenesearch_base.memory` (from its
 environment, as Ray workers and launched processes get them), wall seconds and their ratio.
+``weight_layout``: the serial embedding's CPU seconds with the convolution weights channels-last, as
+:func:`encoders.inference.load_model` lays them out, and in torch's default layout (alternated, best of
+two each), and their ratio.
 ``load_average`` says how busy the machine was; other work on it slows the parallel runs most.
 """
 
@@ -47,6 +50,7 @@ import sys
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import replace
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -173,6 +177,24 @@ def _embed_with_malloc(run_dir: Path, clips: Path) -> dict[str, float]:
     return out
 
 
+def _weight_layout(run_dir: Path, clips: Path) -> dict[str, float]:
+    """CPU seconds of embedding ``clips`` serially with channels-last convolution weights (as loaded)
+    and with torch's default layout, alternated, best of two each (the model loaded before timing)."""
+    from retrieval.embedding import ModelEmbedder
+
+    best = {"channels_last_cpu_s": float("inf"), "default_layout_cpu_s": float("inf")}
+    for _ in range(2):
+        for name in best:
+            embedder = ModelEmbedder(run_dir)
+            model = embedder.model  # loaded here, not inside the timing
+            if name == "default_layout_cpu_s":
+                model.to(memory_format=torch.contiguous_format)
+            best[name] = min(best[name], _timed(partial(embedder.embed_clips, clips, view="fused"))[1])
+    out = {name: round(value, 2) for name, value in best.items()}
+    out["speedup"] = _ratio(best["default_layout_cpu_s"], best["channels_last_cpu_s"])
+    return out
+
+
 def _noop(item: int) -> int:
     return item
 
@@ -206,6 +228,7 @@ def run(quick: bool) -> dict[str, Any]:
 
     serial["embed"] = _timed(lambda: ModelEmbedder(run_dir).embed_clips(scratch / "clips_serial", view="fused"))
     memory = _embed_with_malloc(run_dir, scratch / "clips_serial")
+    weight_layout = _weight_layout(run_dir, scratch / "clips_serial")
     ray_start_s = 0.0
     noop = 0.0
     overhead: list[tuple[float, float, float]] = []
@@ -280,6 +303,7 @@ def run(quick: bool) -> dict[str, Any]:
     if "cpu_s" in sim:
         cost["simulate"] = sim["log_s"] / max(sim["cpu_s"], 1e-9)
     figures["memory"] = memory
+    figures["weight_layout"] = weight_layout
     figures["cost"] = {
         "log_s_per_cpu_s": {s: round(v, 2) for s, v in cost.items()},
         f"cpu_hours_for_{HOURS}_h": {s: round(HOURS / v, 1) for s, v in cost.items()},

@@ -23,6 +23,9 @@ without per-log arrays would (``naive_clips_per_s``). Figures:
   and binned by one float32 product) against the same counts binned in float64 behind masks, as
   rendering did before (the sweeps read beforehand for both), and how many counts differ (points
   within float32 rounding of a cell edge)
+- ``block_codec``: every rendered array of the clips folder compressed in blocks by
+  :func:`encoders.clips.blocks.write_blocks`'s codec (zstd) and by zlib at level 1, as the blocks were
+  before, and decompressed again: CPU milliseconds a frame each way, the bytes, and their ratios
 """
 
 from __future__ import annotations
@@ -230,6 +233,43 @@ def _lidar_counting(logs: list[Path], config: Any, max_frames: int) -> dict[str,
             "counts": int(sum(a.size for a in fast))}
 
 
+def _block_codec(clips_dir: Path) -> dict[str, Any]:
+    """The blocks' codec against zlib level 1 on the same rendered arrays (CPU time of this process)."""
+    import zlib
+
+    from encoders.clips.blocks import BLOCK_FRAMES, CODEC, CODEC_LEVEL, BlockArray
+
+    blocks: list[bytes] = []
+    frames = 0
+    for path in sorted(clips_dir.glob("logs/*/*.blocks")):
+        array = np.ascontiguousarray(BlockArray(path)[:])
+        blocks += [array[i:i + BLOCK_FRAMES].tobytes() for i in range(0, array.shape[0], BLOCK_FRAMES)]
+        if path.name == "bev_lidar.blocks":
+            frames += array.shape[0]
+    codec = pa.Codec(CODEC, compression_level=CODEC_LEVEL)
+    figures: dict[str, dict[str, float]] = {}
+    for name, compress, decompress in (
+        (CODEC, lambda b: codec.compress(b, asbytes=True),
+         lambda c, n: codec.decompress(c, decompressed_size=n, asbytes=True)),
+        ("zlib_1", lambda b: zlib.compress(b, 1), lambda c, n: zlib.decompress(c)),
+    ):
+        start = time.process_time()
+        packed = [compress(b) for b in blocks]
+        compress_s = time.process_time() - start
+        start = time.process_time()
+        for c, b in zip(packed, blocks, strict=True):
+            decompress(c, len(b))
+        decompress_s = time.process_time() - start
+        figures[name] = {"compress_ms_per_frame": round(1e3 * compress_s / max(frames, 1), 3),
+                         "decompress_ms_per_frame": round(1e3 * decompress_s / max(frames, 1), 3),
+                         "mb": round(sum(map(len, packed)) / 1e6, 2)}
+    new, old = figures[CODEC], figures["zlib_1"]
+    return {"frames": frames, "raw_mb": round(sum(map(len, blocks)) / 1e6, 2), **figures,
+            "compress_speedup": round(old["compress_ms_per_frame"] / max(new["compress_ms_per_frame"], 1e-9), 2),
+            "decompress_speedup": round(old["decompress_ms_per_frame"] / max(new["decompress_ms_per_frame"], 1e-9), 2),
+            "size_ratio": round(new["mb"] / max(old["mb"], 1e-9), 3)}
+
+
 def run(quick: bool) -> dict[str, Any]:
     from encoders.clips.build import build_clips
     from encoders.clips.config import ClipsConfig
@@ -268,6 +308,7 @@ def run(quick: bool) -> dict[str, Any]:
 
     naive = _naive_clips_per_s(logs, clips_dir, config, 4 if quick else 8)
     lidar_counting = _lidar_counting(logs, config, 40 if quick else 200)
+    block_codec = _block_codec(clips_dir)
     import torch
 
     threads = torch.get_num_threads()
@@ -315,6 +356,7 @@ def run(quick: bool) -> dict[str, Any]:
         "kb_per_clip": round(log_bytes / max(num_clips, 1) / 1e3, 1),
         "kb_per_preview": round(preview_bytes / max(len(rows), 1) / 1e3, 1),
         "lidar_counting": lidar_counting,
+        "block_codec": block_codec,
         "cpus": usable_cpus(),
     }
 

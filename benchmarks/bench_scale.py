@@ -36,7 +36,9 @@ process with glibc's default malloc and in one with the settings of :mod:`scenes
 environment, as Ray workers and launched processes get them), wall seconds and their ratio.
 ``weight_layout``: the serial embedding's CPU seconds with the convolution weights channels-last, as
 :func:`encoders.inference.load_model` lays them out, and in torch's default layout (alternated, best of
-two each), and their ratio.
+two each), and their ratio. ``read_ahead``: the serial embedding's CPU and wall seconds as the batches
+load (the next one assembled in a thread beside the model, on one torch thread less) and assembled in
+turn on every thread, as before (alternated, best of two each), and their ratios (> 1: cheaper now).
 ``load_average`` says how busy the machine was; other work on it slows the parallel runs most.
 """
 
@@ -195,6 +197,38 @@ def _weight_layout(run_dir: Path, clips: Path) -> dict[str, float]:
     return out
 
 
+def _read_ahead(run_dir: Path, clips: Path) -> dict[str, float]:
+    """CPU and wall seconds of embedding ``clips`` serially as :func:`encoders.inference.batches` loads
+    them (the next batch assembled in a thread beside the model, on one torch thread less) and with
+    every batch assembled in turn on all torch threads, as before; alternated, best of two each."""
+    from torch.utils.data import DataLoader
+
+    import encoders.inference as inference
+    from retrieval.embedding import ModelEmbedder
+
+    def in_turn(dataset: Any, batch_size: int, num_workers: int = 0, pin_memory: bool = False) -> Iterator[Any]:
+        yield from DataLoader(dataset, batch_size=batch_size, shuffle=False, num_workers=num_workers,
+                              collate_fn=inference.collate, pin_memory=pin_memory)
+
+    reading = inference.batches
+    best = {name: (float("inf"), float("inf")) for name in ("read_ahead", "in_turn")}
+    try:
+        for _ in range(2):
+            for name in best:
+                inference.batches = reading if name == "read_ahead" else in_turn  # type: ignore[assignment]
+                embedder = ModelEmbedder(run_dir)
+                _ = embedder.model  # loaded here, not inside the timing
+                wall, cpu = _timed(partial(embedder.embed_clips, clips, view="fused"))
+                best[name] = (min(best[name][0], wall), min(best[name][1], cpu))
+    finally:
+        inference.batches = reading  # type: ignore[assignment]
+    out = {f"{name}_{kind}_s": round(value[i], 2) for name, value in best.items()
+           for i, kind in enumerate(("wall", "cpu"))}
+    out["cpu_ratio"] = _ratio(best["in_turn"][1], best["read_ahead"][1])
+    out["wall_ratio"] = _ratio(best["in_turn"][0], best["read_ahead"][0])
+    return out
+
+
 def _noop(item: int) -> int:
     return item
 
@@ -229,6 +263,7 @@ def run(quick: bool) -> dict[str, Any]:
     serial["embed"] = _timed(lambda: ModelEmbedder(run_dir).embed_clips(scratch / "clips_serial", view="fused"))
     memory = _embed_with_malloc(run_dir, scratch / "clips_serial")
     weight_layout = _weight_layout(run_dir, scratch / "clips_serial")
+    read_ahead = _read_ahead(run_dir, scratch / "clips_serial")
     ray_start_s = 0.0
     noop = 0.0
     overhead: list[tuple[float, float, float]] = []
@@ -304,6 +339,7 @@ def run(quick: bool) -> dict[str, Any]:
         cost["simulate"] = sim["log_s"] / max(sim["cpu_s"], 1e-9)
     figures["memory"] = memory
     figures["weight_layout"] = weight_layout
+    figures["read_ahead"] = read_ahead
     figures["cost"] = {
         "log_s_per_cpu_s": {s: round(v, 2) for s, v in cost.items()},
         f"cpu_hours_for_{HOURS}_h": {s: round(HOURS / v, 1) for s, v in cost.items()},

@@ -212,7 +212,9 @@ class MapRasterizer:
     def _poly_bounds(polys: list[FloatArray]) -> FloatArray:
         if not polys:
             return np.zeros((0, 4))
-        return np.array([[p[:, 0].min(), p[:, 1].min(), p[:, 0].max(), p[:, 1].max()] for p in polys])
+        points = np.concatenate(polys)  # (V, 2), polygon after polygon
+        starts = np.cumsum([0] + [p.shape[0] for p in polys[:-1]])
+        return np.concatenate([np.minimum.reduceat(points, starts), np.maximum.reduceat(points, starts)], axis=1)
 
     def _near_indices(self, name: str, center: FloatArray, radius: float) -> NDArray[np.intp]:
         """Indices of the polygons of ``name`` whose bounding boxes reach the square ``center ± radius``."""

@@ -47,22 +47,26 @@ def check_map_covers_poses(path: Path, vector_map: VectorMap, city_xy_m: NDArray
     ego = np.asarray(city_xy_m, dtype=np.float64).reshape(-1, 2)
     if not polylines or ego.shape[0] == 0:
         return []
+    vertices = np.concatenate([p[:, :2] for _, p in polylines])  # (V, 2), every polyline's in turn
     lo, hi = ego.min(axis=0), ego.max(axis=0)
-    for name, points in polylines:
-        # Distance to the box of the ego positions: a lower bound of the distance to the nearest one.
-        gap_m = np.linalg.norm(np.maximum(np.maximum(lo - points[:, :2], points[:, :2] - hi), 0.0), axis=1)
-        if (far := gap_m > MAX_MAP_REACH_M).any():
-            row = int(np.argmax(far))
-            point = f"({points[row, 0]:.6g}, {points[row, 1]:.6g}) m"
-            return [Problem(path, f"point {point} lies {gap_m[row] / 1000:.0f} km from every ego pose (maps reach "
-                                  f"at most {MAX_MAP_REACH_M / 1000:g} km from the log's route)", field=name, row=row)]
-    vertices = np.concatenate([p[:, :2] for _, p in polylines])  # (V, 2)
+    # Distance to the box of the ego positions: a lower bound of the distance to the nearest one.
+    gap_m = np.linalg.norm(np.maximum(np.maximum(lo - vertices, vertices - hi), 0.0), axis=1)
+    if (far := gap_m > MAX_MAP_REACH_M).any():
+        first = int(np.argmax(far))
+        starts = np.cumsum([0] + [p.shape[0] for _, p in polylines])
+        line = int(np.searchsorted(starts, first, side="right")) - 1
+        name, row = polylines[line][0], first - int(starts[line])
+        point = f"({vertices[first, 0]:.6g}, {vertices[first, 1]:.6g}) m"
+        return [Problem(path, f"point {point} lies {gap_m[first] / 1000:.0f} km from every ego pose (maps reach "
+                              f"at most {MAX_MAP_REACH_M / 1000:g} km from the log's route)", field=name, row=row)]
     # A grid of cells MAP_COVER_RADIUS_M wide: a position within the radius of a vertex has one in its
     # own cell or a neighbouring one, so checking the 3 × 3 cells around each position is exact enough.
-    cells = {(int(i), int(j)) for i, j in np.floor(vertices / MAP_COVER_RADIUS_M)}
+    cells = np.unique(_cell_codes(np.floor(vertices / MAP_COVER_RADIUS_M).astype(np.int64)))
     ego_cells = np.floor(ego / MAP_COVER_RADIUS_M).astype(np.int64)
-    covered = np.array([any((i + di, j + dj) in cells for di in (-1, 0, 1) for dj in (-1, 0, 1))
-                        for i, j in ego_cells])
+    covered = np.zeros(ego.shape[0], dtype=bool)
+    for di in (-1, 0, 1):
+        for dj in (-1, 0, 1):
+            covered |= np.isin(_cell_codes(ego_cells + np.array([di, dj])), cells)
     if covered.mean() >= MIN_MAP_COVERED_SHARE:
         return []
     return [Problem(path, f"the map is not this log's: only {int(covered.sum())} of {covered.shape[0]} ego poses lie "
@@ -70,6 +74,11 @@ def check_map_covers_poses(path: Path, vector_map: VectorMap, city_xy_m: NDArray
                           f"(the first pose is at ({ego[0, 0]:.1f}, {ego[0, 1]:.1f}) m; the map spans "
                           f"x {vertices[:, 0].min():.0f}..{vertices[:, 0].max():.0f} m, "
                           f"y {vertices[:, 1].min():.0f}..{vertices[:, 1].max():.0f} m)")]
+
+
+def _cell_codes(cells: NDArray[np.int64]) -> NDArray[np.int64]:
+    """(N, 2) integer cells → (N,) one integer each (cells within ±2³¹ of the origin: 200,000 km here)."""
+    return (cells[:, 0] << 32) + cells[:, 1]
 
 
 def check_map_coordinates(path: Path, vector_map: VectorMap) -> list[Problem]:

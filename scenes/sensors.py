@@ -24,7 +24,8 @@ class LidarSweep:
 
     Attributes:
         timestamp_ns: sweep timestamp.
-        xyz_m: (N, 3) points in the ego frame.
+        xyz_m: (N, 3) points in the ego frame, a view of a (3, N) array: ``xyz_m.T`` is contiguous,
+            as point transforms and binning read it.
         intensity: (N,) return intensity 0–255.
         laser_number: (N,) beam index.
         offset_ns: (N,) time of each point relative to the sweep timestamp.
@@ -54,12 +55,14 @@ def timestamps_in(folder: Path, suffix: str) -> NDArray[np.int64]:
 def read_lidar_sweep(path: Path) -> LidarSweep:
     """Read one sweep; raises :class:`LogFormatError` naming the file and field on bad content."""
     table = schema.read_feather(path, schema.LIDAR_REQUIRED_COLUMNS, schema.LIDAR_OPTIONAL_COLUMNS)
-    coords = {c: np.asarray(table.column(c).to_numpy(), dtype=np.float32) for c in ("x", "y", "z")}
-    problems = schema.check_finite(path, coords)
+    n = table.num_rows
+    xyz_by_axis = np.empty((3, n), dtype=np.float32)  # filled column by column, cast as it is copied
+    for i, c in enumerate(("x", "y", "z")):
+        xyz_by_axis[i] = table.column(c).to_numpy()
+    problems = schema.check_finite(path, dict(zip(("x", "y", "z"), xyz_by_axis, strict=True)))
     if problems:
         raise LogFormatError(problems)
-    xyz = np.stack(list(coords.values()), axis=1)
-    n = xyz.shape[0]
+    xyz = xyz_by_axis.T
 
     def col(name: str, dtype: type, default: int = 0) -> Any:
         if name in table.column_names:

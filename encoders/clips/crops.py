@@ -107,19 +107,23 @@ class ObjectCrops:
         return rgb, mask, self.index, self.box
 
 
-def crop_instances(crops: ObjectCrops, frame: int, bgr: NDArray[np.uint8], instances: NDArray[np.uint16]
-                   ) -> NDArray[np.int32]:
+def crop_instances(crops: ObjectCrops, frame: int, bgr: NDArray[np.uint8], instances: NDArray[np.uint16],
+                   track_of_value: NDArray[np.uint16] | None = None) -> NDArray[np.int32]:
     """Cut every track seen in a full-resolution instance mask, and count each track's pixels.
 
     The pixels are counted inside each track's own bounding box, found in the same pass over the
     mask: objects' boxes cover a small part of the image, so this is cheaper than counting every
     value of the whole image (boxes that together cover the image several times would cost more).
+    The mask is read as stored, through ``track_of_value``: remapping a whole full-resolution mask
+    to the log's tracks would cost a pass over every pixel.
 
     Args:
         crops: receives the crops.
         frame: the frame's index.
         bgr: (H, W, 3) the full-resolution image (OpenCV's BGR).
-        instances: (H, W) instance values at full resolution, v ≥ 1 ↔ track v − 1.
+        instances: (H, W) instance values at full resolution.
+        track_of_value: (V,) mask value v → 1 + its track's index (0: no track); no two values may
+            name the same track. None: value v ≥ 1 is track v − 1.
 
     Returns:
         (K,) int32 each track's pixels in ``instances``.
@@ -127,15 +131,18 @@ def crop_instances(crops: ObjectCrops, frame: int, bgr: NDArray[np.uint8], insta
     from scipy.ndimage import find_objects
 
     pixels = np.zeros(crops.tracks, np.int32)
-    for k, where in enumerate(find_objects(instances, max_label=crops.tracks)):
-        if where is None:
+    values = crops.tracks if track_of_value is None else track_of_value.shape[0] - 1
+    seen = [(v - 1 if track_of_value is None else int(track_of_value[v]) - 1, v, where)
+            for v, where in enumerate(find_objects(instances, max_label=values), start=1) if where is not None]
+    for k, v, where in sorted(seen):  # in track order, however the mask numbers them
+        if not 0 <= k < crops.tracks:
             continue
-        pixels[k] = np.count_nonzero(instances[where] == k + 1)
+        pixels[k] = np.count_nonzero(instances[where] == v)
         box = (float(where[1].start), float(where[0].start), float(where[1].stop), float(where[0].stop))
         affine = crop_affine(box, crops.height_px, crops.width_px)
         rgb = cv2.cvtColor(crop_image(bgr, affine, crops.height_px, crops.width_px), cv2.COLOR_BGR2RGB)
         # The labels are cut through the RGB's own map, so that both sample the same pixels.
-        mask = crop_image(instances, affine, crops.height_px, crops.width_px, nearest=True) == k + 1
+        mask = crop_image(instances, affine, crops.height_px, crops.width_px, nearest=True) == v
         crops.add(frame, k, np.asarray(rgb, np.uint8), mask, box_columns(box, float(pixels[k]), instances.shape))
     return pixels
 

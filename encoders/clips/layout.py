@@ -11,7 +11,7 @@ the names from here::
     CLIPS_DIR/logs/<log_id>/          each log's rendered arrays (:func:`rendered_log_dir`), below
 
 For a log with F frames (its annotation timestamps) :func:`encoders.clips.render.render_log` writes these
-arrays, each in zlib blocks of frames (:mod:`encoders.clips.blocks`, read by :func:`load_rendered_array`):
+arrays, each in zstd blocks of frames (:mod:`encoders.clips.blocks`, read by :func:`load_rendered_array`):
 
 ===========================  =====================  =========================================================
 file                         shape, dtype           content

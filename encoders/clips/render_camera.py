@@ -133,6 +133,7 @@ def render_camera(
     track_index = {str(t): i for i, t in enumerate(dense.track_ids)}
     lut: NDArray[np.uint16] | None = None
     lut_ids: list[str] | None = None
+    one_value_per_track = True
     for fi in np.flatnonzero(pick >= 0):
         ts = int(cam_ts[pick[fi]])
         try:
@@ -153,15 +154,22 @@ def render_camera(
         except LogFormatError:
             stats.corrupt_camera_frames.append(f"{cam.camera_name}{INSTANCE_SUFFIX}/{ts}.png")
             continue
-        top = int(full.max())
-        if lut is None or ids != lut_ids or top >= lut.shape[0]:
-            # Mask value v ↔ ids[v − 1] → this log's value 1 + index in track_ids (0 = unknown id or value).
-            lut = np.zeros(max(top, len(ids)) + 1, dtype=np.uint16)
+        if lut is None or ids != lut_ids:
+            # Mask value v ↔ ids[v − 1] → this log's value 1 + index in track_ids (0 = unknown id); the
+            # reader refuses values beyond ids.
+            lut = np.zeros(len(ids) + 1, dtype=np.uint16)
             lut[1 : len(ids) + 1] = [track_index.get(t, -1) + 1 for t in ids]
             lut_ids = ids
-        remapped = np.take(lut, full)  # several times faster than indexing ``lut[full]``
-        masks[fi] = cv2.resize(remapped, (cam.width_px, cam.height_px), interpolation=cv2.INTER_NEAREST)
-        counts[fi] = crop_instances(crops, int(fi), bgr, remapped)
+            named = lut[lut > 0]
+            one_value_per_track = np.unique(named).size == named.size
+        # Nearest-neighbour resizing picks pixels, so it commutes with the lookup: the small mask is remapped.
+        small = np.asarray(cv2.resize(full, (cam.width_px, cam.height_px), interpolation=cv2.INTER_NEAREST),
+                           dtype=np.uint16)
+        masks[fi] = np.take(lut, small)  # several times faster than indexing ``lut[small]``
+        if one_value_per_track:
+            counts[fi] = crop_instances(crops, int(fi), bgr, full, lut)
+        else:  # two mask values of one track: its box spans both
+            counts[fi] = crop_instances(crops, int(fi), bgr, np.take(lut, full))
     stats.camera_frames = int(frame_ok.sum())
     stats.camera_frames_missing = int(f - frame_ok.sum())
     if use_masks:

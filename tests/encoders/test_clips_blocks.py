@@ -49,6 +49,20 @@ def test_damaged_and_truncated_files_are_named(stored: tuple[np.ndarray, BlockAr
         BlockArray(path)
 
 
+def test_zlib_blocks_of_earlier_files_still_read(tmp_path: Path) -> None:
+    import json
+    import zlib
+
+    from encoders.clips.blocks import MAGIC
+
+    x = np.arange(20 * 6, dtype=np.uint16).reshape(20, 6)
+    blocks = [zlib.compress(x[i:i + 8].tobytes(), 1) for i in range(0, 20, 8)]
+    header = json.dumps({"dtype": x.dtype.str, "shape": list(x.shape), "block_frames": 8,
+                         "offsets": np.cumsum([0] + [len(b) for b in blocks]).tolist()}).encode()
+    (tmp_path / "x.blocks").write_bytes(MAGIC + len(header).to_bytes(4, "little") + header + b"".join(blocks))
+    assert np.array_equal(BlockArray(tmp_path / "x.blocks")[:], x)
+
+
 def test_a_block_is_decompressed_once_for_every_reader_of_its_file(tmp_path: Path,
                                                                  monkeypatch: pytest.MonkeyPatch) -> None:
     from encoders.clips import blocks as blocks_module
@@ -56,8 +70,9 @@ def test_a_block_is_decompressed_once_for_every_reader_of_its_file(tmp_path: Pat
     x = np.arange(24 * 6, dtype=np.uint8).reshape(24, 6)
     write_blocks(tmp_path / "x.blocks", x, block_frames=8)
     calls = []
-    real = blocks_module.zlib.decompress
-    monkeypatch.setattr(blocks_module.zlib, "decompress", lambda data: calls.append(1) or real(data))
+    real = blocks_module.BlockArray._decompress
+    monkeypatch.setattr(blocks_module.BlockArray, "_decompress",
+                        lambda self, *args: calls.append(1) or real(self, *args))
     for _ in range(3):  # a clip table reading windows of one log: each reader opens the file anew
         reader = BlockArray(tmp_path / "x.blocks")
         assert np.array_equal(reader[np.array([0, 9, 23, 1])], x[[0, 9, 23, 1]])

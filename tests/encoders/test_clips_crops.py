@@ -74,6 +74,20 @@ def test_instance_crops_show_each_object_in_the_middle_in_its_own_colours() -> N
     assert (mask[index[1, 1]] > 0).sum() < 1800
 
 
+def test_stored_mask_values_read_through_a_table_crop_as_the_remapped_mask() -> None:
+    bgr, labels = _scene()
+    stored = np.zeros_like(labels)  # the file's values: 3 = track 0, 1 = track 1, 2 = no track of the log
+    stored[labels == 1], stored[labels == 2] = 3, 1
+    stored[300:310, 600:610] = 2
+    track_of_value = np.array([0, 2, 0, 1], np.uint16)
+    by_table, remapped = (ObjectCrops(frames=1, tracks=3, height_px=HC, width_px=WC) for _ in range(2))
+    pixels = crop_instances(by_table, 0, bgr, stored, track_of_value)
+    np.testing.assert_array_equal(pixels, crop_instances(remapped, 0, bgr, np.take(track_of_value, stored)))
+    np.testing.assert_array_equal(pixels, [36, 1800, 0])
+    for a, b in zip(by_table.arrays(), remapped.arrays(), strict=True):
+        np.testing.assert_array_equal(a, b)
+
+
 def test_projected_crops_mask_the_box_hull_and_skip_hidden_tracks() -> None:
     bgr, _ = _scene()
     corners = np.zeros((2, 8, 2))

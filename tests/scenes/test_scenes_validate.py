@@ -414,11 +414,12 @@ def test_a_map_element_id_given_twice_is_refused(log_dir: Path) -> None:
     assert problem.path == map_path and "key '1' appears twice in one object" in problem.message
 
 
-def test_map_point_thousands_of_km_away_is_refused(log_dir: Path) -> None:
-    # 9,000 km away, inside the bound on city coordinates
-    map_path = _edit_map(log_dir, lambda d: _lane(d)["left_lane_boundary"][1].update(x=9.0e6))
+@pytest.mark.parametrize("side", ["left_lane_boundary", "right_lane_boundary"])
+def test_map_point_thousands_of_km_away_is_refused(log_dir: Path, side: str) -> None:
+    # 9,000 km away, inside the bound on city coordinates; named by its own polyline and row
+    map_path = _edit_map(log_dir, lambda d: _lane(d)[side][1].update(x=9.0e6))
     problem = _only(validate_log(log_dir).problems)
-    assert (problem.path, problem.row, problem.field) == (map_path, 1, "lane_segments[1].left_lane_boundary")
+    assert (problem.path, problem.row, problem.field) == (map_path, 1, f"lane_segments[1].{side}")
     assert "km from every ego pose" in problem.message
     with pytest.raises(LogFormatError, match="lane_segments"):
         _ = Log.open(log_dir).map

@@ -36,9 +36,9 @@ process with glibc's default malloc and in one with the settings of :mod:`scenes
 environment, as Ray workers and launched processes get them), wall seconds and their ratio.
 ``weight_layout``: the serial embedding's CPU seconds with the convolution weights channels-last, as
 :func:`encoders.inference.load_model` lays them out, and in torch's default layout (alternated, best of
-two each), and their ratio. ``read_ahead``: the serial embedding's CPU and wall seconds as the batches
-load (the next one assembled in a thread beside the model, on one torch thread less) and assembled in
-turn on every thread, as before (alternated, best of two each), and their ratios (> 1: cheaper now).
+two each), and their ratio. ``thread_spin``: the serial embedding in a fresh process with libgomp's
+default spin of idle threads and with the shorter one the commands set (:mod:`scenesearch_base.threads`),
+wall and CPU seconds (alternated, best of two each) and their ratios (> 1: cheaper with the short spin).
 ``load_average`` says how busy the machine was; other work on it slows the parallel runs most.
 """
 
@@ -179,6 +179,39 @@ def _embed_with_malloc(run_dir: Path, clips: Path) -> dict[str, float]:
     return out
 
 
+#: Embeds a clips folder serially in a fresh process; prints the wall and CPU seconds.
+_EMBED_CPU_CHILD = """
+import sys, time
+from retrieval.embedding import ModelEmbedder
+embedder = ModelEmbedder(sys.argv[1])
+_ = embedder.model
+start, cpu = time.perf_counter(), time.process_time()
+embedder.embed_clips(sys.argv[2], view="fused")
+print(time.perf_counter() - start, time.process_time() - cpu)
+"""
+
+
+def _thread_spin(run_dir: Path, clips: Path) -> dict[str, float]:
+    """The serial embedding in a fresh process with libgomp's default spin of idle threads (300,000
+    checks) and with :data:`scenesearch_base.threads.SPIN_COUNT`, alternated, best of two each: wall
+    and CPU seconds (the model loaded before timing) and their ratios."""
+    from scenesearch_base.threads import SPIN_COUNT, SPIN_VARIABLE
+
+    base = {k: v for k, v in os.environ.items() if k != SPIN_VARIABLE}
+    best = {name: (float("inf"), float("inf")) for name in ("default_spin", "short_spin")}
+    for _ in range(2):
+        for name, spin in (("default_spin", 300_000), ("short_spin", SPIN_COUNT)):
+            done = subprocess.run([sys.executable, "-c", _EMBED_CPU_CHILD, str(run_dir), str(clips)],
+                                  env=base | {SPIN_VARIABLE: str(spin)}, capture_output=True, text=True, check=True)
+            wall, cpu = (float(x) for x in done.stdout.strip().splitlines()[-1].split())
+            best[name] = (min(best[name][0], wall), min(best[name][1], cpu))
+    out = {f"{name}_{kind}_s": round(value[i], 2) for name, value in best.items()
+           for i, kind in enumerate(("wall", "cpu"))}
+    out["cpu_ratio"] = _ratio(best["default_spin"][1], best["short_spin"][1])
+    out["wall_ratio"] = _ratio(best["default_spin"][0], best["short_spin"][0])
+    return out
+
+
 def _weight_layout(run_dir: Path, clips: Path) -> dict[str, float]:
     """CPU seconds of embedding ``clips`` serially with channels-last convolution weights (as loaded)
     and with torch's default layout, alternated, best of two each (the model loaded before timing)."""
@@ -194,38 +227,6 @@ def _weight_layout(run_dir: Path, clips: Path) -> dict[str, float]:
             best[name] = min(best[name], _timed(partial(embedder.embed_clips, clips, view="fused"))[1])
     out = {name: round(value, 2) for name, value in best.items()}
     out["speedup"] = _ratio(best["default_layout_cpu_s"], best["channels_last_cpu_s"])
-    return out
-
-
-def _read_ahead(run_dir: Path, clips: Path) -> dict[str, float]:
-    """CPU and wall seconds of embedding ``clips`` serially as :func:`encoders.inference.batches` loads
-    them (the next batch assembled in a thread beside the model, on one torch thread less) and with
-    every batch assembled in turn on all torch threads, as before; alternated, best of two each."""
-    from torch.utils.data import DataLoader
-
-    import encoders.inference as inference
-    from retrieval.embedding import ModelEmbedder
-
-    def in_turn(dataset: Any, batch_size: int, num_workers: int = 0, pin_memory: bool = False) -> Iterator[Any]:
-        yield from DataLoader(dataset, batch_size=batch_size, shuffle=False, num_workers=num_workers,
-                              collate_fn=inference.collate, pin_memory=pin_memory)
-
-    reading = inference.batches
-    best = {name: (float("inf"), float("inf")) for name in ("read_ahead", "in_turn")}
-    try:
-        for _ in range(2):
-            for name in best:
-                inference.batches = reading if name == "read_ahead" else in_turn  # type: ignore[assignment]
-                embedder = ModelEmbedder(run_dir)
-                _ = embedder.model  # loaded here, not inside the timing
-                wall, cpu = _timed(partial(embedder.embed_clips, clips, view="fused"))
-                best[name] = (min(best[name][0], wall), min(best[name][1], cpu))
-    finally:
-        inference.batches = reading  # type: ignore[assignment]
-    out = {f"{name}_{kind}_s": round(value[i], 2) for name, value in best.items()
-           for i, kind in enumerate(("wall", "cpu"))}
-    out["cpu_ratio"] = _ratio(best["in_turn"][1], best["read_ahead"][1])
-    out["wall_ratio"] = _ratio(best["in_turn"][0], best["read_ahead"][0])
     return out
 
 
@@ -263,7 +264,7 @@ def run(quick: bool) -> dict[str, Any]:
     serial["embed"] = _timed(lambda: ModelEmbedder(run_dir).embed_clips(scratch / "clips_serial", view="fused"))
     memory = _embed_with_malloc(run_dir, scratch / "clips_serial")
     weight_layout = _weight_layout(run_dir, scratch / "clips_serial")
-    read_ahead = _read_ahead(run_dir, scratch / "clips_serial")
+    thread_spin = _thread_spin(run_dir, scratch / "clips_serial")
     ray_start_s = 0.0
     noop = 0.0
     overhead: list[tuple[float, float, float]] = []
@@ -339,7 +340,7 @@ def run(quick: bool) -> dict[str, Any]:
         cost["simulate"] = sim["log_s"] / max(sim["cpu_s"], 1e-9)
     figures["memory"] = memory
     figures["weight_layout"] = weight_layout
-    figures["read_ahead"] = read_ahead
+    figures["thread_spin"] = thread_spin
     figures["cost"] = {
         "log_s_per_cpu_s": {s: round(v, 2) for s, v in cost.items()},
         f"cpu_hours_for_{HOURS}_h": {s: round(HOURS / v, 1) for s, v in cost.items()},

@@ -17,6 +17,7 @@ from pathlib import Path
 
 from scenesearch_base.memory import retain_freed_memory
 from scenesearch_base.ray_cluster import usable_cpus
+from scenesearch_base.threads import shorten_thread_spin
 
 
 def discover() -> list[str]:
@@ -31,6 +32,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--quick", action="store_true", help="smaller sizes, for a smoke run")
     args = parser.parse_args(argv)
     retain_freed_memory()  # as the command line does: the benchmarks measure what its commands get
+    shorten_thread_spin()
     names = discover()
     if args.only:
         names = [n for n in names if n.removeprefix("bench_") in set(args.only)]

@@ -38,7 +38,6 @@ from encoders.sentence import evaluating, native_bfloat16
 from encoders.text import TEXT_CACHE_FILE
 from encoders.train_config import TrainConfig
 from scenesearch_base.atomic import atomic_write_text
-from scenesearch_base.read_ahead import read_ahead
 
 #: The run folder's record of the clips it was trained on (:func:`record_trained_clips`).
 TRAINED_CLIPS_FILE = "trained_clips.json"
@@ -173,24 +172,10 @@ def shuffle_time(batch: dict[str, Any], generator: torch.Generator | None = None
 def batches(dataset: Dataset[dict[str, Any]], batch_size: int, num_workers: int = 0,
             pin_memory: bool = False) -> Iterator[dict[str, Any]]:
     """The dataset's items in order, collated in batches of ``batch_size`` (in page-locked memory with
-    ``pin_memory``, so that copies to a GPU overlap the next batch's loading).
-
-    Without worker processes and with two or more torch threads, the next batch is assembled in a
-    thread beside the model, which runs on one thread less meanwhile: the same wall time for a sixth
-    less CPU time on 2 cores (docs/research/ingest-profile.md), as torch's idle threads no longer spin
-    while a batch is assembled. The embeddings are the same.
-    """
+    ``pin_memory``, so that copies to a GPU overlap the next batch's loading)."""
     loader = DataLoader(dataset, batch_size=batch_size, shuffle=False, num_workers=num_workers, collate_fn=collate,
                         pin_memory=pin_memory)
-    threads = torch.get_num_threads()
-    if num_workers > 0 or threads < 2:
-        yield from loader
-        return
-    torch.set_num_threads(threads - 1)
-    try:
-        yield from read_ahead(loader)
-    finally:
-        torch.set_num_threads(threads)
+    yield from loader
 
 
 def clip_autocast(device: torch.device) -> contextlib.AbstractContextManager[Any]:

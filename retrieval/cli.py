@@ -111,8 +111,10 @@ def _quiet_libraries() -> None:
 
 def main(argv: Sequence[str] | None = None) -> int:
     from scenesearch_base.memory import retain_freed_memory
+    from scenesearch_base.threads import shorten_thread_spin
 
     retain_freed_memory()  # every command moves large arrays: reuse freed memory (see scenesearch_base.memory)
+    shorten_thread_spin()  # before torch loads OpenMP: idle threads sleep early (scenesearch_base.threads)
     argv = list(sys.argv[1:] if argv is None else argv)
     parser = build_parser(_command_of(argv))
     args = parser.parse_args(argv)

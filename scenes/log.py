@@ -24,7 +24,7 @@ from scenes.calibration import Calibration
 from scenes.errors import LogFormatError, Problem, collect_problems
 from scenes.map import VectorMap
 from scenes.metadata import LogMetadata
-from scenes.sensors import LidarSweep, read_camera_frame, read_lidar_sweep, timestamps_in
+from scenes.sensors import LidarSweep, read_camera_frame, read_lidar_points, read_lidar_sweep, timestamps_in
 from scenes.tracks import Annotations, DenseTracks, EgoTrajectory, ObjectTrack, dense_tracks, tracks_from_annotations
 
 
@@ -136,6 +136,10 @@ class Log:
 
     def lidar_sweep(self, timestamp_ns: int) -> LidarSweep:
         return read_lidar_sweep(self.log_dir / av2_io.LIDAR_DIR / f"{int(timestamp_ns)}.feather")
+
+    def lidar_points(self, timestamp_ns: int) -> NDArray[np.float32]:
+        """(N, 3) the sweep's points in the ego frame, its other columns left unread."""
+        return read_lidar_points(self.log_dir / av2_io.LIDAR_DIR / f"{int(timestamp_ns)}.feather")
 
     def camera_frame(self, camera_name: str, timestamp_ns: int) -> NDArray[np.uint8]:
         """(H, W, 3) BGR image."""

@@ -79,14 +79,8 @@ OPTIONAL_INTRINSICS_COLUMNS: dict[str, str] = {"k1": "float", "k2": "float", "k3
 LIDAR_REQUIRED_COLUMNS: dict[str, str] = {"x": "float", "y": "float", "z": "float"}
 LIDAR_OPTIONAL_COLUMNS: dict[str, str] = {"intensity": "int", "laser_number": "int", "offset_ns": "int"}
 #: The Arrow types AV2 stores a sweep in, and the writer keeps (float16 metres in the ego frame).
-LIDAR_COLUMNS: dict[str, str] = {
-    "x": "halffloat",
-    "y": "halffloat",
-    "z": "halffloat",
-    "intensity": "uint8",
-    "laser_number": "uint8",
-    "offset_ns": "int32",
-}
+LIDAR_COLUMNS: dict[str, str] = {"x": "halffloat", "y": "halffloat", "z": "halffloat", "intensity": "uint8",
+                                 "laser_number": "uint8", "offset_ns": "int32"}
 
 #: A quaternion whose norm is further than this from 1 is not a rotation.
 QUAT_NORM_TOLERANCE = 1e-2
@@ -153,21 +147,29 @@ def check_columns(
     return problems
 
 
-def read_feather(path: Path, required: dict[str, str], optional: dict[str, str] | None = None) -> pa.Table:
-    """Read a feather table whose columns pass :func:`check_columns`.
+def read_feather(path: Path, required: dict[str, str], optional: dict[str, str] | None = None,
+                 only_required: bool = False) -> pa.Table:
+    """Read a feather table whose columns pass :func:`check_columns`; with ``only_required``, only the
+    required columns are read and checked (the others are neither decompressed nor converted).
 
     Raises:
         LogFormatError: the file is missing or unreadable, or its columns are wrong (each one named).
     """
     if not path.is_file():
         raise LogFormatError.single(path, why_not_a_file(path))
+    # Stages run in parallel across logs (a task per log), and a log's files are small (a LiDAR sweep, a
+    # log's annotations or poses): pyarrow's own threads would only add CPU time (a sweep reads in 0.5
+    # CPU-ms without them, 0.9 with them). A read of some columns fails on a column missing or named
+    # twice: the whole table is read then, so that the check below names it.
     try:
-        # Stages run in parallel across logs (a task per log), and a log's files are small (a LiDAR
-        # sweep, a log's annotations or poses): pyarrow's own threads would only add CPU time (a
-        # sweep reads in 0.5 CPU-ms without them, 0.9 with them).
-        table = feather.read_table(path, use_threads=False)
+        table = feather.read_table(path, columns=list(required), use_threads=False) if only_required else None
+    except (OSError, pa.ArrowException):
+        table = None
+    try:
+        table = feather.read_table(path, use_threads=False) if table is None else table
     except (OSError, pa.ArrowException) as exc:
         raise LogFormatError.single(path, f"unreadable feather file (truncated or corrupt?): {exc}") from exc
+    optional = None if only_required else optional
     problems = check_columns(path, table, required, optional)
     if problems:
         raise LogFormatError(problems)

@@ -52,17 +52,15 @@ def timestamps_in(folder: Path, suffix: str) -> NDArray[np.int64]:
     return np.array(sorted(stamps), dtype=np.int64)
 
 
+#: A sweep's coordinate columns.
+_XYZ = ("x", "y", "z")
+
+
 def read_lidar_sweep(path: Path) -> LidarSweep:
     """Read one sweep; raises :class:`LogFormatError` naming the file and field on bad content."""
     table = schema.read_feather(path, schema.LIDAR_REQUIRED_COLUMNS, schema.LIDAR_OPTIONAL_COLUMNS)
-    n = table.num_rows
-    xyz_by_axis = np.empty((3, n), dtype=np.float32)  # filled column by column, cast as it is copied
-    for i, c in enumerate(("x", "y", "z")):
-        xyz_by_axis[i] = table.column(c).to_numpy()
-    problems = schema.check_finite(path, dict(zip(("x", "y", "z"), xyz_by_axis, strict=True)))
-    if problems:
-        raise LogFormatError(problems)
-    xyz = xyz_by_axis.T
+    xyz = _points(path, table)
+    n = xyz.shape[0]
 
     def col(name: str, dtype: type, default: int = 0) -> Any:
         if name in table.column_names:
@@ -76,6 +74,24 @@ def read_lidar_sweep(path: Path) -> LidarSweep:
         laser_number=col("laser_number", np.uint8),
         offset_ns=col("offset_ns", np.int32),
     )
+
+
+def read_lidar_points(path: Path) -> NDArray[np.float32]:
+    """(N, 3) one sweep's points in the ego frame (as :attr:`LidarSweep.xyz_m`), reading only the x, y
+    and z columns: what a raster of the points needs, in about two thirds of the time of the whole
+    sweep. Raises :class:`LogFormatError` naming the file and field on bad content."""
+    return _points(path, schema.read_feather(path, schema.LIDAR_REQUIRED_COLUMNS, only_required=True))
+
+
+def _points(path: Path, table: Any) -> NDArray[np.float32]:
+    """(N, 3) the x, y, z columns of a sweep's table, finite, as a view of a (3, N) float32 array."""
+    xyz_by_axis = np.empty((3, table.num_rows), dtype=np.float32)  # filled column by column, cast as copied
+    for i, c in enumerate(_XYZ):
+        xyz_by_axis[i] = table.column(c).to_numpy()
+    problems = schema.check_finite(path, dict(zip(_XYZ, xyz_by_axis, strict=True)))
+    if problems:
+        raise LogFormatError(problems)
+    return xyz_by_axis.T
 
 
 #: A JPEG's first bytes, and its end-of-image marker, which writers may pad with a few bytes after it.

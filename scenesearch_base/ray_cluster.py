@@ -157,11 +157,14 @@ def _host_ips(host: str) -> set[str]:
 
 
 def _worker_env() -> dict[str, Any]:
-    """The job's runtime environment: workers reuse freed memory (see :mod:`scenesearch_base.memory`), on this
-    machine's runtime and on a cluster's nodes alike."""
+    """The job's runtime environment: workers reuse freed memory (see :mod:`scenesearch_base.memory`) and
+    their idle threads sleep early (:mod:`scenesearch_base.threads`), on this machine's runtime and on a
+    cluster's nodes alike."""
     from scenesearch_base.memory import malloc_tunables
+    from scenesearch_base.threads import thread_spin_env
 
-    return {"env_vars": {"GLIBC_TUNABLES": malloc_tunables(os.environ.get("GLIBC_TUNABLES", ""))}}
+    return {"env_vars": {"GLIBC_TUNABLES": malloc_tunables(os.environ.get("GLIBC_TUNABLES", "")),
+                         **thread_spin_env()}}
 
 
 @contextlib.contextmanager

@@ -89,7 +89,7 @@ def render_lidar_occupancy(
         """(3, N) the sweep's points as rows of coordinates, or None when it cannot be used."""
         if j not in cache:
             try:
-                xyz = log.lidar_sweep(int(sweep_ts[j])).xyz_m
+                xyz = log.lidar_points(int(sweep_ts[j]))
             except LogFormatError as exc:
                 stats.corrupt_sweeps.append(f"{int(sweep_ts[j])}.feather: {exc.problems[0].message}")
                 cache[j] = None

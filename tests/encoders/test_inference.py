@@ -106,30 +106,6 @@ def test_clips_loaded_in_worker_processes_embed_alike() -> None:
         np.testing.assert_array_equal(views_w[view], x)
 
 
-def test_batches_read_ahead_on_one_thread_less_and_give_the_threads_back() -> None:
-    from encoders.inference import batches
-    from tests.encoders.synthetic import SyntheticClipDataset, SyntheticSpec
-
-    ds = SyntheticClipDataset(7, spec=SyntheticSpec(frames=4, camera_hw=(32, 48), bev_hw=(32, 16)), seed=1)
-    threads = torch.get_num_threads()
-    torch.set_num_threads(2)
-    try:
-        seen_threads, ids = [], []
-        for batch in batches(ds, 3):
-            seen_threads.append(torch.get_num_threads())
-            ids += list(batch["clip_id"])
-        assert seen_threads == [1, 1, 1] and ids == [ds[i]["clip_id"] for i in range(7)]
-        assert torch.get_num_threads() == 2
-        stopped = batches(ds, 3)
-        next(stopped)
-        stopped.close()  # a consumer that stops early gives the threads back too
-        assert torch.get_num_threads() == 2
-        torch.set_num_threads(1)  # one thread: nothing beside it, batches assembled in turn
-        assert [torch.get_num_threads() for _ in batches(ds, 3)] == [1, 1, 1]
-    finally:
-        torch.set_num_threads(threads)
-
-
 @pytest.mark.parametrize("native", [True, False])
 def test_batches_of_clips_run_in_bfloat16_where_the_cpu_multiplies_it(monkeypatch: pytest.MonkeyPatch,
                                                                       native: bool) -> None:

@@ -110,6 +110,11 @@ def test_lidar_sweep_round_trip(tmp_path: Path) -> None:
     np.testing.assert_array_equal(back.intensity, sweep.intensity)
     np.testing.assert_array_equal(back.laser_number, sweep.laser_number)
     np.testing.assert_array_equal(back.offset_ns, sweep.offset_ns)
+    from scenes.sensors import read_lidar_points
+
+    points = read_lidar_points(path)
+    np.testing.assert_array_equal(points, back.xyz_m)
+    assert points.dtype == np.float32 and points.T.flags.c_contiguous  # (3, N) rows, as rasters read them
 
 
 def test_camera_frame_round_trip(tmp_path: Path) -> None:

@@ -19,7 +19,7 @@ from scenes.errors import LogFormatError, Problem, collect_problems
 from scenes.geometry import SE3, yaw_to_quat
 from scenes.log import Log
 from scenes.map import LaneSegment, VectorMap
-from scenes.sensors import LidarSweep, read_lidar_sweep
+from scenes.sensors import LidarSweep, read_lidar_points, read_lidar_sweep
 from scenes.tracks import Annotations, EgoTrajectory
 from scenes.validate import validate_log
 
@@ -247,11 +247,16 @@ def test_lidar_sweep_wrong_dtype(log_dir: Path) -> None:
     assert (problem.path, problem.field) == (_sweep_path(log_dir), "laser_number")
     with pytest.raises(LogFormatError, match="laser_number"):
         read_lidar_sweep(_sweep_path(log_dir))
+    # The points alone leave the other columns unread: the same points as the sweep's before the edit.
+    assert read_lidar_points(_sweep_path(log_dir)).shape == (50, 3)
 
 
 def test_lidar_sweep_missing_column_and_nan(log_dir: Path) -> None:
     _edit(_sweep_path(log_dir), lambda t: t.drop_columns(["y"]))
     assert _only(validate_log(log_dir).problems).field == "y"
+    with pytest.raises(LogFormatError) as info:
+        read_lidar_points(_sweep_path(log_dir))
+    assert [(p.field, p.message) for p in info.value.problems] == [("y", "missing column")]
 
     def with_nan(t: pa.Table) -> pa.Table:
         z = np.zeros(t.num_rows, np.float16)
@@ -264,6 +269,8 @@ def test_lidar_sweep_missing_column_and_nan(log_dir: Path) -> None:
     assert (problem.row, problem.field) == (11, "z")
     with pytest.raises(LogFormatError, match="row 11"):
         read_lidar_sweep(_sweep_path(log_dir))
+    with pytest.raises(LogFormatError, match="row 11"):
+        read_lidar_points(_sweep_path(log_dir))
 
 
 def test_lidar_sweep_reader_and_validate_name_every_bad_coordinate_column(log_dir: Path) -> None:

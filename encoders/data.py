@@ -62,9 +62,9 @@ from encoders.clips.views import (
     ego_motion,
     gather_cells,
     highlight_camera,
+    log_rates_and_velocity,
     object_crops,
     object_footprint,
-    object_rates_and_velocity,
     object_track,
     open_log_arrays,
     rotate_object_track,
@@ -166,7 +166,7 @@ class ClipDataset(torch.utils.data.Dataset[dict[str, Any]]):
         )
         self._grid = grid_from_manifest(self.manifest)
         self._arrays: dict[str, LogArrays] = {}
-        self._kinematics: dict[tuple[str, str], NDArray[np.float32]] = {}  # (log, track) → (F, 5), once per track
+        self._kinematics: dict[str, NDArray[np.float32]] = {}  # log → (K, F, 5), every track's, once per log
 
     # Memory maps are opened lazily in each process, never pickled to workers.
     def __getstate__(self) -> dict[str, Any]:
@@ -202,14 +202,14 @@ class ClipDataset(torch.utils.data.Dataset[dict[str, Any]]):
             self._arrays[log_id] = arrays
         return arrays
 
-    def _track_kinematics(self, log_id: str, track_id: str, arrays: LogArrays, value: int) -> NDArray[np.float32]:
-        """(F, 5) :func:`object_rates_and_velocity` of the track over the whole log, computed once per track."""
-        kinematics = self._kinematics.get((log_id, track_id))
+    def _track_kinematics(self, log_id: str, arrays: LogArrays, value: int) -> NDArray[np.float32]:
+        """(F, 5) :func:`object_rates_and_velocity` of the track over the whole log; a log's tracks are
+        computed together, once (:func:`log_rates_and_velocity`)."""
+        kinematics = self._kinematics.get(log_id)
         if kinematics is None:
-            kinematics = object_rates_and_velocity(arrays.track_boxes[:, value - 1], arrays.pose_xy_yaw,
-                                                   arrays.time_s)
-            self._kinematics[(log_id, track_id)] = kinematics
-        return kinematics
+            kinematics = log_rates_and_velocity(arrays.track_boxes[:], arrays.pose_xy_yaw, arrays.time_s)
+            self._kinematics[log_id] = kinematics
+        return kinematics[value - 1]
 
     def _view_shapes(self, index: int) -> dict[str, tuple[int, ...]]:
         """Per-item shapes of the image-like views (all clips share T)."""
@@ -329,7 +329,7 @@ class ClipDataset(torch.utils.data.Dataset[dict[str, Any]]):
         obj *= np.uint8(255)
         motion_out[:] = ego_motion(arrays.pose_xy_yaw, arrays.speed_mps, fi, arrays.accel_mps2, arrays.yaw_rate_rps)
         track_out[:] = object_track(arrays.track_boxes[fi, value - 1], motion_out)
-        rates_and_velocity = self._track_kinematics(row.log_id, row.track_id, arrays, value)[fi]  # (T, 5)
+        rates_and_velocity = self._track_kinematics(row.log_id, arrays, value)[fi]  # (T, 5)
         rates_out[:] = rates_and_velocity[:, : len(OBJECT_RATES_COLUMNS)]
         velocity_out[:] = rates_and_velocity[:, len(OBJECT_RATES_COLUMNS):]
         if rng is None:

@@ -144,17 +144,31 @@ def object_rates_and_velocity(box_xy_lw_yaw: NDArray[np.floating], pose_xy_yaw: 
         pose_xy_yaw: (F, 3) the ego's pose in the city frame.
         time_s: (F,) the log frames' times.
     """
-    boxes = np.asarray(box_xy_lw_yaw, dtype=np.float64)
-    f = boxes.shape[0]
-    valid: NDArray[np.bool_] = np.asarray(np.isfinite(boxes).all(axis=1), dtype=bool)
+    return log_rates_and_velocity(np.asarray(box_xy_lw_yaw)[:, None], pose_xy_yaw, time_s)[0]
+
+
+def log_rates_and_velocity(track_boxes: NDArray[np.floating], pose_xy_yaw: NDArray[np.float64],
+                           time_s: NDArray[np.float64]) -> NDArray[np.float32]:
+    """(K, F, 5) :func:`object_rates_and_velocity` of every track of a log at once: the rules' kinematics
+    run on all tracks in one vectorised pass, about ten times faster than track by track, with the same
+    values.
+
+    Args:
+        track_boxes: (F, K, 5) each track's box in each log frame's ego frame, NaN where unobserved
+            (the clips folder's ``track_boxes``).
+        pose_xy_yaw: (F, 3) the ego's pose in the city frame.
+        time_s: (F,) the log frames' times.
+    """
+    boxes = np.asarray(track_boxes, dtype=np.float64).transpose(1, 0, 2)  # (K, F, 5)
+    k, f = boxes.shape[:2]
+    valid: NDArray[np.bool_] = np.asarray(np.isfinite(boxes).all(axis=2), dtype=bool)
     if f < 2 or not valid.any():
-        return np.zeros((f, len(TRACK_KINEMATICS_COLUMNS)), np.float32)
+        return np.zeros((k, f, len(TRACK_KINEMATICS_COLUMNS)), np.float32)
     city_SE3_ego = batch_matrices(yaw_to_rotmat(pose_xy_yaw[:, 2]), np.c_[pose_xy_yaw[:, :2], np.zeros(f)])
     timestamps_ns = np.round((time_s - time_s[0]) * 1e9).astype(np.int64)
     boxes = np.nan_to_num(boxes)
-    kin = track_kinematics(timestamps_ns, valid[None], boxes[None, :, :2], boxes[None, :, 4], city_SE3_ego,
-                           CaptioningConfig())[0]  # (F, 5)
-    return np.nan_to_num(kin).astype(np.float32)
+    kin = track_kinematics(timestamps_ns, valid, boxes[..., :2], boxes[..., 4], city_SE3_ego, CaptioningConfig())
+    return np.nan_to_num(kin).astype(np.float32)  # (K, F, 5)
 
 
 def object_footprint(

@@ -127,3 +127,24 @@ def test_object_rates_and_velocity_are_what_the_rules_threshold() -> None:
                            np.nan_to_num(boxes[None, :, 4]), city_SE3_ego, CaptioningConfig())[0]
     np.testing.assert_allclose(both, np.nan_to_num(kin), atol=1e-4)
     assert object_rates_and_velocity(np.full((5, 5), np.nan), ego[:5], t_s[:5]).tolist() == [[0.0] * 5] * 5
+
+
+def test_a_logs_tracks_together_get_each_tracks_own_kinematics() -> None:
+    """Every track of a log in one pass gives, bit for bit, what each track gives alone; a track never
+    observed, and a log of one frame, give zeros."""
+    from encoders.clips.views import log_rates_and_velocity, object_rates_and_velocity
+
+    rng = np.random.default_rng(4)
+    t_s = np.arange(60) * 0.1
+    ego = _arc(t_s, np.full(60, 8.0), 0.05)
+    tracks = np.full((60, 4, 5), np.nan, np.float32)  # (F, K, 5)
+    for k, (start, stop) in enumerate([(0, 60), (5, 40), (30, 58)]):
+        n = stop - start
+        tracks[start:stop, k] = np.c_[np.cumsum(rng.normal(0.3, 0.05, n)) + 5 * k, rng.normal(2.0 * k, 0.05, n),
+                                      np.full(n, 4.5), np.full(n, 1.9), rng.normal(0.0, 0.02, n)]
+    together = log_rates_and_velocity(tracks, ego, t_s)
+    assert together.shape == (4, 60, 5) and together.dtype == np.float32
+    for k in range(4):
+        np.testing.assert_array_equal(together[k], object_rates_and_velocity(tracks[:, k], ego, t_s))
+    assert not together[3].any() and together[0].any()
+    assert log_rates_and_velocity(tracks[:1], ego[:1], t_s[:1]).shape == (4, 1, 5)

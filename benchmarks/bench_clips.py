@@ -270,6 +270,26 @@ def _block_codec(clips_dir: Path) -> dict[str, Any]:
             "size_ratio": round(new["mb"] / max(old["mb"], 1e-9), 3)}
 
 
+def _track_kinematics(clips_dir: Path) -> dict[str, Any]:
+    """:func:`encoders.clips.views.log_rates_and_velocity` against the same kinematics track by track."""
+    from encoders.clips.views import log_rates_and_velocity, object_rates_and_velocity, open_log_arrays
+
+    logs = [open_log_arrays(clips_dir, p.name) for p in sorted((clips_dir / "logs").iterdir()) if p.is_dir()]
+    inputs = [(np.asarray(a.track_boxes[:]), a.pose_xy_yaw, a.time_s) for a in logs]
+    start = time.process_time()
+    together = [log_rates_and_velocity(*x) for x in inputs]
+    log_s = time.process_time() - start
+    start = time.process_time()
+    alone = [np.stack([object_rates_and_velocity(boxes[:, k], pose, t) for k in range(boxes.shape[1])])
+             for boxes, pose, t in inputs]
+    track_s = time.process_time() - start
+    tracks = sum(boxes.shape[1] for boxes, _, _ in inputs)
+    return {"tracks": tracks, "per_log_ms_per_track": round(1e3 * log_s / max(tracks, 1), 3),
+            "per_track_ms_per_track": round(1e3 * track_s / max(tracks, 1), 3),
+            "speedup": round(track_s / max(log_s, 1e-9), 2),
+            "equal": all(np.array_equal(a, b) for a, b in zip(together, alone, strict=True))}
+
+
 def run(quick: bool) -> dict[str, Any]:
     from encoders.clips.build import build_clips
     from encoders.clips.config import ClipsConfig
@@ -309,6 +329,7 @@ def run(quick: bool) -> dict[str, Any]:
     naive = _naive_clips_per_s(logs, clips_dir, config, 4 if quick else 8)
     lidar_counting = _lidar_counting(logs, config, 40 if quick else 200)
     block_codec = _block_codec(clips_dir)
+    track_kinematics = _track_kinematics(clips_dir)
     import torch
 
     threads = torch.get_num_threads()
@@ -357,6 +378,7 @@ def run(quick: bool) -> dict[str, Any]:
         "kb_per_preview": round(preview_bytes / max(len(rows), 1) / 1e3, 1),
         "lidar_counting": lidar_counting,
         "block_codec": block_codec,
+        "track_kinematics": track_kinematics,
         "cpus": usable_cpus(),
     }
 

@@ -78,8 +78,8 @@ def read_lidar_sweep(path: Path) -> LidarSweep:
 
 def read_lidar_points(path: Path) -> NDArray[np.float32]:
     """(N, 3) one sweep's points in the ego frame (as :attr:`LidarSweep.xyz_m`), reading only the x, y
-    and z columns: what a raster of the points needs, in about two thirds of the time of the whole
-    sweep. Raises :class:`LogFormatError` naming the file and field on bad content."""
+    and z columns: what a raster of the points needs, without decompressing the others. Raises
+    :class:`LogFormatError` naming the file and field on bad content."""
     return _points(path, schema.read_feather(path, schema.LIDAR_REQUIRED_COLUMNS, only_required=True))
 
 

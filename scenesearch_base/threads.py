@@ -4,9 +4,9 @@ torch (and faiss) run their parallel loops on a GNU OpenMP thread pool. After ea
 idle threads spin for ``GOMP_SPINCOUNT`` checks (300,000 by default) before they sleep, so every
 gap between two loops (assembling the next batch of clips, Python between a model's layers) burns
 a whole core while the main thread works alone. With 10,000 checks, the threads still catch the
-next loop of a running model, and sleep through the gaps: on 2 cores, embedding a clips folder took
-7 % less CPU in the same wall time and a training step 6 % less CPU, 2 % less wall
-(docs/research/ingest-profile.md). Results do not change: only how threads wait does.
+next loop of a running model, and sleep through the gaps: less CPU for the same wall time
+(docs/research/ingest-profile.md, "Cheaper blocks, reads and idle threads"). Results do not change:
+only how threads wait does.
 
 libgomp reads the setting once, when it is loaded (with torch's first import), so the command
 line's ``main`` and the benchmarks call :func:`shorten_thread_spin` first; the processes they

@@ -9,8 +9,8 @@ and a read decompresses only the blocks it touches. Decoded blocks are kept per 
 many times over (a clip's 12 frames spread over a window of up to the whole log), and an index build
 decompressed each block about eight times before the cache was shared.
 
-Blocks are zstd (level 3, pyarrow's codec): as small as zlib's level 1 on rendered logs, written 2.7
-times and read 2.4 times faster (docs/research/ingest-profile.md). zstd frames carry no checksum, so
+Blocks are zstd (level 3, pyarrow's codec): about as small as zlib's level 1 on rendered logs, and
+several times cheaper to write and read (docs/research/ingest-profile.md). zstd frames carry no checksum, so
 the header keeps each compressed block's CRC-32 and a damaged block is refused, never read as other
 values. Files written with zlib blocks (no ``codec`` in the header) still read.
 

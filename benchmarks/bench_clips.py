@@ -211,7 +211,7 @@ def _lidar_counting(logs: list[Path], config: Any, max_frames: int) -> dict[str,
             clouds = []
             for jj in range(j, max(j - b.num_sweeps, -1), -1):
                 if jj not in points:
-                    points[jj] = np.ascontiguousarray(log.lidar_sweep(int(sweep_ts[jj])).xyz_m.T)
+                    points[jj] = np.ascontiguousarray(log.lidar_points(int(sweep_ts[jj])).T)
                 clouds.append((points[jj], ego_SE3_city[fi] @ city_SE3_sweep[jj]))
             frames.append(clouds)
             if len(frames) >= max_frames:

@@ -264,33 +264,31 @@ def _means(per_query: Mapping[str, Mapping[str, float]]) -> dict[str, float]:
     return means
 
 
+#: Every set of sentences, by its name in the results: the one not tuned on first.
+SETS: dict[str, dict[str, Judge]] = {
+    "held_out": HELD_OUT, "fifth_held_out": FIFTH_HELD_OUT, "fourth_held_out": FOURTH_HELD_OUT,
+    "third_held_out": THIRD_HELD_OUT, "second_held_out": SECOND_HELD_OUT, "first_held_out": FIRST_HELD_OUT,
+    "dev": DEV,
+}
+
+
+def _evaluate_sets(index: Path) -> dict[str, dict[str, Any]]:
+    """Each of :data:`SETS` on ``index``: its mean figures and per sentence."""
+    return {name: {"mean": _means(per_query), "per_query": per_query}
+            for name, per_query in ((name, evaluate(index, queries)) for name, queries in SETS.items())}
+
+
 def run(quick: bool = False) -> dict[str, Any]:
     demo = Path(os.environ.get("SCENESEARCH_DEMO_DIR", "demo_out"))
     index = demo / "index"
     if not (index / "manifest.json").is_file():
         return {"skipped": f"no demo index at {index}: run `make demo` (or set SCENESEARCH_DEMO_DIR) first"}
-    dev, first, held = evaluate(index, DEV), evaluate(index, FIRST_HELD_OUT), evaluate(index, HELD_OUT)
-    second, third = evaluate(index, SECOND_HELD_OUT), evaluate(index, THIRD_HELD_OUT)
-    fourth, fifth = evaluate(index, FOURTH_HELD_OUT), evaluate(index, FIFTH_HELD_OUT)
-    out: dict[str, Any] = {
-        "index": str(index), "k": K, "held_out": {"mean": _means(held), "per_query": held},
-        "fifth_held_out": {"mean": _means(fifth), "per_query": fifth},
-        "fourth_held_out": {"mean": _means(fourth), "per_query": fourth},
-        "third_held_out": {"mean": _means(third), "per_query": third},
-        "second_held_out": {"mean": _means(second), "per_query": second},
-        "first_held_out": {"mean": _means(first), "per_query": first},
-        "dev": {"mean": _means(dev), "per_query": dev}}
+    out: dict[str, Any] = {"index": str(index), "k": K, **_evaluate_sets(index)}
     if not quick:  # the larger split, where most sentences have 10 relevant clips or more
         from benchmarks.everyday_data import build_split
 
         start = time.perf_counter()
         large = build_split(demo)
         build_s = time.perf_counter() - start
-        sets = {"held_out": HELD_OUT, "fifth_held_out": FIFTH_HELD_OUT, "fourth_held_out": FOURTH_HELD_OUT,
-                "third_held_out": THIRD_HELD_OUT,
-                "second_held_out": SECOND_HELD_OUT,
-                "first_held_out": FIRST_HELD_OUT, "dev": DEV}
-        out["large_split"] = {"index": str(large), "build_seconds": round(build_s, 1), **{
-            name: {"mean": _means(per_query), "per_query": per_query}
-            for name, per_query in ((n, evaluate(large, q)) for n, q in sets.items())}}
+        out["large_split"] = {"index": str(large), "build_seconds": round(build_s, 1), **_evaluate_sets(large)}
     return out

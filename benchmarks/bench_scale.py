@@ -33,7 +33,8 @@ stored preview per clip, measured in the same run (``clips_stored_previews``,
 ``log_to_index_stored_previews``: what the command did by default before previews were drawn when
 shown), and the CPU-hours 10,000 hours of logs take. ``memory``: the serial embedding again, in a fresh
 process with glibc's default malloc and in one with the settings of :mod:`scenesearch_base.memory` (from its
-environment, as Ray workers and launched processes get them), wall seconds and their ratio.
+environment, as Ray workers and launched processes get them), wall seconds (the model loaded before
+timing) and their ratio.
 ``weight_layout``: the serial embedding's CPU seconds with the convolution weights channels-last, as
 :func:`encoders.inference.load_model` lays them out, and in torch's default layout (alternated, best of
 two each), and their ratio. ``thread_spin``: the serial embedding in a fresh process with libgomp's
@@ -154,14 +155,25 @@ def _threads(n: int) -> Iterator[None]:
         torch.set_num_threads(before)
 
 
-#: Embeds a clips folder serially in a fresh process; prints the wall seconds.
+#: Embeds a clips folder serially in a fresh process, the model loaded first; prints the embedding's
+#: wall and CPU seconds.
 _EMBED_CHILD = """
 import sys, time
 from retrieval.embedding import ModelEmbedder
-start = time.perf_counter()
-ModelEmbedder(sys.argv[1]).embed_clips(sys.argv[2], view="fused")
-print(time.perf_counter() - start)
+embedder = ModelEmbedder(sys.argv[1])
+_ = embedder.model
+start, cpu = time.perf_counter(), time.process_time()
+embedder.embed_clips(sys.argv[2], view="fused")
+print(time.perf_counter() - start, time.process_time() - cpu)
 """
+
+
+def _embed_in_child(run_dir: Path, clips: Path, env: dict[str, str]) -> tuple[float, float]:
+    """(wall, CPU) seconds of :data:`_EMBED_CHILD` run in a fresh process with ``env``."""
+    done = subprocess.run([sys.executable, "-c", _EMBED_CHILD, str(run_dir), str(clips)], env=env,
+                          capture_output=True, text=True, check=True)
+    wall, cpu = (float(x) for x in done.stdout.strip().splitlines()[-1].split())
+    return wall, cpu
 
 
 def _embed_with_malloc(run_dir: Path, clips: Path) -> dict[str, float]:
@@ -172,23 +184,9 @@ def _embed_with_malloc(run_dir: Path, clips: Path) -> dict[str, float]:
     base = {k: v for k, v in os.environ.items() if k != "GLIBC_TUNABLES"}
     out: dict[str, float] = {}
     for name, env in (("default_malloc_s", base), ("kept_memory_s", base | {"GLIBC_TUNABLES": malloc_tunables()})):
-        done = subprocess.run([sys.executable, "-c", _EMBED_CHILD, str(run_dir), str(clips)], env=env,
-                              capture_output=True, text=True, check=True)
-        out[name] = round(float(done.stdout.strip().splitlines()[-1]), 2)
+        out[name] = round(_embed_in_child(run_dir, clips, env)[0], 2)
     out["speedup"] = _ratio(out["default_malloc_s"], out["kept_memory_s"])
     return out
-
-
-#: Embeds a clips folder serially in a fresh process; prints the wall and CPU seconds.
-_EMBED_CPU_CHILD = """
-import sys, time
-from retrieval.embedding import ModelEmbedder
-embedder = ModelEmbedder(sys.argv[1])
-_ = embedder.model
-start, cpu = time.perf_counter(), time.process_time()
-embedder.embed_clips(sys.argv[2], view="fused")
-print(time.perf_counter() - start, time.process_time() - cpu)
-"""
 
 
 def _thread_spin(run_dir: Path, clips: Path) -> dict[str, float]:
@@ -201,9 +199,7 @@ def _thread_spin(run_dir: Path, clips: Path) -> dict[str, float]:
     best = {name: (float("inf"), float("inf")) for name in ("default_spin", "short_spin")}
     for _ in range(2):
         for name, spin in (("default_spin", 300_000), ("short_spin", SPIN_COUNT)):
-            done = subprocess.run([sys.executable, "-c", _EMBED_CPU_CHILD, str(run_dir), str(clips)],
-                                  env=base | {SPIN_VARIABLE: str(spin)}, capture_output=True, text=True, check=True)
-            wall, cpu = (float(x) for x in done.stdout.strip().splitlines()[-1].split())
+            wall, cpu = _embed_in_child(run_dir, clips, base | {SPIN_VARIABLE: str(spin)})
             best[name] = (min(best[name][0], wall), min(best[name][1], cpu))
     out = {f"{name}_{kind}_s": round(value[i], 2) for name, value in best.items()
            for i, kind in enumerate(("wall", "cpu"))}

@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pyarrow as pa
 from numpy.typing import NDArray
 
 from scenes import schema
@@ -83,7 +84,7 @@ def read_lidar_points(path: Path) -> NDArray[np.float32]:
     return _points(path, schema.read_feather(path, schema.LIDAR_REQUIRED_COLUMNS, only_required=True))
 
 
-def _points(path: Path, table: Any) -> NDArray[np.float32]:
+def _points(path: Path, table: pa.Table) -> NDArray[np.float32]:
     """(N, 3) the x, y, z columns of a sweep's table, finite, as a view of a (3, N) float32 array."""
     xyz_by_axis = np.empty((3, table.num_rows), dtype=np.float32)  # filled column by column, cast as copied
     for i, c in enumerate(_XYZ):

@@ -108,7 +108,7 @@ class ObjectCrops:
 
 
 def crop_instances(crops: ObjectCrops, frame: int, bgr: NDArray[np.uint8], instances: NDArray[np.uint16],
-                   track_of_value: NDArray[np.uint16] | None = None) -> NDArray[np.int32]:
+                   track_of_value: NDArray[np.uint16]) -> NDArray[np.int32]:
     """Cut every track seen in a full-resolution instance mask, and count each track's pixels.
 
     The pixels are counted inside each track's own bounding box, found in the same pass over the
@@ -121,9 +121,9 @@ def crop_instances(crops: ObjectCrops, frame: int, bgr: NDArray[np.uint8], insta
         crops: receives the crops.
         frame: the frame's index.
         bgr: (H, W, 3) the full-resolution image (OpenCV's BGR).
-        instances: (H, W) instance values at full resolution.
-        track_of_value: (V,) mask value v → 1 + its track's index (0: no track); no two values may
-            name the same track. None: value v ≥ 1 is track v − 1.
+        instances: (H, W) instance values at full resolution, each below ``len(track_of_value)``.
+        track_of_value: (V,) mask value v → 1 + its track's index (0: no track of the log); no two
+            values name the same track.
 
     Returns:
         (K,) int32 each track's pixels in ``instances``.
@@ -131,10 +131,10 @@ def crop_instances(crops: ObjectCrops, frame: int, bgr: NDArray[np.uint8], insta
     from scipy.ndimage import find_objects
 
     pixels = np.zeros(crops.tracks, np.int32)
-    values = crops.tracks if track_of_value is None else track_of_value.shape[0] - 1
-    seen = [(v - 1 if track_of_value is None else int(track_of_value[v]) - 1, v, where)
-            for v, where in enumerate(find_objects(instances, max_label=values), start=1) if where is not None]
-    for k, v, where in sorted(seen):  # in track order, however the mask numbers them
+    found = find_objects(instances, max_label=track_of_value.shape[0] - 1)
+    seen = sorted((int(track_of_value[v]) - 1, v, where) for v, where in enumerate(found, start=1)
+            if where is not None)
+    for k, v, where in seen:  # in track order, however the mask numbers them
         if not 0 <= k < crops.tracks:
             continue
         pixels[k] = np.count_nonzero(instances[where] == v)

@@ -4,6 +4,7 @@ track's crop at full resolution (:mod:`encoders.clips.crops`)."""
 
 from __future__ import annotations
 
+import contextlib
 from dataclasses import dataclass
 
 import cv2
@@ -16,7 +17,7 @@ from encoders.clips.render_stats import LogRenderStats
 from scenes import av2_io
 from scenes.errors import LogFormatError
 from scenes.log import INSTANCE_SUFFIX, Log
-from scenes.sensorsim.instance_masks import read_instance_mask
+from scenes.sensorsim.instance_masks import read_instance_mask, read_instance_track_ids
 from scenes.tracks import DenseTracks
 
 
@@ -130,10 +131,14 @@ def render_camera(
     # cropped while it is read; a frame whose image turns out unreadable is cleared after (it has no crops).
     projected = None if use_masks else project_masks(log, config, dense, pick >= 0)
     frame_ok = np.zeros(f, dtype=bool)
+    mask_track_ids: list[str] | None = None
+    if use_masks:
+        with contextlib.suppress(LogFormatError):  # a list that cannot be read: each frame's read names it
+            mask_track_ids = read_instance_track_ids(log.log_dir)
     track_index = {str(t): i for i, t in enumerate(dense.track_ids)}
-    lut: NDArray[np.uint16] | None = None
-    lut_ids: list[str] | None = None
-    one_value_per_track = True
+    # Mask value v ↔ mask_track_ids[v − 1] → this log's value 1 + index in track_ids (0: an id not among
+    # them); the reader refuses values beyond the list, and ids listed twice.
+    lut = np.array([0, *(track_index.get(t, -1) + 1 for t in mask_track_ids or ())], dtype=np.uint16)
     for fi in np.flatnonzero(pick >= 0):
         ts = int(cam_ts[pick[fi]])
         try:
@@ -150,26 +155,15 @@ def render_camera(
         if not use_masks:
             continue
         try:
-            full, ids = read_instance_mask(log.log_dir, cam.camera_name, ts)
+            full, _ = read_instance_mask(log.log_dir, cam.camera_name, ts, mask_track_ids)
         except LogFormatError:
             stats.corrupt_camera_frames.append(f"{cam.camera_name}{INSTANCE_SUFFIX}/{ts}.png")
             continue
-        if lut is None or ids != lut_ids:
-            # Mask value v ↔ ids[v − 1] → this log's value 1 + index in track_ids (0 = unknown id); the
-            # reader refuses values beyond ids.
-            lut = np.zeros(len(ids) + 1, dtype=np.uint16)
-            lut[1 : len(ids) + 1] = [track_index.get(t, -1) + 1 for t in ids]
-            lut_ids = ids
-            named = lut[lut > 0]
-            one_value_per_track = np.unique(named).size == named.size
         # Nearest-neighbour resizing picks pixels, so it commutes with the lookup: the small mask is remapped.
         small = np.asarray(cv2.resize(full, (cam.width_px, cam.height_px), interpolation=cv2.INTER_NEAREST),
                            dtype=np.uint16)
         masks[fi] = np.take(lut, small)  # several times faster than indexing ``lut[small]``
-        if one_value_per_track:
-            counts[fi] = crop_instances(crops, int(fi), bgr, full, lut)
-        else:  # two mask values of one track: its box spans both
-            counts[fi] = crop_instances(crops, int(fi), bgr, np.take(lut, full))
+        counts[fi] = crop_instances(crops, int(fi), bgr, full, lut)
     stats.camera_frames = int(frame_ok.sum())
     stats.camera_frames_missing = int(f - frame_ok.sum())
     if use_masks:

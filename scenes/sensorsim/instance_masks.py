@@ -69,13 +69,19 @@ def read_instance_track_ids(log_dir: Path | str) -> list[str]:
         raise LogFormatError.single(path, f"unreadable JSON: {exc}") from exc
     if not isinstance(data, list) or not all(isinstance(t, str) for t in data):
         raise LogFormatError.single(path, "expected a JSON list of track id strings")
+    first: dict[str, int] = {}
+    for row, track_id in enumerate(data):  # two mask values would name one track
+        if first.setdefault(track_id, row) != row:
+            raise LogFormatError.single(path, f"track id {track_id!r} is listed twice (first at row {first[track_id]})",
+                                        field="track_id", row=row)
     return data
 
 
 def read_instance_mask(
-    log_dir: Path | str, camera_name: str, timestamp_ns: int
+    log_dir: Path | str, camera_name: str, timestamp_ns: int, track_ids: list[str] | None = None
 ) -> tuple[NDArray[np.uint16], list[str]]:
-    """One frame's instance mask and the track list it indexes.
+    """One frame's instance mask and the track list it indexes (``track_ids``, when the caller read it
+    already with :func:`read_instance_track_ids`: a log's frames share one list).
 
     Returns:
         (H, W) uint16 mask (0 background, v ≥ 1 the track ``track_ids[v − 1]``) and ``track_ids``.
@@ -84,7 +90,7 @@ def read_instance_mask(
         LogFormatError: naming the file when the mask or the track list is missing, unreadable, or
             holds a value beyond the track list.
     """
-    track_ids = read_instance_track_ids(log_dir)
+    track_ids = read_instance_track_ids(log_dir) if track_ids is None else track_ids
     path = instance_mask_path(log_dir, camera_name, timestamp_ns)
     if not path.is_file():
         raise LogFormatError.single(path, "file is missing")

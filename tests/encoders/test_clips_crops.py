@@ -53,7 +53,7 @@ def test_instance_crops_show_each_object_in_the_middle_in_its_own_colours() -> N
     bgr, labels = _scene()
     crops = ObjectCrops(frames=3, tracks=3, height_px=HC, width_px=WC)
     labels[300:310, 600:610] = 7  # a value beyond the log's tracks: neither counted nor cropped
-    pixels = crop_instances(crops, 1, bgr, labels)
+    pixels = crop_instances(crops, 1, bgr, labels, np.arange(8, dtype=np.uint16))  # value v: track v − 1
     np.testing.assert_array_equal(pixels, np.bincount(labels.ravel(), minlength=8)[1:4])
     rgb, mask, index, box = crops.arrays()
     assert rgb.shape == (2, HC, WC, 3) and mask.shape == (2, HC, WC) and index.shape == (3, 3)
@@ -82,7 +82,8 @@ def test_stored_mask_values_read_through_a_table_crop_as_the_remapped_mask() -> 
     track_of_value = np.array([0, 2, 0, 1], np.uint16)
     by_table, remapped = (ObjectCrops(frames=1, tracks=3, height_px=HC, width_px=WC) for _ in range(2))
     pixels = crop_instances(by_table, 0, bgr, stored, track_of_value)
-    np.testing.assert_array_equal(pixels, crop_instances(remapped, 0, bgr, np.take(track_of_value, stored)))
+    np.testing.assert_array_equal(pixels, crop_instances(remapped, 0, bgr, np.take(track_of_value, stored),
+                                                         np.arange(4, dtype=np.uint16)))
     np.testing.assert_array_equal(pixels, [36, 1800, 0])
     for a, b in zip(by_table.arrays(), remapped.arrays(), strict=True):
         np.testing.assert_array_equal(a, b)

@@ -189,8 +189,15 @@ class _Groups:
         return _Groups(offsets, np.asarray([pos[t] for g in groups for t in g], dtype=np.int64))
 
     def best(self, per_text: np.ndarray) -> np.ndarray:
-        """(N,) the best score among each row's texts, given (M,) scores of all texts."""
-        return np.asarray(np.maximum.reduceat(per_text[self.indices], self.offsets[:-1]))
+        """(..., N) the best score among each row's texts, given (..., M) scores of all texts."""
+        return np.asarray(np.maximum.reduceat(per_text[..., self.indices], self.offsets[:-1], axis=-1))
+
+    def of_rows(self, rows: np.ndarray) -> _Groups:
+        """The groups of rows ``rows`` (n,) alone, in that order (every row has at least one text)."""
+        counts = self.offsets[rows + 1] - self.offsets[rows]
+        offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+        source = np.repeat(self.offsets[rows] - offsets[:-1], counts) + np.arange(offsets[-1])  # (V_n,)
+        return _Groups(offsets, self.indices[source])
 
 
 def _read_parts(directory: Path, counts: dict[str, Any]) -> tuple[MetadataStore, list[str], np.ndarray, _Groups,
@@ -394,6 +401,15 @@ class CaptionSearch:
         # encoders of the next query (see retrieval.hybrid).
         per_text = np.einsum("td,d->t", self.text_embeddings, np.asarray(xq, dtype=np.float32).reshape(-1))
         return np.asarray(0.5 * (self.full.best(per_text) + self.objects.best(per_text)))
+
+    def scores_of(self, xq: np.ndarray, rows: np.ndarray) -> np.ndarray:
+        """(Q, n) :meth:`scores` of the rows ``rows`` (n,) for Q query embeddings (Q, D), reading only
+        those rows' texts: the cost grows with the rows asked for, not with the index."""
+        full, objects = self.full.of_rows(np.asarray(rows, np.int64)), self.objects.of_rows(np.asarray(rows, np.int64))
+        used, at = np.unique(np.concatenate([full.indices, objects.indices]), return_inverse=True)
+        full.indices, objects.indices = at[: len(full.indices)], at[len(full.indices):]
+        per_text = np.asarray(xq, np.float32).reshape(len(xq), -1) @ self.text_embeddings[used].T  # (Q, U)
+        return np.asarray(0.5 * (full.best(per_text) + objects.best(per_text)))
 
     def search(self, query: str, k: int = 10, filters: FilterSpec = None,
                max_k: int = MAX_K) -> list[SearchResult]:

@@ -45,7 +45,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -180,7 +180,7 @@ def text_order_figures(t_true: np.ndarray, t_reversed: np.ndarray) -> dict[str, 
             "kept_apart": float((cosine < ORDER_COSINE_MAX).mean())}
 
 
-def rule_caption_scores(rows: Sequence[dict[str, Any]], queries: Sequence[str], encoder: TextEncoder) -> np.ndarray:
+def rule_caption_scores(rows: Sequence[Mapping[str, Any]], queries: Sequence[str], encoder: TextEncoder) -> np.ndarray:
     """(Q, N) scores of rule-caption search (:class:`retrieval.captions_search.CaptionSearch`) over ``rows``."""
     import pyarrow as pa
 
@@ -428,7 +428,7 @@ def _choose_on_val(table: Any, clips_dir: Path, split: str, embedder: Embedder, 
     pos = {c: i for i, c in enumerate(ids)}
     rows = [r for r in rows if r["clip_id"] in pos]
     return choose_for_rows(rows, np.asarray(x, dtype=np.float32)[[pos[r["clip_id"]] for r in rows]],
-                           embedder.embed_texts, lambda texts: rule_caption_scores(rows, texts, sentence))
+                           embedder.embed_texts, lambda texts, sample: rule_caption_scores(sample, texts, sentence))
 
 
 def _clean(value: Any) -> Any:

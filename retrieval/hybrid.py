@@ -27,9 +27,10 @@ reaches the k-th best mixed score are scored by the model too (the threshold alg
 
 from __future__ import annotations
 
+import hashlib
 import threading
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -55,6 +56,9 @@ WEIGHTS: tuple[float, ...] = tuple(round(0.1 * i, 1) for i in range(11))
 DEFAULT_WEIGHT = 0.5
 #: The split the weight is chosen on.
 CHOICE_SPLIT = "val"
+#: The weight is chosen on at most this many clips of the split (:func:`choice_sample`): scoring every
+#: caption query against every clip grows with the square of the clips (a query per distinct caption).
+CHOICE_CLIPS = 2048
 #: Model scores are standardised with moments from at most this many indexed clips (all of them when fewer).
 MOMENT_SAMPLE = 4096
 #: The model's top K before the bound is checked: ``max(CANDIDATE_FACTOR · k, MIN_CANDIDATES)``.
@@ -113,7 +117,8 @@ class WeightChoice:
     Attributes:
         weight: ``w`` in [0, 1].
         split: the clips it was chosen on; None when it was given, or is :data:`DEFAULT_WEIGHT` for want of them.
-        clips: clips of that split.
+        clips: clips it was chosen on: all of the split's, or a sample of :data:`CHOICE_CLIPS` of them.
+        split_clips: clips of that split (0 where not recorded).
         caption_queries: distinct captions of those clips, asked as queries.
         freeform_queries: development free-form queries with a relevant clip among them.
         curve: per weight tried: ``weight``, ``caption_R@5``, ``freeform_P@10`` and their mean ``objective``.
@@ -123,6 +128,7 @@ class WeightChoice:
     weight: float
     split: str | None = None
     clips: int = 0
+    split_clips: int = 0
     caption_queries: int = 0
     freeform_queries: int = 0
     curve: tuple[dict[str, float], ...] = ()
@@ -133,7 +139,10 @@ class WeightChoice:
         """Where the weight comes from, in words."""
         if self.given:
             return "given when the index was built"
-        return f"chosen on {self.clips} {self.split} clips" if self.split else "the default (no validation clips)"
+        if not self.split:
+            return "the default (no validation clips)"
+        sample = f" (a sample of the {self.split_clips})" if self.split_clips > self.clips else ""
+        return f"chosen on {self.clips} {self.split} clips{sample}"
 
     def to_json(self) -> dict[str, Any]:
         """The record of a manifest (:meth:`from_json` reads it back)."""
@@ -155,7 +164,7 @@ class WeightChoice:
             raise ValueError(f"must be an object with 'weight', got {type(raw).__name__}")
         if not raw:
             return WeightChoice(DEFAULT_WEIGHT)
-        counts = {key: raw.get(key, 0) for key in ("clips", "caption_queries", "freeform_queries")}
+        counts = {key: raw.get(key, 0) for key in ("clips", "split_clips", "caption_queries", "freeform_queries")}
         for key, value in counts.items():
             if isinstance(value, bool) or not isinstance(value, int) or value < 0:
                 raise ValueError(f"'{key}' must be a count, got {value!r}")
@@ -194,35 +203,51 @@ def choose_weight(captions: tuple[np.ndarray, np.ndarray, np.ndarray],
         curve.append({"weight": float(w), "caption_R@5": float(r5), f"freeform_P@{FREEFORM_K}": float(p10 or 0.0),
                       "objective": float(np.mean(parts)) if parts else 0.0})
     best = max(curve, key=lambda p: (p["objective"], -p["weight"]))
-    return WeightChoice(best["weight"], split, int(np.asarray(cap_relevant).shape[1]), len(cap_model),
-                        int(answered.sum()), tuple(curve))
+    clips = int(np.asarray(cap_relevant).shape[1])
+    return WeightChoice(best["weight"], split, clips, clips, len(cap_model), int(answered.sum()), tuple(curve))
+
+
+def choice_sample(clip_ids: Sequence[str], limit: int | None = None) -> np.ndarray:
+    """(n,) ascending positions of the clips the weight is chosen on: all of them up to ``limit``
+    (:data:`CHOICE_CLIPS` when None), else the ``limit`` whose ids hash lowest (BLAKE2b), so that the
+    sample does not depend on the clips' order and mostly stays when clips are added."""
+    limit = CHOICE_CLIPS if limit is None else limit
+    if len(clip_ids) <= limit:
+        return np.arange(len(clip_ids), dtype=np.int64)
+    keys = np.array([int.from_bytes(hashlib.blake2b(str(c).encode(), digest_size=8).digest(), "little")
+                     for c in clip_ids], dtype=np.uint64)
+    return np.sort(np.argsort(keys, kind="stable")[:limit]).astype(np.int64)
 
 
 def choose_for_rows(rows: Sequence[Mapping[str, Any]], x_model: np.ndarray, embed_texts: Texts,
-                    rule_scores: Callable[[Sequence[str]], np.ndarray],
+                    rule_scores: Callable[[Sequence[str], Sequence[Mapping[str, Any]]], np.ndarray],
                     freeform: Sequence[FreeformQuery] = DEV_FREEFORM_QUERIES,
                     split: str = CHOICE_SPLIT) -> WeightChoice:
-    """:func:`choose_weight` over clips ``rows``: their caption queries and the development free-form queries.
+    """:func:`choose_weight` over clips ``rows`` (their :func:`choice_sample`): their caption queries and
+    the development free-form queries.
 
     Args:
-        rows: clip-table rows (caption, canonical_caption, category, tags, host_tags).
+        rows: clip-table rows (clip_id, caption, canonical_caption, category, tags, host_tags).
         x_model: (N, D) the model's clip embeddings of ``rows``, L2-normalised.
         embed_texts: texts → (Q, D) the model's normalised text embeddings.
-        rule_scores: texts → (Q, N) rule-caption scores of ``rows``.
+        rule_scores: (texts, rows) → (Q, n) rule-caption scores of those rows.
         freeform: the development free-form queries (never the held-out ones).
         split: the name of ``rows``' split, recorded in the choice.
     """
     if len(rows) < 2:
         return WeightChoice(DEFAULT_WEIGHT)
-    captions = [str(r.get("canonical_caption") or r.get("caption")) for r in rows]
+    keep = choice_sample([str(r["clip_id"]) for r in rows])
+    sample = [rows[i] for i in keep]
+    captions = [str(r.get("canonical_caption") or r.get("caption")) for r in sample]
     queries, relevant = caption_queries(captions)
     free_texts = [q.text for q in freeform]
-    x = np.asarray(x_model, dtype=np.float32)
+    x = np.asarray(x_model, dtype=np.float32)[keep]
     cap_model = np.asarray(embed_texts(queries), dtype=np.float32) @ x.T
     free_model = np.asarray(embed_texts(free_texts), dtype=np.float32) @ x.T if free_texts else np.zeros((0, len(x)))
-    return choose_weight((cap_model, np.asarray(rule_scores(queries)), relevant),
-                         (free_model, np.asarray(rule_scores(free_texts)).reshape(len(free_texts), len(x)),
-                          freeform_relevance(freeform, rows)), split=split)
+    free_rules = np.asarray(rule_scores(free_texts, sample)).reshape(len(free_texts), len(x))
+    choice = choose_weight((cap_model, np.asarray(rule_scores(queries, sample)), relevant),
+                           (free_model, free_rules, freeform_relevance(freeform, sample)), split=split)
+    return replace(choice, split_clips=len(rows))
 
 
 # ---------------------------------------------------------------------- search over an index
@@ -377,11 +402,14 @@ def choose_for_index(rows: pa.Table, index: ClipIndex, captions: CaptionSearch, 
     chosen = [r for r in rows.filter(pc.equal(rows.column("split"), split)).to_pylist() if r["clip_id"] in index]
     if len(chosen) < 2:
         return WeightChoice(DEFAULT_WEIGHT)
-    clip_ids = [r["clip_id"] for r in chosen]
-    caption_pos = captions.metadata.positions(captions.metadata.ids_of(clip_ids))  # (N,) their caption rows
+    sample = [chosen[i] for i in choice_sample([r["clip_id"] for r in chosen])]
+    clip_ids = [r["clip_id"] for r in sample]
+    caption_pos = captions.metadata.positions(captions.metadata.ids_of(clip_ids))  # (n,) their caption rows
 
-    def rule_scores(texts: Sequence[str]) -> np.ndarray:
-        xq = np.asarray(captions.encoder(list(texts)), dtype=np.float32) if texts else np.zeros((0, 1))
-        return np.stack([captions.scores(q)[caption_pos] for q in xq]) if len(xq) else np.zeros((0, len(chosen)))
+    def rule_scores(texts: Sequence[str], _rows: Sequence[Mapping[str, Any]]) -> np.ndarray:
+        if not texts:
+            return np.zeros((0, len(sample)))
+        return captions.scores_of(np.asarray(captions.encoder(list(texts)), dtype=np.float32), caption_pos)
 
-    return choose_for_rows(chosen, index.reconstruct(clip_ids), embed_texts, rule_scores, split=split)
+    choice = choose_for_rows(sample, index.reconstruct(clip_ids), embed_texts, rule_scores, split=split)
+    return replace(choice, split_clips=len(chosen))

@@ -22,6 +22,9 @@ from retrieval.hybrid import (
     InvalidWeightError,
     WeightChoice,
     check_weight,
+    choice_sample,
+    choose_for_index,
+    choose_for_rows,
     choose_weight,
     mix,
     standardise,
@@ -77,7 +80,8 @@ def test_the_weight_is_chosen_by_both_query_sets() -> None:
 
 
 def test_the_choice_round_trips_and_an_old_index_takes_the_default() -> None:
-    choice = WeightChoice(0.3, "val", 10, 4, 2, ({"weight": 0.3, "objective": 0.5},))
+    choice = WeightChoice(0.3, "val", clips=10, split_clips=10, caption_queries=4, freeform_queries=2,
+                          curve=({"weight": 0.3, "objective": 0.5},))
     assert WeightChoice.from_json(json.loads(json.dumps(choice.to_json()))) == choice
     assert choice.origin == "chosen on 10 val clips"
     given = WeightChoice(1.0, given=True)
@@ -182,6 +186,56 @@ def test_the_index_records_the_weight_chosen_on_its_validation_clips(built: dict
     assert search.hybrid == WeightChoice.from_json(raw)
     assert search.hybrid.split == "val" and search.hybrid.clips == 14 and len(search.hybrid.curve) == 11
     assert any(line.startswith("index: hybrid weight") for line in built["progress"])
+
+
+def test_the_choice_sample_is_bounded_and_does_not_depend_on_order() -> None:
+    ids = [f"log{i % 7}:{i}" for i in range(50)]
+    assert choice_sample(ids[:12], limit=12).tolist() == list(range(12))
+    kept = choice_sample(ids, limit=12)
+    assert len(kept) == 12 and np.all(np.diff(kept) > 0)
+    order = np.random.default_rng(0).permutation(50)
+    assert {ids[order[i]] for i in choice_sample([ids[i] for i in order], limit=12)} == {ids[i] for i in kept}
+    grown = ids + [f"log9:{i}" for i in range(50)]  # more clips: most of the sample stays
+    assert len({ids[i] for i in kept} & {grown[i] for i in choice_sample(grown, limit=12)}) >= 3
+
+
+def test_an_index_chooses_on_a_sample_of_its_validation_clips(built: dict[str, Any],
+                                                               monkeypatch: pytest.MonkeyPatch) -> None:
+    """Above :data:`CHOICE_CLIPS` the weight is chosen on the sample alone, with rule-caption scores of
+    those rows only: the same choice as scoring every caption row and keeping the sample's."""
+    from encoders.clips.layout import read_clip_table
+    from retrieval.captions_search import caption_rows
+
+    search = SceneSearch.open(built["index"], embedder=built["embedder"], text_encoder=built["search"].captions.encoder)
+    rows, _ = caption_rows(read_clip_table(built["clips"]))
+    monkeypatch.setattr(hybrid, "CHOICE_CLIPS", 6)
+    choice = choose_for_index(rows, search.views["fused"], search.captions, built["embedder"].embed_texts)
+    assert (choice.clips, choice.split_clips) == (6, 14)
+    assert choice.origin == "chosen on 6 val clips (a sample of the 14)"
+    val = [r for r in rows.to_pylist() if r["split"] == "val"]
+    sample = [val[i] for i in choice_sample([r["clip_id"] for r in val], limit=6)]
+    captions = search.captions
+    pos = captions.metadata.positions(captions.metadata.ids_of([r["clip_id"] for r in sample]))
+
+    def every_row(texts: Any, _rows: Any) -> np.ndarray:  # the reference: every caption row scored
+        xq = np.asarray(captions.encoder(list(texts)), np.float32)
+        return np.stack([captions.scores(q)[pos] for q in xq]) if len(xq) else np.zeros((0, len(pos)))
+
+    x = search.views["fused"].reconstruct([r["clip_id"] for r in sample])
+    reference = choose_for_rows(sample, x, built["embedder"].embed_texts, every_row)
+    assert choice.weight == reference.weight
+    for ours, theirs in zip(choice.curve, reference.curve, strict=True):
+        assert ours == pytest.approx(theirs, abs=1e-6)
+
+
+def test_caption_scores_of_some_rows_equal_every_rows_scores_there(built: dict[str, Any]) -> None:
+    captions = built["search"].captions
+    rng = np.random.default_rng(0)
+    rows = rng.permutation(len(captions))[: len(captions) // 2]
+    xq = captions.text_embeddings[rng.integers(0, len(captions.texts), 5)]
+    xq[0] = -xq[0]
+    reference = np.stack([captions.scores(q)[rows] for q in xq])
+    np.testing.assert_allclose(captions.scores_of(xq, rows), reference, atol=1e-6)
 
 
 def test_search_hybrid(built: dict[str, Any]) -> None:

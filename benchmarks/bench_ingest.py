@@ -3,12 +3,22 @@ track-only, against the cost of merely reading the log's sensor files.
 
 Whole ``scenesearch`` processes, as a user runs them: ``caption`` → ``clips`` (no stored previews) →
 ``index`` with a trained model, on 1 log and on :data:`LOGS` logs of the same length, with LiDAR and
-camera and track-only (``--bev-source boxes``), :data:`REPEATS` times (medians). Each process's CPU
+camera (``sensors``), with the BEV drawn from the boxes (``boxes``: ``--bev-source boxes``, the camera
+still rendered) and on the same logs without their sensor and calibration folders (``tracks``: logs
+of tracks and map alone, as a tracker's output or a motion dataset gives), :data:`REPEATS` times
+(medians). Each process's CPU
 time (user + system, children included) is split into a per-log-second cost (the slope between the
 two runs: the marginal cost of ingesting more driving) and a per-run cost (the intercept: start-up and
 set-up). The headline is the
 marginal rate, log-seconds per CPU-second, per stage and from log to index (targets ≥ 25 with
 sensors, ≥ 50 track-only).
+
+``index`` runs with the hybrid weight given (``--hybrid-weight``), so that its slope is what each
+log-second adds: choosing the weight reads at most :data:`retrieval.hybrid.CHOICE_CLIPS` validation
+clips, a cost per index and not per log-second (``make bench``, ``weight_choice``), and where the
+smaller run has no validation clip and the larger some, it would fall on the slope alone.
+``weight_choice_cpu_s``: what choosing it adds to the larger run, ``index`` run as users run it once
+more per repeat.
 
 The baseline, measured in the same run, is what reading the inputs alone costs: every LiDAR sweep,
 camera frame and instance mask of the logs read and decoded in one process (``read_floor``), the part
@@ -41,7 +51,9 @@ SIM_DURATION_S, QUICK_SIM_DURATION_S = 20, 8
 STAGES = ("caption", "clips", "index")
 #: Runs of each size; the figures are their medians.
 REPEATS, QUICK_REPEATS = 3, 1
-TARGETS = {"sensors": 25.0, "boxes": 50.0}
+TARGETS = {"sensors": 25.0, "boxes": 50.0, "tracks": 50.0}
+#: What a log of tracks alone lacks.
+SENSOR_FOLDERS = ("sensors", "calibration")
 
 
 def _scenesearch(*args: str | Path) -> list[str]:
@@ -67,6 +79,19 @@ def _inputs(root: Path, quick: bool) -> tuple[list[Path], Path, Path | None, str
     return logs, root / "run", None, f"simulated logs of {duration} s (seed 11), tiny model trained for 2 steps"
 
 
+def _tracks_only(logs: list[Path], out: Path) -> list[Path]:
+    """Copies of ``logs`` without :data:`SENSOR_FOLDERS` (their other files linked, not copied)."""
+    copies = []
+    for log_dir in logs:
+        copy = out / log_dir.name
+        copy.mkdir(parents=True)
+        for item in log_dir.iterdir():
+            if item.name not in SENSOR_FOLDERS:
+                (copy / item.name).symlink_to(item.resolve(), target_is_directory=item.is_dir())
+        copies.append(copy)
+    return copies
+
+
 def _log_seconds(logs: list[Path]) -> float:
     from scenes.log import Log
 
@@ -78,8 +103,9 @@ def _log_seconds(logs: list[Path]) -> float:
 
 
 def _ingest(logs: list[Path], run: Path, clips_config: Path | None, mode: str, out: Path,
-            env: dict[str, str]) -> dict[str, float]:
-    """CPU seconds of each stage for ``logs`` (one run of each; ``out`` is removed after)."""
+            env: dict[str, str], choose_weight: bool = False) -> dict[str, float]:
+    """CPU seconds of each stage for ``logs`` (one run of each; ``out`` is removed after); with
+    ``choose_weight`` also ``index_choosing`` (``index`` choosing the hybrid weight, as by default)."""
     from encoders.clips.config import ClipsConfig
 
     extra = ["--bev-source", "boxes"] if mode == "boxes" else []
@@ -92,8 +118,10 @@ def _ingest(logs: list[Path], run: Path, clips_config: Path | None, mode: str, o
         "caption": _scenesearch("caption", *logs, "--out", out / "captions"),
         "clips": _scenesearch("clips", *logs, "--captions", out / "captions", "--out", out / "clips",
                               *config, *extra),
-        "index": _scenesearch("index", run, out / "clips", "--out", out / "index"),
+        "index": _scenesearch("index", run, out / "clips", "--out", out / "index", "--hybrid-weight", "0.5"),
     }
+    if choose_weight:
+        commands["index_choosing"] = _scenesearch("index", run, out / "clips", "--out", out / "index_choosing")
     try:
         return {stage: measure_process(argv, env)[1] for stage, argv in commands.items()}
     finally:
@@ -133,11 +161,15 @@ def run(quick: bool = False) -> dict[str, Any]:
                                    "logs": {"small": len(small), "large": len(large)},
                                    "log_seconds": {k: round(v, 1) for k, v in seconds.items()}}
         marginal_s = seconds["large"] - seconds["small"]
-        for mode in ("sensors", "boxes"):
+        tracks = _tracks_only(large, root / "tracks_logs")
+        for mode in ("sensors", "boxes", "tracks"):
             runs: dict[str, list[dict[str, float]]] = {"small": [], "large": []}
+            sizes = (("small", tracks[:1]), ("large", tracks)) if mode == "tracks" else (("small", small),
+                                                                                         ("large", large))
             for _ in range(repeats):  # the sizes interleaved, so that the load of the moment falls on both
-                for size, chosen in (("small", small), ("large", large)):
-                    runs[size].append(_ingest(chosen, run_dir, clips_config, mode, root / f"{mode}_{size}", env))
+                for size, chosen in sizes:
+                    runs[size].append(_ingest(chosen, run_dir, clips_config, mode, root / f"{mode}_{size}", env,
+                                              choose_weight=size == "large"))
             cpu = {size: {s: statistics.median(r[s] for r in rs) for s in STAGES} for size, rs in runs.items()}
             per_log_s = {s: (cpu["large"][s] - cpu["small"][s]) / marginal_s for s in STAGES}
             per_run = {s: cpu["small"][s] - per_log_s[s] * seconds["small"] for s in STAGES}
@@ -150,6 +182,8 @@ def run(quick: bool = False) -> dict[str, Any]:
                 "marginal_log_seconds_per_cpu_second": round(1 / total, 2) if total > 0 else None,
                 "target": TARGETS[mode],
                 "target_met": bool(total > 0 and 1 / total >= TARGETS[mode]),
+                "weight_choice_cpu_s": round(statistics.median(r["index_choosing"] for r in runs["large"])
+                                             - cpu["large"]["index"], 2),
             }
         floor = read_floor(large, clips_config) / seconds["large"]
         sensors_total = sum(results["sensors"]["cpu_s_per_log_second"].values())

@@ -50,6 +50,7 @@ import torch
 from numpy.typing import NDArray
 
 from encoders.clips import layout
+from encoders.clips.blocks import LOGS_KEPT
 from encoders.clips.frame_tags import FRAME_TAG_COLUMNS
 from encoders.clips.layout import grid_from_manifest, read_clip_table, read_manifest
 from encoders.clips.views import (
@@ -71,9 +72,13 @@ from encoders.clips.views import (
     warp_source_cells,
 )
 from encoders.dense import DENSE_TASKS, frame_targets
+from scenesearch_base.lru import Lru
 
 #: The image-like views; uint8 0–255 with ``as_uint8=True``, else float32 in [0, 1].
 UINT8_VIEWS = ("camera", "camera_crop", "bev_lidar", "bev_map", "bev_object")
+#: The bytes of track kinematics a dataset keeps (a 20-s log of 34 tracks: 136 kB): an index build reads
+#: log after log and needs only the last; training draws from every log, and those of a few thousand fit.
+KINEMATICS_KEPT_BYTES = 512 << 20
 
 
 @dataclass(frozen=True)
@@ -165,13 +170,17 @@ class ClipDataset(torch.utils.data.Dataset[dict[str, Any]]):
             float(cam.get("dim_factor", 0.7)),
         )
         self._grid = grid_from_manifest(self.manifest)
-        self._arrays: dict[str, LogArrays] = {}
-        self._kinematics: dict[str, NDArray[np.float32]] = {}  # log → (K, F, 5), every track's, once per log
+        self._arrays, self._kinematics = self._log_caches()
 
-    # Memory maps are opened lazily in each process, never pickled to workers.
+    @staticmethod
+    def _log_caches() -> tuple[Lru[str, LogArrays], Lru[str, NDArray[np.float32]]]:
+        """Per log: its opened arrays, and every track's kinematics (K, F, 5), least recently used going first."""
+        return Lru(LOGS_KEPT), Lru(KINEMATICS_KEPT_BYTES, lambda kinematics: kinematics.nbytes)
+
+    # Arrays are opened lazily in each process, never pickled to workers.
     def __getstate__(self) -> dict[str, Any]:
         state = dict(self.__dict__)
-        state["_arrays"], state["_kinematics"] = {}, {}
+        state["_arrays"], state["_kinematics"] = self._log_caches()
         return state
 
     def __len__(self) -> int:
@@ -199,7 +208,7 @@ class ClipDataset(torch.utils.data.Dataset[dict[str, Any]]):
         arrays = self._arrays.get(log_id)
         if arrays is None:
             arrays = open_log_arrays(self.clips_dir, log_id)
-            self._arrays[log_id] = arrays
+            self._arrays.put(log_id, arrays)
         return arrays
 
     def _track_kinematics(self, log_id: str, arrays: LogArrays, value: int) -> NDArray[np.float32]:
@@ -208,7 +217,7 @@ class ClipDataset(torch.utils.data.Dataset[dict[str, Any]]):
         kinematics = self._kinematics.get(log_id)
         if kinematics is None:
             kinematics = log_rates_and_velocity(arrays.track_boxes[:], arrays.pose_xy_yaw, arrays.time_s)
-            self._kinematics[log_id] = kinematics
+            self._kinematics.put(log_id, kinematics)
         return kinematics[value - 1]
 
     def _view_shapes(self, index: int) -> dict[str, tuple[int, ...]]:

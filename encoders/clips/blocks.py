@@ -26,9 +26,7 @@ array), the rest applying within them.
 from __future__ import annotations
 
 import json
-import threading
 import zlib
-from collections import OrderedDict
 from pathlib import Path
 from typing import Any
 
@@ -37,6 +35,7 @@ import pyarrow as pa
 from numpy.typing import NDArray
 
 from scenesearch_base.atomic import atomic_path
+from scenesearch_base.lru import Lru
 
 MAGIC = b"SSBLOCK1"
 #: Frames per compressed block: a training window of 8 frames touches one or two blocks.
@@ -49,36 +48,13 @@ CODEC, CODEC_LEVEL = "zstd", 3
 #: reads log after log (an index build) decompresses each block about once, and training's random
 #: draws find most of a few dozen logs decoded.
 DECODED_CACHE_BYTES = 256 << 20
+#: Logs whose opened arrays a reader keeps (a few kilobytes each: their headers), least recently used
+#: going first: a pass over a fleet's logs would otherwise keep every one.
+LOGS_KEPT = 4096
 
 
-class _DecodedBlocks:
-    """The process's most recently used decoded blocks, up to a byte budget (thread-safe)."""
-
-    def __init__(self, max_bytes: int) -> None:
-        self.max_bytes = max_bytes
-        self._blocks: OrderedDict[tuple[Any, ...], NDArray[Any]] = OrderedDict()
-        self._bytes = 0
-        self._lock = threading.Lock()
-
-    def get(self, key: tuple[Any, ...]) -> NDArray[Any] | None:
-        with self._lock:
-            block = self._blocks.get(key)
-            if block is not None:
-                self._blocks.move_to_end(key)
-            return block
-
-    def put(self, key: tuple[Any, ...], block: NDArray[Any]) -> None:
-        with self._lock:
-            if key in self._blocks or block.nbytes > self.max_bytes:
-                return
-            self._blocks[key] = block
-            self._bytes += block.nbytes
-            while self._bytes > self.max_bytes:
-                _, evicted = self._blocks.popitem(last=False)
-                self._bytes -= evicted.nbytes
-
-
-_DECODED = _DecodedBlocks(DECODED_CACHE_BYTES)
+#: The process's most recently used decoded blocks: (file identity, block) → frames.
+_DECODED: Lru[tuple[Any, ...], NDArray[Any]] = Lru(DECODED_CACHE_BYTES, lambda block: block.nbytes)
 
 
 class BlockFileError(ValueError):

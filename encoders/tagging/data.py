@@ -22,10 +22,11 @@ import numpy as np
 import torch
 from numpy.typing import NDArray
 
-from encoders.clips.blocks import FrameArray
+from encoders.clips.blocks import LOGS_KEPT, FrameArray
 from encoders.clips.layout import BEV_LIDAR_FILE, BEV_MAP_FILE, load_rendered_array, read_manifest, rendered_log_dir
 from encoders.tagging.attributes import TagError
 from encoders.tagging.targets import LogTargets, open_targets
+from scenesearch_base.lru import Lru
 
 TargetSource = Callable[[str], LogTargets]
 
@@ -82,22 +83,23 @@ class TagWindowDataset(torch.utils.data.Dataset[dict[str, Any]]):
         self.log_index = np.concatenate(log_index).astype(np.int64)
         self.frame_index = np.concatenate(frame_index).astype(np.int64)
         self.present: NDArray[np.bool_] = np.concatenate(present).astype(bool)
-        self._arrays: dict[str, tuple[FrameArray, FrameArray]] = {}
+        self._arrays: Lru[str, tuple[FrameArray, FrameArray]] = Lru(LOGS_KEPT)
 
     def __getstate__(self) -> dict[str, Any]:
         state = dict(self.__dict__)
-        state["_arrays"] = {}
+        state["_arrays"] = Lru(LOGS_KEPT)
         return state
 
     def __len__(self) -> int:
         return int(self.log_index.shape[0])
 
     def _bev(self, log_id: str) -> tuple[FrameArray, FrameArray]:
-        if log_id not in self._arrays:
+        arrays = self._arrays.get(log_id)
+        if arrays is None:
             folder = rendered_log_dir(self.clips_dir, log_id)
-            self._arrays[log_id] = (load_rendered_array(folder, BEV_LIDAR_FILE),
-                                    load_rendered_array(folder, BEV_MAP_FILE))
-        return self._arrays[log_id]
+            arrays = (load_rendered_array(folder, BEV_LIDAR_FILE), load_rendered_array(folder, BEV_MAP_FILE))
+            self._arrays.put(log_id, arrays)
+        return arrays
 
     def __getitem__(self, index: int) -> dict[str, Any]:
         lid = self.log_ids[int(self.log_index[index])]

@@ -87,13 +87,14 @@ def test_a_file_written_again_never_serves_its_old_blocks(tmp_path: Path) -> Non
     assert BlockArray(path)[3].sum() == 4
 
 
-def test_decoded_blocks_stay_within_their_budget() -> None:
-    from encoders.clips.blocks import _DecodedBlocks
+def test_decoded_blocks_stay_within_their_budget(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    from encoders.clips import blocks
+    from scenesearch_base.lru import Lru
 
-    cache = _DecodedBlocks(max_bytes=1000)
-    for b in range(10):
-        cache.put(("f", b), np.zeros(300, np.uint8))
-    assert cache.get(("f", 9)) is not None and cache.get(("f", 0)) is None  # the oldest went first
-    assert sum(cache.get(("f", b)) is not None for b in range(10)) == 3  # 3 × 300 bytes ≤ 1000
-    cache.put(("big", 0), np.zeros(2000, np.uint8))  # larger than the whole budget: not kept
-    assert cache.get(("big", 0)) is None
+    monkeypatch.setattr(blocks, "_DECODED", Lru(1000, lambda block: block.nbytes))
+    path = tmp_path / "x.blocks"
+    write_blocks(path, np.arange(80 * 10, dtype=np.int32).reshape(80, 10), block_frames=8)  # 320-byte blocks
+    array = BlockArray(path)
+    assert np.array_equal(array[:], np.arange(800).reshape(80, 10))
+    assert len(blocks._DECODED) == 3 and blocks._DECODED.total == 960  # the last 3 blocks read
+    assert np.array_equal(array[5], np.arange(50, 60))  # an evicted block is read again

@@ -173,6 +173,31 @@ def test_frame_tags_are_found_beside_a_captions_file_given_by_name(clips_dir: Pa
     assert lead["frame_lane"] == ["left" if f < 12 else "host" for f in lead["frame_indices"]]
 
 
+def test_per_log_state_is_bounded_and_items_read_the_same_after_eviction(clips_dir: Path,
+                                                                       monkeypatch: pytest.MonkeyPatch) -> None:
+    """A pass over many logs keeps at most the budgets of opened logs and kinematics; a log evicted
+    is opened and computed again, to the same items."""
+    import encoders.data as data
+
+    whole = ClipDataset(clips_dir, as_uint8=True)
+    expected = [whole[i] for i in range(len(whole))]
+    logs = {r["log_id"] for r in read_clip_table(clips_dir).to_pylist()}
+    assert len(whole._arrays) == len(whole._kinematics) == len(logs) == 3  # within the budgets: all kept
+    one_log = next(iter(whole._kinematics._values.values()))[1]
+    monkeypatch.setattr(data, "LOGS_KEPT", 1)
+    monkeypatch.setattr(data, "KINEMATICS_KEPT_BYTES", one_log)
+    bounded = ClipDataset(clips_dir, as_uint8=True)
+    for _ in range(2):  # the second pass reopens every log
+        for i in reversed(range(len(bounded))):
+            item = bounded[i]
+            assert len(bounded._arrays) == 1 and bounded._kinematics.total <= one_log
+            for key, value in expected[i].items():
+                if isinstance(value, torch.Tensor):
+                    assert torch.equal(item[key], value), key
+                else:
+                    assert item[key] == value, key
+
+
 def test_object_velocity_is_relative_to_the_ego_in_metres_per_second(clips_dir: Path) -> None:
     ds = ClipDataset(clips_dir)
     by_track = {ds[i]["track_id"]: ds[i] for i in range(len(ds)) if ds[i]["log_id"] == "synthetic_0"}

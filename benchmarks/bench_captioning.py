@@ -160,8 +160,8 @@ AV2_DEV_LOGS = [Path(__file__).resolve().parents[2] / "shared" / "realdata" / "a
 def _stage_speed(name: str, log_dirs: list[Path], repeats: int) -> dict:
     """The whole caption stage (read logs and maps, tags, captions, both tables written) under the
     paper's and the default rules; maps are parsed cold in every repeat."""
+    from captioning.batch import caption_logs
     from captioning.outputs import write_outputs
-    from captioning.pipeline import caption_logs
     from scenes.av2_io import forget_parsed_maps
 
     def stage(config: CaptioningConfig) -> None:

@@ -3,7 +3,7 @@ overhead, and what each stage costs per log-second (the README's cost model).
 
 Logs: simulated (``scenesearch simulate``; full: 20 logs of 6 s with rendered LiDAR and camera,
 quick: 4 logs of 4 s without sensors), cached between runs. Stages: ``caption``
-(:func:`captioning.pipeline.caption_logs`), ``clips`` (:func:`encoders.clips.build.build_clips`,
+(:func:`captioning.batch.caption_logs`), ``clips`` (:func:`encoders.clips.build.build_clips`,
 no stored previews, as the command's default) and ``embed`` (every view of every clip with an
 untrained model of the default size; ``--quick``: the tiny preset, a smoke run: serially by
 :class:`retrieval.embedding.ModelEmbedder`, on Ray Data by :class:`retrieval.embedding.RayDataEmbedder`).
@@ -115,8 +115,8 @@ def _timed(fn: Callable[[], Any]) -> tuple[float, float]:
 def _stages(logs: list[Path], root: Path, run_dir: Path | None, execution: Any, previews: bool,
             tag: str) -> dict[str, tuple[float, float]]:
     """Caption, clips and (with a run) embedding of ``logs`` under ``execution``: stage → (wall, CPU)."""
+    from captioning.batch import caption_logs
     from captioning.outputs import write_outputs
-    from captioning.pipeline import caption_logs
     from encoders.clips.build import build_clips
     from encoders.clips.config import ClipsConfig
     from retrieval.embedding import ModelEmbedder, RayDataEmbedder

@@ -17,8 +17,9 @@ LiDAR Tracks", vectorised over tracks × frames:
   gives the paper's captions exactly;
 - the paper's right-positive lateral axis is converted once, in :mod:`captioning.tags`;
 - all thresholds: :class:`CaptioningConfig` (:mod:`captioning.config`, ``captioning.yaml``);
-- files and the batch API: :mod:`captioning.pipeline`, their columns :mod:`captioning.tables`, published
-  together by :mod:`scenesearch_base.publish`; simulator-label agreement and own-behaviour F1:
+- files: :mod:`captioning.pipeline`, written log by log by :mod:`captioning.outputs`, many logs in one
+  run: :mod:`captioning.batch`; their columns :mod:`captioning.tables`, published together by
+  :mod:`scenesearch_base.publish`; simulator-label agreement and own-behaviour F1:
   :mod:`captioning.agreement`; the per-frame oracle of the paper's rules: :mod:`captioning.reference`.
 
 Every tracked object is tagged wherever it is around the ego (standing ones too, under the default
@@ -26,33 +27,29 @@ Every tracked object is tagged wherever it is around the ego (standing ones too,
 
 Public API::
 
-    from captioning import CaptioningConfig, caption_log, caption_logs, write_outputs
+    from captioning import CaptioningConfig, caption_log, caption_logs, captions_folder, write_outputs
 """
 
+from captioning.batch import BatchResult, LogSummary, caption_logs
 from captioning.config import CaptioningConfig
 from captioning.errors import CaptioningError, ConfigError, TrackDataError
-from captioning.outputs import write_outputs
-from captioning.pipeline import (
-    BatchResult,
-    Caption,
-    LogCaptions,
-    caption_arrays,
-    caption_dense,
-    caption_log,
-    caption_logs,
-)
+from captioning.outputs import CaptionsWriter, captions_folder, write_outputs
+from captioning.pipeline import Caption, LogCaptions, caption_arrays, caption_dense, caption_log
 
 __all__ = [
     "BatchResult",
     "Caption",
     "CaptioningConfig",
     "CaptioningError",
+    "CaptionsWriter",
     "ConfigError",
     "LogCaptions",
+    "LogSummary",
     "TrackDataError",
     "caption_arrays",
     "caption_dense",
     "caption_log",
     "caption_logs",
+    "captions_folder",
     "write_outputs",
 ]

@@ -37,9 +37,7 @@ never known) and ``junction_kind`` (the most frequent in the window), for filter
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Iterable
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 import pyarrow as pa
@@ -77,13 +75,9 @@ from captioning.tags import (
     unified_neighbor_tag,
 )
 from captioning.unify import Segment, caption_windows
-from scenes.errors import ScenesError
 from scenes.log import Log
 from scenes.map import VectorMap
 from scenes.tracks import DenseTracks
-from scenesearch_base.ray_cluster import Execution
-from scenesearch_base.ray_runner import TaskSkipped, TaskStatus, run_tasks
-from scenesearch_base.storage import distinct_by_name, staged_input
 
 FRAME_TAGS_FILENAME = "frame_tags.parquet"
 #: Why a track gets no tags: no two observations close enough to differentiate.
@@ -378,46 +372,3 @@ def caption_log(log: Log, config: CaptioningConfig | None = None) -> LogCaptions
         listed = ", ".join(f"{k}={v}" for k, v in sorted(log.unknown_categories.items()))
         result.notes.append(f"unknown categories captioned as 'other': {listed}")
     return result
-
-
-@dataclass(frozen=True)
-class BatchResult:
-    """Captions of many logs, and what was skipped.
-
-    Attributes:
-        results: captioned logs, in input order.
-        skipped_logs: log folder → reason (it cannot be read or captioned).
-        failed_logs: log folder → reason (an unexpected error, or its worker died on every attempt).
-    """
-
-    results: list[LogCaptions]
-    skipped_logs: dict[str, str]
-    failed_logs: dict[str, str] = field(default_factory=dict)
-
-
-def caption_log_dir(log_dir: Path | str, config: CaptioningConfig) -> LogCaptions:
-    """Caption one log folder, a local path or a ``pyarrow.fs`` URI (staged locally): the task of
-    :func:`caption_logs`, in this process or on a Ray worker.
-
-    Raises:
-        TaskSkipped: the log has no annotated frames.
-        ScenesError, ValueError, OSError: the log cannot be read or captioned.
-    """
-    with staged_input(log_dir) as local:
-        log = Log.open(local)
-        if log.timestamps_ns.size == 0:
-            raise TaskSkipped("log has no annotated frames")
-        return caption_log(log, config)
-
-
-def caption_logs(log_dirs: Iterable[Path | str], config: CaptioningConfig | None = None,
-                 execution: Execution | None = None) -> BatchResult:
-    """Caption many log folders, one task per log (serially by default, or on Ray); a log that
-    cannot be read or captioned, or given twice, is skipped with its reason; results keep the input order."""
-    given, repeated = distinct_by_name(list(log_dirs))
-    dirs = list(given.values())
-    report = run_tasks(caption_log_dir, dirs, execution, labels=[str(d) for d in dirs],
-                       context=config or CaptioningConfig(), skip_on=(ScenesError, ValueError, OSError))
-    skipped = {o.label: o.reason for o in report.with_status(TaskStatus.SKIPPED)}
-    return BatchResult(report.values, {**skipped, **repeated},
-                       {o.label: o.reason for o in report.with_status(TaskStatus.FAILED)})

@@ -21,10 +21,11 @@ One writer at a time per folder.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import shutil
 import uuid
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from pathlib import Path
 
 from scenesearch_base.atomic import sweep_stale
@@ -115,9 +116,19 @@ def publish(out_dir: Path | str, writers: Mapping[str, Callable[[Path], None]]) 
     Returns:
         file name → its path in ``out_dir`` (a link into the current generation).
     """
+    with generation(out_dir, tuple(writers)) as folder:
+        for name, write in writers.items():
+            write(folder / name)
+    return {name: Path(out_dir) / name for name in writers}
+
+
+@contextlib.contextmanager
+def generation(out_dir: Path | str, names: tuple[str, ...]) -> Iterator[Path]:
+    """A new generation's folder, to write the files ``names`` in (a writer that streams keeps them
+    open while it works); published when the block ends, and removed, with nothing published, when
+    it raises (see the module docstring)."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    names = tuple(writers)
     remove_stale(out)
     _adopt_plain_files(out, names)
     gens = out / GENERATIONS_DIR
@@ -126,8 +137,8 @@ def publish(out_dir: Path | str, writers: Mapping[str, Callable[[Path], None]]) 
     tmp = gens / f".tmp-{uuid.uuid4().hex}"
     tmp.mkdir()
     try:
-        for name, write in writers.items():
-            write(tmp / name)
+        yield tmp
+        for name in names:
             _fsync_file(tmp / name)
         _fsync_dir(tmp)
         gen = gens / f"{_GEN_PREFIX}{uuid.uuid4().hex}"
@@ -137,14 +148,11 @@ def publish(out_dir: Path | str, writers: Mapping[str, Callable[[Path], None]]) 
         raise
     _link(gen.name, gens / CURRENT)  # the commit
     _fsync_dir(gens)
-    paths: dict[str, Path] = {}
     for name in names:
         path = out / name
         target = f"{GENERATIONS_DIR}/{CURRENT}/{name}"
         if not (path.is_symlink() and os.readlink(path) == target):
             _link(target, path)
-        paths[name] = path
     _fsync_dir(out)
     if previous is not None and previous.name != gen.name:
         shutil.rmtree(previous, ignore_errors=True)
-    return paths

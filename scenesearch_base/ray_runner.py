@@ -36,7 +36,7 @@ import sys
 import time
 from collections import deque
 from collections.abc import Callable, Iterator, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from enum import StrEnum
 from typing import Any, Generic, TypeVar
 
@@ -164,6 +164,7 @@ def run_tasks(
     noun: str = "log",
     num_cpus: float = 1.0,
     items_per_task: int | None = None,
+    consume: Callable[[R], Any] | None = None,
 ) -> RunReport[R]:
     """Run ``fn(item)`` (``fn(item, context)`` when a context is given) for every item.
 
@@ -179,6 +180,10 @@ def run_tasks(
         num_cpus: CPUs one task reserves on Ray.
         items_per_task: consecutive items one Ray task runs (default: adapted to how long items
             take, see :class:`ChunkSizer`; 1: one task per item).
+        consume: receives each value, in the items' order, as soon as every earlier item has ended
+            (on Ray, values that come early wait for them); the report keeps what it returns in the
+            value's place, so that a run over many items need not hold every value. What it raises
+            ends the run.
 
     Raises:
         ClusterError: Ray is not installed, or its cluster cannot be reached.
@@ -191,23 +196,41 @@ def run_tasks(
         raise ValueError(f"items_per_task must be at least 1, not {items_per_task}")
     start = time.perf_counter()
     has_context = context is not None
+    ordered = _InOrder(len(items), consume)
     with _progress(len(items), noun, execution.progress) as advance:
         if not execution.on_ray or not items:  # nothing to run: no runtime to start
-            outcomes: list[Outcome[Any]] = []
-            for item, name in zip(items, names):
-                outcomes.append(_run_one(fn, item, context, has_context, name, skip_on))
+            for i, (item, name) in enumerate(zip(items, names)):
+                ordered.put(i, _run_one(fn, item, context, has_context, name, skip_on))
                 advance()
         else:
-            outcomes = _run_on_ray(fn, items, names, execution, context, has_context, skip_on, num_cpus,
-                                   items_per_task, advance)
-    return RunReport(outcomes, time.perf_counter() - start, execution.describe(), noun)
+            _run_on_ray(fn, items, names, execution, context, has_context, skip_on, num_cpus, items_per_task,
+                        advance, ordered)
+    return RunReport(ordered.outcomes(), time.perf_counter() - start, execution.describe(), noun)
+
+
+class _InOrder:
+    """Outcomes as they end, each value handed to ``consume`` in the items' order (see :func:`run_tasks`)."""
+
+    def __init__(self, n: int, consume: Callable[[Any], Any] | None) -> None:
+        self._outcomes: list[Outcome[Any] | None] = [None] * n
+        self._next = 0
+        self._consume = consume
+
+    def put(self, i: int, outcome: Outcome[Any]) -> None:
+        self._outcomes[i] = outcome
+        while self._next < len(self._outcomes) and (ended := self._outcomes[self._next]) is not None:
+            if self._consume is not None and ended.status is TaskStatus.DONE:
+                self._outcomes[self._next] = replace(ended, value=self._consume(ended.value))
+            self._next += 1
+
+    def outcomes(self) -> list[Outcome[Any]]:
+        return [o for o in self._outcomes if o is not None]
 
 
 def _run_on_ray(fn: Callable[..., Any], items: Sequence[Any], names: list[str], execution: Execution,
                 context: Any, has_context: bool, skip_on: tuple[type[BaseException], ...], num_cpus: float,
-                items_per_task: int | None, advance: Callable[[], None]) -> list[Outcome[Any]]:
+                items_per_task: int | None, advance: Callable[[], None], ordered: _InOrder) -> None:
     ray = import_ray()
-    outcomes: list[Outcome[Any] | None] = [None] * len(items)
     with ray_runtime(execution) as parallelism:
         # Where the runtime has no more CPUs than the run's workers, Ray keeps the run to them and a
         # window twice as wide keeps each worker's next task queued. A cluster, or a runtime started
@@ -247,9 +270,8 @@ def _run_on_ray(fn: Callable[..., Any], items: Sequence[Any], names: list[str], 
                 else:
                     sizer.observe(len(chunk), seconds)
                 for i, outcome in zip(chunk, done):
-                    outcomes[i] = outcome
+                    ordered.put(i, outcome)
                     advance()
-    return [o for o in outcomes if o is not None]
 
 
 def _shared(ray: Any, value: Any) -> Any:

@@ -18,8 +18,10 @@ may be ``pyarrow.fs`` URIs (``s3://bucket/logs/*`` lists the logs under a prefix
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import time
+from collections.abc import Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -28,7 +30,7 @@ from scenesearch_base.ray_cluster import add_arguments as add_execution_argument
 from scenesearch_base.storage import Location, as_location, expand, is_uri, staged_output
 
 if TYPE_CHECKING:
-    from captioning.pipeline import LogCaptions
+    from captioning.outputs import CaptionsWriter
 
 HELP = "tag host and neighbour behaviour per frame and write temporal captions (Parquet)"
 
@@ -46,9 +48,10 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from captioning.batch import caption_logs
     from captioning.config import CaptioningConfig, RuleSet, WindowStrategy
     from captioning.outputs import CAPTIONS_FOLDER
-    from captioning.pipeline import caption_logs
+    from captioning.pipeline import CAPTIONS_FILENAME, FRAME_TAGS_FILENAME
     from scenesearch_base.folders import claim_folder
 
     config = CaptioningConfig.from_yaml(args.config) if args.config else CaptioningConfig()
@@ -63,52 +66,60 @@ def run(args: argparse.Namespace) -> int:
     start = time.perf_counter()
     out, log_dirs = as_location(args.out), expand(args.log_dirs)
     claim_folder(out, CAPTIONS_FOLDER, log_dirs)  # before any log is read
-    batch = caption_logs(log_dirs, config, Execution.from_args(args))
+    try:
+        with _writer(out, config.rules is RuleSet.BEHAVIOR, log_dirs) as writer:  # each log written as it comes
+            batch = caption_logs(log_dirs, config, Execution.from_args(args), write=writer.add)
+            if not batch.summaries:
+                raise _NothingCaptioned
+    except _NothingCaptioned:
+        pass
     for log_dir, reason in batch.skipped_logs.items():
         print(f"skipped log {log_dir}: {reason}")
     for log_dir, reason in batch.failed_logs.items():
         print(f"failed log {log_dir}: {reason}")
-    if not batch.results:
+    if not batch.summaries:
         print(f"no log could be captioned; {out} is left as it was")
         return 2
-    frames_path, captions_path = _write(out, batch.results, log_dirs)
+    frames_path, captions_path = (f"{str(out).rstrip('/')}/{name}" for name in (FRAME_TAGS_FILENAME,
+                                                                                CAPTIONS_FILENAME))
     elapsed_s = time.perf_counter() - start
-    object_frames = sum(int(r.valid.sum()) for r in batch.results)
-    num_captions = sum(len(r.captions) for r in batch.results)
-    for result in batch.results:
-        skipped = result.skipped_tracks
+    for log in batch.summaries:
+        skipped = log.skipped_tracks
         print(
-            f"{result.log_id}: {len(result.timestamps_ns)} frames, {len(result.track_ids)} tracks "
-            f"({int(result.neighbors.stationary.sum())} stationary), {len(result.captions)} captions"
-            + (f", skipped {len(skipped)} tracks: {_reasons(skipped)}" if skipped else "")
-            + "".join(f"; {note}" for note in result.notes)
+            f"{log.log_id}: {log.frames} frames, {log.tracks} tracks ({log.stationary_tracks} stationary), "
+            f"{log.captions} captions" + (f", skipped {len(skipped)} tracks: {_reasons(skipped)}" if skipped else "")
+            + "".join(f"; {note}" for note in log.notes)
         )
-    total = len(batch.results) + len(batch.skipped_logs) + len(batch.failed_logs)
+    total = len(batch.summaries) + len(batch.skipped_logs) + len(batch.failed_logs)
     print(
-        f"captioned {len(batch.results)} of {total} logs: "
-        f"{num_captions} captions, {object_frames} object-frames in {elapsed_s:.2f} s; "
+        f"captioned {len(batch.summaries)} of {total} logs: "
+        f"{sum(log.captions for log in batch.summaries)} captions, "
+        f"{sum(log.object_frames for log in batch.summaries)} object-frames in {elapsed_s:.2f} s; "
         f"wrote {frames_path} and {captions_path}"
         + (f"; {len(batch.failed_logs)} log(s) failed: {', '.join(batch.failed_logs)}" if batch.failed_logs else "")
     )
     return 1 if batch.failed_logs or batch.skipped_logs else 0
 
 
-def _write(out: Location, results: list[LogCaptions], log_dirs: list[Location]) -> tuple[Location, Location]:
-    """Publish the captions folder's files together in a local folder; upload them to a URI (files, no links)."""
-    import pyarrow.parquet as pq
+class _NothingCaptioned(Exception):
+    """No log could be captioned: the output folder is left as it was."""
 
-    from captioning.outputs import CAPTIONS_FOLDER, logs_index, output_tables, write_outputs
-    from captioning.pipeline import CAPTIONS_FILENAME, FRAME_TAGS_FILENAME, LOGS_FILENAME
+
+@contextlib.contextmanager
+def _writer(out: Location, behavior: bool, log_dirs: list[Location]) -> Iterator[CaptionsWriter]:
+    """A captions writer publishing the folder's files together in a local folder, or uploading them to
+    a URI (files, no links), when the block ends; nothing is written when it raises."""
+    from captioning.outputs import CAPTIONS_FOLDER, CaptionsWriter, captions_folder
     from scenesearch_base.folders import mark_folder
 
     if not is_uri(out):
-        return write_outputs(out, results, log_dirs)
+        with captions_folder(Path(out), behavior, log_dirs) as writer:
+            yield writer
+        return
     with staged_output(out) as local:
         mark_folder(local, CAPTIONS_FOLDER, CAPTIONS_FOLDER.entries)
-        for name, table in output_tables(results).items():
-            pq.write_table(table, local / name)
-        (local / LOGS_FILENAME).write_text(logs_index(results, log_dirs), encoding="utf-8")
-    return f"{str(out).rstrip('/')}/{FRAME_TAGS_FILENAME}", f"{str(out).rstrip('/')}/{CAPTIONS_FILENAME}"
+        with CaptionsWriter(local, behavior, log_dirs) as writer:
+            yield writer
 
 
 def _reasons(skipped: dict[str, str]) -> str:

@@ -80,17 +80,17 @@ from captioning.outputs import write_outputs
 sys.path.insert(0, {tests!r})
 from captioning_scene import busy_result
 
-original = pq.write_table
+original = pq.ParquetWriter.close
 calls = []
 
-def pausing(table, where, **kwargs):
+def pausing(self):
     if calls:  # the second file: say so, then wait to be killed
         Path({marker!r}).write_text("between")
         time.sleep(60)
-    calls.append(where)
-    original(table, where, **kwargs)
+    calls.append(self)
+    original(self)
 
-pq.write_table = pausing
+pq.ParquetWriter.close = pausing
 write_outputs(Path({out!r}), [busy_result()])
 """
 

@@ -138,9 +138,9 @@ def test_a_write_that_fails_without_a_file_name_names_the_output(log: Path, tmp_
     def full_disk(*args: object, **kwargs: object) -> None:
         raise OSError(errno.ENOSPC, "No space left on device")
 
-    monkeypatch.setattr("captioning.outputs.write_outputs", full_disk)
-    monkeypatch.setattr("retrieval.commands.caption.write_outputs", full_disk, raising=False)
+    monkeypatch.setattr("captioning.outputs.CaptionsWriter.add", full_disk)
     out = tmp_path / "captions"
     assert main(["caption", str(log), "--out", str(out)]) == 2
     err = capsys.readouterr().err
     assert f"writing {out}: No space left on device" in err and "Traceback" not in err
+    assert not (out / "captions.parquet").exists()  # nothing published

@@ -106,13 +106,13 @@ def test_a_worker_dying_mid_log_is_retried_then_reported(data: dict[str, Path], 
                                                          capsys: pytest.CaptureFixture[str]) -> None:
     import ray
 
-    import captioning.pipeline as pipeline
+    import captioning.batch as batch
 
     ray.cloudpickle.register_pickle_by_value(scale_faults)
     logs = _logs(data)
     once, always = Path(logs[0]).name, Path(logs[1]).name
-    monkeypatch.setattr(pipeline, "caption_log_dir",
-                        scale_faults.dying_on(pipeline.caption_log_dir, str(tmp_path), once, always))
+    monkeypatch.setattr(batch, "caption_log_dir",
+                        scale_faults.dying_on(batch.caption_log_dir, str(tmp_path), once, always))
     code = main(["caption", *logs, "--out", str(tmp_path / "captions"), "--workers", "2"])
     out = capsys.readouterr().out
     assert code == 1

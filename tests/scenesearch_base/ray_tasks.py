@@ -23,3 +23,11 @@ def crashing(item: str, marker_dir: str) -> str:
     if item == "bug":
         raise KeyError("oops")
     return f"{item}:{os.getpid()}"
+
+
+def slow_first(item: int) -> int:
+    """The earlier the item, the longer it takes: on Ray the later items end first."""
+    import time
+
+    time.sleep(0.05 * (4 - item) if item < 4 else 0.0)
+    return item

@@ -7,6 +7,7 @@ import socket
 import sys
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -206,3 +207,36 @@ def test_a_running_runtime_is_not_taken_for_another_cluster() -> None:
             ray_runtime(Execution(address=f"{host}:{port + 1}")):
         pass
     assert ray.is_initialized()  # refused, not stopped: the runtime stays for the rest of the session
+
+
+def _consumer(seen: list[int]) -> Callable[[int], str]:
+    def consume(value: int) -> str:
+        seen.append(value)
+        return f"kept {value}"
+    return consume
+
+
+def test_values_reach_the_consumer_in_the_items_order_and_the_report_keeps_what_it_returns() -> None:
+    seen: list[int] = []
+    report = run_tasks(_square, [2, 3, 1], consume=_consumer(seen))
+    assert seen == [4, 1]  # the skipped item never reaches it
+    assert report.values == ["kept 4", "kept 1"] and report.with_status(TaskStatus.SKIPPED)[0].label == "3"
+
+
+@pytest.mark.usefixtures("ray_local")
+def test_on_ray_values_that_end_early_wait_for_the_earlier_items() -> None:
+    import ray
+
+    ray.cloudpickle.register_pickle_by_value(ray_tasks)
+    seen: list[int] = []
+    report = run_tasks(ray_tasks.slow_first, list(range(8)), Execution(workers=2), items_per_task=1,
+                       consume=_consumer(seen))
+    assert seen == list(range(8)) and report.values == [f"kept {i}" for i in range(8)]
+
+
+def test_what_the_consumer_raises_ends_the_run() -> None:
+    def refusing(value: int) -> None:
+        raise OSError("disk full")
+
+    with pytest.raises(OSError, match="disk full"):
+        run_tasks(_square, [1, 2], consume=refusing)

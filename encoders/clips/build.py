@@ -25,7 +25,7 @@ import numpy as np
 
 from captioning.pipeline import CAPTIONS_FILENAME, FRAME_TAGS_FILENAME
 from encoders.clips.config import ClipsConfig
-from encoders.clips.frame_tags import LogFrameTags, empty_clip_columns, read_frame_tags
+from encoders.clips.frame_tags import LogFrameTags, LogFrameTagsRef, empty_clip_columns, frame_tags_of
 from encoders.clips.layout import (
     CAMERA_PIXEL_COUNTS_FILE,
     CLIPS_FOLDER,
@@ -63,7 +63,6 @@ from scenesearch_base.storage import (
     Location,
     copy_to_local,
     distinct_by_name,
-    exists,
     is_uri,
     join,
     name_of,
@@ -117,14 +116,16 @@ class LogClips:
     rerendered: str | None = None
 
 
-def clip_log(job: tuple[Location, tuple[CaptionRow, ...], LogFrameTags | None], ctx: ClipsTaskContext) -> LogClips:
+def clip_log(job: tuple[Location, tuple[CaptionRow, ...], LogFrameTags | LogFrameTagsRef | None],
+             ctx: ClipsTaskContext) -> LogClips:
     """One log's task: ``job`` is (its folder, its caption rows in caption order, its per-frame tags
-    from ``frame_tags.parquet`` or None).
+    from ``frame_tags.parquet``, or where to read them there, or None).
 
     Raises:
         TaskSkipped: the log cannot be opened.
     """
     log_dir, rows, frame_tags = job
+    frame_tags = frame_tags.load() if isinstance(frame_tags, LogFrameTagsRef) else frame_tags
     log_id, config = name_of(log_dir), ctx.config
     with staged_input(log_dir) as local_log:
         try:
@@ -254,7 +255,10 @@ def build_clips(
     given, repeated = distinct_by_name(log_dirs)
     for label, reason in repeated.items():
         skipped.add(reason, log_id=name_of(label), log_dir=label)
-    frame_tags = _read_frame_tags(join(captions_folder, FRAME_TAGS_FILENAME), list(given))
+    try:
+        frame_tags = frame_tags_of(join(captions_folder, FRAME_TAGS_FILENAME), list(given))
+    except ValueError as exc:
+        raise ClipsInputError(str(exc)) from None
     by_log: dict[str, list[CaptionRow]] = {}
     for row in rows:
         by_log.setdefault(row.log_id, []).append(row)
@@ -375,18 +379,6 @@ def _manifest(config: ClipsConfig, report: ClipsReport, skipped: Skipped,
         "skipped": skipped.items,
         "num_clips": len(clip_rows),
     }
-
-
-def _read_frame_tags(path: Location, log_ids: list[str]) -> dict[str, LogFrameTags]:
-    """The per-frame tags of ``log_ids`` in ``path`` (the ``frame_tags.parquet`` written beside the
-    captions), by log; none when the file is absent."""
-    if not exists(path):
-        return {}
-    with staged_input(path) as local:
-        try:
-            return read_frame_tags(local, log_ids)
-        except ValueError as exc:
-            raise ClipsInputError(str(exc)) from None
 
 
 def _clip_rows(

@@ -16,11 +16,14 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 from numpy.typing import NDArray
+
+from scenesearch_base.storage import Location, exists, is_uri, staged_input
 
 #: Clip-table columns (list<string>, one entry per clip frame) and the frame_tags.parquet column of each.
 FRAME_TAG_COLUMNS: dict[str, str] = {
@@ -71,20 +74,89 @@ def read_frame_tags(path: Path, log_ids: Sequence[str] | None = None) -> dict[st
     Raises:
         ValueError: the file is unreadable or lacks a column (names the file and the columns).
     """
-    columns = ["log_id", "timestamp_ns", "track_id", *_OBJECT_FIELDS, *_HOST_FIELDS]
+    columns = _columns(path)
+    if log_ids is not None and not log_ids:
+        return {}
+    filters = [("log_id", "in", list(log_ids))] if log_ids is not None else None
     try:
-        names = pq.read_schema(path).names
-        missing = [c for c in columns if c not in names and c not in _OPTIONAL_FIELDS]
-        if missing:
-            raise ValueError(f"{path}: missing column(s) {missing}")
-        columns = [c for c in columns if c in names]
-        if log_ids is not None and not log_ids:
-            return {}
-        filters = [("log_id", "in", list(log_ids))] if log_ids is not None else None
         table = pq.read_table(path, columns=columns, filters=filters)
     except (OSError, pa.ArrowInvalid) as exc:
         raise ValueError(f"{path}: unreadable Parquet file ({exc})") from exc
-    cols = {name: table.column(name).to_pylist() for name in columns}
+    return _by_log(table, path)
+
+
+@dataclass(frozen=True)
+class LogFrameTagsRef:
+    """One log's row groups in a ``frame_tags.parquet`` that holds a log per row group (as ``caption``
+    writes it): its task reads them (:meth:`load`), so that no process holds every log's tags."""
+
+    path: str
+    log_id: str
+    row_groups: tuple[int, ...]
+
+    def load(self) -> LogFrameTags:
+        path = Path(self.path)
+        try:
+            table = pq.ParquetFile(path).read_row_groups(list(self.row_groups), columns=_columns(path))
+        except (OSError, pa.ArrowInvalid) as exc:
+            raise ValueError(f"{path}: unreadable Parquet file ({exc})") from exc
+        return _by_log(table, path).get(self.log_id, LogFrameTags({}, {}))
+
+
+def frame_tags_by_log(path: Path, log_ids: Sequence[str]) -> dict[str, LogFrameTags | LogFrameTagsRef]:
+    """The tags of ``log_ids`` in a local ``frame_tags.parquet``: where each row group holds one log (its
+    ``log_id`` statistics say so), a reference to each log's row groups; else the tags, read at once.
+
+    Raises:
+        ValueError: the file is unreadable or lacks a column (names the file and the columns).
+    """
+    _columns(path)
+    try:
+        meta = pq.ParquetFile(path).metadata
+    except (OSError, pa.ArrowInvalid) as exc:
+        raise ValueError(f"{path}: unreadable Parquet file ({exc})") from exc
+    at = meta.schema.names.index("log_id")
+    groups: dict[str, list[int]] = {}
+    for g in range(meta.num_row_groups):
+        stats = meta.row_group(g).column(at).statistics
+        if stats is None or not stats.has_min_max or stats.min != stats.max:
+            return dict(read_frame_tags(path, log_ids))
+        groups.setdefault(str(stats.min), []).append(g)
+    return {lid: LogFrameTagsRef(str(path), lid, tuple(groups[lid])) for lid in log_ids if lid in groups}
+
+
+def frame_tags_of(path: Location, log_ids: list[str]) -> dict[str, LogFrameTags | LogFrameTagsRef]:
+    """The per-frame tags of ``log_ids`` in ``path`` (the ``frame_tags.parquet`` written beside the
+    captions, local or a URI), by log: a local file's as references that each log's task reads
+    (:func:`frame_tags_by_log`); none when the file is absent.
+
+    Raises:
+        ValueError: the file is unreadable or lacks a column.
+    """
+    if not exists(path):
+        return {}
+    if is_uri(path):
+        with staged_input(path) as local:
+            return dict(read_frame_tags(local, log_ids))
+    return frame_tags_by_log(Path(path), log_ids)
+
+
+def _columns(path: Path) -> list[str]:
+    """The columns to read of ``path``; ValueError when it is unreadable or lacks one."""
+    columns = ["log_id", "timestamp_ns", "track_id", *_OBJECT_FIELDS, *_HOST_FIELDS]
+    try:
+        names = pq.read_schema(path).names
+    except (OSError, pa.ArrowInvalid) as exc:
+        raise ValueError(f"{path}: unreadable Parquet file ({exc})") from exc
+    missing = [c for c in columns if c not in names and c not in _OPTIONAL_FIELDS]
+    if missing:
+        raise ValueError(f"{path}: missing column(s) {missing}")
+    return [c for c in columns if c in names]
+
+
+def _by_log(table: pa.Table, path: Path) -> dict[str, LogFrameTags]:
+    """Rows of ``frame_tags.parquet`` → log id → its tags."""
+    cols = {name: _shared_values(table.column(name)) for name in table.column_names}
     null: list[str | None] = [None] * table.num_rows
     objects = list(zip(*(cols.get(name, null) for name in _OBJECT_FIELDS)))  # (lane, motion, action, context)
     out: dict[str, LogFrameTags] = {}
@@ -100,3 +172,13 @@ def read_frame_tags(path: Path, log_ids: Sequence[str] | None = None) -> dict[st
         else:
             tags.objects[(int(t), str(track))] = objects[i]
     return out
+
+
+def _shared_values(column: pa.ChunkedArray) -> list[Any]:
+    """The column's values as Python objects, each distinct string one object: the clip table keeps
+    a clip's tags until it is written, and a tag per frame, each its own string, took about 240 kB a log."""
+    if not pa.types.is_string(column.type) and not pa.types.is_large_string(column.type):
+        return column.to_pylist()
+    encoded = column.dictionary_encode().combine_chunks()
+    values = [*encoded.dictionary.to_pylist(), None]
+    return [values[i] for i in encoded.indices.fill_null(len(values) - 1).to_numpy()]

@@ -9,7 +9,14 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
-from encoders.clips.frame_tags import FRAME_TAG_COLUMNS, empty_clip_columns, read_frame_tags
+from encoders.clips.frame_tags import (
+    FRAME_TAG_COLUMNS,
+    LogFrameTagsRef,
+    empty_clip_columns,
+    frame_tags_by_log,
+    frame_tags_of,
+    read_frame_tags,
+)
 
 
 def _write(path: Path, actions: bool = False) -> None:
@@ -46,6 +53,26 @@ def test_clip_columns_give_the_tags_at_each_sampled_frame(tmp_path: Path) -> Non
     assert tags["a"].clip_columns("bus", np.array([10]))["frame_lane"] == [None]
     assert list(read_frame_tags(path, log_ids=["b"])) == ["b"] and read_frame_tags(path, log_ids=[]) == {}
     assert empty_clip_columns(2) == {name: [None, None] for name in FRAME_TAG_COLUMNS}
+
+
+def test_a_file_of_one_log_per_row_group_is_read_log_by_log(tmp_path: Path) -> None:
+    """As ``caption`` writes it: each log's task reads its own row groups, to the tags of a whole read."""
+    whole = tmp_path / "whole.parquet"
+    _write(whole, actions=True)
+    table = pq.read_table(whole)
+    grouped = tmp_path / "grouped.parquet"
+    with pq.ParquetWriter(grouped, table.schema) as writer:
+        for part in (table.slice(0, 2), table.slice(3, 1), table.slice(2, 1)):  # a's rows in two row groups
+            writer.write_table(part)
+    expected = read_frame_tags(whole)
+    refs = frame_tags_by_log(grouped, ["a", "b", "c"])
+    assert sorted(refs) == ["a", "b"] and all(isinstance(r, LogFrameTagsRef) for r in refs.values())
+    assert refs["a"].row_groups == (0, 2)  # type: ignore[union-attr]
+    for log_id, ref in refs.items():
+        assert isinstance(ref, LogFrameTagsRef) and ref.load() == expected[log_id]
+    # Row groups holding several logs (a file written at once): the tags, read at once.
+    assert frame_tags_by_log(whole, ["b"]) == {"b": expected["b"]}
+    assert frame_tags_of(tmp_path / "absent.parquet", ["a"]) == {}
 
 
 def test_clip_columns_carry_the_unified_tags_action_and_context(tmp_path: Path) -> None:

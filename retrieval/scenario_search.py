@@ -35,6 +35,7 @@ from scenarios.evaluate import evaluate, grouped_notes
 from scenarios.features import EGO_TRACK_ID, LogFeatures
 from scenes.errors import ScenesError
 from scenesearch_base.arrow_numpy import from_numpy, to_numpy
+from scenesearch_base.lru import Lru
 
 #: The folder of the logs' scenario features inside an index.
 SCENARIOS_DIR = "scenarios"
@@ -129,12 +130,21 @@ def clip_log_folders(clips_dir: Path) -> dict[str, str]:
             if isinstance(entry, dict) and entry.get("log_dir") and "://" not in str(entry["log_dir"])}
 
 
+#: Bytes of decoded scenario features a store keeps (1,000 logs of 15 s with about 100 objects a frame
+#: take about 0.7 GB): a query over a fleet's index reads every log's, which would otherwise all stay.
+FEATURES_KEPT_BYTES = 1 << 30
+
+
 class ScenarioStore:
-    """The scenario features of an index's logs, read when a query first needs them."""
+    """The scenario features of an index's logs, read when a query first needs them and kept, the least
+    recently used going first, up to :data:`FEATURES_KEPT_BYTES`."""
 
     def __init__(self, folder: Path | None) -> None:
         self.folder = folder
-        self._features: dict[str, LogFeatures | None] = {}
+        # log id → (its features, or None without any): a one-element tuple, so that a log known to have
+        # none is told apart from one not read yet.
+        self._features: Lru[str, tuple[LogFeatures | None]] = Lru(
+            FEATURES_KEPT_BYTES, lambda kept: kept[0].nbytes if kept[0] is not None else 0)
         self._problems: dict[str, str] = {}  # log id → why its features could not be read
 
     @property
@@ -144,14 +154,16 @@ class ScenarioStore:
     def features(self, log_id: str) -> LogFeatures | None:
         if self.folder is None:
             return None
-        if log_id not in self._features:
+        kept = self._features.get(log_id)
+        if kept is None:
             path = self.folder / f"{log_id}{FEATURES_SUFFIX}"
             try:
-                self._features[log_id] = decode(path.read_bytes())[0] if path.is_file() else None
+                kept = (decode(path.read_bytes())[0] if path.is_file() else None,)
             except ValueError as exc:  # another format (an index built by another release) or damaged
-                self._features[log_id] = None
+                kept = (None,)
                 self._problems[log_id] = f"{path.name}: {exc}; build the index again to answer scenario programs"
-        return self._features[log_id]
+            self._features.put(log_id, kept)
+        return kept[0]
 
     def match(self, query: str, moments: pa.Table) -> ScenarioMatch:
         """The moments of ``moments`` (``clip_id``, ``log_id``, ``track_id``, ``start_ns``, ``end_ns``) the

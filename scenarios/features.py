@@ -111,6 +111,11 @@ class LogFeatures:
     weather: str = "unknown"
 
     @property
+    def nbytes(self) -> int:
+        """Bytes of its arrays (what a process keeping it in memory holds)."""
+        return sum(v.nbytes for v in vars(self).values() if isinstance(v, np.ndarray))
+
+    @property
     def num_objects(self) -> int:
         """K, the ego included."""
         return int(self.track_ids.shape[0])

@@ -60,6 +60,25 @@ def test_the_program_selects_the_windows_where_it_holds(store: tuple[ScenarioSto
     assert ego.to_dict()["program"] == "turning(ego, direction=left)"
 
 
+def test_the_store_keeps_features_within_its_budget_and_answers_the_same(
+        store: tuple[ScenarioStore, np.ndarray], monkeypatch: pytest.MonkeyPatch) -> None:
+    """A query over a fleet's logs reads every log's features: the least recently used go past the
+    budget, and are read again when asked for, to the same answer."""
+    import retrieval.scenario_search as scenario_search
+
+    scenarios, ts = store
+    moments = _moments([("car", "", int(ts[0]), int(ts[15])), ("bike", "", int(ts[0]), int(ts[29]))])
+    kept = scenarios.match("vehicle with a bicycle to its right", moments)
+    one_log = scenarios.features("synthetic").nbytes  # type: ignore[union-attr]
+    assert scenarios._features.total == one_log and scenarios.features("absent") is None
+    monkeypatch.setattr(scenario_search, "FEATURES_KEPT_BYTES", one_log - 1)  # no log fits
+    small = ScenarioStore(scenarios.folder)
+    for _ in range(2):
+        assert small.match("vehicle with a bicycle to its right", moments) == kept
+        assert small._features.total == 0
+    assert small.features("absent") is None and "absent" in small._features  # known to have none: kept
+
+
 def test_the_search_says_why_it_ranks_every_moment(store: tuple[ScenarioStore, np.ndarray], tmp_path: Path) -> None:
     scenarios, ts = store
     moments = _moments([("car", "", int(ts[15]), int(ts[29]))])

@@ -27,7 +27,7 @@ import numpy as np
 import pyarrow.parquet as pq
 from numpy.typing import NDArray
 
-from encoders.clips.blocks import FrameArray
+from encoders.clips.blocks import LOGS_KEPT, FrameArray
 from encoders.tagging.attributes import Region, TagError, parse_attribute, parse_region
 from encoders.tagging.inference import Tagger, load_tagger
 from encoders.tagging.scene_tags import (
@@ -43,6 +43,7 @@ from encoders.tagging.scene_tags import (
     region_masks,
     values_of,
 )
+from scenesearch_base.lru import Lru
 
 CACHE_DIR = "tag_cache"
 
@@ -117,8 +118,14 @@ def spans_of(values: NDArray[np.floating], timestamps_ns: NDArray[np.int64], thr
     return list(zip(starts[keep].tolist(), ends[keep].tolist()))
 
 
+#: Bytes of per-cell tag values a tag search keeps (a 20-s log's one attribute at the default grid:
+#: about 0.4 MB): queries over a fleet's logs would otherwise keep every log's.
+VALUES_KEPT_BYTES = 1 << 30
+
+
 class TagSearch:
-    """Tag queries with one trained model; per-log frames and tag tensors are cached in memory."""
+    """Tag queries with one trained model; per-log frames and tag tensors are kept in memory, the least
+    recently used going first (:data:`VALUES_KEPT_BYTES`, :data:`encoders.clips.blocks.LOGS_KEPT` logs)."""
 
     def __init__(self, run_dir: Path | str, cache_dir: Path | str | None = None, clips_dir: Path | str | None = None,
                  device: str = "cpu", tagger: Tagger | None = None) -> None:
@@ -128,8 +135,8 @@ class TagSearch:
         clips = clips_dir or self.tagger.meta.get("clips_dir")
         self.clips_dir = Path(clips) if clips else None
         self.grid = coarse_grid(self.tagger.grid, self.tagger.downsample)
-        self._frames: dict[str, LogFrames] = {}
-        self._values: dict[tuple[str, str], NDArray[np.float32]] = {}
+        self._frames: Lru[str, LogFrames] = Lru(LOGS_KEPT)
+        self._values: Lru[tuple[str, str], NDArray[np.float32]] = Lru(VALUES_KEPT_BYTES, lambda v: v.nbytes)
 
     @property
     def attributes(self) -> tuple[str, ...]:
@@ -146,8 +153,9 @@ class TagSearch:
 
         log_dir = Path(log_dir)
         log_id = log_dir.name
-        if log_id in self._frames:
-            return self._frames[log_id]
+        kept = self._frames.get(log_id)
+        if kept is not None:
+            return kept
         log = Log.open(log_dir)
         config = ClipsConfig.from_dict(self.tagger.meta.get("clips_config") or {}, source=str(self.run_dir))
         dense = log.dense_tracks()
@@ -162,7 +170,7 @@ class TagSearch:
         ts = pq.read_table(folder / layout.FRAMES_FILE, columns=["timestamp_ns"]).column(0).to_numpy()
         frames = LogFrames(log_id, ts.astype(np.int64), layout.load_rendered_array(folder, layout.BEV_LIDAR_FILE),
                            layout.load_rendered_array(folder, layout.BEV_MAP_FILE), log.map_path is not None)
-        self._frames[log_id] = frames
+        self._frames.put(log_id, frames)
         return frames
 
     def values(self, log_dir: Path | str, attribute: str) -> NDArray[np.float32]:
@@ -173,14 +181,17 @@ class TagSearch:
         """Per-cell values of several attributes, from one pass of the backbone for those not cached."""
         names = [parse_attribute(a, list(self.attributes)) for a in attributes]
         fr = self.frames(log_dir)
-        todo = [n for n in dict.fromkeys(names) if (fr.log_id, n) not in self._values]
+        found = {n: self._values.get((fr.log_id, n)) for n in dict.fromkeys(names)}
+        todo = [n for n, value in found.items() if value is None]
         if todo:
             rows = [self.tagger.names.index(n) for n in todo]
             v = self.tagger.tag_frames(fr.bev_lidar, fr.bev_map, attributes=rows)  # (F, len(todo), h, w)
             head, cell_m2 = self.tagger.head.config, self.grid.resolution_m**2
             for i, n in enumerate(todo):
-                self._values[(fr.log_id, n)] = values_of(v[:, i], n, head.kind(n), head.footprint_share(n, cell_m2))
-        return [self._values[(fr.log_id, n)] for n in names]
+                value = values_of(v[:, i], n, head.kind(n), head.footprint_share(n, cell_m2))
+                self._values.put((fr.log_id, n), value)
+                found[n] = value
+        return [found[n] for n in names]  # type: ignore[misc]
 
     def mask(self, log_dir: Path | str, region: str | Region) -> NDArray[np.bool_]:
         """(h, w) or (F, h, w) region mask; map regions raise :class:`TagError` for a log without a map."""

@@ -57,6 +57,21 @@ def test_series_is_the_model_tag_tensor_pooled_over_the_region(fx: dict[str, Any
                                rtol=1e-5)
 
 
+def test_tag_values_are_kept_within_their_budget_and_computed_again_alike(fx: dict[str, Any],
+                                                                        monkeypatch: pytest.MonkeyPatch) -> None:
+    import retrieval.tagging as tagging
+
+    log = fx["logs"][0]
+    kept = fx["search"].values_many(log, ["parked", "four_way"])
+    monkeypatch.setattr(tagging, "VALUES_KEPT_BYTES", kept[0].nbytes)  # one attribute's values fit
+    small = TagSearch(fx["run"], cache_dir=fx["search"].cache_dir)
+    for _ in range(2):
+        again = small.values_many(log, ["parked", "four_way", "parked"])
+        assert small._values.total <= kept[0].nbytes and len(small._values) == 1
+        for got, want in zip(again, [*kept, kept[0]]):
+            np.testing.assert_array_equal(got, want)
+
+
 def test_find_ranks_spans_by_score(fx: dict[str, Any]) -> None:
     search: TagSearch = fx["search"]
     spans = search.find(fx["logs"], "parked | braking", "full", threshold=0.0, min_duration_s=0.0)

@@ -7,6 +7,7 @@ from __future__ import annotations
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import cast
 
 from captioning.config import CaptioningConfig
 from captioning.pipeline import LogCaptions, caption_log
@@ -81,18 +82,17 @@ def caption_logs(log_dirs: Iterable[Path | str], config: CaptioningConfig | None
     given, repeated = distinct_by_name(list(log_dirs))
     dirs = list(given.values())
 
-    def keep(result: LogCaptions) -> LogCaptions | LogSummary:
-        if write is None:
-            return result
+    def written(result: LogCaptions) -> LogSummary:
+        assert write is not None
         write(result)
         return LogSummary.of(result)
 
     report = run_tasks(caption_log_dir, dirs, execution, labels=[str(d) for d in dirs],
                        context=config or CaptioningConfig(), skip_on=(ScenesError, ValueError, OSError),
-                       consume=keep)
-    kept = report.values
-    results = [r for r in kept if isinstance(r, LogCaptions)]
-    summaries = [r if isinstance(r, LogSummary) else LogSummary.of(r) for r in kept]
+                       consume=None if write is None else written)
+    results = report.values if write is None else []
+    # With a writer the report holds what ``written`` returned for each log: its summary.
+    summaries = [LogSummary.of(r) for r in results] if write is None else cast(list[LogSummary], report.values)
     skipped = {o.label: o.reason for o in report.with_status(TaskStatus.SKIPPED)}
     return BatchResult(results, summaries, {**skipped, **repeated},
                        {o.label: o.reason for o in report.with_status(TaskStatus.FAILED)})

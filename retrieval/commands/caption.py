@@ -31,6 +31,7 @@ from scenesearch_base.storage import Location, as_location, expand, is_uri, stag
 
 if TYPE_CHECKING:
     from captioning.outputs import CaptionsWriter
+    from captioning.pipeline import LogCaptions
 
 HELP = "tag host and neighbour behaviour per frame and write temporal captions (Parquet)"
 
@@ -66,13 +67,17 @@ def run(args: argparse.Namespace) -> int:
     start = time.perf_counter()
     out, log_dirs = as_location(args.out), expand(args.log_dirs)
     claim_folder(out, CAPTIONS_FOLDER, log_dirs)  # before any log is read
-    try:
-        with _writer(out, config.rules is RuleSet.BEHAVIOR, log_dirs) as writer:  # each log written as it comes
-            batch = caption_logs(log_dirs, config, Execution.from_args(args), write=writer.add)
-            if not batch.summaries:
-                raise _NothingCaptioned
-    except _NothingCaptioned:
-        pass
+    with contextlib.ExitStack() as opened:
+        writers: list[CaptionsWriter] = []
+
+        def write(result: LogCaptions) -> None:
+            """Each log written as it comes; the folder is opened with the first, so that a run that
+            captions no log leaves ``--out`` as it was."""
+            if not writers:
+                writers.append(opened.enter_context(_writer(out, config.rules is RuleSet.BEHAVIOR, log_dirs)))
+            writers[0].add(result)
+
+        batch = caption_logs(log_dirs, config, Execution.from_args(args), write=write)
     for log_dir, reason in batch.skipped_logs.items():
         print(f"skipped log {log_dir}: {reason}")
     for log_dir, reason in batch.failed_logs.items():
@@ -99,10 +104,6 @@ def run(args: argparse.Namespace) -> int:
         + (f"; {len(batch.failed_logs)} log(s) failed: {', '.join(batch.failed_logs)}" if batch.failed_logs else "")
     )
     return 1 if batch.failed_logs or batch.skipped_logs else 0
-
-
-class _NothingCaptioned(Exception):
-    """No log could be captioned: the output folder is left as it was."""
 
 
 @contextlib.contextmanager

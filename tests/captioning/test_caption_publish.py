@@ -154,3 +154,5 @@ def test_caption_command_where_every_log_fails_leaves_outputs_untouched(
     assert "skipped log" in said and "left as it was" in said
     assert {p.name: p.read_bytes() for p in (out / FRAME_TAGS_FILENAME, out / CAPTIONS_FILENAME)} == before
     assert current_generation(out) == generation
+    fresh = tmp_path / "never_made"  # nothing captioned: not even the folder is made
+    assert main(["caption", str(tmp_path / "no_such_log"), "--out", str(fresh)]) == 2 and not fresh.exists()

@@ -176,7 +176,7 @@ def _by_log(table: pa.Table, path: Path) -> dict[str, LogFrameTags]:
 
 def _shared_values(column: pa.ChunkedArray) -> list[Any]:
     """The column's values as Python objects, each distinct string one object: the clip table keeps
-    a clip's tags until it is written, and a tag per frame, each its own string, took about 240 kB a log."""
+    every clip's tags until it is written, and a few dozen tag names repeat over every frame."""
     if not pa.types.is_string(column.type) and not pa.types.is_large_string(column.type):
         return column.to_pylist()
     encoded = column.dictionary_encode().combine_chunks()

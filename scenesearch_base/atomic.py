@@ -208,6 +208,22 @@ def atomic_path(target: Path | str) -> Iterator[Path]:
         raise
 
 
+@contextmanager
+def scratch_path(beside: Path | str) -> Iterator[Path]:
+    """Yield a temporary file path beside ``beside`` (named as this module's temporary entries, so a
+    killed writer's file is swept as theirs are), removed when the block ends: room on the output's
+    own file system for what a writer spools before it writes the output."""
+    beside = Path(beside)
+    beside.parent.mkdir(parents=True, exist_ok=True)
+    sweep_stale(beside.parent)
+    fd, name = tempfile.mkstemp(prefix=_temp_prefix(beside.name), suffix=f".tmp{beside.suffix}", dir=beside.parent)
+    os.close(fd)
+    try:
+        yield Path(name)
+    finally:
+        Path(name).unlink(missing_ok=True)
+
+
 def atomic_write_bytes(target: Path | str, data: bytes) -> None:
     """Write ``data`` to ``target`` atomically."""
     with atomic_path(target) as tmp:

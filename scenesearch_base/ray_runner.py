@@ -181,9 +181,10 @@ def run_tasks(
         items_per_task: consecutive items one Ray task runs (default: adapted to how long items
             take, see :class:`ChunkSizer`; 1: one task per item).
         consume: receives each value, in the items' order, as soon as every earlier item has ended
-            (on Ray, values that come early wait for them); the report keeps what it returns in the
-            value's place, so that a run over many items need not hold every value. What it raises
-            ends the run.
+            (on Ray, values that come early wait for them, and no item is sent more than
+            :data:`CONSUME_AHEAD_ITEMS` past the first one not yet consumed, so that a slow item never
+            lets the values behind it pile up); the report keeps what it returns in the value's place,
+            so that a run over many items need not hold every value. What it raises ends the run.
 
     Raises:
         ClusterError: Ray is not installed, or its cluster cannot be reached.
@@ -208,6 +209,11 @@ def run_tasks(
     return RunReport(ordered.outcomes(), time.perf_counter() - start, execution.describe(), noun)
 
 
+#: With a consumer, how far past the first item not yet consumed a Ray run sends items: the most
+#: values it holds while an earlier item runs on (a log's captions or clip rows, each).
+CONSUME_AHEAD_ITEMS = 256
+
+
 class _InOrder:
     """Outcomes as they end, each value handed to ``consume`` in the items' order (see :func:`run_tasks`)."""
 
@@ -215,6 +221,10 @@ class _InOrder:
         self._outcomes: list[Outcome[Any] | None] = [None] * n
         self._next = 0
         self._consume = consume
+
+    def limit(self, n: int) -> int:
+        """How many items may be sent so far: all of them without a consumer."""
+        return n if self._consume is None else min(n, self._next + CONSUME_AHEAD_ITEMS)
 
     def put(self, i: int, outcome: Outcome[Any]) -> None:
         self._outcomes[i] = outcome
@@ -247,11 +257,11 @@ def _run_on_ray(fn: Callable[..., Any], items: Sequence[Any], names: list[str], 
         alone: deque[int] = deque()  # items of chunks whose worker died: run again one per task
         submitted = 0
         while submitted < len(items) or alone or pending:
-            while (submitted < len(items) or alone) and len(pending) < window:
-                if alone:
+            while (submitted < ordered.limit(len(items)) or alone) and len(pending) < window:
+                if alone:  # items sent before: within the limit
                     chunk = [alone.popleft()]
                 else:
-                    size = sizer.size(len(items) - submitted)
+                    size = min(sizer.size(len(items) - submitted), ordered.limit(len(items)) - submitted)
                     chunk = list(range(submitted, submitted + size))
                     submitted += size
                 ref = remote.remote(fn_ref, [items[i] for i in chunk], context_ref, has_context,

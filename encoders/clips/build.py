@@ -24,12 +24,12 @@ from typing import Any
 import numpy as np
 
 from captioning.pipeline import CAPTIONS_FILENAME, FRAME_TAGS_FILENAME
+from encoders.clips.build_report import ClipsReport, log_line, manifest, missing_error
 from encoders.clips.config import ClipsConfig
 from encoders.clips.frame_tags import LogFrameTags, LogFrameTagsRef, empty_clip_columns, frame_tags_of
 from encoders.clips.layout import (
     CAMERA_PIXEL_COUNTS_FILE,
     CLIPS_FOLDER,
-    CLIPS_FORMAT_VERSION,
     LOGS_DIR,
     MANIFEST_FILE,
     PREVIEWS_DIR,
@@ -38,18 +38,18 @@ from encoders.clips.layout import (
     preview_file_name,
     rendered_log_dir,
 )
-from encoders.clips.raster import MAP_CHANNELS
-from encoders.clips.render import bev_grid, lidar_channel_names, render_log
+from encoders.clips.render import render_log
 from encoders.clips.render_stats import LogRenderStats, read_render_stats, render_fingerprint, reuse_problem
 from encoders.clips.splits import assign_splits
 from encoders.clips.table import (
     CaptionRow,
     ClipsInputError,
+    ClipTableSpool,
+    LogCaptionRows,
     Skipped,
-    read_captions,
+    captions_by_log,
     sample_frame_indices,
     window_frames,
-    write_clip_table,
 )
 from encoders.clips.views import open_log_arrays
 from scenes.errors import LogFormatError
@@ -73,21 +73,6 @@ from scenesearch_base.storage import (
 )
 
 
-@dataclass
-class ClipsReport:
-    """What a run produced and what it skipped (with reasons); ``failed``: logs whose task failed."""
-
-    clips_dir: Location
-    num_clips: int = 0
-    logs: dict[str, dict[str, Any]] = field(default_factory=dict)
-    skipped: list[dict[str, Any]] = field(default_factory=list)
-    render_s: float = 0.0
-    table_s: float = 0.0
-    preview_s: float = 0.0
-    reused_logs: int = 0
-    failed: dict[str, str] = field(default_factory=dict)
-
-
 @dataclass(frozen=True)
 class ClipsTaskContext:
     """What every log's task shares: where the clips go and how they are made."""
@@ -101,10 +86,13 @@ class ClipsTaskContext:
 
 @dataclass
 class LogClips:
-    """What :func:`clip_log` made of one log: clip rows (without their split) and what it skipped."""
+    """What :func:`clip_log` made of one log: clip rows (without their split; emptied once the driver
+    has spooled them) and what it skipped."""
 
     log_id: str
     rows: list[dict[str, Any]] = field(default_factory=list)
+    num_clips: int = 0
+    clips_with_camera: int = 0
     stats: dict[str, Any] | None = None
     skipped: list[dict[str, Any]] = field(default_factory=list)
     missing_tracks: dict[str, int] = field(default_factory=dict)
@@ -116,15 +104,16 @@ class LogClips:
     rerendered: str | None = None
 
 
-def clip_log(job: tuple[Location, tuple[CaptionRow, ...], LogFrameTags | LogFrameTagsRef | None],
+def clip_log(job: tuple[Location, LogCaptionRows | None, LogFrameTags | LogFrameTagsRef | None],
              ctx: ClipsTaskContext) -> LogClips:
-    """One log's task: ``job`` is (its folder, its caption rows in caption order, its per-frame tags
-    from ``frame_tags.parquet``, or where to read them there, or None).
+    """One log's task: ``job`` is (its folder, its caption rows (or None), its per-frame tags from
+    ``frame_tags.parquet``, or where to read them there, or None).
 
     Raises:
         TaskSkipped: the log cannot be opened.
     """
-    log_dir, rows, frame_tags = job
+    log_dir, captions, frame_tags = job
+    rows = captions.load() if captions is not None else ()
     frame_tags = frame_tags.load() if isinstance(frame_tags, LogFrameTagsRef) else frame_tags
     log_id, config = name_of(log_dir), ctx.config
     with staged_input(log_dir) as local_log:
@@ -165,7 +154,7 @@ def _local_clips(clips_dir: Location, log_id: str, config: ClipsConfig, reuse: b
         yield scratch
 
 
-def _render_and_cut(log: Log, dense: DenseTracks, rows: list[CaptionRow], clips_dir: Path, ctx: ClipsTaskContext,
+def _render_and_cut(log: Log, dense: DenseTracks, rows: Sequence[CaptionRow], clips_dir: Path, ctx: ClipsTaskContext,
                     out: LogClips, frame_tags: LogFrameTags | None) -> None:
     config, skipped = ctx.config, Skipped(out.skipped)
     folder = rendered_log_dir(clips_dir, log.log_id)
@@ -185,6 +174,7 @@ def _render_and_cut(log: Log, dense: DenseTracks, rows: list[CaptionRow], clips_
     out.render_s = time.perf_counter() - t0
     t1 = time.perf_counter()
     out.rows = _clip_rows(log, dense, rows, stats, folder, config, skipped, frame_tags)
+    out.num_clips, out.clips_with_camera = len(out.rows), sum(bool(r["has_camera"]) for r in out.rows)
     out.table_s = time.perf_counter() - t1
     out.stats = stats.to_dict()
     if config.previews and out.rows:
@@ -197,20 +187,6 @@ def _render_and_cut(log: Log, dense: DenseTracks, rows: list[CaptionRow], clips_
             write_preview(clips_dir, clip, clips_dir / rel, config, arrays)
             clip["preview_path"] = rel
         out.preview_s = time.perf_counter() - t2
-
-
-def _missing_error(captions_path: Location, missing_logs: dict[str, int],
-                   missing_tracks: dict[tuple[str, str], int]) -> ClipsInputError:
-    parts = []
-    if missing_logs:
-        named = ", ".join(f"{lid} (first at row {r})" for lid, r in list(missing_logs.items())[:10])
-        more = f" and {len(missing_logs) - 10} more" if len(missing_logs) > 10 else ""
-        parts.append(f"field 'log_id': {len(missing_logs)} log(s) not among the given logs: {named}{more}")
-    if missing_tracks:
-        named = ", ".join(f"{lid}/{tid} (row {r})" for (lid, tid), r in list(missing_tracks.items())[:10])
-        more = f" and {len(missing_tracks) - 10} more" if len(missing_tracks) > 10 else ""
-        parts.append(f"field 'track_id': {len(missing_tracks)} track(s) not in their log: {named}{more}")
-    return ClipsInputError(f"{captions_path}: " + "; ".join(parts))
 
 
 def build_clips(
@@ -248,7 +224,8 @@ def build_clips(
     if (not str(captions_dir).endswith(".parquet")) if is_uri(captions_dir) else Path(captions_dir).is_dir():
         captions_path, captions_folder = join(captions_dir, CAPTIONS_FILENAME), captions_dir
     with staged_input(captions_path) as local_captions:
-        rows = read_captions(local_captions)
+        # A local file is read again by each log's task, for its own rows; a staged copy goes with this block.
+        captions = captions_by_log(local_captions, refer=not is_uri(captions_path))
     report = ClipsReport(clips_dir=clips_dir)
     skipped = Skipped()
 
@@ -259,130 +236,75 @@ def build_clips(
         frame_tags = frame_tags_of(join(captions_folder, FRAME_TAGS_FILENAME), list(given))
     except ValueError as exc:
         raise ClipsInputError(str(exc)) from None
-    by_log: dict[str, list[CaptionRow]] = {}
-    for row in rows:
-        by_log.setdefault(row.log_id, []).append(row)
-    missing_logs = {lid: log_rows[0].row for lid, log_rows in by_log.items() if lid not in given}
+    missing_logs = {lid: rows.first_row for lid, rows in captions.items() if lid not in given}
     ctx = ClipsTaskContext(clips_dir, config, reuse, check_only=bool(missing_logs) and config.strict)
-    jobs = [(log_dir, tuple(by_log.get(log_id, ())), frame_tags.get(log_id)) for log_id, log_dir in given.items()]
-    run = run_tasks(clip_log, jobs, execution, labels=list(given), context=ctx, noun="log")
-    results: dict[str, LogClips] = {}
-    for log_id, outcome in zip(given, run.outcomes):
-        if outcome.status is TaskStatus.DONE and outcome.value is not None:
-            results[log_id] = outcome.value
-        elif outcome.status is TaskStatus.SKIPPED:
-            skipped.add(outcome.reason, log_id=log_id)
-            for row in by_log.get(log_id, []):
-                skipped.add("log could not be opened", clip=row.clip_id)
-        else:
-            report.failed[log_id] = outcome.reason
-            skipped.add(f"log failed: {outcome.reason}", log_id=log_id)
-    missing_tracks = {(lid, tid): r for lid, res in results.items() for tid, r in res.missing_tracks.items()}
-    if config.strict and (missing_logs or missing_tracks):
-        raise _missing_error(captions_path, missing_logs, missing_tracks)
-    for lid, r in missing_logs.items():
-        skipped.add("log not given", log_id=lid, row=r)
-    for (lid, tid), r in missing_tracks.items():
-        skipped.add("track not in log", log_id=lid, track_id=tid, row=r)
+    jobs = [(log_dir, captions.get(log_id), frame_tags.get(log_id)) for log_id, log_dir in given.items()]
+    with staged_output(clips_dir) as out, ClipTableSpool(Path(out)) as table:
 
-    splits = assign_splits(results, config.split)
-    clip_rows: list[dict[str, Any]] = []
-    order = [lid for lid in by_log if lid in results] + [lid for lid in results if lid not in by_log]
-    for log_id in order:
-        res = results[log_id]
-        skipped.items.extend(res.skipped)
-        if res.stats is None:
-            for item in res.skipped:
-                if item.get("log_id") == log_id and "could not be rendered" in item["reason"]:
-                    say(f"{log_id}: skipped: {item['reason'].removeprefix('log could not be rendered: ')}")
-            continue
-        split = splits[log_id].value
-        for clip in res.rows:
-            clip["split"] = split
-        clip_rows.extend(res.rows)
-        report.render_s += res.render_s
-        report.table_s += res.table_s
-        report.preview_s += res.preview_s
-        report.reused_logs += int(res.reused)
-        entry = dict(res.stats)
-        entry["clips"] = len(res.rows)
-        entry["clips_with_camera"] = int(sum(r["has_camera"] for r in res.rows))
-        entry["split"] = split
-        entry["log_dir"] = str(given[log_id]) if is_uri(given[log_id]) else str(Path(given[log_id]).resolve())
-        report.logs[log_id] = entry
-        say(_log_line(log_id, res))
-    for log_id, reason in report.failed.items():
-        say(f"{log_id}: failed: {reason}")
+        def spooled(res: LogClips) -> LogClips:
+            """Each log's rows go to the table's spool as its task ends: the driver never holds them all."""
+            table.add(res.log_id, res.rows)
+            res.rows = []
+            return res
 
-    if not clip_rows:
-        # Nothing to publish: keep whatever an earlier run wrote rather than replace it with an empty table.
-        reasons = "; ".join(f"{item.get('log_id') or item.get('clip') or '?'}: {item['reason']}"
-                            for item in skipped.items[:5])
-        raise ClipsInputError(f"no clip could be made from {len(log_dirs)} log(s); {reasons or 'no captions'}")
-    with staged_output(clips_dir) as out:
+        run = run_tasks(clip_log, jobs, execution, labels=list(given), context=ctx, noun="log", consume=spooled)
+        results: dict[str, LogClips] = {}
+        for log_id, outcome in zip(given, run.outcomes):
+            if outcome.status is TaskStatus.DONE and outcome.value is not None:
+                results[log_id] = outcome.value
+            elif outcome.status is TaskStatus.SKIPPED:
+                skipped.add(outcome.reason, log_id=log_id)
+                for row in captions[log_id].load() if log_id in captions else ():
+                    skipped.add("log could not be opened", clip=row.clip_id)
+            else:
+                report.failed[log_id] = outcome.reason
+                skipped.add(f"log failed: {outcome.reason}", log_id=log_id)
+        missing_tracks = {(lid, tid): r for lid, res in results.items() for tid, r in res.missing_tracks.items()}
+        if config.strict and (missing_logs or missing_tracks):
+            raise missing_error(captions_path, missing_logs, missing_tracks)
+        for lid, r in missing_logs.items():
+            skipped.add("log not given", log_id=lid, row=r)
+        for (lid, tid), r in missing_tracks.items():
+            skipped.add("track not in log", log_id=lid, track_id=tid, row=r)
+
+        splits = {log_id: split.value for log_id, split in assign_splits(results, config.split).items()}
+        order = [lid for lid in captions if lid in results] + [lid for lid in results if lid not in captions]
+        for log_id in order:
+            res = results[log_id]
+            skipped.items.extend(res.skipped)
+            if res.stats is None:
+                for item in res.skipped:
+                    if item.get("log_id") == log_id and "could not be rendered" in item["reason"]:
+                        say(f"{log_id}: skipped: {item['reason'].removeprefix('log could not be rendered: ')}")
+                continue
+            report.render_s += res.render_s
+            report.table_s += res.table_s
+            report.preview_s += res.preview_s
+            report.reused_logs += int(res.reused)
+            log_dir = given[log_id]
+            report.logs[log_id] = {**res.stats, "clips": res.num_clips, "clips_with_camera": res.clips_with_camera,
+                                   "split": splits[log_id],
+                                   "log_dir": str(log_dir) if is_uri(log_dir) else str(Path(log_dir).resolve())}
+            say(log_line(log_id, res.num_clips, res.stats, res.rerendered, res.reused))
+        for log_id, reason in report.failed.items():
+            say(f"{log_id}: failed: {reason}")
+
+        if not table.num_rows:
+            # Nothing to publish: keep whatever an earlier run wrote rather than replace it with an empty table.
+            reasons = "; ".join(f"{item.get('log_id') or item.get('clip') or '?'}: {item['reason']}"
+                                for item in skipped.items[:5])
+            raise ClipsInputError(f"no clip could be made from {len(log_dirs)} log(s); {reasons or 'no captions'}")
+        report.num_clips = table.num_rows
         mark_folder(out, CLIPS_FOLDER, CLIPS_FOLDER.entries)
-        write_clip_table(out, clip_rows)
-        atomic_write_text(Path(out) / MANIFEST_FILE, json.dumps(_manifest(config, report, skipped, clip_rows),
-                                                                indent=2, default=str))
-    report.num_clips = len(clip_rows)
+        table.publish(order, splits)
+        atomic_write_text(Path(out) / MANIFEST_FILE, json.dumps(manifest(config, report, skipped), indent=2,
+                                                                default=str))
     report.skipped = skipped.items
     return report
 
 
-def _log_line(log_id: str, res: LogClips) -> str:
-    stats = res.stats or {}
-    extra = ""
-    if stats.get("corrupt_sweeps"):
-        extra += f", {len(stats['corrupt_sweeps'])} corrupt sweep(s) skipped"
-    if stats.get("corrupt_camera_frames"):
-        extra += f", {len(stats['corrupt_camera_frames'])} corrupt camera file(s) skipped"
-    if stats.get("camera_frames") and stats.get("camera_mask_source") == "none":
-        extra += (", no object masks from the camera: it has no intrinsics or no extrinsics row in the calibration "
-                  "(so no clip has the camera)")
-    if res.rerendered:
-        extra += f"; rendered again, the earlier rendering not reused: {res.rerendered}"
-    elif res.reused:
-        extra += "; reused (every file verified)"
-    return (f"{log_id}: {len(res.rows)} clips, {stats.get('frames')} frames, bev={stats.get('bev_source')}, "
-            f"camera frames={stats.get('camera_frames')}{extra}")
-
-
-def _manifest(config: ClipsConfig, report: ClipsReport, skipped: Skipped,
-              clip_rows: list[dict[str, Any]]) -> dict[str, Any]:
-    grid = bev_grid(config)
-    return {
-        "format_version": CLIPS_FORMAT_VERSION,
-        "frames_per_clip": config.frames_per_clip,
-        "camera": {
-            "name": config.camera.camera_name,
-            "height_px": config.camera.height_px,
-            "width_px": config.camera.width_px,
-            "channels": 4,
-            "object_crops": True,
-            "highlight_rgb": list(config.camera.highlight_rgb),
-            "highlight_alpha": config.camera.highlight_alpha,
-            "dim_factor": config.camera.dim_factor,
-        },
-        "bev": {
-            "x_min_m": grid.x_min_m,
-            "x_max_m": grid.x_max_m,
-            "y_min_m": grid.y_min_m,
-            "y_max_m": grid.y_max_m,
-            "resolution_m": grid.resolution_m,
-            "height_px": grid.height,
-            "width_px": grid.width,
-            "lidar_channels": lidar_channel_names(config.bev.z_bins_m),
-            "map_channels": list(MAP_CHANNELS),
-        },
-        "logs": report.logs,
-        "config": config.to_dict(),
-        "skipped": skipped.items,
-        "num_clips": len(clip_rows),
-    }
-
-
 def _clip_rows(
-    log: Log, dense: DenseTracks, rows: list[CaptionRow], stats: LogRenderStats, folder: Path,
+    log: Log, dense: DenseTracks, rows: Sequence[CaptionRow], stats: LogRenderStats, folder: Path,
     config: ClipsConfig, skipped: Skipped, frame_tags: LogFrameTags | None = None,
 ) -> list[dict[str, Any]]:
     """The log's clip rows (``split`` is set by the driver, which knows every log)."""

@@ -13,6 +13,7 @@ objects' own behaviour (``rules: behavior``), also its columns (``parked`` … `
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -26,7 +27,7 @@ from captioning.tables import BEHAVIOR_CAPTION_FIELDS
 from encoders.clips.frame_tags import FRAME_TAG_COLUMNS
 from encoders.clips.layout import CLIPS_FILE, clip_id
 from scenes.categories import CATEGORY_NAMES, Category
-from scenesearch_base.atomic import atomic_write_with
+from scenesearch_base.atomic import atomic_write_with, scratch_path
 
 HOST_TRACK_ID = "ego"
 REQUIRED_CAPTION_COLUMNS = ("log_id", "track_id", "start_ns", "end_ns", "caption")
@@ -54,6 +55,9 @@ CLIP_SCHEMA = pa.schema(
         *((name, pa.list_(pa.string())) for name in FRAME_TAG_COLUMNS),
     ]
 )
+
+#: Spooled rows hold every behaviour column (null where a caption has none); the table keeps those every row has.
+_SPOOL_SCHEMA = pa.schema([*CLIP_SCHEMA, *BEHAVIOR_CAPTION_FIELDS])
 
 
 class ClipsInputError(ValueError):
@@ -93,8 +97,39 @@ class Skipped:
         self.items.append({**where, "reason": reason})
 
 
-def read_captions(captions_path: Path) -> list[CaptionRow]:
-    """Neighbour caption rows (host rows, ``track_id == 'ego'``, have no clip).
+@dataclass(frozen=True)
+class LogCaptionRows:
+    """One log's neighbour caption rows, in file order: held in ``rows``, or where its task reads them
+    (``row_groups`` of the local ``captions.parquet`` at ``path``, which holds a log per row group, as
+    ``caption`` writes it), so that no process holds every log's captions.
+
+    Attributes:
+        log_id: the log.
+        first_row: the file's row number of the log's first neighbour caption.
+    """
+
+    log_id: str
+    first_row: int
+    rows: tuple[CaptionRow, ...] = ()
+    path: str | None = None
+    row_groups: tuple[int, ...] = ()
+
+    def load(self) -> tuple[CaptionRow, ...]:
+        """The rows (read again, and checked again, from the file for a reference)."""
+        if self.path is None:
+            return self.rows
+        path = Path(self.path)
+        source = _parquet_file(path)
+        firsts = np.cumsum([0, *(source.metadata.row_group(g).num_rows for g in range(source.num_row_groups))])
+        return tuple(row for g in self.row_groups
+                     for row in _caption_rows(source.read_row_group(g), path, int(firsts[g]))
+                     if row.log_id == self.log_id)
+
+
+def captions_by_log(captions_path: Path, refer: bool = True) -> dict[str, LogCaptionRows]:
+    """Every log's neighbour caption rows, the logs in the order of their first row. Every row is
+    checked here, a row group at a time; with ``refer``, where every row group holds one log (its
+    ``log_id`` statistics say so), each log's rows are a reference to its row groups, else they are held.
 
     Raises:
         FileNotFoundError: the file is missing.
@@ -102,17 +137,58 @@ def read_captions(captions_path: Path) -> list[CaptionRow]:
     """
     if not captions_path.is_file():
         raise FileNotFoundError(f"{captions_path}: captions file not found")
-    try:
-        table = pq.read_table(captions_path)
-    except (OSError, pa.ArrowInvalid) as exc:
-        raise ClipsInputError(f"{captions_path}: unreadable Parquet file ({exc})") from exc
-    missing = [c for c in REQUIRED_CAPTION_COLUMNS if c not in table.column_names]
+    source = _parquet_file(captions_path)
+    names = source.schema_arrow.names
+    missing = [c for c in REQUIRED_CAPTION_COLUMNS if c not in names]
     if missing:
         raise ClipsInputError(f"{captions_path}: missing column(s) {missing}")
     for name in ("start_ns", "end_ns"):  # seconds as floats would read as a window of a few nanoseconds
-        if not pa.types.is_integer(table.schema.field(name).type):
-            raise ClipsInputError(f"{captions_path}, field '{name}': {table.schema.field(name).type}; expected int64 "
-                                  "nanoseconds (as `scenesearch caption` writes them)")
+        if not pa.types.is_integer(source.schema_arrow.field(name).type):
+            raise ClipsInputError(f"{captions_path}, field '{name}': {source.schema_arrow.field(name).type}; "
+                                  "expected int64 nanoseconds (as `scenesearch caption` writes them)")
+    refer = refer and _one_log_per_row_group(source)
+    first_row: dict[str, int] = {}
+    groups: dict[str, list[int]] = {}
+    held: dict[str, list[CaptionRow]] = {}
+    row = 0
+    for g in range(source.num_row_groups):
+        try:
+            table = source.read_row_group(g)
+        except (OSError, pa.ArrowInvalid) as exc:
+            raise ClipsInputError(f"{captions_path}: unreadable Parquet file ({exc})") from exc
+        for caption in _caption_rows(table, captions_path, row):
+            first_row.setdefault(caption.log_id, caption.row)
+            if refer:
+                if g not in groups.setdefault(caption.log_id, []):
+                    groups[caption.log_id].append(g)
+            else:
+                held.setdefault(caption.log_id, []).append(caption)
+        row += table.num_rows
+    return {lid: LogCaptionRows(lid, first, tuple(held.get(lid, ())), str(captions_path) if refer else None,
+                                tuple(groups.get(lid, ())))
+            for lid, first in first_row.items()}
+
+
+def _parquet_file(path: Path) -> pq.ParquetFile:
+    try:
+        return pq.ParquetFile(path)
+    except (OSError, pa.ArrowInvalid) as exc:
+        raise ClipsInputError(f"{path}: unreadable Parquet file ({exc})") from exc
+
+
+def _one_log_per_row_group(source: pq.ParquetFile) -> bool:
+    """Whether each row group's ``log_id`` statistics say it holds a single log."""
+    meta = source.metadata
+    at = [meta.schema.column(i).path for i in range(meta.num_columns)].index("log_id")
+    for g in range(meta.num_row_groups):
+        stats = meta.row_group(g).column(at).statistics
+        if stats is None or not stats.has_min_max or stats.min != stats.max:
+            return False
+    return True
+
+
+def _caption_rows(table: pa.Table, captions_path: Path, first_row: int) -> list[CaptionRow]:
+    """The neighbour caption rows of ``table``, whose first row is row ``first_row`` of the file, checked."""
     cols = {name: table.column(name).to_pylist() for name in table.column_names}
     n = table.num_rows
 
@@ -123,36 +199,37 @@ def read_captions(captions_path: Path) -> list[CaptionRow]:
     categories, canon, para = get("category", "other"), get("canonical_caption", None), get("paraphrases", None)
     tags, host_tags = get("tags", None), get("host_tags", None)
     behavior = [f.name for f in BEHAVIOR_CAPTION_FIELDS if f.name in cols]
-    for i in range(n):
+    for j in range(n):
+        i = first_row + j
         for name in REQUIRED_CAPTION_COLUMNS:
-            if cols[name][i] is None:
+            if cols[name][j] is None:
                 raise ClipsInputError(f"{captions_path}, row {i}, field '{name}': null value")
-        if str(cols["track_id"][i]) == HOST_TRACK_ID:
+        if str(cols["track_id"][j]) == HOST_TRACK_ID:
             continue
-        start, end = int(cols["start_ns"][i]), int(cols["end_ns"][i])
+        start, end = int(cols["start_ns"][j]), int(cols["end_ns"][j])
         if end < start:
             raise ClipsInputError(f"{captions_path}, row {i}, field 'end_ns': {end} is before start_ns {start}")
-        category = str(categories[i] or Category.OTHER.value)
+        category = str(categories[j] or Category.OTHER.value)
         if category not in CATEGORY_NAMES:
             raise ClipsInputError(f"{captions_path}, row {i}, field 'category': {category!r} is not one of "
                                   f"{list(CATEGORY_NAMES)}")
-        caption = str(cols["caption"][i])
+        caption = str(cols["caption"][j])
         if not caption.strip():
             raise ClipsInputError(f"{captions_path}, row {i}, field 'caption': empty (a clip is its caption's moment)")
         rows.append(
             CaptionRow(
                 row=i,
-                log_id=str(cols["log_id"][i]),
-                track_id=str(cols["track_id"][i]),
+                log_id=str(cols["log_id"][j]),
+                track_id=str(cols["track_id"][j]),
                 category=category,
                 start_ns=start,
                 end_ns=end,
                 caption=caption,
-                canonical_caption=str(canon[i]) if canon[i] is not None else caption,
-                paraphrases=[str(p) for p in (para[i] or [])],
-                tags=[str(t) for t in (tags[i] or [])],
-                host_tags=[str(t) for t in (host_tags[i] or [])],
-                behavior={name: cols[name][i] for name in behavior},
+                canonical_caption=str(canon[j]) if canon[j] is not None else caption,
+                paraphrases=[str(p) for p in (para[j] or [])],
+                tags=[str(t) for t in (tags[j] or [])],
+                host_tags=[str(t) for t in (host_tags[j] or [])],
+                behavior={name: cols[name][j] for name in behavior},
             )
         )
     return rows
@@ -178,9 +255,60 @@ def window_frames(
     return first, last
 
 
-def write_clip_table(clips_dir: Path, rows: list[dict[str, Any]]) -> None:
-    """Write ``CLIPS_DIR/clips.parquet`` atomically."""
-    extra = [f for f in BEHAVIOR_CAPTION_FIELDS if rows and all(f.name in r for r in rows)]
-    table = pa.Table.from_pylist(rows, schema=pa.schema([*CLIP_SCHEMA, *extra]))
-    path = Path(clips_dir) / CLIPS_FILE
-    atomic_write_with(path, lambda tmp: pq.write_table(table, tmp))
+class ClipTableSpool:
+    """Writes ``CLIPS_DIR/clips.parquet`` log by log: each log's rows go, as its clips are cut, to a
+    temporary file beside the table (a row group per log); :meth:`publish` then writes the table in
+    the logs' final order with their splits, which depend on every log. No process holds every
+    log's rows. Use it as a context manager: the temporary file goes when the block ends.
+
+    The table has :data:`CLIP_SCHEMA`'s columns, and the behaviour columns that every row has.
+    """
+
+    def __init__(self, clips_dir: Path) -> None:
+        self._clips_dir = Path(clips_dir)
+        self._scratch = scratch_path(self._clips_dir / CLIPS_FILE)
+        self._writer: pq.ParquetWriter | None = None
+        self._groups: dict[str, int] = {}
+        self._behavior = {f.name for f in BEHAVIOR_CAPTION_FIELDS}  # the columns every row so far has
+        self.num_rows = 0
+
+    def __enter__(self) -> ClipTableSpool:
+        self._path = self._scratch.__enter__()
+        self._writer = pq.ParquetWriter(self._path, _SPOOL_SCHEMA)
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self._writer is not None:
+            self._writer.close()
+        self._scratch.__exit__(None, None, None)
+
+    def add(self, log_id: str, rows: list[dict[str, Any]]) -> None:
+        """Spool one log's clip rows (their ``split`` is set by :meth:`publish`)."""
+        if not rows:
+            return
+        if self._writer is None or log_id in self._groups:
+            raise ValueError(f"log {log_id}: spooled twice, or the spool is not open")
+        self._behavior &= {name for name in self._behavior if all(name in r for r in rows)}
+        self._writer.write_table(pa.Table.from_pylist(rows, schema=_SPOOL_SCHEMA), row_group_size=len(rows))
+        self._groups[log_id] = len(self._groups)
+        self.num_rows += len(rows)
+
+    def publish(self, order: Sequence[str], splits: Mapping[str, str]) -> None:
+        """Write ``clips.parquet`` atomically: the logs' rows in ``order`` (logs not spooled are passed
+        over), each with its split."""
+        assert self._writer is not None
+        self._writer.close()
+        self._writer = None
+        source = pq.ParquetFile(self._path)
+        schema = pa.schema([*CLIP_SCHEMA, *(f for f in BEHAVIOR_CAPTION_FIELDS if f.name in self._behavior)])
+        at = schema.get_field_index("split")
+
+        def write(tmp: Path) -> None:
+            with pq.ParquetWriter(tmp, schema) as out:
+                for log_id in order:
+                    if log_id in self._groups:
+                        table = source.read_row_group(self._groups[log_id], columns=schema.names)
+                        split = pa.array([splits[log_id]] * table.num_rows, pa.string())
+                        out.write_table(table.set_column(at, "split", split))
+
+        atomic_write_with(self._clips_dir / CLIPS_FILE, write)

@@ -63,12 +63,12 @@ def test_readers_name_the_file_and_field(tmp_path: Path) -> None:
 
 def test_caption_windows_in_seconds_are_refused_naming_the_field(tmp_path: Path) -> None:
     """A hand-made caption table with ``start_ns`` in float seconds: said, not read as a 1-ns window."""
-    from encoders.clips.table import ClipsInputError, read_captions
+    from encoders.clips.table import ClipsInputError, captions_by_log
 
     path = tmp_path / "captions.parquet"
     pq.write_table(pa.table({"log_id": ["log"], "track_id": ["car"], "start_ns": [1.5], "end_ns": [4.5],
                              "caption": ["A car approaches."], "category": ["car"]}), path)
     with pytest.raises(ClipsInputError, match=r"captions.parquet, field 'start_ns': double; expected int64 "
                                               "nanoseconds"):
-        read_captions(path)
+        captions_by_log(path)
 

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pyarrow as pa
+import pyarrow.compute as pc
 import pyarrow.parquet as pq
 import pytest
 from scipy.ndimage import binary_dilation
@@ -399,3 +400,30 @@ def test_a_log_with_a_bad_map_is_skipped_and_an_all_failed_batch_keeps_the_old_o
                        match=r"no clip could be made from 1 log\(s\);.*bad: log could not be rendered: .*map JSON"):
         build_clips([bad], tmp_path / "c", tmp_path / "clips", replace(CONFIG, strict=False))
     assert (tmp_path / "clips" / "clips.parquet").read_bytes() == table_before
+
+
+def test_captions_of_a_log_per_row_group_give_the_same_clips_and_an_unopened_log_names_its_clips(
+        tmp_path: Path) -> None:
+    """As ``caption`` writes them, each log's task reads its own caption rows: the same table as from
+    captions written at once; a log that cannot be opened names each of its clips as skipped."""
+    logs = [write_synthetic_log(tmp_path / "logs", num_frames=12, with_camera=False, log_id=name)
+            for name in ("b", "a", "broken")]
+    (logs[2] / "annotations.feather").write_bytes(b"not a feather file")
+    captions = synthetic_captions(logs, 1, 10)
+    (tmp_path / "whole").mkdir()
+    pq.write_table(captions, tmp_path / "whole" / "captions.parquet")
+    (tmp_path / "grouped").mkdir()
+    with pq.ParquetWriter(tmp_path / "grouped" / "captions.parquet", captions.schema) as writer:
+        for name in ("b", "a", "broken"):
+            writer.write_table(captions.filter(pc.equal(captions.column("log_id"), name)))
+    config = replace(CONFIG, strict=False)
+    reports = {kind: build_clips(logs, tmp_path / kind, tmp_path / f"clips_{kind}", config)
+               for kind in ("whole", "grouped")}
+    tables = {kind: pq.read_table(tmp_path / f"clips_{kind}" / "clips.parquet") for kind in reports}
+    assert tables["grouped"].equals(tables["whole"]) and tables["whole"].num_rows == 6
+    assert tables["whole"].column("log_id").to_pylist() == ["b"] * 3 + ["a"] * 3  # the captions' order
+    for report in reports.values():
+        unopened = sorted(s["clip"] for s in report.skipped if s["reason"] == "log could not be opened")
+        assert unopened == ["broken:follower:" + str(captions.column("start_ns")[0]),
+                            "broken:lead:" + str(captions.column("start_ns")[0]),
+                            "broken:parked:" + str(captions.column("start_ns")[0])]

@@ -31,3 +31,11 @@ def slow_first(item: int) -> int:
 
     time.sleep(0.05 * (4 - item) if item < 4 else 0.0)
     return item
+
+
+def slow_zero(item: int) -> int:
+    """Item 0 takes a second, the others no time: all of them could end while it runs."""
+    import time
+
+    time.sleep(1.0 if item == 0 else 0.0)
+    return item

@@ -234,6 +234,33 @@ def test_on_ray_values_that_end_early_wait_for_the_earlier_items() -> None:
     assert seen == list(range(8)) and report.values == [f"kept {i}" for i in range(8)]
 
 
+@pytest.mark.usefixtures("ray_local")
+def test_on_ray_a_slow_item_holds_back_at_most_the_items_allowed_ahead(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Items are sent at most ``CONSUME_AHEAD_ITEMS`` past the first one not consumed: the values that
+    wait for a slow item stay that few, and every item still runs."""
+    import ray
+
+    from scenesearch_base import ray_runner
+
+    ray.cloudpickle.register_pickle_by_value(ray_tasks)
+    monkeypatch.setattr(ray_runner, "CONSUME_AHEAD_ITEMS", 2)
+    ahead: list[int] = []
+    put = ray_runner._InOrder.put
+
+    def watched(self: ray_runner._InOrder, i: int, outcome: ray_runner.Outcome[int]) -> None:
+        ahead.append(i - self._next)
+        put(self, i, outcome)
+
+    monkeypatch.setattr(ray_runner._InOrder, "put", watched)
+    seen: list[int] = []
+    run_tasks(ray_tasks.slow_zero, list(range(12)), Execution(workers=2), items_per_task=1, consume=_consumer(seen))
+    assert seen == list(range(12)) and max(ahead) == 1  # item 1 ends while item 0 runs; item 2 waits to be sent
+    monkeypatch.setattr(ray_runner, "CONSUME_AHEAD_ITEMS", 256)
+    ahead.clear()
+    run_tasks(ray_tasks.slow_zero, list(range(12)), Execution(workers=2), items_per_task=1, consume=_consumer([]))
+    assert max(ahead) > 1  # without the limit, the later items end while item 0 still runs
+
+
 def test_what_the_consumer_raises_ends_the_run() -> None:
     def refusing(value: int) -> None:
         raise OSError("disk full")

@@ -122,7 +122,8 @@ def frame_tags_by_log(path: Path, log_ids: Sequence[str]) -> dict[str, LogFrameT
         if stats is None or not stats.has_min_max or stats.min != stats.max:
             return dict(read_frame_tags(path, log_ids))
         groups.setdefault(str(stats.min), []).append(g)
-    return {lid: LogFrameTagsRef(str(path), lid, tuple(groups[lid])) for lid in log_ids if lid in groups}
+    real = str(path.resolve())  # the file itself, not a link that a later `caption` may point elsewhere
+    return {lid: LogFrameTagsRef(real, lid, tuple(groups[lid])) for lid in log_ids if lid in groups}
 
 
 def frame_tags_of(path: Location, log_ids: list[str]) -> dict[str, LogFrameTags | LogFrameTagsRef]:

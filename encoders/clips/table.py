@@ -164,7 +164,9 @@ def captions_by_log(captions_path: Path, refer: bool = True) -> dict[str, LogCap
             else:
                 held.setdefault(caption.log_id, []).append(caption)
         row += table.num_rows
-    return {lid: LogCaptionRows(lid, first, tuple(held.get(lid, ())), str(captions_path) if refer else None,
+    # The file itself, not a link to it: a later `caption` may publish another generation while logs run.
+    source_path = str(captions_path.resolve()) if refer else None
+    return {lid: LogCaptionRows(lid, first, tuple(held.get(lid, ())), source_path,
                                 tuple(groups.get(lid, ())))
             for lid, first in first_row.items()}
 

@@ -12,6 +12,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from encoders.metrics import ROWS_AT_ONCE
+
 
 def clip_to_clip_figures(x: np.ndarray, actions: Sequence[str], appearance: Sequence[str],
                          k: int = 5, logs: Sequence[str] | None = None,
@@ -57,8 +59,8 @@ def clip_to_clip_figures(x: np.ndarray, actions: Sequence[str], appearance: Sequ
     np.fill_diagonal(sim, -np.inf)
     # Equal scores (clips with the same caption, under rule captions) are ranked in a seeded random
     # order: table order would favour whichever log comes first.
-    tiebreak = np.broadcast_to(np.random.default_rng(0).random(n), sim.shape)
-    nn = np.lexsort((tiebreak, -sim), axis=1)[:, :k]
+    tiebreak = np.random.default_rng(0).random(n)
+    nn = _nearest(sim, tiebreak, k)
     figures = _neighbour_figures(nn, act, app, k)
     figures[f"action_precision@{k}_ceiling"] = action_precision_ceiling(act, k)
     for name, same in _groups(logs, windows_ns).items():
@@ -134,14 +136,28 @@ def _figures_among(sim: np.ndarray, tiebreak: np.ndarray, act: np.ndarray, app: 
 
     Args:
         sim: (N, N) clip × clip scores, the diagonal −inf.
-        tiebreak: (N, N) secondary sort key for equal scores.
+        tiebreak: (N,) secondary sort key for equal scores.
         among: (N, N) bool, the clips each clip may take as neighbours.
     """
     among = among & ~np.eye(len(among), dtype=bool)
-    nn = np.lexsort((tiebreak, -np.where(among, sim, -np.inf)), axis=1)[:, :k]  # (N, k)
+    nn = _nearest(sim, tiebreak, k, among)  # (N, k)
     valid = np.take_along_axis(among, nn, axis=1)  # False where a clip has fewer than k candidates
     figures = _neighbour_figures(nn, act, app, k, valid=valid, among=among)
     return {f"{key}{suffix}": value for key, value in figures.items()}
+
+
+def _nearest(sim: np.ndarray, tiebreak: np.ndarray, k: int, among: np.ndarray | None = None) -> np.ndarray:
+    """(N, k) each clip's k best columns of ``sim`` (N, N), by score, then by ``tiebreak`` (N,) for
+    equal scores; with ``among`` (N, N) bool, the columns outside it rank last. Sorted by
+    :data:`encoders.metrics.ROWS_AT_ONCE` rows at a time: a whole sort's (N, N) indices and copies would
+    be gigabytes for a large split."""
+    nn = np.empty((len(sim), k), dtype=np.int64)
+    for start in range(0, len(sim), ROWS_AT_ONCE):
+        rows = sim[start:start + ROWS_AT_ONCE]
+        if among is not None:
+            rows = np.where(among[start:start + ROWS_AT_ONCE], rows, -np.inf)
+        nn[start:start + ROWS_AT_ONCE] = np.lexsort((np.broadcast_to(tiebreak, rows.shape), -rows), axis=1)[:, :k]
+    return nn
 
 
 def random_clip_to_clip(actions: Sequence[str], appearance: Sequence[str], k: int = 5,

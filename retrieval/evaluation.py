@@ -55,9 +55,9 @@ from captioning.text import HOST_HALF, OBJECT_HALF
 from encoders.clips.layout import read_clip_table
 from encoders.metrics import (
     CURVE_MAX_K,
-    KS,
     caption_queries,
     half_queries,
+    random_text_to_clip,
     recall_curve,
     text_to_clip_figures,
 )
@@ -74,24 +74,6 @@ from retrieval.sentence_encoder import SentenceEncoder
 ORDER_COSINE_MAX = 0.95
 
 # ---------------------------------------------------------------------- text → clip
-
-
-def random_text_to_clip(relevant: np.ndarray, seed: int = 0, draws: int = 20,
-                        ks: Sequence[int] = KS) -> tuple[dict[str, float], list[float]]:
-    """Expected figures (and recall curve) of random ranking: the mean over ``draws`` seeded random scores.
-
-    Args:
-        relevant: (Q, N) bool relevance.
-    """
-    rng = np.random.default_rng(seed)
-    figures: list[dict[str, float]] = []
-    curves: list[list[float]] = []
-    for _ in range(draws):
-        sim = rng.random(np.asarray(relevant).shape)
-        figures.append(text_to_clip_figures(sim, relevant, ks))
-        curves.append(recall_curve(sim, relevant))
-    mean = {key: float(np.mean([f[key] for f in figures])) for key in figures[0]}
-    return mean, [float(v) for v in np.mean(np.asarray(curves), axis=0)]
 
 
 def camera_clip_figures(sims: dict[str, np.ndarray], relevant: np.ndarray, has_camera: Sequence[bool],

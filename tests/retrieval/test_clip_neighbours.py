@@ -195,3 +195,21 @@ def test_a_perfect_ranking_by_the_captions_takes_the_ego_motion_with_it() -> Non
     assert set(figures) == {"appearance_bias_perfect_ranking", "appearance_bias_other_logs_perfect_ranking"}
     # The action comes first: a clip's one nearest neighbour is the clip of its action in the other log.
     assert perfect_ranking_figures(actions, egos, looks, k=1)["appearance_bias_perfect_ranking"] is None
+
+
+def test_neighbours_sorted_by_rows_give_the_figures_of_a_whole_sort(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Each clip's neighbours are sorted a few rows at a time (a large split's whole sort would not fit
+    in memory): the same figures, ties and other-log neighbours included."""
+    from retrieval import clip_neighbours
+
+    rng = np.random.default_rng(5)
+    x = np.eye(4)[rng.integers(0, 4, 23)] + 0.5 * np.eye(4)[rng.integers(0, 4, 23)]  # many equal scores
+    x /= np.linalg.norm(x, axis=1, keepdims=True)
+    actions = [f"a{i}" for i in rng.integers(0, 3, 23)]
+    looks = [f"l{i}" for i in rng.integers(0, 2, 23)]
+    logs = [f"log{i}" for i in rng.integers(0, 4, 23)]
+    windows = [(int(t), int(t) + 3) for t in rng.integers(0, 10, 23)]
+    monkeypatch.setattr(clip_neighbours, "ROWS_AT_ONCE", 10**9)
+    whole = clip_to_clip_figures(x, actions, looks, logs=logs, windows_ns=windows)
+    monkeypatch.setattr(clip_neighbours, "ROWS_AT_ONCE", 4)
+    assert clip_to_clip_figures(x, actions, looks, logs=logs, windows_ns=windows) == whole

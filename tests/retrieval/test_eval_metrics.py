@@ -21,6 +21,7 @@ from encoders.metrics import (
     caption_queries,
     first_relevant_ranks,
     precision_at_k,
+    random_text_to_clip,
     relevance_by_caption,
     text_to_clip_figures,
     text_to_clip_metrics,
@@ -30,7 +31,6 @@ from retrieval.evaluation import (
     camera_clip_figures,
     caption_generator,
     evaluate,
-    random_text_to_clip,
     reverse_steps,
     temporal_order_accuracy,
     text_order_figures,
@@ -105,6 +105,29 @@ def test_perfect_and_random_rankings() -> None:
     assert curve == sorted(curve) and len(curve) == 40
     with pytest.raises(ValueError, match="no relevant clip"):
         text_to_clip_figures(np.zeros((1, 3)), np.zeros((1, 3), bool))
+
+
+def test_rankings_taken_by_rows_give_the_figures_of_a_whole_ranking(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Queries are ranked a few rows at a time, so that a large split fits in memory: every figure,
+    the random baseline's draws included, is what one (Q, N) ranking gives."""
+    from encoders import metrics
+
+    rng = np.random.default_rng(3)
+    sim = np.round(rng.random((11, 40)), 1).astype(np.float32)  # rounded: many ties, broken against the query
+    rel = rng.random((11, 40)) < 0.2
+    rel[np.arange(11), rng.integers(0, 40, 11)] = True
+    answered = rel.copy()
+    answered[4] = False  # precision@k leaves a query without relevant clips as NaN
+
+    def everything() -> list[object]:
+        return [text_to_clip_figures(sim, rel), metrics.recall_curve(sim, rel), average_precision(sim, rel).tolist(),
+                precision_at_k(sim, answered, 5).tolist(), text_to_clip_metrics(sim, answered),
+                random_text_to_clip(rel, seed=1, draws=3)]
+
+    monkeypatch.setattr(metrics, "ROWS_AT_ONCE", 10**9)
+    whole = everything()
+    monkeypatch.setattr(metrics, "ROWS_AT_ONCE", 3)
+    assert repr(everything()) == repr(whole)  # NaN compares equal as text
 
 
 def test_temporal_order_and_reversal() -> None:

@@ -18,9 +18,9 @@ from captioning.text import caption_halves
 
 KS = (1, 5, 10)
 CURVE_MAX_K = 50
-#: Queries ranked at a time. A ranking's temporaries are several (rows, N) float64 and int64 arrays:
-#: taken whole, the figures of 20,000 queries over 20,000 clips would need about 20 GB beside their
-#: inputs; by rows they need a few hundred megabytes, to the same values.
+#: Queries ranked at a time. A ranking's temporaries are several (rows, N) float64 and int64 arrays,
+#: so taken by rows a large split's figures fit in memory, with the same values
+#: (docs/research/eval-memory.md).
 ROWS_AT_ONCE = 256
 
 

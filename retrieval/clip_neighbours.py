@@ -149,8 +149,8 @@ def _figures_among(sim: np.ndarray, tiebreak: np.ndarray, act: np.ndarray, app: 
 def _nearest(sim: np.ndarray, tiebreak: np.ndarray, k: int, among: np.ndarray | None = None) -> np.ndarray:
     """(N, k) each clip's k best columns of ``sim`` (N, N), by score, then by ``tiebreak`` (N,) for
     equal scores; with ``among`` (N, N) bool, the columns outside it rank last. Sorted by
-    :data:`encoders.metrics.ROWS_AT_ONCE` rows at a time: a whole sort's (N, N) indices and copies would
-    be gigabytes for a large split."""
+    :data:`encoders.metrics.ROWS_AT_ONCE` rows at a time, since a whole sort's (N, N) indices and copies
+    would not fit in memory for a large split (docs/research/eval-memory.md)."""
     nn = np.empty((len(sim), k), dtype=np.int64)
     for start in range(0, len(sim), ROWS_AT_ONCE):
         rows = sim[start:start + ROWS_AT_ONCE]

@@ -231,7 +231,13 @@ def evaluate(run_dir: Path | str, clips_dir: Path | str, split: str = "test", em
     captions = [str(r.get("canonical_caption") or r["caption"]) for r in rows]
     queries, relevant = caption_queries(captions)
     t = np.asarray(embedder.embed_texts(queries), dtype=np.float32)
-    sims = {view: t @ xv.T for view, xv in x.items()}
+    sims = {"fused": t @ x["fused"].T}
+    # The camera and BEV views' figures first: their (Q, N) scores go before the others are made.
+    has_camera = [bool(r.get("has_camera")) for r in rows]
+    camera_view = camera_clip_figures(sims | {"camera": t @ x["camera"].T}, relevant, has_camera, seed)
+    sim_bev = t @ x["bev"].T
+    bev_figures, bev_curve = text_to_clip_figures(sim_bev, relevant), recall_curve(sim_bev, relevant)
+    del sim_bev
     sim_bag = t @ x_bag.T
     random_figures, random_curve = random_text_to_clip(relevant, seed=seed)
 
@@ -302,7 +308,6 @@ def evaluate(run_dir: Path | str, clips_dir: Path | str, split: str = "test", em
     facets_of_caption = dict(zip(captions, clip_facets))
     by_facet = recall_by_facet({"model": sims["fused"], "bag_of_frames": sim_bag, "rule_captions": sim_rule},
                                relevant, [facets_of_caption[q] for q in queries], clip_facets)
-    camera_view = camera_clip_figures(sims, relevant, [bool(r.get("has_camera")) for r in rows], seed)
     actions = ["|".join(r.get("tags") or []) for r in rows]
     appearance = [f"{r.get('time_of_day', 'unknown')}|{r.get('weather', 'unknown')}" for r in rows]
     logs = [str(r.get("log_id", "")) for r in rows]
@@ -320,7 +325,7 @@ def evaluate(run_dir: Path | str, clips_dir: Path | str, split: str = "test", em
         "freeform": freeform_figures(free_model, free_relevant),
         "halves": halves["model"],
         "clip_to_clip": clip_to_clip,
-        "views": {"camera": camera_view["camera"], "bev": text_to_clip_figures(sims["bev"], relevant),
+        "views": {"camera": camera_view["camera"], "bev": bev_figures,
                   "camera_clips": camera_view["counts"] | {"fused": camera_view["fused"],
                                                            "random": camera_view["random"]}},
         "hybrid": {"weight": choice.weight, "chosen_on": choice.split, "given": choice.given, "origin": choice.origin,
@@ -357,7 +362,7 @@ def evaluate(run_dir: Path | str, clips_dir: Path | str, split: str = "test", em
         "curves": {"k": list(range(1, min(CURVE_MAX_K, len(rows)) + 1)),
                    "model": recall_curve(sims["fused"], relevant),
                    "camera": camera_view["curve"],
-                   "bev": recall_curve(sims["bev"], relevant),
+                   "bev": bev_curve,
                    "random": random_curve,
                    "bag_of_frames": recall_curve(sim_bag, relevant),
                    "rule_captions": recall_curve(sim_rule, relevant),

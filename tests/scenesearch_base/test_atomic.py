@@ -22,6 +22,7 @@ from scenesearch_base.atomic import (
     machine_tag,
     reading_directory,
     recover_directory,
+    scratch_path,
     sweep_stale,
 )
 
@@ -49,6 +50,24 @@ def test_temporary_names_carry_pid_and_machine(tmp_path: Path) -> None:
         assert tmp_dir.name.startswith(f".d.{os.getpid()}@{machine_tag()}.")
         (tmp_dir / "f").write_text("y")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.parquet", "d"]
+
+
+def test_a_scratch_file_is_a_temporary_entry_removed_when_its_block_ends(tmp_path: Path) -> None:
+    """Room for what a writer spools beside its output: never content of the folder, gone after the
+    block (raised or not), and swept by the next write when its writer was killed."""
+    with scratch_path(tmp_path / "clips.parquet") as spool:
+        assert spool.parent == tmp_path and spool.name.startswith(f".clips.parquet.{os.getpid()}@{machine_tag()}.")
+        spool.write_text("rows")
+        assert atomic.is_temporary(spool.name)
+    assert not spool.exists()
+    with pytest.raises(RuntimeError), scratch_path(tmp_path / "clips.parquet") as spool:
+        spool.write_text("rows")
+        raise RuntimeError("the run stops")
+    assert list(tmp_path.iterdir()) == []
+    killed = tmp_path / f".clips.parquet.{_dead_pid()}@{machine_tag()}.abcd_123.tmp.parquet"
+    killed.write_text("rows of a killed run")
+    atomic.sweep_stale(tmp_path, force=True)
+    assert not killed.exists()
 
 
 def test_next_write_removes_stale_entries_only(tmp_path: Path) -> None:

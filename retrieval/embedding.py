@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import threading
 import time
-from collections import OrderedDict
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any, Protocol, runtime_checkable
@@ -22,6 +21,7 @@ import numpy as np
 from encoders.config import check_device_name
 from retrieval.errors import ModelMismatchError
 from scenesearch_base.checksums import sha256_file
+from scenesearch_base.lru import Lru
 from scenesearch_base.ray_cluster import Execution, cluster_gpus, import_ray, node_cpus, ray_runtime
 from scenesearch_base.storage import as_location, join, list_files, remove_files, write_file
 
@@ -75,36 +75,30 @@ def l2_normalize(x: np.ndarray) -> np.ndarray:
 
 
 class EmbeddingCache:
-    """A bounded LRU cache of text embeddings, safe to share between threads (the service's workers).
+    """A bounded LRU cache of text embeddings (:class:`scenesearch_base.lru.Lru`), safe to share between
+    threads (the service's workers).
 
-    The lock guards the cache only: embedding the texts not cached runs outside it, so threads
-    encode at the same time and a hit never waits for another thread's encoding. Two threads
-    missing the same text may both encode it; the rows are the same.
+    Embedding the texts not cached runs outside the cache's lock, so threads encode at the same time
+    and a hit never waits for another thread's encoding. Two threads missing the same text may both
+    encode it; the rows are the same.
     """
 
     def __init__(self, size: int) -> None:
         self.size = size
-        self._rows: OrderedDict[str, np.ndarray] = OrderedDict()
-        self._lock = threading.Lock()
+        self._rows: Lru[str, np.ndarray] = Lru(size)
 
     def __len__(self) -> int:
-        with self._lock:
-            return len(self._rows)
+        return len(self._rows)
 
     def get_or_embed(self, texts: Sequence[str], embed: Callable[[list[str]], np.ndarray]) -> list[np.ndarray]:
         """The rows of ``texts`` (in order), calling ``embed`` once for those not cached."""
         unique = list(dict.fromkeys(texts))
-        with self._lock:
-            found = {t: self._rows[t] for t in unique if t in self._rows}
+        found = {t: row for t in unique if (row := self._rows.get(t)) is not None}
         missing = [t for t in unique if t not in found]
         if missing:
             found.update(zip(missing, embed(missing)))
-        with self._lock:
-            for t in unique:
-                self._rows[t] = found[t]
-                self._rows.move_to_end(t)
-            while len(self._rows) > self.size:
-                self._rows.popitem(last=False)
+        for t in unique:
+            self._rows.put(t, found[t])
         return [found[t] for t in texts]
 
 

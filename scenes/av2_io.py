@@ -19,8 +19,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import threading
-from collections import OrderedDict
 from dataclasses import replace
 from pathlib import Path
 
@@ -39,6 +37,7 @@ from scenes.sensors import LidarSweep
 from scenes.tracks import Annotations, EgoTrajectory
 from scenesearch_base.atomic import atomic_path, atomic_write_bytes, atomic_write_text
 from scenesearch_base.folders import FolderKind
+from scenesearch_base.lru import Lru
 
 ANNOTATIONS_FILENAME = "annotations.feather"
 POSES_FILENAME = "city_SE3_egovehicle.feather"
@@ -237,15 +236,12 @@ def find_map_file(log_dir: Path) -> Path | None:
 #: Maps parsed lately, by content digest: the logs of one fleet area (every simulated log of a city)
 #: carry the same map file, and parsing it costs more than captioning a short log. Map elements hold
 #: read-only arrays, so one parsed map can be shared.
-_PARSED_MAPS: OrderedDict[bytes, VectorMap] = OrderedDict()
-_PARSED_MAPS_SIZE = 8
-_PARSED_MAPS_LOCK = threading.Lock()
+_PARSED_MAPS: Lru[bytes, VectorMap] = Lru(8)
 
 
 def forget_parsed_maps() -> None:
     """Empty the cache of parsed maps (timing a cold read, or after rewriting a map in place)."""
-    with _PARSED_MAPS_LOCK:
-        _PARSED_MAPS.clear()
+    _PARSED_MAPS.clear()
 
 
 def read_map(path: Path) -> VectorMap:
@@ -259,10 +255,8 @@ def read_map(path: Path) -> VectorMap:
     except OSError as exc:
         raise LogFormatError.single(path, f"unreadable map JSON: {exc}") from exc
     digest = hashlib.blake2b(raw, digest_size=16).digest()
-    with _PARSED_MAPS_LOCK:
-        if (cached := _PARSED_MAPS.get(digest)) is not None:
-            _PARSED_MAPS.move_to_end(digest)
-            return cached
+    if (cached := _PARSED_MAPS.get(digest)) is not None:
+        return cached
     try:
         data = json.loads(raw.decode("utf-8"), object_pairs_hook=map_schema.unique_keys)
     except (UnicodeDecodeError, ValueError, RecursionError) as exc:
@@ -274,10 +268,7 @@ def read_map(path: Path) -> VectorMap:
     problems = map_schema.check_map_coordinates(path, vector_map)
     if problems:
         raise LogFormatError(problems)
-    with _PARSED_MAPS_LOCK:
-        _PARSED_MAPS[digest] = vector_map
-        while len(_PARSED_MAPS) > _PARSED_MAPS_SIZE:
-            _PARSED_MAPS.popitem(last=False)
+    _PARSED_MAPS.put(digest, vector_map)
     return vector_map
 
 

@@ -57,6 +57,12 @@ class Lru(Generic[K, V]):
                 _, (_, evicted) = self._values.popitem(last=False)
                 self.total -= evicted
 
+    def clear(self) -> None:
+        """Forget every value."""
+        with self._lock:
+            self._values.clear()
+            self.total = 0
+
     def __len__(self) -> int:
         return len(self._values)
 

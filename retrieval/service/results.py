@@ -9,7 +9,6 @@ and computes each of them when first asked.
 from __future__ import annotations
 
 import threading
-from collections import OrderedDict
 from collections.abc import Callable, Sequence
 from dataclasses import replace
 from pathlib import Path
@@ -34,6 +33,7 @@ from retrieval.service.explain import (
     suggestion,
 )
 from retrieval.service.overview import embedding_map, examples, field_summary, log_spans_from_clips
+from scenesearch_base.lru import Lru
 
 #: On-demand previews kept in memory (bytes), most recently used first.
 PREVIEW_CACHE_ENTRIES = 64
@@ -76,7 +76,7 @@ class ResultContext:
         self._maps: dict[str, dict[str, Any]] = {}
         self._clip_table: pa.Table | None = None
         self._clips_config: Any = None
-        self._previews: OrderedDict[tuple[str, tuple[str, ...], tuple[str, ...]], bytes] = OrderedDict()
+        self._previews: Lru[tuple[str, tuple[str, ...], tuple[str, ...]], bytes] = Lru(PREVIEW_CACHE_ENTRIES)
         self._render_lock = threading.Lock()
         self._drawable: dict[str, bool] = {}  # log id → whether the clips folder holds its rendered frames
         self._clips_readable: bool | None = None  # whether the clips folder is of a format this release reads
@@ -226,12 +226,7 @@ class ResultContext:
 
     def drawn_preview(self, clip_id: str, referred: Sequence[str], related: Sequence[str]) -> bytes | None:
         """The clip's preview with these marks if it was drawn before and is still kept, else None."""
-        key = (clip_id, tuple(referred), tuple(related))
-        with self._lock:
-            if key in self._previews:
-                self._previews.move_to_end(key)
-                return self._previews[key]
-        return None
+        return self._previews.get((clip_id, tuple(referred), tuple(related)))
 
     def preview(self, clip_id: str, referred: Sequence[str], related: Sequence[str]) -> bytes | None:
         """The clip's preview drawn from the clips folder's rendered arrays, marking ``referred`` and
@@ -259,8 +254,5 @@ class ResultContext:
                 data = preview_gif(clips_dir, row, self._clips_config, referred=referred, related=related)
             except (OSError, ValueError, KeyError):
                 return None
-        with self._lock:
-            self._previews[(clip_id, tuple(referred), tuple(related))] = data
-            while len(self._previews) > PREVIEW_CACHE_ENTRIES:
-                self._previews.popitem(last=False)
+        self._previews.put((clip_id, tuple(referred), tuple(related)), data)
         return data

@@ -34,3 +34,5 @@ def test_without_a_cost_it_counts_values() -> None:
     for i in range(5):
         cache.put(i, str(i))
     assert len(cache) == 2 and cache.get(3) == "3" and cache.get(4) == "4"
+    cache.clear()
+    assert len(cache) == 0 and cache.total == 0 and cache.get(4) is None

@@ -76,6 +76,21 @@ class CaptionsWriter:
             self._captions.close()
 
 
+def log_row_groups(source: pq.ParquetFile) -> dict[str, list[int]] | None:
+    """Each log's row groups in a file :class:`CaptionsWriter` wrote (a log per row group), read from
+    the row groups' ``log_id`` statistics; None where a row group may hold several logs (a file written
+    at once, or without statistics)."""
+    meta = source.metadata
+    at = [meta.schema.column(i).path for i in range(meta.num_columns)].index("log_id")
+    groups: dict[str, list[int]] = {}
+    for g in range(meta.num_row_groups):
+        stats = meta.row_group(g).column(at).statistics
+        if stats is None or not stats.has_min_max or stats.min != stats.max:
+            return None
+        groups.setdefault(str(stats.min), []).append(g)
+    return groups
+
+
 @contextlib.contextmanager
 def captions_folder(out_dir: Path | str, behavior: bool, inputs: Sequence[Path | str] = ()) -> Iterator[CaptionsWriter]:
     """A :class:`CaptionsWriter` into a new generation of ``out_dir``, published when the block ends

@@ -23,6 +23,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 from numpy.typing import NDArray
 
+from captioning.outputs import log_row_groups
 from scenesearch_base.storage import Location, exists, is_uri, staged_input
 
 #: Clip-table columns (list<string>, one entry per clip frame) and the frame_tags.parquet column of each.
@@ -112,16 +113,11 @@ def frame_tags_by_log(path: Path, log_ids: Sequence[str]) -> dict[str, LogFrameT
     """
     _columns(path)
     try:
-        meta = pq.ParquetFile(path).metadata
+        groups = log_row_groups(pq.ParquetFile(path))
     except (OSError, pa.ArrowInvalid) as exc:
         raise ValueError(f"{path}: unreadable Parquet file ({exc})") from exc
-    at = meta.schema.names.index("log_id")
-    groups: dict[str, list[int]] = {}
-    for g in range(meta.num_row_groups):
-        stats = meta.row_group(g).column(at).statistics
-        if stats is None or not stats.has_min_max or stats.min != stats.max:
-            return dict(read_frame_tags(path, log_ids))
-        groups.setdefault(str(stats.min), []).append(g)
+    if groups is None:
+        return dict(read_frame_tags(path, log_ids))
     real = str(path.resolve())  # the file itself, not a link that a later `caption` may point elsewhere
     return {lid: LogFrameTagsRef(real, lid, tuple(groups[lid])) for lid in log_ids if lid in groups}
 

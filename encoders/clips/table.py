@@ -23,6 +23,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 from numpy.typing import NDArray
 
+from captioning.outputs import log_row_groups
 from captioning.tables import BEHAVIOR_CAPTION_FIELDS
 from encoders.clips.frame_tags import FRAME_TAG_COLUMNS
 from encoders.clips.layout import CLIPS_FILE, clip_id
@@ -128,8 +129,9 @@ class LogCaptionRows:
 
 def captions_by_log(captions_path: Path, refer: bool = True) -> dict[str, LogCaptionRows]:
     """Every log's neighbour caption rows, the logs in the order of their first row. Every row is
-    checked here, a row group at a time; with ``refer``, where every row group holds one log (its
-    ``log_id`` statistics say so), each log's rows are a reference to its row groups, else they are held.
+    checked here, a row group at a time; with ``refer``, where every row group holds one log
+    (:func:`captioning.outputs.log_row_groups`), each log's rows are a reference to its row groups,
+    else they are held.
 
     Raises:
         FileNotFoundError: the file is missing.
@@ -146,9 +148,8 @@ def captions_by_log(captions_path: Path, refer: bool = True) -> dict[str, LogCap
         if not pa.types.is_integer(source.schema_arrow.field(name).type):
             raise ClipsInputError(f"{captions_path}, field '{name}': {source.schema_arrow.field(name).type}; "
                                   "expected int64 nanoseconds (as `scenesearch caption` writes them)")
-    refer = refer and _one_log_per_row_group(source)
+    groups = log_row_groups(source) if refer else None
     first_row: dict[str, int] = {}
-    groups: dict[str, list[int]] = {}
     held: dict[str, list[CaptionRow]] = {}
     row = 0
     for g in range(source.num_row_groups):
@@ -158,16 +159,14 @@ def captions_by_log(captions_path: Path, refer: bool = True) -> dict[str, LogCap
             raise ClipsInputError(f"{captions_path}: unreadable Parquet file ({exc})") from exc
         for caption in _caption_rows(table, captions_path, row):
             first_row.setdefault(caption.log_id, caption.row)
-            if refer:
-                if g not in groups.setdefault(caption.log_id, []):
-                    groups[caption.log_id].append(g)
-            else:
+            if groups is None:
                 held.setdefault(caption.log_id, []).append(caption)
         row += table.num_rows
+    if groups is None:
+        return {lid: LogCaptionRows(lid, first, tuple(held[lid])) for lid, first in first_row.items()}
     # The file itself, not a link to it: a later `caption` may publish another generation while logs run.
-    source_path = str(captions_path.resolve()) if refer else None
-    return {lid: LogCaptionRows(lid, first, tuple(held.get(lid, ())), source_path,
-                                tuple(groups.get(lid, ())))
+    real = str(captions_path.resolve())
+    return {lid: LogCaptionRows(lid, first, path=real, row_groups=tuple(groups[lid]))
             for lid, first in first_row.items()}
 
 
@@ -176,17 +175,6 @@ def _parquet_file(path: Path) -> pq.ParquetFile:
         return pq.ParquetFile(path)
     except (OSError, pa.ArrowInvalid) as exc:
         raise ClipsInputError(f"{path}: unreadable Parquet file ({exc})") from exc
-
-
-def _one_log_per_row_group(source: pq.ParquetFile) -> bool:
-    """Whether each row group's ``log_id`` statistics say it holds a single log."""
-    meta = source.metadata
-    at = [meta.schema.column(i).path for i in range(meta.num_columns)].index("log_id")
-    for g in range(meta.num_row_groups):
-        stats = meta.row_group(g).column(at).statistics
-        if stats is None or not stats.has_min_max or stats.min != stats.max:
-            return False
-    return True
 
 
 def _caption_rows(table: pa.Table, captions_path: Path, first_row: int) -> list[CaptionRow]:

@@ -76,8 +76,8 @@ from scenesearch_base.lru import Lru
 
 #: The image-like views; uint8 0–255 with ``as_uint8=True``, else float32 in [0, 1].
 UINT8_VIEWS = ("camera", "camera_crop", "bev_lidar", "bev_map", "bev_object")
-#: The bytes of track kinematics a dataset keeps (a 20-s log of 34 tracks: 136 kB): an index build reads
-#: log after log and needs only the last; training draws from every log, and those of a few thousand fit.
+#: The bytes of track kinematics a dataset keeps: an index build reads log after log and needs only the
+#: last; training draws from every log, and those of a few thousand fit (docs/research/ingest-profile.md).
 KINEMATICS_KEPT_BYTES = 512 << 20
 
 

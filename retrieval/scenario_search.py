@@ -130,8 +130,8 @@ def clip_log_folders(clips_dir: Path) -> dict[str, str]:
             if isinstance(entry, dict) and entry.get("log_dir") and "://" not in str(entry["log_dir"])}
 
 
-#: Bytes of decoded scenario features a store keeps (1,000 logs of 15 s with about 100 objects a frame
-#: take about 0.7 GB): a query over a fleet's index reads every log's, which would otherwise all stay.
+#: Bytes of decoded scenario features a store keeps: a query over a fleet's index reads every log's,
+#: which would otherwise all stay (sizes: docs/research/scenario-queries.md).
 FEATURES_KEPT_BYTES = 1 << 30
 
 

@@ -118,8 +118,8 @@ def spans_of(values: NDArray[np.floating], timestamps_ns: NDArray[np.int64], thr
     return list(zip(starts[keep].tolist(), ends[keep].tolist()))
 
 
-#: Bytes of per-cell tag values a tag search keeps (a 20-s log's one attribute at the default grid:
-#: about 0.4 MB): queries over a fleet's logs would otherwise keep every log's.
+#: Bytes of per-cell tag values a tag search keeps: queries over a fleet's logs would otherwise keep
+#: every log's (sizes: docs/research/ingest-profile.md).
 VALUES_KEPT_BYTES = 1 << 30
 
 

@@ -81,7 +81,7 @@ for _phrases, _kind in (
     ("trailer|vehicular trailer", "vehicular_trailer"),
     ("bicycle traffic|bike traffic|cycle traffic", "cyclist"),
     ("bus|city bus|transit bus", "bus"), ("school bus", "school_bus"), ("articulated bus", "articulated_bus"),
-    ("pedestrian|person|walker|ped|people|human|jaywalker", "pedestrian"),
+    ("pedestrian|person|walker|ped|people|human|jaywalker|child|kid|jogger", "pedestrian"),
     ("cyclist|bicyclist|bicycle|bike|biker|bicycle rider|rider on a bicycle", "cyclist"),
     ("wheeled rider|scooter rider", "wheeled_rider"),
     ("motorcycle|motorcyclist|motorbike|motorbike rider|scooter", "motorcycle"),
@@ -101,6 +101,35 @@ for _phrases, _kind in (
 _add("ego vehicle|ego|ego car|the av|our car|my car|our vehicle|my vehicle|we|us|self driving car|autonomous vehicle",
      Lexeme("kind", "ego"))
 
+
+def _of_ego(*verbs: str) -> str:
+    """Phrases of ``verbs`` with the ego as their object ("approaches us", "moving away from the ego vehicle")."""
+    return "|".join(f"{verb} {ego}" for verb in verbs
+                    for ego in ("us", "me", "the ego", "the ego vehicle", "the ego car", "our car", "our vehicle"))
+
+
+def _turns(side: str) -> str:
+    """Phrases of a turn to ``side`` in every verb form ("turns left", "turned to the left", "takes a left")."""
+    return "|".join([*(f"{verb} {side}|{verb} to the {side}" for verb in ("turning", "turns", "turn", "turned")),
+                     *(f"{verb} a {side} turn|{verb} a {side}" for verb in ("making", "makes", "make", "made",
+                                                                            "taking", "takes", "take", "took")),
+                     f"{side} turn|{side} turning"])
+
+
+def _lane_changes(side: str) -> str:
+    """Phrases of a lane change to ``side`` in every verb form ("changes lanes to the left", "merged
+    right", "moves into the left lane"): "to the left" after the verb is where it goes, not where it is."""
+    return "|".join([*(f"{verb} to the {side}|{verb} {side}"
+                       for verb in ("changing lanes", "changes lanes", "change lanes", "changed lanes",
+                                    "switching lanes", "switches lanes", "switch lanes", "switched lanes",
+                                    "merging", "merges", "merge", "merged", "swerving", "swerves", "swerve",
+                                    "swerved", "lane change", "lane changing")),
+                     *(f"{verb} into the {side} lane|{verb} to the {side} lane"
+                       for verb in ("changing", "changes", "change", "changed", "merging", "merges", "merge",
+                                    "merged", "moving", "moves", "move", "moved", "switching", "switches")),
+                     f"{side} lane change"])
+
+
 # -- predicates ------------------------------------------------------------------------------------------
 for _phrases, _name, _params in (
     ("moving|driving|traveling|travelling|in motion|active|walking|riding|going|running|jogging|heading|moves|"
@@ -115,20 +144,12 @@ for _phrases, _name, _params in (
      "decelerate", "braking", ()),
     ("hard braking|braking hard|slamming on the brakes|emergency braking", "braking", (("min_mps2", 3.0),)),
     ("turning|making a turn|turns|turn", "turning", ()),
-    ("turning left|making a left turn|left turn|turns left|turn left|left turning|left-turning", "turning",
-     (("direction", "left"),)),
-    ("turning right|making a right turn|right turn|turns right|turn right|right turning", "turning",
-     (("direction", "right"),)),
+    (_turns("left"), "turning", (("direction", "left"),)),
+    (_turns("right"), "turning", (("direction", "right"),)),
     ("changing lanes|lane change|lane changing|changes lanes|change lanes|switching lanes|merging|merges|"
      "swerving|weaving", "changing_lanes", ()),
-    ("changing lanes to the left|changing lanes left|lane change to the left|left lane change|swerving left|"
-     "merging left|changing into the left lane|changes into the left lane|change into the left lane|"
-     "merging into the left lane|merges into the left lane|moving into the left lane|moves into the left lane",
-     "changing_lanes", (("direction", "left"),)),
-    ("changing lanes to the right|changing lanes right|lane change to the right|right lane change|swerving right|"
-     "merging right|changing into the right lane|changes into the right lane|change into the right lane|"
-     "merging into the right lane|merges into the right lane|moving into the right lane|moves into the right lane",
-     "changing_lanes", (("direction", "right"),)),
+    (_lane_changes("left"), "changing_lanes", (("direction", "left"),)),
+    (_lane_changes("right"), "changing_lanes", (("direction", "right"),)),
     ("at crawling speed|crawling|creeping|moving slowly|slow moving|slow|slowly", "speed",
      (("min_mps", 0.1), ("max_mps", 2.0))),
     ("fast|speeding|at high speed|quickly", "speed", (("min_mps", 13.0),)),
@@ -159,8 +180,12 @@ for _phrases, _name, _params in (
     ("approaching pedestrian crossing|approaching a pedestrian crossing|approaching the pedestrian crossing|"
      "approaching crosswalk|approaching a crosswalk|approaching the crosswalk|nearing a crosswalk",
      "approaching_crosswalk", ()),
-    ("getting closer to the ego vehicle|getting closer to the ego|getting closer to us|coming closer to us|"
-     "closing in on us", "approaching_ego", ()),
+    (_of_ego("approaching", "approaches", "approach", "approached", "getting closer to", "gets closer to",
+             "coming closer to", "comes closer to", "closing in on", "closes in on"), "approaching_ego", ()),
+    (_of_ego("moving away from", "moves away from", "driving away from", "drives away from", "walking away from",
+             "walks away from", "riding away from", "rides away from", "heading away from", "heads away from",
+             "going away from", "goes away from", "pulling away from", "pulls away from"),
+     "moving_away_from_ego", ()),
     ("oncoming|coming toward us|coming towards us|comes toward us|comes towards us|come toward us|"
      "come towards us|in the oncoming lane|on the other side of the road",
      "ego_lane", (("lane", "oncoming"),)),
@@ -173,13 +198,9 @@ for _phrases, _name, _params in (
     ("in the right lane|in the lane to our right|in the lane on our right|in the right adjacent lane|"
      "in the lane to the right of us|in the lane right of us|in the lane to the right of the ego vehicle", "ego_lane",
      (("lane", "right"),)),
-    ("approaching us|approaching the ego|approaching the ego vehicle|approaching the ego car|getting closer|"
-     "coming closer|closing in|approaching|approaches|approach|"
-     "gets closer|comes closer", "approaching_ego", ()),
-    ("moving away|driving away|pulling away from us|moving away from us|driving away from us|leaving|"
-     "walking away from us|riding away from us|heading away from us|going away from us|walking away from the ego|"
-     "riding away from the ego",
-     "moving_away_from_ego", ()),
+    ("getting closer|coming closer|closing in|approaching|approaches|approach|gets closer|comes closer",
+     "approaching_ego", ()),
+    ("moving away|driving away|leaving", "moving_away_from_ego", ()),
 ):
     _add(_phrases, Lexeme("pred", _name, _params))
 
@@ -217,15 +238,18 @@ for _phrases, _rel, _rparams, _reverse in (
     ("past the right side of|past right side of|past the right of", "passed_by", (("side", "right"),), True),
     ("past the left side of|past left side of|past the left of", "passed_by", (("side", "left"),), True),
     ("at", "near", (("within_m", 5.0),), False),
-    ("passing|overtaking|passing by|passes|overtakes|drive past|drives past|driving past|drive by|drives by|"
-     "driving by|goes past|going past|go past", "passed_by", (), True),
+    # Not "walking past": "walking past the right side of" is "walking" + "past the right side of".
+    ("passing|overtaking|passing by|passes|overtakes|drive past|drives past|driving past|goes past|going past|"
+     "go past|" + "|".join(f"{verb} by" for verb in ("drive", "drives", "driving", "walk", "walks", "walking",
+                                                     "ride", "rides", "riding")), "passed_by", (), True),
     ("facing|facing toward|facing towards|looking at|facing at", "facing", (), False),
     ("heading toward|heading towards|moving toward|moving towards|approaching|driving toward|driving towards|"
      "accelerating toward|accelerating towards|walking toward|walking towards", "heading_toward", (), False),
     ("traveling in the opposite direction as|going the opposite way to|in the opposite direction of|"
-     "traveling opposite to|opposite to|against", "heading", (("way", "opposite"),), False),
-    ("traveling in the same direction as|in the same direction as|going the same way as|parallel to", "heading",
-     (("way", "same"),), False),
+     "traveling opposite to|opposite to|against|the opposite way to|the opposite way from|the opposite way as",
+     "heading", (("way", "opposite"),), False),
+    ("traveling in the same direction as|in the same direction as|going the same way as|the same way as|parallel to",
+     "heading", (("way", "same"),), False),
 ):
     _add(_phrases, Lexeme("rel", _rel, _rparams, _reverse))
 
@@ -269,10 +293,17 @@ for _phrases, _lexeme in (
                                                                          other="pedestrian", count=1, negate=True)),
 ):
     _add(_phrases, _lexeme)
+# Without an object, "in the opposite direction" is the ego's ("traveling in the opposite direction as X" is X's).
+_add("in the opposite direction|in opposite direction|the other way",
+     Lexeme("fixed", "heading", (("way", "opposite"),), other="ego", count=1))
+_add("in the same direction|in same direction|in our direction",
+     Lexeme("fixed", "heading", (("way", "same"),), other="ego", count=1))
 # Not moving: stopped for a moment or parked for the whole log (``stopped`` alone leaves parked ones out).
 _add("not moving|isn't moving|is not moving|are not moving|aren't moving", Lexeme("pred", "moving", negate=True))
 _add("closely|too closely|too close|tightly", Lexeme("closely"))
 _add("drives off|drive off|pulls away|pull away|starts moving|start moving|takes off|sets off|starts to move|"
+     "accelerating from a stop|accelerates from a stop|accelerate from a stop|starting from a stop|"
+     "starts from a stop|pulling away from a stop|pulls away from a stop|"
      "pulls out|pulling out|drives away from a stop|pulling out of a parking spot|pulls out of a parking spot|"
      "pulling out of a parking space|pulls out of a parking space", Lexeme("seq", "drive_off"))
 _add("cuts into my lane|cuts into our lane|cutting into my lane|cutting into our lane|cuts in|cutting in|cut in|"

@@ -2,11 +2,12 @@
 
 The compiler reads a description as a noun phrase about the objects it refers to, with modifiers:
 
-    description := phrase (("then" | "while") phrase)*
+    description := ["while" phrase] phrase (("then" | "while") phrase)*
     phrase      := [count] predicate* KIND modifier*
     modifier    := predicate | "not" predicate | relation phrase | "with" phrase [side]
                  | "between" phrase ["and" phrase] | ego-side ("ahead", "behind us")
-                 | distance ("within 5 m") | duration ("for 3 s")
+                 | distance ("within 5 m", of the ego at the end; "within 5 m of" phrase: near it)
+                 | duration ("for 3 s")
 
 over the phrases of :mod:`scenarios.lexicon` (longest match first). A relation whose point of view is
 the named object ("in front of the bus") is asked of that object and answers the subject
@@ -20,6 +21,7 @@ from __future__ import annotations
 
 import dataclasses
 
+from scenarios.lexeme_stream import LexemeStream
 from scenarios.lexicon import Lexeme
 from scenarios.program import (
     AllOf,
@@ -36,7 +38,7 @@ from scenarios.program import (
     of_two_kinds,
     subject_of,
 )
-from scenarios.rewrite import closer, negated, with_subject, within, without_states
+from scenarios.rewrite import closer, excludes, negated, with_subject, within, without_states
 
 #: Within this distance (m), "a group of" objects stand together.
 GROUP_RADIUS_M = 5.0
@@ -48,84 +50,16 @@ class DescriptionError(ValueError):
     """A description the compiler cannot use: it names the words it did not understand."""
 
 
-class Parser:
+class Parser(LexemeStream):
     """One description's lexemes, read left to right into a program (see the module docstring)."""
 
     def __init__(self, items: list[Lexeme]) -> None:
-        self.items = items
-        self.i = 0
-        self.unused: list[str] = []
+        super().__init__(items)
         self.pending_m: float | None = None
         #: "… then stops within 4 seconds": the time the steps of a sequence fall within (not a duration).
         self.within_s: float | None = None
         #: How deep in the phrases named by relations: "and"/"while" + modifier join the referred phrase only.
         self.depth = 0
-
-    # -- the stream --------------------------------------------------------------------------------------
-    def peek(self, ahead: int = 0) -> Lexeme | None:
-        j, seen = self.i, -1
-        while j < len(self.items):
-            if self.items[j].role not in ("skip", "unknown"):
-                seen += 1
-                if seen == ahead:
-                    return self.items[j]
-            j += 1
-        return None
-
-    def take(self) -> Lexeme:
-        while self.items[self.i].role in ("skip", "unknown"):
-            if self.items[self.i].role == "unknown":
-                self.unused.append(self.items[self.i].name)
-            self.i += 1
-        item = self.items[self.i]
-        self.i += 1
-        return item
-
-    def drop_rest(self) -> None:
-        while self.i < len(self.items):
-            item = self.items[self.i]
-            if item.role != "skip":
-                self.unused.extend(item.words)
-            self.i += 1
-
-    def after_word(self, word: str) -> bool:
-        """Whether the next meaningful item comes right after ``word`` (a filler the stream skips)."""
-        j = self.i
-        while j < len(self.items) and self.items[j].role in ("skip", "unknown"):
-            j += 1
-        return j > 0 and self.items[j - 1].words == (word,)
-
-    def role(self, ahead: int = 0) -> str:
-        item = self.peek(ahead)
-        return item.role if item is not None else "end"
-
-    def name(self, ahead: int = 0) -> str:
-        item = self.peek(ahead)
-        return item.name if item is not None else ""
-
-    def count_ahead(self) -> int:
-        item = self.peek()
-        return item.count if item is not None else 0
-
-    # -- numbers -----------------------------------------------------------------------------------------
-    def quantity(self) -> tuple[float, str] | None:
-        """A number (or range "5 to 20") with its unit, consumed; the range's upper end."""
-        if self.role() != "number":
-            return None
-        j = 1
-        value = float(self.name())
-        if self.role(1) == "number":  # "5 to 20": "to" is filler between them
-            value, j = float(self.name(1)), 2
-        unit = self.peek(j)
-        if unit is None or unit.role != "unit":
-            if self.role(j) == "kind":
-                return None  # "two vehicles": a count, not a quantity
-            for _ in range(j):
-                self.take()
-            return value, ""
-        for _ in range(j + 1):
-            self.take()
-        return value, unit.name
 
     # -- phrases -----------------------------------------------------------------------------------------
     def phrase(self, bare: bool = False, need_kind: bool = False) -> tuple[Node, int] | None:
@@ -238,8 +172,16 @@ class Parser:
                     self.within_s = value
                 elif unit == "s":
                     node = ForAtLeast(node, value)
+                elif unit == "m" and (self.role() in ("kind", "count") or self.kind_after_states(0)) \
+                        and self.skipped_before_next() & {"of", "from"}:
+                    # "within 5 m of a pedestrian", "less than 10 meters from the ego vehicle": near, that close
+                    self.pending_m = value
+                    other = self.phrase(need_kind=True)
+                    node = node if other is None else self.relate(node, Lexeme("rel", "near"), other)
                 elif unit == "m" and isinstance(node, Has) and self.role() not in ("rel", "side", "kind"):
                     node = within(node, value)
+                elif unit == "m" and self.depth <= 1 and self.role() in ("end", "conj"):  # "a car within 5 m": of us
+                    node = Has(node, "near", Objects("ego"), (("within_m", value),))
                 elif unit == "m" and self.role() == "pred" and self.name() == "near_intersection":
                     self.take()
                     node = Is(node, "near_intersection", (("within_m", value),))
@@ -250,6 +192,9 @@ class Parser:
             elif role == "conj" and self.depth <= 1 and self.name() in ("and", "while") \
                     and self.role(1) in ("pred", "rel", "ego", "side", "with", "not") and not self.kind_after_states(1):
                 self.take()  # "facing and heading toward", "… while being overtaken": one more modifier
+                if self.role() == "pred" and excludes(node, self.name()):  # "slows down and stops": in turn
+                    item = self.take()
+                    node = Then(node, Is(without_states(node), item.name, item.params, negate=item.negate))
             else:
                 break
         return node
@@ -407,6 +352,14 @@ class Parser:
 
     # -- the description -------------------------------------------------------------------------------
     def description(self) -> Node:
+        if self.role() == "conj" and self.name() == "while":  # "while we are stopped, a pedestrian walks by"
+            start, unused = self.i, len(self.unused)
+            self.take()
+            condition = self.phrase()
+            if condition is not None and self.role() in ("kind", "count"):
+                return While(self.description(), self.referred(*condition))
+            self.i, self.unused[unused:] = start, []  # no main clause follows: "while" says nothing
+            self.unused.extend(self.take().words)
         found = self.phrase()
         if found is None:
             raise DescriptionError("")

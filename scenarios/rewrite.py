@@ -33,6 +33,22 @@ def negated(after: p.Node, before: p.Node) -> p.Node:
 
 #: Predicates of what an object is doing at a moment: a later step of a sequence does not inherit them.
 STATES = ("stopped", "moving", "parked", "stationary", "braking", "accelerating")
+#: States an object cannot be in at once, whether still or under way.
+_STILL = frozenset({"stopped", "parked", "stationary"})
+_UNDER_WAY = frozenset({"moving", "braking", "accelerating", "turning", "changing_lanes"})
+
+
+def excludes(node: p.Node, predicate: str) -> bool:
+    """Whether ``predicate`` cannot hold at the same moment as a state that ``node`` asks of its objects
+    ("slows down and stops", "accelerates and brakes"): the words then name one after the other."""
+    states = set()
+    while isinstance(node, p.Is):
+        if not node.negate:
+            states.add(node.predicate)
+        node = node.subject
+    opposite = {"braking": "accelerating", "accelerating": "braking"}.get(predicate)
+    return bool((predicate in _STILL and states & _UNDER_WAY) or (predicate in _UNDER_WAY and states & _STILL)
+                or opposite in states)
 
 
 def without_states(node: p.Node) -> p.Node:

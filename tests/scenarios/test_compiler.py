@@ -78,6 +78,21 @@ MEANINGS = {
     "we drive past a parked truck": "reverse(passed_by(parked(truck), ego))",
     "car behind the ego vehicle": "reverse(direction(ego, car, side=behind))",
     "bus approaching the ego car": "approaching_ego(bus)",
+    # "To the left" after a turn or a lane change is where it goes, in every verb form, not where it is.
+    "we change lanes to the left": "changing_lanes(ego, direction=left)",
+    "a car merged to the right": "changing_lanes(car, direction=right)",
+    "a truck turned to the left": "turning(truck, direction=left)",
+    "the ego vehicle takes a right": "turning(ego, direction=right)",
+    "a car to the left of the bus": "reverse(direction(bus, car, side=left))",
+    # "Within 5 m of X" is near X, that close; a distance that ends the description is from the ego.
+    "vehicle within 5 meters of a pedestrian": "near(vehicle, pedestrian, within_m=5)",
+    "parked car less than 3 m from a stopped bus": "near(parked(car), stopped(bus), within_m=3)",
+    "a pedestrian within 5 m": "near(pedestrian, ego, within_m=5)",
+    "vehicle directly facing a moving pedestrian from 5-15 meters away":
+        "facing(vehicle, moving(pedestrian), within_m=15)",
+    # A condition first: "while X, Y" is "Y while X".
+    "while we are stopped, a pedestrian walks by": "while(moving(pedestrian), stopped(ego))",
+    "a cyclist rides by us": "reverse(passed_by(ego, cyclist))",
 }
 
 #: Phrases that must not be read as something else: the word is reported unused instead.
@@ -85,11 +100,15 @@ NOT_UNDERSTOOD = {
     "a car waiting to drive": ("stopped(car)", ("drive",)),
     "a pedestrian waiting to walk": ("stopped(pedestrian)", ("walk",)),
     "a car parked in the drive": ("parked(car)", ("drive",)),
+    "while a car is parked": ("parked(car)", ("while",)),  # no clause follows the condition
+    # "walks past" is no phrase, so that "walks past the right side of" reads as "walks" + "past the right side of".
+    "a pedestrian walks past": ("moving(pedestrian)", ("past",)),
 }
 
 
 @pytest.mark.parametrize(("description", "expected"), list(NOT_UNDERSTOOD.items()))
-def test_bare_verbs_are_not_read_as_moving(description: str, expected: tuple[str, tuple[str, ...]]) -> None:
+def test_words_that_mean_nothing_here_are_reported_unused(description: str,
+                                                          expected: tuple[str, tuple[str, ...]]) -> None:
     compiled = compile_description(description)
     assert (compiled.text, compiled.unused) == expected
 

@@ -1,0 +1,90 @@
+"""A description's lexemes as a stream that the parser (:mod:`scenarios.parser`) reads left to right:
+filler words are stepped over, and every word the lexicon does not know is kept as unused."""
+
+from __future__ import annotations
+
+from scenarios.lexicon import Lexeme
+
+
+class LexemeStream:
+    """A cursor over lexemes: ``i`` the next one; ``unused`` the words stepped over that mean something
+    the parse did not take (unknown words, and whatever :meth:`drop_rest` drops)."""
+
+    def __init__(self, items: list[Lexeme]) -> None:
+        self.items = items
+        self.i = 0
+        self.unused: list[str] = []
+
+    def peek(self, ahead: int = 0) -> Lexeme | None:
+        j, seen = self.i, -1
+        while j < len(self.items):
+            if self.items[j].role not in ("skip", "unknown"):
+                seen += 1
+                if seen == ahead:
+                    return self.items[j]
+            j += 1
+        return None
+
+    def take(self) -> Lexeme:
+        while self.items[self.i].role in ("skip", "unknown"):
+            if self.items[self.i].role == "unknown":
+                self.unused.append(self.items[self.i].name)
+            self.i += 1
+        item = self.items[self.i]
+        self.i += 1
+        return item
+
+    def drop_rest(self) -> None:
+        while self.i < len(self.items):
+            item = self.items[self.i]
+            if item.role != "skip":
+                self.unused.extend(item.words)
+            self.i += 1
+
+    def after_word(self, word: str) -> bool:
+        """Whether the next meaningful item comes right after ``word`` (a filler the stream skips)."""
+        j = self.i
+        while j < len(self.items) and self.items[j].role in ("skip", "unknown"):
+            j += 1
+        return j > 0 and self.items[j - 1].words == (word,)
+
+    def skipped_before_next(self) -> set[str]:
+        """The filler words between here and the next meaningful item."""
+        words: set[str] = set()
+        j = self.i
+        while j < len(self.items) and self.items[j].role in ("skip", "unknown"):
+            words.update(self.items[j].words)
+            j += 1
+        return words
+
+    def role(self, ahead: int = 0) -> str:
+        item = self.peek(ahead)
+        return item.role if item is not None else "end"
+
+    def name(self, ahead: int = 0) -> str:
+        item = self.peek(ahead)
+        return item.name if item is not None else ""
+
+    def count_ahead(self) -> int:
+        item = self.peek()
+        return item.count if item is not None else 0
+
+    # -- numbers -----------------------------------------------------------------------------------------
+    def quantity(self) -> tuple[float, str] | None:
+        """A number (or range "5 to 20") with its unit, consumed; the range's upper end."""
+        if self.role() != "number":
+            return None
+        j = 1
+        value = float(self.name())
+        if self.role(1) == "number":  # "5 to 20": "to" is filler between them
+            value, j = float(self.name(1)), 2
+        unit = self.peek(j)
+        if unit is None or unit.role != "unit":
+            if self.role(j) == "kind":
+                return None  # "two vehicles": a count, not a quantity
+            for _ in range(j):
+                self.take()
+            return value, ""
+        for _ in range(j + 1):
+            self.take()
+        return value, unit.name

@@ -150,6 +150,8 @@ class Parser(LexemeStream):
                 node = closer(node)
             elif role in ("count", "number") and self.role(1) == "kind" and self.role(2) in ("side", "ego", "rel"):
                 node = self.chain(node)
+            elif role == "not" and self.role(1) == "kind" and self.role(2) == "side":  # "without a car ahead of it"
+                node = negated(self.with_phrase(node, self.take()), node)
             elif role == "not" and self.role(1) == "kind":  # "truck without trailer"
                 self.take()
                 node = Has(node, "near", Objects(self.take().name), (("within_m", 5.0),), negate=True)
@@ -239,34 +241,7 @@ class Parser(LexemeStream):
                 return self.without_object(node, item)
             return self.relate(node, item, other)
         if item.role == "with":
-            if self.role() == "side" and self.name() == "near":  # "with nearby X"
-                self.take()
-            if self.role() == "rel":  # "with crossing dog", "with approaching vehicle": the other acts on the node
-                rel = self.take()
-                acting = self.phrase(bare=True)
-                if acting is None:
-                    self.unused.extend((*item.words, *rel.words))
-                    return node
-                params = self.distance_params(rel.params, rel.name)
-                if rel.reverse:
-                    return Has(node, rel.name, acting[0], params, min_count=max(1, acting[1]))
-                return Has(acting[0], rel.name, node, params, reverse=True)
-            other = self.phrase(bare=True)
-            if other is not None:
-                other = (self.modifiers_bare(other[0]), other[1])
-            if other is None:
-                self.unused.extend(item.words)
-                return node
-            distance = self.quantity() if self.role() == "number" else None
-            if self.role() == "side":
-                side = self.take().name
-                rel = Lexeme("rel", side) if side in ("same_lane", "near") else \
-                    Lexeme("rel", "direction", (("side", side),))
-            else:
-                rel = Lexeme("rel", "near", ())
-            if distance is not None and distance[1] == "m":
-                self.pending_m = distance[0]
-            return self.relate(node, rel, other)
+            return self.with_phrase(node, item)
         if item.role == "between":
             if self.role() == "number":  # "between 5-20 meters away": a distance
                 found = self.quantity()
@@ -299,6 +274,40 @@ class Parser(LexemeStream):
         if self.role() == "side" and self.name() in ("left", "right"):
             side = self.take().name
         return Then(Is(node, "ego_lane", (("lane", side),)), Is(node, "ego_lane", (("lane", "host"),)), CUT_IN_WITHIN_S)
+
+    def with_phrase(self, node: Node, item: Lexeme) -> Node:
+        """``node`` with the object named after "with" (``item``), where the words after it say it is."""
+        if self.role() == "not" and self.role(1) == "kind":  # "with no car behind it"
+            self.take()
+            return negated(self.with_phrase(node, item), node)
+        if self.role() == "side" and self.name() == "near":  # "with nearby X"
+            self.take()
+        if self.role() == "rel":  # "with crossing dog", "with approaching vehicle": the other acts on the node
+            rel = self.take()
+            acting = self.phrase(bare=True)
+            if acting is None:
+                self.unused.extend((*item.words, *rel.words))
+                return node
+            params = self.distance_params(rel.params, rel.name)
+            if rel.reverse:
+                return Has(node, rel.name, acting[0], params, min_count=max(1, acting[1]))
+            return Has(acting[0], rel.name, node, params, reverse=True)
+        other = self.phrase(bare=True)
+        if other is not None:
+            other = (self.modifiers_bare(other[0]), other[1])
+        if other is None:
+            self.unused.extend(item.words)
+            return node
+        distance = self.quantity() if self.role() == "number" else None
+        if self.role() == "side":
+            side = self.take().name
+            rel = Lexeme("rel", side) if side in ("same_lane", "near") else \
+                Lexeme("rel", "direction", (("side", side),))
+        else:
+            rel = Lexeme("rel", "near", ())
+        if distance is not None and distance[1] == "m":
+            self.pending_m = distance[0]
+        return self.relate(node, rel, other)
 
     def with_side(self, item: Lexeme) -> Lexeme:
         """``item`` with the side that follows it ("being overtaken on the left")."""

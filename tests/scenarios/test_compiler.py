@@ -93,6 +93,10 @@ MEANINGS = {
     # A condition first: "while X, Y" is "Y while X".
     "while we are stopped, a pedestrian walks by": "while(moving(pedestrian), stopped(ego))",
     "a cyclist rides by us": "reverse(passed_by(ego, cyclist))",
+    # "Without" / "with no" an object where the words put it: that relation, negated.
+    "a car without any vehicle in front of it": "not(direction(car, vehicle, side=front))",
+    "a car with no vehicle behind it": "not(direction(car, vehicle, side=behind))",
+    "a truck without a trailer": "not(near(truck, vehicular_trailer, within_m=5))",
 }
 
 #: Phrases that must not be read as something else: the word is reported unused instead.

@@ -324,6 +324,18 @@ _add("during snow|in the snow|in snow|while snowing|on a snowy day", Lexeme("pre
 _add("in fog|in the fog|during fog|on a foggy day", Lexeme("pred", "appearance", (("weather", "fog"),)))
 _add("between", Lexeme("between"))
 _add("meters|meter|metres|metre|m", Lexeme("unit", "m"))
+# Speeds, in metres per second: "m/s" and "km/h" arrive as "m s" and "km h" (normalize splits at "/").
+_add("m s|meters per second|meter per second|metres per second|mps", Lexeme("unit", "mps"))
+_add("km h|kmh|kph|km per hour|kilometers per hour|kilometres per hour", Lexeme("unit", "kmh"))
+_add("mph|miles per hour|mile per hour", Lexeme("unit", "mph"))
+#: Metres per second in one of each speed unit.
+SPEED_UNITS = {"mps": 1.0, "kmh": 1000.0 / 3600.0, "mph": 1609.344 / 3600.0}
+#: Words before a speed that make it a floor ("faster than 10 m/s") or a ceiling ("under 5 km/h"); with
+#: neither ("at 30 km/h"), the speed is a band of ±20 % around it.
+SPEED_FLOOR = frozenset({"faster", "quicker", "above", "over", "exceeding", "more", "least"})
+SPEED_CEILING = frozenset({"slower", "below", "under", "less", "most"})
+_add("faster than|quicker than|slower than|above|over|exceeding|below|under|about|approximately",
+     Lexeme("skip"))
 _add("seconds|second|secs|sec|s", Lexeme("unit", "s"))
 for _phrases, _name in (("and|as well as|also|while also", "and"), ("or|either", "or"),
                         ("then|and then|after that|afterwards|before", "then"),

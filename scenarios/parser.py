@@ -22,7 +22,7 @@ from __future__ import annotations
 import dataclasses
 
 from scenarios.lexeme_stream import LexemeStream
-from scenarios.lexicon import Lexeme
+from scenarios.lexicon import SPEED_CEILING, SPEED_FLOOR, SPEED_UNITS, Lexeme
 from scenarios.program import (
     AllOf,
     AnyOf,
@@ -44,6 +44,15 @@ from scenarios.rewrite import closer, excludes, negated, with_subject, within, w
 GROUP_RADIUS_M = 5.0
 #: The two steps of "drives off" or "cuts into my lane" happen within this many seconds.
 CUT_IN_WITHIN_S = 4.0
+
+
+def speed_bounds(speed_mps: float, fillers: set[str]) -> tuple[tuple[str, float | str], ...]:
+    """The ``speed`` predicate's bounds for a speed said with the words ``fillers`` before it."""
+    if fillers & SPEED_FLOOR:
+        return (("min_mps", round(speed_mps, 2)),)
+    if fillers & SPEED_CEILING:
+        return (("max_mps", round(speed_mps, 2)),)
+    return ("min_mps", round(0.8 * speed_mps, 2)), ("max_mps", round(1.2 * speed_mps, 2))
 
 
 class DescriptionError(ValueError):
@@ -165,12 +174,14 @@ class Parser(LexemeStream):
                     break
                 node = updated
             elif role == "number":
-                after_within = self.after_word("within")
+                after_within, fillers = self.after_word("within"), self.skipped_before_next()
                 found = self.quantity()
                 if found is None:
                     break
                 value, unit = found
-                if unit == "s" and after_within:
+                if unit in SPEED_UNITS:
+                    node = Is(node, "speed", speed_bounds(value * SPEED_UNITS[unit], fillers))
+                elif unit == "s" and after_within:
                     self.within_s = value
                 elif unit == "s":
                     node = ForAtLeast(node, value)
@@ -324,8 +335,8 @@ class Parser(LexemeStream):
         if item.name == "direction":
             side = str(dict(item.params)["side"])
             return self.ego_relation(node, side, self.distance_params((), "direction"))
-        if item.words == ("at",):  # "at" before a place word the lexicon reads itself
-            return node
+        if item.words == ("at",) or (item.words == ("around",) and self.role() == "number"):
+            return node  # "at" before a place word the lexicon reads itself; "around 20 km/h": about
         if item.reverse and item.name == "passed_by":  # "passing between ...": moving past
             return Is(node, "moving")
         if item.reverse and item.name == "crossed_by":  # "a pedestrian crosses at the crosswalk"

@@ -97,6 +97,12 @@ MEANINGS = {
     "a car without any vehicle in front of it": "not(direction(car, vehicle, side=front))",
     "a car with no vehicle behind it": "not(direction(car, vehicle, side=behind))",
     "a truck without a trailer": "not(near(truck, vehicular_trailer, within_m=5))",
+    # Speeds in m/s, km/h or mph: a floor, a ceiling, or ±20 % when the words say neither.
+    "a car driving faster than 20 m/s": "speed(moving(car), min_mps=20)",
+    "a cyclist under 10 km/h": "speed(cyclist, max_mps=2.78)",
+    "a car at 30 mph": "speed(car, min_mps=10.73, max_mps=16.09)",
+    "a car going around 5 m/s": "speed(moving(car), min_mps=4, max_mps=6)",
+    "pedestrians around a bus": "near(pedestrian, bus)",
 }
 
 #: Phrases that must not be read as something else: the word is reported unused instead.

@@ -231,7 +231,7 @@ for _phrases, _rel, _rparams, _reverse in (
     ("in the same lane as|in same lane as|sharing a lane with|sharing lane with|in the lane of|in its lane with|"
      "sharing the lane with", "same_lane", (), False),
     ("being crossed by|crossed by", "crossed_by", (), False),
-    ("crossing|crossing in front of|crossing the path of|crossing in front|cutting in front of|crosses|"
+    ("crossing|crossing in front of|crossing the path of|crossing in front|cutting in front of|crosses|cross|"
      "crossing paths with|crossing path of", "crossed_by", (), True),
     ("being passed by|passed by|being overtaken by|overtaken by|being overtaken|overtaken|being passed", "passed_by",
      (), False),

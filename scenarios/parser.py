@@ -299,16 +299,15 @@ class Parser(LexemeStream):
             if acting is None:
                 self.unused.extend((*item.words, *rel.words))
                 return node
-            params = self.distance_params(rel.params, rel.name)
-            if rel.reverse:
-                return Has(node, rel.name, acting[0], params, min_count=max(1, acting[1]))
-            return Has(acting[0], rel.name, node, params, reverse=True)
+            return self.acted_on(node, rel, acting)
         other = self.phrase(bare=True)
         if other is not None:
             other = (self.modifiers_bare(other[0]), other[1])
         if other is None:
             self.unused.extend(item.words)
             return node
+        if self.role() == "rel" and self.role(1) not in ("kind", "count", "pred", "number"):
+            return self.acted_on(node, self.take(), other)  # "with a pedestrian crossing in front of it"
         distance = self.quantity() if self.role() == "number" else None
         if self.role() == "side":
             side = self.take().name
@@ -319,6 +318,13 @@ class Parser(LexemeStream):
         if distance is not None and distance[1] == "m":
             self.pending_m = distance[0]
         return self.relate(node, rel, other)
+
+    def acted_on(self, node: Node, rel: Lexeme, acting: tuple[Node, int]) -> Node:
+        """``node`` that the objects of ``acting`` do ``rel`` to ("with a dog crossing", "with a car following it")."""
+        params = self.distance_params(rel.params, rel.name)
+        if rel.reverse:
+            return Has(node, rel.name, acting[0], params, min_count=max(1, acting[1]))
+        return Has(acting[0], rel.name, node, params, reverse=True)
 
     def with_side(self, item: Lexeme) -> Lexeme:
         """``item`` with the side that follows it ("being overtaken on the left")."""

@@ -97,6 +97,10 @@ MEANINGS = {
     "a car without any vehicle in front of it": "not(direction(car, vehicle, side=front))",
     "a car with no vehicle behind it": "not(direction(car, vehicle, side=behind))",
     "a truck without a trailer": "not(near(truck, vehicular_trailer, within_m=5))",
+    # "With X doing something to it": X acts on the subject.
+    "bus turning left with a pedestrian crossing in front of it":
+        "crossed_by(turning(bus, direction=left), pedestrian)",
+    "a car with a motorcycle following it": "reverse(following(motorcycle, car))",
     # Speeds in m/s, km/h or mph: a floor, a ceiling, or ±20 % when the words say neither.
     "a car driving faster than 20 m/s": "speed(moving(car), min_mps=20)",
     "a cyclist under 10 km/h": "speed(cyclist, max_mps=2.78)",

@@ -142,7 +142,9 @@ for _phrases, _name, _params in (
     ("accelerating|speeding up|gaining speed|accelerates|accelerate", "accelerating", ()),
     ("braking|slowing down|decelerating|slowing|brakes|brake|slow down|slows down|slowed down|decelerates|"
      "decelerate", "braking", ()),
-    ("hard braking|braking hard|slamming on the brakes|emergency braking", "braking", (("min_mps2", 3.0),)),
+    ("hard braking|braking hard|slamming on the brakes|emergency braking|brakes hard|brake hard|braked hard|"
+     "brakes sharply|braking sharply|brakes suddenly|braking suddenly|sudden braking|slams on the brakes|"
+     "slams on its brakes", "braking", (("min_mps2", 3.0),)),
     ("turning|making a turn|turns|turn", "turning", ()),
     (_turns("left"), "turning", (("direction", "left"),)),
     (_turns("right"), "turning", (("direction", "right"),)),
@@ -208,7 +210,8 @@ for _phrases, _name, _params in (
 for _phrases, _rel, _rparams, _reverse in (
     ("near|close to|next to|around|in close proximity to|in proximity to|alongside|by|adjacent to",
      "near", (), False),
-    ("following|behind|tailing|trailing|driving behind|following behind", "following", (), False),
+    ("following|behind|tailing|trailing|driving behind|following behind|follow|follows|followed", "following", (),
+     False),
     ("following closely|closely following|following closely behind|closely behind|tailgating|too closely behind",
      "following", (("within_m", 10.0),), False),
     ("being followed by|followed by", "following", (), True),
@@ -239,7 +242,8 @@ for _phrases, _rel, _rparams, _reverse in (
     ("past the left side of|past left side of|past the left of", "passed_by", (("side", "left"),), True),
     ("at", "near", (("within_m", 5.0),), False),
     # Not "walking past": "walking past the right side of" is "walking" + "past the right side of".
-    ("passing|overtaking|passing by|passes|overtakes|drive past|drives past|driving past|goes past|going past|"
+    ("passing|overtaking|passing by|passes|overtakes|pass|overtake|passed|overtook|drive past|drives past|"
+     "driving past|goes past|going past|"
      "go past|" + "|".join(f"{verb} by" for verb in ("drive", "drives", "driving", "walk", "walks", "walking",
                                                      "ride", "rides", "riding")), "passed_by", (), True),
     ("facing|facing toward|facing towards|looking at|facing at", "facing", (), False),

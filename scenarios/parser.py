@@ -65,6 +65,8 @@ class Parser(LexemeStream):
     def __init__(self, items: list[Lexeme]) -> None:
         super().__init__(items)
         self.pending_m: float | None = None
+        #: A duration said inside a relation's object ("following a truck for 10 s"): the relation's.
+        self.pending_s: float | None = None
         #: "… then stops within 4 seconds": the time the steps of a sequence fall within (not a duration).
         self.within_s: float | None = None
         #: How deep in the phrases named by relations: "and"/"while" + modifier join the referred phrase only.
@@ -172,7 +174,8 @@ class Parser(LexemeStream):
                 updated = self.modifiers_one(node)
                 if updated is None:
                     break
-                node = updated
+                node = updated if self.pending_s is None else ForAtLeast(updated, self.pending_s)
+                self.pending_s = None
             elif role == "number":
                 after_within, fillers = self.after_word("within"), self.skipped_before_next()
                 found = self.quantity()
@@ -183,6 +186,8 @@ class Parser(LexemeStream):
                     node = Is(node, "speed", speed_bounds(value * SPEED_UNITS[unit], fillers))
                 elif unit == "s" and after_within:
                     self.within_s = value
+                elif unit == "s" and self.depth > 1:  # "following a truck for 10 s": the relation lasts
+                    self.pending_s = value
                 elif unit == "s":
                     node = ForAtLeast(node, value)
                 elif unit == "m" and (self.role() in ("kind", "count") or self.kind_after_states(0)) \
@@ -194,7 +199,10 @@ class Parser(LexemeStream):
                 elif unit == "m" and isinstance(node, Has) and self.role() not in ("rel", "side", "kind"):
                     node = within(node, value)
                 elif unit == "m" and self.depth <= 1 and self.role() in ("end", "conj"):  # "a car within 5 m": of us
-                    node = Has(node, "near", Objects("ego"), (("within_m", value),))
+                    if subject_of(node) == Objects("ego"):  # "when we are 20 m away": from what, it does not say
+                        self.unused.append(f"{value:g} m")
+                    else:
+                        node = Has(node, "near", Objects("ego"), (("within_m", value),))
                 elif unit == "m" and self.role() == "pred" and self.name() == "near_intersection":
                     self.take()
                     node = Is(node, "near_intersection", (("within_m", value),))
@@ -408,12 +416,18 @@ class Parser(LexemeStream):
                 node = Then(node, other)
             elif conj.name == "while":
                 node = While(node, other)
+            elif conj.name == "and" and Objects("ego") in (subject_of(node), subject_of(other)) \
+                    and subject_of(node) != subject_of(other) \
+                    and node != subject_of(node) and other != subject_of(other):
+                node = While(node, other)  # "we turn right and a cyclist is on our right": both at once
             elif conj.name == "and" and of_two_kinds(node, other):
                 node = AnyOf((node, other))  # "buses and motorcycles": no object is both, the words name both
             else:
                 node = AllOf((node, other)) if conj.name == "and" else node
                 if conj.name == "or":
                     node = AnyOf((node.children[0] if isinstance(node, AllOf) else node, other))
+        if self.pending_s is not None:  # a duration no relation took
+            self.unused.append(f"for {self.pending_s:g} s")
         if self.within_s is not None:
             if isinstance(node, Then):
                 node = dataclasses.replace(node, within_s=self.within_s)

@@ -101,6 +101,14 @@ MEANINGS = {
     "bus turning left with a pedestrian crossing in front of it":
         "crossed_by(turning(bus, direction=left), pedestrian)",
     "a car with a motorcycle following it": "reverse(following(motorcycle, car))",
+    # The ego's clause and another's joined by "and" hold at once; a duration inside a relation's
+    # object is the relation's.
+    "we turn right and a cyclist is on our right": "while(turning(ego, direction=right), "
+                                                   "reverse(direction(ego, cyclist, side=right)))",
+    "the ego vehicle and a bus": "or(ego, bus)",
+    "we pass a parked car on the right": "reverse(passed_by(parked(car), ego, side=right))",
+    "we follow a truck for 10 seconds": "for_at_least(following(ego, truck), seconds=10)",
+    "a car brakes hard in front of us": "reverse(direction(ego, braking(car, min_mps2=3), side=front))",
     # Speeds in m/s, km/h or mph: a floor, a ceiling, or ±20 % when the words say neither.
     "a car driving faster than 20 m/s": "speed(moving(car), min_mps=20)",
     "a cyclist under 10 km/h": "speed(cyclist, max_mps=2.78)",
@@ -115,6 +123,7 @@ NOT_UNDERSTOOD = {
     "a pedestrian waiting to walk": ("stopped(pedestrian)", ("walk",)),
     "a car parked in the drive": ("parked(car)", ("drive",)),
     "while a car is parked": ("parked(car)", ("while",)),  # no clause follows the condition
+    "a pedestrian crossing when we are 20 m away": ("while(crossing_road(pedestrian), ego)", ("20 m",)),
     # "walks past" is no phrase, so that "walks past the right side of" reads as "walks" + "past the right side of".
     "a pedestrian walks past": ("moving(pedestrian)", ("past",)),
 }

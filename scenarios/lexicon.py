@@ -145,7 +145,9 @@ for _phrases, _name, _params in (
     ("hard braking|braking hard|slamming on the brakes|emergency braking|brakes hard|brake hard|braked hard|"
      "brakes sharply|braking sharply|brakes suddenly|braking suddenly|sudden braking|slams on the brakes|"
      "slams on its brakes", "braking", (("min_mps2", 3.0),)),
-    ("turning|making a turn|turns|turn", "turning", ()),
+    ("turning|making a turn|turns|turn|u turn|u turning|u turns|" + "|".join(
+        f"{verb} a u turn" for verb in ("making", "makes", "make", "doing", "does", "do", "taking", "takes")),
+     "turning", ()),
     (_turns("left"), "turning", (("direction", "left"),)),
     (_turns("right"), "turning", (("direction", "right"),)),
     ("changing lanes|lane change|lane changing|changes lanes|change lanes|switching lanes|merging|merges|"
@@ -342,12 +344,16 @@ _add("faster than|quicker than|slower than|above|over|exceeding|below|under|abou
      Lexeme("skip"))
 _add("seconds|second|secs|sec|s", Lexeme("unit", "s"))
 for _phrases, _name in (("and|as well as|also|while also", "and"), ("or|either", "or"),
+                        ("except|except for|other than|excluding|but not|apart from|besides", "except"),
                         ("then|and then|after that|afterwards|before", "then"),
                         ("while|when|during|as|whilst", "while")):
     _add(_phrases, Lexeme("conj", _name))
-_add("not|no|without|isn't|aren't|doesn't", Lexeme("not"))
+_add("not|no|without|isn't|aren't|doesn't|neither|nor", Lexeme("not"))
+# A place the map does not hold: named as not understood, so that "at a bus stop" asks nothing of buses.
+_add("bus stop|bus stops", Lexeme("unknown", "bus stop"))
 _add("within|at least|at most|less than|more than|up to|from|away|for|directly|another|other|each|any|"
-     "some|its|their|the|a|an|that|which|who|is|are|being|of|it|there|in|on|to|one|same|lane|path|side|too|"
+     "some|its|their|the|a|an|that|which|who|is|are|being|of|it|there|in|on|to|one|ones|those|these|same|lane|path|"
+     "side|too|"
      "road|street|zone|area|i|see|find|show|me|all|where|together|here|now|just",
      Lexeme("skip"))
 

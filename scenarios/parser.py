@@ -27,6 +27,7 @@ from scenarios.program import (
     AllOf,
     AnyOf,
     Between,
+    Excluding,
     ForAtLeast,
     Has,
     Is,
@@ -84,10 +85,11 @@ class Parser(LexemeStream):
         count, preds = 0, []
         while True:
             role = self.role()
+            more = int("more" in self.skipped_before_next())  # "more than two cars": three at least
             if role == "count":
-                count = max(count, self.take().count)
+                count = max(count, self.take().count + more)
             elif role == "number" and self.role(1) in ("kind", "pred"):
-                count = int(float(self.take().name))
+                count = int(float(self.take().name)) + more
             elif role in ("pred", "fixed"):
                 preds.append(self.take())
             elif role == "rel" and self.role(1) == "kind" and self.name() in ("crossed_by", "passed_by") \
@@ -414,6 +416,8 @@ class Parser(LexemeStream):
                 node = with_subject(node, subject_of(other))  # "parked or stopped vehicle": both of vehicles
             if conj.name == "then":
                 node = Then(node, other)
+            elif conj.name == "except":
+                node = Excluding(node, other)
             elif conj.name == "while":
                 node = While(node, other)
             elif conj.name == "and" and Objects("ego") in (subject_of(node), subject_of(other)) \

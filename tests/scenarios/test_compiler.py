@@ -109,6 +109,11 @@ MEANINGS = {
     "we pass a parked car on the right": "reverse(passed_by(parked(car), ego, side=right))",
     "we follow a truck for 10 seconds": "for_at_least(following(ego, truck), seconds=10)",
     "a car brakes hard in front of us": "reverse(direction(ego, braking(car, min_mps2=3), side=front))",
+    # "More than two" is three at least; "except", "neither … nor".
+    "more than two cars stopped at an intersection": "together(at_intersection(stopped(car)), min_count=3)",
+    "all vehicles except buses": "excluding(vehicle, bus)",
+    "a car that is neither parked nor stopped": "not(stopped(not(parked(car))))",
+    "a car making a u-turn": "turning(car)",
     # Speeds in m/s, km/h or mph: a floor, a ceiling, or ±20 % when the words say neither.
     "a car driving faster than 20 m/s": "speed(moving(car), min_mps=20)",
     "a cyclist under 10 km/h": "speed(cyclist, max_mps=2.78)",
@@ -124,6 +129,7 @@ NOT_UNDERSTOOD = {
     "a car parked in the drive": ("parked(car)", ("drive",)),
     "while a car is parked": ("parked(car)", ("while",)),  # no clause follows the condition
     "a pedestrian crossing when we are 20 m away": ("while(crossing_road(pedestrian), ego)", ("20 m",)),
+    "a bus stopped at a bus stop": ("stopped(bus)", ("bus", "stop")),  # no bus stops in the map: not a bus
     # "walks past" is no phrase, so that "walks past the right side of" reads as "walks" + "past the right side of".
     "a pedestrian walks past": ("moving(pedestrian)", ("past",)),
 }

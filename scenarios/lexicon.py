@@ -340,6 +340,17 @@ SPEED_UNITS = {"mps": 1.0, "kmh": 1000.0 / 3600.0, "mph": 1609.344 / 3600.0}
 #: neither ("at 30 km/h"), the speed is a band of ±20 % around it.
 SPEED_FLOOR = frozenset({"faster", "quicker", "above", "over", "exceeding", "more", "least"})
 SPEED_CEILING = frozenset({"slower", "below", "under", "less", "most"})
+
+
+def speed_bounds(speed_mps: float, fillers: set[str]) -> tuple[Param, ...]:
+    """The ``speed`` predicate's bounds for a speed said with the words ``fillers`` before it."""
+    if fillers & SPEED_FLOOR:
+        return (("min_mps", round(speed_mps, 2)),)
+    if fillers & SPEED_CEILING:
+        return (("max_mps", round(speed_mps, 2)),)
+    return ("min_mps", round(0.8 * speed_mps, 2)), ("max_mps", round(1.2 * speed_mps, 2))
+
+
 _add("faster than|quicker than|slower than|above|over|exceeding|below|under|about|approximately",
      Lexeme("skip"))
 _add("seconds|second|secs|sec|s", Lexeme("unit", "s"))

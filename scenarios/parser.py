@@ -22,7 +22,7 @@ from __future__ import annotations
 import dataclasses
 
 from scenarios.lexeme_stream import LexemeStream
-from scenarios.lexicon import SPEED_CEILING, SPEED_FLOOR, SPEED_UNITS, Lexeme
+from scenarios.lexicon import SPEED_UNITS, Lexeme, speed_bounds
 from scenarios.program import (
     AllOf,
     AnyOf,
@@ -39,21 +39,12 @@ from scenarios.program import (
     of_two_kinds,
     subject_of,
 )
-from scenarios.rewrite import closer, excludes, negated, with_subject, within, without_states
+from scenarios.rewrite import closer, ego_without, excludes, negated, with_subject, within, without_states
 
 #: Within this distance (m), "a group of" objects stand together.
 GROUP_RADIUS_M = 5.0
 #: The two steps of "drives off" or "cuts into my lane" happen within this many seconds.
 CUT_IN_WITHIN_S = 4.0
-
-
-def speed_bounds(speed_mps: float, fillers: set[str]) -> tuple[tuple[str, float | str], ...]:
-    """The ``speed`` predicate's bounds for a speed said with the words ``fillers`` before it."""
-    if fillers & SPEED_FLOOR:
-        return (("min_mps", round(speed_mps, 2)),)
-    if fillers & SPEED_CEILING:
-        return (("max_mps", round(speed_mps, 2)),)
-    return ("min_mps", round(0.8 * speed_mps, 2)), ("max_mps", round(1.2 * speed_mps, 2))
 
 
 class DescriptionError(ValueError):
@@ -388,6 +379,15 @@ class Parser(LexemeStream):
 
     # -- the description -------------------------------------------------------------------------------
     def description(self) -> Node:
+        if self.role() == "not" and self.role(1) in ("kind", "count"):  # "no pedestrians near us"
+            no = self.take()
+            found = self.phrase()
+            none = ego_without(self.referred(*found)) if found is not None else None
+            if none is not None:
+                return none
+            self.unused.extend(no.words)
+            if found is not None:
+                return self.referred(*found)
         if self.role() == "conj" and self.name() == "while":  # "while we are stopped, a pedestrian walks by"
             start, unused = self.i, len(self.unused)
             self.take()

@@ -83,3 +83,15 @@ def with_subject(node: p.Node, subject: p.Node) -> p.Node:
         case p.AllOf((first, *rest)):
             return p.AllOf((with_subject(first, subject), *rest))
     return node
+
+
+def ego_without(node: p.Node) -> p.Node | None:
+    """"No pedestrians near us", "no cars in front of us": the ego at the moments when no such object
+    is there; None when ``node`` does not relate its objects to the ego."""
+    if not isinstance(node, p.Has):
+        return None
+    if node.reverse and node.subject == p.Objects("ego"):  # "cars in front of us": the ego has them
+        return dataclasses.replace(node, reverse=False, negate=not node.negate, min_count=1)
+    if node.relation == "near" and node.other == p.Objects("ego") and not node.reverse:  # near: either way
+        return p.Has(p.Objects("ego"), "near", node.subject, node.params, negate=not node.negate)
+    return None

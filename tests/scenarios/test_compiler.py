@@ -114,6 +114,9 @@ MEANINGS = {
     "all vehicles except buses": "excluding(vehicle, bus)",
     "a car that is neither parked nor stopped": "not(stopped(not(parked(car))))",
     "a car making a u-turn": "turning(car)",
+    # "No X near us / in front of us": the ego's moments without them.
+    "no pedestrians near us": "not(near(ego, pedestrian))",
+    "no cars in front of us": "not(direction(ego, car, side=front))",
     # Speeds in m/s, km/h or mph: a floor, a ceiling, or ±20 % when the words say neither.
     "a car driving faster than 20 m/s": "speed(moving(car), min_mps=20)",
     "a cyclist under 10 km/h": "speed(cyclist, max_mps=2.78)",
@@ -130,6 +133,7 @@ NOT_UNDERSTOOD = {
     "while a car is parked": ("parked(car)", ("while",)),  # no clause follows the condition
     "a pedestrian crossing when we are 20 m away": ("while(crossing_road(pedestrian), ego)", ("20 m",)),
     "a bus stopped at a bus stop": ("stopped(bus)", ("bus", "stop")),  # no bus stops in the map: not a bus
+    "no pedestrians": ("pedestrian", ("no",)),  # nothing to be without: the objects, "no" unused
     # "walks past" is no phrase, so that "walks past the right side of" reads as "walks" + "past the right side of".
     "a pedestrian walks past": ("moving(pedestrian)", ("past",)),
 }

@@ -159,7 +159,7 @@ class Parser(LexemeStream):
             elif role == "not" and self.role(1) == "kind":  # "truck without trailer"
                 self.take()
                 node = Has(node, "near", Objects(self.take().name), (("within_m", 5.0),), negate=True)
-            elif role == "not" and self.role(1) in ("pred", "rel", "with", "fixed"):
+            elif role == "not" and self.role(1) in ("pred", "rel", "with", "fixed", "ego", "side"):
                 self.take()
                 after = self.modifiers_one(node)
                 node = negated(after, node) if after is not None else node

@@ -26,6 +26,10 @@ def within(node: p.Node, within_m: float) -> p.Node:
 
 def negated(after: p.Node, before: p.Node) -> p.Node:
     """``after`` (``before`` with one more modifier) with that modifier negated."""
+    if isinstance(after, p.Has) and after.reverse and after != before:
+        # "a pedestrian not to the left of the bus": the objects of ``before`` but those the relation
+        # answers (a reversed relation answers its other objects; negated, it would name none).
+        return p.Excluding(before, after)
     if isinstance(after, p.Is | p.Has) and after != before:
         return dataclasses.replace(after, negate=not after.negate)
     return after

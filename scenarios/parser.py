@@ -308,7 +308,7 @@ class Parser(LexemeStream):
             self.unused.extend(item.words)
             return node
         if self.role() == "rel" and self.role(1) not in ("kind", "count", "pred", "number"):
-            return self.acted_on(node, self.take(), other)  # "with a pedestrian crossing in front of it"
+            return self.acted_on(node, self.with_side(self.take()), other)  # "with a car passing it on the left"
         distance = self.quantity() if self.role() == "number" else None
         if self.role() == "side":
             side = self.take().name

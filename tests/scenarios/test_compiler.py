@@ -101,6 +101,7 @@ MEANINGS = {
     "bus turning left with a pedestrian crossing in front of it":
         "crossed_by(turning(bus, direction=left), pedestrian)",
     "a car with a motorcycle following it": "reverse(following(motorcycle, car))",
+    "stopped bus with a vehicle passing it on the left": "passed_by(stopped(bus), vehicle, side=left)",
     # The ego's clause and another's joined by "and" hold at once; a duration inside a relation's
     # object is the relation's.
     "we turn right and a cyclist is on our right": "while(turning(ego, direction=right), "

@@ -199,6 +199,9 @@ for _phrases, _name, _params in (
     ("in the left lane|in the lane to our left|in the lane on our left|in the left adjacent lane|"
      "in the lane to the left of us|in the lane left of us|in the lane to the left of the ego vehicle", "ego_lane",
      (("lane", "left"),)),
+    ("in the adjacent lane|in an adjacent lane|in the lane next to us|in the next lane|in the lane beside us|"
+     "in the neighboring lane|in the next lane over|in a lane next to ours|in the lane next to ours", "ego_lane",
+     (("lane", "adjacent"),)),
     ("in the right lane|in the lane to our right|in the lane on our right|in the right adjacent lane|"
      "in the lane to the right of us|in the lane right of us|in the lane to the right of the ego vehicle", "ego_lane",
      (("lane", "right"),)),
@@ -265,6 +268,11 @@ for _phrases, _side in (("ahead|in front|ahead of us|in front of us", "front"),
                         ("to our left|on our left|to the left of us", "left"),
                         ("to our right|on our right|to the right of us", "right")):
     _add(_phrases, Lexeme("ego", "direction", (("side", _side),), reverse=True))
+# "Directly" ahead or behind: within the ego's lane band (the chain of "two cars ahead" uses the same band).
+_add("directly ahead|directly ahead of us|directly in front of us|right in front of us|right ahead",
+     Lexeme("ego", "direction", (("side", "front"), ("lateral_m", 1.5)), reverse=True))
+_add("directly behind us|right behind us", Lexeme("ego", "direction", (("side", "behind"), ("lateral_m", 1.5)),
+                                                  reverse=True))
 
 # -- sides after "with …" -----------------------------------------------------------------------------------
 for _phrases, _side in (
@@ -316,7 +324,11 @@ _add("cuts into my lane|cuts into our lane|cutting into my lane|cutting into our
      "cuts in front of us|cutting in front of us|merges into my lane|merges into our lane|merging into our lane|"
      "moves into the ego lane|moves into our lane|moves into my lane|moving into our lane|moving into the ego lane|"
      "changes into our lane|changes into my lane|moves into the host lane|moving into the host lane|"
-     "into the host lane|into the ego lane|into our lane|into my lane", Lexeme("seq", "cut_in"))
+     "into the host lane|into the ego lane|into our lane|into my lane|entering our lane|enters our lane|"
+     "entering my lane|enters my lane|entering the ego lane|enters the ego lane", Lexeme("seq", "cut_in"))
+_add("leaving our lane|leaves our lane|leaving my lane|leaves my lane|leaving the ego lane|exiting our lane|"
+     "exits our lane|moving out of our lane|moves out of our lane|changing out of our lane|cuts out|cutting out",
+     Lexeme("seq", "cut_out"))
 _add("on sidewalk|on the sidewalk|on a sidewalk|off the road|not on the road|off road", Lexeme("pred", "on_road",
                                                                                                negate=True))
 _add("during daylight|in daylight|during the day|in the daytime|on a clear day|during the daytime",

@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import dataclasses
 
-from scenarios.lexeme_stream import LexemeStream
 from scenarios.lexicon import SPEED_UNITS, Lexeme, speed_bounds
 from scenarios.program import (
     AllOf,
@@ -39,24 +38,22 @@ from scenarios.program import (
     of_two_kinds,
     subject_of,
 )
+from scenarios.relating import RelationReader
 from scenarios.rewrite import closer, ego_without, excludes, negated, with_subject, within, without_states
 
 #: Within this distance (m), "a group of" objects stand together.
 GROUP_RADIUS_M = 5.0
-#: The two steps of "drives off" or "cuts into my lane" happen within this many seconds.
-CUT_IN_WITHIN_S = 4.0
 
 
 class DescriptionError(ValueError):
     """A description the compiler cannot use: it names the words it did not understand."""
 
 
-class Parser(LexemeStream):
+class Parser(RelationReader):
     """One description's lexemes, read left to right into a program (see the module docstring)."""
 
     def __init__(self, items: list[Lexeme]) -> None:
         super().__init__(items)
-        self.pending_m: float | None = None
         #: A duration said inside a relation's object ("following a truck for 10 s"): the relation's.
         self.pending_s: float | None = None
         #: "… then stops within 4 seconds": the time the steps of a sequence fall within (not a duration).
@@ -117,25 +114,6 @@ class Parser(LexemeStream):
             return self.modifiers(node), count
         finally:
             self.depth -= 1
-
-    def ego_relation(self, node: Node, side: str, params: tuple[tuple[str, float | str], ...] = ()) -> Node:
-        """``node``'s objects on ``side`` of the ego (a relation asked of the ego)."""
-        return Has(Objects("ego"), "direction", node, (("side", side), *params), reverse=True)
-
-    def distance_params(self, params: tuple[tuple[str, float | str], ...], name: str
-                        ) -> tuple[tuple[str, float | str], ...]:
-        key = "forward_m" if name == "crossed_by" else "within_m"
-        if self.pending_m is None or name in ("heading", "passed_by"):
-            return params
-        within, self.pending_m = self.pending_m, None
-        return (*[(k, v) for k, v in params if k != key], (key, within))
-
-    def relate(self, node: Node, item: Lexeme, other: tuple[Node, int]) -> Node:
-        other_node, count = other
-        params = self.distance_params(item.params, item.name)
-        if item.reverse:  # the relation holds from the other object's point of view
-            return Has(other_node, item.name, node, params, reverse=True)
-        return Has(node, item.name, other_node, params, min_count=max(1, count))
 
     def modifiers(self, node: Node) -> Node:
         while True:
@@ -228,8 +206,10 @@ class Parser(LexemeStream):
         if item.role == "fixed":
             return Has(node, item.name, Objects(item.other), item.params, min_count=max(1, item.count),
                        negate=item.negate)
-        if item.role == "ego":
-            return self.ego_relation(node, str(dict(item.params)["side"]), self.distance_params((), "direction"))
+        if item.role == "ego":  # "ahead of us"; "directly ahead" also gives the lane's width
+            params = dict(item.params)
+            side = str(params.pop("side"))
+            return self.ego_relation(node, side, (*params.items(), *self.distance_params((), "direction")))
         if item.role == "side" and item.name in ("near", "same_lane"):  # "nearby", "in its lane" with no object
             return node
         if item.role == "side":
@@ -275,18 +255,6 @@ class Parser(LexemeStream):
         self.unused.extend(item.words)
         return node
 
-    def sequence(self, node: Node, item: Lexeme) -> Node:
-        """A sequence the words name: "drives off" (stops, then moves), "cuts into my lane [from the left]"
-        (in a lane beside the ego's, then in the ego's)."""
-        if item.name == "drive_off":  # "stopped vehicle that starts moving": stopped once, then moving
-            first = node if isinstance(node, Is) and node.predicate in ("stopped", "parked") and not node.negate \
-                else Is(node, "stopped")
-            return Then(first, Is(without_states(node), "moving"), CUT_IN_WITHIN_S)
-        side = "adjacent"
-        if self.role() == "side" and self.name() in ("left", "right"):
-            side = self.take().name
-        return Then(Is(node, "ego_lane", (("lane", side),)), Is(node, "ego_lane", (("lane", "host"),)), CUT_IN_WITHIN_S)
-
     def with_phrase(self, node: Node, item: Lexeme) -> Node:
         """``node`` with the object named after "with" (``item``), where the words after it say it is."""
         if self.role() == "not" and self.role(1) == "kind":  # "with no car behind it"
@@ -319,21 +287,6 @@ class Parser(LexemeStream):
         if distance is not None and distance[1] == "m":
             self.pending_m = distance[0]
         return self.relate(node, rel, other)
-
-    def acted_on(self, node: Node, rel: Lexeme, acting: tuple[Node, int]) -> Node:
-        """``node`` that the objects of ``acting`` do ``rel`` to ("with a dog crossing", "with a car following it")."""
-        params = self.distance_params(rel.params, rel.name)
-        if rel.reverse:
-            return Has(node, rel.name, acting[0], params, min_count=max(1, acting[1]))
-        return Has(acting[0], rel.name, node, params, reverse=True)
-
-    def with_side(self, item: Lexeme) -> Lexeme:
-        """``item`` with the side that follows it ("being overtaken on the left")."""
-        if item.name == "passed_by" and self.role() == "side" \
-                and self.name() in ("left", "right", "beside"):
-            side = self.take().name.replace("beside", "any")
-            return dataclasses.replace(item, params=(*[(k, v) for k, v in item.params if k != "side"], ("side", side)))
-        return item
 
     def without_object(self, node: Node, item: Lexeme) -> Node:
         """A relation phrase that names no object: of the ego, by anyone, or no relation at all."""

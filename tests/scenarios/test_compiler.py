@@ -119,6 +119,11 @@ MEANINGS = {
     "a pedestrian not to the left of the bus": "excluding(pedestrian, reverse(direction(bus, pedestrian, side=left)))",
     "a car not in front of us": "excluding(car, reverse(direction(ego, car, side=front)))",
     "a car not near a bus": "not(near(car, bus))",
+    # Lanes beside ours; entering and leaving ours; "directly ahead" within the ego's lane band.
+    "a car in the lane next to us": "ego_lane(car, lane=adjacent)",
+    "a car entering our lane": "then(ego_lane(car, lane=adjacent), ego_lane(car, lane=host), within_s=4)",
+    "a car leaving our lane to the left": "then(ego_lane(car, lane=host), ego_lane(car, lane=left), within_s=4)",
+    "the car directly ahead of us": "reverse(direction(ego, car, side=front, lateral_m=1.5))",
     # "No X near us / in front of us": the ego's moments without them.
     "no pedestrians near us": "not(near(ego, pedestrian))",
     "no cars in front of us": "not(direction(ego, car, side=front))",

@@ -1,0 +1,76 @@
+"""How the parser (:mod:`scenarios.parser`) turns relation words into program nodes: a relation asked
+of the ego or of another object, from whose point of view it holds, the distance said before its
+object, the side that follows it, and the sequences some phrases name ("drives off", "cuts in")."""
+
+from __future__ import annotations
+
+import dataclasses
+
+from scenarios.lexeme_stream import LexemeStream
+from scenarios.lexicon import Lexeme
+from scenarios.program import Has, Is, Node, Objects, Then
+from scenarios.rewrite import without_states
+
+#: The two steps of "drives off" or "cuts into my lane" happen within this many seconds.
+CUT_IN_WITHIN_S = 4.0
+
+
+class RelationReader(LexemeStream):
+    """A lexeme stream that builds relations; ``pending_m`` holds a distance said before the object
+    of the relation that takes it ("within 5 m of", "pedestrian 5 m ahead")."""
+
+    def __init__(self, items: list[Lexeme]) -> None:
+        super().__init__(items)
+        self.pending_m: float | None = None
+
+    def ego_relation(self, node: Node, side: str, params: tuple[tuple[str, float | str], ...] = ()) -> Node:
+        """``node``'s objects on ``side`` of the ego (a relation asked of the ego)."""
+        return Has(Objects("ego"), "direction", node, (("side", side), *params), reverse=True)
+
+    def distance_params(self, params: tuple[tuple[str, float | str], ...], name: str
+                        ) -> tuple[tuple[str, float | str], ...]:
+        """``params`` of relation ``name`` with the pending distance, which it takes (the reach ahead for
+        a crossing; none for a heading or a passing, which have no distance)."""
+        key = "forward_m" if name == "crossed_by" else "within_m"
+        if self.pending_m is None or name in ("heading", "passed_by"):
+            return params
+        within, self.pending_m = self.pending_m, None
+        return (*[(k, v) for k, v in params if k != key], (key, within))
+
+    def relate(self, node: Node, item: Lexeme, other: tuple[Node, int]) -> Node:
+        """``node`` related by ``item`` to ``other`` (its node and the count said for it)."""
+        other_node, count = other
+        params = self.distance_params(item.params, item.name)
+        if item.reverse:  # the relation holds from the other object's point of view
+            return Has(other_node, item.name, node, params, reverse=True)
+        return Has(node, item.name, other_node, params, min_count=max(1, count))
+
+    def sequence(self, node: Node, item: Lexeme) -> Node:
+        """A sequence the words name: "drives off" (stops, then moves), "cuts into my lane [from the left]"
+        (in a lane beside the ego's, then in the ego's), "leaves our lane" (the other way)."""
+        if item.name == "drive_off":  # "stopped vehicle that starts moving": stopped once, then moving
+            first = node if isinstance(node, Is) and node.predicate in ("stopped", "parked") and not node.negate \
+                else Is(node, "stopped")
+            return Then(first, Is(without_states(node), "moving"), CUT_IN_WITHIN_S)
+        side = "adjacent"
+        if self.role() == "side" and self.name() in ("left", "right"):
+            side = self.take().name
+        beside, ours = Is(node, "ego_lane", (("lane", side),)), Is(node, "ego_lane", (("lane", "host"),))
+        if item.name == "cut_out":  # "leaves our lane [to the left]": from the ego's lane to one beside it
+            return Then(ours, beside, CUT_IN_WITHIN_S)
+        return Then(beside, ours, CUT_IN_WITHIN_S)
+
+    def acted_on(self, node: Node, rel: Lexeme, acting: tuple[Node, int]) -> Node:
+        """``node`` that the objects of ``acting`` do ``rel`` to ("with a dog crossing", "with a car following it")."""
+        params = self.distance_params(rel.params, rel.name)
+        if rel.reverse:
+            return Has(node, rel.name, acting[0], params, min_count=max(1, acting[1]))
+        return Has(acting[0], rel.name, node, params, reverse=True)
+
+    def with_side(self, item: Lexeme) -> Lexeme:
+        """``item`` with the side that follows it ("being overtaken on the left")."""
+        if item.name == "passed_by" and self.role() == "side" \
+                and self.name() in ("left", "right", "beside"):
+            side = self.take().name.replace("beside", "any")
+            return dataclasses.replace(item, params=(*[(k, v) for k, v in item.params if k != "side"], ("side", side)))
+        return item

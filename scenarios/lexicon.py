@@ -135,6 +135,8 @@ for _phrases, _name, _params in (
     ("moving|driving|traveling|travelling|in motion|active|walking|riding|going|running|jogging|heading|moves|"
      "move|drives|walks|rides|"
      "navigating|maneuvering|proceeding|passing through", "moving", ()),
+    ("waiting to cross|waits to cross|wait to cross|waiting to cross the road|waiting to cross the street",
+     "stopped", ()),  # not crossing yet: "cross" alone is the crossing relation
     ("stopped|halted|standing still|stopping|waiting|idling|stationary vehicle|at a standstill|"
      "stands|stand|standing|stop|stops|waits|wait|comes to a stop|come to a stop", "stopped", ()),
     ("stationary|hasn't moved|has not moved|never moves|unmoving|static", "stationary", ()),

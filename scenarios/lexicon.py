@@ -375,7 +375,8 @@ for _phrases, _name in (("and|as well as|also|while also", "and"), ("or|either",
     _add(_phrases, Lexeme("conj", _name))
 _add("not|no|without|isn't|aren't|doesn't|neither|nor", Lexeme("not"))
 # A place the map does not hold: named as not understood, so that "at a bus stop" asks nothing of buses.
-_add("bus stop|bus stops", Lexeme("unknown", "bus stop"))
+_add("at a bus stop|at the bus stop|near a bus stop|near the bus stop|by a bus stop|by the bus stop",
+     Lexeme("unknown", "bus stop"))
 _add("within|at least|at most|less than|more than|up to|from|away|for|directly|another|other|each|any|"
      "some|its|their|the|a|an|that|which|who|is|are|being|of|it|there|in|on|to|one|ones|those|these|same|lane|path|"
      "side|too|"

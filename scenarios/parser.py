@@ -20,6 +20,7 @@ refused (:class:`DescriptionError`).
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Iterable
 
 from scenarios.lexicon import SPEED_UNITS, Lexeme, speed_bounds
 from scenarios.program import (
@@ -60,6 +61,13 @@ class Parser(RelationReader):
         self.within_s: float | None = None
         #: How deep in the phrases named by relations: "and"/"while" + modifier join the referred phrase only.
         self.depth = 0
+        #: What "it" and "them" name in a later clause: the clause before ("a car turns left while a
+        #: pedestrian crosses in front of it"); in the first clause they name the ego, as "ahead" does.
+        self.antecedent: Node | None = None
+
+    def it(self, words: Iterable[str]) -> tuple[Node, int] | None:
+        """The antecedent, as a relation's object, where ``words`` say "it" or "them"."""
+        return (self.antecedent, 0) if self.antecedent is not None and {"it", "its", "them"} & set(words) else None
 
     # -- phrases -----------------------------------------------------------------------------------------
     def phrase(self, bare: bool = False, need_kind: bool = False) -> tuple[Node, int] | None:
@@ -211,9 +219,10 @@ class Parser(RelationReader):
             side = str(params.pop("side"))
             return self.ego_relation(node, side, (*params.items(), *self.distance_params((), "direction")))
         if item.role == "side" and item.name in ("near", "same_lane"):  # "nearby", "in its lane" with no object
-            return node
+            it = self.it(item.words)
+            return node if it is None else self.relate(node, Lexeme("rel", item.name), it)
         if item.role == "side":
-            other = self.phrase(need_kind=True)
+            other = self.phrase(need_kind=True) or self.it(item.words)
             if other is None:  # "ahead", "behind": of the ego
                 return self.ego_relation(node, item.name, self.distance_params((), "direction"))
             return self.relate(node, Lexeme("rel", "direction", (("side", item.name),), reverse=True), other)
@@ -229,6 +238,7 @@ class Parser(RelationReader):
                 other = self.phrase()
                 if other is not None:
                     return self.relate(self.relate(node, item, other), also, other)
+            other = other or self.it(self.skipped_before_next())
             if other is None:
                 return self.without_object(node, item)
             return self.relate(node, item, other)
@@ -355,6 +365,7 @@ class Parser(RelationReader):
         node = self.referred(*found)
         while self.role() == "conj":
             conj = self.take()
+            self.antecedent = node  # "… while a pedestrian crosses in front of it"
             # "brakes and then stops": a phrase naming no kind goes on about the same objects.
             nxt = self.phrase(need_kind=True)
             if nxt is None:  # "stopped then moving": the same objects

@@ -120,6 +120,11 @@ MEANINGS = {
     "a pedestrian not to the left of the bus": "excluding(pedestrian, reverse(direction(bus, pedestrian, side=left)))",
     "a car not in front of us": "excluding(car, reverse(direction(ego, car, side=front)))",
     "a car not near a bus": "not(near(car, bus))",
+    # "It" in a later clause is the clause before (in the first, the ego, as "ahead" is).
+    "vehicle making a right turn while a pedestrian crosses in front of it":
+        "while(turning(vehicle, direction=right), "
+        "reverse(direction(turning(vehicle, direction=right), crossing_road(pedestrian), side=front)))",
+    "a bus stops while a car passes it": "while(stopped(bus), reverse(passed_by(stopped(bus), car)))",
     # Lanes beside ours; entering and leaving ours; "directly ahead" within the ego's lane band.
     "a car in the lane next to us": "ego_lane(car, lane=adjacent)",
     "a car entering our lane": "then(ego_lane(car, lane=adjacent), ego_lane(car, lane=host), within_s=4)",
@@ -143,7 +148,7 @@ NOT_UNDERSTOOD = {
     "a car parked in the drive": ("parked(car)", ("drive",)),
     "while a car is parked": ("parked(car)", ("while",)),  # no clause follows the condition
     "a pedestrian crossing when we are 20 m away": ("while(crossing_road(pedestrian), ego)", ("20 m",)),
-    "a bus stopped at a bus stop": ("stopped(bus)", ("bus", "stop")),  # no bus stops in the map: not a bus
+    "a bus stopped at a bus stop": ("stopped(bus)", ("at", "a", "bus", "stop")),  # no bus stops in the map
     "no pedestrians": ("pedestrian", ("no",)),  # nothing to be without: the objects, "no" unused
     # "walks past" is no phrase, so that "walks past the right side of" reads as "walks" + "past the right side of".
     "a pedestrian walks past": ("moving(pedestrian)", ("past",)),

@@ -228,7 +228,7 @@ def test_every_program_the_compiler_writes_can_be_answered() -> None:
     objects = [car([10, 0]), cyclist([5, 3]), pedestrian([8, -2], flags=("on_lane", "at_crosswalk"))]
     logs = [make_features(objects, has_map=True), make_features(objects, has_map=False)]
     words = [*known_phrases(), "5", "20", "m", "s", "km h", "of", "from", "it", "us", "and", "then", "while",
-             "not", "no", "with", "without", "except", "between", "neither", "nor", "more than"]
+             "not", "no", "with", "without", "except", "between", "neither", "nor", "more than", "them", "its"]
     rng = random.Random(0)
     answered = 0
     for _ in range(1500):

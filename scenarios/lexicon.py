@@ -81,9 +81,11 @@ for _phrases, _kind in (
     ("trailer|vehicular trailer", "vehicular_trailer"),
     ("bicycle traffic|bike traffic|cycle traffic", "cyclist"),
     ("bus|city bus|transit bus", "bus"), ("school bus", "school_bus"), ("articulated bus", "articulated_bus"),
-    ("pedestrian|person|walker|ped|people|human|jaywalker|child|kid|jogger", "pedestrian"),
+    ("pedestrian|person|walker|ped|people|human|jaywalker|child|kid|jogger|official signaler|signaler|flagger|"
+     "crossing guard|traffic officer|police officer|construction worker", "pedestrian"),
     ("cyclist|bicyclist|bicycle|bike|biker|bicycle rider|rider on a bicycle", "cyclist"),
-    ("wheeled rider|scooter rider", "wheeled_rider"),
+    ("wheeled rider|scooter rider|skateboarder|skater|person on a skateboard|person on a scooter|"
+     "person riding a skateboard|person riding a scooter", "wheeled_rider"),
     ("motorcycle|motorcyclist|motorbike|motorbike rider|scooter", "motorcycle"),
     ("dog|animal", "dog"), ("stroller|pram|baby stroller", "stroller"), ("wheelchair", "wheelchair"),
     ("wheeled device|skateboard", "wheeled_device"),
@@ -297,7 +299,7 @@ for _phrases, _n in (("multiple|several|many|more than one|a couple of|couple of
                      ("two|pair of|a pair of|both", 2), ("three", 3), ("four", 4), ("five", 5),
                      ("group of|a group of|crowd of|a crowd of|groups of|bunch of|group|crowd|groups", 3)):
     _add(_phrases, Lexeme("count", count=_n))
-_add("with|having|has|that has|which has|carrying|towing|accompanied by", Lexeme("with"))
+_add("with|having|has|that has|which has|carrying|towing|accompanied by|pushing|pulling", Lexeme("with"))
 for _phrases, _lexeme in (
     ("at stop sign|at a stop sign|at the stop sign|near a stop sign|near stop sign",
      Lexeme("fixed", "near", (("within_m", 15.0),), other="stop_sign", count=1)),

@@ -116,6 +116,9 @@ MEANINGS = {
     "a car that is neither parked nor stopped": "not(stopped(not(parked(car))))",
     "a car making a u-turn": "turning(car)",
     "a pedestrian waiting to cross": "stopped(pedestrian)",  # not crossing yet
+    "a person on a skateboard": "wheeled_rider",
+    "an official signaler": "pedestrian",  # AV2 counts signalers among pedestrians
+    "a pedestrian pushing a stroller": "near(pedestrian, stroller)",
     # "Not" before a relation another object answers: the subject's objects but those.
     "a pedestrian not to the left of the bus": "excluding(pedestrian, reverse(direction(bus, pedestrian, side=left)))",
     "a car not in front of us": "excluding(car, reverse(direction(ego, car, side=front)))",

@@ -425,5 +425,5 @@ def lexemes(words: list[str]) -> list[Lexeme]:
 
 
 def known_phrases() -> list[str]:
-    """Every phrase of the lexicon that means something (for suggestions and the sentence encoder)."""
+    """Every phrase of the lexicon that means something."""
     return sorted(" ".join(k) for k, v in _LEXICON.items() if v.role not in ("skip", "unit"))

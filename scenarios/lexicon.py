@@ -296,9 +296,9 @@ for _phrases, _side in (
 
 # -- counts, units, conjunctions, negation, filler -----------------------------------------------------------
 for _phrases, _n in (("multiple|several|many|more than one|a couple of|couple of|numerous", 2),
-                     ("two|pair of|a pair of|both", 2), ("three", 3), ("four", 4), ("five", 5),
-                     ("group of|a group of|crowd of|a crowd of|groups of|bunch of|group|crowd|groups", 3)):
+                     ("two|pair of|a pair of|both", 2), ("three", 3), ("four", 4), ("five", 5)):
     _add(_phrases, Lexeme("count", count=_n))
+_add("group of|a group of|crowd of|a crowd of|groups of|bunch of|group|crowd|groups", Lexeme("count", "group", count=3))
 _add("with|having|has|that has|which has|carrying|towing|accompanied by|pushing|pulling", Lexeme("with"))
 for _phrases, _lexeme in (
     ("at stop sign|at a stop sign|at the stop sign|near a stop sign|near stop sign",

@@ -64,6 +64,8 @@ class Parser(RelationReader):
         #: What "it" and "them" name in a later clause: the clause before ("a car turns left while a
         #: pedestrian crosses in front of it"); in the first clause they name the ego, as "ahead" does.
         self.antecedent: Node | None = None
+        #: Whether the clause's count was a group's ("a group of pedestrians", "a crowd"): near one another.
+        self.grouped = False
 
     def it(self, words: Iterable[str]) -> tuple[Node, int] | None:
         """The antecedent, as a relation's object, where ``words`` say "it" or "them"."""
@@ -83,7 +85,9 @@ class Parser(RelationReader):
             role = self.role()
             more = int("more" in self.skipped_before_next())  # "more than two cars": three at least
             if role == "count":
-                count = max(count, self.take().count + more)
+                item = self.take()
+                count = max(count, item.count + more)
+                self.grouped = self.grouped or (self.depth == 0 and item.name == "group")
             elif role == "number" and self.role(1) in ("kind", "pred"):
                 count = int(float(self.take().name)) + more
             elif role in ("pred", "fixed"):
@@ -103,7 +107,9 @@ class Parser(RelationReader):
             if need_kind and self.depth and node == Objects("ego"):  # "next to us on the right": of the subject
                 return node, count
             if self.role() == "count" and self.count_ahead() >= 3:  # "pedestrian group"
-                count = max(count, self.take().count)
+                item = self.take()
+                count = max(count, item.count)
+                self.grouped = self.grouped or (self.depth == 0 and item.name == "group")
         elif preds and not need_kind:
             node = Objects("any")
         else:
@@ -357,7 +363,7 @@ class Parser(RelationReader):
             condition = self.phrase()
             if condition is not None and self.role() in ("kind", "count"):
                 return While(self.description(), self.referred(*condition))
-            self.i, self.unused[unused:] = start, []  # no main clause follows: "while" says nothing
+            self.i, self.unused[unused:], self.grouped = start, [], False  # no main clause: "while" says nothing
             self.unused.extend(self.take().words)
         found = self.phrase()
         if found is None:
@@ -404,7 +410,10 @@ class Parser(RelationReader):
         return node
 
     def referred(self, node: Node, count: int) -> Node:
-        if count >= 3 and subject_of(node) == node:
+        """The referred objects of a clause with the count said for them: "a group of" stands together,
+        "three" are there at once."""
+        grouped, self.grouped = self.grouped, False
+        if grouped and subject_of(node) == node:
             return Has(node, "near", node, (("within_m", GROUP_RADIUS_M),), min_count=count - 1)
         if count >= 2:
             return Together(node, count)

@@ -116,6 +116,8 @@ MEANINGS = {
     "a car that is neither parked nor stopped": "not(stopped(not(parked(car))))",
     "a car making a u-turn": "turning(car)",
     "a pedestrian waiting to cross": "stopped(pedestrian)",  # not crossing yet
+    "three pedestrians": "together(pedestrian, min_count=3)",  # there at once; "a group of" stands together
+    "pedestrian group": "near(pedestrian, pedestrian, within_m=5, min_count=2)",
     "a person on a skateboard": "wheeled_rider",
     "an official signaler": "pedestrian",  # AV2 counts signalers among pedestrians
     "a pedestrian pushing a stroller": "near(pedestrian, stroller)",

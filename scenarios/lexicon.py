@@ -139,6 +139,7 @@ for _phrases, _name, _params in (
      "navigating|maneuvering|proceeding|passing through", "moving", ()),
     ("waiting to cross|waits to cross|wait to cross|waiting to cross the road|waiting to cross the street",
      "stopped", ()),  # not crossing yet: "cross" alone is the crossing relation
+    ("pulling over|pulls over|pulled over|pulling into a stop|pulls into a stop|pulling up|pulls up", "stopped", ()),
     ("stopped|halted|standing still|stopping|waiting|idling|stationary vehicle|at a standstill|"
      "stands|stand|standing|stop|stops|waits|wait|comes to a stop|come to a stop", "stopped", ()),
     ("stationary|hasn't moved|has not moved|never moves|unmoving|static", "stationary", ()),
@@ -163,7 +164,8 @@ for _phrases, _name, _params in (
     ("fast|speeding|at high speed|quickly", "speed", (("min_mps", 13.0),)),
     ("at intersection|at an intersection|at the intersection|on intersection|on an intersection|in intersection|"
      "in an intersection|in the intersection|through intersection|through the intersection|at a junction|"
-     "in the junction|at the junction", "at_intersection", ()),
+     "in the junction|at the junction|in the middle of the intersection|in the middle of an intersection|"
+     "in the middle of the junction", "at_intersection", ()),
     ("near intersection|near an intersection|near the intersection|approaching intersection|"
      "approaching an intersection|approaching the intersection", "near_intersection", ()),
     ("on crosswalk|on a crosswalk|on the crosswalk|in crosswalk|in the crosswalk|on pedestrian crossing|"
@@ -175,8 +177,8 @@ for _phrases, _name, _params in (
     ("in bike lane|in a bike lane|in the bike lane|on bike lane|in bicycle lane|in the bicycle lane", "in_bike_lane",
      ()),
     ("in bus lane|in a bus lane|in the bus lane", "in_bus_lane", ()),
-    ("on road|on the road|in the road|in road|on the street|in the street|in drivable area|in the drivable area",
-     "on_road", ()),
+    ("on road|on the road|in the road|in road|on the street|in the street|in drivable area|in the drivable area|"
+     "in the middle of the road|in the middle of the street", "on_road", ()),
     ("blocked|stuck|held up|queued|queuing|in a queue", "blocked", ()),
     ("jaywalking|jaywalks|jaywalk|crossing the road outside a crosswalk", "jaywalking", ()),
     ("at stop|at a stop|at its stop|stopped at a stop", "stopped", ()),
@@ -299,7 +301,8 @@ for _phrases, _n in (("multiple|several|many|more than one|a couple of|couple of
                      ("two|pair of|a pair of|both", 2), ("three", 3), ("four", 4), ("five", 5)):
     _add(_phrases, Lexeme("count", count=_n))
 _add("group of|a group of|crowd of|a crowd of|groups of|bunch of|group|crowd|groups", Lexeme("count", "group", count=3))
-_add("with|having|has|that has|which has|carrying|towing|accompanied by|pushing|pulling", Lexeme("with"))
+_add("with|having|has|that has|which has|carrying|towing|accompanied by|pushing", Lexeme("with"))
+_add("has been|have been|had been|that has been|which has been|that have been|who has been", Lexeme("skip"))
 for _phrases, _lexeme in (
     ("at stop sign|at a stop sign|at the stop sign|near a stop sign|near stop sign",
      Lexeme("fixed", "near", (("within_m", 15.0),), other="stop_sign", count=1)),

@@ -188,6 +188,7 @@ _SIDES = {"front": "in front of", "behind": "behind", "left": "to the left of", 
 
 
 def _speed_phrase(min_mps: float, max_mps: float, defaults: Mapping[str, float | str]) -> str:
+    """The ``speed`` predicate's bounds in words: a floor, a ceiling, or a band."""
     if max_mps >= float(defaults.get("max_mps", math.inf)):
         return f"faster than {_value(min_mps)} m/s"
     if min_mps <= float(defaults.get("min_mps", 0.0)):

@@ -116,6 +116,9 @@ MEANINGS = {
     "a car that is neither parked nor stopped": "not(stopped(not(parked(car))))",
     "a car making a u-turn": "turning(car)",
     "a pedestrian waiting to cross": "stopped(pedestrian)",  # not crossing yet
+    "a car stopped in the middle of the intersection": "at_intersection(stopped(car))",
+    "a car that has been stopped": "stopped(car)",  # not "a car that has a stopped object"
+    "a bus pulling into a stop": "stopped(bus)",
     "three pedestrians": "together(pedestrian, min_count=3)",  # there at once; "a group of" stands together
     "pedestrian group": "near(pedestrian, pedestrian, within_m=5, min_count=2)",
     "a person on a skateboard": "wheeled_rider",

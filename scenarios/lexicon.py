@@ -275,7 +275,8 @@ for _phrases, _side in (("ahead|in front|ahead of us|in front of us", "front"),
                         ("to our right|on our right|to the right of us", "right")):
     _add(_phrases, Lexeme("ego", "direction", (("side", _side),), reverse=True))
 # "Directly" ahead or behind: within the ego's lane band (the chain of "two cars ahead" uses the same band).
-_add("directly ahead|directly ahead of us|directly in front of us|right in front of us|right ahead",
+_add("directly ahead|directly ahead of us|directly in front of us|right in front of us|right ahead|"
+     "straight ahead of us",
      Lexeme("ego", "direction", (("side", "front"), ("lateral_m", 1.5)), reverse=True))
 _add("directly behind us|right behind us", Lexeme("ego", "direction", (("side", "behind"), ("lateral_m", 1.5)),
                                                   reverse=True))
@@ -319,6 +320,8 @@ _add("in the opposite direction|in opposite direction|the other way",
      Lexeme("fixed", "heading", (("way", "opposite"),), other="ego", count=1))
 _add("in the same direction|in same direction|in our direction",
      Lexeme("fixed", "heading", (("way", "same"),), other="ego", count=1))
+# Straight on: not turning (whether it moves is said apart: "driving straight").
+_add("straight|go straight|goes straight|going straight|went straight", Lexeme("pred", "turning", negate=True))
 # Not moving: stopped for a moment or parked for the whole log (``stopped`` alone leaves parked ones out).
 _add("not moving|isn't moving|is not moving|are not moving|aren't moving", Lexeme("pred", "moving", negate=True))
 _add("closely|too closely|too close|tightly", Lexeme("closely"))

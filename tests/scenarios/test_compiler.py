@@ -117,6 +117,8 @@ MEANINGS = {
     "a car making a u-turn": "turning(car)",
     "a pedestrian waiting to cross": "stopped(pedestrian)",  # not crossing yet
     "a car stopped in the middle of the intersection": "at_intersection(stopped(car))",
+    "we are driving straight through the intersection": "at_intersection(not(turning(moving(ego))))",
+    "a car straight ahead of us": "reverse(direction(ego, car, side=front, lateral_m=1.5))",
     "a car that has been stopped": "stopped(car)",  # not "a car that has a stopped object"
     "a bus pulling into a stop": "stopped(bus)",
     "three pedestrians": "together(pedestrian, min_count=3)",  # there at once; "a group of" stands together

@@ -221,9 +221,11 @@ for _phrases, _name, _params in (
 for _phrases, _rel, _rparams, _reverse in (
     ("near|close to|next to|around|in close proximity to|in proximity to|alongside|by|adjacent to",
      "near", (), False),
+    ("very close to|very near|really close to|right next to|right beside", "near", (("within_m", 3.0),), False),
     ("following|behind|tailing|trailing|driving behind|following behind|follow|follows|followed", "following", (),
      False),
-    ("following closely|closely following|following closely behind|closely behind|tailgating|too closely behind",
+    ("following closely|closely following|following closely behind|closely behind|tailgating|too closely behind|"
+     "close behind|right behind",
      "following", (("within_m", 10.0),), False),
     ("being followed by|followed by", "following", (), True),
     ("in front of|ahead of|before|in front|directly in front of", "direction", (("side", "front"),), True),

@@ -183,6 +183,8 @@ class Parser(RelationReader):
                     node = node if other is None else self.relate(node, Lexeme("rel", "near"), other)
                 elif unit == "m" and isinstance(node, Has) and self.role() not in ("rel", "side", "kind"):
                     node = within(node, value)
+                elif unit == "m" and {"each", "another"} & self.skipped_before_next():  # "of each other"
+                    node = Has(node, "near", without_states(subject_of(node)), (("within_m", value),))
                 elif unit == "m" and self.depth <= 1 and self.role() in ("end", "conj"):  # "a car within 5 m": of us
                     if subject_of(node) == Objects("ego"):  # "when we are 20 m away": from what, it does not say
                         self.unused.append(f"{value:g} m")

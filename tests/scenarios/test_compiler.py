@@ -121,6 +121,9 @@ MEANINGS = {
     "a car straight ahead of us": "reverse(direction(ego, car, side=front, lateral_m=1.5))",
     "a car that has been stopped": "stopped(car)",  # not "a car that has a stopped object"
     "a bus pulling into a stop": "stopped(bus)",
+    "two cars within 5 m of each other": "together(near(car, car, within_m=5), min_count=2)",
+    "a car very close to a pedestrian": "near(car, pedestrian, within_m=3)",
+    "a car close behind a truck": "following(car, truck, within_m=10)",
     "three pedestrians": "together(pedestrian, min_count=3)",  # there at once; "a group of" stands together
     "pedestrian group": "near(pedestrian, pedestrian, within_m=5, min_count=2)",
     "a person on a skateboard": "wheeled_rider",

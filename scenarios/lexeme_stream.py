@@ -14,6 +14,7 @@ class LexemeStream:
         self.items = items
         self.i = 0
         self.unused: list[str] = []
+        self.range_low: float | None = None
 
     def peek(self, ahead: int = 0) -> Lexeme | None:
         j, seen = self.i, -1
@@ -40,6 +41,15 @@ class LexemeStream:
             if item.role != "skip":
                 self.unused.extend(item.words)
             self.i += 1
+
+    def unknown_before_next(self) -> bool:
+        """Whether a word the lexicon does not know stands between here and the next meaningful item."""
+        j = self.i
+        while j < len(self.items) and self.items[j].role in ("skip", "unknown"):
+            if self.items[j].role == "unknown":
+                return True
+            j += 1
+        return False
 
     def after_word(self, word: str) -> bool:
         """Whether the next meaningful item comes right after ``word`` (a filler the stream skips)."""
@@ -71,13 +81,15 @@ class LexemeStream:
 
     # -- numbers -----------------------------------------------------------------------------------------
     def quantity(self) -> tuple[float, str] | None:
-        """A number (or range "5 to 20") with its unit, consumed; the range's upper end."""
+        """A number (or range "5 to 20") with its unit, consumed; the range's upper end (its lower end in
+        :attr:`range_low`, None for a single number)."""
         if self.role() != "number":
             return None
         j = 1
         value = float(self.name())
+        self.range_low = None
         if self.role(1) == "number":  # "5 to 20": "to" is filler between them
-            value, j = float(self.name(1)), 2
+            self.range_low, value, j = value, float(self.name(1)), 2
         unit = self.peek(j)
         if unit is None or unit.role != "unit":
             if self.role(j) == "kind":

@@ -139,7 +139,8 @@ for _phrases, _name, _params in (
      "navigating|maneuvering|proceeding|passing through", "moving", ()),
     ("waiting to cross|waits to cross|wait to cross|waiting to cross the road|waiting to cross the street",
      "stopped", ()),  # not crossing yet: "cross" alone is the crossing relation
-    ("pulling over|pulls over|pulled over|pulling into a stop|pulls into a stop|pulling up|pulls up", "stopped", ()),
+    ("pulling over|pulls over|pulled over|pulling into a stop|pulls into a stop|pulling up|pulls up|has stopped|"
+     "have stopped|had stopped", "stopped", ()),
     ("stopped|halted|standing still|stopping|waiting|idling|stationary vehicle|at a standstill|"
      "stands|stand|standing|stop|stops|waits|wait|comes to a stop|come to a stop", "stopped", ()),
     ("stationary|hasn't moved|has not moved|never moves|unmoving|static", "stationary", ()),
@@ -222,13 +223,14 @@ for _phrases, _rel, _rparams, _reverse in (
     ("near|close to|next to|around|in close proximity to|in proximity to|alongside|by|adjacent to",
      "near", (), False),
     ("very close to|very near|really close to|right next to|right beside", "near", (("within_m", 3.0),), False),
-    ("following|behind|tailing|trailing|driving behind|following behind|follow|follows|followed", "following", (),
-     False),
+    ("following|behind|tailing|trailing|driving behind|following behind|follow|follows", "following", (), False),
     ("following closely|closely following|following closely behind|closely behind|tailgating|too closely behind|"
      "close behind|right behind",
      "following", (("within_m", 10.0),), False),
     ("being followed by|followed by", "following", (), True),
-    ("in front of|ahead of|before|in front|directly in front of", "direction", (("side", "front"),), True),
+    ("followed closely by|closely followed by|being followed closely by", "following", (("within_m", 10.0),), True),
+    ("in front of|ahead of|before|in front|directly in front of|straight ahead of|directly ahead of|right ahead of",
+     "direction", (("side", "front"),), True),
     ("to either side of|on either side of|to both sides of|on both sides of|either side of|beside|alongside of",
      "direction", (("side", "beside"),), True),
     ("to the front left of|front left of|to the front-left of", "direction", (("side", "front_left"),), True),
@@ -252,10 +254,14 @@ for _phrases, _rel, _rparams, _reverse in (
     ("being passed by|passed by|being overtaken by|overtaken by|being overtaken|overtaken|being passed", "passed_by",
      (), False),
     ("past the right side of|past right side of|past the right of", "passed_by", (("side", "right"),), True),
+    ("passed on the right by|overtaken on the right by|being passed on the right by|being overtaken on the right by",
+     "passed_by", (("side", "right"),), False),
+    ("passed on the left by|overtaken on the left by|being passed on the left by|being overtaken on the left by",
+     "passed_by", (("side", "left"),), False),
     ("past the left side of|past left side of|past the left of", "passed_by", (("side", "left"),), True),
     ("at", "near", (("within_m", 5.0),), False),
     # Not "walking past": "walking past the right side of" is "walking" + "past the right side of".
-    ("passing|overtaking|passing by|passes|overtakes|pass|overtake|passed|overtook|drive past|drives past|"
+    ("passing|overtaking|passing by|passes|overtakes|pass|overtake|overtook|drive past|drives past|"
      "driving past|goes past|going past|"
      "go past|" + "|".join(f"{verb} by" for verb in ("drive", "drives", "driving", "walk", "walks", "walking",
                                                      "ride", "rides", "riding")), "passed_by", (), True),
@@ -263,7 +269,8 @@ for _phrases, _rel, _rparams, _reverse in (
     ("heading toward|heading towards|moving toward|moving towards|approaching|driving toward|driving towards|"
      "accelerating toward|accelerating towards|walking toward|walking towards", "heading_toward", (), False),
     ("traveling in the opposite direction as|going the opposite way to|in the opposite direction of|"
-     "traveling opposite to|opposite to|against|the opposite way to|the opposite way from|the opposite way as",
+     "traveling opposite to|opposite to|against|the opposite way to|the opposite way from|the opposite way as|"
+     "in the opposite direction to|in the opposite direction from",
      "heading", (("way", "opposite"),), False),
     ("traveling in the same direction as|in the same direction as|going the same way as|the same way as|parallel to",
      "heading", (("way", "same"),), False),
@@ -271,14 +278,13 @@ for _phrases, _rel, _rparams, _reverse in (
     _add(_phrases, Lexeme("rel", _rel, _rparams, _reverse))
 
 # -- relations to the ego (no object named) --------------------------------------------------------------
-for _phrases, _side in (("ahead|in front|ahead of us|in front of us", "front"),
+for _phrases, _side in (("ahead|in front|ahead of us|in front of us|straight ahead", "front"),
                         ("behind us|behind the ego|behind the ego vehicle|behind the ego car|in the rear", "behind"),
                         ("to our left|on our left|to the left of us", "left"),
                         ("to our right|on our right|to the right of us", "right")):
     _add(_phrases, Lexeme("ego", "direction", (("side", _side),), reverse=True))
 # "Directly" ahead or behind: within the ego's lane band (the chain of "two cars ahead" uses the same band).
-_add("directly ahead|directly ahead of us|directly in front of us|right in front of us|right ahead|"
-     "straight ahead of us",
+_add("directly ahead of us|directly in front of us|right in front of us|straight ahead of us",
      Lexeme("ego", "direction", (("side", "front"), ("lateral_m", 1.5)), reverse=True))
 _add("directly behind us|right behind us", Lexeme("ego", "direction", (("side", "behind"), ("lateral_m", 1.5)),
                                                   reverse=True))
@@ -320,7 +326,7 @@ for _phrases, _lexeme in (
 # Without an object, "in the opposite direction" is the ego's ("traveling in the opposite direction as X" is X's).
 _add("in the opposite direction|in opposite direction|the other way",
      Lexeme("fixed", "heading", (("way", "opposite"),), other="ego", count=1))
-_add("in the same direction|in same direction|in our direction",
+_add("in the same direction|in same direction",
      Lexeme("fixed", "heading", (("way", "same"),), other="ego", count=1))
 # Straight on: not turning (whether it moves is said apart: "driving straight").
 _add("straight|go straight|goes straight|going straight|went straight", Lexeme("pred", "turning", negate=True))
@@ -366,8 +372,15 @@ SPEED_FLOOR = frozenset({"faster", "quicker", "above", "over", "exceeding", "mor
 SPEED_CEILING = frozenset({"slower", "below", "under", "less", "most"})
 
 
-def speed_bounds(speed_mps: float, fillers: set[str]) -> tuple[Param, ...]:
-    """The ``speed`` predicate's bounds for a speed said with the words ``fillers`` before it."""
+#: Words before a distance that make it a least one ("more than 20 m away"), which no relation takes.
+FARTHER = frozenset({"more", "least", "over", "beyond", "farther", "further"})
+
+
+def speed_bounds(speed_mps: float, fillers: set[str], low_mps: float | None = None) -> tuple[Param, ...]:
+    """The ``speed`` predicate's bounds for a speed said with the words ``fillers`` before it (a range
+    "5 to 10 m/s" gives its ``low_mps`` too)."""
+    if low_mps is not None:
+        return ("min_mps", round(low_mps, 2)), ("max_mps", round(speed_mps, 2))
     if fillers & SPEED_FLOOR:
         return (("min_mps", round(speed_mps, 2)),)
     if fillers & SPEED_CEILING:

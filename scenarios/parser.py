@@ -22,7 +22,7 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Iterable
 
-from scenarios.lexicon import SPEED_UNITS, Lexeme, speed_bounds
+from scenarios.lexicon import FARTHER, SPEED_UNITS, Lexeme, speed_bounds
 from scenarios.program import (
     AllOf,
     AnyOf,
@@ -168,7 +168,10 @@ class Parser(RelationReader):
                     break
                 value, unit = found
                 if unit in SPEED_UNITS:
-                    node = Is(node, "speed", speed_bounds(value * SPEED_UNITS[unit], fillers))
+                    node = Is(node, "speed", speed_bounds(value * SPEED_UNITS[unit], fillers,
+                                                          self.range_low and self.range_low * SPEED_UNITS[unit]))
+                elif unit == "m" and fillers & FARTHER:  # "more than 20 m away": no relation has a least distance
+                    self.unused.append(f"more than {value:g} m")
                 elif unit == "s" and after_within:
                     self.within_s = value
                 elif unit == "s" and self.depth > 1:  # "following a truck for 10 s": the relation lasts
@@ -181,11 +184,14 @@ class Parser(RelationReader):
                     self.pending_m = value
                     other = self.phrase(need_kind=True)
                     node = node if other is None else self.relate(node, Lexeme("rel", "near"), other)
+                    node, self.pending_s = (node, None) if self.pending_s is None else \
+                        (ForAtLeast(node, self.pending_s), None)
                 elif unit == "m" and isinstance(node, Has) and self.role() not in ("rel", "side", "kind"):
                     node = within(node, value)
                 elif unit == "m" and {"each", "another"} & self.skipped_before_next():  # "of each other"
                     node = Has(node, "near", without_states(subject_of(node)), (("within_m", value),))
-                elif unit == "m" and self.depth <= 1 and self.role() in ("end", "conj"):  # "a car within 5 m": of us
+                elif unit == "m" and self.depth <= 1 and self.role() in ("end", "conj") \
+                        and not self.unknown_before_next():  # "a car within 5 m": of us (not "of the kerb")
                     if subject_of(node) == Objects("ego"):  # "when we are 20 m away": from what, it does not say
                         self.unused.append(f"{value:g} m")
                     else:
@@ -200,7 +206,9 @@ class Parser(RelationReader):
             elif role == "conj" and self.depth <= 1 and self.name() in ("and", "while") \
                     and self.role(1) in ("pred", "rel", "ego", "side", "with", "not") and not self.kind_after_states(1):
                 self.take()  # "facing and heading toward", "… while being overtaken": one more modifier
-                if self.role() == "pred" and excludes(node, self.name()):  # "slows down and stops": in turn
+                following = self.peek()
+                if following is not None and following.role == "pred" and not following.negate \
+                        and excludes(node, following.name):  # "slows down and stops": in turn
                     item = self.take()
                     node = Then(node, Is(without_states(node), item.name, item.params, negate=item.negate))
             else:
@@ -235,6 +243,7 @@ class Parser(RelationReader):
                 return self.ego_relation(node, item.name, self.distance_params((), "direction"))
             return self.relate(node, Lexeme("rel", "direction", (("side", item.name),), reverse=True), other)
         if item.role == "rel":
+            it = self.it(self.skipped_before_next())  # before the side: "passes it on the left"
             item = self.with_side(item)
             other = self.phrase(bare=item.name == "passed_by", need_kind=True)
             if other is not None and item.name == "passed_by":  # "passed by a motorcycle on either side"
@@ -246,7 +255,7 @@ class Parser(RelationReader):
                 other = self.phrase()
                 if other is not None:
                     return self.relate(self.relate(node, item, other), also, other)
-            other = other or self.it(self.skipped_before_next())
+            other = other or it
             if other is None:
                 return self.without_object(node, item)
             return self.relate(node, item, other)
@@ -364,7 +373,8 @@ class Parser(RelationReader):
             self.take()
             condition = self.phrase()
             if condition is not None and self.role() in ("kind", "count"):
-                return While(self.description(), self.referred(*condition))
+                self.antecedent = self.referred(*condition)  # "while a bus is stopped, a car passes it"
+                return While(self.description(), self.antecedent)
             self.i, self.unused[unused:], self.grouped = start, [], False  # no main clause: "while" says nothing
             self.unused.extend(self.take().words)
         found = self.phrase()
@@ -373,6 +383,7 @@ class Parser(RelationReader):
         node = self.referred(*found)
         while self.role() == "conj":
             conj = self.take()
+            self.end_clause()
             self.antecedent = node  # "… while a pedestrian crosses in front of it"
             # "brakes and then stops": a phrase naming no kind goes on about the same objects.
             nxt = self.phrase(need_kind=True)
@@ -384,7 +395,12 @@ class Parser(RelationReader):
                     self.unused.extend(conj.words)
                     break
             other = self.referred(*nxt)
-            if subject_of(node) == Objects("any") and subject_of(other) != Objects("any") :
+            while conj.name == "except" and self.role() == "conj" and self.name() == "and" \
+                    and self.role(1) in ("kind", "count"):  # "vehicles except buses and trucks"
+                self.take()
+                more = self.phrase(need_kind=True)
+                other = AnyOf((other, self.referred(*more))) if more is not None else other
+            if conj.name != "except" and subject_of(node) == Objects("any") and subject_of(other) != Objects("any"):
                 node = with_subject(node, subject_of(other))  # "parked or stopped vehicle": both of vehicles
             if conj.name == "then":
                 node = Then(node, other)
@@ -402,14 +418,22 @@ class Parser(RelationReader):
                 node = AllOf((node, other)) if conj.name == "and" else node
                 if conj.name == "or":
                     node = AnyOf((node.children[0] if isinstance(node, AllOf) else node, other))
-        if self.pending_s is not None:  # a duration no relation took
-            self.unused.append(f"for {self.pending_s:g} s")
+        self.end_clause()
         if self.within_s is not None:
             if isinstance(node, Then):
                 node = dataclasses.replace(node, within_s=self.within_s)
             else:
                 self.unused.append(f"within {self.within_s:g} s")
         return node
+
+    def end_clause(self) -> None:
+        """A clause ends: a distance or a duration that no relation of it took is said unused, not carried
+        into the next clause."""
+        if self.pending_m is not None:
+            self.unused.append(f"{self.pending_m:g} m")
+        if self.pending_s is not None:
+            self.unused.append(f"for {self.pending_s:g} s")
+        self.pending_m = self.pending_s = None
 
     def referred(self, node: Node, count: int) -> Node:
         """The referred objects of a clause with the count said for them: "a group of" stands together,

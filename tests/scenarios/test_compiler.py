@@ -124,6 +124,23 @@ MEANINGS = {
     "two cars within 5 m of each other": "together(near(car, car, within_m=5), min_count=2)",
     "a car very close to a pedestrian": "near(car, pedestrian, within_m=3)",
     "a car close behind a truck": "following(car, truck, within_m=10)",
+    # Found by review: sides, ranges, passives, clauses, "except" lists.
+    "a car directly ahead of the truck": "reverse(direction(truck, car, side=front))",
+    "a car going 5-10 m/s": "speed(moving(car), min_mps=5, max_mps=10)",
+    "a car followed closely by a truck": "reverse(following(truck, car, within_m=10))",
+    "a parked car passed on the left by a cyclist": "passed_by(parked(car), cyclist, side=left)",
+    "a bus stops while a car passes it on the left":
+        "while(stopped(bus), reverse(passed_by(stopped(bus), car, side=left)))",
+    "while a bus is stopped, a car passes it": "while(reverse(passed_by(stopped(bus), car)), stopped(bus))",
+    "while there is a crowd of people, a car turns left":
+        "while(turning(car, direction=left), near(pedestrian, pedestrian, within_m=5, min_count=2))",
+    "a car within 5 m of a truck for 10 s then a pedestrian near us":
+        "then(for_at_least(near(car, truck, within_m=5), seconds=10), near(pedestrian, ego), within_s=5)",
+    "a car that is parked and not moving": "not(moving(parked(car)))",
+    "anything except cars": "excluding(any, car)",
+    "vehicles except buses and trucks": "excluding(vehicle, or(bus, truck))",
+    "a car in the opposite direction to the bus": "heading(car, bus, way=opposite)",
+    "a car has stopped": "stopped(car)",
     "three pedestrians": "together(pedestrian, min_count=3)",  # there at once; "a group of" stands together
     "pedestrian group": "near(pedestrian, pedestrian, within_m=5, min_count=2)",
     "a person on a skateboard": "wheeled_rider",
@@ -163,6 +180,8 @@ NOT_UNDERSTOOD = {
     "a pedestrian crossing when we are 20 m away": ("while(crossing_road(pedestrian), ego)", ("20 m",)),
     "a bus stopped at a bus stop": ("stopped(bus)", ("at", "a", "bus", "stop")),  # no bus stops in the map
     "no pedestrians": ("pedestrian", ("no",)),  # nothing to be without: the objects, "no" unused
+    "a car more than 20 m away": ("car", ("more than 20 m",)),  # no relation takes a least distance
+    "a car within 5 m of the crosswalk": ("car", ("5 m", "crosswalk")),  # not "of the ego"
     # "walks past" is no phrase, so that "walks past the right side of" reads as "walks" + "past the right side of".
     "a pedestrian walks past": ("moving(pedestrian)", ("past",)),
 }

@@ -55,6 +55,13 @@ class RelationReader(LexemeStream):
         side = "adjacent"
         if self.role() == "side" and self.name() in ("left", "right"):
             side = self.take().name
+        # A lane said before ("a car in the left lane cuts in") is the steps' to say, each in turn: taken off
+        # the subject, where it could never hold in both steps, and kept as the side a cut-in comes from.
+        while isinstance(node, Is) and node.predicate == "ego_lane":
+            lane = str(dict(node.params).get("lane"))
+            if side == "adjacent" and lane in ("left", "right") and item.name == "cut_in":
+                side = lane
+            node = node.subject
         beside, ours = Is(node, "ego_lane", (("lane", side),)), Is(node, "ego_lane", (("lane", "host"),))
         if item.name == "cut_out":  # "leaves our lane [to the left]": from the ego's lane to one beside it
             return Then(ours, beside, CUT_IN_WITHIN_S)

@@ -141,6 +141,9 @@ MEANINGS = {
     "vehicles except buses and trucks": "excluding(vehicle, or(bus, truck))",
     "a car in the opposite direction to the bus": "heading(car, bus, way=opposite)",
     "a car has stopped": "stopped(car)",
+    "a car in the left lane cuts in": "then(ego_lane(car, lane=left), ego_lane(car, lane=host), within_s=4)",
+    "a car in the lane next to us entering our lane":
+        "then(ego_lane(car, lane=adjacent), ego_lane(car, lane=host), within_s=4)",
     "three pedestrians": "together(pedestrian, min_count=3)",  # there at once; "a group of" stands together
     "pedestrian group": "near(pedestrian, pedestrian, within_m=5, min_count=2)",
     "a person on a skateboard": "wheeled_rider",

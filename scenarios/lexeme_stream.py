@@ -3,7 +3,18 @@ filler words are stepped over, and every word the lexicon does not know is kept 
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 from scenarios.lexicon import Lexeme
+
+
+class Quantity(NamedTuple):
+    """A number said with its unit ("m", "s", a speed unit, or "" for none); for a range ("5 to 20 m"),
+    ``value`` is its upper end and ``low`` its lower end (None for a single number)."""
+
+    value: float
+    unit: str
+    low: float | None = None
 
 
 class LexemeStream:
@@ -14,7 +25,6 @@ class LexemeStream:
         self.items = items
         self.i = 0
         self.unused: list[str] = []
-        self.range_low: float | None = None
 
     def peek(self, ahead: int = 0) -> Lexeme | None:
         j, seen = self.i, -1
@@ -42,30 +52,25 @@ class LexemeStream:
                 self.unused.extend(item.words)
             self.i += 1
 
-    def unknown_before_next(self) -> bool:
-        """Whether a word the lexicon does not know stands between here and the next meaningful item."""
+    def fillers(self) -> list[Lexeme]:
+        """The filler lexemes (skipped and unknown words) between here and the next meaningful item."""
         j = self.i
         while j < len(self.items) and self.items[j].role in ("skip", "unknown"):
-            if self.items[j].role == "unknown":
-                return True
             j += 1
-        return False
+        return self.items[self.i:j]
+
+    def unknown_before_next(self) -> bool:
+        """Whether a word the lexicon does not know stands between here and the next meaningful item."""
+        return any(item.role == "unknown" for item in self.fillers())
 
     def after_word(self, word: str) -> bool:
         """Whether the next meaningful item comes right after ``word`` (a filler the stream skips)."""
-        j = self.i
-        while j < len(self.items) and self.items[j].role in ("skip", "unknown"):
-            j += 1
+        j = self.i + len(self.fillers())
         return j > 0 and self.items[j - 1].words == (word,)
 
     def skipped_before_next(self) -> set[str]:
         """The filler words between here and the next meaningful item."""
-        words: set[str] = set()
-        j = self.i
-        while j < len(self.items) and self.items[j].role in ("skip", "unknown"):
-            words.update(self.items[j].words)
-            j += 1
-        return words
+        return {word for item in self.fillers() for word in item.words}
 
     def role(self, ahead: int = 0) -> str:
         item = self.peek(ahead)
@@ -80,23 +85,21 @@ class LexemeStream:
         return item.count if item is not None else 0
 
     # -- numbers -----------------------------------------------------------------------------------------
-    def quantity(self) -> tuple[float, str] | None:
-        """A number (or range "5 to 20") with its unit, consumed; the range's upper end (its lower end in
-        :attr:`range_low`, None for a single number)."""
+    def quantity(self) -> Quantity | None:
+        """A number (or range "5 to 20") with its unit, consumed."""
         if self.role() != "number":
             return None
-        j = 1
+        j, low = 1, None
         value = float(self.name())
-        self.range_low = None
         if self.role(1) == "number":  # "5 to 20": "to" is filler between them
-            self.range_low, value, j = value, float(self.name(1)), 2
+            low, value, j = value, float(self.name(1)), 2
         unit = self.peek(j)
         if unit is None or unit.role != "unit":
             if self.role(j) == "kind":
                 return None  # "two vehicles": a count, not a quantity
             for _ in range(j):
                 self.take()
-            return value, ""
+            return Quantity(value, "", low)
         for _ in range(j + 1):
             self.take()
-        return value, unit.name
+        return Quantity(value, unit.name, low)

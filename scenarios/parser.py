@@ -71,6 +71,16 @@ class Parser(RelationReader):
         """The antecedent, as a relation's object, where ``words`` say "it" or "them"."""
         return (self.antecedent, 0) if self.antecedent is not None and {"it", "its", "them"} & set(words) else None
 
+    def take_count(self) -> int:
+        """The count the next count word or number says, taken: "more than two" is three; a group's
+        words ("a group of", "a crowd") mark the clause's objects as standing together."""
+        more = int("more" in self.skipped_before_next())
+        item = self.take()
+        if item.role == "number":
+            return int(float(item.name)) + more
+        self.grouped = self.grouped or (self.depth == 0 and item.name == "group")
+        return item.count + more
+
     # -- phrases -----------------------------------------------------------------------------------------
     def phrase(self, bare: bool = False, need_kind: bool = False) -> tuple[Node, int] | None:
         """A noun phrase: the node of the objects it names, and the count given for them (0: none).
@@ -79,17 +89,14 @@ class Parser(RelationReader):
         what follows modifies the phrase before it. A phrase that ``need_kind`` (the object of a
         relation) names its kind: "crosses at the crosswalk" has no object.
         """
-        start = self.i
+        start, grouped = self.i, self.grouped
         count, preds = 0, []
         while True:
             role = self.role()
-            more = int("more" in self.skipped_before_next())  # "more than two cars": three at least
             if role == "count":
-                item = self.take()
-                count = max(count, item.count + more)
-                self.grouped = self.grouped or (self.depth == 0 and item.name == "group")
+                count = max(count, self.take_count())
             elif role == "number" and self.role(1) in ("kind", "pred"):
-                count = int(float(self.take().name)) + more
+                count = self.take_count()
             elif role in ("pred", "fixed"):
                 preds.append(self.take())
             elif role == "rel" and self.role(1) == "kind" and self.name() in ("crossed_by", "passed_by") \
@@ -107,13 +114,11 @@ class Parser(RelationReader):
             if need_kind and self.depth and node == Objects("ego"):  # "next to us on the right": of the subject
                 return node, count
             if self.role() == "count" and self.count_ahead() >= 3:  # "pedestrian group"
-                item = self.take()
-                count = max(count, item.count)
-                self.grouped = self.grouped or (self.depth == 0 and item.name == "group")
+                count = max(count, self.take_count())
         elif preds and not need_kind:
             node = Objects("any")
         else:
-            self.i = start  # no phrase here: its words are left for what follows
+            self.i, self.grouped = start, grouped  # no phrase here: its words are left for what follows
             return None
         for item in preds:
             if item.role == "fixed":
@@ -166,10 +171,10 @@ class Parser(RelationReader):
                 found = self.quantity()
                 if found is None:
                     break
-                value, unit = found
+                value, unit, low = found
                 if unit in SPEED_UNITS:
-                    node = Is(node, "speed", speed_bounds(value * SPEED_UNITS[unit], fillers,
-                                                          self.range_low and self.range_low * SPEED_UNITS[unit]))
+                    mps = SPEED_UNITS[unit]
+                    node = Is(node, "speed", speed_bounds(value * mps, fillers, None if low is None else low * mps))
                 elif unit == "m" and fillers & FARTHER:  # "more than 20 m away": no relation has a least distance
                     self.unused.append(f"more than {value:g} m")
                 elif unit == "s" and after_within:

@@ -68,11 +68,9 @@ class RelationReader(LexemeStream):
         return Then(beside, ours, CUT_IN_WITHIN_S)
 
     def acted_on(self, node: Node, rel: Lexeme, acting: tuple[Node, int]) -> Node:
-        """``node`` that the objects of ``acting`` do ``rel`` to ("with a dog crossing", "with a car following it")."""
-        params = self.distance_params(rel.params, rel.name)
-        if rel.reverse:
-            return Has(node, rel.name, acting[0], params, min_count=max(1, acting[1]))
-        return Has(acting[0], rel.name, node, params, reverse=True)
+        """``node`` that the objects of ``acting`` do ``rel`` to ("with a dog crossing", "with a car following
+        it"): the relation from the other side."""
+        return self.relate(node, dataclasses.replace(rel, reverse=not rel.reverse), acting)
 
     def with_side(self, item: Lexeme) -> Lexeme:
         """``item`` with the side that follows it ("being overtaken on the left")."""

@@ -101,10 +101,17 @@ class Predicate(Criterion):
     Attributes:
         phrase: how a reader says it ("turning {direction}").
         fn: ``(features, params) -> (K, F) mask``.
+        says: how a reader says it with given parameters, where the template cannot ("faster than 10 m/s"
+            rather than "moving at 10–1000 m/s"); None: ``phrase`` filled in.
     """
 
     phrase: str
     fn: Callable[[LogFeatures, Params], Mask]
+    says: Callable[[Params], str] | None = None
+
+    def words(self, params: Params) -> str:
+        """The phrase for ``params`` (every parameter given)."""
+        return self.says(params) if self.says is not None else self.phrase.format(**params)
 
 
 PREDICATES: dict[str, Predicate] = {}
@@ -112,11 +119,12 @@ DIRECTIONS = ("left", "right", "any")
 
 
 def _define(name: str, phrase: str, defaults: Mapping[str, float | str] | None = None,
-            choices: Mapping[str, tuple[str, ...]] | None = None, needs_map: bool = False
+            choices: Mapping[str, tuple[str, ...]] | None = None, needs_map: bool = False,
+            says: Callable[[Params], str] | None = None
             ) -> Callable[[Callable[[LogFeatures, Params], Mask]], Callable[[LogFeatures, Params], Mask]]:
     def register(fn: Callable[[LogFeatures, Params], Mask]) -> Callable[[LogFeatures, Params], Mask]:
-        PREDICATES[name] = Predicate(name, phrase, fn, defaults=dict(defaults or {}), choices=dict(choices or {}),
-                                     needs_map=needs_map)
+        PREDICATES[name] = Predicate(name, phrase, fn, says, defaults=dict(defaults or {}),
+                                     choices=dict(choices or {}), needs_map=needs_map)
         return fn
     return register
 
@@ -228,7 +236,22 @@ def _braking_for(x: LogFeatures, p: Params) -> Mask:
     return x.flag("braking_for")
 
 
-@_define("speed", "moving at {min_mps}–{max_mps} m/s", {"min_mps": 0.0, "max_mps": 1000.0})
+#: The ``speed`` predicate's default ceiling: no bound at all.
+_MAX_SPEED_MPS = 1000.0
+
+
+def _speed_words(p: Params) -> str:
+    """A floor or a ceiling alone reads as one ("faster than 10 m/s"), both as a band."""
+    low, high = _f(p, "min_mps"), _f(p, "max_mps")
+    if high >= _MAX_SPEED_MPS:
+        return f"faster than {low:g} m/s"
+    if low <= 0.0:
+        return f"slower than {high:g} m/s"
+    return f"at {low:g}–{high:g} m/s"
+
+
+@_define("speed", "moving at {min_mps}–{max_mps} m/s", {"min_mps": 0.0, "max_mps": _MAX_SPEED_MPS},
+         says=_speed_words)
 def _speed(x: LogFeatures, p: Params) -> Mask:
     return x.valid & (x.speed_mps >= _f(p, "min_mps")) & (x.speed_mps <= _f(p, "max_mps"))
 

@@ -20,8 +20,6 @@ Every node renders two ways: :func:`to_text`, the program syntax users can write
 
 from __future__ import annotations
 
-import math
-from collections.abc import Mapping
 from dataclasses import dataclass
 
 Param = tuple[str, float | str]
@@ -187,15 +185,6 @@ _SIDES = {"front": "in front of", "behind": "behind", "left": "to the left of", 
           "back_left": "to the back-left of", "back_right": "to the back-right of"}
 
 
-def _speed_phrase(min_mps: float, max_mps: float, defaults: Mapping[str, float | str]) -> str:
-    """The ``speed`` predicate's bounds in words: a floor, a ceiling, or a band."""
-    if max_mps >= float(defaults.get("max_mps", math.inf)):
-        return f"faster than {_value(min_mps)} m/s"
-    if min_mps <= float(defaults.get("min_mps", 0.0)):
-        return f"slower than {_value(max_mps)} m/s"
-    return f"at {_value(min_mps)}–{_value(max_mps)} m/s"
-
-
 def _params_text(params: dict[str, float | str], shown: str) -> str:
     """The parameters a phrase does not say already, as "(within 5 m, …)"."""
     rest = [(k, v) for k, v in params.items() if "{" + k + "}" not in shown and k != "side"]
@@ -222,9 +211,7 @@ def describe(node: Node) -> str:
         case Is(subject, predicate, params, negate):
             pred = PREDICATES.get(predicate)
             known = {**(pred.defaults if pred else {}), **dict(params)}
-            phrase = pred.phrase.format(**known).replace(" any", "") if pred else predicate
-            if predicate == "speed":  # a floor or a ceiling alone reads as one, not as "10–1000 m/s"
-                phrase = _speed_phrase(float(known["min_mps"]), float(known["max_mps"]), pred.defaults if pred else {})
+            phrase = pred.words(known).replace(" any", "") if pred else predicate
             extra = _params_text(dict(params), pred.phrase if pred else "")
             return f"{describe(subject)} {'not ' if negate else ''}{phrase}{extra}"
         case Has(subject, relation, other, params, min_count, max_count, negate, reverse):

@@ -276,3 +276,9 @@ def test_every_program_the_compiler_writes_can_be_answered() -> None:
             answer(program, log, text)
         answered += 1
     assert answered > 1000
+
+
+def test_a_speed_reads_back_as_its_floor_ceiling_or_band() -> None:
+    assert compile_description("a car driving faster than 20 m/s").rendering == "cars moving faster than 20 m/s"
+    assert compile_description("a cyclist under 10 km/h").rendering == "cyclists slower than 2.78 m/s"
+    assert compile_description("a car going 5-10 m/s").rendering == "cars moving at 5–10 m/s"

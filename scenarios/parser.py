@@ -20,7 +20,6 @@ refused (:class:`DescriptionError`).
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Iterable
 
 from scenarios.lexicon import FARTHER, SPEED_UNITS, Lexeme, speed_bounds
 from scenarios.program import (
@@ -61,15 +60,8 @@ class Parser(RelationReader):
         self.within_s: float | None = None
         #: How deep in the phrases named by relations: "and"/"while" + modifier join the referred phrase only.
         self.depth = 0
-        #: What "it" and "them" name in a later clause: the clause before ("a car turns left while a
-        #: pedestrian crosses in front of it"); in the first clause they name the ego, as "ahead" does.
-        self.antecedent: Node | None = None
         #: Whether the clause's count was a group's ("a group of pedestrians", "a crowd"): near one another.
         self.grouped = False
-
-    def it(self, words: Iterable[str]) -> tuple[Node, int] | None:
-        """The antecedent, as a relation's object, where ``words`` say "it" or "them"."""
-        return (self.antecedent, 0) if self.antecedent is not None and {"it", "its", "them"} & set(words) else None
 
     def take_count(self) -> int:
         """The count the next count word or number says, taken: "more than two" is three; a group's

@@ -5,6 +5,7 @@ object, the side that follows it, and the sequences some phrases name ("drives o
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Iterable
 
 from scenarios.lexeme_stream import LexemeStream
 from scenarios.lexicon import Lexeme
@@ -17,11 +18,19 @@ CUT_IN_WITHIN_S = 4.0
 
 class RelationReader(LexemeStream):
     """A lexeme stream that builds relations; ``pending_m`` holds a distance said before the object
-    of the relation that takes it ("within 5 m of", "pedestrian 5 m ahead")."""
+    of the relation that takes it ("within 5 m of", "pedestrian 5 m ahead"), ``antecedent`` what "it"
+    names as one."""
 
     def __init__(self, items: list[Lexeme]) -> None:
         super().__init__(items)
         self.pending_m: float | None = None
+        #: What "it" and "them" name in a later clause: the clause before ("a car turns left while a
+        #: pedestrian crosses in front of it"); in the first clause they name the ego, as "ahead" does.
+        self.antecedent: Node | None = None
+
+    def it(self, words: Iterable[str]) -> tuple[Node, int] | None:
+        """The antecedent, as a relation's object, where ``words`` say "it" or "them"."""
+        return (self.antecedent, 0) if self.antecedent is not None and {"it", "its", "them"} & set(words) else None
 
     def ego_relation(self, node: Node, side: str, params: tuple[tuple[str, float | str], ...] = ()) -> Node:
         """``node``'s objects on ``side`` of the ego (a relation asked of the ego)."""

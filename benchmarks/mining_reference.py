@@ -25,11 +25,12 @@ wrong. Every test is written again from its definition, one object and one frame
   ``forward_m`` past the front and ``lateral_m`` aside; the pair's frames within ``window_s``
   count; a centre within :data:`ON_LINE_M` of the line is on neither side, so an object that walks
   along the line does not cross it at every rounding of its offset).
-- **Composition and time** as :mod:`scenarios.program` states: ``Has`` with counts, negation and
-  ``reverse``; ``Between`` (either kind on either side, boxes within 50 m); and / or / but not;
-  ``Together``; ``ForAtLeast`` (a run lasts from its first frame to its last plus one frame
-  interval); ``Then`` (the same object, the second starting after a frame of the first, within
-  ``within_s``); ``While`` (the condition holds for any object at that frame).
+- **Composition and time** as :mod:`scenarios.program` states: ``Has`` with counts, negation,
+  ``reverse`` and ``nearest`` (by the exact gap); ``Between`` (either kind on either side, boxes
+  within 50 m); and / or / but not; ``Together``; ``ForAtLeast`` (a run lasts from its first
+  frame to its last plus one frame interval); ``Then`` (the same object, the second starting after
+  a frame of the first, within ``within_s``); ``While`` (the condition holds for any object at that
+  frame).
 """
 
 from __future__ import annotations
@@ -325,6 +326,12 @@ class _Reference:
                 if s != o:
                     frames = self.pair_frames(node.relation, resolved, s, o)
                     holds[(s, o)] = [frames[f] and subject.sel[s][f] and other.sel[o][f] for f in range(nf)]
+        if node.nearest is not None:  # each subject keeps, at each frame, only its nearest others that hold
+            for s in subjects:
+                for f in range(nf):
+                    near_first = sorted((self.gap(s, o, f), o) for o in others if s != o and holds[(s, o)][f])
+                    for _, o in near_first[node.nearest:]:
+                        holds[(s, o)][f] = False
         ok = self.grid()
         related_others, related_subjects = self.grid(), self.grid()
         for s in subjects:

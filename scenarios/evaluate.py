@@ -145,6 +145,8 @@ class _Run:
         resolved = spec.resolve(dict(node.params))
         if node.min_count < 1 or (node.max_count is not None and node.max_count < node.min_count):
             raise ProgramError(f"{node.relation}: min_count must be ≥ 1 and max_count ≥ min_count")
+        if node.nearest is not None and not 1 <= node.min_count <= node.nearest:
+            raise ProgramError(f"{node.relation}: nearest must be ≥ 1 and ≥ min_count")
         sel, other = self.eval(node.subject), self.eval(node.other)
         if spec.needs_map and not x.has_map:
             self.note(node.relation, "needs a map, and the log has none")
@@ -153,17 +155,26 @@ class _Run:
         others = np.flatnonzero(other.mask.any(axis=1))
         k, f = x.num_objects, x.num_frames
         count = np.zeros((k, f), np.int64)  # of the subjects: how many others relate at each frame
-        holds_parts, s_parts, o_parts = [], [], []
+        holds_parts, s_parts, o_parts, gap_parts = [], [], [], []
         if subjects.size and others.size:
             s_idx, o_idx = candidate_pairs(x, subjects, others, spec.reach_m(resolved))
             step = max(1, _CHUNK_CELLS // max(1, f))
             for start in range(0, s_idx.size, step):
                 si, oi = s_idx[start:start + step], o_idx[start:start + step]
-                holds = spec.fn(pair_geometry(x, si, oi), resolved) & other.mask[oi] & sel.mask[si]  # (P, F)
+                geometry = pair_geometry(x, si, oi)
+                holds = spec.fn(geometry, resolved) & other.mask[oi] & sel.mask[si]  # (P, F)
                 count += group_count(holds, si, k)
                 holds_parts.append(holds)
                 s_parts.append(si)
                 o_parts.append(oi)
+                if node.nearest is not None:
+                    gap_parts.append(geometry.gap_m)
+        if node.nearest is not None and holds_parts:
+            # A subject's pairs may straddle chunks: the nearest are ranked over all of them at once.
+            holds_parts = [nearest_only(np.concatenate(holds_parts), np.concatenate(gap_parts),
+                                        np.concatenate(s_parts), node.nearest)]
+            s_parts, o_parts = [np.concatenate(s_parts)], [np.concatenate(o_parts)]
+            count = group_count(holds_parts[0], s_parts[0], k)
         if node.negate:
             ok_subject = (count == 0) & sel.mask
         else:
@@ -204,6 +215,27 @@ class _Run:
             related |= group_any(on_right & ok[s_hi], o_hi, x.num_objects)
         kept = _keep(sel, both)
         return Selection(kept.scores, kept.related | (related & ~kept.mask))
+
+
+def nearest_only(holds: Mask, gap_m: NDArray[np.float32], subjects: NDArray[np.int64], n: int) -> Mask:
+    """(P, F) ``holds`` kept, at each frame, for only the ``n`` pairs of each subject with the smallest
+    ``gap_m`` (ties: the earlier pair).
+
+    Args:
+        holds: (P, F) where pair p relates at frame f.
+        gap_m: (P, F) the distance between the pair's boxes.
+        subjects: (P,) each pair's subject.
+        n: how many others each subject keeps per frame.
+    """
+    pair, frame = np.nonzero(holds)
+    order = np.lexsort((pair, gap_m[pair, frame], frame, subjects[pair]))  # by subject, frame, gap, pair
+    pair, frame = pair[order], frame[order]
+    group = np.concatenate([[True], (subjects[pair][1:] != subjects[pair][:-1]) | (frame[1:] != frame[:-1])])
+    starts = np.flatnonzero(group)
+    rank = np.arange(pair.size) - np.repeat(starts, np.diff(np.append(starts, pair.size)))
+    kept = np.zeros_like(holds)
+    kept[pair[rank < n], frame[rank < n]] = True
+    return kept
 
 
 def runs_lasting(mask: Mask, time_s: NDArray[np.float64], seconds: float) -> Mask:

@@ -27,7 +27,8 @@ class Lexeme:
             ``seq`` (a sequence the phrase names: ``drive_off`` stops then moves, ``cut_in`` moves from
             an adjacent lane into the ego's),
             ``fixed`` (a relation to objects of the kind ``other`` that the phrase itself names: "at a
-            stop sign", "unattended"), or ``skip`` (carries no meaning here).
+            stop sign", "unattended"), ``nearest`` ("closest", "the lead": only the nearest one, ``near``
+            or ``ahead``), or ``skip`` (carries no meaning here).
         name: the kind, predicate, relation, side or conjunction named.
         params: parameters of the predicate or relation.
         reverse: for ``rel``: the relation holds from the named object's point of view ("in front of Y":
@@ -286,8 +287,7 @@ for _phrases, _side in (("ahead|in front|ahead of us|in front of us|straight ahe
 # "Directly" ahead or behind: within the ego's lane band (the chain of "two cars ahead" uses the same band).
 _add("directly ahead of us|directly in front of us|right in front of us|straight ahead of us",
      Lexeme("ego", "direction", (("side", "front"), ("lateral_m", 1.5)), reverse=True))
-_add("directly behind us|right behind us", Lexeme("ego", "direction", (("side", "behind"), ("lateral_m", 1.5)),
-                                                  reverse=True))
+_add("directly behind us|right behind us", Lexeme("ego", "direction", (("side", "behind"), ("lateral_m", 1.5)), True))
 
 # -- sides after "with …" -----------------------------------------------------------------------------------
 for _phrases, _side in (
@@ -333,6 +333,8 @@ _add("straight|go straight|goes straight|going straight|went straight", Lexeme("
 # Not moving: stopped for a moment or parked for the whole log (``stopped`` alone leaves parked ones out).
 _add("not moving|isn't moving|is not moving|are not moving|aren't moving", Lexeme("pred", "moving", negate=True))
 _add("closely|too closely|too close|tightly", Lexeme("closely"))
+_add("closest|nearest|closest one|nearest one", Lexeme("nearest", "near"))
+_add("lead|leading|leads|the first|first in line", Lexeme("nearest", "ahead"))
 _add("drives off|drive off|pulls away|pull away|starts moving|start moving|takes off|sets off|starts to move|"
      "accelerating from a stop|accelerates from a stop|accelerate from a stop|starting from a stop|"
      "starts from a stop|pulling away from a stop|pulls away from a stop|"
@@ -353,11 +355,10 @@ _add("during daylight|in daylight|during the day|in the daytime|on a clear day|d
      Lexeme("pred", "appearance", (("time_of_day", "day"),)))
 _add("at night|during the night|at nighttime|in the dark", Lexeme("pred", "appearance", (("time_of_day", "night"),)))
 _add("at dusk|during dusk|at dawn|at sunset|at twilight", Lexeme("pred", "appearance", (("time_of_day", "dusk"),)))
-_add("during rain|in the rain|in rain|while raining|when it rains|on a rainy day", Lexeme("pred", "appearance",
-                                                                                       (("weather", "rain"),)))
-_add("during snow|in the snow|in snow|while snowing|on a snowy day", Lexeme("pred", "appearance",
-                                                                           (("weather", "snow"),)))
-_add("in fog|in the fog|during fog|on a foggy day", Lexeme("pred", "appearance", (("weather", "fog"),)))
+for _phrases, _weather in (("during rain|in the rain|in rain|while raining|when it rains|on a rainy day", "rain"),
+                           ("during snow|in the snow|in snow|while snowing|on a snowy day", "snow"),
+                           ("in fog|in the fog|during fog|on a foggy day", "fog")):
+    _add(_phrases, Lexeme("pred", "appearance", (("weather", _weather),)))
 _add("between", Lexeme("between"))
 _add("meters|meter|metres|metre|m", Lexeme("unit", "m"))
 # Speeds, in metres per second: "m/s" and "km/h" arrive as "m s" and "km h" (normalize splits at "/").
@@ -402,8 +403,7 @@ _add("at a bus stop|at the bus stop|near a bus stop|near the bus stop|by a bus s
      Lexeme("unknown", "bus stop"))
 _add("within|at least|at most|less than|more than|up to|from|away|for|directly|another|other|each|any|"
      "some|its|their|the|a|an|that|which|who|is|are|being|of|it|there|in|on|to|one|ones|those|these|same|lane|path|"
-     "side|too|"
-     "road|street|zone|area|i|see|find|show|me|all|where|together|here|now|just",
+     "side|too|road|street|zone|area|i|see|find|show|me|all|where|together|here|now|just|first",
      Lexeme("skip"))
 
 _SPELLINGS = {"towards": "toward", "colour": "color", "travelling": "traveling", "metres": "meters",

@@ -38,7 +38,7 @@ from scenarios.program import (
     of_two_kinds,
     subject_of,
 )
-from scenarios.relating import RelationReader
+from scenarios.relating import AHEAD_IN_LANE, RelationReader
 from scenarios.rewrite import closer, ego_without, excludes, negated, with_subject, within, without_states
 
 #: Within this distance (m), "a group of" objects stand together.
@@ -82,7 +82,7 @@ class Parser(RelationReader):
         relation) names its kind: "crosses at the crosswalk" has no object.
         """
         start, grouped = self.i, self.grouped
-        count, preds = 0, []
+        count, preds, nearest = 0, [], None
         while True:
             role = self.role()
             if role == "count":
@@ -91,6 +91,8 @@ class Parser(RelationReader):
                 count = self.take_count()
             elif role in ("pred", "fixed"):
                 preds.append(self.take())
+            elif role == "nearest" and nearest is None:  # "the closest parked car", "the lead vehicle"
+                nearest = self.take()
             elif role == "rel" and self.role(1) == "kind" and self.name() in ("crossed_by", "passed_by") \
                     and getattr(self.peek(), "reverse", False):
                 item = self.take()  # "crossing pedestrians": pedestrians that cross the road
@@ -118,11 +120,12 @@ class Parser(RelationReader):
                            negate=item.negate)
             else:
                 node = Is(node, item.name, item.params, negate=item.role == "notpred" or item.negate)
-        if bare:
-            return node, count
         self.depth += 1
         try:
-            return self.modifiers(node), count
+            modified = node if bare else self.modifiers(node)
+            if nearest is not None:  # "the nearest two pedestrians": the two nearest, not two at once
+                modified, count = self.nearest(modified, node, nearest, max(1, count)), 0
+            return modified, count
         finally:
             self.depth -= 1
 
@@ -141,6 +144,13 @@ class Parser(RelationReader):
             elif role == "closely" and isinstance(node, Has):
                 self.take()
                 node = closer(node)
+            elif role == "nearest" and self.name() == "ahead" and self.role(1) in ("kind", "count") \
+                    and getattr(self.peek(), "words", ()) != ("lead",):
+                self.take()  # "a car leading a truck": the truck follows it
+                other = self.phrase(need_kind=True)
+                node = node if other is None else self.relate(node, Lexeme("rel", "following", reverse=True), other)
+            elif role == "nearest" and self.name() == "near":  # "the car closest to us", "… nearest to the bus"
+                node = self.nearest(node, node, self.take())
             elif role in ("count", "number") and self.role(1) == "kind" and self.role(2) in ("side", "ego", "rel"):
                 node = self.chain(node)
             elif role == "not" and self.role(1) == "kind" and self.role(2) == "side":  # "without a car ahead of it"
@@ -312,24 +322,6 @@ class Parser(RelationReader):
             self.pending_m = distance[0]
         return self.relate(node, rel, other)
 
-    def without_object(self, node: Node, item: Lexeme) -> Node:
-        """A relation phrase that names no object: of the ego, by anyone, or no relation at all."""
-        if item.name == "heading_toward":  # "approaching": the ego
-            return Is(node, "approaching_ego")
-        if item.name == "direction":
-            side = str(dict(item.params)["side"])
-            return self.ego_relation(node, side, self.distance_params((), "direction"))
-        if item.words == ("at",) or (item.words == ("around",) and self.role() == "number"):
-            return node  # "at" before a place word the lexicon reads itself; "around 20 km/h": about
-        if item.reverse and item.name == "passed_by":  # "passing between ...": moving past
-            return Is(node, "moving")
-        if item.reverse and item.name == "crossed_by":  # "a pedestrian crosses at the crosswalk"
-            return Is(node, "crossing_road")
-        if item.name in ("following", "crossed_by", "passed_by", "near"):  # "being overtaken": by anyone
-            return self.relate(node, item, (Objects("any"), 0))
-        self.unused.extend(item.words)
-        return node
-
     def modifiers_bare(self, node: Node) -> Node:
         """The predicates right after a bare phrase ("with lane-changing vehicles", "with stroller jaywalking"
         keeps "jaywalking" for the subject): only those that follow with no relation in between."""
@@ -349,10 +341,9 @@ class Parser(RelationReader):
         if where.role in ("rel", "side") and self.role() == "kind":
             found = self.phrase()
             anchor = found[0] if found is not None else anchor
-        front = (("side", "front"), ("lateral_m", 1.5), ("within_m", 40.0))
-        for _ in range(max(0, n - 1)):
-            anchor = Has(anchor, "direction", link, front, reverse=True)
-        return Has(anchor, "direction", node, front, reverse=True)
+        for _ in range(max(0, n - 1)):  # each link the nearest ahead of the one before
+            anchor = Has(anchor, "direction", link, AHEAD_IN_LANE, reverse=True, nearest=1)
+        return Has(anchor, "direction", node, AHEAD_IN_LANE, reverse=True, nearest=1)
 
     # -- the description -------------------------------------------------------------------------------
     def description(self) -> Node:

@@ -6,7 +6,8 @@ A program is built from these nodes (frozen dataclasses; never code to ``eval``)
 - :class:`Is` a predicate (:mod:`scenarios.predicates`) on the subject's objects, or its negation.
 - :class:`Has` a relation (:mod:`scenarios.relations`) of the subject to other objects, with at least
   ``min_count`` (and at most ``max_count``) of them; ``negate`` keeps subjects with none; ``reverse``
-  answers the other objects instead of the subjects.
+  answers the other objects instead of the subjects; ``nearest`` counts, at each frame, only the
+  ``nearest`` others closest to each subject ("the lead vehicle": the nearest vehicle ahead).
 - :class:`Between`: the subject has an object of one kind on its left and of the other on its right.
 - :class:`AllOf`, :class:`AnyOf`, :class:`Excluding`: and, or, and "but not".
 - :class:`Together`: the child's objects at frames where at least ``min_count`` of them are selected.
@@ -48,6 +49,7 @@ class Has:
     max_count: int | None = None
     negate: bool = False
     reverse: bool = False
+    nearest: int | None = None
 
 
 @dataclass(frozen=True)
@@ -144,12 +146,14 @@ def to_text(node: Node) -> str:
         case Is(subject, predicate, params, negate):
             text = _call(predicate, [to_text(subject)], list(params))
             return f"not({text})" if negate else text
-        case Has(subject, relation, other, params, min_count, max_count, negate, reverse):
+        case Has(subject, relation, other, params, min_count, max_count, negate, reverse, nearest):
             keywords = list(params)
             if min_count != 1:
                 keywords.append(("min_count", min_count))
             if max_count is not None:
                 keywords.append(("max_count", max_count))
+            if nearest is not None:
+                keywords.append(("nearest", nearest))
             text = _call(relation, [to_text(subject), to_text(other)], keywords)
             text = f"not({text})" if negate else text
             return f"reverse({text})" if reverse else text
@@ -214,7 +218,7 @@ def describe(node: Node) -> str:
             phrase = pred.words(known).replace(" any", "") if pred else predicate
             extra = _params_text(dict(params), pred.phrase if pred else "")
             return f"{describe(subject)} {'not ' if negate else ''}{phrase}{extra}"
-        case Has(subject, relation, other, params, min_count, max_count, negate, reverse):
+        case Has(subject, relation, other, params, min_count, max_count, negate, reverse, nearest):
             spec = RELATIONS.get(relation)
             values = {**(spec.defaults if spec else {}), **dict(params)}
             side = str(values.get("side", ""))
@@ -226,7 +230,12 @@ def describe(node: Node) -> str:
                                      **{k: v for k, v in values.items() if k not in ("other", "subject")})
             phrase = phrase.replace(" on the any", "")
             extra = _params_text(dict(params), template)
-            return f"{describe(other) if reverse else describe(subject)} {phrase}{extra}"
+            named = describe(other) if reverse else describe(subject)
+            if nearest is not None and reverse:  # "the nearest of the vehicles in front of the ego vehicle"
+                named = f"the nearest{'' if nearest == 1 else f' {nearest}'} of the {named}"
+            elif nearest is not None:
+                extra += f" (counting the nearest{'' if nearest == 1 else f' {nearest}'} only)"
+            return f"{named} {phrase}{extra}"
         case Between(subject, left, right, _):
             return f"{describe(subject)} between {_nested(left)} and {_nested(right)}"
         case AllOf(children):

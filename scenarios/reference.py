@@ -44,8 +44,10 @@ def markdown() -> str:
     for name, spec in sorted(PREDICATES.items()):
         lines.append(f"| `{name}` | {spec.phrase} | {_params(spec.defaults, spec.choices)} | "
                      f"{'yes' if spec.needs_map else ''} |")
-    lines += ["", "## Relations: `name(subjects, others, key=value, min_count=1, max_count=…)`", "",
-              "`not(...)` keeps the subjects with no such other; `reverse(...)` answers the others.", "",
+    lines += ["", "## Relations: `name(subjects, others, key=value, min_count=1, max_count=…, nearest=…)`", "",
+              "`not(...)` keeps the subjects with no such other; `reverse(...)` answers the others; `nearest=N` "
+              "counts, at each frame, only the N others nearest each subject (box to box), among those the "
+              "second argument selects.", "",
               "| name | reads | parameters | needs the map |", "|---|---|---|---|"]
     for name, rel in sorted(RELATIONS.items()):
         lines.append(f"| `{name}` | {rel.phrase} | {_params(rel.defaults, rel.choices)} | "

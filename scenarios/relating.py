@@ -5,21 +5,30 @@ object, the side that follows it, and the sequences some phrases name ("drives o
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 
 from scenarios.lexeme_stream import LexemeStream
 from scenarios.lexicon import Lexeme
 from scenarios.program import Has, Is, Node, Objects, Then
-from scenarios.rewrite import without_states
+from scenarios.rewrite import nearest_one, without_states
 
 #: The two steps of "drives off" or "cuts into my lane" happen within this many seconds.
 CUT_IN_WITHIN_S = 4.0
+#: Ahead in the same lane, as "the lead vehicle" and each link of "two cars ahead" are: in front, within
+#: the lane's band beside the box.
+AHEAD_IN_LANE: tuple[tuple[str, float | str], ...] = (("side", "front"), ("lateral_m", 1.5), ("within_m", 40.0))
+#: What "the nearest" ("closest") and "the lead" ("leading", "the first") object is nearest to the anchor by.
+_NEAREST: dict[str, tuple[str, tuple[tuple[str, float | str], ...]]] = {
+    "near": ("near", (("within_m", 100.0),)), "ahead": ("direction", AHEAD_IN_LANE)}
 
 
 class RelationReader(LexemeStream):
     """A lexeme stream that builds relations; ``pending_m`` holds a distance said before the object
     of the relation that takes it ("within 5 m of", "pedestrian 5 m ahead"), ``antecedent`` what "it"
     names as one."""
+
+    #: A noun phrase read from the stream (:meth:`scenarios.parser.Parser.phrase`): the object said after a word.
+    phrase: Callable[..., tuple[Node, int] | None]
 
     def __init__(self, items: list[Lexeme]) -> None:
         super().__init__(items)
@@ -53,6 +62,37 @@ class RelationReader(LexemeStream):
         if item.reverse:  # the relation holds from the other object's point of view
             return Has(other_node, item.name, node, params, reverse=True)
         return Has(node, item.name, other_node, params, min_count=max(1, count))
+
+    def nearest(self, node: Node, base: Node, item: Lexeme, n: int = 1) -> Node:
+        """``node`` (``base`` with modifiers) kept to the ``n`` nearest the ego, or to the object named
+        after "to" ("the closest car to the bus"): in a relation that answers it already, or else
+        among all of ``base``'s objects, by what ``item`` says ("closest": anywhere; "lead": ahead in the
+        lane)."""
+        anchor: Node = Objects("ego")
+        if item.name == "near" and self.role() == "kind" and self.skipped_before_next() & {"to", "from"}:
+            found = self.phrase(need_kind=True)
+            anchor = found[0] if found is not None else anchor
+        relation, params = _NEAREST[item.name]
+        return nearest_one(node, base, n,
+                           lambda objects: Has(anchor, relation, objects, params, reverse=True, nearest=n))
+
+    def without_object(self, node: Node, item: Lexeme) -> Node:
+        """A relation phrase that names no object: of the ego, by anyone, or no relation at all."""
+        if item.name == "heading_toward":  # "approaching": the ego
+            return Is(node, "approaching_ego")
+        if item.name == "direction":
+            side = str(dict(item.params)["side"])
+            return self.ego_relation(node, side, self.distance_params((), "direction"))
+        if item.words == ("at",) or (item.words == ("around",) and self.role() == "number"):
+            return node  # "at" before a place word the lexicon reads itself; "around 20 km/h": about
+        if item.reverse and item.name == "passed_by":  # "passing between ...": moving past
+            return Is(node, "moving")
+        if item.reverse and item.name == "crossed_by":  # "a pedestrian crosses at the crosswalk"
+            return Is(node, "crossing_road")
+        if item.name in ("following", "crossed_by", "passed_by", "near"):  # "being overtaken": by anyone
+            return self.relate(node, item, (Objects("any"), 0))
+        self.unused.extend(item.words)
+        return node
 
     def sequence(self, node: Node, item: Lexeme) -> Node:
         """A sequence the words name: "drives off" (stops, then moves), "cuts into my lane [from the left]"

@@ -4,6 +4,7 @@ bounded, a modifier negated, the states left out of a later step, the subject re
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
 
 from scenarios import program as p
 
@@ -99,3 +100,25 @@ def ego_without(node: p.Node) -> p.Node | None:
     if node.relation == "near" and node.other == p.Objects("ego") and not node.reverse:  # near: either way
         return p.Has(p.Objects("ego"), "near", node.subject, node.params, negate=not node.negate)
     return None
+
+
+def nearest_one(node: p.Node, base: p.Node, n: int, around: Callable[[p.Node], p.Node]) -> p.Node:
+    """``node`` (``base`` with modifiers) answering only the ``n`` nearest of its objects: the first
+    relation along its subjects that answers them from another object's side keeps the nearest ``n``
+    ("the nearest pedestrian on our right"); with none, ``base`` becomes ``around(base)`` ("the lead
+    vehicle brakes": of the vehicles, the nearest ahead, then braking)."""
+    if node == base:
+        return around(base)
+    match node:
+        case p.Has() if node.reverse:
+            return dataclasses.replace(node, nearest=n)
+        case p.Is(inner) | p.Between(inner) | p.Together(inner) | p.ForAtLeast(inner) | p.While(inner):
+            field = dataclasses.fields(node)[0].name
+            return dataclasses.replace(node, **{field: nearest_one(inner, base, n, around)})  # type: ignore[arg-type]
+        case p.Has(inner):
+            return dataclasses.replace(node, subject=nearest_one(inner, base, n, around))
+        case p.Then(first):
+            return dataclasses.replace(node, first=nearest_one(first, base, n, around))
+        case p.AllOf((first, *rest)):
+            return p.AllOf((nearest_one(first, base, n, around), *rest))
+    return node

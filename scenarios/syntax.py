@@ -6,10 +6,10 @@ A program is a kind or a call::
     argument := program | KEY "=" VALUE
 
 ``NAME`` is a predicate (``turning(vehicle, direction=left)``), a relation
-(``direction(vehicle, cyclist, side=right, within_m=5, min_count=2)``), or one of ``not``, ``reverse``,
-``between``, ``and``, ``or``, ``excluding``, ``together`` (``min_count=``), ``for_at_least`` (``seconds=``), ``then``
-(``within_s=``) and ``while``. ``VALUE`` is a number or a word. Nothing is evaluated as code; an error
-names the position and what was expected there.
+(``direction(vehicle, cyclist, side=right, within_m=5, min_count=2)``; ``nearest=1`` counts only the
+closest), or one of ``not``, ``reverse``, ``between``, ``and``, ``or``, ``excluding``, ``together``
+(``min_count=``), ``for_at_least`` (``seconds=``), ``then`` (``within_s=``) and ``while``. ``VALUE`` is
+a number or a word. Nothing is evaluated as code; an error names the position and what was expected there.
 """
 
 from __future__ import annotations
@@ -158,9 +158,10 @@ def build(name: str, args: list[p.Node], keywords: list[p.Param]) -> p.Node:
         arity(2)
         min_count = int(_number(given, "min_count", name)) if "min_count" in given else 1
         max_count = int(_number(given, "max_count", name)) if "max_count" in given else None
+        nearest = int(_number(given, "nearest", name)) if "nearest" in given else None
         rel = RELATIONS[name]
         rel.resolve(given)
-        return p.Has(args[0], name, args[1], tuple(given.items()), min_count, max_count)
+        return p.Has(args[0], name, args[1], tuple(given.items()), min_count, max_count, nearest=nearest)
     known = sorted({*PREDICATES, *RELATIONS, "not", "reverse", "and", "or", "excluding", "while", "for_at_least",
                     "then", "between", "together"})
     raise SyntaxProblem(f"unknown name {name!r} (known: {', '.join(known)})")

@@ -65,6 +65,9 @@ PROGRAMS = [
     "direction(vehicle, pedestrian, side=front, min_count=2)",
     "for_at_least(direction(car, pedestrian, side=front, within_m=12), seconds=1)",
     "reverse(direction(ego, vehicle, side=front))",
+    "reverse(direction(ego, vehicle, side=front, nearest=1))",
+    "near(vehicle, any, within_m=30, nearest=1, min_count=1)",
+    "reverse(near(car, pedestrian, within_m=30, nearest=1))",
     "or(cyclist, moving(pedestrian))",
 ]
 

@@ -27,8 +27,8 @@ MEANINGS = {
     "multiple buses within 50 meters ahead":
         "together(reverse(direction(ego, bus, side=front, within_m=50)), min_count=2)",
     "the vehicle two cars in front of the ego vehicle":
-        "reverse(direction(reverse(direction(ego, car, side=front, lateral_m=1.5, within_m=40)), vehicle, side=front, "
-        "lateral_m=1.5, within_m=40))",
+        "reverse(direction(reverse(direction(ego, car, side=front, lateral_m=1.5, within_m=40, nearest=1)), vehicle, "
+        "side=front, lateral_m=1.5, within_m=40, nearest=1))",
     "truck without trailer": "not(near(truck, vehicular_trailer, within_m=5))",
     "we turn left at the intersection": "at_intersection(turning(ego, direction=left))",
     "we turn left while a cyclist waits": "while(turning(ego, direction=left), stopped(cyclist))",
@@ -172,6 +172,20 @@ MEANINGS = {
     "a car at 30 mph": "speed(car, min_mps=10.73, max_mps=16.09)",
     "a car going around 5 m/s": "speed(moving(car), min_mps=4, max_mps=6)",
     "pedestrians around a bus": "near(pedestrian, bus)",
+    # The nearest one: "the lead vehicle" ahead in our lane; "the closest" anywhere, or to the object named;
+    # it picks among the objects named up to the noun, and what follows is said of that one.
+    "the lead vehicle brakes":
+        "braking(reverse(direction(ego, vehicle, side=front, lateral_m=1.5, within_m=40, nearest=1)))",
+    "we follow the lead vehicle closely":
+        "following(ego, reverse(direction(ego, vehicle, side=front, lateral_m=1.5, within_m=40, nearest=1)), "
+        "within_m=10)",
+    "the closest parked car": "reverse(near(ego, parked(car), within_m=100, nearest=1))",
+    "the car closest to the bus": "reverse(near(bus, car, within_m=100, nearest=1))",
+    "the nearest pedestrian on our right": "reverse(direction(ego, pedestrian, side=right, nearest=1))",
+    "the nearest two pedestrians": "reverse(near(ego, pedestrian, within_m=100, nearest=2))",
+    "the first car in front of us": "reverse(direction(ego, car, side=front, nearest=1))",
+    "a car first slows down then stops": "then(braking(car), stopped(car), within_s=5)",
+    "a truck leading a car": "reverse(following(car, truck))",
 }
 
 #: Phrases that must not be read as something else: the word is reported unused instead.
@@ -187,6 +201,9 @@ NOT_UNDERSTOOD = {
     "a car within 5 m of the crosswalk": ("car", ("5 m", "crosswalk")),  # not "of the ego"
     # "walks past" is no phrase, so that "walks past the right side of" reads as "walks" + "past the right side of".
     "a pedestrian walks past": ("moving(pedestrian)", ("past",)),
+    # "Cuts in front of" is no phrase: the lead vehicle it names is not taken for "leading" anything.
+    "a car cuts in front of the lead vehicle": ("then(ego_lane(car, lane=adjacent), ego_lane(car, lane=host), "
+                                                "within_s=4)", ("front", "lead", "vehicle")),
 }
 
 

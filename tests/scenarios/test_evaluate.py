@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -81,6 +83,28 @@ def test_counts_and_negation() -> None:
     assert selected(lonely, x).tolist() == [False, False, False, True, False]
     assert selected(p.Together(p.Objects("pedestrian"), 2), x).tolist() == [False, True, True, False, False]
     assert not selected(p.Together(p.Objects("pedestrian"), 3), x).any()
+
+
+def test_nearest_keeps_each_subjects_closest_others_at_each_frame() -> None:
+    # Ahead of the ego in its lane: a car 10 m out, a braking one 20 m out, a third 30 m out that
+    # overtakes the first two from frame 10 on (it moves to 5 m ahead).
+    far = np.array([[30.0, 0.0]] * 10 + [[5.0, 0.0]] * 10)
+    x = make_features([car((10, 0)), car((20, 0), flags={"braking"}), car(far)])
+    ahead = (("side", "front"), ("lateral_m", 1.5))
+    lead = p.Has(p.Objects("ego"), "direction", p.Objects("car"), ahead, reverse=True, nearest=1)
+    mask = evaluate(lead, x).selection.mask
+    assert mask[0, :10].all() and not mask[0, 10:].any()  # the nearest until the third comes closer
+    assert mask[2, 10:].all() and not mask[2, :10].any()
+    assert not mask[1].any()
+    # Among the objects the other side selects: the nearest braking car is the second.
+    braking = p.Has(p.Objects("ego"), "direction", p.Is(p.Objects("car"), "braking"), ahead, reverse=True, nearest=1)
+    assert selected(braking, x).tolist() == [False, True, False, False]
+    # Two nearest: the third car is never among them while it is the farthest.
+    two = dataclasses.replace(lead, nearest=2)
+    assert evaluate(two, x).selection.mask[:3].sum(axis=1).tolist() == [20, 10, 10]
+    # The subject side counts only its nearest: at least two of them is at most what ``nearest`` keeps.
+    with pytest.raises(ProgramError, match="nearest must be"):
+        evaluate(dataclasses.replace(lead, reverse=False, min_count=2), x)
 
 
 def test_crossing_and_passing_happen_around_their_moment() -> None:

@@ -30,7 +30,7 @@ wrong. Every test is written again from its definition, one object and one frame
   within 50 m); and / or / but not; ``Together``; ``ForAtLeast`` (a run lasts from its first
   frame to its last plus one frame interval); ``Then`` (the same object, the second starting after
   a frame of the first, within ``within_s``); ``While`` (the condition holds for any object at that
-  frame).
+  frame); ``Sequenced`` (any object's event within ``within_s`` after the frame, or before it).
 """
 
 from __future__ import annotations
@@ -184,6 +184,16 @@ class _Reference:
                 kept = self.keep(part, [list(when) for _ in range(k)])
                 on = self.any_at(kept.sel)
                 related = [[kept.related[o][f] or (cond.sel[o][f] and on[f]) for f in range(nf)] for o in range(k)]
+                return _Sel(kept.sel, related)
+            case p.Sequenced(child, event, within_s, after):
+                part, ev = self.eval(child), self.eval(event)
+                step = -1 if after else 1  # where the event is looked for: before the frame, or after it
+                happens = self.any_at(ev.sel)
+                kept = self.keep(part, [[self.in_reach(happens, f, step, float(within_s)) for f in range(nf)]
+                                        for _ in range(k)])
+                on = self.any_at(kept.sel)
+                related = [[kept.related[o][f] or (ev.sel[o][f] and self.in_reach(on, f, -step, float(within_s)))
+                            for f in range(nf)] for o in range(k)]
                 return _Sel(kept.sel, related)
         raise ReferenceError(f"not a program node: {node!r}")
 
@@ -394,6 +404,17 @@ class _Reference:
                         out[o][g] = True
                 f = end + 1
         return out
+
+    def in_reach(self, frames: list[bool], f: int, step: int, within_s: float) -> bool:
+        """Whether one of ``frames`` lies within ``within_s`` of frame ``f``, after it (``step`` 1) or
+        before it (−1), not at it."""
+        t = self.log.time_s
+        g = f + step
+        while 0 <= g < self.f and abs(t[g] - t[f]) <= within_s:
+            if frames[g]:
+                return True
+            g += step
+        return False
 
     def then_within(self, first: Grid, second: Grid, within_s: float) -> Grid:
         t = self.log.time_s

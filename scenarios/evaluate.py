@@ -135,6 +135,15 @@ class _Run:
                 when = _any(cond.mask, 0)[None, :]
                 kept = _keep(sel, np.broadcast_to(when, sel.scores.shape))
                 return Selection(kept.scores, kept.related | (cond.mask & _any(kept.mask, 0)[None]))
+            case p.Sequenced(child, event, within_s, after):
+                # The subject's frames that any object's event follows (or, ``after``, precedes) within the
+                # time; the event's objects are related at their frames in reach of a kept frame.
+                sel, ev = self.eval(child), self.eval(event)
+                near_event, near_kept = (preceded_within, followed_within) if after else \
+                    (followed_within, preceded_within)
+                kept = _keep(sel, near_event(sel.mask, _any(ev.mask, 0), x.time_s, within_s))
+                return Selection(kept.scores,
+                                 kept.related | near_kept(ev.mask, _any(kept.mask, 0), x.time_s, within_s))
         raise ProgramError(f"not a program node: {node!r}")
 
     def relation(self, node: p.Has) -> Selection:
@@ -255,18 +264,34 @@ def runs_lasting(mask: Mask, time_s: NDArray[np.float64], seconds: float) -> Mas
     return mask & (end_t - start_t + dt >= seconds - 1e-6)
 
 
+def followed_within(mask: Mask, later: Mask, time_s: NDArray[np.float64], within_s: float) -> Mask:
+    """(K, F) frames of ``mask`` that a frame of ``later`` follows within ``within_s`` (after it, not at the
+    same frame) on the same row; ``later`` (K, F) or (F,) for every row."""
+    if mask.shape[1] == 0:
+        return mask
+    t = np.broadcast_to(time_s, mask.shape)
+    upcoming = np.flip(np.minimum.accumulate(np.flip(np.where(later, time_s, np.inf), axis=-1), axis=-1), axis=-1)
+    next_after = np.broadcast_to(np.concatenate([upcoming[..., 1:], np.full((*upcoming.shape[:-1], 1), np.inf)],
+                                                axis=-1), mask.shape)
+    return mask & (next_after - t <= within_s)
+
+
+def preceded_within(mask: Mask, earlier: Mask, time_s: NDArray[np.float64], within_s: float) -> Mask:
+    """(K, F) frames of ``mask`` that a frame of ``earlier`` precedes by at most ``within_s`` (before it, not
+    at the same frame) on the same row; ``earlier`` (K, F) or (F,) for every row."""
+    if mask.shape[1] == 0:
+        return mask
+    t = np.broadcast_to(time_s, mask.shape)
+    past = np.maximum.accumulate(np.where(earlier, time_s, -np.inf), axis=-1)
+    before = np.broadcast_to(np.concatenate([np.full((*past.shape[:-1], 1), -np.inf), past[..., :-1]], axis=-1),
+                             mask.shape)
+    return mask & (t - before <= within_s)
+
+
 def then_within(first: Mask, second: Mask, time_s: NDArray[np.float64], within_s: float) -> Mask:
     """(K, F) frames of ``first`` that ``second`` follows on the same object within ``within_s``, and the
     frames of ``second`` that ``first`` preceded by at most that."""
-    if first.shape[1] == 0:
-        return first
-    t = np.broadcast_to(time_s, first.shape)
-    last_first = np.maximum.accumulate(np.where(first, t, -np.inf), axis=1)
-    next_second = np.flip(np.minimum.accumulate(np.flip(np.where(second, t, np.inf), axis=1), axis=1), axis=1)
-    # "then": the second starts after the first (not at the same frame), so look from the next frame on.
-    next_after = np.concatenate([next_second[:, 1:], np.full((first.shape[0], 1), np.inf)], axis=1)
-    before = np.concatenate([np.full((first.shape[0], 1), -np.inf), last_first[:, :-1]], axis=1)
-    return (first & (next_after - t <= within_s)) | (second & (t - before <= within_s))
+    return followed_within(first, second, time_s, within_s) | preceded_within(second, first, time_s, within_s)
 
 
 def evaluate(node: p.Node, features: LogFeatures) -> Evaluation:

@@ -76,8 +76,7 @@ def _add(phrases: str, lexeme: Lexeme, plural: bool = False) -> None:
 for _phrases, _kind in (
     ("vehicle|auto|automobile|motor vehicle|traffic|active vehicle|road user", "vehicle"),
     ("car|passenger vehicle|passenger car|regular vehicle|sedan|suv|van|pickup|pickup truck", "car"),
-    ("truck|lorry|heavy vehicle|large vehicle", "truck"),
-    ("box truck|delivery truck", "box_truck"),
+    ("truck|lorry|heavy vehicle|large vehicle", "truck"), ("box truck|delivery truck", "box_truck"),
     ("semi truck|semi|truck cab|tractor|truck with trailer|truck cab with trailer", "truck_cab"),
     ("trailer|vehicular trailer", "vehicular_trailer"),
     ("bicycle traffic|bike traffic|cycle traffic", "cyclist"),
@@ -193,7 +192,8 @@ for _phrases, _name, _params in (
      "approaching crosswalk|approaching a crosswalk|approaching the crosswalk|nearing a crosswalk",
      "approaching_crosswalk", ()),
     (_of_ego("approaching", "approaches", "approach", "approached", "getting closer to", "gets closer to",
-             "coming closer to", "comes closer to", "closing in on", "closes in on"), "approaching_ego", ()),
+             "coming closer to", "comes closer to", "closing in on", "closes in on", "toward", "comes back toward",
+             "coming toward", "comes toward"), "approaching_ego", ()),
     (_of_ego("moving away from", "moves away from", "driving away from", "drives away from", "walking away from",
              "walks away from", "riding away from", "rides away from", "heading away from", "heads away from",
              "going away from", "goes away from", "pulling away from", "pulls away from"),
@@ -394,7 +394,7 @@ _add("faster than|quicker than|slower than|above|over|exceeding|below|under|abou
 _add("seconds|second|secs|sec|s", Lexeme("unit", "s"))
 for _phrases, _name in (("and|as well as|also|while also", "and"), ("or|either", "or"),
                         ("except|except for|other than|excluding|but not|apart from|besides", "except"),
-                        ("then|and then|after that|afterwards|before", "then"),
+                        ("then|and then|after that|afterwards|before", "then"), ("after|once", "after"),
                         ("while|when|during|as|whilst", "while")):
     _add(_phrases, Lexeme("conj", _name))
 _add("not|no|without|isn't|aren't|doesn't|neither|nor", Lexeme("not"))

@@ -32,6 +32,7 @@ from scenarios.program import (
     Is,
     Node,
     Objects,
+    Sequenced,
     Then,
     Together,
     While,
@@ -39,7 +40,7 @@ from scenarios.program import (
     subject_of,
 )
 from scenarios.relating import AHEAD_IN_LANE, RelationReader
-from scenarios.rewrite import closer, ego_without, excludes, negated, with_subject, within, without_states
+from scenarios.rewrite import closer, ego_without, excludes, in_turn, negated, with_subject, within, without_states
 
 #: Within this distance (m), "a group of" objects stand together.
 GROUP_RADIUS_M = 5.0
@@ -103,8 +104,8 @@ class Parser(RelationReader):
                 preds.append(dataclasses.replace(item, role="notpred"))
             else:
                 break
-        if self.role() == "kind":
-            node: Node = Objects(self.take().name)
+        if self.role() == "kind" and not (self.depth and getattr(self.peek(), "words", ()) == ("we",)):
+            node: Node = Objects(self.take().name)  # "we" opens a clause: "… crosses, we drive off"
             if need_kind and self.depth and node == Objects("ego"):  # "next to us on the right": of the subject
                 return node, count
             if self.role() == "count" and self.count_ahead() >= 3:  # "pedestrian group"
@@ -356,13 +357,14 @@ class Parser(RelationReader):
             self.unused.extend(no.words)
             if found is not None:
                 return self.referred(*found)
-        if self.role() == "conj" and self.name() == "while":  # "while we are stopped, a pedestrian walks by"
+        if self.role() == "conj" and self.name() in ("while", "after"):  # "while we are stopped, a pedestrian …"
             start, unused = self.i, len(self.unused)
-            self.take()
+            lead = self.take()
             condition = self.phrase()
             if condition is not None and self.role() in ("kind", "count"):
                 self.antecedent = self.referred(*condition)  # "while a bus is stopped, a car passes it"
-                return While(self.description(), self.antecedent)
+                main = self.description()
+                return While(main, self.antecedent) if lead.name == "while" else in_turn(main, self.antecedent, True)
             self.i, self.unused[unused:], self.grouped = start, [], False  # no main clause: "while" says nothing
             self.unused.extend(self.take().words)
         found = self.phrase()
@@ -390,8 +392,8 @@ class Parser(RelationReader):
                 other = AnyOf((other, self.referred(*more))) if more is not None else other
             if conj.name != "except" and subject_of(node) == Objects("any") and subject_of(other) != Objects("any"):
                 node = with_subject(node, subject_of(other))  # "parked or stopped vehicle": both of vehicles
-            if conj.name == "then":
-                node = Then(node, other)
+            if conj.name in ("then", "after"):  # "a car stops, then a pedestrian crosses"; "… after it turns"
+                node = in_turn(node, other, after=conj.name == "after")
             elif conj.name == "except":
                 node = Excluding(node, other)
             elif conj.name == "while":
@@ -408,7 +410,7 @@ class Parser(RelationReader):
                     node = AnyOf((node.children[0] if isinstance(node, AllOf) else node, other))
         self.end_clause()
         if self.within_s is not None:
-            if isinstance(node, Then):
+            if isinstance(node, Then | Sequenced):
                 node = dataclasses.replace(node, within_s=self.within_s)
             else:
                 self.unused.append(f"within {self.within_s:g} s")

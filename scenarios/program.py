@@ -13,7 +13,8 @@ A program is built from these nodes (frozen dataclasses; never code to ``eval``)
 - :class:`Together`: the child's objects at frames where at least ``min_count`` of them are selected.
 - :class:`ForAtLeast`: runs that last ``seconds``; :class:`Then`: the same object does one thing and
   then another within ``within_s``; :class:`While`: the subject at frames where the condition holds for
-  any object.
+  any object; :class:`Sequenced`: the subject at frames that some other object's event follows
+  (``before``) or precedes (``after``) within ``within_s`` ("a car stops, then a pedestrian crosses").
 
 Every node renders two ways: :func:`to_text`, the program syntax users can write and edit
 (:mod:`scenarios.syntax` reads it back), and :func:`describe`, a sentence a reader checks the parse by.
@@ -101,7 +102,15 @@ class While:
     condition: Node
 
 
-Node = Objects | Is | Has | Between | AllOf | AnyOf | Excluding | Together | ForAtLeast | Then | While
+@dataclass(frozen=True)
+class Sequenced:
+    child: Node
+    event: Node
+    within_s: float = 5.0
+    after: bool = False
+
+
+Node = Objects | Is | Has | Between | AllOf | AnyOf | Excluding | Together | ForAtLeast | Then | While | Sequenced
 
 
 def subject_of(node: Node) -> Node:
@@ -109,7 +118,8 @@ def subject_of(node: Node) -> Node:
     reversed relation)."""
     while True:
         match node:
-            case Is(subject) | Between(subject) | Together(subject) | ForAtLeast(subject) | While(subject):
+            case Is(subject) | Between(subject) | Together(subject) | ForAtLeast(subject) | While(subject) \
+                    | Sequenced(subject):
                 node = subject
             case Has() if node.reverse:
                 node = node.other
@@ -174,6 +184,8 @@ def to_text(node: Node) -> str:
             return _call("then", [to_text(first), to_text(second)], [("within_s", within_s)])
         case While(child, condition):
             return _call("while", [to_text(child), to_text(condition)], [])
+        case Sequenced(child, event, within_s, after):
+            return _call("after" if after else "before", [to_text(child), to_text(event)], [("within_s", within_s)])
     raise TypeError(f"not a program node: {node!r}")
 
 
@@ -252,4 +264,6 @@ def describe(node: Node) -> str:
             return f"{_nested(first)}, then within {_value(within_s)} s {_nested(second)}"
         case While(child, condition):
             return f"{describe(child)}, while there are {_nested(condition)}"
+        case Sequenced(child, event, within_s, after):
+            return f"{describe(child)}, within {_value(within_s)} s {'after' if after else 'before'} {_nested(event)}"
     raise TypeError(f"not a program node: {node!r}")

@@ -76,7 +76,8 @@ def with_subject(node: p.Node, subject: p.Node) -> p.Node:
     match node:
         case p.Objects():
             return subject
-        case p.Is(inner) | p.Between(inner) | p.Together(inner) | p.ForAtLeast(inner) | p.While(inner):
+        case p.Is(inner) | p.Between(inner) | p.Together(inner) | p.ForAtLeast(inner) | p.While(inner) \
+                | p.Sequenced(inner):
             field = dataclasses.fields(node)[0].name
             return dataclasses.replace(node, **{field: with_subject(inner, subject)})  # type: ignore[arg-type]
         case p.Has() if node.reverse:
@@ -102,6 +103,15 @@ def ego_without(node: p.Node) -> p.Node | None:
     return None
 
 
+def in_turn(main: p.Node, event: p.Node, after: bool = False) -> p.Node:
+    """``main``, then ``event`` (or, ``after``, ``event`` first): one object doing both in turn where both
+    name the same objects ("a car stops after it turns"), else ``main``'s objects at the moments that
+    the other objects' event follows or precedes ("a pedestrian crosses, then we drive off")."""
+    if p.subject_of(main) == p.subject_of(event):
+        return p.Then(event, main) if after else p.Then(main, event)
+    return p.Sequenced(main, event, after=after)
+
+
 def nearest_one(node: p.Node, base: p.Node, n: int, around: Callable[[p.Node], p.Node]) -> p.Node:
     """``node`` (``base`` with modifiers) answering only the ``n`` nearest of its objects: the first
     relation along its subjects that answers them from another object's side keeps the nearest ``n``
@@ -112,7 +122,8 @@ def nearest_one(node: p.Node, base: p.Node, n: int, around: Callable[[p.Node], p
     match node:
         case p.Has() if node.reverse:
             return dataclasses.replace(node, nearest=n)
-        case p.Is(inner) | p.Between(inner) | p.Together(inner) | p.ForAtLeast(inner) | p.While(inner):
+        case p.Is(inner) | p.Between(inner) | p.Together(inner) | p.ForAtLeast(inner) | p.While(inner) \
+                | p.Sequenced(inner):
             field = dataclasses.fields(node)[0].name
             return dataclasses.replace(node, **{field: nearest_one(inner, base, n, around)})  # type: ignore[arg-type]
         case p.Has(inner):

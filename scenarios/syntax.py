@@ -8,7 +8,8 @@ A program is a kind or a call::
 ``NAME`` is a predicate (``turning(vehicle, direction=left)``), a relation
 (``direction(vehicle, cyclist, side=right, within_m=5, min_count=2)``; ``nearest=1`` counts only the
 closest), or one of ``not``, ``reverse``, ``between``, ``and``, ``or``, ``excluding``, ``together``
-(``min_count=``), ``for_at_least`` (``seconds=``), ``then`` (``within_s=``) and ``while``. ``VALUE`` is
+(``min_count=``), ``for_at_least`` (``seconds=``), ``then``, ``before`` and ``after`` (``within_s=``) and
+``while``. ``VALUE`` is
 a number or a word. Nothing is evaluated as code; an error names the position and what was expected there.
 """
 
@@ -139,11 +140,12 @@ def build(name: str, args: list[p.Node], keywords: list[p.Param]) -> p.Node:
         seconds = _number(given, "seconds", name) if "seconds" in given else 1.0
         no_keywords()
         return p.ForAtLeast(args[0], seconds)
-    if name == "then":
+    if name in ("then", "before", "after"):
         arity(2)
         within = _number(given, "within_s", name) if "within_s" in given else 5.0
         no_keywords()
-        return p.Then(args[0], args[1], within)
+        return p.Then(args[0], args[1], within) if name == "then" else \
+            p.Sequenced(args[0], args[1], within, after=name == "after")
     if name == "between":
         arity(3)
         lateral = _number(given, "lateral_m", name) if "lateral_m" in given else 5.0
@@ -163,7 +165,7 @@ def build(name: str, args: list[p.Node], keywords: list[p.Param]) -> p.Node:
         rel.resolve(given)
         return p.Has(args[0], name, args[1], tuple(given.items()), min_count, max_count, nearest=nearest)
     known = sorted({*PREDICATES, *RELATIONS, "not", "reverse", "and", "or", "excluding", "while", "for_at_least",
-                    "then", "between", "together"})
+                    "then", "before", "after", "between", "together"})
     raise SyntaxProblem(f"unknown name {name!r} (known: {', '.join(known)})")
 
 

@@ -69,6 +69,8 @@ PROGRAMS = [
     "near(vehicle, any, within_m=30, nearest=1, min_count=1)",
     "reverse(near(car, pedestrian, within_m=30, nearest=1))",
     "or(cyclist, moving(pedestrian))",
+    "before(cyclist, crossed_by(car, pedestrian), within_s=0.5)",
+    "after(near(pedestrian, car, within_m=8), crossed_by(car, pedestrian), within_s=0.7)",
 ]
 
 

@@ -135,7 +135,7 @@ MEANINGS = {
     "while there is a crowd of people, a car turns left":
         "while(turning(car, direction=left), near(pedestrian, pedestrian, within_m=5, min_count=2))",
     "a car within 5 m of a truck for 10 s then a pedestrian near us":
-        "then(for_at_least(near(car, truck, within_m=5), seconds=10), near(pedestrian, ego), within_s=5)",
+        "before(for_at_least(near(car, truck, within_m=5), seconds=10), near(pedestrian, ego), within_s=5)",
     "a car that is parked and not moving": "not(moving(parked(car)))",
     "anything except cars": "excluding(any, car)",
     "vehicles except buses and trucks": "excluding(vehicle, or(bus, truck))",
@@ -186,6 +186,20 @@ MEANINGS = {
     "the first car in front of us": "reverse(direction(ego, car, side=front, nearest=1))",
     "a car first slows down then stops": "then(braking(car), stopped(car), within_s=5)",
     "a truck leading a car": "reverse(following(car, truck))",
+    # One object, then another: the first clause's objects, at the moments the other's event follows
+    # (or, "after", precedes); one object doing both in turn is "then" as before.
+    "a car stops then a pedestrian crosses": "before(stopped(car), crossing_road(pedestrian), within_s=5)",
+    "a pedestrian crosses in front of us, then we drive off":
+        "before(reverse(direction(ego, crossing_road(pedestrian), side=front)), then(stopped(ego), moving(ego), "
+        "within_s=4), within_s=5)",
+    "we drive off after the pedestrian crosses":
+        "after(then(stopped(ego), moving(ego), within_s=4), crossing_road(pedestrian), within_s=5)",
+    "after the pedestrian crosses, we drive off":  # "we" opens a clause; it is no object of "crosses"
+        "after(then(stopped(ego), moving(ego), within_s=4), crossing_road(pedestrian), within_s=5)",
+    "a car stops before a cyclist passes it within 3 seconds":
+        "before(stopped(car), reverse(passed_by(stopped(car), cyclist)), within_s=3)",
+    "a car stops after it turns left": "then(turning(car, direction=left), stopped(car), within_s=5)",
+    "a car drives away, then comes back toward us": "then(moving(car), approaching_ego(car), within_s=5)",
 }
 
 #: Phrases that must not be read as something else: the word is reported unused instead.

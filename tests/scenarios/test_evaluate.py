@@ -176,6 +176,29 @@ def test_then_while_and_for_at_least_on_features() -> None:
     assert while_waiting.related[1].tolist() == waiting.tolist()
 
 
+def test_one_objects_moment_before_or_after_another_objects_event() -> None:
+    # At 10 Hz: the car is stopped over frames 0–9; the cyclist waits from frame 20 on, 1.1 s after
+    # the car's last stopped frame.
+    frames = 30
+    stopped = np.arange(frames) < 10
+    waiting = np.arange(frames) >= 20
+    x = make_features([car((0, Y), flags={"stopped": stopped}, speed=np.where(stopped, 0.0, 5.0)),
+                       cyclist((5, Y), speed=np.where(waiting, 0.0, 4.0))], frames=frames)
+    car_stopped, cyclist_waits = p.Is(p.Objects("car"), "stopped"), p.Is(p.Objects("cyclist"), "stopped")
+    before = evaluate(p.Sequenced(car_stopped, cyclist_waits, 1.15), x).selection
+    assert np.flatnonzero(before.mask[0]).tolist() == [9]  # the one stopped frame 1.15 s or less before it
+    assert np.flatnonzero(before.related[1]).tolist() == [20]  # the waiting frames in reach of that one
+    assert not before.mask[1].any()  # the cyclist is related, not referred
+    assert np.flatnonzero(evaluate(p.Sequenced(car_stopped, cyclist_waits, 2.0), x).selection.mask[0]).tolist() \
+        == list(range(0, 10))
+    # "After": the cyclist's waiting frames that the car's stop preceded by at most 1.55 s.
+    after = evaluate(p.Sequenced(cyclist_waits, car_stopped, 1.55, after=True), x).selection
+    assert np.flatnonzero(after.mask[1]).tolist() == [20, 21, 22, 23, 24]
+    assert np.flatnonzero(after.related[0]).tolist() == [5, 6, 7, 8, 9]
+    # An event at the same frame is neither before nor after it.
+    assert not evaluate(p.Sequenced(car_stopped, car_stopped, 5.0), x).selection.mask[0, 9]
+
+
 def test_answer_marks_referred_and_related_apart() -> None:
     x = make_features([car((0, Y)), cyclist((0, Y - 3))])
     result, notes = answer(p.Has(p.Objects("car"), "direction", p.Objects("cyclist"), (("side", "right"),)), x, "d")

@@ -13,6 +13,7 @@ import re
 from dataclasses import dataclass, field
 
 from scenarios.program import Param
+from scenarios.word_forms import lane_changes, of_ego, plural, turns
 
 
 @dataclass(frozen=True)
@@ -49,26 +50,11 @@ class Lexeme:
 
 
 _LEXICON: dict[tuple[str, ...], Lexeme] = {}
-_IRREGULAR = {"person": "people", "child": "children", "bus": "buses", "school bus": "school buses",
-              "articulated bus": "articulated buses", "pedestrian": "pedestrians", "ego vehicle": "ego vehicles"}
 
 
-def _plural(phrase: str) -> str:
-    if phrase in _IRREGULAR:
-        return _IRREGULAR[phrase]
-    head, _, last = phrase.rpartition(" ")
-    if last.endswith(("s", "x", "ch", "sh")):
-        last += "es"
-    elif last.endswith("y") and last[-2:-1] not in "aeiou":
-        last = last[:-1] + "ies"
-    else:
-        last += "s"
-    return f"{head} {last}".strip()
-
-
-def _add(phrases: str, lexeme: Lexeme, plural: bool = False) -> None:
+def _add(phrases: str, lexeme: Lexeme, plurals: bool = False) -> None:
     for phrase in phrases.split("|"):
-        for form in (phrase, _plural(phrase)) if plural else (phrase,):
+        for form in (phrase, plural(phrase)) if plurals else (phrase,):
             _LEXICON[tuple(form.split())] = lexeme
 
 
@@ -99,37 +85,9 @@ for _phrases, _kind in (
     ("object|thing|anything|something|agent|actor", "any"),
     ("vulnerable road user|vru", "vulnerable_road_user"),
 ):
-    _add(_phrases, Lexeme("kind", _kind), plural=True)
+    _add(_phrases, Lexeme("kind", _kind), plurals=True)
 _add("ego vehicle|ego|ego car|the av|our car|my car|our vehicle|my vehicle|we|us|self driving car|autonomous vehicle",
      Lexeme("kind", "ego"))
-
-
-def _of_ego(*verbs: str) -> str:
-    """Phrases of ``verbs`` with the ego as their object ("approaches us", "moving away from the ego vehicle")."""
-    return "|".join(f"{verb} {ego}" for verb in verbs
-                    for ego in ("us", "me", "the ego", "the ego vehicle", "the ego car", "our car", "our vehicle"))
-
-
-def _turns(side: str) -> str:
-    """Phrases of a turn to ``side`` in every verb form ("turns left", "turned to the left", "takes a left")."""
-    return "|".join([*(f"{verb} {side}|{verb} to the {side}" for verb in ("turning", "turns", "turn", "turned")),
-                     *(f"{verb} a {side} turn|{verb} a {side}" for verb in ("making", "makes", "make", "made",
-                                                                            "taking", "takes", "take", "took")),
-                     f"{side} turn|{side} turning"])
-
-
-def _lane_changes(side: str) -> str:
-    """Phrases of a lane change to ``side`` in every verb form ("changes lanes to the left", "merged
-    right", "moves into the left lane"): "to the left" after the verb is where it goes, not where it is."""
-    return "|".join([*(f"{verb} to the {side}|{verb} {side}"
-                       for verb in ("changing lanes", "changes lanes", "change lanes", "changed lanes",
-                                    "switching lanes", "switches lanes", "switch lanes", "switched lanes",
-                                    "merging", "merges", "merge", "merged", "swerving", "swerves", "swerve",
-                                    "swerved", "lane change", "lane changing")),
-                     *(f"{verb} into the {side} lane|{verb} to the {side} lane"
-                       for verb in ("changing", "changes", "change", "changed", "merging", "merges", "merge",
-                                    "merged", "moving", "moves", "move", "moved", "switching", "switches")),
-                     f"{side} lane change"])
 
 
 # -- predicates ------------------------------------------------------------------------------------------
@@ -137,6 +95,10 @@ for _phrases, _name, _params in (
     ("moving|driving|traveling|travelling|in motion|active|walking|riding|going|running|jogging|heading|moves|"
      "move|drives|walks|rides|"
      "navigating|maneuvering|proceeding|passing through", "moving", ()),
+    # Not "backed up": traffic that is backed up queues, it does not reverse.
+    ("reversing|reverses|reverse|reversed|in reverse|backing up|backs up|back up|backing out|backs out|"
+     "backing|rolling back|rolls back|rolled back|rolling backwards|rolls backwards|moving backwards|moves backwards|"
+     "driving backwards|drives backwards|going backwards|goes backwards|backwards|backward", "reversing", ()),
     ("waiting to cross|waits to cross|wait to cross|waiting to cross the road|waiting to cross the street",
      "stopped", ()),  # not crossing yet: "cross" alone is the crossing relation
     ("pulling over|pulls over|pulled over|pulling into a stop|pulls into a stop|pulling up|pulls up|has stopped|"
@@ -154,12 +116,12 @@ for _phrases, _name, _params in (
     ("turning|making a turn|turns|turn|u turn|u turning|u turns|" + "|".join(
         f"{verb} a u turn" for verb in ("making", "makes", "make", "doing", "does", "do", "taking", "takes")),
      "turning", ()),
-    (_turns("left"), "turning", (("direction", "left"),)),
-    (_turns("right"), "turning", (("direction", "right"),)),
+    (turns("left"), "turning", (("direction", "left"),)),
+    (turns("right"), "turning", (("direction", "right"),)),
     ("changing lanes|lane change|lane changing|changes lanes|change lanes|switching lanes|merging|merges|"
      "swerving|weaving", "changing_lanes", ()),
-    (_lane_changes("left"), "changing_lanes", (("direction", "left"),)),
-    (_lane_changes("right"), "changing_lanes", (("direction", "right"),)),
+    (lane_changes("left"), "changing_lanes", (("direction", "left"),)),
+    (lane_changes("right"), "changing_lanes", (("direction", "right"),)),
     ("at crawling speed|crawling|creeping|moving slowly|slow moving|slow|slowly", "speed",
      (("min_mps", 0.1), ("max_mps", 2.0))),
     ("fast|speeding|at high speed|quickly", "speed", (("min_mps", 13.0),)),
@@ -191,10 +153,10 @@ for _phrases, _name, _params in (
     ("approaching pedestrian crossing|approaching a pedestrian crossing|approaching the pedestrian crossing|"
      "approaching crosswalk|approaching a crosswalk|approaching the crosswalk|nearing a crosswalk",
      "approaching_crosswalk", ()),
-    (_of_ego("approaching", "approaches", "approach", "approached", "getting closer to", "gets closer to",
+    (of_ego("approaching", "approaches", "approach", "approached", "getting closer to", "gets closer to",
              "coming closer to", "comes closer to", "closing in on", "closes in on", "toward", "comes back toward",
              "coming toward", "comes toward"), "approaching_ego", ()),
-    (_of_ego("moving away from", "moves away from", "driving away from", "drives away from", "walking away from",
+    (of_ego("moving away from", "moves away from", "driving away from", "drives away from", "walking away from",
              "walks away from", "riding away from", "rides away from", "heading away from", "heads away from",
              "going away from", "goes away from", "pulling away from", "pulls away from"),
      "moving_away_from_ego", ()),
@@ -401,6 +363,9 @@ _add("not|no|without|isn't|aren't|doesn't|neither|nor", Lexeme("not"))
 # A place the map does not hold: named as not understood, so that "at a bus stop" asks nothing of buses.
 _add("at a bus stop|at the bus stop|near a bus stop|near the bus stop|by a bus stop|by the bus stop",
      Lexeme("unknown", "bus stop"))
+_add("|".join(f"{via} {the} {place}" for via in ("out of", "of", "from", "into") for the in ("a", "the")
+              for place in ("parking spot", "parking space", "driveway", "parking lot")),
+     Lexeme("unknown", "parking spot"))
 _add("within|at least|at most|less than|more than|up to|from|away|for|directly|another|other|each|any|"
      "some|its|their|the|a|an|that|which|who|is|are|being|of|it|there|in|on|to|one|ones|those|these|same|lane|path|"
      "side|too|road|street|zone|area|i|see|find|show|me|all|where|together|here|now|just|first",

@@ -63,6 +63,8 @@ class Parser(RelationReader):
         self.depth = 0
         #: Whether the clause's count was a group's ("a group of pedestrians", "a crowd"): near one another.
         self.grouped = False
+        #: The relation "of each other" made, of the clause's own kind (another kind's when an "and" names two).
+        self.each_other: Has | None = None
 
     def take_count(self) -> int:
         """The count the next count word or number says, taken: "more than two" is three; a group's
@@ -197,7 +199,7 @@ class Parser(RelationReader):
                 elif unit == "m" and isinstance(node, Has) and self.role() not in ("rel", "side", "kind"):
                     node = within(node, value)
                 elif unit == "m" and {"each", "another"} & self.skipped_before_next():  # "of each other"
-                    node = Has(node, "near", without_states(subject_of(node)), (("within_m", value),))
+                    node = self.each_other = Has(node, "near", without_states(subject_of(node)), (("within_m", value),))
                 elif unit == "m" and self.depth <= 1 and self.role() in ("end", "conj") \
                         and not self.unknown_before_next():  # "a car within 5 m": of us (not "of the kerb")
                     if subject_of(node) == Objects("ego"):  # "when we are 20 m away": from what, it does not say
@@ -392,7 +394,11 @@ class Parser(RelationReader):
                 other = AnyOf((other, self.referred(*more))) if more is not None else other
             if conj.name != "except" and subject_of(node) == Objects("any") and subject_of(other) != Objects("any"):
                 node = with_subject(node, subject_of(other))  # "parked or stopped vehicle": both of vehicles
-            if conj.name in ("then", "after"):  # "a car stops, then a pedestrian crosses"; "… after it turns"
+            if conj.name == "and" and other is self.each_other and of_two_kinds(node, other):
+                # "a car and a truck within 5 m of each other": each near the other, both answered
+                near = dataclasses.replace(self.each_other, subject=node, other=self.each_other.subject)
+                node = AnyOf((near, dataclasses.replace(near, reverse=True)))
+            elif conj.name in ("then", "after"):  # "a car stops, then a pedestrian crosses"; "… after it turns"
                 node = in_turn(node, other, after=conj.name == "after")
             elif conj.name == "except":
                 node = Excluding(node, other)

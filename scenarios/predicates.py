@@ -12,6 +12,9 @@ has no answer on a log without one: the evaluation says so instead of answering 
 - ``accelerating`` / ``braking``: speed rising at ``min_mps2`` (0.65) or more / falling at ``min_mps2``
   (1.0) or more, or the rules' braking.
 - ``turning``, ``changing_lanes``: the rules' turns and lane changes, ``direction`` left, right or any.
+- ``reversing``: the centre moves at least ``min_m`` (1 m) backwards along the object's heading over
+  the ``window_s`` (1 s) centred on the frame, by the heading at the window's start, middle and end
+  (a box jittering in place, or a heading that flips for a frame, does not).
 - ``blocked``, ``braking_for_leader``: the rules' slow follower held up by, or braking for, a vehicle ahead.
 - ``speed``: speed within [``min_mps``, ``max_mps``].
 - ``crossing_road``: a pedestrian, cyclist or other small road user moving on a lane, a crosswalk or
@@ -229,6 +232,25 @@ def _near_intersection(x: LogFeatures, p: Params) -> Mask:
 @_define("blocked", "blocked by a vehicle ahead")
 def _blocked(x: LogFeatures, p: Params) -> Mask:
     return x.flag("blocked_by")
+
+
+@_define("reversing", "moving backwards", {"min_m": 1.0, "window_s": 1.0})
+def _reversing(x: LogFeatures, p: Params) -> Mask:
+    # Displacement over a window of the log's own timestamps (the same at 10 Hz and 2 Hz), not the
+    # per-frame velocity: on real boxes the centres of parked and stopping vehicles jitter by 1 m/s.
+    half_s, t = _f(p, "window_s") / 2.0, x.time_s
+    lo = np.searchsorted(t, t - half_s - 1e-6)  # (F,) the window's first and last frames
+    hi = np.searchsorted(t, t + half_s + 1e-6, side="right") - 1
+    moved = x.xy_m[:, hi].astype(np.float64) - x.xy_m[:, lo]  # (K, F, 2)
+    # Backwards along the heading at the window's start, middle and end alike: a heading that flips for
+    # a frame does not turn forward motion into reverse.
+    yaw = x.yaw_rad.astype(np.float64)
+    along_m = np.max([moved[..., 0] * np.cos(yaw[:, at]) + moved[..., 1] * np.sin(yaw[:, at])
+                      for at in (lo, np.arange(t.size), hi)], axis=0)
+    # Both ends observed, and at least 0.8 of the window inside the log.
+    spans = (t[hi] - t[lo]) >= 0.8 * 2.0 * half_s
+    with np.errstate(invalid="ignore"):
+        return x.valid & x.valid[:, lo] & x.valid[:, hi] & spans[None, :] & (along_m <= -_f(p, "min_m"))
 
 
 @_define("braking_for_leader", "braking for a vehicle ahead")

@@ -200,6 +200,12 @@ MEANINGS = {
         "before(stopped(car), reverse(passed_by(stopped(car), cyclist)), within_s=3)",
     "a car stops after it turns left": "then(turning(car, direction=left), stopped(car), within_s=5)",
     "a car drives away, then comes back toward us": "then(moving(car), approaching_ego(car), within_s=5)",
+    # "Each other" across two kinds: each near the other, both answered (it read as "a car, or a truck
+    # near a truck").
+    "a car and a truck within 5 m of each other":
+        "or(near(car, truck, within_m=5), reverse(near(car, truck, within_m=5)))",
+    "a truck backing up": "reversing(truck)",
+    "a car rolling backwards toward us": "approaching_ego(reversing(car))",
 }
 
 #: Phrases that must not be read as something else: the word is reported unused instead.
@@ -216,6 +222,8 @@ NOT_UNDERSTOOD = {
     # "walks past" is no phrase, so that "walks past the right side of" reads as "walks" + "past the right side of".
     "a pedestrian walks past": ("moving(pedestrian)", ("past",)),
     # "Cuts in front of" is no phrase: the lead vehicle it names is not taken for "leading" anything.
+    "traffic backed up": ("vehicle", ("backed", "up")),  # a queue, not reversing
+    "a car backs out of a parking spot": ("reversing(car)", ("of", "a", "parking", "spot")),  # no parking in the map
     "a car cuts in front of the lead vehicle": ("then(ego_lane(car, lane=adjacent), ego_lane(car, lane=host), "
                                                 "within_s=4)", ("front", "lead", "vehicle")),
 }

@@ -48,6 +48,27 @@ def test_predicates_read_flags_and_speeds() -> None:
         evaluate(p.Is(p.Objects("car"), "turning", (("direction", "up"),)), x)
 
 
+def test_reversing_is_a_metre_backwards_over_a_second_by_the_heading_at_both_ends() -> None:
+    frames = 30
+    t = np.arange(frames) / 10.0
+    backing = np.stack([20.0 - 1.5 * t, np.full(frames, Y)], axis=-1)  # 1.5 m/s towards −x, facing +x
+    forward = np.stack([1.5 * t, np.full(frames, Y + 10)], axis=-1)
+    jitter = np.stack([-30 + 0.6 * (np.arange(frames) % 2), np.full(frames, Y + 20)], axis=-1)  # 6 m/s flicker
+    flip = np.zeros(frames)
+    flip[15] = np.pi  # the forward car's heading flips for one frame
+    x = make_features([car(backing), car(forward, yaw=flip), car(jitter, speed=0.0)], frames=frames)
+    mask = evaluate(p.Is(p.Objects("car"), "reversing"), x).selection.mask
+    # Every frame whose 1-s window lies inside the log for 0.8 s or more: frames 3 to 26.
+    assert np.flatnonzero(mask[0]).tolist() == list(range(3, 27))
+    assert not mask[1:].any()
+    # At 2 Hz the same motion over the same second (three frames) answers the same.
+    slow = make_features([car(backing[::5])], frames=6)
+    slow = dataclasses.replace(slow, timestamps_ns=slow.timestamps_ns[0] + np.arange(6, dtype=np.int64) * 500_000_000)
+    slow_mask = evaluate(p.Is(p.Objects("car"), "reversing"), slow).selection.mask
+    assert np.flatnonzero(slow_mask[0]).tolist() == [1, 2, 3, 4]
+    assert not evaluate(p.Is(p.Objects("car"), "reversing", (("min_m", 2.0),)), x).selection.mask.any()
+
+
 def test_map_predicates_on_a_log_without_a_map_say_so() -> None:
     x = make_features([car((0, Y), flags=("at_intersection",))], has_map=False)
     result = evaluate(p.Is(p.Objects("car"), "at_intersection"), x)

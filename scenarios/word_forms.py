@@ -1,0 +1,49 @@
+"""English word forms of the compiler's phrases (:mod:`scenarios.lexicon`): plurals of kind words, and
+the verb forms of turns, lane changes and motions relative to the ego."""
+
+from __future__ import annotations
+
+_IRREGULAR = {"person": "people", "child": "children", "bus": "buses", "school bus": "school buses",
+              "articulated bus": "articulated buses", "pedestrian": "pedestrians", "ego vehicle": "ego vehicles"}
+
+
+def plural(phrase: str) -> str:
+    """The plural of a kind phrase ("bus" → "buses", "school bus" → "school buses")."""
+    if phrase in _IRREGULAR:
+        return _IRREGULAR[phrase]
+    head, _, last = phrase.rpartition(" ")
+    if last.endswith(("s", "x", "ch", "sh")):
+        last += "es"
+    elif last.endswith("y") and last[-2:-1] not in "aeiou":
+        last = last[:-1] + "ies"
+    else:
+        last += "s"
+    return f"{head} {last}".strip()
+
+
+def of_ego(*verbs: str) -> str:
+    """Phrases of ``verbs`` with the ego as their object ("approaches us", "moving away from the ego vehicle")."""
+    return "|".join(f"{verb} {ego}" for verb in verbs
+                    for ego in ("us", "me", "the ego", "the ego vehicle", "the ego car", "our car", "our vehicle"))
+
+
+def turns(side: str) -> str:
+    """Phrases of a turn to ``side`` in every verb form ("turns left", "turned to the left", "takes a left")."""
+    return "|".join([*(f"{verb} {side}|{verb} to the {side}" for verb in ("turning", "turns", "turn", "turned")),
+                     *(f"{verb} a {side} turn|{verb} a {side}" for verb in ("making", "makes", "make", "made",
+                                                                            "taking", "takes", "take", "took")),
+                     f"{side} turn|{side} turning"])
+
+
+def lane_changes(side: str) -> str:
+    """Phrases of a lane change to ``side`` in every verb form ("changes lanes to the left", "merged
+    right", "moves into the left lane"): "to the left" after the verb is where it goes, not where it is."""
+    return "|".join([*(f"{verb} to the {side}|{verb} {side}"
+                       for verb in ("changing lanes", "changes lanes", "change lanes", "changed lanes",
+                                    "switching lanes", "switches lanes", "switch lanes", "switched lanes",
+                                    "merging", "merges", "merge", "merged", "swerving", "swerves", "swerve",
+                                    "swerved", "lane change", "lane changing")),
+                     *(f"{verb} into the {side} lane|{verb} to the {side} lane"
+                       for verb in ("changing", "changes", "change", "changed", "merging", "merges", "merge",
+                                    "merged", "moving", "moves", "move", "moved", "switching", "switches")),
+                     f"{side} lane change"])

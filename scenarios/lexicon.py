@@ -95,6 +95,8 @@ for _phrases, _name, _params in (
     ("moving|driving|traveling|travelling|in motion|active|walking|riding|going|running|jogging|heading|moves|"
      "move|drives|walks|rides|"
      "navigating|maneuvering|proceeding|passing through", "moving", ()),
+    ("about to cross|about to cross the road|about to cross the street|preparing to cross|going to cross|"
+     "ready to cross|getting ready to cross|about to step into the road|about to enter the road", "about_to_cross", ()),
     # Not "backed up": traffic that is backed up queues, it does not reverse.
     ("reversing|reverses|reverse|reversed|in reverse|backing up|backs up|back up|backing out|backs out|"
      "backing|rolling back|rolls back|rolled back|rolling backwards|rolls backwards|moving backwards|moves backwards|"
@@ -212,6 +214,9 @@ for _phrases, _rel, _rparams, _reverse in (
     ("in the same lane as|in same lane as|sharing a lane with|sharing lane with|in the lane of|in its lane with|"
      "sharing the lane with", "same_lane", (), False),
     ("being crossed by|crossed by", "crossed_by", (), False),
+    # Not "stopped for": "a car stopped for 10 s" is a duration.
+    ("yielding to|yields to|yield to|yielded to|giving way to|gives way to|give way to|waiting for|waits for|"
+     "wait for|waiting on", "yielding_to", (), False),
     ("crossing|crossing in front of|crossing the path of|crossing in front|cutting in front of|crosses|cross|"
      "crossing paths with|crossing path of", "crossed_by", (), True),
     ("being passed by|passed by|being overtaken by|overtaken by|being overtaken|overtaken|being passed", "passed_by",

@@ -18,7 +18,8 @@ has no answer on a log without one: the evaluation says so instead of answering 
 - ``blocked``, ``braking_for_leader``: the rules' slow follower held up by, or braking for, a vehicle ahead.
 - ``speed``: speed within [``min_mps``, ``max_mps``].
 - ``crossing_road``: a pedestrian, cyclist or other small road user moving on a lane, a crosswalk or
-  in a junction; ``approaching_crosswalk``: not on a crosswalk yet, on one within ``within_s`` (3 s).
+  in a junction; ``approaching_crosswalk``: not on a crosswalk yet, on one within ``within_s`` (3 s);
+  ``about_to_cross``: not crossing the road yet, crossing it within ``within_s`` (3 s).
 - ``near_intersection``: at most ``within_m`` (5 m) along its lane from the junction it enters, or in it.
 - ``at_intersection``, ``on_crosswalk``, ``at_crosswalk`` (on one or within 1 m: where pedestrians
   wait), ``on_road`` (on a lane or in a junction), ``in_bike_lane``, ``in_bus_lane``, ``in_vehicle_lane``
@@ -216,12 +217,21 @@ def _crossing_road(x: LogFeatures, p: Params) -> Mask:
     return on & walkers & (x.speed_mps > 0.5)
 
 
+def _soon(x: LogFeatures, holds: Mask, within_s: float) -> Mask:
+    """(K, F) frames where ``holds`` does not hold yet and will within ``within_s``."""
+    t = np.broadcast_to(x.time_s, holds.shape)
+    nxt = np.flip(np.minimum.accumulate(np.flip(np.where(holds, t, np.inf), axis=1), axis=1), axis=1)
+    return x.valid & ~holds & (nxt - t <= within_s)
+
+
 @_define("approaching_crosswalk", "reaching a crosswalk within {within_s} s", {"within_s": 3.0}, needs_map=True)
 def _approaching_crosswalk(x: LogFeatures, p: Params) -> Mask:
-    on = x.flag("on_crosswalk")
-    t = np.broadcast_to(x.time_s, on.shape)
-    nxt = np.flip(np.minimum.accumulate(np.flip(np.where(on, t, np.inf), axis=1), axis=1), axis=1)
-    return x.valid & ~on & (nxt - t <= _f(p, "within_s"))
+    return _soon(x, x.flag("on_crosswalk"), _f(p, "within_s"))
+
+
+@_define("about_to_cross", "about to cross the road (within {within_s} s)", {"within_s": 3.0}, needs_map=True)
+def _about_to_cross(x: LogFeatures, p: Params) -> Mask:
+    return _soon(x, _crossing_road(x, p), _f(p, "within_s"))
 
 
 @_define("near_intersection", "within {within_m} m of an intersection", {"within_m": 5.0}, needs_map=True)

@@ -80,6 +80,8 @@ class RelationReader(LexemeStream):
         """A relation phrase that names no object: of the ego, by anyone, or no relation at all."""
         if item.name == "heading_toward":  # "approaching": the ego
             return Is(node, "approaching_ego")
+        if item.name == "yielding_to":  # "waiting for 10 s": waiting
+            return Is(node, "stopped")
         if item.name == "direction":
             side = str(dict(item.params)["side"])
             return self.ego_relation(node, side, self.distance_params((), "direction"))

@@ -16,6 +16,8 @@ beforehand (:func:`candidate_pairs`):
 - ``same_lane``: both are on the same lane segment, within ``within_m``.
 - ``crossed_by``: the other's centre crosses the line ahead of the subject (up to ``forward_m`` past its
   front, within ``lateral_m`` of it); the frames within ``window_s`` of the crossing count.
+- ``yielding_to``: crossed by the other within ``forward_m`` (15 m) while at most ``max_mps`` (3 m/s):
+  the subject waits or creeps while the other crosses its path.
 - ``passed_by`` (``side`` left, right or any): the other moves from behind to ahead of the subject on
   that side, within ``lateral_m``; the frames within ``window_s`` of it count.
 - ``heading`` (``same``, ``opposite``, ``perpendicular``): the headings differ by at most 45°, at least
@@ -262,6 +264,13 @@ def _crossed_by(g: PairGeometry, p: Params) -> Mask:
         & (np.abs(g.dy_m) <= g.half_width_m + _f(p, "lateral_m"))
     events = _sign_change(g.dy_m, zone)
     return g.ok & _around_events(events, g.time_s, _f(p, "window_s"))
+
+
+@_define("yielding_to", "yielding to {other}", "crossing in front of {subject}, which yields",
+         {"forward_m": 15.0, "lateral_m": 5.0, "window_s": 1.0, "max_mps": 3.0},
+         reach_m=lambda p: float(np.hypot(float(p["forward_m"]), float(p["lateral_m"]))))
+def _yielding_to(g: PairGeometry, p: Params) -> Mask:
+    return _crossed_by(g, p) & (g.subject_speed_mps <= _f(p, "max_mps"))
 
 
 @_define("passed_by", "passed by {other} on the {side}", "passing {subject} on the {side}",

@@ -205,6 +205,10 @@ MEANINGS = {
     "a car and a truck within 5 m of each other":
         "or(near(car, truck, within_m=5), reverse(near(car, truck, within_m=5)))",
     "a truck backing up": "reversing(truck)",
+    "a pedestrian about to cross": "about_to_cross(pedestrian)",  # it read as crossing
+    "we wait for a pedestrian to cross": "yielding_to(ego, crossing_road(pedestrian))",
+    "a bus giving way to a cyclist": "yielding_to(bus, cyclist)",
+    "a car waiting for 10 seconds": "for_at_least(stopped(car), seconds=10)",
     "a car rolling backwards toward us": "approaching_ego(reversing(car))",
 }
 

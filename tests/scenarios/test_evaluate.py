@@ -69,6 +69,17 @@ def test_reversing_is_a_metre_backwards_over_a_second_by_the_heading_at_both_end
     assert not evaluate(p.Is(p.Objects("car"), "reversing", (("min_m", 2.0),)), x).selection.mask.any()
 
 
+def test_about_to_cross_and_approaching_a_crosswalk_look_ahead_in_seconds() -> None:
+    frames = 50
+    on_lane = np.arange(frames) >= 40  # a walking pedestrian steps onto the lane at 4 s
+    on_crosswalk = np.arange(frames) >= 45
+    x = make_features([pedestrian((0, Y), flags={"on_lane": on_lane, "on_crosswalk": on_crosswalk})], frames=frames)
+    about = evaluate(p.Is(p.Objects("pedestrian"), "about_to_cross"), x).selection.mask[0]
+    assert np.flatnonzero(about).tolist() == list(range(10, 40))  # from 3 s before, until it crosses
+    soon = evaluate(p.Is(p.Objects("pedestrian"), "approaching_crosswalk", (("within_s", 1.0),)), x).selection.mask[0]
+    assert np.flatnonzero(soon).tolist() == list(range(35, 45))
+
+
 def test_map_predicates_on_a_log_without_a_map_say_so() -> None:
     x = make_features([car((0, Y), flags=("at_intersection",))], has_map=False)
     result = evaluate(p.Is(p.Objects("car"), "at_intersection"), x)
@@ -140,6 +151,11 @@ def test_crossing_and_passing_happen_around_their_moment() -> None:
     assert passed[20] and not passed[0]
     right = p.Has(p.Objects("car"), "passed_by", p.Objects("car"), (("side", "right"),))
     assert not evaluate(right, x).selection.mask[0].any()
+    # Yielding: crossed while slow. The car above moves at 5 m/s; one waiting at 1 m/s yields.
+    yields = p.Has(p.Objects("car"), "yielding_to", p.Objects("pedestrian"))
+    assert not evaluate(yields, x).selection.mask.any()
+    waiting = make_features([car((0, Y), speed=1.0), pedestrian(across)], frames=frames)
+    assert evaluate(yields, waiting).selection.mask[0].tolist() == crossed.tolist()
 
 
 def test_between_following_same_lane_and_heading() -> None:

@@ -26,10 +26,10 @@ class Lexeme:
             words after them decide), ``side`` (a side, after ``with …``), ``count``, ``unit``,
             ``conj`` (and, or, then, while), ``not``, ``closely`` (tightens the relation before it),
             ``seq`` (a sequence the phrase names: ``drive_off`` stops then moves, ``cut_in`` moves from
-            an adjacent lane into the ego's),
-            ``fixed`` (a relation to objects of the kind ``other`` that the phrase itself names: "at a
-            stop sign", "unattended"), ``nearest`` ("closest", "the lead": only the nearest one, ``near``
-            or ``ahead``), or ``skip`` (carries no meaning here).
+            an adjacent lane into the ego's), ``fixed`` (a relation to objects of the kind ``other``
+            that the phrase itself names: "at a stop sign", "unattended"), ``mutual`` (a relation to
+            one another: "side by side"), ``nearest`` ("closest", "the lead": only the nearest one,
+            ``near`` or ``ahead``), or ``skip`` (carries no meaning here).
         name: the kind, predicate, relation, side or conjunction named.
         params: parameters of the predicate or relation.
         reverse: for ``rel``: the relation holds from the named object's point of view ("in front of Y":
@@ -109,7 +109,10 @@ for _phrases, _name, _params in (
      "stands|stand|standing|stop|stops|waits|wait|comes to a stop|come to a stop", "stopped", ()),
     ("stationary|hasn't moved|has not moved|never moves|unmoving|static", "stationary", ()),
     ("parked|parking", "parked", ()),
-    ("accelerating|speeding up|gaining speed|accelerates|accelerate", "accelerating", ()),
+    ("accelerating|speeding up|gaining speed|accelerates|accelerate|speeds up|speed up|sped up|picks up speed|"
+     "picking up speed", "accelerating", ()),
+    ("accelerates quickly|accelerating quickly|accelerates hard|accelerating hard|accelerates rapidly|"
+     "accelerating rapidly|hard acceleration|rapid acceleration", "accelerating", (("min_mps2", 2.0),)),
     ("braking|slowing down|decelerating|slowing|brakes|brake|slow down|slows down|slowed down|decelerates|"
      "decelerate", "braking", ()),
     ("hard braking|braking hard|slamming on the brakes|emergency braking|brakes hard|brake hard|braked hard|"
@@ -124,9 +127,8 @@ for _phrases, _name, _params in (
      "swerving|weaving", "changing_lanes", ()),
     (lane_changes("left"), "changing_lanes", (("direction", "left"),)),
     (lane_changes("right"), "changing_lanes", (("direction", "right"),)),
-    ("at crawling speed|crawling|creeping|moving slowly|slow moving|slow|slowly", "speed",
-     (("min_mps", 0.1), ("max_mps", 2.0))),
-    ("fast|speeding|at high speed|quickly", "speed", (("min_mps", 13.0),)),
+    ("at crawling speed|crawling|creeping|moving slowly|slow moving|slow|slowly", "slow", ()),
+    ("fast|speeding|at high speed|quickly|running fast|very fast", "fast", ()),
     ("at intersection|at an intersection|at the intersection|on intersection|on an intersection|in intersection|"
      "in an intersection|in the intersection|through intersection|through the intersection|at a junction|"
      "in the junction|at the junction|in the middle of the intersection|in the middle of an intersection|"
@@ -146,7 +148,7 @@ for _phrases, _name, _params in (
      "in the middle of the road|in the middle of the street", "on_road", ()),
     ("blocked|stuck|held up|queued|queuing|in a queue", "blocked", ()),
     ("jaywalking|jaywalks|jaywalk|crossing the road outside a crosswalk", "jaywalking", ()),
-    ("at stop|at a stop|at its stop|stopped at a stop", "stopped", ()),
+    ("at stop|at a stop|at its stop", "stopped", ()),
     ("in vehicle lane|in a vehicle lane|in the vehicle lane|in a traffic lane|in the traffic lane|in traffic",
      "in_vehicle_lane", ()),
     ("from bike lane|from the bike lane|from a bike lane|out of the bike lane|through bike lane|through the bike lane|"
@@ -300,10 +302,16 @@ _add("straight|go straight|goes straight|going straight|went straight", Lexeme("
 # Not moving: stopped for a moment or parked for the whole log (``stopped`` alone leaves parked ones out).
 _add("not moving|isn't moving|is not moving|are not moving|aren't moving", Lexeme("pred", "moving", negate=True))
 _add("closely|too closely|too close|tightly", Lexeme("closely"))
+# Of one another: the objects of the clause relate to others of their kind (or, "X and Y …", to each other).
+_add("side by side|next to each other|alongside each other|beside each other|next to one another",
+     Lexeme("mutual", "direction", (("side", "beside"), ("within_m", 3.0), ("lateral_m", 1.0))))
+_add("near each other|close to each other|near one another|close to one another|close together",
+     Lexeme("mutual", "near", (("within_m", 5.0),)))
 _add("closest|nearest|closest one|nearest one", Lexeme("nearest", "near"))
 _add("lead|leading|leads|the first|first in line", Lexeme("nearest", "ahead"))
 _add("drives off|drive off|pulls away|pull away|starts moving|start moving|takes off|sets off|starts to move|"
      "accelerating from a stop|accelerates from a stop|accelerate from a stop|starting from a stop|"
+     "accelerates quickly from a stop|accelerating quickly from a stop|accelerates hard from a stop|"
      "starts from a stop|pulling away from a stop|pulls away from a stop|"
      "pulls out|pulling out|drives away from a stop|pulling out of a parking spot|pulls out of a parking spot|"
      "pulling out of a parking space|pulls out of a parking space", Lexeme("seq", "drive_off"))

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import dataclasses
 
+from scenarios import rewrite
 from scenarios.lexicon import FARTHER, SPEED_UNITS, Lexeme, speed_bounds
 from scenarios.program import (
     AllOf,
@@ -40,7 +41,6 @@ from scenarios.program import (
     subject_of,
 )
 from scenarios.relating import AHEAD_IN_LANE, RelationReader
-from scenarios.rewrite import closer, ego_without, excludes, in_turn, negated, with_subject, within, without_states
 
 #: Within this distance (m), "a group of" objects stand together.
 GROUP_RADIUS_M = 5.0
@@ -63,8 +63,6 @@ class Parser(RelationReader):
         self.depth = 0
         #: Whether the clause's count was a group's ("a group of pedestrians", "a crowd"): near one another.
         self.grouped = False
-        #: The relation "of each other" made, of the clause's own kind (another kind's when an "and" names two).
-        self.each_other: Has | None = None
 
     def take_count(self) -> int:
         """The count the next count word or number says, taken: "more than two" is three; a group's
@@ -122,7 +120,7 @@ class Parser(RelationReader):
                 node = Has(node, item.name, Objects(item.other), item.params, min_count=max(1, item.count),
                            negate=item.negate)
             else:
-                node = Is(node, item.name, item.params, negate=item.role == "notpred" or item.negate)
+                node = rewrite.stated(node, item.name, item.params, item.role == "notpred" or item.negate)
         self.depth += 1
         try:
             modified = node if bare else self.modifiers(node)
@@ -137,16 +135,19 @@ class Parser(RelationReader):
             role = self.role()
             if role == "pred":
                 item = self.take()
-                node = Is(node, item.name, item.params, negate=item.negate)
+                node = rewrite.stated(node, item.name, item.params, item.negate)
             elif role == "fixed":
                 item = self.take()
                 node = Has(node, item.name, Objects(item.other), item.params, min_count=max(1, item.count),
                            negate=item.negate)
             elif role == "seq":
                 node = self.sequence(node, self.take())
+            elif role == "mutual":  # "side by side", "near each other": with others of its kind
+                item = self.take()
+                node = self.one_another(node, item.name, item.params)
             elif role == "closely" and isinstance(node, Has):
                 self.take()
-                node = closer(node)
+                node = rewrite.closer(node)
             elif role == "nearest" and self.name() == "ahead" and self.role(1) in ("kind", "count") \
                     and getattr(self.peek(), "words", ()) != ("lead",):
                 self.take()  # "a car leading a truck": the truck follows it
@@ -157,14 +158,14 @@ class Parser(RelationReader):
             elif role in ("count", "number") and self.role(1) == "kind" and self.role(2) in ("side", "ego", "rel"):
                 node = self.chain(node)
             elif role == "not" and self.role(1) == "kind" and self.role(2) == "side":  # "without a car ahead of it"
-                node = negated(self.with_phrase(node, self.take()), node)
+                node = rewrite.negated(self.with_phrase(node, self.take()), node)
             elif role == "not" and self.role(1) == "kind":  # "truck without trailer"
                 self.take()
                 node = Has(node, "near", Objects(self.take().name), (("within_m", 5.0),), negate=True)
             elif role == "not" and self.role(1) in ("pred", "rel", "with", "fixed", "ego", "side"):
                 self.take()
                 after = self.modifiers_one(node)
-                node = negated(after, node) if after is not None else node
+                node = rewrite.negated(after, node) if after is not None else node
             elif role in ("rel", "ego", "side", "with", "between"):
                 updated = self.modifiers_one(node)
                 if updated is None:
@@ -197,9 +198,9 @@ class Parser(RelationReader):
                     node, self.pending_s = (node, None) if self.pending_s is None else \
                         (ForAtLeast(node, self.pending_s), None)
                 elif unit == "m" and isinstance(node, Has) and self.role() not in ("rel", "side", "kind"):
-                    node = within(node, value)
+                    node = rewrite.within(node, value)
                 elif unit == "m" and {"each", "another"} & self.skipped_before_next():  # "of each other"
-                    node = self.each_other = Has(node, "near", without_states(subject_of(node)), (("within_m", value),))
+                    node = self.one_another(node, "near", (("within_m", value),))
                 elif unit == "m" and self.depth <= 1 and self.role() in ("end", "conj") \
                         and not self.unknown_before_next():  # "a car within 5 m": of us (not "of the kerb")
                     if subject_of(node) == Objects("ego"):  # "when we are 20 m away": from what, it does not say
@@ -218,9 +219,9 @@ class Parser(RelationReader):
                 self.take()  # "facing and heading toward", "… while being overtaken": one more modifier
                 following = self.peek()
                 if following is not None and following.role == "pred" and not following.negate \
-                        and excludes(node, following.name):  # "slows down and stops": in turn
+                        and rewrite.excludes(node, following.name):  # "slows down and stops": in turn
                     item = self.take()
-                    node = Then(node, Is(without_states(node), item.name, item.params, negate=item.negate))
+                    node = Then(node, Is(rewrite.without_states(node), item.name, item.params, negate=item.negate))
             else:
                 break
         return node
@@ -236,7 +237,7 @@ class Parser(RelationReader):
         """One relation-like modifier of ``node``; None when the words do not make one."""
         item = self.take()
         if item.role == "pred":
-            return Is(node, item.name, item.params, negate=item.negate)
+            return rewrite.stated(node, item.name, item.params, item.negate)
         if item.role == "fixed":
             return Has(node, item.name, Objects(item.other), item.params, min_count=max(1, item.count),
                        negate=item.negate)
@@ -276,7 +277,7 @@ class Parser(RelationReader):
                 found = self.quantity()
                 if found is not None and found[1] == "m":
                     self.pending_m = found[0]
-                    return within(node, found[0])
+                    return rewrite.within(node, found[0])
             first = self.phrase(bare=True)
             if first is None:
                 self.unused.extend(item.words)
@@ -296,7 +297,7 @@ class Parser(RelationReader):
         """``node`` with the object named after "with" (``item``), where the words after it say it is."""
         if self.role() == "not" and self.role(1) == "kind":  # "with no car behind it"
             self.take()
-            return negated(self.with_phrase(node, item), node)
+            return rewrite.negated(self.with_phrase(node, item), node)
         if self.role() == "side" and self.name() == "near":  # "with nearby X"
             self.take()
         if self.role() == "rel":  # "with crossing dog", "with approaching vehicle": the other acts on the node
@@ -330,7 +331,7 @@ class Parser(RelationReader):
         keeps "jaywalking" for the subject): only those that follow with no relation in between."""
         while self.role() == "pred" and self.name() not in ("jaywalking", "appearance"):
             item = self.take()
-            node = Is(node, item.name, item.params, negate=item.negate)
+            node = rewrite.stated(node, item.name, item.params, item.negate)
         return node
 
     def chain(self, node: Node) -> Node:
@@ -353,7 +354,7 @@ class Parser(RelationReader):
         if self.role() == "not" and self.role(1) in ("kind", "count"):  # "no pedestrians near us"
             no = self.take()
             found = self.phrase()
-            none = ego_without(self.referred(*found)) if found is not None else None
+            none = rewrite.ego_without(self.referred(*found)) if found is not None else None
             if none is not None:
                 return none
             self.unused.extend(no.words)
@@ -366,7 +367,9 @@ class Parser(RelationReader):
             if condition is not None and self.role() in ("kind", "count"):
                 self.antecedent = self.referred(*condition)  # "while a bus is stopped, a car passes it"
                 main = self.description()
-                return While(main, self.antecedent) if lead.name == "while" else in_turn(main, self.antecedent, True)
+                if lead.name == "while":
+                    return While(main, self.antecedent)
+                return rewrite.in_turn(main, self.antecedent, after=True)  # "after the bus stops, …"
             self.i, self.unused[unused:], self.grouped = start, [], False  # no main clause: "while" says nothing
             self.unused.extend(self.take().words)
         found = self.phrase()
@@ -380,7 +383,7 @@ class Parser(RelationReader):
             # "brakes and then stops": a phrase naming no kind goes on about the same objects.
             nxt = self.phrase(need_kind=True)
             if nxt is None:  # "stopped then moving": the same objects
-                head = without_states(subject_of(node))
+                head = rewrite.without_states(subject_of(node))
                 if self.role() in ("pred", "rel", "ego", "side", "with", "between", "not", "seq", "fixed"):
                     nxt = (self.modifiers(head), 0)
                 else:
@@ -393,13 +396,13 @@ class Parser(RelationReader):
                 more = self.phrase(need_kind=True)
                 other = AnyOf((other, self.referred(*more))) if more is not None else other
             if conj.name != "except" and subject_of(node) == Objects("any") and subject_of(other) != Objects("any"):
-                node = with_subject(node, subject_of(other))  # "parked or stopped vehicle": both of vehicles
+                node = rewrite.with_subject(node, subject_of(other))  # "parked or stopped vehicle": both of vehicles
             if conj.name == "and" and other is self.each_other and of_two_kinds(node, other):
                 # "a car and a truck within 5 m of each other": each near the other, both answered
                 near = dataclasses.replace(self.each_other, subject=node, other=self.each_other.subject)
                 node = AnyOf((near, dataclasses.replace(near, reverse=True)))
             elif conj.name in ("then", "after"):  # "a car stops, then a pedestrian crosses"; "… after it turns"
-                node = in_turn(node, other, after=conj.name == "after")
+                node = rewrite.in_turn(node, other, after=conj.name == "after")
             elif conj.name == "except":
                 node = Excluding(node, other)
             elif conj.name == "while":

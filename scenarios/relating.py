@@ -9,7 +9,7 @@ from collections.abc import Callable, Iterable
 
 from scenarios.lexeme_stream import LexemeStream
 from scenarios.lexicon import Lexeme
-from scenarios.program import Has, Is, Node, Objects, Then
+from scenarios.program import Has, Is, Node, Objects, Then, subject_of
 from scenarios.rewrite import nearest_one, without_states
 
 #: The two steps of "drives off" or "cuts into my lane" happen within this many seconds.
@@ -36,10 +36,18 @@ class RelationReader(LexemeStream):
         #: What "it" and "them" name in a later clause: the clause before ("a car turns left while a
         #: pedestrian crosses in front of it"); in the first clause they name the ego, as "ahead" does.
         self.antecedent: Node | None = None
+        #: The relation "each other" made, of the clause's own kind (another kind's when an "and" names two).
+        self.each_other: Has | None = None
 
     def it(self, words: Iterable[str]) -> tuple[Node, int] | None:
         """The antecedent, as a relation's object, where ``words`` say "it" or "them"."""
         return (self.antecedent, 0) if self.antecedent is not None and {"it", "its", "them"} & set(words) else None
+
+    def one_another(self, node: Node, relation: str, params: tuple[tuple[str, float | str], ...]) -> Node:
+        """``node`` in ``relation`` to other objects of its own kind ("side by side", "within 5 m of each
+        other"), kept as :attr:`each_other` for an "and" that names two kinds."""
+        self.each_other = Has(node, relation, without_states(subject_of(node)), params)
+        return self.each_other
 
     def ego_relation(self, node: Node, side: str, params: tuple[tuple[str, float | str], ...] = ()) -> Node:
         """``node``'s objects on ``side`` of the ego (a relation asked of the ego)."""

@@ -17,6 +17,14 @@ def closer(node: p.Node) -> p.Node:
     return node
 
 
+def stated(node: p.Node, predicate: str, params: tuple[p.Param, ...] = (), negate: bool = False) -> p.Node:
+    """``node`` with one more predicate, unless it is the one ``node`` asks already ("a bus stopped at a
+    stop": stopped once)."""
+    if isinstance(node, p.Is) and (node.predicate, node.params, node.negate) == (predicate, params, negate):
+        return node
+    return p.Is(node, predicate, params, negate)
+
+
 def within(node: p.Node, within_m: float) -> p.Node:
     """A relation ``node`` limited to ``within_m``; any other node as it is."""
     if not isinstance(node, p.Has) or node.relation in ("heading", "passed_by", "crossed_by"):

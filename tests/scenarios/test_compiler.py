@@ -205,6 +205,17 @@ MEANINGS = {
     "a car and a truck within 5 m of each other":
         "or(near(car, truck, within_m=5), reverse(near(car, truck, within_m=5)))",
     "a truck backing up": "reversing(truck)",
+    # Found by a probe of 76 sentences after the changes above (each read wrong with no word unused).
+    "a bus and a cyclist side by side":
+        "or(direction(bus, cyclist, side=beside, within_m=3, lateral_m=1), "
+        "reverse(direction(bus, cyclist, side=beside, within_m=3, lateral_m=1)))",
+    "pedestrians close together": "near(pedestrian, pedestrian, within_m=5)",
+    "a car accelerates quickly from a stop": "then(stopped(car), moving(car), within_s=4)",  # was fast, stopped
+    "a car that brakes, then speeds up": "then(braking(car), accelerating(car), within_s=5)",
+    "a car accelerating hard": "accelerating(car, min_mps2=2)",
+    "a vehicle stopped at a stop sign": "near(stopped(vehicle), stop_sign, within_m=15)",  # "sign" was unused
+    "a pedestrian running fast": "fast(pedestrian)",  # was faster than 13 m/s, which no one runs
+    "a bus stopped at a stop": "stopped(bus)",  # asked once
     "a pedestrian about to cross": "about_to_cross(pedestrian)",  # it read as crossing
     "we wait for a pedestrian to cross": "yielding_to(ego, crossing_road(pedestrian))",
     "a bus giving way to a cyclist": "yielding_to(bus, cyclist)",

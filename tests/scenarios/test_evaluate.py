@@ -80,6 +80,13 @@ def test_about_to_cross_and_approaching_a_crosswalk_look_ahead_in_seconds() -> N
     assert np.flatnonzero(soon).tolist() == list(range(35, 45))
 
 
+def test_fast_and_slow_are_for_the_objects_kind() -> None:
+    x = make_features([pedestrian((0, Y), speed=3.0), car((10, Y), speed=3.0), car((20, Y), speed=14.0),
+                       cyclist((30, Y), speed=1.0), pedestrian((40, Y), speed=1.2)])
+    assert selected(p.Is(p.Objects("any"), "fast"), x).tolist() == [True, False, True, False, False, False]
+    assert selected(p.Is(p.Objects("any"), "slow"), x).tolist() == [False, False, False, True, False, False]
+
+
 def test_map_predicates_on_a_log_without_a_map_say_so() -> None:
     x = make_features([car((0, Y), flags=("at_intersection",))], has_map=False)
     result = evaluate(p.Is(p.Objects("car"), "at_intersection"), x)

@@ -181,7 +181,9 @@ for _phrases, _name, _params in (
      (("lane", "right"),)),
     ("getting closer|coming closer|closing in|approaching|approaches|approach|gets closer|comes closer",
      "approaching_ego", ()),
-    ("moving away|driving away|leaving", "moving_away_from_ego", ()),
+    ("moving away|driving away|leaving|moves away|move away|moved away|drives away|drive away|drove away|"
+     "walking away|walks away|riding away|rides away|going away|goes away|heading away|heads away",
+     "moving_away_from_ego", ()),
 ):
     _add(_phrases, Lexeme("pred", _name, _params))
 

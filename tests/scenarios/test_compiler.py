@@ -199,7 +199,8 @@ MEANINGS = {
     "a car stops before a cyclist passes it within 3 seconds":
         "before(stopped(car), reverse(passed_by(stopped(car), cyclist)), within_s=3)",
     "a car stops after it turns left": "then(turning(car, direction=left), stopped(car), within_s=5)",
-    "a car drives away, then comes back toward us": "then(moving(car), approaching_ego(car), within_s=5)",
+    "a car drives away, then comes back toward us":
+        "then(moving_away_from_ego(car), approaching_ego(car), within_s=5)",
     # "Each other" across two kinds: each near the other, both answered (it read as "a car, or a truck
     # near a truck").
     "a car and a truck within 5 m of each other":
@@ -214,6 +215,8 @@ MEANINGS = {
     "a car that brakes, then speeds up": "then(braking(car), accelerating(car), within_s=5)",
     "a car accelerating hard": "accelerating(car, min_mps2=2)",
     "a vehicle stopped at a stop sign": "near(stopped(vehicle), stop_sign, within_m=15)",  # "sign" was unused
+    "a car in the oncoming lane approaches, then moves away":  # "moves away" was moving anywhere
+        "then(approaching_ego(ego_lane(car, lane=oncoming)), moving_away_from_ego(car), within_s=5)",
     "a pedestrian running fast": "fast(pedestrian)",  # was faster than 13 m/s, which no one runs
     "a bus stopped at a stop": "stopped(bus)",  # asked once
     "a pedestrian about to cross": "about_to_cross(pedestrian)",  # it read as crossing

@@ -30,7 +30,8 @@ wrong. Every test is written again from its definition, one object and one frame
   within 50 m); and / or / but not; ``Together``; ``ForAtLeast`` (a run lasts from its first
   frame to its last plus one frame interval); ``Then`` (the same object, the second starting after
   a frame of the first, within ``within_s``); ``While`` (the condition holds for any object at that
-  frame); ``Sequenced`` (any object's event within ``within_s`` after the frame, or before it).
+  frame); ``Sequenced`` (runs that begin within ``within_s`` before, or after, any object's event
+  begins; a ``then`` begins where its second step does).
 """
 
 from __future__ import annotations
@@ -187,14 +188,18 @@ class _Reference:
                 return _Sel(kept.sel, related)
             case p.Sequenced(child, event, within_s, after):
                 part, ev = self.eval(child), self.eval(event)
-                step = -1 if after else 1  # where the event is looked for: before the frame, or after it
-                happens = self.any_at(ev.sel)
-                kept = self.keep(part, [[self.in_reach(happens, f, step, float(within_s)) for f in range(nf)]
-                                        for _ in range(k)])
-                on = self.any_at(kept.sel)
-                related = [[kept.related[o][f] or (ev.sel[o][f] and self.in_reach(on, f, -step, float(within_s)))
-                            for f in range(nf)] for o in range(k)]
-                return _Sel(kept.sel, related)
+                part_starts, ev_starts = self.starts(child, part.sel), self.starts(event, ev.sel)
+                step = -1 if after else 1  # where the event's beginning is looked for: before or after
+                ev_begins = self.any_at(ev_starts)
+                kept_starts = [[part_starts[o][f] and self.in_reach(ev_begins, f, step, float(within_s))
+                                for f in range(nf)] for o in range(k)]
+                kept = self.keep(part, self.runs_holding(part.sel, kept_starts))
+                begins = self.any_at(kept_starts)
+                related_starts = [[ev_starts[o][f] and self.in_reach(begins, f, -step, float(within_s))
+                                   for f in range(nf)] for o in range(k)]
+                related_runs = self.runs_holding(ev.sel, related_starts)
+                return _Sel(kept.sel, [[kept.related[o][f] or related_runs[o][f] for f in range(nf)]
+                                       for o in range(k)])
         raise ReferenceError(f"not a program node: {node!r}")
 
     def keep(self, part: _Sel, mask: Grid) -> _Sel:
@@ -403,6 +408,34 @@ class _Reference:
                     for g in range(f, end + 1):
                         out[o][g] = True
                 f = end + 1
+        return out
+
+    def starts(self, node: p.Node, sel: Grid) -> Grid:
+        """Where what ``node`` selects begins: the first frame of each run, and for ``then`` the first
+        frame of each run of its second step that its first step preceded within its time."""
+        if isinstance(node, p.Then):
+            first, second = self.eval(node.first).sel, self.eval(node.second).sel
+            return [[sel[o][f] and second[o][f] and not (f > 0 and second[o][f - 1])
+                     and self.in_reach(first[o], f, -1, float(node.within_s)) for f in range(self.f)]
+                    for o in range(self.k)]
+        return [[sel[o][f] and not (f > 0 and sel[o][f - 1]) for f in range(self.f)] for o in range(self.k)]
+
+    def runs_holding(self, sel: Grid, marks: Grid) -> Grid:
+        """The runs of ``sel`` (consecutive frames of an object) that hold a frame of ``marks``."""
+        out = self.grid()
+        for o in range(self.k):
+            f = 0
+            while f < self.f:
+                if not sel[o][f]:
+                    f += 1
+                    continue
+                end = f
+                while end < self.f and sel[o][end]:
+                    end += 1
+                if any(marks[o][g] for g in range(f, end)):
+                    for g in range(f, end):
+                        out[o][g] = True
+                f = end
         return out
 
     def in_reach(self, frames: list[bool], f: int, step: int, within_s: float) -> bool:

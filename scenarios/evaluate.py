@@ -136,15 +136,30 @@ class _Run:
                 kept = _keep(sel, np.broadcast_to(when, sel.scores.shape))
                 return Selection(kept.scores, kept.related | (cond.mask & _any(kept.mask, 0)[None]))
             case p.Sequenced(child, event, within_s, after):
-                # The subject's frames that any object's event follows (or, ``after``, precedes) within the
-                # time; the event's objects are related at their frames in reach of a kept frame.
-                sel, ev = self.eval(child), self.eval(event)
-                near_event, near_kept = (preceded_within, followed_within) if after else \
-                    (followed_within, preceded_within)
-                kept = _keep(sel, near_event(sel.mask, _any(ev.mask, 0), x.time_s, within_s))
-                return Selection(kept.scores,
-                                 kept.related | near_kept(ev.mask, _any(kept.mask, 0), x.time_s, within_s))
+                return self.sequenced(child, event, within_s, after)
         raise ProgramError(f"not a program node: {node!r}")
+
+    def starts(self, node: p.Node, sel: Selection) -> Mask:
+        """(K, F) the frames where what ``node`` selects happens: where each run of it begins, and for a
+        sequence (``then``) where its second step begins after the first ("drives off": it moves)."""
+        if isinstance(node, p.Then):
+            first, second = self.eval(node.first), self.eval(node.second)
+            return onsets(second.mask) & preceded_within(second.mask, first.mask, self.x.time_s, node.within_s) \
+                & sel.mask
+        return onsets(sel.mask)
+
+    def sequenced(self, child: p.Node, event: p.Node, within_s: float, after: bool) -> Selection:
+        """``child``'s runs that begin at most ``within_s`` before (``after``: after) some object's ``event``
+        begins, not at the same frame; the event's runs that begin so are related. Beginnings, not every
+        frame: "a car stops, then a pedestrian crosses" is not a pedestrian crossing all along."""
+        x = self.x
+        sel, ev = self.eval(child), self.eval(event)
+        sel_starts, ev_starts = self.starts(child, sel), self.starts(event, ev)
+        toward_event, toward_child = (preceded_within, followed_within) if after else (followed_within, preceded_within)
+        kept_starts = toward_event(sel_starts, _any(ev_starts, 0), x.time_s, within_s)
+        kept = _keep(sel, runs_holding(sel.mask, kept_starts))
+        related = runs_holding(ev.mask, toward_child(ev_starts, _any(kept_starts, 0), x.time_s, within_s))
+        return Selection(kept.scores, kept.related | related)
 
     def relation(self, node: p.Has) -> Selection:
         x = self.x
@@ -262,6 +277,18 @@ def runs_lasting(mask: Mask, time_s: NDArray[np.float64], seconds: float) -> Mas
     start_t = np.maximum.accumulate(np.where(starts, t, -np.inf), axis=1)
     end_t = np.flip(np.minimum.accumulate(np.flip(np.where(ends, t, np.inf), axis=1), axis=1), axis=1)
     return mask & (end_t - start_t + dt >= seconds - 1e-6)
+
+
+def onsets(mask: Mask) -> Mask:
+    """(K, F) the first frame of each run of ``mask`` (consecutive frames per row)."""
+    return mask & ~np.pad(mask, ((0, 0), (1, 0)))[:, :-1]
+
+
+def runs_holding(mask: Mask, marks: Mask) -> Mask:
+    """(K, F) the runs of ``mask`` (consecutive frames per row) that hold a frame of ``marks``."""
+    run = np.cumsum(onsets(mask), axis=1)  # (K, F) each frame's run number in its row (1, 2, ...)
+    keys = np.arange(mask.shape[0])[:, None] * (mask.shape[1] + 1) + run
+    return mask & np.isin(keys, keys[marks & mask])
 
 
 def followed_within(mask: Mask, later: Mask, time_s: NDArray[np.float64], within_s: float) -> Mask:

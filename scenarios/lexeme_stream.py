@@ -68,6 +68,11 @@ class LexemeStream:
         j = self.i + len(self.fillers())
         return j > 0 and self.items[j - 1].words == (word,)
 
+    def at_comma(self) -> bool:
+        """Whether a comma stands before the next meaningful item: a clause ends there ("after the
+        pedestrian crosses, a car stops": the car is not what the pedestrian crosses)."""
+        return "," in self.skipped_before_next()
+
     def skipped_before_next(self) -> set[str]:
         """The filler words between here and the next meaningful item."""
         return {word for item in self.fillers() for word in item.words}

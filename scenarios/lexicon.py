@@ -112,7 +112,8 @@ for _phrases, _name, _params in (
     ("accelerating|speeding up|gaining speed|accelerates|accelerate|speeds up|speed up|sped up|picks up speed|"
      "picking up speed", "accelerating", ()),
     ("accelerates quickly|accelerating quickly|accelerates hard|accelerating hard|accelerates rapidly|"
-     "accelerating rapidly|hard acceleration|rapid acceleration", "accelerating", (("min_mps2", 2.0),)),
+     "accelerating rapidly|hard acceleration|rapid acceleration|accelerate hard|accelerate quickly|"
+     "accelerated hard|accelerated quickly|accelerate rapidly", "accelerating", (("min_mps2", 2.0),)),
     ("braking|slowing down|decelerating|slowing|brakes|brake|slow down|slows down|slowed down|decelerates|"
      "decelerate", "braking", ()),
     ("hard braking|braking hard|slamming on the brakes|emergency braking|brakes hard|brake hard|braked hard|"
@@ -383,7 +384,7 @@ _add("|".join(f"{via} {the} {place}" for via in ("out of", "of", "from", "into")
      Lexeme("unknown", "parking spot"))
 _add("within|at least|at most|less than|more than|up to|from|away|for|directly|another|other|each|any|"
      "some|its|their|the|a|an|that|which|who|is|are|being|of|it|there|in|on|to|one|ones|those|these|same|lane|path|"
-     "side|too|road|street|zone|area|i|see|find|show|me|all|where|together|here|now|just|first",
+     "side|too|road|street|zone|area|i|see|find|show|me|all|where|together|here|now|just|first|,",
      Lexeme("skip"))
 
 _SPELLINGS = {"towards": "toward", "colour": "color", "travelling": "traveling", "metres": "meters",
@@ -391,12 +392,13 @@ _SPELLINGS = {"towards": "toward", "colour": "color", "travelling": "traveling",
 
 
 def normalize(text: str) -> list[str]:
-    """Lower-case words of ``text``: hyphens and slashes split words, punctuation goes, numbers stay."""
+    """Lower-case words of ``text``: hyphens and slashes split words, numbers and commas stay (a comma
+    ends a clause), other punctuation goes."""
     text = text.lower().replace("’", "'")
     text = re.sub(r"(\d)\s*-\s*(\d)", r"\1 to \2", text)
     text = re.sub(r"(\d)(m|s)\b", r"\1 \2", text)
     text = re.sub(r"[-/]", " ", text)
-    words = re.findall(r"[a-z]+(?:'[a-z]+)?|\d+(?:\.\d+)?", text)
+    words = re.findall(r"[a-z]+(?:'[a-z]+)?|\d+(?:\.\d+)?|,", text)  # a comma ends a clause: kept
     return [_SPELLINGS.get(w, w) for w in words]
 
 

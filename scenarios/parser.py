@@ -125,7 +125,10 @@ class Parser(RelationReader):
         try:
             modified = node if bare else self.modifiers(node)
             if nearest is not None:  # "the nearest two pedestrians": the two nearest, not two at once
+                at = self.i
                 modified, count = self.nearest(modified, node, nearest, max(1, count)), 0
+                if self.i != at and not bare:  # "the closest pedestrian to us is running": after the anchor
+                    modified = self.modifiers(modified)
             return modified, count
         finally:
             self.depth -= 1
@@ -229,7 +232,7 @@ class Parser(RelationReader):
     def kind_after_states(self, ahead: int) -> bool:
         """Whether the words from ``ahead`` on are states naming a kind ("… and parked cyclists"): a phrase
         of its own, not one more modifier."""
-        while self.role(ahead) in ("pred", "not"):
+        while self.role(ahead) in ("pred", "not", "nearest"):
             ahead += 1
         return self.role(ahead) == "kind"
 
@@ -249,14 +252,14 @@ class Parser(RelationReader):
             it = self.it(item.words)
             return node if it is None else self.relate(node, Lexeme("rel", item.name), it)
         if item.role == "side":
-            other = self.phrase(need_kind=True) or self.it(item.words)
+            other = (None if self.at_comma() else self.phrase(need_kind=True)) or self.it(item.words)
             if other is None:  # "ahead", "behind": of the ego
                 return self.ego_relation(node, item.name, self.distance_params((), "direction"))
             return self.relate(node, Lexeme("rel", "direction", (("side", item.name),), reverse=True), other)
         if item.role == "rel":
             it = self.it(self.skipped_before_next())  # before the side: "passes it on the left"
             item = self.with_side(item)
-            other = self.phrase(bare=item.name == "passed_by", need_kind=True)
+            other = None if self.at_comma() else self.phrase(bare=item.name == "passed_by", need_kind=True)
             if other is not None and item.name == "passed_by":  # "passed by a motorcycle on either side"
                 item = self.with_side(item)
                 other = (self.modifiers_bare(other[0]), other[1])
@@ -284,7 +287,7 @@ class Parser(RelationReader):
                 return node
             second = first
             if self.role() == "conj" and self.name() == "and" \
-                    and self.role(1) in ("kind", "pred", "count"):
+                    and self.role(1) in ("kind", "pred", "count", "nearest"):
                 self.take()
                 second = self.phrase(bare=True) or first
             if self.role() == "side" and self.name() == "beside":  # "... on both sides"
@@ -351,7 +354,16 @@ class Parser(RelationReader):
 
     # -- the description -------------------------------------------------------------------------------
     def description(self) -> Node:
-        if self.role() == "not" and self.role(1) in ("kind", "count"):  # "no pedestrians near us"
+        node = self.clauses()
+        if self.within_s is not None:  # "… then stops within 4 seconds": the sequence's time
+            if isinstance(node, Then | Sequenced):
+                node = dataclasses.replace(node, within_s=self.within_s)
+            else:
+                self.unused.append(f"within {self.within_s:g} s")
+        return node
+
+    def clauses(self) -> Node:
+        if self.role() == "not" and self.role(1) in ("kind", "count", "nearest"):  # "no pedestrians near us"
             no = self.take()
             found = self.phrase()
             none = rewrite.ego_without(self.referred(*found)) if found is not None else None
@@ -364,12 +376,10 @@ class Parser(RelationReader):
             start, unused = self.i, len(self.unused)
             lead = self.take()
             condition = self.phrase()
-            if condition is not None and self.role() in ("kind", "count"):
-                self.antecedent = self.referred(*condition)  # "while a bus is stopped, a car passes it"
-                main = self.description()
-                if lead.name == "while":
-                    return While(main, self.antecedent)
-                return rewrite.in_turn(main, self.antecedent, after=True)  # "after the bus stops, …"
+            if condition is not None and self.role() in ("kind", "count", "nearest"):
+                self.antecedent = first = self.referred(*condition)  # "while a bus is stopped, a car passes it"
+                main = self.clauses()
+                return While(main, first) if lead.name == "while" else rewrite.in_turn(main, first, after=True)
             self.i, self.unused[unused:], self.grouped = start, [], False  # no main clause: "while" says nothing
             self.unused.extend(self.take().words)
         found = self.phrase()
@@ -391,7 +401,7 @@ class Parser(RelationReader):
                     break
             other = self.referred(*nxt)
             while conj.name == "except" and self.role() == "conj" and self.name() == "and" \
-                    and self.role(1) in ("kind", "count"):  # "vehicles except buses and trucks"
+                    and self.role(1) in ("kind", "count", "nearest"):  # "vehicles except buses and trucks"
                 self.take()
                 more = self.phrase(need_kind=True)
                 other = AnyOf((other, self.referred(*more))) if more is not None else other
@@ -418,11 +428,6 @@ class Parser(RelationReader):
                 if conj.name == "or":
                     node = AnyOf((node.children[0] if isinstance(node, AllOf) else node, other))
         self.end_clause()
-        if self.within_s is not None:
-            if isinstance(node, Then | Sequenced):
-                node = dataclasses.replace(node, within_s=self.within_s)
-            else:
-                self.unused.append(f"within {self.within_s:g} s")
         return node
 
     def end_clause(self) -> None:

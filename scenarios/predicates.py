@@ -17,7 +17,7 @@ has no answer on a log without one: the evaluation says so instead of answering 
   (a box jittering in place, or a heading that flips for a frame, does not).
 - ``blocked``, ``braking_for_leader``: the rules' slow follower held up by, or braking for, a vehicle ahead.
 - ``speed``: speed within [``min_mps``, ``max_mps``]; ``fast`` / ``slow``: fast or slow for the object's
-  kind (:data:`FAST_MPS`, :data:`SLOW_MPS`: a running pedestrian is fast at 3 m/s, a car at 13).
+  kind (:data:`FAST_MPS`, :data:`SLOW_MPS`: a pedestrian is fast from 2.5 m/s, a car from 13).
 - ``crossing_road``: a pedestrian, cyclist or other small road user moving on a lane, a crosswalk or
   in a junction; ``approaching_crosswalk``: not on a crosswalk yet, on one within ``within_s`` (3 s);
   ``about_to_cross``: not crossing the road yet, crossing it within ``within_s`` (3 s).
@@ -295,13 +295,13 @@ FAST_MPS = {"pedestrian": 2.5, "cyclist": 6.0, "other": 2.5, "vehicle": 13.0}
 SLOW_MPS = {"pedestrian": (0.1, 0.7), "cyclist": (0.1, 1.5), "other": (0.1, 0.7), "vehicle": (0.1, 2.0)}
 
 
-@_define("fast", "fast for its kind")
+@_define("fast", "at a fast pace for their kind")
 def _fast(x: LogFeatures, p: Params) -> Mask:
     floor = np.array([FAST_MPS.get(str(c), FAST_MPS["vehicle"]) for c in x.categories], np.float32)
     return x.valid & (x.speed_mps >= floor[:, None])
 
 
-@_define("slow", "moving slowly for its kind")
+@_define("slow", "at a slow pace for their kind")
 def _slow(x: LogFeatures, p: Params) -> Mask:
     low, high = np.array([SLOW_MPS.get(str(c), SLOW_MPS["vehicle"]) for c in x.categories], np.float32).T
     return x.valid & (x.speed_mps >= low[:, None]) & (x.speed_mps <= high[:, None])

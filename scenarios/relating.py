@@ -77,12 +77,16 @@ class RelationReader(LexemeStream):
         among all of ``base``'s objects, by what ``item`` says ("closest": anywhere; "lead": ahead in the
         lane)."""
         anchor: Node = Objects("ego")
-        if item.name == "near" and self.role() == "kind" and self.skipped_before_next() & {"to", "from"}:
-            found = self.phrase(need_kind=True)
+        if item.name == "near" and self.role() in ("kind", "nearest") and self.skipped_before_next() & {"to", "from"}:
+            found = self.phrase(bare=True, need_kind=True)  # what follows is the subject's: "… is stopped"
             anchor = found[0] if found is not None else anchor
         relation, params = _NEAREST[item.name]
-        return nearest_one(node, base, n,
-                           lambda objects: Has(anchor, relation, objects, params, reverse=True, nearest=n))
+
+        def reuse(has: Has) -> bool:  # a relation of the ego's that already says where: "on our right"
+            return anchor == Objects("ego") and (item.name == "near" or dict(has.params).get("side") == "front")
+
+        return nearest_one(node, base, n, lambda objects: Has(anchor, relation, objects, params, reverse=True,
+                                                              nearest=n), reuse)
 
     def without_object(self, node: Node, item: Lexeme) -> Node:
         """A relation phrase that names no object: of the ego, by anyone, or no relation at all."""

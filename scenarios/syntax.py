@@ -96,6 +96,12 @@ def _number(keywords: dict[str, float | str], key: str, name: str) -> float:
     return value
 
 
+def _whole(value: float, key: str, name: str) -> int:
+    if value != int(value):
+        raise SyntaxProblem(f"{name}: {key}={value:g} is not a whole number")
+    return int(value)
+
+
 def build(name: str, args: list[p.Node], keywords: list[p.Param]) -> p.Node:
     """The node a call ``name(args, keywords)`` stands for.
 
@@ -160,7 +166,7 @@ def build(name: str, args: list[p.Node], keywords: list[p.Param]) -> p.Node:
         arity(2)
         min_count = int(_number(given, "min_count", name)) if "min_count" in given else 1
         max_count = int(_number(given, "max_count", name)) if "max_count" in given else None
-        nearest = int(_number(given, "nearest", name)) if "nearest" in given else None
+        nearest = _whole(_number(given, "nearest", name), "nearest", name) if "nearest" in given else None
         rel = RELATIONS[name]
         rel.resolve(given)
         return p.Has(args[0], name, args[1], tuple(given.items()), min_count, max_count, nearest=nearest)

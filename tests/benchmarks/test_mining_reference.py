@@ -69,8 +69,10 @@ PROGRAMS = [
     "near(vehicle, any, within_m=30, nearest=1, min_count=1)",
     "reverse(near(car, pedestrian, within_m=30, nearest=1))",
     "or(cyclist, moving(pedestrian))",
-    "before(cyclist, crossed_by(car, pedestrian), within_s=0.5)",
-    "after(near(pedestrian, car, within_m=8), crossed_by(car, pedestrian), within_s=0.7)",
+    # The standing pedestrian comes within 8 m of the first car at 1.3 s; the second car has a pedestrian
+    # 12 m ahead from 2.3 s.
+    "before(near(pedestrian, car, within_m=8), direction(car, pedestrian, side=front, within_m=12), within_s=1.5)",
+    "after(direction(car, pedestrian, side=front, within_m=12), near(pedestrian, car, within_m=8), within_s=1.5)",
 ]
 
 

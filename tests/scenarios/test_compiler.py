@@ -217,6 +217,27 @@ MEANINGS = {
     "a vehicle stopped at a stop sign": "near(stopped(vehicle), stop_sign, within_m=15)",  # "sign" was unused
     "a car in the oncoming lane approaches, then moves away":  # "moves away" was moving anywhere
         "then(approaching_ego(ego_lane(car, lane=oncoming)), moving_away_from_ego(car), within_s=5)",
+    # Found by review: the verb after "closest to X" is the subject's; places, sides of ours and "not"
+    # narrow "the nearest", other relations are said of it; "the lead" is always ahead in the lane band;
+    # a sentence opening with "after" keeps its own condition and its "within"; a comma ends a clause.
+    "the car closest to the bus is stopped": "stopped(reverse(near(bus, car, within_m=100, nearest=1)))",
+    "the closest pedestrian to us is running": "moving(reverse(near(ego, pedestrian, within_m=100, nearest=1)))",
+    "the closest vehicle in our lane": "reverse(near(ego, ego_lane(vehicle, lane=host), within_m=100, nearest=1))",
+    "the nearest pedestrian not in front of us":
+        "reverse(near(ego, excluding(pedestrian, reverse(direction(ego, pedestrian, side=front))), within_m=100, "
+        "nearest=1))",
+    "the lead vehicle is in front of a bus":
+        "reverse(direction(bus, reverse(direction(ego, vehicle, side=front, lateral_m=1.5, within_m=40, nearest=1)), "
+        "side=front))",
+    "a car within 10 m of the lead vehicle":
+        "near(car, reverse(direction(ego, vehicle, side=front, lateral_m=1.5, within_m=40, nearest=1)), within_m=10)",
+    "there is no lead vehicle": "not(direction(ego, vehicle, side=front, lateral_m=1.5, within_m=40, nearest=1))",
+    "after a pedestrian crosses, we drive off and a cyclist passes us":
+        "after(while(then(stopped(ego), moving(ego), within_s=4), reverse(passed_by(ego, cyclist))), "
+        "crossing_road(pedestrian), within_s=5)",
+    "after a car cuts into our lane, we brake within 2 s":
+        "after(braking(ego), then(ego_lane(car, lane=adjacent), ego_lane(car, lane=host), within_s=4), within_s=2)",
+    "after the pedestrian crosses, a car stops": "after(stopped(car), crossing_road(pedestrian), within_s=5)",
     "a pedestrian running fast": "fast(pedestrian)",  # was faster than 13 m/s, which no one runs
     "a bus stopped at a stop": "stopped(bus)",  # asked once
     "a pedestrian about to cross": "about_to_cross(pedestrian)",  # it read as crossing
@@ -294,6 +315,7 @@ def test_programs_round_trip_through_their_syntax() -> None:
     ("moving(unicorn)", "'unicorn' is not a kind of object"),
     ("turning(vehicle, car)", r"turning\(\.\.\.\) takes 1 program\(s\), got 2"),
     ("__import__('os')", "at character 1"),
+    ("reverse(near(ego, car, nearest=1.5))", "nearest=1.5 is not a whole number"),
 ])
 def test_bad_programs_are_refused_naming_where(text: str, message: str) -> None:
     with pytest.raises((SyntaxProblem, DescriptionError), match=message):

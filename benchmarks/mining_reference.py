@@ -411,14 +411,23 @@ class _Reference:
         return out
 
     def starts(self, node: p.Node, sel: Grid) -> Grid:
-        """Where what ``node`` selects begins: the first frame of each run, and for ``then`` the first
-        frame of each run of its second step that its first step preceded within its time."""
-        if isinstance(node, p.Then):
-            first, second = self.eval(node.first).sel, self.eval(node.second).sel
-            return [[sel[o][f] and second[o][f] and not (f > 0 and second[o][f - 1])
-                     and self.in_reach(first[o], f, -1, float(node.within_s)) for f in range(self.f)]
-                    for o in range(self.k)]
-        return [[sel[o][f] and not (f > 0 and sel[o][f - 1]) for f in range(self.f)] for o in range(self.k)]
+        """Where what ``node`` selects begins: the first frame of each run whose frame before is observed,
+        and for ``then`` (also under ``is``, ``for_at_least``, ``while``, ``together``, ``before`` /
+        ``after``) the frames where its second step begins with its first step within its time before; a
+        run with none of those begins where it begins."""
+        log, k, nf = self.log, self.k, self.f
+        begins = [[sel[o][f] and f > 0 and not sel[o][f - 1] and log.valid[o][f - 1] for f in range(nf)]
+                  for o in range(k)]
+        inner = node
+        while isinstance(inner, p.Is | p.ForAtLeast | p.While | p.Together | p.Sequenced):
+            inner = inner.subject if isinstance(inner, p.Is) else inner.child
+        if not isinstance(inner, p.Then):
+            return begins
+        first, second = self.eval(inner.first).sel, self.eval(inner.second).sel
+        moves = [[sel[o][f] and second[o][f] and not (f > 0 and second[o][f - 1])
+                  and self.in_reach(first[o], f, -1, float(inner.within_s)) for f in range(nf)] for o in range(k)]
+        moving_runs = self.runs_holding(sel, moves)
+        return [[moves[o][f] or (begins[o][f] and not moving_runs[o][f]) for f in range(nf)] for o in range(k)]
 
     def runs_holding(self, sel: Grid, marks: Grid) -> Grid:
         """The runs of ``sel`` (consecutive frames of an object) that hold a frame of ``marks``."""

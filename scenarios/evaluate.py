@@ -140,13 +140,20 @@ class _Run:
         raise ProgramError(f"not a program node: {node!r}")
 
     def starts(self, node: p.Node, sel: Selection) -> Mask:
-        """(K, F) the frames where what ``node`` selects happens: where each run of it begins, and for a
-        sequence (``then``) where its second step begins after the first ("drives off": it moves)."""
-        if isinstance(node, p.Then):
-            first, second = self.eval(node.first), self.eval(node.second)
-            return onsets(second.mask) & preceded_within(second.mask, first.mask, self.x.time_s, node.within_s) \
-                & sel.mask
-        return onsets(sel.mask)
+        """(K, F) the frames where what ``node`` selects begins: the first frame of each run seen to begin
+        (the frame before it observed: a state held since an object came into view has no beginning), and
+        for a sequence (``then``, also under filters such as ``while``) where its second step begins after
+        the first ("drives off": where it moves)."""
+        begins = onsets(sel.mask) & np.pad(self.x.valid, ((0, 0), (1, 0)))[:, :-1]
+        inner = node
+        while isinstance(inner, p.Is | p.ForAtLeast | p.While | p.Together | p.Sequenced):
+            inner = inner.subject if isinstance(inner, p.Is) else inner.child
+        if not isinstance(inner, p.Then):
+            return begins
+        first, second = self.eval(inner.first), self.eval(inner.second)
+        moves = onsets(second.mask) & preceded_within(second.mask, first.mask, self.x.time_s, inner.within_s) \
+            & sel.mask
+        return moves | (begins & ~runs_holding(sel.mask, moves))
 
     def sequenced(self, child: p.Node, event: p.Node, within_s: float, after: bool) -> Selection:
         """``child``'s runs that begin at most ``within_s`` before (``after``: after) some object's ``event``

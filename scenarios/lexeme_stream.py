@@ -73,6 +73,22 @@ class LexemeStream:
         pedestrian crosses, a car stops": the car is not what the pedestrian crosses)."""
         return "," in self.skipped_before_next()
 
+    def it_next(self) -> bool:
+        """Whether "it" or "they" stands before the next meaningful item (a clause about the objects before)."""
+        return bool(self.skipped_before_next() & {"it", "they"})
+
+    def at_copula(self) -> bool:
+        """Whether "is" or "are" stands before the next meaningful item, other than in "that is" ("the
+        closest car is parked" says it of the car; "the closest car that is parked" names which)."""
+        words = self.skipped_before_next()
+        return bool(words & {"is", "are", "was", "were"}) and not words & {"that", "which", "who"}
+
+    def ahead_word(self, ahead: int) -> bool:
+        """Whether the ``ahead``-th meaningful item says "ahead" or "in front of" ("two cars ahead")."""
+        item = self.peek(ahead)
+        return item is not None and item.role in ("side", "ego", "rel") \
+            and (item.name == "front" or dict(item.params).get("side") == "front")
+
     def skipped_before_next(self) -> set[str]:
         """The filler words between here and the next meaningful item."""
         return {word for item in self.fillers() for word in item.words}

@@ -395,6 +395,7 @@ def normalize(text: str) -> list[str]:
     """Lower-case words of ``text``: hyphens and slashes split words, numbers and commas stay (a comma
     ends a clause), other punctuation goes."""
     text = text.lower().replace("’", "'")
+    text = re.sub(r"(?<=\d),(?=\d{3}\b)", "", text)  # "1,000 m"
     text = re.sub(r"(\d)\s*-\s*(\d)", r"\1 to \2", text)
     text = re.sub(r"(\d)(m|s)\b", r"\1 \2", text)
     text = re.sub(r"[-/]", " ", text)

@@ -40,7 +40,7 @@ from scenarios.program import (
     of_two_kinds,
     subject_of,
 )
-from scenarios.relating import AHEAD_IN_LANE, RelationReader
+from scenarios.relating import RelationReader
 
 #: Within this distance (m), "a group of" objects stand together.
 GROUP_RADIUS_M = 5.0
@@ -61,6 +61,7 @@ class Parser(RelationReader):
         self.within_s: float | None = None
         #: How deep in the phrases named by relations: "and"/"while" + modifier join the referred phrase only.
         self.depth = 0
+        self.in_condition = False  # reading a condition that opens the sentence: "after the bus stops, …"
         #: Whether the clause's count was a group's ("a group of pedestrians", "a crowd"): near one another.
         self.grouped = False
 
@@ -123,18 +124,28 @@ class Parser(RelationReader):
                 node = rewrite.stated(node, item.name, item.params, item.role == "notpred" or item.negate)
         self.depth += 1
         try:
-            modified = node if bare else self.modifiers(node)
+            modified = node if bare else self.modifiers(node, choosing=nearest is not None)
             if nearest is not None:  # "the nearest two pedestrians": the two nearest, not two at once
-                at = self.i
-                modified, count = self.nearest(modified, node, nearest, max(1, count)), 0
-                if self.i != at and not bare:  # "the closest pedestrian to us is running": after the anchor
+                at, said_of_it = self.i, self.at_copula() or self.role() in ("pred", "seq")
+                modified, count = self.nearest(modified, nearest, max(1, count)), 0
+                if not bare and (said_of_it or self.i != at):  # "the closest car to us is parked"
                     modified = self.modifiers(modified)
             return modified, count
         finally:
             self.depth -= 1
 
-    def modifiers(self, node: Node) -> Node:
+    def modifiers(self, node: Node, choosing: bool = False) -> Node:
+        """``node`` with the modifiers that follow. A relation's object stops at "is" or a comma ("the car
+        in front of the bus is stopped": the car is). ``choosing``: only those that say which objects "the
+        nearest" is among, up to "is" or a state not in a "that" clause ("the closest car in our lane |
+        brakes"; "the closest car that is parked": of the parked ones)."""
         while True:
+            if (self.at_copula() and (choosing or self.depth > 1)) or (self.at_comma() and (self.depth > 1
+                                                                                          or self.in_condition)):
+                break
+            if choosing and self.role() in ("pred", "seq") and self.name() not in rewrite.PLACES \
+                    and not self.skipped_before_next() & {"that", "which", "who"}:
+                break
             role = self.role()
             if role == "pred":
                 item = self.take()
@@ -157,8 +168,8 @@ class Parser(RelationReader):
                 other = self.phrase(need_kind=True)
                 node = node if other is None else self.relate(node, Lexeme("rel", "following", reverse=True), other)
             elif role == "nearest" and self.name() == "near":  # "the car closest to us", "… nearest to the bus"
-                node = self.nearest(node, node, self.take())
-            elif role in ("count", "number") and self.role(1) == "kind" and self.role(2) in ("side", "ego", "rel"):
+                node = self.nearest(node, self.take())
+            elif role in ("count", "number") and self.role(1) == "kind" and self.ahead_word(2) and not self.at_comma():
                 node = self.chain(node)
             elif role == "not" and self.role(1) == "kind" and self.role(2) == "side":  # "without a car ahead of it"
                 node = rewrite.negated(self.with_phrase(node, self.take()), node)
@@ -332,25 +343,10 @@ class Parser(RelationReader):
     def modifiers_bare(self, node: Node) -> Node:
         """The predicates right after a bare phrase ("with lane-changing vehicles", "with stroller jaywalking"
         keeps "jaywalking" for the subject): only those that follow with no relation in between."""
-        while self.role() == "pred" and self.name() not in ("jaywalking", "appearance"):
+        while self.role() == "pred" and self.name() not in ("jaywalking", "appearance") and not self.at_comma():
             item = self.take()
             node = rewrite.stated(node, item.name, item.params, item.negate)
         return node
-
-    def chain(self, node: Node) -> Node:
-        """"two cars ahead (of X)": the object of ``node``'s kind in front of the one in front of X (the ego
-        by default), through as many vehicles as the count says."""
-        count_item = self.take()
-        n = count_item.count or int(float(count_item.name))
-        link = Objects(self.take().name)
-        where = self.take()
-        anchor: Node = Objects("ego")
-        if where.role in ("rel", "side") and self.role() == "kind":
-            found = self.phrase()
-            anchor = found[0] if found is not None else anchor
-        for _ in range(max(0, n - 1)):  # each link the nearest ahead of the one before
-            anchor = Has(anchor, "direction", link, AHEAD_IN_LANE, reverse=True, nearest=1)
-        return Has(anchor, "direction", node, AHEAD_IN_LANE, reverse=True, nearest=1)
 
     # -- the description -------------------------------------------------------------------------------
     def description(self) -> Node:
@@ -374,15 +370,16 @@ class Parser(RelationReader):
                 return self.referred(*found)
         if self.role() == "conj" and self.name() in ("while", "after"):  # "while we are stopped, a pedestrian …"
             start, unused = self.i, len(self.unused)
-            lead = self.take()
-            condition = self.phrase()
-            if condition is not None and self.role() in ("kind", "count", "nearest"):
+            lead, self.in_condition = self.take(), True  # the condition ends at a comma
+            condition, self.in_condition = self.phrase(), False
+            if condition is not None and (self.role() in ("kind", "count", "nearest") or self.it_next()):
                 self.antecedent = first = self.referred(*condition)  # "while a bus is stopped, a car passes it"
                 main = self.clauses()
                 return While(main, first) if lead.name == "while" else rewrite.in_turn(main, first, after=True)
             self.i, self.unused[unused:], self.grouped = start, [], False  # no main clause: "while" says nothing
             self.unused.extend(self.take().words)
-        found = self.phrase()
+        found = self.phrase() if self.antecedent is None or not self.it_next() else \
+            (self.modifiers(rewrite.without_states(subject_of(self.antecedent))), 0)  # "after the bus stops, it …"
         if found is None:
             raise DescriptionError("")
         node = self.referred(*found)
@@ -390,8 +387,9 @@ class Parser(RelationReader):
             conj = self.take()
             self.end_clause()
             self.antecedent = node  # "… while a pedestrian crosses in front of it"
-            # "brakes and then stops": a phrase naming no kind goes on about the same objects.
-            nxt = self.phrase(need_kind=True)
+            another = bool(self.skipped_before_next() & {"another", "other"})  # "a car brakes, then another car …"
+            nxt = self.phrase(need_kind=True)  # none: "brakes and then stops" goes on about the same objects
+            another = another or (nxt is not None and rewrite.mentions(nxt[0], node))  # "the car behind it"
             if nxt is None:  # "stopped then moving": the same objects
                 head = rewrite.without_states(subject_of(node))
                 if self.role() in ("pred", "rel", "ego", "side", "with", "between", "not", "seq", "fixed"):
@@ -412,7 +410,7 @@ class Parser(RelationReader):
                 near = dataclasses.replace(self.each_other, subject=node, other=self.each_other.subject)
                 node = AnyOf((near, dataclasses.replace(near, reverse=True)))
             elif conj.name in ("then", "after"):  # "a car stops, then a pedestrian crosses"; "… after it turns"
-                node = rewrite.in_turn(node, other, after=conj.name == "after")
+                node = rewrite.in_turn(node, other, conj.name == "after", another)
             elif conj.name == "except":
                 node = Excluding(node, other)
             elif conj.name == "while":

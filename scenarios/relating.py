@@ -10,7 +10,7 @@ from collections.abc import Callable, Iterable
 from scenarios.lexeme_stream import LexemeStream
 from scenarios.lexicon import Lexeme
 from scenarios.program import Has, Is, Node, Objects, Then, subject_of
-from scenarios.rewrite import nearest_one, without_states
+from scenarios.rewrite import without_states
 
 #: The two steps of "drives off" or "cuts into my lane" happen within this many seconds.
 CUT_IN_WITHIN_S = 4.0
@@ -71,22 +71,35 @@ class RelationReader(LexemeStream):
             return Has(other_node, item.name, node, params, reverse=True)
         return Has(node, item.name, other_node, params, min_count=max(1, count))
 
-    def nearest(self, node: Node, base: Node, item: Lexeme, n: int = 1) -> Node:
-        """``node`` (``base`` with modifiers) kept to the ``n`` nearest the ego, or to the object named
-        after "to" ("the closest car to the bus"): in a relation that answers it already, or else
-        among all of ``base``'s objects, by what ``item`` says ("closest": anywhere; "lead": ahead in the
-        lane)."""
+    def chain(self, node: Node) -> Node:
+        """"two cars ahead (of X)": the object of ``node``'s kind in front of the one in front of X (the ego
+        by default), through as many vehicles as the count says."""
+        count_item = self.take()
+        n = count_item.count or int(float(count_item.name))
+        link = Objects(self.take().name)
+        where = self.take()
+        anchor: Node = Objects("ego")
+        if where.role in ("rel", "side") and self.role() == "kind":
+            found = self.phrase()
+            anchor = found[0] if found is not None else anchor
+        for _ in range(max(0, n - 1)):  # each link the nearest ahead of the one before
+            anchor = Has(anchor, "direction", link, AHEAD_IN_LANE, reverse=True, nearest=1)
+        return Has(anchor, "direction", node, AHEAD_IN_LANE, reverse=True, nearest=1)
+
+    def nearest(self, node: Node, item: Lexeme, n: int = 1) -> Node:
+        """The ``n`` of ``node``'s objects nearest the ego, or the object named after "to" ("the closest
+        car to the bus"), by what ``item`` says ("closest": anywhere within 100 m; "lead": ahead in the
+        lane band). A side of ours that ``node`` says already is where "closest" looks: "the nearest
+        pedestrian on our right"."""
         anchor: Node = Objects("ego")
         if item.name == "near" and self.role() in ("kind", "nearest") and self.skipped_before_next() & {"to", "from"}:
             found = self.phrase(bare=True, need_kind=True)  # what follows is the subject's: "… is stopped"
             anchor = found[0] if found is not None else anchor
+        if item.name == "near" and anchor == Objects("ego") and isinstance(node, Has) and node.reverse \
+                and node.subject == anchor and node.relation == "direction":
+            return dataclasses.replace(node, nearest=n)
         relation, params = _NEAREST[item.name]
-
-        def reuse(has: Has) -> bool:  # a relation of the ego's that already says where: "on our right"
-            return anchor == Objects("ego") and (item.name == "near" or dict(has.params).get("side") == "front")
-
-        return nearest_one(node, base, n, lambda objects: Has(anchor, relation, objects, params, reverse=True,
-                                                              nearest=n), reuse)
+        return Has(anchor, relation, node, params, reverse=True, nearest=n)
 
     def without_object(self, node: Node, item: Lexeme) -> Node:
         """A relation phrase that names no object: of the ego, by anyone, or no relation at all."""

@@ -4,7 +4,6 @@ bounded, a modifier negated, the states left out of a later step, the subject re
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable
 
 from scenarios import program as p
 
@@ -111,63 +110,29 @@ def ego_without(node: p.Node) -> p.Node | None:
     return None
 
 
-def in_turn(main: p.Node, event: p.Node, after: bool = False) -> p.Node:
+def mentions(node: p.Node, part: p.Node) -> bool:
+    """Whether ``part`` is ``node`` or one of its nodes ("the car behind it" mentions what "it" names)."""
+    if node == part:
+        return True
+    for field in dataclasses.fields(node):
+        value = getattr(node, field.name)
+        children = value if isinstance(value, tuple) else (value,)  # AllOf's children; a parameter's pair
+        if any(isinstance(c, p.Node) and mentions(c, part) for c in children):
+            return True
+    return False
+
+
+def in_turn(main: p.Node, event: p.Node, after: bool = False, distinct: bool = False) -> p.Node:
     """``main``, then ``event`` (or, ``after``, ``event`` first): one object doing both in turn where both
-    name the same objects ("a car stops after it turns"), else ``main``'s objects at the moments that
-    the other objects' event follows or precedes ("a pedestrian crosses, then we drive off")."""
-    if p.subject_of(main) == p.subject_of(event):
+    name the same objects ("a car stops after it turns"), else, or where they are ``distinct`` ("a car
+    brakes, then another car brakes"), ``main``'s objects at the moments that the other objects' event
+    follows or precedes ("a pedestrian crosses, then we drive off")."""
+    if p.subject_of(main) == p.subject_of(event) and not distinct:
         return p.Then(event, main) if after else p.Then(main, event)
     return p.Sequenced(main, event, after=after)
 
 
-#: Predicates of where an object is: said after the noun, they narrow the choice of "the nearest"
-#: ("the closest vehicle in our lane" is the nearest of those in our lane).
+#: Predicates of where an object is: said after the noun, they say which objects "the nearest" is among
+#: ("the closest vehicle in our lane brakes": the nearest of those in our lane, braking).
 PLACES = frozenset({"ego_lane", "on_crosswalk", "at_crosswalk", "in_bike_lane", "in_bus_lane", "in_vehicle_lane",
                     "at_intersection", "near_intersection", "on_road"})
-
-
-def _narrows(node: p.Node, base: p.Node) -> bool:
-    """Whether ``node`` is ``base`` with only modifiers that say which objects a choice is among: places
-    (:data:`PLACES`), relations asked of the ego from its side ("on our right") and exclusions."""
-    while node != base:
-        match node:
-            case p.Is(inner) if node.predicate in PLACES:
-                node = inner
-            case p.Has() if node.reverse and node.subject == p.Objects("ego"):
-                node = node.other
-            case p.Excluding(inner):
-                node = inner
-            case _:
-                return False
-    return True
-
-
-def nearest_one(node: p.Node, base: p.Node, n: int, around: Callable[[p.Node], p.Node],
-                reuse: Callable[[p.Has], bool]) -> p.Node:
-    """``node`` (``base`` with modifiers) answering only the ``n`` nearest of its objects.
-
-    The choice is among the objects of ``base`` and of the modifiers that narrow it (:func:`_narrows`:
-    "the closest car in our lane", "not in front of us"); what else follows is said of the chosen ones
-    ("the lead vehicle brakes": of the vehicles, the nearest ahead, then braking). ``around`` makes the
-    choice, unless the narrowing ends in a relation that ``reuse`` accepts, which then keeps the nearest
-    itself ("the nearest pedestrian on our right"). A node the walk does not know is chosen from whole:
-    the word is never dropped.
-    """
-    if _narrows(node, base):
-        if isinstance(node, p.Has) and node.reverse and reuse(node):
-            return dataclasses.replace(node, nearest=n)
-        return around(node)
-    match node:
-        case p.Is(inner) | p.Between(inner) | p.Together(inner) | p.ForAtLeast(inner) | p.While(inner) \
-                | p.Sequenced(inner) | p.Excluding(inner):
-            field = dataclasses.fields(node)[0].name
-            return dataclasses.replace(node, **{field: nearest_one(inner, base, n, around, reuse)})  # type: ignore[arg-type]
-        case p.Has() if node.reverse:
-            return dataclasses.replace(node, other=nearest_one(node.other, base, n, around, reuse))
-        case p.Has(inner):
-            return dataclasses.replace(node, subject=nearest_one(inner, base, n, around, reuse))
-        case p.Then(first):
-            return dataclasses.replace(node, first=nearest_one(first, base, n, around, reuse))
-        case p.AllOf((first, *rest)):
-            return p.AllOf((nearest_one(first, base, n, around, reuse), *rest))
-    return around(node)

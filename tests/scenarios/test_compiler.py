@@ -183,7 +183,14 @@ MEANINGS = {
     "the car closest to the bus": "reverse(near(bus, car, within_m=100, nearest=1))",
     "the nearest pedestrian on our right": "reverse(direction(ego, pedestrian, side=right, nearest=1))",
     "the nearest two pedestrians": "reverse(near(ego, pedestrian, within_m=100, nearest=2))",
-    "the first car in front of us": "reverse(direction(ego, car, side=front, nearest=1))",
+    "the first car in front of us":  # the lead: the nearest ahead in the lane band, of those in front of us
+        "reverse(direction(ego, reverse(direction(ego, car, side=front)), side=front, lateral_m=1.5, within_m=40, "
+        "nearest=1))",
+    "the closest vehicle is in our lane":  # after "is", said of the chosen one
+        "ego_lane(reverse(near(ego, vehicle, within_m=100, nearest=1)), lane=host)",
+    "the closest car that is parked": "reverse(near(ego, parked(car), within_m=100, nearest=1))",
+    "the nearest car in front of the bus is stopped":
+        "stopped(reverse(near(ego, reverse(direction(bus, car, side=front)), within_m=100, nearest=1)))",
     "a car first slows down then stops": "then(braking(car), stopped(car), within_s=5)",
     "a truck leading a car": "reverse(following(car, truck))",
     # One object, then another: the first clause's objects, at the moments the other's event follows
@@ -238,6 +245,17 @@ MEANINGS = {
     "after a car cuts into our lane, we brake within 2 s":
         "after(braking(ego), then(ego_lane(car, lane=adjacent), ego_lane(car, lane=host), within_s=4), within_s=2)",
     "after the pedestrian crosses, a car stops": "after(stopped(car), crossing_road(pedestrian), within_s=5)",
+    # Found by a second review: "is" after a relation's object is the subject's; a comma ends a clause;
+    # "it" may open the main clause; "another" and "the car behind it" are other objects.
+    "the closest pedestrian near the bus is crossing":
+        "crossing_road(reverse(near(ego, near(pedestrian, bus), within_m=100, nearest=1)))",
+    "a pedestrian within 5 m of the bus, crossing the road": "crossing_road(near(pedestrian, bus, within_m=5))",
+    "after a cyclist passes us, it turns right":
+        "then(reverse(passed_by(ego, cyclist)), turning(cyclist, direction=right), within_s=5)",
+    "a car brakes, then another car brakes": "before(braking(car), braking(car), within_s=5)",
+    "a car brakes, then the car behind it brakes":
+        "before(braking(car), braking(reverse(direction(braking(car), car, side=behind))), within_s=5)",
+    "a car within 1,000 meters of us": "near(car, ego, within_m=1000)",
     "a pedestrian running fast": "fast(pedestrian)",  # was faster than 13 m/s, which no one runs
     "a bus stopped at a stop": "stopped(bus)",  # asked once
     "a pedestrian about to cross": "about_to_cross(pedestrian)",  # it read as crossing
@@ -262,6 +280,9 @@ NOT_UNDERSTOOD = {
     "a pedestrian walks past": ("moving(pedestrian)", ("past",)),
     # "Cuts in front of" is no phrase: the lead vehicle it names is not taken for "leading" anything.
     "traffic backed up": ("vehicle", ("backed", "up")),  # a queue, not reversing
+    # Two clauses joined by a comma alone: the second is reported, not read as "two cars ahead".
+    "we stop, 2 pedestrians cross in front of us":
+        ("stopped(ego)", ("2", "pedestrians", "cross", "in", "front", "of", "us")),
     "a car backs out of a parking spot": ("reversing(car)", ("of", "a", "parking", "spot")),  # no parking in the map
     "a car cuts in front of the lead vehicle": ("then(ego_lane(car, lane=adjacent), ego_lane(car, lane=host), "
                                                 "within_s=4)", ("front", "lead", "vehicle")),

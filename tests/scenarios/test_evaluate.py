@@ -221,33 +221,36 @@ def test_then_while_and_for_at_least_on_features() -> None:
 
 
 def test_one_objects_moment_before_or_after_another_objects_event() -> None:
-    # At 10 Hz: the car is stopped over frames 0–9 and then drives off; the cyclist waits from frame 20
-    # (2.0 s) on; a pedestrian walks the whole log.
-    frames = 30
-    stopped = np.arange(frames) < 10
-    waiting = np.arange(frames) >= 20
+    # At 10 Hz: the car drives, stops over frames 5–14 (from 0.5 s) and drives off at 1.5 s; the cyclist
+    # waits from frame 25 (2.5 s) on; a pedestrian walks all along.
+    frames = 40
+    stopped = (np.arange(frames) >= 5) & (np.arange(frames) < 15)
+    waiting = np.arange(frames) >= 25
     x = make_features([car((0, Y), flags={"stopped": stopped}, speed=np.where(stopped, 0.0, 5.0)),
                        cyclist((5, Y), speed=np.where(waiting, 0.0, 4.0)), pedestrian((9, Y))], frames=frames)
     car_stops, cyclist_waits = p.Is(p.Objects("car"), "stopped"), p.Is(p.Objects("cyclist"), "stopped")
-    # What counts is when each begins: the car's stop at 0 s, the cyclist's wait at 2 s.
+    # What counts is when each begins: the car's stop at 0.5 s, the cyclist's wait at 2.5 s.
     before = evaluate(p.Sequenced(car_stops, cyclist_waits, 2.5), x).selection
-    assert np.flatnonzero(before.mask[0]).tolist() == list(range(10))  # the car's whole stop
-    assert np.flatnonzero(before.related[1]).tolist() == list(range(20, 30))  # the cyclist's whole wait
+    assert np.flatnonzero(before.mask[0]).tolist() == list(range(5, 15))  # the car's whole stop
+    assert np.flatnonzero(before.related[1]).tolist() == list(range(25, 40))  # the cyclist's whole wait
     assert not before.mask[1].any()  # related, not referred
     assert not evaluate(p.Sequenced(car_stops, cyclist_waits, 1.5), x).selection.mask.any()
     after = evaluate(p.Sequenced(cyclist_waits, car_stops, 2.5, after=True), x).selection
-    assert np.flatnonzero(after.mask[1]).tolist() == list(range(20, 30))
-    assert np.flatnonzero(after.related[0]).tolist() == list(range(10))
+    assert np.flatnonzero(after.mask[1]).tolist() == list(range(25, 40))
+    assert np.flatnonzero(after.related[0]).tolist() == list(range(5, 15))
     assert not evaluate(p.Sequenced(car_stops, cyclist_waits, 2.5, after=True), x).selection.mask.any()
-    # A state that holds all along begins before anything: "a car stops, then a pedestrian walks" is not it.
+    # A state held since the object came into view has no beginning: it follows and precedes nothing.
     walks = p.Is(p.Objects("pedestrian"), "moving")
-    assert not evaluate(p.Sequenced(cyclist_waits, walks, 5.0), x).selection.mask.any()
-    assert evaluate(p.Sequenced(cyclist_waits, walks, 5.0, after=True), x).selection.mask[1, 20]
-    # A sequence happens where its second step begins: the car drives off at 1 s, before the wait at 2 s.
+    for after_ in (False, True):
+        assert not evaluate(p.Sequenced(cyclist_waits, walks, 5.0, after_), x).selection.mask.any()
+    # A sequence begins where its second step does: the car drives off at 1.5 s, 1 s before the wait;
+    # so does a sequence under a filter.
     drive_off = p.Then(car_stops, p.Is(p.Objects("car"), "moving"), 4.0)
     assert evaluate(p.Sequenced(drive_off, cyclist_waits, 1.5), x).selection.mask[0].any()
     assert not evaluate(p.Sequenced(drive_off, cyclist_waits, 0.5), x).selection.mask.any()
     assert not evaluate(p.Sequenced(drive_off, cyclist_waits, 5.0, after=True), x).selection.mask.any()
+    assert evaluate(p.Sequenced(p.ForAtLeast(drive_off, 1.0), cyclist_waits, 1.5), x).selection.mask[0].any()
+    assert not evaluate(p.Sequenced(p.ForAtLeast(drive_off, 1.0), cyclist_waits, 0.5), x).selection.mask.any()
 
 
 def test_answer_marks_referred_and_related_apart() -> None:

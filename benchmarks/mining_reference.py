@@ -37,6 +37,7 @@ wrong. Every test is written again from its definition, one object and one frame
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -392,9 +393,8 @@ class _Reference:
                                for o in range(k)])
 
     # -- time ------------------------------------------------------------------------------------------
-    def runs_lasting(self, sel: Grid, seconds: float) -> Grid:
-        t = self.log.time_s
-        out = self.grid()
+    def runs(self, sel: Grid) -> Iterator[tuple[int, int, int]]:
+        """(object, first frame, last frame + 1) of each run of ``sel`` (consecutive frames of an object)."""
         for o in range(self.k):
             f = 0
             while f < self.f:
@@ -402,12 +402,18 @@ class _Reference:
                     f += 1
                     continue
                 end = f
-                while end + 1 < self.f and sel[o][end + 1]:
+                while end < self.f and sel[o][end]:
                     end += 1
-                if t[end] - t[f] + self.dt >= seconds - 1e-6:
-                    for g in range(f, end + 1):
-                        out[o][g] = True
-                f = end + 1
+                yield o, f, end
+                f = end
+
+    def runs_lasting(self, sel: Grid, seconds: float) -> Grid:
+        t = self.log.time_s
+        out = self.grid()
+        for o, f, end in self.runs(sel):
+            if t[end - 1] - t[f] + self.dt >= seconds - 1e-6:
+                for g in range(f, end):
+                    out[o][g] = True
         return out
 
     def starts(self, node: p.Node, sel: Grid) -> Grid:
@@ -432,19 +438,10 @@ class _Reference:
     def runs_holding(self, sel: Grid, marks: Grid) -> Grid:
         """The runs of ``sel`` (consecutive frames of an object) that hold a frame of ``marks``."""
         out = self.grid()
-        for o in range(self.k):
-            f = 0
-            while f < self.f:
-                if not sel[o][f]:
-                    f += 1
-                    continue
-                end = f
-                while end < self.f and sel[o][end]:
-                    end += 1
-                if any(marks[o][g] for g in range(f, end)):
-                    for g in range(f, end):
-                        out[o][g] = True
-                f = end
+        for o, f, end in self.runs(sel):
+            if any(marks[o][g] for g in range(f, end)):
+                for g in range(f, end):
+                    out[o][g] = True
         return out
 
     def in_reach(self, frames: list[bool], f: int, step: int, within_s: float) -> bool:

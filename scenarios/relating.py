@@ -9,8 +9,8 @@ from collections.abc import Callable, Iterable
 
 from scenarios.lexeme_stream import LexemeStream
 from scenarios.lexicon import Lexeme
-from scenarios.program import Has, Is, Node, Objects, Then, subject_of
-from scenarios.rewrite import without_states
+from scenarios.program import AllOf, AnyOf, Has, Is, Node, Objects, Then, subject_of
+from scenarios.rewrite import with_subject, without_states
 
 #: The two steps of "drives off" or "cuts into my lane" happen within this many seconds.
 CUT_IN_WITHIN_S = 4.0
@@ -20,6 +20,9 @@ AHEAD_IN_LANE: tuple[tuple[str, float | str], ...] = (("side", "front"), ("later
 #: What "the nearest" ("closest") and "the lead" ("leading", "the first") object is nearest to the anchor by.
 _NEAREST: dict[str, tuple[str, tuple[tuple[str, float | str], ...]]] = {
     "near": ("near", (("within_m", 100.0),)), "ahead": ("direction", AHEAD_IN_LANE)}
+#: What "the lead" is the nearest of, whatever kind the words name: whoever drives ahead in the lane (a
+#: motorcycle or a bicycle leads as a car does). "The lead car" is the lead, when it is a car.
+LEAD_KINDS = ("vehicle", "motorcycle", "cyclist")
 
 
 class RelationReader(LexemeStream):
@@ -99,7 +102,13 @@ class RelationReader(LexemeStream):
                 and node.subject == anchor and node.relation == "direction":
             return dataclasses.replace(node, nearest=n)
         relation, params = _NEAREST[item.name]
-        return Has(anchor, relation, node, params, reverse=True, nearest=n)
+        kind = subject_of(node)
+        if item.name == "near" or not isinstance(kind, Objects) or kind.kind not in (*LEAD_KINDS, "any", "car",
+                                                                                      "truck", "bus"):
+            return Has(anchor, relation, node, params, reverse=True, nearest=n)
+        among = with_subject(node, AnyOf(tuple(Objects(k) for k in LEAD_KINDS)))
+        lead = Has(anchor, relation, among, params, reverse=True, nearest=n)
+        return lead if kind.kind in ("vehicle", "any") else AllOf((kind, lead))
 
     def without_object(self, node: Node, item: Lexeme) -> Node:
         """A relation phrase that names no object: of the ego, by anyone, or no relation at all."""

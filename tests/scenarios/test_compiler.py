@@ -172,20 +172,24 @@ MEANINGS = {
     "a car at 30 mph": "speed(car, min_mps=10.73, max_mps=16.09)",
     "a car going around 5 m/s": "speed(moving(car), min_mps=4, max_mps=6)",
     "pedestrians around a bus": "near(pedestrian, bus)",
-    # The nearest one: "the lead vehicle" ahead in our lane; "the closest" anywhere, or to the object named;
-    # it picks among the objects named up to the noun, and what follows is said of that one.
+    # The nearest one: "the lead vehicle" is whoever drives nearest ahead in our lane band (a motorcycle or
+    # a bicycle leads as a car does); "the closest" anywhere, or to the object named.
     "the lead vehicle brakes":
-        "braking(reverse(direction(ego, vehicle, side=front, lateral_m=1.5, within_m=40, nearest=1)))",
+        "braking(reverse(direction(ego, or(vehicle, motorcycle, cyclist), side=front, lateral_m=1.5, within_m=40, "
+        "nearest=1)))",
     "we follow the lead vehicle closely":
-        "following(ego, reverse(direction(ego, vehicle, side=front, lateral_m=1.5, within_m=40, nearest=1)), "
-        "within_m=10)",
+        "following(ego, reverse(direction(ego, or(vehicle, motorcycle, cyclist), side=front, lateral_m=1.5, "
+        "within_m=40, nearest=1)), within_m=10)",
+    "the lead car brakes":  # the lead, when it is a car
+        "braking(and(car, reverse(direction(ego, or(vehicle, motorcycle, cyclist), side=front, lateral_m=1.5, "
+        "within_m=40, nearest=1))))",
     "the closest parked car": "reverse(near(ego, parked(car), within_m=100, nearest=1))",
     "the car closest to the bus": "reverse(near(bus, car, within_m=100, nearest=1))",
     "the nearest pedestrian on our right": "reverse(direction(ego, pedestrian, side=right, nearest=1))",
     "the nearest two pedestrians": "reverse(near(ego, pedestrian, within_m=100, nearest=2))",
-    "the first car in front of us":  # the lead: the nearest ahead in the lane band, of those in front of us
-        "reverse(direction(ego, reverse(direction(ego, car, side=front)), side=front, lateral_m=1.5, within_m=40, "
-        "nearest=1))",
+    "the first car in front of us":  # the lead of those in front of us, when it is a car
+        "and(car, reverse(direction(ego, reverse(direction(ego, or(vehicle, motorcycle, cyclist), side=front)), "
+        "side=front, lateral_m=1.5, within_m=40, nearest=1)))",
     "the closest vehicle is in our lane":  # after "is", said of the chosen one
         "ego_lane(reverse(near(ego, vehicle, within_m=100, nearest=1)), lane=host)",
     "the closest car that is parked": "reverse(near(ego, parked(car), within_m=100, nearest=1))",
@@ -234,11 +238,13 @@ MEANINGS = {
         "reverse(near(ego, excluding(pedestrian, reverse(direction(ego, pedestrian, side=front))), within_m=100, "
         "nearest=1))",
     "the lead vehicle is in front of a bus":
-        "reverse(direction(bus, reverse(direction(ego, vehicle, side=front, lateral_m=1.5, within_m=40, nearest=1)), "
-        "side=front))",
+        "reverse(direction(bus, reverse(direction(ego, or(vehicle, motorcycle, cyclist), side=front, lateral_m=1.5, "
+        "within_m=40, nearest=1)), side=front))",
     "a car within 10 m of the lead vehicle":
-        "near(car, reverse(direction(ego, vehicle, side=front, lateral_m=1.5, within_m=40, nearest=1)), within_m=10)",
-    "there is no lead vehicle": "not(direction(ego, vehicle, side=front, lateral_m=1.5, within_m=40, nearest=1))",
+        "near(car, reverse(direction(ego, or(vehicle, motorcycle, cyclist), side=front, lateral_m=1.5, within_m=40, "
+        "nearest=1)), within_m=10)",
+    "there is no lead vehicle":
+        "not(direction(ego, or(vehicle, motorcycle, cyclist), side=front, lateral_m=1.5, within_m=40, nearest=1))",
     "after a pedestrian crosses, we drive off and a cyclist passes us":
         "after(while(then(stopped(ego), moving(ego), within_s=4), reverse(passed_by(ego, cyclist))), "
         "crossing_road(pedestrian), within_s=5)",

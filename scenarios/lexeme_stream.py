@@ -7,6 +7,9 @@ from typing import NamedTuple
 
 from scenarios.lexicon import Lexeme
 
+#: Words that end in "s" without being a verb's present ("across", "towards").
+_NOT_VERBS = frozenset({"across", "towards", "always", "alongside", "backwards", "sideways", "besides", "perhaps"})
+
 
 class Quantity(NamedTuple):
     """A number said with its unit ("m", "s", a speed unit, or "" for none); for a range ("5 to 20 m"),
@@ -76,6 +79,29 @@ class LexemeStream:
     def it_next(self) -> bool:
         """Whether "it" or "they" stands before the next meaningful item (a clause about the objects before)."""
         return bool(self.skipped_before_next() & {"it", "they"})
+
+    def finite_verb(self) -> bool:
+        """Whether the next meaningful item is a verb said in the present ("brakes", "passes a cyclist"),
+        not a participle ("braking", "parked on the left"): a new predicate of the clause's subject."""
+        item = self.peek()
+        return item is not None and item.role in ("pred", "seq", "rel") and len(item.words[0]) > 3 \
+            and item.words[0].endswith("s") and not item.words[0].endswith("ss") and item.words[0] not in _NOT_VERBS
+
+    def ends_phrase(self, nested: bool, comma_ends: bool, choosing: str | None, places: frozenset[str]) -> bool:
+        """Whether the next words are no longer the phrase's own modifiers: after "is" or a present verb
+        for the object of a relation (``nested``: "the car in front of the bus is stopped", "… brakes": the
+        car does), after a comma where it ends the clause (``comma_ends``); for "the nearest" (``choosing``)
+        after "is", and after a present verb ("closest", ``near``) or anything but a place or our side
+        ("lead", ``ahead``: "the lead vehicle braking" is the lead, braking). Never inside a "that",
+        "which" or "who" clause, which is the phrase's ("a bus, which is stopped")."""
+        if self.skipped_before_next() & {"that", "which", "who"}:
+            return False
+        if (self.at_copula() and (nested or choosing)) or (self.at_comma() and comma_ends):
+            return True
+        if (nested or choosing == "near") and self.finite_verb():
+            return True
+        return choosing == "ahead" and self.role() in ("pred", "seq", "rel", "fixed", "with") \
+            and self.name() not in places
 
     def at_copula(self) -> bool:
         """Whether "is" or "are" stands before the next meaningful item, other than in "that is" ("the

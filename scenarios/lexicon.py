@@ -311,7 +311,7 @@ _add("side by side|next to each other|alongside each other|beside each other|nex
 _add("near each other|close to each other|near one another|close to one another|close together",
      Lexeme("mutual", "near", (("within_m", 5.0),)))
 _add("closest|nearest|closest one|nearest one", Lexeme("nearest", "near"))
-_add("lead|leading|leads|the first|first in line", Lexeme("nearest", "ahead"))
+_add("lead|leading|leads|the first", Lexeme("nearest", "ahead"))
 _add("drives off|drive off|pulls away|pull away|starts moving|start moving|takes off|sets off|starts to move|"
      "accelerating from a stop|accelerates from a stop|accelerate from a stop|starting from a stop|"
      "accelerates quickly from a stop|accelerating quickly from a stop|accelerates hard from a stop|"

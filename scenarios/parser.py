@@ -124,9 +124,9 @@ class Parser(RelationReader):
                 node = rewrite.stated(node, item.name, item.params, item.role == "notpred" or item.negate)
         self.depth += 1
         try:
-            modified = node if bare else self.modifiers(node, choosing=nearest is not None)
+            modified = node if bare else self.modifiers(node, None if nearest is None else nearest.name)
             if nearest is not None:  # "the nearest two pedestrians": the two nearest, not two at once
-                at, said_of_it = self.i, self.at_copula() or self.role() in ("pred", "seq")
+                at, said_of_it = self.i, self.ends_phrase(False, False, nearest.name, rewrite.PLACES)
                 modified, count = self.nearest(modified, nearest, max(1, count)), 0
                 if not bare and (said_of_it or self.i != at):  # "the closest car to us is parked"
                     modified = self.modifiers(modified)
@@ -134,18 +134,10 @@ class Parser(RelationReader):
         finally:
             self.depth -= 1
 
-    def modifiers(self, node: Node, choosing: bool = False) -> Node:
-        """``node`` with the modifiers that follow. A relation's object stops at "is" or a comma ("the car
-        in front of the bus is stopped": the car is). ``choosing``: only those that say which objects "the
-        nearest" is among, up to "is" or a state not in a "that" clause ("the closest car in our lane |
-        brakes"; "the closest car that is parked": of the parked ones)."""
-        while True:
-            if (self.at_copula() and (choosing or self.depth > 1)) or (self.at_comma() and (self.depth > 1
-                                                                                          or self.in_condition)):
-                break
-            if choosing and self.role() in ("pred", "seq") and self.name() not in rewrite.PLACES \
-                    and not self.skipped_before_next() & {"that", "which", "who"}:
-                break
+    def modifiers(self, node: Node, choosing: str | None = None) -> Node:
+        """``node`` with the modifiers that follow, up to where they end (:meth:`ends_phrase`); ``choosing``
+        ("near" or "ahead"): only those that say which objects "the nearest" is among."""
+        while not self.ends_phrase(self.depth > 1, self.depth > 1 or self.in_condition, choosing, rewrite.PLACES):
             role = self.role()
             if role == "pred":
                 item = self.take()
@@ -167,8 +159,13 @@ class Parser(RelationReader):
                 self.take()  # "a car leading a truck": the truck follows it
                 other = self.phrase(need_kind=True)
                 node = node if other is None else self.relate(node, Lexeme("rel", "following", reverse=True), other)
-            elif role == "nearest" and self.name() == "near":  # "the car closest to us", "… nearest to the bus"
-                node = self.nearest(node, self.take())
+            elif role == "nearest":  # "the car closest to us", "… nearest to the bus"
+                item = self.take()
+                if item.name == "near" and (self.skipped_before_next() & {"to", "from"} or (
+                        self.role() in ("end", "conj") and not self.unknown_before_next())):
+                    node = self.nearest(node, item)
+                else:  # "first in line", "at the closest intersection": not of the objects
+                    self.unused.extend(item.words)
             elif role in ("count", "number") and self.role(1) == "kind" and self.ahead_word(2) and not self.at_comma():
                 node = self.chain(node)
             elif role == "not" and self.role(1) == "kind" and self.role(2) == "side":  # "without a car ahead of it"
@@ -343,7 +340,8 @@ class Parser(RelationReader):
     def modifiers_bare(self, node: Node) -> Node:
         """The predicates right after a bare phrase ("with lane-changing vehicles", "with stroller jaywalking"
         keeps "jaywalking" for the subject): only those that follow with no relation in between."""
-        while self.role() == "pred" and self.name() not in ("jaywalking", "appearance") and not self.at_comma():
+        while self.role() == "pred" and self.name() not in ("jaywalking", "appearance") \
+                and not self.ends_phrase(True, True, None, rewrite.PLACES):
             item = self.take()
             node = rewrite.stated(node, item.name, item.params, item.negate)
         return node
@@ -383,16 +381,19 @@ class Parser(RelationReader):
         if found is None:
             raise DescriptionError("")
         node = self.referred(*found)
-        while self.role() == "conj":
-            conj = self.take()
+        # A comma before a new subject joins clauses as "and" does: "a car is parked on the left, a truck …"
+        while self.role() == "conj" or (self.at_comma() and self.role() in ("kind", "count", "number", "nearest")):
+            conj = self.take() if self.role() == "conj" else Lexeme("conj", "and", words=(",",))
             self.end_clause()
             self.antecedent = node  # "… while a pedestrian crosses in front of it"
-            another = bool(self.skipped_before_next() & {"another", "other"})  # "a car brakes, then another car …"
+            another = bool(self.skipped_before_next() & {"another", "other", "a", "an"})  # "… then another car"
+            self.named_it = False
             nxt = self.phrase(need_kind=True)  # none: "brakes and then stops" goes on about the same objects
-            another = another or (nxt is not None and rewrite.mentions(nxt[0], node))  # "the car behind it"
-            if nxt is None:  # "stopped then moving": the same objects
+            another = another or (nxt is not None and self.named_it)  # "the car behind it"
+            if nxt is None:  # "stopped then moving": the same objects, unless an unknown noun says otherwise
                 head = rewrite.without_states(subject_of(node))
-                if self.role() in ("pred", "rel", "ego", "side", "with", "between", "not", "seq", "fixed"):
+                if self.role() in ("pred", "rel", "ego", "side", "with", "between", "not", "seq", "fixed") \
+                        and not self.unknown_before_next():
                     nxt = (self.modifiers(head), 0)
                 else:
                     self.unused.extend(conj.words)
@@ -419,8 +420,9 @@ class Parser(RelationReader):
                     and subject_of(node) != subject_of(other) \
                     and node != subject_of(node) and other != subject_of(other):
                 node = While(node, other)  # "we turn right and a cyclist is on our right": both at once
-            elif conj.name == "and" and of_two_kinds(node, other):
-                node = AnyOf((node, other))  # "buses and motorcycles": no object is both, the words name both
+            elif conj.name == "and" and of_two_kinds(node.children[-1] if isinstance(node, AnyOf) else node, other):
+                # "buses and motorcycles", "cars, trucks and buses": no object is both, the words name both
+                node = AnyOf((*(node.children if isinstance(node, AnyOf) else (node,)), other))
             else:
                 node = AllOf((node, other)) if conj.name == "and" else node
                 if conj.name == "or":

@@ -41,10 +41,16 @@ class RelationReader(LexemeStream):
         self.antecedent: Node | None = None
         #: The relation "each other" made, of the clause's own kind (another kind's when an "and" names two).
         self.each_other: Has | None = None
+        #: Whether "it" has named the antecedent since the flag was cleared ("the car behind it": another car).
+        self.named_it = False
 
     def it(self, words: Iterable[str]) -> tuple[Node, int] | None:
-        """The antecedent, as a relation's object, where ``words`` say "it" or "them"."""
-        return (self.antecedent, 0) if self.antecedent is not None and {"it", "its", "them"} & set(words) else None
+        """The antecedent, as a relation's object, where ``words`` say "it" or "them" (noted in
+        :attr:`named_it`)."""
+        if self.antecedent is None or not {"it", "its", "them"} & set(words):
+            return None
+        self.named_it = True
+        return self.antecedent, 0
 
     def one_another(self, node: Node, relation: str, params: tuple[tuple[str, float | str], ...]) -> Node:
         """``node`` in ``relation`` to other objects of its own kind ("side by side", "within 5 m of each

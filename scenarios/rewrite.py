@@ -110,18 +110,6 @@ def ego_without(node: p.Node) -> p.Node | None:
     return None
 
 
-def mentions(node: p.Node, part: p.Node) -> bool:
-    """Whether ``part`` is ``node`` or one of its nodes ("the car behind it" mentions what "it" names)."""
-    if node == part:
-        return True
-    for field in dataclasses.fields(node):
-        value = getattr(node, field.name)
-        children = value if isinstance(value, tuple) else (value,)  # AllOf's children; a parameter's pair
-        if any(isinstance(c, p.Node) and mentions(c, part) for c in children):
-            return True
-    return False
-
-
 def in_turn(main: p.Node, event: p.Node, after: bool = False, distinct: bool = False) -> p.Node:
     """``main``, then ``event`` (or, ``after``, ``event`` first): one object doing both in turn where both
     name the same objects ("a car stops after it turns"), else, or where they are ``distinct`` ("a car

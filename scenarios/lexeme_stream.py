@@ -48,6 +48,13 @@ class LexemeStream:
         self.i += 1
         return item
 
+    def pass_fillers(self) -> None:
+        """Step over the filler words before the next meaningful item (unknown ones are unused)."""
+        while self.i < len(self.items) and self.items[self.i].role in ("skip", "unknown"):
+            if self.items[self.i].role == "unknown":
+                self.unused.append(self.items[self.i].name)
+            self.i += 1
+
     def drop_rest(self) -> None:
         while self.i < len(self.items):
             item = self.items[self.i]
@@ -96,12 +103,24 @@ class LexemeStream:
         "which" or "who" clause, which is the phrase's ("a bus, which is stopped")."""
         if self.skipped_before_next() & {"that", "which", "who"}:
             return False
-        if (self.at_copula() and (nested or choosing)) or (self.at_comma() and comma_ends):
+        if (self.at_copula() and (nested or choosing)) or (self.at_comma() and (comma_ends or self.it_next())):
             return True
         if (nested or choosing == "near") and self.finite_verb():
             return True
         return choosing == "ahead" and self.role() in ("pred", "seq", "rel", "fixed", "with") \
             and self.name() not in places
+
+    def comma_clause(self, listing: bool) -> bool:
+        """Whether a comma here starts a clause of its own: a subject ("a car", "two pedestrians", "the
+        lead vehicle") that something is said of ("…, a truck is parked"), or that a ``listing`` of kinds
+        goes on with ("cars, trucks and buses"); not one more object of a relation ("a car near a
+        truck, a bus and a cyclist")."""
+        if self.at_comma() and self.it_next():  # "…, it turns left"
+            return True
+        if not self.at_comma() or self.role() not in ("kind", "count", "number", "nearest"):
+            return False
+        said = self.role(1 if self.role() == "kind" else 2)
+        return listing or said not in ("conj", "end", "kind")
 
     def at_copula(self) -> bool:
         """Whether "is" or "are" stands before the next meaningful item, other than in "that is" ("the

@@ -24,10 +24,8 @@ import dataclasses
 from scenarios import rewrite
 from scenarios.lexicon import FARTHER, SPEED_UNITS, Lexeme, speed_bounds
 from scenarios.program import (
-    AllOf,
     AnyOf,
     Between,
-    Excluding,
     ForAtLeast,
     Has,
     Is,
@@ -376,27 +374,38 @@ class Parser(RelationReader):
                 return While(main, first) if lead.name == "while" else rewrite.in_turn(main, first, after=True)
             self.i, self.unused[unused:], self.grouped = start, [], False  # no main clause: "while" says nothing
             self.unused.extend(self.take().words)
-        found = self.phrase() if self.antecedent is None or not self.it_next() else \
-            (self.modifiers(rewrite.without_states(subject_of(self.antecedent))), 0)  # "after the bus stops, it …"
+        if self.antecedent is not None and self.it_next():  # "after the bus stops, it drives off"
+            self.pass_fillers()
+            found = (self.modifiers(rewrite.without_states(subject_of(self.antecedent))), 0)
+        else:
+            found = self.phrase()
         if found is None:
             raise DescriptionError("")
         node = self.referred(*found)
         # A comma before a new subject joins clauses as "and" does: "a car is parked on the left, a truck …"
-        while self.role() == "conj" or (self.at_comma() and self.role() in ("kind", "count", "number", "nearest")):
+        at = -1
+        while (self.role() == "conj" or self.comma_clause(isinstance(rewrite.listed(node), tuple))) and self.i != at:
+            at = self.i  # a clause that reads nothing ends the loop
             conj = self.take() if self.role() == "conj" else Lexeme("conj", "and", words=(",",))
             self.end_clause()
             self.antecedent = node  # "… while a pedestrian crosses in front of it"
             another = bool(self.skipped_before_next() & {"another", "other", "a", "an"})  # "… then another car"
+            own = self.role() in ("pred", "not") and self.kind_after_states(0)  # "and parked cyclists": theirs
+            it_said = self.it_next()
+            if conj.words == (",",):
+                self.pass_fillers()  # the comma, and an "it" that opens the clause
             self.named_it = False
             nxt = self.phrase(need_kind=True)  # none: "brakes and then stops" goes on about the same objects
             another = another or (nxt is not None and self.named_it)  # "the car behind it"
             if nxt is None:  # "stopped then moving": the same objects, unless an unknown noun says otherwise
                 head = rewrite.without_states(subject_of(node))
+                if it_said and head == Objects("ego"):  # "we follow a truck, it turns": the truck
+                    head = rewrite.other_one(node) or head
                 if self.role() in ("pred", "rel", "ego", "side", "with", "between", "not", "seq", "fixed") \
                         and not self.unknown_before_next():
                     nxt = (self.modifiers(head), 0)
                 else:
-                    self.unused.extend(conj.words)
+                    self.unused.extend(w for w in conj.words if w != ",")
                     break
             other = self.referred(*nxt)
             while conj.name == "except" and self.role() == "conj" and self.name() == "and" \
@@ -410,23 +419,8 @@ class Parser(RelationReader):
                 # "a car and a truck within 5 m of each other": each near the other, both answered
                 near = dataclasses.replace(self.each_other, subject=node, other=self.each_other.subject)
                 node = AnyOf((near, dataclasses.replace(near, reverse=True)))
-            elif conj.name in ("then", "after"):  # "a car stops, then a pedestrian crosses"; "… after it turns"
-                node = rewrite.in_turn(node, other, conj.name == "after", another)
-            elif conj.name == "except":
-                node = Excluding(node, other)
-            elif conj.name == "while":
-                node = While(node, other)
-            elif conj.name == "and" and Objects("ego") in (subject_of(node), subject_of(other)) \
-                    and subject_of(node) != subject_of(other) \
-                    and node != subject_of(node) and other != subject_of(other):
-                node = While(node, other)  # "we turn right and a cyclist is on our right": both at once
-            elif conj.name == "and" and of_two_kinds(node.children[-1] if isinstance(node, AnyOf) else node, other):
-                # "buses and motorcycles", "cars, trucks and buses": no object is both, the words name both
-                node = AnyOf((*(node.children if isinstance(node, AnyOf) else (node,)), other))
             else:
-                node = AllOf((node, other)) if conj.name == "and" else node
-                if conj.name == "or":
-                    node = AnyOf((node.children[0] if isinstance(node, AllOf) else node, other))
+                node = rewrite.join(node, conj.name, other, another, spread=not own)
         self.end_clause()
         return node
 

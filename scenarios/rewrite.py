@@ -110,6 +110,50 @@ def ego_without(node: p.Node) -> p.Node | None:
     return None
 
 
+def other_one(node: p.Node) -> p.Node | None:
+    """The object a clause about the ego relates it to ("we follow a truck": trucks), what a later "it"
+    names; None when the clause relates it to nothing."""
+    while isinstance(node, p.Is | p.ForAtLeast | p.Together):
+        node = node.subject if isinstance(node, p.Is) else node.child
+    if not isinstance(node, p.Has):
+        return None
+    return without_states(p.subject_of(node.subject if node.reverse else node.other))
+
+
+def listed(node: p.Node) -> tuple[p.Objects, ...] | None:
+    """The kinds ``node`` lists, as "cars, trucks and buses" does, or None."""
+    kinds = node.children if isinstance(node, p.AnyOf) else (node,)
+    return tuple(k for k in kinds if isinstance(k, p.Objects)) if all(isinstance(k, p.Objects) for k in kinds) \
+        else None
+
+
+def join(node: p.Node, conj: str, other: p.Node, distinct: bool, spread: bool = True) -> p.Node:
+    """Two clauses joined by ``conj`` ("and", "or", "then", "after", "while", "except"); ``distinct``:
+    the second names other objects than the first ("a car stops and another car passes it"); ``spread``:
+    what the second says after its noun is said of a list of kinds before it too ("cars and trucks in
+    our lane"; not "pedestrians and parked cyclists")."""
+    first, second, ego = p.subject_of(node), p.subject_of(other), p.Objects("ego")
+    if conj in ("then", "after"):  # "a car stops, then a pedestrian crosses"; "… after it turns"
+        return in_turn(node, other, conj == "after", distinct)
+    if conj == "except":
+        return p.Excluding(node, other)
+    if conj == "while" or (conj == "and" and distinct and first == second):
+        return p.While(node, other)
+    if conj == "and" and ego in (first, second) and first != second and node != first and other != second:
+        return p.While(node, other)  # "we turn right and a cyclist is on our right": both at once
+    kinds = listed(node)
+    if spread and conj in ("and", "or") and kinds is not None and isinstance(second, p.Objects) \
+            and second not in kinds and "any" not in (second.kind, *(k.kind for k in kinds)):
+        # "buses and motorcycles", "cars, trucks and buses are stopped": the words name all, what follows
+        # is said of all
+        return with_subject(other, p.AnyOf((*kinds, second)))
+    if conj == "and" and p.of_two_kinds(node, other):
+        return p.AnyOf((node, other))  # "a stopped bus and a parked car": no object is both
+    if conj == "or":
+        return p.AnyOf((node, other))
+    return p.AllOf((node, other))
+
+
 def in_turn(main: p.Node, event: p.Node, after: bool = False, distinct: bool = False) -> p.Node:
     """``main``, then ``event`` (or, ``after``, ``event`` first): one object doing both in turn where both
     name the same objects ("a car stops after it turns"), else, or where they are ``distinct`` ("a car

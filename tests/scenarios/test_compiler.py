@@ -276,6 +276,12 @@ MEANINGS = {
     "a car is parked on the left, a truck is parked on the right":
         "or(reverse(direction(ego, parked(car), side=left)), reverse(direction(ego, parked(truck), side=right)))",
     "cars, trucks and buses": "or(car, truck, bus)",
+    # Found by a fourth review: what follows a list of kinds is said of all; "and another car" is another
+    # object at the same moments; "it" after a clause about us names the object we relate to.
+    "cars, trucks and buses are stopped": "stopped(or(car, truck, bus))",
+    "cars and trucks in our lane": "ego_lane(or(car, truck), lane=host)",
+    "a car stops, another car passes it": "while(stopped(car), reverse(passed_by(stopped(car), car)))",
+    "we follow a truck, it turns left": "while(following(ego, truck), turning(truck, direction=left))",
     "a pedestrian running fast": "fast(pedestrian)",  # was faster than 13 m/s, which no one runs
     "a bus stopped at a stop": "stopped(bus)",  # asked once
     "a pedestrian about to cross": "about_to_cross(pedestrian)",  # it read as crossing
@@ -302,6 +308,7 @@ NOT_UNDERSTOOD = {
     "traffic backed up": ("vehicle", ("backed", "up")),  # a queue, not reversing
     # Found by a third review: words that name no object to choose, or a subject the lexicon lacks.
     "we are first in line at the intersection": ("at_intersection(ego)", ("line",)),
+    "a car near a truck, a bus and a cyclist": ("near(car, truck)", ("bus", "and", "cyclist")),  # no list of objects
     "a car stopped at the closest intersection": ("near_intersection(stopped(car))", ("closest",)),
     "a car moves once the light turns green": ("moving(car)", ("light", "once", "turns", "green")),
     "a car backs out of a parking spot": ("reversing(car)", ("of", "a", "parking", "spot")),  # no parking in the map

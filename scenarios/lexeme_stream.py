@@ -1,5 +1,6 @@
 """A description's lexemes as a stream that the parser (:mod:`scenarios.parser`) reads left to right:
-filler words are stepped over, and every word the lexicon does not know is kept as unused."""
+filler words are stepped over, every word the lexicon does not know is kept as unused, and the filler
+words that shape a sentence (a comma, "is", "it", "that") answer where a phrase or a clause ends."""
 
 from __future__ import annotations
 

@@ -1,5 +1,6 @@
-"""Rewrites of program nodes that the parser applies as it reads modifiers: a relation tightened or
-bounded, a modifier negated, the states left out of a later step, the subject replaced."""
+"""Rewrites of program nodes that the parser applies as it reads: a relation tightened or bounded, a
+modifier negated, the states left out of a later step, the subject replaced, and two clauses joined
+(in turn, at once, or as a list of kinds)."""
 
 from __future__ import annotations
 
@@ -123,8 +124,8 @@ def other_one(node: p.Node) -> p.Node | None:
 def listed(node: p.Node) -> tuple[p.Objects, ...] | None:
     """The kinds ``node`` lists, as "cars, trucks and buses" does, or None."""
     kinds = node.children if isinstance(node, p.AnyOf) else (node,)
-    return tuple(k for k in kinds if isinstance(k, p.Objects)) if all(isinstance(k, p.Objects) for k in kinds) \
-        else None
+    objects = tuple(k for k in kinds if isinstance(k, p.Objects))
+    return objects if len(objects) == len(kinds) else None
 
 
 def join(node: p.Node, conj: str, other: p.Node, distinct: bool, spread: bool = True) -> p.Node:

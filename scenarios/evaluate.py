@@ -26,6 +26,7 @@ from scenarios.features import LogFeatures
 from scenarios.kinds import KIND_NAMES, kind_mask
 from scenarios.predicates import PREDICATES, Mask, ProgramError, unanswerable
 from scenarios.relations import RELATIONS, candidate_pairs, group_any, group_count, in_direction, pair_geometry
+from scenarios.timing import followed_within, onsets, preceded_within, runs_holding, runs_lasting, then_within
 from scenes.categories import AV2_TO_CATEGORY, EGO_VEHICLE_LABEL
 
 #: Subject × other × frame cells a relation compares at once.
@@ -267,65 +268,6 @@ def nearest_only(holds: Mask, gap_m: NDArray[np.float32], subjects: NDArray[np.i
     kept = np.zeros_like(holds)
     kept[pair[rank < n], frame[rank < n]] = True
     return kept
-
-
-def runs_lasting(mask: Mask, time_s: NDArray[np.float64], seconds: float) -> Mask:
-    """(K, F) frames of runs of ``mask`` (consecutive frames per object) that last at least ``seconds``.
-
-    A run lasts from its first frame's time to its last's plus one frame interval (a single frame at
-    10 Hz lasts 0.1 s).
-    """
-    if mask.shape[1] == 0:
-        return mask
-    dt = float(np.median(np.diff(time_s))) if time_s.shape[0] > 1 else 0.0
-    t = np.broadcast_to(time_s, mask.shape)
-    starts = mask & ~np.pad(mask, ((0, 0), (1, 0)))[:, :-1]
-    ends = mask & ~np.pad(mask, ((0, 0), (0, 1)))[:, 1:]
-    start_t = np.maximum.accumulate(np.where(starts, t, -np.inf), axis=1)
-    end_t = np.flip(np.minimum.accumulate(np.flip(np.where(ends, t, np.inf), axis=1), axis=1), axis=1)
-    return mask & (end_t - start_t + dt >= seconds - 1e-6)
-
-
-def onsets(mask: Mask) -> Mask:
-    """(K, F) the first frame of each run of ``mask`` (consecutive frames per row)."""
-    return mask & ~np.pad(mask, ((0, 0), (1, 0)))[:, :-1]
-
-
-def runs_holding(mask: Mask, marks: Mask) -> Mask:
-    """(K, F) the runs of ``mask`` (consecutive frames per row) that hold a frame of ``marks``."""
-    run = np.cumsum(onsets(mask), axis=1)  # (K, F) each frame's run number in its row (1, 2, ...)
-    keys = np.arange(mask.shape[0])[:, None] * (mask.shape[1] + 1) + run
-    return mask & np.isin(keys, keys[marks & mask])
-
-
-def followed_within(mask: Mask, later: Mask, time_s: NDArray[np.float64], within_s: float) -> Mask:
-    """(K, F) frames of ``mask`` that a frame of ``later`` follows within ``within_s`` (after it, not at the
-    same frame) on the same row; ``later`` (K, F) or (F,) for every row."""
-    if mask.shape[1] == 0:
-        return mask
-    t = np.broadcast_to(time_s, mask.shape)
-    upcoming = np.flip(np.minimum.accumulate(np.flip(np.where(later, time_s, np.inf), axis=-1), axis=-1), axis=-1)
-    next_after = np.broadcast_to(np.concatenate([upcoming[..., 1:], np.full((*upcoming.shape[:-1], 1), np.inf)],
-                                                axis=-1), mask.shape)
-    return mask & (next_after - t <= within_s)
-
-
-def preceded_within(mask: Mask, earlier: Mask, time_s: NDArray[np.float64], within_s: float) -> Mask:
-    """(K, F) frames of ``mask`` that a frame of ``earlier`` precedes by at most ``within_s`` (before it, not
-    at the same frame) on the same row; ``earlier`` (K, F) or (F,) for every row."""
-    if mask.shape[1] == 0:
-        return mask
-    t = np.broadcast_to(time_s, mask.shape)
-    past = np.maximum.accumulate(np.where(earlier, time_s, -np.inf), axis=-1)
-    before = np.broadcast_to(np.concatenate([np.full((*past.shape[:-1], 1), -np.inf), past[..., :-1]], axis=-1),
-                             mask.shape)
-    return mask & (t - before <= within_s)
-
-
-def then_within(first: Mask, second: Mask, time_s: NDArray[np.float64], within_s: float) -> Mask:
-    """(K, F) frames of ``first`` that ``second`` follows on the same object within ``within_s``, and the
-    frames of ``second`` that ``first`` preceded by at most that."""
-    return followed_within(first, second, time_s, within_s) | preceded_within(second, first, time_s, within_s)
 
 
 def evaluate(node: p.Node, features: LogFeatures) -> Evaluation:

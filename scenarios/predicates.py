@@ -45,6 +45,7 @@ from numpy.typing import NDArray
 
 from captioning.tags import LANES, Lane
 from scenarios.features import LogFeatures
+from scenarios.timing import followed_within
 
 Mask = NDArray[np.bool_]
 Params = Mapping[str, float | str]
@@ -220,9 +221,7 @@ def _crossing_road(x: LogFeatures, p: Params) -> Mask:
 
 def _soon(x: LogFeatures, holds: Mask, within_s: float) -> Mask:
     """(K, F) frames where ``holds`` does not hold yet and will within ``within_s``."""
-    t = np.broadcast_to(x.time_s, holds.shape)
-    nxt = np.flip(np.minimum.accumulate(np.flip(np.where(holds, t, np.inf), axis=1), axis=1), axis=1)
-    return x.valid & ~holds & (nxt - t <= within_s)
+    return followed_within(x.valid & ~holds, holds, x.time_s, within_s)
 
 
 @_define("approaching_crosswalk", "reaching a crosswalk within {within_s} s", {"within_s": 3.0}, needs_map=True)

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from scenarios import program as p
-from scenarios.evaluate import answer, evaluate, runs_lasting, then_within
+from scenarios.evaluate import answer, evaluate
 from scenarios.predicates import ProgramError
 from scenarios.relations import RELATIONS, candidate_pairs, pair_geometry
 from tests.scenarios.synthetic import car, cyclist, make_features, pedestrian
@@ -184,22 +184,6 @@ def test_and_or_excluding() -> None:
     assert selected(p.AnyOf((braking, parked)), x).tolist() == [True, True, False, False]
     assert not selected(p.AllOf((braking, parked)), x).any()
     assert selected(p.Excluding(p.Objects("vehicle"), parked), x).tolist() == [True, False, False, False]
-
-
-def test_durations_are_seconds_at_any_rate() -> None:
-    mask = np.zeros((1, 40), bool)
-    mask[0, 5:15] = True  # 10 frames
-    t10 = np.arange(40) * 0.1
-    assert runs_lasting(mask, t10, 1.0).sum() == 10 and runs_lasting(mask, t10, 1.1).sum() == 0
-    t2 = np.arange(40) * 0.5
-    assert runs_lasting(mask, t2, 5.0).sum() == 10  # 10 frames at 2 Hz last 5 s
-    stopped = np.zeros((1, 20), bool)
-    moving = np.zeros((1, 20), bool)
-    stopped[0, 2:6], moving[0, 8:14] = True, True
-    t = np.arange(20) * 0.1
-    both = then_within(stopped, moving, t, 0.5)
-    assert both[0, 5] and both[0, 8] and not both[0, 2] and not both[0, 13]
-    assert not then_within(moving, stopped, t, 5.0).any()  # the order matters
 
 
 def test_then_while_and_for_at_least_on_features() -> None:

@@ -44,6 +44,12 @@ _kind("ego", {EGO_VEHICLE_LABEL}, {"ego"})
 KIND_NAMES: tuple[str, ...] = tuple(sorted(KINDS))
 
 
+def within_kinds(kind: str, group: tuple[str, ...]) -> bool:
+    """Whether every dataset label of ``kind`` is one of ``group``'s kinds' ("car" is within "vehicle")."""
+    covered = frozenset().union(*(KINDS[g][0] for g in group))
+    return bool(KINDS[kind][0]) and KINDS[kind][0] <= covered
+
+
 def kind_mask(kind: str, labels: NDArray[np.str_], categories: NDArray[np.str_]) -> NDArray[np.bool_]:
     """(K,) the objects of ``kind`` among objects with these (K,) labels and (K,) public categories.
 

@@ -8,6 +8,12 @@ from typing import NamedTuple
 
 from scenarios.lexicon import Lexeme
 
+#: Predicates of where an object is: said after the noun, they say which objects "the nearest" is among
+#: ("the closest vehicle in our lane brakes": the nearest of those in our lane, braking).
+PLACES = frozenset({"ego_lane", "on_crosswalk", "at_crosswalk", "in_bike_lane", "in_bus_lane", "in_vehicle_lane",
+                    "at_intersection", "near_intersection", "on_road"})
+#: Words that open a clause about the noun before ("a bus, which is stopped"): what follows is the noun's.
+RELATIVE = frozenset({"that", "which", "who"})
 #: Words that end in "s" without being a verb's present ("across", "towards").
 _NOT_VERBS = frozenset({"across", "towards", "always", "alongside", "backwards", "sideways", "besides", "perhaps"})
 
@@ -95,21 +101,21 @@ class LexemeStream:
         return item is not None and item.role in ("pred", "seq", "rel") and len(item.words[0]) > 3 \
             and item.words[0].endswith("s") and not item.words[0].endswith("ss") and item.words[0] not in _NOT_VERBS
 
-    def ends_phrase(self, nested: bool, comma_ends: bool, choosing: str | None, places: frozenset[str]) -> bool:
+    def ends_phrase(self, nested: bool, comma_ends: bool, choosing: str | None) -> bool:
         """Whether the next words are no longer the phrase's own modifiers: after "is" or a present verb
         for the object of a relation (``nested``: "the car in front of the bus is stopped", "… brakes": the
         car does), after a comma where it ends the clause (``comma_ends``); for "the nearest" (``choosing``)
         after "is", and after a present verb ("closest", ``near``) or anything but a place or our side
         ("lead", ``ahead``: "the lead vehicle braking" is the lead, braking). Never inside a "that",
         "which" or "who" clause, which is the phrase's ("a bus, which is stopped")."""
-        if self.skipped_before_next() & {"that", "which", "who"}:
+        if self.skipped_before_next() & RELATIVE:
             return False
         if (self.at_copula() and (nested or choosing)) or (self.at_comma() and (comma_ends or self.it_next())):
             return True
         if (nested or choosing == "near") and self.finite_verb():
             return True
         return choosing == "ahead" and self.role() in ("pred", "seq", "rel", "fixed", "with") \
-            and self.name() not in places
+            and self.name() not in PLACES
 
     def comma_clause(self, listing: bool) -> bool:
         """Whether a comma here starts a clause of its own: a subject ("a car", "two pedestrians", "the
@@ -127,7 +133,7 @@ class LexemeStream:
         """Whether "is" or "are" stands before the next meaningful item, other than in "that is" ("the
         closest car is parked" says it of the car; "the closest car that is parked" names which)."""
         words = self.skipped_before_next()
-        return bool(words & {"is", "are", "was", "were"}) and not words & {"that", "which", "who"}
+        return bool(words & {"is", "are", "was", "were"}) and not words & RELATIVE
 
     def ahead_word(self, ahead: int) -> bool:
         """Whether the ``ahead``-th meaningful item says "ahead" or "in front of" ("two cars ahead")."""

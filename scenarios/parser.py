@@ -124,7 +124,7 @@ class Parser(RelationReader):
         try:
             modified = node if bare else self.modifiers(node, None if nearest is None else nearest.name)
             if nearest is not None:  # "the nearest two pedestrians": the two nearest, not two at once
-                at, said_of_it = self.i, self.ends_phrase(False, False, nearest.name, rewrite.PLACES)
+                at, said_of_it = self.i, self.ends_phrase(False, False, nearest.name)
                 modified, count = self.nearest(modified, nearest, max(1, count)), 0
                 if not bare and (said_of_it or self.i != at):  # "the closest car to us is parked"
                     modified = self.modifiers(modified)
@@ -135,7 +135,7 @@ class Parser(RelationReader):
     def modifiers(self, node: Node, choosing: str | None = None) -> Node:
         """``node`` with the modifiers that follow, up to where they end (:meth:`ends_phrase`); ``choosing``
         ("near" or "ahead"): only those that say which objects "the nearest" is among."""
-        while not self.ends_phrase(self.depth > 1, self.depth > 1 or self.in_condition, choosing, rewrite.PLACES):
+        while not self.ends_phrase(self.depth > 1, self.depth > 1 or self.in_condition, choosing):
             role = self.role()
             if role == "pred":
                 item = self.take()
@@ -339,7 +339,7 @@ class Parser(RelationReader):
         """The predicates right after a bare phrase ("with lane-changing vehicles", "with stroller jaywalking"
         keeps "jaywalking" for the subject): only those that follow with no relation in between."""
         while self.role() == "pred" and self.name() not in ("jaywalking", "appearance") \
-                and not self.ends_phrase(True, True, None, rewrite.PLACES):
+                and not self.ends_phrase(True, True, None):
             item = self.take()
             node = rewrite.stated(node, item.name, item.params, item.negate)
         return node

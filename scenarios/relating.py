@@ -7,6 +7,7 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Callable, Iterable
 
+from scenarios.kinds import within_kinds
 from scenarios.lexeme_stream import LexemeStream
 from scenarios.lexicon import Lexeme
 from scenarios.program import AllOf, AnyOf, Has, Is, Node, Objects, Then, subject_of
@@ -109,8 +110,8 @@ class RelationReader(LexemeStream):
             return dataclasses.replace(node, nearest=n)
         relation, params = _NEAREST[item.name]
         kind = subject_of(node)
-        if item.name == "near" or not isinstance(kind, Objects) or kind.kind not in (*LEAD_KINDS, "any", "car",
-                                                                                      "truck", "bus"):
+        if item.name == "near" or not isinstance(kind, Objects) or not (
+                kind.kind == "any" or within_kinds(kind.kind, LEAD_KINDS)):  # "the lead pedestrian": of them
             return Has(anchor, relation, node, params, reverse=True, nearest=n)
         among = with_subject(node, AnyOf(tuple(Objects(k) for k in LEAD_KINDS)))
         lead = Has(anchor, relation, among, params, reverse=True, nearest=n)

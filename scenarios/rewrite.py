@@ -163,9 +163,3 @@ def in_turn(main: p.Node, event: p.Node, after: bool = False, distinct: bool = F
     if p.subject_of(main) == p.subject_of(event) and not distinct:
         return p.Then(event, main) if after else p.Then(main, event)
     return p.Sequenced(main, event, after=after)
-
-
-#: Predicates of where an object is: said after the noun, they say which objects "the nearest" is among
-#: ("the closest vehicle in our lane brakes": the nearest of those in our lane, braking).
-PLACES = frozenset({"ego_lane", "on_crosswalk", "at_crosswalk", "in_bike_lane", "in_bus_lane", "in_vehicle_lane",
-                    "at_intersection", "near_intersection", "on_road"})

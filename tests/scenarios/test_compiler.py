@@ -180,6 +180,9 @@ MEANINGS = {
     "we follow the lead vehicle closely":
         "following(ego, reverse(direction(ego, or(vehicle, motorcycle, cyclist), side=front, lateral_m=1.5, "
         "within_m=40, nearest=1)), within_m=10)",
+    "the lead box truck":  # every kind the lead's kinds cover reads the same way
+        "and(box_truck, reverse(direction(ego, or(vehicle, motorcycle, cyclist), side=front, lateral_m=1.5, "
+        "within_m=40, nearest=1)))",
     "the lead car brakes":  # the lead, when it is a car
         "braking(and(car, reverse(direction(ego, or(vehicle, motorcycle, cyclist), side=front, lateral_m=1.5, "
         "within_m=40, nearest=1))))",

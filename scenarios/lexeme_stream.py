@@ -47,10 +47,7 @@ class LexemeStream:
         return None
 
     def take(self) -> Lexeme:
-        while self.items[self.i].role in ("skip", "unknown"):
-            if self.items[self.i].role == "unknown":
-                self.unused.append(self.items[self.i].name)
-            self.i += 1
+        self.pass_fillers()
         item = self.items[self.i]
         self.i += 1
         return item

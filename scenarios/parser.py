@@ -384,7 +384,7 @@ class Parser(RelationReader):
         node = self.referred(*found)
         # A comma before a new subject joins clauses as "and" does: "a car is parked on the left, a truck …"
         at = -1
-        while (self.role() == "conj" or self.comma_clause(isinstance(rewrite.listed(node), tuple))) and self.i != at:
+        while (self.role() == "conj" or self.comma_clause(rewrite.listed(node) is not None)) and self.i != at:
             at = self.i  # a clause that reads nothing ends the loop
             conj = self.take() if self.role() == "conj" else Lexeme("conj", "and", words=(",",))
             self.end_clause()

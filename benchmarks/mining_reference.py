@@ -456,25 +456,9 @@ class _Reference:
         return False
 
     def then_within(self, first: Grid, second: Grid, within_s: float) -> Grid:
-        t = self.log.time_s
-        out = self.grid()
-        for o in range(self.k):
-            for f in range(self.f):
-                if first[o][f]:
-                    g = f + 1
-                    while g < self.f and t[g] - t[f] <= within_s:
-                        if second[o][g]:
-                            out[o][f] = True
-                            break
-                        g += 1
-                if second[o][f] and not out[o][f]:
-                    g = f - 1
-                    while g >= 0 and t[f] - t[g] <= within_s:
-                        if first[o][g]:
-                            out[o][f] = True
-                            break
-                        g -= 1
-        return out
+        return [[(first[o][f] and self.in_reach(second[o], f, 1, within_s))
+                 or (second[o][f] and self.in_reach(first[o], f, -1, within_s)) for f in range(self.f)]
+                for o in range(self.k)]
 
 
 def reference_selection(program: p.Node, log: ReferenceLog) -> tuple[Grid, Grid]:

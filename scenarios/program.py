@@ -13,8 +13,8 @@ A program is built from these nodes (frozen dataclasses; never code to ``eval``)
 - :class:`Together`: the child's objects at frames where at least ``min_count`` of them are selected.
 - :class:`ForAtLeast`: runs that last ``seconds``; :class:`Then`: the same object does one thing and
   then another within ``within_s``; :class:`While`: the subject at frames where the condition holds for
-  any object; :class:`Sequenced`: the subject at frames that some other object's event follows
-  (``before``) or precedes (``after``) within ``within_s`` ("a car stops, then a pedestrian crosses").
+  any object; :class:`Sequenced`: the subject's runs that begin within ``within_s`` before (or, ``after``,
+  after) some other object's event begins ("a car stops, then a pedestrian crosses").
 
 Every node renders two ways: :func:`to_text`, the program syntax users can write and edit
 (:mod:`scenarios.syntax` reads it back), and :func:`describe`, a sentence a reader checks the parse by.

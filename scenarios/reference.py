@@ -62,8 +62,8 @@ def markdown() -> str:
               "| `together(a, min_count=2)` | `a`'s objects at frames where at least that many are selected |",
               "| `for_at_least(a, seconds=1)` | runs of `a` that last that long |",
               "| `then(a, b, within_s=5)` | an object doing `a`, then `b` within that time |",
-              "| `before(a, b, within_s=5)` / `after(a, b, within_s=5)` | `a` at frames that any object's `b` "
-              "follows / precedes within that time (two objects in turn) |",
+              "| `before(a, b, within_s=5)` / `after(a, b, within_s=5)` | `a`'s runs that begin at most that long "
+              "before / after any object's `b` begins (two objects in turn; a `then` begins at its second step) |",
               "| `while(a, b)` | `a` at frames where any object does `b` |", ""]
     return "\n".join(lines)
 

@@ -9,8 +9,8 @@ A program is a kind or a call::
 (``direction(vehicle, cyclist, side=right, within_m=5, min_count=2)``; ``nearest=1`` counts only the
 closest), or one of ``not``, ``reverse``, ``between``, ``and``, ``or``, ``excluding``, ``together``
 (``min_count=``), ``for_at_least`` (``seconds=``), ``then``, ``before`` and ``after`` (``within_s=``) and
-``while``. ``VALUE`` is
-a number or a word. Nothing is evaluated as code; an error names the position and what was expected there.
+``while``. ``VALUE`` is a number or a word. Nothing is evaluated as code; an error names the position and
+what was expected there.
 """
 
 from __future__ import annotations

@@ -29,9 +29,10 @@ wrong. Every test is written again from its definition, one object and one frame
   ``reverse`` and ``nearest`` (by the exact gap); ``Between`` (either kind on either side, boxes
   within 50 m); and / or / but not; ``Together``; ``ForAtLeast`` (a run lasts from its first
   frame to its last plus one frame interval); ``Then`` (the same object, the second starting after
-  a frame of the first, within ``within_s``); ``While`` (the condition holds for any object at that
-  frame); ``Sequenced`` (runs that begin within ``within_s`` before, or after, any object's event
-  begins; a ``then`` begins where its second step does).
+  a frame of the first, within ``within_s``; in a chain, each step after the one before); ``While``
+  (the condition holds for any object at that frame); ``Sequenced`` (runs that begin within
+  ``within_s`` before, or after, any object's event begins; a ``then`` begins where its second step
+  does).
 """
 
 from __future__ import annotations
@@ -174,11 +175,13 @@ class _Reference:
             case p.ForAtLeast(child, seconds):
                 part = self.eval(child)
                 return self.keep(part, self.runs_lasting(part.sel, float(seconds)))
-            case p.Then(first, second, within_s):
-                a, b = self.eval(first), self.eval(second)
-                keep = self.then_within(a.sel, b.sel, float(within_s))
+            case p.Then():
+                steps, gaps_s = p.chain_steps(node)
+                parts = [self.eval(step) for step in steps]
+                keep = self.chained([part.sel for part in parts], gaps_s)
                 on = self.any_at(keep)
-                related = [[on[f] and (a.related[o][f] or b.related[o][f]) for f in range(nf)] for o in range(k)]
+                related = [[on[f] and any(part.related[o][f] for part in parts) for f in range(nf)]
+                           for o in range(k)]
                 return _Sel(keep, related)
             case p.While(child, condition):
                 part, cond = self.eval(child), self.eval(condition)
@@ -455,10 +458,20 @@ class _Reference:
             g += step
         return False
 
-    def then_within(self, first: Grid, second: Grid, within_s: float) -> Grid:
-        return [[(first[o][f] and self.in_reach(second[o], f, 1, within_s))
-                 or (second[o][f] and self.in_reach(first[o], f, -1, within_s)) for f in range(self.f)]
-                for o in range(self.k)]
+    def chained(self, steps: list[Grid], gaps_s: list[float]) -> Grid:
+        """The frames of each step that lie on a whole chain: the steps before it reached in order, each
+        within its time of the one before, and the steps after it reachable so from it."""
+        reached = [steps[0]]
+        for step, gap_s in zip(steps[1:], gaps_s, strict=True):
+            reached.append([[step[o][f] and self.in_reach(reached[-1][o], f, -1, gap_s) for f in range(self.f)]
+                            for o in range(self.k)])
+        kept = reached[-1]
+        out = [row[:] for row in kept]
+        for i in range(len(steps) - 2, -1, -1):
+            kept = [[reached[i][o][f] and self.in_reach(kept[o], f, 1, gaps_s[i]) for f in range(self.f)]
+                    for o in range(self.k)]
+            out = [[out[o][f] or kept[o][f] for f in range(self.f)] for o in range(self.k)]
+        return out
 
 
 def reference_selection(program: p.Node, log: ReferenceLog) -> tuple[Grid, Grid]:

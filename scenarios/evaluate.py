@@ -26,7 +26,7 @@ from scenarios.features import LogFeatures
 from scenarios.kinds import KIND_NAMES, kind_mask
 from scenarios.predicates import PREDICATES, Mask, ProgramError, unanswerable
 from scenarios.relations import RELATIONS, candidate_pairs, group_any, group_count, in_direction, pair_geometry
-from scenarios.timing import followed_within, onsets, preceded_within, runs_holding, runs_lasting, then_within
+from scenarios.timing import chained, followed_within, onsets, preceded_within, runs_holding, runs_lasting
 from scenes.categories import AV2_TO_CATEGORY, EGO_VEHICLE_LABEL
 
 #: Subject × other × frame cells a relation compares at once.
@@ -126,11 +126,13 @@ class _Run:
             case p.ForAtLeast(child, seconds):
                 sel = self.eval(child)
                 return _keep(sel, runs_lasting(sel.mask, x.time_s, seconds))
-            case p.Then(first, second, within_s):
-                a, b = self.eval(first), self.eval(second)
-                keep = then_within(a.mask, b.mask, x.time_s, within_s)
-                return Selection(np.where(keep, np.maximum(a.scores, b.scores), 0.0).astype(np.float32),
-                                 (a.related | b.related) & _any(keep, 0)[None])
+            case p.Then():
+                steps, gaps_s = p.chain_steps(node)
+                parts = [self.eval(step) for step in steps]
+                keep = chained([part.mask for part in parts], gaps_s, x.time_s)
+                scores = np.maximum.reduce([part.scores for part in parts])
+                related = np.logical_or.reduce([part.related for part in parts])
+                return Selection(np.where(keep, scores, 0.0).astype(np.float32), related & _any(keep, 0)[None])
             case p.While(child, condition):
                 sel, cond = self.eval(child), self.eval(condition)
                 when = _any(cond.mask, 0)[None, :]

@@ -12,9 +12,10 @@ A program is built from these nodes (frozen dataclasses; never code to ``eval``)
 - :class:`AllOf`, :class:`AnyOf`, :class:`Excluding`: and, or, and "but not".
 - :class:`Together`: the child's objects at frames where at least ``min_count`` of them are selected.
 - :class:`ForAtLeast`: runs that last ``seconds``; :class:`Then`: the same object does one thing and
-  then another within ``within_s``; :class:`While`: the subject at frames where the condition holds for
-  any object; :class:`Sequenced`: the subject's runs that begin within ``within_s`` before (or, ``after``,
-  after) some other object's event begins ("a car stops, then a pedestrian crosses").
+  then another within ``within_s`` (in a chain of them, each step after the one before);
+  :class:`While`: the subject at frames where the condition holds for any object; :class:`Sequenced`:
+  the subject's runs that begin within ``within_s`` before (or, ``after``, after) some other object's
+  event begins ("a car stops, then a pedestrian crosses").
 
 Every node renders two ways: :func:`to_text`, the program syntax users can write and edit
 (:mod:`scenarios.syntax` reads it back), and :func:`describe`, a sentence a reader checks the parse by.
@@ -129,6 +130,23 @@ def subject_of(node: Node) -> Node:
                 node = first
             case _:
                 return node
+
+
+def chain_steps(node: Then) -> tuple[list[Node], list[float]]:
+    """The steps of a chain of ``then`` in order ("A, then B, then C", however nested) and the time each
+    step follows the one before within."""
+    steps: list[Node] = []
+    gaps_s: list[float] = []
+    for part in (node.first, node.second):
+        if part is node.second:
+            gaps_s.append(node.within_s)
+        if isinstance(part, Then):
+            inner_steps, inner_gaps_s = chain_steps(part)
+            steps.extend(inner_steps)
+            gaps_s.extend(inner_gaps_s)
+        else:
+            steps.append(part)
+    return steps, gaps_s
 
 
 def of_two_kinds(a: Node, b: Node) -> bool:

@@ -63,7 +63,15 @@ def preceded_within(mask: Mask, earlier: Mask, time_s: NDArray[np.float64], with
     return mask & (t - before <= within_s)
 
 
-def then_within(first: Mask, second: Mask, time_s: NDArray[np.float64], within_s: float) -> Mask:
-    """(K, F) frames of ``first`` that ``second`` follows on the same object within ``within_s``, and the
-    frames of ``second`` that ``first`` preceded by at most that."""
-    return followed_within(first, second, time_s, within_s) | preceded_within(second, first, time_s, within_s)
+def chained(steps: list[Mask], within_s: list[float], time_s: NDArray[np.float64]) -> Mask:
+    """(K, F) frames of a chain of steps on the same object: a frame of ``steps[i]`` is kept where a frame
+    of each step before it precedes it in order and a frame of each step after it follows it, each
+    within ``within_s[j]`` (between ``steps[j]`` and ``steps[j + 1]``) of the one before, not at the same
+    frame. "Stops, then turns, then accelerates" keeps no acceleration that comes before the turn."""
+    reached = [steps[0]]  # frames of step i that a chain of steps 0 … i ends at
+    for step, gap_s in zip(steps[1:], within_s, strict=True):
+        reached.append(preceded_within(step, reached[-1], time_s, gap_s))
+    kept = [reached[-1]]  # frames of step i on a whole chain, from the last step back
+    for frames, gap_s in zip(reached[-2::-1], within_s[::-1], strict=True):
+        kept.append(followed_within(frames, kept[-1], time_s, gap_s))
+    return np.logical_or.reduce(kept)

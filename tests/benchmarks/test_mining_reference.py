@@ -73,6 +73,12 @@ PROGRAMS = [
     # 12 m ahead from 2.3 s.
     "before(near(pedestrian, car, within_m=8), direction(car, pedestrian, side=front, within_m=12), within_s=1.5)",
     "after(direction(car, pedestrian, side=front, within_m=12), near(pedestrian, car, within_m=8), within_s=1.5)",
+    # The crossing pedestrian is on the first car's left, in front of it, then on its right: a chain of three
+    # steps, each soon after the one before, written nested either way.
+    "then(then(reverse(direction(car, pedestrian, side=left)), reverse(direction(car, pedestrian, side=front, "
+    "lateral_m=1)), within_s=0.5), reverse(direction(car, pedestrian, side=right)), within_s=0.3)",
+    "then(reverse(direction(car, pedestrian, side=left)), then(reverse(direction(car, pedestrian, side=front, "
+    "lateral_m=1)), reverse(direction(car, pedestrian, side=right)), within_s=0.3), within_s=0.5)",
 ]
 
 

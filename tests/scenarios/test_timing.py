@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 
-from scenarios.timing import followed_within, onsets, preceded_within, runs_holding, runs_lasting, then_within
+from scenarios.timing import chained, followed_within, onsets, preceded_within, runs_holding, runs_lasting
 
 
 def test_durations_are_seconds_at_any_rate() -> None:
@@ -18,9 +20,9 @@ def test_durations_are_seconds_at_any_rate() -> None:
     moving = np.zeros((1, 20), bool)
     stopped[0, 2:6], moving[0, 8:14] = True, True
     t = np.arange(20) * 0.1
-    both = then_within(stopped, moving, t, 0.5)
+    both = chained([stopped, moving], [0.5], t)
     assert both[0, 5] and both[0, 8] and not both[0, 2] and not both[0, 13]
-    assert not then_within(moving, stopped, t, 5.0).any()  # the order matters
+    assert not chained([moving, stopped], [5.0], t).any()  # the order matters
 
 
 def test_beginnings_runs_and_reach_in_seconds() -> None:
@@ -34,3 +36,30 @@ def test_beginnings_runs_and_reach_in_seconds() -> None:
     later[4] = True  # 2.0 s
     assert np.flatnonzero(followed_within(mask, later, t, 1.0)).tolist() == [2]  # 1.0 s before, not at it
     assert np.flatnonzero(preceded_within(mask, later, t, 1.0)).tolist() == [5, 6]
+
+
+def test_a_chain_keeps_each_step_in_order() -> None:
+    t = np.arange(10) * 1.0
+    a, b, c = (np.zeros((1, 10), bool) for _ in range(3))
+    a[0, 0], c[0, 2], b[0, 4] = True, True, True  # A, then C, then B: not "A, then B, then C"
+    assert not chained([a, b, c], [5.0, 5.0], t).any()
+    c[0, 6] = True  # now C follows B too
+    assert np.flatnonzero(chained([a, b, c], [5.0, 5.0], t)).tolist() == [0, 4, 6]
+    assert not chained([a, b, c], [5.0, 1.0], t).any()  # C must follow B within its own time
+
+
+def test_a_chain_is_every_frame_on_some_ordered_path() -> None:
+    """Against the definition, on random masks: a frame is kept where it is step i of frames f0 < f1 < …
+    of steps 0, 1, … with each within its time of the one before."""
+    rng = np.random.default_rng(0)
+    t = np.cumsum(rng.uniform(0.2, 1.0, 9))
+    gaps_s = [1.5, 0.8]
+    for _ in range(200):
+        steps = [rng.random((2, 9)) < 0.3 for _ in range(3)]
+        expected = np.zeros((2, 9), bool)
+        for o in range(2):
+            for path in itertools.product(range(9), repeat=3):
+                if all(steps[i][o, f] for i, f in enumerate(path)) and all(
+                        0 < t[path[i + 1]] - t[path[i]] <= gaps_s[i] for i in range(2)):
+                    expected[o, list(path)] = True
+        assert (chained(steps, gaps_s, t) == expected).all()

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
-from scenarios.lexicon import Lexeme
+from scenarios.lexicon import PLAIN_VERBS, PLURAL_KINDS, Lexeme
 
 #: Predicates of where an object is: said after the noun, they say which objects "the nearest" is among
 #: ("the closest vehicle in our lane brakes": the nearest of those in our lane, braking).
@@ -35,6 +35,9 @@ class LexemeStream:
         self.items = items
         self.i = 0
         self.unused: list[str] = []
+        #: Whether the last noun read names one object ("a bus", not "buses" or "two cars"): a verb's plain
+        #: form after it is said of a plural subject before ("cars behind a bus wait": the cars do).
+        self.singular_noun = False
 
     def peek(self, ahead: int = 0) -> Lexeme | None:
         j, seen = self.i, -1
@@ -50,6 +53,12 @@ class LexemeStream:
         self.pass_fillers()
         item = self.items[self.i]
         self.i += 1
+        return item
+
+    def take_kind(self, count: int) -> Lexeme:
+        """The kind named next (with ``count`` said for it), taken; notes whether it names one object."""
+        item = self.take()
+        self.singular_noun = not count and item.words not in PLURAL_KINDS
         return item
 
     def pass_fillers(self) -> None:
@@ -91,12 +100,42 @@ class LexemeStream:
         """Whether "it" or "they" stands before the next meaningful item (a clause about the objects before)."""
         return bool(self.skipped_before_next() & {"it", "they"})
 
-    def finite_verb(self) -> bool:
-        """Whether the next meaningful item is a verb said in the present ("brakes", "passes a cyclist"),
-        not a participle ("braking", "parked on the left"): a new predicate of the clause's subject."""
+    def it_after_next(self) -> bool:
+        """Whether "it" or "they" stands right after the next meaningful item ("… and it turns left": a
+        clause about the objects before, not one more modifier)."""
+        j = self.i + len(self.fillers()) + 1
+        words: set[str] = set()
+        while j < len(self.items) and self.items[j].role in ("skip", "unknown"):
+            words.update(self.items[j].words)
+            j += 1
+        return bool(words & {"it", "they"})
+
+    def not_a_kind(self) -> bool:
+        """Whether the next words say that the object is not of a kind ("that is not a bus", "which isn't a
+        car"), not that it is without one ("a truck without a trailer")."""
         item = self.peek()
-        return item is not None and item.role in ("pred", "seq", "rel") and len(item.words[0]) > 3 \
-            and item.words[0].endswith("s") and not item.words[0].endswith("ss") and item.words[0] not in _NOT_VERBS
+        return item is not None and item.role == "not" and self.role(1) == "kind" and bool(
+            self.skipped_before_next() & {"is", "are"} or item.words in (("isn't",), ("aren't",)))
+
+    def take_kinds(self) -> list[str]:
+        """The kinds named next, listed with "or" ("not a car or a truck"), taken."""
+        names = [self.take().name]
+        while self.role() == "conj" and self.name() == "or" and self.role(1) == "kind":
+            self.take()
+            names.append(self.take().name)
+        return names
+
+    def finite_verb(self, plain: bool = False) -> bool:
+        """Whether the next meaningful item is a verb said in the present ("brakes", "passes a cyclist",
+        "never moves", "has stopped"), not a participle ("braking", "parked on the left"): a new predicate
+        of the clause's subject; ``plain``: its plain form too ("wait", "slow down"; not "to cross")."""
+        item = self.peek()
+        if item is None or item.role not in ("pred", "seq", "rel"):
+            return False
+        word = item.words[1] if item.words[0] == "never" and len(item.words) > 1 else item.words[0]
+        if word in ("has", "hasn't") or (plain and word in PLAIN_VERBS and "to" not in self.skipped_before_next()):
+            return True
+        return len(word) > 3 and word.endswith("s") and not word.endswith("ss") and word not in _NOT_VERBS
 
     def ends_phrase(self, nested: bool, comma_ends: bool, choosing: str | None) -> bool:
         """Whether the next words are no longer the phrase's own modifiers: after "is" or a present verb
@@ -109,7 +148,7 @@ class LexemeStream:
             return False
         if (self.at_copula() and (nested or choosing)) or (self.at_comma() and (comma_ends or self.it_next())):
             return True
-        if (nested or choosing == "near") and self.finite_verb():
+        if (nested or choosing == "near") and self.finite_verb(plain=nested and self.singular_noun):
             return True
         return choosing == "ahead" and self.role() in ("pred", "seq", "rel", "fixed", "with") \
             and self.name() not in PLACES

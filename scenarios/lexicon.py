@@ -50,12 +50,16 @@ class Lexeme:
 
 
 _LEXICON: dict[tuple[str, ...], Lexeme] = {}
+#: Kind phrases in the plural ("buses", "people").
+PLURAL_KINDS: set[tuple[str, ...]] = set()
 
 
 def _add(phrases: str, lexeme: Lexeme, plurals: bool = False) -> None:
     for phrase in phrases.split("|"):
         for form in (phrase, plural(phrase)) if plurals else (phrase,):
             _LEXICON[tuple(form.split())] = lexeme
+        if plurals:
+            PLURAL_KINDS.add(tuple(plural(phrase).split()))
 
 
 # -- kinds ---------------------------------------------------------------------------------------------
@@ -78,11 +82,11 @@ for _phrases, _kind in (
     ("bollard", "bollard"), ("construction cone|traffic cone|cone", "construction_cone"),
     ("construction barrel|barrel", "construction_barrel"),
     ("construction barrier|construction item|construction object|barrier|construction", "construction"),
-    ("stop sign", "stop_sign"), ("sign|road sign|traffic sign", "sign"),
+    ("stop sign", "stop_sign"), ("sign|road sign|traffic sign|yield sign", "sign"),
     ("message board trailer|message board|sign trailer", "message_board_trailer"),
     ("mobile pedestrian sign|mobile pedestrian crossing sign|pedestrian crossing sign",
      "mobile_pedestrian_crossing_sign"),
-    ("object|thing|anything|something|agent|actor", "any"),
+    ("object|thing|anything|something|agent|actor|anyone|anybody|someone|somebody", "any"),
     ("vulnerable road user|vru", "vulnerable_road_user"),
 ):
     _add(_phrases, Lexeme("kind", _kind), plurals=True)
@@ -107,7 +111,7 @@ for _phrases, _name, _params in (
      "have stopped|had stopped", "stopped", ()),
     ("stopped|halted|standing still|stopping|waiting|idling|stationary vehicle|at a standstill|"
      "stands|stand|standing|stop|stops|waits|wait|comes to a stop|come to a stop", "stopped", ()),
-    ("stationary|hasn't moved|has not moved|never moves|unmoving|static", "stationary", ()),
+    ("stationary|hasn't moved|has not moved|never moves|never move|never moved|unmoving|static", "stationary", ()),
     ("parked|parking", "parked", ()),
     ("accelerating|speeding up|gaining speed|accelerates|accelerate|speeds up|speed up|sped up|picks up speed|"
      "picking up speed", "accelerating", ()),
@@ -161,9 +165,10 @@ for _phrases, _name, _params in (
     (of_ego("approaching", "approaches", "approach", "approached", "getting closer to", "gets closer to",
              "coming closer to", "comes closer to", "closing in on", "closes in on", "toward", "comes back toward",
              "coming toward", "comes toward"), "approaching_ego", ()),
-    (of_ego("moving away from", "moves away from", "driving away from", "drives away from", "walking away from",
-             "walks away from", "riding away from", "rides away from", "heading away from", "heads away from",
-             "going away from", "goes away from", "pulling away from", "pulls away from"),
+    (of_ego("moving away from", "moves away from", "move away from", "driving away from", "drives away from",
+             "drive away from", "walking away from", "walks away from", "walk away from", "riding away from",
+             "rides away from", "ride away from", "heading away from", "heads away from", "going away from",
+             "goes away from", "pulling away from", "pulls away from"),
      "moving_away_from_ego", ()),
     ("oncoming|coming toward us|coming towards us|comes toward us|comes towards us|come toward us|"
      "come towards us|in the oncoming lane|on the other side of the road",
@@ -183,7 +188,8 @@ for _phrases, _name, _params in (
     ("getting closer|coming closer|closing in|approaching|approaches|approach|gets closer|comes closer",
      "approaching_ego", ()),
     ("moving away|driving away|leaving|moves away|move away|moved away|drives away|drive away|drove away|"
-     "walking away|walks away|riding away|rides away|going away|goes away|heading away|heads away",
+     "walking away|walks away|walk away|walked away|riding away|rides away|ride away|rode away|going away|"
+     "goes away|heading away|heads away",
      "moving_away_from_ego", ()),
 ):
     _add(_phrases, Lexeme("pred", _name, _params))
@@ -221,7 +227,7 @@ for _phrases, _rel, _rparams, _reverse in (
     ("being crossed by|crossed by", "crossed_by", (), False),
     # Not "stopped for": "a car stopped for 10 s" is a duration.
     ("yielding to|yields to|yield to|yielded to|giving way to|gives way to|give way to|waiting for|waits for|"
-     "wait for|waiting on", "yielding_to", (), False),
+     "wait for|waiting on|yielding|yields|yield|yielded|giving way|gives way|give way", "yielding_to", (), False),
     ("crossing|crossing in front of|crossing the path of|crossing in front|cutting in front of|crosses|cross|"
      "crossing paths with|crossing path of", "crossed_by", (), True),
     ("being passed by|passed by|being overtaken by|overtaken by|being overtaken|overtaken|being passed", "passed_by",
@@ -282,7 +288,7 @@ for _phrases, _n in (("multiple|several|many|more than one|a couple of|couple of
                      ("two|pair of|a pair of|both", 2), ("three", 3), ("four", 4), ("five", 5)):
     _add(_phrases, Lexeme("count", count=_n))
 _add("group of|a group of|crowd of|a crowd of|groups of|bunch of|group|crowd|groups", Lexeme("count", "group", count=3))
-_add("with|having|has|that has|which has|carrying|towing|accompanied by|pushing", Lexeme("with"))
+_add("with|having|has|carrying|towing|accompanied by|pushing", Lexeme("with"))
 _add("has been|have been|had been|that has been|which has been|that have been|who has been", Lexeme("skip"))
 for _phrases, _lexeme in (
     ("at stop sign|at a stop sign|at the stop sign|near a stop sign|near stop sign",
@@ -375,9 +381,10 @@ for _phrases, _name in (("and|as well as|also|while also", "and"), ("or|either",
                         ("then|and then|after that|afterwards|before", "then"), ("after|once", "after"),
                         ("while|when|during|as|whilst", "while")):
     _add(_phrases, Lexeme("conj", _name))
-_add("not|no|without|isn't|aren't|doesn't|neither|nor", Lexeme("not"))
+_add("not|no|without|isn't|aren't|doesn't|neither|nor|does not|do not|did not|didn't|don't|fails to|fail to|"
+     "failing to|failed to", Lexeme("not"))
 # A place the map does not hold: named as not understood, so that "at a bus stop" asks nothing of buses.
-_add("at a bus stop|at the bus stop|near a bus stop|near the bus stop|by a bus stop|by the bus stop",
+_add("at a bus stop|at the bus stop|near a bus stop|near the bus stop|by a bus stop|by the bus stop|bus stop",
      Lexeme("unknown", "bus stop"))
 _add("|".join(f"{via} {the} {place}" for via in ("out of", "of", "from", "into") for the in ("a", "the")
               for place in ("parking spot", "parking space", "driveway", "parking lot")),
@@ -399,11 +406,17 @@ def normalize(text: str) -> list[str]:
     text = re.sub(r"(\d)\s*-\s*(\d)", r"\1 to \2", text)
     text = re.sub(r"(\d)(m|s)\b", r"\1 \2", text)
     text = re.sub(r"[-/]", " ", text)
+    text = re.sub(r"\bno one\b|\bnoone\b", "no anyone", text)  # "with no one in front of it": no object
+    text = re.sub(r"\bno(body|thing)\b", r"no any\1", text)
     words = re.findall(r"[a-z]+(?:'[a-z]+)?|\d+(?:\.\d+)?|,", text)  # a comma ends a clause: kept
     return [_SPELLINGS.get(w, w) for w in words]
 
 
 _MAX_PHRASE = max(len(k) for k in _LEXICON)
+_VERB_WORDS = {k[0] for k, v in _LEXICON.items() if v.role in ("pred", "seq", "rel")}
+#: Verbs in their plain form ("wait", "brake", "cross", "slow down"): present tense for a plural subject.
+PLAIN_VERBS = frozenset(w for w in _VERB_WORDS - {"backward", "close"}  # "backwards", "close to": no verbs
+                        if not w.endswith(("ing", "ed")) and {w + "s", w + "es"} & _VERB_WORDS)
 
 
 def lexemes(words: list[str]) -> list[Lexeme]:

@@ -104,7 +104,7 @@ class Parser(RelationReader):
             else:
                 break
         if self.role() == "kind" and not (self.depth and getattr(self.peek(), "words", ()) == ("we",)):
-            node: Node = Objects(self.take().name)  # "we" opens a clause: "… crosses, we drive off"
+            node: Node = Objects(self.take_kind(count).name)  # "we" opens a clause: "… crosses, we drive off"
             if need_kind and self.depth and node == Objects("ego"):  # "next to us on the right": of the subject
                 return node, count
             if self.role() == "count" and self.count_ahead() >= 3:  # "pedestrian group"
@@ -168,6 +168,9 @@ class Parser(RelationReader):
                 node = self.chain(node)
             elif role == "not" and self.role(1) == "kind" and self.role(2) == "side":  # "without a car ahead of it"
                 node = rewrite.negated(self.with_phrase(node, self.take()), node)
+            elif self.not_a_kind():  # "a vehicle that is not a bus [or a truck]"
+                self.take()
+                node = rewrite.join(node, "except", rewrite.any_of(self.take_kinds()), False)
             elif role == "not" and self.role(1) == "kind":  # "truck without trailer"
                 self.take()
                 node = Has(node, "near", Objects(self.take().name), (("within_m", 5.0),), negate=True)
@@ -224,7 +227,9 @@ class Parser(RelationReader):
                 else:
                     self.unused.append(f"{value:g}")
             elif role == "conj" and self.depth <= 1 and self.name() in ("and", "while") \
-                    and self.role(1) in ("pred", "rel", "ego", "side", "with", "not") and not self.kind_after_states(1):
+                    and self.role(1) in ("pred", "rel", "ego", "side", "with", "not") \
+                    and not self.kind_after_states(1) \
+                    and not (self.it_after_next() and subject_of(node) == Objects("ego")):  # "it": not us
                 self.take()  # "facing and heading toward", "… while being overtaken": one more modifier
                 following = self.peek()
                 if following is not None and following.role == "pred" and not following.negate \
@@ -255,15 +260,15 @@ class Parser(RelationReader):
             side = str(params.pop("side"))
             return self.ego_relation(node, side, (*params.items(), *self.distance_params((), "direction")))
         if item.role == "side" and item.name in ("near", "same_lane"):  # "nearby", "in its lane" with no object
-            it = self.it(item.words)
+            it = self.it(item.words, node)
             return node if it is None else self.relate(node, Lexeme("rel", item.name), it)
         if item.role == "side":
-            other = (None if self.at_comma() else self.phrase(need_kind=True)) or self.it(item.words)
+            other = (None if self.at_comma() else self.phrase(need_kind=True)) or self.it(item.words, node)
             if other is None:  # "ahead", "behind": of the ego
                 return self.ego_relation(node, item.name, self.distance_params((), "direction"))
             return self.relate(node, Lexeme("rel", "direction", (("side", item.name),), reverse=True), other)
         if item.role == "rel":
-            it = self.it(self.skipped_before_next())  # before the side: "passes it on the left"
+            it = self.it(self.skipped_before_next(), node)  # before the side: "passes it on the left"
             item = self.with_side(item)
             other = None if self.at_comma() else self.phrase(bare=item.name == "passed_by", need_kind=True)
             if other is not None and item.name == "passed_by":  # "passed by a motorcycle on either side"

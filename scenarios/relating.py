@@ -11,7 +11,7 @@ from scenarios.kinds import within_kinds
 from scenarios.lexeme_stream import LexemeStream
 from scenarios.lexicon import Lexeme
 from scenarios.program import AllOf, AnyOf, Has, Is, Node, Objects, Then, subject_of
-from scenarios.rewrite import with_subject, without_states
+from scenarios.rewrite import other_one, with_subject, without_states
 
 #: The two steps of "drives off" or "cuts into my lane" happen within this many seconds.
 CUT_IN_WITHIN_S = 4.0
@@ -45,13 +45,17 @@ class RelationReader(LexemeStream):
         #: Whether "it" has named the antecedent since the flag was cleared ("the car behind it": another car).
         self.named_it = False
 
-    def it(self, words: Iterable[str]) -> tuple[Node, int] | None:
-        """The antecedent, as a relation's object, where ``words`` say "it" or "them" (noted in
-        :attr:`named_it`)."""
-        if self.antecedent is None or not {"it", "its", "them"} & set(words):
+    def it(self, words: Iterable[str], node: Node) -> tuple[Node, int] | None:
+        """What "it" or "them" in ``words`` names, as a relation's object (noted in :attr:`named_it`): the
+        antecedent; in the first clause, the object ``node`` (the phrase so far) relates its subject to
+        ("a cyclist behind a car passes it": the car), else the ego."""
+        if not {"it", "its", "them"} & set(words):
             return None
+        named = self.antecedent if self.antecedent is not None else other_one(node)
+        if named is None:
+            return Objects("ego"), 0
         self.named_it = True
-        return self.antecedent, 0
+        return named, 0
 
     def one_another(self, node: Node, relation: str, params: tuple[tuple[str, float | str], ...]) -> Node:
         """``node`` in ``relation`` to other objects of its own kind ("side by side", "within 5 m of each
@@ -121,18 +125,20 @@ class RelationReader(LexemeStream):
         """A relation phrase that names no object: of the ego, by anyone, or no relation at all."""
         if item.name == "heading_toward":  # "approaching": the ego
             return Is(node, "approaching_ego")
-        if item.name == "yielding_to":  # "waiting for 10 s": waiting
+        if item.name == "yielding_to" and item.words[0].startswith("wait"):  # "waiting for 10 s": waiting
             return Is(node, "stopped")
         if item.name == "direction":
             side = str(dict(item.params)["side"])
             return self.ego_relation(node, side, self.distance_params((), "direction"))
         if item.words == ("at",) or (item.words == ("around",) and self.role() == "number"):
             return node  # "at" before a place word the lexicon reads itself; "around 20 km/h": about
+        if item.reverse and item.name == "passed_by" and "side" in dict(item.params):  # "passes on the left": us
+            return self.relate(node, item, (Objects("ego"), 0))
         if item.reverse and item.name == "passed_by":  # "passing between ...": moving past
             return Is(node, "moving")
         if item.reverse and item.name == "crossed_by":  # "a pedestrian crosses at the crosswalk"
             return Is(node, "crossing_road")
-        if item.name in ("following", "crossed_by", "passed_by", "near"):  # "being overtaken": by anyone
+        if item.name in ("following", "crossed_by", "passed_by", "near", "yielding_to"):  # "being overtaken": by anyone
             return self.relate(node, item, (Objects("any"), 0))
         self.unused.extend(item.words)
         return node

@@ -121,6 +121,12 @@ def other_one(node: p.Node) -> p.Node | None:
     return without_states(p.subject_of(node.subject if node.reverse else node.other))
 
 
+def any_of(kinds: list[str]) -> p.Node:
+    """The objects of any of ``kinds``."""
+    objects = tuple(p.Objects(kind) for kind in kinds)
+    return objects[0] if len(objects) == 1 else p.AnyOf(objects)
+
+
 def listed(node: p.Node) -> tuple[p.Objects, ...] | None:
     """The kinds ``node`` lists, as "cars, trucks and buses" does, or None."""
     kinds = node.children if isinstance(node, p.AnyOf) else (node,)
@@ -161,5 +167,7 @@ def in_turn(main: p.Node, event: p.Node, after: bool = False, distinct: bool = F
     brakes, then another car brakes"), ``main``'s objects at the moments that the other objects' event
     follows or precedes ("a pedestrian crosses, then we drive off")."""
     if p.subject_of(main) == p.subject_of(event) and not distinct:
+        if not after and isinstance(event, p.Then) and event.first == main:  # "stops, then drives off": one stop
+            return event
         return p.Then(event, main) if after else p.Then(main, event)
     return p.Sequenced(main, event, after=after)

@@ -292,6 +292,27 @@ MEANINGS = {
     "a bus giving way to a cyclist": "yielding_to(bus, cyclist)",
     "a car waiting for 10 seconds": "for_at_least(stopped(car), seconds=10)",
     "a car rolling backwards toward us": "approaching_ego(reversing(car))",
+    # "It" after "and" names the object we relate to, not us; a verb's plain form after a single object is
+    # the plural subject's; "is not a bus" excludes the kind; "no one", "nobody", "nothing" are no object.
+    "we follow a truck and it turns left": "while(following(ego, truck), turning(truck, direction=left))",
+    "a car stops and it turns left": "then(stopped(car), turning(car, direction=left), within_s=5)",
+    "cars behind a bus brake": "braking(reverse(direction(bus, car, side=behind)))",
+    "pedestrians near a car wait to cross": "stopped(near(pedestrian, car))",
+    "a car behind a truck never moves": "stationary(reverse(direction(truck, car, side=behind)))",
+    "a car behind a truck that has stopped": "reverse(direction(stopped(truck), car, side=behind))",
+    "a vehicle that is not a bus": "excluding(vehicle, bus)",
+    "a vehicle which is not a car or a truck": "excluding(vehicle, or(car, truck))",
+    "a car with no one in front of it": "not(direction(car, any, side=front))",
+    "nobody crossing in front of us": "not(crossed_by(ego, any))",
+    "a car not yielding": "not(yielding_to(car, any))",
+    "a car that fails to stop": "not(stopped(car))",
+    "a cyclist behind a car passes it on the left":
+        "reverse(passed_by(car, reverse(direction(car, cyclist, side=behind)), side=left))",
+    "a pedestrian crossing in front of it": "reverse(crossed_by(ego, pedestrian))",  # "it" was dropped
+    "car that stops and then starts moving within 5 seconds":  # one stop, not two in turn
+        "then(stopped(car), moving(car), within_s=5)",
+    "a car stops, then turns left, then speeds up":
+        "then(then(stopped(car), turning(car, direction=left), within_s=5), accelerating(car), within_s=5)",
 }
 
 #: Phrases that must not be read as something else: the word is reported unused instead.
@@ -302,6 +323,7 @@ NOT_UNDERSTOOD = {
     "while a car is parked": ("parked(car)", ("while",)),  # no clause follows the condition
     "a pedestrian crossing when we are 20 m away": ("while(crossing_road(pedestrian), ego)", ("20 m",)),
     "a bus stopped at a bus stop": ("stopped(bus)", ("at", "a", "bus", "stop")),  # no bus stops in the map
+    "cars behind the bus stop": ("reverse(direction(ego, car, side=behind))", ("bus", "stop")),  # not a stopped bus
     "no pedestrians": ("pedestrian", ("no",)),  # nothing to be without: the objects, "no" unused
     "a car more than 20 m away": ("car", ("more than 20 m",)),  # no relation takes a least distance
     "a car within 5 m of the crosswalk": ("car", ("5 m", "crosswalk")),  # not "of the ego"

@@ -5,10 +5,10 @@ moment's own rule tags and the simulator's labels (its caption row: category, ta
 ``lane:motion[:action][:context]``, the ego's tags, behaviour columns), never from the query's program.
 Each sentence's judge below is written from the sentence alone.
 
-The sentences are split in eight: ``DEV`` were seen while the description compiler was written;
-``FIRST_HELD_OUT`` … ``SIXTH_HELD_OUT`` were each held out at one measurement and read after it to
-find the search's gaps; ``HELD_OUT`` were written with their judges after that, before
-any search ran on them, and are not tuned on.
+The sentences are split in nine: ``DEV`` were seen while the description compiler was written;
+``FIRST_HELD_OUT`` … ``SEVENTH_HELD_OUT`` were each held out at one measurement and read after it to
+find the search's gaps; ``HELD_OUT`` were written with their judges after that, before any search ran
+on them, and kept where the test split holds at least 10 clips their judge accepts; not tuned on.
 
 Measured for each sentence, on the index's test clips (``split == test``): precision@10 of the default
 search (the query's scenario program selects the moments, the model ranks them), of the model alone,
@@ -225,8 +225,8 @@ def _adjacent(step: list[str]) -> bool:
 
 #: Written with their judges after the compiler learned more everyday phrasings (lanes beside ours,
 #: entering and leaving our lane, states in turn, the opposite direction), before any search ran on them;
-#: not tuned on.
-HELD_OUT: dict[str, Judge] = {
+#: measured once (commit 1d614e4) and read after it.
+SEVENTH_HELD_OUT: dict[str, Judge] = {
     "a car in the lane next to us": lambda r: _cat(r, "car") and any(_adjacent(s) for s in _steps(r)),
     "we slow down and come to a stop": lambda r: _host(r, "decelerating") and _host(r, "stationary"),
     "a car slows down and stops":
@@ -244,6 +244,32 @@ HELD_OUT: dict[str, Judge] = {
     "a parked car on our left": lambda r: _cat(r, "car") and _has(r, lane="left*", action="parked"),
     "a bus stopped in the lane next to us":
         lambda r: _cat(r, "bus") and any(_adjacent(s) and "stopped" in s for s in _steps(r)),
+}
+
+
+def _moving(step: list[str]) -> bool:
+    return "stopped" not in step and "parked" not in step
+
+
+#: Sentences the demo's test split can score: 28 candidates were written with their judges in two batches,
+#: before any compilation or search ran on them; only the number of test clips each judge accepts was
+#: counted, and the first six of each batch with at least 10 (a ceiling of 1) were kept. Not tuned on.
+HELD_OUT: dict[str, Judge] = {
+    "a car ahead of us in our lane": lambda r: _cat(r, "car") and _has(r, lane="host"),
+    "a pedestrian walking on the left":
+        lambda r: _cat(r, "pedestrian") and any(s[0].startswith("left") and _moving(s) for s in _steps(r)),
+    "an oncoming car": lambda r: _cat(r, "car") and _has(r, lane="oncoming"),
+    "a bus on our right": lambda r: _cat(r, "bus") and _has(r, lane="right*"),
+    "a pedestrian standing still": lambda r: _cat(r, "pedestrian") and _has(r, action="stopped"),
+    "a car coming toward us": lambda r: _cat(r, "car") and _has(r, motion="approach"),
+    "a car moving away from us": lambda r: _cat(r, "car") and _has(r, motion="away"),
+    "people walking near us": lambda r: _cat(r, "pedestrian") and any(_moving(s) for s in _steps(r)),
+    "a pedestrian approaching us": lambda r: _cat(r, "pedestrian") and _has(r, motion="approach"),
+    "vehicles in the lane to our right": lambda r: _cat(r, *VEHICLES) and _has(r, lane="right"),
+    "a car driving past us":
+        lambda r: _cat(r, "car") and _then(r, lambda a: a[1] == "approach", lambda b: b[1] == "away"),
+    "we drive straight past a parked car":
+        lambda r: _host(r, "heading_straight") and _cat(r, "car") and _has(r, action="parked"),
 }
 
 
@@ -294,8 +320,8 @@ def _means(per_query: Mapping[str, Mapping[str, float]]) -> dict[str, float]:
 
 #: Every set of sentences, by its name in the results: the one not tuned on first.
 SETS: dict[str, dict[str, Judge]] = {
-    "held_out": HELD_OUT, "sixth_held_out": SIXTH_HELD_OUT, "fifth_held_out": FIFTH_HELD_OUT,
-    "fourth_held_out": FOURTH_HELD_OUT,
+    "held_out": HELD_OUT, "seventh_held_out": SEVENTH_HELD_OUT, "sixth_held_out": SIXTH_HELD_OUT,
+    "fifth_held_out": FIFTH_HELD_OUT, "fourth_held_out": FOURTH_HELD_OUT,
     "third_held_out": THIRD_HELD_OUT, "second_held_out": SECOND_HELD_OUT, "first_held_out": FIRST_HELD_OUT,
     "dev": DEV,
 }

@@ -144,6 +144,8 @@ def join(node: p.Node, conj: str, other: p.Node, distinct: bool, spread: bool = 
         return in_turn(node, other, conj == "after", distinct)
     if conj == "except":
         return p.Excluding(node, other)
+    if conj in ("and", "while") and distinct and node == other:  # "a car brakes and another car brakes": two
+        return p.Together(node, 2)
     if conj == "while" or (conj == "and" and distinct and first == second):
         return p.While(node, other)
     if conj == "and" and ego in (first, second) and first != second and node != first and other != second:

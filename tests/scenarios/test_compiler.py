@@ -309,6 +309,7 @@ MEANINGS = {
     "a cyclist behind a car passes it on the left":
         "reverse(passed_by(car, reverse(direction(car, cyclist, side=behind)), side=left))",
     "a pedestrian crossing in front of it": "reverse(crossed_by(ego, pedestrian))",  # "it" was dropped
+    "a car brakes and another car brakes": "together(braking(car), min_count=2)",  # one braking car held it
     "car that stops and then starts moving within 5 seconds":  # one stop, not two in turn
         "then(stopped(car), moving(car), within_s=5)",
     "a car stops, then turns left, then speeds up":

@@ -110,6 +110,12 @@ class LexemeStream:
             j += 1
         return bool(words & {"it", "they"})
 
+    def state_before_noun(self) -> bool:
+        """Whether the next meaningful item is a state said right before a noun ("we drive straight past
+        parked cars"): a state of that noun's phrase, not one more of the phrase before."""
+        j = self.i + len(self.fillers())
+        return j + 1 < len(self.items) and self.items[j].role == "pred" and self.items[j + 1].role == "kind"
+
     def not_a_kind(self) -> bool:
         """Whether the next words say that the object is not of a kind ("that is not a bus", "which isn't a
         car"), not that it is without one ("a truck without a trailer")."""

@@ -241,7 +241,7 @@ for _phrases, _rel, _rparams, _reverse in (
     ("at", "near", (("within_m", 5.0),), False),
     # Not "walking past": "walking past the right side of" is "walking" + "past the right side of".
     ("passing|overtaking|passing by|passes|overtakes|pass|overtake|overtook|drive past|drives past|"
-     "driving past|goes past|going past|"
+     "driving past|goes past|going past|drive straight past|drives straight past|driving straight past|"
      "go past|" + "|".join(f"{verb} by" for verb in ("drive", "drives", "driving", "walk", "walks", "walking",
                                                      "ride", "rides", "riding")), "passed_by", (), True),
     ("facing|facing toward|facing towards|looking at|facing at", "facing", (), False),

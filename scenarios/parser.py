@@ -137,7 +137,7 @@ class Parser(RelationReader):
         ("near" or "ahead"): only those that say which objects "the nearest" is among."""
         while not self.ends_phrase(self.depth > 1, self.depth > 1 or self.in_condition, choosing):
             role = self.role()
-            if role == "pred":
+            if role == "pred" and not self.state_before_noun():  # "… past parked cars": the cars' state
                 item = self.take()
                 node = rewrite.stated(node, item.name, item.params, item.negate)
             elif role == "fixed":

@@ -310,6 +310,7 @@ MEANINGS = {
         "reverse(passed_by(car, reverse(direction(car, cyclist, side=behind)), side=left))",
     "a pedestrian crossing in front of it": "reverse(crossed_by(ego, pedestrian))",  # "it" was dropped
     "a car brakes and another car brakes": "together(braking(car), min_count=2)",  # one braking car held it
+    "we drive straight past a parked car": "reverse(passed_by(parked(car), ego))",  # the ego was parked
     "car that stops and then starts moving within 5 seconds":  # one stop, not two in turn
         "then(stopped(car), moving(car), within_s=5)",
     "a car stops, then turns left, then speeds up":

@@ -240,10 +240,12 @@ for _phrases, _rel, _rparams, _reverse in (
     ("past the left side of|past left side of|past the left of", "passed_by", (("side", "left"),), True),
     ("at", "near", (("within_m", 5.0),), False),
     # Not "walking past": "walking past the right side of" is "walking" + "past the right side of".
-    ("passing|overtaking|passing by|passes|overtakes|pass|overtake|overtook|drive past|drives past|"
-     "driving past|goes past|going past|drive straight past|drives straight past|driving straight past|"
-     "go past|" + "|".join(f"{verb} by" for verb in ("drive", "drives", "driving", "walk", "walks", "walking",
-                                                     "ride", "rides", "riding")), "passed_by", (), True),
+    ("passing|overtaking|passes|overtakes|pass|overtake|overtook", "passed_by", (), True),
+    # Going past, unlike overtaking, is either way: an oncoming car drives past us too.
+    ("passing by|drive past|drives past|driving past|drove past|goes past|going past|go past|went past|"
+     "drive straight past|drives straight past|driving straight past|" + "|".join(
+        f"{verb} by" for verb in ("drive", "drives", "driving", "walk", "walks", "walking", "ride", "rides",
+                                  "riding", "goes", "going", "go")), "passed_by", (("way", "either"),), True),
     ("facing|facing toward|facing towards|looking at|facing at", "facing", (), False),
     ("heading toward|heading towards|moving toward|moving towards|approaching|driving toward|driving towards|"
      "accelerating toward|accelerating towards|walking toward|walking towards", "heading_toward", (), False),

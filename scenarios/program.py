@@ -258,7 +258,7 @@ def describe(node: Node) -> str:
             template = (spec.reverse_phrase if reverse else spec.phrase) if spec else relation + " {other}"
             phrase = template.format(other=count + _nested(other), subject=_nested(subject),
                                      **{k: v for k, v in values.items() if k not in ("other", "subject")})
-            phrase = phrase.replace(" on the any", "")
+            phrase = phrase.replace(" on the any", "").replace(" (overtaking)", "").replace(" (either)", " either way")
             extra = _params_text(dict(params), template)
             named = describe(other) if reverse else describe(subject)
             if nearest is not None and reverse:  # "the nearest of the vehicles in front of the ego vehicle"

@@ -19,7 +19,8 @@ beforehand (:func:`candidate_pairs`):
 - ``yielding_to``: crossed by the other within ``forward_m`` (15 m) while at most ``max_mps`` (3 m/s):
   the subject waits or creeps while the other crosses its path.
 - ``passed_by`` (``side`` left, right or any): the other moves from behind to ahead of the subject on
-  that side, within ``lateral_m``; the frames within ``window_s`` of it count.
+  that side, within ``lateral_m`` (``way`` ``overtaking``), or either way (``either``: also an oncoming
+  object going by); the frames within ``window_s`` of it count.
 - ``heading`` (``same``, ``opposite``, ``perpendicular``): the headings differ by at most 45°, at least
   135°, or between.
 - ``facing``: the other lies within ``angle_deg`` of the subject's heading, within ``within_m``.
@@ -273,9 +274,9 @@ def _yielding_to(g: PairGeometry, p: Params) -> Mask:
     return _crossed_by(g, p) & (g.subject_speed_mps <= _f(p, "max_mps"))
 
 
-@_define("passed_by", "passed by {other} on the {side}", "passing {subject} on the {side}",
-         {"side": "any", "lateral_m": 5.0, "window_s": 1.0},
-         {"side": ("left", "right", "any")},
+@_define("passed_by", "passed by {other} on the {side} ({way})", "passing {subject} on the {side} ({way})",
+         {"side": "any", "way": "overtaking", "lateral_m": 5.0, "window_s": 1.0},
+         {"side": ("left", "right", "any"), "way": ("overtaking", "either")},
          reach_m=lambda p: None)  # how far the other moves between two frames is unbounded
 def _passed_by(g: PairGeometry, p: Params) -> Mask:
     side, lateral = str(p["side"]), _f(p, "lateral_m")
@@ -284,9 +285,9 @@ def _passed_by(g: PairGeometry, p: Params) -> Mask:
         beside &= g.dy_m > 0
     elif side == "right":
         beside &= g.dy_m < 0
-    forward = np.zeros(g.ok.shape, dtype=bool)
-    forward[..., 1:] = (g.dx_m[..., 1:] >= 0) & (g.dx_m[..., :-1] < 0)  # from behind to ahead
-    events = _sign_change(g.dx_m, g.ok & beside) & forward
+    events = _sign_change(g.dx_m, g.ok & beside)
+    if str(p["way"]) == "overtaking":
+        events[..., 1:] &= g.dx_m[..., 1:] >= 0  # from behind to ahead
     return g.ok & _around_events(events, g.time_s, _f(p, "window_s"))
 
 

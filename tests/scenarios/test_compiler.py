@@ -75,7 +75,7 @@ MEANINGS = {
     "we slow down behind a car": "reverse(direction(car, braking(ego), side=behind))",
     "a car parked on the right while we drive past":
         "while(reverse(direction(ego, parked(car), side=right)), moving(ego))",
-    "we drive past a parked truck": "reverse(passed_by(parked(truck), ego))",
+    "we drive past a parked truck": "reverse(passed_by(parked(truck), ego, way=either))",
     "car behind the ego vehicle": "reverse(direction(ego, car, side=behind))",
     "bus approaching the ego car": "approaching_ego(bus)",
     # "To the left" after a turn or a lane change is where it goes, in every verb form, not where it is.
@@ -92,7 +92,7 @@ MEANINGS = {
         "facing(vehicle, moving(pedestrian), within_m=15)",
     # A condition first: "while X, Y" is "Y while X".
     "while we are stopped, a pedestrian walks by": "while(moving(pedestrian), stopped(ego))",
-    "a cyclist rides by us": "reverse(passed_by(ego, cyclist))",
+    "a cyclist rides by us": "reverse(passed_by(ego, cyclist, way=either))",
     # "Without" / "with no" an object where the words put it: that relation, negated.
     "a car without any vehicle in front of it": "not(direction(car, vehicle, side=front))",
     "a car with no vehicle behind it": "not(direction(car, vehicle, side=behind))",
@@ -310,7 +310,9 @@ MEANINGS = {
         "reverse(passed_by(car, reverse(direction(car, cyclist, side=behind)), side=left))",
     "a pedestrian crossing in front of it": "reverse(crossed_by(ego, pedestrian))",  # "it" was dropped
     "a car brakes and another car brakes": "together(braking(car), min_count=2)",  # one braking car held it
-    "we drive straight past a parked car": "reverse(passed_by(parked(car), ego))",  # the ego was parked
+    "a car passing us": "reverse(passed_by(ego, car))",  # overtaking; going past is either way:
+    "a car driving past us": "reverse(passed_by(ego, car, way=either))",
+    "we drive straight past a parked car": "reverse(passed_by(parked(car), ego, way=either))",  # ego parked
     "car that stops and then starts moving within 5 seconds":  # one stop, not two in turn
         "then(stopped(car), moving(car), within_s=5)",
     "a car stops, then turns left, then speeds up":

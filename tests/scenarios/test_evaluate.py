@@ -158,6 +158,11 @@ def test_crossing_and_passing_happen_around_their_moment() -> None:
     assert passed[20] and not passed[0]
     right = p.Has(p.Objects("car"), "passed_by", p.Objects("car"), (("side", "right"),))
     assert not evaluate(right, x).selection.mask[0].any()
+    # An oncoming car going by on the left: not overtaking, but passing either way.
+    oncoming = make_features([car((0, Y)), car(overtaking[::-1], yaw=np.pi, speed=10.0)], frames=frames)
+    assert not evaluate(left, oncoming).selection.mask[0].any()
+    either = p.Has(p.Objects("car"), "passed_by", p.Objects("car"), (("side", "left"), ("way", "either")))
+    assert evaluate(either, oncoming).selection.mask[0].tolist() == passed.tolist()
     # Yielding: crossed while slow. The car above moves at 5 m/s; one waiting at 1 m/s yields.
     yields = p.Has(p.Objects("car"), "yielding_to", p.Objects("pedestrian"))
     assert not evaluate(yields, x).selection.mask.any()

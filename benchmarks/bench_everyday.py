@@ -5,8 +5,8 @@ moment's own rule tags and the simulator's labels (its caption row: category, ta
 ``lane:motion[:action][:context]``, the ego's tags, behaviour columns), never from the query's program.
 Each sentence's judge below is written from the sentence alone.
 
-The sentences are split in nine: ``DEV`` were seen while the description compiler was written;
-``FIRST_HELD_OUT`` … ``SEVENTH_HELD_OUT`` were each held out at one measurement and read after it to
+The sentences are split in ten: ``DEV`` were seen while the description compiler was written;
+``FIRST_HELD_OUT`` … ``EIGHTH_HELD_OUT`` were each held out at one measurement and read after it to
 find the search's gaps; ``HELD_OUT`` were written with their judges after that, before any search ran
 on them, and kept where the test split holds at least 10 clips their judge accepts; not tuned on.
 
@@ -253,8 +253,9 @@ def _moving(step: list[str]) -> bool:
 
 #: Sentences the demo's test split can score: 28 candidates were written with their judges in two batches,
 #: before any compilation or search ran on them; only the number of test clips each judge accepts was
-#: counted, and the first six of each batch with at least 10 (a ceiling of 1) were kept. Not tuned on.
-HELD_OUT: dict[str, Judge] = {
+#: counted, and the first six of each batch with at least 10 (a ceiling of 1) were kept. Measured once
+#: (commit 65451a6) and read after it.
+EIGHTH_HELD_OUT: dict[str, Judge] = {
     "a car ahead of us in our lane": lambda r: _cat(r, "car") and _has(r, lane="host"),
     "a pedestrian walking on the left":
         lambda r: _cat(r, "pedestrian") and any(s[0].startswith("left") and _moving(s) for s in _steps(r)),
@@ -270,6 +271,34 @@ HELD_OUT: dict[str, Judge] = {
         lambda r: _cat(r, "car") and _then(r, lambda a: a[1] == "approach", lambda b: b[1] == "away"),
     "we drive straight past a parked car":
         lambda r: _host(r, "heading_straight") and _cat(r, "car") and _has(r, action="parked"),
+}
+
+
+def _host_turning(row: Row) -> bool:
+    return _host(row, "steering_left") or _host(row, "steering_right")
+
+
+#: Sentences the demo's test split can score, written after the eighth set was measured and read, as it
+#: was: 24 candidates with their judges in two batches, before any compilation or search ran on them;
+#: the first 12 with at least 10 accepted test clips were kept (9 of the first batch's 16, 3 of the
+#: second's 8). Not tuned on.
+HELD_OUT: dict[str, Judge] = {
+    "a car parked on the side of the road": lambda r: _cat(r, "car") and _has(r, action="parked"),
+    "cars in front of us while we accelerate":
+        lambda r: _host(r, "accelerating") and _cat(r, "car") and _has(r, lane="host"),
+    "an oncoming vehicle while we turn":
+        lambda r: _host_turning(r) and _cat(r, *VEHICLES) and _has(r, lane="oncoming"),
+    "a car in the oncoming lane moving away": lambda r: _cat(r, "car") and _has(r, lane="oncoming", motion="away"),
+    "cars around us while we are stopped": lambda r: _host(r, "stationary") and _cat(r, "car"),
+    "a car to our left moving away": lambda r: _cat(r, "car") and _has(r, lane="left*", motion="away"),
+    "a car approaching on our right": lambda r: _cat(r, "car") and _has(r, lane="right*", motion="approach"),
+    "pedestrians while we drive straight": lambda r: _host(r, "heading_straight") and _cat(r, "pedestrian"),
+    "we accelerate with a pedestrian nearby": lambda r: _host(r, "accelerating") and _cat(r, "pedestrian"),
+    "a car coming toward us while we slow down":
+        lambda r: _host(r, "decelerating") and _cat(r, "car") and _has(r, motion="approach"),
+    "a car on our right while we are stopped":
+        lambda r: _host(r, "stationary") and _cat(r, "car") and _has(r, lane="right*"),
+    "a car moving away from us in the right lane": lambda r: _cat(r, "car") and _has(r, lane="right", motion="away"),
 }
 
 
@@ -320,7 +349,8 @@ def _means(per_query: Mapping[str, Mapping[str, float]]) -> dict[str, float]:
 
 #: Every set of sentences, by its name in the results: the one not tuned on first.
 SETS: dict[str, dict[str, Judge]] = {
-    "held_out": HELD_OUT, "seventh_held_out": SEVENTH_HELD_OUT, "sixth_held_out": SIXTH_HELD_OUT,
+    "held_out": HELD_OUT, "eighth_held_out": EIGHTH_HELD_OUT, "seventh_held_out": SEVENTH_HELD_OUT,
+    "sixth_held_out": SIXTH_HELD_OUT,
     "fifth_held_out": FIFTH_HELD_OUT, "fourth_held_out": FOURTH_HELD_OUT,
     "third_held_out": THIRD_HELD_OUT, "second_held_out": SECOND_HELD_OUT, "first_held_out": FIRST_HELD_OUT,
     "dev": DEV,

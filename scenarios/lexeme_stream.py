@@ -6,6 +6,7 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
+from scenarios.kinds import within_kinds
 from scenarios.lexicon import PLAIN_VERBS, PLURAL_KINDS, Lexeme
 
 #: Predicates of where an object is: said after the noun, they say which objects "the nearest" is among
@@ -14,6 +15,10 @@ PLACES = frozenset({"ego_lane", "on_crosswalk", "at_crosswalk", "in_bike_lane", 
                     "at_intersection", "near_intersection", "on_road"})
 #: Words that open a clause about the noun before ("a bus, which is stopped"): what follows is the noun's.
 RELATIVE = frozenset({"that", "which", "who"})
+#: Auxiliaries that make the verb after them finite ("does not stop", "has stopped"), and those of a plural
+#: subject ("do not move", "have stopped").
+_FINITE_AUX = frozenset({"does", "doesn't", "did", "didn't", "fails", "failed", "has", "hasn't"})
+_PLAIN_AUX = frozenset({"do", "don't", "fail", "have", "haven't"})
 #: Words that end in "s" without being a verb's present ("across", "towards").
 _NOT_VERBS = frozenset({"across", "towards", "always", "alongside", "backwards", "sideways", "besides", "perhaps"})
 
@@ -110,12 +115,6 @@ class LexemeStream:
             j += 1
         return bool(words & {"it", "they"})
 
-    def state_before_noun(self) -> bool:
-        """Whether the next meaningful item is a state said right before a noun ("we drive straight past
-        parked cars"): a state of that noun's phrase, not one more of the phrase before."""
-        j = self.i + len(self.fillers())
-        return j + 1 < len(self.items) and self.items[j].role == "pred" and self.items[j + 1].role == "kind"
-
     def not_a_kind(self) -> bool:
         """Whether the next words say that the object is not of a kind ("that is not a bus", "which isn't a
         car"), not that it is without one ("a truck without a trailer")."""
@@ -123,12 +122,19 @@ class LexemeStream:
         return item is not None and item.role == "not" and self.role(1) == "kind" and bool(
             self.skipped_before_next() & {"is", "are"} or item.words in (("isn't",), ("aren't",)))
 
-    def take_kinds(self) -> list[str]:
-        """The kinds named next, listed with "or" ("not a car or a truck"), taken."""
-        names = [self.take().name]
+    def take_kinds(self, subject: object) -> list[str]:
+        """The kinds named next, listed with "or" ("not a car or a truck"), taken; one that the ``subject``
+        node's objects all are ("a pedestrian who is not a child": no kind of its own) is unused."""
+        items = [self.take()]
         while self.role() == "conj" and self.name() == "or" and self.role(1) == "kind":
             self.take()
-            names.append(self.take().name)
+            items.append(self.take())
+        names = [item.name for item in items]
+        kind = getattr(subject, "kind", "")
+        for item in items:
+            if kind and within_kinds(kind, (item.name,)):
+                self.unused.extend(item.words)
+                names.remove(item.name)
         return names
 
     def finite_verb(self, plain: bool = False) -> bool:
@@ -136,10 +142,13 @@ class LexemeStream:
         "never moves", "has stopped"), not a participle ("braking", "parked on the left"): a new predicate
         of the clause's subject; ``plain``: its plain form too ("wait", "slow down"; not "to cross")."""
         item = self.peek()
+        if item is not None and item.role == "not" and self.role(1) in ("pred", "seq", "rel"):  # "does not stop"
+            return item.words[0] in _FINITE_AUX or (plain and item.words[0] in _PLAIN_AUX)
         if item is None or item.role not in ("pred", "seq", "rel"):
             return False
         word = item.words[1] if item.words[0] == "never" and len(item.words) > 1 else item.words[0]
-        if word in ("has", "hasn't") or (plain and word in PLAIN_VERBS and "to" not in self.skipped_before_next()):
+        if word in _FINITE_AUX or (plain and (word in PLAIN_VERBS or word in _PLAIN_AUX)
+                                   and "to" not in self.skipped_before_next()):
             return True
         return len(word) > 3 and word.endswith("s") and not word.endswith("ss") and word not in _NOT_VERBS
 
@@ -186,6 +195,10 @@ class LexemeStream:
     def skipped_before_next(self) -> set[str]:
         """The filler words between here and the next meaningful item."""
         return {word for item in self.fillers() for word in item.words}
+
+    def words(self, ahead: int = 0) -> tuple[str, ...]:
+        item = self.peek(ahead)
+        return item.words if item is not None else ("",)
 
     def role(self, ahead: int = 0) -> str:
         item = self.peek(ahead)

@@ -243,7 +243,7 @@ for _phrases, _rel, _rparams, _reverse in (
     ("passing|overtaking|passes|overtakes|pass|overtake|overtook", "passed_by", (), True),
     # Going past, unlike overtaking, is either way: an oncoming car drives past us too.
     ("passing by|drive past|drives past|driving past|drove past|goes past|going past|go past|went past|"
-     "drive straight past|drives straight past|driving straight past|" + "|".join(
+     "drive straight past|drives straight past|driving straight past|passes by|pass by|" + "|".join(
         f"{verb} by" for verb in ("drive", "drives", "driving", "walk", "walks", "walking", "ride", "rides",
                                   "riding", "goes", "going", "go")), "passed_by", (("way", "either"),), True),
     ("facing|facing toward|facing towards|looking at|facing at", "facing", (), False),
@@ -392,7 +392,7 @@ _add("|".join(f"{via} {the} {place}" for via in ("out of", "of", "from", "into")
               for place in ("parking spot", "parking space", "driveway", "parking lot")),
      Lexeme("unknown", "parking spot"))
 _add("within|at least|at most|less than|more than|up to|from|away|for|directly|another|other|each|any|"
-     "some|its|their|the|a|an|that|which|who|is|are|being|of|it|there|in|on|to|one|ones|those|these|same|lane|path|"
+     "some|its|their|the|a|an|that|which|who|is|are|being|of|it|they|them|there|in|on|to|one|ones|those|these|same|lane|path|"
      "side|too|road|street|zone|area|i|see|find|show|me|all|where|together|here|now|just|first|,",
      Lexeme("skip"))
 
@@ -408,8 +408,9 @@ def normalize(text: str) -> list[str]:
     text = re.sub(r"(\d)\s*-\s*(\d)", r"\1 to \2", text)
     text = re.sub(r"(\d)(m|s)\b", r"\1 \2", text)
     text = re.sub(r"[-/]", " ", text)
-    text = re.sub(r"\bno one\b|\bnoone\b", "no anyone", text)  # "with no one in front of it": no object
-    text = re.sub(r"\bno(body|thing)\b", r"no any\1", text)
+    # "With no one in front of it", "nobody near us": no object there (elsewhere the words are unused).
+    text = re.sub(r"(^|\bwith )(?:no one|noone)\b", r"\1no anyone", text)
+    text = re.sub(r"(^|\bwith )no(body|thing)\b", r"\1no any\2", text)
     words = re.findall(r"[a-z]+(?:'[a-z]+)?|\d+(?:\.\d+)?|,", text)  # a comma ends a clause: kept
     return [_SPELLINGS.get(w, w) for w in words]
 
@@ -418,7 +419,7 @@ _MAX_PHRASE = max(len(k) for k in _LEXICON)
 _VERB_WORDS = {k[0] for k, v in _LEXICON.items() if v.role in ("pred", "seq", "rel")}
 #: Verbs in their plain form ("wait", "brake", "cross", "slow down"): present tense for a plural subject.
 PLAIN_VERBS = frozenset(w for w in _VERB_WORDS - {"backward", "close"}  # "backwards", "close to": no verbs
-                        if not w.endswith(("ing", "ed")) and {w + "s", w + "es"} & _VERB_WORDS)
+                        if not w.endswith("ing") and {w + "s", w + "es"} & _VERB_WORDS)
 
 
 def lexemes(words: list[str]) -> list[Lexeme]:

@@ -57,8 +57,6 @@ class Parser(RelationReader):
         self.pending_s: float | None = None
         #: "… then stops within 4 seconds": the time the steps of a sequence fall within (not a duration).
         self.within_s: float | None = None
-        #: How deep in the phrases named by relations: "and"/"while" + modifier join the referred phrase only.
-        self.depth = 0
         self.in_condition = False  # reading a condition that opens the sentence: "after the bus stops, …"
         #: Whether the clause's count was a group's ("a group of pedestrians", "a crowd"): near one another.
         self.grouped = False
@@ -94,7 +92,7 @@ class Parser(RelationReader):
             elif role == "nearest" and nearest is None:  # "the closest parked car", "the lead vehicle"
                 nearest = self.take()
             elif role == "rel" and self.role(1) == "kind" and self.name() in ("crossed_by", "passed_by") \
-                    and getattr(self.peek(), "reverse", False):
+                    and getattr(self.peek(), "reverse", False) and self.words()[0].endswith("ing"):
                 item = self.take()  # "crossing pedestrians": pedestrians that cross the road
                 preds.append(Lexeme("pred", "crossing_road" if item.name == "crossed_by" else "moving"))
             elif role == "not" and self.role(1) == "pred":
@@ -137,7 +135,7 @@ class Parser(RelationReader):
         ("near" or "ahead"): only those that say which objects "the nearest" is among."""
         while not self.ends_phrase(self.depth > 1, self.depth > 1 or self.in_condition, choosing):
             role = self.role()
-            if role == "pred" and not self.state_before_noun():  # "… past parked cars": the cars' state
+            if role == "pred":
                 item = self.take()
                 node = rewrite.stated(node, item.name, item.params, item.negate)
             elif role == "fixed":
@@ -170,7 +168,8 @@ class Parser(RelationReader):
                 node = rewrite.negated(self.with_phrase(node, self.take()), node)
             elif self.not_a_kind():  # "a vehicle that is not a bus [or a truck]"
                 self.take()
-                node = rewrite.join(node, "except", rewrite.any_of(self.take_kinds()), False)
+                kinds = self.take_kinds(subject_of(node))  # none: "a pedestrian who is not a child"
+                node = rewrite.join(node, "except", rewrite.any_of(kinds), False) if kinds else node
             elif role == "not" and self.role(1) == "kind":  # "truck without trailer"
                 self.take()
                 node = Has(node, "near", Objects(self.take().name), (("within_m", 5.0),), negate=True)

@@ -44,16 +44,18 @@ class RelationReader(LexemeStream):
         self.each_other: Has | None = None
         #: Whether "it" has named the antecedent since the flag was cleared ("the car behind it": another car).
         self.named_it = False
+        #: How deep in the phrases named by relations: "and"/"while" + modifier join the referred phrase only.
+        self.depth = 0
 
     def it(self, words: Iterable[str], node: Node) -> tuple[Node, int] | None:
         """What "it" or "them" in ``words`` names, as a relation's object (noted in :attr:`named_it`): the
         antecedent; in the first clause, the object ``node`` (the phrase so far) relates its subject to
-        ("a cyclist behind a car passes it": the car), else the ego."""
+        ("a cyclist behind a car passes it": the car), else the ego (in the first clause's own words)."""
         if not {"it", "its", "them"} & set(words):
             return None
         named = self.antecedent if self.antecedent is not None else other_one(node)
-        if named is None:
-            return Objects("ego"), 0
+        if named is None:  # inside a relation's object ("a cyclist in front of a car that passes it"): unknown
+            return None if self.depth > 1 else (Objects("ego"), 0)
         self.named_it = True
         return named, 0
 

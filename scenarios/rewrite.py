@@ -144,6 +144,8 @@ def join(node: p.Node, conj: str, other: p.Node, distinct: bool, spread: bool = 
         return in_turn(node, other, conj == "after", distinct)
     if conj == "except":
         return p.Excluding(node, other)
+    if conj == "and" and isinstance(other, p.Then) and other.first == node:  # "stops and drives off": one stop
+        return other
     if conj in ("and", "while") and distinct and node == other:  # "a car brakes and another car brakes": two
         return p.Together(node, 2)
     if conj == "while" or (conj == "and" and distinct and first == second):
@@ -169,7 +171,8 @@ def in_turn(main: p.Node, event: p.Node, after: bool = False, distinct: bool = F
     brakes, then another car brakes"), ``main``'s objects at the moments that the other objects' event
     follows or precedes ("a pedestrian crosses, then we drive off")."""
     if p.subject_of(main) == p.subject_of(event) and not distinct:
-        if not after and isinstance(event, p.Then) and event.first == main:  # "stops, then drives off": one stop
-            return event
+        last = main.second if isinstance(main, p.Then) else main
+        if not after and isinstance(event, p.Then) and event.first == last:  # "stops, then drives off": one stop
+            return event if last is main else p.Then(main, event.second, event.within_s)
         return p.Then(event, main) if after else p.Then(main, event)
     return p.Sequenced(main, event, after=after)

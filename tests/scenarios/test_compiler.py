@@ -310,6 +310,18 @@ MEANINGS = {
         "reverse(passed_by(car, reverse(direction(car, cyclist, side=behind)), side=left))",
     "a pedestrian crossing in front of it": "reverse(crossed_by(ego, pedestrian))",  # "it" was dropped
     "a car brakes and another car brakes": "together(braking(car), min_count=2)",  # one braking car held it
+    # Found by a review of the above: negated and perfect verbs after a relation's object are the
+    # subject's; "they" as "it"; a finite "overtakes" is no adjective; one stop in any chain.
+    "a car behind a truck does not stop": "not(stopped(reverse(direction(truck, car, side=behind))))",
+    "cars behind a truck do not move": "not(moving(reverse(direction(truck, car, side=behind))))",
+    "cars next to a bus have stopped": "stopped(near(car, bus))",
+    "cars near a cyclist speed up": "accelerating(near(car, cyclist))",
+    "we follow a car and it overtakes a cyclist": "while(following(ego, car), reverse(passed_by(cyclist, car)))",
+    "we follow a truck and they turn": "while(following(ego, truck), turning(truck))",
+    "a truck passes by a cyclist": "reverse(passed_by(cyclist, truck, way=either))",
+    "a car brakes, then stops, then drives off":
+        "then(then(braking(car), stopped(car), within_s=5), moving(car), within_s=4)",
+    "a car stops and drives off": "then(stopped(car), moving(car), within_s=4)",
     "a car passing us": "reverse(passed_by(ego, car))",  # overtaking; going past is either way:
     "a car driving past us": "reverse(passed_by(ego, car, way=either))",
     "we drive straight past a parked car": "reverse(passed_by(parked(car), ego, way=either))",  # ego parked
@@ -328,6 +340,9 @@ NOT_UNDERSTOOD = {
     "a pedestrian crossing when we are 20 m away": ("while(crossing_road(pedestrian), ego)", ("20 m",)),
     "a bus stopped at a bus stop": ("stopped(bus)", ("at", "a", "bus", "stop")),  # no bus stops in the map
     "cars behind the bus stop": ("reverse(direction(ego, car, side=behind))", ("bus", "stop")),  # not a stopped bus
+    "a pedestrian who is not a child": ("pedestrian", ("child",)),  # no kind of its own to leave out
+    "car braking truck ahead": ("braking(car)", ("truck", "ahead")),  # a terse query keeps the car's state
+    "a car stops and nobody crosses": ("crossing_road(stopped(car))", ("nobody",)),  # not "nothing near it"
     "no pedestrians": ("pedestrian", ("no",)),  # nothing to be without: the objects, "no" unused
     "a car more than 20 m away": ("car", ("more than 20 m",)),  # no relation takes a least distance
     "a car within 5 m of the crosswalk": ("car", ("5 m", "crosswalk")),  # not "of the ego"

@@ -8,6 +8,7 @@ from typing import NamedTuple
 
 from scenarios.kinds import within_kinds
 from scenarios.lexicon import PLAIN_VERBS, PLURAL_KINDS, Lexeme
+from scenarios.program import Node, Objects
 
 #: Predicates of where an object is: said after the noun, they say which objects "the nearest" is among
 #: ("the closest vehicle in our lane brakes": the nearest of those in our lane, braking).
@@ -122,7 +123,7 @@ class LexemeStream:
         return item is not None and item.role == "not" and self.role(1) == "kind" and bool(
             self.skipped_before_next() & {"is", "are"} or item.words in (("isn't",), ("aren't",)))
 
-    def take_kinds(self, subject: object) -> list[str]:
+    def take_kinds(self, subject: Node) -> list[str]:
         """The kinds named next, listed with "or" ("not a car or a truck"), taken; one that the ``subject``
         node's objects all are ("a pedestrian who is not a child": no kind of its own) is unused."""
         items = [self.take()]
@@ -130,9 +131,8 @@ class LexemeStream:
             self.take()
             items.append(self.take())
         names = [item.name for item in items]
-        kind = getattr(subject, "kind", "")
         for item in items:
-            if kind and within_kinds(kind, (item.name,)):
+            if isinstance(subject, Objects) and within_kinds(subject.kind, (item.name,)):
                 self.unused.extend(item.words)
                 names.remove(item.name)
         return names
@@ -197,6 +197,7 @@ class LexemeStream:
         return {word for item in self.fillers() for word in item.words}
 
     def words(self, ahead: int = 0) -> tuple[str, ...]:
+        """The words of the ``ahead``-th meaningful item (("",) past the end)."""
         item = self.peek(ahead)
         return item.words if item is not None else ("",)
 

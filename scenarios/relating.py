@@ -50,7 +50,7 @@ class RelationReader(LexemeStream):
     def it(self, words: Iterable[str], node: Node) -> tuple[Node, int] | None:
         """What "it" or "them" in ``words`` names, as a relation's object (noted in :attr:`named_it`): the
         antecedent; in the first clause, the object ``node`` (the phrase so far) relates its subject to
-        ("a cyclist behind a car passes it": the car), else the ego (in the first clause's own words)."""
+        ("a cyclist behind a car passes it": the car), else the ego; inside a relation's object, nothing."""
         if not {"it", "its", "them"} & set(words):
             return None
         named = self.antecedent if self.antecedent is not None else other_one(node)

@@ -144,7 +144,7 @@ def join(node: p.Node, conj: str, other: p.Node, distinct: bool, spread: bool = 
         return in_turn(node, other, conj == "after", distinct)
     if conj == "except":
         return p.Excluding(node, other)
-    if conj == "and" and isinstance(other, p.Then) and other.first == node:  # "stops and drives off": one stop
+    if conj == "and" and not distinct and isinstance(other, p.Then) and other.first == node:  # "stops and drives off"
         return other
     if conj in ("and", "while") and distinct and node == other:  # "a car brakes and another car brakes": two
         return p.Together(node, 2)

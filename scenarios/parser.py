@@ -137,7 +137,7 @@ class Parser(RelationReader):
             role = self.role()
             if role == "pred":
                 item = self.take()
-                node = rewrite.stated(node, item.name, item.params, item.negate)
+                node = rewrite.stated_or_after(node, item.name, item.params, item.negate)  # "slows down, stops"
             elif role == "fixed":
                 item = self.take()
                 node = Has(node, item.name, Objects(item.other), item.params, min_count=max(1, item.count),
@@ -230,11 +230,6 @@ class Parser(RelationReader):
                     and not self.kind_after_states(1) \
                     and not (self.it_after_next() and subject_of(node) == Objects("ego")):  # "it": not us
                 self.take()  # "facing and heading toward", "… while being overtaken": one more modifier
-                following = self.peek()
-                if following is not None and following.role == "pred" and not following.negate \
-                        and rewrite.excludes(node, following.name):  # "slows down and stops": in turn
-                    item = self.take()
-                    node = Then(node, Is(rewrite.without_states(node), item.name, item.params, negate=item.negate))
             else:
                 break
         return node

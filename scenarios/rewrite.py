@@ -25,6 +25,14 @@ def stated(node: p.Node, predicate: str, params: tuple[p.Param, ...] = (), negat
     return p.Is(node, predicate, params, negate)
 
 
+def stated_or_after(node: p.Node, predicate: str, params: tuple[p.Param, ...] = (), negate: bool = False) -> p.Node:
+    """``node`` with one more predicate; a state that cannot hold with one ``node`` asks follows it instead,
+    on the same objects ("slows down and stops", "slows down, stops": braking, then stopped)."""
+    if not negate and excludes(node, predicate):
+        return p.Then(node, p.Is(without_states(node), predicate, params))
+    return stated(node, predicate, params, negate)
+
+
 def within(node: p.Node, within_m: float) -> p.Node:
     """A relation ``node`` limited to ``within_m``; any other node as it is."""
     if not isinstance(node, p.Has) or node.relation in ("heading", "passed_by", "crossed_by"):

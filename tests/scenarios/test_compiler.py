@@ -322,6 +322,9 @@ MEANINGS = {
     "a car brakes, then stops, then drives off":
         "then(then(braking(car), stopped(car), within_s=5), moving(car), within_s=4)",
     "a car stops and drives off": "then(stopped(car), moving(car), within_s=4)",
+    "a car slows down, stops, then turns left":  # states that cannot hold at once follow, comma or not
+        "then(then(braking(car), stopped(car), within_s=5), turning(car, direction=left), within_s=5)",
+    "a stopped car accelerating": "then(stopped(car), accelerating(car), within_s=5)",
     "a car passing us": "reverse(passed_by(ego, car))",  # overtaking; going past is either way:
     "a car driving past us": "reverse(passed_by(ego, car, way=either))",
     "we drive straight past a parked car": "reverse(passed_by(parked(car), ego, way=either))",  # ego parked

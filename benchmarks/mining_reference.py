@@ -31,7 +31,7 @@ wrong. Every test is written again from its definition, one object and one frame
   frame to its last plus one frame interval); ``Then`` (the same object, the second starting after
   a frame of the first, within ``within_s``; in a chain, each step after the one before); ``While``
   (the condition holds for any object at that frame); ``Sequenced`` (runs that begin within
-  ``within_s`` before, or after, any object's event begins; a ``then`` begins where its second step
+  ``within_s`` before, or after, any object's event begins; a ``then`` begins where its last step
   does).
 """
 
@@ -422,8 +422,8 @@ class _Reference:
     def starts(self, node: p.Node, sel: Grid) -> Grid:
         """Where what ``node`` selects begins: the first frame of each run whose frame before is observed,
         and for ``then`` (also under ``is``, ``for_at_least``, ``while``, ``together``, ``before`` /
-        ``after``) the frames where its second step begins with its first step within its time before; a
-        run with none of those begins where it begins."""
+        ``after``) the frames where its last step begins with the steps before it reached in order; a run
+        with none of those begins where it begins."""
         log, k, nf = self.log, self.k, self.f
         begins = [[sel[o][f] and f > 0 and not sel[o][f - 1] and log.valid[o][f - 1] for f in range(nf)]
                   for o in range(k)]
@@ -432,9 +432,11 @@ class _Reference:
             inner = inner.subject if isinstance(inner, p.Is) else inner.child
         if not isinstance(inner, p.Then):
             return begins
-        first, second = self.eval(inner.first).sel, self.eval(inner.second).sel
-        moves = [[sel[o][f] and second[o][f] and not (f > 0 and second[o][f - 1])
-                  and self.in_reach(first[o], f, -1, float(inner.within_s)) for f in range(nf)] for o in range(k)]
+        steps, gaps_s = p.chain_steps(inner)
+        grids = [self.eval(step).sel for step in steps]
+        last, reached = grids[-1], self.reached(grids, gaps_s)[-1]
+        moves = [[sel[o][f] and reached[o][f] and not (f > 0 and last[o][f - 1]) for f in range(nf)]
+                 for o in range(k)]
         moving_runs = self.runs_holding(sel, moves)
         return [[moves[o][f] or (begins[o][f] and not moving_runs[o][f]) for f in range(nf)] for o in range(k)]
 
@@ -458,13 +460,19 @@ class _Reference:
             g += step
         return False
 
-    def chained(self, steps: list[Grid], gaps_s: list[float]) -> Grid:
-        """The frames of each step that lie on a whole chain: the steps before it reached in order, each
-        within its time of the one before, and the steps after it reachable so from it."""
+    def reached(self, steps: list[Grid], gaps_s: list[float]) -> list[Grid]:
+        """For each step of a chain, its frames that the steps before it reach in order, each within its
+        time of the one before."""
         reached = [steps[0]]
         for step, gap_s in zip(steps[1:], gaps_s, strict=True):
             reached.append([[step[o][f] and self.in_reach(reached[-1][o], f, -1, gap_s) for f in range(self.f)]
                             for o in range(self.k)])
+        return reached
+
+    def chained(self, steps: list[Grid], gaps_s: list[float]) -> Grid:
+        """The frames of each step that lie on a whole chain: the steps before it reached in order, each
+        within its time of the one before, and the steps after it reachable so from it."""
+        reached = self.reached(steps, gaps_s)
         kept = reached[-1]
         out = [row[:] for row in kept]
         for i in range(len(steps) - 2, -1, -1):

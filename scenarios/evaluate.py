@@ -26,7 +26,15 @@ from scenarios.features import LogFeatures
 from scenarios.kinds import KIND_NAMES, kind_mask
 from scenarios.predicates import PREDICATES, Mask, ProgramError, unanswerable
 from scenarios.relations import RELATIONS, candidate_pairs, group_any, group_count, in_direction, pair_geometry
-from scenarios.timing import chained, followed_within, onsets, preceded_within, runs_holding, runs_lasting
+from scenarios.timing import (
+    chained,
+    followed_within,
+    onsets,
+    preceded_within,
+    reached_in_order,
+    runs_holding,
+    runs_lasting,
+)
 from scenes.categories import AV2_TO_CATEGORY, EGO_VEHICLE_LABEL
 
 #: Subject × other × frame cells a relation compares at once.
@@ -145,17 +153,17 @@ class _Run:
     def starts(self, node: p.Node, sel: Selection) -> Mask:
         """(K, F) the frames where what ``node`` selects begins: the first frame of each run seen to begin
         (the frame before it observed: a state held since an object came into view has no beginning), and
-        for a sequence (``then``, also under filters such as ``while``) where its second step begins after
-        the first ("drives off": where it moves)."""
+        for a sequence (``then``, also under filters such as ``while``) where its last step begins after the
+        steps before it ("drives off": where it moves)."""
         begins = onsets(sel.mask) & np.pad(self.x.valid, ((0, 0), (1, 0)))[:, :-1]
         inner = node
         while isinstance(inner, p.Is | p.ForAtLeast | p.While | p.Together | p.Sequenced):
             inner = inner.subject if isinstance(inner, p.Is) else inner.child
         if not isinstance(inner, p.Then):
             return begins
-        first, second = self.eval(inner.first), self.eval(inner.second)
-        moves = onsets(second.mask) & preceded_within(second.mask, first.mask, self.x.time_s, inner.within_s) \
-            & sel.mask
+        steps, gaps_s = p.chain_steps(inner)
+        masks = [self.eval(step).mask for step in steps]
+        moves = onsets(masks[-1]) & reached_in_order(masks, gaps_s, self.x.time_s)[-1] & sel.mask
         return moves | (begins & ~runs_holding(sel.mask, moves))
 
     def sequenced(self, child: p.Node, event: p.Node, within_s: float, after: bool) -> Selection:

@@ -135,18 +135,9 @@ def subject_of(node: Node) -> Node:
 def chain_steps(node: Then) -> tuple[list[Node], list[float]]:
     """The steps of a chain of ``then`` in order ("A, then B, then C", however nested) and the time each
     step follows the one before within."""
-    steps: list[Node] = []
-    gaps_s: list[float] = []
-    for part in (node.first, node.second):
-        if part is node.second:
-            gaps_s.append(node.within_s)
-        if isinstance(part, Then):
-            inner_steps, inner_gaps_s = chain_steps(part)
-            steps.extend(inner_steps)
-            gaps_s.extend(inner_gaps_s)
-        else:
-            steps.append(part)
-    return steps, gaps_s
+    first, first_gaps_s = chain_steps(node.first) if isinstance(node.first, Then) else ([node.first], [])
+    second, second_gaps_s = chain_steps(node.second) if isinstance(node.second, Then) else ([node.second], [])
+    return [*first, *second], [*first_gaps_s, node.within_s, *second_gaps_s]
 
 
 def of_two_kinds(a: Node, b: Node) -> bool:

@@ -63,7 +63,7 @@ def markdown() -> str:
               "| `for_at_least(a, seconds=1)` | runs of `a` that last that long |",
               "| `then(a, b, within_s=5)` | an object doing `a`, then `b` within that time |",
               "| `before(a, b, within_s=5)` / `after(a, b, within_s=5)` | `a`'s runs that begin at most that long "
-              "before / after any object's `b` begins (two objects in turn; a `then` begins at its second step) |",
+              "before / after any object's `b` begins (two objects in turn; a `then` begins at its last step) |",
               "| `while(a, b)` | `a` at frames where any object does `b` |", ""]
     return "\n".join(lines)
 

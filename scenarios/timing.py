@@ -63,14 +63,21 @@ def preceded_within(mask: Mask, earlier: Mask, time_s: NDArray[np.float64], with
     return mask & (t - before <= within_s)
 
 
-def chained(steps: list[Mask], within_s: list[float], time_s: NDArray[np.float64]) -> Mask:
-    """(K, F) frames of a chain of steps on the same object: a frame of ``steps[i]`` is kept where a frame
-    of each step before it precedes it in order and a frame of each step after it follows it, each
-    within ``within_s[j]`` (between ``steps[j]`` and ``steps[j + 1]``) of the one before, not at the same
-    frame. "Stops, then turns, then accelerates" keeps no acceleration that comes before the turn."""
-    reached = [steps[0]]  # frames of step i that a chain of steps 0 … i ends at
+def reached_in_order(steps: list[Mask], within_s: list[float], time_s: NDArray[np.float64]) -> list[Mask]:
+    """(K, F) for each step of a chain on the same object, its frames that the steps before it reach in
+    order: a frame of each earlier step, each within ``within_s[j]`` (between ``steps[j]`` and
+    ``steps[j + 1]``) before the next, not at the same frame."""
+    reached = [steps[0]]
     for step, gap_s in zip(steps[1:], within_s, strict=True):
         reached.append(preceded_within(step, reached[-1], time_s, gap_s))
+    return reached
+
+
+def chained(steps: list[Mask], within_s: list[float], time_s: NDArray[np.float64]) -> Mask:
+    """(K, F) frames of a chain of steps on the same object: a frame of ``steps[i]`` is kept where the steps
+    before it reach it in order (:func:`reached_in_order`) and the steps after it follow it so. "Stops,
+    then turns, then accelerates" keeps no acceleration that comes before the turn."""
+    reached = reached_in_order(steps, within_s, time_s)
     kept = [reached[-1]]  # frames of step i on a whole chain, from the last step back
     for frames, gap_s in zip(reached[-2::-1], within_s[::-1], strict=True):
         kept.append(followed_within(frames, kept[-1], time_s, gap_s))

@@ -79,6 +79,13 @@ PROGRAMS = [
     "lateral_m=1)), within_s=0.5), reverse(direction(car, pedestrian, side=right)), within_s=0.3)",
     "then(reverse(direction(car, pedestrian, side=left)), then(reverse(direction(car, pedestrian, side=front, "
     "lateral_m=1)), reverse(direction(car, pedestrian, side=right)), within_s=0.3), within_s=0.5)",
+    # The chain begins where its last step does, with an event of another object after it.
+    "before(then(then(reverse(direction(car, pedestrian, side=left)), reverse(direction(car, pedestrian, "
+    "side=front, lateral_m=1)), within_s=0.5), reverse(direction(car, pedestrian, side=right)), within_s=0.3), "
+    "near(pedestrian, car, within_m=8), within_s=3)",
+    "after(near(pedestrian, car, within_m=8), then(reverse(direction(car, pedestrian, side=left)), "
+    "then(reverse(direction(car, pedestrian, side=front, lateral_m=1)), reverse(direction(car, pedestrian, "
+    "side=right)), within_s=0.3), within_s=0.5), within_s=3)",
 ]
 
 

@@ -6,7 +6,15 @@ import itertools
 
 import numpy as np
 
-from scenarios.timing import chained, followed_within, onsets, preceded_within, runs_holding, runs_lasting
+from scenarios.timing import (
+    chained,
+    followed_within,
+    onsets,
+    preceded_within,
+    reached_in_order,
+    runs_holding,
+    runs_lasting,
+)
 
 
 def test_durations_are_seconds_at_any_rate() -> None:
@@ -63,3 +71,11 @@ def test_a_chain_is_every_frame_on_some_ordered_path() -> None:
                         0 < t[path[i + 1]] - t[path[i]] <= gaps_s[i] for i in range(2)):
                     expected[o, list(path)] = True
         assert (chained(steps, gaps_s, t) == expected).all()
+
+
+def test_the_steps_reached_in_order_end_the_chain() -> None:
+    t = np.arange(8) * 1.0
+    a, b, c = (np.zeros((1, 8), bool) for _ in range(3))
+    a[0, 0], b[0, 2], c[0, [1, 5]] = True, True, True  # C at 1 s comes before B; C at 5 s after it
+    reached = reached_in_order([a, b, c], [5.0, 5.0], t)
+    assert np.flatnonzero(reached[1]).tolist() == [2] and np.flatnonzero(reached[2]).tolist() == [5]

@@ -152,8 +152,8 @@ def join(node: p.Node, conj: str, other: p.Node, distinct: bool, spread: bool = 
         return in_turn(node, other, conj == "after", distinct)
     if conj == "except":
         return p.Excluding(node, other)
-    if conj == "and" and not distinct and isinstance(other, p.Then) and other.first == node:  # "stops and drives off"
-        return other
+    if conj == "and" and not distinct and (going_on := continued(node, other)) is not None:  # "stops and drives off"
+        return going_on
     if conj in ("and", "while") and distinct and node == other:  # "a car brakes and another car brakes": two
         return p.Together(node, 2)
     if conj == "while" or (conj == "and" and distinct and first == second):
@@ -179,8 +179,19 @@ def in_turn(main: p.Node, event: p.Node, after: bool = False, distinct: bool = F
     brakes, then another car brakes"), ``main``'s objects at the moments that the other objects' event
     follows or precedes ("a pedestrian crosses, then we drive off")."""
     if p.subject_of(main) == p.subject_of(event) and not distinct:
-        last = main.second if isinstance(main, p.Then) else main
-        if not after and isinstance(event, p.Then) and event.first == last:  # "stops, then drives off": one stop
-            return event if last is main else p.Then(main, event.second, event.within_s)
+        going_on = None if after else continued(main, event)
+        if going_on is not None:
+            return going_on
         return p.Then(event, main) if after else p.Then(main, event)
     return p.Sequenced(main, event, after=after)
+
+
+def continued(main: p.Node, event: p.Node) -> p.Node | None:
+    """``main`` going on into a sequence ``event`` that begins with ``main``'s last step ("stops, then drives
+    off": the drive-off's own stop), that step said once; None where ``event`` begins otherwise."""
+    if not isinstance(event, p.Then):
+        return None
+    steps, _ = p.chain_steps(main) if isinstance(main, p.Then) else ([main], [])
+    if event.first != steps[-1]:
+        return None
+    return event if steps[-1] is main else p.Then(main, event.second, event.within_s)

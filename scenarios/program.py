@@ -210,9 +210,14 @@ _SIDES = {"front": "in front of", "behind": "behind", "left": "to the left of", 
           "back_left": "to the back-left of", "back_right": "to the back-right of"}
 
 
+#: What a passing's ``way`` adds to its phrase.
+_WAYS = {"overtaking": "", "either": " either way"}
+
+
 def _params_text(params: dict[str, float | str], shown: str) -> str:
-    """The parameters a phrase does not say already, as "(within 5 m, …)"."""
-    rest = [(k, v) for k, v in params.items() if "{" + k + "}" not in shown and k != "side"]
+    """The parameters a phrase does not say already (as ``{key}`` or ``{key_of}``), as "(within 5 m, …)"."""
+    rest = [(k, v) for k, v in params.items() if "{" + k + "}" not in shown and "{" + k + "_of}" not in shown
+            and k != "side"]
     text = [f"{k.removesuffix('_m').removesuffix('_s').removesuffix('_deg').replace('_', ' ')} {_value(v)}"
             f"{' m' if k.endswith('_m') else ' s' if k.endswith('_s') else '°' if k.endswith('_deg') else ''}"
             for k, v in rest]
@@ -244,12 +249,13 @@ def describe(node: Node) -> str:
             values = {**(spec.defaults if spec else {}), **dict(params)}
             side = str(values.get("side", ""))
             values["side_of"] = _SIDES.get(side, side)
+            values["way_of"] = _WAYS.get(str(values.get("way", "")), "")
             count = ("no " if negate else f"at least {min_count} " if min_count > 1 else "") + \
                 (f"at most {max_count} " if max_count is not None else "")
             template = (spec.reverse_phrase if reverse else spec.phrase) if spec else relation + " {other}"
             phrase = template.format(other=count + _nested(other), subject=_nested(subject),
                                      **{k: v for k, v in values.items() if k not in ("other", "subject")})
-            phrase = phrase.replace(" on the any", "").replace(" (overtaking)", "").replace(" (either)", " either way")
+            phrase = phrase.replace(" on the any", "")
             extra = _params_text(dict(params), template)
             named = describe(other) if reverse else describe(subject)
             if nearest is not None and reverse:  # "the nearest of the vehicles in front of the ego vehicle"

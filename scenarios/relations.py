@@ -274,7 +274,7 @@ def _yielding_to(g: PairGeometry, p: Params) -> Mask:
     return _crossed_by(g, p) & (g.subject_speed_mps <= _f(p, "max_mps"))
 
 
-@_define("passed_by", "passed by {other} on the {side} ({way})", "passing {subject} on the {side} ({way})",
+@_define("passed_by", "passed by {other} on the {side}{way_of}", "passing {subject} on the {side}{way_of}",
          {"side": "any", "way": "overtaking", "lateral_m": 5.0, "window_s": 1.0},
          {"side": ("left", "right", "any"), "way": ("overtaking", "either")},
          reach_m=lambda p: None)  # how far the other moves between two frames is unbounded

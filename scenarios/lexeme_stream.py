@@ -81,12 +81,13 @@ class LexemeStream:
                 self.unused.extend(item.words)
             self.i += 1
 
-    def fillers(self) -> list[Lexeme]:
-        """The filler lexemes (skipped and unknown words) between here and the next meaningful item."""
-        j = self.i
+    def fillers(self, start: int | None = None) -> list[Lexeme]:
+        """The filler lexemes (skipped and unknown words) between here (or ``start``) and the next
+        meaningful item."""
+        i = j = self.i if start is None else start
         while j < len(self.items) and self.items[j].role in ("skip", "unknown"):
             j += 1
-        return self.items[self.i:j]
+        return self.items[i:j]
 
     def unknown_before_next(self) -> bool:
         """Whether a word the lexicon does not know stands between here and the next meaningful item."""
@@ -109,12 +110,8 @@ class LexemeStream:
     def it_after_next(self) -> bool:
         """Whether "it" or "they" stands right after the next meaningful item ("… and it turns left": a
         clause about the objects before, not one more modifier)."""
-        j = self.i + len(self.fillers()) + 1
-        words: set[str] = set()
-        while j < len(self.items) and self.items[j].role in ("skip", "unknown"):
-            words.update(self.items[j].words)
-            j += 1
-        return bool(words & {"it", "they"})
+        after = self.fillers(self.i + len(self.fillers()) + 1)
+        return any({"it", "they"} & set(item.words) for item in after)
 
     def not_a_kind(self) -> bool:
         """Whether the next words say that the object is not of a kind ("that is not a bus", "which isn't a

@@ -26,6 +26,7 @@ from scenarios.lexicon import FARTHER, SPEED_UNITS, Lexeme, speed_bounds
 from scenarios.program import (
     AnyOf,
     Between,
+    Excluding,
     ForAtLeast,
     Has,
     Is,
@@ -101,7 +102,7 @@ class Parser(RelationReader):
                 preds.append(dataclasses.replace(item, role="notpred"))
             else:
                 break
-        if self.role() == "kind" and not (self.depth and getattr(self.peek(), "words", ()) == ("we",)):
+        if self.role() == "kind" and not (self.depth and self.words() == ("we",)):
             node: Node = Objects(self.take_kind(count).name)  # "we" opens a clause: "… crosses, we drive off"
             if need_kind and self.depth and node == Objects("ego"):  # "next to us on the right": of the subject
                 return node, count
@@ -151,7 +152,7 @@ class Parser(RelationReader):
                 self.take()
                 node = rewrite.closer(node)
             elif role == "nearest" and self.name() == "ahead" and self.role(1) in ("kind", "count") \
-                    and getattr(self.peek(), "words", ()) != ("lead",):
+                    and self.words() != ("lead",):
                 self.take()  # "a car leading a truck": the truck follows it
                 other = self.phrase(need_kind=True)
                 node = node if other is None else self.relate(node, Lexeme("rel", "following", reverse=True), other)
@@ -169,7 +170,7 @@ class Parser(RelationReader):
             elif self.not_a_kind():  # "a vehicle that is not a bus [or a truck]"
                 self.take()
                 kinds = self.take_kinds(subject_of(node))  # none: "a pedestrian who is not a child"
-                node = rewrite.join(node, "except", rewrite.any_of(kinds), False) if kinds else node
+                node = Excluding(node, rewrite.any_of(kinds)) if kinds else node
             elif role == "not" and self.role(1) == "kind":  # "truck without trailer"
                 self.take()
                 node = Has(node, "near", Objects(self.take().name), (("within_m", 5.0),), negate=True)

@@ -427,12 +427,10 @@ class _Reference:
         log, k, nf = self.log, self.k, self.f
         begins = [[sel[o][f] and f > 0 and not sel[o][f - 1] and log.valid[o][f - 1] for f in range(nf)]
                   for o in range(k)]
-        inner = node
-        while isinstance(inner, p.Is | p.ForAtLeast | p.While | p.Together | p.Sequenced):
-            inner = inner.subject if isinstance(inner, p.Is) else inner.child
-        if not isinstance(inner, p.Then):
+        chain = p.chain_under(node)
+        if chain is None:
             return begins
-        steps, gaps_s = p.chain_steps(inner)
+        steps, gaps_s = chain
         grids = [self.eval(step).sel for step in steps]
         last, reached = grids[-1], self.reached(grids, gaps_s)[-1]
         moves = [[sel[o][f] and reached[o][f] and not (f > 0 and last[o][f - 1]) for f in range(nf)]

@@ -156,12 +156,10 @@ class _Run:
         for a sequence (``then``, also under filters such as ``while``) where its last step begins after the
         steps before it ("drives off": where it moves)."""
         begins = onsets(sel.mask) & np.pad(self.x.valid, ((0, 0), (1, 0)))[:, :-1]
-        inner = node
-        while isinstance(inner, p.Is | p.ForAtLeast | p.While | p.Together | p.Sequenced):
-            inner = inner.subject if isinstance(inner, p.Is) else inner.child
-        if not isinstance(inner, p.Then):
+        chain = p.chain_under(node)
+        if chain is None:
             return begins
-        steps, gaps_s = p.chain_steps(inner)
+        steps, gaps_s = chain
         masks = [self.eval(step).mask for step in steps]
         moves = onsets(masks[-1]) & reached_in_order(masks, gaps_s, self.x.time_s)[-1] & sel.mask
         return moves | (begins & ~runs_holding(sel.mask, moves))

@@ -140,6 +140,15 @@ def chain_steps(node: Then) -> tuple[list[Node], list[float]]:
     return [*first, *second], [*first_gaps_s, node.within_s, *second_gaps_s]
 
 
+def chain_under(node: Node) -> tuple[list[Node], list[float]] | None:
+    """The steps and times of the ``then`` chain under ``node``'s filters (``Is``, ``ForAtLeast``,
+    ``While``, ``Together``, ``Sequenced``), whose last step marks where ``node``'s selection begins
+    ("drives off": where it moves); None where there is no chain."""
+    while isinstance(node, Is | ForAtLeast | While | Together | Sequenced):
+        node = node.subject if isinstance(node, Is) else node.child
+    return chain_steps(node) if isinstance(node, Then) else None
+
+
 def of_two_kinds(a: Node, b: Node) -> bool:
     """Whether ``a`` and ``b`` answer objects of two different named kinds (neither ``any``)."""
     kind_a, kind_b = subject_of(a), subject_of(b)

@@ -95,10 +95,13 @@ _add("ego vehicle|ego|ego car|the av|our car|my car|our vehicle|my vehicle|we|us
 
 
 # -- predicates ------------------------------------------------------------------------------------------
+#: "Moving away from": of the ego, a predicate; of another object, a relation ("accelerating away from").
+_AWAY_FROM = ("away from", *(f"{verb} away from" for verb in (
+    "moving", "moves", "move", "moved", "driving", "drives", "drive", "drove", "walking", "walks", "walk", "walked",
+    "riding", "rides", "ride", "rode", "running", "runs", "heading", "heads", "going", "goes", "pulling", "pulls")))
 for _phrases, _name, _params in (
     ("moving|driving|traveling|travelling|in motion|active|walking|riding|going|running|jogging|heading|moves|"
-     "move|drives|walks|rides|"
-     "navigating|maneuvering|proceeding|passing through", "moving", ()),
+     "move|drives|walks|rides|navigating|maneuvering|proceeding|passing through", "moving", ()),
     ("about to cross|about to cross the road|about to cross the street|preparing to cross|going to cross|"
      "ready to cross|getting ready to cross|about to step into the road|about to enter the road", "about_to_cross", ()),
     # Not "backed up": traffic that is backed up queues, it does not reverse.
@@ -165,11 +168,7 @@ for _phrases, _name, _params in (
     (of_ego("approaching", "approaches", "approach", "approached", "getting closer to", "gets closer to",
              "coming closer to", "comes closer to", "closing in on", "closes in on", "toward", "comes back toward",
              "coming toward", "comes toward"), "approaching_ego", ()),
-    (of_ego("moving away from", "moves away from", "move away from", "driving away from", "drives away from",
-             "drive away from", "walking away from", "walks away from", "walk away from", "riding away from",
-             "rides away from", "ride away from", "heading away from", "heads away from", "going away from",
-             "goes away from", "pulling away from", "pulls away from"),
-     "moving_away_from_ego", ()),
+    (of_ego(*_AWAY_FROM), "moving_away_from_ego", ()),
     ("oncoming|coming toward us|coming towards us|comes toward us|comes towards us|come toward us|"
      "come towards us|in the oncoming lane|on the other side of the road",
      "ego_lane", (("lane", "oncoming"),)),
@@ -189,8 +188,7 @@ for _phrases, _name, _params in (
      "approaching_ego", ()),
     ("moving away|driving away|leaving|moves away|move away|moved away|drives away|drive away|drove away|"
      "walking away|walks away|walk away|walked away|riding away|rides away|ride away|rode away|going away|"
-     "goes away|heading away|heads away",
-     "moving_away_from_ego", ()),
+     "goes away|heading away|heads away", "moving_away_from_ego", ()),
 ):
     _add(_phrases, Lexeme("pred", _name, _params))
 
@@ -239,16 +237,19 @@ for _phrases, _rel, _rparams, _reverse in (
      "passed_by", (("side", "left"),), False),
     ("past the left side of|past left side of|past the left of", "passed_by", (("side", "left"),), True),
     ("at", "near", (("within_m", 5.0),), False),
-    # Not "walking past": "walking past the right side of" is "walking" + "past the right side of".
     ("passing|overtaking|passes|overtakes|pass|overtake|overtook", "passed_by", (), True),
-    # Going past, unlike overtaking, is either way: an oncoming car drives past us too.
-    ("passing by|drive past|drives past|driving past|drove past|goes past|going past|go past|went past|"
-     "drive straight past|drives straight past|driving straight past|passes by|pass by|" + "|".join(
+    # Going past, unlike overtaking, is either way (an oncoming car drives past us); "past" alone, so that
+    # "walking past the right side of" is "walking" + "past the right side of".
+    ("past|straight past|right past|passing by|drive past|drives past|driving past|drove past|goes past|"
+     "going past|go past|went past|drive straight past|drives straight past|driving straight past|passes by|"
+     "pass by|" + "|".join(
         f"{verb} by" for verb in ("drive", "drives", "driving", "walk", "walks", "walking", "ride", "rides",
                                   "riding", "goes", "going", "go")), "passed_by", (("way", "either"),), True),
     ("facing|facing toward|facing towards|looking at|facing at", "facing", (), False),
+    ("|".join(_AWAY_FROM), "heading_away_from", (), False),
     ("heading toward|heading towards|moving toward|moving towards|approaching|driving toward|driving towards|"
-     "accelerating toward|accelerating towards|walking toward|walking towards", "heading_toward", (), False),
+     "accelerating toward|accelerating towards|walking toward|walking towards|toward|coming toward|comes toward",
+     "heading_toward", (), False),
     ("traveling in the opposite direction as|going the opposite way to|in the opposite direction of|"
      "traveling opposite to|opposite to|against|the opposite way to|the opposite way from|the opposite way as|"
      "in the opposite direction to|in the opposite direction from",
@@ -272,11 +273,9 @@ _add("directly behind us|right behind us", Lexeme("ego", "direction", (("side", 
 # -- sides after "with …" -----------------------------------------------------------------------------------
 for _phrases, _side in (
     ("to its left|on its left|on the left|to the left|on left|to left|from the left|from left|on its left side|"
-     "to their left|"
-     "on their left", "left"),
+     "to their left|on their left", "left"),
     ("to its right|on its right|on the right|to the right|on right|to right|from the right|from right|"
-     "on its right side|to their right|"
-     "on their right", "right"),
+     "on its right side|to their right|on their right", "right"),
     ("in front of it|ahead of it|ahead|in front|in front of them|ahead of them|in its path", "front"),
     ("behind it|behind them|behind", "behind"),
     ("on either side|on both sides|on each side|on either side of it|on both sides of it|beside it", "beside"),
@@ -428,8 +427,10 @@ def lexemes(words: list[str]) -> list[Lexeme]:
     out: list[Lexeme] = []
     i = 0
     while i < len(words):
-        if re.fullmatch(r"\d+(?:\.\d+)?", words[i]):
-            out.append(Lexeme("number", words[i], words=(words[i],)))
+        if re.fullmatch(r"\d+(?:\.\d+)?", words[i]) or (words[i] == "away" and out and out[-1].role == "unit"):
+            # a number; or "away" after a distance ("20 m away from"), no motion
+            out.append(Lexeme("number", words[i], words=(words[i],)) if words[i] != "away" else
+                       Lexeme("skip", words=(words[i],)))
             i += 1
             continue
         for size in range(min(_MAX_PHRASE, len(words) - i), 0, -1):

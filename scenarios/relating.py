@@ -125,8 +125,12 @@ class RelationReader(LexemeStream):
 
     def without_object(self, node: Node, item: Lexeme) -> Node:
         """A relation phrase that names no object: of the ego, by anyone, or no relation at all."""
-        if item.name == "heading_toward":  # "approaching": the ego
-            return Is(node, "approaching_ego")
+        if item.name in ("heading_toward", "heading_away_from") and self.role() == "pred":
+            if item.name == "heading_away_from":  # "away from the intersection": no predicate says leaving it
+                self.unused.extend(item.words)
+            return node  # "heading toward the intersection": the place word says where
+        if item.name in ("heading_toward", "heading_away_from"):  # "approaching": the ego
+            return Is(node, "approaching_ego" if item.name == "heading_toward" else "moving_away_from_ego")
         if item.name == "yielding_to" and item.words[0].startswith("wait"):  # "waiting for 10 s": waiting
             return Is(node, "stopped")
         if item.name == "direction":
@@ -137,7 +141,7 @@ class RelationReader(LexemeStream):
         if item.reverse and item.name == "passed_by" and "side" in dict(item.params):  # "passes on the left": us
             return self.relate(node, item, (Objects("ego"), 0))
         if item.reverse and item.name == "passed_by":  # "passing between ...": moving past
-            return Is(node, "moving")
+            return node if isinstance(node, Is) and node == Is(node.subject, "moving") else Is(node, "moving")
         if item.reverse and item.name == "crossed_by":  # "a pedestrian crosses at the crosswalk"
             return Is(node, "crossing_road")
         if item.name in ("following", "crossed_by", "passed_by", "near", "yielding_to"):  # "being overtaken": by anyone

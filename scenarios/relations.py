@@ -25,6 +25,8 @@ beforehand (:func:`candidate_pairs`):
   135°, or between.
 - ``facing``: the other lies within ``angle_deg`` of the subject's heading, within ``within_m``.
 - ``heading_toward``: the subject moves (``min_mps``) towards the other, within ``angle_deg``.
+- ``heading_away_from``: the subject moves (``min_mps``) away from the other: the other lies within
+  ``angle_deg`` of straight behind it, within ``within_m``.
 """
 
 from __future__ import annotations
@@ -312,3 +314,11 @@ def _facing(g: PairGeometry, p: Params) -> Mask:
          {"angle_deg": 22.5, "min_mps": 0.5, "within_m": 50.0})
 def _heading_toward(g: PairGeometry, p: Params) -> Mask:
     return _facing(g, p) & (g.subject_speed_mps >= _f(p, "min_mps"))
+
+
+@_define("heading_away_from", "heading away from {other}", "left behind by {subject}",
+         {"angle_deg": 22.5, "min_mps": 0.5, "within_m": 50.0})
+def _heading_away_from(g: PairGeometry, p: Params) -> Mask:
+    behind = np.pi - np.abs(np.arctan2(g.dy_m, g.dx_m))  # 0: straight behind the subject
+    return g.ok & (behind <= np.radians(_f(p, "angle_deg"))) & (g.gap_m <= _f(p, "within_m")) \
+        & (g.subject_speed_mps >= _f(p, "min_mps"))

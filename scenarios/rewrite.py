@@ -166,11 +166,26 @@ def join(node: p.Node, conj: str, other: p.Node, distinct: bool, spread: bool = 
         # "buses and motorcycles", "cars, trucks and buses are stopped": the words name all, what follows
         # is said of all
         return with_subject(other, p.AnyOf((*kinds, second)))
+    if conj == "and" and (tied := tied_to(node, other)) is not None:
+        return p.AnyOf((tied, other))  # "a bus stops and a pedestrian crosses in front of it": that bus
     if conj == "and" and p.of_two_kinds(node, other):
         return p.AnyOf((node, other))  # "a stopped bus and a parked car": no object is both
     if conj == "or":
         return p.AnyOf((node, other))
     return p.AllOf((node, other))
+
+
+def tied_to(node: p.Node, other: p.Node) -> p.Node | None:
+    """``node``'s objects that ``other`` relates to them ("a bus stops and a pedestrian crosses in front of
+    it": the buses a pedestrian crosses in front of), where ``other`` is one relation to ``node``; else None."""
+    if not isinstance(other, p.Has) or other.negate or other.nearest is not None or other.min_count != 1 \
+            or other.max_count is not None:
+        return None
+    if other.reverse and other.subject == node:
+        return dataclasses.replace(other, reverse=False)
+    if not other.reverse and other.other == node:  # "a truck turns and a car follows it": the truck followed
+        return dataclasses.replace(other, reverse=True)
+    return None
 
 
 def in_turn(main: p.Node, event: p.Node, after: bool = False, distinct: bool = False) -> p.Node:

@@ -14,6 +14,25 @@ DEV = Path(__file__).resolve().parents[2].parent / "shared" / "refav" / "descrip
 
 # description → the program it means (checked by hand); covers every family of the language.
 MEANINGS = {
+    # Going past, toward and away from another object; "walks past the right side of" is "walks" + "past the
+    # right side of", and "10 m away from" a distance.
+    "a pedestrian walks past": "moving(pedestrian)",
+    "a pedestrian walks past us": "reverse(passed_by(ego, moving(pedestrian), way=either))",
+    "a cyclist rides past a parked car": "reverse(passed_by(parked(car), moving(cyclist), way=either))",
+    "pedestrian walking past right side of vehicle": "reverse(passed_by(vehicle, moving(pedestrian), side=right))",
+    "a pedestrian walking away from the bus": "heading_away_from(pedestrian, bus)",
+    "a car next to a truck drives away from it": "heading_away_from(near(car, truck), truck)",
+    "a car accelerating away from us": "moving_away_from_ego(accelerating(car))",
+    "a pedestrian 10 m away from a bus": "near(pedestrian, bus, within_m=10)",
+    "a pedestrian running toward a car": "heading_toward(moving(pedestrian), car)",
+    "a car coming toward a cyclist": "heading_toward(car, cyclist)",
+    "a car heading toward the intersection": "near_intersection(car)",
+    # "And ... it": the first clause's objects that the second's relate to them, and those.
+    "a bus stops and a pedestrian crosses in front of it":
+        "or(direction(stopped(bus), crossing_road(pedestrian), side=front), "
+        "reverse(direction(stopped(bus), crossing_road(pedestrian), side=front)))",
+    "a truck turns left and a car follows it": "or(reverse(following(car, turning(truck, direction=left))), "
+                                               "following(car, turning(truck, direction=left)))",
     "vehicle with a bicycle to its right": "direction(vehicle, cyclist, side=right)",
     "a car turning left": "turning(car, direction=left)",
     "parked box trucks": "parked(box_truck)",
@@ -349,8 +368,7 @@ NOT_UNDERSTOOD = {
     "no pedestrians": ("pedestrian", ("no",)),  # nothing to be without: the objects, "no" unused
     "a car more than 20 m away": ("car", ("more than 20 m",)),  # no relation takes a least distance
     "a car within 5 m of the crosswalk": ("car", ("5 m", "crosswalk")),  # not "of the ego"
-    # "walks past" is no phrase, so that "walks past the right side of" reads as "walks" + "past the right side of".
-    "a pedestrian walks past": ("moving(pedestrian)", ("past",)),
+    "a car drives away from the intersection": ("near_intersection(car)", ("drives", "away", "from")),  # no leaving
     # "Cuts in front of" is no phrase: the lead vehicle it names is not taken for "leading" anything.
     "traffic backed up": ("vehicle", ("backed", "up")),  # a queue, not reversing
     # Found by a third review: words that name no object to choose, or a subject the lexicon lacks.

@@ -183,6 +183,20 @@ def test_between_following_same_lane_and_heading() -> None:
     assert opposite.tolist() == [False, True, True, False, True, False]  # within 50 m of the oncoming car
 
 
+def test_heading_toward_and_away_from_another_object() -> None:
+    """A pedestrian walking east with a bus 10 m behind it heads away from the bus; one walking west toward
+    it heads toward it; a standing one does neither."""
+    bus = {"label": "BUS", "category": "bus", "xy": (0, Y), "speed": 0.0, "size": (12.0, 2.5, 3.0)}
+    x = make_features([bus, pedestrian((16, Y)), pedestrian((16, Y + 1), yaw=np.pi),
+                       pedestrian((16, Y - 1), speed=0.0)])
+    away = selected(p.Has(p.Objects("pedestrian"), "heading_away_from", p.Objects("bus")), x)
+    toward = selected(p.Has(p.Objects("pedestrian"), "heading_toward", p.Objects("bus")), x)
+    assert away.tolist() == [False, True, False, False, False]
+    assert toward.tolist() == [False, False, True, False, False]
+    left_behind = selected(p.Has(p.Objects("pedestrian"), "heading_away_from", p.Objects("bus"), reverse=True), x)
+    assert left_behind.tolist() == [True, False, False, False, False]
+
+
 def test_and_or_excluding() -> None:
     x = make_features([car((0, Y), flags=("braking",)), car((10, Y), flags=("parked",), speed=0.0), cyclist((20, Y))])
     braking, parked = p.Is(p.Objects("car"), "braking"), p.Is(p.Objects("car"), "parked")

@@ -89,6 +89,14 @@ class LexemeStream:
             j += 1
         return self.items[i:j]
 
+    def object_after_next(self) -> bool:
+        """Whether the meaningful item after the next is the next one's object: the ego, or opened by "a",
+        "an" or "the" ("passing a truck", "passing us" are a verb and its object, "passing cars" cars that
+        pass)."""
+        j = self.i + len(self.fillers()) + 1
+        return self.name(1) == "ego" or bool({word for item in self.fillers(j) for word in item.words}
+                                             & {"a", "an", "the"})
+
     def unknown_before_next(self) -> bool:
         """Whether a word the lexicon does not know stands between here and the next meaningful item."""
         return any(item.role == "unknown" for item in self.fillers())

@@ -13,7 +13,7 @@ import re
 from dataclasses import dataclass, field
 
 from scenarios.program import Param
-from scenarios.word_forms import lane_changes, of_ego, plural, turns
+from scenarios.word_forms import AWAY_FROM, approaches_to, lane_changes, of_ego, plural, turns
 
 
 @dataclass(frozen=True)
@@ -90,15 +90,11 @@ for _phrases, _kind in (
     ("vulnerable road user|vru", "vulnerable_road_user"),
 ):
     _add(_phrases, Lexeme("kind", _kind), plurals=True)
-_add("ego vehicle|ego|ego car|the av|our car|my car|our vehicle|my vehicle|we|us|self driving car|autonomous vehicle",
-     Lexeme("kind", "ego"))
+_add("ego vehicle|ego|ego car|the av|our car|my car|our vehicle|my vehicle|we|us|self driving car|autonomous vehicle|"
+     "our path|my path|the ego's path|the ego vehicle's path", Lexeme("kind", "ego"))  # "crossing our path"
 
 
 # -- predicates ------------------------------------------------------------------------------------------
-#: "Moving away from": of the ego, a predicate; of another object, a relation ("accelerating away from").
-_AWAY_FROM = ("away from", *(f"{verb} away from" for verb in (
-    "moving", "moves", "move", "moved", "driving", "drives", "drive", "drove", "walking", "walks", "walk", "walked",
-    "riding", "rides", "ride", "rode", "running", "runs", "heading", "heads", "going", "goes", "pulling", "pulls")))
 for _phrases, _name, _params in (
     ("moving|driving|traveling|travelling|in motion|active|walking|riding|going|running|jogging|heading|moves|"
      "move|drives|walks|rides|navigating|maneuvering|proceeding|passing through", "moving", ()),
@@ -162,13 +158,11 @@ for _phrases, _name, _params in (
     ("from bike lane|from the bike lane|from a bike lane|out of the bike lane|through bike lane|through the bike lane|"
      "into the bike lane|into a bike lane|across the bike lane", "in_bike_lane", ()),
     ("intersection|an intersection|the intersection|junction|a junction", "near_intersection", ()),
-    ("approaching pedestrian crossing|approaching a pedestrian crossing|approaching the pedestrian crossing|"
-     "approaching crosswalk|approaching a crosswalk|approaching the crosswalk|nearing a crosswalk",
-     "approaching_crosswalk", ()),
+    (approaches_to("crosswalk", "pedestrian crossing"), "approaching_crosswalk", ()),
     (of_ego("approaching", "approaches", "approach", "approached", "getting closer to", "gets closer to",
              "coming closer to", "comes closer to", "closing in on", "closes in on", "toward", "comes back toward",
              "coming toward", "comes toward"), "approaching_ego", ()),
-    (of_ego(*_AWAY_FROM), "moving_away_from_ego", ()),
+    (of_ego(*AWAY_FROM), "moving_away_from_ego", ()),
     ("oncoming|coming toward us|coming towards us|comes toward us|comes towards us|come toward us|"
      "come towards us|in the oncoming lane|on the other side of the road",
      "ego_lane", (("lane", "oncoming"),)),
@@ -227,7 +221,7 @@ for _phrases, _rel, _rparams, _reverse in (
     ("yielding to|yields to|yield to|yielded to|giving way to|gives way to|give way to|waiting for|waits for|"
      "wait for|waiting on|yielding|yields|yield|yielded|giving way|gives way|give way", "yielding_to", (), False),
     ("crossing|crossing in front of|crossing the path of|crossing in front|cutting in front of|crosses|cross|"
-     "crossing paths with|crossing path of", "crossed_by", (), True),
+     "crossing paths with|crossing path of|across the path of|across in front of", "crossed_by", (), True),
     ("being passed by|passed by|being overtaken by|overtaken by|being overtaken|overtaken|being passed", "passed_by",
      (), False),
     ("past the right side of|past right side of|past the right of", "passed_by", (("side", "right"),), True),
@@ -246,7 +240,7 @@ for _phrases, _rel, _rparams, _reverse in (
         f"{verb} by" for verb in ("drive", "drives", "driving", "walk", "walks", "walking", "ride", "rides",
                                   "riding", "goes", "going", "go")), "passed_by", (("way", "either"),), True),
     ("facing|facing toward|facing towards|looking at|facing at", "facing", (), False),
-    ("|".join(_AWAY_FROM), "heading_away_from", (), False),
+    ("|".join(AWAY_FROM), "heading_away_from", (), False),
     ("heading toward|heading towards|moving toward|moving towards|approaching|driving toward|driving towards|"
      "accelerating toward|accelerating towards|walking toward|walking towards|toward|coming toward|comes toward",
      "heading_toward", (), False),
@@ -326,7 +320,8 @@ _add("drives off|drive off|pulls away|pull away|starts moving|start moving|takes
      "pulls out|pulling out|drives away from a stop|pulling out of a parking spot|pulls out of a parking spot|"
      "pulling out of a parking space|pulls out of a parking space", Lexeme("seq", "drive_off"))
 _add("cuts into my lane|cuts into our lane|cutting into my lane|cutting into our lane|cuts in|cutting in|cut in|"
-     "cuts in front of us|cutting in front of us|merges into my lane|merges into our lane|merging into our lane|"
+     "cuts in front of us|cutting in front of us|cutting us off|cuts us off|cut us off|cut off|merges into my lane|"
+     "merges into our lane|merging into our lane|"
      "moves into the ego lane|moves into our lane|moves into my lane|moving into our lane|moving into the ego lane|"
      "changes into our lane|changes into my lane|moves into the host lane|moving into the host lane|"
      "into the host lane|into the ego lane|into our lane|into my lane|entering our lane|enters our lane|"

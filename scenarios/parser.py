@@ -93,7 +93,8 @@ class Parser(RelationReader):
             elif role == "nearest" and nearest is None:  # "the closest parked car", "the lead vehicle"
                 nearest = self.take()
             elif role == "rel" and self.role(1) == "kind" and self.name() in ("crossed_by", "passed_by") \
-                    and getattr(self.peek(), "reverse", False) and self.words()[0].endswith("ing"):
+                    and getattr(self.peek(), "reverse", False) and self.words()[0].endswith("ing") \
+                    and not self.object_after_next():
                 item = self.take()  # "crossing pedestrians": pedestrians that cross the road
                 preds.append(Lexeme("pred", "crossing_road" if item.name == "crossed_by" else "moving"))
             elif role == "not" and self.role(1) == "pred":

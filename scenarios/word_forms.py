@@ -1,5 +1,5 @@
 """English word forms of the compiler's phrases (:mod:`scenarios.lexicon`): plurals of kind words, and
-the verb forms of turns, lane changes and motions relative to the ego."""
+the verb forms of turns, lane changes and motions relative to the ego or another object."""
 
 from __future__ import annotations
 
@@ -47,3 +47,16 @@ def lane_changes(side: str) -> str:
                        for verb in ("changing", "changes", "change", "changed", "merging", "merges", "merge",
                                     "merged", "moving", "moves", "move", "moved", "switching", "switches")),
                      f"{side} lane change"])
+
+
+#: "Moving away from" in its verb forms: of the ego, a predicate; of another object, a relation
+#: ("accelerating away from" is "accelerating" + "away from").
+AWAY_FROM = ("away from", *(f"{verb} away from" for verb in (
+    "moving", "moves", "move", "moved", "driving", "drives", "drive", "drove", "walking", "walks", "walk", "walked",
+    "riding", "rides", "ride", "rode", "running", "runs", "heading", "heads", "going", "goes", "pulling", "pulls")))
+
+
+def approaches_to(*places: str) -> str:
+    """Phrases of approaching ``places`` ("approaches a crosswalk", "nearing the pedestrian crossing")."""
+    return "|".join(f"{verb} {the}{place}" for verb in ("approaching", "approaches", "approach", "nearing", "nears")
+                    for the in ("", "a ", "the ") for place in places)

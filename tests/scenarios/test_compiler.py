@@ -27,6 +27,14 @@ MEANINGS = {
     "a pedestrian running toward a car": "heading_toward(moving(pedestrian), car)",
     "a car coming toward a cyclist": "heading_toward(car, cyclist)",
     "a car heading toward the intersection": "near_intersection(car)",
+    # A verb with its object after "after" or "before" is the subject's ("passing cars" are cars that pass).
+    "a car brakes after passing a truck": "then(reverse(passed_by(truck, car)), braking(car), within_s=5)",
+    "a car that speeds up after passing us": "then(reverse(passed_by(ego, car)), accelerating(car), within_s=5)",
+    "a car brakes before passing a cyclist": "then(braking(car), reverse(passed_by(cyclist, car)), within_s=5)",
+    "passing cars": "moving(car)",
+    "a car crossing our path": "reverse(crossed_by(ego, car))",
+    "a car cutting us off": "then(ego_lane(car, lane=adjacent), ego_lane(car, lane=host), within_s=4)",
+    "a car slowing down as it approaches a crosswalk": "approaching_crosswalk(braking(car))",
     # "And ... it": the first clause's objects that the second's relate to them, and those.
     "a bus stops and a pedestrian crosses in front of it":
         "or(direction(stopped(bus), crossing_road(pedestrian), side=front), "

@@ -157,12 +157,13 @@ for _phrases, _name, _params in (
      "in_vehicle_lane", ()),
     ("from bike lane|from the bike lane|from a bike lane|out of the bike lane|through bike lane|through the bike lane|"
      "into the bike lane|into a bike lane|across the bike lane", "in_bike_lane", ()),
-    ("intersection|an intersection|the intersection|junction|a junction", "near_intersection", ()),
+    ("intersection|an intersection|the intersection|junction|a junction|" + approaches_to("intersection", "junction"),
+     "near_intersection", ()),
     (approaches_to("crosswalk", "pedestrian crossing"), "approaching_crosswalk", ()),
     (of_ego("approaching", "approaches", "approach", "approached", "getting closer to", "gets closer to",
              "coming closer to", "comes closer to", "closing in on", "closes in on", "toward", "comes back toward",
              "coming toward", "comes toward"), "approaching_ego", ()),
-    (of_ego(*AWAY_FROM), "moving_away_from_ego", ()),
+    (of_ego(*AWAY_FROM, "pulling away from", "pulls away from"), "moving_away_from_ego", ()),
     ("oncoming|coming toward us|coming towards us|comes toward us|comes towards us|come toward us|"
      "come towards us|in the oncoming lane|on the other side of the road",
      "ego_lane", (("lane", "oncoming"),)),
@@ -422,8 +423,8 @@ def lexemes(words: list[str]) -> list[Lexeme]:
     out: list[Lexeme] = []
     i = 0
     while i < len(words):
-        if re.fullmatch(r"\d+(?:\.\d+)?", words[i]) or (words[i] == "away" and out and out[-1].role == "unit"):
-            # a number; or "away" after a distance ("20 m away from"), no motion
+        if re.fullmatch(r"\d+(?:\.\d+)?", words[i]) or (words[i] == "away" and out and (
+                out[-1].role == "unit" or out[-1].words == ("far",))):  # "20 m away from", "far away": no motion
             out.append(Lexeme("number", words[i], words=(words[i],)) if words[i] != "away" else
                        Lexeme("skip", words=(words[i],)))
             i += 1

@@ -389,7 +389,8 @@ class Parser(RelationReader):
             at = self.i  # a clause that reads nothing ends the loop
             conj = self.take() if self.role() == "conj" else Lexeme("conj", "and", words=(",",))
             self.end_clause()
-            self.antecedent = node  # "… while a pedestrian crosses in front of it"
+            # "… while a pedestrian crosses in front of it"; "a car brakes after we pass it": before it brakes
+            self.antecedent = rewrite.without_states(node) if conj.name == "after" else node
             another = bool(self.skipped_before_next() & {"another", "other", "a", "an"})  # "… then another car"
             own = self.role() in ("pred", "not") and self.kind_after_states(0)  # "and parked cyclists": theirs
             it_said = self.it_next()

@@ -125,8 +125,9 @@ class RelationReader(LexemeStream):
 
     def without_object(self, node: Node, item: Lexeme) -> Node:
         """A relation phrase that names no object: of the ego, by anyone, or no relation at all."""
-        if item.name in ("heading_toward", "heading_away_from") and self.role() == "pred":
-            if item.name == "heading_away_from":  # "away from the intersection": no predicate says leaving it
+        if item.name in ("heading_toward", "heading_away_from") and (
+                self.role() == "pred" or item.words[-1] in ("toward", "from")):
+            if item.name == "heading_away_from" or self.role() != "pred":  # "toward the road": what it lacks
                 self.unused.extend(item.words)
             return node  # "heading toward the intersection": the place word says where
         if item.name in ("heading_toward", "heading_away_from"):  # "approaching": the ego

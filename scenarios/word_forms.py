@@ -53,10 +53,11 @@ def lane_changes(side: str) -> str:
 #: ("accelerating away from" is "accelerating" + "away from").
 AWAY_FROM = ("away from", *(f"{verb} away from" for verb in (
     "moving", "moves", "move", "moved", "driving", "drives", "drive", "drove", "walking", "walks", "walk", "walked",
-    "riding", "rides", "ride", "rode", "running", "runs", "heading", "heads", "going", "goes", "pulling", "pulls")))
+    "riding", "rides", "ride", "rode", "running", "runs", "heading", "heads", "going", "goes")))
 
 
 def approaches_to(*places: str) -> str:
     """Phrases of approaching ``places`` ("approaches a crosswalk", "nearing the pedestrian crossing")."""
-    return "|".join(f"{verb} {the}{place}" for verb in ("approaching", "approaches", "approach", "nearing", "nears")
+    return "|".join(f"{verb} {the}{place}" for verb in ("approaching", "approaches", "approach", "nearing", "nears",
+                                                        "toward", "heading toward", "walking toward", "driving toward")
                     for the in ("", "a ", "the ") for place in places)

@@ -27,6 +27,10 @@ MEANINGS = {
     "a pedestrian running toward a car": "heading_toward(moving(pedestrian), car)",
     "a car coming toward a cyclist": "heading_toward(car, cyclist)",
     "a car heading toward the intersection": "near_intersection(car)",
+    "a car heading toward the crosswalk": "approaching_crosswalk(car)",
+    "a car speeding up as it approaches the intersection": "near_intersection(accelerating(car))",
+    # "It" after "after" names the objects before their state: we passed the car before it braked.
+    "a car brakes after we pass it": "after(braking(car), reverse(passed_by(car, ego)), within_s=5)",
     # A verb with its object after "after" or "before" is the subject's ("passing cars" are cars that pass).
     "a car brakes after passing a truck": "then(reverse(passed_by(truck, car)), braking(car), within_s=5)",
     "a car that speeds up after passing us": "then(reverse(passed_by(ego, car)), accelerating(car), within_s=5)",
@@ -377,6 +381,9 @@ NOT_UNDERSTOOD = {
     "a car more than 20 m away": ("car", ("more than 20 m",)),  # no relation takes a least distance
     "a car within 5 m of the crosswalk": ("car", ("5 m", "crosswalk")),  # not "of the ego"
     "a car drives away from the intersection": ("near_intersection(car)", ("drives", "away", "from")),  # no leaving
+    "a child running toward the road": ("moving(pedestrian)", ("toward",)),  # not toward us
+    "a vehicle far away from us": ("vehicle", ("far", "us")),  # a distance, no motion
+    "a car pulls away from the crosswalk": ("then(stopped(car), moving(car), within_s=4)", ("crosswalk",)),
     # "Cuts in front of" is no phrase: the lead vehicle it names is not taken for "leading" anything.
     "traffic backed up": ("vehicle", ("backed", "up")),  # a queue, not reversing
     # Found by a third review: words that name no object to choose, or a subject the lexicon lacks.

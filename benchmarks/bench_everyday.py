@@ -11,7 +11,8 @@ find the search's gaps; ``HELD_OUT`` were written with their judges after that, 
 on them, and kept where the test split holds at least 10 clips their judge accepts; not tuned on.
 
 Measured for each sentence, on the index's test clips (``split == test``): precision@10 of the default
-search (the query's scenario program selects the moments, the model ranks them), of the model alone,
+search (the query's scenario program selects the moments, the model ranks them; where it selects fewer
+than 10 test moments, the model's next best others follow, said to be outside it), of the model alone,
 of rule-caption search and of hybrid search, and the base rate (the share of test clips the judge
 accepts: what a random ranking scores), and the ceiling (min(relevant clips, 10) / 10: what a perfect
 ranking scores; a sentence with fewer than 10 relevant test clips cannot reach 1), and the precision and

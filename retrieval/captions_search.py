@@ -441,9 +441,10 @@ class CaptionSearch:
                 for rank, (i, row) in enumerate(zip(top, rows), start=1)]
 
 
-    def search_scenario(self, query: str, k: int = 10, filters: FilterSpec = None, max_k: int = MAX_K
-                        ) -> tuple[list[SearchResult], ScenarioMatch]:
+    def search_scenario(self, query: str, k: int = 10, filters: FilterSpec = None, max_k: int = MAX_K,
+                        fill: bool = True) -> tuple[list[SearchResult], ScenarioMatch]:
         """The k moments the query's scenario program selects, ranked by their captions' closeness to the
-        query; every moment when it does not compile or selects none (see :mod:`retrieval.scenario_search`)."""
+        query; every moment when it does not compile or selects none; where it selects fewer than k, the
+        closest others after them (``fill``; see :mod:`retrieval.scenario_search`)."""
         return search_within(self.scenarios, self.metadata, query, k, filters, max_k,
-                             lambda spec: self.search(query, k, spec, max_k))
+                             lambda spec: self.search(query, k, spec, max_k), fill)

@@ -98,7 +98,9 @@ def scenario_section(search: SceneSearch, query: str, k: int, out_dir: Path) -> 
                                                      match.related.get(r.clip_id, ()), png)
         top = f"<img src='plots/{png.name}' alt='the moment from above'>" if drawn else ""
         preview = preview_html(r, out_dir, search.clips_dir, *match.preview_marks(r.clip_id, r.track_id))
+        outside = "" if match.fallback or match.selects(r.clip_id) else \
+            "<br><i>not selected by the program: the model's next best</i>"
         cards.append(f"<div class='card'>{top}{preview}<div class='meta'><b>#{r.rank}</b> "
-                     f"{html.escape(r.category)}<br><span class='cap'>{html.escape(r.caption)}</span><br>"
+                     f"{html.escape(r.category)}{outside}<br><span class='cap'>{html.escape(r.caption)}</span><br>"
                      f"<code>{html.escape(r.clip_id)}</code></div></div>")
     return head + f"<div class='cards'>{''.join(cards) or '(no results)'}</div>", results, match

@@ -16,6 +16,7 @@ moment as before and :attr:`ScenarioMatch.fallback` says why.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
@@ -53,6 +54,8 @@ class ScenarioMatch:
         related: clip id → the tracks those relate to (the bicycle of "vehicle with a bicycle to its right").
         notes: what some logs could not answer (no map, no recorded weather, no features).
         fallback: why the search ranks every moment instead (None when the program decides).
+        filled: the results after the program's own: where it selects fewer moments than asked for, the
+            search's next best, which it does not select (in rank order).
     """
 
     query: str
@@ -62,6 +65,11 @@ class ScenarioMatch:
     related: Mapping[str, tuple[str, ...]] = field(default_factory=dict)
     notes: tuple[str, ...] = ()
     fallback: str | None = None
+    filled: tuple[str, ...] = ()
+
+    def selects(self, clip_id: str) -> bool:
+        """Whether the program decided and selects this result (not one of the next best that fill the list)."""
+        return self.fallback is None and clip_id not in self.filled
 
     def preview_marks(self, clip_id: str, track_id: str) -> tuple[tuple[str, ...], tuple[str, ...]]:
         """The tracks a preview of the moment marks: those the program refers to besides the moment's own
@@ -75,7 +83,7 @@ class ScenarioMatch:
         c = self.compiled
         return {"program": c.text if c else None, "reads": c.rendering if c else None,
                 "unused_words": list(c.unused) if c else [], "matched_moments": len(self.clip_ids),
-                "fallback": self.fallback, "notes": list(self.notes)}
+                "fallback": self.fallback, "notes": list(self.notes), "filled": len(self.filled)}
 
 
 def build_store(folder: Path, log_dirs: Mapping[str, str], log_ids: Iterable[str] = ()) -> dict[str, Any]:
@@ -227,14 +235,36 @@ def _moments_selected(x: LogFeatures, referred: np.ndarray, related: np.ndarray,
 
 
 def search_within(store: ScenarioStore, metadata: MetadataStore, query: str, k: int, filters: FilterSpec,
-                  max_k: int, rank: Callable[[FilterSpec], list[SearchResult]]
+                  max_k: int, rank: Callable[[FilterSpec], list[SearchResult]], fill: bool = True
                   ) -> tuple[list[SearchResult], ScenarioMatch]:
-    """Rank with ``rank`` (a search given a filter) among the moments of ``metadata`` that the query's
-    program selects, the caller's ``filters`` included; every moment when the program cannot decide."""
+    """Rank with ``rank`` (a search of k given a filter) among the moments of ``metadata`` that the query's
+    program selects, the caller's ``filters`` included; every moment when the program cannot decide.
+
+    Where the program selects fewer than k moments, the list goes on (``fill``) with ``rank``'s next best
+    among the others, named in :attr:`ScenarioMatch.filled`: a short answer is all the program selects,
+    and what follows is said to be outside it, as a search engine shows its closest other results after
+    the exact ones (docs/research/scenario-queries.md, "Filling a short answer").
+    """
     query = check_query(query)
     user = build_query(k, filters, metadata, len(metadata), max_k).filters  # the caller's filter, checked first
     match = store.match(query, metadata.table)
     if match.fallback is not None:
         return rank(filters), match
     within = Condition("clip_id", Op.IN, tuple(match.clip_ids))
-    return rank([*(user or ()), within]), match
+    results = rank([*(user or ()), within])
+    if not fill or len(results) >= k:
+        return results, match
+    results, filled = filled_up(results, k, lambda: rank(filters))
+    return results, dataclasses.replace(match, filled=filled)
+
+
+def filled_up(selected: list[SearchResult], k: int, best: Callable[[], list[SearchResult]]
+              ) -> tuple[list[SearchResult], tuple[str, ...]]:
+    """``selected`` (every moment a program selects, ranked) followed by the best others of ``best()`` (the
+    search's best k, program aside) up to k in all; with the ids of those others."""
+    if len(selected) >= k:
+        return selected, ()
+    have = {r.clip_id for r in selected}  # every selected moment is here: the best k of all hold k others
+    more = [r for r in best() if r.clip_id not in have][:k - len(selected)]
+    ranked = [*selected, *(dataclasses.replace(r, rank=len(selected) + i) for i, r in enumerate(more, start=1))]
+    return ranked, tuple(r.clip_id for r in more)

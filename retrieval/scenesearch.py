@@ -358,12 +358,13 @@ class SceneSearch:
         return results
 
     def search_scenario(self, query: str, k: int = 10, filters: FilterSpec = None, view: str = "fused",
-                        ranking: str = "model", weight: float | None = None, max_k: int = MAX_K
+                        ranking: str = "model", weight: float | None = None, max_k: int = MAX_K, fill: bool = True
                         ) -> tuple[list[SearchResult], ScenarioMatch]:
         """The k moments the query's scenario program selects, ranked by ``ranking`` (``model``, ``hybrid``
         or ``captions``, as :meth:`search_text`, :meth:`search_hybrid`, :meth:`search_captions`); every
-        moment when the query does not compile or its program selects none (the match says why). See
-        :mod:`retrieval.scenario_search`.
+        moment when the query does not compile or its program selects none (the match says why). Where it
+        selects fewer than k, the ranking's next best others follow (``fill``; :attr:`ScenarioMatch.filled`
+        names them). See :mod:`retrieval.scenario_search`.
 
         Raises:
             ValueError: an unknown ``ranking``; the others as the ranking's own search raises them.
@@ -371,13 +372,13 @@ class SceneSearch:
         index = self._view(view)
         if ranking == "model":
             return search_within(self.scenarios, index.metadata, query, k, filters, max_k,
-                                 lambda spec: self.search_text(query, k, spec, view, max_k))
+                                 lambda spec: self.search_text(query, k, spec, view, max_k), fill)
         if ranking == "hybrid":
             return search_within(self.scenarios, index.metadata, query, k, filters, max_k,
-                                 lambda spec: self.search_hybrid(query, k, spec, view, weight, max_k))
+                                 lambda spec: self.search_hybrid(query, k, spec, view, weight, max_k), fill)
         if ranking == "captions":
             return search_within(self.scenarios, self.captions.metadata, query, k, filters, max_k,
-                                 lambda spec: self.search_captions(query, k, spec, max_k))
+                                 lambda spec: self.search_captions(query, k, spec, max_k), fill)
         raise ValueError(f"ranking {ranking!r}: one of model, hybrid, captions")
 
     def get(self, clip_id: str) -> SearchResult:

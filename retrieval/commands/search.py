@@ -144,6 +144,7 @@ def wrap(text: str, width: int, indent: str = "    ") -> str:
 def _with_objects(result: dict[str, object], match: ScenarioMatch | None) -> dict[str, object]:
     """A result's record with the tracks the program refers to and relates to in its window."""
     if match is not None and match.fallback is None:
+        result["program_selects"] = match.selects(str(result["clip_id"]))
         result["referred_tracks"] = list(match.referred.get(str(result["clip_id"]), ()))
         result["related_tracks"] = list(match.related.get(str(result["clip_id"]), ()))
     return result
@@ -158,6 +159,9 @@ def _scenario_lines(match: ScenarioMatch) -> str:
             lines.append(f"words the program does not use: {', '.join(match.compiled.unused)}")
     if match.fallback is None:
         lines.append(f"{len(match.clip_ids)} moment(s) match the program; ranked by the search below")
+        if match.filled:
+            lines.append(f"the last {len(match.filled)} result(s) are the search's next best, which the program "
+                         "does not select: it selects no more moments here")
     else:
         lines.append(f"ranking every moment: {match.fallback}")
     lines += [f"note: {n}" for n in match.notes]

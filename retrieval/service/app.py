@@ -44,6 +44,7 @@ from __future__ import annotations
 
 import time
 import typing
+from dataclasses import replace
 from enum import StrEnum
 from pathlib import Path
 from typing import Annotated, Any
@@ -66,7 +67,7 @@ from retrieval.errors import (
 from retrieval.hybrid import check_weight
 from retrieval.querying import QueryTooLongError, check_k, parse_cli_filters
 from retrieval.records import SearchResult
-from retrieval.scenario_search import ScenarioMatch
+from retrieval.scenario_search import ScenarioMatch, filled_up
 from retrieval.scenesearch import SceneSearch
 from retrieval.service.docs_pages import add_docs
 from retrieval.service.limits import RequestTimeout, SearchGate, ServiceBusyError, ServiceLimits, check_chars
@@ -276,11 +277,15 @@ def create_app(search: SceneSearch, limits: ServiceLimits | None = None) -> Fast
             found: dict[str, ScenarioMatch] = {}
 
             def fetch(n: int) -> list[SearchResult]:
-                deep = max(limits.max_k, n)  # pages reach every result, max_k at a time
-                if program:
+                if program:  # filled after the pages of its selection, below
                     results, found["match"] = search.search_scenario(q, k=n, filters=spec, view=view,
-                                                                     ranking=mode.value, weight=mixed, max_k=deep)
+                                                                     ranking=mode.value, weight=mixed,
+                                                                     max_k=max(limits.max_k, n), fill=False)
                     return results
+                return ranked(n)
+
+            def ranked(n: int) -> list[SearchResult]:
+                deep = max(limits.max_k, n)  # pages reach every result, max_k at a time
                 if captions:
                     return search.search_captions(q, k=n, filters=spec, max_k=deep)
                 if mode is SearchMode.HYBRID:
@@ -292,6 +297,9 @@ def create_app(search: SceneSearch, limits: ServiceLimits | None = None) -> Fast
             within = match.clip_ids if match is not None and match.fallback is None else None
             total = context.total(metadata, spec, None if captions else view, within)
             results = ranked_prefix(lambda n: first if n == wanted else fetch(n), wanted, total)
+            if within is not None and match is not None and len(results) < wanted:  # the search's next best
+                results, filled = filled_up(results, wanted, lambda: ranked_prefix(ranked, wanted, len(metadata)))
+                match, total = replace(match, filled=filled), len(results)
             elapsed_ms = (time.perf_counter() - start) * 1e3
             shown, next_offset = page(results, offset, k, total)
             # Caption search uses no clip view: the answer says so rather than echoing the parameter.

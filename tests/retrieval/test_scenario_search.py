@@ -110,7 +110,25 @@ def test_a_caption_index_answers_programs_on_its_logs(tmp_path: Path, capsys: py
     assert main(["search", str(tmp_path / "index"), "stopped(vehicle)", "-k", "3", "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
     assert out["scenario"]["program"] == "stopped(vehicle)" and out["scenario"]["fallback"] is None
-    assert all(r["referred_tracks"] for r in out["results"])
+    assert all(r["referred_tracks"] and r["program_selects"] for r in out["results"])
+    # A short answer: all the program selects, then the closest others, said to be outside it.
+    _, short = index.search_scenario("vehicle with a pedestrian to its right", k=1, fill=False)
+    k = len(short.clip_ids) + 3
+    results, match = index.search_scenario("vehicle with a pedestrian to its right", k=k)
+    assert len(results) == k and [r.rank for r in results] == list(range(1, k + 1))
+    assert {r.clip_id for r in results[:-3]} == set(match.clip_ids) and len(match.filled) == 3
+    assert [r.clip_id for r in results[-3:]] == list(match.filled)
+    assert not any(match.selects(c) for c in match.filled) and all(match.selects(c) for c in match.clip_ids)
+    assert [r.clip_id for r in results[-3:]] == [r.clip_id for r in plain if r.clip_id not in match.clip_ids][:3]
+    unfilled, _ = index.search_scenario("vehicle with a pedestrian to its right", k=k, fill=False)
+    assert [r.clip_id for r in unfilled] == [r.clip_id for r in results[:-3]]
+    assert main(["search", str(tmp_path / "index"), "vehicle with a pedestrian to its right", "-k", str(k),
+                 "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert [r["program_selects"] for r in out["results"]] == [True] * (k - 3) + [False] * 3
+    assert out["scenario"]["filled"] == 3
+    assert main(["search", str(tmp_path / "index"), "vehicle with a pedestrian to its right", "-k", str(k)]) == 0
+    assert "the last 3 result(s) are the search's next best" in capsys.readouterr().out
 
 
 @pytest.mark.parametrize("kind", ["log_left_out", "folder_gone"])

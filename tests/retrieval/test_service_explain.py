@@ -223,3 +223,22 @@ def test_api_docs_load_nothing_from_the_network(served: dict[str, Any]) -> None:
         pytest.skip("fastapi-offline is not installed: /docs says how to get its assets")
     assert client.get("/docs-assets/swagger-ui-bundle.js").status_code == 200
     assert client.get("/docs-assets/redoc.standalone.js").status_code == 200
+
+
+def test_a_short_scenario_answer_goes_on_with_the_next_best(served: dict[str, Any],
+                                                            monkeypatch: pytest.MonkeyPatch) -> None:
+    """A program that selects 3 moments answers those first, then the search's next best, each said to be
+    outside it; the pages end there."""
+    search, client = served["search"], served["client"]
+    chosen = tuple(r["clip_id"] for r in served["rows"][:3])
+    monkeypatch.setattr(search.scenarios, "match", lambda query, table: ScenarioMatch(query, None, chosen))
+    body = client.get("/api/search", params={"q": "keeps its distance ahead", "k": 8}).json()
+    assert [r["program_selects"] for r in body["results"]] == [True] * 3 + [False] * 5
+    assert {r["clip_id"] for r in body["results"][:3]} == set(chosen)
+    assert [r["rank"] for r in body["results"]] == list(range(1, 9))
+    assert body["scenario"]["filled"] == 5 and body["total"] == 8 and body["next_offset"] is None
+    plain = client.get("/api/search", params={"q": "keeps its distance ahead", "k": 8, "program": "false"}).json()
+    others = [r["clip_id"] for r in plain["results"] if r["clip_id"] not in chosen]
+    assert [r["clip_id"] for r in body["results"][3:]] == others[:5]
+    two = client.get("/api/search", params={"q": "keeps its distance ahead", "k": 2}).json()  # no fill: 3 selected
+    assert [r["program_selects"] for r in two["results"]] == [True, True] and two["next_offset"] == 2

@@ -199,7 +199,17 @@ function logName(logId) {
 function renderResults(results, mode) {
   const grid = $("results");
   grid.innerHTML = "";
-  for (const r of results) grid.appendChild(card(r, mode));
+  let divided = false;
+  for (const r of results) {
+    if (r.program_selects === false && !divided) {  // a short answer goes on with the search's next best
+      const note = document.createElement("div");
+      note.className = "outside-program";
+      note.textContent = "The program selects no more moments here. The closest others follow; it does not select them.";
+      grid.appendChild(note);
+      divided = true;
+    }
+    grid.appendChild(card(r, mode));
+  }
   $("legend").hidden = results.length === 0;
 }
 

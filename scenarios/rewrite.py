@@ -156,6 +156,8 @@ def join(node: p.Node, conj: str, other: p.Node, distinct: bool, spread: bool = 
         return going_on
     if conj in ("and", "while") and distinct and node == other:  # "a car brakes and another car brakes": two
         return p.Together(node, 2)
+    if conj == "and" and distinct and first == second and (tied := tied_to(node, other)) is not None:
+        return p.AnyOf((tied, other))  # "a car stops and another car passes it": that car, and the other
     if conj == "while" or (conj == "and" and distinct and first == second):
         return p.While(node, other)
     if conj == "and" and ego in (first, second) and first != second and node != first and other != second:

@@ -314,7 +314,7 @@ MEANINGS = {
     # object at the same moments; "it" after a clause about us names the object we relate to.
     "cars, trucks and buses are stopped": "stopped(or(car, truck, bus))",
     "cars and trucks in our lane": "ego_lane(or(car, truck), lane=host)",
-    "a car stops, another car passes it": "while(stopped(car), reverse(passed_by(stopped(car), car)))",
+    "a car stops, another car passes it": "or(passed_by(stopped(car), car), reverse(passed_by(stopped(car), car)))",
     "we follow a truck, it turns left": "while(following(ego, truck), turning(truck, direction=left))",
     "a pedestrian running fast": "fast(pedestrian)",  # was faster than 13 m/s, which no one runs
     "a bus stopped at a stop": "stopped(bus)",  # asked once

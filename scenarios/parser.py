@@ -39,7 +39,7 @@ from scenarios.program import (
     of_two_kinds,
     subject_of,
 )
-from scenarios.relating import RelationReader
+from scenarios.relating import RelationReader, side_relation
 
 #: Within this distance (m), "a group of" objects stand together.
 GROUP_RADIUS_M = 5.0
@@ -326,12 +326,7 @@ class Parser(RelationReader):
         if self.role() == "rel" and self.role(1) not in ("kind", "count", "pred", "number"):
             return self.acted_on(node, self.with_side(self.take()), other)  # "with a car passing it on the left"
         distance = self.quantity() if self.role() == "number" else None
-        if self.role() == "side":
-            side = self.take().name
-            rel = Lexeme("rel", side) if side in ("same_lane", "near") else \
-                Lexeme("rel", "direction", (("side", side),))
-        else:
-            rel = Lexeme("rel", "near", ())
+        rel = side_relation(self.take().name) if self.role() == "side" else Lexeme("rel", "near", ())
         if distance is not None and distance[1] == "m":
             self.pending_m = distance[0]
         return self.relate(node, rel, other)

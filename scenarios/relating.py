@@ -174,8 +174,15 @@ class RelationReader(LexemeStream):
 
     def acted_on(self, node: Node, rel: Lexeme, acting: tuple[Node, int]) -> Node:
         """``node`` that the objects of ``acting`` do ``rel`` to ("with a dog crossing", "with a car following
-        it"): the relation from the other side."""
-        return self.relate(node, dataclasses.replace(rel, reverse=not rel.reverse), acting)
+        it"): the relation from the other side; and where they are, if a side of "it" follows ("with a
+        crossing pedestrian in front of it", "with an approaching car behind it")."""
+        acted = self.relate(node, dataclasses.replace(rel, reverse=not rel.reverse), acting)
+        if self.role() != "side" or not {"it", "its", "them", "their"} & set(self.words()):
+            return acted
+        side = self.take().name
+        if rel.name == "crossed_by" and side == "front":  # a crossing is in front already
+            return acted
+        return AllOf((acted, self.relate(node, side_relation(side), acting)))
 
     def with_side(self, item: Lexeme) -> Lexeme:
         """``item`` with the side that follows it ("being overtaken on the left")."""
@@ -184,3 +191,8 @@ class RelationReader(LexemeStream):
             side = self.take().name.replace("beside", "any")
             return dataclasses.replace(item, params=(*[(k, v) for k, v in item.params if k != "side"], ("side", side)))
         return item
+
+
+def side_relation(side: str) -> Lexeme:
+    """The relation a side word names ("in front of it": a direction; "in its lane", "nearby")."""
+    return Lexeme("rel", side) if side in ("same_lane", "near") else Lexeme("rel", "direction", (("side", side),))

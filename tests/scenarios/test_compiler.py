@@ -31,6 +31,10 @@ MEANINGS = {
     "a car speeding up as it approaches the intersection": "near_intersection(accelerating(car))",
     # "It" after "after" names the objects before their state: we passed the car before it braked.
     "a car brakes after we pass it": "after(braking(car), reverse(passed_by(car, ego)), within_s=5)",
+    # "With" an object acting on the subject, then where it is: a side of "it" is the subject's.
+    "a stopped car with a crossing pedestrian in front of it": "crossed_by(stopped(car), pedestrian)",
+    "a car with an approaching car behind it":
+        "and(reverse(heading_toward(car, car)), direction(car, car, side=behind))",
     # A verb with its object after "after" or "before" is the subject's ("passing cars" are cars that pass).
     "a car brakes after passing a truck": "then(reverse(passed_by(truck, car)), braking(car), within_s=5)",
     "a car that speeds up after passing us": "then(reverse(passed_by(ego, car)), accelerating(car), within_s=5)",

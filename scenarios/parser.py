@@ -41,6 +41,8 @@ from scenarios.program import (
 )
 from scenarios.relating import RelationReader, side_relation
 
+#: Where a motion goes: "not moving toward us" negates the approach, not the motion.
+WHITHER = frozenset({"approaching_ego", "moving_away_from_ego", "heading_toward", "heading_away_from", "passed_by"})
 #: Within this distance (m), "a group of" objects stand together.
 GROUP_RADIUS_M = 5.0
 
@@ -139,6 +141,10 @@ class Parser(RelationReader):
             role = self.role()
             if role == "pred":
                 item = self.take()
+                if item.negate and item.name == "moving" and self.name() in WHITHER:  # "isn't moving toward us"
+                    after = self.modifiers_one(node)
+                    node = rewrite.negated(after, node) if after is not None else node
+                    continue
                 node = rewrite.stated_or_after(node, item.name, item.params, item.negate)  # "slows down, stops"
             elif role == "fixed":
                 item = self.take()

@@ -31,6 +31,7 @@ MEANINGS = {
     "a car speeding up as it approaches the intersection": "near_intersection(accelerating(car))",
     # "It" after "after" names the objects before their state: we passed the car before it braked.
     "a car brakes after we pass it": "after(braking(car), reverse(passed_by(car, ego)), within_s=5)",
+    "a car that is not moving toward us": "not(approaching_ego(car))",  # not the motion: where it goes
     # "With" an object acting on the subject, then where it is: a side of "it" is the subject's.
     "a stopped car with a crossing pedestrian in front of it": "crossed_by(stopped(car), pedestrian)",
     "a car with an approaching car behind it":

@@ -37,6 +37,7 @@ _kind("vulnerable_road_user", {"PEDESTRIAN", "OFFICIAL_SIGNALER", "BICYCLIST", "
                                "MOTORCYCLIST", "MOTORCYCLE", "WHEELCHAIR", "STROLLER", "WHEELED_DEVICE"},
       {"pedestrian", "cyclist", "motorcycle"})
 _kind("construction", {"CONSTRUCTION_CONE", "CONSTRUCTION_BARREL", "BOLLARD", "MESSAGE_BOARD_TRAILER"})
+_kind("animal", {"ANIMAL", "DOG"})  # a dog is an animal too
 _kind("any", set(AV2_TO_CATEGORY), {"car", "truck", "bus", "pedestrian", "cyclist", "motorcycle", "other"})
 _kind("ego", {EGO_VEHICLE_LABEL}, {"ego"})
 

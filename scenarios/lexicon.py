@@ -77,7 +77,8 @@ for _phrases, _kind in (
     ("wheeled rider|scooter rider|skateboarder|skater|person on a skateboard|person on a scooter|"
      "person riding a skateboard|person riding a scooter", "wheeled_rider"),
     ("motorcycle|motorcyclist|motorbike|motorbike rider|scooter", "motorcycle"),
-    ("dog|animal", "dog"), ("stroller|pram|baby stroller", "stroller"), ("wheelchair", "wheelchair"),
+    ("dog", "dog"), ("animal", "animal"), ("stroller|pram|baby stroller", "stroller"), ("wheelchair", "wheelchair"),
+    ("railed vehicle|tram|streetcar|light rail vehicle|light rail train", "railed_vehicle"),
     ("wheeled device|skateboard", "wheeled_device"),
     ("bollard", "bollard"), ("construction cone|traffic cone|cone", "construction_cone"),
     ("construction barrel|barrel", "construction_barrel"),

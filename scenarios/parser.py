@@ -402,10 +402,11 @@ class Parser(RelationReader):
             another = another or (nxt is not None and self.named_it)  # "the car behind it"
             if nxt is None:  # "stopped then moving": the same objects, unless an unknown noun says otherwise
                 head = rewrite.without_states(subject_of(node))
-                if it_said and head == Objects("ego"):  # "we follow a truck, it turns": the truck
-                    head = rewrite.other_one(node) or head
+                if it_said and head == Objects("ego"):  # "we follow a truck, it turns": the truck we follow
+                    head = rewrite.ego_related(node) or rewrite.other_one(node) or head
                 if self.role() in ("pred", "rel", "ego", "side", "with", "between", "not", "seq", "fixed") \
                         and not self.unknown_before_next():
+                    self.antecedent = rewrite.other_one(node) or node  # "follows a truck, then passes it": the truck
                     nxt = (self.modifiers(head), 0)
                 else:
                     self.unused.extend(w for w in conj.words if w != ",")

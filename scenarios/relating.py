@@ -139,6 +139,9 @@ class RelationReader(LexemeStream):
             return self.ego_relation(node, side, self.distance_params((), "direction"))
         if item.words == ("at",) or (item.words == ("around",) and self.role() == "number"):
             return node  # "at" before a place word the lexicon reads itself; "around 20 km/h": about
+        if item.words == ("past",):  # "stopped past the stop line": beyond, no passing
+            self.unused.extend(item.words)
+            return node
         if item.reverse and item.name == "passed_by" and "side" in dict(item.params):  # "passes on the left": us
             return self.relate(node, item, (Objects("ego"), 0))
         if item.reverse and item.name == "passed_by":  # "passing between ...": moving past

@@ -129,6 +129,35 @@ def other_one(node: p.Node) -> p.Node | None:
     return without_states(p.subject_of(node.subject if node.reverse else node.other))
 
 
+#: Relations that hold around a moment only: what "it" does next happens after it, not while it holds.
+MOMENTARY = frozenset({"passed_by", "crossed_by", "yielding_to"})
+
+
+def ego_related(node: p.Node) -> p.Node | None:
+    """The objects a clause about the ego relates it to, as related ("we follow a truck": the trucks we
+    follow), what a later "it" that opens a clause names; None when the clause is no such relation."""
+    if not isinstance(node, p.Has) or node.negate or node.nearest is not None or node.relation in MOMENTARY:
+        return None
+    if node.subject == p.Objects("ego") and not node.reverse:
+        return dataclasses.replace(node, reverse=True)
+    if node.other == p.Objects("ego") and node.reverse:  # "we pass a cyclist": cyclists passed by us
+        return dataclasses.replace(node, reverse=False)
+    return None
+
+
+def said_of(other: p.Node, objects: p.Node) -> bool:
+    """Whether ``other`` is said of ``objects`` (they stand along its chain of subjects)."""
+    while other != objects:
+        match other:
+            case p.Is(subject) | p.ForAtLeast(subject) | p.Together(subject):
+                other = subject
+            case p.Has():
+                other = other.other if other.reverse else other.subject
+            case _:
+                return False
+    return True
+
+
 def any_of(kinds: list[str]) -> p.Node:
     """The objects of any of ``kinds``."""
     objects = tuple(p.Objects(kind) for kind in kinds)
@@ -160,6 +189,8 @@ def join(node: p.Node, conj: str, other: p.Node, distinct: bool, spread: bool = 
         return p.AnyOf((tied, other))  # "a car stops and another car passes it": that car, and the other
     if conj == "while" or (conj == "and" and distinct and first == second):
         return p.While(node, other)
+    if conj == "and" and first == ego and (related := ego_related(node)) is not None and said_of(other, related):
+        return other  # "we follow a truck and it turns left": the truck we follow, turning
     if conj == "and" and ego in (first, second) and first != second and node != first and other != second:
         return p.While(node, other)  # "we turn right and a cyclist is on our right": both at once
     kinds = listed(node)

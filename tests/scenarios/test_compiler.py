@@ -16,7 +16,6 @@ DEV = Path(__file__).resolve().parents[2].parent / "shared" / "refav" / "descrip
 MEANINGS = {
     # Going past, toward and away from another object; "walks past the right side of" is "walks" + "past the
     # right side of", and "10 m away from" a distance.
-    "a pedestrian walks past": "moving(pedestrian)",
     "a pedestrian walks past us": "reverse(passed_by(ego, moving(pedestrian), way=either))",
     "a cyclist rides past a parked car": "reverse(passed_by(parked(car), moving(cyclist), way=either))",
     "pedestrian walking past right side of vehicle": "reverse(passed_by(vehicle, moving(pedestrian), side=right))",
@@ -32,6 +31,15 @@ MEANINGS = {
     # "It" after "after" names the objects before their state: we passed the car before it braked.
     "a car brakes after we pass it": "after(braking(car), reverse(passed_by(car, ego)), within_s=5)",
     "a car that is not moving toward us": "not(approaching_ego(car))",  # not the motion: where it goes
+    # "It" after a clause about us: the objects we relate to, so related ("the truck we follow"); of one
+    # subject going on, the object it relates to, not itself.
+    "we are behind a truck and it stops": "stopped(direction(truck, ego, side=behind))",
+    "we pass a cyclist and it turns right":  # passing is a moment: the turn need not be during it
+        "while(reverse(passed_by(cyclist, ego)), turning(cyclist, direction=right))",
+    "a car follows a truck and then passes it": "then(following(car, truck), reverse(passed_by(truck, car)), "
+                                                 "within_s=5)",
+    "an animal on the road": "on_road(animal)",
+    "a tram": "railed_vehicle",
     # "With" an object acting on the subject, then where it is: a side of "it" is the subject's.
     "a stopped car with a crossing pedestrian in front of it": "crossed_by(stopped(car), pedestrian)",
     "a car with an approaching car behind it":
@@ -320,7 +328,7 @@ MEANINGS = {
     "cars, trucks and buses are stopped": "stopped(or(car, truck, bus))",
     "cars and trucks in our lane": "ego_lane(or(car, truck), lane=host)",
     "a car stops, another car passes it": "or(passed_by(stopped(car), car), reverse(passed_by(stopped(car), car)))",
-    "we follow a truck, it turns left": "while(following(ego, truck), turning(truck, direction=left))",
+    "we follow a truck, it turns left": "turning(reverse(following(ego, truck)), direction=left)",
     "a pedestrian running fast": "fast(pedestrian)",  # was faster than 13 m/s, which no one runs
     "a bus stopped at a stop": "stopped(bus)",  # asked once
     "a pedestrian about to cross": "about_to_cross(pedestrian)",  # it read as crossing
@@ -330,7 +338,7 @@ MEANINGS = {
     "a car rolling backwards toward us": "approaching_ego(reversing(car))",
     # "It" after "and" names the object we relate to, not us; a verb's plain form after a single object is
     # the plural subject's; "is not a bus" excludes the kind; "no one", "nobody", "nothing" are no object.
-    "we follow a truck and it turns left": "while(following(ego, truck), turning(truck, direction=left))",
+    "we follow a truck and it turns left": "turning(reverse(following(ego, truck)), direction=left)",
     "a car stops and it turns left": "then(stopped(car), turning(car, direction=left), within_s=5)",
     "cars behind a bus brake": "braking(reverse(direction(bus, car, side=behind)))",
     "pedestrians near a car wait to cross": "stopped(near(pedestrian, car))",
@@ -352,8 +360,8 @@ MEANINGS = {
     "cars behind a truck do not move": "not(moving(reverse(direction(truck, car, side=behind))))",
     "cars next to a bus have stopped": "stopped(near(car, bus))",
     "cars near a cyclist speed up": "accelerating(near(car, cyclist))",
-    "we follow a car and it overtakes a cyclist": "while(following(ego, car), reverse(passed_by(cyclist, car)))",
-    "we follow a truck and they turn": "while(following(ego, truck), turning(truck))",
+    "we follow a car and it overtakes a cyclist": "reverse(passed_by(cyclist, reverse(following(ego, car))))",
+    "we follow a truck and they turn": "turning(reverse(following(ego, truck)))",
     "a truck passes by a cyclist": "reverse(passed_by(cyclist, truck, way=either))",
     "a car brakes, then stops, then drives off":
         "then(then(braking(car), stopped(car), within_s=5), moving(car), within_s=4)",
@@ -388,6 +396,8 @@ NOT_UNDERSTOOD = {
     "a car drives away from the intersection": ("near_intersection(car)", ("drives", "away", "from")),  # no leaving
     "a child running toward the road": ("moving(pedestrian)", ("toward",)),  # not toward us
     "a vehicle far away from us": ("vehicle", ("far", "us")),  # a distance, no motion
+    "a pedestrian walks past": ("moving(pedestrian)", ("past",)),  # past what, it does not say
+    "a car stopped past the stop line": ("stopped(car)", ("past", "line")),  # beyond, no passing
     "a car pulls away from the crosswalk": ("then(stopped(car), moving(car), within_s=4)", ("crosswalk",)),
     # "Cuts in front of" is no phrase: the lead vehicle it names is not taken for "leading" anything.
     "traffic backed up": ("vehicle", ("backed", "up")),  # a queue, not reversing

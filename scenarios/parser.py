@@ -366,14 +366,16 @@ class Parser(RelationReader):
             self.unused.extend(no.words)
             if found is not None:
                 return self.referred(*found)
-        if self.role() == "conj" and self.name() in ("while", "after"):  # "while we are stopped, a pedestrian …"
+        if self.role() == "conj" and (self.name() in ("while", "after") or self.words() == ("before",)):  # "while …, …"
             start, unused = self.i, len(self.unused)
             lead, self.in_condition = self.take(), True  # the condition ends at a comma
             condition, self.in_condition = self.phrase(), False
-            if condition is not None and (self.role() in ("kind", "count", "nearest") or self.it_next()):
+            if condition is not None and (self.role() in ("kind", "count", "nearest") or self.it_next()
+                                          or (self.role() == "pred" and self.kind_after_states(0))):
                 self.antecedent = first = self.referred(*condition)  # "while a bus is stopped, a car passes it"
                 main = self.clauses()
-                return While(main, first) if lead.name == "while" else rewrite.in_turn(main, first, after=True)
+                after = lead.name == "after"  # "before the pedestrian crosses, we stop": we stop, then it crosses
+                return While(main, first) if lead.name == "while" else rewrite.in_turn(main, first, after)
             self.i, self.unused[unused:], self.grouped = start, [], False  # no main clause: "while" says nothing
             self.unused.extend(self.take().words)
         if self.antecedent is not None and self.it_next():  # "after the bus stops, it drives off"

@@ -139,6 +139,9 @@ class RelationReader(LexemeStream):
             return self.ego_relation(node, side, self.distance_params((), "direction"))
         if item.words == ("at",) or (item.words == ("around",) and self.role() == "number"):
             return node  # "at" before a place word the lexicon reads itself; "around 20 km/h": about
+        if item.name == "near" and self.skipped_before_next() & {"road", "street"}:  # "near the road": not an object
+            self.unused.extend((*item.words, "road"))
+            return node
         if item.words == ("past",):  # "stopped past the stop line": beyond, no passing
             self.unused.extend(item.words)
             return node

@@ -39,6 +39,10 @@ MEANINGS = {
     "a car follows a truck and then passes it": "then(following(car, truck), reverse(passed_by(truck, car)), "
                                                  "within_s=5)",
     "an animal on the road": "on_road(animal)",
+    # A sentence may open with "before": its clause comes after the main one.
+    "before a pedestrian crosses, we stop": "before(stopped(ego), crossing_road(pedestrian), within_s=5)",
+    "while we turn left, an oncoming car passes us":  # the main clause may open with a state
+        "while(reverse(passed_by(ego, ego_lane(car, lane=oncoming))), turning(ego, direction=left))",
     "a tram": "railed_vehicle",
     # "With" an object acting on the subject, then where it is: a side of "it" is the subject's.
     "a stopped car with a crossing pedestrian in front of it": "crossed_by(stopped(car), pedestrian)",
@@ -398,6 +402,7 @@ NOT_UNDERSTOOD = {
     "a vehicle far away from us": ("vehicle", ("far", "us")),  # a distance, no motion
     "a pedestrian walks past": ("moving(pedestrian)", ("past",)),  # past what, it does not say
     "a car stopped past the stop line": ("stopped(car)", ("past", "line")),  # beyond, no passing
+    "kids near the road": ("pedestrian", ("near", "road")),  # not near any object
     "a car pulls away from the crosswalk": ("then(stopped(car), moving(car), within_s=4)", ("crosswalk",)),
     # "Cuts in front of" is no phrase: the lead vehicle it names is not taken for "leading" anything.
     "traffic backed up": ("vehicle", ("backed", "up")),  # a queue, not reversing

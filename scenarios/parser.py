@@ -332,7 +332,7 @@ class Parser(RelationReader):
         if self.role() == "rel" and self.role(1) not in ("kind", "count", "pred", "number"):
             return self.acted_on(node, self.with_side(self.take()), other)  # "with a car passing it on the left"
         distance = self.quantity() if self.role() == "number" else None
-        rel = side_relation(self.take().name) if self.role() == "side" else Lexeme("rel", "near", ())
+        rel = side_relation(self.take()) if self.role() == "side" else Lexeme("rel", "near", ())
         if distance is not None and distance[1] == "m":
             self.pending_m = distance[0]
         return self.relate(node, rel, other)

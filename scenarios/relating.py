@@ -10,7 +10,7 @@ from collections.abc import Callable, Iterable
 from scenarios.kinds import within_kinds
 from scenarios.lexeme_stream import LexemeStream
 from scenarios.lexicon import Lexeme
-from scenarios.program import AllOf, AnyOf, Has, Is, Node, Objects, Then, subject_of
+from scenarios.program import AllOf, AnyOf, Between, Has, Is, Node, Objects, Then, subject_of
 from scenarios.rewrite import other_one, with_subject, without_states
 
 #: The two steps of "drives off" or "cuts into my lane" happen within this many seconds.
@@ -24,6 +24,10 @@ _NEAREST: dict[str, tuple[str, tuple[tuple[str, float | str], ...]]] = {
 #: What "the lead" is the nearest of, whatever kind the words name: whoever drives ahead in the lane (a
 #: motorcycle or a bicycle leads as a car does). "The lead car" is the lead, when it is a car.
 LEAD_KINDS = ("vehicle", "motorcycle", "cyclist")
+
+
+#: The relation "on each side" names: the subject between two of the other objects.
+BOTH_SIDES = "both_sides"
 
 
 class RelationReader(LexemeStream):
@@ -82,6 +86,8 @@ class RelationReader(LexemeStream):
     def relate(self, node: Node, item: Lexeme, other: tuple[Node, int]) -> Node:
         """``node`` related by ``item`` to ``other`` (its node and the count said for it)."""
         other_node, count = other
+        if item.name == BOTH_SIDES:  # "a bus with a car on each side": between two of them
+            return Between(node, other_node, other_node)
         params = self.distance_params(item.params, item.name)
         if item.reverse:  # the relation holds from the other object's point of view
             return Has(other_node, item.name, node, params, reverse=True)
@@ -185,8 +191,8 @@ class RelationReader(LexemeStream):
         acted = self.relate(node, dataclasses.replace(rel, reverse=not rel.reverse), acting)
         if self.role() != "side" or not {"it", "its", "them", "their"} & set(self.words()):
             return acted
-        side = self.take().name
-        if rel.name == "crossed_by" and side == "front":  # a crossing is in front already
+        side = self.take()
+        if rel.name == "crossed_by" and side.name == "front":  # a crossing is in front already
             return acted
         return AllOf((acted, self.relate(node, side_relation(side), acting)))
 
@@ -199,6 +205,10 @@ class RelationReader(LexemeStream):
         return item
 
 
-def side_relation(side: str) -> Lexeme:
-    """The relation a side word names ("in front of it": a direction; "in its lane", "nearby")."""
+def side_relation(item: Lexeme) -> Lexeme:
+    """The relation a side phrase names ("in front of it": a direction; "in its lane", "nearby"; "on each
+    side", "on both sides": one on either side, :data:`BOTH_SIDES`)."""
+    if item.name == "beside" and {"both", "each"} & set(item.words):
+        return Lexeme("rel", BOTH_SIDES)
+    side = item.name
     return Lexeme("rel", side) if side in ("same_lane", "near") else Lexeme("rel", "direction", (("side", side),))

@@ -8,12 +8,20 @@ import dataclasses
 
 from scenarios import program as p
 
+#: "Passing too closely": within this gap (m) of the side, the passing distance cyclists are owed in
+#: many traffic codes.
+CLOSE_PASS_M = 1.5
+
 
 def closer(node: p.Node) -> p.Node:
-    """``node`` with its relation tightened ("following closely": within 10 m; "near": within 3 m)."""
+    """``node`` with its relation tightened ("following closely": within 10 m; "near": within 3 m;
+    "passing too closely": within :data:`CLOSE_PASS_M` of the side)."""
     if isinstance(node, p.Has) and node.relation in ("following", "near", "direction"):
         tight = 10.0 if node.relation != "near" else 3.0
         return within(node, tight)
+    if isinstance(node, p.Has) and node.relation == "passed_by":
+        return dataclasses.replace(node, params=(*[(k, v) for k, v in node.params if k != "lateral_m"],
+                                                 ("lateral_m", CLOSE_PASS_M)))
     return node
 
 

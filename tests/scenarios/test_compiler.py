@@ -39,6 +39,9 @@ MEANINGS = {
     "a car follows a truck and then passes it": "then(following(car, truck), reverse(passed_by(truck, car)), "
                                                  "within_s=5)",
     "an animal on the road": "on_road(animal)",
+    "a bus with a car on each side": "between(bus, car, car)",  # both sides, not either
+    "a car with a pedestrian on either side": "direction(car, pedestrian, side=beside)",
+    "a car passing a cyclist too closely": "reverse(passed_by(cyclist, car, lateral_m=1.5))",
     # A sentence may open with "before": its clause comes after the main one.
     "before a pedestrian crosses, we stop": "before(stopped(ego), crossing_road(pedestrian), within_s=5)",
     "while we turn left, an oncoming car passes us":  # the main clause may open with a state

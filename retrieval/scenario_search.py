@@ -252,7 +252,7 @@ def search_within(store: ScenarioStore, metadata: MetadataStore, query: str, k: 
         return rank(filters), match
     within = Condition("clip_id", Op.IN, tuple(match.clip_ids))
     results = rank([*(user or ()), within])
-    if not fill or len(results) >= k:
+    if not fill:
         return results, match
     results, filled = filled_up(results, k, lambda: rank(filters))
     return results, dataclasses.replace(match, filled=filled)

@@ -89,13 +89,15 @@ class LexemeStream:
             j += 1
         return self.items[i:j]
 
+    def skipped_after_next(self) -> set[str]:
+        """The filler words between the next meaningful item and the one after it."""
+        return {word for item in self.fillers(self.i + len(self.fillers()) + 1) for word in item.words}
+
     def object_after_next(self) -> bool:
         """Whether the meaningful item after the next is the next one's object: the ego, or opened by "a",
         "an" or "the" ("passing a truck", "passing us" are a verb and its object, "passing cars" cars that
         pass)."""
-        j = self.i + len(self.fillers()) + 1
-        return self.name(1) == "ego" or bool({word for item in self.fillers(j) for word in item.words}
-                                             & {"a", "an", "the"})
+        return self.name(1) == "ego" or bool(self.skipped_after_next() & {"a", "an", "the"})
 
     def unknown_before_next(self) -> bool:
         """Whether a word the lexicon does not know stands between here and the next meaningful item."""
@@ -118,8 +120,7 @@ class LexemeStream:
     def it_after_next(self) -> bool:
         """Whether "it" or "they" stands right after the next meaningful item ("… and it turns left": a
         clause about the objects before, not one more modifier)."""
-        after = self.fillers(self.i + len(self.fillers()) + 1)
-        return any({"it", "they"} & set(item.words) for item in after)
+        return bool(self.skipped_after_next() & {"it", "they"})
 
     def not_a_kind(self) -> bool:
         """Whether the next words say that the object is not of a kind ("that is not a bus", "which isn't a

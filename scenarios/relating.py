@@ -11,7 +11,7 @@ from scenarios.kinds import within_kinds
 from scenarios.lexeme_stream import LexemeStream
 from scenarios.lexicon import Lexeme
 from scenarios.program import AllOf, AnyOf, Between, Has, Is, Node, Objects, Then, subject_of
-from scenarios.rewrite import other_one, with_subject, without_states
+from scenarios.rewrite import other_one, stated, with_subject, without_states
 
 #: The two steps of "drives off" or "cuts into my lane" happen within this many seconds.
 CUT_IN_WITHIN_S = 4.0
@@ -131,13 +131,13 @@ class RelationReader(LexemeStream):
 
     def without_object(self, node: Node, item: Lexeme) -> Node:
         """A relation phrase that names no object: of the ego, by anyone, or no relation at all."""
-        if item.name in ("heading_toward", "heading_away_from") and (
-                self.role() == "pred" or item.words[-1] in ("toward", "from")):
-            if item.name == "heading_away_from" or self.role() != "pred":  # "toward the road": what it lacks
+        if item.name in ("heading_toward", "heading_away_from"):
+            place = self.role() == "pred"  # "heading toward the intersection": the place word says where
+            if not place and item.words[-1] not in ("toward", "from"):  # "approaching": the ego
+                return Is(node, "approaching_ego" if item.name == "heading_toward" else "moving_away_from_ego")
+            if not place or item.name == "heading_away_from":  # "toward the road"; no predicate says leaving
                 self.unused.extend(item.words)
-            return node  # "heading toward the intersection": the place word says where
-        if item.name in ("heading_toward", "heading_away_from"):  # "approaching": the ego
-            return Is(node, "approaching_ego" if item.name == "heading_toward" else "moving_away_from_ego")
+            return node
         if item.name == "yielding_to" and item.words[0].startswith("wait"):  # "waiting for 10 s": waiting
             return Is(node, "stopped")
         if item.name == "direction":
@@ -154,7 +154,7 @@ class RelationReader(LexemeStream):
         if item.reverse and item.name == "passed_by" and "side" in dict(item.params):  # "passes on the left": us
             return self.relate(node, item, (Objects("ego"), 0))
         if item.reverse and item.name == "passed_by":  # "passing between ...": moving past
-            return node if isinstance(node, Is) and node == Is(node.subject, "moving") else Is(node, "moving")
+            return stated(node, "moving")
         if item.reverse and item.name == "crossed_by":  # "a pedestrian crosses at the crosswalk"
             return Is(node, "crossing_road")
         if item.name in ("following", "crossed_by", "passed_by", "near", "yielding_to"):  # "being overtaken": by anyone

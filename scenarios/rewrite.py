@@ -20,8 +20,7 @@ def closer(node: p.Node) -> p.Node:
         tight = 10.0 if node.relation != "near" else 3.0
         return within(node, tight)
     if isinstance(node, p.Has) and node.relation == "passed_by":
-        return dataclasses.replace(node, params=(*[(k, v) for k, v in node.params if k != "lateral_m"],
-                                                 ("lateral_m", CLOSE_PASS_M)))
+        return with_param(node, "lateral_m", CLOSE_PASS_M)
     return node
 
 
@@ -45,8 +44,12 @@ def within(node: p.Node, within_m: float) -> p.Node:
     """A relation ``node`` limited to ``within_m``; any other node as it is."""
     if not isinstance(node, p.Has) or node.relation in ("heading", "passed_by", "crossed_by"):
         return node
-    return dataclasses.replace(node, params=(*[(k, v) for k, v in node.params if k != "within_m"],
-                                             ("within_m", within_m)))
+    return with_param(node, "within_m", within_m)
+
+
+def with_param(node: p.Has, key: str, value: float | str) -> p.Has:
+    """``node`` with its parameter ``key`` set to ``value``."""
+    return dataclasses.replace(node, params=(*[(k, v) for k, v in node.params if k != key], (key, value)))
 
 
 def negated(after: p.Node, before: p.Node) -> p.Node:
@@ -193,8 +196,8 @@ def join(node: p.Node, conj: str, other: p.Node, distinct: bool, spread: bool = 
         return going_on
     if conj in ("and", "while") and distinct and node == other:  # "a car brakes and another car brakes": two
         return p.Together(node, 2)
-    if conj == "and" and distinct and first == second and (tied := tied_to(node, other)) is not None:
-        return p.AnyOf((tied, other))  # "a car stops and another car passes it": that car, and the other
+    if conj == "and" and ego not in (first, second) and (tied := tied_to(node, other)) is not None:
+        return p.AnyOf((tied, other))  # "a bus stops and a pedestrian crosses in front of it": that bus
     if conj == "while" or (conj == "and" and distinct and first == second):
         return p.While(node, other)
     if conj == "and" and first == ego and (related := ego_related(node)) is not None and said_of(other, related):
@@ -207,8 +210,6 @@ def join(node: p.Node, conj: str, other: p.Node, distinct: bool, spread: bool = 
         # "buses and motorcycles", "cars, trucks and buses are stopped": the words name all, what follows
         # is said of all
         return with_subject(other, p.AnyOf((*kinds, second)))
-    if conj == "and" and (tied := tied_to(node, other)) is not None:
-        return p.AnyOf((tied, other))  # "a bus stops and a pedestrian crosses in front of it": that bus
     if conj == "and" and p.of_two_kinds(node, other):
         return p.AnyOf((node, other))  # "a stopped bus and a parked car": no object is both
     if conj == "or":

@@ -20,9 +20,8 @@ def runs_lasting(mask: Mask, time_s: NDArray[np.float64], seconds: float) -> Mas
         return mask
     dt = float(np.median(np.diff(time_s))) if time_s.shape[0] > 1 else 0.0
     t = np.broadcast_to(time_s, mask.shape)
-    starts = mask & ~np.pad(mask, ((0, 0), (1, 0)))[:, :-1]
     ends = mask & ~np.pad(mask, ((0, 0), (0, 1)))[:, 1:]
-    start_t = np.maximum.accumulate(np.where(starts, t, -np.inf), axis=1)
+    start_t = np.maximum.accumulate(np.where(onsets(mask), t, -np.inf), axis=1)
     end_t = np.flip(np.minimum.accumulate(np.flip(np.where(ends, t, np.inf), axis=1), axis=1), axis=1)
     return mask & (end_t - start_t + dt >= seconds - 1e-6)
 

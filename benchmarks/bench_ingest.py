@@ -18,7 +18,9 @@ log-second adds: choosing the weight reads at most :data:`retrieval.hybrid.CHOIC
 clips, a cost per index and not per log-second (``make bench``, ``weight_choice``), and where the
 smaller run has no validation clip and the larger some, it would fall on the slope alone.
 ``weight_choice_cpu_s``: what choosing it adds to the larger run, ``index`` run as users run it once
-more per repeat.
+more per repeat. ``marginal_batch_32``: the marginal rate with ``index --batch-size 32`` (each
+repeat runs it too), the embedding's batch before :data:`encoders.config.EMBED_BATCH_CLIPS`: the
+baseline of the same run.
 
 The baseline, measured in the same run, is what reading the inputs alone costs: every LiDAR sweep,
 camera frame and instance mask of the logs read and decoded in one process (``read_floor``), the part
@@ -120,6 +122,9 @@ def _ingest(logs: list[Path], run: Path, clips_config: Path | None, mode: str, o
                               *config, *extra),
         "index": _scenesearch("index", run, out / "clips", "--out", out / "index", "--hybrid-weight", "0.5"),
     }
+    # The baseline of the same run: the embedding in batches of 32 clips, as before EMBED_BATCH_CLIPS.
+    commands["index_batch_32"] = _scenesearch("index", run, out / "clips", "--out", out / "index_32",
+                                              "--hybrid-weight", "0.5", "--batch-size", "32")
     if choose_weight:
         commands["index_choosing"] = _scenesearch("index", run, out / "clips", "--out", out / "index_choosing")
     try:
@@ -174,12 +179,15 @@ def run(quick: bool = False) -> dict[str, Any]:
             per_log_s = {s: (cpu["large"][s] - cpu["small"][s]) / marginal_s for s in STAGES}
             per_run = {s: cpu["small"][s] - per_log_s[s] * seconds["small"] for s in STAGES}
             total = sum(per_log_s.values())
+            index_32 = {size: statistics.median(r["index_batch_32"] for r in rs) for size, rs in runs.items()}
+            total_32 = total - per_log_s["index"] + (index_32["large"] - index_32["small"]) / marginal_s
             results[mode] = {
                 "cpu_s": {size: {s: round(v, 2) for s, v in c.items()} for size, c in cpu.items()},
                 "cpu_s_per_log_second": {s: round(v, 4) for s, v in per_log_s.items()},
                 "cpu_s_per_run": {s: round(v, 2) for s, v in per_run.items()},
                 "log_seconds_per_cpu_second": {s: round(1 / v, 1) if v > 0 else None for s, v in per_log_s.items()},
                 "marginal_log_seconds_per_cpu_second": round(1 / total, 2) if total > 0 else None,
+                "marginal_batch_32": round(1 / total_32, 2) if total_32 > 0 else None,
                 "target": TARGETS[mode],
                 "target_met": bool(total > 0 and 1 / total >= TARGETS[mode]),
                 "weight_choice_cpu_s": round(statistics.median(r["index_choosing"] for r in runs["large"])

@@ -37,7 +37,10 @@ environment, as Ray workers and launched processes get them), wall seconds (the 
 timing) and their ratio.
 ``weight_layout``: the serial embedding's CPU seconds with the convolution weights channels-last, as
 :func:`encoders.inference.load_model` lays them out, and in torch's default layout (alternated, best of
-two each), and their ratio. ``thread_spin``: the serial embedding in a fresh process with libgomp's
+two each), and their ratio. ``embed_batch``: the serial embedding's CPU seconds in batches of 32 clips and of
+:data:`encoders.config.EMBED_BATCH_CLIPS` (alternated, best of two each) and their ratio;
+``cost.log_to_index_batch_32`` is ``log_to_index`` with the embedding's CPU seconds raised by
+their difference, the baseline of the same run. ``thread_spin``: the serial embedding in a fresh process with libgomp's
 default spin of idle threads and with the shorter one the commands set (:mod:`scenesearch_base.threads`),
 wall and CPU seconds (alternated, best of two each) and their ratios (> 1: cheaper with the short spin).
 ``load_average`` says how busy the machine was; other work on it slows the parallel runs most.
@@ -226,6 +229,24 @@ def _weight_layout(run_dir: Path, clips: Path) -> dict[str, float]:
     return out
 
 
+def _batch_size(run_dir: Path, clips: Path) -> dict[str, float]:
+    """CPU seconds of embedding ``clips`` serially in batches of 32 clips (the default until
+    :data:`encoders.config.EMBED_BATCH_CLIPS`) and of that many, alternated, best of two each (the
+    model loaded before timing)."""
+    from encoders.config import EMBED_BATCH_CLIPS
+    from retrieval.embedding import ModelEmbedder
+
+    best = {"batch_32_cpu_s": float("inf"), f"batch_{EMBED_BATCH_CLIPS}_cpu_s": float("inf")}
+    for _ in range(2):
+        for name, size in zip(best, (32, EMBED_BATCH_CLIPS), strict=True):
+            embedder = ModelEmbedder(run_dir, batch_size=size)
+            _ = embedder.model  # loaded here, not inside the timing
+            best[name] = min(best[name], _timed(partial(embedder.embed_clips, clips, view="fused"))[1])
+    out = {name: round(value, 2) for name, value in best.items()}
+    out["speedup"] = _ratio(*best.values())
+    return out
+
+
 def _noop(item: int) -> int:
     return item
 
@@ -260,6 +281,7 @@ def run(quick: bool) -> dict[str, Any]:
     serial["embed"] = _timed(lambda: ModelEmbedder(run_dir).embed_clips(scratch / "clips_serial", view="fused"))
     memory = _embed_with_malloc(run_dir, scratch / "clips_serial")
     weight_layout = _weight_layout(run_dir, scratch / "clips_serial")
+    batch_size = _batch_size(run_dir, scratch / "clips_serial")
     thread_spin = _thread_spin(run_dir, scratch / "clips_serial")
     ray_start_s = 0.0
     noop = 0.0
@@ -332,10 +354,14 @@ def run(quick: bool) -> dict[str, Any]:
     cost["clips_stored_previews"] = log_s / max(stored_previews[1], 1e-9)
     cost["log_to_index_stored_previews"] = log_s / max(
         serial["caption"][1] + stored_previews[1] + serial["embed"][1], 1e-9)
+    # The baseline of the same run: the serial embedding as it cost in batches of 32 clips.
+    batch_32_extra = batch_size["batch_32_cpu_s"] - next(v for k, v in batch_size.items() if k != "batch_32_cpu_s")
+    cost["log_to_index_batch_32"] = log_s / max(sum(serial[s][1] for s in stages) + batch_32_extra, 1e-9)
     if "cpu_s" in sim:
         cost["simulate"] = sim["log_s"] / max(sim["cpu_s"], 1e-9)
     figures["memory"] = memory
     figures["weight_layout"] = weight_layout
+    figures["embed_batch"] = batch_size
     figures["thread_spin"] = thread_spin
     figures["cost"] = {
         "log_s_per_cpu_s": {s: round(v, 2) for s, v in cost.items()},

@@ -29,7 +29,7 @@ import torch.nn.functional as F
 from torch.utils.data import DataLoader, Dataset
 
 from encoders.clips.layout import MANIFEST_FILE, read_manifest
-from encoders.config import ConfigError, check_device_name
+from encoders.config import EMBED_BATCH_CLIPS, ConfigError, check_device_name
 from encoders.data import AugmentConfig, ClipDataset, collate_clips
 from encoders.dense import frame_tag_report
 from encoders.metrics import caption_queries, text_to_clip_metrics
@@ -196,7 +196,7 @@ def embed_dataset(
     dataset: Dataset[dict[str, Any]],
     view: str = "fused",
     shuffle_frames: bool = False,
-    batch_size: int = 32,
+    batch_size: int = EMBED_BATCH_CLIPS,
     seed: int = 0,
 ) -> tuple[list[str], np.ndarray, list[str]]:
     """→ clip ids, (N, D) float32 normalised clip embeddings, canonical captions."""
@@ -220,7 +220,7 @@ def embed_dataset(
 
 @torch.no_grad()
 def embed_dataset_views(
-    model: DualEncoder, dataset: Dataset[dict[str, Any]], batch_size: int = 32, num_workers: int = 0
+    model: DualEncoder, dataset: Dataset[dict[str, Any]], batch_size: int = EMBED_BATCH_CLIPS, num_workers: int = 0
 ) -> tuple[list[str], dict[str, np.ndarray]]:
     """→ clip ids and, per view (camera, bev, fused), (N, D) float32 normalised embeddings, in one pass
     (the clips loaded in ``num_workers`` processes, 0: this one)."""
@@ -253,7 +253,7 @@ def embed_clips(
     split: str | None = None,
     view: str = "fused",
     shuffle_frames: bool = False,
-    batch_size: int = 32,
+    batch_size: int = EMBED_BATCH_CLIPS,
 ) -> tuple[list[str], np.ndarray]:
     """Embed the clips of ``split`` (all when None) of a clips folder (or a dataset): → (ids, (N, D) float32)."""
     dataset = open_split(clips_dir, split) if isinstance(clips_dir, str | Path) else clips_dir
@@ -266,7 +266,7 @@ def evaluate(
     dataset: Dataset[dict[str, Any]],
     view: str = "fused",
     shuffle_frames: bool = False,
-    batch_size: int = 32,
+    batch_size: int = EMBED_BATCH_CLIPS,
     min_steps: int = 1,
 ) -> dict[str, float]:
     """Text → clip retrieval on ``dataset``: queries are the unique canonical captions, relevant clips share it.
@@ -289,7 +289,8 @@ def evaluate(
 
 
 @torch.no_grad()
-def frame_tag_figures(model: DualEncoder, dataset: Dataset[dict[str, Any]], batch_size: int = 32) -> dict[str, Any]:
+def frame_tag_figures(model: DualEncoder, dataset: Dataset[dict[str, Any]],
+                      batch_size: int = EMBED_BATCH_CLIPS) -> dict[str, Any]:
     """How well the dense heads read each frame's rule tags on ``dataset``: the figures of
     :func:`encoders.dense.frame_tag_report`. Empty without dense heads."""
     if not model.dense:

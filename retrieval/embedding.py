@@ -18,7 +18,7 @@ from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
-from encoders.config import check_device_name
+from encoders.config import EMBED_BATCH_CLIPS, check_device_name
 from retrieval.errors import ModelMismatchError
 from scenesearch_base.checksums import sha256_file
 from scenesearch_base.lru import Lru
@@ -106,7 +106,8 @@ class ModelEmbedder:
     """The dual encoder of ``run_dir``, loaded on first use on ``device``; clips load in ``num_workers`` processes."""
 
     def __init__(self, run_dir: Path | str, expected_model_id: str | None = None,
-                 batch_size: int = 32, cache_size: int = 1024, device: str = "cpu", num_workers: int = 0) -> None:
+                 batch_size: int = EMBED_BATCH_CLIPS, cache_size: int = 1024, device: str = "cpu",
+                 num_workers: int = 0) -> None:
         check_device_name(device)  # auto (CUDA when available), cpu or cuda[:i]
         if batch_size < 1 or num_workers < 0:
             raise ValueError(f"batch_size must be at least 1 and num_workers ≥ 0, got {batch_size}, {num_workers}")
@@ -267,7 +268,7 @@ class RayDataEmbedder(ModelEmbedder):
     """
 
     def __init__(self, run_dir: Path | str, execution: Execution, shards_dir: Path | str,
-                 batch_size: int = 32) -> None:
+                 batch_size: int = EMBED_BATCH_CLIPS) -> None:
         super().__init__(run_dir, batch_size=batch_size)
         self.execution = execution
         self.shards_dir = shards_dir
@@ -357,8 +358,8 @@ def _quiet_ray_data(ray: Any, execution: Execution) -> None:
 class ClipEmbedActor:
     """One model on one device, embedding blocks of clip-table rows into Parquet shards (a Ray Data actor)."""
 
-    def __init__(self, run_dir: str, clips_dir: str, shards_dir: str, batch_size: int = 32, device: str = "cpu",
-                 threads: int = 1) -> None:
+    def __init__(self, run_dir: str, clips_dir: str, shards_dir: str, batch_size: int = EMBED_BATCH_CLIPS,
+                 device: str = "cpu", threads: int = 1) -> None:
         import torch
 
         from encoders.data import ClipDataset

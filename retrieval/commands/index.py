@@ -15,6 +15,7 @@ import tempfile
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from encoders.config import EMBED_BATCH_CLIPS
 from scenesearch_base.config import check_flag_bound
 from scenesearch_base.ray_cluster import Execution
 from scenesearch_base.ray_cluster import add_arguments as add_execution_arguments
@@ -47,7 +48,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--device", default="auto",
                         help="where the model embeds the clips: auto (CUDA when available, the default), cpu or "
                              "cuda[:i]; with --workers/--ray-address each actor takes a GPU when the cluster has them")
-    parser.add_argument("--batch-size", type=int, default=32, metavar="N", help="clips embedded at a time (default 32)")
+    parser.add_argument("--batch-size", type=int, default=EMBED_BATCH_CLIPS, metavar="N",
+                        help=f"clips embedded at a time (default {EMBED_BATCH_CLIPS})")
     parser.add_argument("--num-workers", type=int, default=0, metavar="N",
                         help="processes that load the clips beside the model's (default 0: the model's own); on a "
                              "GPU, loading is what limits the embedding")

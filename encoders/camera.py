@@ -93,6 +93,13 @@ def masked_mean(features: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
     return (features * mask).sum(dim=(2, 3)) / weight  # (N, C)
 
 
+def _pool(cnn: nn.Module, x: torch.Tensor) -> torch.Tensor:
+    """x: (N, C, H, W) frames, object mask last → (N, 2F): the CNN's features under the mask and overall."""
+    f = cnn(x)  # (N, F, h, w)
+    small = F.adaptive_avg_pool2d(x[:, -1:], (f.shape[-2], f.shape[-1]))  # (N, 1, h, w)
+    return torch.cat([masked_mean(f, small), f.mean(dim=(2, 3))], dim=-1)
+
+
 class CameraTower(nn.Module):
     """(B, T, C, H, W) camera clip with object-mask channel last → (B, D)."""
 
@@ -136,14 +143,24 @@ class CameraTower(nn.Module):
             parts += [self._pooled(self.crop_cnn, crop), with_motion(box)]  # (B, T, 2F), (B, T, 8)
         return torch.cat(parts, dim=-1)  # (B, T, 2F + 8 (+ 2) + E (+ 2F + 8))
 
-    @staticmethod
-    def _pooled(cnn: nn.Module, frames: torch.Tensor) -> torch.Tensor:
-        """frames: (B, T, C, H, W), object mask last → (B, T, 2F): the CNN's features under the mask and overall."""
+    def _pooled(self, cnn: nn.Module, frames: torch.Tensor) -> torch.Tensor:
+        """frames: (B, T, C, H, W), object mask last → (B, T, 2F): the CNN's features under the mask and overall.
+
+        In eval mode the clips whose frames are all zero (those the camera never saw) share one zero
+        frame's features: batch norm then reads no batch statistics, so each frame's features depend on
+        that frame alone, and most clips of a log without camera would run the CNN on blank frames.
+        """
         b, t = frames.shape[:2]
-        x = _frames(frames)  # (B*T, C, H, W)
-        f = cnn(x)  # (B*T, F, h, w)
-        small = F.adaptive_avg_pool2d(x[:, -1:], (f.shape[-2], f.shape[-1]))  # (B*T, 1, h, w)
-        return torch.cat([masked_mean(f, small), f.mean(dim=(2, 3))], dim=-1).reshape(b, t, -1)
+        if not self.training:
+            blank = ~frames.flatten(1).any(dim=1)  # (B,)
+            if bool(blank.any()):
+                seen = (~blank).nonzero().flatten()  # (S,)
+                x = torch.cat([_frames(frames.index_select(0, seen)), frames[blank.nonzero()[0, 0], :1]])
+                pooled = _pool(cnn, x)  # (S*T + 1, 2F): the seen clips' frames, then the zero frame
+                out = pooled[-1].expand(b, t, -1).clone()  # (B, T, 2F)
+                out[seen] = pooled[:-1].reshape(seen.numel(), t, pooled.shape[-1])
+                return out
+        return _pool(cnn, _frames(frames)).reshape(b, t, -1)
 
     def forward(self, camera: torch.Tensor, frames: dict[str, torch.Tensor] | None = None,
                 ego_motion: torch.Tensor | None = None, crop: torch.Tensor | None = None,

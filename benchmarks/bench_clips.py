@@ -26,6 +26,10 @@ without per-log arrays would (``naive_clips_per_s``). Figures:
 - ``block_codec``: every rendered array of the clips folder compressed in blocks by
   :func:`encoders.clips.blocks.write_blocks`'s codec (zstd) and by zlib at level 1, as the blocks were
   before, and decompressed again: CPU milliseconds a frame each way, the bytes, and their ratios
+- ``image_filter``: the RGB image files (camera frames, object crops) written again with and without
+  the Sub filter (``write_blocks(..., image=True)``) and read back: bytes, CPU milliseconds a frame
+  each way; ``kb_per_frame_images_unfiltered`` is ``kb_per_frame`` as it would be without the
+  filter, the baseline of the same run
 """
 
 from __future__ import annotations
@@ -270,6 +274,37 @@ def _block_codec(clips_dir: Path) -> dict[str, Any]:
             "size_ratio": round(new["mb"] / max(old["mb"], 1e-9), 3)}
 
 
+def _image_filter(clips_dir: Path) -> dict[str, Any]:
+    """The RGB image files (camera frames, object crops) written again without the Sub filter and with
+    it, as the clips stage writes them (:mod:`encoders.clips.blocks`): bytes, CPU milliseconds a
+    frame to write and to read each, and the bytes a frame the whole folder would take without it."""
+    import tempfile
+
+    from encoders.clips.blocks import BlockArray, write_blocks
+
+    arrays = [np.asarray(BlockArray(p)[:]) for name in ("camera", "camera_crops")
+              for p in sorted(clips_dir.glob(f"logs/*/{name}.blocks"))]
+    frames = sum(BlockArray(p).shape[0] for p in clips_dir.glob("logs/*/bev_lidar.blocks"))
+    out: dict[str, Any] = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for name, image in (("plain", False), ("sub", True)):
+            paths = [Path(tmp) / f"{name}_{i}.blocks" for i in range(len(arrays))]
+            start = time.process_time()
+            for path, array in zip(paths, arrays, strict=True):
+                write_blocks(path, array, image=image)
+            write_s = time.process_time() - start
+            start = time.process_time()
+            for path in paths:  # new files: none of their blocks is decoded already
+                BlockArray(path)[:]
+            read_s = time.process_time() - start
+            out[name] = {"mb": round(sum(p.stat().st_size for p in paths) / 1e6, 2),
+                         "write_ms_per_frame": round(1e3 * write_s / max(frames, 1), 3),
+                         "read_ms_per_frame": round(1e3 * read_s / max(frames, 1), 3)}
+    out["size_ratio"] = round(out["sub"]["mb"] / max(out["plain"]["mb"], 1e-9), 3)
+    out["extra_kb_per_frame_without"] = round(1e3 * (out["plain"]["mb"] - out["sub"]["mb"]) / max(frames, 1), 1)
+    return out
+
+
 def _track_kinematics(clips_dir: Path) -> dict[str, Any]:
     """:func:`encoders.clips.views.log_rates_and_velocity` against the same kinematics track by track."""
     from encoders.clips.views import log_rates_and_velocity, object_rates_and_velocity, open_log_arrays
@@ -329,6 +364,7 @@ def run(quick: bool) -> dict[str, Any]:
     naive = _naive_clips_per_s(logs, clips_dir, config, 4 if quick else 8)
     lidar_counting = _lidar_counting(logs, config, 40 if quick else 200)
     block_codec = _block_codec(clips_dir)
+    image_filter = _image_filter(clips_dir)
     track_kinematics = _track_kinematics(clips_dir)
     import torch
 
@@ -374,10 +410,14 @@ def run(quick: bool) -> dict[str, Any]:
         "load_average_during_loading": [round(load_before, 2), round(load_after, 2)],
         "mb_per_log": round(log_bytes / max(len(report.logs), 1) / 1e6, 2),
         "kb_per_frame": round(log_bytes / max(frames, 1) / 1e3, 1),
+        # The same run's baseline: the RGB images stored without the Sub filter.
+        "kb_per_frame_images_unfiltered": round(log_bytes / max(frames, 1) / 1e3
+                                                + image_filter["extra_kb_per_frame_without"], 1),
         "kb_per_clip": round(log_bytes / max(num_clips, 1) / 1e3, 1),
         "kb_per_preview": round(preview_bytes / max(len(rows), 1) / 1e3, 1),
         "lidar_counting": lidar_counting,
         "block_codec": block_codec,
+        "image_filter": image_filter,
         "track_kinematics": track_kinematics,
         "cpus": usable_cpus(),
     }

@@ -11,7 +11,8 @@ the names from here::
     CLIPS_DIR/logs/<log_id>/          each log's rendered arrays (:func:`rendered_log_dir`), below
 
 For a log with F frames (its annotation timestamps) :func:`encoders.clips.render.render_log` writes these
-arrays, each in zstd blocks of frames (:mod:`encoders.clips.blocks`, read by :func:`load_rendered_array`):
+arrays, each in zstd blocks of frames (:mod:`encoders.clips.blocks`, read by :func:`load_rendered_array`;
+the RGB images, ``camera`` and ``camera_crops``, as differences from the pixel to their left):
 
 ===========================  =====================  =========================================================
 file                         shape, dtype           content
@@ -67,8 +68,12 @@ from scenes.categories import CATEGORY_NAMES
 from scenesearch_base.folders import FolderKind
 
 CLIPS_FILE = "clips.parquet"
-#: Format of a clips folder, in its manifest: 2 keeps every rendered per-frame array in ``.blocks`` files.
-CLIPS_FORMAT_VERSION = 2
+#: Format of a clips folder, in its manifest: 2 keeps every rendered per-frame array in ``.blocks`` files,
+#: 3 stores the RGB images among them with the Sub filter (:mod:`encoders.clips.blocks`), which readers
+#: of format 2 would take for pixels.
+CLIPS_FORMAT_VERSION = 3
+#: Formats this release reads: a format-2 folder's block files carry no filter.
+READABLE_CLIPS_FORMATS = (2, 3)
 MANIFEST_FILE = "manifest.json"
 PREVIEWS_DIR = "previews"
 #: Folder of rendered logs inside CLIPS_DIR.
@@ -160,9 +165,10 @@ def read_manifest(clips_dir: Path | str) -> dict[str, Any]:
     except json.JSONDecodeError as exc:
         raise ValueError(f"{path}: unreadable clips manifest ({exc})") from None
     found = data.get("format_version") if isinstance(data, dict) else None
-    if found is not None and found != CLIPS_FORMAT_VERSION:
+    if found is not None and found not in READABLE_CLIPS_FORMATS:
         raise ValueError(f"{path}: format_version {found}, and this release reads clips folders of format "
-                         f"{CLIPS_FORMAT_VERSION}: run `scenesearch clips` again to build the folder anew")
+                         f"{' or '.join(map(str, READABLE_CLIPS_FORMATS))}: run `scenesearch clips` again to "
+                         "build the folder anew")
     return data
 
 

@@ -51,8 +51,8 @@ def bev_grid(config: ClipsConfig) -> BevGrid:
     return BevGrid(b.x_min_m, b.x_max_m, b.y_min_m, b.y_max_m, b.resolution_m)
 
 
-def _save_blocks(folder: Path, name: str, array: NDArray[np.generic]) -> None:
-    write_blocks(folder / name, array)  # compressed by frames: a clips folder is mostly zeros and static map
+def _save_blocks(folder: Path, name: str, array: NDArray[np.generic], image: bool = False) -> None:
+    write_blocks(folder / name, array, image=image)  # by frames: a clips folder is mostly zeros and static map
 
 
 def nearest_within(
@@ -159,10 +159,10 @@ def render_log(log: Log, config: ClipsConfig, clips_dir: Path, dense: DenseTrack
 
     target = layout.rendered_log_dir(clips_dir, log.log_id)
     with atomic_directory(target, overwrite=True) as tmp:
-        _save_blocks(tmp, layout.CAMERA_FILE, camera.rgb)
+        _save_blocks(tmp, layout.CAMERA_FILE, camera.rgb, image=True)
         _save_blocks(tmp, layout.CAMERA_INSTANCES_FILE, camera.masks)
         _save_blocks(tmp, layout.CAMERA_PIXEL_COUNTS_FILE, camera.pixels)
-        _save_blocks(tmp, layout.CAMERA_CROPS_FILE, crop_rgb)
+        _save_blocks(tmp, layout.CAMERA_CROPS_FILE, crop_rgb, image=True)
         _save_blocks(tmp, layout.CAMERA_CROP_MASKS_FILE, crop_masks)
         _save_blocks(tmp, layout.CAMERA_CROP_INDEX_FILE, crop_index)
         _save_blocks(tmp, layout.CAMERA_CROP_BOX_FILE, crop_box)

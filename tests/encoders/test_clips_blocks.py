@@ -34,6 +34,35 @@ def test_sparse_rasters_shrink(tmp_path: Path) -> None:
     assert (tmp_path / "x.blocks").stat().st_size < x.nbytes / 50
 
 
+def _photo(frames: int, seed: int = 0) -> np.ndarray:
+    """(F, 32, 64, 3) uint8 images whose neighbouring pixels are alike, as in a photograph."""
+    rng = np.random.default_rng(seed)
+    steps = rng.integers(-3, 4, (frames, 32, 64, 3))
+    return np.clip(128 + np.cumsum(steps, axis=2) + rng.integers(0, 60, (frames, 32, 1, 3)), 0, 255).astype(np.uint8)
+
+
+def test_images_stored_as_differences_read_back_byte_for_byte_and_take_fewer_bytes(tmp_path: Path) -> None:
+    x = _photo(21)
+    x[3, :, 10:] = 255  # wrapping differences (0 - 255) too
+    write_blocks(tmp_path / "plain.blocks", x)
+    write_blocks(tmp_path / "image.blocks", x, image=True)
+    image = BlockArray(tmp_path / "image.blocks")
+    assert np.array_equal(image[:], x) and np.array_equal(image[np.array([20, 3, 9])], x[[20, 3, 9]])
+    assert b'"filter": "sub"' in (tmp_path / "image.blocks").read_bytes()[:4096]
+    assert (tmp_path / "image.blocks").stat().st_size < 0.8 * (tmp_path / "plain.blocks").stat().st_size
+    assert np.array_equal(BlockArray(tmp_path / "plain.blocks")[:], x)  # files without the filter read as before
+    with pytest.raises(ValueError, match=r"bad.blocks: images are \(F, H, W, 3\) uint8"):
+        write_blocks(tmp_path / "bad.blocks", x.astype(np.float32), image=True)
+
+
+def test_an_unknown_filter_is_refused_naming_the_file(tmp_path: Path) -> None:
+    write_blocks(tmp_path / "x.blocks", _photo(4), image=True)
+    data = (tmp_path / "x.blocks").read_bytes().replace(b'"filter": "sub"', b'"filter": "up!"')
+    (tmp_path / "x.blocks").write_bytes(data)
+    with pytest.raises(BlockFileError, match=r"x.blocks: blocks stored with filter 'up!'"):
+        BlockArray(tmp_path / "x.blocks")
+
+
 def test_damaged_and_truncated_files_are_named(stored: tuple[np.ndarray, BlockArray], tmp_path: Path) -> None:
     path = tmp_path / "x.blocks"
     data = bytearray(path.read_bytes())

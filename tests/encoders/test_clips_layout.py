@@ -50,6 +50,8 @@ def test_readers_name_the_file_and_field(tmp_path: Path) -> None:
     (tmp_path / MANIFEST_FILE).write_text(json.dumps({"bev": bev, "format_version": 1}))  # plain .npy arrays
     with pytest.raises(ValueError, match=f"{MANIFEST_FILE}: format_version 1.*run `scenesearch clips` again"):
         read_manifest(tmp_path)
+    (tmp_path / MANIFEST_FILE).write_text(json.dumps({"bev": bev, "format_version": 2}))  # images not filtered
+    assert read_manifest(tmp_path)["format_version"] == 2
 
     ids = [clip_id("log", "car", 1), clip_id("log", "bus", 2)]
     pq.write_table(pa.table({"clip_id": ids, "caption": ["a car", "a bus"]}), tmp_path / CLIPS_FILE)

@@ -123,12 +123,13 @@ class CameraTower(nn.Module):
 
     def frame_features(self, camera: torch.Tensor, ego_motion: torch.Tensor | None = None,
                        crop: torch.Tensor | None = None, box: torch.Tensor | None = None) -> torch.Tensor:
-        """camera: (B, T, C, H, W); ego_motion: (B, T, 6), read when ``config.ego_features`` > 0; crop:
-        (B, T, C, H, W) and box: (B, T, 4), read with ``config.object_crop``
+        """camera: (B, T, C, H, W), in [0, 1] or as bytes (:func:`unit_pixels`, converted where read);
+        ego_motion: (B, T, 6), read when ``config.ego_features`` > 0; crop: (B, T, C, H, W) as the camera
+        and box: (B, T, 4), read with ``config.object_crop``
         → (B, T, 2 * widths[-1] + 8 (+ 2) + E (+ 2 * widths[-1] + 8)) per-frame vectors (+ 2 with
         ``config.mask_scale``)."""
         b, t = camera.shape[:2]
-        mask = _frames(camera)[:, -1:]  # (B*T, 1, H, W)
+        mask = unit_pixels(_frames(camera)[:, -1:])  # (B*T, 1, H, W)
         parts = [self._pooled(self.cnn, camera), with_motion(mask_geometry(mask).reshape(b, t, -1))]  # 2F, 8
         if self.config.mask_scale:
             parts.append(with_motion(mask_scale(mask).reshape(b, t, 1)))  # (B, T, 2)
@@ -149,18 +150,19 @@ class CameraTower(nn.Module):
         In eval mode the clips whose frames are all zero (those the camera never saw) share one zero
         frame's features: batch norm then reads no batch statistics, so each frame's features depend on
         that frame alone, and most clips of a log without camera would run the CNN on blank frames.
+        Frames given as bytes are converted after that choice, only those the CNN reads.
         """
         b, t = frames.shape[:2]
         if not self.training:
-            blank = ~frames.flatten(1).any(dim=1)  # (B,)
+            blank = ~frames.flatten(1).any(dim=1).bool()  # (B,); any() of bytes gives bytes
             if bool(blank.any()):
                 seen = (~blank).nonzero().flatten()  # (S,)
-                x = torch.cat([_frames(frames.index_select(0, seen)), frames[blank.nonzero()[0, 0], :1]])
+                x = unit_pixels(torch.cat([_frames(frames.index_select(0, seen)), frames[blank.nonzero()[0, 0], :1]]))
                 pooled = _pool(cnn, x)  # (S*T + 1, 2F): the seen clips' frames, then the zero frame
                 out = pooled[-1].expand(b, t, -1).clone()  # (B, T, 2F)
                 out[seen] = pooled[:-1].reshape(seen.numel(), t, pooled.shape[-1])
                 return out
-        return _pool(cnn, _frames(frames)).reshape(b, t, -1)
+        return _pool(cnn, unit_pixels(_frames(frames))).reshape(b, t, -1)
 
     def forward(self, camera: torch.Tensor, frames: dict[str, torch.Tensor] | None = None,
                 ego_motion: torch.Tensor | None = None, crop: torch.Tensor | None = None,

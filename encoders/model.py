@@ -72,7 +72,8 @@ class DualEncoder(nn.Module):
         if view not in VIEWS:
             raise ValueError(f"view must be one of {VIEWS}, got {view!r}")
         if view == "camera":
-            x = self.camera(self._get(batch, "camera"), ego_motion=self._camera_ego(batch), **self._camera_crop(batch))
+            x = self.camera(self._get(batch, "camera", as_bytes=True), ego_motion=self._camera_ego(batch),
+                            **self._camera_crop(batch))
         elif view == "bev":
             x = self._bev(batch)
         else:
@@ -110,7 +111,7 @@ class DualEncoder(nn.Module):
         bev = self._bev(batch, frames)  # (B, D)
         camera = torch.zeros_like(bev)
         if camera_always or bool(has_camera.any()) or bool(batch.get("run_camera", False)):
-            camera = self.camera(self._get(batch, "camera"), frames, self._camera_ego(batch),
+            camera = self.camera(self._get(batch, "camera", as_bytes=True), frames, self._camera_ego(batch),
                                  **self._camera_crop(batch))  # (B, D)
         return camera, bev, has_camera
 
@@ -167,7 +168,7 @@ class DualEncoder(nn.Module):
             raise ValueError("this model reads object crops (model.camera.object_crop) and the clips have none: "
                              "render them again with `scenesearch clips` (clips folders from before crops lack "
                              "camera_crops.npy)")
-        return {"crop": self._get(batch, "camera_crop"), "box": self._get(batch, "camera_box")}
+        return {"crop": self._get(batch, "camera_crop", as_bytes=True), "box": self._get(batch, "camera_box")}
 
     def _camera_ego(self, batch: dict[str, Any]) -> torch.Tensor | None:
         return self._get(batch, "ego_motion") if self.config.camera.ego_features else None

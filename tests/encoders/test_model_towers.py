@@ -227,24 +227,27 @@ def test_encode_views_can_skip_the_camera_tower_when_no_clip_has_camera() -> Non
 
 
 @pytest.mark.parametrize("object_crop", [False, True])
-def test_clips_with_blank_camera_frames_share_one_frame_of_the_cnn_in_eval_mode(batch: dict[str, Any],
-                                                                             object_crop: bool) -> None:
-    from encoders.camera import _frames, _pool
+@pytest.mark.parametrize("as_bytes", [False, True])
+def test_clips_with_blank_camera_frames_share_one_frame_of_the_cnn_in_eval_mode(
+        batch: dict[str, Any], object_crop: bool, as_bytes: bool) -> None:
+    from encoders.camera import _frames, _pool, unit_pixels
 
     config = tiny_model_config()
     torch.manual_seed(0)
     model = DualEncoder(replace(config, camera=replace(config.camera, object_crop=object_crop))).eval()
     blanked = _with_crops(batch) if object_crop else dict(batch)
     for key in ("camera", "camera_crop", "camera_box"):
-        if key in blanked:  # clips 1 and 3 as a clip the camera never saw: every frame zero
+        if key in blanked:  # clips 1 and 3 as a clip the camera never saw: every frame zero; clip 0 is seen
             blanked[key] = blanked[key].clone()
             blanked[key][[1, 3]] = 0.0
+            if as_bytes and key != "camera_box":  # as ClipDataset(as_uint8=True) gives them
+                blanked[key] = (blanked[key] * 255).round().to(torch.uint8)
     b, t = blanked["camera"].shape[:2]
     frames_run: list[int] = []
     model.camera.cnn.register_forward_hook(lambda _m, args, _out: frames_run.append(int(args[0].shape[0])))
     with torch.no_grad():
         shared = model.camera._pooled(model.camera.cnn, blanked["camera"])
-        alone = _pool(model.camera.cnn, _frames(blanked["camera"])).reshape(b, t, -1)  # every frame run
+        alone = _pool(model.camera.cnn, unit_pixels(_frames(blanked["camera"]))).reshape(b, t, -1)  # every frame
         torch.testing.assert_close(shared, alone, rtol=1e-5, atol=1e-5)
         assert frames_run == [2 * t + 1, b * t]  # the seen clips' frames and one zero frame
         views = model.encode_views(blanked)

@@ -174,9 +174,14 @@ class BlockArray:
 
     def _frames(self, frames: NDArray[np.int64]) -> NDArray[Any]:
         out = np.empty((frames.shape[0], *self.shape[1:]), self.dtype)
-        for b in np.unique(frames // self.block_frames):
-            here = frames // self.block_frames == b
-            out[here] = self._block(int(b))[frames[here] - b * self.block_frames]
+        # Runs of consecutive frames in one block, each copied by one slice: a clip's frames are in order,
+        # so it reads one run per block it touches (a mask per block cost half again as much).
+        block_of = frames // self.block_frames
+        cuts = (np.flatnonzero(block_of[1:] != block_of[:-1]) + 1).tolist()
+        for start, stop in zip([0, *cuts], [*cuts, frames.shape[0]], strict=True):
+            if start < stop:
+                b = int(block_of[start])
+                out[start:stop] = self._block(b)[frames[start:stop] - b * self.block_frames]
         return out
 
     def __getitem__(self, key: Any) -> Any:

@@ -71,6 +71,14 @@ class ScenarioMatch:
         """Whether the program decided and selects this result (not one of the next best that fill the list)."""
         return self.fallback is None and clip_id not in self.filled
 
+    def result_fields(self, clip_id: str) -> dict[str, Any]:
+        """What a result's record says of the program where it decided (none where it did not): whether
+        it selects the moment, the tracks it refers to there and those they relate to."""
+        if self.fallback is not None:
+            return {}
+        return {"program_selects": self.selects(clip_id), "referred_tracks": list(self.referred.get(clip_id, ())),
+                "related_tracks": list(self.related.get(clip_id, ()))}
+
     def preview_marks(self, clip_id: str, track_id: str) -> tuple[tuple[str, ...], tuple[str, ...]]:
         """The tracks a preview of the moment marks: those the program refers to besides the moment's own
         track, and those they relate to (the ego, always drawn, in neither)."""

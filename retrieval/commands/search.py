@@ -143,10 +143,8 @@ def wrap(text: str, width: int, indent: str = "    ") -> str:
 
 def _with_objects(result: dict[str, object], match: ScenarioMatch | None) -> dict[str, object]:
     """A result's record with the tracks the program refers to and relates to in its window."""
-    if match is not None and match.fallback is None:
-        result["program_selects"] = match.selects(str(result["clip_id"]))
-        result["referred_tracks"] = list(match.referred.get(str(result["clip_id"]), ()))
-        result["related_tracks"] = list(match.related.get(str(result["clip_id"]), ()))
+    if match is not None:
+        result.update(match.result_fields(str(result["clip_id"])))
     return result
 
 

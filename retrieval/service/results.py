@@ -110,9 +110,7 @@ class ResultContext:
         out["time_in_log"] = time_in_log(result, span).to_dict() if span is not None else None
         out.update(explain_result(query, result))
         if match is not None and match.fallback is None:  # the objects the program refers to and relates to
-            out["program_selects"] = match.selects(result.clip_id)
-            out["referred_tracks"] = list(match.referred.get(result.clip_id, ()))
-            out["related_tracks"] = list(match.related.get(result.clip_id, ()))
+            out.update(match.result_fields(result.clip_id))
             others, related = match.preview_marks(result.clip_id, result.track_id)
             if out["preview_url"] and (others or related):
                 out["preview_url"] += preview_query(others, related)

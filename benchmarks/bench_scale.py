@@ -63,6 +63,8 @@ from typing import Any
 import numpy as np
 import torch
 
+from encoders.config import EMBED_BATCH_CLIPS
+
 WORK = Path(__file__).resolve().parent / "_work" / "scale"
 HOURS = 10_000
 #: Serial / Ray pairs of the overhead measurement.
@@ -211,40 +213,47 @@ def _thread_spin(run_dir: Path, clips: Path) -> dict[str, float]:
     return out
 
 
+#: The ``embed_batch`` figure of the default batch.
+BATCH_NOW = f"batch_{EMBED_BATCH_CLIPS}_cpu_s"
+
+
+def _alternated_cpu(clips: Path, setups: dict[str, Callable[[], Any]]) -> dict[str, float]:
+    """CPU seconds of embedding ``clips`` serially with each setup's embedder (its model loaded before
+    timing), the setups alternated, best of two each, rounded, and the first's over the second's."""
+    best = dict.fromkeys(setups, float("inf"))
+    for _ in range(2):
+        for name, setup in setups.items():
+            embedder = setup()
+            best[name] = min(best[name], _timed(partial(embedder.embed_clips, clips, view="fused"))[1])
+    first, second = best.values()
+    return {name: round(value, 2) for name, value in best.items()} | {"speedup": _ratio(first, second)}
+
+
+def _loaded(run_dir: Path, batch_size: int | None = None, default_layout: bool = False) -> Any:
+    """A :class:`ModelEmbedder` of ``run_dir`` with its model loaded (``default_layout``: the convolution
+    weights in torch's default layout instead of channels-last)."""
+    from retrieval.embedding import ModelEmbedder
+
+    embedder = ModelEmbedder(run_dir) if batch_size is None else ModelEmbedder(run_dir, batch_size=batch_size)
+    model = embedder.model  # loaded here, not inside the timing
+    if default_layout:
+        model.to(memory_format=torch.contiguous_format)
+    return embedder
+
+
 def _weight_layout(run_dir: Path, clips: Path) -> dict[str, float]:
     """CPU seconds of embedding ``clips`` serially with channels-last convolution weights (as loaded)
     and with torch's default layout, alternated, best of two each (the model loaded before timing)."""
-    from retrieval.embedding import ModelEmbedder
-
-    best = {"channels_last_cpu_s": float("inf"), "default_layout_cpu_s": float("inf")}
-    for _ in range(2):
-        for name in best:
-            embedder = ModelEmbedder(run_dir)
-            model = embedder.model  # loaded here, not inside the timing
-            if name == "default_layout_cpu_s":
-                model.to(memory_format=torch.contiguous_format)
-            best[name] = min(best[name], _timed(partial(embedder.embed_clips, clips, view="fused"))[1])
-    out = {name: round(value, 2) for name, value in best.items()}
-    out["speedup"] = _ratio(best["default_layout_cpu_s"], best["channels_last_cpu_s"])
-    return out
+    return _alternated_cpu(clips, {"default_layout_cpu_s": lambda: _loaded(run_dir, default_layout=True),
+                                   "channels_last_cpu_s": lambda: _loaded(run_dir)})
 
 
 def _batch_size(run_dir: Path, clips: Path) -> dict[str, float]:
     """CPU seconds of embedding ``clips`` serially in batches of 32 clips (the default until
     :data:`encoders.config.EMBED_BATCH_CLIPS`) and of that many, alternated, best of two each (the
     model loaded before timing)."""
-    from encoders.config import EMBED_BATCH_CLIPS
-    from retrieval.embedding import ModelEmbedder
-
-    best = {"batch_32_cpu_s": float("inf"), f"batch_{EMBED_BATCH_CLIPS}_cpu_s": float("inf")}
-    for _ in range(2):
-        for name, size in zip(best, (32, EMBED_BATCH_CLIPS), strict=True):
-            embedder = ModelEmbedder(run_dir, batch_size=size)
-            _ = embedder.model  # loaded here, not inside the timing
-            best[name] = min(best[name], _timed(partial(embedder.embed_clips, clips, view="fused"))[1])
-    out = {name: round(value, 2) for name, value in best.items()}
-    out["speedup"] = _ratio(*best.values())
-    return out
+    return _alternated_cpu(clips, {"batch_32_cpu_s": lambda: _loaded(run_dir, batch_size=32),
+                                   BATCH_NOW: lambda: _loaded(run_dir, batch_size=EMBED_BATCH_CLIPS)})
 
 
 def _noop(item: int) -> int:
@@ -355,7 +364,7 @@ def run(quick: bool) -> dict[str, Any]:
     cost["log_to_index_stored_previews"] = log_s / max(
         serial["caption"][1] + stored_previews[1] + serial["embed"][1], 1e-9)
     # The baseline of the same run: the serial embedding as it cost in batches of 32 clips.
-    batch_32_extra = batch_size["batch_32_cpu_s"] - next(v for k, v in batch_size.items() if k != "batch_32_cpu_s")
+    batch_32_extra = batch_size["batch_32_cpu_s"] - batch_size[BATCH_NOW]
     cost["log_to_index_batch_32"] = log_s / max(sum(serial[s][1] for s in stages) + batch_32_extra, 1e-9)
     if "cpu_s" in sim:
         cost["simulate"] = sim["log_s"] / max(sim["cpu_s"], 1e-9)

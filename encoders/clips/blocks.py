@@ -17,8 +17,9 @@ values. Files written with zlib blocks (no ``codec`` in the header) still read.
 RGB images (the camera frames, the object crops) are stored with PNG's Sub filter (``filter: sub``
 in the header): each byte is kept as its difference, modulo 256, from the byte one pixel to its left,
 and the reader adds them up again, to the same bytes. Neighbouring pixels of a photograph are alike,
-so the differences are small numbers that zstd packs tighter: the crops take about 30 % fewer bytes,
-for next to no time (docs/research/ingest-profile.md, "Images stored as differences").
+so the differences are small numbers that zstd packs tighter, at next to no cost; on the sparse
+rasters it would cost bytes, so they are stored as they are (docs/research/ingest-profile.md, "Images
+stored as differences").
 
 File layout (little-endian)::
 

@@ -16,7 +16,8 @@ wrong. Every test is written again from its definition, one object and one frame
 - **Map context and lanes relative to the ego**: read with the log
   (:mod:`benchmarks.mining_reference_log`). ``approaching_ego``: moving, and the centre distance to the
   ego shrinks by at least 1 m/s (central difference).
-- **Relations** (:mod:`scenarios.relations`' definitions): geometry in the subject's frame; the gap
+- **Relations** (:mod:`scenarios.relations`' definitions): geometry in the subject's frame
+  (:class:`~benchmarks.mining_reference_log.ReferenceLog`'s); the gap
   is the exact distance between the two rectangles (0 when they overlap). ``direction``: the other's
   centre beyond the subject's box on that side, within ``lateral_m`` of the box's sides and
   ``within_m`` of the box; ``near``; ``following`` (in front within ``within_m`` and ``lateral_m``,
@@ -25,7 +26,8 @@ wrong. Every test is written again from its definition, one object and one frame
   ``forward_m`` past the front and ``lateral_m`` aside; the pair's frames within ``window_s``
   count; a centre within :data:`ON_LINE_M` of the line is on neither side, so an object that walks
   along the line does not cross it at every rounding of its offset).
-- **Composition and time** as :mod:`scenarios.program` states: ``Has`` with counts, negation,
+- **Composition and time** as :mod:`scenarios.program` states (the tests over time in
+  :mod:`benchmarks.mining_reference_time`): ``Has`` with counts, negation,
   ``reverse`` and ``nearest`` (by the exact gap); ``Between`` (either kind on either side, boxes
   within 50 m); and / or / but not; ``Together``; ``ForAtLeast`` (a run lasts from its first
   frame to its last plus one frame interval); ``Then`` (the same object, the second starting after
@@ -38,12 +40,12 @@ wrong. Every test is written again from its definition, one object and one frame
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator
 from dataclasses import dataclass
 
 import numpy as np
 
-from benchmarks.mining_reference_log import FLAGS, Grid, ReferenceLog, box_corners, box_gap, central_rate, wrap
+from benchmarks.mining_reference_log import FLAGS, Grid, ReferenceLog, central_rate, wrap
+from benchmarks.mining_reference_time import FrameClock
 from scenarios import program as p
 from scenarios.answer import LogAnswer
 from scenes.categories import AV2_TO_CATEGORY, EGO_VEHICLE_LABEL
@@ -110,11 +112,10 @@ class _Reference:
     def __init__(self, log: ReferenceLog) -> None:
         self.log = log
         self.k, self.f = log.num_objects, log.num_frames
-        intervals = sorted(b - a for a, b in zip(log.time_s, log.time_s[1:]))
-        self.dt = intervals[len(intervals) // 2] if intervals else 0.0
+        self.clock = FrameClock(list(log.time_s), log.num_objects)
 
     def grid(self, value: bool = False) -> Grid:
-        return [[value] * self.f for _ in range(self.k)]
+        return self.clock.grid(value)
 
     def any_at(self, grid: Grid) -> list[bool]:
         return [any(grid[o][f] for o in range(self.k)) for f in range(self.f)]
@@ -174,11 +175,11 @@ class _Reference:
                 return self.keep(part, [[counts[f] >= min_count for f in range(nf)] for _ in range(k)])
             case p.ForAtLeast(child, seconds):
                 part = self.eval(child)
-                return self.keep(part, self.runs_lasting(part.sel, float(seconds)))
+                return self.keep(part, self.clock.runs_lasting(part.sel, float(seconds)))
             case p.Then():
                 steps, gaps_s = p.chain_steps(node)
                 parts = [self.eval(step) for step in steps]
-                keep = self.chained([part.sel for part in parts], gaps_s)
+                keep = self.clock.chained([part.sel for part in parts], gaps_s)
                 on = self.any_at(keep)
                 related = [[on[f] and any(part.related[o][f] for part in parts) for f in range(nf)]
                            for o in range(k)]
@@ -195,13 +196,13 @@ class _Reference:
                 part_starts, ev_starts = self.starts(child, part.sel), self.starts(event, ev.sel)
                 step = -1 if after else 1  # where the event's beginning is looked for: before or after
                 ev_begins = self.any_at(ev_starts)
-                kept_starts = [[part_starts[o][f] and self.in_reach(ev_begins, f, step, float(within_s))
+                kept_starts = [[part_starts[o][f] and self.clock.in_reach(ev_begins, f, step, float(within_s))
                                 for f in range(nf)] for o in range(k)]
-                kept = self.keep(part, self.runs_holding(part.sel, kept_starts))
+                kept = self.keep(part, self.clock.runs_holding(part.sel, kept_starts))
                 begins = self.any_at(kept_starts)
-                related_starts = [[ev_starts[o][f] and self.in_reach(begins, f, -step, float(within_s))
+                related_starts = [[ev_starts[o][f] and self.clock.in_reach(begins, f, -step, float(within_s))
                                    for f in range(nf)] for o in range(k)]
-                related_runs = self.runs_holding(ev.sel, related_starts)
+                related_runs = self.clock.runs_holding(ev.sel, related_starts)
                 return _Sel(kept.sel, [[kept.related[o][f] or related_runs[o][f] for f in range(nf)]
                                        for o in range(k)])
         raise ReferenceError(f"not a program node: {node!r}")
@@ -266,37 +267,6 @@ class _Reference:
         return out
 
     # -- relations -------------------------------------------------------------------------------------
-    def local(self, s: int, o: int, f: int) -> tuple[float, float]:
-        """The other's centre in the subject's frame: (forward, left)."""
-        log = self.log
-        dx, dy = log.x[o][f] - log.x[s][f], log.y[o][f] - log.y[s][f]
-        c, si = math.cos(log.yaw[s][f]), math.sin(log.yaw[s][f])
-        return c * dx + si * dy, -si * dx + c * dy
-
-    def gap(self, s: int, o: int, f: int) -> float:
-        log = self.log
-        return box_gap(box_corners(log.x[s][f], log.y[s][f], log.yaw[s][f], log.length[s][f], log.width[s][f]),
-                       box_corners(log.x[o][f], log.y[o][f], log.yaw[o][f], log.length[o][f], log.width[o][f]))
-
-    def in_direction(self, s: int, o: int, f: int, side: str, within_m: float, lateral_m: float) -> bool:
-        """The other beyond the subject's box on ``side``, within ``lateral_m`` of its sides and ``within_m`` of it."""
-        fwd, left = self.local(s, o, f)
-        hl, hw = self.log.length[s][f] / 2, self.log.width[s][f] / 2
-        if side == "front":
-            ok = fwd > hl and abs(left) <= hw + lateral_m
-        elif side == "behind":
-            ok = fwd < -hl and abs(left) <= hw + lateral_m
-        elif side == "left":
-            ok = left > hw and abs(fwd) <= hl + lateral_m
-        elif side == "right":
-            ok = left < -hw and abs(fwd) <= hl + lateral_m
-        elif side == "beside":
-            ok = abs(left) > hw and abs(fwd) <= hl + lateral_m
-        else:
-            along = fwd > hl if side.startswith("front") else fwd < -hl
-            ok = along and (left > hw if side.endswith("left") else left < -hw)
-        return ok and self.gap(s, o, f) <= within_m
-
     def pair_frames(self, name: str, p: Params, s: int, o: int) -> list[bool]:
         """(F) the frames where ``o`` stands in relation ``name`` to ``s`` (both observed)."""
         log, nf = self.log, self.f
@@ -307,7 +277,7 @@ class _Reference:
             lateral = [0.0] * nf
             for f in range(nf):
                 if both[f]:
-                    fwd, left = self.local(s, o, f)
+                    fwd, left = self.log.local(s, o, f)
                     lateral[f] = left
                     zone[f] = 0 < fwd <= log.length[s][f] / 2 + float(p["forward_m"]) \
                         and abs(left) <= log.width[s][f] / 2 + float(p["lateral_m"])
@@ -321,16 +291,16 @@ class _Reference:
             if not both[f]:
                 continue
             if name == "direction":
-                out[f] = self.in_direction(s, o, f, str(p["side"]), float(p["within_m"]), float(p["lateral_m"]))
+                out[f] = self.log.in_direction(s, o, f, str(p["side"]), float(p["within_m"]), float(p["lateral_m"]))
             elif name == "near":
-                out[f] = self.gap(s, o, f) <= float(p["within_m"])
+                out[f] = self.log.gap(s, o, f) <= float(p["within_m"])
             elif name == "following":
                 rel = abs(wrap(log.yaw[o][f] - log.yaw[s][f]))
                 out[f] = log.speed[s][f] > 0.5 and rel <= math.pi / 4 \
-                    and self.in_direction(s, o, f, "front", float(p["within_m"]), float(p["lateral_m"]))
+                    and self.log.in_direction(s, o, f, "front", float(p["within_m"]), float(p["lateral_m"]))
             elif name == "same_lane":
                 out[f] = log.lane[s][f] >= 0 and log.lane[s][f] == log.lane[o][f] \
-                    and self.gap(s, o, f) <= float(p["within_m"])
+                    and self.log.gap(s, o, f) <= float(p["within_m"])
         return out
 
     def relation(self, node: p.Has) -> _Sel:
@@ -348,7 +318,7 @@ class _Reference:
         if node.nearest is not None:  # each subject keeps, at each frame, only its nearest others that hold
             for s in subjects:
                 for f in range(nf):
-                    near_first = sorted((self.gap(s, o, f), o) for o in others if s != o and holds[(s, o)][f])
+                    near_first = sorted((self.log.gap(s, o, f), o) for o in others if s != o and holds[(s, o)][f])
                     for _, o in near_first[node.nearest:]:
                         holds[(s, o)][f] = False
         ok = self.grid()
@@ -384,9 +354,9 @@ class _Reference:
                     continue
                 for first, second in ((left, right), (right, left)):
                     on_left = [o for o in range(k) if o != s and first.sel[o][f]
-                               and self.in_direction(s, o, f, "left", 50.0, lateral_m)]
+                               and self.log.in_direction(s, o, f, "left", 50.0, lateral_m)]
                     on_right = [o for o in range(k) if o != s and second.sel[o][f]
-                                and self.in_direction(s, o, f, "right", 50.0, lateral_m)]
+                                and self.log.in_direction(s, o, f, "right", 50.0, lateral_m)]
                     if on_left and on_right:
                         ok[s][f] = True
                         for o in on_left + on_right:
@@ -396,29 +366,6 @@ class _Reference:
                                for o in range(k)])
 
     # -- time ------------------------------------------------------------------------------------------
-    def runs(self, sel: Grid) -> Iterator[tuple[int, int, int]]:
-        """(object, first frame, last frame + 1) of each run of ``sel`` (consecutive frames of an object)."""
-        for o in range(self.k):
-            f = 0
-            while f < self.f:
-                if not sel[o][f]:
-                    f += 1
-                    continue
-                end = f
-                while end < self.f and sel[o][end]:
-                    end += 1
-                yield o, f, end
-                f = end
-
-    def runs_lasting(self, sel: Grid, seconds: float) -> Grid:
-        t = self.log.time_s
-        out = self.grid()
-        for o, f, end in self.runs(sel):
-            if t[end - 1] - t[f] + self.dt >= seconds - 1e-6:
-                for g in range(f, end):
-                    out[o][g] = True
-        return out
-
     def starts(self, node: p.Node, sel: Grid) -> Grid:
         """Where what ``node`` selects begins: the first frame of each run whose frame before is observed,
         and for ``then`` (also under ``is``, ``for_at_least``, ``while``, ``together``, ``before`` /
@@ -432,52 +379,11 @@ class _Reference:
             return begins
         steps, gaps_s = chain
         grids = [self.eval(step).sel for step in steps]
-        last, reached = grids[-1], self.reached(grids, gaps_s)[-1]
+        last, reached = grids[-1], self.clock.reached(grids, gaps_s)[-1]
         moves = [[sel[o][f] and reached[o][f] and not (f > 0 and last[o][f - 1]) for f in range(nf)]
                  for o in range(k)]
-        moving_runs = self.runs_holding(sel, moves)
+        moving_runs = self.clock.runs_holding(sel, moves)
         return [[moves[o][f] or (begins[o][f] and not moving_runs[o][f]) for f in range(nf)] for o in range(k)]
-
-    def runs_holding(self, sel: Grid, marks: Grid) -> Grid:
-        """The runs of ``sel`` (consecutive frames of an object) that hold a frame of ``marks``."""
-        out = self.grid()
-        for o, f, end in self.runs(sel):
-            if any(marks[o][g] for g in range(f, end)):
-                for g in range(f, end):
-                    out[o][g] = True
-        return out
-
-    def in_reach(self, frames: list[bool], f: int, step: int, within_s: float) -> bool:
-        """Whether one of ``frames`` lies within ``within_s`` of frame ``f``, after it (``step`` 1) or
-        before it (−1), not at it."""
-        t = self.log.time_s
-        g = f + step
-        while 0 <= g < self.f and abs(t[g] - t[f]) <= within_s:
-            if frames[g]:
-                return True
-            g += step
-        return False
-
-    def reached(self, steps: list[Grid], gaps_s: list[float]) -> list[Grid]:
-        """For each step of a chain, its frames that the steps before it reach in order, each within its
-        time of the one before."""
-        reached = [steps[0]]
-        for step, gap_s in zip(steps[1:], gaps_s, strict=True):
-            reached.append([[step[o][f] and self.in_reach(reached[-1][o], f, -1, gap_s) for f in range(self.f)]
-                            for o in range(self.k)])
-        return reached
-
-    def chained(self, steps: list[Grid], gaps_s: list[float]) -> Grid:
-        """The frames of each step that lie on a whole chain: the steps before it reached in order, each
-        within its time of the one before, and the steps after it reachable so from it."""
-        reached = self.reached(steps, gaps_s)
-        kept = reached[-1]
-        out = [row[:] for row in kept]
-        for i in range(len(steps) - 2, -1, -1):
-            kept = [[reached[i][o][f] and self.in_reach(kept[o], f, 1, gaps_s[i]) for f in range(self.f)]
-                    for o in range(self.k)]
-            out = [[out[o][f] or kept[o][f] for f in range(self.f)] for o in range(self.k)]
-        return out
 
 
 def reference_selection(program: p.Node, log: ReferenceLog) -> tuple[Grid, Grid]:

@@ -92,6 +92,39 @@ class ReferenceLog:
     def num_frames(self) -> int:
         return len(self.timestamps_ns)
 
+    def local(self, s: int, o: int, f: int) -> tuple[float, float]:
+        """Object ``o``'s centre in object ``s``'s frame at frame ``f``: (forward, left) metres."""
+        dx, dy = self.x[o][f] - self.x[s][f], self.y[o][f] - self.y[s][f]
+        c, si = math.cos(self.yaw[s][f]), math.sin(self.yaw[s][f])
+        return c * dx + si * dy, -si * dx + c * dy
+
+    def gap(self, s: int, o: int, f: int) -> float:
+        """The distance between the boxes of objects ``s`` and ``o`` at frame ``f`` (0 where they overlap)."""
+        return box_gap(self.corners(s, f), self.corners(o, f))
+
+    def corners(self, o: int, f: int) -> list[tuple[float, float]]:
+        return box_corners(self.x[o][f], self.y[o][f], self.yaw[o][f], self.length[o][f], self.width[o][f])
+
+    def in_direction(self, s: int, o: int, f: int, side: str, within_m: float, lateral_m: float) -> bool:
+        """Whether object ``o`` is beyond object ``s``'s box on ``side`` at frame ``f``, within ``lateral_m``
+        of its sides and ``within_m`` of it."""
+        fwd, left = self.local(s, o, f)
+        hl, hw = self.length[s][f] / 2, self.width[s][f] / 2
+        if side == "front":
+            ok = fwd > hl and abs(left) <= hw + lateral_m
+        elif side == "behind":
+            ok = fwd < -hl and abs(left) <= hw + lateral_m
+        elif side == "left":
+            ok = left > hw and abs(fwd) <= hl + lateral_m
+        elif side == "right":
+            ok = left < -hw and abs(fwd) <= hl + lateral_m
+        elif side == "beside":
+            ok = abs(left) > hw and abs(fwd) <= hl + lateral_m
+        else:
+            along = fwd > hl if side.startswith("front") else fwd < -hl
+            ok = along and (left > hw if side.endswith("left") else left < -hw)
+        return ok and self.gap(s, o, f) <= within_m
+
 
 # ---------------------------------------------------------------------------------- plane geometry
 

@@ -13,7 +13,7 @@ import re
 from dataclasses import dataclass, field
 
 from scenarios.program import Param
-from scenarios.word_forms import AWAY_FROM, approaches_to, lane_changes, of_ego, plural, turns
+from scenarios.word_forms import AWAY_FROM, across, approaches_to, from_a_stop, lane_changes, of_ego, plural, turns
 
 
 @dataclass(frozen=True)
@@ -97,7 +97,7 @@ _add("ego vehicle|ego|ego car|the av|our car|my car|our vehicle|my vehicle|we|us
 
 # -- predicates ------------------------------------------------------------------------------------------
 for _phrases, _name, _params in (
-    ("moving|driving|traveling|travelling|in motion|active|walking|riding|going|running|jogging|heading|moves|"
+    ("moving|driving|traveling|travelling|in motion|active|walking|riding|going|heading|moves|"
      "move|drives|walks|rides|navigating|maneuvering|proceeding|passing through", "moving", ()),
     ("about to cross|about to cross the road|about to cross the street|preparing to cross|going to cross|"
      "ready to cross|getting ready to cross|about to step into the road|about to enter the road", "about_to_cross", ()),
@@ -133,7 +133,9 @@ for _phrases, _name, _params in (
     (lane_changes("left"), "changing_lanes", (("direction", "left"),)),
     (lane_changes("right"), "changing_lanes", (("direction", "right"),)),
     ("at crawling speed|crawling|creeping|moving slowly|slow moving|slow|slowly", "slow", ()),
-    ("fast|speeding|at high speed|quickly|running fast|very fast", "fast", ()),
+    # Running is a pace, not just motion: at or above a pedestrian's fast speed.
+    ("fast|speeding|at high speed|quickly|running fast|very fast|running|runs|jogging|jogs|sprinting|sprints",
+     "fast", ()),
     ("at intersection|at an intersection|at the intersection|on intersection|on an intersection|in intersection|"
      "in an intersection|in the intersection|through intersection|through the intersection|at a junction|"
      "in the junction|at the junction|in the middle of the intersection|in the middle of an intersection|"
@@ -223,7 +225,7 @@ for _phrases, _rel, _rparams, _reverse in (
     ("yielding to|yields to|yield to|yielded to|giving way to|gives way to|give way to|waiting for|waits for|"
      "wait for|waiting on|yielding|yields|yield|yielded|giving way|gives way|give way", "yielding_to", (), False),
     ("crossing|crossing in front of|crossing the path of|crossing in front|cutting in front of|crosses|cross|"
-     "crossing paths with|crossing path of|across the path of|across in front of", "crossed_by", (), True),
+     "crossing paths with|crossing path of|across the path of|across in front of|" + across(), "crossed_by", (), True),
     ("being passed by|passed by|being overtaken by|overtaken by|being overtaken|overtaken|being passed", "passed_by",
      (), False),
     ("past the right side of|past right side of|past the right of", "passed_by", (("side", "right"),), True),
@@ -316,11 +318,9 @@ _add("near each other|close to each other|near one another|close to one another|
 _add("closest|nearest|closest one|nearest one", Lexeme("nearest", "near"))
 _add("lead|leading|leads|the first", Lexeme("nearest", "ahead"))
 _add("drives off|drive off|pulls away|pull away|starts moving|start moving|takes off|sets off|starts to move|"
-     "accelerating from a stop|accelerates from a stop|accelerate from a stop|starting from a stop|"
      "accelerates quickly from a stop|accelerating quickly from a stop|accelerates hard from a stop|"
-     "starts from a stop|pulling away from a stop|pulls away from a stop|"
-     "pulls out|pulling out|drives away from a stop|pulling out of a parking spot|pulls out of a parking spot|"
-     "pulling out of a parking space|pulls out of a parking space", Lexeme("seq", "drive_off"))
+     "pulls out|pulling out|pulling out of a parking spot|pulls out of a parking spot|"
+     "pulling out of a parking space|pulls out of a parking space|" + from_a_stop(), Lexeme("seq", "drive_off"))
 _add("cuts into my lane|cuts into our lane|cutting into my lane|cutting into our lane|cuts in|cutting in|cut in|"
      "cuts in front of us|cutting in front of us|cutting us off|cuts us off|cut us off|cut off|merges into my lane|"
      "merges into our lane|merging into our lane|"

@@ -23,7 +23,7 @@ MEANINGS = {
     "a car next to a truck drives away from it": "heading_away_from(near(car, truck), truck)",
     "a car accelerating away from us": "moving_away_from_ego(accelerating(car))",
     "a pedestrian 10 m away from a bus": "near(pedestrian, bus, within_m=10)",
-    "a pedestrian running toward a car": "heading_toward(moving(pedestrian), car)",
+    "a pedestrian running toward a car": "heading_toward(fast(pedestrian), car)",
     "a car coming toward a cyclist": "heading_toward(car, cyclist)",
     "a car heading toward the intersection": "near_intersection(car)",
     "a car heading toward the crosswalk": "approaching_crosswalk(car)",
@@ -286,7 +286,7 @@ MEANINGS = {
     # narrow "the nearest", other relations are said of it; "the lead" is always ahead in the lane band;
     # a sentence opening with "after" keeps its own condition and its "within"; a comma ends a clause.
     "the car closest to the bus is stopped": "stopped(reverse(near(bus, car, within_m=100, nearest=1)))",
-    "the closest pedestrian to us is running": "moving(reverse(near(ego, pedestrian, within_m=100, nearest=1)))",
+    "the closest pedestrian to us is running": "fast(reverse(near(ego, pedestrian, within_m=100, nearest=1)))",
     "the closest vehicle in our lane": "reverse(near(ego, ego_lane(vehicle, lane=host), within_m=100, nearest=1))",
     "the nearest pedestrian not in front of us":
         "reverse(near(ego, excluding(pedestrian, reverse(direction(ego, pedestrian, side=front))), within_m=100, "
@@ -383,10 +383,20 @@ MEANINGS = {
         "then(stopped(car), moving(car), within_s=5)",
     "a car stops, then turns left, then speeds up":
         "then(then(stopped(car), turning(car, direction=left), within_s=5), accelerating(car), within_s=5)",
+    # Running is a pace; moving across a road is crossing it, whatever the verb; a stop is set off from,
+    # "a" or "the".
+    "a pedestrian running": "fast(pedestrian)",
+    "a jogger jogging on the sidewalk": "not(on_road(fast(pedestrian)))",
+    "a pedestrian walking across the road": "crossing_road(pedestrian)",
+    "a child darts across the street": "crossing_road(pedestrian)",
+    "a cyclist rides across in front of us": "reverse(direction(ego, crossing_road(cyclist), side=front))",
+    "a car pulls away from the stop": "then(stopped(car), moving(car), within_s=4)",
+    "a bus accelerating from a standstill": "then(stopped(bus), moving(bus), within_s=4)",
 }
 
 #: Phrases that must not be read as something else: the word is reported unused instead.
 NOT_UNDERSTOOD = {
+    "a car parked across the street": ("parked(car)", ("across",)),  # where it is, not what it does
     "a car waiting to drive": ("stopped(car)", ("drive",)),
     "a pedestrian waiting to walk": ("stopped(pedestrian)", ("walk",)),
     "a car parked in the drive": ("parked(car)", ("drive",)),
@@ -401,7 +411,7 @@ NOT_UNDERSTOOD = {
     "a car more than 20 m away": ("car", ("more than 20 m",)),  # no relation takes a least distance
     "a car within 5 m of the crosswalk": ("car", ("5 m", "crosswalk")),  # not "of the ego"
     "a car drives away from the intersection": ("near_intersection(car)", ("drives", "away", "from")),  # no leaving
-    "a child running toward the road": ("moving(pedestrian)", ("toward",)),  # not toward us
+    "a child running toward the road": ("fast(pedestrian)", ("toward",)),  # not toward us
     "a vehicle far away from us": ("vehicle", ("far", "us")),  # a distance, no motion
     "a pedestrian walks past": ("moving(pedestrian)", ("past",)),  # past what, it does not say
     "a car stopped past the stop line": ("stopped(car)", ("past", "line")),  # beyond, no passing

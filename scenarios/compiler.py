@@ -12,11 +12,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from scenarios.lexicon import lexemes, normalize
+from scenarios.lexicon import lexemes
 from scenarios.parser import DescriptionError, Parser
 from scenarios.predicates import ProgramError
 from scenarios.program import Node, describe, to_text
 from scenarios.syntax import MAX_PROGRAM_CHARS, parse_program
+from scenarios.word_forms import normalize
 
 __all__ = ["Compiled", "DescriptionError", "compile_description"]
 

@@ -2,7 +2,7 @@
 
 Each phrase maps to a :class:`Lexeme`; the compiler matches the longest phrase at each position
 (:func:`lexemes`). Plurals of kind words are generated, and a few spellings are folded before
-matching (:func:`normalize`), so "bikes", "bicycles", "cyclists" and "bicyclist" all name cyclists,
+matching (:func:`scenarios.word_forms.normalize`), so "bikes", "bicycles", "cyclists" and "bicyclist" all name cyclists,
 and "halted", "standing still" and "stopped" the same state.
 """
 
@@ -13,7 +13,17 @@ import re
 from dataclasses import dataclass, field
 
 from scenarios.program import Param
-from scenarios.word_forms import AWAY_FROM, across, approaches_to, from_a_stop, lane_changes, of_ego, plural, turns
+from scenarios.word_forms import (
+    AWAY_FROM,
+    across,
+    approaches_to,
+    from_a_stop,
+    lane_changes,
+    of_ego,
+    plural,
+    side_to_side,
+    turns,
+)
 
 
 @dataclass(frozen=True)
@@ -321,6 +331,9 @@ _add("drives off|drive off|pulls away|pull away|starts moving|start moving|takes
      "accelerates quickly from a stop|accelerating quickly from a stop|accelerates hard from a stop|"
      "pulls out|pulling out|pulling out of a parking spot|pulls out of a parking spot|"
      "pulling out of a parking space|pulls out of a parking space|" + from_a_stop(), Lexeme("seq", "drive_off"))
+# From one side of us to the other: "crossing from left to right" (where it starts, then where it ends).
+_add(side_to_side("left", "right"), Lexeme("seq", "side_to_side", (("side", "left"),)))
+_add(side_to_side("right", "left"), Lexeme("seq", "side_to_side", (("side", "right"),)))
 _add("cuts into my lane|cuts into our lane|cutting into my lane|cutting into our lane|cuts in|cutting in|cut in|"
      "cuts in front of us|cutting in front of us|cutting us off|cuts us off|cut us off|cut off|merges into my lane|"
      "merges into our lane|merging into our lane|"
@@ -391,25 +404,6 @@ _add("within|at least|at most|less than|more than|up to|from|away|for|directly|a
      "some|its|their|the|a|an|that|which|who|is|are|being|of|it|they|them|there|in|on|to|one|ones|those|these|same|lane|path|"
      "side|too|road|street|zone|area|i|see|find|show|me|all|where|together|here|now|just|first|,",
      Lexeme("skip"))
-
-_SPELLINGS = {"towards": "toward", "colour": "color", "travelling": "traveling", "metres": "meters",
-              "pedestrains": "pedestrians", "bicylist": "bicyclist"}
-
-
-def normalize(text: str) -> list[str]:
-    """Lower-case words of ``text``: hyphens and slashes split words, numbers and commas stay (a comma
-    ends a clause), other punctuation goes."""
-    text = text.lower().replace("’", "'")
-    text = re.sub(r"(?<=\d),(?=\d{3}\b)", "", text)  # "1,000 m"
-    text = re.sub(r"(\d)\s*-\s*(\d)", r"\1 to \2", text)
-    text = re.sub(r"(\d)(m|s)\b", r"\1 \2", text)
-    text = re.sub(r"[-/]", " ", text)
-    # "With no one in front of it", "nobody near us": no object there (elsewhere the words are unused).
-    text = re.sub(r"(^|\bwith )(?:no one|noone)\b", r"\1no anyone", text)
-    text = re.sub(r"(^|\bwith )no(body|thing)\b", r"\1no any\2", text)
-    words = re.findall(r"[a-z]+(?:'[a-z]+)?|\d+(?:\.\d+)?|,", text)  # a comma ends a clause: kept
-    return [_SPELLINGS.get(w, w) for w in words]
-
 
 _MAX_PHRASE = max(len(k) for k in _LEXICON)
 _VERB_WORDS = {k[0] for k, v in _LEXICON.items() if v.role in ("pred", "seq", "rel")}

@@ -15,6 +15,9 @@ from scenarios.rewrite import other_one, stated, with_subject, without_states
 
 #: The two steps of "drives off" or "cuts into my lane" happen within this many seconds.
 CUT_IN_WITHIN_S = 4.0
+#: A path from one side of the ego to the other reaches it within this many seconds: a pedestrian at
+#: 1 m/s crosses the ego's width and a metre either side of it.
+SIDE_TO_SIDE_WITHIN_S = 5.0
 #: Ahead in the same lane, as "the lead vehicle" and each link of "two cars ahead" are: in front, within
 #: the lane's band beside the box.
 AHEAD_IN_LANE: tuple[tuple[str, float | str], ...] = (("side", "front"), ("lateral_m", 1.5), ("within_m", 40.0))
@@ -164,7 +167,12 @@ class RelationReader(LexemeStream):
 
     def sequence(self, node: Node, item: Lexeme) -> Node:
         """A sequence the words name: "drives off" (stops, then moves), "cuts into my lane [from the left]"
-        (in a lane beside the ego's, then in the ego's), "leaves our lane" (the other way)."""
+        (in a lane beside the ego's, then in the ego's), "leaves our lane" (the other way), "from left to
+        right" (on the ego's left, then on its right)."""
+        if item.name == "side_to_side":  # "crossing from left to right": on our left, then on our right
+            start = str(dict(item.params)["side"])
+            end = "right" if start == "left" else "left"
+            return Then(self.ego_relation(node, start), self.ego_relation(node, end), SIDE_TO_SIDE_WITHIN_S)
         if item.name == "drive_off":  # "stopped vehicle that starts moving": stopped once, then moving
             first = node if isinstance(node, Is) and node.predicate in ("stopped", "parked") and not node.negate \
                 else Is(node, "stopped")

@@ -1,7 +1,10 @@
-"""English word forms of the compiler's phrases (:mod:`scenarios.lexicon`): plurals of kind words, and
-the verb forms of turns, lane changes and motions relative to the ego or another object."""
+"""English word forms of the compiler's phrases (:mod:`scenarios.lexicon`): a description's words as the
+lexicon reads them (:func:`normalize`), plurals of kind words, and the verb forms of turns, lane changes
+and motions relative to the ego or another object."""
 
 from __future__ import annotations
+
+import re
 
 _IRREGULAR = {"person": "people", "child": "children", "bus": "buses", "school bus": "school buses",
               "articulated bus": "articulated buses", "pedestrian": "pedestrians", "ego vehicle": "ego vehicles"}
@@ -79,3 +82,28 @@ def from_a_stop() -> str:
         "pull away", "driving away", "drives away", "drive away", "moving off", "moves off", "setting off", "sets off")
                     for stop in ("a stop", "the stop", "its stop", "a standstill", "the standstill", "standstill",
                                  "rest", "a full stop"))
+
+
+def side_to_side(start: str, end: str) -> str:
+    """Phrases of a path from side ``start`` to side ``end`` ("from left to right", "from our left to our right")."""
+    return "|".join(f"from {a}{start} to {b}{end}" for a, b in (("", ""), ("the ", "the "), ("our ", "our "),
+                                                                  ("the ", ""), ("my ", "my ")))
+
+
+_SPELLINGS = {"towards": "toward", "colour": "color", "travelling": "traveling", "metres": "meters",
+              "pedestrains": "pedestrians", "bicylist": "bicyclist"}
+
+
+def normalize(text: str) -> list[str]:
+    """Lower-case words of ``text``: hyphens and slashes split words, numbers and commas stay (a comma
+    ends a clause), other punctuation goes."""
+    text = text.lower().replace("’", "'")
+    text = re.sub(r"(?<=\d),(?=\d{3}\b)", "", text)  # "1,000 m"
+    text = re.sub(r"(\d)\s*-\s*(\d)", r"\1 to \2", text)
+    text = re.sub(r"(\d)(m|s)\b", r"\1 \2", text)
+    text = re.sub(r"[-/]", " ", text)
+    # "With no one in front of it", "nobody near us": no object there (elsewhere the words are unused).
+    text = re.sub(r"(^|\bwith )(?:no one|noone)\b", r"\1no anyone", text)
+    text = re.sub(r"(^|\bwith )no(body|thing)\b", r"\1no any\2", text)
+    words = re.findall(r"[a-z]+(?:'[a-z]+)?|\d+(?:\.\d+)?|,", text)  # a comma ends a clause: kept
+    return [_SPELLINGS.get(w, w) for w in words]

@@ -302,3 +302,20 @@ def test_notes_of_many_logs_are_said_once_per_reason() -> None:
     said = [(f"log{i}", f"log{i}: 'on_crosswalk' needs a map") for i in range(6)] + [("log2", "log2: no weather")]
     assert grouped_notes(said) == ("log0, log1, log2 and 3 more logs: 'on_crosswalk' needs a map", "log2: no weather")
     assert grouped_notes(said[:4]) == ("log0, log1, log2, log3: 'on_crosswalk' needs a map",)
+
+
+def test_crossing_from_left_to_right_in_front_of_us_tells_the_two_ways_apart() -> None:
+    from scenarios.compiler import compile_description
+
+    across = np.linspace(6.0, -6.0, 40)  # 4 s at 10 Hz, 10 m ahead: from our left to our right
+    left_to_right = np.stack([np.full(40, 10.0), across], axis=1)
+    right_to_left = np.stack([np.full(40, 14.0), across[::-1]], axis=1)
+    x = make_features([pedestrian(left_to_right, flags=("on_lane",), yaw=-np.pi / 2, speed=3.0),
+                       pedestrian(right_to_left, flags=("on_lane",), yaw=np.pi / 2, speed=3.0),
+                       pedestrian(np.stack([np.full(40, 30.0), np.full(40, 4.0)], axis=1), flags=("on_lane",))],
+                      frames=40)
+    ways = {text: selected(compile_description(text).program, x).tolist()
+            for text in ("a pedestrian crossing from left to right in front of us",
+                         "pedestrians crossing from the right to the left")}
+    assert ways == {"a pedestrian crossing from left to right in front of us": [True, False, False, False],
+                    "pedestrians crossing from the right to the left": [False, True, False, False]}

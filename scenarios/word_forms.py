@@ -72,7 +72,8 @@ def across() -> str:
         "walking", "walks", "walk", "walked", "running", "runs", "run", "ran", "jogging", "jogs", "riding", "rides",
         "rode", "cycling", "cycles", "going", "goes", "went", "moving", "moves", "moved", "driving", "drives", "drove",
         "darting", "darts", "darted", "dashing", "dashes", "dashed", "stepping", "steps", "stepped", "hurrying",
-        "hurries", "rushing", "rushes", "making its way", "makes its way", "heading", "heads", "coming", "comes"))
+        "hurries", "rushing", "rushes", "making its way", "makes its way", "heading", "heads", "coming", "comes",
+        "cutting", "cuts", "cut", "swerving", "swerves", "veering", "veers"))
 
 
 def from_a_stop() -> str:

@@ -390,6 +390,7 @@ MEANINGS = {
     "a pedestrian walking across the road": "crossing_road(pedestrian)",
     "a child darts across the street": "crossing_road(pedestrian)",
     "a cyclist rides across in front of us": "reverse(direction(ego, crossing_road(cyclist), side=front))",
+    "a cyclist cuts across our path": "reverse(crossed_by(ego, cyclist))",
     "a car pulls away from the stop": "then(stopped(car), moving(car), within_s=4)",
     "a bus accelerating from a standstill": "then(stopped(bus), moving(bus), within_s=4)",
     "a pedestrian crossing from right to left":  # on our right, then on our left

@@ -231,9 +231,10 @@ for _phrases, _rel, _rparams, _reverse in (
     ("in the same lane as|in same lane as|sharing a lane with|sharing lane with|in the lane of|in its lane with|"
      "sharing the lane with", "same_lane", (), False),
     ("being crossed by|crossed by", "crossed_by", (), False),
-    # Not "stopped for": "a car stopped for 10 s" is a duration.
+    # "Stopped for" with no object after it is a duration: "a car stopped for 10 s".
     ("yielding to|yields to|yield to|yielded to|giving way to|gives way to|give way to|waiting for|waits for|"
-     "wait for|waiting on|yielding|yields|yield|yielded|giving way|gives way|give way", "yielding_to", (), False),
+     "wait for|waiting on|yielding|yields|yield|yielded|giving way|gives way|give way|stopping for|stops for|"
+     "stop for|stopped for|halting for|halts for", "yielding_to", (), False),
     ("crossing|crossing in front of|crossing the path of|crossing in front|cutting in front of|crosses|cross|"
      "crossing paths with|crossing path of|across the path of|across in front of|" + across(), "crossed_by", (), True),
     ("being passed by|passed by|being overtaken by|overtaken by|being overtaken|overtaken|being passed", "passed_by",

@@ -141,7 +141,7 @@ class RelationReader(LexemeStream):
             if not place or item.name == "heading_away_from":  # "toward the road"; no predicate says leaving
                 self.unused.extend(item.words)
             return node
-        if item.name == "yielding_to" and item.words[0].startswith("wait"):  # "waiting for 10 s": waiting
+        if item.name == "yielding_to" and item.words[0].startswith(("wait", "stop", "halt")):  # "… for 10 s"
             return Is(node, "stopped")
         if item.name == "direction":
             side = str(dict(item.params)["side"])

@@ -391,6 +391,9 @@ MEANINGS = {
     "a child darts across the street": "crossing_road(pedestrian)",
     "a cyclist rides across in front of us": "reverse(direction(ego, crossing_road(cyclist), side=front))",
     "a cyclist cuts across our path": "reverse(crossed_by(ego, cyclist))",
+    "we stop for a pedestrian crossing": "yielding_to(ego, crossing_road(pedestrian))",  # as "wait for"
+    "a truck stopped for a cyclist": "yielding_to(truck, cyclist)",
+    "a car stopped for 10 s": "for_at_least(stopped(car), seconds=10)",  # no object: a duration
     "a car pulls away from the stop": "then(stopped(car), moving(car), within_s=4)",
     "a bus accelerating from a standstill": "then(stopped(bus), moving(bus), within_s=4)",
     "a pedestrian crossing from right to left":  # on our right, then on our left

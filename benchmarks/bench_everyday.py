@@ -22,6 +22,8 @@ demo's (``scenesearch demo``, default ``demo_out``; ``SCENESEARCH_DEMO_DIR`` nam
 it the benchmark says so and measures nothing. The same is measured on a larger held-out split
 (:mod:`benchmarks.everyday_data`: 30 fresh sensor logs indexed with the demo's model, built once), on
 which most sentences have at least 10 relevant clips (``large_split``; not in the quick run).
+
+Each set's commit and figures: ``docs/research/scenario-queries.md``.
 """
 
 from __future__ import annotations
@@ -90,8 +92,7 @@ DEV: dict[str, Judge] = {
     "car braking hard in front of us": lambda r: _cat(r, "car") and _has(r, lane="host", action="braking"),
     "a parked truck on the right": lambda r: _cat(r, "truck") and _has(r, lane="right*", action="parked"),
 }
-#: Held out at the first measurement (precision@10 0.275 of a 0.417 ceiling), then read to find the
-#: compiler's gaps: development sentences since.
+#: Held out at the first measurement, then read to find the compiler's gaps: development sentences since.
 FIRST_HELD_OUT: dict[str, Judge] = {
     "a cyclist riding next to us on the right": lambda r: _cat(r, "cyclist") and _has(r, lane="right*"),
     "a car pulling out of a parking spot":
@@ -112,7 +113,7 @@ FIRST_HELD_OUT: dict[str, Judge] = {
         lambda r: _host(r, "stationary") and _cat(r, "car") and _has(r, lane="host", action="stopped"),
 }
 #: Written with their judges after the first measurement, before the compiler changed again; held out at
-#: the second measurement (precision@10 0.317 of a 0.558 ceiling), read after it: development sentences since.
+#: the second measurement, read after it: development sentences since.
 SECOND_HELD_OUT: dict[str, Judge] = {
     "a car overtaking us on the left": lambda r: _cat(r, "car") and _has(r, lane="left", motion="away"),
     "a pedestrian walking on the right side": lambda r: _cat(r, "pedestrian") and _has(r, lane="right*"),
@@ -131,7 +132,7 @@ SECOND_HELD_OUT: dict[str, Judge] = {
 }
 
 #: Written with their judges after the second measurement, before the compiler changed again; held out at
-#: the third measurement (precision@10 0.575 of a 0.717 ceiling on the larger split), read after it.
+#: the third measurement, read after it.
 THIRD_HELD_OUT: dict[str, Judge] = {
     "a car moving away from us in the left lane": lambda r: _cat(r, "car") and _has(r, lane="left", motion="away"),
     "a pedestrian on the left side of the road": lambda r: _cat(r, "pedestrian") and _has(r, lane="left*"),
@@ -152,7 +153,7 @@ THIRD_HELD_OUT: dict[str, Judge] = {
 }
 
 #: Written with their judges after the third measurement, before any search ran on them; held out at the
-#: fourth measurement (precision@10 0.550 of a 0.875 ceiling on the larger split), read after it.
+#: fourth measurement, read after it.
 FOURTH_HELD_OUT: dict[str, Judge] = {
     "a car approaching us in the oncoming lane":
         lambda r: _cat(r, "car") and _has(r, lane="oncoming", motion="approach"),
@@ -175,7 +176,7 @@ FOURTH_HELD_OUT: dict[str, Judge] = {
 
 
 #: Written with their judges after the fourth measurement and its reading, before any search ran on them;
-#: held out at the fifth measurement (precision@10 0.575 of a 0.825 ceiling on the larger split), read after it.
+#: held out at the fifth measurement, read after it.
 FIFTH_HELD_OUT: dict[str, Judge] = {
     "a truck parked on the left side": lambda r: _cat(r, "truck") and _has(r, lane="left*", action="parked"),
     "a pedestrian on the crosswalk": lambda r: _cat(r, "pedestrian") and _has(r, context="on_crosswalk"),
@@ -197,7 +198,7 @@ FIFTH_HELD_OUT: dict[str, Judge] = {
 
 
 #: Written with their judges after the fifth measurement and its reading, before any search ran on them;
-#: measured once (commit 5468c27) and read after it.
+#: measured once and read after it.
 SIXTH_HELD_OUT: dict[str, Judge] = {
     "a bus turning right": lambda r: _cat(r, "bus") and _has(r, action="right_turn"),
     "a pedestrian standing on the left": lambda r: _cat(r, "pedestrian") and _has(r, lane="left*", action="stopped"),
@@ -226,7 +227,7 @@ def _adjacent(step: list[str]) -> bool:
 
 #: Written with their judges after the compiler learned more everyday phrasings (lanes beside ours,
 #: entering and leaving our lane, states in turn, the opposite direction), before any search ran on them;
-#: measured once (commit 1d614e4) and read after it.
+#: measured once and read after it.
 SEVENTH_HELD_OUT: dict[str, Judge] = {
     "a car in the lane next to us": lambda r: _cat(r, "car") and any(_adjacent(s) for s in _steps(r)),
     "we slow down and come to a stop": lambda r: _host(r, "decelerating") and _host(r, "stationary"),
@@ -255,7 +256,7 @@ def _moving(step: list[str]) -> bool:
 #: Sentences the demo's test split can score: 28 candidates were written with their judges in two batches,
 #: before any compilation or search ran on them; only the number of test clips each judge accepts was
 #: counted, and the first six of each batch with at least 10 (a ceiling of 1) were kept. Measured once
-#: (commit 65451a6) and read after it.
+#: and read after it.
 EIGHTH_HELD_OUT: dict[str, Judge] = {
     "a car ahead of us in our lane": lambda r: _cat(r, "car") and _has(r, lane="host"),
     "a pedestrian walking on the left":
@@ -282,7 +283,7 @@ def _host_turning(row: Row) -> bool:
 #: Sentences the demo's test split can score, written after the eighth set was measured and read, as it
 #: was: 24 candidates with their judges in two batches, before any compilation or search ran on them;
 #: the first 12 with at least 10 accepted test clips were kept (9 of the first batch's 16, 3 of the
-#: second's 8). Measured once (commit 5cb407f) and read after it.
+#: second's 8). Measured once and read after it.
 NINTH_HELD_OUT: dict[str, Judge] = {
     "a car parked on the side of the road": lambda r: _cat(r, "car") and _has(r, action="parked"),
     "cars in front of us while we accelerate":

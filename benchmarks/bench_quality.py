@@ -11,13 +11,8 @@ motion, own action, context, category); ``rare_facets`` lists the facets with th
 ``tagging`` is the tagging head trained with the model against the dataset statistics (``scenesearch
 eval``'s figures): the demo's three test logs let one log decide a tag (all three have a four-way
 junction in nearly every frame), fifteen measure the head.
-The stages run fresh into ``benchmarks/_work/quality`` (kept afterwards for inspection), 42 to 58
-minutes on 2 CPU cores as the machine's speed varied (Intel Xeon: simulate 201–225 s, clips 132–148 s,
-train 2020–2699 s at 30 to 19 clips/s, index and eval 169–189 s; an AMD EPYC without AVX512-BF16:
-simulate 272 s, clips 216 s, train 2682 s, index and eval 311 s); 30 minutes with the BEV tower's
-first stage at 16 channels on an Intel Xeon with AVX512-BF16 (simulate 157 s, clips 113 s, train 1434 s
-at 41 clips/s, index and eval 79 s), 33.5 minutes on another (simulate 163 s, clips 120 s, train 1584 s,
-index and eval 117 s; the tagging head beats the statistics on 14 of 15 attributes, not right lane changes).
+The stages run fresh into ``benchmarks/_work/quality`` (kept afterwards for inspection); the times of
+past runs on 2 CPU cores, stage by stage, are in ``docs/research/quality-benchmark.md``.
 """
 
 from __future__ import annotations
@@ -36,7 +31,7 @@ WORK = ROOT / "benchmarks" / "_work" / "quality"
 LOGS = 40
 #: The demo has 15 minutes on 2 cores and this benchmark about 45, spent on more data rather than more
 #: passes: 80 extra logs for 5 epochs is the smallest recipe measured that meets :data:`TARGETS` (the curve,
-#: one run per recipe: README, "More passes or more data").
+#: one run per recipe: ``docs/research/more-passes-or-data.md``).
 EXTRA_LOGS = 80
 EPOCHS = 5
 #: Facets listed as rare: the ones with the fewest test clips.

@@ -9,12 +9,12 @@ per-caption cache never answers; a second pass over the same sentences measures 
 Clip embeddings are synthetic: a mixture of Gaussian clusters on the unit sphere around the text
 embeddings of 256 caption-like sentences (a trained model pulls clips towards their captions),
 D = the model's width. An untrained projection head maps all caption-like sentences into one
-narrow cone (mean pairwise cosine 0.97), where every clip is a near tie of every other and exact
-recall@10 can only be had by scanning a fifth of the collection; training spreads them (0.59 for
-the demo's trained model on the same sentences: ``TRAINED_MEAN_PAIRWISE_COS``). So the tower's
-output passes through a fixed stand-in for training, fitted once on the sentences: the component
-along their mean direction is shrunk until their mean pairwise cosine matches the trained model's
-(:class:`SpreadEmbedder`; one (D,) dot product per query, inside the timed call).
+narrow cone, where every clip is a near tie of every other and exact recall@10 can only be had by
+scanning a large share of the collection; training spreads them (the demo's trained model on the same
+sentences: ``TRAINED_MEAN_PAIRWISE_COS``; both cosines are in ``docs/research/benchmark-highlights.md``).
+So the tower's output passes through a fixed stand-in for training, fitted once on the sentences: the
+component along their mean direction is shrunk until their mean pairwise cosine matches the trained
+model's (:class:`SpreadEmbedder`; one (D,) dot product per query, inside the timed call).
 
 Reported per collection size: p50/p99 of the whole call, the share of each step (text encoding,
 FAISS search, metadata rows → records), the index chosen and its recall@10 against exact search
@@ -108,8 +108,8 @@ class TowerEmbedder:
 
 
 #: Mean pairwise cosine of the text embeddings of ``queries(200)`` under the demo's trained model
-#: (``scenesearch demo``, 2026-11-21): ``x = ModelEmbedder(run).embed_texts(queries(200))``, mean of
-#: the off-diagonal ``x @ x.T``.
+#: (``scenesearch demo``): ``x = ModelEmbedder(run).embed_texts(queries(200))``, mean of the off-diagonal
+#: ``x @ x.T``.
 TRAINED_MEAN_PAIRWISE_COS = 0.59
 
 

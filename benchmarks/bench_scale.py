@@ -1,5 +1,5 @@
 """Scale-out on Ray: per-log stages and batch embedding with 2 workers against 1, Ray's per-task
-overhead, and what each stage costs per log-second (the README's cost model).
+overhead, and what each stage costs per log-second (the cost model of ``docs/research/ray-scale.md``).
 
 Logs: simulated (``scenesearch simulate``; full: 20 logs of 6 s with rendered LiDAR and camera,
 quick: 4 logs of 4 s without sensors), cached between runs. Stages: ``caption``
@@ -305,9 +305,9 @@ def run(quick: bool) -> dict[str, Any]:
             _stages(tiny, scratch, None, Execution(workers=workers), False, "warm")
             results[workers] = _stages(logs, scratch, run_dir, Execution(workers=workers), False, f"ray{workers}")
             if workers == 1:
-                # Right after the embedding, the first pair's Ray run took 2.4–2.8 s against 1.0 s
-                # for the others (two runs): it started a worker process anew. Warm one again, as
-                # the figure is the overhead of a warm worker.
+                # Right after the embedding, the first pair's Ray run is much slower than the others: it
+                # starts a worker process anew (``docs/research/ray-scale.md``). Warm one again, as the
+                # figure is the overhead of a warm worker.
                 _stages(tiny, scratch, None, Execution(workers=1), False, "warm")
                 for i in range(PAIRS):  # adjacent pairs, alternating which runs first: the load varies over time
                     pair: dict[str, dict[str, tuple[float, float]]] = {}

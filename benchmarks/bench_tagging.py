@@ -17,78 +17,7 @@ One run, all on this machine's CPU:
 ``python -m benchmarks.bench_tagging --out DIR`` writes ``DIR/tags.md``, ``DIR/tags.json`` and
 ``DIR/bench_tagging.json``; ``run(quick)`` returns the figures for ``benchmarks/run.py``.
 
-Last measured (2026-12-04, 2 CPU cores, 33.8 min; 60 simulated logs × 30 s, split 35 / 13 / 12 logs, 3600 test
-frames; the default tower for tags, ``tagging_bev_config``: widths (8, 16, 32, 64), two dilated
-context blocks — a receptive field of about 80 m — D_e = 64, r = 2; 2000 steps × 4 windows of 5
-frames, about 390 s per model; pedestrian density learned as presence (``FOOTPRINT_M2`` in
-:mod:`encoders.tagging.attributes`, a loss term of its own); F1 thresholds and L1 calibrations from the 13
-validation logs; F1 is undefined, and left out of the means, in a region without a positive test
-frame). Table 2, mean over the six regions (L1 lower is better, F1 higher):
-
-=====================  ======  =======  =======  =======  =======
-attribute              metric  none     map      lidar    both
-=====================  ======  =======  =======  =======  =======
-vehicle_density        L1 m²   10.46    9.86     1.28     1.38
-pedestrian_density     L1 m²   0.219    0.230    0.090    0.079
-vehicle_speed          L1 m/s  3.52     3.59     2.71     2.52
-parked                 F1      0.242    0.202    0.760    0.998
-stopped                F1      0.261    0.270    0.431    0.502
-braking                F1      0.195    0.195    0.291    0.322
-keeping_lane           F1      0.550    0.549    0.744    0.775
-left_turn              F1      0.312    0.327    0.592    0.747
-right_turn             F1      0.085    0.132    0.224    0.317
-left_lane_change       F1      0.027    0.022    0.045    0.046
-right_lane_change      F1      0.040    0.037    0.098    0.083
-blocked_by             F1      0.118    0.059    0.136    0.190
-braking_for            F1      0.083    0.078    0.128    0.187
-three_way              F1      0.892    0.907    0.896    0.895
-four_way               F1      0.300    0.622    0.390    0.356
-skill (mean)                   0.207    0.226    0.429    0.481
-=====================  ======  =======  =======  =======  =======
-
-``both`` beats the statistics on all 15 attributes, and LiDAR + map is best overall (skill 0.481 vs
-LiDAR 0.429, map 0.226). F1 thresholds are now the midpoints between the validation scores that split
-them best (``best_threshold``), not a fixed grid; the models are the same as in the run before (same
-seeds, same training), so the changes are the thresholds': the map alone on four-way junctions 0.302 →
-0.622 (statistics 0.300; it ranks the test frames by them with AUC 0.76, but its mean probability is
-0.186 on positive frames and 0.184 on the others), LiDAR alone 0.308 → 0.390, three-way 0.896 → 0.907
-(map); where a model has no signal the finer threshold can do worse than "always" on the test logs (map
-alone: ``blocked_by`` 0.118 → 0.059, parked 0.242 → 0.202). The map-only regression after commit 7f83740
-(four-way 0.874 there, 0.378 one commit later at 1b37f87, which only added street furniture and standing
-people and changed no target but pedestrian density) was mostly this: the 1b37f87 model still ranks the
-test frames by four-way junction with AUC 0.88 (0.90 at 7f83740), but its pooled probabilities average
-0.23 on positive frames and 0.21 on the others (0.63 and 0.13 at 7f83740), which no grid step separated;
-with the midpoints the two score 0.715 and 0.892 (13 validation logs), and the rest of the gap, like
-this run's lower AUC, is a weaker ranking. Not this: LiDAR + map on four-way junctions, 0.805 on
-2026-11-21, 0.356 here; that model does not rank the test frames by junction kind (AUC 0.56 over the
-whole grid, 0.75 on the junction cells). Found on 2026-12-04 (one data set simulated at 13106bc and
-shared by every run, 2000 steps, 13 validation logs, midpoint thresholds): 13106bc, cdd7c2a and 2841a03
-train bit-identical models (four-way 0.693, every figure equal), this commit 0.384 (seed 1: 0.369), and
-this commit with pedestrian density regressed as before (no ``FOOTPRINT_M2``) 0.693 again, every figure
-equal to 2841a03's: the change is 734d44f, pedestrian density learned as presence. Since then the
-junction rows barely learn in the budget: four-way pooled probability 0.221 on positive test frames
-against 0.211 elsewhere (AUC 0.66), three-way 0.206 against 0.206 (AUC 0.46; its F1 0.895 is the
-statistics' 0.892); with the density regressed 0.402 against 0.207 (AUC 0.88), three-way AUC 0.93.
-Nothing simpler brings them back, all at seed 0 on the same data: no pedestrian loss at all
-(``presence_weight=0``) four-way 0.467; the vehicle rows at their former shares of the continuous term
-(``continuous_weight`` 2/3, ``scene_weight`` 0.075) 0.436; presence plus a count term (the presence
-probabilities' sum against the occupied cells) 0.395; presence plus the former regression on a row of
-its own 0.484 (three-way F1 0.877). Nor is the former loss reliably better: at training seed 1 it scores
-four-way 0.466 (three-way 0.867, blocked_by 0.476). Whether the junction rows take off within 2000 steps
-depends on the run: regressed 0.693 and 0.466 (seeds 0, 1), as presence 0.384, 0.369 and 0.404 (seeds 0,
-1, 2; skill 0.504, 0.495, 0.511): presence costs four-way junctions on average and has not taken off at
-any seed. The trade at seed 0: presence brings pedestrian density L1 0.222 → 0.073, vehicle density 2.03
-→ 1.40, right turn 0.267 → 0.384 and skill 0.491 → 0.504, and costs four-way 0.693 → 0.384 and the lane
-changes (left 0.205 → 0.064, right 0.239 → 0.112). 37b7268, whose tag training is 13106bc's code, scored
-0.756 on logs simulated on another machine: such data move four-way by about 0.06; the street
-furniture's 0.1 (0.451 without it at this commit) is of that order. Against 2026-11-21 also: pedestrian
-density 0.211 → 0.079, left turn 0.656 → 0.747, right turn 0.222 → 0.317; ``blocked_by`` 0.344 → 0.190,
-``braking_for`` 0.242 → 0.187, left lane change 0.165 → 0.046. The query "blocked_by & four_way" in
-front (threshold 0.0195, best frame F1 on the validation logs) returns 8 spans over the 12 test logs, 2
-confirmed by the labels (span precision 25%, frame precision 5%; the test logs hold 17 such frames, 41%
-of them found); on 2026-11-21 it returned 1 span, confirmed. ``causes_ego_braking`` (F1 in front, 87
-positive test frames in the full scene): added to the trained model with a frozen backbone 0.098, with
-the backbone fine-tuned 0.201, trained from scratch 0.260 (1000 steps each).
+The figures of past runs and their history: ``docs/research/tagging-benchmark.md``.
 """
 
 from __future__ import annotations

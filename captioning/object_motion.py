@@ -64,7 +64,7 @@ def _interior_rate(
         return np.full(values.shape, np.nan)
     weights = savgol_coefficients(window_frames, polyorder, 1)[h]
     both = np.stack([np.nan_to_num(values), t_s], axis=2)
-    from scipy.ndimage import correlate1d  # imported here: 0.2 s that a search's start-up never needs
+    from scipy.ndimage import correlate1d  # imported here: a cost a search's start-up never needs
     d = correlate1d(both, weights, axis=1, mode="constant", cval=0.0)
     col = np.arange(values.shape[1])[None, :]
     inside = (col - h >= run_start) & (col + h <= run_end)

@@ -109,7 +109,7 @@ def frame_derivative(
     interior = valid & (frame - half >= run_start) & (frame + half <= run_end)
     if interior.any():
         # out[i] = sum_j centred[j] * x[i + j - half]: a correlation along time, done in C.
-        from scipy.ndimage import correlate1d  # imported here: 0.2 s that a search's start-up never needs
+        from scipy.ndimage import correlate1d  # imported here: a cost a search's start-up never needs
         out = correlate1d(flat3, sg_coeffs[half], axis=1, mode="constant", cval=0.0)
         out[~interior] = np.nan
     else:

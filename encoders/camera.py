@@ -73,10 +73,9 @@ def with_motion(geometry: torch.Tensor) -> torch.Tensor:
 def mask_scale(mask: torch.Tensor) -> torch.Tensor:
     """mask: (N, 1, H, W) in [0, 1] → (N, 1): log(1 + pixels under the mask) / log(1 + H·W), in [0, 1].
 
-    A camera object at demo resolution covers a few pixels (median area fraction 0.0005 over 60 of
-    the demo's test clips with a camera, a quarter above 0.0035): as a fraction, its size and how that changes
-    (approaching, moving away) are invisible next to unit-range inputs; on a log scale one pixel
-    and a tenth of the image both count.
+    A camera object at demo resolution covers a few pixels (``docs/research/camera-ego-size.md``): as a
+    fraction, its size and how that changes (approaching, moving away) are invisible next to unit-range
+    inputs; on a log scale one pixel and a tenth of the image both count.
     """
     _, _, h, w = mask.shape
     return torch.log1p(mask.sum(dim=(1, 2, 3)))[:, None] / math.log1p(h * w)  # (N, 1)

@@ -86,7 +86,7 @@ class TextConfig(EncodersConfig):
         scratch_max_words: words kept per caption by the scratch tower.
         step_hidden: ``slots``: hidden width of the head per time slot.
         precision: the frozen encoder's matrix products: ``auto`` (bfloat16 where the CPU multiplies
-            it in hardware, 1.7–1.8× faster; else float32), ``float32`` or ``bfloat16``. ``auto`` is
+            it in hardware, which is faster; else float32), ``float32`` or ``bfloat16``. ``auto`` is
             resolved on the machine that runs the model, so a run trained on one serves on the other.
         whole_text: ``slots``: the whole-text place is the text encoded in one piece (``text``) or the
             mean of its sentences, each encoded alone (``sentences``: fewer and shorter distinct strings
@@ -212,7 +212,8 @@ class BevConfig(EncodersConfig):
             (:func:`encoders.clips.views.ego_motion`) that the temporal models read.
         temporal: the temporal model over frames.
         track_features: per-frame features of the object's own track (``object_track`` of a batch) read by a second
-            temporal model, whose clip vector is added to the BEV one (demo R@5 0.20 → 0.7); 0 turns it off.
+            temporal model, whose clip vector is added to the BEV one (``docs/research/object-track.md``); 0 turns
+            it off.
         track: the temporal model over the track.
         track_velocity: also give the track stream the object's velocity relative to the ego (m/s, ``object_velocity``
             of a batch) and its range rates along x and y (velocity times the sign of the position): what the motion

@@ -115,8 +115,9 @@ def order_loss(
     """Each clip against its caption's steps reversed: mean over pairs of softplus(−scale · (v·t − v·t_rev)).
 
     In the contrastive loss a clip's reversed caption is one column among the batch's, and its pull
-    fades as soon as the softmax mass sits on the positives; on the demo the trained model then kept
-    only 0.895 of its own training pairs in order. This term keeps pushing each pair apart.
+    fades as soon as the softmax mass sits on the positives; on the demo the trained model then left
+    some of its own training pairs out of order (``docs/research/order-loss.md``). This term keeps
+    pushing each pair apart.
 
     video, text: (B, D) the whole batch's clips and captions, normalised; negatives: (M, D);
     reversed_of: (M,) the clip whose steps negative m reverses (−1: another edit; a reversal

@@ -3,8 +3,8 @@
 A caption is the ego's sentence, then the object's ("The ego vehicle is cruising straight. A car in
 the left lane approaches, then moves into the ego lane."), but people type one half: "a stopped car
 in the ego lane", "we brake and come to a stop". Trained on whole captions only, the demo's model
-found the clips of an object sentence typed alone with mAP 0.51 on its test split, against 0.86 for
-whole captions (README, "Partial queries").
+finds the clips of an object sentence typed alone far less well than those of a whole caption
+(``docs/research/partial-queries.md``).
 
 Each training step therefore adds, beside the clips' captions, the object sentence of every clip's
 caption (``object_share``) and the ego sentence of some (``host_share``; a log's clips share it, so
@@ -13,7 +13,7 @@ train as extra queries of the batch's clips (:func:`encoders.loss.partial_query_
 positives are the clips whose canonical caption has the same half, whatever the other half says.
 The whole captions, their hard negatives and the order loss stay as they were: a half is a query
 beside them, not instead of them (in place of a quarter of the captions, the same halves cost
-temporal order 0.93 → 0.85 on the demo's split).
+temporal order on the demo's split).
 """
 
 from __future__ import annotations

@@ -14,10 +14,10 @@ sentence-transformers folder, or a hub name already in the local cache (the hub 
 
 Frozen inference runs its matrix products in bfloat16 where the CPU does them in hardware
 (:func:`inference_dtype`, :func:`inference_autocast`): the encoder is most of what training spends on
-text, and there it ran 1.7–1.8× faster at a cosine of at least 0.99998 to the float32 embeddings
-(1,000 of the demo's rule captions, AVX512-BF16). Elsewhere it stays in float32, because a CPU
-without those instructions emulates bfloat16 and is slower. Cached embeddings are filed under the
-precision too (:func:`cache_name`), so the rows of one precision never mix with the other's.
+text, and there it runs faster at a cosine of nearly 1 to the float32 embeddings
+(``docs/research/training-speed.md``). Elsewhere it stays in float32, because a CPU without those
+instructions emulates bfloat16 and is slower. Cached embeddings are filed under the precision too
+(:func:`cache_name`), so the rows of one precision never mix with the other's.
 """
 
 from __future__ import annotations
@@ -84,9 +84,9 @@ _QUERY = threading.local()
 def few_texts(count: int) -> Iterator[None]:
     """Within it, when ``count`` < :data:`FEW_TEXTS`, the frozen encoder runs in float32 whatever
     :func:`inference_dtype` says, and caches nothing. bfloat16's kernels are built on their first call in
-    a process: embedding one query took 0.64 s in bfloat16 against 0.03 s in float32 (a fresh process,
-    AVX512-BF16), which a search never earns back. Rows computed here stay out of the caches, whose
-    rows are all of one precision."""
+    a process, which makes one query's embedding far slower than in float32 and which a search never
+    earns back (``docs/research/cli-startup.md``). Rows computed here stay out of the caches, whose rows
+    are all of one precision."""
     previous = getattr(_QUERY, "few", False)
     _QUERY.few = count < FEW_TEXTS
     try:

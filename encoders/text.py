@@ -180,8 +180,8 @@ class PretrainedText(nn.Module):
         """texts: B strings → (B, F), encoded shortest first in groups of ``group``.
 
         One call pads every string to the longest: a batch's captions, their steps and its negatives
-        run from about 5 to 50 tokens, so much of one call's work was padding (``make bench``,
-        ``train.grouped_text_encoding``: groups of 16 1.25× one call on caption batches).
+        run from about 5 to 50 tokens, so much of one call's work was padding (``make bench``'s
+        ``train.grouped_text_encoding`` times groups against one call: ``docs/research/demo-time.md``).
         """
         encoder: Any = self.encoder
         if not texts:
@@ -392,8 +392,8 @@ class UnloadedText(TextTower):
     """The text tower of a model loaded for its clip towers alone (:func:`encoders.inference.load_model`
     with ``text=False``): no weights, and encoding text is an error.
 
-    Building a pretrained text tower loads its sentence encoder, most of a model's load (about 3 s of
-    3.4 s on 2 cores, more under load); a process that only embeds clips, a Ray Data actor of
+    Building a pretrained text tower loads its sentence encoder, most of a model's load
+    (``docs/research/ray-scale.md``); a process that only embeds clips, a Ray Data actor of
     ``index --workers``, never runs it.
     """
 

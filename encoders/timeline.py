@@ -2,8 +2,8 @@
 
 A caption says what happens in order ("approaches, then moves away"), never when. One pooled vector
 per side keeps the order weakly: the frozen sentence encoder gives a caption and its steps reversed
-a cosine of 0.99, and a clip's query token mixes all its frames. With ``time_slots: K`` each
-embedding is the concatenation
+a cosine of nearly 1 (``docs/research/text-order-options.md``), and a clip's query token mixes all its
+frames. With ``time_slots: K`` each embedding is the concatenation
 
     [ global (D − K·S) | slot 1 (S) | … | slot K (S) ]
 
@@ -69,9 +69,9 @@ class SlotReadout(nn.Module):
     a step really is. The ends, not the middles of the stretches: a caption's first step holds at the
     clip's first frame and its last step at the last frame whatever the steps' durations, where the
     middle of the first stretch may already show the second step (a step of one frame). With the rules'
-    own per-frame tags for the video slots, a caption beats its reversed steps on 100% of the demo's
-    test pairs with centres at the ends and 97.7% at the middles of the stretches; trained, the change
-    is within one seed's spread (README, "Action and context per frame").
+    own per-frame tags for the video slots, a caption beats its reversed steps on more of the demo's
+    test pairs with centres at the ends than at the middles of the stretches; trained, the change is
+    within one seed's spread (``docs/research/action-context-heads.md``).
     """
 
     def __init__(self, width: int, embed_dim: int, slots: int, slot_dim: int) -> None:

@@ -17,11 +17,11 @@ truncation for free); checksums according to :class:`Verify`:
 * ``full`` hashes every byte on every open.
 * ``off`` compares sizes only, and says so with an :class:`IntegrityWarning`.
 
-Cost: SHA-256 runs at about 1.7 GB/s per core on CPUs with SHA extensions (most x86 and ARM
-server CPUs). Hashing runs in background threads (``hashlib`` releases the GIL) while the loader
-parses the same files, so a first open takes about as long as the slower of the two rather than
-their sum, and a stamped open costs a ``stat`` per file; ``benchmarks/bench_index.py`` measures
-both at 1M clips.
+Cost: SHA-256 is fast on CPUs with SHA extensions (most x86 and ARM server CPUs;
+``docs/research/index-integrity.md``). Hashing runs in background threads (``hashlib`` releases the
+GIL) while the loader parses the same files, so a first open takes about as long as the slower of the
+two rather than their sum, and a stamped open costs a ``stat`` per file; ``benchmarks/bench_index.py``
+measures both at 1M clips.
 """
 
 from __future__ import annotations

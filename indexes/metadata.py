@@ -130,7 +130,7 @@ class MetadataStore:
     @classmethod
     def read(cls, path: Path) -> MetadataStore:
         try:
-            table = pq.ParquetFile(path).read()  # not read_table: it imports pyarrow.dataset (0.2 s of a search)
+            table = pq.ParquetFile(path).read()  # not read_table: it imports pyarrow.dataset, a cost of every search
         except (OSError, pa.ArrowInvalid) as exc:
             raise IndexFileError(path, f"unreadable Parquet: {exc}") from None
         return cls(table, source=str(path))

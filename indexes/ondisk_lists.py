@@ -86,8 +86,8 @@ def read_ondisk_index(path: Path) -> faiss.Index:
     except RuntimeError as exc:
         raise IndexFileError(path, f"FAISS cannot read it (truncated or corrupt?): {faiss_message(exc)}") from None
     # By default every search starts threads that read the probed lists ahead. Starting them costs
-    # more than the reads they overlap: at 1M vectors a single query took 0.20 ms warm and 0.29 ms
-    # with the data evicted from the page cache with them, 0.12 and 0.14 ms without.
+    # more than the reads they overlap, warm or with the data evicted from the page cache
+    # (docs/research/index-beyond-memory.md).
     ondisk_lists(index).prefetch_nthread = 0
     return index
 

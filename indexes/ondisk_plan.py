@@ -40,8 +40,8 @@ DEFAULT_CODEC = "SQ8"
 #: Fewest rows an add task must be able to hold; smaller shards make the merge read many small files.
 MIN_SPAN_ROWS = 10_000
 #: Most lists chosen by default. k-means on 39 training points per list costs 39·K² distance
-#: computations an iteration (4096 lists of 256 dimensions: 29 s on 2 cores; 16384: 16 times as
-#: long), and each vector added costs K dot products. Pass ``nlist`` for more.
+#: computations an iteration (16384 lists: 16 times as long as 4096; docs/research/index-beyond-memory.md),
+#: and each vector added costs K dot products. Pass ``nlist`` for more.
 MAX_DEFAULT_LISTS = 4096
 
 
@@ -167,7 +167,7 @@ def plan_on_disk(n: int, dim: int, metric: Metric | str = "cosine", codec: str =
         two_level: train the coarse quantizer by two-level k-means (√K clusters, each split in
             proportion to its size): about √K times cheaper than k-means, for many lists. Off by
             default: on clustered data whose clusters vary along shared directions it cut clusters
-            across lists (recall@10 at nprobe 1: 0.64 against 0.97 for k-means, 1M vectors, 1024 lists).
+            across lists, at a recall@10 well below k-means' (``docs/research/index-beyond-memory.md``).
 
     Raises:
         MemoryBudgetError: a phase cannot fit the budget (the message lists each phase's estimate).
@@ -181,9 +181,10 @@ def plan_on_disk(n: int, dim: int, metric: Metric | str = "cosine", codec: str =
     if k < 1 or n < k:
         raise ValueError(f"{n} vectors cannot fill {k} inverted lists; give fewer lists (nlist) or more vectors")
     # The coarse quantizer is exact (flat), never a graph: FAISS's HNSW quantizer, which in-memory
-    # indexes use from 2^14 lists, sent 53% of the vectors of clustered data to another list than
-    # their nearest one at its default search depth, and recall@10 stayed at 0.38 at any nprobe
-    # (10M vectors, 16384 lists). Flat assignment costs more per vector but is spread over the workers.
+    # indexes use from 2^14 lists, sent about half of the vectors of clustered data to another list than
+    # their nearest one at its default search depth, and recall@10 stayed low at any nprobe
+    # (docs/research/index-beyond-memory.md). Flat assignment costs more per vector but is spread over
+    # the workers.
     factory = f"IVF{k},{codec}"
     try:
         probe = faiss.index_factory(dim, factory, metric.faiss_metric)

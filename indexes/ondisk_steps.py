@@ -97,7 +97,7 @@ def _train_two_level(index: faiss.Index, x: np.ndarray, nlist: int, metric: Metr
         index.is_trained = True
         return
     ivf = faiss.extract_index_ivf(index)
-    # Imported here: it imports scipy.sparse, 0.1 s of every search's start-up that only a build needs.
+    # Imported here: it imports scipy.sparse, a cost of every search's start-up that only a build needs.
     from faiss.contrib.clustering import two_level_clustering
 
     centroids, _ = two_level_clustering(x, math.isqrt(nlist), nlist, spherical=metric is not Metric.L2,

@@ -214,7 +214,7 @@ def _read_parts(directory: Path, counts: dict[str, Any]) -> tuple[MetadataStore,
                                                         f"{counts['count']}")
     texts_path = directory / TEXTS_FILE
     try:
-        texts_table = pq.ParquetFile(texts_path).read()  # not read_table: it imports pyarrow.dataset (0.2 s)
+        texts_table = pq.ParquetFile(texts_path).read()  # not read_table: it imports pyarrow.dataset
     except (OSError, pa.ArrowException) as exc:
         raise IndexFileError(texts_path, f"unreadable Parquet: {exc}") from None
     if "text" not in texts_table.column_names or not pa.types.is_string(texts_table.schema.field("text").type) \

@@ -30,8 +30,8 @@ class DemoConfig:
         frames_per_clip: T frames per clip.
         camera_width_px: width of the camera view of clips (height: ``camera_height_px``).
         camera_height_px: height of the camera view of clips. 128 × 64 lifted the camera view alone on
-            the demo's split but not on the quality benchmark, for 1.1-1.3× the training time, so
-            64 × 32 (README, "The camera at 128 × 64").
+            the demo's split but not on the quality benchmark, for more training time, so 64 × 32
+            (``docs/research/camera-resolution.md``).
         bev_resolution_m: cell size of the BEV view of clips (grid x ∈ [−20, 60] m, y ∈ [−20, 20] m).
         train_preset: the training recipe (:mod:`encoders.presets`): ``recommended``, the model the
             documentation measures; ``tiny`` for smoke runs.
@@ -40,16 +40,15 @@ class DemoConfig:
         sensors: render LiDAR and cameras (off: BEV clips from boxes, no camera).
         extra_logs: more simulated logs, from another seed, without sensors (BEV clips from boxes,
             no camera), that only ever train (``clips --train-only``): the cheapest data there is
-            (24 logs: seconds to simulate, half a minute to cut into clips), and more data is what
-            the model lacks most. They leave the validation and test splits as they were.
+            (quick to simulate and to cut into clips), and more data is what the model lacks most.
+            They leave the validation and test splits as they were.
         val_logs: more simulated logs, from another seed, drawn as ``logs`` are (sensors, the same city),
             that only ever validate (``clips --val-only``). The hashed split gives the demo's logs one
             validation log; a tag that log never shows (a stopped vehicle behind, ``blocked_by``, a
             lane change) then takes its F1 threshold from training logs, where the model is sure of
-            itself (27 of the 72 F1 cells at seed 0; 2 with the four logs, and the tagging head above
-            the statistics on 12 of 14 attributes instead of 10: README, "Validation logs"). Four
-            logs are one simulator run of its four egos. They leave the train and test splits as they
-            were.
+            itself; four more logs leave few such cells and put the tagging head above the statistics
+            on more attributes (``docs/research/validation-logs.md``). Four logs are one simulator run
+            of its four egos. They leave the train and test splits as they were.
         map_less_share: share of the extra logs written without their map
             (:attr:`scenes.sim.SimulationConfig.map_less_share`), as track-only real logs come.
         jitter_share: share of the extra logs whose boxes scatter from frame to frame as real labels
@@ -60,20 +59,21 @@ class DemoConfig:
             ``extra_logs/``. The grid alone by default: its roads meet at right angles, so that
             beside its egos almost no object heads 30-60 or 120-150 degrees off the ego, as on real
             streets many do; ``("grid", "random")`` adds those headings, which on the real logs bought
-            mAP and cost temporal order (README, "Extra logs on two road networks"). A random log
-            holds about 1.7 times the clips of a grid log.
+            mAP and cost temporal order (``docs/research/extra-networks.md``). A random log holds more
+            clips than a grid log.
         queries: example queries shown and put in the report.
         scenario_query: the report's scenario query, shown with its program and the objects it selects.
         top_k: results shown per example query.
         workers: Ray workers of the per-log stages that take most of their time in one process: the
             simulation of the sensor logs and the clips (``--workers``; outputs are the same bytes as
             without). None: one per CPU core when Ray is installed and there is more than one core;
-            0 or 1: serially. ``make bench`` (``scale``): clips 1.75× on 2 workers against 1 (README, "Time").
+            0 or 1: serially. ``make bench`` (``scale``) times the clips on 2 workers against 1
+            (``docs/research/demo-time.md``).
     """
 
-    # Sized so that the whole demo runs in 9 to 15 minutes on 2 CPU cores: small clip views (the model
-    # trains at about 32 clips/s on them), and the extra logs' clips with 6 epochs rather than 12
-    # epochs of the 12 logs' clips alone: more data beat more passes over the same clips.
+    # Sized so that the whole demo runs in 9 to 15 minutes on 2 CPU cores: small clip views (quick to
+    # train on), and the extra logs' clips with 6 epochs rather than 12 epochs of the 12 logs' clips
+    # alone: more data beat more passes over the same clips (``docs/research/demo-config-history.md``).
     logs: int = 12
     duration_s: float = 20.0
     test_fraction: float = 0.25

@@ -300,7 +300,8 @@ class RayDataEmbedder(ModelEmbedder):
             # idle: the actors share the work evenly, and one that is up first does not queue it
             # all. The blocks are made here (no read tasks), and each actor writes the shard of a
             # block itself: Ray Data's write tasks started worker processes of their own beside the
-            # actors, 2 s of the 834 clips' 16 s on 2 cores (benchmarks/bench_scale.py).
+            # actors, a large share of the embedding's time on 2 cores (benchmarks/bench_scale.py;
+            # docs/research/ray-scale.md).
             blocks = min(batches, 64 * actors)
             _quiet_ray_data(ray, self.execution)
             remove_files(self.shards_dir, SHARD_PATTERN)
@@ -333,8 +334,8 @@ def cpu_actors(parallelism: int, node_cpus: Sequence[int]) -> tuple[int, int]:
 
     One model on k threads embeds faster than k models on one thread each: the threads share one
     copy of the weights and split each batch's activations, where k models each stream their own
-    through the memory they share (on 2 cores: 1.8× from a second thread, 1.0–1.4× from a second
-    process, ``benchmarks/bench_scale.py``).
+    through the memory they share (on 2 cores a second thread gains more than a second process:
+    ``benchmarks/bench_scale.py``, ``docs/research/ray-scale.md``).
     """
     per_node = max(1, min(min((c for c in node_cpus if c > 0), default=1), parallelism))
     return max(1, parallelism // per_node), per_node

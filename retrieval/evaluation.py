@@ -70,7 +70,8 @@ from retrieval.hybrid import CHOICE_SPLIT, DEFAULT_WEIGHT, WeightChoice, choose_
 from retrieval.sentence_encoder import SentenceEncoder
 
 #: A caption and its reversed steps count as kept apart by a text tower when their cosine is below this.
-#: Frozen mean-pooled sentence encoders give 0.98–0.99 for such pairs; 0.95 asks for a visible gap.
+#: Frozen mean-pooled sentence encoders put such pairs close to 1 (``docs/research/text-order-options.md``);
+#: 0.95 asks for a visible gap.
 ORDER_COSINE_MAX = 0.95
 
 # ---------------------------------------------------------------------- text → clip

@@ -307,9 +307,9 @@ class SceneSearch:
             k, filters, view, max_k: as in :meth:`search_text`.
             other_moments: leave out the clips of the query's own moment, the other objects in view at the
                 same time (its log, windows that share an instant with its own), which share its place, the ego's
-                motion and the look: on the demo's test split they are a third of the neighbours that
-                differ in action (README, "Other moments"). Needs a clip id; fewer than k come back when
-                fewer clips are left.
+                motion and the look: on the demo's test split they are many of the neighbours that differ
+                in action (``docs/research/appearance-bias.md``). Needs a clip id; fewer than k come back
+                when fewer clips are left.
 
         Raises:
             UnknownClipError: the clip id is not indexed (the message shows valid ones).

@@ -29,10 +29,10 @@ class SentenceEncoder:
     ``whole_text``: a text of several sentences is embedded as the normalised mean of its sentences,
     each encoded alone (``sentences``, :func:`encoders.text.text_sentences`), or in one piece
     (``text``). Mean-pooled over a whole caption, the ego's sentence and the object's blur into one
-    another; as sentences a caption meets a caption sentence by sentence (rule-caption search on the
-    quality benchmark's test split: R@5 0.826 → 0.958, order 0.923 → 0.984), and the sentences are
-    what training's text cache holds. A text of one sentence (as :func:`encoders.text.text_sentences` splits
-    it: also at ``;``) is embedded the same either way.
+    another; as sentences a caption meets a caption sentence by sentence (rule-caption search gains
+    recall and order on the quality benchmark's test split: ``docs/research/rule-caption-sentences.md``),
+    and the sentences are what training's text cache holds. A text of one sentence (as
+    :func:`encoders.text.text_sentences` splits it: also at ``;``) is embedded the same either way.
     """
 
     name = "all-MiniLM-L6-v2"

@@ -136,7 +136,7 @@ class ShortIds:
                  ) -> None:
         self._table = table.select(list(_COLUMNS))
         # Each log's first and last indexed moment, in numpy: Arrow's group_by imports its query engine and
-        # pyarrow.dataset (0.2 s of a search's start-up).
+        # pyarrow.dataset, which a search's start-up would pay for (docs/research/cli-startup.md).
         logs, inverse = np.unique(to_numpy(self._table.column("log_id")).astype(str), return_inverse=True)
         first = np.full(logs.shape[0], np.iinfo(np.int64).max, dtype=np.int64)
         last = np.full(logs.shape[0], np.iinfo(np.int64).min, dtype=np.int64)

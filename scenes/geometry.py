@@ -259,7 +259,8 @@ class SE3:
             (N, 3) points in the target frame.
         """
         pts = np.asarray(points_xyz, dtype=np.float64)
-        # A contiguous copy of Rᵀ: multiplying by the transposed view is up to 100× slower for large N.
+        # A contiguous copy of Rᵀ: multiplying by the transposed view is much slower for large N
+        # (docs/research/ingest-profile.md).
         return pts @ np.ascontiguousarray(self.rotation.T) + self.translation
 
 

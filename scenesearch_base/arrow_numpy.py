@@ -1,10 +1,11 @@
 """Arrow columns as numpy arrays, and numpy arrays as Arrow, without pyarrow's pandas bridge.
 
 ``pyarrow``'s own ``to_numpy`` converts through its pandas layer, whose first use in a process imports
-pandas (about 0.25 s, as much as a one-query command's whole search). The columns a query reads are
-fixed-width numbers without nulls, whose values buffer *is* the numpy array: :func:`to_numpy` views it,
-and reads strings as Python objects, as pyarrow would. ``pa.array`` asks pandas whether a numpy array
-is one of its own before converting it: :func:`from_numpy` builds the Arrow array from the buffer.
+pandas (a large share of a one-query command's time: ``docs/research/cli-startup.md``). The columns a
+query reads are fixed-width numbers without nulls, whose values buffer *is* the numpy array:
+:func:`to_numpy` views it, and reads strings as Python objects, as pyarrow would. ``pa.array`` asks
+pandas whether a numpy array is one of its own before converting it: :func:`from_numpy` builds the
+Arrow array from the buffer.
 """
 
 from __future__ import annotations

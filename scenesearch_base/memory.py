@@ -20,7 +20,7 @@ no ``mmap``) and never trim that heap's freed top, so freed blocks are reused wi
 The command line's ``main`` and the benchmarks call it first; workers and launched processes get it
 from their environment, not by calling it: a worker's task runs on a thread that already has its own
 malloc arena, and ``mallopt`` then would forbid that arena's large mappings without moving the
-thread to the main heap (the benchmark's embedding went 211 → 245 s that way).
+thread to the main heap, which slows the embedding (``docs/research/ray-scale.md``).
 
 A process keeps its peak memory until it exits, which is what a training run, an embedding worker
 or a service does anyway. Results do not change: only where the bytes live does. Where malloc is

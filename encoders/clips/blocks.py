@@ -1,13 +1,13 @@
 """Frame-blocked compressed arrays: a log's per-frame rasters stored in zstd blocks of a few frames.
 
 A rendered log's arrays are mostly zeros (instance rasters, LiDAR occupancy), the static map and
-sparse tag targets: as plain ``.npy`` files a 20-s demo log took 12 MB (17 MB with its tag targets),
-compressed about 3 MB (0.2 MB with the targets' 12 MB shrunk a hundredfold). Readers take frames at
-random (a training window, a clip), so the frames are compressed in blocks of :data:`BLOCK_FRAMES`
-and a read decompresses only the blocks it touches. Decoded blocks are kept per process up to
-:data:`DECODED_CACHE_BYTES`, shared by every reader of a file: the clips of one log cover its frames
-many times over (a clip's 12 frames spread over a window of up to the whole log), and an index build
-decompressed each block about eight times before the cache was shared.
+sparse tag targets: compressed, they take a small fraction of their size as plain ``.npy`` files
+(``docs/research/ingest-profile.md``). Readers take frames at random (a training window, a clip), so
+the frames are compressed in blocks of :data:`BLOCK_FRAMES` and a read decompresses only the blocks it
+touches. Decoded blocks are kept per process up to :data:`DECODED_CACHE_BYTES`, shared by every reader
+of a file: the clips of one log cover its frames many times over (a clip's 12 frames spread over a
+window of up to the whole log), and an index build decompressed each block many times before the cache
+was shared.
 
 Blocks are zstd (level 3, pyarrow's codec): about as small as zlib's level 1 on rendered logs, and
 several times cheaper to write and read (docs/research/ingest-profile.md). zstd frames carry no checksum, so
@@ -54,9 +54,9 @@ CODEC, CODEC_LEVEL = "zstd", 3
 SUB_FILTER = "sub"
 
 
-#: Decoded blocks kept per process, in bytes: a demo log's arrays are 12–17 MB decoded, so a pass that
-#: reads log after log (an index build) decompresses each block about once, and training's random
-#: draws find most of a few dozen logs decoded.
+#: Decoded blocks kept per process, in bytes: a demo log's decoded arrays take a small share of it
+#: (``docs/research/ingest-profile.md``), so a pass that reads log after log (an index build) decompresses
+#: each block about once, and training's random draws find most of a few dozen logs decoded.
 DECODED_CACHE_BYTES = 256 << 20
 #: Logs whose opened arrays a reader keeps (a few kilobytes each: their headers), least recently used
 #: going first: a pass over a fleet's logs would otherwise keep every one.

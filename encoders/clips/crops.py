@@ -1,11 +1,11 @@
 """Object-centred camera crops: each track's box in the full-resolution image, cut out at the clips' camera size.
 
 At the clips' 64 × 32 camera, many objects are too small to see: on the demo's test split the object
-covers at most half a pixel in 46 of the 97 clips with a camera (a 66-pixel object at 640 × 360 is
-under one pixel there), so the camera tower reads the ego's motion and little of the object. A crop
-around the object's box at full resolution shows the same object at about 16 × 16 pixels, and the
-crop's place and the object's size in the full image (:data:`CROP_BOX_COLUMNS`) keep what the crop
-drops: where the object is and how near.
+covers at most half a pixel in nearly half the clips with a camera (a 66-pixel object at 640 × 360 is
+under one pixel there; ``docs/research/camera-small-objects.md``), so the camera tower reads the ego's
+motion and little of the object. A crop around the object's box at full resolution shows the same
+object at about 16 × 16 pixels, and the crop's place and the object's size in the full image
+(:data:`CROP_BOX_COLUMNS`) keep what the crop drops: where the object is and how near.
 
 The crop is the object's box grown by :data:`CROP_CONTEXT`, at least :data:`CROP_MIN_HALF_HEIGHT_PX`
 high on each side of its centre, at the camera's aspect (Wc / Hc); parts outside the image are black.

@@ -107,8 +107,8 @@ def ego_rates(time_s: NDArray[np.float64], pose_xy_yaw: NDArray[np.float64]) -> 
 
     A clip's frames are too far apart, and a real log's odometry too noisy, for a model to
     difference the speed and the heading reliably: a small per-frame probe trained on simulated clips
-    reads the ego's motion tag on real KITTI and AV2 logs right in 0.66 of frames from the raw speed,
-    and in 0.89 with these. The Savitzky–Golay filter is the captioning default's
+    reads the ego's motion tag on real KITTI and AV2 logs right far more often with these than from the
+    raw speed (``docs/research/ego-rates.md``). The Savitzky–Golay filter is the captioning default's
     (:class:`captioning.config.SmoothingConfig`); a log too short to differentiate gives zeros.
     """
     if time_s.shape[0] < 2:
@@ -133,11 +133,12 @@ def object_rates_and_velocity(box_xy_lw_yaw: NDArray[np.floating], pose_xy_yaw: 
 
     Braking, standing and turning are rates of the object's own motion: its ego-relative boxes,
     half a second apart at the clip's frames, leave the ego's motion in them to subtract and two
-    differences to take. A temporal model trained on the demo's track inputs alone reads the action
-    that the caption names right in 0.61 of the test frames, and in 0.75 given the rates. Approach and
-    away threshold the relative velocity: the rules' Savitzky–Golay derivative over the log's frames
-    rather than a central difference of two neighbouring frames, whose noise near the threshold the
-    model would otherwise have to learn (README, "Dense weight and the rules' relative velocity").
+    differences to take. Given the rates, a temporal model trained on the demo's track inputs alone
+    reads the action that the caption names right in clearly more of the test frames
+    (``docs/research/object-rates.md``). Approach and away threshold the relative velocity: the rules'
+    Savitzky–Golay derivative over the log's frames rather than a central difference of two
+    neighbouring frames, whose noise near the threshold the model would otherwise have to learn
+    (``docs/research/dense-weight.md``).
 
     Args:
         box_xy_lw_yaw: (F, 5) the object's box in each log frame's ego frame, NaN where unobserved.

@@ -124,11 +124,11 @@ AROUND_RADIUS_M = 15.0
 #: such an object is in the cell (cross entropy with hard negatives, as for discrete attributes, in a loss
 #: term of its own), read as its probability p where p ≥ :data:`PRESENCE_THRESHOLD` (0 elsewhere) times the
 #: object's footprint, a share of the cell. Why: a pedestrian covers about 6 % of a 2.5 m cell of E, in
-#: 0.3 % of the cells, so regressing the covered fraction (smooth L1 over every cell) left the row at noise
+#: very few of the cells, so regressing the covered fraction (smooth L1 over every cell) left the row at noise
 #: whatever its scale, and the sum of that noise over a region drowned the few pedestrians. The demo's
-#: tower trained for tags alone on the demo's clips (1200 steps, seed 0): regressed, the validation
-#: calibration kept a constant (L1 0.205 against the statistics' 0.192); as presence, calibrated L1 0.152,
-#: below the statistics in all six regions. Joint training (beside the contrastive losses) learns it so too,
+#: tower trained for tags alone on the demo's clips: regressed, the validation calibration kept a constant,
+#: above the statistics' L1; as presence, below the statistics in all six regions
+#: (``docs/research/tagging.md``). Joint training (beside the contrastive losses) learns it so too,
 #: with a stronger presence term (``TagTrainConfig.joint_presence_weight``) on a tower whose first stage
 #: has 16 channels (``BevConfig.widths``).
 FOOTPRINT_M2: dict[str, float] = {Attribute.PEDESTRIAN_DENSITY.value: 0.36}  # a 0.6 m × 0.6 m pedestrian box

@@ -24,9 +24,9 @@ def tagging_bev_config() -> BevConfig:
     Four stages (strides 2–16) then two dilated context blocks: a receptive field of about 80 m.
     A junction's kind (3-way or 4-way) is only visible with all its arms in view, also from the far
     end of an approach lane; with four plain stages (about 15 m) ``four_way`` stayed at the
-    statistics (F1 0.37), with the context blocks it reached 0.92 (map only, 600 steps, 24 logs).
-    D_e = 64: with 32 channels shared by the 15 attributes, pedestrian density (a sparse, small
-    signal) stayed behind the statistics (L1 0.224 vs 0.216 on the benchmark's test logs).
+    statistics, with the context blocks it rose well above them. D_e = 64: with 32 channels shared by
+    the 15 attributes, pedestrian density (a sparse, small signal) stayed behind the statistics. The
+    figures: ``docs/research/tagging.md``.
     """
     return BevConfig(widths=(8, 16, 32, 64), embed_channels=64, downsample=2, context_blocks=2)
 
@@ -43,9 +43,8 @@ class TagTrainConfig(EncodersConfig):
         joint_weight: weight of the tag loss added to the contrastive loss in joint training.
         joint_presence_weight: in joint training, the weight of the presence term (densities learned as
             presence) in place of ``loss.presence_weight``. Beside the contrastive losses the shared tower
-            learns presence only with a stronger pull and a wider first stage (demo clips, seed 0,
-            pedestrian density L1 against the statistics' 0.192: weight 1 0.205, no cell read; weight 5
-            0.200 with 8 first-stage channels, 0.168 with 16); alone, weight 1 does best (0.152, 5: 0.163).
+            learns presence only with a stronger pull and a wider first stage; alone, weight 1 does best
+            (``docs/research/tagging.md``).
         window_frames: T frames per training window.
         frame_stride: frames between the window's frames (the same spacing is used at query time).
         batch_size: windows per step.

@@ -139,8 +139,8 @@ def best_threshold(prob: NDArray[np.floating], truth: NDArray[np.bool_], allow_a
     The candidates are the midpoints between consecutive distinct scores, so every split of the
     frames by score is tried, whatever the scale of the probabilities: hard-negative mining leaves
     pooled probabilities uncalibrated, and a model can rank frames well with all its scores inside
-    one step of a fixed grid (the tagging benchmark's map-only four-way junctions: 0.186 on positive
-    frames against 0.184, F1 0.302 on a 0.05 grid, 0.622 here). Ties keep the lower threshold.
+    one step of a fixed grid (the tagging benchmark's map-only four-way junctions:
+    ``docs/research/tagging.md``). Ties keep the lower threshold.
 
     ``allow_always`` adds 0, "present in every frame" — the constant answer of the
     dataset-statistics row — as the last candidate, so a tag whose scores do not separate the

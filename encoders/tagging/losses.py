@@ -8,7 +8,7 @@
 - **Densities learned as presence** (:data:`~encoders.tagging.attributes.FOOTPRINT_M2`): the same hard-negative
   BCE on "an object is in the cell" (target > 0), as a term of its own: averaged in with the discrete
   attributes, a presence row weighs 1/13 of the discrete term and does not learn (demo clips, tags alone:
-  probability in pedestrian cells 0.19 against 0.11 elsewhere, the row never reads p ≥ 0.5).
+  the row never reads p ≥ 0.5 in pedestrian cells; ``docs/research/tagging.md``).
 - **Continuous** attributes: smooth L1 per pixel (mean over pixels) on V / s (the head's output
   scale); for densities also smooth L1 between the scene sums (sum over the pixels of a frame) of
   prediction and target, divided by ``scene_norm`` so that a frame's sum is near unit range.

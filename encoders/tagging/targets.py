@@ -3,8 +3,8 @@
 :func:`add_attribute_targets` rasterises every rendered log (:mod:`encoders.tagging.rasterize`) and
 writes, per log::
 
-    CLIPS_DIR/logs/<log_id>/bev_attributes.blocks (F, A, H, W) float16, in zlib blocks of frames
-                                                  (:mod:`encoders.clips.blocks`: 98 % of the cells are 0)
+    CLIPS_DIR/logs/<log_id>/bev_attributes.blocks (F, A, H, W) float16, in zstd blocks of frames
+                                                  (:mod:`encoders.clips.blocks`: most of the cells are 0)
     CLIPS_DIR/logs/<log_id>/bev_attributes.json   {"attributes": [names], "present": (F, A) 0/1 lists,
                                                   "version": TARGETS_VERSION, "source": "labels" | "rules"}
 

@@ -75,8 +75,9 @@ def _serve(args: argparse.Namespace, limits: ServiceLimits, sockets: list[socket
     from retrieval.scenesearch import SceneSearch
     from retrieval.service import create_app, serve
 
-    # Measured on 2 busy cores: one caption query took 16 ms with one thread and 300+ ms with two, as
-    # the threads of concurrent calls spin against each other (benchmarks/bench_service.py).
+    # On few busy cores a caption query is far slower with more than one thread, as the threads of
+    # concurrent calls spin against each other (benchmarks/bench_service.py;
+    # docs/research/benchmark-highlights.md).
     torch.set_num_threads(args.torch_threads)
     search = SceneSearch.open(args.index_dir)
     if not args.no_warmup:

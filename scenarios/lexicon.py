@@ -111,6 +111,9 @@ for _phrases, _name, _params in (
      "move|drives|walks|rides|navigating|maneuvering|proceeding|passing through", "moving", ()),
     ("about to cross|about to cross the road|about to cross the street|preparing to cross|going to cross|"
      "ready to cross|getting ready to cross|about to step into the road|about to enter the road", "about_to_cross", ()),
+    ("stepping off the curb|steps off the curb|step off the curb|stepping into the road|steps into the road|"
+     "stepping into the street|steps into the street|stepping onto the road|steps onto the road|entering the road|"
+     "enters the road|walking into the road|walks into the road", "crossing_road", ()),
     # Not "backed up": traffic that is backed up queues, it does not reverse.
     ("reversing|reverses|reverse|reversed|in reverse|backing up|backs up|back up|backing out|backs out|"
      "backing|rolling back|rolls back|rolled back|rolling backwards|rolls backwards|moving backwards|moves backwards|"
@@ -236,7 +239,8 @@ for _phrases, _rel, _rparams, _reverse in (
      "wait for|waiting on|yielding|yields|yield|yielded|giving way|gives way|give way|stopping for|stops for|"
      "stop for|stopped for|halting for|halts for", "yielding_to", (), False),
     ("crossing|crossing in front of|crossing the path of|crossing in front|cutting in front of|crosses|cross|"
-     "crossing paths with|crossing path of|across the path of|across in front of|" + across(), "crossed_by", (), True),
+     "crossing paths with|crossing path of|across the path of|across in front of|across|" + across(), "crossed_by",
+     (), True),
     ("being passed by|passed by|being overtaken by|overtaken by|being overtaken|overtaken|being passed", "passed_by",
      (), False),
     ("past the right side of|past right side of|past the right of", "passed_by", (("side", "right"),), True),
@@ -395,7 +399,11 @@ for _phrases, _name in (("and|as well as|also|while also", "and"), ("or|either",
     _add(_phrases, Lexeme("conj", _name))
 _add("not|no|without|isn't|aren't|doesn't|neither|nor|does not|do not|did not|didn't|don't|fails to|fail to|"
      "failing to|failed to", Lexeme("not"))
-# A place the map does not hold: named as not understood, so that "at a bus stop" asks nothing of buses.
+# Named as not understood: a place the map does not hold ("at a bus stop" asks nothing of buses), traffic
+# lights ("running a red light" asks nothing of speed), and "across from us" (where it is, not a crossing).
+_add("|".join(f"{verb} {the}red light" for verb in ("running", "runs", "ran", "run") for the in ("a ", "the ", ""))
+     + "|red light|red lights|traffic light|traffic lights", Lexeme("unknown", "traffic light"))
+_add("across from|across the street from|across the road from", Lexeme("unknown", "across from"))
 _add("at a bus stop|at the bus stop|near a bus stop|near the bus stop|by a bus stop|by the bus stop|bus stop",
      Lexeme("unknown", "bus stop"))
 _add("|".join(f"{via} {the} {place}" for via in ("out of", "of", "from", "into") for the in ("a", "the")

@@ -396,6 +396,10 @@ MEANINGS = {
     "a car stopped for 10 s": "for_at_least(stopped(car), seconds=10)",  # no object: a duration
     "a car pulls away from the stop": "then(stopped(car), moving(car), within_s=4)",
     "a bus accelerating from a standstill": "then(stopped(bus), moving(bus), within_s=4)",
+    "a car turning left across our path": "reverse(crossed_by(ego, turning(car, direction=left)))",
+    "a car drives across the intersection": "near_intersection(moving(car))",  # a vehicle drives through
+    "a pedestrian stepping off the curb in front of us":
+        "reverse(direction(ego, crossing_road(pedestrian), side=front))",
     "a pedestrian crossing from right to left":  # on our right, then on our left
         "then(reverse(direction(ego, crossing_road(pedestrian), side=right)), "
         "reverse(direction(ego, crossing_road(pedestrian), side=left)), within_s=5)",
@@ -404,6 +408,8 @@ MEANINGS = {
 #: Phrases that must not be read as something else: the word is reported unused instead.
 NOT_UNDERSTOOD = {
     "a car parked across the street": ("parked(car)", ("across",)),  # where it is, not what it does
+    "a car across from us": ("car", ("across", "from", "us")),
+    "a car running a red light": ("car", ("running", "a", "red", "light")),  # no traffic lights in the logs
     "a car waiting to drive": ("stopped(car)", ("drive",)),
     "a pedestrian waiting to walk": ("stopped(pedestrian)", ("walk",)),
     "a car parked in the drive": ("parked(car)", ("drive",)),
@@ -413,7 +419,7 @@ NOT_UNDERSTOOD = {
     "cars behind the bus stop": ("reverse(direction(ego, car, side=behind))", ("bus", "stop")),  # not a stopped bus
     "a pedestrian who is not a child": ("pedestrian", ("child",)),  # no kind of its own to leave out
     "car braking truck ahead": ("braking(car)", ("truck", "ahead")),  # a terse query keeps the car's state
-    "a car stops and nobody crosses": ("crossing_road(stopped(car))", ("nobody",)),  # not "nothing near it"
+    "a car stops and nobody crosses": ("moving(stopped(car))", ("nobody",)),  # not "nothing near it"
     "no pedestrians": ("pedestrian", ("no",)),  # nothing to be without: the objects, "no" unused
     "a car more than 20 m away": ("car", ("more than 20 m",)),  # no relation takes a least distance
     "a car within 5 m of the crosswalk": ("car", ("5 m", "crosswalk")),  # not "of the ego"

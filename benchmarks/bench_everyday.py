@@ -5,7 +5,8 @@ moment's own rule tags and the simulator's labels (its caption row: category, ta
 ``lane:motion[:action][:context]``, the ego's tags, behaviour columns), never from the query's program.
 Each sentence's judge below is written from the sentence alone.
 
-The sentences are split in eleven: ``DEV`` were seen while the description compiler was written;
+The sentences are split in twelve: ``DEV`` and ``PHRASINGS`` were seen while the description compiler was
+written;
 ``FIRST_HELD_OUT`` … ``NINTH_HELD_OUT`` were each held out at one measurement and read after it to
 find the search's gaps; ``HELD_OUT`` were written with their judges after that, before any search ran
 on them, and kept where the test split holds at least 10 clips their judge accepts; not tuned on.
@@ -333,6 +334,34 @@ HELD_OUT: dict[str, Judge] = {
 }
 
 
+def _lateral(row: Row) -> bool:
+    return any(s[0].endswith("_lateral") for s in _steps(row))
+
+
+def _from_side(row: Row, start: str, end: str) -> bool:
+    """Whether a step on side ``start`` of the ego comes before a later one in its lane or on side ``end``."""
+    return _then(row, lambda s: s[0].startswith(start), lambda s: s[0].startswith(("host", end)))
+
+
+#: Development sentences: how people say crossing, stopping for someone and setting off, written with
+#: their judges before any search ran on them, then read to correct the compiler (a crossing lane is
+#: ``*_lateral``; the judges cannot tell a pace, so "running" has none).
+PHRASINGS: dict[str, Judge] = {
+    "a pedestrian walking across the road": lambda r: _cat(r, "pedestrian") and _lateral(r),
+    "a pedestrian walks across in front of us": lambda r: _cat(r, "pedestrian") and _has(r, lane="host_lateral"),
+    "a cyclist rides across the road": lambda r: _cat(r, "cyclist") and _lateral(r),
+    "a pedestrian crossing from left to right": lambda r: _cat(r, "pedestrian") and _from_side(r, "left", "right"),
+    "a pedestrian crossing from right to left": lambda r: _cat(r, "pedestrian") and _from_side(r, "right", "left"),
+    "we stop for a pedestrian crossing": lambda r: _cat(r, "pedestrian") and _host(r, "stationary") and _lateral(r),
+    "a car pulls away from the stop": lambda r: _cat(r, "car") and _then(r, lambda s: "stopped" in s, _moving),
+    "a car accelerating from a standstill": lambda r: _cat(r, "car") and _then(r, lambda s: "stopped" in s, _moving),
+    "a car turning left across our path":
+        lambda r: _cat(r, "car") and _has(r, action="left_turn") and _has(r, lane="oncoming"),
+    "a pedestrian stepping off the curb in front of us":
+        lambda r: _cat(r, "pedestrian") and _has(r, lane="host_lateral"),
+}
+
+
 def evaluate(index_dir: Path, queries: Mapping[str, Judge]) -> dict[str, dict[str, float]]:
     """Precision@10 of each search mode and the base rate, per sentence, on the index's test clips."""
     from retrieval.scenesearch import SceneSearch
@@ -384,7 +413,7 @@ SETS: dict[str, dict[str, Judge]] = {
     "seventh_held_out": SEVENTH_HELD_OUT, "sixth_held_out": SIXTH_HELD_OUT,
     "fifth_held_out": FIFTH_HELD_OUT, "fourth_held_out": FOURTH_HELD_OUT,
     "third_held_out": THIRD_HELD_OUT, "second_held_out": SECOND_HELD_OUT, "first_held_out": FIRST_HELD_OUT,
-    "dev": DEV,
+    "dev": DEV, "phrasings": PHRASINGS,
 }
 
 

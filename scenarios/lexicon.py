@@ -239,8 +239,7 @@ for _phrases, _rel, _rparams, _reverse in (
      "wait for|waiting on|yielding|yields|yield|yielded|giving way|gives way|give way|stopping for|stops for|"
      "stop for|stopped for|halting for|halts for", "yielding_to", (), False),
     ("crossing|crossing in front of|crossing the path of|crossing in front|cutting in front of|crosses|cross|"
-     "crossing paths with|crossing path of|across the path of|across in front of|across|" + across(), "crossed_by",
-     (), True),
+     "crossing paths with|crossing path of|across the path of|across in front of|" + across(), "crossed_by", (), True),
     ("being passed by|passed by|being overtaken by|overtaken by|being overtaken|overtaken|being passed", "passed_by",
      (), False),
     ("past the right side of|past right side of|past the right of", "passed_by", (("side", "right"),), True),

@@ -158,9 +158,6 @@ class RelationReader(LexemeStream):
             return self.relate(node, item, (Objects("ego"), 0))
         if item.reverse and item.name == "passed_by":  # "passing between ...": moving past
             return stated(node, "moving")
-        if item.words == ("across",):  # "parked across the street": where it is, not a crossing
-            self.unused.extend(item.words)
-            return node
         if item.reverse and item.name == "crossed_by":  # "a pedestrian crosses at the crosswalk"
             kind = subject_of(node)  # a vehicle that crosses an intersection drives through it
             through = isinstance(kind, Objects) and kind.kind != "any" and within_kinds(kind.kind, ("vehicle",

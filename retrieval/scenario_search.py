@@ -7,6 +7,9 @@ and covered by the index's checksums. At query time :meth:`ScenarioStore.match` 
 (:mod:`scenarios.compiler`), answers it on every log that has indexed moments, and keeps the moments
 (clip windows) in which an object the program refers to is referred at some frame: the clip's own
 track, or any clip of the log where the program refers to the ego (whose own moments have no clip).
+For a sequence ("drives off", "slows down and stops") the frame must be where it happens, its last
+step beginning after the ones before (:attr:`scenarios.evaluate.Evaluation.events`): a window that
+holds only the stop, or only the driving after it, does not show the sequence.
 The search then ranks those moments with its usual scores (model, hybrid or rule captions), so the
 program decides *which* moments and the learned model *in which order*.
 
@@ -202,10 +205,10 @@ class ScenarioStore:
                 why = self._problems.get(log_id, "no scenario features")
                 said.append((log_id, f"{why}: its moments are left out of the program's answer"))
                 continue
-            result = evaluate(compiled.program, x)
+            result = evaluate(compiled.program, x, events=True)
             said += [(log_id, note) for note in result.notes]
             rows = moments.filter(from_numpy(logs == log_id))
-            found = _moments_selected(x, result.selection.mask, result.selection.related, rows)
+            found = _moments_selected(x, result.selection.mask, result.selection.related, rows, result.events)
             for clip_id, refs, rels in found:
                 selected.append(clip_id)
                 referred[clip_id], related[clip_id] = refs, rels
@@ -216,24 +219,27 @@ class ScenarioStore:
         return ScenarioMatch(query, compiled, tuple(selected), referred, related, notes)
 
 
-def _moments_selected(x: LogFeatures, referred: np.ndarray, related: np.ndarray, rows: pa.Table
-                      ) -> list[tuple[str, tuple[str, ...], tuple[str, ...]]]:
+def _moments_selected(x: LogFeatures, referred: np.ndarray, related: np.ndarray, rows: pa.Table,
+                      events: np.ndarray | None = None) -> list[tuple[str, tuple[str, ...], tuple[str, ...]]]:
     """The moments of one log (``rows``) whose window holds a referred frame of their track (or of the ego),
-    each with the referred and related tracks in its window."""
+    or with ``events`` one of its events, each with the referred and related tracks in its window."""
     ts = x.timestamps_ns
     lo = np.searchsorted(ts, to_numpy(rows.column("start_ns")).astype(np.int64), side="left")
     hi = np.searchsorted(ts, to_numpy(rows.column("end_ns")).astype(np.int64), side="right")
-    ref_sum = np.concatenate([np.zeros((x.num_objects, 1), np.int64), np.cumsum(referred, axis=1)], axis=1)
-    rel_sum = np.concatenate([np.zeros((x.num_objects, 1), np.int64), np.cumsum(related, axis=1)], axis=1)
-    in_window_ref = (ref_sum[:, hi] - ref_sum[:, lo]) > 0  # (K, M): referred somewhere in each window
-    in_window_rel = (rel_sum[:, hi] - rel_sum[:, lo]) > 0
+
+    def in_window(mask: np.ndarray) -> np.ndarray:  # (K, M): the mask holds somewhere in each window
+        counts = np.concatenate([np.zeros((x.num_objects, 1), np.int64), np.cumsum(mask, axis=1)], axis=1)
+        return (counts[:, hi] - counts[:, lo]) > 0
+
+    in_window_ref, in_window_rel = in_window(referred), in_window(related)
+    deciding = in_window_ref if events is None else in_window(events)
     track_row = {str(t): i for i, t in enumerate(x.track_ids)}
     ego = x.ego_index
     out = []
     for m, (clip_id, track) in enumerate(zip(rows.column("clip_id").to_pylist(), rows.column("track_id").to_pylist())):
         k = track_row.get(str(track))
-        own = k is not None and bool(in_window_ref[k, m])
-        by_ego = bool(in_window_ref[ego, m]) and str(track) != EGO_TRACK_ID
+        own = k is not None and bool(deciding[k, m])
+        by_ego = bool(deciding[ego, m]) and str(track) != EGO_TRACK_ID
         if not (own or by_ego):
             continue
         refs = tuple(str(x.track_ids[i]) for i in np.flatnonzero(in_window_ref[:, m]))

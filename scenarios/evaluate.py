@@ -60,10 +60,19 @@ class Selection:
 
 @dataclass
 class Evaluation:
-    """A program's selection on one log, and what it could not answer there."""
+    """A program's selection on one log, and what it could not answer there.
+
+    Attributes:
+        selection: the objects × frames the program selects.
+        notes: what the log could not answer.
+        events: (K, F) for a sequence (``then``, also under filters), the frames where it happens: its
+            last step begins after the steps before it ("drives off": where it moves); None otherwise,
+            and unless asked for.
+    """
 
     selection: Selection
     notes: list[str] = field(default_factory=list)
+    events: Mask | None = None
 
 
 def _any(mask: Mask, axis: int) -> Mask:
@@ -278,14 +287,17 @@ def nearest_only(holds: Mask, gap_m: NDArray[np.float32], subjects: NDArray[np.i
     return kept
 
 
-def evaluate(node: p.Node, features: LogFeatures) -> Evaluation:
-    """Run ``node`` on one log (see the module docstring).
+def evaluate(node: p.Node, features: LogFeatures, events: bool = False) -> Evaluation:
+    """Run ``node`` on one log (see the module docstring); with ``events``, also where a sequence
+    happens (:attr:`Evaluation.events`: the search's moments of a sequence are those that show it).
 
     Raises:
         ProgramError: the program names an unknown kind, predicate or relation, or a bad parameter.
     """
     run = _Run(features)
-    return Evaluation(run.eval(node), run.notes)
+    selection = run.eval(node)
+    happens = run.starts(node, selection) if events and p.chain_under(node) is not None else None
+    return Evaluation(selection, run.notes, happens)
 
 
 def answer(node: p.Node, features: LogFeatures, description: str | None = None) -> tuple[LogAnswer, list[str]]:

@@ -60,6 +60,22 @@ def test_the_program_selects_the_windows_where_it_holds(store: tuple[ScenarioSto
     assert ego.to_dict()["program"] == "turning(ego, direction=left)"
 
 
+def test_a_sequence_selects_the_windows_where_it_happens(tmp_path: Path) -> None:
+    """"Drives off": the window that holds the car setting off, not those that hold only its stop or
+    only its driving after it, although the program selects the car in both."""
+    speed = np.where(np.arange(30) < 12, 0.0, 5.0)  # stopped for 1.2 s, then moving
+    x = make_features([car((0, Y), id="car", speed=speed)], frames=30)
+    folder = tmp_path / SCENARIOS_DIR
+    folder.mkdir()
+    (folder / "synthetic.features").write_bytes(encode(x, "s"))
+    ts = x.timestamps_ns
+    moments = _moments([("car", "", int(ts[0]), int(ts[8])), ("car", "", int(ts[8]), int(ts[16])),
+                        ("car", "", int(ts[16]), int(ts[29]))])
+    match = ScenarioStore(folder).match("a car that drives off", moments)
+    assert match.compiled is not None and match.compiled.text == "then(stopped(car), moving(car), within_s=4)"
+    assert match.clip_ids == (f"synthetic:car:{ts[8]}",)
+
+
 def test_the_store_keeps_features_within_its_budget_and_answers_the_same(
         store: tuple[ScenarioStore, np.ndarray], monkeypatch: pytest.MonkeyPatch) -> None:
     """A query over a fleet's logs reads every log's features: the least recently used go past the

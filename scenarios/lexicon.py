@@ -136,7 +136,8 @@ for _phrases, _name, _params in (
     ("hard braking|braking hard|slamming on the brakes|emergency braking|brakes hard|brake hard|braked hard|"
      "brakes sharply|braking sharply|brakes suddenly|braking suddenly|sudden braking|slams on the brakes|"
      "slams on its brakes", "braking", (("min_mps2", 3.0),)),
-    ("turning|making a turn|turns|turn|u turn|u turning|u turns|" + "|".join(
+    ("turning|making a turn|turns|turn|u turn|u turning|u turns|wide turn|making a wide turn|makes a wide turn|"
+     + "|".join(
         f"{verb} a u turn" for verb in ("making", "makes", "make", "doing", "does", "do", "taking", "takes")),
      "turning", ()),
     (turns("left"), "turning", (("direction", "left"),)),
@@ -167,9 +168,13 @@ for _phrases, _name, _params in (
     ("on road|on the road|in the road|in road|on the street|in the street|in drivable area|in the drivable area|"
      "in the middle of the road|in the middle of the street", "on_road", ()),
     ("blocked|stuck|held up|queued|queuing|in a queue", "blocked", ()),
-    ("jaywalking|jaywalks|jaywalk|crossing the road outside a crosswalk", "jaywalking", ()),
+    ("jaywalking|jaywalks|jaywalk|crossing the road outside a crosswalk|at a non crosswalk location|"
+     "at a non crosswalk|non crosswalk|outside a crosswalk|outside the crosswalk|outside of a crosswalk|"
+     "away from a crosswalk|away from the crosswalk|mid block|midblock|in the middle of the block",
+     "jaywalking", ()),
     ("at stop|at a stop|at its stop", "stopped", ()),
-    ("in vehicle lane|in a vehicle lane|in the vehicle lane|in a traffic lane|in the traffic lane|in traffic",
+    ("in vehicle lane|in a vehicle lane|in the vehicle lane|in a traffic lane|in the traffic lane|in traffic|"
+     "in the lane|in a lane|in a travel lane|in the travel lane|in the driving lane|in a driving lane",
      "in_vehicle_lane", ()),
     ("from bike lane|from the bike lane|from a bike lane|out of the bike lane|through bike lane|through the bike lane|"
      "into the bike lane|into a bike lane|across the bike lane", "in_bike_lane", ()),
@@ -364,30 +369,6 @@ _add("meters|meter|metres|metre|m", Lexeme("unit", "m"))
 _add("m s|meters per second|meter per second|metres per second|mps", Lexeme("unit", "mps"))
 _add("km h|kmh|kph|km per hour|kilometers per hour|kilometres per hour", Lexeme("unit", "kmh"))
 _add("mph|miles per hour|mile per hour", Lexeme("unit", "mph"))
-#: Metres per second in one of each speed unit.
-SPEED_UNITS = {"mps": 1.0, "kmh": 1000.0 / 3600.0, "mph": 1609.344 / 3600.0}
-#: Words before a speed that make it a floor ("faster than 10 m/s") or a ceiling ("under 5 km/h"); with
-#: neither ("at 30 km/h"), the speed is a band of ±20 % around it.
-SPEED_FLOOR = frozenset({"faster", "quicker", "above", "over", "exceeding", "more", "least"})
-SPEED_CEILING = frozenset({"slower", "below", "under", "less", "most"})
-
-
-#: Words before a distance that make it a least one ("more than 20 m away"), which no relation takes.
-FARTHER = frozenset({"more", "least", "over", "beyond", "farther", "further"})
-
-
-def speed_bounds(speed_mps: float, fillers: set[str], low_mps: float | None = None) -> tuple[Param, ...]:
-    """The ``speed`` predicate's bounds for a speed said with the words ``fillers`` before it (a range
-    "5 to 10 m/s" gives its ``low_mps`` too)."""
-    if low_mps is not None:
-        return ("min_mps", round(low_mps, 2)), ("max_mps", round(speed_mps, 2))
-    if fillers & SPEED_FLOOR:
-        return (("min_mps", round(speed_mps, 2)),)
-    if fillers & SPEED_CEILING:
-        return (("max_mps", round(speed_mps, 2)),)
-    return ("min_mps", round(0.8 * speed_mps, 2)), ("max_mps", round(1.2 * speed_mps, 2))
-
-
 _add("faster than|quicker than|slower than|above|over|exceeding|below|under|about|approximately",
      Lexeme("skip"))
 _add("seconds|second|secs|sec|s", Lexeme("unit", "s"))
@@ -401,7 +382,8 @@ _add("not|no|without|isn't|aren't|doesn't|neither|nor|does not|do not|did not|di
 # Named as not understood: a place the map does not hold ("at a bus stop" asks nothing of buses), traffic
 # lights ("running a red light" asks nothing of speed), and "across from us" (where it is, not a crossing).
 _add("|".join(f"{verb} {the}red light" for verb in ("running", "runs", "ran", "run") for the in ("a ", "the ", ""))
-     + "|red light|red lights|traffic light|traffic lights", Lexeme("unknown", "traffic light"))
+     + "|red light|red lights|traffic light|traffic lights|on red|on a red|at a red light|at the red light",
+     Lexeme("unknown", "traffic light"))
 _add("across from|across the street from|across the road from", Lexeme("unknown", "across from"))
 _add("at a bus stop|at the bus stop|near a bus stop|near the bus stop|by a bus stop|by the bus stop|bus stop",
      Lexeme("unknown", "bus stop"))

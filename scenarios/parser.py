@@ -22,7 +22,7 @@ from __future__ import annotations
 import dataclasses
 
 from scenarios import rewrite
-from scenarios.lexicon import FARTHER, SPEED_UNITS, Lexeme, speed_bounds
+from scenarios.lexicon import Lexeme
 from scenarios.program import (
     AnyOf,
     Between,
@@ -39,6 +39,7 @@ from scenarios.program import (
     of_two_kinds,
     subject_of,
 )
+from scenarios.quantities import FARTHER, SPEED_UNITS, speed_bounds
 from scenarios.relating import RelationReader, side_relation
 
 #: Where a motion goes: "not moving toward us" negates the approach, not the motion.
@@ -198,8 +199,7 @@ class Parser(RelationReader):
                     break
                 value, unit, low = found
                 if unit in SPEED_UNITS:
-                    mps = SPEED_UNITS[unit]
-                    node = Is(node, "speed", speed_bounds(value * mps, fillers, None if low is None else low * mps))
+                    node = Is(node, "speed", speed_bounds(value, unit, fillers, low))
                 elif unit == "m" and fillers & FARTHER:  # "more than 20 m away": no relation has a least distance
                     self.unused.append(f"more than {value:g} m")
                 elif unit == "s" and after_within:

@@ -399,6 +399,9 @@ MEANINGS = {
     "a car drives across the intersection": "near_intersection(moving(car))",  # a vehicle drives through
     "a pedestrian stepping off the curb in front of us":
         "reverse(direction(ego, crossing_road(pedestrian), side=front))",
+    "pedestrian crossing at a non-crosswalk location": "jaywalking(crossing_road(pedestrian))",
+    "construction cone in the lane": "in_vehicle_lane(construction_cone)",
+    "truck making a wide turn": "turning(truck)",
     "a pedestrian crossing from right to left":  # on our right, then on our left
         "then(reverse(direction(ego, crossing_road(pedestrian), side=right)), "
         "reverse(direction(ego, crossing_road(pedestrian), side=left)), within_s=5)",
@@ -412,6 +415,7 @@ NOT_UNDERSTOOD = {
     "a car turning left across our path": ("turning(car, direction=left)", ("across", "our", "path")),
     "a car across from us": ("car", ("across", "from", "us")),
     "a car running a red light": ("car", ("running", "a", "red", "light")),  # no traffic lights in the logs
+    "vehicle making a right turn on red": ("turning(vehicle, direction=right)", ("on", "red")),
     "a car waiting to drive": ("stopped(car)", ("drive",)),
     "a pedestrian waiting to walk": ("stopped(pedestrian)", ("walk",)),
     "a car parked in the drive": ("parked(car)", ("drive",)),
@@ -468,7 +472,7 @@ def test_synonyms_and_plurals_name_the_same_kind() -> None:
 
 def test_unused_words_are_named_never_dropped() -> None:
     compiled = compile_description("we stop at a red light")
-    assert compiled.text == "stopped(ego)" and compiled.unused == ("red", "light") and not compiled.complete
+    assert compiled.text == "stopped(ego)" and compiled.unused == ("at", "a", "red", "light") and not compiled.complete
 
 
 def test_a_description_with_no_usable_word_is_refused_naming_its_words() -> None:

@@ -207,7 +207,7 @@ class Parser(RelationReader):
                 elif unit == "s" and self.depth > 1:  # "following a truck for 10 s": the relation lasts
                     self.pending_s = value
                 elif unit == "s":
-                    node = ForAtLeast(node, value)
+                    node = ForAtLeast(node, value if low is None else low)  # "for 5 to 10 s": 5 at least
                 elif unit == "m" and (self.role() in ("kind", "count") or self.kind_after_states(0)) \
                         and self.skipped_before_next() & {"of", "from"}:
                     # "within 5 m of a pedestrian", "less than 10 meters from the ego vehicle": near, that close

@@ -101,6 +101,7 @@ def normalize(text: str) -> list[str]:
     text = text.lower().replace("’", "'")
     text = re.sub(r"(?<=\d),(?=\d{3}\b)", "", text)  # "1,000 m"
     text = re.sub(r"(\d)\s*-\s*(\d)", r"\1 to \2", text)
+    text = re.sub(r"\bbetween (\d+(?:\.\d+)?) and (\d)", r"\1 to \2", text)  # "between 10 and 20 km/h"
     text = re.sub(r"(\d)(m|s)\b", r"\1 \2", text)
     text = re.sub(r"[-/]", " ", text)
     # "With no one in front of it", "nobody near us": no object there (elsewhere the words are unused).

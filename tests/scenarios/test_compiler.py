@@ -402,6 +402,8 @@ MEANINGS = {
     "pedestrian crossing at a non-crosswalk location": "jaywalking(crossing_road(pedestrian))",
     "construction cone in the lane": "in_vehicle_lane(construction_cone)",
     "truck making a wide turn": "turning(truck)",
+    "a car between 10 and 20 km/h": "speed(car, min_mps=2.78, max_mps=5.56)",  # a range, as "10 to 20"
+    "a car stopped for 5 to 10 seconds": "for_at_least(stopped(car), seconds=5)",  # the least it must last
     "a pedestrian crossing from right to left":  # on our right, then on our left
         "then(reverse(direction(ego, crossing_road(pedestrian), side=right)), "
         "reverse(direction(ego, crossing_road(pedestrian), side=left)), within_s=5)",

@@ -96,6 +96,7 @@ class _Run:
     def __init__(self, x: LogFeatures) -> None:
         self.x = x
         self.notes: list[str] = []
+        self._selections: dict[p.Node, Selection] = {}
 
     def note(self, name: str, reason: str) -> None:
         note = f"{self.x.log_id}: '{name}' {reason}: no answer there (not 'false')"
@@ -103,6 +104,15 @@ class _Run:
             self.notes.append(note)
 
     def eval(self, node: p.Node) -> Selection:
+        """``node``'s selection, each distinct node evaluated once per run: a sequence's steps are read
+        again where it begins (:meth:`starts`), and a program may name one subtree twice ("stopped(car)",
+        then "moving(car)"). No step writes into a selection it was given, so they can be shared."""
+        done = self._selections.get(node)
+        if done is None:
+            done = self._selections[node] = self._evaluate(node)
+        return done
+
+    def _evaluate(self, node: p.Node) -> Selection:
         x = self.x
         match node:
             case p.Objects(kind):

@@ -305,6 +305,10 @@ NINTH_HELD_OUT: dict[str, Judge] = {
 }
 
 
+def _lateral(row: Row) -> bool:
+    return any(s[0].endswith("_lateral") for s in _steps(row))
+
+
 #: Written as the set before, after it was measured and read: 24 candidates with their judges in two
 #: batches, before any compilation or search ran on them; the first 12 with at least 10 accepted test
 #: clips were kept (8 of the first batch's 16, 4 of the second's 8). Not tuned on.
@@ -322,7 +326,7 @@ HELD_OUT: dict[str, Judge] = {
         lambda r: _host(r, "heading_straight") and _cat(r, "car")
         and (_has(r, action="left_turn") or _has(r, action="right_turn")),
     "a pedestrian crossing in front of or behind us":
-        lambda r: _cat(r, "pedestrian") and any(s[0].endswith("_lateral") for s in _steps(r)),
+        lambda r: _cat(r, "pedestrian") and _lateral(r),
     "a car getting closer on our left":
         lambda r: _cat(r, "car") and any(s[0].startswith("left") and s[1] == "approach" and _moving(s)
                                          for s in _steps(r)),
@@ -332,10 +336,6 @@ HELD_OUT: dict[str, Judge] = {
     "a pedestrian walking toward us":
         lambda r: _cat(r, "pedestrian") and any(s[1] == "approach" and _moving(s) for s in _steps(r)),
 }
-
-
-def _lateral(row: Row) -> bool:
-    return any(s[0].endswith("_lateral") for s in _steps(row))
 
 
 def _from_side(row: Row, start: str, end: str) -> bool:

@@ -229,12 +229,12 @@ def _alternated_cpu(clips: Path, setups: dict[str, Callable[[], Any]]) -> dict[s
     return {name: round(value, 2) for name, value in best.items()} | {"speedup": _ratio(first, second)}
 
 
-def _loaded(run_dir: Path, batch_size: int | None = None, default_layout: bool = False) -> Any:
+def _loaded(run_dir: Path, batch_size: int = EMBED_BATCH_CLIPS, default_layout: bool = False) -> Any:
     """A :class:`ModelEmbedder` of ``run_dir`` with its model loaded (``default_layout``: the convolution
     weights in torch's default layout instead of channels-last)."""
     from retrieval.embedding import ModelEmbedder
 
-    embedder = ModelEmbedder(run_dir) if batch_size is None else ModelEmbedder(run_dir, batch_size=batch_size)
+    embedder = ModelEmbedder(run_dir, batch_size=batch_size)
     model = embedder.model  # loaded here, not inside the timing
     if default_layout:
         model.to(memory_format=torch.contiguous_format)
@@ -253,7 +253,7 @@ def _batch_size(run_dir: Path, clips: Path) -> dict[str, float]:
     :data:`encoders.config.EMBED_BATCH_CLIPS`) and of that many, alternated, best of two each (the
     model loaded before timing)."""
     return _alternated_cpu(clips, {"batch_32_cpu_s": lambda: _loaded(run_dir, batch_size=32),
-                                   BATCH_NOW: lambda: _loaded(run_dir, batch_size=EMBED_BATCH_CLIPS)})
+                                   BATCH_NOW: lambda: _loaded(run_dir)})
 
 
 def _noop(item: int) -> int:

@@ -14,10 +14,10 @@ from dataclasses import dataclass, field
 
 from scenarios.program import Param
 from scenarios.word_forms import (
+    ACROSS,
     AWAY_FROM,
-    across,
+    FROM_A_STOP,
     approaches_to,
-    from_a_stop,
     lane_changes,
     of_ego,
     plural,
@@ -244,7 +244,7 @@ for _phrases, _rel, _rparams, _reverse in (
      "wait for|waiting on|yielding|yields|yield|yielded|giving way|gives way|give way|stopping for|stops for|"
      "stop for|stopped for|halting for|halts for", "yielding_to", (), False),
     ("crossing|crossing in front of|crossing the path of|crossing in front|cutting in front of|crosses|cross|"
-     "crossing paths with|crossing path of|across the path of|across in front of|" + across(), "crossed_by", (), True),
+     "crossing paths with|crossing path of|across the path of|across in front of|" + ACROSS, "crossed_by", (), True),
     ("being passed by|passed by|being overtaken by|overtaken by|being overtaken|overtaken|being passed", "passed_by",
      (), False),
     ("past the right side of|past right side of|past the right of", "passed_by", (("side", "right"),), True),
@@ -339,7 +339,7 @@ _add("lead|leading|leads|the first", Lexeme("nearest", "ahead"))
 _add("drives off|drive off|pulls away|pull away|starts moving|start moving|takes off|sets off|starts to move|"
      "accelerates quickly from a stop|accelerating quickly from a stop|accelerates hard from a stop|"
      "pulls out|pulling out|pulling out of a parking spot|pulls out of a parking spot|"
-     "pulling out of a parking space|pulls out of a parking space|" + from_a_stop(), Lexeme("seq", "drive_off"))
+     "pulling out of a parking space|pulls out of a parking space|" + FROM_A_STOP, Lexeme("seq", "drive_off"))
 # From one side of us to the other: "crossing from left to right" (where it starts, then where it ends).
 _add(side_to_side("left", "right"), Lexeme("seq", "side_to_side", (("side", "left"),)))
 _add(side_to_side("right", "left"), Lexeme("seq", "side_to_side", (("side", "right"),)))

@@ -66,23 +66,20 @@ def approaches_to(*places: str) -> str:
                     for the in ("", "a ", "the ") for place in places)
 
 
-def across() -> str:
-    """Phrases of moving across ("walks across", "darting across"): crossing, said with the motion's verb."""
-    return "|".join(f"{verb} across" for verb in (
-        "walking", "walks", "walk", "walked", "running", "runs", "run", "ran", "jogging", "jogs", "riding", "rides",
-        "rode", "cycling", "cycles", "going", "goes", "went", "moving", "moves", "moved", "driving", "drives", "drove",
-        "darting", "darts", "darted", "dashing", "dashes", "dashed", "stepping", "steps", "stepped", "hurrying",
-        "hurries", "rushing", "rushes", "making its way", "makes its way", "heading", "heads", "coming", "comes",
-        "cutting", "cuts", "cut", "swerving", "swerves", "veering", "veers"))
+#: Phrases of moving across ("walks across", "darting across"): crossing, said with the motion's verb.
+ACROSS = "|".join(f"{verb} across" for verb in (
+    "walking", "walks", "walk", "walked", "running", "runs", "run", "ran", "jogging", "jogs", "riding", "rides",
+    "rode", "cycling", "cycles", "going", "goes", "went", "moving", "moves", "moved", "driving", "drives", "drove",
+    "darting", "darts", "darted", "dashing", "dashes", "dashed", "stepping", "steps", "stepped", "hurrying",
+    "hurries", "rushing", "rushes", "making its way", "makes its way", "heading", "heads", "coming", "comes",
+    "cutting", "cuts", "cut", "swerving", "swerves", "veering", "veers"))
 
-
-def from_a_stop() -> str:
-    """Phrases of setting off from a stop ("pulls away from the stop", "accelerating from a standstill")."""
-    return "|".join(f"{verb} from {stop}" for verb in (
-        "accelerating", "accelerates", "accelerate", "starting", "starts", "start", "pulling away", "pulls away",
-        "pull away", "driving away", "drives away", "drive away", "moving off", "moves off", "setting off", "sets off")
-                    for stop in ("a stop", "the stop", "its stop", "a standstill", "the standstill", "standstill",
-                                 "rest", "a full stop"))
+#: Phrases of setting off from a stop ("pulls away from the stop", "accelerating from a standstill").
+FROM_A_STOP = "|".join(f"{verb} from {stop}" for verb in (
+    "accelerating", "accelerates", "accelerate", "starting", "starts", "start", "pulling away", "pulls away",
+    "pull away", "driving away", "drives away", "drive away", "moving off", "moves off", "setting off", "sets off")
+                       for stop in ("a stop", "the stop", "its stop", "a standstill", "the standstill", "standstill",
+                                    "rest", "a full stop"))
 
 
 def side_to_side(start: str, end: str) -> str:

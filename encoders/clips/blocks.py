@@ -6,8 +6,8 @@ sparse tag targets: compressed, they take a small fraction of their size as plai
 the frames are compressed in blocks of :data:`BLOCK_FRAMES` and a read decompresses only the blocks it
 touches. Decoded blocks are kept per process up to :data:`DECODED_CACHE_BYTES`, shared by every reader
 of a file: the clips of one log cover its frames many times over (a clip's 12 frames spread over a
-window of up to the whole log), and an index build decompressed each block many times before the cache
-was shared.
+window of up to the whole log), so without the shared cache an index build would decompress each block
+many times.
 
 Blocks are zstd (level 3, pyarrow's codec): about as small as zlib's level 1 on rendered logs, and
 several times cheaper to write and read (docs/research/ingest-profile.md). zstd frames carry no checksum, so

@@ -21,7 +21,8 @@ wrong. Every test is written again from its definition, one object and one frame
   is the exact distance between the two rectangles (0 when they overlap). ``direction``: the other's
   centre beyond the subject's box on that side, within ``lateral_m`` of the box's sides and
   ``within_m`` of the box; ``near``; ``following`` (in front within ``within_m`` and ``lateral_m``,
-  headings within 45°, the subject moving); ``same_lane``; ``crossed_by`` (the other's centre
+  headings within 45°, the subject moving); ``same_lane``; these four also take ``beyond_m`` (the
+  gap more than that); ``crossed_by`` (the other's centre
   changes side of the subject's heading line between two frames, both inside the zone up to
   ``forward_m`` past the front and ``lateral_m`` aside; the pair's frames within ``window_s``
   count; a centre within :data:`ON_LINE_M` of the line is on neither side, so an object that walks
@@ -74,8 +75,9 @@ _PREDICATE_DEFAULTS: dict[str, Params] = {
     "ego_lane": {"lane": "host"}, "approaching_ego": {},
 }
 _RELATION_DEFAULTS: dict[str, Params] = {
-    "direction": {"side": "front", "within_m": 50.0, "lateral_m": 1000.0}, "near": {"within_m": 10.0},
-    "following": {"within_m": 25.0, "lateral_m": 1.5}, "same_lane": {"within_m": 50.0},
+    "direction": {"side": "front", "within_m": 50.0, "lateral_m": 1000.0, "beyond_m": 0.0},
+    "near": {"within_m": 10.0, "beyond_m": 0.0}, "following": {"within_m": 25.0, "lateral_m": 1.5, "beyond_m": 0.0},
+    "same_lane": {"within_m": 50.0, "beyond_m": 0.0},
     "crossed_by": {"forward_m": 10.0, "lateral_m": 5.0, "window_s": 1.0},
 }
 
@@ -301,6 +303,8 @@ class _Reference:
             elif name == "same_lane":
                 out[f] = log.lane[s][f] >= 0 and log.lane[s][f] == log.lane[o][f] \
                     and self.log.gap(s, o, f) <= float(p["within_m"])
+            if float(p["beyond_m"]) > 0:  # a least distance
+                out[f] = out[f] and self.log.gap(s, o, f) > float(p["beyond_m"])
         return out
 
     def relation(self, node: p.Has) -> _Sel:

@@ -369,7 +369,8 @@ _add("meters|meter|metres|metre|m", Lexeme("unit", "m"))
 _add("m s|meters per second|meter per second|metres per second|mps", Lexeme("unit", "mps"))
 _add("km h|kmh|kph|km per hour|kilometers per hour|kilometres per hour", Lexeme("unit", "kmh"))
 _add("mph|miles per hour|mile per hour", Lexeme("unit", "mph"))
-_add("faster than|quicker than|slower than|above|over|exceeding|below|under|about|approximately",
+_add("faster than|quicker than|slower than|farther than|further than|above|over|exceeding|below|under|about|"
+     "approximately",
      Lexeme("skip"))
 _add("seconds|second|secs|sec|s", Lexeme("unit", "s"))
 for _phrases, _name in (("and|as well as|also|while also", "and"), ("or|either", "or"),

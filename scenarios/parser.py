@@ -22,6 +22,7 @@ from __future__ import annotations
 import dataclasses
 
 from scenarios import rewrite
+from scenarios.distances import DistanceReader
 from scenarios.lexicon import Lexeme
 from scenarios.program import (
     AnyOf,
@@ -40,7 +41,7 @@ from scenarios.program import (
     subject_of,
 )
 from scenarios.quantities import FARTHER, SPEED_UNITS, speed_bounds
-from scenarios.relating import RelationReader, side_relation
+from scenarios.relating import side_relation
 
 #: Where a motion goes: "not moving toward us" negates the approach, not the motion.
 WHITHER = frozenset({"approaching_ego", "moving_away_from_ego", "heading_toward", "heading_away_from", "passed_by"})
@@ -52,7 +53,7 @@ class DescriptionError(ValueError):
     """A description the compiler cannot use: it names the words it did not understand."""
 
 
-class Parser(RelationReader):
+class Parser(DistanceReader):
     """One description's lexemes, read left to right into a program (see the module docstring)."""
 
     def __init__(self, items: list[Lexeme]) -> None:
@@ -200,37 +201,14 @@ class Parser(RelationReader):
                 value, unit, low = found
                 if unit in SPEED_UNITS:
                     node = Is(node, "speed", speed_bounds(value, unit, fillers, low))
-                elif unit == "m" and fillers & FARTHER:  # "more than 20 m away": no relation has a least distance
-                    self.unused.append(f"more than {value:g} m")
                 elif unit == "s" and after_within:
                     self.within_s = value
                 elif unit == "s" and self.depth > 1:  # "following a truck for 10 s": the relation lasts
                     self.pending_s = value
                 elif unit == "s":
                     node = ForAtLeast(node, value if low is None else low)  # "for 5 to 10 s": 5 at least
-                elif unit == "m" and (self.role() in ("kind", "count") or self.kind_after_states(0)) \
-                        and self.skipped_before_next() & {"of", "from"}:
-                    # "within 5 m of a pedestrian", "less than 10 meters from the ego vehicle": near, that close
-                    self.pending_m = value
-                    other = self.phrase(need_kind=True)
-                    node = node if other is None else self.relate(node, Lexeme("rel", "near"), other)
-                    node, self.pending_s = (node, None) if self.pending_s is None else \
-                        (ForAtLeast(node, self.pending_s), None)
-                elif unit == "m" and isinstance(node, Has) and self.role() not in ("rel", "side", "kind"):
-                    node = rewrite.within(node, value)
-                elif unit == "m" and {"each", "another"} & self.skipped_before_next():  # "of each other"
-                    node = self.one_another(node, "near", (("within_m", value),))
-                elif unit == "m" and self.depth <= 1 and self.role() in ("end", "conj") \
-                        and not self.unknown_before_next():  # "a car within 5 m": of us (not "of the kerb")
-                    if subject_of(node) == Objects("ego"):  # "when we are 20 m away": from what, it does not say
-                        self.unused.append(f"{value:g} m")
-                    else:
-                        node = Has(node, "near", Objects("ego"), (("within_m", value),))
-                elif unit == "m" and self.role() == "pred" and self.name() == "near_intersection":
-                    self.take()
-                    node = Is(node, "near_intersection", (("within_m", value),))
                 elif unit == "m":
-                    self.pending_m = value
+                    node = self.distance(node, value, low, bool(fillers & FARTHER))
                 else:
                     self.unused.append(f"{value:g}")
             elif role == "conj" and self.depth <= 1 and self.name() in ("and", "while") \
@@ -260,14 +238,14 @@ class Parser(RelationReader):
         if item.role == "ego":  # "ahead of us"; "directly ahead" also gives the lane's width
             params = dict(item.params)
             side = str(params.pop("side"))
-            return self.ego_relation(node, side, (*params.items(), *self.distance_params((), "direction")))
+            return self.ego_side(node, side, tuple(params.items()))
         if item.role == "side" and item.name in ("near", "same_lane"):  # "nearby", "in its lane" with no object
             it = self.it(item.words, node)
             return node if it is None else self.relate(node, Lexeme("rel", item.name), it)
         if item.role == "side":
             other = (None if self.at_comma() else self.phrase(need_kind=True)) or self.it(item.words, node)
             if other is None:  # "ahead", "behind": of the ego
-                return self.ego_relation(node, item.name, self.distance_params((), "direction"))
+                return self.ego_side(node, item.name)
             return self.relate(node, Lexeme("rel", "direction", (("side", item.name),), reverse=True), other)
         if item.role == "rel":
             it = self.it(self.skipped_before_next(), node)  # before the side: "passes it on the left"
@@ -291,9 +269,8 @@ class Parser(RelationReader):
         if item.role == "between":
             if self.role() == "number":  # "between 5-20 meters away": a distance
                 found = self.quantity()
-                if found is not None and found[1] == "m":
-                    self.pending_m = found[0]
-                    return rewrite.within(node, found[0])
+                if found is not None and found.unit == "m":
+                    return self.distance(node, found.value, found.low, least=False)
             first = self.phrase(bare=True)
             if first is None:
                 self.unused.extend(item.words)
@@ -333,8 +310,8 @@ class Parser(RelationReader):
             return self.acted_on(node, self.with_side(self.take()), other)  # "with a car passing it on the left"
         distance = self.quantity() if self.role() == "number" else None
         rel = side_relation(self.take()) if self.role() == "side" else Lexeme("rel", "near", ())
-        if distance is not None and distance[1] == "m":
-            self.pending_m = distance[0]
+        if distance is not None and distance.unit == "m":
+            self.pending_m, self.pending_low_m = distance.value, distance.low
         return self.relate(node, rel, other)
 
     def modifiers_bare(self, node: Node) -> Node:
@@ -435,9 +412,11 @@ class Parser(RelationReader):
         into the next clause."""
         if self.pending_m is not None:
             self.unused.append(f"{self.pending_m:g} m")
+        if self.pending_low_m is not None:
+            self.unused.append(f"more than {self.pending_low_m:g} m")
         if self.pending_s is not None:
             self.unused.append(f"for {self.pending_s:g} s")
-        self.pending_m = self.pending_s = None
+        self.pending_m = self.pending_low_m = self.pending_s = None
 
     def referred(self, node: Node, count: int) -> Node:
         """The referred objects of a clause with the count said for them: "a group of" stands together,

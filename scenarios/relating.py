@@ -11,7 +11,7 @@ from scenarios.kinds import within_kinds
 from scenarios.lexeme_stream import LexemeStream
 from scenarios.lexicon import Lexeme
 from scenarios.program import AllOf, AnyOf, Between, Has, Is, Node, Objects, Then, subject_of
-from scenarios.rewrite import other_one, stated, with_subject, without_states
+from scenarios.rewrite import UNBOUNDED_M, other_one, stated, with_param, with_subject, within, without_states
 
 #: The two steps of "drives off" or "cuts into my lane" happen within this many seconds.
 CUT_IN_WITHIN_S = 4.0
@@ -33,6 +33,15 @@ LEAD_KINDS = ("vehicle", "motorcycle", "cyclist")
 BOTH_SIDES = "both_sides"
 
 
+def farther_than(related: Has, least_m: float) -> Has:
+    """``related`` with a least distance alone: farther than ``least_m`` from every other object where it
+    is a nearness ("a car more than 20 m from a pedestrian": none within 20 m), else as far as the
+    objects go (``beyond_m``: "a truck more than 20 m in front of a car")."""
+    if related.relation == "near" and not related.reverse:
+        return dataclasses.replace(with_param(related, "within_m", least_m), negate=not related.negate)
+    return with_param(with_param(related, "within_m", UNBOUNDED_M), "beyond_m", least_m)
+
+
 class RelationReader(LexemeStream):
     """A lexeme stream that builds relations; ``pending_m`` holds a distance said before the object
     of the relation that takes it ("within 5 m of", "pedestrian 5 m ahead"), ``antecedent`` what "it"
@@ -44,6 +53,8 @@ class RelationReader(LexemeStream):
     def __init__(self, items: list[Lexeme]) -> None:
         super().__init__(items)
         self.pending_m: float | None = None
+        #: A least distance said with it ("more than 20 m ahead of us", "5 to 10 m from a bus").
+        self.pending_low_m: float | None = None
         #: What "it" and "them" name in a later clause: the clause before ("a car turns left while a
         #: pedestrian crosses in front of it"); in the first clause they name the ego, as "ahead" does.
         self.antecedent: Node | None = None
@@ -72,9 +83,15 @@ class RelationReader(LexemeStream):
         self.each_other = Has(node, relation, without_states(subject_of(node)), params)
         return self.each_other
 
-    def ego_relation(self, node: Node, side: str, params: tuple[tuple[str, float | str], ...] = ()) -> Node:
+    def ego_relation(self, node: Node, side: str, params: tuple[tuple[str, float | str], ...] = ()) -> Has:
         """``node``'s objects on ``side`` of the ego (a relation asked of the ego)."""
         return Has(Objects("ego"), "direction", node, (("side", side), *params), reverse=True)
+
+    def ego_side(self, node: Node, side: str, params: tuple[tuple[str, float | str], ...] = ()) -> Node:
+        """:meth:`ego_relation` at the distances said before it ("10 m ahead", "more than 20 m behind")."""
+        upper = self.pending_m is not None
+        related = self.ego_relation(node, side, (*params, *self.distance_params((), "direction")))
+        return self.beyond_pending(related, upper)
 
     def distance_params(self, params: tuple[tuple[str, float | str], ...], name: str
                         ) -> tuple[tuple[str, float | str], ...]:
@@ -91,10 +108,24 @@ class RelationReader(LexemeStream):
         other_node, count = other
         if item.name == BOTH_SIDES:  # "a bus with a car on each side": between two of them
             return Between(node, other_node, other_node)
+        upper = self.pending_m is not None
         params = self.distance_params(item.params, item.name)
         if item.reverse:  # the relation holds from the other object's point of view
-            return Has(other_node, item.name, node, params, reverse=True)
-        return Has(node, item.name, other_node, params, min_count=max(1, count))
+            return self.beyond_pending(Has(other_node, item.name, node, params, reverse=True), upper)
+        return self.beyond_pending(Has(node, item.name, other_node, params, min_count=max(1, count)), upper)
+
+    def beyond_pending(self, related: Has, upper: bool) -> Has:
+        """``related`` (the relation just read) farther than the pending least distance, which it takes
+        (``beyond_m``); without an ``upper`` bound it reaches as far as the objects go."""
+        low, self.pending_low_m = self.pending_low_m, None
+        if low is None:
+            return related
+        if within(related, low) == related:  # a heading or a passing: no distance
+            self.unused.append(f"more than {low:g} m")
+            return related
+        if not upper:
+            return farther_than(related, low)
+        return with_param(related, "beyond_m", low)
 
     def chain(self, node: Node) -> Node:
         """"two cars ahead (of X)": the object of ``node``'s kind in front of the one in front of X (the ego
@@ -145,7 +176,7 @@ class RelationReader(LexemeStream):
             return Is(node, "stopped")
         if item.name == "direction":
             side = str(dict(item.params)["side"])
-            return self.ego_relation(node, side, self.distance_params((), "direction"))
+            return self.ego_side(node, side)
         if item.words == ("at",) or (item.words == ("around",) and self.role() == "number"):
             return node  # "at" before a place word the lexicon reads itself; "around 20 km/h": about
         if item.name == "near" and self.skipped_before_next() & {"road", "street"}:  # "near the road": not an object

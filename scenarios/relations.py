@@ -27,6 +27,9 @@ beforehand (:func:`candidate_pairs`):
 - ``heading_toward``: the subject moves (``min_mps``) towards the other, within ``angle_deg``.
 - ``heading_away_from``: the subject moves (``min_mps``) away from the other: the other lies within
   ``angle_deg`` of straight behind it, within ``within_m``.
+
+Every relation bounded by ``within_m`` also takes ``beyond_m`` (default 0): the boxes are more than that
+apart, a least distance ("more than 20 m ahead", "5 to 10 m behind it").
 """
 
 from __future__ import annotations
@@ -39,7 +42,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from scenarios.features import LogFeatures
-from scenarios.predicates import Criterion, Mask, Params
+from scenarios.predicates import Criterion, Mask, Params, ProgramError
 
 Array = NDArray[np.float32]
 
@@ -174,6 +177,18 @@ class Relation(Criterion):
     #: The farthest the boxes can be apart where it holds, given its parameters (None: no bound).
     reach_m: Callable[[Params], float | None] = lambda p: None
 
+    def resolve(self, given: Params) -> dict[str, float | str]:
+        """As :meth:`Criterion.resolve`; a least distance must be below the reach.
+
+        Raises:
+            ProgramError: also ``beyond_m`` at or above ``within_m``, which nothing could meet.
+        """
+        out = super().resolve(given)
+        if "beyond_m" in given and float(out["beyond_m"]) >= float(out["within_m"]):
+            raise ProgramError(f"{self.name}: beyond_m={float(out['beyond_m']):g} must be less than "
+                               f"within_m={float(out['within_m']):g}")
+        return out
+
 
 RELATIONS: dict[str, Relation] = {}
 
@@ -187,10 +202,21 @@ def _define(name: str, phrase: str, reverse_phrase: str, defaults: Mapping[str, 
             reach_m: Callable[[Params], float | None] = _within_reach,
             ) -> Callable[[Callable[[PairGeometry, Params], Mask]], Callable[[PairGeometry, Params], Mask]]:
     def register(fn: Callable[[PairGeometry, Params], Mask]) -> Callable[[PairGeometry, Params], Mask]:
-        RELATIONS[name] = Relation(name, phrase, reverse_phrase, fn, reach_m, defaults=dict(defaults or {}),
-                                   choices=dict(choices or {}), needs_map=needs_map)
+        known = dict(defaults or {})
+        if "within_m" in known:
+            known["beyond_m"] = 0.0
+        RELATIONS[name] = Relation(name, phrase, reverse_phrase, _beyond(fn) if "within_m" in known else fn,
+                                   reach_m, defaults=known, choices=dict(choices or {}), needs_map=needs_map)
         return fn
     return register
+
+
+def _beyond(fn: Callable[[PairGeometry, Params], Mask]) -> Callable[[PairGeometry, Params], Mask]:
+    """``fn`` where the boxes are also more than ``beyond_m`` apart."""
+    def holds(g: PairGeometry, p: Params) -> Mask:
+        beyond_m = _f(p, "beyond_m")
+        return fn(g, p) & (g.gap_m > beyond_m) if beyond_m > 0 else fn(g, p)
+    return holds
 
 
 def _f(p: Params, key: str) -> float:

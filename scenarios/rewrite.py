@@ -11,6 +11,9 @@ from scenarios import program as p
 #: "Passing too closely": within this gap (m) of the side, the passing distance cyclists are owed in
 #: many traffic codes.
 CLOSE_PASS_M = 1.5
+#: Beyond what any sensor sees (m): how far a relation reaches when only a least distance is said ("more
+#: than 60 m ahead"), which the relation's default reach would cut short.
+UNBOUNDED_M = 1000.0
 
 
 def closer(node: p.Node) -> p.Node:
@@ -40,11 +43,13 @@ def stated_or_after(node: p.Node, predicate: str, params: tuple[p.Param, ...] = 
     return stated(node, predicate, params, negate)
 
 
-def within(node: p.Node, within_m: float) -> p.Node:
-    """A relation ``node`` limited to ``within_m``; any other node as it is."""
+def within(node: p.Node, within_m: float | None, beyond_m: float | None = None) -> p.Node:
+    """A relation ``node`` limited to boxes at most ``within_m`` apart (None: any distance) and more than
+    ``beyond_m`` (a least distance); any other node, and a relation that takes no distance, as it is."""
     if not isinstance(node, p.Has) or node.relation in ("heading", "passed_by", "crossed_by"):
         return node
-    return with_param(node, "within_m", within_m)
+    node = with_param(node, "within_m", UNBOUNDED_M if within_m is None else within_m)
+    return node if beyond_m is None else with_param(node, "beyond_m", beyond_m)
 
 
 def with_param(node: p.Has, key: str, value: float | str) -> p.Has:

@@ -58,6 +58,8 @@ PROGRAMS = [
     "reverse(direction(vehicle, cyclist, side=right, lateral_m=2))",
     "direction(car, pedestrian, side=front, within_m=12)",
     "near(cyclist, vehicle, within_m=2)",
+    "near(pedestrian, car, within_m=30, beyond_m=8)",  # a least distance
+    "reverse(direction(car, pedestrian, side=front, within_m=1000, beyond_m=5))",
     "following(vehicle, vehicle)",
     "reverse(following(vehicle, vehicle))",
     "crossed_by(car, pedestrian)",

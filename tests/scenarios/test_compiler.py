@@ -139,8 +139,8 @@ MEANINGS = {
     "vehicle within 5 meters of a pedestrian": "near(vehicle, pedestrian, within_m=5)",
     "parked car less than 3 m from a stopped bus": "near(parked(car), stopped(bus), within_m=3)",
     "a pedestrian within 5 m": "near(pedestrian, ego, within_m=5)",
-    "vehicle directly facing a moving pedestrian from 5-15 meters away":
-        "facing(vehicle, moving(pedestrian), within_m=15)",
+    "vehicle directly facing a moving pedestrian from 5-15 meters away":  # a range: beyond 5 m too
+        "facing(vehicle, moving(pedestrian), within_m=15, beyond_m=5)",
     # A condition first: "while X, Y" is "Y while X".
     "while we are stopped, a pedestrian walks by": "while(moving(pedestrian), stopped(ego))",
     "a cyclist rides by us": "reverse(passed_by(ego, cyclist, way=either))",
@@ -407,6 +407,20 @@ MEANINGS = {
     "a pedestrian crossing from right to left":  # on our right, then on our left
         "then(reverse(direction(ego, crossing_road(pedestrian), side=right)), "
         "reverse(direction(ego, crossing_road(pedestrian), side=left)), within_s=5)",
+    # A least distance: beyond_m on a relation; alone, a nearness is to none within it.
+    "a car more than 20 m away": "not(near(car, ego, within_m=20))",
+    "a car further than 30 m from the ego": "not(near(car, ego, within_m=30))",
+    "a car more than 20 m from a pedestrian": "not(near(car, pedestrian, within_m=20))",
+    "a car between 5 and 10 m from us": "near(car, ego, within_m=10, beyond_m=5)",
+    "a pedestrian between 5-20 meters away": "near(pedestrian, ego, within_m=20, beyond_m=5)",
+    "a car more than 60 m ahead of us":  # beyond the default reach of "ahead" (50 m)
+        "reverse(direction(ego, car, side=front, within_m=1000, beyond_m=60))",
+    "vehicles between 10 and 30 m behind the ego":
+        "reverse(direction(ego, vehicle, side=behind, within_m=30, beyond_m=10))",
+    "a bus with a car 5 to 10 m behind it": "direction(bus, car, side=behind, within_m=10, beyond_m=5)",
+    "a truck at least 10 m in front of a car": "reverse(direction(car, truck, side=front, within_m=1000, beyond_m=10))",
+    "a pedestrian more than 50 m from an intersection":  # a predicate: the nearer ones left out
+        "excluding(pedestrian, near_intersection(pedestrian, within_m=50))",
 }
 
 #: Phrases that must not be read as something else: the word is reported unused instead.
@@ -429,7 +443,7 @@ NOT_UNDERSTOOD = {
     "car braking truck ahead": ("braking(car)", ("truck", "ahead")),  # a terse query keeps the car's state
     "a car stops and nobody crosses": ("moving(stopped(car))", ("nobody",)),  # not "nothing near it"
     "no pedestrians": ("pedestrian", ("no",)),  # nothing to be without: the objects, "no" unused
-    "a car more than 20 m away": ("car", ("more than 20 m",)),  # no relation takes a least distance
+    "a car passing us more than 5 m away": ("reverse(passed_by(ego, car))", ("more than 5 m",)),  # no reach
     "a car within 5 m of the crosswalk": ("car", ("5 m", "crosswalk")),  # not "of the ego"
     "a car drives away from the intersection": ("near_intersection(car)", ("drives", "away", "from")),  # no leaving
     "a child running toward the road": ("fast(pedestrian)", ("toward",)),  # not toward us

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from scenarios import program as p
+from scenarios.compiler import compile_description
 from scenarios.evaluate import answer, evaluate
 from scenarios.predicates import ProgramError
 from scenarios.relations import RELATIONS, candidate_pairs, pair_geometry
@@ -203,6 +204,28 @@ def test_and_or_excluding() -> None:
     assert selected(p.AnyOf((braking, parked)), x).tolist() == [True, True, False, False]
     assert not selected(p.AllOf((braking, parked)), x).any()
     assert selected(p.Excluding(p.Objects("vehicle"), parked), x).tolist() == [True, False, False, False]
+
+
+def test_a_least_distance_keeps_the_farther_objects() -> None:
+    # Cars straight ahead, their rears 2.3, 7.3 and 70.3 m beyond the front of the ego's box (centred at 0).
+    x = make_features([car((7.0, 0.0)), car((12.0, 0.0)), car((75.0, 0.0))])
+    for description, expected in (("a car more than 5 m away", [False, True, True]),
+                                  ("a car between 5 and 10 m from us", [False, True, False]),
+                                  ("a car more than 60 m ahead of us", [False, False, True]),
+                                  ("a car 5 to 10 m in front of the ego", [False, True, False])):
+        assert selected(compile_description(description).program, x).tolist()[:3] == expected, description
+    # Per pair: a bus with one car 3 m behind it and another 8 m behind has a car 5 to 10 m behind it; a
+    # bus with one 3 m behind has not. (Buses 12 m long, cars 4.5 m.)
+    bus = {"label": "BUS", "category": "bus", "speed": 5.0, "size": (12.0, 2.5, 3.0)}
+    x = make_features([{**bus, "xy": (0.0, Y)}, car((-11.25, Y)), car((-16.25, Y)),
+                       {**bus, "xy": (40.0, Y)}, car((28.75, Y))])
+    behind = p.Has(p.Objects("bus"), "direction", p.Objects("car"),
+                   (("side", "behind"), ("within_m", 10.0), ("beyond_m", 5.0)))
+    result = evaluate(behind, x).selection
+    assert result.mask.any(axis=1).tolist() == [True, False, False, False, False, False]
+    assert result.related.any(axis=1).tolist() == [False, False, True, False, False, False]
+    with pytest.raises(ProgramError, match="beyond_m=10 must be less than within_m=10"):
+        evaluate(dataclasses.replace(behind, params=(("within_m", 10.0), ("beyond_m", 10.0))), x)
 
 
 def test_then_while_and_for_at_least_on_features() -> None:

@@ -24,7 +24,7 @@ class DistanceReader(RelationReader):
         """``node`` bounded by ``value`` metres (a range from ``low``; ``least``: "more than ``value``")."""
         low, high = (value, None) if least else (low, value)
         if (self.role() in ("kind", "count") or self.kind_after_states(0)) \
-                and self.skipped_before_next() & {"of", "from"}:
+                and self.skipped_before_next() & {"of", "from", "to"}:
             # "within 5 m of a pedestrian", "more than 10 meters from the ego vehicle": near, that close
             self.pending_m, self.pending_low_m = high, low
             other = self.phrase(need_kind=True)

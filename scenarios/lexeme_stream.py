@@ -9,6 +9,7 @@ from typing import NamedTuple
 from scenarios.kinds import within_kinds
 from scenarios.lexicon import PLAIN_VERBS, PLURAL_KINDS, Lexeme
 from scenarios.program import Node, Objects
+from scenarios.quantities import FOOT_M
 
 #: Predicates of where an object is: said after the noun, they say which objects "the nearest" is among
 #: ("the closest vehicle in our lane brakes": the nearest of those in our lane, braking).
@@ -237,4 +238,6 @@ class LexemeStream:
             return Quantity(value, "", low)
         for _ in range(j + 1):
             self.take()
+        if unit.name == "ft":  # in metres, as every distance of a program
+            return Quantity(round(value * FOOT_M, 2), "m", None if low is None else round(low * FOOT_M, 2))
         return Quantity(value, unit.name, low)

@@ -365,12 +365,14 @@ for _phrases, _weather in (("during rain|in the rain|in rain|while raining|when 
     _add(_phrases, Lexeme("pred", "appearance", (("weather", _weather),)))
 _add("between", Lexeme("between"))
 _add("meters|meter|metres|metre|m", Lexeme("unit", "m"))
+_add("feet|ft", Lexeme("unit", "ft"))  # read in metres (scenarios.quantities.FOOT_M)
+_add("on foot", Lexeme("skip"))  # "a person on foot": a pedestrian already
 # Speeds, in metres per second: "m/s" and "km/h" arrive as "m s" and "km h" (normalize splits at "/").
 _add("m s|meters per second|meter per second|metres per second|mps", Lexeme("unit", "mps"))
 _add("km h|kmh|kph|km per hour|kilometers per hour|kilometres per hour", Lexeme("unit", "kmh"))
 _add("mph|miles per hour|mile per hour", Lexeme("unit", "mph"))
-_add("faster than|quicker than|slower than|farther than|further than|above|over|exceeding|below|under|about|"
-     "approximately",
+_add("faster than|quicker than|slower than|farther than|further than|closer than|nearer than|above|over|exceeding|"
+     "below|under|about|approximately",
      Lexeme("skip"))
 _add("seconds|second|secs|sec|s", Lexeme("unit", "s"))
 for _phrases, _name in (("and|as well as|also|while also", "and"), ("or|either", "or"),

@@ -40,7 +40,7 @@ from scenarios.program import (
     of_two_kinds,
     subject_of,
 )
-from scenarios.quantities import FARTHER, SPEED_UNITS, speed_bounds
+from scenarios.quantities import FARTHER, SPEED_UNITS, other_bound, speed_bounds
 from scenarios.relating import side_relation
 
 #: Where a motion goes: "not moving toward us" negates the approach, not the motion.
@@ -65,6 +65,8 @@ class Parser(DistanceReader):
         self.in_condition = False  # reading a condition that opens the sentence: "after the bus stops, …"
         #: Whether the clause's count was a group's ("a group of pedestrians", "a crowd"): near one another.
         self.grouped = False
+        #: A negation before a distance ("not within 10 m", "no closer than 5 m"): the other bound.
+        self.distance_negated = False
 
     def take_count(self) -> int:
         """The count the next count word or number says, taken: "more than two" is three; a group's
@@ -183,6 +185,9 @@ class Parser(DistanceReader):
             elif role == "not" and self.role(1) == "kind":  # "truck without trailer"
                 self.take()
                 node = Has(node, "near", Objects(self.take().name), (("within_m", 5.0),), negate=True)
+            elif role == "not" and self.role(1) == "number":  # "not within 10 m of us", "no closer than 5 m"
+                self.take()
+                self.distance_negated = True
             elif role == "not" and self.role(1) in ("pred", "rel", "with", "fixed", "ego", "side"):
                 self.take()
                 after = self.modifiers_one(node)
@@ -199,6 +204,13 @@ class Parser(DistanceReader):
                 if found is None:
                     break
                 value, unit, low = found
+                negated, self.distance_negated = self.distance_negated, False
+                if negated and unit != "m":  # "not faster than 30 km/h": under it
+                    flipped = other_bound(fillers) if unit in SPEED_UNITS else None
+                    if flipped is None:  # "not for 5 s", "not at 30 km/h": no bound to flip
+                        self.unused.append(f"not {value:g} {unit}".rstrip())
+                        continue
+                    fillers = flipped
                 if unit in SPEED_UNITS:
                     node = Is(node, "speed", speed_bounds(value, unit, fillers, low))
                 elif unit == "s" and after_within:
@@ -208,7 +220,8 @@ class Parser(DistanceReader):
                 elif unit == "s":
                     node = ForAtLeast(node, value if low is None else low)  # "for 5 to 10 s": 5 at least
                 elif unit == "m":
-                    node = self.distance(node, value, low, bool(fillers & FARTHER))
+                    least = bool(fillers & FARTHER) != negated  # "not more than 20 m": at most
+                    node = self.distance(node, value, None if least else low, least)
                 else:
                     self.unused.append(f"{value:g}")
             elif role == "conj" and self.depth <= 1 and self.name() in ("and", "while") \

@@ -13,8 +13,11 @@ SPEED_FLOOR = frozenset({"faster", "quicker", "above", "over", "exceeding", "mor
 SPEED_CEILING = frozenset({"slower", "below", "under", "less", "most"})
 
 
-#: Words before a distance that make it a least one ("more than 20 m away"), which no relation takes.
+#: Words before a distance that make it a least one ("more than 20 m away", "no closer than 5 m" with
+#: the negation).
 FARTHER = frozenset({"more", "least", "over", "beyond", "farther", "further"})
+#: Metres in a foot: distances said in feet ("within 30 feet") are read in metres.
+FOOT_M = 0.3048
 
 
 def speed_bounds(speed: float, unit: str, fillers: set[str], low: float | None = None) -> tuple[Param, ...]:
@@ -28,3 +31,13 @@ def speed_bounds(speed: float, unit: str, fillers: set[str], low: float | None =
     if fillers & SPEED_CEILING:
         return (("max_mps", round(speed * mps, 2)),)
     return ("min_mps", round(0.8 * speed * mps, 2)), ("max_mps", round(1.2 * speed * mps, 2))
+
+
+def other_bound(fillers: set[str]) -> set[str] | None:
+    """Words that say the other bound of a negated speed ("not faster than 10 m/s": under it); None for a
+    speed said as a band ("not at 30 km/h"), which no bound negates."""
+    if fillers & SPEED_FLOOR:
+        return {"under"}
+    if fillers & SPEED_CEILING:
+        return {"over"}
+    return None

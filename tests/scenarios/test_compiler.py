@@ -419,6 +419,14 @@ MEANINGS = {
         "reverse(direction(ego, vehicle, side=behind, within_m=30, beyond_m=10))",
     "a bus with a car 5 to 10 m behind it": "direction(bus, car, side=behind, within_m=10, beyond_m=5)",
     "a truck at least 10 m in front of a car": "reverse(direction(car, truck, side=front, within_m=1000, beyond_m=10))",
+    "a car not within 10 m of us": "not(near(car, ego, within_m=10))",  # a negated bound: the other one
+    "a pedestrian no closer than 5 m": "not(near(pedestrian, ego, within_m=5))",
+    "a car not more than 20 m away": "near(car, ego, within_m=20)",
+    "a cyclist closer than 3 m to a car": "near(cyclist, car, within_m=3)",
+    "a truck within 30 feet of us": "near(truck, ego, within_m=9.14)",  # feet, read in metres
+    "a car less than 100 ft ahead": "reverse(direction(ego, car, side=front, within_m=30.48))",
+    "a car not faster than 30 km/h": "speed(car, max_mps=8.33)",
+    "a person on foot": "pedestrian",
     "a pedestrian more than 50 m from an intersection":  # a predicate: the nearer ones left out
         "excluding(pedestrian, near_intersection(pedestrian, within_m=50))",
 }
@@ -444,6 +452,7 @@ NOT_UNDERSTOOD = {
     "a car stops and nobody crosses": ("moving(stopped(car))", ("nobody",)),  # not "nothing near it"
     "no pedestrians": ("pedestrian", ("no",)),  # nothing to be without: the objects, "no" unused
     "a car passing us more than 5 m away": ("reverse(passed_by(ego, car))", ("more than 5 m",)),  # no reach
+    "a car stopped not for 5 s": ("stopped(car)", ("not 5 s",)),  # no bound a negation flips
     "a car within 5 m of the crosswalk": ("car", ("5 m", "crosswalk")),  # not "of the ego"
     "a car drives away from the intersection": ("near_intersection(car)", ("drives", "away", "from")),  # no leaving
     "a child running toward the road": ("fast(pedestrian)", ("toward",)),  # not toward us

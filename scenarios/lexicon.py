@@ -184,7 +184,8 @@ for _phrases, _name, _params in (
     (of_ego("approaching", "approaches", "approach", "approached", "getting closer to", "gets closer to",
              "coming closer to", "comes closer to", "closing in on", "closes in on", "toward", "comes back toward",
              "coming toward", "comes toward"), "approaching_ego", ()),
-    (of_ego(*AWAY_FROM, "pulling away from", "pulls away from"), "moving_away_from_ego", ()),
+    (of_ego(*AWAY_FROM, "pulling away from", "pulls away from", "pulled away from", "pull away from"),
+     "moving_away_from_ego", ()),
     ("oncoming|coming toward us|coming towards us|comes toward us|comes towards us|come toward us|"
      "come towards us|in the oncoming lane|on the other side of the road",
      "ego_lane", (("lane", "oncoming"),)),
@@ -336,7 +337,9 @@ _add("near each other|close to each other|near one another|close to one another|
      Lexeme("mutual", "near", (("within_m", 5.0),)))
 _add("closest|nearest|closest one|nearest one", Lexeme("nearest", "near"))
 _add("lead|leading|leads|the first", Lexeme("nearest", "ahead"))
-_add("drives off|drive off|pulls away|pull away|starts moving|start moving|takes off|sets off|starts to move|"
+_add("drives off|drive off|driving off|drove off|pulls away|pull away|pulling away|pulled away|starts moving|"
+     "start moving|starting to move|started moving|takes off|taking off|took off|sets off|setting off|"
+     "starts to move|started to move|"
      "accelerates quickly from a stop|accelerating quickly from a stop|accelerates hard from a stop|"
      "pulls out|pulling out|pulling out of a parking spot|pulls out of a parking spot|"
      "pulling out of a parking space|pulls out of a parking space|" + FROM_A_STOP, Lexeme("seq", "drive_off"))

@@ -104,5 +104,9 @@ def normalize(text: str) -> list[str]:
     # "With no one in front of it", "nobody near us": no object there (elsewhere the words are unused).
     text = re.sub(r"(^|\bwith )(?:no one|noone)\b", r"\1no anyone", text)
     text = re.sub(r"(^|\bwith )no(body|thing)\b", r"\1no any\2", text)
+    # "A truck blocking our lane", "a bus blocking the crosswalk": standing there.
+    text = re.sub(r"\b(?:blocking|blocks|block) traffic\b", "stopped in the lane", text)
+    text = re.sub(r"\b(?:blocking|blocks|block|blocked) (our|my|the ego|the|a|its) (lane|intersection|junction|road|"
+                  r"crosswalk)\b", lambda m: f"stopped {'on' if m[2] == 'crosswalk' else 'in'} {m[1]} {m[2]}", text)
     words = re.findall(r"[a-z]+(?:'[a-z]+)?|\d+(?:\.\d+)?|,", text)  # a comma ends a clause: kept
     return [_SPELLINGS.get(w, w) for w in words]

@@ -427,6 +427,15 @@ MEANINGS = {
     "a car less than 100 ft ahead": "reverse(direction(ego, car, side=front, within_m=30.48))",
     "a car not faster than 30 km/h": "speed(car, max_mps=8.33)",
     "a person on foot": "pedestrian",
+    # Blocking: standing there.
+    "a truck blocking our lane": "ego_lane(stopped(truck), lane=host)",
+    "a bus blocking the crosswalk": "on_crosswalk(stopped(bus))",
+    "a truck blocking traffic": "in_vehicle_lane(stopped(truck))",
+    "a car blocked by a truck": "near(blocked(car), truck)",
+    # Setting off, in the forms people write it.
+    "a bus pulling away": "then(stopped(bus), moving(bus), within_s=4)",
+    "a car driving off": "then(stopped(car), moving(car), within_s=4)",
+    "a car pulled away from us": "moving_away_from_ego(car)",
     "a pedestrian more than 50 m from an intersection":  # a predicate: the nearer ones left out
         "excluding(pedestrian, near_intersection(pedestrian, within_m=50))",
 }

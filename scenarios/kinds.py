@@ -12,6 +12,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
+from scenarios.program import Node, Objects
 from scenes.categories import AV2_TO_CATEGORY, EGO_VEHICLE_LABEL
 
 #: kind → (dataset labels, public categories) it covers.
@@ -49,6 +50,11 @@ def within_kinds(kind: str, group: tuple[str, ...]) -> bool:
     """Whether every dataset label of ``kind`` is one of ``group``'s kinds' ("car" is within "vehicle")."""
     covered = frozenset().union(*(KINDS[g][0] for g in group))
     return bool(KINDS[kind][0]) and KINDS[kind][0] <= covered
+
+
+def within_vehicles(node: Node) -> bool:
+    """Whether ``node`` names objects of a vehicle kind (a bus, "vehicle"; not "any")."""
+    return isinstance(node, Objects) and node.kind != "any" and within_kinds(node.kind, ("vehicle",))
 
 
 def kind_mask(kind: str, labels: NDArray[np.str_], categories: NDArray[np.str_]) -> NDArray[np.bool_]:

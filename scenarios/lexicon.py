@@ -113,7 +113,8 @@ for _phrases, _name, _params in (
      "ready to cross|getting ready to cross|about to step into the road|about to enter the road", "about_to_cross", ()),
     ("stepping off the curb|steps off the curb|step off the curb|stepping into the road|steps into the road|"
      "stepping into the street|steps into the street|stepping onto the road|steps onto the road|entering the road|"
-     "enters the road|walking into the road|walks into the road", "crossing_road", ()),
+     "enters the road|walking into the road|walks into the road|into the road|into the street|onto the road|"
+     "onto the street|out into the road|out into the street|into traffic", "crossing_road", ()),
     # Not "backed up": traffic that is backed up queues, it does not reverse.
     ("reversing|reverses|reverse|reversed|in reverse|backing up|backs up|back up|backing out|backs out|"
      "backing|rolling back|rolls back|rolled back|rolling backwards|rolls backwards|moving backwards|moves backwards|"
@@ -147,9 +148,10 @@ for _phrases, _name, _params in (
     (lane_changes("left"), "changing_lanes", (("direction", "left"),)),
     (lane_changes("right"), "changing_lanes", (("direction", "right"),)),
     ("at crawling speed|crawling|creeping|moving slowly|slow moving|slow|slowly", "slow", ()),
-    # Running is a pace, not just motion: at or above a pedestrian's fast speed.
-    ("fast|speeding|at high speed|quickly|running fast|very fast|running|runs|jogging|jogs|sprinting|sprints",
-     "fast", ()),
+    # Running is a pace, not just motion: at or above a pedestrian's fast speed (a vehicle that runs moves:
+    # scenarios.parser.RUNS).
+    ("fast|speeding|at high speed|quickly|running fast|very fast|running|runs|jogging|jogs|sprinting|sprints|"
+     "darting|darts|dashing|dashes", "fast", ()),
     ("at intersection|at an intersection|at the intersection|on intersection|on an intersection|in intersection|"
      "in an intersection|in the intersection|through intersection|through the intersection|at a junction|"
      "in the junction|at the junction|in the middle of the intersection|in the middle of an intersection|"

@@ -23,6 +23,7 @@ import dataclasses
 
 from scenarios import rewrite
 from scenarios.distances import DistanceReader
+from scenarios.kinds import within_vehicles
 from scenarios.lexicon import Lexeme
 from scenarios.program import (
     AnyOf,
@@ -45,6 +46,8 @@ from scenarios.relating import side_relation
 
 #: Where a motion goes: "not moving toward us" negates the approach, not the motion.
 WHITHER = frozenset({"approaching_ego", "moving_away_from_ego", "heading_toward", "heading_away_from", "passed_by"})
+#: "Running" is fast of people and animals; a vehicle that runs ("runs into our lane") just moves.
+RUNS = frozenset({("running",), ("runs",), ("run",), ("ran",)})
 #: Within this distance (m), "a group of" objects stand together.
 GROUP_RADIUS_M = 5.0
 
@@ -149,7 +152,8 @@ class Parser(DistanceReader):
                     after = self.modifiers_one(node)
                     node = rewrite.negated(after, node) if after is not None else node
                     continue
-                node = rewrite.stated_or_after(node, item.name, item.params, item.negate)  # "slows down, stops"
+                name = "moving" if item.words in RUNS and within_vehicles(subject_of(node)) else item.name
+                node = rewrite.stated_or_after(node, name, item.params, item.negate)  # "slows down, stops"
             elif role == "fixed":
                 item = self.take()
                 node = Has(node, item.name, Objects(item.other), item.params, min_count=max(1, item.count),

@@ -427,6 +427,13 @@ MEANINGS = {
     "a car less than 100 ft ahead": "reverse(direction(ego, car, side=front, within_m=30.48))",
     "a car not faster than 30 km/h": "speed(car, max_mps=8.33)",
     "a person on foot": "pedestrian",
+    # Running is a pace of people; a vehicle that runs moves. Into the road is onto it, across.
+    "a child running into the road": "crossing_road(fast(pedestrian))",
+    "a dog darting into traffic": "crossing_road(fast(dog))",
+    "a car runs into our lane":
+        "then(ego_lane(moving(car), lane=adjacent), ego_lane(moving(car), lane=host), within_s=4)",
+    "a car running through the intersection": "at_intersection(moving(car))",
+    "a truck running fast": "fast(truck)",
     # Blocking: standing there.
     "a truck blocking our lane": "ego_lane(stopped(truck), lane=host)",
     "a bus blocking the crosswalk": "on_crosswalk(stopped(bus))",

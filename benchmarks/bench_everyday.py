@@ -361,6 +361,17 @@ PHRASINGS: dict[str, Judge] = {
         lambda r: _cat(r, "pedestrian") and _has(r, lane="host_lateral"),
 }
 
+#: Development sentences: braking for someone, with judges written before any search ran on them (the
+#: judges cannot tell the reason for braking: a person crossing or in our lane while we slow down).
+BRAKING_FOR: dict[str, Judge] = {
+    "we brake for a pedestrian": lambda r: _cat(r, "pedestrian") and _host(r, "decelerating")
+    and (_lateral(r) or _has(r, lane="host")),
+    "the ego vehicle brakes for a pedestrian crossing": lambda r: _cat(r, "pedestrian")
+    and _host(r, "decelerating") and (_lateral(r) or _has(r, lane="host")),
+    "we slow down for a cyclist": lambda r: _cat(r, "cyclist") and _host(r, "decelerating")
+    and (_lateral(r) or _has(r, lane="host")),
+}
+
 
 def evaluate(index_dir: Path, queries: Mapping[str, Judge]) -> dict[str, dict[str, float]]:
     """Precision@10 of each search mode and the base rate, per sentence, on the index's test clips."""
@@ -413,7 +424,7 @@ SETS: dict[str, dict[str, Judge]] = {
     "seventh_held_out": SEVENTH_HELD_OUT, "sixth_held_out": SIXTH_HELD_OUT,
     "fifth_held_out": FIFTH_HELD_OUT, "fourth_held_out": FOURTH_HELD_OUT,
     "third_held_out": THIRD_HELD_OUT, "second_held_out": SECOND_HELD_OUT, "first_held_out": FIRST_HELD_OUT,
-    "dev": DEV, "phrasings": PHRASINGS,
+    "dev": DEV, "phrasings": PHRASINGS, "braking_for": BRAKING_FOR,
 }
 
 

@@ -9,7 +9,7 @@ from collections.abc import Callable, Iterable
 
 from scenarios.kinds import within_kinds
 from scenarios.lexeme_stream import LexemeStream
-from scenarios.lexicon import Lexeme
+from scenarios.lexicon import SLOWING_FOR, Lexeme
 from scenarios.program import AllOf, AnyOf, Between, Has, Is, Node, Objects, Then, subject_of
 from scenarios.rewrite import UNBOUNDED_M, other_one, stated, with_param, with_subject, within, without_states
 
@@ -108,11 +108,22 @@ class RelationReader(LexemeStream):
         other_node, count = other
         if item.name == BOTH_SIDES:  # "a bus with a car on each side": between two of them
             return Between(node, other_node, other_node)
+        if item.name == SLOWING_FOR:
+            return self.slowing_for(node, item, other_node)
         upper = self.pending_m is not None
         params = self.distance_params(item.params, item.name)
         if item.reverse:  # the relation holds from the other object's point of view
             return self.beyond_pending(Has(other_node, item.name, node, params, reverse=True), upper)
         return self.beyond_pending(Has(node, item.name, other_node, params, min_count=max(1, count)), upper)
+
+    def slowing_for(self, node: Node, item: Lexeme, other: Node) -> Has:
+        """``node`` braking (as ``item`` says: "braking hard for") for ``other``: behind it, of a vehicle
+        ("braking for the car ahead"); else with it in front ("slowing down for a pedestrian"), not only
+        while it crosses (``docs/research/scenario-queries.md``)."""
+        braking, kind = stated(node, "braking", item.params), subject_of(other)
+        if isinstance(kind, Objects) and kind.kind != "any" and within_kinds(kind.kind, ("vehicle", "motorcycle")):
+            return Has(braking, "following", other, self.distance_params((), "following"))
+        return Has(braking, "direction", other, (("side", "front"),))
 
     def beyond_pending(self, related: Has, upper: bool) -> Has:
         """``related`` (the relation just read) farther than the pending least distance, which it takes
@@ -174,6 +185,8 @@ class RelationReader(LexemeStream):
             return node
         if item.name == "yielding_to" and item.words[0].startswith(("wait", "stop", "halt")):  # "… for 10 s"
             return Is(node, "stopped")
+        if item.name == SLOWING_FOR:  # "slowing down for 5 s"
+            return stated(node, "braking", item.params)
         if item.name == "direction":
             side = str(dict(item.params)["side"])
             return self.ego_side(node, side)

@@ -434,6 +434,11 @@ MEANINGS = {
         "then(ego_lane(moving(car), lane=adjacent), ego_lane(moving(car), lane=host), within_s=4)",
     "a car running through the intersection": "at_intersection(moving(car))",
     "a truck running fast": "fast(truck)",
+    # Braking for someone: with it in front; for a vehicle, behind it.
+    "we brake for a pedestrian": "direction(braking(ego), pedestrian, side=front)",
+    "we brake hard for a dog": "direction(braking(ego, min_mps2=3), dog, side=front)",
+    "a truck slows down for a bus": "following(braking(truck), bus)",
+    "a car slowing down for 5 seconds": "for_at_least(braking(car), seconds=5)",  # no object: a duration
     # Blocking: standing there.
     "a truck blocking our lane": "ego_lane(stopped(truck), lane=host)",
     "a bus blocking the crosswalk": "on_crosswalk(stopped(bus))",

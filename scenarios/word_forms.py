@@ -92,6 +92,10 @@ _SPELLINGS = {"towards": "toward", "colour": "color", "travelling": "traveling",
               "pedestrains": "pedestrians", "bicylist": "bicyclist"}
 
 
+_SUDDEN_STOP = {"stops": "brakes hard and stops", "stop": "brake hard and stop",
+                "stopping": "braking hard and stopping", "stopped": "braked hard and stopped"}
+
+
 def normalize(text: str) -> list[str]:
     """Lower-case words of ``text``: hyphens and slashes split words, numbers and commas stay (a comma
     ends a clause), other punctuation goes."""
@@ -104,6 +108,10 @@ def normalize(text: str) -> list[str]:
     # "With no one in front of it", "nobody near us": no object there (elsewhere the words are unused).
     text = re.sub(r"(^|\bwith )(?:no one|noone)\b", r"\1no anyone", text)
     text = re.sub(r"(^|\bwith )no(body|thing)\b", r"\1no any\2", text)
+    # "Stops suddenly": brakes hard, then stands; "suddenly brakes": hard.
+    text = re.sub(r"\b(?:suddenly|abruptly) (brakes|brake|braking|braked)(?: hard)?\b", r"\1 hard", text)
+    text = re.sub(r"\b(?:(?:suddenly|abruptly) (stops|stop|stopping|stopped)|(stops|stop|stopping|stopped) "
+                  r"(?:suddenly|abruptly))\b", lambda m: _SUDDEN_STOP[m[1] or m[2]], text)
     # "A truck blocking our lane", "a bus blocking the crosswalk": standing there.
     text = re.sub(r"\b(?:blocking|blocks|block) traffic\b", "stopped in the lane", text)
     text = re.sub(r"\b(?:blocking|blocks|block|blocked) (our|my|the ego|the|a|its) (lane|intersection|junction|road|"

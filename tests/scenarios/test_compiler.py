@@ -439,6 +439,9 @@ MEANINGS = {
     "we brake hard for a dog": "direction(braking(ego, min_mps2=3), dog, side=front)",
     "a truck slows down for a bus": "following(braking(truck), bus)",
     "a car slowing down for 5 seconds": "for_at_least(braking(car), seconds=5)",  # no object: a duration
+    # A sudden stop is hard braking, then standing.
+    "a car stops suddenly": "then(braking(car, min_mps2=3), stopped(car), within_s=5)",
+    "a car suddenly brakes": "braking(car, min_mps2=3)",
     # Blocking: standing there.
     "a truck blocking our lane": "ego_lane(stopped(truck), lane=host)",
     "a bus blocking the crosswalk": "on_crosswalk(stopped(bus))",

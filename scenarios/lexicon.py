@@ -25,8 +25,8 @@ from scenarios.word_forms import (
     turns,
 )
 
-#: A relation word the reader turns into one by the other's kind: "braking for a pedestrian" (it crosses
-#: ahead) or "for the car ahead" (following it).
+#: A relation word the reader turns into one by the other's kind: "braking for a pedestrian" (with it in
+#: front) or "for the car ahead" (following it).
 SLOWING_FOR = "slowing_for"
 
 
@@ -250,7 +250,7 @@ for _phrases, _rel, _rparams, _reverse in (
     ("yielding to|yields to|yield to|yielded to|giving way to|gives way to|give way to|waiting for|waits for|"
      "wait for|waiting on|yielding|yields|yield|yielded|giving way|gives way|give way|stopping for|stops for|"
      "stop for|stopped for|halting for|halts for", "yielding_to", (), False),
-    # Read by scenarios.relating.RelationReader.slowing_for: braking while the other crosses ahead, or behind it.
+    # Read by scenarios.relating.RelationReader.slowing_for: braking with the other in front, or behind it.
     ("braking for|brakes for|braked for|brake for|slowing down for|slows down for|slowed down for|"
      "slow down for|slowing for|slows for|slowed for|decelerating for|decelerates for", SLOWING_FOR, (), False),
     ("braking hard for|brakes hard for|brake hard for|braked hard for|slamming on the brakes for|"
